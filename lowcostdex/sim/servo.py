@@ -1,0 +1,334 @@
+"""The one servo model: a Dynamixel-style position servo as a MuJoCo ``dcmotor`` actuator.
+
+A Dynamixel X-series servo in position mode runs a firmware PID in device units whose output is a
+PWM duty (limit 885 = 100 %) applied to the supply voltage; the DC motor then obeys
+
+    v = V_s * clip(duty, +-PWM_limit/885)         (terminal voltage)      [V]
+    i = (v - K * qdot) / R                        (back-EMF, no inductance) [A]
+    tau = K * i                                   (output-side constants)  [N m]
+
+with K and R referred to the output shaft (gear included). MuJoCo 4's ``dcmotor`` with
+``input="pos"`` runs ``tau_cmd = kp (u - q) - kd qdot`` and drives ``v = (R/K) tau_cmd + K qdot``,
+clamped at ``Vmax``. Choosing ``kd = K^2 / R`` cancels its back-EMF compensation, so
+
+    v = (R/K) kp (u - q)   clamped at Vmax  ==  the firmware's P path, saturation included,
+
+which is why the servo is exact, native (``mj_step(nstep=40)`` with no Python per substep) and
+batchable: every gain lives in ``actuator_gainprm`` and ``mujoco.batch`` can expand it per sim.
+The thermal sub-model (winding temperature state, R rising 0.39 %/K) and LuGre friction are the
+dcmotor's own. Torque off (free-wheeling H-bridge) is ``forcerange = [0, 0]``.
+
+Motor specs are data (``MOTORS``), not code: a D'Claw may carry XH430 or XM430 servos.
+
+Units: SI inside (rad, rad/s, N m, A, V, deg C); device units (ticks, PWM, gain registers) only in
+``ServoGains`` and the conversions below.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import ConfigError, check_choice
+
+TWO_PI = 2.0 * math.pi
+
+# Layout of a compiled dcmotor's parameter arrays (verified against mujoco 4.0.0).
+GAIN_R, GAIN_K, GAIN_TEMPCOEF, GAIN_TREF, GAIN_KP, GAIN_KI, GAIN_KD, GAIN_VMAX = range(8)
+DYN_RTH, DYN_CTH, DYN_TAMB = 2, 3, 4
+DYN_LUGRE_STIFFNESS, DYN_LUGRE_DAMPING, DYN_SLEWMAX, DYN_IMAX = 5, 6, 7, 8
+BIAS_LUGRE_COULOMB, BIAS_LUGRE_STATIC, BIAS_LUGRE_STRIBECK = 3, 4, 5
+DCMOTOR_INPUT_POS = 1  # MjsActuator.ctrlspec bit for input="pos" (vel 2, ff 4, voltage 8)
+
+
+@dataclass(frozen=True)
+class ThermalSpec:
+    """Single-node winding thermal model (dcmotor ``thermal``).
+
+    Attributes:
+      resistance: winding-to-ambient thermal resistance [K/W].
+      capacitance: winding heat capacity [J/K].
+      tempcoef: copper resistance coefficient [1/K].
+      ambient: ambient temperature [deg C].
+      limit: firmware shutdown temperature (Temperature Limit, address 31) [deg C].
+    """
+
+    resistance: float = 12.0
+    capacitance: float = 8.0
+    tempcoef: float = 0.0039
+    ambient: float = 25.0
+    limit: float = 80.0
+
+
+@dataclass(frozen=True)
+class MotorSpec:
+    """Physical and device-unit facts of one servo model at its nominal supply.
+
+    Attributes:
+      name: model name as ROBOTIS writes it, e.g. "XM430-W350".
+      model_number: value of the Model Number register (address 0).
+      voltage: nominal supply voltage [V].
+      stall_torque: output stall torque at ``voltage`` [N m].
+      no_load_speed: output no-load speed at ``voltage`` [rad/s].
+      gear_ratio: gearbox ratio (documentation; constants are output-side).
+      armature: rotor inertia reflected to the output [kg m^2].
+      error_gain: PWM duty (fraction of full scale) per rad of position error per unit of the
+        Position P Gain register. ROBOTIS documents K_P = P/128 in PWM units per tick.
+      d_error_gain: duty per (rad/s) per unit of Position D Gain (approximate: K_D = D/16 per tick
+        per 1 ms firmware cycle).
+      i_error_gain: duty per (rad s) per unit of Position I Gain (K_I = I/65536 per tick per ms).
+      current_unit: Present/Goal Current LSB [A].
+      velocity_unit: Present Velocity LSB [rad/s] (0.229 rpm).
+      ticks_per_rev: encoder resolution [ticks/rev].
+      pwm_max: PWM register full scale (885 = 100 % duty on X-series).
+      default_p: factory Position P Gain.
+      thermal: winding thermal model.
+      backlash: manufacturer backlash [rad] (documentation / DR prior).
+    """
+
+    name: str
+    model_number: int
+    voltage: float
+    stall_torque: float
+    no_load_speed: float
+    gear_ratio: float
+    armature: float
+    current_unit: float = 2.69e-3
+    velocity_unit: float = 0.229 * TWO_PI / 60.0
+    ticks_per_rev: int = 4096
+    pwm_max: int = 885
+    default_p: int = 800
+    error_gain: float = field(default=float("nan"))
+    d_error_gain: float = field(default=float("nan"))
+    i_error_gain: float = field(default=float("nan"))
+    thermal: ThermalSpec = ThermalSpec()
+    backlash: float = math.radians(0.25)
+
+    def __post_init__(self) -> None:
+        for name in ("voltage", "stall_torque", "no_load_speed", "gear_ratio"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"MotorSpec {self.name}: {name} must be > 0")
+        tpr = self.ticks_per_rad
+        if math.isnan(self.error_gain):
+            object.__setattr__(self, "error_gain", tpr / (128.0 * self.pwm_max))
+        if math.isnan(self.d_error_gain):
+            object.__setattr__(self, "d_error_gain", tpr * 1e-3 / (16.0 * self.pwm_max))
+        if math.isnan(self.i_error_gain):
+            object.__setattr__(self, "i_error_gain", tpr * 1e3 / (65536.0 * self.pwm_max))
+
+    @property
+    def ticks_per_rad(self) -> float:
+        return self.ticks_per_rev / TWO_PI
+
+    @property
+    def motorconst(self) -> float:
+        """Output-side torque/back-EMF constant K [N m/A = V s/rad]."""
+        return self.voltage / self.no_load_speed
+
+    @property
+    def resistance(self) -> float:
+        """Terminal resistance R [Ohm] such that stall torque = K V / R."""
+        return self.motorconst * self.voltage / self.stall_torque
+
+
+_X430_THERMAL = ThermalSpec(resistance=12.0, capacitance=8.0)
+
+MOTORS: dict[str, MotorSpec] = {
+    m.name: m
+    for m in (
+        # ROBOTIS e-Manual figures at 12 V (05-dynamixel-protocol.md section 4).
+        MotorSpec("XM430-W210", 1030, 12.0, 3.0, 77 * TWO_PI / 60, 212.6, 0.0012),
+        MotorSpec("XM430-W350", 1020, 12.0, 4.1, 46 * TWO_PI / 60, 353.5, 0.0030),
+        MotorSpec("XH430-W210", 1010, 12.0, 2.5, 50 * TWO_PI / 60, 212.6, 0.0012,
+                  current_unit=1.34e-3),
+        MotorSpec("XH430-W350", 1000, 12.0, 3.4, 30 * TWO_PI / 60, 353.5, 0.0030,
+                  current_unit=1.34e-3),
+        MotorSpec("XH430-V210", 1050, 24.0, 2.6, 52 * TWO_PI / 60, 212.6, 0.0012,
+                  current_unit=1.34e-3),
+        MotorSpec("XH430-V350", 1040, 24.0, 3.3, 31 * TWO_PI / 60, 353.5, 0.0030,
+                  current_unit=1.34e-3),
+        # XL330: 5 V class, plastic gears; BAM found the effective P divisor to be 256.
+        MotorSpec("XL330-M288", 1200, 5.0, 0.52, 103 * TWO_PI / 60, 288.35, 0.0003,
+                  current_unit=1.0e-3, default_p=400,
+                  error_gain=(4096 / TWO_PI) / (256.0 * 885),
+                  thermal=ThermalSpec(resistance=18.0, capacitance=3.0, limit=70.0)),
+        MotorSpec("XL330-M077", 1190, 5.0, 0.215, 383 * TWO_PI / 60, 77.0, 0.0001,
+                  current_unit=1.0e-3, default_p=400,
+                  error_gain=(4096 / TWO_PI) / (256.0 * 885),
+                  thermal=ThermalSpec(resistance=18.0, capacitance=3.0, limit=70.0)),
+    )
+}
+
+
+def motor_spec(name: str) -> MotorSpec:
+    """Look up a motor by name; the error lists the known models."""
+    check_choice("motor model", name, MOTORS)
+    return MOTORS[name]
+
+
+@dataclass(frozen=True)
+class ServoGains:
+    """Firmware settings in device units (control-table values).
+
+    Attributes:
+      position_p / position_i / position_d: Position P/I/D Gain registers (84/82/80).
+      pwm_limit: PWM Limit register (36), 0..885.
+      profile_velocity: Profile Velocity register (112) [0.229 rpm]; 0 = unlimited.
+      supply_voltage: supply [V]; None = the motor's nominal voltage.
+    """
+
+    position_p: int = 800
+    position_i: int = 0
+    position_d: int = 0
+    pwm_limit: int = 885
+    profile_velocity: int = 0
+    supply_voltage: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("position_p", "position_i", "position_d"):
+            if not 0 <= getattr(self, name) <= 16383:
+                raise ConfigError(f"{name}={getattr(self, name)} outside the register range 0..16383")
+        if not 0 <= self.pwm_limit <= 885:
+            raise ConfigError(f"pwm_limit={self.pwm_limit} outside 0..885")
+        if self.profile_velocity < 0:
+            raise ConfigError("profile_velocity must be >= 0")
+
+    def replace(self, **changes: float) -> ServoGains:
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class DcmotorParams:
+    """Everything a dcmotor actuator needs, in SI units (output side)."""
+
+    resistance: float
+    motorconst: float
+    kp: float
+    ki: float
+    kd: float
+    vmax: float
+    slewmax: float
+    armature: float
+    thermal: ThermalSpec
+
+    def controller(self) -> list[float]:
+        return [self.kp, self.ki, self.kd, self.slewmax, 0.0, self.vmax]
+
+    def thermal_attr(self) -> list[float]:
+        t = self.thermal
+        return [t.resistance, t.capacitance, 0.0, t.tempcoef, t.ambient, t.ambient]
+
+
+def dcmotor_params(motor: MotorSpec, gains: ServoGains = ServoGains()) -> DcmotorParams:
+    """Map a motor and its control-table gains to dcmotor parameters.
+
+    The voltage gains of the firmware (V per rad of error) become torque gains by K/R, and
+    ``kd`` gains K^2/R to cancel the dcmotor controller's back-EMF compensation (module doc).
+    """
+    vs = motor.voltage if gains.supply_voltage is None else gains.supply_voltage
+    k, r = motor.motorconst, motor.resistance
+    to_torque = k / r
+    kp = vs * motor.error_gain * gains.position_p * to_torque
+    ki = vs * motor.i_error_gain * gains.position_i * to_torque
+    kd = k * k / r + vs * motor.d_error_gain * gains.position_d * to_torque
+    vmax = vs * gains.pwm_limit / motor.pwm_max
+    slew = gains.profile_velocity * motor.velocity_unit
+    return DcmotorParams(r, k, kp, ki, kd, vmax, slew, motor.armature, motor.thermal)
+
+
+def add_servo(
+    spec: mujoco.MjSpec,
+    joint: str,
+    motor: MotorSpec,
+    gains: ServoGains = ServoGains(),
+    *,
+    name: str | None = None,
+    ctrlrange: tuple[float, float] | None = None,
+    thermal: bool = True,
+) -> mujoco.MjsActuator:
+    """Add a position-mode servo driving ``joint`` to ``spec`` as a dcmotor actuator.
+
+    The motor's reflected rotor inertia is added to the joint's armature.
+
+    Args:
+      spec: the model being built.
+      joint: name of the hinge the servo drives.
+      motor: the servo model.
+      gains: control-table gains in device units.
+      name: actuator name (default: the joint's name).
+      ctrlrange: goal-position range [rad]; None leaves ctrl unlimited.
+      thermal: include the winding thermal state (one activation per servo).
+    """
+    p = dcmotor_params(motor, gains)
+    j = spec.joint(joint)
+    j.armature = j.armature + p.armature
+    act = spec.add_actuator()
+    act.name = name or joint
+    act.target = joint
+    act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+    act.set_to_dcmotor(
+        resistance=p.resistance,
+        motorconst=[p.motorconst, p.motorconst],
+        controller=p.controller(),
+        thermal=p.thermal_attr() if thermal else [0.0] * 6,
+        ctrlspec=DCMOTOR_INPUT_POS,
+    )
+    if ctrlrange is not None:
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.ctrlrange = list(ctrlrange)
+    return act
+
+
+def servo_actuator_ids(model: mujoco.MjModel) -> np.ndarray:
+    """Indices of the dcmotor actuators in ``model``."""
+    return np.flatnonzero(model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR)
+
+
+def motor_current(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """Winding current of every actuator [A] (tau / K; 0 for non-dcmotor actuators)."""
+    k = model.actuator_gainprm[:, GAIN_K]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cur = np.where(k > 0, data.actuator_force / np.where(k > 0, k, 1.0), 0.0)
+    return cur
+
+
+def winding_temperature(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """Winding temperature of every actuator [deg C]; ambient when it has no thermal state.
+
+    dcmotor's thermal activation is the rise over ambient; it is the first activation of the
+    actuator when thermal modelling is on (``dynprm[C_th] > 0``).
+    """
+    n = model.nu
+    amb = model.actuator_dynprm[:, DYN_TAMB].copy()
+    has = model.actuator_dynprm[:, DYN_CTH] > 0
+    adr = model.actuator_actadr
+    for i in np.flatnonzero(has & (adr >= 0)):
+        amb[i] += data.act[adr[i]]
+    return amb[:n]
+
+
+def set_torque_enabled(model: mujoco.MjModel, actuators: np.ndarray | list[int], enabled: bool,
+                       limits: np.ndarray | None = None) -> None:
+    """Torque on/off for servos: off is a free-wheeling bridge, i.e. zero actuator force.
+
+    Args:
+      model: the model to edit in place.
+      actuators: actuator indices.
+      enabled: True restores ``limits`` (or unlimited), False clamps the force to [0, 0].
+      limits: (n, 2) force ranges to restore when enabling; None means unlimited.
+    """
+    idx = np.asarray(actuators, dtype=int)
+    if enabled:
+        if limits is None:
+            model.actuator_forcelimited[idx] = 0
+            model.actuator_forcerange[idx] = 0.0
+        else:
+            model.actuator_forcerange[idx] = limits
+            model.actuator_forcelimited[idx] = np.any(limits != 0, axis=-1)
+    else:
+        model.actuator_forcelimited[idx] = 1
+        model.actuator_forcerange[idx] = 0.0
