@@ -1,0 +1,530 @@
+"""Run directories shared by every trainer (NPG, DAPG, local models).
+
+A run directory holds everything one training run produces, written so that a run killed at
+any moment can be resumed and a checkpoint received from someone else can be opened safely::
+
+    <out>/
+      config.json           resolved configuration; checked against the new one on resume
+      metrics.csv           one row per iteration, fixed columns, "nan" where a key was absent
+      tb/                   TensorBoard events (only when the `tensorboard` package is installed)
+      checkpoints/
+        ckpt_000010.pt      torch.save of tensors, state dicts and plain Python values only
+        latest.json         {"iteration": 10, "file": "ckpt_000010.pt"}, replaced last
+      learning_curves.png   success rate and return vs samples and vs robot hours
+
+Every file is written atomically (temporary file, fsync, ``os.replace``), so a kill leaves
+either the old or the new version, never half of one. Checkpoints load with
+``torch.load(..., weights_only=True)``: no pickled classes, numpy arrays are stored as tensors.
+
+Typical use by a trainer::
+
+    run = Run.open(out_dir, config=dataclasses.asdict(cfg), resume=resume)
+    ckpt = run.load_latest() if resume else None       # also drops metric rows after it
+    start = 0 if ckpt is None else ckpt.iteration + 1
+    for it in range(start, n_iter):
+        ...
+        run.log({"iteration": it, "samples": n, "robot_hours": h, "success_rate": s, ...})
+        run.save_checkpoint(it, {"policy": policy.state_dict(), "rng": rng.bit_generator.state})
+    run.plot_learning_curves()
+    run.close()
+
+Column names every trainer should use (so plots and reports work across trainers) are the
+module constants ITERATION, SAMPLES, ROBOT_HOURS, SUCCESS_RATE, RETURN_MEAN, EVAL_SUCCESS_RATE
+and EVAL_RETURN_MEAN.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from lowcostdex.errors import ConfigError
+
+ITERATION = "iteration"
+SAMPLES = "samples"
+"""Cumulative environment steps used for learning (not counting evaluation rollouts)."""
+ROBOT_HOURS = "robot_hours"
+"""Cumulative robot wall-clock time [h]: control time of the samples plus resets and pauses."""
+SUCCESS_RATE = "success_rate"
+"""Fraction of the iteration's (stochastic) training trajectories that succeeded."""
+RETURN_MEAN = "return_mean"
+EVAL_SUCCESS_RATE = "eval_success_rate"
+"""Fraction of deterministic (mean-action) evaluation trajectories that succeeded."""
+EVAL_RETURN_MEAN = "eval_return_mean"
+
+CONFIG_FILE = "config.json"
+METRICS_FILE = "metrics.csv"
+CURVES_FILE = "learning_curves.png"
+CHECKPOINT_DIR = "checkpoints"
+LATEST_FILE = "latest.json"
+
+
+# ----------------------------------------------------------------------------------------------
+# Atomic files and safe state
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` so that readers see the old or the new file, never a mix."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Atomically write UTF-8 text."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path: str | os.PathLike[str], obj: Any) -> None:
+    """Atomically write ``obj`` as indented JSON (non-finite floats are written as NaN/Infinity)."""
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+
+
+def read_json(path: str | os.PathLike[str]) -> Any:
+    """Read a JSON file."""
+    return json.loads(Path(path).read_text(encoding="utf-8"))
+
+
+def _to_safe(value: Any, where: str) -> Any:
+    """Convert ``value`` into types ``torch.load(weights_only=True)`` accepts, or raise."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu().clone()
+    if isinstance(value, np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(value).copy())
+    if isinstance(value, np.generic):
+        return value.item()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, Mapping):
+        out = {}
+        for key, item in value.items():
+            if not isinstance(key, (str, int)):
+                raise TypeError(f"checkpoint key {key!r} at {where} must be str or int")
+            out[key] = _to_safe(item, f"{where}.{key}")
+        return out
+    if isinstance(value, (list, tuple)):
+        items = [_to_safe(item, f"{where}[{i}]") for i, item in enumerate(value)]
+        return items if isinstance(value, list) else tuple(items)
+    raise TypeError(
+        f"checkpoint value at {where} has type {type(value).__name__}; store tensors, numpy "
+        "arrays, numbers, strings, None and lists/dicts of them (e.g. a state_dict())"
+    )
+
+
+def save_state(path: str | os.PathLike[str], state: Mapping[str, Any]) -> None:
+    """Atomically save a checkpoint dict in a format that loads with ``weights_only=True``.
+
+    Args:
+      path: destination file (``.pt``).
+      state: tensors, numpy arrays (stored as tensors), numbers, strings, None, and nested
+        dicts/lists/tuples of these, e.g. ``module.state_dict()``,
+        ``optimizer.state_dict()``, ``generator.get_state()``, ``rng.bit_generator.state``.
+
+    Raises:
+      TypeError: if ``state`` holds anything else (arbitrary objects are never pickled).
+    """
+    buf = io.BytesIO()
+    torch.save(_to_safe(dict(state), "state"), buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_state(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Load a checkpoint written by :func:`save_state` with ``weights_only=True``."""
+    return torch.load(Path(path), map_location="cpu", weights_only=True)
+
+
+# ----------------------------------------------------------------------------------------------
+# Metrics
+
+
+def _format_value(value: Any) -> str:
+    if value is None:
+        return "nan"
+    if isinstance(value, (bool, np.bool_)):
+        return str(int(value))
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    if isinstance(value, torch.Tensor) and value.numel() == 1:
+        return repr(float(value.item()))
+    if isinstance(value, str):
+        return value
+    raise TypeError(f"metric value {value!r} must be a number, bool, str or None")
+
+
+def _read_rows(path: Path) -> list[list[str]]:
+    """CSV rows of ``path``; a last line without its newline (cut by a kill) is dropped."""
+    if not path.exists():
+        return []
+    text = path.read_text(encoding="utf-8")
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    return list(csv.reader(io.StringIO(text, newline="")))
+
+
+def read_metrics(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
+    """Read a metrics CSV into ``{column: (rows,) float64 array}``.
+
+    A last line cut by a kill and rows whose field count does not match the header are
+    skipped; non-numeric cells become NaN.
+    """
+    rows = _read_rows(Path(path))
+    if not rows:
+        return {}
+    header, body = rows[0], [r for r in rows[1:] if len(r) == len(rows[0])]
+    out: dict[str, np.ndarray] = {}
+    for j, name in enumerate(header):
+        values = []
+        for row in body:
+            try:
+                values.append(float(row[j]))
+            except ValueError:
+                values.append(math.nan)
+        out[name] = np.asarray(values, dtype=np.float64)
+    return out
+
+
+class MetricsLog:
+    """Append-only CSV of one row per iteration with a fixed, growing set of columns.
+
+    A key first seen after earlier rows were written widens the file (rewritten atomically,
+    earlier rows get "nan"), so rows never misalign.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]):
+        self.path = Path(path)
+        self._columns: list[str] = []
+        self._rows: list[list[str]] = []
+        if self.path.exists():
+            rows = _read_rows(self.path)
+            if rows:
+                self._columns = rows[0]
+                self._rows = [r for r in rows[1:] if len(r) == len(self._columns)]
+            self._rewrite()
+
+    @property
+    def columns(self) -> list[str]:
+        return list(self._columns)
+
+    def append(self, row: Mapping[str, Any]) -> None:
+        """Append one row; keys absent from ``row`` are written as "nan"."""
+        new = [k for k in row if k not in self._columns]
+        cells = {k: _format_value(v) for k, v in row.items()}
+        if new:
+            self._columns += new
+            self._rows = [r + ["nan"] * len(new) for r in self._rows]
+        line = [cells.get(k, "nan") for k in self._columns]
+        self._rows.append(line)
+        if new or len(self._rows) == 1:
+            self._rewrite()
+        else:
+            with self.path.open("a", newline="", encoding="utf-8") as f:
+                csv.writer(f, lineterminator="\n").writerow(line)
+                f.flush()
+                os.fsync(f.fileno())
+
+    def truncate(self, last_iteration: int | None) -> None:
+        """Keep only rows with ``iteration <= last_iteration`` (all rows dropped if None)."""
+        if ITERATION not in self._columns:
+            self._rows = [] if last_iteration is None else self._rows
+        else:
+            j = self._columns.index(ITERATION)
+            limit = -math.inf if last_iteration is None else last_iteration
+            self._rows = [r for r in self._rows if float(r[j]) <= limit]
+        self._rewrite()
+
+    def _rewrite(self) -> None:
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        if self._columns:
+            writer.writerow(self._columns)
+        writer.writerows(self._rows)
+        atomic_write_text(self.path, buf.getvalue())
+
+
+# ----------------------------------------------------------------------------------------------
+# Learning curves
+
+
+def plot_learning_curves(
+    metrics: Mapping[str, np.ndarray], png_path: str | os.PathLike[str], title: str = ""
+) -> Path:
+    """Plot success rate and return against samples and against robot hours; save a PNG.
+
+    Args:
+      metrics: columns as returned by :func:`read_metrics`; uses SAMPLES and (if present)
+        ROBOT_HOURS as x axes, SUCCESS_RATE / EVAL_SUCCESS_RATE and RETURN_MEAN /
+        EVAL_RETURN_MEAN as curves. Missing columns are skipped.
+      png_path: output file.
+      title: figure title.
+
+    Returns:
+      The PNG path.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    x_axes = [(SAMPLES, "samples (env steps)"), (ROBOT_HOURS, "robot time [h]")]
+    x_axes = [(k, label) for k, label in x_axes if k in metrics and len(metrics[k])]
+    rows = [
+        (
+            "success rate",
+            [(SUCCESS_RATE, "training (stochastic)"), (EVAL_SUCCESS_RATE, "eval (mean action)")],
+        ),
+        (
+            "return",
+            [(RETURN_MEAN, "training (stochastic)"), (EVAL_RETURN_MEAN, "eval (mean action)")],
+        ),
+    ]
+    n_cols = max(len(x_axes), 1)
+    fig, axes = plt.subplots(2, n_cols, figsize=(5.5 * n_cols, 7), squeeze=False)
+    for i, (ylabel, curves) in enumerate(rows):
+        for j, (xkey, xlabel) in enumerate(x_axes):
+            ax = axes[i][j]
+            x = metrics[xkey]
+            for ykey, label in curves:
+                if ykey in metrics:
+                    y = metrics[ykey]
+                    ok = np.isfinite(x) & np.isfinite(y)
+                    if ok.any():
+                        ax.plot(x[ok], y[ok], marker="." if ok.sum() < 30 else None, label=label)
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(ylabel)
+            ax.grid(alpha=0.3)
+            if ax.lines:
+                ax.legend(fontsize="small")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    atomic_write_bytes(png_path, buf.getvalue())
+    return Path(png_path)
+
+
+# ----------------------------------------------------------------------------------------------
+# The run directory
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A loaded checkpoint.
+
+    Attributes:
+      iteration: the last iteration completed before it was written; resume at iteration + 1.
+      state: the dict given to :meth:`Run.save_checkpoint` (arrays come back as tensors).
+      path: the file it was read from.
+    """
+
+    iteration: int
+    state: dict[str, Any]
+    path: Path
+
+
+def _config_differences(
+    old: Mapping[str, Any], new: Mapping[str, Any], prefix: str = ""
+) -> list[str]:
+    diffs = []
+    for key in sorted(set(old) | set(new)):
+        a, b = old.get(key, "<absent>"), new.get(key, "<absent>")
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            diffs += _config_differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            diffs.append(f"{prefix}{key}: {a!r} -> {b!r}")
+    return diffs
+
+
+def _jsonable(config: Mapping[str, Any]) -> dict[str, Any]:
+    """Round-trip through JSON so tuples compare equal to the lists read back."""
+    return json.loads(json.dumps(dict(config)))
+
+
+class Run:
+    """One run directory: resolved config, metrics, checkpoints, TensorBoard, learning curves.
+
+    Create with :meth:`open`. Not thread-safe; one trainer process writes a run directory.
+    """
+
+    def __init__(self, path: Path, config: dict[str, Any], *, keep_last: int, tensorboard: bool):
+        self.path = path
+        self.config = config
+        self.keep_last = keep_last
+        self.metrics = MetricsLog(path / METRICS_FILE)
+        self._tensorboard = tensorboard
+        self._tb: Any = None
+
+    @classmethod
+    def open(
+        cls,
+        path: str | os.PathLike[str],
+        config: Mapping[str, Any],
+        *,
+        resume: bool = False,
+        mutable_keys: Iterable[str] = (),
+        keep_last: int = 3,
+        tensorboard: bool = True,
+    ) -> Run:
+        """Create a new run directory, or reopen one to resume it.
+
+        Args:
+          path: the run directory.
+          config: the resolved configuration (JSON-serialisable, e.g. ``dataclasses.asdict``).
+          resume: reopen an existing run. Its stored config must equal ``config`` except for
+            the top-level ``mutable_keys`` (e.g. the iteration budget); the stored file is
+            updated with the new values of those keys.
+          mutable_keys: top-level config keys allowed to change on resume.
+          keep_last: number of most recent checkpoints kept on disk (>= 1).
+          tensorboard: also write TensorBoard events when the package is installed.
+
+        Raises:
+          ConfigError: a new run into a directory that already holds one, or a resume whose
+            config differs in a key not listed in ``mutable_keys``.
+        """
+        if keep_last < 1:
+            raise ConfigError(f"keep_last={keep_last} must be >= 1")
+        path = Path(path)
+        config = _jsonable(config)
+        config_file = path / CONFIG_FILE
+        if config_file.exists() and not resume:
+            raise ConfigError(f"{path} already holds a run; resume it or choose a new directory")
+        if resume and config_file.exists():
+            stored = read_json(config_file)
+            mutable = set(mutable_keys)
+            fixed_old = {k: v for k, v in stored.items() if k not in mutable}
+            fixed_new = {k: v for k, v in config.items() if k not in mutable}
+            diffs = _config_differences(fixed_old, fixed_new)
+            if diffs:
+                raise ConfigError(
+                    f"cannot resume {path}: configuration differs ({'; '.join(diffs)}); "
+                    f"only {sorted(mutable) or 'no keys'} may change"
+                )
+        path.mkdir(parents=True, exist_ok=True)
+        write_json(config_file, config)
+        return cls(path, config, keep_last=keep_last, tensorboard=tensorboard)
+
+    # -- metrics -------------------------------------------------------------------------------
+    def log(self, row: Mapping[str, Any]) -> None:
+        """Append one iteration's metrics (must include ITERATION) to CSV and TensorBoard."""
+        if ITERATION not in row:
+            raise ValueError(f"a metrics row needs the {ITERATION!r} key")
+        self.metrics.append(row)
+        writer = self._tb_writer(int(row[ITERATION]))
+        if writer is not None:
+            step = int(row[ITERATION])
+            for key, value in row.items():
+                if key != ITERATION and isinstance(value, (int, float, np.number)):
+                    writer.add_scalar(key, float(value), step)
+            writer.flush()
+
+    def _tb_writer(self, first_step: int) -> Any:
+        if not self._tensorboard or self._tb is not None:
+            return self._tb
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError:  # tensorboard is optional
+            self._tensorboard = False
+            return None
+        # purge_step drops events a killed run wrote after its last checkpoint.
+        self._tb = SummaryWriter(str(self.path / "tb"), purge_step=first_step)
+        return self._tb
+
+    def read_metrics(self) -> dict[str, np.ndarray]:
+        """The metrics written so far, ``{column: (rows,) array}``."""
+        return read_metrics(self.metrics.path)
+
+    # -- checkpoints ---------------------------------------------------------------------------
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.path / CHECKPOINT_DIR
+
+    def save_checkpoint(self, iteration: int, state: Mapping[str, Any]) -> Path:
+        """Save the state after ``iteration`` completed; becomes the one resume starts from.
+
+        Args:
+          iteration: the completed iteration (>= 0).
+          state: see :func:`save_state`. Include every RNG state and optimizer state the next
+            iterations depend on, so that a resumed run equals an uninterrupted one.
+
+        Returns:
+          The checkpoint file.
+        """
+        name = f"ckpt_{iteration:06d}.pt"
+        file = self.checkpoint_dir / name
+        save_state(file, state)
+        write_json(self.checkpoint_dir / LATEST_FILE, {"iteration": int(iteration), "file": name})
+        self._prune()
+        return file
+
+    def _prune(self) -> None:
+        files = sorted(self.checkpoint_dir.glob("ckpt_*.pt"))
+        for old in files[: -self.keep_last]:
+            old.unlink(missing_ok=True)
+
+    def load_latest(self) -> Checkpoint | None:
+        """Load the newest complete checkpoint and drop metric rows logged after it.
+
+        Returns:
+          The checkpoint, or None when the run has none (metrics are then cleared, so the run
+          restarts from iteration 0 with a consistent CSV).
+        """
+        latest = self.checkpoint_dir / LATEST_FILE
+        if not latest.exists():
+            self.metrics.truncate(None)
+            return None
+        info = read_json(latest)
+        file = self.checkpoint_dir / info["file"]
+        ckpt = Checkpoint(int(info["iteration"]), load_state(file), file)
+        self.metrics.truncate(ckpt.iteration)
+        return ckpt
+
+    # -- outputs -------------------------------------------------------------------------------
+    def plot_learning_curves(self, title: str | None = None) -> Path:
+        """Write ``learning_curves.png`` from the metrics so far."""
+        return plot_learning_curves(
+            self.read_metrics(),
+            self.path / CURVES_FILE,
+            title if title is not None else self.path.name,
+        )
+
+    def write_json(self, name: str, obj: Any) -> Path:
+        """Atomically write a JSON file (e.g. an evaluation summary) into the run directory."""
+        file = self.path / name
+        write_json(file, obj)
+        return file
+
+    def close(self) -> None:
+        """Flush and close the TensorBoard writer (the CSV is always flushed)."""
+        if self._tb is not None:
+            self._tb.close()
+            self._tb = None
+
+    def __enter__(self) -> Run:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

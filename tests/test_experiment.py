@@ -1,0 +1,109 @@
+"""Run directories: safe checkpoints, aligned metrics, resume bookkeeping, learning curves."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lowcostdex.algos import experiment as ex
+from lowcostdex.errors import ConfigError
+
+
+def test_state_round_trip_is_weights_only_safe(tmp_path):
+    rng = np.random.default_rng(7)
+    rng.standard_normal(3)
+    net = torch.nn.Linear(3, 2)
+    state = {
+        "policy": net.state_dict(),
+        "array": np.arange(4.0),
+        "rng": rng.bit_generator.state,
+        "torch_rng": torch.Generator().manual_seed(1).get_state(),
+        "meta": {"iteration": 3, "name": "x", "values": (1.5, None)},
+    }
+    ex.save_state(tmp_path / "s.pt", state)
+    loaded = torch.load(tmp_path / "s.pt", weights_only=True)
+    assert torch.equal(loaded["policy"]["weight"], net.weight.detach())
+    assert torch.equal(loaded["array"], torch.arange(4.0, dtype=torch.float64))
+    restored = np.random.default_rng()
+    restored.bit_generator.state = loaded["rng"]
+    assert np.array_equal(restored.standard_normal(5), rng.standard_normal(5))
+    assert loaded["meta"] == {"iteration": 3, "name": "x", "values": (1.5, None)}
+
+
+def test_save_state_refuses_arbitrary_objects(tmp_path):
+    with pytest.raises(TypeError, match="state.net"):
+        ex.save_state(tmp_path / "s.pt", {"net": torch.nn.Linear(2, 2)})
+    assert not (tmp_path / "s.pt").exists()
+
+
+def test_metrics_widen_without_misaligning(tmp_path):
+    log = ex.MetricsLog(tmp_path / "m.csv")
+    log.append({"iteration": 0, "a": 1.0})
+    log.append({"iteration": 1, "a": 2.0, "b": 5})
+    log.append({"iteration": 2, "b": 6})
+    m = ex.read_metrics(tmp_path / "m.csv")
+    assert list(m) == ["iteration", "a", "b"]
+    np.testing.assert_array_equal(m["a"], [1.0, 2.0, np.nan])
+    np.testing.assert_array_equal(m["b"], [np.nan, 5, 6])
+
+
+def test_metrics_reader_skips_a_line_cut_by_a_kill(tmp_path):
+    file = tmp_path / "m.csv"
+    file.write_text("iteration,a\n0,1.0\n1,2.0\n2,")
+    m = ex.read_metrics(file)
+    np.testing.assert_array_equal(m["iteration"], [0, 1])
+
+
+def test_resume_drops_rows_after_last_checkpoint_and_checks_config(tmp_path):
+    cfg = {"seed": 1, "n_iter": 5, "policy": {"hidden": [8, 8]}}
+    run = ex.Run.open(tmp_path, cfg, mutable_keys=["n_iter"], keep_last=2)
+    for it in range(4):
+        run.log({"iteration": it, "samples": 10 * (it + 1)})
+        if it <= 2:
+            run.save_checkpoint(it, {"w": torch.full((2,), float(it))})
+    run.close()
+    assert sorted(p.name for p in run.checkpoint_dir.glob("*.pt")) == [
+        "ckpt_000001.pt",
+        "ckpt_000002.pt",
+    ]
+    with pytest.raises(ConfigError, match="already holds a run"):
+        ex.Run.open(tmp_path, cfg)
+    with pytest.raises(ConfigError, match=r"policy.hidden"):
+        ex.Run.open(
+            tmp_path, {**cfg, "policy": {"hidden": [8]}}, resume=True, mutable_keys=["n_iter"]
+        )
+    run = ex.Run.open(tmp_path, {**cfg, "n_iter": 9}, resume=True, mutable_keys=["n_iter"])
+    ckpt = run.load_latest()
+    assert ckpt is not None and ckpt.iteration == 2
+    assert torch.equal(ckpt.state["w"], torch.full((2,), 2.0))
+    np.testing.assert_array_equal(run.read_metrics()["iteration"], [0, 1, 2])
+    assert ex.read_json(tmp_path / "config.json")["n_iter"] == 9
+
+
+def test_resume_without_checkpoint_starts_clean(tmp_path):
+    run = ex.Run.open(tmp_path, {"seed": 0})
+    run.log({"iteration": 0, "samples": 1})
+    run = ex.Run.open(tmp_path, {"seed": 0}, resume=True)
+    assert run.load_latest() is None
+    assert run.read_metrics().get("iteration", np.array([])).size == 0
+
+
+def test_learning_curve_png(tmp_path):
+    run = ex.Run.open(tmp_path, {})
+    for it in range(5):
+        run.log(
+            {
+                ex.ITERATION: it,
+                ex.SAMPLES: 100 * (it + 1),
+                ex.ROBOT_HOURS: 0.01 * (it + 1),
+                ex.SUCCESS_RATE: it / 4,
+                ex.RETURN_MEAN: -10 + it,
+                ex.EVAL_SUCCESS_RATE: math.nan if it % 2 else it / 4,
+            }
+        )
+    png = run.plot_learning_curves()
+    data = png.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
