@@ -1,0 +1,380 @@
+"""Gaussian MLP policy with observation normalisation, as used by NPG, DAPG and BC.
+
+The policy is ``a ~ N(mu(s), diag(exp(log_std))^2)`` with
+
+    mu(s) = act_shift + act_scale * MLP((s - obs_mean) / obs_std)
+
+and a state-independent, trainable ``log_std`` vector (one entry per action dimension),
+clamped from below at ``min_log_std``. Initialisation follows mjrl: PyTorch's default
+``nn.Linear`` initialisation (drawn from the ``torch.Generator`` passed in), then the last
+layer's weight and bias scaled by ``last_layer_scale`` (1e-2), so the initial mean is almost
+exactly ``act_shift``.
+
+Observation normalisation (:class:`ObsNormalizer`) is either set from demonstration statistics
+(BC does this) and frozen, or updated from each batch of samples. A running update changes
+``obs_mean``/``obs_std``, so :meth:`GaussianMLPPolicy.update_obs_normalizer` rewrites the first
+layer so that ``mu(s)`` is unchanged: normalisation never moves the policy outside the NPG
+trust region.
+
+Parameters and buffers are float64 by default: the networks are small, and the natural-gradient
+maths (Fisher-vector products, conjugate gradient) benefits from the precision.
+
+Sampling workers do not run torch: :meth:`GaussianMLPPolicy.snapshot` returns a picklable
+numpy copy (:class:`PolicySnapshot`) that evaluates one observation at a time, so an action does
+not depend on how many trajectories a worker happens to batch.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from lowcostdex.errors import ConfigError, check_choice
+
+ACTIVATIONS = ("tanh", "relu")
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """Architecture and initialisation of :class:`GaussianMLPPolicy`.
+
+    Attributes:
+      hidden_sizes: widths of the hidden layers; ``()`` gives a linear policy. mjrl's default
+        is (64, 64); the hand_dapg configs use (32, 32).
+      activation: hidden-layer non-linearity, one of ACTIVATIONS.
+      init_log_std: initial log standard deviation of the action noise (mjrl default 0,
+        i.e. std 1 over a [-1, 1] action range; its example configs use -0.5).
+      min_log_std: lower clamp of log_std applied after every update (mjrl: -3).
+      last_layer_scale: factor applied to the last layer's initial weight and bias (mjrl: 1e-2).
+      min_obs_std: floor of the observation standard deviation used for normalisation, so a
+        feature that is constant in the data does not divide by ~0.
+    """
+
+    hidden_sizes: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"
+    init_log_std: float = 0.0
+    min_log_std: float = -3.0
+    last_layer_scale: float = 1e-2
+    min_obs_std: float = 1e-2
+
+    def __post_init__(self) -> None:
+        check_choice("activation", self.activation, ACTIVATIONS)
+        if any(int(h) != h or h < 1 for h in self.hidden_sizes):
+            raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
+        if not math.isfinite(self.init_log_std) or self.init_log_std < self.min_log_std:
+            raise ConfigError(
+                f"init_log_std={self.init_log_std} must be finite and >= min_log_std={self.min_log_std}"
+            )
+        if not self.last_layer_scale > 0:
+            raise ConfigError(f"last_layer_scale={self.last_layer_scale} must be > 0")
+        if not self.min_obs_std > 0:
+            raise ConfigError(f"min_obs_std={self.min_obs_std} must be > 0")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PolicyConfig:
+        """Inverse of ``dataclasses.asdict`` (accepts lists read back from JSON)."""
+        d = dict(d)
+        if "hidden_sizes" in d:
+            d["hidden_sizes"] = tuple(int(h) for h in d["hidden_sizes"])
+        return cls(**d)
+
+
+# ----------------------------------------------------------------------------------------------
+# Diagonal Gaussian maths (pure functions)
+
+
+def gaussian_log_prob(mean: torch.Tensor, log_std: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """Log density of ``x`` under N(mean, diag(exp(log_std))^2), summed over the last axis.
+
+    Args:
+      mean: (n, m) means.
+      log_std: (m,) or (n, m) log standard deviations.
+      x: (n, m) actions.
+
+    Returns:
+      (n,) log-likelihoods.
+    """
+    z = (x - mean) / torch.exp(log_std)
+    m = mean.shape[-1]
+    return -0.5 * (z**2).sum(-1) - log_std.sum(-1) - 0.5 * m * math.log(2 * math.pi)
+
+
+def gaussian_kl(
+    mean0: torch.Tensor, log_std0: torch.Tensor, mean1: torch.Tensor, log_std1: torch.Tensor
+) -> torch.Tensor:
+    """Closed-form KL(N0 || N1) between diagonal Gaussians, summed over the last axis.
+
+    Args:
+      mean0, mean1: (n, m) means.
+      log_std0, log_std1: (m,) or (n, m) log standard deviations.
+
+    Returns:
+      (n,) KL divergences [nats].
+    """
+    var0, var1 = torch.exp(2 * log_std0), torch.exp(2 * log_std1)
+    kl = log_std1 - log_std0 + (var0 + (mean0 - mean1) ** 2) / (2 * var1) - 0.5
+    return kl.sum(-1)
+
+
+# ----------------------------------------------------------------------------------------------
+# Observation normalisation
+
+
+class ObsNormalizer(nn.Module):
+    """Running mean and standard deviation of observations, or fixed statistics.
+
+    Normalises as ``(x - mean) / max(std, min_std)``. Before any data it is the identity.
+    Statistics are merged batch by batch (Chan et al.'s parallel variance), so the result
+    does not depend on how samples are split into batches, only on the data.
+
+    Buffers (saved in ``state_dict``): ``mean`` (d,), ``var`` (d,), ``count`` (), ``frozen`` ().
+    """
+
+    def __init__(self, dim: int, min_std: float = 1e-2, dtype: torch.dtype = torch.float64):
+        super().__init__()
+        self.min_std = float(min_std)
+        self.register_buffer("mean", torch.zeros(dim, dtype=dtype))
+        self.register_buffer("var", torch.ones(dim, dtype=dtype))
+        self.register_buffer("count", torch.zeros((), dtype=dtype))
+        self.register_buffer("frozen", torch.zeros((), dtype=torch.bool))
+
+    @property
+    def std(self) -> torch.Tensor:
+        """(d,) standard deviation used for normalisation (floored at min_std)."""
+        return torch.sqrt(self.var).clamp_min(self.min_std)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return (x - self.mean) / self.std
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor | np.ndarray) -> None:
+        """Merge a batch ``x`` of shape (n, d) into the statistics (no-op when frozen)."""
+        if bool(self.frozen):
+            return
+        x = torch.as_tensor(x, dtype=self.mean.dtype).reshape(-1, self.mean.shape[0])
+        n = x.shape[0]
+        if n == 0:
+            return
+        b_mean, b_var = x.mean(0), x.var(0, unbiased=False)
+        total = self.count + n
+        delta = b_mean - self.mean
+        new_mean = self.mean + delta * (n / total)
+        m2 = self.var * self.count + b_var * n + delta**2 * (self.count * n / total)
+        self.mean.copy_(new_mean)
+        self.var.copy_(m2 / total)
+        self.count.fill_(total)
+
+    @torch.no_grad()
+    def set_stats(self, mean: Any, std: Any, freeze: bool = True) -> None:
+        """Set fixed statistics, e.g. from demonstrations, and optionally freeze them."""
+        mean_t = torch.as_tensor(np.asarray(mean), dtype=self.mean.dtype)
+        std_t = torch.as_tensor(np.asarray(std), dtype=self.mean.dtype)
+        self.mean.copy_(mean_t)
+        self.var.copy_(std_t**2)
+        self.count.fill_(1.0)
+        self.frozen.fill_(bool(freeze))
+
+
+# ----------------------------------------------------------------------------------------------
+# The policy
+
+
+def _activation(name: str) -> nn.Module:
+    return nn.Tanh() if name == "tanh" else nn.ReLU()
+
+
+class GaussianMLPPolicy(nn.Module):
+    """Diagonal Gaussian policy with an MLP mean and a state-independent log-std.
+
+    Args:
+      obs_dim: observation size.
+      act_dim: action size.
+      config: architecture and initialisation.
+      generator: seeded ``torch.Generator`` for the initial weights. ``None`` leaves the
+        weights at zero (only for loading a checkpoint right after).
+      dtype: parameter dtype (float64 by default).
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        act_dim: int,
+        config: PolicyConfig | None = None,
+        generator: torch.Generator | None = None,
+        dtype: torch.dtype = torch.float64,
+    ):
+        super().__init__()
+        self.config = config or PolicyConfig()
+        self.obs_dim, self.act_dim = int(obs_dim), int(act_dim)
+        self.obs_norm = ObsNormalizer(obs_dim, self.config.min_obs_std, dtype)
+        sizes = (self.obs_dim, *self.config.hidden_sizes, self.act_dim)
+        layers: list[nn.Module] = []
+        for i, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
+            layers.append(nn.utils.skip_init(nn.Linear, n_in, n_out, dtype=dtype))
+            if i < len(sizes) - 2:
+                layers.append(_activation(self.config.activation))
+        self.mlp = nn.Sequential(*layers)
+        self.linears = [m for m in self.mlp if isinstance(m, nn.Linear)]
+        self.log_std = nn.Parameter(
+            torch.full((self.act_dim,), self.config.init_log_std, dtype=dtype)
+        )
+        self.register_buffer("act_shift", torch.zeros(self.act_dim, dtype=dtype))
+        self.register_buffer("act_scale", torch.ones(self.act_dim, dtype=dtype))
+        self._init_weights(generator)
+
+    @torch.no_grad()
+    def _init_weights(self, generator: torch.Generator | None) -> None:
+        for layer in self.linears:
+            if generator is None:
+                layer.weight.zero_()
+                layer.bias.zero_()
+                continue
+            # nn.Linear.reset_parameters, with the generator passed in.
+            nn.init.kaiming_uniform_(layer.weight, a=math.sqrt(5), generator=generator)
+            bound = 1 / math.sqrt(layer.in_features)
+            nn.init.uniform_(layer.bias, -bound, bound, generator=generator)
+        last = self.linears[-1]
+        last.weight.mul_(self.config.last_layer_scale)
+        last.bias.mul_(self.config.last_layer_scale)
+
+    # -- evaluation ------------------------------------------------------------------------------
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        """Action mean, (n, act_dim), for observations (n, obs_dim)."""
+        return self.mlp(self.obs_norm(obs)) * self.act_scale + self.act_shift
+
+    def log_prob(self, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """(n,) log-likelihood of ``actions`` (n, act_dim) given ``obs`` (n, obs_dim)."""
+        return gaussian_log_prob(self(obs), self.log_std, actions)
+
+    @torch.no_grad()
+    def act(
+        self,
+        obs: torch.Tensor | np.ndarray,
+        generator: torch.Generator | None = None,
+        deterministic: bool = False,
+    ) -> torch.Tensor:
+        """Actions (n, act_dim) for observations (n, obs_dim).
+
+        ``deterministic=True`` (evaluation mode) returns the mean; otherwise the noise is drawn
+        from ``generator``, which is then required.
+        """
+        obs_t = torch.as_tensor(obs, dtype=self.log_std.dtype).reshape(-1, self.obs_dim)
+        mean = self(obs_t)
+        if deterministic:
+            return mean
+        if generator is None:
+            raise ValueError("stochastic actions need a seeded torch.Generator")
+        noise = torch.randn(mean.shape, generator=generator, dtype=mean.dtype)
+        return mean + torch.exp(self.log_std) * noise
+
+    # -- updates ---------------------------------------------------------------------------------
+    @torch.no_grad()
+    def clamp_log_std_(self) -> None:
+        """Clamp log_std from below at ``config.min_log_std`` (call after every update)."""
+        self.log_std.clamp_(min=self.config.min_log_std)
+
+    @torch.no_grad()
+    def update_obs_normalizer(self, obs: torch.Tensor | np.ndarray) -> None:
+        """Merge ``obs`` (n, obs_dim) into the running statistics, keeping mu(s) unchanged.
+
+        With first-layer weight W and bias b, old statistics (m, s) and new (m', s'):
+        ``W' = W diag(s'/s)`` and ``b' = b + W diag(1/s) (m' - m)``, so that
+        ``W (x - m)/s + b == W' (x - m')/s' + b'`` for every x. No-op when frozen.
+        """
+        if bool(self.obs_norm.frozen):
+            return
+        old_mean, old_std = self.obs_norm.mean.clone(), self.obs_norm.std.clone()
+        self.obs_norm.update(obs)
+        new_mean, new_std = self.obs_norm.mean, self.obs_norm.std
+        first = self.linears[0]
+        first.bias.add_(first.weight @ ((new_mean - old_mean) / old_std))
+        first.weight.mul_(new_std / old_std)
+
+    # -- persistence ---------------------------------------------------------------------------
+    def to_checkpoint(self) -> dict[str, Any]:
+        """Everything needed to rebuild the policy: sizes, config and state_dict (safe types)."""
+        return {
+            "obs_dim": self.obs_dim,
+            "act_dim": self.act_dim,
+            "config": asdict(self.config),
+            "dtype": str(self.log_std.dtype).removeprefix("torch."),
+            "state_dict": self.state_dict(),
+        }
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict[str, Any]) -> GaussianMLPPolicy:
+        """Rebuild a policy saved with :meth:`to_checkpoint` (e.g. loaded with weights_only)."""
+        dtype = getattr(torch, ckpt.get("dtype", "float64"))
+        policy = cls(
+            ckpt["obs_dim"], ckpt["act_dim"], PolicyConfig.from_dict(ckpt["config"]), None, dtype
+        )
+        policy.load_state_dict(ckpt["state_dict"])
+        return policy
+
+    def snapshot(self) -> PolicySnapshot:
+        """A numpy copy for sampling workers (see :class:`PolicySnapshot`)."""
+        with torch.no_grad():
+            return PolicySnapshot(
+                weights=tuple(
+                    layer.weight.detach().double().numpy().copy() for layer in self.linears
+                ),
+                biases=tuple(layer.bias.detach().double().numpy().copy() for layer in self.linears),
+                activation=self.config.activation,
+                obs_mean=self.obs_norm.mean.double().numpy().copy(),
+                obs_std=self.obs_norm.std.double().numpy().copy(),
+                act_shift=self.act_shift.double().numpy().copy(),
+                act_scale=self.act_scale.double().numpy().copy(),
+                std=np.exp(self.log_std.detach().double().numpy()),
+            )
+
+
+# ----------------------------------------------------------------------------------------------
+# Numpy copy used by samplers
+
+
+@dataclass(frozen=True)
+class PolicySnapshot:
+    """Picklable float64 numpy copy of a :class:`GaussianMLPPolicy` for rollouts.
+
+    Evaluates ONE observation at a time (matrix-vector products), so every sampler — serial,
+    process pool, vector env, Ray — computes bit-identical actions for the same observation and
+    noise, whatever the number of workers.
+    """
+
+    weights: tuple[np.ndarray, ...]
+    biases: tuple[np.ndarray, ...]
+    activation: str
+    obs_mean: np.ndarray
+    obs_std: np.ndarray
+    act_shift: np.ndarray
+    act_scale: np.ndarray
+    std: np.ndarray
+
+    @property
+    def act_dim(self) -> int:
+        return int(self.std.shape[0])
+
+    def mean(self, obs: np.ndarray) -> np.ndarray:
+        """Action mean (act_dim,) for one observation (obs_dim,)."""
+        h = (np.asarray(obs, dtype=np.float64).reshape(-1) - self.obs_mean) / self.obs_std
+        last = len(self.weights) - 1
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            h = w @ h + b
+            if i < last:
+                h = np.tanh(h) if self.activation == "tanh" else np.maximum(h, 0.0)
+        return h * self.act_scale + self.act_shift
+
+    def act(self, obs: np.ndarray, noise: np.ndarray | None) -> np.ndarray:
+        """Mean plus ``std * noise`` for one observation; ``noise=None`` gives the mean.
+
+        Args:
+          obs: (obs_dim,) observation.
+          noise: (act_dim,) standard-normal draw, or None for the deterministic action.
+        """
+        mean = self.mean(obs)
+        return mean if noise is None else mean + self.std * noise

@@ -1,0 +1,104 @@
+"""DAPG: demo weight schedule, augmented gradient, Fisher from on-policy samples only."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from lowcostdex.algos import npg
+from lowcostdex.algos.dapg import DAPGConfig, dapg_update, demo_weight
+from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
+from lowcostdex.errors import ConfigError
+
+
+def _setup(seed=0, n=300, m=100):
+    policy = GaussianMLPPolicy(
+        3, 2, PolicyConfig(hidden_sizes=(16,)), torch.Generator().manual_seed(seed)
+    )
+    g = torch.Generator().manual_seed(seed + 1)
+    obs = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    actions = policy.act(obs, generator=g)
+    adv = torch.randn(n, generator=g, dtype=torch.float64)
+    demo_obs = torch.randn(m, 3, generator=g, dtype=torch.float64)
+    demo_actions = 0.5 * torch.tanh(demo_obs[:, :2])  # a teacher the random policy does not match
+    return policy, obs, actions, adv, demo_obs, demo_actions
+
+
+def test_demo_weight_decays_as_configured():
+    adv = np.array([-1.0, 0.5, 2.0])
+    w = [demo_weight(k, 0.1, 0.95, adv, "paper") for k in range(30)]
+    assert w[0] == pytest.approx(0.1 * 2.0)  # lam0 * max advantage
+    np.testing.assert_allclose(np.array(w[1:]) / np.array(w[:-1]), 0.95)
+    assert demo_weight(5, 0.01, 0.9, adv, "mjrl") == pytest.approx(0.01 * 0.9**5)
+    # mjrl form ignores the advantages; paper form scales with them
+    assert demo_weight(3, 0.01, 0.9, 10 * adv, "mjrl") == demo_weight(3, 0.01, 0.9, adv, "mjrl")
+    assert demo_weight(3, 0.1, 0.9, 10 * adv, "paper") == pytest.approx(
+        10 * demo_weight(3, 0.1, 0.9, adv, "paper")
+    )
+    with pytest.raises(ConfigError, match="'paper', 'mjrl'"):
+        demo_weight(0, 0.1, 0.9, adv, "other")
+
+
+def test_dapg_update_reports_the_decayed_weight_each_iteration():
+    cfg, ncfg = DAPGConfig(lam0=0.1, lam1=0.5), npg.NPGConfig()
+    weights = []
+    for k in range(4):
+        policy, obs, actions, adv, d_obs, d_act = _setup()
+        stats = dapg_update(policy, obs, actions, adv, d_obs, d_act, k, cfg, ncfg)
+        weights.append(stats["demo_weight"])
+    white = (adv - adv.mean()) / (adv.std(unbiased=False) + 1e-6)
+    np.testing.assert_allclose(weights, [0.1 * 0.5**k * float(white.max()) for k in range(4)])
+
+
+def test_zero_demo_weight_is_exactly_npg_so_the_fisher_ignores_demos():
+    ncfg = npg.NPGConfig()
+    p1, obs, actions, adv, d_obs, d_act = _setup()
+    p2, *_ = _setup()
+    dapg_update(p1, obs, actions, adv, d_obs, d_act, 0, DAPGConfig(lam0=0.0), ncfg)
+    npg.npg_update(p2, obs, actions, adv, ncfg)
+    v1 = torch.nn.utils.parameters_to_vector(p1.parameters())
+    v2 = torch.nn.utils.parameters_to_vector(p2.parameters())
+    # Equal up to summation order; a Fisher that included the demos differs at O(1).
+    torch.testing.assert_close(v1, v2, rtol=1e-6, atol=1e-8)
+
+
+def test_augmented_gradient_adds_the_weighted_demo_term():
+    policy, obs, actions, adv, d_obs, d_act = _setup()
+    white = (adv - adv.mean()) / (adv.std(unbiased=False) + 1e-6)
+    w = 0.7
+    params = list(policy.parameters())
+    rl = sum(
+        npg.flat_grad(policy.log_prob(obs[i : i + 1], actions[i : i + 1])[0] * white[i], params)
+        for i in range(len(obs))
+    )
+    demo = sum(
+        npg.flat_grad(policy.log_prob(d_obs[i : i + 1], d_act[i : i + 1])[0] * w, params)
+        for i in range(len(d_obs))
+    )
+    expected = (rl + demo) / len(obs)
+    got = npg.surrogate_gradient(
+        policy,
+        torch.cat([obs, d_obs]),
+        torch.cat([actions, d_act]),
+        torch.cat([white, torch.full((len(d_obs),), w, dtype=torch.float64)]),
+        normalizer=len(obs),
+    )
+    torch.testing.assert_close(got, expected, rtol=1e-10, atol=1e-12)
+
+
+def test_demo_term_pulls_the_policy_toward_the_demos():
+    ncfg = npg.NPGConfig(step_size=0.05)
+    lik = {}
+    for lam0 in (0.0, 1.0):
+        policy, obs, actions, adv, d_obs, d_act = _setup()
+        stats = dapg_update(policy, obs, actions, adv, d_obs, d_act, 0, DAPGConfig(lam0=lam0), ncfg)
+        lik[lam0] = stats["demo_log_lik"]
+        # same trust region either way (delta/2 to second order)
+        assert stats["kl"] == pytest.approx(0.025, rel=0.5)
+    assert lik[1.0] > lik[0.0] + 0.05
+
+
+def test_dapg_config_validates():
+    with pytest.raises(ConfigError, match="lam1"):
+        DAPGConfig(lam1=1.5)

@@ -1,0 +1,185 @@
+"""NPG maths against known answers: CG, Fisher-vector product, step size and KL, GAE."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch.func import functional_call, jacrev
+
+from lowcostdex.algos import npg
+from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
+from lowcostdex.algos.returns import discounted_returns, gae, whiten
+from lowcostdex.errors import ConfigError
+
+
+def _policy(seed=0, obs_dim=3, act_dim=2, hidden=(5,), init_log_std=-0.3):
+    cfg = PolicyConfig(hidden_sizes=hidden, init_log_std=init_log_std, last_layer_scale=1.0)
+    return GaussianMLPPolicy(obs_dim, act_dim, cfg, torch.Generator().manual_seed(seed))
+
+
+def _batch(policy, n=64, seed=1):
+    g = torch.Generator().manual_seed(seed)
+    obs = torch.randn(n, policy.obs_dim, generator=g, dtype=torch.float64)
+    actions = policy.act(obs, generator=g)
+    adv = torch.randn(n, generator=g, dtype=torch.float64)
+    return obs, actions, adv
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 12])
+def test_conjugate_gradient_equals_direct_solve(n):
+    rng = np.random.default_rng(n)
+    m = rng.standard_normal((n, n))
+    a = m @ m.T + 0.1 * np.eye(n)  # SPD
+    b = rng.standard_normal(n)
+    a_t, b_t = torch.tensor(a), torch.tensor(b)
+    x = npg.conjugate_gradient(lambda v: a_t @ v, b_t, iters=n, residual_tol=0.0)
+    np.testing.assert_allclose(x.numpy(), np.linalg.solve(a, b), rtol=1e-6, atol=1e-9)
+
+
+def test_truncated_conjugate_gradient_satisfies_x_a_x_equals_b_x():
+    # The property that makes alpha = sqrt(delta / g^T x) give KL = delta/2 for any truncation.
+    rng = np.random.default_rng(0)
+    m = rng.standard_normal((30, 30))
+    a = torch.tensor(m @ m.T + np.eye(30))
+    b = torch.tensor(rng.standard_normal(30))
+    for iters in (1, 3, 7):
+        x = npg.conjugate_gradient(lambda v: a @ v, b, iters=iters)
+        assert float(x @ a @ x) == pytest.approx(float(b @ x), rel=1e-9)
+
+
+def _explicit_fisher(policy, obs):
+    """sum_i J_i^T diag(1/sigma^2) J_i / n for the mean parameters, 2 I for log_std."""
+    names = [name for name, _ in policy.named_parameters()]
+    params = {name: p.detach() for name, p in policy.named_parameters()}
+
+    def mean_of(flat_params, x):
+        return functional_call(policy, {**dict(policy.named_buffers()), **flat_params}, (x,))
+
+    jac = jacrev(mean_of)(params, obs)  # name -> (n, act_dim, *param_shape)
+    n, act_dim = obs.shape[0], policy.act_dim
+    j = torch.cat([jac[name].reshape(n, act_dim, -1) for name in names], dim=2)  # (n, m, P)
+    inv_var = torch.exp(-2 * policy.log_std.detach())
+    fisher = torch.einsum("nap,a,naq->pq", j, inv_var, j) / n
+    offset = 0
+    for name, p in policy.named_parameters():
+        if name == "log_std":
+            break
+        offset += p.numel()
+    idx = torch.arange(offset, offset + act_dim)
+    fisher[idx, idx] += 2.0
+    return fisher
+
+
+def test_fisher_vector_product_equals_explicit_fisher():
+    policy = _policy()
+    obs, _, _ = _batch(policy, n=20)
+    damping = 1e-3
+    fvp = npg.make_fisher_vector_product(policy, obs, damping)
+    n_params = sum(p.numel() for p in policy.parameters())
+    fvp_matrix = torch.stack([fvp(e) for e in torch.eye(n_params, dtype=torch.float64)], dim=1)
+    expected = _explicit_fisher(policy, obs) + damping * torch.eye(n_params, dtype=torch.float64)
+    torch.testing.assert_close(fvp_matrix, expected, rtol=1e-9, atol=1e-11)
+
+
+def test_fisher_is_the_expected_outer_product_of_scores():
+    # The analytic Fisher equals E_a[grad log pi grad log pi^T]; Monte Carlo over actions.
+    policy = _policy(hidden=(3,), obs_dim=2, act_dim=1)
+    obs = torch.randn(4, 2, generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    params = list(policy.parameters())
+    g = torch.Generator().manual_seed(4)
+    scores = []
+    for _ in range(4000):
+        actions = policy.act(obs, generator=g)
+        logp = policy.log_prob(obs, actions)
+        for i in range(obs.shape[0]):
+            scores.append(npg.flat_grad(logp[i], params, retain_graph=True))
+    s = torch.stack(scores)
+    mc = s.T @ s / s.shape[0]
+    exact = _explicit_fisher(policy, obs)
+    assert float(torch.linalg.norm(mc - exact) / torch.linalg.norm(exact)) < 0.05
+
+
+@pytest.mark.parametrize("hidden", [(16,), (32, 32)])
+@pytest.mark.parametrize("delta", [0.01, 0.05])
+def test_npg_step_kl_is_about_half_delta(hidden, delta):
+    # mjrl defaults: 10 CG iterations, damping 1e-4. The policy starts near zero mean, as
+    # after mjrl's initialisation.
+    cfg_p = PolicyConfig(hidden_sizes=hidden, init_log_std=-0.3)
+    policy = GaussianMLPPolicy(3, 2, cfg_p, torch.Generator().manual_seed(0))
+    obs, actions, adv = _batch(policy, n=1000)
+    cfg = npg.NPGConfig(step_size=delta)
+    stats = npg.npg_update(policy, obs, actions, adv, cfg)
+    assert stats["kl"] == pytest.approx(delta / 2, rel=0.1)
+    assert stats["alpha"] == pytest.approx(np.sqrt(delta / stats["g_f_g"]))
+    assert stats["surr_improvement"] > 0
+
+
+def test_normalized_step_size_formula():
+    g = torch.tensor([1.0, 2.0])
+    x = torch.tensor([0.5, 0.25])  # g^T x = 1
+    assert npg.normalized_step_size(g, x, 0.05) == pytest.approx(np.sqrt(0.05))
+
+
+def test_kl_check_backtracks_below_bound():
+    policy = _policy(hidden=(8,))
+    obs, actions, adv = _batch(policy, n=100)
+    cfg = npg.NPGConfig(step_size=0.05, max_kl=0.005, backtrack_ratio=0.5)
+    stats = npg.npg_update(policy, obs, actions, adv, cfg)
+    assert stats["n_backtracks"] >= 1
+    assert 0 < stats["kl"] <= 0.005
+    measured = []
+    alpha, kl, n = npg.backtrack_kl(lambda a: measured.append(a) or a**2, 1.0, 0.01, 0.5, 10)
+    assert measured == [1.0, 0.5, 0.25, 0.125, 0.0625] and n == 4 and kl == 0.0625**2
+
+
+def test_rejected_step_restores_parameters():
+    policy = _policy(hidden=(4,))
+    obs, actions, adv = _batch(policy, n=50)
+    before = torch.nn.utils.parameters_to_vector(policy.parameters()).detach().clone()
+    cfg = npg.NPGConfig(step_size=0.05, max_kl=1e-12, max_backtracks=2)
+    stats = npg.npg_update(policy, obs, actions, adv, cfg)
+    assert stats["alpha"] == 0.0
+    assert torch.equal(torch.nn.utils.parameters_to_vector(policy.parameters()), before)
+
+
+def test_npg_update_is_reproducible_and_subsamples_with_the_generator():
+    cfg = npg.NPGConfig(fvp_sample_frac=0.5)
+    results = []
+    for _ in range(2):
+        policy = _policy(seed=5, hidden=(8,))
+        obs, actions, adv = _batch(policy, n=80, seed=6)
+        npg.npg_update(policy, obs, actions, adv, cfg, generator=torch.Generator().manual_seed(9))
+        results.append(torch.nn.utils.parameters_to_vector(policy.parameters()).detach())
+    assert torch.equal(results[0], results[1])
+    with pytest.raises(ValueError, match="Generator"):
+        npg.npg_update(policy, obs, actions, adv, cfg)
+
+
+def test_npg_config_validates():
+    with pytest.raises(ConfigError, match="step_size"):
+        npg.NPGConfig(step_size=0)
+    with pytest.raises(ConfigError, match="fvp_sample_frac"):
+        npg.NPGConfig(fvp_sample_frac=1.5)
+
+
+def test_gae_matches_hand_computed_example():
+    r = np.array([1.0, 0.0, 2.0])
+    v = np.array([0.5, 1.0, 1.5])
+    # deltas: 1 + .9*1 - .5 = 1.4 ; 0 + .9*1.5 - 1 = .35 ; 2 + .9*2 - 1.5 = 2.3 (truncated, V_T=2)
+    np.testing.assert_allclose(
+        gae(r, v, 2.0, 0.9, 0.8), [1.4 + 0.72 * 2.006, 0.35 + 0.72 * 2.3, 2.3]
+    )
+    # terminated: V_T = 0 -> last delta 0.5
+    np.testing.assert_allclose(gae(r, v, 0.0, 0.9, 0.8), [1.4 + 0.72 * 0.71, 0.71, 0.5])
+    # lambda = 1: returns minus values; lambda = 0: one-step TD errors
+    np.testing.assert_allclose(gae(r, v, 2.0, 0.9, 1.0), discounted_returns(r, 0.9, 2.0) - v)
+    np.testing.assert_allclose(gae(r, v, 2.0, 0.9, 0.0), [1.4, 0.35, 2.3])
+    np.testing.assert_allclose(
+        discounted_returns(r, 0.9, 2.0), [1 + 0.81 * 2 + 0.729 * 2, 0.9 * 2 + 0.81 * 2, 2 + 0.9 * 2]
+    )
+
+
+def test_whiten():
+    w = whiten(np.array([1.0, 2.0, 3.0, 6.0]))
+    assert w.mean() == pytest.approx(0.0, abs=1e-12) and w.std() == pytest.approx(1.0, rel=1e-5)
