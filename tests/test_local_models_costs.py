@@ -29,7 +29,9 @@ def _costs() -> dict[str, object]:
         "l2": StateCost(target, weights, l2=1.5, ramp="linear", final_multiplier=10.0),
         "l1": StateCost(target, weights, l2=0.0, l1=0.7, alpha=0.3, ramp="quadratic"),
         "l1l2": StateCost(target, weights, l2=1.0, l1=0.2, alpha=1e-2),
-        "action": ActionCost(np.array([1e-3, 0.1, 2.0]), ramp="constant", final_multiplier=0.0),
+        "action": ActionCost(
+            np.array([1e-3, 0.1, 2.0]), target=np.array([0.5, -1.0, 0.2]), final_multiplier=0.0
+        ),
         "sum": SumCost(
             [StateCost(target, weights, l1=0.4), ActionCost(np.array([0.1, 0.2, 0.3]))],
             weights=[2.0, 0.5],

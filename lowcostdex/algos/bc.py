@@ -38,7 +38,9 @@ class BCConfig:
       batch_size: minibatch size.
       lr: Adam learning rate.
       loss: one of BC_LOSSES.
-      set_obs_normalization: set (and freeze) observation statistics from the demos.
+      set_obs_normalization: set the observation statistics from the demos.
+      freeze_obs_normalization: keep them fixed afterwards (mjrl); False lets RL batches
+        update them (the policy mean is preserved at each update).
       set_action_scaling: set act_shift/act_scale from the demo actions.
       set_log_std: set log_std from the demo action spread.
       min_action_scale: floor of act_scale per action dimension.
@@ -49,6 +51,7 @@ class BCConfig:
     lr: float = 1e-3
     loss: str = "mse"
     set_obs_normalization: bool = True
+    freeze_obs_normalization: bool = True
     set_action_scaling: bool = True
     set_log_std: bool = True
     min_action_scale: float = 0.1
@@ -84,7 +87,9 @@ def set_from_demos(
     stats = demo_statistics(obs, actions)
     dtype = policy.log_std.dtype
     if config.set_obs_normalization:
-        policy.obs_norm.set_stats(stats["obs_mean"], stats["obs_std"], freeze=True)
+        policy.obs_norm.set_stats(
+            stats["obs_mean"], stats["obs_std"], freeze=config.freeze_obs_normalization, count=len(obs)
+        )
     if config.set_action_scaling:
         policy.act_shift.copy_(torch.as_tensor(stats["act_mean"], dtype=dtype))
         scale = np.maximum(stats["act_std"], config.min_action_scale)

@@ -170,13 +170,17 @@ class ObsNormalizer(nn.Module):
         self.count.fill_(total)
 
     @torch.no_grad()
-    def set_stats(self, mean: Any, std: Any, freeze: bool = True) -> None:
-        """Set fixed statistics, e.g. from demonstrations, and optionally freeze them."""
+    def set_stats(self, mean: Any, std: Any, freeze: bool = True, count: float = 1.0) -> None:
+        """Set the statistics, e.g. from demonstrations, and optionally freeze them.
+
+        ``count`` is the number of samples they summarise, i.e. their weight when later
+        batches are merged in (if not frozen).
+        """
         mean_t = torch.as_tensor(np.asarray(mean), dtype=self.mean.dtype)
         std_t = torch.as_tensor(np.asarray(std), dtype=self.mean.dtype)
         self.mean.copy_(mean_t)
         self.var.copy_(std_t**2)
-        self.count.fill_(1.0)
+        self.count.fill_(float(count))
         self.frozen.fill_(bool(freeze))
 
 

@@ -38,6 +38,7 @@ from lowcostdex.errors import ConfigError, check_choice
 TWO_PI = 2.0 * math.pi
 
 # Layout of a compiled dcmotor's parameter arrays (verified against mujoco 4.0.0).
+USER_SUPPLY_VOLTAGE = 0  # actuator_user column holding the servo's nominal supply [V]
 GAIN_R, GAIN_K, GAIN_TEMPCOEF, GAIN_TREF, GAIN_KP, GAIN_KI, GAIN_KD, GAIN_VMAX = range(8)
 DYN_RTH, DYN_CTH, DYN_TAMB = 2, 3, 4
 DYN_LUGRE_STIFFNESS, DYN_LUGRE_DAMPING, DYN_SLEWMAX, DYN_IMAX = 5, 6, 7, 8
@@ -214,6 +215,7 @@ class DcmotorParams:
     slewmax: float
     armature: float
     thermal: ThermalSpec
+    supply_voltage: float
 
     def controller(self) -> list[float]:
         return [self.kp, self.ki, self.kd, self.slewmax, 0.0, self.vmax]
@@ -237,7 +239,7 @@ def dcmotor_params(motor: MotorSpec, gains: ServoGains = ServoGains()) -> Dcmoto
     kd = k * k / r + vs * motor.d_error_gain * gains.position_d * to_torque
     vmax = vs * gains.pwm_limit / motor.pwm_max
     slew = gains.profile_velocity * motor.velocity_unit
-    return DcmotorParams(r, k, kp, ki, kd, vmax, slew, motor.armature, motor.thermal)
+    return DcmotorParams(r, k, kp, ki, kd, vmax, slew, motor.armature, motor.thermal, vs)
 
 
 def add_servo(
@@ -277,6 +279,7 @@ def add_servo(
         thermal=p.thermal_attr() if thermal else [0.0] * 6,
         ctrlspec=DCMOTOR_INPUT_POS,
     )
+    act.userdata = [p.supply_voltage]
     if ctrlrange is not None:
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.ctrlrange = list(ctrlrange)

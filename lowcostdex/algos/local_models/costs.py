@@ -182,15 +182,17 @@ class StateCost:
 
 @dataclass(frozen=True, eq=False)
 class ActionCost:
-    """Quadratic action penalty ``ramp_t * 1/2 sum_i weights_i u_i^2``.
+    """Quadratic action penalty ``ramp_t * 1/2 sum_i weights_i (u_i - target_i)^2``.
 
     Attributes:
       weights: (dU,) non-negative per-action weights.
+      target: (dU,) action that costs nothing (e.g. the one holding the start pose); None is 0.
       ramp: how the weight varies over the horizon, one of ``RAMP_KINDS``.
       final_multiplier: factor on the last step (0 drops the action cost at the end).
     """
 
     weights: Array
+    target: Array | None = None
     ramp: str = "constant"
     final_multiplier: float = 1.0
 
@@ -199,14 +201,21 @@ class ActionCost:
         _check_vector("weights", self.weights)
         if np.any(self.weights < 0):
             raise ConfigError("action weights must be >= 0")
+        target = np.zeros_like(self.weights) if self.target is None else self.target
+        object.__setattr__(self, "target", np.asarray(target, dtype=np.float64))
+        if self.target.shape != self.weights.shape:
+            raise ConfigError(
+                f"action target {self.target.shape} and weights {self.weights.shape} differ"
+            )
         check_choice("ramp", self.ramp, RAMP_KINDS)
 
     def evaluate(self, X: Array, U: Array) -> CostDerivatives:
         T, dU = U.shape
         out = _zeros(T, X.shape[1], dU)
         ramp = ramp_weights(self.ramp, T, self.final_multiplier)
-        l = 0.5 * np.einsum("ti,i,ti->t", U, self.weights, U)
-        lu = self.weights * U
+        d = U - self.target
+        l = 0.5 * np.einsum("ti,i,ti->t", d, self.weights, d)
+        lu = self.weights * d
         luu = np.broadcast_to(np.diag(self.weights), (T, dU, dU))
         return CostDerivatives(
             ramp * l, out.lx, ramp[:, None] * lu, out.lxx, ramp[:, None, None] * luu, out.lux

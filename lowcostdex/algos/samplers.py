@@ -1,0 +1,385 @@
+"""Trajectory samplers: serial, a persistent process pool, a batched vector env, and Ray.
+
+Reproducibility contract: a trajectory depends only on (seed, stream, iteration, index) and the
+policy, never on which worker ran it or how many workers there are. Each trajectory gets its
+own env reset seed and its own action-noise generator, both derived with
+``np.random.SeedSequence(seed, spawn_key=(stream, iteration, index, k))``, and actions are
+computed one observation at a time by :class:`~lowcostdex.algos.policy.PolicySnapshot`. (mjrl
+instead seeds per worker, so its results change with the worker count.) This assumes the env is
+deterministic given its reset seed, which every lowcostdex sim env is; on the emulated and real
+robots, sampling is serial on one robot at its control rate.
+
+Samplers take an ``env_factory``: a picklable zero-argument callable returning a gymnasium env
+(:class:`EnvFactory` for registered ids). Workers build their env once and keep it across
+iterations.
+"""
+
+from __future__ import annotations
+
+import abc
+import multiprocessing as mp
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from lowcostdex.algos.policy import PolicySnapshot
+from lowcostdex.errors import ConfigError, LowcostdexError, check_choice
+
+TRAIN_STREAM = 0
+"""Seed stream of training trajectories."""
+EVAL_STREAM = 1
+"""Seed stream of evaluation trajectories (disjoint from training)."""
+SAMPLERS = ("serial", "process", "vector", "ray")
+
+EnvFactoryFn = Callable[[], gym.Env]
+"""Picklable zero-argument callable that builds one environment."""
+
+
+@dataclass(frozen=True)
+class EnvFactory:
+    """Builds ``gym.make(env_id, **kwargs)`` after importing lowcostdex (which registers ids)."""
+
+    env_id: str
+    kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    def __call__(self) -> gym.Env:
+        import lowcostdex.sim  # noqa: F401  (registers the lowcostdex/... ids)
+
+        return gym.make(self.env_id, **dict(self.kwargs))
+
+
+# ----------------------------------------------------------------------------------------------
+# One trajectory
+
+
+@dataclass(frozen=True)
+class RolloutJob:
+    """Which trajectory to sample: ``index`` within (``seed``, ``stream``, ``iteration``)."""
+
+    seed: int
+    stream: int
+    iteration: int
+    index: int
+    deterministic: bool = False
+
+    def seed_sequence(self, k: int) -> np.random.SeedSequence:
+        """Sub-stream k: 0 = env reset seed, 1 = action noise."""
+        return np.random.SeedSequence(self.seed, spawn_key=(self.stream, self.iteration, self.index, k))
+
+    def env_seed(self) -> int:
+        return int(self.seed_sequence(0).generate_state(1, np.uint32)[0])
+
+    def noise_rng(self) -> np.random.Generator:
+        return np.random.default_rng(self.seed_sequence(1))
+
+
+def make_jobs(
+    seed: int, stream: int, iteration: int, n: int, deterministic: bool = False
+) -> list[RolloutJob]:
+    """Jobs for trajectories 0..n-1 of one iteration."""
+    return [RolloutJob(seed, stream, iteration, i, deterministic) for i in range(n)]
+
+
+@dataclass
+class Trajectory:
+    """One episode.
+
+    Attributes:
+      observations: (T, obs_dim) s_0..s_{T-1}.
+      actions: (T, act_dim) actions as sampled (before clipping to the action space).
+      rewards: (T,) rewards.
+      successes: (T,) ``info["success"]`` after each step (False where absent).
+      final_observation: (obs_dim,) s_T, for bootstrapping a truncated episode.
+      terminated: the episode reached a terminal state (value 0 after it).
+      truncated: the episode was cut by the time limit (bootstrap with V(s_T)).
+      index: the job index (trajectory index within its iteration).
+      reward_terms: per-term sums over the episode of ``info["reward_<term>"]``.
+      robot_seconds: robot wall-clock time of the episode [s]: T * control period plus
+        reset and thermal-pause time the env reports (``info["reset_time"]`` and
+        ``info["thermal_pause_time"]`` at reset, when present).
+      pause_seconds: the thermal-pause part of robot_seconds [s].
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    successes: np.ndarray
+    final_observation: np.ndarray
+    terminated: bool
+    truncated: bool
+    index: int
+    reward_terms: dict[str, float]
+    robot_seconds: float
+    pause_seconds: float = 0.0
+
+    def __len__(self) -> int:
+        return int(self.rewards.shape[0])
+
+    @property
+    def total_reward(self) -> float:
+        return float(self.rewards.sum())
+
+
+def control_period(env: gym.Env) -> float:
+    """Seconds per env step: ``control_period`` or ``dt`` of the unwrapped env, else 0."""
+    base = env.unwrapped
+    for name in ("control_period", "dt"):
+        value = getattr(base, name, None)
+        if isinstance(value, (int, float)) and value > 0:
+            return float(value)
+    return 0.0
+
+
+def rollout(
+    env: gym.Env, policy: PolicySnapshot, job: RolloutJob, max_steps: int | None = None
+) -> Trajectory:
+    """Run one episode of ``policy`` in ``env`` for ``job``.
+
+    The env is reset with ``job.env_seed()``; stochastic actions use ``job.noise_rng()``;
+    actions are clipped to a Box action space before stepping. The episode ends when the env
+    terminates or truncates (TimeLimit), or after ``max_steps`` (counted as truncation).
+    """
+    obs, info = env.reset(seed=job.env_seed())
+    rng = None if job.deterministic else job.noise_rng()
+    space = env.action_space
+    low, high = (space.low, space.high) if isinstance(space, gym.spaces.Box) else (None, None)
+    extra = float(info.get("reset_time", 0.0)) + float(info.get("thermal_pause_time", 0.0))
+    pause = float(info.get("thermal_pause_time", 0.0))
+    observations, actions, rewards, successes = [], [], [], []
+    terms: dict[str, float] = {}
+    terminated = truncated = False
+    while not (terminated or truncated):
+        noise = None if rng is None else rng.standard_normal(policy.act_dim)
+        action = policy.act(obs, noise)
+        observations.append(np.asarray(obs, dtype=np.float64))
+        actions.append(action)
+        env_action = action if low is None else np.clip(action, low, high)
+        obs, reward, terminated, truncated, info = env.step(env_action.astype(space.dtype))
+        rewards.append(float(reward))
+        successes.append(bool(info.get("success", False)))
+        for key, value in info.items():
+            if key.startswith("reward_") and np.isscalar(value):
+                terms[key] = terms.get(key, 0.0) + float(value)
+        if max_steps is not None and len(rewards) >= max_steps:
+            truncated = truncated or not terminated
+    n = len(rewards)
+    return Trajectory(
+        observations=np.asarray(observations).reshape(n, -1),
+        actions=np.asarray(actions).reshape(n, -1),
+        rewards=np.asarray(rewards),
+        successes=np.asarray(successes, dtype=bool),
+        final_observation=np.asarray(obs, dtype=np.float64),
+        terminated=bool(terminated),
+        truncated=bool(truncated and not terminated),
+        index=job.index,
+        reward_terms=terms,
+        robot_seconds=n * control_period(env) + extra,
+        pause_seconds=pause,
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Samplers
+
+
+class Sampler(abc.ABC):
+    """Runs rollout jobs; results are ordered by job index. Use as a context manager."""
+
+    @abc.abstractmethod
+    def sample(self, policy: PolicySnapshot, jobs: Sequence[RolloutJob]) -> list[Trajectory]:
+        """Sample one trajectory per job, returned in the order of ``jobs``."""
+
+    def close(self) -> None:
+        """Release envs and workers."""
+
+    def __enter__(self) -> Sampler:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class SerialSampler(Sampler):
+    """One env in this process; also the sampler for the emulated and real robots."""
+
+    def __init__(self, env_factory: EnvFactoryFn, max_steps: int | None = None):
+        self.env_factory, self.max_steps = env_factory, max_steps
+        self._env: gym.Env | None = None
+
+    @property
+    def env(self) -> gym.Env:
+        if self._env is None:
+            self._env = self.env_factory()
+        return self._env
+
+    def sample(self, policy: PolicySnapshot, jobs: Sequence[RolloutJob]) -> list[Trajectory]:
+        return [rollout(self.env, policy, job, self.max_steps) for job in jobs]
+
+    def close(self) -> None:
+        if self._env is not None:
+            self._env.close()
+            self._env = None
+
+
+def _split(jobs: Sequence[RolloutJob], n: int) -> list[list[RolloutJob]]:
+    """Contiguous chunks of nearly equal size (some may be empty)."""
+    bounds = np.linspace(0, len(jobs), n + 1).round().astype(int)
+    return [list(jobs[bounds[i] : bounds[i + 1]]) for i in range(n)]
+
+
+def _worker_main(conn: Any, env_factory: EnvFactoryFn, max_steps: int | None) -> None:
+    """Worker loop: build the env once, then answer ("sample", policy, jobs) until "close"."""
+    env = None
+    try:
+        while True:
+            message = conn.recv()
+            if message[0] == "close":
+                break
+            _, policy, jobs = message
+            try:
+                if env is None:
+                    env = env_factory()
+                conn.send(("ok", [rollout(env, policy, job, max_steps) for job in jobs]))
+            except Exception:  # reported to the parent, which raises
+                conn.send(("error", traceback.format_exc()))
+    except (EOFError, KeyboardInterrupt):
+        pass
+    finally:
+        if env is not None:
+            env.close()
+        conn.close()
+
+
+class SamplerError(LowcostdexError, RuntimeError):
+    """A sampling worker failed; the message carries its traceback."""
+
+
+class ProcessSampler(Sampler):
+    """A pool of worker processes that live across iterations, each with its own env.
+
+    Args:
+      env_factory: picklable env builder (run once in each worker).
+      n_workers: number of processes (>= 1).
+      max_steps: optional cap on episode length.
+      start_method: multiprocessing start method; "spawn" (default) is safe with torch and
+        MuJoCo threads; "forkserver" and "fork" start faster.
+    """
+
+    def __init__(
+        self,
+        env_factory: EnvFactoryFn,
+        n_workers: int,
+        max_steps: int | None = None,
+        start_method: str = "spawn",
+    ):
+        if n_workers < 1:
+            raise ConfigError(f"n_workers={n_workers} must be >= 1")
+        check_choice("start method", start_method, mp.get_all_start_methods())
+        ctx = mp.get_context(start_method)
+        self._conns, self._procs = [], []
+        for _ in range(n_workers):
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=_worker_main, args=(child, env_factory, max_steps), daemon=True)
+            proc.start()
+            child.close()
+            self._conns.append(parent)
+            self._procs.append(proc)
+
+    @property
+    def n_workers(self) -> int:
+        return len(self._procs)
+
+    def sample(self, policy: PolicySnapshot, jobs: Sequence[RolloutJob]) -> list[Trajectory]:
+        chunks = _split(list(jobs), self.n_workers)
+        busy = []
+        for conn, chunk in zip(self._conns, chunks, strict=True):
+            if chunk:
+                conn.send(("sample", policy, chunk))
+                busy.append(conn)
+        out: list[Trajectory] = []
+        errors = []
+        for conn in busy:
+            try:
+                status, payload = conn.recv()
+            except EOFError:
+                status, payload = "error", "worker process died"
+            if status == "ok":
+                out.extend(payload)
+            else:
+                errors.append(payload)
+        if errors:
+            raise SamplerError("sampling worker failed:\n" + "\n".join(errors))
+        return out
+
+    def close(self) -> None:
+        for conn in self._conns:
+            try:
+                conn.send(("close",))
+            except (BrokenPipeError, OSError):
+                pass
+        for proc in self._procs:
+            proc.join(timeout=10)
+            if proc.is_alive():
+                proc.terminate()
+                proc.join()
+        for conn in self._conns:
+            conn.close()
+        self._conns, self._procs = [], []
+
+
+class RaySampler(Sampler):
+    """Ray actors, one env each, for sampling across machines (optional extra ``ray``).
+
+    Args:
+      env_factory: picklable env builder.
+      n_workers: number of actors.
+      max_steps: optional cap on episode length.
+      ray_init_kwargs: passed to ``ray.init`` if Ray is not initialised yet.
+    """
+
+    def __init__(
+        self,
+        env_factory: EnvFactoryFn,
+        n_workers: int,
+        max_steps: int | None = None,
+        ray_init_kwargs: Mapping[str, Any] | None = None,
+    ):
+        try:
+            import ray
+        except ImportError as exc:
+            raise LowcostdexError(
+                "the Ray sampler needs Ray: pip install 'lowcostdex[ray]'"
+            ) from exc
+        if n_workers < 1:
+            raise ConfigError(f"n_workers={n_workers} must be >= 1")
+        if not ray.is_initialized():
+            ray.init(**dict(ray_init_kwargs or {}))
+        actor_cls = ray.remote(_RayWorker)
+        self._ray = ray
+        self._actors = [actor_cls.remote(env_factory, max_steps) for _ in range(n_workers)]
+
+    def sample(self, policy: PolicySnapshot, jobs: Sequence[RolloutJob]) -> list[Trajectory]:
+        chunks = _split(list(jobs), len(self._actors))
+        ref = self._ray.put(policy)
+        futures = [a.sample.remote(ref, c) for a, c in zip(self._actors, chunks, strict=True) if c]
+        return [t for part in self._ray.get(futures) for t in part]
+
+    def close(self) -> None:
+        for actor in getattr(self, "_actors", []):
+            self._ray.kill(actor)
+        self._actors = []
+
+
+class _RayWorker:
+    """Body of a Ray actor (wrapped with ``ray.remote`` at run time)."""
+
+    def __init__(self, env_factory: EnvFactoryFn, max_steps: int | None):
+        self.env = env_factory()
+        self.max_steps = max_steps
+
+    def sample(self, policy: PolicySnapshot, jobs: list[RolloutJob]) -> list[Trajectory]:
+        return [rollout(self.env, policy, job, self.max_steps) for job in jobs]

@@ -1,0 +1,598 @@
+"""Unmodeled servo effects as first-class objects, one catalogue for every layer.
+
+The simulator, the emulated bus, domain randomization and the gap analysis all use these classes:
+an effect has a canonical name, named parameters with a null value (effect absent), fit bounds and
+a domain-randomization range, and knows how to extend a servo-driven MuJoCo model. How it acts:
+
+  ``model``       writes MjModel fields (damping, frictionloss, gains, delay, mass, ...), relative
+                  to the nominal values, per simulation when the plant is batched;
+  ``friction``    adds a state-dependent dry-friction level every physics substep
+                  (Stribeck, load-dependent);
+  ``command``     transforms the goal position before it reaches the servo (backlash, action noise);
+  ``observation`` transforms what the encoder reports (offset, noise, quantization);
+  ``exogenous``   rescales gains from a measured channel each control step (temperature, voltage).
+
+Values are arrays over the effect's targets (actuated joints): shape (n,) for one simulation or
+(nsim, n) for a batch. Effects never hold state; the ``Plant`` (``lowcostdex.sim.plant``) owns
+per-rollout state (e.g. the backlash play position) and calls these pure functions.
+
+Magnitudes: ``Param.dr`` holds plausible D'Claw ranges (04-sysid.md section 6; ROBEL
+RandomDynamics; OpenAI Table 1); ``low``/``high`` are wider fit bounds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import ClassVar, Protocol
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.sim import servo
+
+Values = Mapping[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Param:
+    """A named effect parameter.
+
+    Attributes:
+      name: parameter name, unique within its effect.
+      null: value at which the effect is absent.
+      low, high: bounds for fitting [unit].
+      unit: SI unit string.
+      dr: plausible range for domain randomization on a D'Claw [unit].
+      start: initial guess for fitting (default: ``null`` moved inside the bounds).
+      doc: one-line meaning.
+    """
+
+    name: str
+    null: float
+    low: float
+    high: float
+    unit: str
+    dr: tuple[float, float]
+    start: float | None = None
+    doc: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.low < self.high:
+            raise ConfigError(f"param {self.name}: low must be < high")
+        if not (self.low <= self.dr[0] <= self.dr[1] <= self.high):
+            raise ConfigError(f"param {self.name}: dr range {self.dr} outside bounds")
+
+    @property
+    def initial(self) -> float:
+        """Fit start value, strictly inside the bounds."""
+        if self.start is not None:
+            return self.start
+        return float(np.clip(self.null, self.low + 1e-6 * (self.high - self.low),
+                             self.high - 1e-6 * (self.high - self.low)))
+
+
+class Fields(Protocol):
+    """Access to model fields, single (n, ...) or batched (nsim, n, ...)."""
+
+    def array(self, name: str) -> np.ndarray:
+        """Live array of a model field."""
+
+    def nominal(self, name: str) -> np.ndarray:
+        """The field's value in the nominal model, shape (n, ...)."""
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Where an effect acts: actuated joints and their indices in a compiled model.
+
+    Attributes:
+      joints: joint names.
+      actuators: actuator index per joint (the servo driving it).
+      dofs: dof address per joint.
+      qpos: qpos address per joint.
+      bodies: the body each joint moves.
+    """
+
+    joints: tuple[str, ...]
+    actuators: np.ndarray
+    dofs: np.ndarray
+    qpos: np.ndarray
+    bodies: np.ndarray
+
+    @classmethod
+    def resolve(cls, model: mujoco.MjModel, joints: tuple[str, ...] | list[str]) -> Targets:
+        """Resolve joint names; each must be a hinge/slide driven by exactly one actuator."""
+        names = [model.joint(i).name for i in range(model.njnt)]
+        acts, dofs, qpos, bodies = [], [], [], []
+        for jn in joints:
+            check_choice("joint", jn, names)
+            jid = model.joint(jn).id
+            driving = np.flatnonzero((model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
+                                     & (model.actuator_trnid[:, 0] == jid))
+            if len(driving) != 1:
+                raise ConfigError(f"joint {jn!r} must be driven by exactly one actuator, "
+                                  f"found {len(driving)}")
+            acts.append(int(driving[0]))
+            dofs.append(int(model.jnt_dofadr[jid]))
+            qpos.append(int(model.jnt_qposadr[jid]))
+            bodies.append(int(model.jnt_bodyid[jid]))
+        return cls(tuple(joints), np.array(acts, int), np.array(dofs, int), np.array(qpos, int),
+                   np.array(bodies, int))
+
+
+class Effect:
+    """Base class: a named, parameterized extension of a servo-driven model."""
+
+    name: ClassVar[str]
+    kind: ClassVar[str]  # model | friction | command | observation | exogenous
+    params: ClassVar[tuple[Param, ...]]
+    requires: ClassVar[tuple[str, ...]] = ()  # measured channels needed (e.g. "temperature")
+    fields: ClassVar[tuple[str, ...]] = ()  # model fields written by ``apply``
+    doc: ClassVar[str] = ""
+
+    # ---- parameters -----------------------------------------------------------------------
+    @classmethod
+    def param(cls, name: str) -> Param:
+        for p in cls.params:
+            if p.name == name:
+                return p
+        check_choice(f"{cls.name} parameter", name, [p.name for p in cls.params])
+        raise AssertionError
+
+    @classmethod
+    def null_values(cls, n: int) -> dict[str, np.ndarray]:
+        return {p.name: np.full(n, p.null) for p in cls.params}
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator, shape: tuple[int, ...]) -> dict[str, np.ndarray]:
+        """Draw parameters uniformly from their domain-randomization ranges."""
+        return {p.name: rng.uniform(p.dr[0], p.dr[1], size=shape) for p in cls.params}
+
+    @classmethod
+    def is_null(cls, values: Values) -> bool:
+        return all(np.allclose(values[p.name], p.null) for p in cls.params)
+
+    # ---- structural edits before compile ----------------------------------------------------
+    @classmethod
+    def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
+        """Edit the spec so the compiled model can host any value in the bounds (default: none)."""
+
+    # ---- hooks (overridden per kind) -----------------------------------------------------
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        """kind model: write model fields from their nominal values."""
+
+    @classmethod
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:
+        """kind friction: extra dry friction [N m] per target, from dof velocities [rad/s]
+        (..., nv) and actuator forces [N m] (..., nu)."""
+        raise NotImplementedError
+
+    @classmethod
+    def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
+                rng: np.random.Generator) -> np.ndarray:
+        """kind command: map goals [rad] (..., n_targets) to what the servo receives."""
+        raise NotImplementedError
+
+    @classmethod
+    def observe(cls, t: Targets, v: Values, q: np.ndarray,
+                rng: np.random.Generator) -> np.ndarray:
+        """kind observation: map true joint angles [rad] (..., n_targets) to encoder readings."""
+        raise NotImplementedError
+
+    @classmethod
+    def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
+                  gain: np.ndarray) -> None:
+        """kind exogenous: rescale the (..., n_targets, mjNGAIN) gain copy in place."""
+        raise NotImplementedError
+
+
+# ------------------------------------------------------------------------------------------------
+# model-field effects
+
+
+class Latency(Effect):
+    name = "latency"
+    kind = "model"
+    doc = "command latency: the servo sees the goal `delay` seconds late (native actuator delay)"
+    params = (Param("delay", 0.0, 0.0, 0.06, "s", (0.0, 0.03), start=0.01,
+                    doc="goal-to-servo delay"),)
+    fields = ("actuator_delay",)
+
+    @classmethod
+    def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
+        dt = spec.option.timestep
+        need = int(math.ceil(cls.params[0].high / dt)) + 2
+        for act in spec.actuators:
+            if act.target in joints:
+                act.nsample = max(act.nsample, need)
+                act.interp = 1  # linear: fractional delays between timesteps
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        f.array("actuator_delay")[..., t.actuators] = v["delay"]
+
+
+class CoulombFriction(Effect):
+    name = "coulomb_friction"
+    kind = "model"
+    doc = "extra dry (Coulomb) friction in the joint, with stiction (MuJoCo frictionloss)"
+    params = (Param("frictionloss", 0.0, 0.0, 0.5, "N m", (0.0, 0.1), start=0.02),)
+    fields = ("dof_frictionloss",)
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        arr = f.array("dof_frictionloss")
+        arr[..., t.dofs] = arr[..., t.dofs] + v["frictionloss"]
+
+
+class ViscousDamping(Effect):
+    name = "viscous_damping"
+    kind = "model"
+    doc = "extra viscous damping in the joint (negative: less than nominal)"
+    params = (Param("damping", 0.0, -0.5, 2.0, "N m s/rad", (0.0, 0.3), start=0.05),)
+    fields = ("dof_damping",)
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        arr = f.array("dof_damping")
+        arr[..., t.dofs] = np.maximum(arr[..., t.dofs] + v["damping"], 0.0)
+
+
+class GainError(Effect):
+    name = "gain_error"
+    kind = "model"
+    doc = "position gain off by a factor (firmware P/I/D to torque)"
+    params = (Param("scale", 1.0, 0.2, 4.0, "1", (0.7, 1.4)),)
+    fields = ("actuator_gainprm",)
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        g, nom = f.array("actuator_gainprm"), f.nominal("actuator_gainprm")
+        a = t.actuators
+        backemf = nom[a, servo.GAIN_K] ** 2 / nom[a, servo.GAIN_R]
+        s = v["scale"]
+        g[..., a, servo.GAIN_KP] = g[..., a, servo.GAIN_KP] * s
+        g[..., a, servo.GAIN_KI] = g[..., a, servo.GAIN_KI] * s
+        g[..., a, servo.GAIN_KD] = backemf + (g[..., a, servo.GAIN_KD] - backemf) * s
+
+
+class TorqueLimit(Effect):
+    name = "torque_limit"
+    kind = "model"
+    doc = "the servo delivers at most `torque` (current limit, weak supply, worn motor)"
+    params = (Param("torque", math.inf, 0.02, 10.0, "N m", (1.5, 4.0), start=1.0),)
+    fields = ("actuator_forcerange", "actuator_forcelimited")
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        tau = np.asarray(v["torque"], dtype=float)
+        lim = f.array("actuator_forcelimited")
+        rng_ = f.array("actuator_forcerange")
+        finite = np.isfinite(tau)
+        bound = np.where(finite, tau, 0.0)
+        nominal = f.nominal("actuator_forcerange")[t.actuators, 1]
+        nominal = np.where(nominal > 0, nominal, np.inf)
+        bound = np.where(finite, np.minimum(bound, nominal), 0.0)
+        rng_[..., t.actuators, 0] = -bound
+        rng_[..., t.actuators, 1] = bound
+        lim[..., t.actuators] = np.where(finite | (f.nominal("actuator_forcelimited")[
+            t.actuators] > 0), 1, 0)
+
+
+class VelocityLimit(Effect):
+    name = "velocity_limit"
+    kind = "model"
+    doc = "no-load speed off by a factor (back-EMF constant; stall torque kept)"
+    params = (Param("scale", 1.0, 0.2, 3.0, "1", (0.8, 1.2)),)
+    fields = ("actuator_gainprm",)
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        g = f.array("actuator_gainprm")
+        a = t.actuators
+        s = v["scale"]
+        k, r = g[..., a, servo.GAIN_K], g[..., a, servo.GAIN_R]
+        backemf = k * k / r
+        g[..., a, servo.GAIN_KD] = g[..., a, servo.GAIN_KD] - backemf + backemf / s
+        g[..., a, servo.GAIN_K] = k / s
+        g[..., a, servo.GAIN_R] = r / s
+
+
+class InertiaError(Effect):
+    name = "inertia_error"
+    kind = "model"
+    doc = "reflected rotor inertia (armature) off by a factor"
+    params = (Param("scale", 1.0, 0.1, 10.0, "1", (0.7, 1.5)),)
+    fields = ("dof_armature",)
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        arr = f.array("dof_armature")
+        arr[..., t.dofs] = arr[..., t.dofs] * v["scale"]
+
+
+class MassError(Effect):
+    name = "mass_error"
+    kind = "model"
+    doc = "mass (and inertia) of the body the joint moves off by a factor"
+    params = (Param("scale", 1.0, 0.3, 3.0, "1", (0.8, 1.25)),)
+    fields = ("body_mass", "body_inertia")
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        m, inertia = f.array("body_mass"), f.array("body_inertia")
+        s = np.asarray(v["scale"], dtype=float)
+        m[..., t.bodies] = m[..., t.bodies] * s
+        inertia[..., t.bodies, :] = inertia[..., t.bodies, :] * s[..., None]
+
+
+# ------------------------------------------------------------------------------------------------
+# substep friction effects
+
+
+class StribeckFriction(Effect):
+    name = "stribeck_friction"
+    kind = "friction"
+    doc = ("breakaway friction above the sliding level at low speed: "
+           "extra = static * exp(-(v / velocity)^2)")
+    params = (
+        Param("static", 0.0, 0.0, 0.5, "N m", (0.0, 0.08), start=0.03),
+        Param("velocity", 0.2, 0.01, 2.0, "rad/s", (0.05, 0.5), start=0.2),
+    )
+
+    @classmethod
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:
+        w = qvel[..., t.dofs] / v["velocity"]
+        return v["static"] * np.exp(-w * w)
+
+
+class LoadDependentFriction(Effect):
+    name = "load_dependent_friction"
+    kind = "friction"
+    doc = "gearbox friction growing with transmitted torque: extra = mu * |tau_motor|"
+    params = (Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05),)
+
+    @classmethod
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:
+        return v["mu"] * np.abs(force[..., t.actuators])
+
+
+# ------------------------------------------------------------------------------------------------
+# command and observation effects
+
+
+class Backlash(Effect):
+    name = "backlash"
+    kind = "command"
+    doc = "gear/horn play of total `width`: a play operator between goal and servo setpoint"
+    params = (Param("width", 0.0, 0.0, 0.1, "rad", (0.0, 0.017), start=0.01),)
+
+    @classmethod
+    def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
+                rng: np.random.Generator) -> np.ndarray:
+        half = 0.5 * np.asarray(v["width"])
+        prev = state.get("backlash")
+        prev = goal if prev is None else np.where(np.isnan(prev), goal, prev)
+        out = np.clip(prev, goal - half, goal + half)
+        state["backlash"] = out
+        return out
+
+
+class ActionNoise(Effect):
+    name = "action_noise"
+    kind = "command"
+    doc = "Gaussian noise on each goal position"
+    params = (Param("std", 0.0, 0.0, 0.1, "rad", (0.0, 0.02)),)
+
+    @classmethod
+    def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
+                rng: np.random.Generator) -> np.ndarray:
+        return goal + rng.normal(size=goal.shape) * v["std"]
+
+
+class PositionOffset(Effect):
+    name = "position_offset"
+    kind = "observation"
+    doc = "calibration offset: the encoder reading is off by a constant"
+    params = (Param("offset", 0.0, -0.2, 0.2, "rad", (-0.03, 0.03)),)
+
+    @classmethod
+    def observe(cls, t: Targets, v: Values, q: np.ndarray,
+                rng: np.random.Generator) -> np.ndarray:
+        return q + v["offset"]
+
+
+class ObservationNoise(Effect):
+    name = "observation_noise"
+    kind = "observation"
+    doc = "Gaussian noise on each joint reading"
+    params = (Param("std", 0.0, 0.0, 0.05, "rad", (0.0, 0.01)),)
+
+    @classmethod
+    def observe(cls, t: Targets, v: Values, q: np.ndarray,
+                rng: np.random.Generator) -> np.ndarray:
+        return q + rng.normal(size=q.shape) * v["std"]
+
+
+class Quantization(Effect):
+    name = "quantization"
+    kind = "observation"
+    doc = "encoder quantization to `ticks` per revolution (0: continuous)"
+    params = (Param("ticks", 0.0, 0.0, 65536.0, "1/rev", (4096.0, 4096.0)),)
+
+    @classmethod
+    def observe(cls, t: Targets, v: Values, q: np.ndarray,
+                rng: np.random.Generator) -> np.ndarray:
+        ticks = np.asarray(v["ticks"], dtype=float)
+        step = np.where(ticks > 0, 2 * math.pi / np.where(ticks > 0, ticks, 1.0), 0.0)
+        return np.where(step > 0, np.round(q / np.where(step > 0, step, 1.0)) * step, q)
+
+
+# ------------------------------------------------------------------------------------------------
+# exogenous effects (need measured channels)
+
+
+class ThermalDerating(Effect):
+    name = "thermal_derating"
+    kind = "exogenous"
+    requires = ("temperature",)
+    doc = "winding resistance rises with the measured temperature: R = R0 (1 + a (T - T_ref))"
+    params = (Param("tempcoef", 0.0, 0.0, 0.03, "1/K", (0.0039, 0.0039), start=0.004),)
+
+    @classmethod
+    def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
+                  gain: np.ndarray) -> None:
+        temp = channels["temperature"]  # (..., n_targets) [deg C]
+        tref = f.nominal("actuator_gainprm")[t.actuators, servo.GAIN_TREF]
+        factor = 1.0 + v["tempcoef"] * (temp - tref)
+        _scale_resistance(gain, t.actuators, np.maximum(factor, 0.2))
+
+
+class VoltageSag(Effect):
+    name = "voltage_sag"
+    kind = "exogenous"
+    requires = ("voltage",)
+    doc = ("the supply follows the measured input voltage instead of the nominal one: "
+           "V = V_nom + weight (V_meas - V_nom)")
+    params = (Param("weight", 0.0, 0.0, 1.5, "1", (1.0, 1.0), start=0.5),)
+
+    @classmethod
+    def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
+                  gain: np.ndarray) -> None:
+        vm = channels["voltage"]  # (..., n_targets) [V]
+        a = t.actuators
+        vnom = f.nominal("actuator_user")[a, servo.USER_SUPPLY_VOLTAGE]
+        ratio = 1.0 + v["weight"] * (vm - vnom) / vnom
+        ratio = np.maximum(ratio, 0.05)
+        gain[..., a, servo.GAIN_KP] *= ratio
+        gain[..., a, servo.GAIN_KI] *= ratio
+        gain[..., a, servo.GAIN_VMAX] *= ratio
+        backemf = gain[..., a, servo.GAIN_K] ** 2 / gain[..., a, servo.GAIN_R]
+        gain[..., a, servo.GAIN_KD] = backemf + (gain[..., a, servo.GAIN_KD] - backemf) * ratio
+
+
+def _scale_resistance(gain: np.ndarray, a: np.ndarray, factor: np.ndarray) -> None:
+    """R -> R * factor, keeping the firmware's voltage gains (kp, kd in torque space scale 1/R)."""
+    k = gain[..., a, servo.GAIN_K]
+    r = gain[..., a, servo.GAIN_R]
+    backemf = k * k / r
+    extra_kd = gain[..., a, servo.GAIN_KD] - backemf
+    gain[..., a, servo.GAIN_R] = r * factor
+    gain[..., a, servo.GAIN_KP] /= factor
+    gain[..., a, servo.GAIN_KI] /= factor
+    gain[..., a, servo.GAIN_KD] = backemf / factor + extra_kd / factor
+
+
+EFFECTS: dict[str, type[Effect]] = {
+    e.name: e
+    for e in (
+        Latency, Backlash, CoulombFriction, StribeckFriction, LoadDependentFriction,
+        ViscousDamping, GainError, TorqueLimit, VelocityLimit, PositionOffset, InertiaError,
+        MassError, ThermalDerating, VoltageSag, ObservationNoise, ActionNoise, Quantization,
+    )
+}
+
+# The canonical causes the gap analysis may name (report uses exactly these names).
+CAUSES: tuple[str, ...] = (
+    "latency", "backlash", "coulomb_friction", "stribeck_friction", "load_dependent_friction",
+    "viscous_damping", "gain_error", "torque_limit", "velocity_limit", "position_offset",
+    "inertia_error", "mass_error", "thermal_derating", "voltage_sag",
+)
+
+
+def effect(name: str) -> type[Effect]:
+    """Look up an effect class by canonical name; the error lists the catalogue."""
+    check_choice("effect", name, EFFECTS)
+    return EFFECTS[name]
+
+
+@dataclass(frozen=True)
+class AppliedEffect:
+    """An effect bound to joints with parameter values.
+
+    Attributes:
+      name: canonical effect name.
+      joints: joints it acts on.
+      values: parameter name -> value per joint, shape (n_joints,) or a scalar for all.
+    """
+
+    name: str
+    joints: tuple[str, ...]
+    values: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        cls = effect(self.name)
+        n = len(self.joints)
+        if n == 0:
+            raise ConfigError(f"effect {self.name}: no joints given")
+        vals: dict[str, np.ndarray] = {}
+        for p in cls.params:
+            raw = self.values.get(p.name, p.null)
+            arr = np.broadcast_to(np.asarray(raw, dtype=float), (n,)).copy()
+            vals[p.name] = arr
+        unknown = set(self.values) - {p.name for p in cls.params}
+        if unknown:
+            check_choice(f"{self.name} parameter", sorted(unknown)[0], [p.name for p in cls.params])
+        object.__setattr__(self, "values", vals)
+
+    @property
+    def cls(self) -> type[Effect]:
+        return effect(self.name)
+
+    def to_dict(self) -> dict:
+        return {"effect": self.name, "joints": list(self.joints),
+                "params": {k: v.tolist() for k, v in self.values.items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> AppliedEffect:
+        return cls(d["effect"], tuple(d["joints"]), {k: np.asarray(v, float)
+                                                     for k, v in d["params"].items()})
+
+
+SampleFn = Callable[[np.random.Generator], list[AppliedEffect]]
+
+
+@dataclass(frozen=True)
+class DomainRandomization:
+    """Which effects to randomize on which joints; samples AppliedEffects from ``Param.dr``.
+
+    Attributes:
+      effects: canonical effect names to randomize (each independently per joint).
+      joints: joints the effects act on.
+      ranges: optional overrides {effect: {param: (low, high)}} (e.g. from a gap-analysis fit).
+    """
+
+    effects: tuple[str, ...]
+    joints: tuple[str, ...]
+    ranges: Mapping[str, Mapping[str, tuple[float, float]]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in self.effects:
+            effect(name)
+        for name, params in self.ranges.items():
+            cls = effect(name)
+            for p in params:
+                cls.param(p)
+
+    def sample(self, rng: np.random.Generator) -> list[AppliedEffect]:
+        """Draw one set of effect values (seeded by ``rng``)."""
+        out = []
+        n = len(self.joints)
+        for name in self.effects:
+            cls = effect(name)
+            vals = cls.sample(rng, (n,))
+            for p, (lo, hi) in self.ranges.get(name, {}).items():
+                vals[p] = rng.uniform(lo, hi, size=n)
+            out.append(AppliedEffect(name, self.joints, vals))
+        return out
+
+
+# ROBEL RandomDynamics / OpenAI-style defaults for the D'Claw's servos.
+DEFAULT_DR_EFFECTS: tuple[str, ...] = (
+    "coulomb_friction", "viscous_damping", "gain_error", "latency", "backlash", "inertia_error",
+    "mass_error", "observation_noise", "action_noise",
+)

@@ -1,0 +1,104 @@
+"""The robot side of an env, swappable: pure MuJoCo, an emulated Dynamixel bus, or hardware.
+
+An env owns a compiled model and an ``MjData`` that its task reads (the "mirror"). A backend
+brings the robot to an initial state, holds joint goals for one control period, and leaves the
+resulting state in the mirror. ``SimBackend`` steps the mirror itself through a ``Plant`` (the
+shared servo/effect engine); the emulated and hardware backends (``lowcostdex.hardware``) drive a
+bus and copy what the encoders report into the mirror, as ROBEL does.
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import check_choice
+from lowcostdex.sim.effects import AppliedEffect
+from lowcostdex.sim.plant import Plant
+
+
+class Backend(ABC):
+    """Interface between an env and a robot.
+
+    Attributes:
+      model: the env's compiled model.
+      data: the mirror the task reads (qpos/qvel are the robot's state after each call).
+    """
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    #: True when the backend runs in real time on a physical or emulated robot.
+    real_time: bool = False
+
+    @abstractmethod
+    def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        """Bring the robot to (qpos (nq,), qvel (nv,)) or as close as it can (auto-reset)."""
+
+    @abstractmethod
+    def apply(self, goal: np.ndarray, nstep: int) -> None:
+        """Hold goal positions (nu,) [rad] for one control period of ``nstep`` substeps."""
+
+    def observed_qpos(self) -> np.ndarray:
+        """qpos as the robot's encoders report it (nq,); default the mirror's qpos."""
+        return self.data.qpos
+
+    def set_effects(self, effects: Sequence[AppliedEffect]) -> None:
+        """Domain randomization: apply effect values for the next episode (sim only)."""
+        if effects:
+            raise NotImplementedError(f"{type(self).__name__} cannot randomize dynamics")
+
+    def telemetry(self) -> dict[str, Any]:
+        """Extra readings for ``info`` (currents [A], temperatures [deg C], resets, pauses)."""
+        return {}
+
+    def close(self) -> None:
+        """Release the robot (torque off, port closed)."""
+
+
+class SimBackend(Backend):
+    """Pure MuJoCo: the mirror is the simulation, stepped by a ``Plant``."""
+
+    def __init__(self, model: mujoco.MjModel, task: Any = None,
+                 rng: np.random.Generator | None = None):
+        self.plant = Plant(model, rng=rng)
+        self.model = self.plant.model
+        self.data = self.plant.data
+
+    def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        self.plant.reset(qpos, qvel)
+
+    def apply(self, goal: np.ndarray, nstep: int) -> None:
+        self.plant.step(goal, nstep)
+
+    def set_effects(self, effects: Sequence[AppliedEffect]) -> None:
+        self.plant.set_effects(effects)
+
+    def observed_qpos(self) -> np.ndarray:
+        return self.plant.measured_qpos()
+
+    def telemetry(self) -> dict[str, Any]:
+        from lowcostdex.sim import servo
+
+        return {"current": servo.motor_current(self.model, self.data),
+                "temperature": servo.winding_temperature(self.model, self.data)}
+
+
+# Backends outside lowcostdex.sim are named by "module:Class" and imported on first use. Every
+# backend is constructed as ``cls(model, task=task, rng=rng, **backend_kwargs)``.
+BACKENDS: dict[str, str] = {
+    "sim": "lowcostdex.sim.envs.backend:SimBackend",
+    "emulated": "lowcostdex.hardware.backend:EmulatedBackend",
+    "hardware": "lowcostdex.hardware.backend:HardwareBackend",
+}
+
+
+def backend_class(name: str) -> type[Backend]:
+    """Resolve a backend name to its class; the error lists the valid names."""
+    check_choice("backend", name, BACKENDS)
+    module, cls = BACKENDS[name].split(":")
+    return getattr(importlib.import_module(module), cls)

@@ -1,0 +1,301 @@
+"""D'Claw tasks: turn a valve (180 deg), turn a foam valve, track a screw, flip a block.
+
+Task definitions follow ROBEL (01-hardware.md section 1.5): 10 Hz control (40 x 2.5 ms), reset pose
+[0, -pi/3, pi/3] per finger, reward terms -5|err|, -||q - q_reset||, -||v[|v| > 0.5]||,
++10 (|err| < 0.25), +50 (|err| < 0.1); success |err| < 0.1 rad (turn) or 0.2 rad (screw).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import check_choice
+from lowcostdex.hardware.hands import HandSpec, dclaw_spec
+from lowcostdex.sim import servo
+from lowcostdex.sim.envs.task import Goal, Task, TaskSpec, wrap_angle
+from lowcostdex.sim.models.dclaw import BLOCK_CENTER, BLOCK_HALF, build_dclaw
+from lowcostdex.sim.models.common import quat_euler
+
+RESET_POSE = np.tile([0.0, -math.pi / 3, math.pi / 3], 3)  # [rad] ROBEL turn/screw reset pose
+
+
+def _norm(x: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.sum(np.square(x), axis=-1))
+
+
+class DClawTask(Task):
+    """Common D'Claw pieces: the scene, the hand observation, the pose and velocity penalties."""
+
+    station: str = "none"
+
+    def __init__(self, hand: HandSpec | None = None, gains: servo.ServoGains | None = None,
+                 timing: TaskSpec = TaskSpec()):
+        self.hand = hand or dclaw_spec()
+        self.gains = gains
+        self.timing = timing
+
+    def build_spec(self) -> mujoco.MjSpec:
+        return build_dclaw(self.station, self.hand, self.gains)
+
+    def hand_state(self, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return qpos[..., self.hand_qpos], qvel[..., self.hand_dof]
+
+    def posture_terms(self, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:
+        q, v = self.hand_state(qpos, qvel)
+        fast = np.where(np.abs(v) >= 0.5, v, 0.0)
+        return {"pose": -1.0 * _norm(q - RESET_POSE), "velocity": -1.0 * _norm(fast)}
+
+
+@dataclass(frozen=True)
+class TurnConfig:
+    """Valve-turning goal distribution.
+
+    Attributes:
+      init_range: initial valve angle ~ U(-init_range, init_range) [rad] (0: fixed at 0).
+      goal_offset: nominal goal relative to the initial angle [rad] (pi = 180 deg).
+      goal_range: goal ~ init + goal_offset + U(-goal_range, goal_range) [rad].
+      success_tol: |error| for success [rad].
+      pose_noise: std of Gaussian noise on the initial finger pose [rad].
+    """
+
+    init_range: float = 0.0
+    goal_offset: float = math.pi
+    goal_range: float = 0.0
+    success_tol: float = 0.1
+    pose_noise: float = 0.0
+
+
+class ValveTask(DClawTask):
+    """Shared pieces of the valve tasks: observation, error, reward, valve-motor hold."""
+
+    config: TurnConfig | ScrewConfig
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        super().bind(model)
+        self.obj_qpos = int(model.jnt_qposadr[model.joint("valve").id])
+        self.obj_dof = int(model.jnt_dofadr[model.joint("valve").id])
+
+    @property
+    def obs_dim(self) -> int:
+        return 9 + 9 + 2 + 1 + 9
+
+    def error(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
+        return wrap_angle(goal["angle"] - qpos[..., self.obj_qpos])
+
+    def observation(self, qpos, qvel, goal, last_action):
+        q, v = self.hand_state(qpos, qvel)
+        theta = qpos[..., self.obj_qpos]
+        err = self.error(qpos, goal)[..., None]
+        return np.concatenate([q, v, np.cos(theta)[..., None], np.sin(theta)[..., None], err,
+                               last_action], axis=-1)
+
+    def reward_terms(self, qpos, qvel, goal, action):
+        err = np.abs(self.error(qpos, goal))
+        terms = {"goal_error": -5.0 * err}
+        terms.update(self.posture_terms(qpos, qvel))
+        terms["bonus_small"] = 10.0 * (err < 0.25)
+        terms["bonus_big"] = 50.0 * (err < 0.10)
+        return terms
+
+    def success(self, qpos, goal):
+        return np.abs(self.error(qpos, goal)) < self.config.success_tol
+
+    def goal_error(self, qpos, goal):
+        return self.error(qpos, goal)
+
+    def aux_ctrl(self, qpos):
+        # The valve motor is torque-off during episodes; its goal follows the valve.
+        return qpos[..., [self.obj_qpos]]
+
+    def goal_marker(self, goal):
+        return (np.array([0.0, 0.0, 0.16]),
+                np.array(quat_euler(z=float(goal["angle"]) - math.pi / 2)))
+
+
+class TurnValve(ValveTask):
+    """Turn the 3-spoke valve to a goal angle (default 180 deg from 0)."""
+
+    station = "valve"
+
+    def __init__(self, config: TurnConfig = TurnConfig(), *, foam: bool = False, **kw):
+        super().__init__(**kw)
+        self.config = config
+        if foam:
+            self.station = "foam_valve"
+
+    def initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, Goal]:
+        c = self.config
+        qpos = np.zeros(self.model.nq)
+        qpos[self.hand_qpos] = RESET_POSE + c.pose_noise * rng.normal(size=9)
+        init = rng.uniform(-c.init_range, c.init_range) if c.init_range > 0 else 0.0
+        goal = init + c.goal_offset + (rng.uniform(-c.goal_range, c.goal_range)
+                                       if c.goal_range > 0 else 0.0)
+        qpos[self.obj_qpos] = init
+        return qpos, np.zeros(self.model.nv), {"angle": np.asarray(goal, float)}
+
+
+@dataclass(frozen=True)
+class ScrewConfig:
+    """Screw tracking: the goal angle moves at ``speed`` rad/s from the initial angle.
+
+    Attributes:
+      speed: goal velocity [rad/s] (fixed variant) or the bound of U(-speed, speed) (random).
+      random: sample initial angle U(-pi, pi) and speed U(-speed, speed) (ROBEL ScrewRandom).
+      success_tol: |error| for success [rad].
+    """
+
+    speed: float = 0.5
+    random: bool = False
+    success_tol: float = 0.2
+
+
+class Screw(ValveTask):
+    """Keep the valve (continuous rotation) at a goal angle moving at constant speed."""
+
+    station = "screw"
+
+    def __init__(self, config: ScrewConfig = ScrewConfig(), **kw):
+        kw.setdefault("timing", TaskSpec(frame_skip=40, episode_steps=80))
+        super().__init__(**kw)
+        self.config = config
+
+    def initial_state(self, rng):
+        c = self.config
+        qpos = np.zeros(self.model.nq)
+        qpos[self.hand_qpos] = RESET_POSE
+        init = rng.uniform(-math.pi, math.pi) if c.random else 0.0
+        speed = rng.uniform(-c.speed, c.speed) if c.random else c.speed
+        qpos[self.obj_qpos] = init
+        goal = {"angle": np.asarray(init, float), "start": np.asarray(init, float),
+                "speed": np.asarray(speed, float)}
+        return qpos, np.zeros(self.model.nv), goal
+
+    def advance_goal(self, goal: Goal, step: int) -> Goal:
+        period = self.timing.frame_skip * self.model.opt.timestep
+        return {**goal, "angle": goal["start"] + goal["speed"] * period * step}
+
+
+@dataclass(frozen=True)
+class FlipConfig:
+    """Block flipping.
+
+    Attributes:
+      representation: "keypoints" (8 cube corners, position and reward) or "quaternion"
+        (position + orientation quaternion; reward on position and rotation angle).
+      flip_axis: horizontal axis the goal rotates the block about.
+      success_angle: orientation error for success [rad].
+      drop_height: block centre below this height [m] ends the episode (terminated).
+    """
+
+    representation: str = "keypoints"
+    flip_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    success_angle: float = 0.4
+    drop_height: float = 0.03
+
+    def __post_init__(self) -> None:
+        check_choice("block representation", self.representation, ("keypoints", "quaternion"))
+
+
+_CORNERS = np.array([[sx, sy, sz] for sz in (-1, 1) for sy in (-1, 1) for sx in (-1, 1)],
+                    dtype=float) * BLOCK_HALF
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors v (..., k, 3) by unit quaternions q (..., 4) (w, x, y, z)."""
+    w = q[..., None, 0:1]
+    u = q[..., None, 1:4]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Rotation angle between unit quaternions (...) [rad]."""
+    dot = np.abs(np.sum(q1 * q2, axis=-1))
+    return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+
+
+class FlipBlock(DClawTask):
+    """Flip a free block 180 deg about a horizontal axis (BAIR's D'Claw flipping task)."""
+
+    station = "block"
+
+    def __init__(self, config: FlipConfig = FlipConfig(), **kw):
+        kw.setdefault("timing", TaskSpec(frame_skip=40, episode_steps=80))
+        super().__init__(**kw)
+        self.config = config
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        super().bind(model)
+        adr = int(model.jnt_qposadr[model.joint("block").id])
+        self.block_pos = np.arange(adr, adr + 3)
+        self.block_quat = np.arange(adr + 3, adr + 7)
+        axis = np.asarray(self.config.flip_axis, float)
+        self.goal_quat = np.array([0.0, *(axis / np.linalg.norm(axis))])  # 180 deg about axis
+
+    @property
+    def obs_dim(self) -> int:
+        pose = 24 if self.config.representation == "keypoints" else 7
+        return 9 + 9 + 2 * pose + 9
+
+    def keypoints(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
+        """Cube corners (..., 8, 3) [m] of a block at pos (..., 3), quat (..., 4)."""
+        return pos[..., None, :] + quat_rotate(quat, np.broadcast_to(_CORNERS, quat.shape[:-1]
+                                                                     + _CORNERS.shape))
+
+    def _pose(self, qpos):
+        return qpos[..., self.block_pos], qpos[..., self.block_quat]
+
+    def initial_state(self, rng):
+        qpos = np.zeros(self.model.nq)
+        qpos[self.hand_qpos] = RESET_POSE
+        qpos[self.block_pos] = BLOCK_CENTER
+        qpos[self.block_quat] = [1.0, 0.0, 0.0, 0.0]
+        goal = {"pos": np.array(BLOCK_CENTER, float), "quat": self.goal_quat.copy()}
+        return qpos, np.zeros(self.model.nv), goal
+
+    def _rep(self, pos, quat):
+        if self.config.representation == "keypoints":
+            kp = self.keypoints(pos, quat)
+            return kp.reshape(kp.shape[:-2] + (24,))
+        return np.concatenate([pos, quat * np.sign(quat[..., :1] + 1e-12)], axis=-1)
+
+    def observation(self, qpos, qvel, goal, last_action):
+        q, v = self.hand_state(qpos, qvel)
+        pos, quat = self._pose(qpos)
+        lead = pos.shape[:-1]
+        gpos = np.broadcast_to(goal["pos"], lead + (3,))
+        gquat = np.broadcast_to(goal["quat"], lead + (4,))
+        return np.concatenate([q, v, self._rep(pos, quat), self._rep(gpos, gquat), last_action],
+                              axis=-1)
+
+    def orientation_error(self, qpos, goal):
+        _, quat = self._pose(qpos)
+        return quat_angle(quat, goal["quat"])
+
+    def reward_terms(self, qpos, qvel, goal, action):
+        pos, quat = self._pose(qpos)
+        if self.config.representation == "keypoints":
+            kp = self.keypoints(pos, quat)
+            gkp = self.keypoints(np.asarray(goal["pos"]), np.asarray(goal["quat"]))
+            dist = np.mean(_norm(kp - gkp), axis=-1)
+            terms = {"keypoint_distance": -20.0 * dist}
+        else:
+            terms = {"position": -20.0 * _norm(pos - goal["pos"]),
+                     "orientation": -1.0 * self.orientation_error(qpos, goal)}
+        terms.update(self.posture_terms(qpos, qvel))
+        terms["pose"] = 0.1 * terms["pose"]
+        terms["bonus"] = 10.0 * self.success(qpos, goal)
+        return terms
+
+    def success(self, qpos, goal):
+        return self.orientation_error(qpos, goal) < self.config.success_angle
+
+    def terminated(self, qpos, goal):
+        return qpos[..., self.block_pos[2]] < self.config.drop_height
+
+    def goal_error(self, qpos, goal):
+        return self.orientation_error(qpos, goal)

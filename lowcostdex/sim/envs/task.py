@@ -1,0 +1,102 @@
+"""Task interface: what a hand env observes, rewards and counts as success.
+
+Tasks are written against plain arrays with optional leading batch dimensions (qpos (..., nq),
+qvel (..., nv)), so one task serves the single env and the batched vector env alike, and the robot
+side (sim, emulated bus, hardware) is swappable behind ``Backend``.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from lowcostdex.hardware.hands import HandSpec
+
+Goal = dict[str, np.ndarray]
+
+
+def wrap_angle(x: np.ndarray) -> np.ndarray:
+    """Wrap angles [rad] to [-pi, pi)."""
+    return (np.asarray(x) + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """Timing of a task.
+
+    Attributes:
+      frame_skip: physics substeps per control step.
+      episode_steps: control steps per episode (truncation).
+    """
+
+    frame_skip: int = 40
+    episode_steps: int = 40
+
+
+class Task(ABC):
+    """A task on a hand: model, initial state distribution, observation, reward terms, success."""
+
+    hand: HandSpec
+    timing: TaskSpec
+
+    @abstractmethod
+    def build_spec(self) -> mujoco.MjSpec:
+        """The task's MJCF scene (uncompiled)."""
+
+    def bind(self, model: mujoco.MjModel) -> None:
+        """Resolve names to indices in the compiled model."""
+        self.model = model
+        self.hand_qpos = np.array([model.jnt_qposadr[model.joint(n).id]
+                                   for n in self.hand.joint_names])
+        self.hand_dof = np.array([model.jnt_dofadr[model.joint(n).id]
+                                  for n in self.hand.joint_names])
+        self.hand_act = np.array([model.actuator(n).id for n in self.hand.joint_names])
+        self.hand_low = np.array([j.low for j in self.hand.joints])
+        self.hand_high = np.array([j.high for j in self.hand.joints])
+
+    @abstractmethod
+    def initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, Goal]:
+        """Sample (qpos (nq,), qvel (nv,), goal) for a new episode."""
+
+    @abstractmethod
+    def observation(self, qpos: np.ndarray, qvel: np.ndarray, goal: Goal,
+                    last_action: np.ndarray) -> np.ndarray:
+        """Observation (..., obs_dim) from state arrays (..., nq), (..., nv)."""
+
+    @property
+    @abstractmethod
+    def obs_dim(self) -> int:
+        """Observation length."""
+
+    @abstractmethod
+    def reward_terms(self, qpos: np.ndarray, qvel: np.ndarray, goal: Goal,
+                     action: np.ndarray) -> dict[str, np.ndarray]:
+        """Named reward terms (each (...)); the reward is their sum."""
+
+    @abstractmethod
+    def success(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
+        """Success flag (...)."""
+
+    def terminated(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
+        """True where the episode reached a terminal state (default: never; time limits truncate)."""
+        return np.zeros(np.shape(qpos)[:-1], dtype=bool)
+
+    def goal_error(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
+        """Scalar goal error (...) reported in info (task-specific unit)."""
+        return np.zeros(np.shape(qpos)[:-1])
+
+    def advance_goal(self, goal: Goal, step: int) -> Goal:
+        """Goal after ``step`` control steps (moving targets, e.g. the screw); default fixed."""
+        return goal
+
+    def aux_ctrl(self, qpos: np.ndarray) -> np.ndarray:
+        """Goals (..., n_aux) for actuators outside the action (e.g. the valve motor: hold)."""
+        return np.zeros(np.shape(qpos)[:-1] + (self.model.nu - len(self.hand_act),))
+
+    def goal_marker(self, goal: Goal) -> tuple[np.ndarray, np.ndarray] | None:
+        """(pos, quat) of the mocap goal marker, if the scene has one."""
+        return None

@@ -1,0 +1,463 @@
+"""The plant: a servo-driven MuJoCo model with effects applied, stepped at control rate.
+
+One engine for every layer: the gymnasium envs (``sim`` backend), the emulated Dynamixel bus (the
+physics behind the wire), domain randomization (per-episode effect values, per simulation in a
+batch) and the gap analysis (replaying measured commands). ``Plant`` runs one ``MjData``;
+``BatchPlant`` runs ``nsim`` simulations on ``mujoco.batch.Batch`` with per-simulation model
+fields. Both share the same code through a leading "sim" axis: arrays are (nu,) for ``Plant`` and
+(nsim, nu) for ``BatchPlant``.
+
+Order inside one control step (``step``):
+  1. command effects map the goal (backlash play, action noise) -> ``ctrl``;
+  2. exogenous effects rescale the servo gains from measured channels (temperature, voltage);
+  3. physics advances ``nstep`` substeps: natively (``mj_step(nstep)``) unless a friction effect
+     needs its state-dependent level written every substep.
+Observation effects (offset, noise, quantization) apply in ``measured_qpos``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import mujoco
+import numpy as np
+from mujoco import batch as mjbatch
+
+from lowcostdex.errors import ConfigError, PhysicsError
+from lowcostdex.sim import servo
+from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
+
+_ORDER = {name: i for i, name in enumerate(EFFECTS)}
+
+
+def prepare_spec(spec: mujoco.MjSpec, effects: Sequence[AppliedEffect]) -> mujoco.MjSpec:
+    """Make structural room for ``effects`` (e.g. actuator history buffers for latency)."""
+    for e in effects:
+        e.cls.prepare(spec, e.joints)
+    return spec
+
+
+def compile_with_effects(spec: mujoco.MjSpec, effect_names_joints: Sequence[tuple[str, Sequence[str]]]
+                         ) -> mujoco.MjModel:
+    """Compile ``spec`` with room for effects given as (name, joints) pairs."""
+    for name, joints in effect_names_joints:
+        EFFECTS[name].prepare(spec, tuple(joints))
+    return spec.compile()
+
+
+class _Bound:
+    """An effect resolved against a model: class, targets, values (arrays)."""
+
+    def __init__(self, cls: type[Effect], targets: Targets, values: dict[str, np.ndarray]):
+        self.cls, self.targets, self.values = cls, targets, values
+
+
+class _PlantBase:
+    """Shared logic; subclasses provide the arrays and the stepping."""
+
+    model: mujoco.MjModel
+    rng: np.random.Generator
+
+    def _init_effects(self) -> None:
+        self._nominal: dict[str, np.ndarray] = {}
+        self._bound: list[_Bound] = []
+        self._state: dict[str, np.ndarray] = {}
+        self._static_gain: np.ndarray | None = None
+        self._static_friction: np.ndarray | None = None
+        self._torque_on = np.ones(self._lead + (self.model.nu,), dtype=bool)
+        self._static_forcerange: np.ndarray | None = None
+        self._static_forcelimited: np.ndarray | None = None
+
+    # -- Fields protocol ------------------------------------------------------------------------
+    @property
+    def _lead(self) -> tuple[int, ...]:
+        raise NotImplementedError
+
+    def array(self, name: str) -> np.ndarray:
+        raise NotImplementedError
+
+    def nominal(self, name: str) -> np.ndarray:
+        if name not in self._nominal:
+            self._nominal[name] = np.array(getattr(self._base_model, name), copy=True)
+        return self._nominal[name]
+
+    # -- effects ----------------------------------------------------------------------------------
+    @property
+    def effects(self) -> list[AppliedEffect]:
+        """The applied effects (values of the first simulation in a batch)."""
+        out = []
+        for b in self._bound:
+            vals = {k: np.asarray(v)[0] if np.ndim(v) == 2 else np.asarray(v)
+                    for k, v in b.values.items()}
+            out.append(AppliedEffect(b.cls.name, b.targets.joints, vals))
+        return out
+
+    def set_effects(self, effects: Sequence[AppliedEffect] | Sequence[Sequence[AppliedEffect]]
+                    ) -> None:
+        """Replace the applied effects; model fields are recomputed from the nominal model.
+
+        For a ``BatchPlant`` pass either one list (same values in every sim) or one list per
+        simulation with the same effect names and joints in the same order (values differ).
+        """
+        per_sim = self._split_per_sim(effects)
+        first = per_sim[0]
+        bound = []
+        for k, e in enumerate(first):
+            if e.cls.requires and e.cls.kind != "exogenous":
+                raise ConfigError(f"effect {e.name} requires {e.cls.requires}")
+            targets = Targets.resolve(self._base_model, e.joints)
+            if self._lead and len(per_sim) > 1:
+                vals = {p: np.stack([np.asarray(s[k].values[p], float) for s in per_sim])
+                        for p in e.values}
+            else:
+                vals = {p: np.asarray(v, float) for p, v in e.values.items()}
+            bound.append(_Bound(e.cls, targets, vals))
+        bound.sort(key=lambda b: _ORDER[b.cls.name])
+        self._check_structure(bound)
+        self._bound = bound
+        self._apply_model_effects()
+
+    def _split_per_sim(self, effects) -> list[list[AppliedEffect]]:
+        effects = list(effects)
+        if effects and not isinstance(effects[0], AppliedEffect):
+            per_sim = [list(x) for x in effects]
+            if not self._lead or len(per_sim) != self._lead[0]:
+                raise ConfigError("per-simulation effects need one list per simulation")
+            sig = [(e.name, e.joints) for e in per_sim[0]]
+            for s in per_sim[1:]:
+                if [(e.name, e.joints) for e in s] != sig:
+                    raise ConfigError("per-simulation effect lists must share names and joints")
+            return per_sim
+        return [effects]
+
+    def _check_structure(self, bound: list[_Bound]) -> None:
+        for b in bound:
+            if b.cls.name == "latency":
+                hist = self._base_model.actuator_history[b.targets.actuators, 0]
+                dt = self._base_model.opt.timestep
+                need = np.max(np.asarray(b.values["delay"])) / dt + 1
+                if np.any(hist < need):
+                    raise ConfigError(
+                        "latency needs actuator history buffers: build the model with "
+                        "plant.prepare_spec(spec, effects) before compiling")
+
+    def _apply_model_effects(self) -> None:
+        touched = {"actuator_gainprm", "dof_frictionloss", "actuator_forcerange",
+                   "actuator_forcelimited"}
+        for b in self._bound:
+            touched.update(b.cls.fields)
+        for name in touched:
+            self.array(name)[...] = self.nominal(name)
+        mass_changed = False
+        for b in self._bound:
+            if b.cls.kind == "model":
+                b.cls.apply(self, b.targets, b.values)
+                mass_changed |= b.cls.name == "mass_error"
+        if mass_changed:
+            self._set_const()
+        self._static_gain = np.array(self.array("actuator_gainprm"), copy=True)
+        self._static_friction = np.array(self.array("dof_frictionloss"), copy=True)
+        self._static_forcerange = np.array(self.array("actuator_forcerange"), copy=True)
+        self._static_forcelimited = np.array(self.array("actuator_forcelimited"), copy=True)
+        self._apply_torque_mask()
+        self._has_friction = any(b.cls.kind == "friction" for b in self._bound)
+        self._has_exo = any(b.cls.kind == "exogenous" for b in self._bound)
+
+    @property
+    def required_channels(self) -> tuple[str, ...]:
+        """Measured channels the applied exogenous effects need in ``step(channels=...)``."""
+        return tuple(sorted({c for b in self._bound for c in b.cls.requires}))
+
+    # -- torque enable ----------------------------------------------------------------------------
+    def set_torque_enabled(self, actuators: Sequence[int] | np.ndarray, enabled: bool,
+                           sims: np.ndarray | None = None) -> None:
+        """Servo torque on/off (off = free-wheeling bridge: zero actuator force)."""
+        idx = np.asarray(actuators, dtype=int)
+        if self._lead:
+            rows = np.arange(self._lead[0]) if sims is None else np.asarray(sims)
+            self._torque_on[np.ix_(rows, idx)] = enabled
+        else:
+            self._torque_on[idx] = enabled
+        self._apply_torque_mask()
+
+    def torque_enabled(self) -> np.ndarray:
+        return self._torque_on.copy()
+
+    def _apply_torque_mask(self) -> None:
+        if self._static_forcerange is None:
+            return
+        fr, fl = self.array("actuator_forcerange"), self.array("actuator_forcelimited")
+        fr[...] = np.where(self._torque_on[..., None], self._static_forcerange, 0.0)
+        fl[...] = np.where(self._torque_on, self._static_forcelimited, 1)
+
+    # -- stepping ---------------------------------------------------------------------------------
+    def command(self, goal: np.ndarray) -> np.ndarray:
+        """Apply command effects to a full goal vector (..., nu) [rad]; returns ctrl."""
+        ctrl = np.array(goal, dtype=float, copy=True)
+        for b in self._bound:
+            if b.cls.kind == "command":
+                a = b.targets.actuators
+                key_state = {k[len(b.cls.name) + 1:]: v for k, v in self._state.items()
+                             if k.startswith(b.cls.name + ":")}
+                sub = b.cls.command(b.targets, b.values, ctrl[..., a], key_state, self.rng)
+                for k, v in key_state.items():
+                    self._state[f"{b.cls.name}:{k}"] = v
+                ctrl[..., a] = sub
+        return ctrl
+
+    def _exogenous(self, channels: Mapping[str, np.ndarray] | None) -> None:
+        if not self._has_exo:
+            return
+        missing = [c for c in self.required_channels if not channels or c not in channels]
+        if missing:
+            raise ConfigError(f"step() needs measured channels {missing} for the applied effects")
+        gain = np.array(self._static_gain, copy=True)
+        for b in self._bound:
+            if b.cls.kind == "exogenous":
+                chans = {c: np.asarray(channels[c], float)[..., b.targets.actuators]
+                         for c in b.cls.requires}
+                b.cls.exogenous(self, b.targets, b.values, chans, gain)
+        self.array("actuator_gainprm")[...] = gain
+
+    def _friction_level(self, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:
+        level = np.array(self._static_friction, copy=True)
+        for b in self._bound:
+            if b.cls.kind == "friction":
+                d = b.targets.dofs
+                level[..., d] = level[..., d] + b.cls.friction(b.targets, b.values, qvel, force)
+        return level
+
+    def measured_qpos(self, qpos: np.ndarray | None = None) -> np.ndarray:
+        """qpos as the encoders report it: observation effects applied (..., nq)."""
+        q = np.array(self.qpos if qpos is None else qpos, dtype=float, copy=True)
+        for b in self._bound:
+            if b.cls.kind == "observation":
+                ad = b.targets.qpos
+                q[..., ad] = b.cls.observe(b.targets, b.values, q[..., ad], self.rng)
+        return q
+
+    def step(self, goal: np.ndarray, nstep: int,
+             channels: Mapping[str, np.ndarray] | None = None) -> None:
+        """Advance one control period: goals (..., nu) [rad] held for ``nstep`` substeps.
+
+        Args:
+          goal: goal position of every actuator [rad], shape (nu,) or (nsim, nu).
+          nstep: physics substeps.
+          channels: measured per-actuator channels for exogenous effects, e.g.
+            {"temperature": (..., nu) [deg C], "voltage": (..., nu) [V]}.
+        """
+        self.ctrl[...] = self.command(goal)
+        self._exogenous(channels)
+        if self._has_friction:
+            fl = self.array("dof_frictionloss")
+            for _ in range(nstep):
+                fl[...] = self._friction_level(self.qvel, self.actuator_force)
+                self._advance(1)
+        else:
+            self._advance(nstep)
+        self._check_finite()
+
+    def reset_effect_state(self) -> None:
+        """Forget per-rollout effect state (backlash play position)."""
+        self._state.clear()
+
+
+class Plant(_PlantBase):
+    """One simulation of a servo-driven model with effects.
+
+    Args:
+      model: a compiled model (its actuators drive the joints); it is copied, never mutated.
+      effects: effects to apply.
+      rng: generator for noise effects (seeded by the caller).
+    """
+
+    def __init__(self, model: mujoco.MjModel, effects: Sequence[AppliedEffect] = (),
+                 rng: np.random.Generator | None = None):
+        self._base_model = model
+        self.model = _copy_model(model)
+        self.data = mujoco.MjData(self.model)
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self._init_effects()
+        self.set_effects(effects)
+        mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def _lead(self) -> tuple[int, ...]:
+        return ()
+
+    def array(self, name: str) -> np.ndarray:
+        return getattr(self.model, name)
+
+    def _set_const(self) -> None:
+        mujoco.mj_setConst(self.model, self.data)
+
+    @property
+    def qpos(self) -> np.ndarray:
+        return self.data.qpos
+
+    @property
+    def qvel(self) -> np.ndarray:
+        return self.data.qvel
+
+    @property
+    def ctrl(self) -> np.ndarray:
+        return self.data.ctrl
+
+    @property
+    def actuator_force(self) -> np.ndarray:
+        return self.data.actuator_force
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    def _advance(self, nstep: int) -> None:
+        mujoco.mj_step(self.model, self.data, nstep=nstep)
+
+    def _check_finite(self) -> None:
+        if not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))):
+            raise PhysicsError(f"simulation diverged at t={self.data.time:.4f}s")
+        if self.data.warning.number[mujoco.mjtWarning.mjWARN_BADQACC] > 0:
+            raise PhysicsError(f"bad acceleration at t={self.data.time:.4f}s")
+
+    def reset(self, qpos: np.ndarray | None = None, qvel: np.ndarray | None = None,
+              ctrl: np.ndarray | None = None, act: np.ndarray | None = None) -> None:
+        """Reset to the given state; servos hold ``ctrl`` (default: the joint positions they drive).
+
+        Delay buffers are filled with ``ctrl`` so a delayed servo holds still instead of
+        replaying zeros.
+        """
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        if qpos is not None:
+            d.qpos[:] = qpos
+        if qvel is not None:
+            d.qvel[:] = qvel
+        if act is not None:
+            d.act[:] = act
+        d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl
+        self.reset_effect_state()
+        _fill_ctrl_history(m, d)
+        mujoco.mj_forward(m, d)
+
+
+class BatchPlant(_PlantBase):
+    """``nsim`` simulations of one model on ``mujoco.batch`` with per-simulation effect values.
+
+    Args:
+      model: compiled model (copied).
+      nsim: number of simulations.
+      effects: one list (shared) or one list per simulation.
+      nthread: batch threads (0: all CPUs).
+      rng: generator for noise effects.
+    """
+
+    def __init__(self, model: mujoco.MjModel, nsim: int,
+                 effects: Sequence[AppliedEffect] | Sequence[Sequence[AppliedEffect]] = (),
+                 nthread: int = 0, rng: np.random.Generator | None = None):
+        if nsim < 1:
+            raise ConfigError("nsim must be >= 1")
+        self._base_model = model
+        self.model = _copy_model(model)
+        self.batch = mjbatch.Batch(self.model, nsim=nsim, nthread=nthread)
+        self._scratch = mujoco.MjData(self.model)
+        self.nsim = nsim
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self._views = {n: self.batch.bind(n) for n in ("qpos", "qvel", "ctrl", "act", "time",
+                                                       "actuator_force", "history")}
+        self._init_effects()
+        self.set_effects(effects)
+        self.batch.forward()
+
+    @property
+    def _lead(self) -> tuple[int, ...]:
+        return (self.nsim,)
+
+    def array(self, name: str) -> np.ndarray:
+        return self.batch.expand(name)
+
+    def _set_const(self) -> None:
+        self.batch.set_const()
+
+    @property
+    def qpos(self) -> np.ndarray:
+        return self._views["qpos"]
+
+    @property
+    def qvel(self) -> np.ndarray:
+        return self._views["qvel"]
+
+    @property
+    def ctrl(self) -> np.ndarray:
+        return self._views["ctrl"]
+
+    @property
+    def actuator_force(self) -> np.ndarray:
+        return self._views["actuator_force"]
+
+    @property
+    def act(self) -> np.ndarray:
+        return self._views["act"]
+
+    @property
+    def time(self) -> np.ndarray:
+        return self._views["time"]
+
+    def _advance(self, nstep: int) -> None:
+        self.batch.step(nstep=nstep)
+
+    def _check_finite(self) -> None:
+        bad = ~(np.all(np.isfinite(self.qpos), axis=1) & np.all(np.isfinite(self.qvel), axis=1))
+        if np.any(bad):
+            raise PhysicsError(f"simulations {np.flatnonzero(bad).tolist()} diverged")
+
+    def reset(self, qpos: np.ndarray | None = None, qvel: np.ndarray | None = None,
+              ctrl: np.ndarray | None = None, sims: np.ndarray | None = None) -> None:
+        """Reset simulations ``sims`` (default all) to states given as (len(sims), n) arrays."""
+        rows = np.arange(self.nsim) if sims is None else np.asarray(sims, dtype=int)
+        self.batch.reset(ids=rows)
+        m, d = self.model, self._scratch
+        for k, i in enumerate(rows):
+            mujoco.mj_resetData(m, d)
+            if qpos is not None:
+                d.qpos[:] = qpos[k]
+            if qvel is not None:
+                d.qvel[:] = qvel[k]
+            d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl[k]
+            _fill_ctrl_history(m, d)
+            self.qpos[i] = d.qpos
+            self.qvel[i] = d.qvel
+            self.ctrl[i] = d.ctrl
+            if m.nhistory:
+                self._views["history"][i] = d.history
+        for value in self._state.values():
+            value[rows] = np.nan  # per-rollout effect state restarts in these simulations
+        self.batch.forward(ids=rows)
+
+
+def actuated_positions(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """Position of the joint each actuator drives (nu,) [rad]; 0 for other transmissions."""
+    out = np.zeros(model.nu)
+    joint = model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
+    ids = model.actuator_trnid[:, 0]
+    out[joint] = qpos[model.jnt_qposadr[ids[joint]]]
+    return out
+
+
+def _fill_ctrl_history(m: mujoco.MjModel, d: mujoco.MjData) -> None:
+    for i in np.flatnonzero(m.actuator_history[:, 0] > 0):
+        n = int(m.actuator_history[i, 0])
+        mujoco.mj_initCtrlHistory(m, d, int(i), None, np.full((n, 1), d.ctrl[i]))
+
+
+def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
+    import copy
+
+    return copy.copy(model)
+
+
+def servo_supply_voltage(model: mujoco.MjModel) -> np.ndarray:
+    """Nominal supply voltage of each actuator [V] (0 for non-servo actuators)."""
+    if model.nuser_actuator < 1:
+        return np.zeros(model.nu)
+    return model.actuator_user[:, servo.USER_SUPPLY_VOLTAGE].copy()
