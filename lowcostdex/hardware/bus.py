@@ -1,0 +1,112 @@
+"""The motor-bus interface: one small ABC that the Dynamixel bus (real or emulated) and the Allegro
+CAN bus implement, so the Robot (safety, thermal guard, resets) is written once.
+
+A bus speaks *motor* units in SI: motor angle [rad] = raw encoder ticks * 2 pi / ticks_per_rev
+(tick 0 = 0 rad), velocity [rad/s], current [A], voltage [V], temperature [deg C]. Joint
+calibration (``hands.Calibration``) is applied above the bus, by the Robot.
+
+A read never returns stale values as fresh: every field comes with a per-motor ``valid`` flag, and
+invalid entries are NaN.
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lowcostdex.errors import LowcostdexError
+
+
+class BusError(LowcostdexError, IOError):
+    """Communication failed (no status packet, corrupt reply, port error) after bounded retries."""
+
+
+class MotorFault(LowcostdexError, RuntimeError):
+    """A motor reported a hardware error (overheating, overload, voltage, encoder, shock)."""
+
+    def __init__(self, motor_id: int, flags: Sequence[str], message: str = ""):
+        self.motor_id = motor_id
+        self.flags = tuple(flags)
+        super().__init__(message or f"motor {motor_id}: hardware error {', '.join(flags)}")
+
+
+@dataclass
+class MotorState:
+    """One bus read of every motor, arrays aligned with ``MotorBus.ids``.
+
+    Attributes:
+      position: motor angle [rad].
+      velocity: [rad/s].
+      current: winding current [A].
+      voltage: input voltage [V].
+      temperature: [deg C].
+      valid: True where the motor answered with a correct packet in this read.
+      hardware_error: Hardware Error Status bits (0 = none), -1 where unknown.
+      timestamp: host monotonic time of the read [s].
+    """
+
+    position: np.ndarray
+    velocity: np.ndarray
+    current: np.ndarray
+    voltage: np.ndarray
+    temperature: np.ndarray
+    valid: np.ndarray
+    hardware_error: np.ndarray
+    timestamp: float = 0.0
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def invalid(cls, n: int, timestamp: float = 0.0) -> MotorState:
+        nan = np.full(n, np.nan)
+        return cls(nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(),
+                   np.zeros(n, bool), np.full(n, -1, int), timestamp)
+
+
+class MotorBus(abc.ABC):
+    """A chain of motors addressed by id.
+
+    Implementations: ``DynamixelBus`` (dynamixel_sdk on a serial port, a pty, or the in-process
+    emulator) and ``AllegroBus`` (python-can). Use as a context manager: leaving the block turns
+    torque off and closes the port, also on exceptions.
+    """
+
+    ids: tuple[int, ...]
+
+    @abc.abstractmethod
+    def connect(self) -> None:
+        """Open the port, check the motors (ping, model numbers) and configure them."""
+
+    @abc.abstractmethod
+    def disconnect(self) -> None:
+        """Torque off (best effort) and close the port. Idempotent."""
+
+    @abc.abstractmethod
+    def read_state(self) -> MotorState:
+        """Read every motor's state in one bus transaction."""
+
+    @abc.abstractmethod
+    def write_goal_positions(self, positions: np.ndarray, ids: Sequence[int] | None = None
+                             ) -> None:
+        """Send goal positions [rad] (motor angles) in one transaction."""
+
+    @abc.abstractmethod
+    def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> None:
+        """Torque on/off for ``ids`` (default all). Turning on first sets goal := present."""
+
+    def reboot(self, motor_id: int) -> None:
+        """Clear a latched hardware error by rebooting the motor (torque is off afterwards)."""
+        raise NotImplementedError
+
+    @property
+    def connected(self) -> bool:
+        return False
+
+    def __enter__(self) -> MotorBus:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()
