@@ -34,6 +34,7 @@ from lowcostdex.errors import ConfigError, check_choice
 from lowcostdex.sim import servo
 
 Values = Mapping[str, np.ndarray]
+DEFAULT_REFERENCE_TEMPERATURE = 25.0  # [deg C] winding reference when the model has none
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,11 @@ class Effect:
     @classmethod
     def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
                 rng: np.random.Generator) -> np.ndarray:
-        """kind command: map goals [rad] (..., n_targets) to what the servo receives."""
+        """kind command: map goals [rad] (..., n_targets) to what the servo receives.
+
+        ``state`` persists across steps within a rollout (NaN entries mean "restarted"); its key
+        "setpoint" is always the setpoint the servo held before this command.
+        """
         raise NotImplementedError
 
     @classmethod
@@ -375,10 +380,11 @@ class Backlash(Effect):
     def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
                 rng: np.random.Generator) -> np.ndarray:
         half = 0.5 * np.asarray(v["width"])
-        prev = state.get("backlash")
-        prev = goal if prev is None else np.where(np.isnan(prev), goal, prev)
+        prev = state.get("play")
+        prev = state["setpoint"] if prev is None else np.where(np.isnan(prev), state["setpoint"],
+                                                                prev)
         out = np.clip(prev, goal - half, goal + half)
-        state["backlash"] = out
+        state["play"] = out
         return out
 
 
@@ -448,6 +454,8 @@ class ThermalDerating(Effect):
                   gain: np.ndarray) -> None:
         temp = channels["temperature"]  # (..., n_targets) [deg C]
         tref = f.nominal("actuator_gainprm")[t.actuators, servo.GAIN_TREF]
+        # servos compiled without a thermal state carry no reference: use 25 deg C
+        tref = np.where(tref > 0, tref, DEFAULT_REFERENCE_TEMPERATURE)
         factor = 1.0 + v["tempcoef"] * (temp - tref)
         _scale_resistance(gain, t.actuators, np.maximum(factor, 0.2))
 

@@ -199,7 +199,9 @@ class _PlantBase:
                 a = b.targets.actuators
                 key_state = {k[len(b.cls.name) + 1:]: v for k, v in self._state.items()
                              if k.startswith(b.cls.name + ":")}
+                key_state["setpoint"] = self.ctrl[..., a].copy()  # what the servo holds now
                 sub = b.cls.command(b.targets, b.values, ctrl[..., a], key_state, self.rng)
+                key_state.pop("setpoint")
                 for k, v in key_state.items():
                     self._state[f"{b.cls.name}:{k}"] = v
                 ctrl[..., a] = sub

@@ -16,7 +16,7 @@ GROUP_VISUAL, GROUP_COLLISION = 1, 3
 def new_spec(name: str, timestep: float = TIMESTEP) -> mujoco.MjSpec:
     """An empty spec with lowcostdex's solver settings.
 
-    implicitfast integrates the servos' back-EMF damping stably at 2.5 ms; Newton with an
+    Every scene builder (D'Claw, Allegro, servo bench) starts here. implicitfast integrates the servos' back-EMF damping stably at 2.5 ms; Newton with an
     elliptic cone keeps fingertip contacts from creeping.
     """
     spec = mujoco.MjSpec()
@@ -27,6 +27,9 @@ def new_spec(name: str, timestep: float = TIMESTEP) -> mujoco.MjSpec:
     spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     spec.option.iterations = 50
     spec.option.ls_iterations = 20
+    # One no-slip pass makes dry friction (joint frictionloss, contacts) hold instead of creeping:
+    # without it a servo resting against Coulomb friction drifts to its goal within seconds.
+    spec.option.noslip_iterations = 1
     spec.compiler.degree = False
     spec.visual.global_.offwidth = 640
     spec.visual.global_.offheight = 480

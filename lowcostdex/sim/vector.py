@@ -1,0 +1,169 @@
+"""A batched gymnasium VectorEnv: many copies of a hand task stepped by ``mujoco.batch``.
+
+All sub-environments share one compiled model; per-simulation model fields carry each copy's
+domain-randomized effect values (``BatchPlant``). Observations, rewards and success flags are
+computed for every copy at once by the task's array functions. Sub-env ``i`` behaves exactly like
+``gym.make(env_id)`` reset with ``seed + i`` (the equivalence test checks it), except for noise
+effects (observation/action noise), whose random streams are shared across the batch.
+
+Autoreset follows gymnasium's default NEXT_STEP mode: after an episode ends, the next ``step``
+resets that copy (its action is ignored) and returns the first observation with reward 0.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+import lowcostdex  # noqa: F401  (registers ids)
+from lowcostdex.errors import ConfigError
+from lowcostdex.sim.effects import DomainRandomization
+from lowcostdex.sim.envs.hand_env import HandEnv, action_to_goal
+from lowcostdex.sim.envs.task import Goal, Task
+from lowcostdex.sim.plant import BatchPlant
+
+
+def _stack_goals(goals: list[Goal]) -> Goal:
+    return {k: np.stack([np.asarray(g[k], float) for g in goals]) for k in goals[0]}
+
+
+class HandVectorEnv(gym.vector.VectorEnv):
+    """``num_envs`` copies of a task on one ``BatchPlant``.
+
+    Args:
+      task: the task (its model is compiled here).
+      num_envs: number of copies.
+      randomization: effects sampled per copy at every reset.
+      nthread: mujoco.batch threads (0: all CPUs).
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(self, task: Task, num_envs: int, randomization: DomainRandomization | None = None,
+                 nthread: int = 0):
+        if num_envs < 1:
+            raise ConfigError("num_envs must be >= 1")
+        # A template env builds and binds the model exactly as the single env does.
+        self._template = HandEnv(task, backend="sim", randomization=randomization)
+        self.task, self.randomization = task, randomization
+        self.num_envs = num_envs
+        self.plant = BatchPlant(self._template.model, num_envs, nthread=nthread)
+        self._effects: list[list] = [[] for _ in range(num_envs)]
+        self.single_observation_space = self._template.observation_space
+        self.single_action_space = self._template.action_space
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._max_step = self._template._max_step
+        self._episode_steps = task.timing.episode_steps
+        self._rngs = [np.random.default_rng(i) for i in range(num_envs)]
+        self._goals: list[Goal] = [{} for _ in range(num_envs)]
+        self._steps = np.zeros(num_envs, dtype=int)
+        self._last_action = np.zeros((num_envs, self.single_action_space.shape[0]))
+        self._needs_reset = np.zeros(num_envs, dtype=bool)
+        self._aux = np.setdiff1d(np.arange(self.plant.model.nu), task.hand_act)
+
+    # ------------------------------------------------------------------------------------------
+    def _reset_rows(self, rows: np.ndarray) -> None:
+        t = self.task
+        qpos = np.zeros((len(rows), self.plant.model.nq))
+        qvel = np.zeros((len(rows), self.plant.model.nv))
+        for k, i in enumerate(rows):
+            qpos[k], qvel[k], self._goals[i] = t.initial_state(self._rngs[i])
+            if self.randomization is not None:
+                self._effects[i] = self.randomization.sample(self._rngs[i])
+            # keep the generator stream aligned with HandEnv.reset (backend noise seed)
+            self._rngs[i].integers(2**63)
+        if self.randomization is not None:
+            self.plant.set_effects(self._effects)
+        self.plant.reset(qpos, qvel, sims=rows)
+        self._steps[rows] = 0
+        self._last_action[rows] = 0.0
+        self._needs_reset[rows] = False
+
+    def _goal(self) -> Goal:
+        return _stack_goals(self._goals)
+
+    def _obs(self) -> np.ndarray:
+        qpos = self.plant.measured_qpos()
+        return self.task.observation(qpos, self.plant.qvel, self._goal(),
+                                     self._last_action).astype(np.float32)
+
+    def _infos(self, action: np.ndarray) -> dict[str, Any]:
+        t, goal = self.task, self._goal()
+        terms = t.reward_terms(self.plant.qpos, self.plant.qvel, goal, action)
+        info: dict[str, Any] = {f"reward_{k}": np.asarray(v, float) for k, v in terms.items()}
+        info["success"] = np.asarray(t.success(self.plant.qpos, goal), bool)
+        info["goal_error"] = np.asarray(t.goal_error(self.plant.qpos, goal), float)
+        for key in list(info):
+            info[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
+        return info
+
+    def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
+        """Reset every copy; copy ``i`` is seeded with ``seed + i`` (or ``seed[i]``)."""
+        if seed is not None:
+            seeds = list(seed) if isinstance(seed, (list, tuple)) else [seed + i for i in
+                                                                        range(self.num_envs)]
+            self._rngs = [np.random.default_rng(s) for s in seeds]
+        self._reset_rows(np.arange(self.num_envs))
+        return self._obs(), self._infos(self._last_action)
+
+    def step(self, actions: np.ndarray):
+        a = np.asarray(actions, dtype=float).reshape(self.action_space.shape)
+        if not np.all(np.isfinite(a)):
+            raise ValueError("actions have NaN/inf entries")
+        a = np.clip(a, -1.0, 1.0)
+        t = self.task
+        resetting = np.flatnonzero(self._needs_reset)
+        present = self.plant.qpos[:, t.hand_qpos]
+        ctrl = np.empty((self.num_envs, self.plant.model.nu))
+        ctrl[:, t.hand_act] = action_to_goal(a, t.hand_low, t.hand_high, present, self._max_step)
+        ctrl[:, self._aux] = t.aux_ctrl(self.plant.qpos)
+        self.plant.step(ctrl, t.timing.frame_skip)
+        self._steps += 1
+        self._last_action = a.copy()
+        for i in range(self.num_envs):
+            self._goals[i] = t.advance_goal(self._goals[i], int(self._steps[i]))
+        goal = self._goal()
+        terms = t.reward_terms(self.plant.qpos, self.plant.qvel, goal, a)
+        reward = np.sum([np.asarray(v, float) for v in terms.values()], axis=0)
+        terminated = np.asarray(t.terminated(self.plant.qpos, goal), bool)
+        truncated = self._steps >= self._episode_steps
+        infos = self._infos(a)
+        if len(resetting):
+            self._reset_rows(resetting)
+            reward[resetting] = 0.0
+            terminated[resetting] = False
+            truncated[resetting] = False
+            infos = self._infos(self._last_action)
+        self._needs_reset = terminated | truncated
+        return self._obs(), reward, terminated, truncated, infos
+
+    def state_vector(self) -> np.ndarray:
+        """Physical states (num_envs, n), ordered as ``HandEnv.state_vector``."""
+        t = self.task
+        q, v = self.plant.qpos, self.plant.qvel
+        return np.concatenate([q[:, t.hand_qpos], v[:, t.hand_dof],
+                               np.delete(q, t.hand_qpos, axis=1),
+                               np.delete(v, t.hand_dof, axis=1)], axis=1)
+
+    def close(self, **kwargs: Any) -> None:
+        self._template.close()
+
+
+def make_vec(env_id: str, num_envs: int, nthread: int = 0, **kwargs: Any) -> HandVectorEnv:
+    """Batched copies of a registered ``lowcostdex/...`` env (sim backend).
+
+    Keyword arguments are those of ``gym.make(env_id, ...)`` (e.g. ``randomize``, ``motor``).
+    """
+    if kwargs.get("backend", "sim") != "sim":
+        raise ConfigError("make_vec batches the sim backend only")
+    single = gym.make(env_id, **kwargs).unwrapped
+    if not isinstance(single, HandEnv):
+        raise ConfigError(f"{env_id} is not a lowcostdex HandEnv")
+    vec = HandVectorEnv(single.task, num_envs, single.randomization, nthread=nthread)
+    single.close()
+    return vec

@@ -1,0 +1,138 @@
+"""Contract tests for every registered env: gymnasium's checker, determinism under a seed,
+reward == sum of named terms, termination vs truncation, and the batched vector env equals a loop
+of single envs."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import lowcostdex  # noqa: F401
+from lowcostdex.errors import ConfigError
+from lowcostdex.sim.envs import action_to_goal, goal_to_action
+from lowcostdex.sim.registry import env_ids
+from lowcostdex.sim.vector import make_vec
+
+IDS = env_ids()
+
+
+def rollout(env, seed, steps, action_seed=0):
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(action_seed)
+    out = [obs]
+    rewards = []
+    for _ in range(steps):
+        obs, r, term, trunc, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
+        out.append(obs)
+        rewards.append(r)
+        if term or trunc:
+            break
+    return np.array(out), np.array(rewards)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_gymnasium_checker(env_id):
+    env = gym.make(env_id)
+    check_env(env.unwrapped, skip_render_check=True)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_determinism_under_seed_and_reward_is_sum_of_terms(env_id):
+    env = gym.make(env_id)
+    o1, r1 = rollout(env, 3, 10)
+    o2, r2 = rollout(env, 3, 10)
+    np.testing.assert_array_equal(o1, o2)
+    np.testing.assert_array_equal(r1, r2)
+    env.reset(seed=1)
+    _, reward, _, _, info = env.step(env.action_space.sample())
+    terms = [v for k, v in info.items() if k.startswith("reward_")]
+    assert len(terms) >= 2
+    assert reward == pytest.approx(sum(terms), abs=1e-9)
+    assert isinstance(info["success"], bool)
+    env.close()
+
+
+def test_episode_is_truncated_not_terminated_at_the_time_limit():
+    env = gym.make("lowcostdex/DClawTurnValve-v0")
+    env.reset(seed=0)
+    for k in range(40):
+        _, _, term, trunc, _ = env.step(np.zeros(9))
+        assert not term
+    assert trunc
+
+
+def test_dropped_block_terminates():
+    env = gym.make("lowcostdex/DClawFlipBlock-v0")
+    env.reset(seed=0)
+    u = env.unwrapped
+    qpos = u.data.qpos.copy()
+    qpos[u.task.block_pos] = [0.25, 0.0, 0.03]  # off the platform, falling
+    env.reset(seed=0, options={"qpos": qpos})
+    term = False
+    for _ in range(10):
+        _, _, term, trunc, _ = env.step(np.zeros(9))
+        if term:
+            break
+    assert term
+
+
+def test_actions_map_to_limits_with_a_motion_bound():
+    low, high = np.array([-1.0, -0.5]), np.array([1.0, 0.5])
+    present = np.zeros(2)
+    goal = action_to_goal(np.array([1.0, -1.0]), low, high, present, np.array([0.2, 2.0]))
+    np.testing.assert_allclose(goal, [0.2, -0.5])
+    np.testing.assert_allclose(goal_to_action(np.array([1.0, 0.0]), low, high), [1.0, 0.0])
+
+
+def test_nan_action_is_rejected():
+    env = gym.make("lowcostdex/DClawTurnValve-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.full(9, np.nan))
+
+
+def test_unknown_backend_lists_choices():
+    with pytest.raises(ConfigError, match="emulated"):
+        gym.make("lowcostdex/DClawTurnValve-v0", backend="robot")
+
+
+def test_randomized_dynamics_differ_between_episodes():
+    env = gym.make("lowcostdex/DClawTurnValveRandomDynamics-v0")
+    env.reset(seed=0)
+    g1 = env.unwrapped.backend.plant.model.actuator_gainprm[:, 4].copy()
+    env.reset()
+    g2 = env.unwrapped.backend.plant.model.actuator_gainprm[:, 4].copy()
+    assert not np.allclose(g1, g2)
+
+
+@pytest.mark.parametrize("env_id,kwargs", [
+    ("lowcostdex/DClawTurnValve-v0", {}),
+    ("lowcostdex/DClawTurnValve-v0", {"randomize": ("gain_error", "latency", "backlash",
+                                                    "coulomb_friction", "mass_error")}),
+    ("lowcostdex/DClawScrewRandom-v0", {}),
+    ("lowcostdex/DClawFlipBlock-v0", {}),
+])
+def test_vector_env_equals_a_loop_of_single_envs(env_id, kwargs):
+    n = 3
+    vec = make_vec(env_id, n, nthread=1, **kwargs)
+    singles = [gym.make(env_id, **kwargs) for _ in range(n)]
+    vobs, _ = vec.reset(seed=11)
+    sobs = [e.reset(seed=11 + i)[0] for i, e in enumerate(singles)]
+    np.testing.assert_allclose(vobs, np.stack(sobs), atol=1e-6)
+    rng = np.random.default_rng(0)
+    horizon = vec.task.timing.episode_steps
+    for k in range(horizon + 3):
+        a = rng.uniform(-1, 1, (n, 9))
+        vobs, vrew, vterm, vtrunc, vinfo = vec.step(a)
+        for i, e in enumerate(singles):
+            if k == horizon:  # NEXT_STEP autoreset: the step after the end resets
+                o, r, term, trunc = e.reset()[0], 0.0, False, False
+            else:
+                o, r, term, trunc, info = e.step(a[i])
+                assert bool(vinfo["success"][i]) == info["success"]
+            np.testing.assert_allclose(vobs[i], o, atol=1e-6)
+            assert vrew[i] == pytest.approx(r, abs=1e-9)
+            assert bool(vtrunc[i]) == trunc and bool(vterm[i]) == term
