@@ -89,6 +89,8 @@ class MotorSpec:
       default_p: factory Position P Gain.
       thermal: winding thermal model.
       backlash: manufacturer backlash [rad] (documentation / DR prior).
+      max_duty: firmware duty ceiling as a fraction of full scale (BAM's ``max_pwm``); the
+        default PWM Limit of a bench or hand built for this motor is ``max_duty * pwm_max``.
     """
 
     name: str
@@ -108,11 +110,14 @@ class MotorSpec:
     i_error_gain: float = field(default=float("nan"))
     thermal: ThermalSpec = ThermalSpec()
     backlash: float = math.radians(0.25)
+    max_duty: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("voltage", "stall_torque", "no_load_speed", "gear_ratio"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"MotorSpec {self.name}: {name} must be > 0")
+        if not 0 < self.max_duty <= 1:
+            raise ConfigError(f"MotorSpec {self.name}: max_duty must be in (0, 1]")
         tpr = self.ticks_per_rad
         if math.isnan(self.error_gain):
             object.__setattr__(self, "error_gain", tpr / (128.0 * self.pwm_max))
@@ -161,6 +166,27 @@ MOTORS: dict[str, MotorSpec] = {
                   current_unit=1.0e-3, default_p=400,
                   error_gain=(4096 / TWO_PI) / (256.0 * 885),
                   thermal=ThermalSpec(resistance=18.0, capacitance=3.0, limit=70.0)),
+        # MX-64/MX-106 (Protocol 1/2, 12 V datasheet figures). BAM measured the P path with an
+        # oscilloscope at 15 V: duty = 0.158 per (P unit * rad), ceiling 0.9625; default P 32
+        # (07-measured-data.md section 4). Armature: Menagerie dynamixel_2r's fitted 0.005
+        # [uncertain: a prior, not a measurement of these units].
+        MotorSpec("MX-64", 311, 12.0, 6.0, 63 * TWO_PI / 60, 200.0, 0.005, default_p=32,
+                  error_gain=0.158, max_duty=0.9625),
+        MotorSpec("MX-106", 321, 12.0, 8.4, 45 * TWO_PI / 60, 225.0, 0.005, default_p=32,
+                  error_gain=0.158, max_duty=0.9625),
+        # Feetech STS3250: 50 kg cm (4.9 N m) stall, 0.133 s/60 deg at 12 V (vendor sheet as
+        # quoted by robonine.com). No error_gain has been measured: BAM's STS3215 value 0.166
+        # and its 0.97 ceiling are used [uncertain]. Gear ratio and armature [uncertain].
+        MotorSpec("STS3250", 3250, 12.0, 4.9, (math.pi / 3) / 0.133, 345.0, 0.003,
+                  current_unit=6.5e-3, default_p=32, error_gain=0.166, max_duty=0.97,
+                  thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
+        # Feetech STS3032 (6 V class): no datasheet found. Stall torque and no-load speed come
+        # from BAM's STS3215-model fit to the STS3032 bench logs (kt 0.483 N m/A, R 3.29 Ohm at
+        # 6 V -> 0.88 N m, 12.4 rad/s; 08-bam-reference-errors.md section 4), armature likewise
+        # (0.00103). error_gain/ceiling as STS3215 [all uncertain].
+        MotorSpec("STS3032", 3032, 6.0, 0.88, 6.0 / 0.483, 345.0, 0.00103,
+                  current_unit=6.5e-3, default_p=32, error_gain=0.166, max_duty=0.97,
+                  thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
     )
 }
 
@@ -305,13 +331,10 @@ def winding_temperature(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarra
     dcmotor's thermal activation is the rise over ambient; it is the first activation of the
     actuator when thermal modelling is on (``dynprm[C_th] > 0``).
     """
-    n = model.nu
-    amb = model.actuator_dynprm[:, DYN_TAMB].copy()
-    has = model.actuator_dynprm[:, DYN_CTH] > 0
-    adr = model.actuator_actadr
-    for i in np.flatnonzero(has & (adr >= 0)):
-        amb[i] += data.act[adr[i]]
-    return amb[:n]
+    temp = model.actuator_dynprm[:, DYN_TAMB].copy()
+    has = (model.actuator_dynprm[:, DYN_CTH] > 0) & (model.actuator_actadr >= 0)
+    temp[has] += data.act[model.actuator_actadr[has]]
+    return temp
 
 
 def set_torque_enabled(model: mujoco.MjModel, actuators: np.ndarray | list[int], enabled: bool,

@@ -92,9 +92,11 @@ class HandVectorEnv(gym.vector.VectorEnv):
         return self.task.observation(qpos, self.plant.qvel, self._goal(),
                                      self._last_action).astype(np.float32)
 
-    def _infos(self, action: np.ndarray) -> dict[str, Any]:
+    def _infos(self, action: np.ndarray, terms: dict[str, np.ndarray] | None = None
+               ) -> dict[str, Any]:
         t, goal = self.task, self._goal()
-        terms = t.reward_terms(self.plant.qpos, self.plant.qvel, goal, action)
+        if terms is None:
+            terms = t.reward_terms(self.plant.qpos, self.plant.qvel, goal, action)
         info: dict[str, Any] = {f"reward_{k}": np.asarray(v, float) for k, v in terms.items()}
         info["success"] = np.asarray(t.success(self.plant.qpos, goal), bool)
         info["goal_error"] = np.asarray(t.goal_error(self.plant.qpos, goal), float)
@@ -132,7 +134,7 @@ class HandVectorEnv(gym.vector.VectorEnv):
         reward = np.sum([np.asarray(v, float) for v in terms.values()], axis=0)
         terminated = np.asarray(t.terminated(self.plant.qpos, goal), bool)
         truncated = self._steps >= self._episode_steps
-        infos = self._infos(a)
+        infos = self._infos(a, terms)
         if len(resetting):
             self._reset_rows(resetting)
             reward[resetting] = 0.0

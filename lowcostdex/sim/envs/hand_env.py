@@ -83,6 +83,7 @@ class HandEnv(gym.Env):
         period = task.timing.frame_skip * self.model.opt.timestep
         self.control_period = period
         self._max_step = np.array([j.max_velocity for j in task.hand.joints]) * period
+        self._aux = np.setdiff1d(np.arange(self.model.nu), task.hand_act)  # e.g. valve motor
         self.render_mode = render_mode
         self._renderer: mujoco.Renderer | None = None
         self._goal: Goal = {}
@@ -110,15 +111,18 @@ class HandEnv(gym.Env):
         obs = self.task.observation(qpos, self.data.qvel, self._goal, self._last_action)
         return obs.astype(np.float32)
 
-    def _info(self, action: np.ndarray) -> dict[str, Any]:
+    def _info(self, terms: dict[str, np.ndarray]) -> dict[str, Any]:
         t = self.task
-        terms = t.reward_terms(self.data.qpos, self.data.qvel, self._goal, action)
         info: dict[str, Any] = {f"reward_{k}": float(v) for k, v in terms.items()}
         info["success"] = bool(t.success(self.data.qpos, self._goal))
         info["goal_error"] = float(t.goal_error(self.data.qpos, self._goal))
         info["time"] = self._steps * self.control_period
-        info["telemetry"] = self.backend.telemetry()
+        if self.backend.real_time:  # robots report currents, temperatures, pauses, resets
+            info["telemetry"] = self.backend.telemetry()
         return info
+
+    def _terms(self, action: np.ndarray) -> dict[str, np.ndarray]:
+        return self.task.reward_terms(self.data.qpos, self.data.qvel, self._goal, action)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode. ``options`` may hold ``qpos``/``qvel`` (a fixed start state) and
@@ -139,7 +143,7 @@ class HandEnv(gym.Env):
         self._steps = 0
         self._last_action = np.zeros(self.action_space.shape[0])
         self._update_marker()
-        return self._obs(), self._info(self._last_action)
+        return self._obs(), self._info(self._terms(self._last_action))
 
     def step(self, action):
         a = np.asarray(action, dtype=float).reshape(self.action_space.shape)
@@ -151,16 +155,15 @@ class HandEnv(gym.Env):
         goal = action_to_goal(a, t.hand_low, t.hand_high, present, self._max_step)
         ctrl = np.empty(self.model.nu)
         ctrl[t.hand_act] = goal
-        aux = np.setdiff1d(np.arange(self.model.nu), t.hand_act)
-        ctrl[aux] = t.aux_ctrl(self.data.qpos)
+        ctrl[self._aux] = t.aux_ctrl(self.data.qpos)
         self.backend.apply(ctrl, t.timing.frame_skip)
         self._steps += 1
         self._goal = t.advance_goal(self._goal, self._steps)
         self._last_action = a
         self._update_marker()
-        terms = t.reward_terms(self.data.qpos, self.data.qvel, self._goal, a)
+        terms = self._terms(a)
         reward = float(sum(float(v) for v in terms.values()))
-        info = self._info(a)
+        info = self._info(terms)
         info["goal"] = goal
         terminated = bool(t.terminated(self.data.qpos, self._goal))
         truncated = False  # the TimeLimit wrapper truncates at task.timing.episode_steps
