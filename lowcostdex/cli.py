@@ -15,6 +15,7 @@ from collections.abc import Sequence
 COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.sim.cli",
     "lowcostdex.main_job",
+    "lowcostdex.algos.cli",
 )
 
 

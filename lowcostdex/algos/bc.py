@@ -88,7 +88,10 @@ def set_from_demos(
     dtype = policy.log_std.dtype
     if config.set_obs_normalization:
         policy.obs_norm.set_stats(
-            stats["obs_mean"], stats["obs_std"], freeze=config.freeze_obs_normalization, count=len(obs)
+            stats["obs_mean"],
+            stats["obs_std"],
+            freeze=config.freeze_obs_normalization,
+            count=len(obs),
         )
     if config.set_action_scaling:
         policy.act_shift.copy_(torch.as_tensor(stats["act_mean"], dtype=dtype))

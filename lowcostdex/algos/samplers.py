@@ -68,7 +68,9 @@ class RolloutJob:
 
     def seed_sequence(self, k: int) -> np.random.SeedSequence:
         """Sub-stream k: 0 = env reset seed, 1 = action noise."""
-        return np.random.SeedSequence(self.seed, spawn_key=(self.stream, self.iteration, self.index, k))
+        return np.random.SeedSequence(
+            self.seed, spawn_key=(self.stream, self.iteration, self.index, k)
+        )
 
     def env_seed(self) -> int:
         return int(self.seed_sequence(0).generate_state(1, np.uint32)[0])
@@ -193,6 +195,7 @@ class Sampler(abc.ABC):
     def sample(self, policy: PolicySnapshot, jobs: Sequence[RolloutJob]) -> list[Trajectory]:
         """Sample one trajectory per job, returned in the order of ``jobs``."""
 
+    @abc.abstractmethod
     def close(self) -> None:
         """Release envs and workers."""
 
@@ -283,7 +286,9 @@ class ProcessSampler(Sampler):
         self._conns, self._procs = [], []
         for _ in range(n_workers):
             parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_worker_main, args=(child, env_factory, max_steps), daemon=True)
+            proc = ctx.Process(
+                target=_worker_main, args=(child, env_factory, max_steps), daemon=True
+            )
             proc.start()
             child.close()
             self._conns.append(parent)

@@ -1,0 +1,218 @@
+"""NPG/DAPG training runs on a tiny point-mass task: learning, reproducibility, resume, CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from pointmass import expert_action, make_pointmass
+
+from lowcostdex.algos import experiment as ex
+from lowcostdex.algos.bc import BCConfig
+from lowcostdex.algos.dapg import DAPGConfig
+from lowcostdex.algos.npg import NPGConfig
+from lowcostdex.algos.policy import PolicyConfig
+from lowcostdex.algos.samplers import make_jobs, rollout
+from lowcostdex.algos.train import TrainConfig, load_policy, save_demos, train
+from lowcostdex.errors import ConfigError
+
+TESTS = Path(__file__).parent
+
+
+def _config(**kw):
+    base = dict(
+        env_id="test/PointMass",
+        n_iter=12,
+        n_traj=16,
+        gamma=0.98,
+        gae_lambda=0.95,
+        eval_every=4,
+        eval_episodes=8,
+        progress=False,
+        policy=PolicyConfig(hidden_sizes=(32, 32), init_log_std=-0.5),
+        npg=NPGConfig(step_size=0.05, damping=1e-2),
+    )
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def _metrics(run_dir):
+    m = ex.read_metrics(Path(run_dir) / ex.METRICS_FILE)
+    return {k: v for k, v in m.items() if not k.startswith("time_")}
+
+
+def _assert_same_metrics(a, b):
+    assert list(a) == list(b)
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def _expert_demos(path, n=10):
+    env = make_pointmass()
+    episodes = []
+    for i in range(n):
+        obs, _ = env.reset(seed=1000 + i)
+        o, a = [], []
+        for _ in range(30):
+            act = expert_action(obs)
+            o.append(obs)
+            a.append(act)
+            obs, *_ = env.step(act)
+        episodes.append((np.array(o), np.array(a)))
+    return save_demos(path, episodes)
+
+
+def test_npg_improves_return_and_writes_the_run_directory(tmp_path):
+    run = train(_config(n_iter=15), tmp_path / "run", env_factory=make_pointmass)
+    m = run.read_metrics()
+    assert m["return_mean"][-3:].mean() > m["return_mean"][0] + 5.0
+    assert m["eval_success_rate"][-1] > m["success_rate"][0]
+    np.testing.assert_array_equal(m["samples"], 16 * 30 * np.arange(1, 16))
+    np.testing.assert_allclose(m["robot_hours"][0], (16 + 0) * 30 * 0.1 / 3600)
+    assert np.all(m["kl"] < 2 * 0.05)  # delta / 2 to second order
+    for name in ("config.json", "metrics.csv", "learning_curves.png", "policy.pt"):
+        assert (run.path / name).exists(), name
+    policy = load_policy(run.path)  # weights_only checkpoint of the final policy
+    assert policy.obs_dim == 3
+
+
+def test_seeded_runs_are_reproducible(tmp_path):
+    for name, seed in (("a", 1), ("b", 1), ("c", 2)):
+        train(_config(n_iter=3, seed=seed), tmp_path / name, env_factory=make_pointmass)
+    _assert_same_metrics(_metrics(tmp_path / "a"), _metrics(tmp_path / "b"))
+    assert not np.array_equal(
+        _metrics(tmp_path / "a")["return_mean"], _metrics(tmp_path / "c")["return_mean"]
+    )
+
+
+def test_process_sampler_run_equals_serial_run(tmp_path):
+    train(_config(n_iter=3), tmp_path / "serial", env_factory=make_pointmass)
+    train(
+        _config(n_iter=3, sampler="process", n_workers=2),
+        tmp_path / "pool",
+        env_factory=make_pointmass,
+    )
+    _assert_same_metrics(_metrics(tmp_path / "serial"), _metrics(tmp_path / "pool"))
+
+
+def test_resume_equals_uninterrupted_run(tmp_path):
+    cfg = _config(n_iter=6, checkpoint_every=2)
+    train(cfg, tmp_path / "full", env_factory=make_pointmass)
+    train(cfg, tmp_path / "cut", env_factory=make_pointmass, stop_after=2)
+    assert ex.read_metrics(tmp_path / "cut" / "metrics.csv")["iteration"][-1] == 2
+    train(cfg, tmp_path / "cut", env_factory=make_pointmass, resume=True)
+    _assert_same_metrics(_metrics(tmp_path / "full"), _metrics(tmp_path / "cut"))
+    a, b = load_policy(tmp_path / "full"), load_policy(tmp_path / "cut")
+    assert torch.equal(
+        torch.nn.utils.parameters_to_vector(a.parameters()),
+        torch.nn.utils.parameters_to_vector(b.parameters()),
+    )
+
+
+def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
+    """Kill a training process at an arbitrary moment, resume it, compare with a clean run."""
+    cfg = _config(n_iter=8, checkpoint_every=3)
+    script = textwrap.dedent(
+        f"""
+        import sys, time
+        sys.path.insert(0, {str(TESTS)!r})
+        from pointmass import make_pointmass
+        from lowcostdex.algos.train import TrainConfig, train
+
+        def slow():  # ~0.3 s per iteration so that the kill lands mid-run
+            env = make_pointmass()
+            step = env.step
+            env.step = lambda a: (time.sleep(0.0006), step(a))[1]
+            return env
+
+        train(TrainConfig.from_dict({dataclasses.asdict(cfg)!r}), sys.argv[1], env_factory=slow)
+        """
+    )
+    file = tmp_path / "job.py"
+    file.write_text(script)
+    run_dir = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, str(file), str(run_dir)], start_new_session=True)
+    latest = run_dir / "checkpoints" / "latest.json"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if latest.exists() and ex.read_json(latest)["iteration"] >= 2:
+            time.sleep(0.45)  # somewhere in the next iterations, possibly mid-write
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, "the run finished before it could be killed"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done = ex.read_metrics(run_dir / "metrics.csv")["iteration"]
+    assert 2 <= done[-1] < 7, done
+    train(cfg, run_dir, resume=True, env_factory=make_pointmass)
+    train(cfg, tmp_path / "clean", env_factory=make_pointmass)
+    _assert_same_metrics(_metrics(tmp_path / "clean"), _metrics(run_dir))
+
+
+def test_dapg_runs_bc_first_and_decays_the_demo_weight(tmp_path):
+    demos = _expert_demos(tmp_path / "demos.npz")
+    cfg = _config(
+        algo="dapg",
+        demos=str(demos),
+        n_iter=6,
+        dapg=DAPGConfig(lam0=0.1, lam1=0.8, demo_weight="mjrl"),
+        bc=BCConfig(epochs=25),
+    )
+    run = train(cfg, tmp_path / "run", env_factory=make_pointmass)
+    bc = ex.read_json(run.path / "bc.json")
+    assert bc["bc_loss_after"] < 0.2 * bc["bc_loss_before"] and bc["n_episodes"] == 10
+    m = run.read_metrics()
+    np.testing.assert_allclose(m["demo_weight"], 0.1 * 0.8 ** np.arange(6))
+    # BC from a good teacher already succeeds far more often than the untrained NPG policy.
+    assert m["success_rate"][0] >= 0.5
+
+
+def test_bc_initialised_policy_tracks_the_teacher(tmp_path):
+    demos = _expert_demos(tmp_path / "demos.npz", n=20)
+    cfg = _config(
+        algo="dapg", demos=str(demos), n_iter=1, dapg=DAPGConfig(lam0=0.0), bc=BCConfig(epochs=100)
+    )
+    run = train(cfg, tmp_path / "run", env_factory=make_pointmass)
+    snap = load_policy(run.path).snapshot()
+    path = rollout(make_pointmass(), snap, make_jobs(99, 1, 0, 1, deterministic=True)[0])
+    teacher = np.array([expert_action(o) for o in path.observations])
+    assert np.abs(path.actions - teacher).mean() < 0.1
+
+
+def test_train_config_validation_names_the_choices():
+    with pytest.raises(ConfigError, match="'npg', 'dapg'"):
+        TrainConfig(algo="ppo")
+    with pytest.raises(ConfigError, match="DAPG needs demonstrations"):
+        TrainConfig(algo="dapg")
+    with pytest.raises(ConfigError, match="one robot"):
+        TrainConfig(backend="emulated", sampler="process")
+
+
+def test_cli_trains_a_registered_env(tmp_path, capsys):
+    import gymnasium as gym
+
+    from lowcostdex.cli import main
+
+    env_id = "lowcostdex_test/PointMass-v0"
+    if env_id not in gym.registry:
+        gym.register(env_id, entry_point="pointmass:PointMass", max_episode_steps=30)
+    args = ["train", "npg", "--env", env_id, "--out", str(tmp_path / "run"), "--n-iter", "2", "--n-traj", "4",
+            "--eval-every", "1", "--eval-episodes", "2", "--no-progress", "--hidden", "8"]  # fmt: skip
+    assert main(args) == 0
+    assert "final eval success rate" in capsys.readouterr().out
+    assert ex.read_json(tmp_path / "run" / "config.json")["policy"]["hidden_sizes"] == [8]
+    # a resume may extend the budget but not change the method
+    assert main([*args, "--resume", "--step-size", "0.1"]) == 1
+    assert "configuration differs" in capsys.readouterr().err
+    args[args.index("--n-iter") + 1] = "3"
+    assert main([*args, "--resume"]) == 0
+    assert ex.read_metrics(tmp_path / "run" / "metrics.csv")["iteration"].tolist() == [0, 1, 2]
