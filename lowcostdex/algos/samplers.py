@@ -336,6 +336,103 @@ class ProcessSampler(Sampler):
         self._conns, self._procs = [], []
 
 
+class VectorSampler(Sampler):
+    """Steps ``num_envs`` copies of a lowcostdex sim task at once (``lowcostdex.sim.vector``).
+
+    Jobs run in consecutive groups of ``num_envs``; copy i of a group is reset with the job's
+    own seed and uses the job's own noise generator, and the policy is evaluated row by row,
+    so trajectories equal the serial sampler's whatever ``num_envs`` is. Rows whose episode
+    ended are ignored until the whole group has ended (the vector env's auto-reset steps are
+    never recorded).
+
+    Args:
+      env_id: a registered ``lowcostdex/...`` id.
+      num_envs: copies stepped together.
+      env_kwargs: ``gym.make`` keyword arguments (sim backend only).
+      nthread: ``mujoco.batch`` threads (0: all CPUs).
+    """
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        env_kwargs: Mapping[str, Any] | None = None,
+        nthread: int = 0,
+    ):
+        from lowcostdex.sim.vector import make_vec
+
+        if num_envs < 1:
+            raise ConfigError(f"num_envs={num_envs} must be >= 1")
+        self.env = make_vec(env_id, num_envs, nthread=nthread, **dict(env_kwargs or {}))
+        self.num_envs = num_envs
+        self.period = float(self.env._template.control_period)
+
+    def sample(self, policy: PolicySnapshot, jobs: Sequence[RolloutJob]) -> list[Trajectory]:
+        out: list[Trajectory] = []
+        for start in range(0, len(jobs), self.num_envs):
+            out.extend(self._group(policy, list(jobs[start : start + self.num_envs])))
+        return out
+
+    def _group(self, policy: PolicySnapshot, jobs: list[RolloutJob]) -> list[Trajectory]:
+        n, m = len(jobs), self.num_envs
+        seeds = [job.env_seed() for job in jobs] + [0] * (m - n)  # idle rows: any seed
+        obs, _ = self.env.reset(seed=seeds)
+        rngs = [None if job.deterministic else job.noise_rng() for job in jobs]
+        act_dim = policy.act_dim
+        live = np.ones(n, dtype=bool)
+        rec: list[dict[str, Any]] = [
+            {
+                "obs": [],
+                "act": [],
+                "rew": [],
+                "succ": [],
+                "terms": {},
+                "term": False,
+                "trunc": False,
+            }
+            for _ in range(n)
+        ]
+        while live.any():
+            actions = np.zeros((m, act_dim))
+            for i in np.flatnonzero(live):
+                noise = None if rngs[i] is None else rngs[i].standard_normal(act_dim)
+                actions[i] = policy.act(obs[i], noise)
+                rec[i]["obs"].append(np.asarray(obs[i], dtype=np.float64))
+                rec[i]["act"].append(actions[i].copy())
+            obs, reward, terminated, truncated, info = self.env.step(np.clip(actions, -1.0, 1.0))
+            for i in np.flatnonzero(live):
+                r = rec[i]
+                r["rew"].append(float(reward[i]))
+                r["succ"].append(bool(info["success"][i]))
+                for key, value in info.items():
+                    if key.startswith("reward_"):
+                        r["terms"][key] = r["terms"].get(key, 0.0) + float(value[i])
+                if terminated[i] or truncated[i]:
+                    r.update(
+                        term=bool(terminated[i]), trunc=bool(truncated[i] and not terminated[i])
+                    )
+                    r["final"] = np.asarray(obs[i], dtype=np.float64)
+                    live[i] = False
+        return [
+            Trajectory(
+                observations=np.asarray(r["obs"]),
+                actions=np.asarray(r["act"]),
+                rewards=np.asarray(r["rew"]),
+                successes=np.asarray(r["succ"], dtype=bool),
+                final_observation=r["final"],
+                terminated=r["term"],
+                truncated=r["trunc"],
+                index=job.index,
+                reward_terms=r["terms"],
+                robot_seconds=len(r["rew"]) * self.period,
+            )
+            for job, r in zip(jobs, rec, strict=True)
+        ]
+
+    def close(self) -> None:
+        self.env.close()
+
+
 class RaySampler(Sampler):
     """Ray actors, one env each, for sampling across machines (optional extra ``ray``).
 

@@ -54,6 +54,7 @@ from lowcostdex.algos.samplers import (
     Sampler,
     SerialSampler,
     Trajectory,
+    VectorSampler,
     make_jobs,
 )
 from lowcostdex.errors import ConfigError, check_choice
@@ -333,8 +334,6 @@ def make_sampler(config: TrainConfig, env_factory: EnvFactoryFn) -> Sampler:
         return ProcessSampler(env_factory, config.n_workers)
     if config.sampler == "ray":
         return RaySampler(env_factory, config.n_workers)
-    from lowcostdex.algos.vector_sampler import VectorSampler
-
     return VectorSampler(config.env_id, config.n_workers, dict(config.env_kwargs))
 
 
