@@ -28,6 +28,7 @@ from lowcostdex.sim import servo
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
 
 _ORDER = {name: i for i, name in enumerate(EFFECTS)}
+_CONTROLLER_GAINS = [servo.GAIN_KP, servo.GAIN_KI, servo.GAIN_KD]
 
 
 def prepare_spec(spec: mujoco.MjSpec, effects: Sequence[AppliedEffect]) -> mujoco.MjSpec:
@@ -67,6 +68,12 @@ class _PlantBase:
         self._torque_on = np.ones(self._lead + (self.model.nu,), dtype=bool)
         self._static_forcerange: np.ndarray | None = None
         self._static_forcelimited: np.ndarray | None = None
+        self._runtime_fields: set[str] = set()
+        self._is_dcmotor = self.model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR
+        # dcmotors compiled with an integrator state need ki > 0 at every step
+        has_int = servo.dcmotor_act_layout(self.model)[:, servo.ACT_INTEGRATOR] >= 0
+        self._off_gains = np.zeros((self.model.nu, len(_CONTROLLER_GAINS)))
+        self._off_gains[has_int, 1] = servo.KI_MIN
 
     # -- Fields protocol ------------------------------------------------------------------------
     @property
@@ -80,6 +87,22 @@ class _PlantBase:
         if name not in self._nominal:
             self._nominal[name] = np.array(getattr(self._base_model, name), copy=True)
         return self._nominal[name]
+
+    def set_nominal(self, name: str, index: object, value: object) -> None:
+        """Change a model field's nominal value at run time and re-apply the effects on top.
+
+        Used by emulated firmware writing servo gains from its control table
+        (``actuator_gainprm`` / ``actuator_dynprm`` columns, see ``lowcostdex.sim.servo``):
+        effects that scale a field (e.g. ``gain_error``) keep acting relative to the new value.
+
+        Args:
+          name: MjModel field, e.g. "actuator_gainprm".
+          index: numpy index into the (unbatched) field, e.g. ``(actuator, servo.GAIN_KP)``.
+          value: new nominal value(s).
+        """
+        self.nominal(name)[index] = value
+        self._runtime_fields.add(name)
+        self._apply_model_effects()
 
     # -- effects ----------------------------------------------------------------------------------
     @property
@@ -146,6 +169,7 @@ class _PlantBase:
                    "actuator_forcelimited"}
         for b in self._bound:
             touched.update(b.cls.fields)
+        touched |= self._runtime_fields
         for name in touched:
             self.array(name)[...] = self.nominal(name)
         mass_changed = False
@@ -189,6 +213,22 @@ class _PlantBase:
         fr, fl = self.array("actuator_forcerange"), self.array("actuator_forcelimited")
         fr[...] = np.where(self._torque_on[..., None], self._static_forcerange, 0.0)
         fl[...] = np.where(self._torque_on, self._static_forcelimited, 1)
+        gain = self.array("actuator_gainprm")
+        gain[..., _CONTROLLER_GAINS] = self._static_gain[..., _CONTROLLER_GAINS]
+        self._mask_controller(gain)
+
+    def _mask_controller(self, gain: np.ndarray) -> None:
+        """Zero the controller gains of servos with torque off, in place.
+
+        A free-wheeling bridge drives no current: with kp = ki = kd = 0 the dcmotor's drive voltage
+        equals the back-EMF, so the winding current (and its heating) is zero, not just the
+        output torque that the force clamp removes. (A servo compiled with an integrator state
+        keeps ki at ``servo.KI_MIN``: MuJoCo requires ki > 0 while that state exists.)
+        """
+        off = ~self._torque_on & self._is_dcmotor
+        if np.any(off):
+            gain[..., _CONTROLLER_GAINS] = np.where(off[..., None], self._off_gains,
+                                                    gain[..., _CONTROLLER_GAINS])
 
     # -- stepping ---------------------------------------------------------------------------------
     def command(self, goal: np.ndarray) -> np.ndarray:
@@ -219,6 +259,7 @@ class _PlantBase:
                 chans = {c: np.asarray(channels[c], float)[..., b.targets.actuators]
                          for c in b.cls.requires}
                 b.cls.exogenous(self, b.targets, b.values, chans, gain)
+        self._mask_controller(gain)
         self.array("actuator_gainprm")[...] = gain
 
     def _friction_level(self, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:

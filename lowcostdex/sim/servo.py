@@ -40,7 +40,7 @@ TWO_PI = 2.0 * math.pi
 # Layout of a compiled dcmotor's parameter arrays (verified against mujoco 4.0.0).
 USER_SUPPLY_VOLTAGE = 0  # actuator_user column holding the servo's nominal supply [V]
 GAIN_R, GAIN_K, GAIN_TEMPCOEF, GAIN_TREF, GAIN_KP, GAIN_KI, GAIN_KD, GAIN_VMAX = range(8)
-DYN_RTH, DYN_CTH, DYN_TAMB = 2, 3, 4
+DYN_TE, DYN_RTH, DYN_CTH, DYN_TAMB = 0, 2, 3, 4  # DYN_TE: electrical time constant L/R [s]
 DYN_LUGRE_STIFFNESS, DYN_LUGRE_DAMPING, DYN_SLEWMAX, DYN_IMAX = 5, 6, 7, 8
 BIAS_LUGRE_COULOMB, BIAS_LUGRE_STATIC, BIAS_LUGRE_STRIBECK = 3, 4, 5
 DCMOTOR_INPUT_POS = 1  # MjsActuator.ctrlspec bit for input="pos" (vel 2, ff 4, voltage 8)
@@ -325,15 +325,44 @@ def motor_current(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
     return cur
 
 
+ACT_CURRENT, ACT_INTEGRATOR, ACT_THERMAL, ACT_LUGRE = range(4)
+KI_MIN = 1e-12  # smallest ki written at run time to a dcmotor compiled with an integrator state
+
+
+def dcmotor_act_layout(model: mujoco.MjModel) -> np.ndarray:
+    """Activation index of each dcmotor state, shape (nu, 4), -1 where absent.
+
+    Columns (``ACT_*``): armature current (inductance), PID integrator (compiled with ki > 0),
+    winding temperature rise (thermal), LuGre bristle deflection; dcmotor stores them in this
+    order (verified against mujoco 4.0.0). The integrator exists when the actuator was *compiled*
+    with ki > 0, whatever ki holds at run time, so it is inferred from the activation count.
+    """
+    out = np.full((model.nu, 4), -1, dtype=int)
+    dyn = model.actuator_dynprm
+    for i in np.flatnonzero(model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR):
+        adr, num = int(model.actuator_actadr[i]), int(model.actuator_actnum[i])
+        if adr < 0:
+            continue
+        present = [dyn[i, DYN_TE] > 0, False, dyn[i, DYN_CTH] > 0, dyn[i, DYN_LUGRE_STIFFNESS] > 0]
+        present[ACT_INTEGRATOR] = num - sum(present) == 1
+        k = adr
+        for col, has in enumerate(present):
+            if has:
+                out[i, col] = k
+                k += 1
+    return out
+
+
 def winding_temperature(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
     """Winding temperature of every actuator [deg C]; ambient when it has no thermal state.
 
-    dcmotor's thermal activation is the rise over ambient; it is the first activation of the
-    actuator when thermal modelling is on (``dynprm[C_th] > 0``).
+    dcmotor's thermal activation is the rise over ambient; ``dcmotor_act_layout`` locates it (it
+    follows the integrator state when the servo was compiled with an I gain).
     """
     temp = model.actuator_dynprm[:, DYN_TAMB].copy()
-    has = (model.actuator_dynprm[:, DYN_CTH] > 0) & (model.actuator_actadr >= 0)
-    temp[has] += data.act[model.actuator_actadr[has]]
+    idx = dcmotor_act_layout(model)[:, ACT_THERMAL]
+    has = idx >= 0
+    temp[has] += data.act[idx[has]]
     return temp
 
 
