@@ -29,6 +29,7 @@ def _costs() -> dict[str, object]:
         "l2": StateCost(target, weights, l2=1.5, ramp="linear", final_multiplier=10.0),
         "l1": StateCost(target, weights, l2=0.0, l1=0.7, alpha=0.3, ramp="quadratic"),
         "l1l2": StateCost(target, weights, l2=1.0, l1=0.2, alpha=1e-2),
+        "moving": StateCost(rng.normal(size=(T, DX)), weights, l2=0.5, l1=0.3, alpha=0.1),
         "action": ActionCost(
             np.array([1e-3, 0.1, 2.0]), target=np.array([0.5, -1.0, 0.2]), final_multiplier=0.0
         ),
@@ -48,7 +49,7 @@ def _fd_gradient(fn, y: np.ndarray, h: float = 1e-6) -> np.ndarray:
     return grad
 
 
-@pytest.mark.parametrize("name", ["l2", "l1", "l1l2", "action", "sum"])
+@pytest.mark.parametrize("name", ["l2", "l1", "l1l2", "moving", "action", "sum"])
 def test_cost_derivatives_match_finite_differences(name: str) -> None:
     cost = _costs()[name]
     X, U = _trajectory()
@@ -132,6 +133,8 @@ def test_cost_configs_validate() -> None:
         StateCost(np.zeros(3), np.ones(2))
     with pytest.raises(ConfigError):
         StateCost(np.zeros(2), np.ones(2), alpha=0.0)
+    with pytest.raises(ConfigError, match="steps"):
+        StateCost(np.zeros((T + 1, DX)), np.ones(DX)).evaluate(*_trajectory())
     with pytest.raises(ConfigError, match="linear"):
         ActionCost(np.ones(2), ramp="cubic")
     with pytest.raises(ConfigError):

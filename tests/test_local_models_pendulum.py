@@ -1,7 +1,7 @@
 """Learned-local-model loop on a torque-limited pendulum (reference 03, section 8.7).
 
 The pendulum swings from hanging (theta = 0) to horizontal (pi/2), which needs more than the
-6 N m torque limit to hold, so the controller has to learn a swing-and-hold under saturation from
+6 N m torque limit to hold, so the controller has to learn a timed swing under saturation from
 5 rollouts per iteration, with dynamics learned through the GMM prior.
 """
 
@@ -11,8 +11,13 @@ import json
 import numpy as np
 import pytest
 
-from lowcostdex.algos.local_models.controller import LinearGaussianController, exploration_noise
-from lowcostdex.algos.local_models.costs import ActionCost, StateCost, SumCost
+from lowcostdex.algos.local_models.controller import LinearGaussianController
+from lowcostdex.algos.local_models.pendulum import (
+    PendulumParams,
+    PendulumSwingEnv,
+    pendulum_cost,
+    pendulum_rollouts,
+)
 from lowcostdex.algos.local_models.tvlg import (
     TVLGConfig,
     TVLGState,
@@ -21,32 +26,9 @@ from lowcostdex.algos.local_models.tvlg import (
     tvlg_iteration,
 )
 
-DT, T, U_MAX, DAMPING, GRAVITY = 0.05, 60, 6.0, 0.1, 9.81
-COST = SumCost(
-    [
-        StateCost(np.array([np.pi / 2, 0.0]), np.array([1.0, 0.05]), final_multiplier=10.0),
-        ActionCost(np.array([1e-3])),
-    ]
-)
-
-
-def pendulum_step(x: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Semi-implicit Euler step of theta'' = clip(u) - g sin(theta) - b theta' (unit mass, length)."""
-    theta, omega = x
-    omega = omega + DT * (np.clip(u[0], -U_MAX, U_MAX) - GRAVITY * np.sin(theta) - DAMPING * omega)
-    return np.array([theta + DT * omega, omega])
-
-
-def rollouts(ctl: LinearGaussianController, n: int, rng: np.random.Generator):
-    """n rollouts from rest; the *commanded* action is recorded (the plant saturates it)."""
-    X, U = np.zeros((n, T, 2)), np.zeros((n, T, 1))
-    for i in range(n):
-        x, noise = np.zeros(2), exploration_noise(rng, T, 1)
-        for t in range(T):
-            U[i, t] = ctl.act(t, x, noise[t])
-            X[i, t] = x
-            x = pendulum_step(x, U[i, t])
-    return X, U
+P = PendulumParams()
+T = P.T
+COST = pendulum_cost(P)
 
 
 def initial_state(cfg: TVLGConfig) -> TVLGState:
@@ -59,7 +41,7 @@ def initial_state(cfg: TVLGConfig) -> TVLGState:
 def run(state: TVLGState, cfg: TVLGConfig, rng: np.random.Generator, iterations: int):
     history = []
     for _ in range(iterations):
-        X, U = rollouts(state.controller, 5, rng)
+        X, U = pendulum_rollouts(state.controller, 5, rng, P)
         state, metrics = tvlg_iteration(state, X, U, COST, cfg, rng)
         history.append(metrics)
     return state, history
@@ -104,3 +86,19 @@ def test_same_seed_same_run_and_resume_from_arrays_is_identical() -> None:
 
     _, again = run(initial_state(cfg), cfg, np.random.default_rng(7), 5)
     assert again == first + rest
+
+
+def test_gym_pendulum_return_is_minus_trajectory_cost() -> None:
+    """The model-free baseline's env pays exactly the cost the optimiser minimises."""
+    rng = np.random.default_rng(3)
+    torques = rng.uniform(-4.0, 4.0, size=T - 1)  # inside the limit: commanded == applied
+    env = PendulumSwingEnv(P)
+    obs, _ = env.reset(seed=0)
+    X, total, truncated = [obs[:2]], 0.0, False
+    for tau in torques:
+        obs, reward, terminated, truncated, info = env.step(np.array([tau / P.max_torque]))
+        X.append(obs[:2])
+        total += reward
+    assert truncated and not terminated
+    U = np.append(torques, 0.0)[:, None]  # the last state has no action
+    np.testing.assert_allclose(-total, COST.evaluate(np.array(X), U).l.sum(), rtol=1e-12)

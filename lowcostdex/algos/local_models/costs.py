@@ -123,7 +123,7 @@ class StateCost:
     the same weighting ``W``.
 
     Attributes:
-      target: (dX,) target state, units of the state.
+      target: (dX,) target state, or (T, dX) one per step (a moving goal), units of the state.
       weights: (dX,) non-negative per-coordinate weights (0 ignores a coordinate).
       l2: weight of the quadratic term.
       l1: weight of the smooth-absolute term.
@@ -143,9 +143,10 @@ class StateCost:
     def __post_init__(self) -> None:
         object.__setattr__(self, "target", np.asarray(self.target, dtype=np.float64))
         object.__setattr__(self, "weights", np.asarray(self.weights, dtype=np.float64))
-        _check_vector("target", self.target)
         _check_vector("weights", self.weights)
-        if self.target.shape != self.weights.shape:
+        if self.target.ndim not in (1, 2) or not np.all(np.isfinite(self.target)):
+            raise ConfigError(f"target must be finite, (dX,) or (T, dX); got {self.target.shape}")
+        if self.target.shape[-1:] != self.weights.shape:
             raise ConfigError(
                 f"target {self.target.shape} and weights {self.weights.shape} differ in shape"
             )
@@ -157,6 +158,8 @@ class StateCost:
 
     def evaluate(self, X: Array, U: Array) -> CostDerivatives:
         T, dX = X.shape
+        if self.target.ndim == 2 and self.target.shape[0] != T:
+            raise ConfigError(f"target has {self.target.shape[0]} steps, the trajectory {T}")
         out = _zeros(T, dX, U.shape[1])
         ramp = ramp_weights(self.ramp, T, self.final_multiplier)
         w = self.weights

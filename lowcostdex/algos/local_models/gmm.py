@@ -49,7 +49,10 @@ class GaussianMixture:
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, Array]) -> GaussianMixture:
-        return cls(arrays["weights"], arrays["means"], arrays["covs"], int(arrays["n_points"]))
+        n_points = int(np.asarray(arrays["n_points"]).reshape(()))  # may be stored as (1,)
+        return cls(
+            np.asarray(arrays["weights"]), np.asarray(arrays["means"]), np.asarray(arrays["covs"]), n_points
+        )
 
 
 def log_likelihoods(gmm: GaussianMixture, data: Array) -> Array:

@@ -191,6 +191,11 @@ def _group(arrays: dict[str, Any], prefix: str) -> dict[str, Array]:
     return {k[len(prefix) + 1 :]: np.asarray(v) for k, v in arrays.items() if k.startswith(prefix + "/")}
 
 
+def _scalar(value: Any) -> Array:
+    """A scalar stored as a 0-d or (1,) array."""
+    return np.asarray(value).reshape(())
+
+
 def state_from_arrays(arrays: dict[str, Any]) -> TVLGState:
     """Inverse of :func:`state_to_arrays`."""
     gmm_arrays = _group(arrays, "gmm")
@@ -211,10 +216,10 @@ def state_from_arrays(arrays: dict[str, Any]) -> TVLGState:
             ),
         )
     return TVLGState(
-        iteration=int(arrays["iteration"]),
+        iteration=int(_scalar(arrays["iteration"])),
         controller=LinearGaussianController.from_arrays(_group(arrays, "controller")),
         prior=prior,
-        eta=float(arrays["eta"]),
-        step_mult=float(arrays["step_mult"]),
+        eta=float(_scalar(arrays["eta"])),
+        step_mult=float(_scalar(arrays["step_mult"])),
         previous=previous,
     )

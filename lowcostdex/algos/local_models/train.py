@@ -1,0 +1,584 @@
+"""Learned-local-model training on the hand envs: ``lowcostdex train tvlg``.
+
+From a fixed start state, each iteration k runs ``n_rollouts`` episodes of the current
+time-varying linear-Gaussian controller on the env, then one :func:`.tvlg.tvlg_iteration`
+(cost expansion, GMM prior, dynamics fit, step rule, KL-constrained LQR) and, every
+``eval_every`` iterations, one noise-free episode of the new controller. Metrics, checkpoints,
+curves and resume follow :mod:`lowcostdex.algos.experiment`.
+
+State and time indexing: the controller acts on x = [hand qpos, hand qvel, object qpos,
+object qvel] (``env.unwrapped.state_vector()``) plus, by default, the last applied action (servos
+track their last goal, so it is part of the physical state). An episode of H steps gives states
+x_0..x_H; the controller has T = H + 1 steps and its last action is drawn but not executed, so
+the final state is costed. The commanded (unclipped) action is recorded: the env clips it, and
+the fitted model learns that saturation.
+
+Reproducibility: the start state is captured once (``reset(seed=seed)``) and every episode
+starts there (``reset(options={"qpos", "qvel", "goal"})``); the reset seed and the exploration
+noise of episode i of iteration k derive from (seed, stream, k, i) as in
+:mod:`lowcostdex.algos.samplers`, and the update's generator from (seed, k). A resumed run
+therefore equals the uninterrupted one on a deterministic backend.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import NDArray
+
+from lowcostdex.algos import experiment as ex
+from lowcostdex.algos.local_models.controller import (
+    LinearGaussianController,
+    exploration_noise,
+    pd_controller,
+)
+from lowcostdex.algos.local_models.costs import RAMP_KINDS, ActionCost, StateCost, SumCost
+from lowcostdex.algos.local_models.dynamics import DynamicsConfig
+from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
+from lowcostdex.algos.local_models.tvlg import (
+    TVLGConfig,
+    TVLGState,
+    state_from_arrays,
+    state_to_arrays,
+    tvlg_iteration,
+)
+from lowcostdex.algos.samplers import EVAL_STREAM, TRAIN_STREAM, EnvFactory, RolloutJob, control_period
+from lowcostdex.errors import ConfigError, check_choice
+
+Array = NDArray[np.float64]
+BACKENDS = ("sim", "emulated", "hardware")
+INITS = ("pd", "demos")
+SUCCESS_MODES = ("final", "any")
+MUTABLE_ON_RESUME = ("n_iter", "progress")
+"""Config keys a resumed run may change."""
+_UPDATE = 13  # seed purpose of the update generator (the GMM's EM)
+CONTROLLER_FILE = "controller.npz"
+
+
+@dataclass(frozen=True)
+class TaskCostConfig:
+    """Quadratic cost of a goal-angle task (valve turning, screw), in state units.
+
+    Attributes:
+      object_weight: weight of the squared object-angle error [1/rad^2].
+      object_l1: weight of a smooth |error| term on the object angle (keeps pulling near the goal).
+      pose_weight: squared deviation of the hand joints from the start pose [1/rad^2].
+      velocity_weight: squared hand and object joint velocities [s^2/rad^2].
+      action_weight: squared deviation of the normalised action from the one holding the start
+        pose.
+      final_multiplier: extra weight of the final step's state terms.
+      ramp: growth of the object term over the episode, one of RAMP_KINDS.
+    """
+
+    object_weight: float = 1.0
+    object_l1: float = 0.0
+    pose_weight: float = 0.01
+    velocity_weight: float = 1e-3
+    action_weight: float = 1e-3
+    final_multiplier: float = 10.0
+    ramp: str = "constant"
+
+    def __post_init__(self) -> None:
+        check_choice("ramp", self.ramp, RAMP_KINDS)
+        for name in ("object_weight", "object_l1", "pose_weight", "velocity_weight", "action_weight"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"{name}={getattr(self, name)} must be >= 0")
+        if self.final_multiplier <= 0:
+            raise ConfigError(f"final_multiplier={self.final_multiplier} must be > 0")
+
+
+@dataclass(frozen=True)
+class TVLGTrainConfig:
+    """One learned-local-model run on a fixed start state.
+
+    Attributes:
+      env_id: registered gymnasium id with a goal angle (valve and screw tasks).
+      backend: one of BACKENDS.
+      env_kwargs: extra ``gym.make`` keyword arguments (e.g. ``{"port": "/dev/ttyUSB0"}``).
+      seed: the run's seed; every random draw derives from it.
+      n_iter: iterations.
+      n_rollouts: episodes per iteration (5 in Kumar et al. 2016 and the GPS examples).
+      include_last_action: append the last applied action to the state.
+      init: initial controller, one of INITS: "pd" holds the start pose (plus ``pd_gain``
+        feedback) with exploration noise; "demos" replays the mean action of the demonstrations
+        in ``demos`` (the DAPG demo format) with the same noise.
+      demos: demonstration file (.npz with observations, actions, episode_ends).
+      init_noise: std of the initial controller's exploration noise [normalised action].
+      pd_gain: position feedback of the initial controller [normalised action / rad].
+      smooth_noise: Gaussian smoothing of the exploration noise over time [steps]; 0 = white.
+      success: episode success from ``info["success"]`` at the final step or at any step.
+      eval_every: noise-free evaluation episode every this many iterations (0: last only).
+      checkpoint_every: checkpoint period [iterations] (the last iteration always saves).
+      cost: the task cost.
+      algo: the optimiser (dynamics fit, KL trust region).
+      progress: show a progress bar.
+    """
+
+    env_id: str = "lowcostdex/DClawTurnValve-v0"
+    backend: str = "sim"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    seed: int = 0
+    n_iter: int = 12
+    n_rollouts: int = 5
+    include_last_action: bool = True
+    init: str = "pd"
+    demos: str | None = None
+    init_noise: float = 0.3
+    pd_gain: float = 0.0
+    smooth_noise: float = 0.0
+    success: str = "final"
+    eval_every: int = 1
+    checkpoint_every: int = 1
+    cost: TaskCostConfig = field(default_factory=TaskCostConfig)
+    algo: TVLGConfig = field(default_factory=TVLGConfig)
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        check_choice("backend", self.backend, BACKENDS)
+        check_choice("initial controller", self.init, INITS)
+        check_choice("success mode", self.success, SUCCESS_MODES)
+        if self.init == "demos" and not self.demos:
+            raise ConfigError("init 'demos' needs a demonstration file (--demos PATH)")
+        for name in ("n_iter", "n_rollouts", "checkpoint_every"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.eval_every < 0:
+            raise ConfigError(f"eval_every={self.eval_every} must be >= 0")
+        if self.init_noise <= 0 or self.smooth_noise < 0 or self.pd_gain < 0:
+            raise ConfigError("init_noise must be > 0, smooth_noise and pd_gain >= 0")
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> TVLGTrainConfig:
+        """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json)."""
+        d = dict(d)
+        if isinstance(d.get("cost"), Mapping):
+            d["cost"] = TaskCostConfig(**d["cost"])
+        if isinstance(d.get("algo"), Mapping):
+            a = dict(d["algo"])
+            a["dynamics"] = DynamicsConfig(**a.get("dynamics", {}))
+            a["traj_opt"] = TrajOptConfig(**a.get("traj_opt", {}))
+            d["algo"] = TVLGConfig(**a)
+        return cls(**d)
+
+
+# ----------------------------------------------------------------------------------------------
+# Episodes
+
+
+@dataclass(frozen=True)
+class FixedStart:
+    """The start every episode resets to: qpos (nq,), qvel (nv,) and the task goal."""
+
+    qpos: Array
+    qvel: Array
+    goal: dict[str, Array]
+
+    def reset_options(self) -> dict[str, Any]:
+        return {"qpos": self.qpos, "qvel": self.qvel, "goal": self.goal}
+
+    def to_arrays(self) -> dict[str, Array]:
+        out = {"qpos": self.qpos, "qvel": self.qvel}
+        out.update({f"goal/{k}": np.asarray(v) for k, v in self.goal.items()})
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, Any]) -> FixedStart:
+        # Scalars may come back as (1,) arrays from a checkpoint; goals are scalars or vectors.
+        goal = {
+            k[5:]: np.asarray(v, dtype=np.float64).reshape(()) if np.size(v) == 1 else np.asarray(v, float)
+            for k, v in arrays.items()
+            if k.startswith("goal/")
+        }
+        return cls(np.asarray(arrays["qpos"], float), np.asarray(arrays["qvel"], float), goal)
+
+
+def capture_start(env: gym.Env, seed: int) -> FixedStart:
+    """Reset once with ``seed`` and record the start state and goal."""
+    env.reset(seed=seed)
+    base = env.unwrapped
+    goal = {k: np.array(v, dtype=np.float64) for k, v in getattr(base, "goal", {}).items()}
+    return FixedStart(base.data.qpos.copy(), base.data.qvel.copy(), goal)
+
+
+def controller_state(env: gym.Env, last_action: Array | None) -> Array:
+    """The controller's state: ``state_vector()`` and, if given, the last applied action."""
+    x = np.asarray(env.unwrapped.state_vector(), dtype=np.float64)
+    return x if last_action is None else np.concatenate([x, last_action])
+
+
+def hold_action(env: gym.Env, start: FixedStart) -> Array:
+    """Normalised action (dU,) whose joint goals are the start pose of the hand."""
+    from lowcostdex.sim.envs import goal_to_action
+
+    task = env.unwrapped.task
+    return goal_to_action(start.qpos[task.hand_qpos], task.hand_low, task.hand_high)
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One episode of a TVLG controller.
+
+    Attributes:
+      X: (H+1, dX) controller states x_0..x_H.
+      U: (H+1, dU) commanded actions (the last one is not executed).
+      rewards: (H,) env rewards.
+      successes: (H,) ``info["success"]`` after each step.
+      final_error: ``info["goal_error"]`` after the last step (nan if absent).
+      robot_seconds: robot time [s]: steps x control period plus reported reset/pause time.
+    """
+
+    X: Array
+    U: Array
+    rewards: Array
+    successes: NDArray[np.bool_]
+    final_error: float
+    robot_seconds: float
+
+    def success(self, mode: str) -> bool:
+        return bool(self.successes[-1]) if mode == "final" else bool(self.successes.any())
+
+
+def run_episode(
+    env: gym.Env,
+    controller: LinearGaussianController,
+    start: FixedStart,
+    job: RolloutJob,
+    include_last_action: bool,
+    hold: Array,
+    smooth_noise: float,
+) -> Episode:
+    """Run ``controller`` for one episode from ``start``; noise-free if ``job.deterministic``.
+
+    An episode that terminates early is padded with its last state (an absorbing state).
+    """
+    T, dU = controller.T, controller.dU
+    noise = None if job.deterministic else exploration_noise(job.noise_rng(), T, dU, smooth_noise)
+    _, info = env.reset(seed=job.env_seed(), options=start.reset_options())
+    extra = float(info.get("reset_time", 0.0)) + float(info.get("thermal_pause_time", 0.0))
+    last = hold.copy() if include_last_action else None
+    X, U = np.zeros((T, controller.dX)), np.zeros((T, dU))
+    rewards, successes = [], []
+    done, error = False, math.nan
+    for t in range(T):
+        X[t] = controller_state(env, last) if not done else X[t - 1]
+        U[t] = controller.act(t, X[t], None if noise is None else noise[t])
+        if t == T - 1 or done:
+            continue
+        applied = np.clip(U[t], -1.0, 1.0)
+        _, reward, terminated, truncated, info = env.step(applied.astype(np.float32))
+        rewards.append(float(reward))
+        successes.append(bool(info.get("success", False)))
+        error = float(info.get("goal_error", math.nan))
+        last = applied if include_last_action else None
+        done = bool(terminated or (truncated and t < T - 2))
+    n = len(rewards)
+    return Episode(
+        X, U, np.asarray(rewards), np.asarray(successes, dtype=bool), error,
+        n * control_period(env) + extra,
+    )  # fmt: skip
+
+
+# ----------------------------------------------------------------------------------------------
+# Cost and initial controller
+
+
+def task_cost(
+    env: gym.Env, start: FixedStart, hold: Array, cfg: TaskCostConfig, T: int, dX: int
+) -> SumCost:
+    """Quadratic cost of a goal-angle task over T steps, for states of size dX.
+
+    The object target is the goal angle unwrapped to within (-pi, pi] of the start angle, so a
+    half-turn goal is reached by turning in the positive direction (for a moving goal, one target
+    per step from ``task.advance_goal``). The hand is kept near its start
+    pose and the action near the one holding it.
+
+    Raises:
+      ConfigError: if the task has no goal angle.
+    """
+    base = env.unwrapped
+    task = base.task
+    if "angle" not in start.goal or not hasattr(task, "obj_qpos"):
+        raise ConfigError(
+            f"tvlg needs a goal-angle task (valve or screw); {env.spec.id if env.spec else env} has "
+            f"goal keys {sorted(start.goal)}"
+        )
+    n_hand = len(task.hand_qpos)
+    obj = 2 * n_hand  # state_vector: hand qpos, hand qvel, object qpos, object qvel
+    theta0 = float(start.qpos[task.obj_qpos])
+    goals = [task.advance_goal(start.goal, t)["angle"] for t in range(T)]
+    target = np.tile(np.concatenate([start.qpos[task.hand_qpos], np.zeros(dX - n_hand)]), (T, 1))
+    target[:, obj] = [theta0 - (theta0 - float(g) + math.pi) % (2 * math.pi) + math.pi for g in goals]
+    w_obj = np.zeros(dX)
+    w_obj[obj] = 1.0
+    w_hand = np.zeros(dX)
+    w_hand[:n_hand] = cfg.pose_weight
+    w_hand[n_hand : 2 * n_hand] = cfg.velocity_weight
+    w_hand[obj + 1] = cfg.velocity_weight  # object velocity
+    terms = [
+        StateCost(target, w_hand, final_multiplier=cfg.final_multiplier),
+        StateCost(
+            target, w_obj, l2=cfg.object_weight, l1=cfg.object_l1, alpha=1e-2, ramp=cfg.ramp,
+            final_multiplier=cfg.final_multiplier,
+        ),
+        ActionCost(cfg.action_weight * np.ones(len(hold)), target=hold),
+    ]  # fmt: skip
+    return SumCost(terms)
+
+
+def initial_controller(
+    config: TVLGTrainConfig, env: gym.Env, start: FixedStart, x0: Array, hold: Array, T: int
+) -> LinearGaussianController:
+    """The first controller: hold (or replay the demos) with exploration noise."""
+    task = env.unwrapped.task
+    n_hand = len(task.hand_qpos)
+    ctl = pd_controller(
+        x0, hold, T, list(range(n_hand)), None, config.pd_gain, 0.0, config.init_noise**2
+    )
+    if config.init == "pd":
+        return ctl
+    from lowcostdex.algos.train import load_demos
+
+    demos = load_demos(config.demos)
+    starts = np.concatenate([[0], demos.episode_ends[:-1]])
+    k = ctl.k.copy()
+    for t in range(T):
+        acts = [demos.actions[s + t] for s, e in zip(starts, demos.episode_ends, strict=True) if s + t < e]
+        if acts:
+            k[t] += np.mean(acts, axis=0) - hold
+        else:
+            k[t] = k[t - 1]
+    return LinearGaussianController.from_cov(ctl.K, k, ctl.cov)
+
+
+# ----------------------------------------------------------------------------------------------
+# Training loop
+
+
+def default_env_factory(config: TVLGTrainConfig) -> Callable[[], gym.Env]:
+    return EnvFactory(config.env_id, {"backend": config.backend, **config.env_kwargs})
+
+
+def _progress(config: TVLGTrainConfig, start: int) -> Any:
+    from tqdm.auto import tqdm
+
+    return tqdm(
+        total=config.n_iter, initial=start, disable=not config.progress,
+        desc=f"tvlg {config.env_id}", unit="it", dynamic_ncols=True,
+    )  # fmt: skip
+
+
+def _numpy(tree: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v.numpy() if hasattr(v, "numpy") else v for k, v in tree.items()}
+
+
+def train(
+    config: TVLGTrainConfig,
+    out_dir: str | Path,
+    resume: bool = False,
+    env_factory: Callable[[], gym.Env] | None = None,
+    stop_after: int | None = None,
+) -> ex.Run:
+    """Train, writing the run directory ``out_dir``; returns the (closed) run.
+
+    Args:
+      config: the run.
+      out_dir: run directory (see :mod:`lowcostdex.algos.experiment`).
+      resume: continue from the last checkpoint in ``out_dir``.
+      env_factory: overrides the env built from ``config.env_id``/``backend``.
+      stop_after: stop after this iteration index as if killed (tests of resume).
+    """
+    run = ex.Run.open(out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME)
+    env = (env_factory or default_env_factory(config))()
+    try:
+        ckpt = run.load_latest() if resume else None
+        if ckpt is None:
+            start = capture_start(env, config.seed)
+        else:
+            start = FixedStart.from_arrays(_numpy(ckpt.state["start"]))
+        hold = hold_action(env, start)
+        env.reset(options=start.reset_options())
+        x0 = controller_state(env, hold if config.include_last_action else None)
+        T = int(env.spec.max_episode_steps if env.spec and env.spec.max_episode_steps else env.unwrapped.task.timing.episode_steps) + 1
+        cost = task_cost(env, start, hold, config.cost, T, x0.shape[0])
+        if ckpt is None:
+            state = TVLGState.initial(initial_controller(config, env, start, x0, hold, T), config.algo)
+            counters = {"samples": 0, "rollouts": 0, "robot_seconds": 0.0}
+            first = 0
+        else:
+            state = state_from_arrays(_numpy(ckpt.state["tvlg"]))
+            counters = dict(ckpt.state["counters"])
+            first = ckpt.iteration + 1
+        _loop(config, run, env, state, cost, start, hold, counters, first, stop_after)
+    finally:
+        env.close()
+        run.close()
+    return run
+
+
+def _loop(
+    config: TVLGTrainConfig,
+    run: ex.Run,
+    env: gym.Env,
+    state: TVLGState,
+    cost: SumCost,
+    start: FixedStart,
+    hold: Array,
+    counters: dict[str, Any],
+    first: int,
+    stop_after: int | None,
+) -> None:
+    bar = _progress(config, first)
+    last = config.n_iter - 1
+
+    def episode(ctl: LinearGaussianController, job: RolloutJob) -> Episode:
+        return run_episode(env, ctl, start, job, config.include_last_action, hold, config.smooth_noise)
+
+    for k in range(first, config.n_iter):
+        t0 = time.perf_counter()
+        episodes = [episode(state.controller, RolloutJob(config.seed, TRAIN_STREAM, k, i)) for i in range(config.n_rollouts)]
+        t1 = time.perf_counter()
+        X = np.stack([e.X for e in episodes])
+        U = np.stack([e.U for e in episodes])
+        rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(_UPDATE, k)))
+        state, stats = tvlg_iteration(state, X, U, cost, config.algo, rng)
+        t2 = time.perf_counter()
+        counters["samples"] += sum(len(e.rewards) for e in episodes)
+        counters["rollouts"] += len(episodes)
+        counters["robot_seconds"] += sum(e.robot_seconds for e in episodes)
+        row: dict[str, Any] = {
+            ex.ITERATION: k,
+            "rollouts": counters["rollouts"],
+            ex.SUCCESS_RATE: float(np.mean([e.success(config.success) for e in episodes])),
+            ex.RETURN_MEAN: float(np.mean([e.rewards.sum() for e in episodes])),
+            "final_abs_error": float(np.mean([abs(e.final_error) for e in episodes])),
+            ex.EVAL_SUCCESS_RATE: math.nan,
+            ex.EVAL_RETURN_MEAN: math.nan,
+            "eval_final_abs_error": math.nan,
+        }
+        if k == last or (config.eval_every > 0 and (k + 1) % config.eval_every == 0):
+            ev = episode(state.controller, RolloutJob(config.seed, EVAL_STREAM, k, 0, deterministic=True))
+            counters["robot_seconds"] += ev.robot_seconds
+            row.update({
+                ex.EVAL_SUCCESS_RATE: float(ev.success(config.success)),
+                ex.EVAL_RETURN_MEAN: float(ev.rewards.sum()),
+                "eval_final_abs_error": abs(ev.final_error),
+            })  # fmt: skip
+        row.update({ex.SAMPLES: counters["samples"], ex.ROBOT_HOURS: counters["robot_seconds"] / 3600})
+        row.update(stats)
+        row.update({"time_sampling": t1 - t0, "time_update": t2 - t1, "time_eval": time.perf_counter() - t2})
+        run.log(row)
+        if k == last or (k + 1) % config.checkpoint_every == 0 or k == stop_after:
+            run.save_checkpoint(k, {
+                "tvlg": state_to_arrays(state), "start": start.to_arrays(), "counters": counters,
+            })  # fmt: skip
+        bar.update(1)
+        bar.set_postfix(
+            rollouts=counters["rollouts"], success=f"{row[ex.SUCCESS_RATE]:.2f}",
+            cost=f"{stats['sample_cost']:.1f}", kl=f"{stats['kl']:.2f}",
+        )  # fmt: skip
+        if k == stop_after:
+            break
+    bar.close()
+    run.plot_learning_curves(f"TVLG on {config.env_id} (seed {config.seed})")
+    _write_controller(run.path / CONTROLLER_FILE, state.controller, start)
+
+
+def _write_controller(path: Path, controller: LinearGaussianController, start: FixedStart) -> None:
+    import io
+
+    buf = io.BytesIO()
+    arrays = {f"controller/{k}": v for k, v in controller.to_arrays().items()}
+    arrays.update({f"start/{k}": v for k, v in start.to_arrays().items()})
+    np.savez(buf, **arrays)
+    ex.atomic_write_bytes(path, buf.getvalue())
+
+
+def load_controller(run_dir: str | Path) -> tuple[LinearGaussianController, FixedStart, TVLGTrainConfig]:
+    """The final controller of a run directory, its start state and the run's config."""
+    run_dir = Path(run_dir)
+    config = TVLGTrainConfig.from_dict(ex.read_json(run_dir / ex.CONFIG_FILE))
+    with np.load(run_dir / CONTROLLER_FILE, allow_pickle=False) as data:
+        arrays = dict(data)
+    ctl = LinearGaussianController.from_arrays({k[11:]: v for k, v in arrays.items() if k.startswith("controller/")})
+    start = FixedStart.from_arrays({k[6:]: v for k, v in arrays.items() if k.startswith("start/")})
+    return ctl, start, config
+
+
+# ----------------------------------------------------------------------------------------------
+# CLI: `lowcostdex train tvlg ...`
+
+
+def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
+    """Add ``tvlg`` to the ``lowcostdex train`` group."""
+    help_text = "learned local models: TVLG dynamics + KL-constrained iLQG from a fixed start"
+    p = train_subparsers.add_parser("tvlg", help=help_text, description=help_text)
+    d = TVLGTrainConfig()
+    p.add_argument("--env", default="DClawTurnValve-v0", help="env id, with or without the lowcostdex/ prefix")
+    p.add_argument("--backend", choices=BACKENDS, default=d.backend)
+    p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--n-iter", type=int, default=d.n_iter)
+    p.add_argument("--n-rollouts", type=int, default=d.n_rollouts, help="episodes per iteration")
+    p.add_argument("--init", choices=INITS, default=d.init)
+    p.add_argument("--demos", default=None, help="demonstration file (.npz) for --init demos")
+    p.add_argument("--init-noise", type=float, default=d.init_noise, help="initial action noise std")
+    p.add_argument("--smooth-noise", type=float, default=d.smooth_noise, help="noise smoothing [steps]")
+    p.add_argument("--kl-step", type=float, default=d.algo.traj_opt.kl_step, help="KL per step [nats]")
+    p.add_argument("--prior-strength", type=float, default=d.algo.dynamics.prior_strength)
+    p.add_argument("--object-weight", type=float, default=d.cost.object_weight)
+    p.add_argument("--no-last-action", action="store_true", help="leave the last action out of the state")
+    p.add_argument("--eval-every", type=int, default=d.eval_every)
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_run_command)
+
+
+def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
+    """Build a config from parsed ``lowcostdex train tvlg`` arguments."""
+    d = TVLGTrainConfig()
+    env_id = args.env if "/" in args.env else f"lowcostdex/{args.env}"
+    return TVLGTrainConfig(
+        env_id=env_id,
+        backend=args.backend,
+        env_kwargs={"port": args.port} if args.port else {},
+        seed=args.seed,
+        n_iter=args.n_iter,
+        n_rollouts=args.n_rollouts,
+        include_last_action=not args.no_last_action,
+        init=args.init,
+        demos=str(Path(args.demos).resolve()) if args.demos else None,
+        init_noise=args.init_noise,
+        smooth_noise=args.smooth_noise,
+        eval_every=args.eval_every,
+        cost=dataclasses.replace(d.cost, object_weight=args.object_weight),
+        algo=dataclasses.replace(
+            d.algo,
+            dynamics=dataclasses.replace(d.algo.dynamics, prior_strength=args.prior_strength),
+            traj_opt=dataclasses.replace(d.algo.traj_opt, kl_step=args.kl_step),
+        ),
+        progress=not args.no_progress,
+    )
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    config = config_from_args(args)
+    run = train(config, args.out, resume=args.resume)
+    metrics = run.read_metrics()
+    print(f"run: {run.path}")
+    print(f"curves: {run.path / ex.CURVES_FILE}")
+    if metrics.get("rollouts", np.array([])).size:
+        print(
+            f"rollouts: {int(metrics['rollouts'][-1])}, last training success rate "
+            f"{metrics[ex.SUCCESS_RATE][-1]:.2f}, eval success {metrics[ex.EVAL_SUCCESS_RATE][-1]:.0f}"
+        )
+    return 0

@@ -1,0 +1,125 @@
+"""The TVLG trainer on the D'Claw valve env: run directory, fixed start, resume, CLI, init."""
+
+import argparse
+import math
+
+import numpy as np
+import pytest
+
+from lowcostdex.algos import experiment as ex
+from lowcostdex.algos.local_models.train import (
+    TVLGTrainConfig,
+    add_train_commands,
+    capture_start,
+    config_from_args,
+    controller_state,
+    default_env_factory,
+    hold_action,
+    initial_controller,
+    load_controller,
+    run_episode,
+    task_cost,
+    train,
+)
+from lowcostdex.algos.samplers import TRAIN_STREAM, RolloutJob
+from lowcostdex.errors import ConfigError
+
+TIME_COLUMNS = ("time_sampling", "time_update", "time_eval")
+
+
+def _small(**kw) -> TVLGTrainConfig:
+    base = dict(n_iter=3, n_rollouts=2, progress=False)
+    base.update(kw)
+    return TVLGTrainConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def valve():
+    env = default_env_factory(TVLGTrainConfig())()
+    start = capture_start(env, 0)
+    hold = hold_action(env, start)
+    yield env, start, hold
+    env.close()
+
+
+def test_episodes_start_from_the_fixed_state_and_record_commanded_actions(valve) -> None:
+    env, start, hold = valve
+    env.reset(options=start.reset_options())
+    x0 = controller_state(env, hold)
+    ctl = initial_controller(_small(init_noise=2.0), env, start, x0, hold, 41)
+    eps = [run_episode(env, ctl, start, RolloutJob(0, TRAIN_STREAM, 0, i), True, hold, 0.0) for i in range(2)]
+    for ep in eps:
+        np.testing.assert_array_equal(ep.X[0], x0)
+        assert ep.X.shape == (41, 29) and ep.U.shape == (41, 9) and ep.rewards.shape == (40,)
+        assert np.abs(ep.U).max() > 1.0  # commanded, not clipped
+        np.testing.assert_allclose(ep.X[1:, 20:], np.clip(ep.U[:-1], -1, 1))  # last applied action
+        assert ep.robot_seconds == pytest.approx(40 * env.unwrapped.control_period)
+    assert not np.allclose(eps[0].U, eps[1].U)
+    again = run_episode(env, ctl, start, RolloutJob(0, TRAIN_STREAM, 0, 1), True, hold, 0.0)
+    np.testing.assert_array_equal(again.X, eps[1].X)
+
+
+def test_valve_cost_targets_half_turn_positive_and_start_pose(valve) -> None:
+    env, start, hold = valve
+    cost = task_cost(env, start, hold, TVLGTrainConfig().cost, 41, 29)
+    hand_term, object_term, action_term = cost.costs
+    assert start.goal["angle"] == pytest.approx(math.pi)
+    np.testing.assert_allclose(object_term.target[:, 18], math.pi)
+    np.testing.assert_allclose(hand_term.target[0, :9], start.qpos[env.unwrapped.task.hand_qpos])
+    np.testing.assert_allclose(action_term.target, hold)
+    assert object_term.weights[18] == 1.0 and hand_term.weights[18] == 0.0
+
+
+def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
+    pytest.importorskip("lowcostdex.algos.train")
+    from lowcostdex.algos.train import save_demos
+
+    env, start, hold = valve
+    rng = np.random.default_rng(0)
+    a, b = rng.uniform(-1, 1, size=(40, 9)), rng.uniform(-1, 1, size=(30, 9))
+    path = save_demos(tmp_path / "demos.npz", [(np.zeros((40, 30)), a), (np.zeros((30, 30)), b)])
+    env.reset(options=start.reset_options())
+    x0 = controller_state(env, hold)
+    ctl = initial_controller(_small(init="demos", demos=str(path)), env, start, x0, hold, 41)
+    np.testing.assert_allclose(ctl.act(5, x0), 0.5 * (a[5] + b[5]))
+    np.testing.assert_allclose(ctl.act(35, x0), a[35])
+    np.testing.assert_allclose(ctl.act(40, x0), a[39])
+    with pytest.raises(ConfigError, match="demonstration"):
+        TVLGTrainConfig(init="demos")
+
+
+def test_run_directory_and_resume_reproduce_the_uninterrupted_run(tmp_path) -> None:
+    full = train(_small(), tmp_path / "full").read_metrics()
+    assert list(full[ex.ITERATION]) == [0, 1, 2]
+    assert list(full["rollouts"]) == [2, 4, 6]
+    assert list(full[ex.SAMPLES]) == [80, 160, 240]
+    assert np.all(full["converged"] == 1.0)
+    for name in ("config.json", "metrics.csv", "learning_curves.png", "controller.npz"):
+        assert (tmp_path / "full" / name).exists()
+    ctl, start, cfg = load_controller(tmp_path / "full")
+    assert (ctl.T, ctl.dX, ctl.dU) == (41, 29, 9) and cfg == _small()
+
+    train(_small(), tmp_path / "cut", stop_after=0)
+    with pytest.raises(ConfigError, match="already holds a run"):
+        train(_small(), tmp_path / "cut")
+    with pytest.raises(ConfigError, match="differs"):
+        train(_small(seed=1), tmp_path / "cut", resume=True)
+    resumed = train(_small(), tmp_path / "cut", resume=True).read_metrics()
+    for key, values in full.items():
+        if key not in TIME_COLUMNS:
+            np.testing.assert_array_equal(resumed[key], values, err_msg=key)
+    np.testing.assert_array_equal(load_controller(tmp_path / "cut")[0].K, ctl.K)
+
+
+def test_cli_builds_the_config() -> None:
+    parser = argparse.ArgumentParser()
+    add_train_commands(parser.add_subparsers())
+    args = parser.parse_args(["tvlg", "--env", "DClawTurnValve-v0", "--backend", "emulated", "--out", "r"])
+    cfg = config_from_args(args)
+    assert cfg.env_id == "lowcostdex/DClawTurnValve-v0" and cfg.backend == "emulated"
+    assert cfg.n_rollouts == 5 and cfg.init == "pd"
+    args = parser.parse_args(["tvlg", "--out", "r", "--kl-step", "0.5", "--port", "/dev/ttyUSB0", "--backend", "hardware"])
+    cfg = config_from_args(args)
+    assert cfg.algo.traj_opt.kl_step == 0.5 and cfg.env_kwargs == {"port": "/dev/ttyUSB0"}
+    with pytest.raises(SystemExit):
+        parser.parse_args(["tvlg", "--out", "r", "--backend", "simulated"])
