@@ -40,6 +40,7 @@ from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.baseline import BaselineConfig, MLPBaseline
 from lowcostdex.algos.bc import BCConfig, behavior_clone
 from lowcostdex.algos.dapg import DAPGConfig, dapg_update
+from lowcostdex.algos.demos import Demos, load_demos
 from lowcostdex.algos.npg import NPGConfig, npg_update
 from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
 from lowcostdex.algos.returns import discounted_returns, gae
@@ -184,68 +185,6 @@ class TrainConfig:
     @property
     def uses_demos(self) -> bool:
         return self.algo == "dapg" or self.bc_init
-
-
-# ----------------------------------------------------------------------------------------------
-# Demonstrations
-
-
-@dataclass(frozen=True)
-class Demos:
-    """Demonstration pairs, concatenated over episodes.
-
-    Attributes:
-      observations: (N, obs_dim).
-      actions: (N, act_dim) in the env's action space.
-      episode_ends: (E,) exclusive end index of each episode.
-    """
-
-    observations: np.ndarray
-    actions: np.ndarray
-    episode_ends: np.ndarray
-
-    @property
-    def n_episodes(self) -> int:
-        return int(self.episode_ends.shape[0])
-
-    def first(self, n: int | None) -> Demos:
-        """The first ``n`` episodes (all if None)."""
-        if n is None or n >= self.n_episodes:
-            return self
-        end = int(self.episode_ends[n - 1])
-        return Demos(self.observations[:end], self.actions[:end], self.episode_ends[:n])
-
-
-def load_demos(path: str | Path) -> Demos:
-    """Read demonstrations from an NPZ file with ``observations``, ``actions``, ``episode_ends``.
-
-    Raises:
-      ConfigError: missing file or keys.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"demonstration file {path} does not exist")
-    with np.load(path, allow_pickle=False) as data:
-        missing = {"observations", "actions", "episode_ends"} - set(data.files)
-        if missing:
-            raise ConfigError(f"{path} lacks {sorted(missing)}; has {sorted(data.files)}")
-        return Demos(
-            np.asarray(data["observations"], dtype=np.float64),
-            np.asarray(data["actions"], dtype=np.float64),
-            np.asarray(data["episode_ends"], dtype=np.int64),
-        )
-
-
-def save_demos(path: str | Path, episodes: Sequence[tuple[np.ndarray, np.ndarray]]) -> Path:
-    """Write (observations (T, obs_dim), actions (T, act_dim)) episodes in :func:`load_demos`'s format."""
-    obs = np.concatenate([np.asarray(o, dtype=np.float64) for o, _ in episodes])
-    act = np.concatenate([np.asarray(a, dtype=np.float64) for _, a in episodes])
-    ends = np.cumsum([len(o) for o, _ in episodes])
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as f:
-        np.savez(f, observations=obs, actions=act, episode_ends=ends)
-    return path
 
 
 # ----------------------------------------------------------------------------------------------
