@@ -217,3 +217,17 @@ def test_cli_trains_a_registered_env(tmp_path, capsys):
     args[args.index("--n-iter") + 1] = "3"
     assert main([*args, "--resume"]) == 0
     assert ex.read_metrics(tmp_path / "run" / "metrics.csv")["iteration"].tolist() == [0, 1, 2]
+
+
+def test_until_ends_the_run_early_with_an_evaluation(tmp_path):
+    seen = []
+    run = train(
+        _config(n_iter=10, eval_every=0),
+        tmp_path / "run",
+        env_factory=make_pointmass,
+        until=lambda row: seen.append(row["samples"]) or row["iteration"] >= 1,
+    )
+    m = run.read_metrics()
+    assert m["iteration"].tolist() == [0, 1] and seen == [480, 960]
+    assert np.isnan(m["eval_success_rate"][0]) and np.isfinite(m["eval_success_rate"][1])
+    assert ex.read_json(run.path / "checkpoints" / "latest.json")["iteration"] == 1

@@ -28,7 +28,7 @@ import argparse
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -375,6 +375,7 @@ def train(
     resume: bool = False,
     env_factory: EnvFactoryFn | None = None,
     stop_after: int | None = None,
+    until: Callable[[Mapping[str, float]], bool] | None = None,
 ) -> ex.Run:
     """Train, writing the run directory ``out_dir``; returns the (closed) :class:`~experiment.Run`.
 
@@ -385,6 +386,9 @@ def train(
       env_factory: overrides the env built from ``config.env_id``/``backend`` (tests use
         this for small inline envs; it must be picklable for the process sampler).
       stop_after: stop after this iteration index as if killed (for tests of resume).
+      until: called with each iteration's training metrics (the row's keys so far); when it
+        returns True that iteration becomes the last one (evaluated, checkpointed), e.g. to
+        stop a benchmark run some iterations after it reached a success rate.
     """
     run = ex.Run.open(
         out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
@@ -405,7 +409,7 @@ def train(
         if ckpt is not None:
             _restore(state, ckpt)
             start = ckpt.iteration + 1
-        _loop(config, run, sampler, state, demos, start, stop_after)
+        _loop(config, run, sampler, state, demos, start, stop_after, until)
     finally:
         torch.set_num_threads(threads)
         sampler.close()
@@ -421,6 +425,7 @@ def _loop(
     demos: Demos | None,
     start: int,
     stop_after: int | None,
+    until: Callable[[Mapping[str, float]], bool] | None,
 ) -> None:
     bar = _progress(config, start)
     last = config.n_iter - 1
@@ -447,7 +452,9 @@ def _loop(
         state.pause_seconds += sum(p.pause_seconds for p in paths)
         row: dict[str, Any] = {ex.ITERATION: k}
         row.update(path_metrics(paths, config.success))
-        evaluate = k == last or (config.eval_every > 0 and (k + 1) % config.eval_every == 0)
+        row.update({ex.SAMPLES: state.samples, ex.ROBOT_HOURS: state.robot_seconds / 3600})
+        final = k == last or (until is not None and until(dict(row)))
+        evaluate = final or (config.eval_every > 0 and (k + 1) % config.eval_every == 0)
         row.update({ex.EVAL_SUCCESS_RATE: math.nan, ex.EVAL_RETURN_MEAN: math.nan})
         if evaluate:
             jobs = make_jobs(config.seed, EVAL_STREAM, k, config.eval_episodes, deterministic=True)
@@ -468,14 +475,14 @@ def _loop(
             }
         )
         run.log(row)
-        if k == last or (k + 1) % config.checkpoint_every == 0 or k == stop_after:
+        if final or (k + 1) % config.checkpoint_every == 0 or k == stop_after:
             run.save_checkpoint(k, state.to_checkpoint(k))
         bar.update(1)
         bar.set_postfix(
             samples=state.samples, success=f"{row[ex.SUCCESS_RATE]:.2f}",
             robot_h=f"{state.robot_seconds / 3600:.2f}", pause_h=f"{state.pause_seconds / 3600:.2f}",
         )  # fmt: skip
-        if k == stop_after:
+        if final or k == stop_after:
             break
     bar.close()
     run.plot_learning_curves(f"{config.algo.upper()} on {config.env_id} (seed {config.seed})")
