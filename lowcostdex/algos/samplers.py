@@ -104,6 +104,8 @@ class Trajectory:
         reset and thermal-pause time the env reports (``info["reset_time"]`` and
         ``info["thermal_pause_time"]`` at reset, when present).
       pause_seconds: the thermal-pause part of robot_seconds [s].
+      final_goal_error: ``|info["goal_error"]|`` after the last step (NaN if the env does not
+        report one), e.g. the valve's angle error [rad].
     """
 
     observations: np.ndarray
@@ -117,6 +119,7 @@ class Trajectory:
     reward_terms: dict[str, float]
     robot_seconds: float
     pause_seconds: float = 0.0
+    final_goal_error: float = float("nan")
 
     def __len__(self) -> int:
         return int(self.rewards.shape[0])
@@ -181,6 +184,7 @@ def rollout(
         reward_terms=terms,
         robot_seconds=n * control_period(env) + extra,
         pause_seconds=pause,
+        final_goal_error=abs(float(info.get("goal_error", np.nan))) if n else float("nan"),
     )
 
 
@@ -412,6 +416,9 @@ class VectorSampler(Sampler):
                         term=bool(terminated[i]), trunc=bool(truncated[i] and not terminated[i])
                     )
                     r["final"] = np.asarray(obs[i], dtype=np.float64)
+                    r["goal_error"] = (
+                        abs(float(info["goal_error"][i])) if "goal_error" in info else np.nan
+                    )
                     live[i] = False
         return [
             Trajectory(
@@ -425,6 +432,7 @@ class VectorSampler(Sampler):
                 index=job.index,
                 reward_terms=r["terms"],
                 robot_seconds=len(r["rew"]) * self.period,
+                final_goal_error=r["goal_error"],
             )
             for job, r in zip(jobs, rec, strict=True)
         ]

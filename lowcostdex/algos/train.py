@@ -258,6 +258,7 @@ def path_metrics(
             return_min=float(returns.min()),
             return_max=float(returns.max()),
             episode_length=float(np.mean([len(p) for p in paths])),
+            goal_error_final=float(np.mean([p.final_goal_error for p in paths])),
         )
         terms = sorted({k for p in paths for k in p.reward_terms})
         for k in terms:
