@@ -71,8 +71,8 @@ def test_valve_cost_targets_half_turn_positive_and_start_pose(valve) -> None:
 
 
 def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
-    pytest.importorskip("lowcostdex.algos.train")
-    from lowcostdex.algos.train import save_demos
+    pytest.importorskip("lowcostdex.algos.demos")
+    from lowcostdex.algos.demos import save_demos
 
     env, start, hold = valve
     rng = np.random.default_rng(0)
@@ -86,6 +86,20 @@ def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
     np.testing.assert_allclose(ctl.act(40, x0), a[39])
     with pytest.raises(ConfigError, match="demonstration"):
         TVLGTrainConfig(init="demos")
+
+
+def test_teacher_init_replays_a_successful_teacher_episode(valve, tmp_path) -> None:
+    pytest.importorskip("lowcostdex.sim.scripted")
+    from lowcostdex.algos.local_models.train import record_teacher_demo
+
+    env, start, hold = valve
+    path = record_teacher_demo(env, start, tmp_path / "teacher.npz")
+    env.reset(options=start.reset_options())
+    x0 = controller_state(env, hold)
+    ctl = initial_controller(_small(init="teacher"), env, start, x0, hold, 41, str(path))
+    ep = run_episode(env, ctl, start, RolloutJob(0, 1, 0, 0, deterministic=True), True, hold, 0.0)
+    assert ep.success("final") and abs(ep.final_error) < 0.1
+    assert np.ptp(ctl.k[:, 0]) > 0.5  # a real motion, not the hold action
 
 
 def test_run_directory_and_resume_reproduce_the_uninterrupted_run(tmp_path) -> None:

@@ -56,12 +56,13 @@ from lowcostdex.errors import ConfigError, check_choice
 
 Array = NDArray[np.float64]
 BACKENDS = ("sim", "emulated", "hardware")
-INITS = ("pd", "demos")
+INITS = ("pd", "demos", "teacher")
 SUCCESS_MODES = ("final", "any")
 MUTABLE_ON_RESUME = ("n_iter", "progress")
 """Config keys a resumed run may change."""
 _UPDATE = 13  # seed purpose of the update generator (the GMM's EM)
 CONTROLLER_FILE = "controller.npz"
+TEACHER_FILE = "teacher_demo.npz"
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,9 @@ class TVLGTrainConfig:
       include_last_action: append the last applied action to the state.
       init: initial controller, one of INITS: "pd" holds the start pose (plus ``pd_gain``
         feedback) with exploration noise; "demos" replays the mean action of the demonstrations
-        in ``demos`` (the DAPG demo format) with the same noise.
+        in ``demos`` (the DAPG demo format) with the same noise; "teacher" first records one
+        episode of the scripted teacher (``lowcostdex.sim.scripted``) from the fixed start into
+        the run directory and replays it like "demos".
       demos: demonstration file (.npz with observations, actions, episode_ends).
       init_noise: std of the initial controller's exploration noise [normalised action].
       pd_gain: position feedback of the initial controller [normalised action / rad].
@@ -335,9 +338,15 @@ def task_cost(
 
 
 def initial_controller(
-    config: TVLGTrainConfig, env: gym.Env, start: FixedStart, x0: Array, hold: Array, T: int
+    config: TVLGTrainConfig,
+    env: gym.Env,
+    start: FixedStart,
+    x0: Array,
+    hold: Array,
+    T: int,
+    demos: str | None = None,
 ) -> LinearGaussianController:
-    """The first controller: hold (or replay the demos) with exploration noise."""
+    """The first controller: hold (or replay ``demos``, default ``config.demos``) with noise."""
     task = env.unwrapped.task
     n_hand = len(task.hand_qpos)
     ctl = pd_controller(
@@ -345,9 +354,9 @@ def initial_controller(
     )
     if config.init == "pd":
         return ctl
-    from lowcostdex.algos.train import load_demos
+    from lowcostdex.algos.demos import load_demos
 
-    demos = load_demos(config.demos)
+    demos = load_demos(demos or config.demos)
     starts = np.concatenate([[0], demos.episode_ends[:-1]])
     k = ctl.k.copy()
     for t in range(T):
@@ -357,6 +366,34 @@ def initial_controller(
         else:
             k[t] = k[t - 1]
     return LinearGaussianController.from_cov(ctl.K, k, ctl.cov)
+
+
+def record_teacher_demo(env: gym.Env, start: FixedStart, path: Path) -> Path:
+    """Run the scripted teacher for one episode from ``start``; save it as a demo file.
+
+    Raises:
+      ConfigError: if the task has no scripted teacher.
+    """
+    try:
+        from lowcostdex.sim.scripted import ValveTurnTeacher
+    except ImportError as exc:
+        raise ConfigError("init 'teacher' needs lowcostdex.sim.scripted (the valve teacher)") from exc
+    from lowcostdex.algos.demos import save_demos
+    from lowcostdex.sim.envs import goal_to_action
+
+    base = env.unwrapped
+    obs, _ = env.reset(options=start.reset_options())
+    teacher = ValveTurnTeacher()
+    teacher.reset(base)
+    observations, actions, done = [], [], False
+    while not done:
+        goal = teacher(base.data.qpos.copy(), base.goal)
+        action = goal_to_action(goal, base.task.hand_low, base.task.hand_high)
+        observations.append(np.asarray(obs, dtype=np.float64))
+        actions.append(action)
+        obs, _, terminated, truncated, _ = env.step(action.astype(np.float32))
+        done = terminated or truncated
+    return save_demos(path, [(np.asarray(observations), np.asarray(actions))])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -410,7 +447,11 @@ def train(
         T = int(env.spec.max_episode_steps if env.spec and env.spec.max_episode_steps else env.unwrapped.task.timing.episode_steps) + 1
         cost = task_cost(env, start, hold, config.cost, T, x0.shape[0])
         if ckpt is None:
-            state = TVLGState.initial(initial_controller(config, env, start, x0, hold, T), config.algo)
+            demos = config.demos
+            if config.init == "teacher":
+                demos = str(record_teacher_demo(env, start, run.path / TEACHER_FILE))
+            ctl = initial_controller(config, env, start, x0, hold, T, demos)
+            state = TVLGState.initial(ctl, config.algo)
             counters = {"samples": 0, "rollouts": 0, "robot_seconds": 0.0}
             first = 0
         else:
