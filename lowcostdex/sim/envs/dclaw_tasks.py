@@ -70,9 +70,27 @@ class TurnConfig:
 
 
 class ValveTask(DClawTask):
-    """Shared pieces of the valve tasks: observation, error, reward, valve-motor hold."""
+    """Shared pieces of the valve tasks: observation, error, reward, the released valve motor.
+
+    The valve motor (id 50) is torque-off during episodes, as ROBEL disengages it after the
+    reset, so the task's scene builds it released: force range +-1e-9 N m (MuJoCo rejects an
+    empty range at compile time; the plant's torque-off is [0, 0]). A torque-on servo whose
+    goal follows the valve once per control step is not free: within each 0.1 s step it pulls
+    the valve back to the step's starting angle (kp ~ 15.7 N m/rad plus back-EMF damping
+    ~ 1.1 N m s/rad on an XH430-W350), which held a 0.1 N m turning torque to 0.05 rad in 1 s and
+    kept scripted gaits below ~100 deg per episode. Robots that drive the valve for their
+    auto-reset keep a live motor in their own scene (the emulated D'Claw builds ``build_dclaw``
+    and releases the motor after each reset, as the hardware does).
+    """
 
     config: TurnConfig | ScrewConfig
+
+    def build_spec(self) -> mujoco.MjSpec:
+        spec = super().build_spec()
+        valve = spec.actuator("valve")
+        valve.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        valve.forcerange = [-1e-9, 1e-9]
+        return spec
 
     def bind(self, model: mujoco.MjModel) -> None:
         super().bind(model)
@@ -108,7 +126,7 @@ class ValveTask(DClawTask):
         return self.error(qpos, goal)
 
     def aux_ctrl(self, qpos):
-        # The valve motor is torque-off during episodes; its goal follows the valve.
+        # The valve motor is released (torque off, see the class doc); its goal follows the valve.
         return qpos[..., [self.obj_qpos]]
 
     def goal_marker(self, goal):
