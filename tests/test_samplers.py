@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -81,6 +83,7 @@ def test_worker_errors_surface_with_their_traceback():
         pool.sample(_snapshot(), make_jobs(0, 0, 0, 1))
 
 
+@pytest.mark.slow  # starting Ray takes ~30 s on 2 cores
 def test_ray_sampler_matches_serial():
     pytest.importorskip("ray")
     import ray
@@ -88,9 +91,13 @@ def test_ray_sampler_matches_serial():
     snap = _snapshot(2)
     jobs = make_jobs(seed=5, stream=0, iteration=0, n=4)
     try:
-        with RaySampler(
-            make_pointmass, 2, ray_init_kwargs={"num_cpus": 2, "include_dashboard": False}
-        ) as s:
+        init = {
+            "num_cpus": 2,
+            "include_dashboard": False,
+            # Ray workers do not inherit sys.path: make the test's env module importable.
+            "runtime_env": {"env_vars": {"PYTHONPATH": str(Path(__file__).parent)}},
+        }
+        with RaySampler(make_pointmass, 2, ray_init_kwargs=init) as s:
             _assert_same(SerialSampler(make_pointmass).sample(snap, jobs), s.sample(snap, jobs))
     finally:
         ray.shutdown()
