@@ -61,7 +61,9 @@ def pendulum_tvlg(seed: int, n_iter: int, n_rollouts: int = 5) -> list[tuple[int
     """(cumulative rollouts, noise-free episode cost) after each TVLG iteration."""
     p = PendulumParams()
     cfg = TVLGConfig()
-    ctl = LinearGaussianController.from_cov(np.zeros((p.T, 1, 2)), np.zeros((p.T, 1)), np.ones((p.T, 1, 1)))
+    ctl = LinearGaussianController.from_cov(
+        np.zeros((p.T, 1, 2)), np.zeros((p.T, 1)), np.ones((p.T, 1, 1))
+    )
     state, rng, out = TVLGState.initial(ctl, cfg), np.random.default_rng(seed), []
     for k in range(n_iter):
         X, U = pendulum_rollouts(state.controller, n_rollouts, rng, p)
@@ -70,7 +72,9 @@ def pendulum_tvlg(seed: int, n_iter: int, n_rollouts: int = 5) -> list[tuple[int
     return out
 
 
-def npg_curve(env_factory, env_id: str, seed: int, n_traj: int, n_iter: int, **kw) -> dict[str, np.ndarray]:
+def npg_curve(
+    env_factory, env_id: str, seed: int, n_traj: int, n_iter: int, **kw
+) -> dict[str, np.ndarray]:
     """Run the NPG trainer with one noise-free evaluation episode per iteration; its metrics."""
     from lowcostdex.algos.train import TrainConfig, train
 
@@ -97,25 +101,33 @@ def valve_tvlg(seed: int, n_iter: int, init: str, demos: str | None, **kw) -> di
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--quick", action="store_true", help="smaller budgets")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--skip-npg", action="store_true")
     args = parser.parse_args()
     seeds = args.seeds[:1] if args.quick else args.seeds
-    print(f"# bench/local_models.py  {time.strftime('%Y-%m-%d %H:%M')}  {platform.node()}  "
-          f"{platform.processor() or platform.machine()}")
+    print(
+        f"# bench/local_models.py  {time.strftime('%Y-%m-%d %H:%M')}  {platform.node()}  "
+        f"{platform.processor() or platform.machine()}"
+    )
 
     # ---------------------------------------------------------------- pendulum
-    print("\n## Pendulum swing, fixed start, solved: noise-free episode cost <= "
-          f"{PENDULUM_THRESHOLD:.1f}")
+    print(
+        "\n## Pendulum swing, fixed start, solved: noise-free episode cost <= "
+        f"{PENDULUM_THRESHOLD:.1f}"
+    )
     tvlg_p = []
     for s in seeds:
         curve = pendulum_tvlg(s, n_iter=12)
         r = np.array([c[0] for c in curve])
         cost = np.array([c[1] for c in curve])
         tvlg_p.append(first_solved(r, cost <= PENDULUM_THRESHOLD))
-        print(f"TVLG seed {s}: rollouts to solve {tvlg_p[-1]:.0f}; cost per iteration {np.round(cost, 1).tolist()}")
+        print(
+            f"TVLG seed {s}: rollouts to solve {tvlg_p[-1]:.0f}; cost per iteration {np.round(cost, 1).tolist()}"
+        )
     if not args.skip_npg:
         npg_p = []
         n_traj, n_iter = (10, 60) if args.quick else (10, 300)
@@ -123,17 +135,29 @@ def main() -> None:
             m = npg_curve(PendulumSwingEnv, "pendulum", s, n_traj, n_iter, gamma=1.0)
             episodes = (m["iteration"] + 1) * n_traj
             npg_p.append(first_solved(episodes, -m["eval_return_mean"] <= PENDULUM_THRESHOLD))
-            print(f"NPG  seed {s} ({n_traj} episodes/iteration, budget {n_iter * n_traj}): episodes to solve "
-                  f"{npg_p[-1]:.0f}; best noise-free cost {np.min(-m['eval_return_mean']):.1f}")
-        ratio = np.nanmedian(npg_p) / np.nanmedian(tvlg_p) if np.any(np.isfinite(npg_p)) else math.nan
-        print(f"pendulum: median TVLG {np.nanmedian(tvlg_p):.0f} rollouts, median NPG "
-              f"{np.nanmedian(npg_p) if np.any(np.isfinite(npg_p)) else math.nan:.0f} episodes -> NPG/TVLG = {ratio:.1f}x"
-              + ("" if np.all(np.isfinite(npg_p)) else f" (NPG unsolved in some seeds within {n_iter * n_traj})"))
+            print(
+                f"NPG  seed {s} ({n_traj} episodes/iteration, budget {n_iter * n_traj}): episodes to solve "
+                f"{npg_p[-1]:.0f}; best noise-free cost {np.min(-m['eval_return_mean']):.1f}"
+            )
+        ratio = (
+            np.nanmedian(npg_p) / np.nanmedian(tvlg_p) if np.any(np.isfinite(npg_p)) else math.nan
+        )
+        print(
+            f"pendulum: median TVLG {np.nanmedian(tvlg_p):.0f} rollouts, median NPG "
+            f"{np.nanmedian(npg_p) if np.any(np.isfinite(npg_p)) else math.nan:.0f} episodes -> NPG/TVLG = {ratio:.1f}x"
+            + (
+                ""
+                if np.all(np.isfinite(npg_p))
+                else f" (NPG unsolved in some seeds within {n_iter * n_traj})"
+            )
+        )
 
     # ---------------------------------------------------------------- valve
     env_id = "lowcostdex/DClawTurnValve-v0"
-    print(f"\n## D'Claw valve turn 180 deg, fixed start ({env_id}, sim), solved: noise-free "
-          "episode ends with |error| < 0.1 rad")
+    print(
+        f"\n## D'Claw valve turn 180 deg, fixed start ({env_id}, sim), solved: noise-free "
+        "episode ends with |error| < 0.1 rad"
+    )
     inits = ["pd"] + (["teacher"] if importlib.util.find_spec("lowcostdex.sim.scripted") else [])
     tvlg_v: dict[str, list[float]] = {}
     for init in inits:
@@ -142,12 +166,16 @@ def main() -> None:
         for s in seeds:
             m = valve_tvlg(s, n_iter, init, None, init_noise=noise)
             solved = first_solved(m["rollouts"], m["eval_success_rate"] == 1.0)
-            robust = first_solved(m["rollouts"], (m["eval_success_rate"] == 1.0) & (m["success_rate"] >= 0.8))
+            robust = first_solved(
+                m["rollouts"], (m["eval_success_rate"] == 1.0) & (m["success_rate"] >= 0.8)
+            )
             tvlg_v.setdefault(init, []).append(solved)
-            print(f"TVLG init={init} (noise {noise}) seed {s}: rollouts to noise-free success {solved:.0f}, "
-                  f"to >= 80 % noisy success {robust:.0f} (budget {n_iter * 5}); noise-free final |error| "
-                  f"{np.round(m['eval_final_abs_error'], 2).tolist()}; training success "
-                  f"{np.round(m['success_rate'], 1).tolist()}")
+            print(
+                f"TVLG init={init} (noise {noise}) seed {s}: rollouts to noise-free success {solved:.0f}, "
+                f"to >= 80 % noisy success {robust:.0f} (budget {n_iter * 5}); noise-free final |error| "
+                f"{np.round(m['eval_final_abs_error'], 2).tolist()}; training success "
+                f"{np.round(m['success_rate'], 1).tolist()}"
+            )
     if not args.skip_npg:
         from lowcostdex.algos.samplers import EnvFactory
 
@@ -156,14 +184,19 @@ def main() -> None:
             m = npg_curve(EnvFactory(env_id, {}), env_id, s, n_traj, n_iter)
             episodes = (m["iteration"] + 1) * n_traj
             solved = first_solved(episodes, m["eval_success_rate"] == 1.0)
-            print(f"NPG seed {s} ({n_traj} episodes/iteration, budget {n_iter * n_traj}): episodes to solve "
-                  f"{solved:.0f}; best eval return {np.max(m['eval_return_mean']):.1f}, best training "
-                  f"success {np.max(m['success_rate']):.2f}")
+            print(
+                f"NPG seed {s} ({n_traj} episodes/iteration, budget {n_iter * n_traj}): episodes to solve "
+                f"{solved:.0f}; best eval return {np.max(m['eval_return_mean']):.1f}, best training "
+                f"success {np.max(m['success_rate']):.2f}"
+            )
             for init, values in tvlg_v.items():
                 tv = np.nanmedian(values) if np.any(np.isfinite(values)) else math.nan
-                print(f"valve: NPG/TVLG(init={init}) = {solved / tv:.1f}x" if np.isfinite(solved / tv) else
-                      f"valve: NPG {solved:.0f} episodes vs TVLG(init={init}) {tv:.0f} rollouts: no ratio "
-                      "(a run did not solve within its budget)")
+                print(
+                    f"valve: NPG/TVLG(init={init}) = {solved / tv:.1f}x"
+                    if np.isfinite(solved / tv)
+                    else f"valve: NPG {solved:.0f} episodes vs TVLG(init={init}) {tv:.0f} rollouts: no ratio "
+                    "(a run did not solve within its budget)"
+                )
 
 
 if __name__ == "__main__":

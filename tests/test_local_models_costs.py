@@ -56,7 +56,7 @@ def test_cost_derivatives_match_finite_differences(name: str) -> None:
     d = cost.evaluate(X, U)
 
     def value(y):  # y (T, DX+DU) -> (T,)
-        return cost.evaluate(y[:, :DX], y[:, DX:]).l
+        return cost.evaluate(y[:, :DX], y[:, DX:]).value
 
     def gradient(y):  # -> (T, DX+DU) flattened per coordinate for the Hessian check
         e = cost.evaluate(y[:, :DX], y[:, DX:])
@@ -91,8 +91,8 @@ def test_ramps_shapes_and_endpoints() -> None:
 
 def test_state_cost_final_multiplier_scales_only_last_step() -> None:
     X, U = _trajectory()
-    base = StateCost(np.zeros(DX), np.ones(DX)).evaluate(X, U).l
-    final = StateCost(np.zeros(DX), np.ones(DX), final_multiplier=10.0).evaluate(X, U).l
+    base = StateCost(np.zeros(DX), np.ones(DX)).evaluate(X, U).value
+    final = StateCost(np.zeros(DX), np.ones(DX), final_multiplier=10.0).evaluate(X, U).value
     np.testing.assert_allclose(final[:-1], base[:-1])
     assert final[-1] == pytest.approx(10 * base[-1])
     np.testing.assert_allclose(base, 0.5 * np.sum(X**2, axis=1))
@@ -107,11 +107,13 @@ def test_quadratic_expansion_reproduces_cost_at_expansion_point_and_nearby() -> 
     def model(yy):
         return 0.5 * np.einsum("ti,tij,tj->t", yy, q.C, yy) + np.einsum("ti,ti->t", q.c, yy) + q.cc
 
-    np.testing.assert_allclose(model(y), cost.evaluate(X, U).l, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(model(y), cost.evaluate(X, U).value, rtol=1e-12, atol=1e-12)
     # Second-order accurate: error shrinks ~ step^3.
     dy = np.random.default_rng(3).normal(size=y.shape)
     errs = [
-        np.max(np.abs(model(y + s * dy) - cost.evaluate(X + s * dy[:, :DX], U + s * dy[:, DX:]).l))
+        np.max(
+            np.abs(model(y + s * dy) - cost.evaluate(X + s * dy[:, :DX], U + s * dy[:, DX:]).value)
+        )
         for s in (1e-2, 1e-3)
     ]
     assert errs[1] < errs[0] / 100
@@ -125,7 +127,7 @@ def test_average_expansion_is_mean_over_rollouts() -> None:
     b = quadratic_expansion(cost.evaluate(X2, U2), X2, U2)
     np.testing.assert_allclose(mean.C, 0.5 * (a.C + b.C))
     np.testing.assert_allclose(mean.cc, 0.5 * (a.cc + b.cc))
-    np.testing.assert_allclose(samples[1], cost.evaluate(X2, U2).l)
+    np.testing.assert_allclose(samples[1], cost.evaluate(X2, U2).value)
 
 
 def test_cost_configs_validate() -> None:

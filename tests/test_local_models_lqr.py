@@ -39,7 +39,10 @@ def _random_problem(seed: int, T: int = 8):
     """Random LTV dynamics, a PD quadratic cost and two random controllers."""
     rng = np.random.default_rng(seed)
     F = np.concatenate(
-        [np.eye(DX) + 0.1 * rng.normal(size=(T - 1, DX, DX)), 0.3 * rng.normal(size=(T - 1, DX, DU))],
+        [
+            np.eye(DX) + 0.1 * rng.normal(size=(T - 1, DX, DX)),
+            0.3 * rng.normal(size=(T - 1, DX, DU)),
+        ],
         axis=2,
     )
     dyn = LinearGaussianDynamics(
@@ -73,7 +76,11 @@ def _sample(dyn, ctl, M: int, rng) -> tuple[np.ndarray, np.ndarray]:
         X[:, t], U[:, t] = x, u
         if t < T - 1:
             xu = np.concatenate([x, u], axis=1)
-            x = xu @ dyn.F[t].T + dyn.f[t] + rng.multivariate_normal(np.zeros(DX), dyn.cov[t], size=M)
+            x = (
+                xu @ dyn.F[t].T
+                + dyn.f[t]
+                + rng.multivariate_normal(np.zeros(DX), dyn.cov[t], size=M)
+            )
     return X, U
 
 
@@ -135,7 +142,9 @@ def test_forward_pass_moments_and_expected_cost_match_monte_carlo() -> None:
         se_cov = np.sqrt((np.outer(d, d) ** 2 + sigma[t] ** 2) / M)
         assert np.all(np.abs(S - sigma[t]) < 4 * se_cov + 1e-12)
     mc = (
-        0.5 * np.einsum("mti,tij,mtj->mt", Y, cost.C, Y) + np.einsum("mti,ti->mt", Y, cost.c) + cost.cc
+        0.5 * np.einsum("mti,tij,mtj->mt", Y, cost.C, Y)
+        + np.einsum("mti,ti->mt", Y, cost.c)
+        + cost.cc
     ).sum(axis=1)
     laplace = expected_cost(cost, mu, sigma).sum()
     assert abs(mc.mean() - laplace) < 4 * mc.std() / np.sqrt(M)
@@ -202,4 +211,6 @@ def test_controller_round_trips_through_arrays(seed: int) -> None:
     _, _, ctl, _ = _random_problem(seed)
     back = LinearGaussianController.from_arrays(ctl.to_arrays())
     np.testing.assert_array_equal(back.chol, ctl.chol)
-    np.testing.assert_allclose(back.inv_cov @ back.cov, np.broadcast_to(np.eye(DU), ctl.cov.shape), atol=1e-10)
+    np.testing.assert_allclose(
+        back.inv_cov @ back.cov, np.broadcast_to(np.eye(DU), ctl.cov.shape), atol=1e-10
+    )

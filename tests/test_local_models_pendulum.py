@@ -101,4 +101,4 @@ def test_gym_pendulum_return_is_minus_trajectory_cost() -> None:
         total += reward
     assert truncated and not terminated
     U = np.append(torques, 0.0)[:, None]  # the last state has no action
-    np.testing.assert_allclose(-total, COST.evaluate(np.array(X), U).l.sum(), rtol=1e-12)
+    np.testing.assert_allclose(-total, COST.evaluate(np.array(X), U).value.sum(), rtol=1e-12)

@@ -47,7 +47,10 @@ def test_episodes_start_from_the_fixed_state_and_record_commanded_actions(valve)
     env.reset(options=start.reset_options())
     x0 = controller_state(env, hold)
     ctl = initial_controller(_small(init_noise=2.0), env, start, x0, hold, 41)
-    eps = [run_episode(env, ctl, start, RolloutJob(0, TRAIN_STREAM, 0, i), True, hold, 0.0) for i in range(2)]
+    eps = [
+        run_episode(env, ctl, start, RolloutJob(0, TRAIN_STREAM, 0, i), True, hold, 0.0)
+        for i in range(2)
+    ]
     for ep in eps:
         np.testing.assert_array_equal(ep.X[0], x0)
         assert ep.X.shape == (41, 29) and ep.U.shape == (41, 9) and ep.rewards.shape == (40,)
@@ -128,11 +131,25 @@ def test_run_directory_and_resume_reproduce_the_uninterrupted_run(tmp_path) -> N
 def test_cli_builds_the_config() -> None:
     parser = argparse.ArgumentParser()
     add_train_commands(parser.add_subparsers())
-    args = parser.parse_args(["tvlg", "--env", "DClawTurnValve-v0", "--backend", "emulated", "--out", "r"])
+    args = parser.parse_args(
+        ["tvlg", "--env", "DClawTurnValve-v0", "--backend", "emulated", "--out", "r"]
+    )
     cfg = config_from_args(args)
     assert cfg.env_id == "lowcostdex/DClawTurnValve-v0" and cfg.backend == "emulated"
     assert cfg.n_rollouts == 5 and cfg.init == "pd"
-    args = parser.parse_args(["tvlg", "--out", "r", "--kl-step", "0.5", "--port", "/dev/ttyUSB0", "--backend", "hardware"])
+    args = parser.parse_args(
+        [
+            "tvlg",
+            "--out",
+            "r",
+            "--kl-step",
+            "0.5",
+            "--port",
+            "/dev/ttyUSB0",
+            "--backend",
+            "hardware",
+        ]
+    )
     cfg = config_from_args(args)
     assert cfg.algo.traj_opt.kl_step == 0.5 and cfg.env_kwargs == {"port": "/dev/ttyUSB0"}
     with pytest.raises(SystemExit):

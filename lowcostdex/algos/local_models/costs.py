@@ -32,7 +32,7 @@ class CostDerivatives:
     """Per-step cost and derivatives along one trajectory of T steps.
 
     Attributes:
-      l: (T,) cost at each step.
+      value: (T,) cost at each step.
       lx: (T, dX) gradient with respect to the state.
       lu: (T, dU) gradient with respect to the action.
       lxx: (T, dX, dX) state Hessian.
@@ -40,7 +40,7 @@ class CostDerivatives:
       lux: (T, dU, dX) mixed second derivative d^2 l / (du dx).
     """
 
-    l: Array
+    value: Array
     lx: Array
     lu: Array
     lxx: Array
@@ -49,7 +49,7 @@ class CostDerivatives:
 
     def __add__(self, other: CostDerivatives) -> CostDerivatives:
         return CostDerivatives(
-            self.l + other.l,
+            self.value + other.value,
             self.lx + other.lx,
             self.lu + other.lu,
             self.lxx + other.lxx,
@@ -60,7 +60,7 @@ class CostDerivatives:
     def scaled(self, weight: float) -> CostDerivatives:
         """All terms multiplied by ``weight``."""
         return CostDerivatives(
-            weight * self.l,
+            weight * self.value,
             weight * self.lx,
             weight * self.lu,
             weight * self.lxx,
@@ -167,14 +167,14 @@ class StateCost:
         wd = w * d
         sq = np.einsum("ti,ti->t", d, wd)  # d'Wd
         root = np.sqrt(self.alpha + sq)
-        l = 0.5 * self.l2 * sq + self.l1 * root
+        value = 0.5 * self.l2 * sq + self.l1 * root
         lx = self.l2 * wd + self.l1 * wd / root[:, None]
         lxx = self.l2 * np.diag(w)[None] + self.l1 * (
             np.diag(w)[None] / root[:, None, None]
             - np.einsum("ti,tj->tij", wd, wd) / root[:, None, None] ** 3
         )
         return CostDerivatives(
-            ramp * l,
+            ramp * value,
             ramp[:, None] * lx,
             out.lu,
             ramp[:, None, None] * lxx,
@@ -217,11 +217,11 @@ class ActionCost:
         out = _zeros(T, X.shape[1], dU)
         ramp = ramp_weights(self.ramp, T, self.final_multiplier)
         d = U - self.target
-        l = 0.5 * np.einsum("ti,i,ti->t", d, self.weights, d)
+        value = 0.5 * np.einsum("ti,i,ti->t", d, self.weights, d)
         lu = self.weights * d
         luu = np.broadcast_to(np.diag(self.weights), (T, dU, dU))
         return CostDerivatives(
-            ramp * l, out.lx, ramp[:, None] * lu, out.lxx, ramp[:, None, None] * luu, out.lux
+            ramp * value, out.lx, ramp[:, None] * lu, out.lxx, ramp[:, None, None] * luu, out.lux
         )
 
 
@@ -280,7 +280,7 @@ def quadratic_expansion(derivs: CostDerivatives, X: Array, U: Array) -> Quadrati
     g = np.concatenate([derivs.lx, derivs.lu], axis=1)
     Cy = np.einsum("tij,tj->ti", C, y)
     c = g - Cy
-    cc = derivs.l - np.einsum("ti,ti->t", g, y) + 0.5 * np.einsum("ti,ti->t", y, Cy)
+    cc = derivs.value - np.einsum("ti,ti->t", g, y) + 0.5 * np.einsum("ti,ti->t", y, Cy)
     return QuadraticCost(C, c, cc)
 
 
@@ -300,7 +300,7 @@ def average_expansion(cost: Cost, X: Array, U: Array) -> tuple[QuadraticCost, Ar
     for Xi, Ui in zip(X, U, strict=True):
         derivs = cost.evaluate(Xi, Ui)
         expansions.append(quadratic_expansion(derivs, Xi, Ui))
-        sample_costs.append(derivs.l)
+        sample_costs.append(derivs.value)
     mean = QuadraticCost(
         np.mean([e.C for e in expansions], axis=0),
         np.mean([e.c for e in expansions], axis=0),

@@ -106,9 +106,9 @@ def map_gaussian(points: Array, prior: NIWPrior | None) -> tuple[Array, Array]:
     sigma = diff.T @ diff / N
     if prior is not None:
         dm = mu - prior.mu0
-        sigma = (
-            N * sigma + prior.Phi + (N * prior.m / (N + prior.m)) * np.outer(dm, dm)
-        ) / (N + prior.n0)
+        sigma = (N * sigma + prior.Phi + (N * prior.m / (N + prior.m)) * np.outer(dm, dm)) / (
+            N + prior.n0
+        )
     return mu, 0.5 * (sigma + sigma.T)
 
 

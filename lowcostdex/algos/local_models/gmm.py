@@ -51,7 +51,10 @@ class GaussianMixture:
     def from_arrays(cls, arrays: dict[str, Array]) -> GaussianMixture:
         n_points = int(np.asarray(arrays["n_points"]).reshape(()))  # may be stored as (1,)
         return cls(
-            np.asarray(arrays["weights"]), np.asarray(arrays["means"]), np.asarray(arrays["covs"]), n_points
+            np.asarray(arrays["weights"]),
+            np.asarray(arrays["means"]),
+            np.asarray(arrays["covs"]),
+            n_points,
         )
 
 

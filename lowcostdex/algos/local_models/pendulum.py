@@ -117,7 +117,10 @@ class PendulumSwingEnv(gym.Env):
         return self._obs(), {}
 
     def step(self, action):
-        tau = float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1, 1)) * self.p.max_torque
+        tau = (
+            float(np.clip(np.asarray(action, dtype=float).reshape(-1)[0], -1, 1))
+            * self.p.max_torque
+        )
         p = self.p
         w = np.array(p.state_weights)
         cost = 0.5 * np.sum(w * (self._x - [p.target, 0.0]) ** 2) + 0.5 * p.action_weight * tau**2

@@ -51,7 +51,13 @@ from lowcostdex.algos.local_models.tvlg import (
     state_to_arrays,
     tvlg_iteration,
 )
-from lowcostdex.algos.samplers import EVAL_STREAM, TRAIN_STREAM, EnvFactory, RolloutJob, control_period
+from lowcostdex.algos.samplers import (
+    EVAL_STREAM,
+    TRAIN_STREAM,
+    EnvFactory,
+    RolloutJob,
+    control_period,
+)
 from lowcostdex.errors import ConfigError, check_choice
 
 Array = NDArray[np.float64]
@@ -90,7 +96,13 @@ class TaskCostConfig:
 
     def __post_init__(self) -> None:
         check_choice("ramp", self.ramp, RAMP_KINDS)
-        for name in ("object_weight", "object_l1", "pose_weight", "velocity_weight", "action_weight"):
+        for name in (
+            "object_weight",
+            "object_l1",
+            "pose_weight",
+            "velocity_weight",
+            "action_weight",
+        ):
             if getattr(self, name) < 0:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 0")
         if self.final_multiplier <= 0:
@@ -197,7 +209,9 @@ class FixedStart:
     def from_arrays(cls, arrays: Mapping[str, Any]) -> FixedStart:
         # Scalars may come back as (1,) arrays from a checkpoint; goals are scalars or vectors.
         goal = {
-            k[5:]: np.asarray(v, dtype=np.float64).reshape(()) if np.size(v) == 1 else np.asarray(v, float)
+            k[5:]: np.asarray(v, dtype=np.float64).reshape(())
+            if np.size(v) == 1
+            else np.asarray(v, float)
             for k, v in arrays.items()
             if k.startswith("goal/")
         }
@@ -319,7 +333,9 @@ def task_cost(
     theta0 = float(start.qpos[task.obj_qpos])
     goals = [task.advance_goal(start.goal, t)["angle"] for t in range(T)]
     target = np.tile(np.concatenate([start.qpos[task.hand_qpos], np.zeros(dX - n_hand)]), (T, 1))
-    target[:, obj] = [theta0 - (theta0 - float(g) + math.pi) % (2 * math.pi) + math.pi for g in goals]
+    target[:, obj] = [
+        theta0 - (theta0 - float(g) + math.pi) % (2 * math.pi) + math.pi for g in goals
+    ]
     w_obj = np.zeros(dX)
     w_obj[obj] = 1.0
     w_hand = np.zeros(dX)
@@ -360,7 +376,11 @@ def initial_controller(
     starts = np.concatenate([[0], demos.episode_ends[:-1]])
     k = ctl.k.copy()
     for t in range(T):
-        acts = [demos.actions[s + t] for s, e in zip(starts, demos.episode_ends, strict=True) if s + t < e]
+        acts = [
+            demos.actions[s + t]
+            for s, e in zip(starts, demos.episode_ends, strict=True)
+            if s + t < e
+        ]
         if acts:
             k[t] += np.mean(acts, axis=0) - hold
         else:
@@ -377,7 +397,9 @@ def record_teacher_demo(env: gym.Env, start: FixedStart, path: Path) -> Path:
     try:
         from lowcostdex.sim.scripted import ValveTurnTeacher
     except ImportError as exc:
-        raise ConfigError("init 'teacher' needs lowcostdex.sim.scripted (the valve teacher)") from exc
+        raise ConfigError(
+            "init 'teacher' needs lowcostdex.sim.scripted (the valve teacher)"
+        ) from exc
     from lowcostdex.algos.demos import save_demos
     from lowcostdex.sim.envs import goal_to_action
 
@@ -433,7 +455,9 @@ def train(
       env_factory: overrides the env built from ``config.env_id``/``backend``.
       stop_after: stop after this iteration index as if killed (tests of resume).
     """
-    run = ex.Run.open(out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME)
+    run = ex.Run.open(
+        out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
+    )
     env = (env_factory or default_env_factory(config))()
     try:
         ckpt = run.load_latest() if resume else None
@@ -444,7 +468,14 @@ def train(
         hold = hold_action(env, start)
         env.reset(options=start.reset_options())
         x0 = controller_state(env, hold if config.include_last_action else None)
-        T = int(env.spec.max_episode_steps if env.spec and env.spec.max_episode_steps else env.unwrapped.task.timing.episode_steps) + 1
+        T = (
+            int(
+                env.spec.max_episode_steps
+                if env.spec and env.spec.max_episode_steps
+                else env.unwrapped.task.timing.episode_steps
+            )
+            + 1
+        )
         cost = task_cost(env, start, hold, config.cost, T, x0.shape[0])
         if ckpt is None:
             demos = config.demos
@@ -481,11 +512,16 @@ def _loop(
     last = config.n_iter - 1
 
     def episode(ctl: LinearGaussianController, job: RolloutJob) -> Episode:
-        return run_episode(env, ctl, start, job, config.include_last_action, hold, config.smooth_noise)
+        return run_episode(
+            env, ctl, start, job, config.include_last_action, hold, config.smooth_noise
+        )
 
     for k in range(first, config.n_iter):
         t0 = time.perf_counter()
-        episodes = [episode(state.controller, RolloutJob(config.seed, TRAIN_STREAM, k, i)) for i in range(config.n_rollouts)]
+        episodes = [
+            episode(state.controller, RolloutJob(config.seed, TRAIN_STREAM, k, i))
+            for i in range(config.n_rollouts)
+        ]
         t1 = time.perf_counter()
         X = np.stack([e.X for e in episodes])
         U = np.stack([e.U for e in episodes])
@@ -506,16 +542,26 @@ def _loop(
             "eval_final_abs_error": math.nan,
         }
         if k == last or (config.eval_every > 0 and (k + 1) % config.eval_every == 0):
-            ev = episode(state.controller, RolloutJob(config.seed, EVAL_STREAM, k, 0, deterministic=True))
+            ev = episode(
+                state.controller, RolloutJob(config.seed, EVAL_STREAM, k, 0, deterministic=True)
+            )
             counters["robot_seconds"] += ev.robot_seconds
             row.update({
                 ex.EVAL_SUCCESS_RATE: float(ev.success(config.success)),
                 ex.EVAL_RETURN_MEAN: float(ev.rewards.sum()),
                 "eval_final_abs_error": abs(ev.final_error),
             })  # fmt: skip
-        row.update({ex.SAMPLES: counters["samples"], ex.ROBOT_HOURS: counters["robot_seconds"] / 3600})
+        row.update(
+            {ex.SAMPLES: counters["samples"], ex.ROBOT_HOURS: counters["robot_seconds"] / 3600}
+        )
         row.update(stats)
-        row.update({"time_sampling": t1 - t0, "time_update": t2 - t1, "time_eval": time.perf_counter() - t2})
+        row.update(
+            {
+                "time_sampling": t1 - t0,
+                "time_update": t2 - t1,
+                "time_eval": time.perf_counter() - t2,
+            }
+        )
         run.log(row)
         if k == last or (k + 1) % config.checkpoint_every == 0 or k == stop_after:
             run.save_checkpoint(k, {
@@ -543,13 +589,17 @@ def _write_controller(path: Path, controller: LinearGaussianController, start: F
     ex.atomic_write_bytes(path, buf.getvalue())
 
 
-def load_controller(run_dir: str | Path) -> tuple[LinearGaussianController, FixedStart, TVLGTrainConfig]:
+def load_controller(
+    run_dir: str | Path,
+) -> tuple[LinearGaussianController, FixedStart, TVLGTrainConfig]:
     """The final controller of a run directory, its start state and the run's config."""
     run_dir = Path(run_dir)
     config = TVLGTrainConfig.from_dict(ex.read_json(run_dir / ex.CONFIG_FILE))
     with np.load(run_dir / CONTROLLER_FILE, allow_pickle=False) as data:
         arrays = dict(data)
-    ctl = LinearGaussianController.from_arrays({k[11:]: v for k, v in arrays.items() if k.startswith("controller/")})
+    ctl = LinearGaussianController.from_arrays(
+        {k[11:]: v for k, v in arrays.items() if k.startswith("controller/")}
+    )
     start = FixedStart.from_arrays({k[6:]: v for k, v in arrays.items() if k.startswith("start/")})
     return ctl, start, config
 
@@ -563,22 +613,34 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
     help_text = "learned local models: TVLG dynamics + KL-constrained iLQG from a fixed start"
     p = train_subparsers.add_parser("tvlg", help=help_text, description=help_text)
     d = TVLGTrainConfig()
-    p.add_argument("--env", default="DClawTurnValve-v0", help="env id, with or without the lowcostdex/ prefix")
+    p.add_argument(
+        "--env", default="DClawTurnValve-v0", help="env id, with or without the lowcostdex/ prefix"
+    )
     p.add_argument("--backend", choices=BACKENDS, default=d.backend)
     p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
     p.add_argument("--out", required=True, help="run directory")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument(
+        "--resume", action="store_true", help="continue the run in --out from its last checkpoint"
+    )
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--n-iter", type=int, default=d.n_iter)
     p.add_argument("--n-rollouts", type=int, default=d.n_rollouts, help="episodes per iteration")
     p.add_argument("--init", choices=INITS, default=d.init)
     p.add_argument("--demos", default=None, help="demonstration file (.npz) for --init demos")
-    p.add_argument("--init-noise", type=float, default=d.init_noise, help="initial action noise std")
-    p.add_argument("--smooth-noise", type=float, default=d.smooth_noise, help="noise smoothing [steps]")
-    p.add_argument("--kl-step", type=float, default=d.algo.traj_opt.kl_step, help="KL per step [nats]")
+    p.add_argument(
+        "--init-noise", type=float, default=d.init_noise, help="initial action noise std"
+    )
+    p.add_argument(
+        "--smooth-noise", type=float, default=d.smooth_noise, help="noise smoothing [steps]"
+    )
+    p.add_argument(
+        "--kl-step", type=float, default=d.algo.traj_opt.kl_step, help="KL per step [nats]"
+    )
     p.add_argument("--prior-strength", type=float, default=d.algo.dynamics.prior_strength)
     p.add_argument("--object-weight", type=float, default=d.cost.object_weight)
-    p.add_argument("--no-last-action", action="store_true", help="leave the last action out of the state")
+    p.add_argument(
+        "--no-last-action", action="store_true", help="leave the last action out of the state"
+    )
     p.add_argument("--eval-every", type=int, default=d.eval_every)
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_run_command)

@@ -188,7 +188,9 @@ def state_to_arrays(state: TVLGState) -> dict[str, Array]:
 
 
 def _group(arrays: dict[str, Any], prefix: str) -> dict[str, Array]:
-    return {k[len(prefix) + 1 :]: np.asarray(v) for k, v in arrays.items() if k.startswith(prefix + "/")}
+    return {
+        k[len(prefix) + 1 :]: np.asarray(v) for k, v in arrays.items() if k.startswith(prefix + "/")
+    }
 
 
 def _scalar(value: Any) -> Array:
