@@ -25,7 +25,8 @@ import numpy as np
 from lowcostdex.errors import ConfigError
 
 Teacher = Callable[[gym.Env, np.ndarray], np.ndarray]
-"""(env, observation (obs_dim,)) -> action (act_dim,) in the env's action space."""
+"""(env, observation (obs_dim,)) -> action (act_dim,) in the env's action space. A teacher
+with state may also have a ``reset(env)`` method, called after every ``env.reset``."""
 
 
 @dataclass(frozen=True)
@@ -157,6 +158,8 @@ def teacher_episodes(
     for seed in seeds:
         for k in range(max_tries):
             obs, info = env.reset(seed=int(seed) + 10**6 * k)
+            if hasattr(teacher, "reset"):
+                teacher.reset(env)
             observations, actions = [], []
             done = False
             while not done:

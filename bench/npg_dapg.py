@@ -1,0 +1,267 @@
+"""Samples to 80 % success: NPG from scratch vs DAPG with 25 demonstrations, in simulation.
+
+    python bench/npg_dapg.py                                  # D'Claw valve, 3 seeds
+    python bench/npg_dapg.py --tasks valve flip-keypoints flip-quaternion allegro-valve
+    python bench/npg_dapg.py --quick                          # smoke run, tiny budget
+    python bench/npg_dapg.py --record                         # append a section to bench/RESULTS.md
+
+For every task, algorithm and seed it trains until the training (stochastic-policy) success rate
+first reaches ``--target`` (0.8) and then ``--extra-iters`` more iterations, or until
+``--max-samples``. It prints the samples (and robot-equivalent hours at the 10 Hz control rate)
+at which the target was first reached, the final training success rate (mean of the last three
+iterations) and the final deterministic evaluation success rate, and the ratio
+NPG samples / DAPG samples (median over seeds; a lower bound "> x" when NPG did not reach the
+target within the budget). The target ratio is >= 5x (BAIR hardware: ~9 h vs < 3 h; hand_dapg:
+up to 30x on Adroit).
+
+Demonstrations: on the valve, 25 episodes of the scripted teacher (``lowcostdex.sim.scripted``).
+Tasks without a scripted teacher use a "computational expert" as the DAPG paper did for the pen:
+the mean action of this benchmark's NPG policy for seed 0, provided it reached the target.
+Both algorithms share every setting except the demonstrations (DAPG = BC, then NPG with the
+decaying demo term).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import math
+import os
+import platform
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import lowcostdex  # noqa: F401  (registers the env ids)
+from lowcostdex.algos import experiment as ex
+from lowcostdex.algos.demos import save_demos, teacher_episodes
+from lowcostdex.algos.npg import NPGConfig
+from lowcostdex.algos.policy import PolicyConfig
+from lowcostdex.algos.train import TrainConfig, load_policy, train
+
+
+@dataclass(frozen=True)
+class Task:
+    env_id: str
+    teacher: str | None  # "valve" (scripted) or None (NPG expert)
+
+
+TASKS = {
+    "valve": Task("lowcostdex/DClawTurnValve-v0", "valve"),
+    "flip-keypoints": Task("lowcostdex/DClawFlipBlock-v0", None),
+    "flip-quaternion": Task("lowcostdex/DClawFlipBlockQuaternion-v0", None),
+    "allegro-valve": Task("lowcostdex/AllegroTurnValve-v0", None),
+}
+
+
+class ScriptedValveTeacher:
+    """The scripted valve teacher as a demo-recording policy (env, obs) -> action."""
+
+    def __init__(self) -> None:
+        from lowcostdex.sim.scripted import ValveTurnTeacher
+
+        self.teacher = ValveTurnTeacher()
+
+    def reset(self, env: gym.Env) -> None:
+        self.teacher.reset(env.unwrapped)
+
+    def __call__(self, env: gym.Env, obs: np.ndarray) -> np.ndarray:
+        from lowcostdex.sim.envs import goal_to_action
+
+        u = env.unwrapped
+        goals = self.teacher(u.backend.observed_qpos(), u.goal)
+        return goal_to_action(goals, u.task.hand_low, u.task.hand_high)
+
+
+class PolicyTeacher:
+    """A trained policy's mean action as the teacher."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.snapshot = load_policy(run_dir).snapshot()
+
+    def __call__(self, env: gym.Env, obs: np.ndarray) -> np.ndarray:
+        return np.clip(self.snapshot.mean(obs), -1.0, 1.0)
+
+
+def base_config(args: argparse.Namespace, env_id: str, seed: int) -> TrainConfig:
+    horizon = gym.spec(env_id).max_episode_steps or 40
+    return TrainConfig(
+        env_id=env_id,
+        seed=seed,
+        n_iter=max(1, args.max_samples // (args.n_traj * horizon)),
+        n_traj=args.n_traj,
+        gamma=args.gamma,
+        gae_lambda=args.gae_lambda,
+        eval_every=args.eval_every,
+        eval_episodes=args.eval_episodes,
+        policy=PolicyConfig(hidden_sizes=tuple(args.hidden), init_log_std=args.init_log_std),
+        npg=NPGConfig(step_size=args.step_size, damping=args.damping),
+        progress=False,
+    )
+
+
+def samples_to_target(m: dict[str, np.ndarray], target: float) -> tuple[float, float]:
+    """(samples, robot hours) at the first iteration whose training success >= target."""
+    hit = np.flatnonzero(m[ex.SUCCESS_RATE] >= target)
+    if hit.size == 0:
+        return math.nan, math.nan
+    return float(m[ex.SAMPLES][hit[0]]), float(m[ex.ROBOT_HOURS][hit[0]])
+
+
+def run_one(config: TrainConfig, out: Path, target: float, extra: int) -> dict[str, float]:
+    if out.exists():
+        shutil.rmtree(out)
+    reached: list[int] = []
+
+    def until(row: dict[str, float]) -> bool:
+        if not reached and row[ex.SUCCESS_RATE] >= target:
+            reached.append(int(row[ex.ITERATION]))
+        return bool(reached) and row[ex.ITERATION] >= reached[0] + extra
+
+    t0 = time.perf_counter()
+    m = train(config, out, until=until).read_metrics()
+    samples, hours = samples_to_target(m, target)
+    return {
+        "samples_to_target": samples,
+        "robot_hours_to_target": hours,
+        "final_success": float(np.mean(m[ex.SUCCESS_RATE][-3:])),
+        "final_eval_success": float(m[ex.EVAL_SUCCESS_RATE][-1]),
+        "samples_used": float(m[ex.SAMPLES][-1]),
+        "wall_seconds": time.perf_counter() - t0,
+    }
+
+
+def record_demos(task: Task, out: Path, n: int, npg_expert: Path | None) -> Path | None:
+    env = gym.make(task.env_id)
+    if task.teacher == "valve":
+        teacher = ScriptedValveTeacher()
+    elif npg_expert is not None:
+        teacher = PolicyTeacher(npg_expert)
+    else:
+        return None
+    episodes = teacher_episodes(env, teacher, seeds=range(10_000, 10_000 + n))
+    env.close()
+    return save_demos(out / "demos.npz", episodes)
+
+
+def fmt_samples(x: float) -> str:
+    return "not reached" if math.isnan(x) else f"{x / 1e3:.0f}k"
+
+
+def summarize(name: str, results: dict[str, list[dict[str, float]]], budget: int) -> list[str]:
+    lines = [f"### {name}", "", "| algorithm | seed | samples to 80% | robot h | final success (train / eval) |",
+             "|---|---|---|---|---|"]  # fmt: skip
+    medians = {}
+    for algo, runs in results.items():
+        for seed, r in enumerate(runs):
+            hours = (
+                "-"
+                if math.isnan(r["robot_hours_to_target"])
+                else f"{r['robot_hours_to_target']:.2f}"
+            )
+            lines.append(
+                f"| {algo} | {seed} | {fmt_samples(r['samples_to_target'])} | {hours} | "
+                f"{r['final_success']:.2f} / {r['final_eval_success']:.2f} |"
+            )
+        samples = np.array([r["samples_to_target"] for r in runs])
+        medians[algo] = float(np.median(np.where(np.isnan(samples), np.inf, samples)))
+    if "npg" in medians and "dapg" in medians and math.isfinite(medians["dapg"]):
+        npg = medians["npg"]
+        ratio = (f"{npg / medians['dapg']:.1f}x" if math.isfinite(npg)
+                 else f"> {budget / medians['dapg']:.1f}x (NPG median not reached in {budget / 1e3:.0f}k)")  # fmt: skip
+        lines += ["", f"Median samples to 80%: NPG {fmt_samples(npg)}, DAPG {fmt_samples(medians['dapg'])}; "
+                  f"ratio NPG/DAPG = {ratio}."]  # fmt: skip
+    return lines + [""]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--tasks", nargs="+", default=["valve"], choices=sorted(TASKS))
+    p.add_argument("--algos", nargs="+", default=["npg", "dapg"], choices=["npg", "dapg"])
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--max-samples", type=int, default=400_000)
+    p.add_argument("--n-traj", type=int, default=40)
+    p.add_argument("--n-demos", type=int, default=25)
+    p.add_argument("--target", type=float, default=0.8)
+    p.add_argument("--extra-iters", type=int, default=5)
+    p.add_argument("--step-size", type=float, default=TrainConfig().npg.step_size)
+    p.add_argument("--damping", type=float, default=TrainConfig().npg.damping)
+    p.add_argument("--gamma", type=float, default=TrainConfig().gamma)
+    p.add_argument("--gae-lambda", type=float, default=TrainConfig().gae_lambda)
+    p.add_argument("--hidden", type=int, nargs="*", default=list(TrainConfig().policy.hidden_sizes))
+    p.add_argument("--init-log-std", type=float, default=TrainConfig().policy.init_log_std)
+    p.add_argument("--eval-every", type=int, default=10)
+    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument("--out", default="bench_runs/npg_dapg")
+    p.add_argument("--quick", action="store_true", help="tiny budget: checks the script runs")
+    p.add_argument("--record", action="store_true", help="append the results to bench/RESULTS.md")
+    args = p.parse_args()
+    if args.quick:
+        args.seeds, args.max_samples, args.n_traj, args.n_demos = 1, 3 * 8 * 40, 8, 5
+
+    out_root = Path(args.out)
+    report = [
+        f"## NPG vs DAPG, samples to {args.target:.0%} success ({datetime.date.today()}, "
+        f"{platform.node()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs)",
+        "",
+        f"Settings: {args.n_traj} trajectories/iteration, delta {args.step_size}, damping {args.damping}, "
+        f"gamma {args.gamma}, GAE {args.gae_lambda}, policy {tuple(args.hidden)}, init log-std "
+        f"{args.init_log_std}, {args.n_demos} demos, budget {args.max_samples / 1e3:.0f}k samples, "
+        f"{args.seeds} seeds. Success = training (stochastic) policy; eval = mean action, "
+        f"{args.eval_episodes} episodes.",
+        "",
+    ]
+    for name in args.tasks:
+        task = TASKS[name]
+        if task.env_id not in gym.registry:
+            report += [f"### {name}", "", f"skipped: {task.env_id} is not registered", ""]
+            print(report[-2])
+            continue
+        results: dict[str, list[dict[str, float]]] = {}
+        if "npg" in args.algos:
+            results["npg"] = []
+            for seed in range(args.seeds):
+                cfg = base_config(args, task.env_id, seed)
+                r = run_one(cfg, out_root / name / f"npg_{seed}", args.target, args.extra_iters)
+                results["npg"].append(r)
+                print(name, "npg", seed, json.dumps(r), flush=True)
+        if "dapg" in args.algos:
+            expert = out_root / name / "npg_0"
+            has_expert = "npg" in results and not math.isnan(results["npg"][0]["samples_to_target"])
+            demos = record_demos(
+                task, out_root / name, args.n_demos, expert if has_expert else None
+            )
+            if demos is None:
+                report += [
+                    f"(DAPG on {name} skipped: no scripted teacher and no NPG expert reached the target)",
+                    "",
+                ]
+            else:
+                results["dapg"] = []
+                for seed in range(args.seeds):
+                    cfg = dataclasses.replace(
+                        base_config(args, task.env_id, seed), algo="dapg", demos=str(demos)
+                    )
+                    r = run_one(
+                        cfg, out_root / name / f"dapg_{seed}", args.target, args.extra_iters
+                    )
+                    results["dapg"].append(r)
+                    print(name, "dapg", seed, json.dumps(r), flush=True)
+        report += summarize(name, results, args.max_samples)
+    text = "\n".join(report)
+    print(text)
+    if args.record:
+        results_md = Path(__file__).with_name("RESULTS.md")
+        with results_md.open("a", encoding="utf-8") as f:
+            f.write("\n" + text + "\n")
+        print(f"appended to {results_md}")
+
+
+if __name__ == "__main__":
+    main()
