@@ -81,6 +81,7 @@ def build_dclaw(
     gains: servo.ServoGains | None = None,
     *,
     thermal: bool = True,
+    fingers: tuple[str, ...] = DCLAW_FINGERS,
 ) -> mujoco.MjSpec:
     """Build the D'Claw scene as an MjSpec (compile with ``spec.compile()``).
 
@@ -89,8 +90,12 @@ def build_dclaw(
       hand: hand spec (joint names, motor model); default ``dclaw_spec()`` (XH430-W350).
       gains: firmware gains of every servo (default: the motor's factory P gain).
       thermal: model winding temperature (one activation state per servo).
+      fingers: fingers to build (a subset of DCLAW_FINGERS, e.g. ("ff",) for a single-finger
+        test model with station "none"); the hand's other joints and servos are left out.
     """
     check_choice("D'Claw station", station, STATIONS)
+    for f in fingers:
+        check_choice("D'Claw finger", f, DCLAW_FINGERS)
     hand = hand or dclaw_spec()
     motor = servo.motor_spec(hand.motor)
     gains = gains or servo.ServoGains(position_p=motor.default_p)
@@ -101,9 +106,13 @@ def build_dclaw(
     claw.add_geom(name="base_plate", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.075, 0.004, 0],
                   mass=0.11, rgba=[0.3, 0.3, 0.3, 1], group=GROUP_COLLISION)
     names = iter(hand.joint_names)
+    built = []
     for finger in DCLAW_FINGERS:
-        _add_finger(claw, finger, [next(names) for _ in range(3)])
-    for j in hand.joints:
+        finger_joints = [next(names) for _ in range(3)]
+        if finger in fingers:
+            _add_finger(claw, finger, finger_joints)
+            built += finger_joints
+    for j in (j for j in hand.joints if j.name in built):
         servo.add_servo(spec, j.name, motor, gains, ctrlrange=_JOINT_RANGE[j.name.split("_")[1]],
                         thermal=thermal)
     if station in ("valve", "foam_valve", "screw"):
