@@ -1,0 +1,529 @@
+"""The gap analysis: replay, show what is wrong, name the cause(s), extend the model, measure gain.
+
+``analyze(dataset, config)`` runs the whole loop:
+
+1. Episodes (whole logs, or chunks of long ones) are split into train / select / test.
+2. The nominal model replays every episode open loop; residual diagnostics and the noise floor
+   describe what it gets wrong.
+3. Forward selection. Each round ranks the remaining candidate effects by their score statistic
+   (the share of the training residual their sensitivity explains), fits the best ``top_k`` jointly
+   with the effects already chosen (lockstep bounded LM on multiple-shooting training segments,
+   multi-start where non-convex), and replays the fitted candidates open loop on the *select*
+   episodes. The best one is accepted only if it lowers the select error by at least ``min_gain``
+   (relative MSE), its bootstrap interval over select episodes excludes no gain, and the current
+   error is above the noise floor. Otherwise the analysis stops; with no accepted effect the
+   answer is "no significant discrepancy".
+4. The chosen structure is refitted on train + select, then scored once on the untouched *test*
+   episodes: error before and after with a bootstrap interval over episodes, the noise floor and
+   the fraction of reducible error explained.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
+from lowcostdex.sim.gap import fit as fitmod
+from lowcostdex.sim.gap.dataset import Dataset, Split, Window, episodes, segments, split_episodes
+from lowcostdex.sim.gap.diagnostics import (
+    effective_n,
+    noise_floor,
+    residual_diagnostics,
+    score_fraction,
+)
+from lowcostdex.sim.gap.gain import Gain, episode_errors, gain_with_ci
+from lowcostdex.sim.gap.replay import Replayer
+
+Progress = Callable[[str, float], None]
+
+
+@dataclass(frozen=True)
+class GapConfig:
+    """Settings of one analysis.
+
+    Attributes:
+      candidates: effects to consider (None: every canonical cause whose channels are logged).
+      top_k: candidates fitted per selection round (ranked by score statistic).
+      max_effects: most effects to accept.
+      min_gain: smallest relative reduction of the select-split MSE to accept an effect.
+      floor_margin: the current model counts as explained when its select RMSE is within this
+        factor of the noise floor.
+      min_effect: an accepted effect must change the select predictions by at least this many
+        noise floors (RMS); smaller changes fit replay artifacts, not physics.
+      rank_seconds: training data used by the score ranking (a spread subset) [s].
+      segment: multiple-shooting segment length for fitting [s].
+      burn_in: unscored start of segments that begin inside a log [s].
+      chunk: episode length for long logs [s] (None: auto).
+      max_rounds: Levenberg-Marquardt rounds per fit.
+      test_logs: indices of logs to hold out for the test (None: random episodes).
+      bootstrap: bootstrap resamples.
+      seed: seed of the split and the bootstrap.
+      nthread: simulation threads (0: all CPUs).
+    """
+
+    candidates: tuple[str, ...] | None = None
+    top_k: int = 6
+    max_effects: int = 3
+    min_gain: float = 0.05
+    floor_margin: float = 1.05
+    min_effect: float = 0.75
+    rank_seconds: float = 12.0
+    segment: float = 2.5
+    burn_in: float = 0.15
+    chunk: float | None = None
+    max_rounds: int = 20
+    test_logs: tuple[int, ...] | None = None
+    bootstrap: int = 2000
+    seed: int = 0
+    nthread: int = 0
+
+    def __post_init__(self) -> None:
+        if self.candidates is not None:
+            for c in self.candidates:
+                check_choice("candidate effect", c, CAUSES)
+        for name in ("top_k", "max_effects", "max_rounds", "bootstrap"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1")
+        if not 0 < self.min_gain < 1:
+            raise ConfigError("min_gain must be in (0, 1)")
+        if not self.segment > 0 or self.burn_in < 0:
+            raise ConfigError("segment must be > 0 s and burn_in >= 0 s")
+
+
+@dataclass
+class CandidateResult:
+    """One candidate in one selection round."""
+
+    effect: str
+    score: float
+    fitted: bool = False
+    train_rmse: float | None = None
+    select_rmse: float | None = None
+    select_gain: float | None = None  # relative MSE reduction on the select split
+    effect_rms: float | None = None  # RMS change of select predictions it causes [rad]
+    params: dict | None = None
+    accepted: bool = False
+
+
+@dataclass
+class Cause:
+    """An accepted effect with its fitted parameters and the test error once it is included."""
+
+    effect: str
+    joints: tuple[str, ...]
+    params: dict  # name -> {"value": [...], "interval": [[lo, hi], ...], "unit": str}
+    heldout_rmse_after: float = math.nan
+    heldout_mae_after: float = math.nan
+    flags: list[str] = field(default_factory=list)
+
+
+@dataclass
+class GapResult:
+    """Everything the analysis found (``to_dict`` is the report.json payload)."""
+
+    config: GapConfig
+    sources: list[str]
+    joints: tuple[str, ...]
+    split: Split
+    episodes: list[Window]
+    floor: np.ndarray
+    baseline: dict
+    extended: dict
+    causes: list[Cause]
+    rounds: list[list[CandidateResult]]
+    diagnostics: dict
+    gain: Gain
+    effects: list[AppliedEffect]
+    verdict: str
+    timing: dict
+    traces: list[dict]  # test episodes: time, goal, measured, baseline, extended (for plots)
+    models: dict[str, str]
+    stop_reason: str = ""
+
+    def to_dict(self) -> dict:
+        fl = self.floor
+        return {
+            "version": 1,
+            "verdict": self.verdict,
+            "stop_reason": self.stop_reason,
+            "metric": "position error [rad]: RMSE (and MAE) over held-out test episodes",
+            "sources": self.sources,
+            "joints": list(self.joints),
+            "split": {k: [_ep(self.episodes[i], self.sources) for i in v]
+                      for k, v in asdict(self.split).items()},
+            "noise_floor": {"rmse": float(np.sqrt(np.mean(fl ** 2))),
+                            "per_joint": dict(zip(self.joints, fl.tolist(), strict=True))},
+            "baseline": self.baseline,
+            "causes": [_cause_dict(c) for c in self.causes],
+            "extended": self.extended,
+            "gain": self.gain.to_dict(),
+            "candidates": [[_cand_dict(c) for c in rnd] for rnd in self.rounds],
+            "diagnostics": self.diagnostics,
+            "config": {k: (list(v) if isinstance(v, tuple) else v)
+                       for k, v in asdict(self.config).items()},
+            "timing_s": self.timing,
+        }
+
+
+def _ep(w: Window, sources: list[str]) -> dict:
+    return {"log": sources[w.traj] if w.traj < len(sources) else w.traj, "start": w.start,
+            "stop": w.stop}
+
+
+def _cause_dict(c: Cause) -> dict:
+    return {"effect": c.effect, "joints": list(c.joints), "params": c.params,
+            "heldout_rmse_after": c.heldout_rmse_after, "heldout_mae_after": c.heldout_mae_after,
+            "flags": c.flags}
+
+
+def _cand_dict(c: CandidateResult) -> dict:
+    return {k: v for k, v in asdict(c).items()}
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[str]:
+    """Candidates whose required channels are logged (all canonical causes by default)."""
+    chans = ds.channels()
+    names = list(requested) if requested is not None else list(CAUSES)
+    return [n for n in names if all(c in chans for c in effect(n).requires)]
+
+
+class _Engine:
+    """Replays and residuals shared by the stages of one analysis."""
+
+    def __init__(self, ds: Dataset, cfg: GapConfig, candidates: Sequence[str]):
+        self.ds, self.cfg = ds, cfg
+        self.rep = Replayer(ds, candidates, nthread=cfg.nthread)
+        self.joints = ds.effect_joints
+
+    def predict(self, windows: Sequence[Window], columns: Sequence[Sequence[AppliedEffect]]
+                ) -> list[list[np.ndarray]]:
+        return self.rep.run(windows, columns)[0]
+
+    def residuals(self, windows: Sequence[Window], columns) -> list[np.ndarray]:
+        """Scored residual vectors (measured - predicted), one per column."""
+        pred = self.predict(windows, columns)
+        out = []
+        for col in pred:
+            parts = []
+            for w, p in zip(windows, col, strict=True):
+                tr = self.ds.trajectories[w.traj]
+                off = w.score_from - w.start
+                parts.append((tr.qpos[w.score_from:w.stop] - p[off:]).ravel())
+            out.append(np.concatenate(parts))
+        return out
+
+    def residual_fn(self, windows: Sequence[Window]) -> fitmod.ResidualFn:
+        def fn(points):
+            cols = [s.to_effects(x) for s, x in points]
+            return self.residuals(windows, cols)
+        return fn
+
+
+def _mse_by_episode(ds: Dataset, eps: Sequence[Window], pred: Sequence[np.ndarray]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-episode (sum of squared errors, sum of absolute errors, sample count)."""
+    sse, sae, n = [], [], []
+    for w, p in zip(eps, pred, strict=True):
+        r = ds.trajectories[w.traj].qpos[w.start:w.stop] - p
+        sse.append(float((r * r).sum()))
+        sae.append(float(np.abs(r).sum()))
+        n.append(r.size)
+    return np.array(sse), np.array(sae), np.array(n, float)
+
+
+def _select_gain_ci(sse_cur: np.ndarray, sse_new: np.ndarray, rng: np.random.Generator,
+                    n_boot: int) -> tuple[float, float]:
+    """Relative MSE reduction and its 5 % bootstrap lower bound over select episodes."""
+    rel = 1.0 - sse_new.sum() / max(sse_cur.sum(), 1e-300)
+    k = len(sse_cur)
+    idx = rng.integers(0, k, size=(n_boot, k))
+    a, b = sse_cur[idx].sum(1), sse_new[idx].sum(1)
+    boot = 1.0 - b / np.maximum(a, 1e-300)
+    return float(rel), float(np.percentile(boot, 5))
+
+
+def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | None = None
+            ) -> GapResult:
+    """Run the gap analysis on a data set (see the module docstring).
+
+    Args:
+      ds: nominal model(s) and measured trajectories.
+      config: settings.
+      progress: optional callback (stage description, fraction done in [0, 1]).
+    """
+    t_start = time.perf_counter()
+    timing: dict[str, float] = {}
+    cfg = config
+    prog = progress or (lambda s, f: None)
+    rng = np.random.default_rng(cfg.seed)
+    eps = episodes(ds, cfg.chunk)
+    split = split_episodes(ds, eps, rng, cfg.test_logs)
+    cands = available_candidates(ds, cfg.candidates)
+    eng = _Engine(ds, cfg, cands)
+    joints = eng.joints
+    m0 = eng.rep.models[ds.trajectories[0].model]
+    targets = Targets.resolve(m0, joints)
+    train_eps = [eps[i] for i in split.train]
+    sel_eps = [eps[i] for i in split.select]
+    test_eps = [eps[i] for i in split.test]
+    train_segs = segments(ds, train_eps, cfg.segment, cfg.burn_in)
+
+    # ---- 1. baseline replay and diagnostics --------------------------------------------------
+    prog("baseline replay", 0.02)
+    base_pred, peaks = eng.rep.run(eps, [[]], force_peak=True)
+    base_pred = base_pred[0]
+    floor = noise_floor(ds.trajectories)
+    floor_mse = float(np.mean(floor ** 2))
+    jcols = [list(ds.joints).index(j) for j in joints]
+    diagnostics = {j: residual_diagnostics(ds.trajectories, eps, base_pred, c)
+                   for j, c in zip(joints, jcols, strict=True)}
+    timing["baseline"] = time.perf_counter() - t_start
+    ctx = fitmod.Context(
+        dt=ds.timestep,
+        peak_force=np.asarray(peaks[0])[_act_cols(ds, targets, m0)],
+        stall=fitmod.stall_torque(m0, targets.actuators),
+        damping=m0.dof_damping[targets.dofs].copy())
+
+    # ---- 2. forward selection ------------------------------------------------------------------
+    current = fitmod.Structure((), joints)
+    cur_x = np.zeros(0)
+    cur_pred_sel = [base_pred[i] for i in split.select]
+    sel_cur = _mse_by_episode(ds, sel_eps, cur_pred_sel)
+    floor_rms = math.sqrt(floor_mse)
+    rounds: list[list[CandidateResult]] = []
+    fit_fn = eng.residual_fn(train_segs)
+    stop_reason = "max_effects reached"
+    for step in range(cfg.max_effects):
+        remaining = [c for c in cands if c not in current.effects]
+        if not remaining:
+            stop_reason = "no candidates left"
+            break
+        t0 = time.perf_counter()
+        prog(f"round {step + 1}: ranking {len(remaining)} candidates", 0.1 + 0.25 * step)
+        table = _rank(eng, _subset(ds, train_segs, cfg.rank_seconds), current, cur_x,
+                      remaining, ctx)
+        table.sort(key=lambda c: -c.score)
+        rounds.append(table)
+        cur_mse = sel_cur[0].sum() / sel_cur[2].sum()
+        if cur_mse <= (cfg.floor_margin ** 2) * floor_mse:
+            stop_reason = "select error at the noise floor"
+            break
+        if table[0].score < cfg.min_gain:
+            stop_reason = "no candidate signature explains the residual"
+            break
+        fixed = current.to_effects(cur_x) if current.effects else []
+        tracks = []
+        for c in table[:cfg.top_k]:
+            st = fitmod.Structure.build((c.effect,), joints, ctx, fixed=fixed)
+            for k, x0 in enumerate(st.starts()):
+                tracks.append(fitmod.Track(st, st.u(x0), label=f"{c.effect}#{k}"))
+
+        def on_round(r, live, step=step):
+            prog(f"round {step + 1}: fitting {live} tracks (LM round {r + 1})",
+                 0.1 + 0.25 * step + 0.2 * (r + 1) / cfg.max_rounds)
+
+        fitmod.lockstep_lm(tracks, fit_fn, cfg.max_rounds, on_round=on_round,
+                           prune=fitmod.prune_tracks)
+        best_track: dict[str, fitmod.Track] = {}
+        for t in tracks:
+            name = t.structure.effects[-1]
+            if name not in best_track or t.cost < best_track[name].cost:
+                best_track[name] = t
+        names = list(best_track)
+        sel_pred = eng.predict(sel_eps, [best_track[n].effects() for n in names])
+        results = {}
+        by_name = {c.effect: c for c in table}
+        for n, pr in zip(names, sel_pred, strict=True):
+            sse = _mse_by_episode(ds, sel_eps, pr)[0]
+            rel, low = _select_gain_ci(sel_cur[0], sse, rng, cfg.bootstrap)
+            results[n] = (rel, low, sse)
+            c, t = by_name[n], best_track[n]
+            c.fitted = True
+            c.train_rmse = math.sqrt(2 * t.cost / max(len(t.r), 1))
+            c.select_rmse = math.sqrt(sse.sum() / sel_cur[2].sum())
+            c.select_gain = rel
+            c.params = {p: v.tolist() for e in t.effects() if e.name == n
+                        for p, v in e.values.items()}
+        n_best = max(results, key=lambda n: results[n][0])
+        rel, low, sse = results[n_best]
+        size = _effect_size(eng, sel_eps, cur_pred_sel, best_track[n_best].effects())
+        by_name[n_best].effect_rms = size
+        if not (rel >= cfg.min_gain and low > 0 and size >= cfg.min_effect * floor_rms):
+            stop_reason = ("no candidate lowers the select error significantly"
+                           if size >= cfg.min_effect * floor_rms else
+                           "the best candidate changes predictions by less than the noise floor")
+            timing[f"round{step + 1}"] = time.perf_counter() - t0
+            break
+        # joint refit of the accepted structure (earlier effects free again)
+        chosen = best_track[n_best]
+        joint = fitmod.Structure.build(current.effects + (n_best,), joints, ctx)
+        x_screen = joint.values_from(chosen.effects())
+        refit = fitmod.Track(joint, joint.u(x_screen), label="joint")
+        if current.effects:
+            fitmod.lockstep_lm([refit], fit_fn, cfg.max_rounds)
+            sse_j = _mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [refit.effects()])[0])[0]
+            if sse_j.sum() < sse.sum():
+                x_screen, sse = refit.x, sse_j
+        by_name[n_best].accepted = True
+        current, cur_x = joint, x_screen
+        sel_cur = (sse, sel_cur[1], sel_cur[2])
+        cur_pred_sel = eng.predict(sel_eps, [current.to_effects(cur_x)])[0]
+        timing[f"round{step + 1}"] = time.perf_counter() - t0
+
+    # ---- 3. final refit on train + select, test once ---------------------------------------
+    causes: list[Cause] = []
+    effects: list[AppliedEffect] = []
+    final_track = None
+    if current.effects:
+        t0 = time.perf_counter()
+        prog("final refit on train + select", 0.85)
+        all_segs = segments(ds, train_eps + sel_eps, cfg.segment, cfg.burn_in)
+        final_track = fitmod.Track(current, current.u(cur_x), label="final")
+        fitmod.lockstep_lm([final_track], eng.residual_fn(all_segs), cfg.max_rounds)
+        effects = final_track.effects()
+        timing["final_fit"] = time.perf_counter() - t0
+    prog("held-out test", 0.95)
+    prefixes = [effects[:k] for k in range(1, len(effects) + 1)]
+    test_pred = eng.predict(test_eps, prefixes) if prefixes else []
+    base_test = [base_pred[i] for i in split.test]
+    b_sse, b_sae, b_n = _mse_by_episode(ds, test_eps, base_test)
+    ext_pred = test_pred[-1] if test_pred else base_test
+    e_sse, e_sae, e_n = _mse_by_episode(ds, test_eps, ext_pred)
+    gain = gain_with_ci(b_sse, e_sse, b_n, b_sae, e_sae, floor_mse, rng, cfg.bootstrap)
+    baseline = episode_errors(ds, test_eps, base_test, joints=list(ds.joints))
+    extended = episode_errors(ds, test_eps, ext_pred, joints=list(ds.joints))
+    baseline.update(select_rmse=float(math.sqrt(
+        _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0].sum()
+        / max(sel_cur[2].sum(), 1))))
+    if final_track is not None:
+        half = fitmod.interval_halfwidths(final_track.r, final_track.jac,
+                                          effective_n(final_track.r))
+        for k, e in enumerate(effects):
+            c = Cause(e.name, e.joints, _param_report(final_track.structure, final_track.u, half,
+                                                      e.name))
+            sse, sae, n = _mse_by_episode(ds, test_eps, test_pred[k])
+            c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
+            c.heldout_mae_after = float(sae.sum() / n.sum())
+            c.flags = _flags(final_track.structure, final_track.u, e.name)
+            causes.append(c)
+    verdict = _verdict(causes, gain)
+    timing["total"] = time.perf_counter() - t_start
+    traces = _traces(ds, test_eps, base_test, ext_pred)
+    prog("done", 1.0)
+    return GapResult(cfg, ds.sources or [tr.name for tr in ds.trajectories], joints, split, eps,
+                     floor, baseline, extended, causes, rounds, diagnostics, gain, effects,
+                     verdict, timing, traces, dict(ds.models), stop_reason)
+
+
+def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:
+    """Column of each effect joint's actuator in the log's actuator list."""
+    names = [model.actuator(int(a)).name for a in targets.actuators]
+    return [list(ds.actuators).index(n) for n in names]
+
+
+def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x: np.ndarray,
+          remaining: Sequence[str], ctx: fitmod.Context) -> list[CandidateResult]:
+    """Score statistic of every remaining candidate at the current model (one batched pass)."""
+    cur_eff = current.to_effects(cur_x) if current.effects else []
+    cols: list[list[AppliedEffect]] = [cur_eff]
+    owner: list[str] = []
+    nj = len(eng.joints)
+    for name in remaining:
+        for p in effect(name).params:
+            for j in range(nj):
+                f = fitmod.space(name, p.name, j, ctx)
+                vals = {q.name: np.full(nj, q.null) for q in effect(name).params}
+                null = p.null if math.isfinite(p.null) else f.hi
+                probe = f.start if not math.isclose(f.start, null) else (
+                    f.from_u(f.to_u(null) + 10 * f.fd) if f.log else null + 10 * f.fd)
+                vals[p.name][j] = probe
+                if name == "stribeck_friction" and p.name == "velocity":
+                    vals["static"][j] = fitmod.space(name, "static", j, ctx).start
+                cols.append(cur_eff + [AppliedEffect(name, eng.joints, vals)])
+                owner.append(name)
+    res = eng.residuals(segs, cols)
+    r0 = res[0]
+    table = []
+    for name in remaining:
+        g = np.stack([res[i + 1] - r0 for i, o in enumerate(owner) if o == name], axis=1)
+        table.append(CandidateResult(name, score_fraction(r0, g)))
+    return table
+
+
+def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]:
+    """Evenly spread segments totalling about ``seconds`` (all when there are fewer)."""
+    dur = [ds.trajectories[w.traj].time[w.stop - 1] - ds.trajectories[w.traj].time[w.start]
+           for w in segs]
+    total = float(sum(dur))
+    if total <= seconds:
+        return list(segs)
+    k = max(1, int(round(len(segs) * seconds / total)))
+    idx = np.unique(np.linspace(0, len(segs) - 1, k).round().astype(int))
+    return [segs[i] for i in idx]
+
+
+def _effect_size(eng: _Engine, eps: Sequence[Window], cur: Sequence[np.ndarray],
+                 effects: Sequence[AppliedEffect]) -> float:
+    """RMS change of the predicted readings that adding ``effects`` causes [rad]."""
+    new = eng.predict(eps, [effects])[0]
+    d = np.concatenate([(a - b).ravel() for a, b in zip(new, cur, strict=True)])
+    return float(np.sqrt(np.mean(d * d)))
+
+
+def _param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str) -> dict:
+    out: dict[str, dict] = {}
+    for i, f in enumerate(s.free):
+        if f.effect != name:
+            continue
+        lo_u, hi_u = u[i] - half[i], u[i] + half[i]
+        lo_v = f.from_u(lo_u) if math.isfinite(lo_u) else -math.inf
+        hi_v = f.from_u(hi_u) if math.isfinite(hi_u) else math.inf
+        d = out.setdefault(f.param, {"value": [], "interval": [],
+                                     "unit": effect(name).param(f.param).unit})
+        d["value"].append(f.from_u(u[i]))
+        d["interval"].append([max(lo_v, f.lo) if f.log else lo_v,
+                              min(hi_v, f.hi) if f.log else hi_v])
+    return out
+
+
+def _flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
+    lo, hi = s.u_bounds()
+    flags = []
+    for i, f in enumerate(s.free):
+        if f.effect != name:
+            continue
+        null = effect(name).param(f.param).null
+        for b, label in ((lo[i], "lower"), (hi[i], "upper")):
+            if abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
+                flags.append(f"{f.param}[{s.joints[f.joint]}] at its {label} bound")
+    return flags
+
+
+def _verdict(causes: Sequence[Cause], gain: Gain) -> str:
+    if not causes:
+        return "no significant discrepancy"
+    names = ", ".join(c.effect for c in causes)
+    return (f"{names}: held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad "
+            f"({100 * gain.relative:.0f} % lower)")
+
+
+def _traces(ds: Dataset, eps: Sequence[Window], base: Sequence[np.ndarray],
+            ext: Sequence[np.ndarray], n: int = 2) -> list[dict]:
+    out = []
+    for w, b, e in list(zip(eps, base, ext, strict=True))[:n]:
+        tr = ds.trajectories[w.traj]
+        sl = slice(w.start, w.stop)
+        out.append({"name": tr.name, "time": tr.time[sl] - tr.time[w.start],
+                    "goal": tr.goal[sl], "measured": tr.qpos[sl], "baseline": b,
+                    "extended": e, "joints": ds.joints, "actuators": ds.actuators})
+    return out

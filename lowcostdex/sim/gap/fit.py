@@ -1,0 +1,402 @@
+"""Fitting candidate effects: bounded parameter spaces and a lockstep Levenberg-Marquardt.
+
+Every candidate model ("track": a list of effects with free per-joint parameters and one start
+point) is fitted by box-bounded Levenberg-Marquardt on the simulation error of multiple-shooting
+segments. All tracks advance in lockstep: one batched replay per round evaluates, for every live
+track, its trial point and the finite-difference columns around it, so a round costs one pass over
+the data whatever the number of candidates and starts. (``mujoco.minimize.least_squares`` solves
+one problem at a time; here a dozen non-nested models and their multi-starts share each pass.)
+A rejected trial keeps the previous Jacobian and raises the damping.
+
+Parameter spaces come from the effect catalogue (``Param.low/high/start``) made model-aware: the
+latency bound starts at one physics step (the native delay is quantized below it, sysid trap 8),
+torque limits are searched below the peak force the baseline model actually uses, scale factors
+and Stribeck velocities are searched in log space, and non-convex parameters get extra starts.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from lowcostdex.sim import servo
+from lowcostdex.sim.effects import AppliedEffect, effect
+
+# Extra starts for non-convex parameters, as fractions of (value at start) or absolute values.
+_EXTRA_STARTS: dict[tuple[str, str], tuple[float, ...]] = {
+    ("latency", "delay"): (0.03,),
+    ("backlash", "width"): (0.004,),
+    ("stribeck_friction", "velocity"): (0.05,),
+    ("torque_limit", "torque"): (0.3,),  # x peak force
+    ("inertia_error", "scale"): (3.0,),
+}
+
+
+@dataclass(frozen=True)
+class Context:
+    """What parameter spaces need to know about the model and data.
+
+    Attributes:
+      dt: physics timestep [s].
+      peak_force: (nj,) peak |actuator force| of the current model on the training data [N m].
+      stall: (nj,) stall torque of each servo at its supply [N m].
+      damping: (nj,) nominal joint damping [N m s/rad].
+    """
+
+    dt: float
+    peak_force: np.ndarray
+    stall: np.ndarray
+    damping: np.ndarray
+
+
+@dataclass(frozen=True)
+class Free:
+    """One free scalar: parameter ``param`` of effect ``effect`` on joint index ``joint``.
+
+    Optimizer coordinate u = log(value) when ``log`` else value; bounds/fd in u.
+    """
+
+    effect: str
+    param: str
+    joint: int
+    lo: float
+    hi: float
+    start: float
+    log: bool
+    fd: float
+    extra: tuple[float, ...] = ()
+
+    def to_u(self, v: float) -> float:
+        return math.log(v) if self.log else v
+
+    def from_u(self, u: float) -> float:
+        return math.exp(u) if self.log else u
+
+    @property
+    def u_bounds(self) -> tuple[float, float]:
+        return self.to_u(self.lo), self.to_u(self.hi)
+
+
+def space(name: str, param: str, j: int, ctx: Context) -> Free:
+    """The bounded search space of one effect parameter on joint ``j``."""
+    p = effect(name).param(param)
+    lo, hi, start = p.low, p.high, p.initial
+    log = lo > 0 and hi / lo >= 8.0
+    fd = 1e-3 * (hi - lo)
+    extra = _EXTRA_STARTS.get((name, param), ())
+    if (name, param) == ("latency", "delay"):
+        lo = max(lo, ctx.dt)
+        start = max(start, 2 * ctx.dt)
+        fd = 0.5 * ctx.dt
+    elif (name, param) == ("backlash", "width"):
+        fd = 2e-4
+    elif (name, param) == ("viscous_damping", "damping"):
+        lo = max(lo, -float(ctx.damping[j]))
+    elif (name, param) == ("coulomb_friction", "frictionloss"):
+        hi = min(hi, float(ctx.stall[j]))
+    elif (name, param) == ("torque_limit", "torque"):
+        peak = float(max(ctx.peak_force[j], 2 * lo))
+        hi = min(hi, peak)
+        start = 0.6 * peak
+        extra = tuple(f * peak for f in extra)
+        log = True
+    elif (name, param) == ("position_offset", "offset"):
+        fd = 1e-4
+    if log:
+        fd = 1e-3
+    start = float(np.clip(start, lo, hi))
+    extra = tuple(float(np.clip(e, lo, hi)) for e in extra)
+    return Free(name, param, j, lo, hi, start, log, fd, extra)
+
+
+@dataclass
+class Structure:
+    """A candidate model: effects on the data set's effect joints with free parameters.
+
+    Attributes:
+      effects: canonical effect names, in order of selection.
+      joints: joints every effect acts on.
+      free: the free scalars (effect, param, joint).
+    """
+
+    effects: tuple[str, ...]
+    joints: tuple[str, ...]
+    free: list[Free] = field(default_factory=list)
+    fixed: tuple[AppliedEffect, ...] = ()
+
+    @classmethod
+    def build(cls, effects: Sequence[str], joints: Sequence[str], ctx: Context,
+              fixed: Sequence[AppliedEffect] = ()) -> Structure:
+        """Free per-joint parameters for ``effects``; ``fixed`` effects ride along unchanged."""
+        free = [space(n, p.name, j, ctx) for n in effects for p in effect(n).params
+                for j in range(len(joints))]
+        return cls(tuple(effects), tuple(joints), free, tuple(fixed))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """All effect names, fixed first."""
+        return tuple(e.name for e in self.fixed) + self.effects
+
+    @property
+    def n(self) -> int:
+        return len(self.free)
+
+    def to_effects(self, values: np.ndarray) -> list[AppliedEffect]:
+        """Parameter values (n,) -> AppliedEffects (fixed ones first, then one per effect)."""
+        out = list(self.fixed)
+        for name in self.effects:
+            vals: dict[str, np.ndarray] = {}
+            for f, v in zip(self.free, values, strict=True):
+                if f.effect == name:
+                    vals.setdefault(f.param, np.full(len(self.joints), np.nan))[f.joint] = v
+            out.append(AppliedEffect(name, self.joints, vals))
+        return out
+
+    def values_from(self, effects: Sequence[AppliedEffect]) -> np.ndarray:
+        """Current values of the free scalars taken from fitted effects (start when absent)."""
+        by_name = {e.name: e for e in effects}
+        out = []
+        for f in self.free:
+            e = by_name.get(f.effect)
+            v = f.start if e is None else float(e.values[f.param][f.joint])
+            out.append(float(np.clip(v, f.lo, f.hi)))
+        return np.array(out)
+
+    def starts(self, base: np.ndarray | None = None) -> list[np.ndarray]:
+        """Start points: ``base`` (or every free scalar's start) plus one per extra start.
+
+        Extra starts move only the scalars that have them (all joints together).
+        """
+        x0 = np.array([f.start for f in self.free]) if base is None else np.array(base, float)
+        out = [x0]
+        n_extra = max((len(f.extra) for f in self.free), default=0)
+        for k in range(n_extra):
+            x = x0.copy()
+            moved = False
+            for i, f in enumerate(self.free):
+                if len(f.extra) > k and (base is None or f.effect == self.effects[-1]):
+                    x[i] = f.extra[k]
+                    moved = True
+            if moved:
+                out.append(x)
+        return out
+
+    def u(self, x: np.ndarray) -> np.ndarray:
+        return np.array([f.to_u(v) for f, v in zip(self.free, x, strict=True)])
+
+    def x(self, u: np.ndarray) -> np.ndarray:
+        return np.array([f.from_u(v) for f, v in zip(self.free, u, strict=True)])
+
+    def u_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        b = np.array([f.u_bounds for f in self.free]).reshape(-1, 2)
+        return b[:, 0], b[:, 1]
+
+
+# A residual function evaluates many parameter points at once: list of (structure, x) ->
+# list of residual vectors (measured - predicted over the scored training samples).
+ResidualFn = Callable[[list[tuple[Structure, np.ndarray]]], list[np.ndarray]]
+
+
+@dataclass
+class Track:
+    """One Levenberg-Marquardt run (a structure from one start) in the lockstep fit."""
+
+    structure: Structure
+    u: np.ndarray
+    label: str = ""
+    mu: float = 1e-2
+    cost: float = math.inf
+    r: np.ndarray | None = None
+    jac: np.ndarray | None = None
+    trial: np.ndarray | None = None
+    done: bool = False
+    rounds: int = 0
+    rejects: int = 0
+    history: list[float] = field(default_factory=list)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.structure.x(self.u)
+
+    def effects(self) -> list[AppliedEffect]:
+        return self.structure.to_effects(self.x)
+
+
+def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int = 20,
+                rtol: float = 1e-3, on_round: Callable[[int, int], None] | None = None,
+                prune: Callable[[int, Sequence[Track]], None] | None = None,
+                max_rejects: int = 3) -> None:
+    """Fit all tracks by bounded Levenberg-Marquardt, one batched evaluation per round.
+
+    Args:
+      tracks: tracks with ``u`` at their start; updated in place (``u``, ``cost``, ``r``,
+        ``jac`` at the accepted point).
+      residual: batched residual function.
+      max_rounds: rounds at most.
+      rtol: stop when an accepted step lowers the cost by less than this fraction.
+      on_round: progress callback (round, live tracks).
+      prune: called after each round with (round, tracks); may end tracks (``done = True``).
+      max_rejects: a track ends after this many rejected trials in a row.
+    """
+    for t in tracks:
+        t.trial = t.u.copy()
+    for rnd in range(max_rounds):
+        live = [t for t in tracks if not t.done]
+        if not live:
+            break
+        points, owners = [], []
+        for t in live:
+            cols = _fd_points(t)
+            for u in cols:
+                points.append((t.structure, t.structure.x(u)))
+            owners.append((t, cols))
+        res = residual(points)
+        k = 0
+        for t, cols in owners:
+            r_trial = res[k]
+            fd_r = res[k + 1:k + len(cols)]
+            k += len(cols)
+            cost = 0.5 * float(r_trial @ r_trial)
+            t.rounds += 1
+            if not np.isfinite(cost):
+                cost = math.inf
+            if t.r is None or cost < t.cost:
+                improvement = (t.cost - cost) / t.cost if np.isfinite(t.cost) else 1.0
+                t.u, t.cost, t.r = cols[0].copy(), cost, r_trial
+                t.jac = np.stack([(fr - r_trial) / (c - cols[0])[i]
+                                  for i, (fr, c) in enumerate(zip(fd_r, cols[1:], strict=True))],
+                                 axis=1) if fd_r else np.zeros((len(r_trial), 0))
+                t.mu = max(t.mu / 3.0, 1e-7)
+                t.rejects = 0
+                if improvement < rtol and t.rounds > 1:
+                    t.done = True
+            else:
+                t.mu *= 5.0
+                t.rejects += 1
+                if t.rejects >= max_rejects or t.mu > 1e6:
+                    t.done = True
+            t.history.append(t.cost)
+            if not t.done:
+                t.trial = _lm_step(t)
+                if t.trial is None:
+                    t.done = True
+        if prune is not None:
+            prune(rnd, tracks)
+        if on_round is not None:
+            on_round(rnd, len(live))
+    for t in tracks:
+        t.done = True
+
+
+def prune_tracks(rnd: int, tracks: Sequence[Track], after: int = 4) -> None:
+    """End tracks that cannot win: from round ``after`` on, starts of one structure that trail
+    its best start, and structures whose cost reduction is below a tenth of the best one's."""
+    if rnd + 1 < after or not tracks:
+        return
+    first = {id(t): t.history[0] for t in tracks if t.history}
+    best_by: dict[tuple, float] = {}
+    for t in tracks:
+        key = t.structure.names
+        best_by[key] = min(best_by.get(key, math.inf), t.cost)
+    drops = [first[id(t)] - t.cost for t in tracks if id(t) in first]
+    top = max(max(drops, default=0.0), 0.0)
+    for t in tracks:
+        if t.done:
+            continue
+        if t.cost > 1.02 * best_by[t.structure.names]:
+            t.done = True
+        elif id(t) in first and first[id(t)] - t.cost < 0.1 * top:
+            t.done = True
+
+
+def _fd_points(t: Track) -> list[np.ndarray]:
+    u = t.trial
+    lo, hi = t.structure.u_bounds()
+    cols = [u.copy()]
+    for i, f in enumerate(t.structure.free):
+        step = f.fd
+        if u[i] + step > hi[i]:
+            step = -step
+        c = u.copy()
+        c[i] += step
+        cols.append(c)
+    return cols
+
+
+def _lm_step(t: Track) -> np.ndarray | None:
+    """Next trial point: a bounded LM step, pinning dimensions at bounds (active set).
+
+    ``t.jac`` is d(residual)/du, so the Gauss-Newton step solves
+    (J^T J + mu diag(J^T J)) du = -J^T r.
+    """
+    jac, r = t.jac, t.r
+    n = jac.shape[1]
+    if n == 0:
+        return None
+    lo, hi = t.structure.u_bounds()
+    jtj = jac.T @ jac
+    desc = -(jac.T @ r)
+    diag = np.maximum(np.diag(jtj), 1e-12 * max(float(np.max(np.diag(jtj))), 1e-30))
+    free = ~((t.u <= lo + 1e-12) & (desc < 0)) & ~((t.u >= hi - 1e-12) & (desc > 0))
+    du = np.zeros(n)
+    for _ in range(n + 1):
+        idx = np.flatnonzero(free)
+        if len(idx) == 0:
+            break
+        pinned = ~free
+        rhs = desc[idx] - jtj[np.ix_(idx, np.flatnonzero(pinned))] @ du[pinned]
+        a = jtj[np.ix_(idx, idx)] + t.mu * np.diag(diag[idx])
+        try:
+            du[idx] = np.linalg.solve(a, rhs)
+        except np.linalg.LinAlgError:
+            return None
+        new = t.u + du
+        out = free & ((new < lo) | (new > hi))
+        if not out.any():
+            break
+        du[out] = np.clip(new, lo, hi)[out] - t.u[out]
+        free &= ~out
+    trial = np.clip(t.u + du, lo, hi)
+    if np.allclose(trial, t.u, rtol=0, atol=1e-12):
+        return None
+    return trial
+
+
+def interval_halfwidths(r: np.ndarray, jac: np.ndarray, n_eff: float) -> np.ndarray:
+    """95 % half-widths in optimizer coordinates from the Jacobian, for autocorrelated residuals.
+
+    The formula of ``mujoco.sysid.calculate_intervals`` (s^2 = r.r / (n - p), diag of (J^T J)^-1
+    by eigendecomposition with null directions infinite, Student-t quantile; importing
+    ``mujoco.sysid`` costs seconds, so it is restated here and checked against it in the tests),
+    inflated by sqrt(n / n_eff) because time-series residuals are not i.i.d. (04-sysid.md 4.3).
+    """
+    from scipy import special
+
+    n, p = jac.shape
+    if p == 0:
+        return np.zeros(0)
+    s2 = float(r @ r) / max(n - p, 1)
+    lam, v = np.linalg.eigh(jac.T @ jac)
+    lam_max = float(np.max(lam))
+    null = lam / lam_max < 1e-15 if lam_max > 0 else np.ones(p, bool)
+    vmax = np.max(np.abs(v), axis=1, keepdims=True)
+    vv = np.where(np.abs(v / vmax) < 1e-8, 0.0, v)
+    with np.errstate(divide="ignore"):
+        inv_diag = np.where(np.any((vv != 0) & null[None, :], axis=1), np.inf,
+                            np.sum(np.where(null[None, :], 0.0, vv ** 2 / np.where(null, 1.0, lam)),
+                                   axis=1))
+    half = np.sqrt(inv_diag * s2) * special.stdtrit(max(n - p, 1), 0.975)
+    return half * math.sqrt(n / max(n_eff, 1.0))
+
+
+def stall_torque(model, actuators: np.ndarray) -> np.ndarray:
+    """Stall torque K Vmax / R of dcmotor servos [N m] (inf for other actuators)."""
+    g = model.actuator_gainprm[actuators]
+    is_dc = model.actuator_gaintype[actuators] == int(mujoco.mjtGain.mjGAIN_DCMOTOR)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        st = g[:, servo.GAIN_K] * g[:, servo.GAIN_VMAX] / g[:, servo.GAIN_R]
+    return np.where(is_dc & np.isfinite(st), st, np.inf)
