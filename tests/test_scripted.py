@@ -11,7 +11,12 @@ import pytest
 import lowcostdex  # noqa: F401  (registers the ids)
 from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.models.dclaw import build_dclaw
-from lowcostdex.sim.scripted import FingerGeometry, ScrewTrackTeacher, ValveTurnTeacher
+from lowcostdex.sim.scripted import (
+    BlockRollTeacher,
+    FingerGeometry,
+    ScrewTrackTeacher,
+    ValveTurnTeacher,
+)
 
 
 def run_teacher(env, teacher, seed):
@@ -120,4 +125,25 @@ def test_teacher_under_randomized_dynamics():
     teacher = ValveTurnTeacher()
     results = [run_teacher(env, teacher, seed)[0]["success"] for seed in range(20)]
     assert np.mean(results) >= 0.9, results
+    env.close()
+
+
+def test_flip_block_rests_and_one_finger_rolls_it_half_way():
+    env = gym.make("lowcostdex/DClawFlipBlock-v0")
+    u = env.unwrapped
+    env.reset(seed=0)
+    start = u.data.qpos[u.task.block_pos].copy()
+    hold = goal_to_action(u.data.qpos[u.task.hand_qpos], u.task.hand_low, u.task.hand_high)
+    for _ in range(10):  # resting on its table, untouched: it stays put
+        _, _, term, _, info = env.step(hold)
+    np.testing.assert_allclose(u.data.qpos[u.task.block_pos], start, atol=1e-3)
+    assert info["goal_error"] == pytest.approx(np.pi, abs=0.01)
+    teacher = BlockRollTeacher()
+    teacher.reset(u)
+    for _ in range(25):
+        goals = teacher(u.data.qpos, u.goal)
+        _, _, term, _, info = env.step(goal_to_action(goals, u.task.hand_low, u.task.hand_high))
+        assert not term
+    # a 90 deg roll about x: half of the 180 deg flip
+    assert abs(info["goal_error"] - np.pi / 2) < 0.3
     env.close()

@@ -378,3 +378,54 @@ class ScrewTrackTeacher(ValveTurnTeacher):
     def error(self, qpos: np.ndarray, goal: Goal) -> float:
         ahead = {**goal, "angle": goal["angle"] + goal.get("speed", 0.0) * self.lead}
         return super().error(qpos, ahead)
+
+
+# ------------------------------------------------------------------------------------------------
+# Flip block: half a flip
+
+
+class BlockRollTeacher:
+    """Rolls the flip block 90 deg about x over its bottom edge: half of ``DClawFlipBlock-v0``.
+
+    The first finger (``ff``, on the +y side) comes down beside the block's +y face near its top
+    edge and pushes towards -y along a rising arc; the block tips over its -y bottom edge and
+    lands on its side, 0.05 m further. A full flip (180 deg about x) needs a second roll in the
+    same sense, 0.1 m from the start, beyond the fingers' reach, or an in-hand pivot with a
+    regrasp: that is what a policy has to learn. This teacher checks that the block is reachable
+    and movable and can seed demonstrations.
+
+    Waypoints are tip-sphere centres relative to the block centre at ``reset`` [m], each held for
+    a number of control steps; the other fingers hold their pose.
+    """
+
+    WAYPOINTS: tuple[tuple[tuple[float, float, float], int], ...] = (
+        ((0.0, 0.05, 0.04), 4),  # above the +y top edge
+        ((0.0, 0.038, 0.017), 3),  # beside the +y face, near the top
+        *(((0.0, y, 0.02 + 0.3 * (0.03 - y)), 1)  # push towards -y, rising
+          for y in (0.03, 0.02, 0.01, 0.0, -0.01, -0.02, -0.03, -0.04)),
+        ((0.0, 0.0, 0.06), 4),  # up and away
+    )
+
+    def reset(self, task_or_env, goal: Goal | None = None) -> None:
+        """Bind to the flip task's model; the roll starts from the block's present position."""
+        task = getattr(task_or_env, "task", task_or_env)
+        self.hand_qpos = task.hand_qpos
+        self.block_pos = task.block_pos
+        self.low, self.high = task.hand_low.reshape(3, 3), task.hand_high.reshape(3, 3)
+        self.finger = FingerGeometry.from_model(task.model, DCLAW_FINGERS[0])
+        self.schedule = [w for w, n in self.WAYPOINTS for _ in range(n)]
+        self.step = 0
+        self.origin: np.ndarray | None = None
+        self.hold: np.ndarray | None = None
+
+    def __call__(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
+        q = np.asarray(qpos, float)
+        if self.origin is None:
+            self.origin = q[self.block_pos].copy()
+            self.hold = q[self.hand_qpos].copy()
+        goals = self.hold.copy()
+        waypoint = self.schedule[min(self.step, len(self.schedule) - 1)]
+        goals[:3] = self.finger.inverse(self.origin + np.asarray(waypoint), self.low[0],
+                                        self.high[0])
+        self.step += 1
+        return goals

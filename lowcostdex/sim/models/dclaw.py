@@ -5,6 +5,14 @@ base plate at z = 0.335 m flipped so the fingers point down, three 3-joint finge
 each link a servo box, the distal link a capsule fingertip. Servos are ``lowcostdex.sim.servo``
 dcmotor actuators parameterized by the motor model of the hand spec (XH430 or XM430).
 
+Deviation from ROBEL (which has no block station): the flip block rests on a 0.1 m high table so
+its centre (z = 0.125 m) sits at fingertip height. With the block on a 0.05 m platform (top face
+at z = 0.1 m) the fingertips, which reach z ~ 0.115 m only when bent inwards over the block,
+could not get beside it: over 20000 random finger poses the closest any finger geom came was
+1.3 mm. On the table the tips reach the side faces between z 0.115 and 0.15 m and can roll the
+block over an edge. The table (0.4 m square) is wider than the fingers can push the block, so
+the block never falls off between resets.
+
 Names: joints and actuators are the hand spec's (``ff_top`` ... ``th_bottom``); the valve hinge is
 ``valve`` with servo ``valve`` (motor id 50, torque off during episodes); the block is ``block``.
 Fingertip sites are ``<finger>_tip``.
@@ -199,12 +207,18 @@ def _radial_quat(angle: float) -> list[float]:
 
 
 BLOCK_HALF = 0.025  # [m] half edge of the flip block
-BLOCK_CENTER = (0.0, 0.0, 0.075)  # [m] resting position on the platform
+TABLE_HEIGHT = 0.1  # [m] top of the table the block rests on (module doc: fingertip reach)
+# [m] wider than the fingers can push the block (tips reach ~0.15 m from the axis), so the block
+# never falls off and needs no pick-up between episodes
+TABLE_HALF_WIDTH = 0.2
+BLOCK_CENTER = (0.0, 0.0, TABLE_HEIGHT + BLOCK_HALF)  # [m] resting position on the table
 
 
 def _add_block(spec: mujoco.MjSpec) -> None:
     spec.worldbody.add_geom(name="platform", type=mujoco.mjtGeom.mjGEOM_BOX,
-                            size=[0.1, 0.1, 0.025], pos=[0, 0, 0.025], rgba=[0.5, 0.4, 0.3, 1],
+                            size=[TABLE_HALF_WIDTH, TABLE_HALF_WIDTH, TABLE_HEIGHT / 2],
+                            pos=[0, 0, TABLE_HEIGHT / 2],
+                            rgba=[0.5, 0.4, 0.3, 1],
                             friction=[0.6, 0.005, 0.0001], group=GROUP_COLLISION)
     block = spec.worldbody.add_body(name="block", pos=list(BLOCK_CENTER))
     block.add_freejoint(name="block")
