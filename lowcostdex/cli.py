@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.sim.cli",
+    "lowcostdex.sim.gap.cli",
     "lowcostdex.main_job",
     "lowcostdex.algos.cli",
 )
