@@ -17,6 +17,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.sim.gap.cli",
     "lowcostdex.main_job",
     "lowcostdex.algos.cli",
+    "lowcostdex.hardware.cli",
 )
 
 

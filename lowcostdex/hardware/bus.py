@@ -12,6 +12,7 @@ invalid entries are NaN.
 from __future__ import annotations
 
 import abc
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -22,6 +23,10 @@ from lowcostdex.errors import LowcostdexError
 
 class BusError(LowcostdexError, IOError):
     """Communication failed (no status packet, corrupt reply, port error) after bounded retries."""
+
+
+class CommandError(LowcostdexError, ValueError):
+    """A command was rejected before anything was sent (non-finite goal, wrong length, ...)."""
 
 
 class MotorFault(LowcostdexError, RuntimeError):
@@ -99,6 +104,16 @@ class MotorBus(abc.ABC):
     def reboot(self, motor_id: int) -> None:
         """Clear a latched hardware error by rebooting the motor (torque is off afterwards)."""
         raise NotImplementedError
+
+    def clock(self) -> float:
+        """The bus's time [s]: monotonic wall time, or bus time on an emulated virtual clock."""
+        return time.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        """Wait on the bus's clock [s]; implementations keep hardware fail-safes (e.g. a bus
+        watchdog) fed while waiting."""
+        if seconds > 0:
+            time.sleep(seconds)
 
     @property
     def connected(self) -> bool:

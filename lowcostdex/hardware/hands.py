@@ -179,9 +179,11 @@ def allegro_spec() -> HandSpec:
 
 
 def bench_spec(motor: str = "XL330-M288", motor_id: int = 1) -> HandSpec:
-    """A single servo on a pendulum test bench (as in BAM's logs)."""
+    """A single servo on a pendulum test bench (as in BAM's logs); joint 0 is the middle of the
+    servo's turn (tick 2048), so the joint range maps inside position mode's 0..4095."""
     return HandSpec("bench", motor, (JointSpec("bench", motor_id, -math.pi, math.pi,
-                                               max_velocity=10.0),))
+                                               max_velocity=10.0,
+                                               calibration=Calibration(offset=-math.pi)),))
 
 
 HANDS = {"dclaw": dclaw_spec, "allegro": allegro_spec, "bench": bench_spec}

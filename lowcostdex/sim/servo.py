@@ -337,30 +337,38 @@ def dcmotor_act_layout(model: mujoco.MjModel) -> np.ndarray:
     order (verified against mujoco 4.0.0). The integrator exists when the actuator was *compiled*
     with ki > 0, whatever ki holds at run time, so it is inferred from the activation count.
     """
-    out = np.full((model.nu, 4), -1, dtype=int)
     dyn = model.actuator_dynprm
-    for i in np.flatnonzero(model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR):
-        adr, num = int(model.actuator_actadr[i]), int(model.actuator_actnum[i])
-        if adr < 0:
-            continue
-        present = [dyn[i, DYN_TE] > 0, False, dyn[i, DYN_CTH] > 0, dyn[i, DYN_LUGRE_STIFFNESS] > 0]
-        present[ACT_INTEGRATOR] = num - sum(present) == 1
-        k = adr
-        for col, has in enumerate(present):
-            if has:
-                out[i, col] = k
-                k += 1
+    adr = model.actuator_actadr
+    dc = (model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR) & (adr >= 0)
+    cur, th, lu = dyn[:, DYN_TE] > 0, dyn[:, DYN_CTH] > 0, dyn[:, DYN_LUGRE_STIFFNESS] > 0
+    integ = (model.actuator_actnum - cur - th - lu) == 1
+    out = np.full((model.nu, 4), -1, dtype=int)
+    k = adr.copy()
+    for col, has in enumerate((cur, integ, th, lu)):
+        sel = dc & has
+        out[sel, col] = k[sel]
+        k += has
     return out
 
 
-def winding_temperature(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+def winding_temperature(model: mujoco.MjModel, data: mujoco.MjData,
+                        layout: np.ndarray | None = None) -> np.ndarray:
     """Winding temperature of every actuator [deg C]; ambient when it has no thermal state.
 
     dcmotor's thermal activation is the rise over ambient; ``dcmotor_act_layout`` locates it (it
-    follows the integrator state when the servo was compiled with an I gain).
+    follows the integrator state when the servo was compiled with an I gain). Pass that layout
+    to skip recomputing it in a loop.
     """
-    temp = model.actuator_dynprm[:, DYN_TAMB].copy()
-    idx = dcmotor_act_layout(model)[:, ACT_THERMAL]
+    dyn = model.actuator_dynprm
+    temp = dyn[:, DYN_TAMB].copy()
+    if layout is not None:
+        idx = layout[:, ACT_THERMAL]
+    else:  # thermal state = actadr + (current state) + (integrator state)
+        adr, th = model.actuator_actadr, dyn[:, DYN_CTH] > 0
+        if not np.any(th):
+            return temp
+        before = model.actuator_actnum - th - (dyn[:, DYN_LUGRE_STIFFNESS] > 0)
+        idx = np.where(th & (adr >= 0), adr + before, -1)
     has = idx >= 0
     temp[has] += data.act[idx[has]]
     return temp
