@@ -1,0 +1,176 @@
+"""Allegro Hand v4 CAN protocol: frame ids, payload codecs and unit conversions.
+
+One module for the wire format, shared by the driver (``allegro.AllegroBus``) and the emulated
+hand (``allegro_emulator.EmulatedAllegro``). Facts from 05-dynamixel-protocol.md section 6
+(the v4 C++ driver): CAN 2.0A at 1 Mbit/s; frame id = ``(command << 2) | device_id`` with a
+2-bit device id; the hand streams four FINGER_POSE frames per period (3 ms = 333 Hz) after
+``SET_PERIOD`` + ``SYSTEM_ON``; the host answers each complete set with four SET_TORQUE frames.
+
+Payloads (little endian):
+  FINGER_POSE (0x20 + finger): 4 x int16 joint positions, ``deg = raw * 333.3 / 65536``.
+  SET_TORQUE (0x60 + finger): 4 x int16 PWM, ``pwm = tau * 1200`` [tau in N m], clamped.
+  SET_PERIOD (0x81): 3 x int16 periods [ms] for position, IMU, temperature (0 = off).
+  HAND_INFO (0x80, RTR): hw version u16, fw version u16, side u8 (0 right / 1 left),
+    palm temperature u8 [deg C], status u8 (bit0 servo on, bit1 high temperature fault,
+    bit2 internal communication fault).
+  TEMPERATURE (0x38 + finger): 4 x int16 joint temperatures [deg C]. This layout is assumed
+    (not confirmed against a v4 manual); check it before trusting temperatures on a real hand.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import can
+import numpy as np
+
+from lowcostdex.errors import ConfigError
+
+# Commands (the frame id is ``cmd << 2 | device_id``).
+SYSTEM_ON = 0x40
+SYSTEM_OFF = 0x41
+SET_TORQUE = 0x60  # + finger (0..3)
+SET_POSE = 0xE0  # + finger
+SET_PERIOD = 0x81
+CONFIG = 0x68
+HAND_INFO = 0x80
+SERIAL = 0x88
+FINGER_POSE = 0x20  # + finger
+IMU = 0x30
+TEMPERATURE = 0x38  # + finger
+
+N_FINGERS = 4
+JOINTS_PER_FINGER = 4
+N_JOINTS = N_FINGERS * JOINTS_PER_FINGER
+POSITION_UNIT = math.radians(333.3 / 65536.0)  # [rad per raw count]
+TORQUE_TO_PWM = 1200.0  # v4 ``_tau_cov_const`` [PWM per N m]
+PWM_MAX = 1200  # global clamp at 12 V
+# Per-joint PWM clamps of the v4 driver: fingers (roll, near, middle, far), thumb.
+PWM_LIMIT_FINGER = (375, 675, 450, 285)
+PWM_LIMIT_THUMB = (525, 405, 270, 270)
+STATUS_SERVO_ON, STATUS_HIGH_TEMPERATURE, STATUS_COMM_FAULT = 0x01, 0x02, 0x04
+_I16 = struct.Struct("<4h")
+
+
+def frame_id(command: int, device_id: int = 0) -> int:
+    """11-bit arbitration id of ``command`` for the hand with ``device_id`` (0..3)."""
+    if not 0 <= device_id <= 3:
+        raise ConfigError(f"Allegro device id {device_id} outside 0..3")
+    return (command << 2) | device_id
+
+
+def split_id(arbitration_id: int) -> tuple[int, int]:
+    """(command, device_id) of an arbitration id."""
+    return (arbitration_id & ~3) >> 2, arbitration_id & 3
+
+
+def pwm_limits() -> np.ndarray:
+    """Per-joint PWM clamps (16,) in joint order index, middle, ring, thumb."""
+    return np.array(PWM_LIMIT_FINGER * 3 + PWM_LIMIT_THUMB, dtype=float)
+
+
+def torque_to_pwm(tau: np.ndarray) -> np.ndarray:
+    """Joint torques (16,) [N m] -> PWM counts (16,) int, clamped per joint (v4 scaling)."""
+    lim = pwm_limits()
+    return np.clip(np.rint(np.asarray(tau, float) * TORQUE_TO_PWM), -lim, lim).astype(int)
+
+
+def pwm_to_torque(pwm: np.ndarray) -> np.ndarray:
+    """PWM counts -> joint torques [N m]."""
+    return np.asarray(pwm, float) / TORQUE_TO_PWM
+
+
+def pack4(values: Sequence[int]) -> bytes:
+    """Four signed 16-bit integers, little endian (8 bytes); values are clamped to int16."""
+    v = [int(min(max(x, -32768), 32767)) for x in values]
+    return _I16.pack(*v)
+
+
+def unpack4(data: bytes | bytearray) -> tuple[int, int, int, int]:
+    """Inverse of ``pack4``."""
+    if len(data) != 8:
+        raise ValueError(f"expected 8 data bytes, got {len(data)}")
+    return _I16.unpack(bytes(data))
+
+
+def radians_to_raw(q: np.ndarray) -> np.ndarray:
+    """Joint angles [rad] -> FINGER_POSE counts (rounded, clamped to int16)."""
+    return np.clip(np.rint(np.asarray(q, float) / POSITION_UNIT), -32768, 32767).astype(int)
+
+
+def raw_to_radians(raw: np.ndarray) -> np.ndarray:
+    """FINGER_POSE counts -> joint angles [rad]."""
+    return np.asarray(raw, float) * POSITION_UNIT
+
+
+def message(command: int, data: bytes = b"", device_id: int = 0, remote: bool = False
+            ) -> can.Message:
+    """A standard (11-bit) CAN frame for ``command``."""
+    return can.Message(arbitration_id=frame_id(command, device_id), is_extended_id=False,
+                       data=data, dlc=len(data), is_remote_frame=remote)
+
+
+def pose_message(finger: int, q: np.ndarray, device_id: int = 0) -> can.Message:
+    """FINGER_POSE frame of one finger from its 4 joint angles [rad]."""
+    return message(FINGER_POSE + finger, pack4(radians_to_raw(q)), device_id)
+
+
+def torque_message(finger: int, pwm: np.ndarray, device_id: int = 0) -> can.Message:
+    """SET_TORQUE frame of one finger from its 4 PWM values."""
+    return message(SET_TORQUE + finger, pack4(pwm), device_id)
+
+
+def period_message(position_ms: int, imu_ms: int = 0, temperature_ms: int = 0,
+                   device_id: int = 0) -> can.Message:
+    """SET_PERIOD frame: streaming periods [ms] (0 stops a stream)."""
+    data = struct.pack("<3h", position_ms, imu_ms, temperature_ms)
+    return message(SET_PERIOD, data, device_id)
+
+
+def parse_period(data: bytes | bytearray) -> tuple[int, int, int]:
+    """(position, IMU, temperature) periods [ms] of a SET_PERIOD payload (missing = 0)."""
+    raw = bytes(data) + b"\x00" * (6 - len(data))
+    return struct.unpack("<3h", raw[:6])
+
+
+@dataclass(frozen=True)
+class HandInfo:
+    """HAND_INFO reply.
+
+    Attributes:
+      hardware_version, firmware_version: version numbers.
+      left: True for a left hand.
+      palm_temperature: [deg C].
+      status: status bits (``STATUS_*``).
+    """
+
+    hardware_version: int
+    firmware_version: int
+    left: bool
+    palm_temperature: int
+    status: int
+
+    def pack(self) -> bytes:
+        return struct.pack("<HHBBB", self.hardware_version, self.firmware_version,
+                           int(self.left), self.palm_temperature & 0xFF, self.status & 0xFF)
+
+    @classmethod
+    def unpack(cls, data: bytes | bytearray) -> HandInfo:
+        hw, fw, side, temp, status = struct.unpack("<HHBBB", bytes(data[:7]))
+        return cls(hw, fw, bool(side), temp, status)
+
+    @property
+    def servo_on(self) -> bool:
+        return bool(self.status & STATUS_SERVO_ON)
+
+    @property
+    def faults(self) -> tuple[str, ...]:
+        names = []
+        if self.status & STATUS_HIGH_TEMPERATURE:
+            names.append("high_temperature")
+        if self.status & STATUS_COMM_FAULT:
+            names.append("communication")
+        return tuple(names)

@@ -1,0 +1,215 @@
+"""Thermal and current guards: keep motors out of their firmware shutdowns during long training.
+
+Neither guard talks to the bus; the Robot feeds them every read and acts on their verdicts.
+
+Thermal guard (hysteresis; three thresholds set as margins below the firmware limit) [deg C]::
+
+    resume  <  warn  <  critical  <  limit (firmware shutdown, e.g. 80 on X430 servos)
+
+* at ``warn`` a pause is requested: at the next episode boundary the Robot lets the motors rest
+  (torque off, or a low-effort hold) until every motor reads below ``resume``;
+* at ``critical`` the hot motor is relaxed at once, mid-episode (torque off), so it never
+  reaches the firmware limit even if an episode is long or the load extreme.
+
+Current guard: a motor drawing more than ``limit`` for ``window`` consecutive reads is
+overloaded; for ``relax_steps`` control steps its goal may only lead its present position by
+``relaxed_step``, which bounds the position error and hence the current the firmware's P path
+drives (a software version of Current Limit that does not latch like the firmware's overload
+shutdown).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lowcostdex.errors import ConfigError, check_choice
+
+PAUSE_MODES = ("torque_off", "hold")
+
+
+@dataclass(frozen=True)
+class ThermalConfig:
+    """Thermal guard thresholds, as margins below the firmware shutdown temperature.
+
+    Attributes:
+      warn_margin: pause at the next episode boundary when a motor reaches limit - this [K].
+      resume_margin: end the pause when every motor is below limit - this [K].
+      critical_margin: relax a motor at once when it reaches limit - this [K].
+      limit: firmware shutdown temperature [deg C]; None = the motor spec's (80 deg C for X430
+        servos: warn 65, resume 50, critical 73).
+      pause_mode: "torque_off" (motors limp, coolest) or "hold" (torque on, goal := present).
+      poll_interval: temperature read interval while paused [s].
+      max_pause: a pause longer than this raises ThermalTimeout (a fan or sensor is broken) [s].
+    """
+
+    warn_margin: float = 15.0
+    resume_margin: float = 30.0
+    critical_margin: float = 7.0
+    limit: float | None = None
+    pause_mode: str = "torque_off"
+    poll_interval: float = 1.0
+    max_pause: float = 3600.0
+
+    def __post_init__(self) -> None:
+        check_choice("thermal pause mode", self.pause_mode, PAUSE_MODES)
+        if not self.resume_margin > self.warn_margin > self.critical_margin >= 0:
+            raise ConfigError("ThermalConfig: need resume_margin > warn_margin > "
+                              f"critical_margin >= 0, got {self.resume_margin}, "
+                              f"{self.warn_margin}, {self.critical_margin}")
+        if not self.poll_interval > 0 or not self.max_pause > 0:
+            raise ConfigError("ThermalConfig: poll_interval and max_pause must be > 0")
+
+
+@dataclass(frozen=True)
+class CurrentConfig:
+    """Current (overload) guard.
+
+    Attributes:
+      limit: sustained current threshold [A]; None = ``fraction`` x the motor's stall current.
+      fraction: see ``limit``.
+      window: consecutive reads above the limit that make an overload.
+      relaxed_step: largest goal lead over the present position of an overloaded motor [rad].
+      relax_steps: control steps an overload relaxation lasts.
+    """
+
+    limit: float | None = None
+    fraction: float = 0.6
+    window: int = 5
+    relaxed_step: float = 0.02
+    relax_steps: int = 20
+
+    def __post_init__(self) -> None:
+        if self.limit is not None and not self.limit > 0:
+            raise ConfigError("CurrentConfig.limit must be > 0")
+        if not 0 < self.fraction <= 1:
+            raise ConfigError("CurrentConfig.fraction must be in (0, 1]")
+        if self.window < 1 or self.relax_steps < 1 or not self.relaxed_step > 0:
+            raise ConfigError("CurrentConfig: window, relax_steps >= 1 and relaxed_step > 0")
+
+
+@dataclass
+class PauseRecord:
+    """One thermal pause.
+
+    Attributes:
+      start: clock time the pause began [s].
+      duration: [s].
+      peak: hottest motor temperature when it began [deg C].
+      hottest: name of that motor's joint.
+      end_max: hottest temperature when it ended [deg C].
+    """
+
+    start: float
+    duration: float
+    peak: float
+    hottest: str
+    end_max: float
+
+
+@dataclass
+class ThermalGuard:
+    """Tracks temperatures; decides pauses (between episodes) and immediate relaxations.
+
+    Args:
+      config: thresholds.
+      limit: firmware shutdown temperature [deg C] (config.limit or the motor's).
+      names: joint names aligned with the temperature arrays.
+    """
+
+    config: ThermalConfig
+    limit: float
+    names: tuple[str, ...]
+    pause_pending: bool = False
+    max_seen: np.ndarray = field(init=False)
+    relaxed: np.ndarray = field(init=False)
+    pauses: list[PauseRecord] = field(default_factory=list)
+    relaxations: int = 0
+    warnings: int = 0
+
+    def __post_init__(self) -> None:
+        self.max_seen = np.full(len(self.names), -np.inf)
+        self.relaxed = np.zeros(len(self.names), bool)
+
+    @property
+    def warn(self) -> float:
+        """Temperature that requests a pause [deg C]."""
+        return self.limit - self.config.warn_margin
+
+    @property
+    def resume(self) -> float:
+        """Temperature below which a pause ends [deg C]."""
+        return self.limit - self.config.resume_margin
+
+    @property
+    def critical(self) -> float:
+        """Temperature at which a motor is relaxed mid-episode [deg C]."""
+        return self.limit - self.config.critical_margin
+
+    def update(self, temperature: np.ndarray) -> np.ndarray:
+        """Feed one read (n,) [deg C] (NaN = unknown); returns the motors to relax now (n,) bool
+        (newly critical ones; already relaxed motors are not repeated)."""
+        t = np.asarray(temperature, float)
+        known = np.isfinite(t)
+        self.max_seen = np.where(known, np.maximum(self.max_seen, t), self.max_seen)
+        if np.any(known & (t >= self.warn)) and not self.pause_pending:
+            self.pause_pending = True
+            self.warnings += 1
+        hot = known & (t >= self.critical) & ~self.relaxed
+        if np.any(hot):
+            self.relaxed |= hot
+            self.relaxations += int(np.sum(hot))
+            self.pause_pending = True
+        return hot
+
+    def cooled(self, temperature: np.ndarray) -> bool:
+        """True when every motor reads (validly) below ``resume``."""
+        t = np.asarray(temperature, float)
+        return bool(np.all(np.isfinite(t)) and np.all(t < self.resume))
+
+    def end_pause(self, record: PauseRecord) -> None:
+        self.pauses.append(record)
+        self.pause_pending = False
+        self.relaxed[:] = False
+
+
+@dataclass
+class CurrentGuard:
+    """Counts consecutive over-current reads per motor and holds relaxations.
+
+    Args:
+      config: thresholds.
+      limit: sustained current threshold per motor (n,) [A].
+    """
+
+    config: CurrentConfig
+    limit: np.ndarray
+    over: np.ndarray = field(init=False)
+    remaining: np.ndarray = field(init=False)
+    events: int = 0
+
+    def __post_init__(self) -> None:
+        n = len(self.limit)
+        self.over = np.zeros(n, int)
+        self.remaining = np.zeros(n, int)
+
+    def update(self, current: np.ndarray) -> np.ndarray:
+        """Feed one read (n,) [A] (NaN = unknown); returns newly overloaded motors (n,) bool."""
+        c = np.abs(np.asarray(current, float))
+        above = np.isfinite(c) & (c > self.limit)
+        self.over = np.where(above, self.over + 1, 0)
+        new = (self.over >= self.config.window) & (self.remaining == 0)
+        if np.any(new):
+            self.events += int(np.sum(new))
+            self.remaining[new] = self.config.relax_steps
+        return new
+
+    @property
+    def relaxed(self) -> np.ndarray:
+        """Motors whose goal lead is bounded now (n,) bool."""
+        return self.remaining > 0
+
+    def tick(self) -> None:
+        """One control step passed."""
+        self.remaining = np.maximum(self.remaining - 1, 0)

@@ -1,0 +1,58 @@
+"""Command safety: reject non-finite goals, clip to joint limits and to a per-step motion bound.
+
+Pure functions on arrays; the Robot applies them to every goal before it reaches the bus, so a
+policy, a reset procedure and a demo teacher all pass through the same gate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lowcostdex.hardware.bus import CommandError
+
+
+class UnsafeCommand(CommandError):
+    """A command was rejected (NaN/inf entries, wrong shape, no valid present position);
+    nothing was sent."""
+
+
+@dataclass(frozen=True)
+class ClipReport:
+    """What ``clip_goal`` changed.
+
+    Attributes:
+      goal: the goal actually allowed (n,) [rad].
+      limit_clipped: entries moved by the joint limits (n,) bool.
+      motion_clipped: entries moved by the motion bound (n,) bool.
+    """
+
+    goal: np.ndarray
+    limit_clipped: np.ndarray
+    motion_clipped: np.ndarray
+
+
+def check_finite(goal: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+    """The goal as a float array (n,); raises UnsafeCommand naming the non-finite joints."""
+    g = np.asarray(goal, dtype=float)
+    if g.shape != (len(names),):
+        raise UnsafeCommand(f"goal has shape {g.shape}, expected ({len(names)},) for joints "
+                            f"{', '.join(names)}; nothing sent")
+    bad = ~np.isfinite(g)
+    if np.any(bad):
+        listed = ", ".join(f"{n}={v}" for n, v, b in zip(names, g, bad) if b)
+        raise UnsafeCommand(f"non-finite goal for {listed}; nothing sent")
+    return g
+
+
+def clip_goal(goal: np.ndarray, low: np.ndarray, high: np.ndarray, present: np.ndarray,
+              max_step: np.ndarray) -> ClipReport:
+    """Clip goals (n,) [rad] to ``present +- max_step`` and then to ``[low, high]``.
+
+    The limits win over the motion bound: no goal outside ``[low, high]`` ever leaves this
+    function, even for a joint found outside its limits (its goal is the nearest limit).
+    """
+    stepped = np.clip(goal, present - max_step, present + max_step)
+    out = np.clip(stepped, low, high)
+    return ClipReport(out, limit_clipped=out != stepped, motion_clipped=stepped != goal)

@@ -1,0 +1,94 @@
+"""Pure pieces under the Robot: the command gate, the thermal and current guards, the rate timer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.hardware.guards import CurrentConfig, CurrentGuard, ThermalConfig, ThermalGuard
+from lowcostdex.hardware.safety import UnsafeCommand, check_finite, clip_goal
+from lowcostdex.hardware.timing import Rate
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 0.0
+        self.slept = []
+
+    def now(self):
+        return self.t
+
+    def sleep(self, s):
+        if s > 0:
+            self.slept.append(s)
+            self.t += s
+
+
+def test_clip_goal_motion_bound_then_limits():
+    low, high = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
+    present = np.array([0.0, 0.95, 1.3])  # the last joint is outside its limits
+    r = clip_goal(np.array([0.5, 2.0, 1.5]), low, high, present, np.full(3, 0.2))
+    np.testing.assert_allclose(r.goal, [0.2, 1.0, 1.0])
+    np.testing.assert_array_equal(r.motion_clipped, [True, True, False])
+    np.testing.assert_array_equal(r.limit_clipped, [False, True, True])
+    assert np.all(r.goal <= high) and np.all(r.goal >= low)
+
+
+def test_check_finite_names_the_bad_joints_and_shape():
+    names = ("a", "b", "c")
+    with pytest.raises(UnsafeCommand, match=r"b=nan, c=inf"):
+        check_finite(np.array([0.0, np.nan, np.inf]), names)
+    with pytest.raises(UnsafeCommand, match=r"shape \(2,\)"):
+        check_finite(np.zeros(2), names)
+    np.testing.assert_array_equal(check_finite([1, 2, 3], names), [1.0, 2.0, 3.0])
+
+
+def test_thermal_guard_warns_pauses_and_relaxes_at_critical_once():
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b"))
+    assert (g.warn, g.resume, g.critical) == (65.0, 50.0, 73.0)
+    assert not g.update(np.array([40.0, 64.9])).any() and not g.pause_pending
+    assert not g.update(np.array([40.0, 65.0])).any() and g.pause_pending
+    hot = g.update(np.array([73.5, 66.0]))
+    np.testing.assert_array_equal(hot, [True, False])
+    assert not g.update(np.array([74.0, 66.0])).any()  # not repeated while relaxed
+    assert g.relaxations == 1 and g.max_seen[0] == 74.0
+    assert not g.cooled(np.array([49.0, np.nan]))  # unknown is not cool
+    assert not g.cooled(np.array([49.0, 50.0]))
+    assert g.cooled(np.array([49.0, 49.9]))
+
+
+def test_thermal_config_validates_margins():
+    with pytest.raises(ConfigError, match="resume_margin > warn_margin"):
+        ThermalConfig(warn_margin=10.0, resume_margin=5.0)
+    with pytest.raises(ConfigError, match="thermal pause mode"):
+        ThermalConfig(pause_mode="nap")
+
+
+def test_current_guard_needs_a_sustained_overload_and_expires():
+    g = CurrentGuard(CurrentConfig(window=3, relax_steps=2), limit=np.array([1.0, 1.0]))
+    for _ in range(2):
+        assert not g.update(np.array([1.5, 0.1])).any()
+    assert not g.update(np.array([0.5, 0.1])).any()  # a dip resets the count
+    for _ in range(2):
+        g.update(np.array([-1.5, np.nan]))
+    np.testing.assert_array_equal(g.update(np.array([1.5, np.nan])), [True, False])
+    assert g.events == 1 and g.relaxed[0]
+    g.tick()
+    g.tick()
+    assert not g.relaxed.any()
+
+
+def test_rate_sleeps_to_the_tick_and_counts_overruns_without_catch_up():
+    clock = FakeClock()
+    rate = Rate(0.1, clock)
+    clock.t += 0.03  # work
+    assert rate.wait() == 0.0
+    assert clock.t == pytest.approx(0.1)
+    clock.t += 0.25  # an overrun of 0.15 s
+    assert rate.wait() == pytest.approx(0.15)
+    assert rate.stats.overruns == 1
+    before = clock.t
+    rate.wait()  # re-anchored: a full period, not an immediate catch-up tick
+    assert clock.t - before == pytest.approx(0.1)
+    assert rate.stats.ticks == 3
