@@ -90,4 +90,4 @@ def _load_optional_tasks() -> None:
         importlib.import_module(module)
 
 
-TASK_MODULES: tuple[str, ...] = ()
+TASK_MODULES: tuple[str, ...] = ("lowcostdex.sim.envs.allegro_tasks",)
