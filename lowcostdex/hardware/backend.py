@@ -1,0 +1,284 @@
+"""Env backends on a robot: the emulated D'Claw (in-process) and the real one (serial port).
+
+Both run the same path: ``Robot`` (safety gate, thermal and current guards, step timing) on a
+``DynamixelBus`` (the real dynamixel_sdk code path), an auto-reset procedure at every
+``reset`` (thermal pause first, verified staged reset, valve driven to its start angle and
+released), and a mirror ``MjData`` into which the encoders' readings are copied after every step,
+as ROBEL does; the task computes observations and rewards from the mirror.
+
+``EmulatedBackend`` puts an emulated D'Claw (``emulator.emulated_dclaw``: firmware, thermal
+model, virtual clock) behind an in-process port. Its physics ``Plant`` carries servo effects the
+nominal simulation lacks (``DEFAULT_EFFECTS``: a little latency, backlash and joint friction) so
+that a sim-to-"real" gap exists to be found; pass ``effects=()`` for a nominal emulated robot.
+A free object (the flip-task block) is read from the emulator's physics, standing in for the
+motion-capture tracker a real setup needs (``HardwareBackend(tracker=...)``).
+
+    env = gym.make("lowcostdex/DClawTurnValve-v0", backend="emulated")
+    env = gym.make("lowcostdex/DClawTurnValve-v0", backend="hardware", port="/dev/ttyUSB0")
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.hardware.bus import MotorBus
+from lowcostdex.hardware.hands import HandSpec
+from lowcostdex.hardware.reset import DClawReset, ResetConfig, ResetReport
+from lowcostdex.hardware.robot import Robot, RobotConfig
+from lowcostdex.sim.effects import AppliedEffect
+from lowcostdex.sim.envs.backend import Backend
+
+log = logging.getLogger(__name__)
+
+EEPROM_MARGIN = 0.05  # [rad] EEPROM position limits beyond the mechanical range
+
+Tracker = Callable[[], tuple[np.ndarray, np.ndarray]]
+"""() -> (block position (3,) [m], quaternion (4,) (w, x, y, z)) in the env model's frame."""
+
+
+def default_effects(joints: Sequence[str]) -> list[AppliedEffect]:
+    """A plausible set of servo effects for an emulated D'Claw (small; a gap to find).
+
+    4 ms command latency, 0.4 deg gear backlash and 0.02 N m extra joint friction on every
+    finger joint.
+    """
+    joints = tuple(joints)
+    return [AppliedEffect("latency", joints, {"delay": 0.004}),
+            AppliedEffect("backlash", joints, {"width": math.radians(0.4)}),
+            AppliedEffect("coulomb_friction", joints, {"frictionloss": 0.02})]
+
+
+def robot_hand(hand: HandSpec, model: mujoco.MjModel) -> HandSpec:
+    """The hand spec restricted to auxiliary motors present in ``model`` (no valve motor on
+    the block station)."""
+    names = {model.actuator(i).name for i in range(model.nu)}
+    return dataclasses.replace(hand, aux_joints=tuple(j for j in hand.aux_joints
+                                                      if j.name in names))
+
+
+class RobotBackend(Backend):
+    """A task on a Robot, with auto-reset and the encoder mirror.
+
+    Args:
+      model: the env's compiled model (the mirror's).
+      task: the bound task.
+      robot: a Robot (not yet connected) for the task's hand.
+      reset_config: auto-reset tolerances and bounds.
+      tracker: pose source of a free object (block), if the task has one.
+    """
+
+    real_time = True
+
+    def __init__(self, model: mujoco.MjModel, task: Any, robot: Robot,
+                 reset_config: ResetConfig = ResetConfig(), tracker: Tracker | None = None):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.task = task
+        self.robot = robot
+        period = task.timing.frame_skip * model.opt.timestep
+        if not math.isclose(period, robot.config.control_period, rel_tol=1e-9):
+            raise ConfigError(f"task control period {period} s != robot control period "
+                              f"{robot.config.control_period} s")
+        self._act = robot.index(task.hand.joint_names)
+        valve = "valve" if "valve" in robot.joint_names else None
+        self._valve = robot.index([valve])[0] if valve else None
+        self.resetter = DClawReset(robot, reset_config, valve=valve)
+        self.tracker = tracker
+        self.last_reset: ResetReport | None = None
+        self.stale_steps = 0
+        self._block = None
+        if "block" in [model.joint(i).name for i in range(model.njnt)]:
+            adr = int(model.jnt_qposadr[model.joint("block").id])
+            self._block = np.arange(adr, adr + 7)
+        robot.connect()
+
+    # -- Backend --------------------------------------------------------------------------------
+    def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        """Thermal pause if due, verified auto-reset to ``qpos``, fingers torque on."""
+        t = self.task
+        valve_target = float(qpos[t.obj_qpos]) if self._valve is not None else None
+        self.last_reset = self.resetter(np.asarray(qpos)[t.hand_qpos], valve_target)
+        self.robot.torque(True, t.hand.joint_names)
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = 0.0
+        self._mirror(self.robot.read())
+        self.robot.rate.restart()
+
+    def apply(self, goal: np.ndarray, nstep: int) -> None:
+        """Send the hand's goals (nu,) -> the action joints; wait one period; mirror."""
+        frame_skip = self.task.timing.frame_skip
+        if nstep != frame_skip:
+            raise ConfigError(f"a robot steps whole control periods ({frame_skip} substeps), "
+                              f"got nstep={nstep}")
+        state = self.robot.step(np.asarray(goal)[self.task.hand_act], self.task.hand.joint_names)
+        self._mirror(state)
+
+    def passive_step(self) -> None:
+        """Wait one control period without commanding (demonstrations), then mirror."""
+        self.robot.wait()
+        self._mirror(self.robot.read())
+
+    def telemetry(self) -> dict[str, Any]:
+        out = self.robot.telemetry()
+        if self.last_reset is not None:
+            out["last_reset_time"] = self.last_reset.duration
+            out["last_reset_attempts"] = self.last_reset.attempts
+        out["stale_steps"] = self.stale_steps
+        return out
+
+    def close(self) -> None:
+        self.robot.close()
+
+    # -- mirror ---------------------------------------------------------------------------------
+    def _mirror(self, state) -> None:
+        """Copy encoder readings into the mirror (invalid readings keep the previous value)."""
+        t, d = self.task, self.data
+        if not np.all(state.valid):
+            self.stale_steps += 1
+        pos = np.where(state.valid, state.position, np.nan)
+        vel = np.where(state.valid, state.velocity, np.nan)
+        q, v = d.qpos, d.qvel
+        q[t.hand_qpos] = np.where(np.isfinite(pos[self._act]), pos[self._act], q[t.hand_qpos])
+        v[t.hand_dof] = np.where(np.isfinite(vel[self._act]), vel[self._act], v[t.hand_dof])
+        if self._valve is not None:
+            k = self._valve
+            if np.isfinite(pos[k]):
+                q[t.obj_qpos] = pos[k]
+                v[t.obj_dof] = vel[k] if np.isfinite(vel[k]) else 0.0
+        if self._block is not None and self.tracker is not None:
+            p, quat = self.tracker()
+            q[self._block[:3]], q[self._block[3:]] = p, quat
+        mujoco.mj_forward(self.model, d)
+
+
+class EmulatedBackend(RobotBackend):
+    """The task on an emulated D'Claw behind an in-process dynamixel_sdk port.
+
+    Args:
+      model, task, rng: as every backend (``cls(model, task=task, rng=rng, **kwargs)``).
+      effects: servo effects of the emulated robot (default ``default_effects``); ``()`` for a
+        nominal one.
+      faults: ``emulator.FaultConfig`` for the status packets (default none).
+      robot_config: Robot settings (the control period is the task's).
+      reset_config: auto-reset settings.
+      start_qpos: the emulated robot's pose when it powers up (default the model's qpos0).
+      chain_kwargs: more ``emulator.EmulatedChain`` options (baudrate, supply_resistance, ...).
+    """
+
+    def __init__(self, model: mujoco.MjModel, task: Any = None,
+                 rng: np.random.Generator | None = None,
+                 effects: Sequence[AppliedEffect] | None = None, faults: Any = None,
+                 robot_config: RobotConfig | None = None,
+                 reset_config: ResetConfig = ResetConfig(),
+                 start_qpos: np.ndarray | None = None, **chain_kwargs: Any):
+        from lowcostdex.hardware.emulator import FaultConfig, emulated_dclaw
+
+        if task is None:
+            raise ConfigError("EmulatedBackend needs the task (it builds the task's station)")
+        rng = rng if rng is not None else np.random.default_rng(0)
+        hand = robot_hand(task.hand, model)
+        if effects is None:
+            effects = default_effects(task.hand.joint_names)
+        self.chain = emulated_dclaw(task.station, hand=hand, effects=list(effects), rng=rng,
+                                    qpos=start_qpos, faults=faults or FaultConfig(),
+                                    **chain_kwargs)
+        self.effects = list(effects)
+        port = self.chain.port()
+        bus = make_dynamixel_bus(hand, port, model)
+        config = _robot_config(robot_config, task, model)
+        robot = Robot(hand, bus, config)
+        tracker = self._physics_tracker() if task.station == "block" else None
+        super().__init__(model, task, robot, reset_config, tracker)
+
+    def _physics_tracker(self) -> Tracker:
+        plant = self.chain.plant
+        adr = int(plant.model.jnt_qposadr[plant.model.joint("block").id])
+
+        def track() -> tuple[np.ndarray, np.ndarray]:
+            q = plant.data.qpos
+            return q[adr:adr + 3].copy(), q[adr + 3:adr + 7].copy()
+
+        return track
+
+    def telemetry(self) -> dict[str, Any]:
+        out = super().telemetry()
+        out["bus_time"] = self.chain.now
+        return out
+
+
+class HardwareBackend(RobotBackend):
+    """The task on a real D'Claw on a serial port (U2D2 or any dynamixel_sdk port).
+
+    Args:
+      model, task, rng: as every backend.
+      port: serial device path, e.g. "/dev/ttyUSB0" (a pty from ``lowcostdex emulate`` works).
+      baudrate: line rate [bit/s].
+      hand: hand spec with this robot's calibration (default the task's).
+      robot_config, reset_config: as ``EmulatedBackend``.
+      tracker: block pose source for the flip task (motion capture); required for that task.
+      bus_kwargs: more ``DynamixelBus`` options.
+    """
+
+    def __init__(self, model: mujoco.MjModel, task: Any = None,
+                 rng: np.random.Generator | None = None, *, port: str | None = None,
+                 baudrate: int = 1_000_000, hand: HandSpec | None = None,
+                 robot_config: RobotConfig | None = None,
+                 reset_config: ResetConfig = ResetConfig(), tracker: Tracker | None = None,
+                 **bus_kwargs: Any):
+        if task is None or port is None:
+            raise ConfigError("HardwareBackend needs the task and port=... (e.g. /dev/ttyUSB0)")
+        if task.station == "block" and tracker is None:
+            raise ConfigError("the flip-block task on hardware needs tracker=... (a function "
+                              "returning the block's position and quaternion)")
+        hand = robot_hand(hand or task.hand, model)
+        bus = make_dynamixel_bus(hand, port, model, baudrate=baudrate, **bus_kwargs)
+        robot = Robot(hand, bus, _robot_config(robot_config, task, model))
+        super().__init__(model, task, robot, reset_config, tracker)
+
+
+def _robot_config(config: RobotConfig | None, task: Any, model: mujoco.MjModel) -> RobotConfig:
+    period = task.timing.frame_skip * model.opt.timestep
+    return dataclasses.replace(config or RobotConfig(), control_period=period)
+
+
+def motor_limits(hand: HandSpec, model: mujoco.MjModel | None = None,
+                 margin: float = EEPROM_MARGIN) -> tuple[tuple[float, float], ...]:
+    """Min/Max Position Limits for the motors [rad, motor angle], joints then aux motors.
+
+    The second safety layer, in the motors' EEPROM: the joint's mechanical range from the model
+    plus ``margin`` [rad] (a joint resting on its stop must still accept torque), or, without
+    a model, the policy limits widened by ``margin``. The Robot's gate keeps every goal inside
+    the policy limits; the wider EEPROM range lets a joint that contacts pushed past its policy
+    limit while limp be torqued and pulled back in, and still stops a runaway host at the
+    mechanical stops. Joints spanning a full turn (the valve) keep their limits.
+    """
+    names = {model.joint(i).name for i in range(model.njnt)} if model is not None else set()
+    out = []
+    for j in hand.all_joints:
+        lo, hi = j.low - margin, j.high + margin
+        if j.name in names and model.jnt_limited[model.joint(j.name).id]:
+            mech = model.jnt_range[model.joint(j.name).id]
+            lo, hi = min(j.low, mech[0] - margin), max(j.high, mech[1] + margin)
+        if hi - lo >= 2 * math.pi:
+            lo, hi = j.low, j.high
+        a, b = sorted((j.calibration.to_motor(lo), j.calibration.to_motor(hi)))
+        out.append((max(a, 0.0), min(b, 2 * math.pi)))
+    return tuple(out)
+
+
+def make_dynamixel_bus(hand: HandSpec, port: Any, model: mujoco.MjModel | None = None,
+                       **kwargs: Any) -> MotorBus:
+    """The Dynamixel driver for ``hand`` on ``port`` (a device path or an emulated port), with
+    EEPROM position limits from ``motor_limits`` unless ``position_limits`` is given."""
+    from lowcostdex.hardware.dynamixel import DynamixelBus
+
+    kwargs.setdefault("position_limits", motor_limits(hand, model))
+    return DynamixelBus.from_hand(hand, port, **kwargs)
