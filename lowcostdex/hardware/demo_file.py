@@ -1,0 +1,235 @@
+"""The demonstration dataset: HDF5, one group per episode, appended episode by episode.
+
+Layout (Minari's per-episode layout, plus the raw robot readings), no pickle anywhere::
+
+    /                              attrs: format="lowcostdex-demos", format_version=1,
+                                          env_id, task, hand (hand spec JSON), source,
+                                          control_period [s], obs_dim, act_dim,
+                                          action_joints (JSON list), total_episodes, total_steps
+    /episode_<k>/                  attrs: id, total_steps, success, seed, reset_time [s],
+                                          reset_attempts, source
+        observations   (T+1, obs_dim) float64   o_0 .. o_T (the last one follows the last action)
+        actions        (T, act_dim)   float64   a_t = goal_to_action(q_{t+1}) in [-1, 1]
+        rewards        (T,)           float64   the task's reward for (o_t, a_t)
+        terminations   (T,)           bool
+        truncations    (T,)           bool      True at the last step (time limit)
+        infos/qpos     (T+1, nq)      float64   the env model's qpos as the encoders reported it
+        infos/qvel     (T+1, nv)      float64
+        infos/time     (T+1,)         float64   robot clock [s]
+        infos/success  (T,)           bool
+        goal/<key>     task goal arrays (e.g. goal/angle [rad])
+
+Crash safety: the file is opened, one finished episode is written and flushed, the totals are
+updated, and the file is closed again, so between episodes (and during recording) it is a
+complete, consistent HDF5 file; a crash loses at most the episode being recorded.
+``read_demo_pairs`` is what ``lowcostdex.algos.demos.load_demos`` calls for these files.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from lowcostdex.errors import ConfigError
+
+FORMAT = "lowcostdex-demos"
+FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class DatasetInfo:
+    """File-level metadata; must match when appending to an existing file.
+
+    Attributes:
+      env_id: gymnasium id the demos are for.
+      task: task class name.
+      hand: hand spec JSON.
+      source: "kinesthetic" (a person) or "virtual_teacher" (the emulator's scripted teacher).
+      control_period: [s].
+      obs_dim, act_dim: observation and action lengths.
+      action_joints: joint names in action order.
+    """
+
+    env_id: str
+    task: str
+    hand: str
+    source: str
+    control_period: float
+    obs_dim: int
+    act_dim: int
+    action_joints: tuple[str, ...]
+
+    def attrs(self) -> dict:
+        return {"env_id": self.env_id, "task": self.task, "hand": self.hand,
+                "source": self.source, "control_period": self.control_period,
+                "obs_dim": self.obs_dim, "act_dim": self.act_dim,
+                "action_joints": json.dumps(list(self.action_joints))}
+
+    @classmethod
+    def from_attrs(cls, a) -> DatasetInfo:
+        return cls(str(a["env_id"]), str(a["task"]), str(a["hand"]), str(a["source"]),
+                   float(a["control_period"]), int(a["obs_dim"]), int(a["act_dim"]),
+                   tuple(json.loads(a["action_joints"])))
+
+
+@dataclass
+class Episode:
+    """One recorded episode (arrays as in the module docstring).
+
+    Attributes:
+      observations: (T+1, obs_dim).
+      actions: (T, act_dim).
+      rewards: (T,).
+      qpos: (T+1, nq); qvel: (T+1, nv); time: (T+1,).
+      success: (T,) bool.
+      goal: task goal arrays.
+      seed: reset seed; reset_time [s]; reset_attempts.
+      terminated: the last step ended the episode by a terminal state (not the time limit).
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    time: np.ndarray
+    success: np.ndarray
+    goal: dict[str, np.ndarray] = field(default_factory=dict)
+    seed: int = -1
+    reset_time: float = float("nan")
+    reset_attempts: int = 0
+    terminated: bool = False
+
+    def __post_init__(self) -> None:
+        t = len(self.actions)
+        shapes = {"observations": len(self.observations), "qpos": len(self.qpos),
+                  "qvel": len(self.qvel), "time": len(self.time)}
+        bad = {k: n for k, n in shapes.items() if n != t + 1}
+        if bad or len(self.rewards) != t or len(self.success) != t:
+            raise ConfigError(f"episode arrays inconsistent with {t} actions: {bad}, rewards "
+                              f"{len(self.rewards)}, success {len(self.success)}")
+
+    @property
+    def length(self) -> int:
+        return len(self.actions)
+
+
+class DemoWriter:
+    """Appends episodes to an HDF5 demo file (created on the first append).
+
+    Args:
+      path: the file.
+      info: its metadata; an existing file must carry the same.
+    """
+
+    def __init__(self, path: str | Path, info: DatasetInfo):
+        self.path = Path(path)
+        self.info = info
+        if self.path.exists():
+            with h5py.File(self.path, "r") as f:
+                _check_format(f, self.path)
+                old = DatasetInfo.from_attrs(f.attrs)
+            if (old.obs_dim, old.act_dim, old.action_joints, old.env_id) != (
+                    info.obs_dim, info.act_dim, info.action_joints, info.env_id):
+                raise ConfigError(f"{self.path} holds demos for {old.env_id} (obs {old.obs_dim},"
+                                  f" act {old.act_dim}); cannot append {info.env_id} (obs "
+                                  f"{info.obs_dim}, act {info.act_dim})")
+
+    def append(self, ep: Episode) -> int:
+        """Write one finished episode; returns its id."""
+        if ep.observations.shape[1] != self.info.obs_dim or \
+                ep.actions.shape[1] != self.info.act_dim:
+            raise ConfigError(f"episode shapes {ep.observations.shape}, {ep.actions.shape} do "
+                              f"not match obs_dim {self.info.obs_dim}, act_dim "
+                              f"{self.info.act_dim}")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with h5py.File(self.path, "a") as f:
+            if "format" not in f.attrs:
+                f.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION,
+                                "total_episodes": 0, "total_steps": 0, **self.info.attrs()})
+            k = int(f.attrs["total_episodes"])
+            name = f"episode_{k}"
+            if name in f:  # an episode a crash left half-written: replace it
+                del f[name]
+            g = f.create_group(name)
+            g.create_dataset("observations", data=np.asarray(ep.observations, np.float64))
+            g.create_dataset("actions", data=np.asarray(ep.actions, np.float64))
+            g.create_dataset("rewards", data=np.asarray(ep.rewards, np.float64))
+            term = np.zeros(ep.length, bool)
+            trunc = np.zeros(ep.length, bool)
+            if ep.length:
+                term[-1] = ep.terminated
+                trunc[-1] = not ep.terminated
+            g.create_dataset("terminations", data=term)
+            g.create_dataset("truncations", data=trunc)
+            infos = g.create_group("infos")
+            for key in ("qpos", "qvel", "time"):
+                infos.create_dataset(key, data=np.asarray(getattr(ep, key), np.float64))
+            infos.create_dataset("success", data=np.asarray(ep.success, bool))
+            goal = g.create_group("goal")
+            for key, value in ep.goal.items():
+                goal.create_dataset(key, data=np.asarray(value, np.float64))
+            g.attrs.update({"id": k, "total_steps": ep.length,
+                            "success": bool(ep.success[-1]) if ep.length else False,
+                            "seed": int(ep.seed), "reset_time": float(ep.reset_time),
+                            "reset_attempts": int(ep.reset_attempts),
+                            "source": self.info.source})
+            f.flush()
+            f.attrs["total_episodes"] = k + 1
+            f.attrs["total_steps"] = int(f.attrs["total_steps"]) + ep.length
+            f.flush()
+        return k
+
+
+def _check_format(f: h5py.File, path: Path) -> None:
+    fmt = f.attrs.get("format")
+    if fmt != FORMAT:
+        raise ConfigError(f"{path} is not a {FORMAT} file (format attribute {fmt!r})")
+    version = int(f.attrs.get("format_version", -1))
+    if version > FORMAT_VERSION:
+        raise ConfigError(f"{path} has format version {version}; this lowcostdex reads up to "
+                          f"{FORMAT_VERSION}")
+
+
+def read_info(path: str | Path) -> tuple[DatasetInfo, int, int]:
+    """(metadata, total episodes, total steps) of a demo file."""
+    path = Path(path)
+    with h5py.File(path, "r") as f:
+        _check_format(f, path)
+        return (DatasetInfo.from_attrs(f.attrs), int(f.attrs["total_episodes"]),
+                int(f.attrs["total_steps"]))
+
+
+def read_episodes(path: str | Path, only_successful: bool = False) -> list[Episode]:
+    """Every complete episode in the file (those counted in ``total_episodes``)."""
+    path = Path(path)
+    out = []
+    with h5py.File(path, "r") as f:
+        _check_format(f, path)
+        for k in range(int(f.attrs["total_episodes"])):
+            g = f[f"episode_{k}"]
+            if only_successful and not bool(g.attrs["success"]):
+                continue
+            infos = g["infos"]
+            out.append(Episode(
+                observations=g["observations"][()], actions=g["actions"][()],
+                rewards=g["rewards"][()], qpos=infos["qpos"][()], qvel=infos["qvel"][()],
+                time=infos["time"][()], success=infos["success"][()],
+                goal={key: g["goal"][key][()] for key in g["goal"]},
+                seed=int(g.attrs["seed"]), reset_time=float(g.attrs["reset_time"]),
+                reset_attempts=int(g.attrs["reset_attempts"]),
+                terminated=bool(g["terminations"][-1]) if len(g["actions"]) else False))
+    return out
+
+
+def read_demo_pairs(path: str | Path, only_successful: bool = False
+                    ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """[(observations (T, obs_dim), actions (T, act_dim)), ...] for BC/DAPG.
+
+    The observation paired with ``a_t`` is ``o_t``; the final observation ``o_T`` is dropped.
+    """
+    return [(ep.observations[:-1], ep.actions) for ep in read_episodes(path, only_successful)]
