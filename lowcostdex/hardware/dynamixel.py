@@ -27,13 +27,17 @@ write, clipped to the position limits first.
 
 Errors: every status error byte is decoded. The alert bit means a latched hardware error, not a
 failed instruction: the data is used and Hardware Error Status (70) is read and reported by name
-(``MotorState.hardware_error``, ``bus.faults``). A missing, corrupt or contaminated reply (a
-transaction that consumed more status packets than it asked for, e.g. a late reply to an earlier
-request) makes that motor invalid in this read (NaN, ``valid`` False) - never the previous value.
-Missing motors are retried once (``read_retries``) with the failing ids last; after a failure the
-driver waits ``settle_ms`` before the next transaction so late bytes drain. After
-``max_invalid_reads`` consecutive invalid reads of a motor, ``read_state`` raises ``BusError``.
-Unicast reads/writes retry ``retries`` times, then raise. ``reboot`` clears a latched error.
+(``MotorState.hardware_error``, ``bus.faults``). A missing or corrupt reply makes that motor
+invalid in this read (NaN, ``valid`` False) - never the previous value. Protocol 2.0 status
+packets carry no sequence number, so a *late* reply to an earlier request looks fresh; two
+defences: after any failed transaction the driver waits ``settle_ms`` (default 10 ms) before the
+next one, so late bytes arrive and are flushed by the SDK's ``clearPort``; and a transaction that
+consumed more status packets than it asked for, or left bytes waiting, is discarded whole. A reply
+later than the status timeout plus ``settle_ms`` that lands in the slot of a reply that is itself
+missing cannot be told apart. Missing motors are retried once (``read_retries``), motors that timed
+out last (so a dead motor does not take the replies after it along). After ``max_invalid_reads``
+consecutive invalid reads of a motor, ``read_state`` raises ``BusError``. Unicast reads/writes retry
+``retries`` times, then raise. ``reboot`` clears a latched error.
 
 Lifecycle: torque off on ``disconnect`` (context-manager exit, also on exceptions), on SIGINT /
 SIGTERM (then the previous handler runs) and at interpreter exit. If the host dies without any of
@@ -78,11 +82,9 @@ from lowcostdex.hardware.protocol import (
     ALERT,
     BROADCAST_ID,
     HEADER,
-    STATUS,
     ErrorNumber,
     hardware_error_names,
     le_bytes,
-    parse_packets,
     status_error_text,
     to_signed,
 )
@@ -262,6 +264,7 @@ class DynamixelBus(MotorBus):
         self._lo = np.zeros(len(self.ids), np.int64)
         self._hi = np.full(len(self.ids), 4095, np.int64)
         self._streak = np.zeros(len(self.ids), int)
+        self._silent: set[int] = set()  # ids that timed out in their last read: read them last
         self._hw_cache: dict[int, tuple[int, float]] = {}
         self.faults: dict[int, tuple[str, ...]] = {}
         self.firmware: dict[int, int] = {}
@@ -430,7 +433,7 @@ class DynamixelBus(MotorBus):
         self.fast_read = mode == "on"
         if mode == "auto":
             valid, _, _ = self._read_block(self.ids, fast=True)
-            self.fast_read = bool(np.all(valid))
+            self.fast_read = all(valid.values())
             self._dirty = False
         log.info("fast sync read %s", "on" if self.fast_read else "off")
 
@@ -440,19 +443,24 @@ class DynamixelBus(MotorBus):
         self._require_connected()
         self._check_watchdog_gap()
         n = len(self.ids)
-        # motors that failed recently go last, so a dead one does not take the others with it
-        order = tuple(self.ids[k] for k in np.argsort(self._streak > 0, kind="stable"))
+        # motors that timed out last time go last, so a dead one does not take the others along
+        order = tuple(sorted(self.ids, key=lambda i: i in self._silent))
         valid, err, raw = self._read_block(order, fast=self.fast_read)
-        for _ in range(self.config.read_retries):
+        attempts = 0
+        while attempts < self.config.read_retries:
             missing = [i for i in order if not valid[i]]
             if not missing:
                 break
             self.stats.retries += 1
-            fresh = sorted(missing, key=lambda i: self._streak[self._index[i]] > 0)
+            silent = len(self._silent)
+            fresh = sorted(missing, key=lambda i: i in self._silent)
             v2, e2, r2 = self._read_block(tuple(fresh), fast=False)
             for i in fresh:
                 if v2[i]:
                     valid[i], err[i], raw[i] = True, e2[i], r2[i]
+            # a retry that found a new silent motor is free (it is read last next time);
+            # bounded, since that can happen at most once per motor
+            attempts += len(self._silent) == silent
         t = self.clock()
         ok = np.array([valid[i] for i in self.ids])
         buf = b"".join(raw[i] if valid[i] else bytes(self._block_len) for i in self.ids)
@@ -547,7 +555,6 @@ class DynamixelBus(MotorBus):
                     f"motor {i} is at tick {g}, outside its limits [{self._lo[k]}, {self._hi[k]}];"
                     " move it inside (torque off) before enabling torque")
             goals[i] = g
-        wd = self.config.watchdog_ms // 20
         for i in ids:
             self.write_register(i, Reg.BUS_WATCHDOG, 0)
             self.write_register(i, Reg.GOAL_POSITION, goals[i])
@@ -561,10 +568,27 @@ class DynamixelBus(MotorBus):
                                      f"motor {i} refused torque: latched hardware error "
                                      f"({', '.join(hardware_error_names(bits))}); reboot it") from exc
                 raise
-            if wd:
-                self.write_register(i, Reg.BUS_WATCHDOG, wd)
             self._torque_ids.add(i)
             self.watchdog_tripped.discard(i)
+        self._arm_watchdog(ids)
+
+    def _arm_watchdog(self, ids: tuple[int, ...]) -> None:
+        """Arm every motor's Bus Watchdog with one broadcast SYNC_WRITE, so all timers start
+        together (one by one, the first motors would wait through the others' transactions),
+        then confirm with one sync read, falling back to unicast writes."""
+        wd = self.config.watchdog_ms // 20
+        if not wd:
+            return
+        addr = self._addr[Reg.BUS_WATCHDOG]
+        for _ in range(self.config.retries + 1):
+            self._begin()
+            params = [b for i in ids for b in (i, wd)]
+            self.ph.syncWriteTxOnly(self.port, addr, 1, params, len(params))
+            valid, _, raw = self._sync_read(ids, addr, 1, fast=False)
+            if all(valid[i] and raw[i][0] == wd for i in ids):
+                return
+        for i in ids:
+            self.write_register(i, Reg.BUS_WATCHDOG, wd)
 
     def reboot(self, motor_id: int) -> None:
         """REBOOT a motor (clears latched hardware errors; torque is off afterwards) and wait
@@ -694,14 +718,19 @@ class DynamixelBus(MotorBus):
     def _read_block(self, ids: tuple[int, ...], fast: bool
                     ) -> tuple[dict[int, bool], dict[int, int], dict[int, bytes]]:
         """One (fast) sync read of the present block of ``ids``: validity, error byte, data."""
-        n, length = len(ids), self._block_len
+        return self._sync_read(ids, self._block_addr, self._block_len, fast)
+
+    def _sync_read(self, ids: tuple[int, ...], address: int, length: int, fast: bool
+                   ) -> tuple[dict[int, bool], dict[int, int], dict[int, bytes]]:
+        """One (fast) sync read of ``length`` bytes at ``address``: validity, error byte, data."""
+        n = len(ids)
         valid = dict.fromkeys(ids, False)
         err: dict[int, int] = dict.fromkeys(ids, -1)
         raw: dict[int, bytes] = {}
         self._begin()
         self.stats.transactions += 1
         self.stats.reads += 1
-        result = self.ph.syncReadTx(self.port, self._block_addr, length, list(ids), n, fast)
+        result = self.ph.syncReadTx(self.port, address, length, list(ids), n, fast)
         if result != COMM_SUCCESS:
             self.port.is_using = False
             self._dirty = True
@@ -723,49 +752,27 @@ class DynamixelBus(MotorBus):
                 valid = dict.fromkeys(ids, False)
             self._count_failure(result)
         else:
-            answered = 0
+            packets = 0
             for i in ids:
                 data, result, e = self.ph.readRx(self.port, i, length)
                 if result == COMM_SUCCESS and len(data) == length:
-                    answered += 1
+                    packets += 1
                     err[i], raw[i] = e, bytes(data)
                     valid[i] = not e & 0x7F
+                    self._silent.discard(i)
                 else:
                     self._count_failure(result)
                     if result != COMM_RX_CORRUPT:
-                        break  # timed out: the SDK consumed (and dropped) the later replies
-                    answered += 1
-            if not (answered == n and self._end(n)):
-                self._recover(ids, valid, err, raw)
+                        self._silent.add(i)
+                        break  # timed out: later replies were consumed looking for this one
+                    packets += 1
+            # Accept only a transaction that consumed no packet it did not ask for: a late reply
+            # to an earlier read (there is no sequence number) would otherwise pass as fresh.
+            if not self._end(packets):
+                valid = dict.fromkeys(ids, False)
         if not all(valid.values()):
             self._dirty = True
         return valid, err, raw
-
-    def _recover(self, ids: tuple[int, ...], valid: dict[int, bool], err: dict[int, int],
-                 raw: dict[int, bytes]) -> None:
-        """After a sync read that lost or corrupted replies, re-read what arrived.
-
-        The status packets the transaction consumed (``rx_trace``) are parsed; if they are the
-        requested ids in the requested order, each at most once, every intact one is fresh and is
-        kept, including those the SDK discarded while waiting for a missing motor. Anything else
-        (a duplicate or out-of-order id: a late reply to an earlier request; bytes still waiting)
-        invalidates the whole read.
-        """
-        position = {i: k for k, i in enumerate(ids)}
-        packets = [p for p in parse_packets(bytes(self.port.rx_trace))
-                   if p.crc_ok and p.instruction == STATUS]
-        order = [position.get(p.id, -1) for p in packets]
-        clean = (all(b > a for a, b in zip([-1] + order, order, strict=False))
-                 and self.port.getBytesAvailable() == 0)
-        if not clean:
-            self.stats.contaminated += 1
-            for i in ids:
-                valid[i] = False
-            return
-        for p in packets:
-            if not valid[p.id] and len(p.params) == self._block_len + 1:
-                err[p.id], raw[p.id] = p.error, p.data
-                valid[p.id] = not p.error & 0x7F
 
     def _count_failure(self, result: int) -> None:
         if result == COMM_RX_CORRUPT:

@@ -452,7 +452,7 @@ class MotorFirmware:
         if not self.torque_on:
             return
         if self.watchdog_period > 0 and now - self.last_rx > self.watchdog_period:
-            self._trip_watchdog(state)
+            self._trip_watchdog(state, now - self.last_rx)
         if self.setpoint != self.target or self.setpoint_velocity:
             self._profile(dt)
         if self.setpoint != self._goal_sent:
@@ -479,14 +479,15 @@ class MotorFirmware:
             self.setpoint += step
             self.setpoint_velocity = v
 
-    def _trip_watchdog(self, state: DriveState) -> None:
+    def _trip_watchdog(self, state: DriveState, silence: float) -> None:
         self.watchdog_error = True
         self.mem[self.table.address(Reg.BUS_WATCHDOG)] = 0xFF
         self._cache()
         stop = self._encoder(float(state.q[self.index]))
         self.target = self.setpoint = stop
         self.setpoint_velocity = 0.0
-        self.sink.on_event(self.id, "watchdog", f"stopped at {round(stop + self.homing)}")
+        self.sink.on_event(self.id, "watchdog",
+                           f"stopped at {round(stop + self.homing)} after {silence:.4f} s silent")
 
     def raise_hardware_error(self, bits: int, state: DriveState | None = None) -> None:
         """Latch hardware error ``bits``; torque drops if Shutdown selects one of them."""
