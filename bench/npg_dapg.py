@@ -137,7 +137,9 @@ def run_one(config: TrainConfig, out: Path, target: float, extra: int) -> dict[s
     }
 
 
-def record_demos(task: Task, out: Path, n: int, npg_expert: Path | None) -> Path | None:
+def record_demos(
+    task: Task, out: Path, n: int, npg_expert: Path | None, noise: float
+) -> Path | None:
     env = gym.make(task.env_id)
     if task.teacher == "valve":
         teacher = ScriptedValveTeacher()
@@ -145,7 +147,7 @@ def record_demos(task: Task, out: Path, n: int, npg_expert: Path | None) -> Path
         teacher = PolicyTeacher(npg_expert)
     else:
         return None
-    episodes = teacher_episodes(env, teacher, seeds=range(10_000, 10_000 + n))
+    episodes = teacher_episodes(env, teacher, seeds=range(10_000, 10_000 + n), action_noise=noise)
     env.close()
     return save_demos(out / "demos.npz", episodes)
 
@@ -196,6 +198,12 @@ def main() -> None:
     p.add_argument("--gae-lambda", type=float, default=TrainConfig().gae_lambda)
     p.add_argument("--hidden", type=int, nargs="*", default=list(TrainConfig().policy.hidden_sizes))
     p.add_argument("--init-log-std", type=float, default=TrainConfig().policy.init_log_std)
+    p.add_argument("--bc-epochs", type=int, default=TrainConfig().bc.epochs)
+    p.add_argument("--lam0", type=float, default=TrainConfig().dapg.lam0)
+    p.add_argument("--lam1", type=float, default=TrainConfig().dapg.lam1)
+    p.add_argument(
+        "--demo-noise", type=float, default=0.0, help="executed-action noise while recording"
+    )
     p.add_argument("--eval-every", type=int, default=10)
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument("--out", default="bench_runs/npg_dapg")
@@ -212,7 +220,8 @@ def main() -> None:
         "",
         f"Settings: {args.n_traj} trajectories/iteration, delta {args.step_size}, damping {args.damping}, "
         f"gamma {args.gamma}, GAE {args.gae_lambda}, policy {tuple(args.hidden)}, init log-std "
-        f"{args.init_log_std}, {args.n_demos} demos, budget {args.max_samples / 1e3:.0f}k samples, "
+        f"{args.init_log_std}, {args.n_demos} demos (recording noise {args.demo_noise}), BC "
+        f"{args.bc_epochs} epochs, DAPG lam0 {args.lam0} lam1 {args.lam1}, budget {args.max_samples / 1e3:.0f}k samples, "
         f"{args.seeds} seeds. Success = training (stochastic) policy; eval = mean action, "
         f"{args.eval_episodes} episodes.",
         "",
@@ -235,7 +244,7 @@ def main() -> None:
             expert = out_root / name / "npg_0"
             has_expert = "npg" in results and not math.isnan(results["npg"][0]["samples_to_target"])
             demos = record_demos(
-                task, out_root / name, args.n_demos, expert if has_expert else None
+                task, out_root / name, args.n_demos, expert if has_expert else None, args.demo_noise
             )
             if demos is None:
                 report += [
@@ -246,7 +255,13 @@ def main() -> None:
                 results["dapg"] = []
                 for seed in range(args.seeds):
                     cfg = dataclasses.replace(
-                        base_config(args, task.env_id, seed), algo="dapg", demos=str(demos)
+                        base_config(args, task.env_id, seed),
+                        algo="dapg",
+                        demos=str(demos),
+                        bc=dataclasses.replace(TrainConfig().bc, epochs=args.bc_epochs),
+                        dapg=dataclasses.replace(
+                            TrainConfig().dapg, lam0=args.lam0, lam1=args.lam1
+                        ),
                     )
                     r = run_one(
                         cfg, out_root / name / f"dapg_{seed}", args.target, args.extra_iters

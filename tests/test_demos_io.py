@@ -41,3 +41,15 @@ def test_teacher_episodes_keep_successful_runs():
         np.testing.assert_allclose(act[0], expert_action(obs[0]))
     with pytest.raises(ConfigError, match="failed"):
         teacher_episodes(env, lambda e, obs: np.array([1.0]), seeds=[1], max_tries=2)
+
+
+def test_noisy_execution_keeps_clean_teacher_labels():
+    env = make_pointmass()
+    clean = teacher_episodes(env, lambda e, obs: expert_action(obs), seeds=[4])
+    noisy = teacher_episodes(env, lambda e, obs: expert_action(obs), seeds=[4], action_noise=0.3)
+    again = teacher_episodes(env, lambda e, obs: expert_action(obs), seeds=[4], action_noise=0.3)
+    (o1, _), (o2, a2), (o3, _) = clean[0], noisy[0], again[0]
+    np.testing.assert_array_equal(o2, o3)  # the noise is seeded by the episode seed
+    assert not np.allclose(o1, o2)  # the noise changed the visited states ...
+    for obs, act in zip(o2, a2, strict=True):  # ... but the labels are the teacher's actions
+        np.testing.assert_allclose(act, expert_action(obs))

@@ -137,16 +137,25 @@ def teacher_episodes(
     seeds: Sequence[int],
     only_successful: bool = True,
     max_tries: int = 4,
+    action_noise: float = 0.0,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Record one demonstration per seed by running ``teacher`` in ``env``.
+
+    With ``action_noise > 0`` the env executes the teacher's action plus uniform noise in
+    [-action_noise, action_noise] (per dimension, clipped to [-1, 1]) while the recorded label is
+    the teacher's own action: the demonstrations then also show how to recover from the small
+    deviations a cloned policy makes (the DAPG authors added +-0.1 rad actuator noise while
+    collecting for the same reason; labelling the clean action is DART, Laskey et al. 2017).
 
     Args:
       env: the environment (reset with each seed; its reset info and observations are used).
       teacher: (env, observation) -> action.
-      seeds: reset seeds, one episode each.
+      seeds: reset seeds, one episode each; the noise of an episode is drawn from a generator
+        seeded with the same seed.
       only_successful: keep an episode only if ``info["success"]`` holds at its last step;
         a failed seed is retried with seed + 10**6 * k (k = 1..max_tries-1).
       max_tries: attempts per seed.
+      action_noise: half-width of the executed-action noise, in action units.
 
     Returns:
       [(observations (T, obs_dim), actions (T, act_dim)), ...].
@@ -157,7 +166,9 @@ def teacher_episodes(
     episodes = []
     for seed in seeds:
         for k in range(max_tries):
-            obs, info = env.reset(seed=int(seed) + 10**6 * k)
+            episode_seed = int(seed) + 10**6 * k
+            obs, info = env.reset(seed=episode_seed)
+            rng = np.random.default_rng(episode_seed)
             if hasattr(teacher, "reset"):
                 teacher.reset(env)
             observations, actions = [], []
@@ -166,8 +177,12 @@ def teacher_episodes(
                 action = np.asarray(teacher(env, obs), dtype=np.float64)
                 observations.append(np.asarray(obs, dtype=np.float64))
                 actions.append(action)
+                executed = action
+                if action_noise > 0:
+                    noise = rng.uniform(-action_noise, action_noise, action.shape)
+                    executed = np.clip(action + noise, -1.0, 1.0)
                 obs, _, terminated, truncated, info = env.step(
-                    action.astype(env.action_space.dtype)
+                    executed.astype(env.action_space.dtype)
                 )
                 done = terminated or truncated
             if not only_successful or bool(info.get("success", False)):
