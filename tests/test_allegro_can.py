@@ -19,7 +19,7 @@ from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.hands import allegro_spec
 from lowcostdex.hardware.robot import Robot, RobotConfig
 from lowcostdex.hardware.safety import UnsafeCommand
-from lowcostdex.sim.models.common import new_spec
+from lowcostdex.sim.models.allegro import build_allegro
 
 HAND = allegro_spec()
 LOW = np.array([j.low for j in HAND.joints])
@@ -27,34 +27,17 @@ HIGH = np.array([j.high for j in HAND.joints])
 MID = 0.5 * (LOW + HIGH)
 
 
-def allegro_model() -> mujoco.MjModel:
-    """The Allegro model if it exists, else a 16-joint stand-in (4 chains of capsules)."""
-    try:
-        from lowcostdex.sim.models.allegro import build_allegro
-    except ImportError:
-        pass
-    else:
-        return build_allegro().compile()
-    spec = new_spec("allegro_stand_in")
-    for f in range(4):
-        parent = spec.worldbody.add_body(name=f"finger{f}", pos=[0.04 * f, 0, 0.3])
-        for k in range(4):
-            j = HAND.joints[4 * f + k]
-            body = parent.add_body(name=f"link{f}{k}", pos=[0, 0, -0.04 if k else 0.0])
-            body.add_joint(name=j.name, type=mujoco.mjtJoint.mjJNT_HINGE,
-                           axis=[0, 1, 0] if k == 0 else [1, 0, 0],
-                           range=[min(j.low - 0.3, -0.1), j.high + 0.3],
-                           limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=0.02,
-                           armature=0.002)
-            body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0, 0, 0, 0, 0, -0.04],
-                          size=[0.009, 0, 0], mass=0.03, contype=0, conaffinity=0)
-            parent = body
-    return spec.compile()
+def allegro_model(station: str = "none") -> mujoco.MjModel:
+    """The Allegro model (its position actuators are switched off by the emulator)."""
+    return build_allegro(station).compile()
+
+
+STIFF = AllegroGains(kp=3.0, kd=0.08)  # stiffer than the ROS defaults: tight tracking checks
 
 
 @pytest.fixture
 def hand():
-    bus, emu, clock = emulated_allegro(allegro_model())
+    bus, emu, clock = emulated_allegro(allegro_model(), gains=STIFF)
     emu.set_joint_positions(MID)
     yield bus, emu, clock
     bus.disconnect()
@@ -161,13 +144,16 @@ def test_connect_without_a_hand_fails_bounded():
 
 def test_robot_clips_goals_to_limits_and_rejects_nan(hand):
     bus, emu, clock = hand
-    with Robot(HAND, bus, RobotConfig(control_period=0.02)) as robot:
+    config = RobotConfig(control_period=0.02, motion_reference="goal")  # soft PD: rate limit
+    with Robot(HAND, bus, config) as robot:
         robot.torque(True)
-        sent = [robot.step(HIGH + 1.0) for _ in range(60)]
+        sent = [robot.step(HIGH + 1.0) for _ in range(100)]
         assert np.all(robot.last_sent <= HIGH + 1e-12)
+        assert np.all(bus._goal <= HIGH + 1e-12)  # the PD's goal stops at the limits ...
+        np.testing.assert_allclose(bus._goal[:12], HIGH[:12])  # ... (thumb: held by the lead
+        # bound, blocked by the curled fingers)
         assert np.all(emu.qpos <= HIGH + 0.03)  # device side: never driven past the limits
-        np.testing.assert_allclose(emu.qpos, HIGH, atol=0.05)
-        assert robot.metrics.limit_clips > 0 and len(sent) == 60
+        assert robot.metrics.limit_clips > 0 and len(sent) == 100
         goal_before = bus._goal.copy()
         n_sent = robot.metrics.sent
         bad = MID.copy()

@@ -92,3 +92,11 @@ def test_rate_sleeps_to_the_tick_and_counts_overruns_without_catch_up():
     rate.wait()  # re-anchored: a full period, not an immediate catch-up tick
     assert clock.t - before == pytest.approx(0.1)
     assert rate.stats.ticks == 3
+
+
+def test_goal_referenced_rate_limit_bounds_the_lead_over_the_present_position():
+    low, high = np.full(2, -2.0), np.full(2, 2.0)
+    last_goal, present = np.array([0.5, 0.5]), np.array([0.45, 0.0])  # joint 1 is blocked
+    r = clip_goal(np.array([1.5, 1.5]), low, high, last_goal, np.full(2, 0.1), present,
+                  np.full(2, 0.4))
+    np.testing.assert_allclose(r.goal, [0.6, 0.4])  # rate limit; lead bound on the blocked one

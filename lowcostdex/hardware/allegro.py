@@ -37,7 +37,9 @@ from lowcostdex.hardware.timing import Clock, RealClock
 
 @dataclass(frozen=True)
 class AllegroGains:
-    """Host-side PD gains, one value for every joint or 16 values.
+    """Host-side PD gains: one value for every joint, or 16 values; None = the v4 ROS driver's
+    defaults that the simulated hand also uses (``sim.models.allegro.AllegroPD``: 600 / 1000 PWM
+    counts per rad, 15 / 30 per rad/s, over 1200 counts per N m).
 
     Attributes:
       kp: stiffness [N m/rad].
@@ -47,14 +49,14 @@ class AllegroGains:
       max_torque: extra clamp on |tau| [N m] below the firmware PWM clamps.
     """
 
-    kp: float | tuple[float, ...] = 3.0
-    kd: float | tuple[float, ...] = 0.08
+    kp: float | tuple[float, ...] | None = None
+    kd: float | tuple[float, ...] | None = None
     velocity_filter: float = 0.3
     max_torque: float = 0.7
 
     def __post_init__(self) -> None:
-        for name in ("kp", "kd"):
-            arr = np.broadcast_to(np.asarray(getattr(self, name), float), (proto.N_JOINTS,))
+        kp, kd = self.arrays()
+        for name, arr in (("kp", kp), ("kd", kd)):
             if np.any(arr < 0) or not np.all(np.isfinite(arr)):
                 raise ConfigError(f"AllegroGains.{name} must be finite and >= 0")
         if not 0 < self.velocity_filter <= 1:
@@ -65,8 +67,19 @@ class AllegroGains:
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """(kp (16,), kd (16,))."""
         n = proto.N_JOINTS
-        return (np.broadcast_to(np.asarray(self.kp, float), (n,)).copy(),
-                np.broadcast_to(np.asarray(self.kd, float), (n,)).copy())
+        default_kp, default_kd = _default_pd()
+        kp = default_kp if self.kp is None else np.broadcast_to(np.asarray(self.kp, float), (n,))
+        kd = default_kd if self.kd is None else np.broadcast_to(np.asarray(self.kd, float), (n,))
+        return np.array(kp, float), np.array(kd, float)
+
+
+def _default_pd() -> tuple[np.ndarray, np.ndarray]:
+    from lowcostdex.hardware.hands import ALLEGRO_FINGERS
+    from lowcostdex.sim.models.allegro import AllegroPD
+
+    pd = AllegroPD()
+    gains = [pd.gains(f, k) for f in ALLEGRO_FINGERS for k in range(proto.JOINTS_PER_FINGER)]
+    return np.array([g[0] for g in gains]), np.array([g[1] for g in gains])
 
 
 def pd_torque(goal: np.ndarray, q: np.ndarray, qdot: np.ndarray, kp: np.ndarray, kd: np.ndarray,

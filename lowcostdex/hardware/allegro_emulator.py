@@ -277,14 +277,15 @@ def emulated_allegro(model: mujoco.MjModel | None = None, *, channel: str | None
     """An ``AllegroBus`` wired to an ``EmulatedAllegro`` on a private virtual channel.
 
     Returns (bus, emulator, clock); the bus is not connected yet. ``model`` defaults to the
-    Allegro model of ``lowcostdex.sim.models.allegro``.
+    Allegro of ``lowcostdex.sim.models.allegro`` without a station (its position actuators are
+    switched off: the emulated firmware applies the host's torques).
     """
     from lowcostdex.hardware.allegro import AllegroBus
 
     if model is None:
         from lowcostdex.sim.models.allegro import build_allegro
 
-        model = build_allegro().compile()
+        model = build_allegro("none").compile()
     channel = channel or f"lowcostdex-allegro-{id(model):x}-{time.monotonic_ns()}"
     emulator = EmulatedAllegro(model, channel=channel, effects=effects, thermal=thermal)
     clock = LockstepClock(emulator)

@@ -54,6 +54,11 @@ class RobotConfig:
     Attributes:
       control_period: control step [s] (ROBEL's D'Claw turn task: 0.1).
       motion_scale: multiplies every joint's ``max_velocity`` for the per-step motion bound.
+      motion_reference: what the motion bound is measured from: "present" (the present
+        position; stiff position servos such as the D'Claw's) or "goal" (the previous goal, a
+        rate limit for soft torque-driven joints such as the Allegro's host PD, whose position
+        lags; the goal's lead over the present position is then bounded by ``max_lead`` steps).
+      max_lead: see ``motion_reference`` [motion-bound steps].
       thermal: thermal guard thresholds.
       current: current guard thresholds.
       max_invalid_reads: consecutive reads a motor may miss before ``read`` raises BusError.
@@ -62,6 +67,8 @@ class RobotConfig:
 
     control_period: float = 0.1
     motion_scale: float = 1.0
+    motion_reference: str = "present"
+    max_lead: float = 4.0
     thermal: ThermalConfig = ThermalConfig()
     current: CurrentConfig = CurrentConfig()
     max_invalid_reads: int = 5
@@ -72,6 +79,9 @@ class RobotConfig:
             raise ConfigError("RobotConfig.control_period must be > 0")
         if not self.motion_scale > 0:
             raise ConfigError("RobotConfig.motion_scale must be > 0")
+        check_choice("motion reference", self.motion_reference, ("present", "goal"))
+        if not self.max_lead >= 1:
+            raise ConfigError("RobotConfig.max_lead must be >= 1")
         if self.max_invalid_reads < 0 or self.max_reboots < 0:
             raise ConfigError("RobotConfig.max_invalid_reads and max_reboots must be >= 0")
 
@@ -357,7 +367,13 @@ class Robot:
         max_step = self.max_step[idx].copy()
         relaxed = self.current_guard.relaxed[idx]
         max_step[relaxed] = np.minimum(max_step[relaxed], self.config.current.relaxed_step)
-        report = clip_goal(g, self.low[idx], self.high[idx], present, max_step)
+        if self.config.motion_reference == "goal":
+            last = self.last_sent[idx]
+            reference = np.where(np.isfinite(last), last, present)
+            report = clip_goal(g, self.low[idx], self.high[idx], reference, max_step, present,
+                               self.config.max_lead * max_step)
+        else:
+            report = clip_goal(g, self.low[idx], self.high[idx], present, max_step)
         self.metrics.limit_clips += int(np.sum(report.limit_clipped))
         self.metrics.motion_clips += int(np.sum(report.motion_clipped))
         motor = np.array([self.joints[i].calibration.to_motor(q)

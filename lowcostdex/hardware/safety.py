@@ -46,13 +46,21 @@ def check_finite(goal: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
     return g
 
 
-def clip_goal(goal: np.ndarray, low: np.ndarray, high: np.ndarray, present: np.ndarray,
-              max_step: np.ndarray) -> ClipReport:
-    """Clip goals (n,) [rad] to ``present +- max_step`` and then to ``[low, high]``.
+def clip_goal(goal: np.ndarray, low: np.ndarray, high: np.ndarray, reference: np.ndarray,
+              max_step: np.ndarray, present: np.ndarray | None = None,
+              max_lead: np.ndarray | None = None) -> ClipReport:
+    """Clip goals (n,) [rad] to ``reference +- max_step``, then (if given) to
+    ``present +- max_lead``, then to ``[low, high]``.
+
+    ``reference`` is the present position (stiff position servos, as ROBEL and LeRobot do) or
+    the previous goal (a rate limit for soft, torque-driven joints whose position lags; the
+    lead bound then keeps the goal from winding up against an obstacle).
 
     The limits win over the motion bound: no goal outside ``[low, high]`` ever leaves this
     function, even for a joint found outside its limits (its goal is the nearest limit).
     """
-    stepped = np.clip(goal, present - max_step, present + max_step)
+    stepped = np.clip(goal, reference - max_step, reference + max_step)
+    if present is not None and max_lead is not None:
+        stepped = np.clip(stepped, present - max_lead, present + max_lead)
     out = np.clip(stepped, low, high)
     return ClipReport(out, limit_clipped=out != stepped, motion_clipped=stepped != goal)
