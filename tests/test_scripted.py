@@ -1,5 +1,6 @@
 """Physics sanity of the valve tasks: the released valve turns freely, and the scripted teacher
-(``lowcostdex.sim.scripted``) actually turns it to the goal within the 40-step episode."""
+(``lowcostdex.sim.scripted``) actually turns it to the goal within the 40-step episode; the flip block is reachable; the
+Allegro teacher turns its valve a full turn."""
 
 from __future__ import annotations
 
@@ -10,8 +11,11 @@ import pytest
 
 import lowcostdex  # noqa: F401  (registers the ids)
 from lowcostdex.sim.envs import goal_to_action
+from lowcostdex.sim.models.allegro import build_allegro
 from lowcostdex.sim.models.dclaw import build_dclaw
 from lowcostdex.sim.scripted import (
+    AllegroFingerGeometry,
+    AllegroValveTeacher,
     BlockRollTeacher,
     FingerGeometry,
     ScrewTrackTeacher,
@@ -146,4 +150,39 @@ def test_flip_block_rests_and_one_finger_rolls_it_half_way():
         assert not term
     # a 90 deg roll about x: half of the 180 deg flip
     assert abs(info["goal_error"] - np.pi / 2) < 0.3
+    env.close()
+
+
+def test_allegro_finger_kinematics_match_mujoco_and_inverse_inverts():
+    model = build_allegro("valve").compile()
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(1)
+    low, high = np.array([-0.47, 0.0, 0.0, 0.0]), np.array([0.47, 1.6, 1.6, 1.6])
+    for k, finger in enumerate(("index", "middle", "ring")):
+        geo = AllegroFingerGeometry.from_model(model, finger)
+        tip = model.geom(f"{finger}_tip_geom")
+        body = model.body(f"{finger}_link3").id
+        for coupling in (1.0, 0.5):
+            q = rng.uniform(low, high)
+            q[3] = coupling * q[2]
+            data.qpos[:] = 0
+            data.qpos[4 * k:4 * k + 4] = q
+            mujoco.mj_kinematics(model, data)
+            end = data.xpos[body] + data.xmat[body].reshape(3, 3) @ (
+                tip.pos + np.array([0, 0, tip.size[1]]))
+            np.testing.assert_allclose(geo.forward(q), end, atol=1e-12)
+            np.testing.assert_allclose(geo.inverse(end, low, high, coupling), q, atol=1e-9)
+
+
+@pytest.mark.parametrize("env_id,seed", [("lowcostdex/AllegroTurnValve-v0", 0),
+                                         ("lowcostdex/AllegroTurnValveRandom-v0", 1),
+                                         ("lowcostdex/AllegroTurnValveRandom-v0", 2)])
+def test_allegro_teacher_turns_the_valve_a_full_turn(env_id, seed):
+    env = gym.make(env_id)
+    u = env.unwrapped
+    info, infos = run_teacher(env, AllegroValveTeacher(), seed)
+    assert info["success"], f"final error {info['goal_error']:.3f} rad"
+    turned = u.data.qpos[u.task.obj_qpos] - (u.goal["angle"] - infos[0]["goal_error"])
+    assert turned > 1.5 * np.pi  # one way round, not the short way back
+    assert sum(i["success"] for i in infos) >= 10  # with time to spare
     env.close()

@@ -127,8 +127,8 @@ class AllegroValve:
       friction: sliding friction of the valve geoms.
     """
 
-    center: tuple[float, float] = (0.075, 0.0)
-    height: float = 0.085
+    center: tuple[float, float] = (0.06, 0.0)
+    height: float = 0.08
     spokes: int = 3
     spoke_length: float = 0.075
     spoke_radius: float = 0.01
