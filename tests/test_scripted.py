@@ -1,6 +1,6 @@
-"""Physics sanity of the valve tasks: the released valve turns freely, and the scripted teacher
-(``lowcostdex.sim.scripted``) actually turns it to the goal within the 40-step episode; the flip block is reachable; the
-Allegro teacher turns its valve a full turn."""
+"""Physics sanity: the released valve turns freely; the scripted D'Claw teacher turns it to the
+goal within the 40-step episode (``lowcostdex.sim.scripted``); the flip block is reachable and
+one finger rolls it; the Allegro teacher turns its valve a full turn."""
 
 from __future__ import annotations
 
