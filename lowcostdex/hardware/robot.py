@@ -324,7 +324,7 @@ class Robot:
         over = self.current_guard.update(state.current)
         if np.any(over):
             self.metrics.overloads += int(np.sum(over))
-            log.warning("current guard: %s overloaded; goal lead bounded for %d steps",
+            log.info("current guard: %s overloaded; goal lead bounded for %d steps",
                         ", ".join(self.joint_names[i] for i in np.flatnonzero(over)),
                         self.config.current.relax_steps)
 

@@ -1,0 +1,177 @@
+"""Robot subcommands: ``lowcostdex reset-test`` and ``lowcostdex record-demos``.
+
+    lowcostdex reset-test --port emulated --trials 50            # emulated D'Claw, virtual time
+    lowcostdex reset-test --port /dev/ttyUSB0 --trials 20        # the real one
+    lowcostdex record-demos --hand dclaw --task turn-valve --port emulated --episodes 25 \\
+        --out demos/valve.h5                                     # virtual teacher
+    lowcostdex record-demos --hand dclaw --task turn-valve --port /dev/ttyUSB0 --episodes 25 \\
+        --out demos/valve.h5                                     # a person moves the fingers
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+# task name on the command line -> (registered env id, scripted solver for the virtual teacher)
+TASKS: dict[str, tuple[str, str | None]] = {
+    "turn-valve": ("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher"),
+    "turn-valve-random": ("lowcostdex/DClawTurnValveRandom-v0", "ValveTurnTeacher"),
+    "turn-foam-valve": ("lowcostdex/DClawTurnFoamValve-v0", "ValveTurnTeacher"),
+    "screw": ("lowcostdex/DClawScrew-v0", "ScrewTrackTeacher"),
+    "screw-random": ("lowcostdex/DClawScrewRandom-v0", "ScrewTrackTeacher"),
+}
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("reset-test",
+                       help="tangle the D'Claw N times and auto-reset it: success rate and time")
+    p.add_argument("--port", default="emulated", help="serial device, pty path, or 'emulated'")
+    p.add_argument("--trials", type=int, default=20, help="tangle + reset trials")
+    p.add_argument("--seed", type=int, default=0, help="seed of the tangles and valve angles")
+    p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
+    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--no-effects", action="store_true",
+                   help="emulated robot without the default servo effects")
+    p.add_argument("--json", default=None, help="also write the summary to this JSON file")
+    p.set_defaults(func=_reset_test)
+
+    p = sub.add_parser("record-demos",
+                       help="record kinesthetic demonstrations (a person, or the emulator's "
+                            "virtual teacher) into an HDF5 demo file")
+    p.add_argument("--hand", default="dclaw", choices=("dclaw",))
+    p.add_argument("--task", default="turn-valve", choices=sorted(TASKS))
+    p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
+    p.add_argument("--episodes", type=int, required=True, help="demonstrations to record")
+    p.add_argument("--out", required=True, help="HDF5 demo file (appended to if it exists)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
+    p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
+    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--countdown", type=float, default=3.0,
+                   help="seconds announced before each episode on a real robot")
+    p.set_defaults(func=_record_demos)
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def _hand(spec_path: str | None):
+    from lowcostdex.hardware.hands import HandSpec, dclaw_spec
+
+    return HandSpec.load(spec_path) if spec_path else dclaw_spec()
+
+
+def _reset_test(args: argparse.Namespace) -> int:
+    import numpy as np
+    from rich.console import Console
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hardware.backend import default_effects, make_dynamixel_bus
+    from lowcostdex.hardware.reset import DClawReset
+    from lowcostdex.hardware.reset_test import reset_trials
+    from lowcostdex.hardware.robot import Robot
+    from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    if args.trials < 1:
+        raise ConfigError("--trials must be >= 1")
+    hand = _hand(args.spec)
+    model = build_dclaw("valve", hand).compile()
+    if args.port == "emulated":
+        from lowcostdex.hardware.emulator import emulated_dclaw
+
+        effects = [] if args.no_effects else default_effects(hand.joint_names)
+        chain = emulated_dclaw("valve", hand=hand, effects=effects,
+                               rng=np.random.default_rng(args.seed))
+        port = chain.port()
+    else:
+        port = args.port
+    robot = Robot(hand, make_dynamixel_bus(hand, port, model, baudrate=args.baud))
+    console = Console(stderr=True)
+    with robot, Progress(console=console) as progress:
+        task = progress.add_task("reset trials", total=args.trials)
+        stats = reset_trials(robot, DClawReset(robot), RESET_POSE, args.trials,
+                             np.random.default_rng(args.seed),
+                             on_trial=lambda k, ok, t: progress.advance(task))
+    summary = stats.summary()
+    keys = ("trials", "successes", "success_rate", "time_mean", "time_median", "time_max",
+            "retried")
+    table = Table(title=f"D'Claw auto-reset on {args.port} (times in robot-clock seconds)")
+    for key in keys:
+        table.add_column(key)
+    table.add_row(*(f"{summary[k]:.3g}" if isinstance(summary[k], float) else str(summary[k])
+                    for k in keys))
+    out = Console()
+    out.print(table)
+    out.print(f"success rate {stats.successes}/{stats.trials} = {100 * stats.success_rate:.0f}%; "
+              f"reset time mean {summary['time_mean']:.2f} s, median "
+              f"{summary['time_median']:.2f} s, max {summary['time_max']:.2f} s")
+    for message in stats.failures:
+        console.print(f"[red]failed:[/red] {message}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({**summary, "failures": stats.failures, "port": args.port,
+                       "seed": args.seed}, f, indent=2)
+    return 0 if stats.successes == stats.trials else 1
+
+
+def _record_demos(args: argparse.Namespace) -> int:
+    import gymnasium as gym
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hardware.demos import KinestheticRecorder, VirtualTeacher
+    from lowcostdex.sim import scripted
+    from lowcostdex.sim.registry import register_envs
+
+    if args.episodes < 1:
+        raise ConfigError("--episodes must be >= 1")
+    register_envs()
+    env_id, solver = TASKS[args.task]
+    console = Console(stderr=True)
+    emulated = args.port == "emulated"
+    kwargs = {} if emulated else {"port": args.port, "baudrate": args.baud}
+    if args.spec and not emulated:
+        kwargs["hand"] = _hand(args.spec)
+    env = gym.make(env_id, backend="emulated" if emulated else "hardware", **kwargs)
+    teacher = None
+    if emulated:
+        teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task,
+                                 solver=getattr(scripted, solver)())
+    robot = env.unwrapped.backend.robot
+    try:
+        with Progress(console=console) as progress:
+            bar = progress.add_task(f"{args.task} demos", total=args.episodes)
+
+            def done(k: int, ep) -> None:
+                progress.advance(bar)
+                progress.console.print(f"episode {k}: {ep.length} steps, "
+                                       f"{'success' if ep.success[-1] else 'no success'}")
+
+            recorder = KinestheticRecorder(env, args.out, env_id, teacher=teacher,
+                                           on_episode=done)
+            for k in range(args.episodes):
+                if not emulated:
+                    seconds = recorder.steps * env.unwrapped.control_period
+                    progress.console.print(
+                        f"[bold]episode {k + 1}/{args.episodes}[/bold]: hands off, auto-reset "
+                        f"in {args.countdown:.0f} s; then the fingers go limp: move them "
+                        f"through the task for {seconds:.0f} s")
+                    robot.clock.sleep(args.countdown)
+                recorder.record_episode(args.seed + k)
+    finally:
+        env.close()
+    s = recorder.stats
+    console.print(f"{s.episodes} episodes ({s.successes} successful), {s.steps} steps -> "
+                  f"{args.out}; reset {s.reset_time:.1f} s, recording {s.record_time:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from lowcostdex.cli import main
+
+    sys.exit(main())
