@@ -18,6 +18,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.main_job",
     "lowcostdex.algos.cli",
     "lowcostdex.hardware.cli",
+    "lowcostdex.hardware.robot_cli",
 )
 
 
