@@ -364,11 +364,13 @@ class Plant(_PlantBase):
             raise PhysicsError(f"bad acceleration at t={self.data.time:.4f}s")
 
     def reset(self, qpos: np.ndarray | None = None, qvel: np.ndarray | None = None,
-              ctrl: np.ndarray | None = None, act: np.ndarray | None = None) -> None:
+              ctrl: np.ndarray | None = None, act: np.ndarray | None = None,
+              ctrl_history: np.ndarray | None = None) -> None:
         """Reset to the given state; servos hold ``ctrl`` (default: the joint positions they drive).
 
         Delay buffers are filled with ``ctrl`` so a delayed servo holds still instead of
-        replaying zeros.
+        replaying zeros, or with ``ctrl_history`` (k, nu): the ctrl of the last k physics steps,
+        oldest first, the last row at the reset time (a replay starting mid-log).
         """
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
@@ -380,7 +382,7 @@ class Plant(_PlantBase):
             d.act[:] = act
         d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl
         self.reset_effect_state()
-        _fill_ctrl_history(m, d)
+        _fill_ctrl_history(m, d, ctrl_history)
         mujoco.mj_forward(m, d)
 
 
@@ -455,8 +457,13 @@ class BatchPlant(_PlantBase):
             raise PhysicsError(f"simulations {np.flatnonzero(bad).tolist()} diverged")
 
     def reset(self, qpos: np.ndarray | None = None, qvel: np.ndarray | None = None,
-              ctrl: np.ndarray | None = None, sims: np.ndarray | None = None) -> None:
-        """Reset simulations ``sims`` (default all) to states given as (len(sims), n) arrays."""
+              ctrl: np.ndarray | None = None, sims: np.ndarray | None = None,
+              ctrl_history: np.ndarray | None = None) -> None:
+        """Reset simulations ``sims`` (default all) to states given as (len(sims), n) arrays.
+
+        ``ctrl_history`` (len(sims), k, nu) fills the delay buffers with past ctrl, oldest
+        first (see ``Plant.reset``); by default they hold ``ctrl``.
+        """
         rows = np.arange(self.nsim) if sims is None else np.asarray(sims, dtype=int)
         self.batch.reset(ids=rows)
         m, d = self.model, self._scratch
@@ -467,7 +474,7 @@ class BatchPlant(_PlantBase):
             if qvel is not None:
                 d.qvel[:] = qvel[k]
             d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl[k]
-            _fill_ctrl_history(m, d)
+            _fill_ctrl_history(m, d, None if ctrl_history is None else ctrl_history[k])
             self.qpos[i] = d.qpos
             self.qvel[i] = d.qvel
             self.ctrl[i] = d.ctrl
@@ -487,10 +494,18 @@ def actuated_positions(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
     return out
 
 
-def _fill_ctrl_history(m: mujoco.MjModel, d: mujoco.MjData) -> None:
+def _fill_ctrl_history(m: mujoco.MjModel, d: mujoco.MjData,
+                      history: np.ndarray | None = None) -> None:
+    """Fill actuator delay buffers: with d.ctrl, or with ``history`` (k, nu) of past ctrl at
+    one-timestep spacing, oldest first, ending now (padded with its first row when short)."""
     for i in np.flatnonzero(m.actuator_history[:, 0] > 0):
         n = int(m.actuator_history[i, 0])
-        mujoco.mj_initCtrlHistory(m, d, int(i), None, np.full((n, 1), d.ctrl[i]))
+        if history is None:
+            values = np.full((n, 1), d.ctrl[i])
+        else:
+            h = np.asarray(history, float)[-n:, i]
+            values = np.concatenate([np.full(n - len(h), h[0]), h])[:, None]
+        mujoco.mj_initCtrlHistory(m, d, int(i), None, np.ascontiguousarray(values))
 
 
 def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:

@@ -58,6 +58,8 @@ class GapConfig:
       min_effect: an accepted effect must change the select predictions by at least this many
         noise floors (RMS); smaller changes fit replay artifacts, not physics.
       rank_seconds: training data used by the score ranking (a spread subset) [s].
+      joint_k: from the second round on, the best ``joint_k`` screened candidates (fitted with
+        the accepted effects held) are refitted jointly with them.
       segment: multiple-shooting segment length for fitting [s].
       burn_in: unscored start of segments that begin inside a log [s].
       chunk: episode length for long logs [s] (None: auto).
@@ -75,7 +77,8 @@ class GapConfig:
     floor_margin: float = 1.05
     min_effect: float = 0.75
     rank_seconds: float = 12.0
-    segment: float = 2.5
+    joint_k: int = 3
+    segment: float = 6.0
     burn_in: float = 0.15
     chunk: float | None = None
     max_rounds: int = 20
@@ -339,6 +342,20 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             name = t.structure.effects[-1]
             if name not in best_track or t.cost < best_track[name].cost:
                 best_track[name] = t
+        if current.effects:
+            # joint refits (earlier effects free again) of the most promising candidates
+            joint_tracks = []
+            for n in sorted(best_track, key=lambda n: best_track[n].cost)[:cfg.joint_k]:
+                js = fitmod.Structure.build(current.effects + (n,), joints, ctx)
+                x0 = js.values_from(best_track[n].effects())
+                joint_tracks.append(fitmod.Track(js, js.u(x0), label=f"{n}+joint"))
+            prog(f"round {step + 1}: joint refit of {len(joint_tracks)} candidates",
+                 0.1 + 0.25 * step + 0.2)
+            fitmod.lockstep_lm(joint_tracks, fit_fn, cfg.max_rounds)
+            for t in joint_tracks:
+                n = t.structure.effects[-1]
+                if t.cost < best_track[n].cost:
+                    best_track[n] = t
         names = list(best_track)
         sel_pred = eng.predict(sel_eps, [best_track[n].effects() for n in names])
         results = {}
@@ -364,18 +381,9 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                            "the best candidate changes predictions by less than the noise floor")
             timing[f"round{step + 1}"] = time.perf_counter() - t0
             break
-        # joint refit of the accepted structure (earlier effects free again)
-        chosen = best_track[n_best]
         joint = fitmod.Structure.build(current.effects + (n_best,), joints, ctx)
-        x_screen = joint.values_from(chosen.effects())
-        refit = fitmod.Track(joint, joint.u(x_screen), label="joint")
-        if current.effects:
-            fitmod.lockstep_lm([refit], fit_fn, cfg.max_rounds)
-            sse_j = _mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [refit.effects()])[0])[0]
-            if sse_j.sum() < sse.sum():
-                x_screen, sse = refit.x, sse_j
         by_name[n_best].accepted = True
-        current, cur_x = joint, x_screen
+        current, cur_x = joint, joint.values_from(best_track[n_best].effects())
         sel_cur = (sse, sel_cur[1], sel_cur[2])
         cur_pred_sel = eng.predict(sel_eps, [current.to_effects(cur_x)])[0]
         timing[f"round{step + 1}"] = time.perf_counter() - t0

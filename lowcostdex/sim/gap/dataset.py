@@ -169,19 +169,48 @@ def load_dataset(paths: Sequence[str | Path], model: str | Path | None = None,
 # windows
 
 
+def quiet_start(tr: Trajectory, lo: int, hi: int, settle: float = 0.1) -> int:
+    """The sample in [lo, hi) where a replay is best started: the joints slowest and no goal
+    change within the preceding ``settle`` seconds (a clean measured initial state; a moving,
+    saturated servo would carry any initial-state error through the whole move)."""
+    lo, hi = max(lo, 0), min(hi, len(tr))
+    if hi - lo <= 1:
+        return lo
+    v = np.abs(tr.qvel[lo:hi]).sum(axis=1) if tr.qvel is not None else np.zeros(hi - lo)
+    changed = np.concatenate([[0], np.any(np.diff(tr.goal, axis=0) != 0, axis=1)]).astype(int)
+    csum = np.cumsum(changed)
+    back = np.searchsorted(tr.time, tr.time[lo:hi] - settle)
+    recent = (csum[lo:hi] - csum[back]) > 0
+    score = v + np.where(recent, 10.0 + v.max(), 0.0)
+    return lo + int(np.argmin(score))
+
+
+def _cuts(tr: Trajectory, start: int, stop: int, n: int) -> list[int]:
+    """Cut [start, stop) into n pieces at quiet samples near the even boundaries."""
+    t0, t1 = tr.time[start], tr.time[stop - 1]
+    edges = [start]
+    width = (t1 - t0) / n
+    for k in range(1, n):
+        lo = int(np.searchsorted(tr.time, t0 + (k - 0.25) * width))
+        hi = int(np.searchsorted(tr.time, t0 + (k + 0.25) * width))
+        edges.append(max(quiet_start(tr, lo, hi), edges[-1] + 2))
+    edges.append(stop)
+    return edges
+
+
 def episodes(ds: Dataset, chunk: float | None = None) -> list[Window]:
     """Cut trajectories into episodes of about ``chunk`` seconds (None: auto).
 
     Auto: total duration / 16, within [2, 10] s; trajectories shorter than 1.5 chunks stay
-    whole, so a set of short logs (e.g. BAM's 6 s) keeps one episode per log.
+    whole, so a set of short logs (e.g. BAM's 6 s) keeps one episode per log. Cuts fall on
+    quiet samples (``quiet_start``) near the even boundaries.
     """
     if chunk is None:
         chunk = min(max(ds.duration() / 16.0, 2.0), 10.0)
     out = []
     for k, tr in enumerate(ds.trajectories):
         n = max(1, int(tr.duration // chunk)) if tr.duration >= 1.5 * chunk else 1
-        edges = np.searchsorted(tr.time, tr.time[0] + np.arange(n + 1) * tr.duration / n)
-        edges[-1] = len(tr)
+        edges = _cuts(tr, 0, len(tr), n)
         for a, b in zip(edges[:-1], edges[1:], strict=True):
             if b - a >= 2:
                 out.append(Window(k, int(a), int(b), int(a)))
@@ -189,7 +218,7 @@ def episodes(ds: Dataset, chunk: float | None = None) -> list[Window]:
 
 
 def segments(ds: Dataset, eps: Sequence[Window], length: float, burn_in: float) -> list[Window]:
-    """Multiple-shooting segments of about ``length`` s inside episodes.
+    """Multiple-shooting segments of about ``length`` s inside episodes, cut at quiet samples.
 
     Segments that start inside a trajectory (not at its first sample) are scored only after
     ``burn_in`` seconds, while the hidden state (velocity estimate, filters) settles.
@@ -199,8 +228,7 @@ def segments(ds: Dataset, eps: Sequence[Window], length: float, burn_in: float) 
         tr = ds.trajectories[ep.traj]
         t0, t1 = tr.time[ep.start], tr.time[ep.stop - 1]
         n = max(1, int(round((t1 - t0) / length)))
-        edges = np.searchsorted(tr.time, t0 + np.arange(n + 1) * (t1 - t0) / n)
-        edges[0], edges[-1] = ep.start, ep.stop
+        edges = _cuts(tr, ep.start, ep.stop, n)
         for a, b in zip(edges[:-1], edges[1:], strict=True):
             if b - a < 2:
                 continue
@@ -229,7 +257,7 @@ def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
       eps: episodes.
       rng: seeded generator for the random assignment.
       test_trajectories: trajectories held out for the test (e.g. a gain the fit never sees);
-        the remaining episodes are split into train and select 2:1.
+        the remaining episodes are split into train and select 1:1 (the final refit uses both).
       fractions: (select, test) fractions of the random split.
     Raises:
       LogError when there are too few episodes for three roles.
@@ -244,7 +272,7 @@ def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
             raise LogError("the held-out logs must leave at least 2 episodes for fitting and "
                            "selection, and hold out at least one")
         rest = rng.permutation(rest)
-        n_sel = max(1, int(round(len(rest) / 3)))
+        n_sel = max(1, len(rest) // 2)
         return Split(tuple(sorted(rest[n_sel:].tolist())), tuple(sorted(rest[:n_sel].tolist())),
                      tuple(sorted(test)))
     if n < 3:

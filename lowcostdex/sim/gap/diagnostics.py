@@ -90,14 +90,10 @@ def lag_estimate(t: np.ndarray, measured: np.ndarray, predicted: np.ndarray,
         return 0.0
     m = np.diff(np.interp(grid, t, measured))
     p = np.diff(np.interp(grid, t, predicted))
-    m, p = m - m.mean(), p - p.mean()
-    den = math.sqrt(float(m @ m) * float(p @ p))
-    if den <= 0:
-        return 0.0
-    kmax = max(1, int(max_lag / h))
+    kmax = max(1, min(int(max_lag / h), len(m) // 4))
     lags = np.arange(-kmax, kmax + 1)
-    cc = np.array([float(m[max(k, 0):len(m) + min(k, 0)] @ p[max(-k, 0):len(p) - max(k, 0)])
-                   for k in lags]) / den
+    cc = np.array([_corr(m[max(k, 0):len(m) + min(k, 0)], p[max(-k, 0):len(p) - max(k, 0)])
+                   for k in lags])
     i = int(np.argmax(cc))
     shift = 0.0
     if 0 < i < len(cc) - 1:

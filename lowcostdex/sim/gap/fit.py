@@ -98,6 +98,8 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
         lo = max(lo, -float(ctx.damping[j]))
     elif (name, param) == ("coulomb_friction", "frictionloss"):
         hi = min(hi, float(ctx.stall[j]))
+    elif (name, param) == ("load_dependent_friction", "mu"):
+        hi = 0.9  # plastic gear trains reach ~0.46 (BAM's XL330 fit); friction < torque
     elif (name, param) == ("torque_limit", "torque"):
         peak = float(max(ctx.peak_force[j], 2 * lo))
         hi = min(hi, peak)

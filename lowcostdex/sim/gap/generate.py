@@ -35,11 +35,11 @@ HIDDEN: dict[str, dict[str, tuple[float, float]]] = {
     "latency": {"delay": (0.006, 0.03)},
     "backlash": {"width": (0.006, 0.017)},
     "coulomb_friction": {"frictionloss": (0.04, 0.1)},
-    "stribeck_friction": {"static": (0.06, 0.12), "velocity": (0.05, 0.15)},
+    "stribeck_friction": {"static": (0.06, 0.12), "velocity": (0.1, 0.3)},
     "load_dependent_friction": {"mu": (0.12, 0.25)},
-    "viscous_damping": {"damping": (0.15, 0.5)},
+    "viscous_damping": {"damping": (0.1, 0.4)},
     "gain_error": {"scale": (1.25, 1.6)},
-    "torque_limit": {"torque": (0.45, 0.7)},  # x the nominal stall torque
+    "torque_limit": {"torque": (0.25, 0.6)},  # x the nominal stall torque
     "velocity_limit": {"scale": (1.25, 1.6)},
     "position_offset": {"offset": (0.006, 0.04)},
     "inertia_error": {"scale": (2.0, 4.0)},
@@ -48,7 +48,10 @@ HIDDEN: dict[str, dict[str, tuple[float, float]]] = {
     "voltage_sag": {"weight": (0.7, 1.0)},
 }
 # Effects whose magnitude may lie on either side of the null (scale s -> 1/s, offset -> -offset).
-TWO_SIDED = {"gain_error", "velocity_limit", "position_offset", "inertia_error", "mass_error"}
+# velocity_limit is one-sided: a slower no-load speed (scale < 1) only adds back-EMF damping,
+# which is exactly viscous_damping for a dcmotor servo (the pair is not identifiable), so the
+# generator hides the faster-than-modelled case, which damping cannot mimic.
+TWO_SIDED = {"gain_error", "position_offset", "inertia_error", "mass_error"}
 
 
 @dataclass(frozen=True)
@@ -92,7 +95,8 @@ def finger_spec(motor: str = "XM430-W350") -> mujoco.MjSpec:
 
 
 def draw_hidden(name: str, joints: Sequence[str], rng: np.random.Generator,
-                model: mujoco.MjModel | None = None) -> AppliedEffect:
+                model: mujoco.MjModel | None = None, level: float | None = None
+                ) -> AppliedEffect:
     """Draw a hidden effect with a plausible, visible magnitude per joint.
 
     Args:
@@ -100,13 +104,18 @@ def draw_hidden(name: str, joints: Sequence[str], rng: np.random.Generator,
       joints: joints it acts on.
       rng: generator.
       model: the nominal model (torque limits are drawn relative to its stall torque).
+      level: None: uniform in the range; else the magnitude at this fraction of the range
+        (0 smallest, 1 largest), +-5 % per joint.
     """
     check_choice("hidden effect", name, HIDDEN)
     n = len(joints)
     vals = {}
     flip = rng.random() < 0.5 if name in TWO_SIDED else False
     for p, (lo, hi) in HIDDEN[name].items():
-        v = rng.uniform(lo, hi, size=n)
+        if level is None:
+            v = rng.uniform(lo, hi, size=n)
+        else:
+            v = (lo + level * (hi - lo)) * rng.uniform(0.95, 1.05, size=n)
         if name == "torque_limit":
             if model is None:
                 raise ConfigError("torque_limit needs the model (stall torque)")
@@ -171,13 +180,13 @@ def excitation(rng: np.random.Generator, duration: float, dt: float, low: np.nda
     return out
 
 
-def _channels(rng: np.random.Generator, t: np.ndarray, n: int, vnom: np.ndarray,
-              t_start: float) -> dict[str, np.ndarray]:
+def _channels(rng: np.random.Generator, t: np.ndarray, n: int, vnom: np.ndarray
+              ) -> dict[str, np.ndarray]:
     """Drifting temperature and sagging supply per actuator, as a driver would read them."""
-    tau = 120.0
-    t0 = rng.uniform(28.0, 34.0, size=n)
-    rise = rng.uniform(25.0, 40.0, size=n)
-    temp = t0 + rise * (1 - np.exp(-(t[:, None] + t_start) / tau))
+    # each log at its own temperature (logs recorded at different points of a long session),
+    # drifting up a few kelvin within the log
+    level = rng.uniform(30.0, 65.0)
+    temp = level + rng.uniform(-2.0, 2.0, size=n) + rng.uniform(2.0, 6.0) * t[:, None] / t[-1]
     # Sag: a smooth random load on the shared supply (other servos moving), 0..18 %.
     knots = np.arange(0.0, t[-1] + 1.0, 0.5)
     u = np.clip(np.interp(t, knots, rng.uniform(0, 1, size=len(knots))), 0, 1)
@@ -199,7 +208,7 @@ def simulate_log(spec: mujoco.MjSpec, hidden: Sequence[AppliedEffect], goals: np
         joints.
       rng: generator (timing jitter, noise, channels).
       settings: driver timing and sensor resolution.
-      t_start: session time at the start [s] (temperature keeps rising across logs).
+      t_start: session time at the start [s] (the logs' timestamps start there).
     """
     spec = spec.copy()
     prepare_spec(spec, hidden)
@@ -217,7 +226,7 @@ def simulate_log(spec: mujoco.MjSpec, hidden: Sequence[AppliedEffect], goals: np
     steps = np.unique(np.clip(np.round(instants / dt).astype(int), 0, k_total - 1))
     times = steps * dt
     chans = _channels(rng, times, len(actuators),
-                      model.actuator_user[act, servo.USER_SUPPLY_VOLTAGE], t_start)
+                      model.actuator_user[act, servo.USER_SUPPLY_VOLTAGE])
     q0 = model.qpos0.copy()
     q0[jq] = goals[0]
     ctrl0 = np.zeros(model.nu)
@@ -278,7 +287,7 @@ class Synthetic:
 
 def generate(rig: str, hidden: Sequence[str] | None, rng: np.random.Generator, *,
              n_logs: int = 4, duration: float = 8.0, settings: LogSettings = LogSettings(),
-             motor: str = "XM430-W350") -> Synthetic:
+             motor: str = "XM430-W350", level: float | None = None) -> Synthetic:
     """Generate logs of a rig with hidden effects.
 
     Args:
@@ -290,6 +299,7 @@ def generate(rig: str, hidden: Sequence[str] | None, rng: np.random.Generator, *
       duration: seconds per log.
       settings: driver timing and sensor resolution.
       motor: servo model.
+      level: magnitude as a fraction of the plausible range (None: random).
     """
     check_choice("rig", rig, ("bench", "finger"))
     if rig == "bench":
@@ -309,7 +319,7 @@ def generate(rig: str, hidden: Sequence[str] | None, rng: np.random.Generator, *
     names = [rng.choice(list(HIDDEN)) if n == "random" else n for n in names]
     for n in names:
         check_choice("hidden effect", n, CAUSES)
-    effects = [draw_hidden(n, joints, rng, model) for n in names]
+    effects = [draw_hidden(n, joints, rng, model, level) for n in names]
     trajs = []
     dt = model.opt.timestep
     for i in range(n_logs):

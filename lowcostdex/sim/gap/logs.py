@@ -238,15 +238,15 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
 
 
 def _check_time(t: np.ndarray, name: str) -> None:
-    if len(t) < MIN_SAMPLES or t[-1] - t[0] < MIN_DURATION:
-        dur = float(t[-1] - t[0]) if len(t) else 0.0
-        raise LogError(f"{name}: too little data: {len(t)} samples over {dur:.3g} s; need at "
-                       f"least {MIN_SAMPLES} samples and {MIN_DURATION} s")
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
         raise LogError(f"{name}: 'time' must be strictly increasing (row {i + 1}: "
                        f"{t[i + 1]:.6g} s after {t[i]:.6g} s)")
+    if len(t) < MIN_SAMPLES or t[-1] - t[0] < MIN_DURATION:
+        dur = float(t[-1] - t[0]) if len(t) else 0.0
+        raise LogError(f"{name}: too little data: {len(t)} samples over {dur:.3g} s; need at "
+                       f"least {MIN_SAMPLES} samples and {MIN_DURATION} s")
 
 
 def read_log(path: str | Path) -> Trajectory:

@@ -171,9 +171,10 @@ class Replayer:
             ctrl[s, act] = g.prev_goal
             goal_idx[s, :g.n_steps] = g.goal_idx
             goal_idx[s, g.n_steps:] = g.goal_idx[-1]
-        _init_backlash(ctrl, act, self._act_of_joint[model_key], sims, windows, columns,
-                       ds)
-        plant.reset(qpos, qvel, ctrl)
+        played = _init_backlash(ctrl, act, self._act_of_joint[model_key], sims, windows,
+                                columns, ds)
+        plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
+                                                                 windows, played))
         trs = ds.trajectories
         # commands and channels per simulation on the grid: (nsim, K, na), gathered once
         goals = np.stack([trs[t].goal[gi] for t, gi in zip(traj_of, goal_idx, strict=True)])
@@ -194,6 +195,26 @@ class Replayer:
                    peak=np.zeros((nsim, len(act))), torque=None)
         self._set_torque(run, 0)
         return run
+
+    def _history(self, model: mujoco.MjModel, ctrl: np.ndarray, act: np.ndarray,
+                 sims: list[tuple[int, int]], windows: Sequence[Window], played: set[int]
+                 ) -> np.ndarray | None:
+        """Past goals for the delay buffers: (nsim, n, nu), oldest first, ending at each
+        window's start (so a latency replayed from mid-log sees the commands it would have)."""
+        n = int(model.actuator_history[:, 0].max()) if model.nu else 0
+        if n == 0:
+            return None
+        hist = np.repeat(ctrl[:, None, :], n, axis=1)
+        offsets = (np.arange(n) - (n - 1)) * self.dt  # ..., -2 dt, -dt, 0
+        for s, (_, wi) in enumerate(sims):
+            w = windows[wi]
+            if w.start == 0 or s in played:
+                continue
+            tr = self.ds.trajectories[w.traj]
+            tau = tr.time[w.start] + offsets[:-1] + 0.5 * self.dt
+            idx = np.clip(np.searchsorted(tr.time, tau, side="right") - 1, 0, w.start - 1)
+            hist[s, :-1][:, act] = tr.goal[idx]
+        return hist
 
     def _set_torque(self, run: dict, k: int) -> None:
         if run["te"] is None:
@@ -279,13 +300,15 @@ def play_operator(goals: np.ndarray, width: np.ndarray, start: np.ndarray | None
 
 def _init_backlash(ctrl: np.ndarray, act: np.ndarray, act_of_joint: dict[str, int],
                    sims: list[tuple[int, int]], windows: Sequence[Window],
-                   columns: Sequence[Column], ds: Dataset) -> None:
+                   columns: Sequence[Column], ds: Dataset) -> set[int]:
     """Set the setpoint before each window to the play state the preceding goals leave.
 
     Args:
       ctrl: (nsim, nu) setpoints to edit.
       act: model actuator index of each log actuator.
       act_of_joint: joint name -> index into the log's actuators of the servo driving it.
+    Returns:
+      the simulations whose setpoint was set from the play.
     """
     jobs: dict[int, list[tuple[int, int, list[int], np.ndarray]]] = {}
     for s, (c, wi) in enumerate(sims):
@@ -310,3 +333,4 @@ def _init_backlash(ctrl: np.ndarray, act: np.ndarray, act_of_joint: dict[str, in
             state[live] = np.clip(state[live], g - half[live], g + half[live])
         for r, (s, _, cols, _) in enumerate(items):
             ctrl[s, act[cols]] = state[r, cols]
+    return {s for items in jobs.values() for s, *_ in items}

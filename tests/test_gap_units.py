@@ -1,0 +1,429 @@
+"""Gap analysis pieces: ZOH resampling, log validation errors, BAM mapping, the bench's analytic
+physics, replay consistency, the LM fitter, statistics (bootstrap, floor, score, intervals) and the
+extended-model files."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from lowcostdex.sim.effects import AppliedEffect, DomainRandomization
+from lowcostdex.sim.gap import fit as fitmod
+from lowcostdex.sim.gap.dataset import Dataset, Window, episodes, segments, split_episodes
+from lowcostdex.sim.gap.diagnostics import lag_estimate, noise_floor, score_fraction
+from lowcostdex.sim.gap.extension import bake_mjcf, dr_ranges, load_extended, save_extended
+from lowcostdex.sim.gap.gain import bootstrap_ci, gain_with_ci
+from lowcostdex.sim.gap.generate import LogSettings, bench_config, generate
+from lowcostdex.sim.gap.logs import (
+    LogError,
+    Trajectory,
+    quantization_step,
+    read_bam,
+    read_log,
+    trajectory_from_columns,
+    write_log,
+    zoh,
+    zoh_index,
+)
+from lowcostdex.sim.gap.replay import Replayer, play_operator
+from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig, build_bench
+from lowcostdex.sim.plant import Plant, prepare_spec
+
+# ------------------------------------------------------------------------------------------------
+# zero-order hold
+
+
+def test_zoh_holds_the_last_written_value_and_never_interpolates():
+    t_src = np.array([0.0, 0.1, 0.25])
+    v = np.array([1.0, 2.0, 3.0])
+    t_dst = np.array([-0.05, 0.0, 0.05, 0.0999, 0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(zoh(t_src, v, t_dst), [1, 1, 1, 1, 2, 2, 3])
+    np.testing.assert_array_equal(zoh_index(t_src, t_dst), [0, 0, 0, 0, 1, 1, 2])
+    two = np.stack([v, -v], axis=1)
+    np.testing.assert_array_equal(zoh(t_src, two, np.array([0.15]))[0], [2.0, -2.0])
+
+
+def test_replay_switches_goals_at_the_nearest_physics_step():
+    # goals logged at jittered times switch at round(t / dt): jitter below dt / 2 costs nothing
+    ds = _tiny_dataset()
+    rep = Replayer(ds)
+    w = Window(0, 0, len(ds.trajectories[0]), 0)
+    g = rep.grid(w)
+    tr = ds.trajectories[0]
+    t = tr.time - tr.time[0]
+    switch = np.round(t / rep.dt).astype(int)
+    for i in (3, 10, 17):
+        assert g.goal_idx[switch[i]] == i
+        assert g.goal_idx[switch[i] - 1] == i - 1
+
+
+# ------------------------------------------------------------------------------------------------
+# logs
+
+
+def _cols(n=50, **extra):
+    t = np.arange(n) * 0.02
+    cols = {"time": t, "goal:arm": np.sin(t), "qpos:arm": np.sin(t - 0.01)}
+    cols.update(extra)
+    return cols
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda c: c.pop("time"), "missing column 'time'"),
+    (lambda c: c.pop("goal:arm"), "no 'goal:<actuator>' column"),
+    (lambda c: c.pop("qpos:arm"), "no 'qpos:<joint>' column"),
+    (lambda c: c.update({"foo:arm": np.zeros(50)}), "unknown kind 'foo'"),
+    (lambda c: c.update({"qposarm": np.zeros(50)}), "is not '<kind>:<name>'"),
+    (lambda c: c["qpos:arm"].__setitem__(7, np.nan), "column 'qpos:arm' has 1 NaN"),
+    (lambda c: c["time"].__setitem__(5, 0.0), "strictly increasing"),
+    (lambda c: c.update({"qvel:other": np.zeros(50)}), "'qvel:other' without 'qpos:other'"),
+])
+def test_log_validation_names_the_problem(mutate, message):
+    cols = _cols()
+    mutate(cols)
+    with pytest.raises(LogError, match=message):
+        trajectory_from_columns(cols, "x.csv")
+
+
+def test_too_little_data_is_refused():
+    with pytest.raises(LogError, match="too little data"):
+        trajectory_from_columns(_cols(n=10), "x.csv")
+
+
+def test_unknown_names_and_missing_actuators_are_refused(tmp_path):
+    model = build_bench(BenchConfig()).to_xml()
+    bad = trajectory_from_columns(_cols(**{"goal:wrist": np.zeros(50)}), "x.csv")
+    with pytest.raises(LogError, match="no actuator 'wrist' in the model; actuators: arm"):
+        Dataset({"model": model}, [bad])
+    cols = _cols()
+    cols["qpos:elbow"] = cols.pop("qpos:arm")
+    with pytest.raises(LogError, match="no joint 'elbow'"):
+        Dataset({"model": model}, [trajectory_from_columns(cols, "x.csv")])
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+def test_log_round_trip(tmp_path, suffix):
+    cols = _cols(**{"qvel:arm": np.cos(np.arange(50) * 0.02), "voltage:arm": np.full(50, 11.5)})
+    tr = trajectory_from_columns(cols, "x")
+    path = write_log(tmp_path / f"log{suffix}", tr)
+    back = read_log(path)
+    np.testing.assert_allclose(back.time, tr.time)
+    np.testing.assert_allclose(back.qpos, tr.qpos)
+    np.testing.assert_allclose(back.qvel, tr.qvel)
+    np.testing.assert_allclose(back.channels["voltage"], 11.5)
+    assert back.actuators == ("arm",) and back.joints == ("arm",)
+
+
+def test_unreadable_csv_cell_is_named(tmp_path):
+    p = tmp_path / "bad.csv"
+    p.write_text("time,goal:arm,qpos:arm\n0.0,0,0\n0.01,abc,0\n")
+    with pytest.raises(LogError, match="row 3, column 'goal:arm': 'abc' is not a number"):
+        read_log(p)
+
+
+def _bam_json(path, motor="sts3032", volts=62.0, n=300):
+    t = np.arange(n) * 0.006 + 0.003
+    entries = [{"timestamp": float(ti), "position": float(0.1 * math.sin(ti)),
+                "speed": float(0.1 * math.cos(ti)), "load": 0, "input_volts": volts, "temp": 0.0,
+                "goal_position": float(0.1 * math.sin(ti)), "torque_enable": bool(ti < 1.0)}
+               for ti in t]
+    path.write_text(json.dumps({"mass": 0.259, "length": 0.07, "kp": 32, "vin": 6.0,
+                                "motor": motor, "trajectory": "lift_and_drop",
+                                "entries": entries}))
+    return path
+
+
+def test_bam_log_maps_onto_the_bench(tmp_path):
+    tr, cfg = read_bam(_bam_json(tmp_path / "a.json"))
+    assert (cfg.mass, cfg.length, cfg.arm_mass) == (0.259, 0.07, 0.0)  # arm_mass absent -> 0
+    assert cfg.motor == "STS3032" and cfg.servo_gains().position_p == 32
+    assert cfg.servo_gains().supply_voltage == 6.0
+    assert tr.joints == (BENCH_JOINT,)
+    np.testing.assert_allclose(tr.channels["voltage"], 6.2)  # Feetech 0.1 V register scaled
+    assert "temperature" not in tr.channels  # all-zero temperature dropped
+    te = tr.channels["torque_enable"][:, 0]
+    assert te[0] == 1 and te[-1] == 0
+    # the bench compiles with the log's load: J = m l^2 plus the rotor armature
+    m = build_bench(cfg).compile()
+    assert m.body_mass[1] == pytest.approx(0.259)
+
+
+def test_bam_errors_name_fields_and_motors(tmp_path):
+    p = tmp_path / "b.json"
+    p.write_text(json.dumps({"mass": 1.0, "entries": []}))
+    with pytest.raises(LogError, match="lacks fields"):
+        read_bam(p)
+    with pytest.raises(LogError, match="unknown BAM motor 'mx28'; valid: "):
+        read_bam(_bam_json(tmp_path / "c.json", motor="mx28"))
+
+
+# ------------------------------------------------------------------------------------------------
+# bench physics
+
+
+def test_bench_matches_the_analytic_pendulum():
+    cfg = BenchConfig(motor="XL330-M288", mass=0.3, length=0.12, arm_mass=0.06)
+    m = build_bench(cfg).compile()
+    d = mujoco.MjData(m)
+    # inertia about the pivot: load + rod + rotor armature
+    mujoco.mj_forward(m, d)
+    full = np.zeros((1, 1))
+    mujoco.mj_fullM(m, d, full)
+    assert full[0, 0] == pytest.approx(cfg.pivot_inertia + cfg.motor_spec.armature, rel=1e-6)
+    # gravity torque -(m + m_arm / 2) g l sin(theta); theta > 0 swings toward +y
+    for th in (0.3, -1.0, 2.0):
+        d.qpos[0] = th
+        mujoco.mj_forward(m, d)
+        assert -d.qfrc_bias[0] == pytest.approx(-cfg.gravity_arm * 9.81 * math.sin(th), rel=1e-6)
+    d.qpos[0] = 0.5
+    mujoco.mj_kinematics(m, d)
+    com = d.xipos[1]
+    z_com = -(0.3 * 0.12 + 0.03 * 0.12) / 0.36
+    assert com[1] == pytest.approx(-z_com * math.sin(0.5), rel=1e-6)
+
+
+# ------------------------------------------------------------------------------------------------
+# replay and fitting
+
+
+def _tiny_dataset(seed=0, n_logs=2, duration=4.0):
+    syn = generate("bench", [], np.random.default_rng(seed), n_logs=n_logs, duration=duration)
+    return Dataset({"model": syn.xml}, syn.trajectories)
+
+
+def generate_with(effects, seed, n_logs, duration):
+    from lowcostdex.sim.gap import generate as gen
+
+    rng = np.random.default_rng(seed)
+    spec = build_bench(bench_config())
+    trajs = []
+    dt = spec.option.timestep
+    for i in range(n_logs):
+        goals = gen.excitation(rng, duration, dt, np.array([-1.2]), np.array([1.2]))
+        trajs.append(gen.simulate_log(spec, effects, goals, [BENCH_JOINT], [BENCH_JOINT], rng,
+                                      LogSettings(noise=0.0, ticks=0, stamp_noise=0.0),
+                                      name=f"log{i}"))
+    return gen.Synthetic(spec, trajs, list(effects), LogSettings(noise=0.0, ticks=0))
+
+
+@pytest.mark.parametrize("effect", [
+    AppliedEffect("backlash", (BENCH_JOINT,), {"width": 0.012}),
+    AppliedEffect("latency", (BENCH_JOINT,), {"delay": 0.017}),
+    AppliedEffect("position_offset", (BENCH_JOINT,), {"offset": 0.02}),
+])
+def test_replaying_the_true_model_reproduces_noiseless_logs(effect):
+    # Multiple-shooting segments that start mid-log must carry the hidden state: the play
+    # operator's setpoint (backlash), the offset between reading and truth.
+    syn = generate_with([effect], 3, 2, 4.0)
+    ds = Dataset({"model": syn.xml}, syn.trajectories)
+    rep = Replayer(ds, [effect.name])
+    segs = segments(ds, episodes(ds, chunk=2.0), 1.0, 0.0)
+    assert any(w.start > 0 for w in segs)
+    pred, _ = rep.run(segs, [[effect], []])
+    err_true = max(np.abs(ds.trajectories[w.traj].qpos[w.start:w.stop] - p).max()
+                   for w, p in zip(segs, pred[0], strict=True))
+    err_nominal = max(np.abs(ds.trajectories[w.traj].qpos[w.start:w.stop] - p).max()
+                      for w, p in zip(segs, pred[1], strict=True))
+    assert err_true < 0.05 * err_nominal
+    assert err_true < 2e-3  # velocity-register quantization of the initial state only
+
+
+def test_play_operator_matches_a_reference_loop(rng):
+    g = np.cumsum(rng.normal(size=200) * 0.01)
+    s = g[0]
+    for x in g[1:]:
+        s = min(max(s, x - 0.01), x + 0.01)
+    assert play_operator(g, np.array(0.02)) == pytest.approx(s)
+
+
+def test_lockstep_lm_solves_bounded_least_squares_problems_together():
+    # two independent "structures" share every evaluation; one optimum lies on a bound
+    t = np.linspace(0, 1, 50)
+    a = fitmod.Free("x", "a", 0, 0.1, 10.0, 1.0, True, 1e-4)
+    b = fitmod.Free("x", "b", 0, -1.0, 0.5, 0.0, False, 1e-4)
+    s1 = fitmod.Structure(("x",), ("j",), [a, b])
+    s2 = fitmod.Structure(("x",), ("j",), [a, b])
+    targets = {id(s1): (3.0, 0.2), id(s2): (2.0, 0.9)}  # s2's b = 0.9 is beyond its bound 0.5
+    calls = []
+
+    def residual(points):
+        calls.append(len(points))
+        return [np.exp(-targets[id(s)][0] * t) + targets[id(s)][1] * t
+                - (np.exp(-x[0] * t) + x[1] * t) for s, x in points]
+
+    tr = [fitmod.Track(s1, s1.u(np.array([1.0, 0.0]))),
+          fitmod.Track(s2, s2.u(np.array([1.0, 0.0])))]
+    fitmod.lockstep_lm(tr, residual, max_rounds=40, rtol=1e-10)
+    np.testing.assert_allclose(tr[0].x, [3.0, 0.2], rtol=1e-4)
+    assert tr[1].x[1] == pytest.approx(0.5)  # pinned at the bound
+    assert all(c <= 6 for c in calls)  # each round evaluates both tracks with their FD columns
+
+
+def test_interval_formula_matches_mujoco_sysid(rng):
+    sysid = pytest.importorskip("mujoco.sysid")
+    jac = rng.normal(size=(300, 3))
+    r = rng.normal(size=300) * 0.01
+    ref = sysid.calculate_intervals([r], jac)[1]
+    np.testing.assert_allclose(fitmod.interval_halfwidths(r, jac, 300), ref, rtol=1e-10)
+    # autocorrelated residuals widen them by sqrt(n / n_eff)
+    np.testing.assert_allclose(fitmod.interval_halfwidths(r, jac, 75), 2 * ref, rtol=1e-10)
+
+
+# ------------------------------------------------------------------------------------------------
+# statistics
+
+
+def test_bootstrap_ci_covers_a_known_mean(rng):
+    x = rng.normal(1.0, 0.5, size=40)
+    lo, hi = bootstrap_ci(lambda idx: x[idx].mean(1), len(x), rng, 4000)
+    se = 0.5 / math.sqrt(40)
+    assert lo < x.mean() < hi
+    assert (hi - lo) == pytest.approx(2 * 1.96 * se, rel=0.25)
+
+
+def test_gain_reports_floor_and_reducible_fraction(rng):
+    n = np.full(10, 100.0)
+    sse_b = np.full(10, 100 * 4e-6)  # RMSE 2 mrad
+    sse_e = np.full(10, 100 * 1e-6)  # RMSE 1 mrad
+    g = gain_with_ci(sse_b, sse_e, n, sse_b, sse_e, floor_mse=1e-6, rng=rng)
+    assert g.baseline_rmse == pytest.approx(2e-3) and g.extended_rmse == pytest.approx(1e-3)
+    assert g.reducible_explained == pytest.approx(1.0)
+    assert g.ci95[0] == pytest.approx(1e-3) and g.ci95[1] == pytest.approx(1e-3)
+
+
+def test_noise_floor_estimate_tracks_read_noise_and_quantization():
+    for noise in (0.0, 1e-3):
+        s = LogSettings(noise=noise)
+        syn = generate("bench", [], np.random.default_rng(5), n_logs=3, duration=6.0,
+                       settings=s)
+        est = noise_floor(syn.trajectories)[0]
+        assert est == pytest.approx(s.floor, rel=0.25)
+    assert quantization_step(np.arange(20) * 2 * math.pi / 4096 + 0.3) == pytest.approx(
+        2 * math.pi / 4096)
+
+
+def test_score_fraction_and_lag_estimate(rng):
+    g = rng.normal(size=(500, 2))
+    r = g @ np.array([0.3, -0.1]) + 1e-3 * rng.normal(size=500)
+    assert score_fraction(r, g) > 0.999
+    assert score_fraction(rng.normal(size=500), g) < 0.05
+    t = np.arange(0, 4, 0.005)
+    sig = np.sin(2 * t) + 0.3 * np.sin(7 * t)
+    late = np.sin(2 * (t - 0.02)) + 0.3 * np.sin(7 * (t - 0.02))
+    assert lag_estimate(t, late, sig) == pytest.approx(0.02, abs=2e-3)
+
+
+def test_splits_are_seeded_disjoint_and_honour_held_out_logs():
+    ds = _tiny_dataset(n_logs=3)
+    eps = episodes(ds, chunk=1.0)
+    a = split_episodes(ds, eps, np.random.default_rng(1))
+    b = split_episodes(ds, eps, np.random.default_rng(1))
+    assert a == b
+    allidx = a.train + a.select + a.test
+    assert sorted(allidx) == list(range(len(eps))) and len(set(allidx)) == len(eps)
+    held = split_episodes(ds, eps, np.random.default_rng(1), test_trajectories=[2])
+    assert {eps[i].traj for i in held.test} == {2}
+    assert 2 not in {eps[i].traj for i in held.train + held.select}
+    with pytest.raises(LogError, match="too little data"):
+        split_episodes(ds, eps[:2], np.random.default_rng(0))
+
+
+# ------------------------------------------------------------------------------------------------
+# the extended model
+
+
+def test_baked_mjcf_plus_residual_effects_equals_the_plant_with_all_effects():
+    spec = build_bench(bench_config())
+    xml = spec.to_xml()
+    j = (BENCH_JOINT,)
+    effs = [AppliedEffect("latency", j, {"delay": 0.012}),
+            AppliedEffect("gain_error", j, {"scale": 1.3}),
+            AppliedEffect("mass_error", j, {"scale": 1.2}),
+            AppliedEffect("coulomb_friction", j, {"frictionloss": 0.05}),
+            AppliedEffect("backlash", j, {"width": 0.01})]
+    ext, baked = bake_mjcf(xml, effs)
+    assert set(baked) == {"latency", "gain_error", "mass_error", "coulomb_friction"}
+    s1 = mujoco.MjSpec.from_string(xml)
+    prepare_spec(s1, effs)
+    p1 = Plant(s1.compile(), effs)
+    rest = [e for e in effs if e.name not in baked]
+    p2 = Plant(mujoco.MjSpec.from_string(ext).compile(), rest)
+    for p in (p1, p2):
+        p.reset()
+    for k in range(300):
+        g = np.array([0.5 * math.sin(0.03 * k)])
+        p1.step(g, 1)
+        p2.step(g, 1)
+    assert np.abs(p1.qpos - p2.qpos).max() < 1e-6
+
+
+def test_extended_model_folder_round_trip(tmp_path):
+    j = (BENCH_JOINT,)
+    xml = build_bench(bench_config()).to_xml()
+    effs = [AppliedEffect("latency", j, {"delay": 0.02}),
+            AppliedEffect("backlash", j, {"width": 0.01})]
+    intervals = {"latency": {"delay": [[0.019, 0.021]]}, "backlash": {"width": [[0.009, 0.011]]}}
+    save_extended(tmp_path / "ext", {"model": xml}, effs, intervals)
+    raw = json.loads((tmp_path / "ext" / "effects.json").read_text())
+    assert raw["format"] == "lowcostdex.extended_model"
+    assert [e["effect"] for e in raw["effects"]] == ["latency", "backlash"]
+    assert [e["in_mjcf"] for e in raw["effects"]] == [True, False]
+    ext = load_extended(tmp_path / "ext")
+    assert [e.name for e in ext.residual_effects] == ["backlash"]
+    np.testing.assert_allclose(ext.effects[0].values["delay"], 0.02)
+    dr = ext.domain_randomization()
+    assert isinstance(dr, DomainRandomization)
+    for _ in range(20):
+        sample = {e.name: e for e in dr.sample(np.random.default_rng(_))}
+        assert 0.018 <= sample["latency"].values["delay"][0] <= 0.022
+        assert 0.009 <= sample["backlash"].values["width"][0] <= 0.011
+    plant = ext.plant()
+    assert plant.model.actuator_history[0, 0] > 0  # latency got its history buffer
+    assert {e.name for e in plant.effects} == {"latency", "backlash"}
+
+
+def test_dr_ranges_widen_degenerate_intervals_and_respect_bounds():
+    j = ("a", "b")
+    r = dr_ranges([AppliedEffect("gain_error", j, {"scale": [1.2, 1.3]})],
+                  {"gain_error": {"scale": [[1.19, 1.21], [1.29, 1.31]]}})
+    lo, hi = r["gain_error"]["scale"]
+    assert lo <= 1.2 - 0.1 * 1.3 + 1e-9 and hi >= 1.3 + 0.1 * 1.3 - 1e-9
+    r = dr_ranges([AppliedEffect("coulomb_friction", j, {"frictionloss": [0.0, 0.0]})], None)
+    assert r["coulomb_friction"]["frictionloss"] == (0.0, 0.0)
+
+
+def test_trajectory_slice_keeps_channels():
+    tr = Trajectory("x", np.arange(5.0), np.zeros((5, 1)), np.ones((5, 1)), ("a",), ("a",),
+                    channels={"voltage": np.arange(5.0)[:, None]})
+    s = tr.slice(1, 3)
+    np.testing.assert_array_equal(s.channels["voltage"][:, 0], [1, 2])
+
+
+def test_plant_reset_with_ctrl_history_continues_a_delayed_servo_exactly():
+    # Plant.reset(ctrl_history=...) (added for mid-log replays): a delayed servo reset with the
+    # state and the past commands of a running one continues exactly as the running one.
+    spec = build_bench(bench_config())
+    lat = [AppliedEffect("latency", (BENCH_JOINT,), {"delay": 0.02})]
+    prepare_spec(spec, lat)
+    model = spec.compile()
+    a = Plant(model, lat)
+    a.reset(np.zeros(1), np.zeros(1), np.zeros(1))
+    goals = np.r_[np.zeros(20), np.full(40, 0.5)]
+    for g in goals[:24]:  # the goal jumped 4 steps (10 ms) ago: still inside the delay
+        a.step(np.array([g]), 1)
+    hist = goals[:24][-model.actuator_history[0, 0]:, None]
+    b = Plant(model, lat)
+    b.reset(a.qpos.copy(), a.qvel.copy(), np.array([goals[23]]), ctrl_history=hist)
+    c = Plant(model, lat)  # without the history the buffer holds the new goal: moves too early
+    c.reset(a.qpos.copy(), a.qvel.copy(), np.array([goals[23]]))
+    qa, qb, qc = [], [], []
+    for g in goals[24:]:
+        for p, out in ((a, qa), (b, qb), (c, qc)):
+            p.step(np.array([g]), 1)
+            out.append(float(p.qpos[0]))
+    np.testing.assert_allclose(qb, qa, atol=1e-12)
+    assert np.max(np.abs(np.array(qc) - qa)) > 1e-3
