@@ -168,6 +168,7 @@ class MotorFirmware:
         self.mem = bytearray(self.table.size)
         self._where = {it.reg: (it.address, it.end, it.reg in SIGNED)
                        for it in self.table.items.values() if it.reg is not None}
+        self._goal_address = self.table.address(Reg.GOAL_POSITION)
         self._ticks_per_rad = self.spec.ticks_per_rev / (2 * math.pi)
         self.hardware_error = 0
         self.watchdog_error = False
@@ -258,6 +259,8 @@ class MotorFirmware:
 
     def write(self, address: int, data: bytes, state: DriveState) -> int:
         """WRITE: all-or-nothing; returns the error number."""
+        if address == self._goal_address and len(data) == 4:
+            return self._write_goal(data)
         values, err = self._decode_write(address, data)
         if err:
             return err
@@ -272,6 +275,22 @@ class MotorFirmware:
             self._after_write(reg, value, state)
         if self.id != old_id:
             self.sink.on_id_change(old_id, self.id)
+        return E.NONE
+
+    def _write_goal(self, data: bytes) -> int:
+        """The common case of ``write``: Goal Position alone (same checks, no generic walk)."""
+        value = int.from_bytes(data, "little", signed=True)
+        if self.watchdog_error:
+            return E.DATA_RANGE
+        if self.mode == POSITION_MODE:
+            lo, hi = self.position_limits
+            if not lo <= value <= hi:
+                return E.DATA_LIMIT
+        elif not -1_048_575 <= value <= 1_048_575:
+            return E.DATA_RANGE
+        self.mem[self._goal_address:self._goal_address + 4] = data
+        self.target = float(value - self.homing)
+        self.sink.on_goal(self.id, Reg.GOAL_POSITION, value)
         return E.NONE
 
     def reg_write(self, address: int, data: bytes) -> int:

@@ -20,6 +20,7 @@ Wire time at 8N1 is 10 bits per byte: ``wire_time(n, baud) = 10 n / baud`` [s].
 from __future__ import annotations
 
 import enum
+import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
@@ -117,13 +118,31 @@ def _crc_table(poly: int) -> tuple[int, ...]:
 
 
 CRC_TABLE = _crc_table(0x8005)
+_CRC_TABLE16: list[int] = []  # CRC of every 16-bit word: two bytes per step (built on first use)
+
+
+def _crc_table16() -> list[int]:
+    t = CRC_TABLE
+    _CRC_TABLE16.extend(((t[v >> 8] << 8) & 0xFFFF) ^ t[(t[v >> 8] >> 8) ^ (v & 0xFF)]
+                        for v in range(65536))
+    return _CRC_TABLE16
 
 
 def crc16(data: bytes | bytearray | Iterable[int], crc: int = 0) -> int:
-    """CRC-16/BUYPASS of ``data`` continuing from ``crc``."""
-    table = CRC_TABLE
-    for b in data:
-        crc = ((crc << 8) & 0xFFFF) ^ table[(crc >> 8) ^ b]
+    """CRC-16/BUYPASS of ``data`` continuing from ``crc``.
+
+    Bytes are taken two at a time: for a 16-bit register, one step over a big-endian word w is
+    ``crc = T16[crc ^ w]``, about four times faster in Python than the byte-wise table.
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        data = bytes(data)
+    n = len(data)
+    if n >= 2:
+        t16 = _CRC_TABLE16 or _crc_table16()
+        for w in struct.unpack_from(f">{n // 2}H", data):
+            crc = t16[crc ^ w]
+    if n & 1:
+        crc = ((crc << 8) & 0xFFFF) ^ CRC_TABLE[(crc >> 8) ^ data[-1]]
     return crc
 
 

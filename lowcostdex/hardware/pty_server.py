@@ -144,8 +144,7 @@ class PtyServer:
             ends = [r.time for r in replies if not r.late]
             self._line_free = max([t_in] + ends)
             clock.advance_to(self._line_free)
-            for r in sorted(replies):
-                self._write(r.data)
+            self._write(b"".join(r.data for r in sorted(replies)))
         else:
             for r in replies:
                 heapq.heappush(self._pending, r)
@@ -155,14 +154,19 @@ class PtyServer:
                 due = self._pending[0].time
                 while clock.now() < due:
                     pass
-                self._write(heapq.heappop(self._pending).data)
+                self._send_due()
 
     def _send_due(self) -> None:
         now = self.chain.clock.now()
+        due = []
         while self._pending and self._pending[0].time <= now:
-            self._write(heapq.heappop(self._pending).data)
+            due.append(heapq.heappop(self._pending).data)
+        if due:
+            self._write(b"".join(due))  # one write: one wake-up of the host, not one per motor
 
     def _write(self, data: bytes) -> None:
+        if not data:
+            return
         view = memoryview(data)
         while view:
             try:
