@@ -57,16 +57,12 @@ def stage_sim_rollouts(ctx: Context) -> dict[str, Any]:
     curves, successes = [], []
     for ep in range(episodes):
         obs, info = env.reset(seed=ctx.seed + ep)
-        if teacher is not None:
-            teacher.reset(u)
+        teacher.reset(u)
         angles = [float(u.data.qpos[u.task.obj_qpos])]
         done = False
         while not done:
-            if teacher is None:
-                action = np.zeros(env.action_space.shape)
-            else:
-                action = goal_to_action(teacher(u.data.qpos, u.goal), u.task.hand_low,
-                                        u.task.hand_high)
+            action = goal_to_action(teacher(u.data.qpos, u.goal), u.task.hand_low,
+                                    u.task.hand_high)
             obs, reward, term, trunc, info = env.step(action)
             angles.append(float(u.data.qpos[u.task.obj_qpos]))
             done = term or trunc
@@ -88,12 +84,13 @@ def stage_sim_rollouts(ctx: Context) -> dict[str, Any]:
     env.close()
     return {"episodes": episodes, "success_rate": float(np.mean(successes)),
             "final_angle_deg": [float(np.degrees(c[-1])) for c in curves],
-            "plot": path.name, "policy": "scripted teacher" if teacher else "hold still"}
+            "plot": path.name, "policy": "scripted teacher (lowcostdex.sim.scripted)"}
 
 
 def _teacher(env: Any) -> Any:
-    """The scripted valve-turning teacher (lowcostdex.sim.scripted), once it lands."""
-    return None
+    from lowcostdex.sim.scripted import ValveTurnTeacher
+
+    return ValveTurnTeacher()
 
 
 STAGES: tuple[tuple[str, Callable[[Context], dict[str, Any]]], ...] = (

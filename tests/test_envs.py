@@ -124,15 +124,17 @@ def test_vector_env_equals_a_loop_of_single_envs(env_id, kwargs):
     np.testing.assert_allclose(vobs, np.stack(sobs), atol=1e-6)
     rng = np.random.default_rng(0)
     horizon = vec.task.timing.episode_steps
-    for k in range(horizon + 3):
+    ended = [False] * n
+    for _ in range(horizon + 3):
         a = rng.uniform(-1, 1, (n, 9))
         vobs, vrew, vterm, vtrunc, vinfo = vec.step(a)
         for i, e in enumerate(singles):
-            if k == horizon:  # NEXT_STEP autoreset: the step after the end resets
+            if ended[i]:  # NEXT_STEP autoreset: the step after an episode's end resets it
                 o, r, term, trunc = e.reset()[0], 0.0, False, False
             else:
                 o, r, term, trunc, info = e.step(a[i])
                 assert bool(vinfo["success"][i]) == info["success"]
+            ended[i] = term or trunc
             np.testing.assert_allclose(vobs[i], o, atol=1e-6)
             assert vrew[i] == pytest.approx(r, abs=1e-9)
             assert bool(vtrunc[i]) == trunc and bool(vterm[i]) == term

@@ -52,6 +52,8 @@ class HandVectorEnv(gym.vector.VectorEnv):
         self.task, self.randomization = task, randomization
         self.num_envs = num_envs
         self.plant = BatchPlant(self._template.model, num_envs, nthread=nthread)
+        if len(task.passive_act):
+            self.plant.set_torque_enabled(task.passive_act, False)
         self._effects: list[list] = [[] for _ in range(num_envs)]
         self.single_observation_space = self._template.observation_space
         self.single_action_space = self._template.action_space

@@ -68,6 +68,8 @@ class SimBackend(Backend):
         self.plant = Plant(model, rng=rng)
         self.model = self.plant.model
         self.data = self.plant.data
+        if task is not None and len(task.passive_act):
+            self.plant.set_torque_enabled(task.passive_act, False)
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.plant.reset(qpos, qvel)

@@ -73,24 +73,15 @@ class ValveTask(DClawTask):
     """Shared pieces of the valve tasks: observation, error, reward, the released valve motor.
 
     The valve motor (id 50) is torque-off during episodes, as ROBEL disengages it after the
-    reset, so the task's scene builds it released: force range +-1e-9 N m (MuJoCo rejects an
-    empty range at compile time; the plant's torque-off is [0, 0]). A torque-on servo whose
-    goal follows the valve once per control step is not free: within each 0.1 s step it pulls
-    the valve back to the step's starting angle (kp ~ 15.7 N m/rad plus back-EMF damping
-    ~ 1.1 N m s/rad on an XH430-W350), which held a 0.1 N m turning torque to 0.05 rad in 1 s and
-    kept scripted gaits below ~100 deg per episode. Robots that drive the valve for their
-    auto-reset keep a live motor in their own scene (the emulated D'Claw builds ``build_dclaw``
-    and releases the motor after each reset, as the hardware does).
+    reset: ``passive_actuators`` names it, and every backend releases it (the sim backends switch
+    its torque off in the plant; robots release it after their auto-reset). A torque-on servo
+    whose goal follows the valve once per control step is not free: within each 0.1 s step it
+    pulls the valve back to the step's starting angle (kp ~ 15.7 N m/rad plus back-EMF damping
+    ~ 1.1 N m s/rad on an XH430-W350), which held a 0.1 N m turning torque to 0.05 rad in 1 s.
     """
 
     config: TurnConfig | ScrewConfig
-
-    def build_spec(self) -> mujoco.MjSpec:
-        spec = super().build_spec()
-        valve = spec.actuator("valve")
-        valve.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        valve.forcerange = [-1e-9, 1e-9]
-        return spec
+    passive_actuators = ("valve",)
 
     def bind(self, model: mujoco.MjModel) -> None:
         super().bind(model)

@@ -42,6 +42,8 @@ class Task(ABC):
 
     hand: HandSpec
     timing: TaskSpec
+    #: actuators released (torque off) during episodes, e.g. the D'Claw's valve motor.
+    passive_actuators: tuple[str, ...] = ()
 
     @abstractmethod
     def build_spec(self) -> mujoco.MjSpec:
@@ -57,6 +59,8 @@ class Task(ABC):
         self.hand_act = np.array([model.actuator(n).id for n in self.hand.joint_names])
         self.hand_low = np.array([j.low for j in self.hand.joints])
         self.hand_high = np.array([j.high for j in self.hand.joints])
+        self.passive_act = np.array([model.actuator(n).id for n in self.passive_actuators],
+                                    dtype=int)
 
     @abstractmethod
     def initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, Goal]:

@@ -46,7 +46,9 @@ _FINGER_BASES = {
 }
 _MOTOR_BOX = (0.0175, 0.015, 0.024)  # half sizes [m] of an XH/XM430 body along the finger
 _MOTOR_MASS = 0.093 + 0.012  # servo plus its printed plates [kg]
-_TIP_FRICTION = (1.0, 0.005, 0.0001)
+# ROBEL's fingertip friction. MuJoCo takes the larger friction of two touching geoms, so contacts
+# with the valve (friction 1.0, rubber-coated spokes) and the block use the object's value.
+_TIP_FRICTION = (0.2, 0.005, 0.0001)
 # MJCF joint ranges [rad] (wider than the env's action limits)
 _JOINT_RANGE = {"top": (-0.5, 1.35), "middle": (-2.0, 2.0), "bottom": (-2.0, 2.0)}
 
