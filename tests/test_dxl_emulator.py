@@ -343,3 +343,59 @@ def test_virtual_clock_is_bus_time():
     # READ: 14 bytes out, 15 back, 10 bits each at 1 Mbps
     assert chain.now - t0 == pytest.approx(29e-5, abs=1e-6)
     assert chain.physics_time <= chain.now < chain.physics_time + 0.0025 + 1e-9
+
+
+def test_fast_bulk_read(dclaw):
+    chain, port, ph = dclaw
+    gbr = GroupBulkRead(port, ph)
+    gbr.addParam(10, 132, 4)
+    gbr.addParam(22, 146, 1)
+    gbr.addParam(50, 0, 2)
+    port.rx_trace.clear()
+    assert gbr.fastBulkRead() == COMM_SUCCESS
+    assert [p.id for p in parse_packets(bytes(port.rx_trace))] == [0xFE]  # one packet
+    assert gbr.getData(10, 132, 4) == present_ticks(chain, 10)
+    assert gbr.getData(22, 146, 1) == 25 and gbr.getData(50, 0, 2) == 1000
+
+
+def test_present_pwm_current_and_voltage_sag_under_load():
+    chain = emulated_dclaw(station="none", supply_resistance=5.0)
+    port, ph = open_port(chain, latency_ms=16)
+    gsr = GroupSyncRead(port, ph, 124, 23)  # Present PWM .. Present Temperature
+    for i in FINGERS:
+        gsr.addParam(i)
+    gsr.txRxPacket()
+    assert all(to_signed(gsr.getData(i, 124, 2), 2) == 0 for i in FINGERS)  # torque off
+    assert all(gsr.getData(i, 144, 2) == 120 for i in FINGERS)  # no load, no sag
+    for i in (11, 21, 31):  # lift three fingers against gravity, hold
+        ph.write1ByteTxRx(port, i, 64, 1)
+        goal = present_ticks(chain, i) - 500
+        assert ph.write4ByteTxRx(port, i, 116, goal) == (COMM_SUCCESS, 0)
+    port.sleep(1.0)
+    gsr.txRxPacket()
+    d = chain.drive.state()
+    total = sum(abs(c) for c in d.current)
+    for i in (11, 21, 31):
+        pwm = to_signed(gsr.getData(i, 124, 2), 2)
+        cur = to_signed(gsr.getData(i, 126, 2), 2)
+        assert cur != 0 and np.sign(pwm) == np.sign(cur)  # holding: drive and current agree
+        assert abs(pwm) < 885
+    volts = {gsr.getData(i, 144, 2) for i in FINGERS}
+    assert len(volts) == 1  # one supply for the chain
+    (v,) = volts
+    assert abs(v - 10 * (12.0 - 5.0 * total)) <= 1 and v < 120  # sags with the total current
+
+
+def test_effects_of_the_emulated_robot_reach_the_wire():
+    from lowcostdex.sim.effects import AppliedEffect
+
+    offset = 40 * 2 * math.pi / 4096
+    plain = emulated_dclaw(station="none")
+    shifted = emulated_dclaw(station="none", effects=[
+        AppliedEffect("position_offset", ("mf_middle",), {"offset": offset})])
+    reads = []
+    for chain in (plain, shifted):
+        port, ph = open_port(chain, latency_ms=16)
+        port.sleep(0.2)
+        reads.append(to_signed(ph.read4ByteTxRx(port, 21, 132)[0], 4))
+    assert reads[1] - reads[0] == 40  # the encoder reports the offset the plant applies

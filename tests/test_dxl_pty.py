@@ -123,6 +123,8 @@ goal[[1, 4, 7]] -= 0.9  # fingers swing outwards, the valve turns
 goal[9] += 2.5
 bus.write_goal_positions(goal)
 print("MOVING", flush=True)
+if sys.argv[2] == "exit":
+    sys.exit(0)  # no disconnect: the atexit hook must turn torque off
 while True:
     bus.read_state()
     bus.write_goal_positions(goal)
@@ -175,17 +177,25 @@ def test_host_killed_mid_motion_motors_stop_within_the_watchdog_time(served):
     port.closePort()
 
 
-def test_sigterm_turns_torque_off_before_the_process_dies(served):
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGINT", "exit"])
+def test_torque_off_on_sigterm_sigint_and_exit(served, how):
     chain, server = served
-    host = subprocess.Popen([sys.executable, "-c", HOST, server.path, "sleep"],
+    mode = "exit" if how == "exit" else "sleep"
+    host = subprocess.Popen([sys.executable, "-c", HOST, server.path, mode],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
     try:
         wait_for(lines_of(host.stdout), "MOVING", timeout=60)
-        time.sleep(0.3)
-        with server.lock:
-            assert all(m.torque_on for m in chain.motors.values())
-        host.send_signal(signal.SIGTERM)
-        assert host.wait(timeout=20) == -signal.SIGTERM  # the default action still happens
+        if how == "exit":
+            assert host.wait(timeout=20) == 0
+        else:
+            time.sleep(0.3)
+            with server.lock:
+                assert all(m.torque_on for m in chain.motors.values())
+            host.send_signal(getattr(signal, how))
+            code = host.wait(timeout=20)
+            # the previous handler still runs: the default SIGTERM action kills the process;
+            # SIGINT raises KeyboardInterrupt, which Python re-raises as the signal at exit
+            assert code == -getattr(signal, how)
     finally:
         if host.poll() is None:
             host.kill()

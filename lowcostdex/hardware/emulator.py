@@ -239,6 +239,8 @@ class PlantDrive:
         if m.na == 0:
             self._views["act"] = np.zeros(1)
         self.goal = np.array(plant.ctrl, copy=True)  # (nu,) [rad]
+        # encoder errors the emulated robot carries (offset, noise, quantization) reach the wire
+        self._observed = any(e.cls.kind == "observation" for e in plant.effects)
         self.steps = 0
         self._state: _State | None = None
 
@@ -280,7 +282,8 @@ class PlantDrive:
         volts = self._v_nominal[a] if self.supply_resistance <= 0 else self.voltage()[a]
         duty = (r * current + k * qd) / volts
         temp = self._ambient + v["act"][self._thermal] * (self._thermal >= 0)
-        self._state = _State(v["qpos"][self._qadr].tolist(), qd.tolist(), current.tolist(),
+        qpos = self.plant.measured_qpos() if self._observed else v["qpos"]
+        self._state = _State(qpos[self._qadr].tolist(), qd.tolist(), current.tolist(),
                              duty.tolist(), temp.tolist(), volts.tolist(), self.steps)
         return self._state
 
