@@ -31,7 +31,14 @@ import numpy as np
 from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.bus import MotorBus
 from lowcostdex.hardware.hands import HandSpec
-from lowcostdex.hardware.reset import DClawReset, ResetConfig, ResetReport
+from lowcostdex.hardware.reset import (
+    DClawReset,
+    FlipBlockReset,
+    FlipResetConfig,
+    Reorient,
+    ResetConfig,
+    ResetReport,
+)
 from lowcostdex.hardware.robot import Robot, RobotConfig
 from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.envs.backend import Backend
@@ -73,12 +80,17 @@ class RobotBackend(Backend):
       robot: a Robot (not yet connected) for the task's hand.
       reset_config: auto-reset tolerances and bounds.
       tracker: pose source of a free object (block), if the task has one.
+      flip_config: block re-centring and verification (flip task).
+      reorient: policy restoring the block's start orientation (flip task); see
+        ``reset.FlipBlockReset``.
     """
 
     real_time = True
 
     def __init__(self, model: mujoco.MjModel, task: Any, robot: Robot,
-                 reset_config: ResetConfig = ResetConfig(), tracker: Tracker | None = None):
+                 reset_config: ResetConfig = ResetConfig(), tracker: Tracker | None = None,
+                 flip_config: FlipResetConfig = FlipResetConfig(),
+                 reorient: Reorient | None = None):
         self.model = model
         self.data = mujoco.MjData(model)
         self.task = task
@@ -95,17 +107,26 @@ class RobotBackend(Backend):
         self.last_reset: ResetReport | None = None
         self.stale_steps = 0
         self._block = None
+        self.block_reset: FlipBlockReset | None = None
         if "block" in [model.joint(i).name for i in range(model.njnt)]:
             adr = int(model.jnt_qposadr[model.joint("block").id])
             self._block = np.arange(adr, adr + 7)
         robot.connect()
+        if self._block is not None and tracker is not None:
+            self.block_reset = FlipBlockReset(robot, model, tracker, flip_config, reset_config,
+                                              reorient)
 
     # -- Backend --------------------------------------------------------------------------------
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         """Thermal pause if due, verified auto-reset to ``qpos``, fingers torque on."""
         t = self.task
-        valve_target = float(qpos[t.obj_qpos]) if self._valve is not None else None
-        self.last_reset = self.resetter(np.asarray(qpos)[t.hand_qpos], valve_target)
+        q = np.asarray(qpos, float)
+        if self.block_reset is not None:
+            self.last_reset = self.block_reset(q[t.hand_qpos], q[self._block[:3]],
+                                               q[self._block[3:]])
+        else:
+            valve_target = float(q[t.obj_qpos]) if self._valve is not None else None
+            self.last_reset = self.resetter(q[t.hand_qpos], valve_target)
         self.robot.torque(True, t.hand.joint_names)
         self.data.qpos[:] = qpos
         self.data.qvel[:] = 0.0
@@ -169,6 +190,7 @@ class EmulatedBackend(RobotBackend):
       faults: ``emulator.FaultConfig`` for the status packets (default none).
       robot_config: Robot settings (the control period is the task's).
       reset_config: auto-reset settings.
+      flip_config, reorient: flip-task block reset (see ``RobotBackend``).
       start_qpos: the emulated robot's pose when it powers up (default the model's qpos0).
       chain_kwargs: more ``emulator.EmulatedChain`` options (baudrate, supply_resistance, ...).
     """
@@ -178,7 +200,9 @@ class EmulatedBackend(RobotBackend):
                  effects: Sequence[AppliedEffect] | None = None, faults: Any = None,
                  robot_config: RobotConfig | None = None,
                  reset_config: ResetConfig = ResetConfig(),
-                 start_qpos: np.ndarray | None = None, **chain_kwargs: Any):
+                 start_qpos: np.ndarray | None = None,
+                 flip_config: FlipResetConfig = FlipResetConfig(),
+                 reorient: Reorient | None = None, **chain_kwargs: Any):
         from lowcostdex.hardware.emulator import FaultConfig, emulated_dclaw
 
         if task is None:
@@ -196,7 +220,7 @@ class EmulatedBackend(RobotBackend):
         config = _robot_config(robot_config, task, model)
         robot = Robot(hand, bus, config)
         tracker = self._physics_tracker() if task.station == "block" else None
-        super().__init__(model, task, robot, reset_config, tracker)
+        super().__init__(model, task, robot, reset_config, tracker, flip_config, reorient)
 
     def _physics_tracker(self) -> Tracker:
         plant = self.chain.plant
@@ -232,7 +256,8 @@ class HardwareBackend(RobotBackend):
                  baudrate: int = 1_000_000, hand: HandSpec | None = None,
                  robot_config: RobotConfig | None = None,
                  reset_config: ResetConfig = ResetConfig(), tracker: Tracker | None = None,
-                 **bus_kwargs: Any):
+                 flip_config: FlipResetConfig = FlipResetConfig(),
+                 reorient: Reorient | None = None, **bus_kwargs: Any):
         if task is None or port is None:
             raise ConfigError("HardwareBackend needs the task and port=... (e.g. /dev/ttyUSB0)")
         if task.station == "block" and tracker is None:
@@ -241,7 +266,7 @@ class HardwareBackend(RobotBackend):
         hand = robot_hand(hand or task.hand, model)
         bus = make_dynamixel_bus(hand, port, model, baudrate=baudrate, **bus_kwargs)
         robot = Robot(hand, bus, _robot_config(robot_config, task, model))
-        super().__init__(model, task, robot, reset_config, tracker)
+        super().__init__(model, task, robot, reset_config, tracker, flip_config, reorient)
 
 
 def _robot_config(config: RobotConfig | None, task: Any, model: mujoco.MjModel) -> RobotConfig:
