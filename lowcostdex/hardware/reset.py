@@ -71,6 +71,8 @@ class ResetConfig:
     Attributes:
       tolerance: per-joint verification tolerance for fingers [rad] (ROBEL: 5 deg).
       valve_tolerance: verification tolerance for the valve [rad].
+      precision: the final finger move and the valve move go on until every joint is this
+        close (or stalls), so episodes start reproducibly well inside the tolerance [rad].
       max_retries: attempts after the first one.
       move_timeout: bound on one finger move [s].
       valve_timeout: bound on the valve move [s] (ROBEL: 10 s).
@@ -86,6 +88,7 @@ class ResetConfig:
 
     tolerance: float = math.radians(5.0)
     valve_tolerance: float = math.radians(3.0)
+    precision: float = 0.01
     max_retries: int = 3
     move_timeout: float = 3.0
     valve_timeout: float = 10.0
@@ -97,7 +100,7 @@ class ResetConfig:
     swing: float = 0.9
 
     def __post_init__(self) -> None:
-        for name in ("tolerance", "valve_tolerance", "move_timeout", "valve_timeout",
+        for name in ("tolerance", "valve_tolerance", "precision", "move_timeout", "valve_timeout",
                      "stall_time", "stall_motion"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"ResetConfig.{name} must be > 0")
@@ -159,11 +162,13 @@ class ResetReport:
 
 
 def move(robot: Robot, target: np.ndarray, joints: Sequence[str], *, tolerance: float,
-         timeout: float, stall_time: float, stall_motion: float, wrap: bool = False
-         ) -> MoveResult:
+         timeout: float, stall_time: float, stall_motion: float, wrap: bool = False,
+         precision: float | None = None) -> MoveResult:
     """Drive ``joints`` to ``target`` (n,) [rad] through the Robot's safety gate, one control
-    period at a time, until every joint is within ``tolerance``, nothing moved for
-    ``stall_time``, or ``timeout`` passed. Torque must be on for the joints to move."""
+    period at a time, until every joint is within ``precision`` (default ``tolerance``),
+    nothing moved for ``stall_time``, or ``timeout`` passed; ``reached`` means within
+    ``tolerance``. Torque must be on for the joints to move."""
+    stop = tolerance if precision is None else min(precision, tolerance)
     joints = tuple(joints)
     idx = robot.index(joints)
     target = np.asarray(target, float)
@@ -174,7 +179,7 @@ def move(robot: Robot, target: np.ndarray, joints: Sequence[str], *, tolerance: 
     stalled = False
     while True:
         err = _error(robot.present[idx], target, wrap)
-        if np.all(err < tolerance):
+        if np.all(err < stop):
             break
         if robot.clock.now() - start >= timeout:
             break
@@ -268,12 +273,14 @@ class DClawReset:
     # -- stages ---------------------------------------------------------------------------------
     def _move(self, target: dict[str, float], joints: Sequence[str], name: str,
               stages: list[StageResult], timeout: float | None = None,
-              tolerance: float | None = None, wrap: bool = False) -> MoveResult:
+              tolerance: float | None = None, wrap: bool = False, final: bool = False
+              ) -> MoveResult:
         cfg, r = self.config, self.robot
         tol = cfg.tolerance if tolerance is None else tolerance
         res = move(r, np.array([target[j] for j in joints]), joints, tolerance=tol,
                    timeout=cfg.move_timeout if timeout is None else timeout,
-                   stall_time=cfg.stall_time, stall_motion=cfg.stall_motion, wrap=wrap)
+                   stall_time=cfg.stall_time, stall_motion=cfg.stall_motion, wrap=wrap,
+                   precision=cfg.precision if final else None)
         if cfg.settle > 0:
             r.rest(cfg.settle)
             idx = r.index(joints)
@@ -292,7 +299,7 @@ class DClawReset:
             r.enable(p["top"])
             self._move(target, p["top"], "top", stages)
         limp = r.enable(fingers)
-        res = self._move(target, fingers, "fingers", stages)
+        res = self._move(target, fingers, "fingers", stages, final=True)
         bad = res.outside(self.config.tolerance)
         if limp:
             self.limp = limp
@@ -380,7 +387,7 @@ class DClawReset:
         v = self.valve
         r.torque(True, [v])
         res = self._move({v: angle}, [v], "valve", stages, timeout=cfg.valve_timeout,
-                         tolerance=cfg.valve_tolerance, wrap=True)
+                         tolerance=cfg.valve_tolerance, wrap=True, final=True)
         r.torque(False, [v])  # released for the episode
         return res.reached, res.outside(cfg.valve_tolerance)
 
