@@ -12,6 +12,7 @@ from lowcostdex.algos.local_models.dynamics import (
     update_gmm_prior,
 )
 from lowcostdex.algos.local_models.gmm import fit_gmm, niw_prior, responsibilities
+from lowcostdex.algos.local_models.policy_fit import fit_policy
 from lowcostdex.errors import ConfigError
 
 DT, T, DX, DU = 0.05, 50, 4, 2
@@ -143,3 +144,19 @@ def test_fit_rejects_nan_and_bad_config() -> None:
         fit_dynamics(X, np.zeros((3, 4, 1)), DynamicsConfig(use_prior=False))
     with pytest.raises(ConfigError):
         DynamicsConfig(prior_strength=-1.0)
+
+
+def test_policy_fit_recovers_a_known_linear_gaussian_controller() -> None:
+    """u_t = K_t x_t + k_t + noise observed on varied states: K_t, k_t and the noise come back."""
+    rng = np.random.default_rng(6)
+    T, N = 10, 200
+    K = rng.normal(size=(T, DU, DX))
+    k = rng.normal(size=(T, DU))
+    X = rng.normal(size=(N, T, DX))
+    U = np.einsum("tij,ntj->nti", K, X) + k + 0.01 * rng.normal(size=(N, T, DU))
+    ctl = fit_policy(X, U, DynamicsConfig(use_prior=False), rng)
+    np.testing.assert_allclose(ctl.K, K, atol=0.01)
+    np.testing.assert_allclose(ctl.k, k, atol=0.01)
+    np.testing.assert_allclose(np.diagonal(ctl.cov, axis1=1, axis2=2), 1e-4, rtol=0.5)
+    with_prior = fit_policy(X[:5], U[:5], DynamicsConfig(), rng)  # N < dX + 1: still defined
+    assert np.all(np.isfinite(with_prior.K))

@@ -93,13 +93,17 @@ def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
 
 def test_teacher_init_replays_a_successful_teacher_episode(valve, tmp_path) -> None:
     pytest.importorskip("lowcostdex.sim.scripted")
-    from lowcostdex.algos.local_models.train import record_teacher_demo
+    from lowcostdex.algos.demos import load_demos
+    from lowcostdex.algos.local_models.train import teacher_episodes
 
     env, start, hold = valve
-    path = record_teacher_demo(env, start, tmp_path / "teacher.npz")
+    cfg = _small(init="teacher", init_noise=0.05)
+    teach = teacher_episodes(env, start, cfg, hold, 41, tmp_path / "teacher.npz")
+    assert teach.X.shape == (1, 41, 29) and teach.successes.all()
+    assert load_demos(tmp_path / "teacher.npz").actions.shape == (40, 9)
     env.reset(options=start.reset_options())
     x0 = controller_state(env, hold)
-    ctl = initial_controller(_small(init="teacher"), env, start, x0, hold, 41, str(path))
+    ctl = initial_controller(cfg, env, start, x0, hold, 41, teach.U)
     ep = run_episode(env, ctl, start, RolloutJob(0, 1, 0, 0, deterministic=True), True, hold, 0.0)
     assert ep.success("final") and abs(ep.final_error) < 0.1
     assert np.ptp(ctl.k[:, 0]) > 0.5  # a real motion, not the hold action

@@ -67,6 +67,7 @@ SUCCESS_MODES = ("final", "any")
 MUTABLE_ON_RESUME = ("n_iter", "progress")
 """Config keys a resumed run may change."""
 _UPDATE = 13  # seed purpose of the update generator (the GMM's EM)
+_TEACHER_STREAM = 2  # rollout stream of the teacher episodes (0: training, 1: evaluation)
 CONTROLLER_FILE = "controller.npz"
 TEACHER_FILE = "teacher_demo.npz"
 
@@ -123,9 +124,11 @@ class TVLGTrainConfig:
       include_last_action: append the last applied action to the state.
       init: initial controller, one of INITS: "pd" holds the start pose (plus ``pd_gain``
         feedback) with exploration noise; "demos" replays the mean action of the demonstrations
-        in ``demos`` (the DAPG demo format) with the same noise; "teacher" first records one
-        episode of the scripted teacher (``lowcostdex.sim.scripted``) from the fixed start into
-        the run directory and replays it like "demos".
+        in ``demos`` (the DAPG demo format) with the same noise; "teacher" first runs the
+        scripted teacher (``lowcostdex.sim.scripted``) ``teacher_episodes`` times from the fixed
+        start (saved as ``teacher_demo.npz``) and replays its mean action like "demos".
+      teacher_episodes: teacher episodes for init "teacher" (logged as ``teacher_episodes``,
+        counted in robot time, not in ``rollouts``).
       demos: demonstration file (.npz with observations, actions, episode_ends).
       init_noise: std of the initial controller's exploration noise [normalised action].
       pd_gain: position feedback of the initial controller [normalised action / rad].
@@ -147,6 +150,7 @@ class TVLGTrainConfig:
     include_last_action: bool = True
     init: str = "pd"
     demos: str | None = None
+    teacher_episodes: int = 1
     init_noise: float = 0.3
     pd_gain: float = 0.0
     smooth_noise: float = 0.0
@@ -163,7 +167,7 @@ class TVLGTrainConfig:
         check_choice("success mode", self.success, SUCCESS_MODES)
         if self.init == "demos" and not self.demos:
             raise ConfigError("init 'demos' needs a demonstration file (--demos PATH)")
-        for name in ("n_iter", "n_rollouts", "checkpoint_every"):
+        for name in ("n_iter", "n_rollouts", "checkpoint_every", "teacher_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
         if self.eval_every < 0:
@@ -360,36 +364,77 @@ def initial_controller(
     x0: Array,
     hold: Array,
     T: int,
-    demos: str | None = None,
+    demo_actions: Array | None = None,
 ) -> LinearGaussianController:
-    """The first controller: hold (or replay ``demos``, default ``config.demos``) with noise."""
+    """The first controller: hold the start pose, or replay demonstrations, with noise.
+
+    Args:
+      demo_actions: (M, T, dU) actions of M episodes to replay (their mean per step); default:
+        the episodes of ``config.demos`` when ``config.init == "demos"``.
+    """
     task = env.unwrapped.task
     n_hand = len(task.hand_qpos)
     ctl = pd_controller(
         x0, hold, T, list(range(n_hand)), None, config.pd_gain, 0.0, config.init_noise**2
     )
-    if config.init == "pd":
+    if demo_actions is None and config.init != "demos":
         return ctl
-    from lowcostdex.algos.demos import load_demos
-
-    demos = load_demos(demos or config.demos)
-    starts = np.concatenate([[0], demos.episode_ends[:-1]])
-    k = ctl.k.copy()
-    for t in range(T):
-        acts = [
-            demos.actions[s + t]
-            for s, e in zip(starts, demos.episode_ends, strict=True)
-            if s + t < e
-        ]
-        if acts:
-            k[t] += np.mean(acts, axis=0) - hold
-        else:
-            k[t] = k[t - 1]
+    if demo_actions is None:
+        demo_actions = _demo_actions(config.demos, T)
+    k = ctl.k + np.nanmean(demo_actions, axis=0) - hold
     return LinearGaussianController.from_cov(ctl.K, k, ctl.cov)
 
 
-def record_teacher_demo(env: gym.Env, start: FixedStart, path: Path) -> Path:
-    """Run the scripted teacher for one episode from ``start``; save it as a demo file.
+def _demo_actions(path: str | None, T: int) -> Array:
+    """Actions (M, T, dU) of a demo file's episodes, nan-padded; a step no episode reaches
+    repeats the last action of the longest one."""
+    from lowcostdex.algos.demos import load_demos
+
+    demos = load_demos(path)
+    starts = np.concatenate([[0], demos.episode_ends[:-1]])
+    out = np.full((demos.n_episodes, T, demos.actions.shape[1]), np.nan)
+    for i, (s, e) in enumerate(zip(starts, demos.episode_ends, strict=True)):
+        n = min(e - s, T)
+        out[i, :n] = demos.actions[s : s + n]
+    longest = int(np.argmax(demos.episode_ends - starts))
+    for t in range(1, T):
+        if np.all(np.isnan(out[:, t, 0])):
+            out[longest, t] = out[longest, t - 1]
+    return out
+
+
+@dataclass(frozen=True)
+class TeacherEpisodes:
+    """Episodes of the scripted teacher with exploration noise on its actions.
+
+    Attributes:
+      X: (M, T, dX) controller states; U: (M, T, dU) actions applied (teacher + noise; the last
+        one is the teacher's, not executed).
+      successes: (M,) final-step success of each episode.
+      robot_seconds: robot time of all episodes [s].
+    """
+
+    X: Array
+    U: Array
+    successes: NDArray[np.bool_]
+    robot_seconds: float
+
+
+def teacher_episodes(
+    env: gym.Env,
+    start: FixedStart,
+    config: TVLGTrainConfig,
+    hold: Array,
+    T: int,
+    demo_path: Path | None = None,
+    noise: float = 0.0,
+) -> TeacherEpisodes:
+    """Run the scripted valve teacher ``config.teacher_episodes`` times from ``start``.
+
+    Gaussian noise of std ``noise`` may be added to every teacher action (reset seed and noise
+    from (seed, stream 2, 0, i)), e.g. to identify the teacher's feedback with
+    :func:`.policy_fit.fit_policy`. With ``demo_path`` the episodes are also saved in the DAPG
+    demonstration format (observations, applied actions).
 
     Raises:
       ConfigError: if the task has no scripted teacher.
@@ -400,22 +445,41 @@ def record_teacher_demo(env: gym.Env, start: FixedStart, path: Path) -> Path:
         raise ConfigError(
             "init 'teacher' needs lowcostdex.sim.scripted (the valve teacher)"
         ) from exc
-    from lowcostdex.algos.demos import save_demos
     from lowcostdex.sim.envs import goal_to_action
 
     base = env.unwrapped
-    obs, _ = env.reset(options=start.reset_options())
-    teacher = ValveTurnTeacher()
-    teacher.reset(base)
-    observations, actions, done = [], [], False
-    while not done:
-        goal = teacher(base.data.qpos.copy(), base.goal)
-        action = goal_to_action(goal, base.task.hand_low, base.task.hand_high)
-        observations.append(np.asarray(obs, dtype=np.float64))
-        actions.append(action)
-        obs, _, terminated, truncated, _ = env.step(action.astype(np.float32))
-        done = terminated or truncated
-    return save_demos(path, [(np.asarray(observations), np.asarray(actions))])
+    dX = controller_state(env, hold if config.include_last_action else None).shape[0]
+    M, dU = config.teacher_episodes, len(hold)
+    X, U = np.zeros((M, T, dX)), np.zeros((M, T, dU))
+    successes, seconds, demos = np.zeros(M, dtype=bool), 0.0, []
+    for i in range(M):
+        job = RolloutJob(config.seed, _TEACHER_STREAM, 0, i)
+        rng = job.noise_rng()
+        obs, info = env.reset(seed=job.env_seed(), options=start.reset_options())
+        seconds += float(info.get("reset_time", 0.0)) + float(info.get("thermal_pause_time", 0.0))
+        teacher = ValveTurnTeacher()
+        teacher.reset(base)
+        last = hold.copy() if config.include_last_action else None
+        observations = []
+        for t in range(T):
+            X[i, t] = controller_state(env, last)
+            goal = teacher(base.data.qpos.copy(), base.goal)
+            action = goal_to_action(goal, base.task.hand_low, base.task.hand_high)
+            if t == T - 1:
+                U[i, t] = action
+                break
+            U[i, t] = np.clip(action + noise * rng.standard_normal(dU), -1.0, 1.0)
+            observations.append(np.asarray(obs, dtype=np.float64))
+            obs, _, _, _, info = env.step(U[i, t].astype(np.float32))
+            last = U[i, t].copy() if config.include_last_action else None
+        successes[i] = bool(info.get("success", False))
+        seconds += (T - 1) * control_period(env)
+        demos.append((np.asarray(observations), U[i, : T - 1].copy()))
+    if demo_path is not None:
+        from lowcostdex.algos.demos import save_demos
+
+        save_demos(demo_path, demos)
+    return TeacherEpisodes(X, U, successes, seconds)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -478,12 +542,15 @@ def train(
         )
         cost = task_cost(env, start, hold, config.cost, T, x0.shape[0])
         if ckpt is None:
-            demos = config.demos
+            counters = {"samples": 0, "rollouts": 0, "robot_seconds": 0.0, "teacher_episodes": 0}
             if config.init == "teacher":
-                demos = str(record_teacher_demo(env, start, run.path / TEACHER_FILE))
-            ctl = initial_controller(config, env, start, x0, hold, T, demos)
+                teach = teacher_episodes(env, start, config, hold, T, run.path / TEACHER_FILE)
+                ctl = initial_controller(config, env, start, x0, hold, T, teach.U)
+                counters["teacher_episodes"] = config.teacher_episodes
+                counters["robot_seconds"] += teach.robot_seconds
+            else:
+                ctl = initial_controller(config, env, start, x0, hold, T)
             state = TVLGState.initial(ctl, config.algo)
-            counters = {"samples": 0, "rollouts": 0, "robot_seconds": 0.0}
             first = 0
         else:
             state = state_from_arrays(_numpy(ckpt.state["tvlg"]))
@@ -534,6 +601,7 @@ def _loop(
         row: dict[str, Any] = {
             ex.ITERATION: k,
             "rollouts": counters["rollouts"],
+            "teacher_episodes": counters.get("teacher_episodes", 0),
             ex.SUCCESS_RATE: float(np.mean([e.success(config.success) for e in episodes])),
             ex.RETURN_MEAN: float(np.mean([e.rewards.sum() for e in episodes])),
             "final_abs_error": float(np.mean([abs(e.final_error) for e in episodes])),
@@ -631,6 +699,9 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
         "--init-noise", type=float, default=d.init_noise, help="initial action noise std"
     )
     p.add_argument(
+        "--teacher-episodes", type=int, default=d.teacher_episodes, help="for --init teacher"
+    )
+    p.add_argument(
         "--smooth-noise", type=float, default=d.smooth_noise, help="noise smoothing [steps]"
     )
     p.add_argument(
@@ -660,6 +731,7 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
         include_last_action=not args.no_last_action,
         init=args.init,
         demos=str(Path(args.demos).resolve()) if args.demos else None,
+        teacher_episodes=args.teacher_episodes,
         init_noise=args.init_noise,
         smooth_noise=args.smooth_noise,
         eval_every=args.eval_every,
