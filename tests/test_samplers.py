@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -124,3 +125,37 @@ def test_vector_sampler_is_independent_of_num_envs_and_matches_serial():
         np.testing.assert_allclose(a.observations, b.observations, atol=1e-4)
         np.testing.assert_allclose(a.rewards, b.rewards, rtol=1e-4, atol=1e-4)
         assert a.reward_terms.keys() == b.reward_terms.keys()
+
+
+class _RobotLikePointMass(gym.Wrapper):
+    """Reports telemetry as lowcostdex robot backends do: reset time and cumulative pauses."""
+
+    def __init__(self):
+        super().__init__(make_pointmass())
+        self.pause_total = 0.0
+        self.episode = 0
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        pause = 30.0 if self.episode == 1 else 0.0  # a thermal pause before the 2nd episode
+        self.pause_total += pause
+        self.episode += 1
+        info["telemetry"] = {"last_reset_time": 2.0 + pause, "pause_time": self.pause_total}
+        return obs, info
+
+    def step(self, action):
+        obs, r, term, trunc, info = self.env.step(action)
+        info["telemetry"] = {
+            "pause_time": self.pause_total,
+            "resets": float(self.episode),
+            "current": np.ones(3),
+        }
+        return obs, r, term, trunc, info
+
+
+def test_serial_sampler_accounts_robot_resets_and_thermal_pauses():
+    with SerialSampler(_RobotLikePointMass) as sampler:
+        paths = sampler.sample(_snapshot(), make_jobs(0, 0, 0, 3))
+    np.testing.assert_allclose([p.robot_seconds for p in paths], [3.0 + 2.0, 3.0 + 32.0, 3.0 + 2.0])
+    np.testing.assert_allclose([p.pause_seconds for p in paths], [0.0, 30.0, 0.0])
+    assert paths[2].telemetry == {"pause_time": 30.0, "resets": 3.0}  # scalars only

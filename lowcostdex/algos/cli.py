@@ -3,13 +3,15 @@
 Each module in ``TRAINER_MODULES`` exposes ``add_train_commands(train_subparsers)`` and adds
 its trainers (``npg``/``dapg`` from :mod:`lowcostdex.algos.train`, ``tvlg`` from the local-models
 package). A listed module that does not exist or does not expose the function yet is skipped;
-``lowcostdex train --help`` lists what is available.
+one that fails to import is skipped with a message on stderr, so the other commands keep
+working; ``lowcostdex train --help`` lists what is available.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import sys
 
 TRAINER_MODULES: tuple[str, ...] = (
     "lowcostdex.algos.train",
@@ -31,8 +33,19 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         except ModuleNotFoundError as exc:
             if exc.name is not None and name.startswith(exc.name):
                 continue  # that trainer's module does not exist (yet)
-            raise
+            _unavailable(name, exc)
+            continue
+        except Exception as exc:  # a broken trainer must not take the other commands down
+            _unavailable(name, exc)
+            continue
         add = getattr(module, "add_train_commands", None)
         if add is not None:
             add(train_sub)
     parser.set_defaults(func=lambda args: parser.print_help() or 2)
+
+
+def _unavailable(name: str, exc: BaseException) -> None:
+    print(
+        f"lowcostdex train: trainers of {name} unavailable: {type(exc).__name__}: {exc}",
+        file=sys.stderr,
+    )

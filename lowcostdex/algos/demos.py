@@ -6,8 +6,9 @@ File format read and written here (no pickle): an NPZ with
 - ``actions`` (N, act_dim) float64, in the env's action space ([-1, 1]),
 - ``episode_ends`` (E,) int64, the exclusive end index of each episode in the arrays above.
 
-Kinesthetic demonstrations recorded on a robot (``lowcostdex.hardware``) are read through that
-package's reader when the file is not an NPZ.
+Kinesthetic demonstrations recorded on a robot (``lowcostdex record-demos``, an HDF5 file from
+``lowcostdex.hardware.demo_file``) are read through that package's reader when the file is not
+an NPZ; only their successful episodes are used.
 
 :func:`teacher_episodes` records demonstrations in any env from a scripted or learned teacher
 (a function of the env returning the next action), e.g. for simulation benchmarks.
@@ -120,15 +121,17 @@ def load_demos(path: str | Path) -> Demos:
 
 
 def _load_recording(path: Path) -> Demos:
-    """Kinesthetic recordings are read by the hardware layer's reader."""
+    """Kinesthetic recordings (HDF5, ``lowcostdex.hardware.demo_file``); successful episodes."""
     try:
-        from lowcostdex.hardware.demos import read_demo_pairs  # type: ignore[attr-defined]
-    except ImportError as exc:
+        from lowcostdex.hardware.demo_file import read_demo_pairs
+    except ImportError as exc:  # pragma: no cover - the hardware layer ships with the package
         raise ConfigError(
-            f"{path}: not an .npz, and no reader for robot recordings is available "
-            "(lowcostdex.hardware.demos.read_demo_pairs)"
+            f"{path}: not an .npz, and the robot-recording reader is missing"
         ) from exc
-    return Demos.from_episodes(read_demo_pairs(path))
+    episodes = read_demo_pairs(path, only_successful=True)
+    if not episodes:
+        raise ConfigError(f"{path} holds no successful demonstration")
+    return Demos.from_episodes(episodes)
 
 
 def teacher_episodes(

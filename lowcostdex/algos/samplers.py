@@ -100,10 +100,13 @@ class Trajectory:
       truncated: the episode was cut by the time limit (bootstrap with V(s_T)).
       index: the job index (trajectory index within its iteration).
       reward_terms: per-term sums over the episode of ``info["reward_<term>"]``.
-      robot_seconds: robot wall-clock time of the episode [s]: T * control period plus
-        reset and thermal-pause time the env reports (``info["reset_time"]`` and
-        ``info["thermal_pause_time"]`` at reset, when present).
-      pause_seconds: the thermal-pause part of robot_seconds [s].
+      robot_seconds: robot wall-clock time of the episode [s]: T * control period, plus on a
+        robot backend the auto-reset before it (``info["telemetry"]["last_reset_time"]`` at
+        reset, which includes any thermal pause).
+      pause_seconds: thermal-pause time before the episode [s] (set by the serial sampler from
+        the robot's cumulative ``pause_time``; 0 in simulation).
+      telemetry: scalar robot telemetry after the last step (cumulative counters such as
+        ``resets``, ``pause_time``, ``overloads``, ``max_temperature``); empty in simulation.
       final_goal_error: ``|info["goal_error"]|`` after the last step (NaN if the env does not
         report one), e.g. the valve's angle error [rad].
     """
@@ -120,6 +123,8 @@ class Trajectory:
     robot_seconds: float
     pause_seconds: float = 0.0
     final_goal_error: float = float("nan")
+    telemetry: dict[str, float] = field(default_factory=dict)
+    pause_total: float | None = None
 
     def __len__(self) -> int:
         return int(self.rewards.shape[0])
@@ -152,8 +157,9 @@ def rollout(
     rng = None if job.deterministic else job.noise_rng()
     space = env.action_space
     low, high = (space.low, space.high) if isinstance(space, gym.spaces.Box) else (None, None)
-    extra = float(info.get("reset_time", 0.0)) + float(info.get("thermal_pause_time", 0.0))
-    pause = float(info.get("thermal_pause_time", 0.0))
+    reset_tel = info.get("telemetry") or {}
+    reset_seconds = float(reset_tel.get("last_reset_time", 0.0))
+    pause_total = float(reset_tel["pause_time"]) if "pause_time" in reset_tel else None
     observations, actions, rewards, successes = [], [], [], []
     terms: dict[str, float] = {}
     terminated = truncated = False
@@ -182,10 +188,19 @@ def rollout(
         truncated=bool(truncated and not terminated),
         index=job.index,
         reward_terms=terms,
-        robot_seconds=n * control_period(env) + extra,
-        pause_seconds=pause,
+        robot_seconds=n * control_period(env) + reset_seconds,
         final_goal_error=abs(float(info.get("goal_error", np.nan))) if n else float("nan"),
+        telemetry=_scalars(info.get("telemetry") or {}),
+        pause_total=pause_total,
     )
+
+
+def _scalars(telemetry: Mapping[str, Any]) -> dict[str, float]:
+    out = {}
+    for key, value in telemetry.items():
+        if isinstance(value, (bool, int, float, np.bool_, np.integer, np.floating)):
+            out[key] = float(value)
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -211,11 +226,16 @@ class Sampler(abc.ABC):
 
 
 class SerialSampler(Sampler):
-    """One env in this process; also the sampler for the emulated and real robots."""
+    """One env in this process; also the sampler for the emulated and real robots.
+
+    On a robot it turns the robot's cumulative thermal-pause time into the pause before each
+    episode (``Trajectory.pause_seconds``).
+    """
 
     def __init__(self, env_factory: EnvFactoryFn, max_steps: int | None = None):
         self.env_factory, self.max_steps = env_factory, max_steps
         self._env: gym.Env | None = None
+        self._pause_seen = 0.0
 
     @property
     def env(self) -> gym.Env:
@@ -224,7 +244,14 @@ class SerialSampler(Sampler):
         return self._env
 
     def sample(self, policy: PolicySnapshot, jobs: Sequence[RolloutJob]) -> list[Trajectory]:
-        return [rollout(self.env, policy, job, self.max_steps) for job in jobs]
+        paths = []
+        for job in jobs:
+            path = rollout(self.env, policy, job, self.max_steps)
+            if path.pause_total is not None:
+                path.pause_seconds = max(path.pause_total - self._pause_seen, 0.0)
+                self._pause_seen = path.pause_total
+            paths.append(path)
+        return paths
 
     def close(self) -> None:
         if self._env is not None:

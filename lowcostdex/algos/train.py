@@ -64,6 +64,21 @@ ALGOS = ("npg", "dapg")
 BACKENDS = ("sim", "emulated", "hardware")
 OBS_NORMS = ("running", "frozen")
 SUCCESS_MODES = ("final", "any")
+ROBOT_COUNTERS = (
+    "resets",
+    "reset_failures",
+    "reset_success_rate",
+    "reset_time",
+    "pauses",
+    "pause_time",
+    "overloads",
+    "thermal_relaxations",
+    "faults",
+    "invalid_reads",
+    "max_temperature",
+)
+"""Robot telemetry logged every iteration on emulated/hardware backends (as ``robot_<key>``);
+cumulative over the process's lifetime (they restart after a resume)."""
 MUTABLE_ON_RESUME = ("n_iter", "progress", "torch_threads")
 """Config keys a resumed run may change."""
 
@@ -463,6 +478,11 @@ def _loop(
             state.robot_seconds += sum(p.robot_seconds for p in eval_paths)
             state.pause_seconds += sum(p.pause_seconds for p in eval_paths)
             row.update(path_metrics(eval_paths, config.success, prefix="eval_"))
+            latest = eval_paths[-1]
+        else:
+            latest = paths[-1]
+        if latest.telemetry:  # robot backends: the robot's cumulative counters
+            row.update({f"robot_{k}": latest.telemetry.get(k, math.nan) for k in ROBOT_COUNTERS})
         row.update(
             {
                 ex.SAMPLES: state.samples,
