@@ -1,0 +1,54 @@
+"""The NPG/DAPG demo scripts run end to end with tiny budgets."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+DEMOS = Path(__file__).resolve().parents[1] / "demos"
+
+
+def _run(script: str, args: list[str], monkeypatch) -> None:
+    spec = importlib.util.spec_from_file_location(script, DEMOS / f"{script}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(sys, "argv", [script, *args])
+    module.main()
+
+
+def test_npg_valve_demo(tmp_path, monkeypatch, capsys):
+    _run(
+        "npg_valve", ["--iters", "2", "--n-traj", "2", "--out", str(tmp_path / "npg")], monkeypatch
+    )
+    assert "learning curves" in capsys.readouterr().out
+    assert (tmp_path / "npg" / "learning_curves.png").exists()
+
+
+def test_flip_keypoints_vs_quaternion_demo(tmp_path, monkeypatch):
+    _run(
+        "flip_keypoints_vs_quaternion",
+        ["--iters", "1", "--n-traj", "2", "--out", str(tmp_path)],
+        monkeypatch,
+    )
+    assert (tmp_path / "keypoints_vs_quaternion.png").stat().st_size > 10_000
+
+
+def test_dapg_kinesthetic_valve_demo(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("lowcostdex.hardware.demos")
+    args = [
+        "--demos",
+        "2",
+        "--iters",
+        "1",
+        "--n-traj",
+        "2",
+        "--backend",
+        "sim",
+        "--out",
+        str(tmp_path),
+    ]
+    _run("dapg_kinesthetic_valve", args, monkeypatch)
+    assert "BC on 2 demos" in capsys.readouterr().out
