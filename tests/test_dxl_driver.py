@@ -268,3 +268,20 @@ def test_calibration_recovers_the_true_mounting():
         new = calibrate_offsets(bus, hand, reference=pose, samples=5)
     for a, b in zip(new.all_joints, true.all_joints, strict=True):
         assert a.calibration.offset == pytest.approx(b.calibration.offset, abs=0.6 * TICK)
+
+
+def test_4mbps_works_and_a_baud_mismatch_is_reported():
+    fast = emulated_dclaw(station="none", baudrate=4_000_000)
+    with DynamixelBus.from_hand(fast.hand, fast.port(), handle_signals=False,
+                                baudrate=4_000_000) as bus:
+        t0 = fast.now
+        assert bus.read_state().valid.all()
+        # 9 x 21 B fast sync read at 4 Mbps: (23 + 233) bytes x 2.5 us
+        assert fast.now - t0 == pytest.approx(256 * 2.5e-6, rel=0.05)
+        assert all(m.get(Reg.BAUD_RATE) == 6 for m in fast.motors.values())
+    slow = emulated_dclaw(station="none", baudrate=1_000_000)
+    bus = DynamixelBus.from_hand(slow.hand, slow.port(), handle_signals=False,
+                                 baudrate=4_000_000, retries=0)
+    with pytest.raises(BusError, match="at 4000000 bps") as info:
+        bus.connect()
+    assert str(info.value).count("no reply") == 9
