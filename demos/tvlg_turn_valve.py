@@ -10,8 +10,9 @@ Initial controller (``--init``):
   pd       hold the start pose with exploration noise. From there local models do not find the
            multi-stroke gait a 180 deg turn needs within ~60 rollouts (see bench/RESULTS.md).
 
-Backends: ``--backend sim`` (default) or ``emulated`` (the MuJoCo-emulated Dynamixel bus, once the
-hardware layer provides it); ``hardware`` with ``--port``.
+Backends: ``--backend sim`` (default; the valve turns), ``emulated`` (the MuJoCo-emulated
+Dynamixel bus: runs, but the first local-model update currently breaks the teacher's turn there,
+see bench/RESULTS.md) and ``hardware`` with ``--port``.
 
     python demos/tvlg_turn_valve.py --out runs/tvlg_valve
     python demos/tvlg_turn_valve.py --init pd --n-iter 12 --out runs/tvlg_valve_pd

@@ -73,6 +73,16 @@ def test_valve_cost_targets_half_turn_positive_and_start_pose(valve) -> None:
     assert object_term.weights[18] == 1.0 and hand_term.weights[18] == 0.0
 
 
+def test_object_target_turns_half_turns_positively_or_like_the_reference() -> None:
+    from lowcostdex.algos.local_models.train import object_target
+
+    assert object_target(0.0, math.pi) == pytest.approx(math.pi)
+    assert object_target(-0.01, math.pi) == pytest.approx(math.pi)  # not -pi for a hair off 0
+    assert object_target(0.0, math.pi, reference=-3.0) == pytest.approx(-math.pi)
+    assert object_target(0.0, -1.0) == pytest.approx(-1.0)
+    assert object_target(2 * math.pi, 0.5) == pytest.approx(2 * math.pi + 0.5)
+
+
 def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
     pytest.importorskip("lowcostdex.algos.demos")
     from lowcostdex.algos.demos import save_demos

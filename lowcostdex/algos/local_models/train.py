@@ -195,17 +195,22 @@ class TVLGTrainConfig:
 
 @dataclass(frozen=True)
 class FixedStart:
-    """The start every episode resets to: qpos (nq,), qvel (nv,) and the task goal."""
+    """The start every episode resets to: qpos (nq,), qvel (nv,) and the task goal.
+
+    ``reference`` [rad], when finite, is an object angle the goal is unwrapped next to (the end
+    angle of a teacher episode, so the cost turns the way the teacher did).
+    """
 
     qpos: Array
     qvel: Array
     goal: dict[str, Array]
+    reference: float = math.nan
 
     def reset_options(self) -> dict[str, Any]:
         return {"qpos": self.qpos, "qvel": self.qvel, "goal": self.goal}
 
     def to_arrays(self) -> dict[str, Array]:
-        out = {"qpos": self.qpos, "qvel": self.qvel}
+        out = {"qpos": self.qpos, "qvel": self.qvel, "reference": np.asarray(self.reference)}
         out.update({f"goal/{k}": np.asarray(v) for k, v in self.goal.items()})
         return out
 
@@ -219,7 +224,10 @@ class FixedStart:
             for k, v in arrays.items()
             if k.startswith("goal/")
         }
-        return cls(np.asarray(arrays["qpos"], float), np.asarray(arrays["qvel"], float), goal)
+        reference = float(np.asarray(arrays.get("reference", math.nan)).reshape(()))
+        return cls(
+            np.asarray(arrays["qpos"], float), np.asarray(arrays["qvel"], float), goal, reference
+        )
 
 
 def capture_start(env: gym.Env, seed: int) -> FixedStart:
@@ -312,14 +320,32 @@ def run_episode(
 # Cost and initial controller
 
 
+HALF_TURN_TOLERANCE = 0.25
+"""Goals within this angle [rad] of a half turn from the start are reached turning positively."""
+
+
+def object_target(theta0: float, goal: float, reference: float = math.nan) -> float:
+    """The copy goal + 2 pi n [rad] the cost pulls the object angle to.
+
+    Nearest to ``reference`` when it is finite; otherwise nearest to the start angle ``theta0``,
+    except that a goal within HALF_TURN_TOLERANCE of a half turn is taken in the positive
+    direction (a measured start angle a hair off zero must not flip a 180 deg goal).
+    """
+    if math.isfinite(reference):
+        return reference + (goal - reference + math.pi) % (2 * math.pi) - math.pi
+    d = (goal - theta0 + math.pi) % (2 * math.pi) - math.pi  # [-pi, pi)
+    if d < -math.pi + HALF_TURN_TOLERANCE:
+        d += 2 * math.pi
+    return theta0 + d
+
+
 def task_cost(
     env: gym.Env, start: FixedStart, hold: Array, cfg: TaskCostConfig, T: int, dX: int
 ) -> SumCost:
     """Quadratic cost of a goal-angle task over T steps, for states of size dX.
 
-    The object target is the goal angle unwrapped to within (-pi, pi] of the start angle, so a
-    half-turn goal is reached by turning in the positive direction (for a moving goal, one target
-    per step from ``task.advance_goal``). The hand is kept near its start
+    The object target is the goal angle unwrapped by :func:`object_target` (for a moving goal,
+    one target per step from ``task.advance_goal``, unwrapped continuously). The hand is kept near its start
     pose and the action near the one holding it.
 
     Raises:
@@ -334,12 +360,13 @@ def task_cost(
         )
     n_hand = len(task.hand_qpos)
     obj = 2 * n_hand  # state_vector: hand qpos, hand qvel, object qpos, object qvel
-    theta0 = float(start.qpos[task.obj_qpos])
-    goals = [task.advance_goal(start.goal, t)["angle"] for t in range(T)]
+    goals = np.unwrap([float(task.advance_goal(start.goal, t)["angle"]) for t in range(T)])
     target = np.tile(np.concatenate([start.qpos[task.hand_qpos], np.zeros(dX - n_hand)]), (T, 1))
-    target[:, obj] = [
-        theta0 - (theta0 - float(g) + math.pi) % (2 * math.pi) + math.pi for g in goals
-    ]
+    target[:, obj] = (
+        goals
+        + object_target(float(start.qpos[task.obj_qpos]), goals[0], start.reference)
+        - goals[0]
+    )
     w_obj = np.zeros(dX)
     w_obj[obj] = 1.0
     w_hand = np.zeros(dX)
@@ -540,11 +567,12 @@ def train(
             )
             + 1
         )
-        cost = task_cost(env, start, hold, config.cost, T, x0.shape[0])
         if ckpt is None:
             counters = {"samples": 0, "rollouts": 0, "robot_seconds": 0.0, "teacher_episodes": 0}
             if config.init == "teacher":
                 teach = teacher_episodes(env, start, config, hold, T, run.path / TEACHER_FILE)
+                obj = 2 * len(hold)  # object angle in the controller state
+                start = dataclasses.replace(start, reference=float(np.mean(teach.X[:, -1, obj])))
                 ctl = initial_controller(config, env, start, x0, hold, T, teach.U)
                 counters["teacher_episodes"] = config.teacher_episodes
                 counters["robot_seconds"] += teach.robot_seconds
@@ -556,6 +584,7 @@ def train(
             state = state_from_arrays(_numpy(ckpt.state["tvlg"]))
             counters = dict(ckpt.state["counters"])
             first = ckpt.iteration + 1
+        cost = task_cost(env, start, hold, config.cost, T, x0.shape[0])
         _loop(config, run, env, state, cost, start, hold, counters, first, stop_after)
     finally:
         env.close()
