@@ -111,3 +111,17 @@ def test_jammed_valve_ends_in_reset_failed_within_a_bounded_time(claw):
     assert time.monotonic() - t_wall < 60.0
     assert not chain.motors[50].torque_on  # released, not left straining
     assert robot.metrics.reset_failures == 1 and robot.metrics.resets == 0
+
+
+def test_robel_baseline_runs_through_the_same_gate_and_never_blocks(claw):
+    """ROBEL's sequence (the benchmark baseline, bench/reset.py) resets a tangle, and raises
+    instead of waiting on input() when it cannot."""
+    from lowcostdex.hardware.reset import RobelReset
+
+    chain, robot = claw
+    stats = reset_trials(robot, RobelReset(robot), RESET_POSE, 2, np.random.default_rng(3))
+    assert stats.success_rate == 1.0
+    m = chain.plant.model
+    m.jnt_range[m.joint("ff_middle").id] = [0.5, 0.6]  # a finger stuck inward
+    with pytest.raises(ResetFailed, match="ROBEL would block on input"):
+        RobelReset(robot, ResetConfig(max_retries=1))(RESET_POSE, 0.0)

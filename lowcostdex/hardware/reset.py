@@ -296,8 +296,6 @@ class DClawReset:
         fingers = list(r.action_joints)
         if staged:
             self._retract(target, stages)
-            r.enable(p["top"])
-            self._move(target, p["top"], "top", stages)
         limp = r.enable(fingers)
         res = self._move(target, fingers, "fingers", stages, final=True)
         bad = res.outside(self.config.tolerance)
@@ -337,14 +335,14 @@ class DClawReset:
         r.torque(False, r.action_joints)
         r.rest(cfg.limp_rest)
         sub: list[StageResult] = []
-        if attempt <= 2:
-            side = 1.0 if attempt == 1 else -1.0
+        if attempt == 1:
+            robel_disentangle(r, target, p)
+        elif attempt == 2:
             tops = r.index(p["top"])
             swung = dict(target)
-            swung.update({n: side * cfg.swing * (r.high[i] if side > 0 else -r.low[i])
-                          for n, i in zip(p["top"], tops)})
+            swung.update({n: cfg.swing * r.low[i] for n, i in zip(p["top"], tops)})
             r.enable(p["top"])
-            self._move(swung, p["top"], f"swing_{'+' if side > 0 else '-'}", sub)
+            self._move(swung, p["top"], "swing_-", sub)
             r.enable(p["middle"])
             self._move(target, p["middle"], "retract", sub)
         else:
@@ -390,6 +388,89 @@ class DClawReset:
                          tolerance=cfg.valve_tolerance, wrap=True, final=True)
         r.torque(False, [v])  # released for the episode
         return res.reached, res.outside(cfg.valve_tolerance)
+
+
+class RobelReset:
+    """ROBEL's D'Claw reset, reproduced as the baseline ``DClawReset`` is measured against
+    (google-research/robel ``dclaw/scripted_reset.py``, 01-hardware.md section 1.6), bounded:
+    after ``max_retries`` failed retries it raises ResetFailed where ROBEL blocks on
+    ``input()``, and it moves through the same Robot safety gate.
+
+    Sequence: top and bottom joints off, claw pose commanded (middles move) while the valve is
+    driven to its start angle; at least 1 s; all joints on and a blocking move (ROBEL's wait:
+    every joint within 1 deg, or under 1 deg of motion over two 0.25 s polls, or 3 s); check
+    5 deg; on failure disentangle (``robel_disentangle``) and retry; release the valve.
+    """
+
+    def __init__(self, robot: Robot, config: ResetConfig = ResetConfig(),
+                 valve: str | None = "valve"):
+        self.robot, self.config, self.valve = robot, config, valve
+        self.parts = _parts(robot.action_joints)
+
+    def __call__(self, finger_target: np.ndarray, valve_target: float | None = None
+                 ) -> ResetReport:
+        r, cfg, p = self.robot, self.config, self.parts
+        start = r.clock.now()
+        target = dict(zip(r.action_joints, np.asarray(finger_target, float)))
+        fingers = list(r.action_joints)
+        r.torque(False, p["top"] + p["bottom"])
+        r.enable(p["middle"])
+        joints = list(p["middle"])
+        if self.valve is not None and valve_target is not None:
+            r.torque(True, [self.valve])
+            target[self.valve] = float(valve_target)
+            joints.append(self.valve)
+        _robel_wait(r, target, joints, timeout=10.0, wrap=self.valve in joints)
+        r.rest(max(0.0, 1.0 - (r.clock.now() - start)))
+        errors: dict[str, float] = {}
+        for attempt in range(cfg.max_retries + 1):
+            r.metrics.reset_attempts += 1
+            r.enable(fingers)
+            _robel_wait(r, target, fingers, timeout=3.0)
+            idx = r.index(fingers)
+            err = np.abs(r.present[idx] - np.array([target[n] for n in fingers]))
+            errors = {n: float(e) for n, e in zip(fingers, err) if not e < cfg.tolerance}
+            if not errors:
+                if self.valve is not None:
+                    r.torque(False, [self.valve])
+                duration = r.clock.now() - start
+                r.metrics.resets += 1
+                r.metrics.reset_time += duration
+                return ResetReport(True, attempt + 1, duration)
+            if attempt < cfg.max_retries:
+                robel_disentangle(r, target, self.parts)
+        if self.valve is not None:
+            r.torque(False, [self.valve])
+        r.metrics.reset_failures += 1
+        r.metrics.reset_time += r.clock.now() - start
+        raise ResetFailed("fingers", errors, cfg.max_retries + 1, "ROBEL would block on input()")
+
+
+def _parts(names: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    return {p: tuple(n for n in names if n.endswith("_" + p)) for p in ("top", "middle", "bottom")}
+
+
+def _robel_wait(r: Robot, target: dict[str, float], joints: Sequence[str], timeout: float,
+                wrap: bool = False) -> None:
+    """ROBEL's blocking wait: within 1 deg, stalled (< 1 deg over two polls), or timeout."""
+    move(r, np.array([target[j] for j in joints]), joints, tolerance=math.radians(1.0),
+         timeout=timeout, stall_time=0.5, stall_motion=math.radians(1.0), wrap=wrap)
+
+
+def robel_disentangle(r: Robot, target: dict[str, float], parts: dict[str, tuple[str, ...]]
+                      ) -> None:
+    """ROBEL's disentangle: all off 0.75 s; tops to pi/4 (clipped to their limits here), then
+    middles, then bottoms to the pose, 0.75 s each, the joints already moved held."""
+    r.torque(False, r.action_joints)
+    r.rest(0.75)
+    tops = r.index(parts["top"])
+    swung = {n: float(min(math.pi / 4, r.high[i])) for n, i in zip(parts["top"], tops)}
+    for group, goal in (("top", swung), ("middle", target), ("bottom", target)):
+        r.enable(parts[group])
+        end = r.clock.now() + 0.75
+        r.rate.restart()
+        while r.clock.now() < end - 1e-9:
+            r.step(np.array([goal[j] for j in parts[group]]), parts[group])
 
 
 # ------------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lowcostdex.hardware.reset import DClawReset, ResetFailed
+from lowcostdex.hardware.reset import DClawReset, ResetFailed, RobelReset
 from lowcostdex.hardware.robot import Robot
 
 
@@ -70,14 +70,16 @@ class TrialStats:
                 "retried": int(np.sum(np.array(self.attempts) > 1)) if self.attempts else 0}
 
 
-def reset_trials(robot: Robot, reset: DClawReset, target: np.ndarray, n: int,
+def reset_trials(robot: Robot, reset: DClawReset | RobelReset, target: np.ndarray, n: int,
                  rng: np.random.Generator, valve_range: float = np.pi / 3,
-                 on_trial: Callable[[int, bool, float], None] | None = None) -> TrialStats:
-    """``n`` times: tangle, then reset to ``target`` (9,) [rad] and a random valve angle in
-    +-``valve_range`` [rad]. A failed reset is counted and the next trial goes on."""
+                 on_trial: Callable[[int, bool, float], None] | None = None,
+                 tangler: Callable[[Robot, np.random.Generator], None] = tangle) -> TrialStats:
+    """``n`` times: ``tangler`` (default ``tangle``), then reset to ``target`` (9,) [rad] and a
+    random valve angle in +-``valve_range`` [rad]. A failed reset is counted and the next trial
+    goes on."""
     stats = TrialStats()
     for k in range(n):
-        tangle(robot, rng)
+        tangler(robot, rng)
         valve = float(rng.uniform(-valve_range, valve_range)) if reset.valve else None
         stats.trials += 1
         try:

@@ -34,6 +34,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
     p.add_argument("--no-effects", action="store_true",
                    help="emulated robot without the default servo effects")
+    p.add_argument("--procedure", default="lowcostdex", choices=("lowcostdex", "robel"),
+                   help="the staged, verified reset or ROBEL's sequence (the baseline)")
     p.add_argument("--json", default=None, help="also write the summary to this JSON file")
     p.set_defaults(func=_reset_test)
 
@@ -70,7 +72,7 @@ def _reset_test(args: argparse.Namespace) -> int:
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.backend import default_effects, make_dynamixel_bus
-    from lowcostdex.hardware.reset import DClawReset
+    from lowcostdex.hardware.reset import DClawReset, RobelReset
     from lowcostdex.hardware.reset_test import reset_trials
     from lowcostdex.hardware.robot import Robot
     from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
@@ -93,13 +95,15 @@ def _reset_test(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     with robot, Progress(console=console) as progress:
         task = progress.add_task("reset trials", total=args.trials)
-        stats = reset_trials(robot, DClawReset(robot), RESET_POSE, args.trials,
+        procedure = (DClawReset if args.procedure == "lowcostdex" else RobelReset)(robot)
+        stats = reset_trials(robot, procedure, RESET_POSE, args.trials,
                              np.random.default_rng(args.seed),
                              on_trial=lambda k, ok, t: progress.advance(task))
     summary = stats.summary()
     keys = ("trials", "successes", "success_rate", "time_mean", "time_median", "time_max",
             "retried")
-    table = Table(title=f"D'Claw auto-reset on {args.port} (times in robot-clock seconds)")
+    table = Table(title=f"D'Claw auto-reset ({args.procedure}) on {args.port} "
+                        "(times in robot-clock seconds)")
     for key in keys:
         table.add_column(key)
     table.add_row(*(f"{summary[k]:.3g}" if isinstance(summary[k], float) else str(summary[k])
