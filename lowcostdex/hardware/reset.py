@@ -11,16 +11,18 @@ D'Claw (``DClawReset``), ROBEL's sequence (01-hardware.md section 1.6) as the ba
 
   0. rest first if the thermal guard asked for a pause; reboot motors with latched errors;
   1. retract: middle joints to their reset angle with top and bottom joints limp, so the
-     fingers unfold away from each other and from the object without fighting contacts;
-  2. top joints to their reset angle (middle held);
-  3. bottom joints to their reset angle; verify all nine joints (ROBEL: 5 deg);
-  4. valve (motor id 50): drive to the episode's start angle, verify, then release (torque off
-     for the episode so the fingers turn it freely).
+     fingers unfold away from each other and from the object without fighting contacts (a
+     middle joint outside its limits hangs and is retried);
+  2. all nine joints to their reset angles, run to a 0.01 rad precision and verified per joint
+     (ROBEL: 5 deg);
+  3. valve (motor id 50): drive to the episode's start angle, verify (ROBEL does not), then
+     release (torque off for the episode so the fingers turn it freely).
 
-  Before a retry, disentangle: every finger limp for a moment (gravity opens tangles), then the
-  fingers are reset one at a time while the others stay limp, so no two fingers can push against
-  each other. ROBEL instead moves all fingers together through fixed poses and, after three
-  failures, blocks on ``input()``.
+  Each retry starts with a different disentangle: ROBEL's (tops to one side, then middles, then
+  bottoms), the opposite swing, then one finger at a time with escape moves for a hooked tip
+  while the others hang limp. ROBEL repeats its one disentangle and, after three failures,
+  blocks on ``input()``. ``RobelReset`` reproduces ROBEL's sequence (bounded) as the baseline;
+  ``bench/reset.py`` compares the two on the same seeded tangles.
 
 ``FlipBlockReset`` re-centres the block of the flip task with a three-finger squeeze and
 reorients it with an optional policy (e.g. the learned flip policy: two 180 deg flips about the
@@ -323,12 +325,12 @@ class DClawReset:
     def _disentangle(self, target: dict[str, float], attempt: int) -> StageResult:
         """Free tangled fingers before retry ``attempt`` (1, 2, ...).
 
-        Every retry starts limp (contact forces relax). Retries 1 and 2 swing all top joints
-        to one side, then the other (``swing`` x their limit, middle and bottom joints limp so
-        the fingers rotate freely), and retract the middle joints with the tops held there:
-        fingers hooked side by side come apart when both turn the same way (ROBEL turns the
-        tops to pi/4 on every retry). Later retries reset one finger at a time while the others
-        hang limp, with escape moves for a finger whose tip is hooked (``_free_finger``).
+        Every retry starts limp (contact forces relax). Retry 1 is ROBEL's disentangle (tops to
+        pi/4, clipped to their limits, then middles, then bottoms); retry 2 swings the tops the
+        other way (``swing`` x their lower limit, middles and bottoms limp) and retracts the
+        middles with the tops held there: fingers hooked side by side come apart when both turn
+        the same way. Later retries reset one finger at a time while the others hang limp, with
+        escape moves for a finger whose tip is hooked (``_free_finger``).
         """
         r, cfg, p = self.robot, self.config, self.parts
         start = r.clock.now()
