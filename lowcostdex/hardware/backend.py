@@ -207,6 +207,10 @@ class EmulatedBackend(RobotBackend):
 
         if task is None:
             raise ConfigError("EmulatedBackend needs the task (it builds the task's station)")
+        if task.hand.name != "dclaw":
+            raise ConfigError(f"backend='emulated' runs D'Claw tasks; {task.hand.name} tasks run "
+                              "on backend='sim' (the emulated Allegro is "
+                              "lowcostdex.hardware.allegro_emulator, a MotorBus for the Robot)")
         rng = rng if rng is not None else np.random.default_rng(0)
         hand = robot_hand(task.hand, model)
         if effects is None:
@@ -260,6 +264,10 @@ class HardwareBackend(RobotBackend):
                  reorient: Reorient | None = None, **bus_kwargs: Any):
         if task is None or port is None:
             raise ConfigError("HardwareBackend needs the task and port=... (e.g. /dev/ttyUSB0)")
+        if task.hand.name != "dclaw":
+            raise ConfigError(f"backend='hardware' drives a D'Claw on Dynamixels; for the "
+                              f"{task.hand.name} use lowcostdex.hardware.allegro.AllegroBus "
+                              "with a Robot")
         if task.station == "block" and tracker is None:
             raise ConfigError("the flip-block task on hardware needs tracker=... (a function "
                               "returning the block's position and quaternion)")
