@@ -65,6 +65,7 @@ from lowcostdex.hardware.protocol import (
     Packet,
     PacketReader,
     baud_code,
+    crc16,
     fast_status_packet,
     status_packet,
     wire_time,
@@ -349,6 +350,7 @@ class EmulatedChain:
         self.step_hooks: list[StepHook] = []
         self.dead: set[int] = set()
         self._reader = PacketReader()
+        crc16(b"\0\0")  # builds the CRC table now, not while the first instruction waits
         self._seq = 0
         self._tick_time: float | None = None  # physics time of the step being taken
         self._last_rx_time = -math.inf
