@@ -153,7 +153,7 @@ def record_demos(
 
 
 def fmt_samples(x: float) -> str:
-    return "not reached" if math.isnan(x) else f"{x / 1e3:.0f}k"
+    return "not reached" if not math.isfinite(x) else f"{x / 1e3:.0f}k"
 
 
 def summarize(name: str, results: dict[str, list[dict[str, float]]], budget: int) -> list[str]:

@@ -11,6 +11,15 @@ from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
 from lowcostdex.errors import ConfigError
 
 
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """Small networks: one thread is fastest and immune to a busy machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def _linear_demos(n=2000, seed=0):
     rng = np.random.default_rng(seed)
     a_true = np.array([[0.3, -0.2, 0.1], [0.0, 0.25, -0.15]])

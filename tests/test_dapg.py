@@ -12,6 +12,15 @@ from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
 from lowcostdex.errors import ConfigError
 
 
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """Small networks: one thread is fastest and immune to a busy machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def _setup(seed=0, n=300, m=100):
     policy = GaussianMLPPolicy(
         3, 2, PolicyConfig(hidden_sizes=(16,)), torch.Generator().manual_seed(seed)

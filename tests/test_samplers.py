@@ -66,7 +66,7 @@ def test_results_do_not_depend_on_the_number_of_workers():
     snap = _snapshot(1)
     jobs = make_jobs(seed=11, stream=0, iteration=0, n=7)
     serial = SerialSampler(make_pointmass).sample(snap, jobs)
-    for n_workers in (2, 3):
+    for n_workers in (3,):  # (test_train runs a 2-worker pool against a serial run)
         with ProcessSampler(make_pointmass, n_workers) as pool:
             _assert_same(serial, pool.sample(snap, jobs))
             # workers persist across iterations
