@@ -60,7 +60,8 @@ def test_frame_ids_and_payload_codecs():
     assert np.max(np.abs(back - q)) <= proto.POSITION_UNIT / 2 + 1e-12
     assert proto.POSITION_UNIT == pytest.approx(np.radians(333.3 / 65536))
     assert proto.parse_period(proto.period_message(3, 0, 100).data) == (3, 0, 100)
-    info = proto.HandInfo(4, 0x0400, True, 31, proto.STATUS_SERVO_ON | proto.STATUS_HIGH_TEMPERATURE)
+    status = proto.STATUS_SERVO_ON | proto.STATUS_HIGH_TEMPERATURE
+    info = proto.HandInfo(4, 0x0400, True, 31, status)
     back_info = proto.HandInfo.unpack(info.pack())
     assert back_info == info and back_info.servo_on and back_info.faults == ("high_temperature",)
 
@@ -189,7 +190,7 @@ def test_thermal_guard_relaxes_a_stalled_joint_before_the_firmware_fault():
     emu.close()
 
 
-# -- real time: threaded driver against the hand served from a thread --------------------------------
+# -- real time: threaded driver against the hand served from a thread ----------------------------
 
 
 def test_threaded_driver_against_a_real_time_emulated_hand():

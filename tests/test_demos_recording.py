@@ -74,7 +74,7 @@ def test_virtual_teacher_demos_solve_the_valve_and_round_trip(recorded):
     assert (n_episodes, n_steps) == (2, 80)
     assert info.source == "virtual_teacher" and info.env_id == ENV and info.act_dim == 9
     back = read_episodes(path)
-    for mine, theirs in zip(episodes, back):
+    for mine, theirs in zip(episodes, back, strict=True):
         for name in ("observations", "actions", "rewards", "qpos", "qvel", "time", "success"):
             np.testing.assert_array_equal(getattr(mine, name), getattr(theirs, name))
         assert theirs.success[-1] and theirs.reset_attempts >= 1

@@ -49,7 +49,7 @@ def test_reset_succeeds_from_random_tangles(claw):
 
     stats = reset_trials(robot, reset, RESET_POSE, 8, rng, on_trial=check)
     assert stats.success_rate == 1.0, stats.failures
-    for ok, q, valve_torque in checks:
+    for _ok, q, valve_torque in checks:
         assert np.max(np.abs(q - RESET_POSE)) < ResetConfig().tolerance  # device side
         assert not valve_torque  # the valve is released for the episode
     assert max(stats.times) < 30.0

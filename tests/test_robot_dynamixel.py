@@ -40,8 +40,6 @@ def test_goals_outside_limits_or_motion_bound_never_reach_the_motors():
     chain, robot = connected_robot()
     robot.torque(True, HAND.joint_names)
     rng = np.random.default_rng(3)
-    low = np.array([j.low for j in HAND.joints])
-    high = np.array([j.high for j in HAND.joints])
     n_logged = len(chain.goal_log)
     presents, sents = [], []
     for _ in range(30):  # wild goals: far outside the limits, big jumps
@@ -58,7 +56,7 @@ def test_goals_outside_limits_or_motion_bound_never_reach_the_motors():
         # and every accepted goal is within the per-step motion bound of the present position
         sent_ticks = goal_ticks(joint.name, np.array([s[k] for s in sents]))
         np.testing.assert_array_equal(accepted, sent_ticks)
-        lead = np.abs(np.array([s[k] - p[k] for s, p in zip(sents, presents)]))
+        lead = np.abs(np.array([s[k] - p[k] for s, p in zip(sents, presents, strict=True)]))
         assert np.all(lead <= robot.max_step[k] + 1e-9)
     assert robot.metrics.limit_clips > 0 and robot.metrics.motion_clips > 0
     robot.close()

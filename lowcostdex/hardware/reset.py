@@ -131,7 +131,8 @@ class MoveResult:
     duration: float
 
     def outside(self, tolerance: float) -> dict[str, float]:
-        return {n: float(e) for n, e in zip(self.joints, self.errors) if not e < tolerance}
+        pairs = zip(self.joints, self.errors, strict=True)
+        return {n: float(e) for n, e in pairs if not e < tolerance}
 
 
 @dataclass
@@ -242,7 +243,7 @@ class DClawReset:
         start = r.clock.now()
         pause = r.pause_if_hot()
         r.recover_faults()
-        target = dict(zip(r.action_joints, np.asarray(finger_target, float)))
+        target = dict(zip(r.action_joints, np.asarray(finger_target, float), strict=True))
         stages: list[StageResult] = []
         failed_stage, errors = "", {}
         attempts = 0
@@ -294,7 +295,7 @@ class DClawReset:
     def _fingers(self, target: dict[str, float], stages: list[StageResult], staged: bool
                  ) -> tuple[bool, str, dict[str, float]]:
         """Retract, top joints, then all joints; verify. Returns (ok, stage, errors)."""
-        r, p = self.robot, self.parts
+        r = self.robot
         fingers = list(r.action_joints)
         if staged:
             self._retract(target, stages)
@@ -342,7 +343,7 @@ class DClawReset:
         elif attempt == 2:
             tops = r.index(p["top"])
             swung = dict(target)
-            swung.update({n: cfg.swing * r.low[i] for n, i in zip(p["top"], tops)})
+            swung.update({n: cfg.swing * r.low[i] for n, i in zip(p["top"], tops, strict=True)})
             r.enable(p["top"])
             self._move(swung, p["top"], "swing_-", sub)
             r.enable(p["middle"])
@@ -362,7 +363,7 @@ class DClawReset:
         r, cfg = self.robot, self.config
         joints = tuple(n for n in r.action_joints if n.split("_")[0] == finger)
         top, middle, bottom = (f"{finger}_{p}" for p in ("top", "middle", "bottom"))
-        idx = dict(zip(joints, r.index(joints)))
+        idx = dict(zip(joints, r.index(joints), strict=True))
         r.enable(joints)
         for escape in ("none", "straighten", "curl", "swing+", "swing-"):
             if escape != "none":
@@ -413,7 +414,7 @@ class RobelReset:
                  ) -> ResetReport:
         r, cfg, p = self.robot, self.config, self.parts
         start = r.clock.now()
-        target = dict(zip(r.action_joints, np.asarray(finger_target, float)))
+        target = dict(zip(r.action_joints, np.asarray(finger_target, float), strict=True))
         fingers = list(r.action_joints)
         r.torque(False, p["top"] + p["bottom"])
         r.enable(p["middle"])
@@ -431,7 +432,8 @@ class RobelReset:
             _robel_wait(r, target, fingers, timeout=3.0)
             idx = r.index(fingers)
             err = np.abs(r.present[idx] - np.array([target[n] for n in fingers]))
-            errors = {n: float(e) for n, e in zip(fingers, err) if not e < cfg.tolerance}
+            pairs = zip(fingers, err, strict=True)
+            errors = {n: float(e) for n, e in pairs if not e < cfg.tolerance}
             if not errors:
                 if self.valve is not None:
                     r.torque(False, [self.valve])
@@ -466,7 +468,7 @@ def robel_disentangle(r: Robot, target: dict[str, float], parts: dict[str, tuple
     r.torque(False, r.action_joints)
     r.rest(0.75)
     tops = r.index(parts["top"])
-    swung = {n: float(min(math.pi / 4, r.high[i])) for n, i in zip(parts["top"], tops)}
+    swung = {n: float(min(math.pi / 4, r.high[i])) for n, i in zip(parts["top"], tops, strict=True)}
     for group, goal in (("top", swung), ("middle", target), ("bottom", target)):
         r.enable(parts[group])
         end = r.clock.now() + 0.75

@@ -285,11 +285,10 @@ class Robot:
 
     def _to_joint(self, raw: MotorState) -> RobotState:
         k = self._bus_index
-        pos = np.array([j.calibration.to_joint(p) for j, p in zip(self.joints,
-                                                                   raw.position[k])])
-        vel = np.array([j.calibration.rate_to_joint(v) for j, v in zip(self.joints,
-                                                                        raw.velocity[k])])
-        cur = np.array([j.calibration.sign * c for j, c in zip(self.joints, raw.current[k])])
+        cal = [j.calibration for j in self.joints]
+        pos = np.array([c.to_joint(p) for c, p in zip(cal, raw.position[k], strict=True)])
+        vel = np.array([c.rate_to_joint(v) for c, v in zip(cal, raw.velocity[k], strict=True)])
+        cur = np.array([c.sign * i for c, i in zip(cal, raw.current[k], strict=True)])
         valid = np.asarray(raw.valid[k], bool) & np.isfinite(pos)
         return RobotState(position=np.where(valid, pos, np.nan), velocity=vel, current=cur,
                           temperature=np.asarray(raw.temperature[k], float),
@@ -361,9 +360,8 @@ class Robot:
             present = self._present[idx]
             if not np.all(np.isfinite(present)):
                 self.metrics.rejected += 1
-                raise UnsafeCommand("no valid present position for "
-                                    f"{[n for n, p in zip(names, present) if not np.isfinite(p)]}"
-                                    "; nothing sent")
+                missing = [n for n, p in zip(names, present, strict=True) if not np.isfinite(p)]
+                raise UnsafeCommand(f"no valid present position for {missing}; nothing sent")
         max_step = self.max_step[idx].copy()
         relaxed = self.current_guard.relaxed[idx]
         max_step[relaxed] = np.minimum(max_step[relaxed], self.config.current.relaxed_step)
@@ -377,7 +375,7 @@ class Robot:
         self.metrics.limit_clips += int(np.sum(report.limit_clipped))
         self.metrics.motion_clips += int(np.sum(report.motion_clipped))
         motor = np.array([self.joints[i].calibration.to_motor(q)
-                          for i, q in zip(idx, report.goal)])
+                          for i, q in zip(idx, report.goal, strict=True)])
         self.bus.write_goal_positions(motor, self._ids(idx))
         self.metrics.sent += 1
         self.last_sent[idx] = report.goal

@@ -41,7 +41,7 @@ def check_finite(goal: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
                             f"{', '.join(names)}; nothing sent")
     bad = ~np.isfinite(g)
     if np.any(bad):
-        listed = ", ".join(f"{n}={v}" for n, v, b in zip(names, g, bad) if b)
+        listed = ", ".join(f"{n}={v}" for n, v, b in zip(names, g, bad, strict=True) if b)
         raise UnsafeCommand(f"non-finite goal for {listed}; nothing sent")
     return g
 
