@@ -7,14 +7,19 @@ from __future__ import annotations
 import threading
 import time
 
-import can
 import mujoco
 import numpy as np
 import pytest
 
-from lowcostdex.hardware import allegro_can as proto
-from lowcostdex.hardware.allegro import AllegroBus, AllegroGains, pd_torque
-from lowcostdex.hardware.allegro_emulator import AllegroThermal, EmulatedAllegro, emulated_allegro
+can = pytest.importorskip("can", reason="python-can (the 'can' extra) is not installed")
+
+from lowcostdex.hardware import allegro_can as proto  # noqa: E402 (needs python-can)
+from lowcostdex.hardware.allegro import AllegroBus, AllegroGains, pd_torque  # noqa: E402
+from lowcostdex.hardware.allegro_emulator import (  # noqa: E402
+    AllegroThermal,
+    EmulatedAllegro,
+    emulated_allegro,
+)
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.hands import allegro_spec
 from lowcostdex.hardware.robot import Robot, RobotConfig
