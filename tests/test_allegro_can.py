@@ -11,6 +11,12 @@ import mujoco
 import numpy as np
 import pytest
 
+from lowcostdex.hardware.bus import BusError
+from lowcostdex.hardware.hands import allegro_spec
+from lowcostdex.hardware.robot import Robot, RobotConfig
+from lowcostdex.hardware.safety import UnsafeCommand
+from lowcostdex.sim.models.allegro import build_allegro
+
 can = pytest.importorskip("can", reason="python-can (the 'can' extra) is not installed")
 
 from lowcostdex.hardware import allegro_can as proto  # noqa: E402 (needs python-can)
@@ -20,11 +26,6 @@ from lowcostdex.hardware.allegro_emulator import (  # noqa: E402
     EmulatedAllegro,
     emulated_allegro,
 )
-from lowcostdex.hardware.bus import BusError
-from lowcostdex.hardware.hands import allegro_spec
-from lowcostdex.hardware.robot import Robot, RobotConfig
-from lowcostdex.hardware.safety import UnsafeCommand
-from lowcostdex.sim.models.allegro import build_allegro
 
 HAND = allegro_spec()
 LOW = np.array([j.low for j in HAND.joints])
