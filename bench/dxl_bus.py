@@ -201,6 +201,11 @@ def main() -> None:
     print(f"  driver cycle / bare sync read: {r['driver'] / r['bare']:.2f}x wall, "
           f"{r['driver_host'] / r['bare_host']:.2f}x host-side   (target <= 2x; driver uses "
           f"{'fast' if r['fast'] else 'normal'} sync read)")
+    print(f"  stricter baselines: read_state / bare fast sync read "
+          f"{r['driver_read'] / r['bare_fast']:.2f}x wall, "
+          f"{r['driver_read_host'] / r['bare_fast_host']:.2f}x host-side; driver cycle / bare "
+          f"read+write {r['driver'] / r['bare_cycle']:.2f}x wall, "
+          f"{r['driver_host'] / r['bare_cycle_host']:.2f}x host-side")
     w = wire_limits()
     print("wire-time limit of the cycle (RDT 0): "
           f"1 Mbps {w['1M']:.0f} Hz ({w['1M_fast']:.0f} Hz fast), "

@@ -58,13 +58,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from dynamixel_sdk import (
-    COMM_RX_CORRUPT,
-    COMM_SUCCESS,
-    GroupSyncWrite,
-    PacketHandler,
-    PortHandler,
-)
+from dynamixel_sdk import COMM_RX_CORRUPT, COMM_SUCCESS, PacketHandler, PortHandler
 
 from lowcostdex.errors import ConfigError, check_choice
 from lowcostdex.hardware import transport
@@ -101,6 +95,7 @@ BLOCK = (Reg.PRESENT_CURRENT, Reg.PRESENT_VELOCITY, Reg.PRESENT_POSITION, Reg.VE
 _LAYOUT = BLOCK + (Reg.GOAL_POSITION, Reg.TORQUE_ENABLE, Reg.BUS_WATCHDOG,
                    Reg.HARDWARE_ERROR_STATUS, Reg.MIN_POSITION_LIMIT, Reg.MAX_POSITION_LIMIT)
 _FAULT_POLL = 0.5  # [s] re-read Hardware Error Status at most this often while an alert persists
+_GOAL_PARAM = np.dtype([("id", "u1"), ("goal", "<i4")])  # one SYNC_WRITE slot of Goal Position
 
 
 class LatencyWarning(UserWarning):
@@ -276,8 +271,7 @@ class DynamixelBus(MotorBus):
         self._torque_ids: set[int] = set()
         self.watchdog_tripped: set[int] = set()
         self._last_tx = -math.inf
-        self._gsw = GroupSyncWrite(port, self.ph, self._addr[Reg.GOAL_POSITION], 4)
-        self._gsw_ids: tuple[int, ...] = ()
+        self._all = np.arange(len(self.ids))
         self.sysfs = transport.SYSFS_USB_SERIAL
 
     @classmethod
@@ -442,9 +436,9 @@ class DynamixelBus(MotorBus):
         """One sync read of every motor's present block; invalid motors are NaN, never stale."""
         self._require_connected()
         self._check_watchdog_gap()
-        n = len(self.ids)
         # motors that timed out last time go last, so a dead one does not take the others along
-        order = tuple(sorted(self.ids, key=lambda i: i in self._silent))
+        order = self.ids if not self._silent else tuple(
+            sorted(self.ids, key=lambda i: i in self._silent))
         valid, err, raw = self._read_block(order, fast=self.fast_read)
         attempts = 0
         while attempts < self.config.read_retries:
@@ -461,21 +455,35 @@ class DynamixelBus(MotorBus):
             # a retry that found a new silent motor is free (it is read last next time);
             # bounded, since that can happen at most once per motor
             attempts += len(self._silent) == silent
-        t = self.clock()
-        ok = np.array([valid[i] for i in self.ids])
-        buf = b"".join(raw[i] if valid[i] else bytes(self._block_len) for i in self.ids)
-        rec = np.frombuffer(buf, self._dtype)
+        return self._decode(valid, err, raw, self.clock())
+
+    def _decode(self, valid: dict[int, bool], err: dict[int, int], raw: dict[int, bytes],
+                t: float) -> MotorState:
+        """Device units -> SI for every motor; NaN where invalid."""
+        ids = self.ids
+        all_ok = len(raw) == len(ids) and all(valid.values())
+        if all_ok:
+            ok = np.ones(len(ids), bool)
+            rec = np.frombuffer(b"".join([raw[i] for i in ids]), self._dtype)
+            status = np.fromiter((err[i] for i in ids), int, len(ids))
+        else:
+            ok = np.fromiter((valid[i] for i in ids), bool, len(ids))
+            blank = bytes(self._block_len)
+            rec = np.frombuffer(b"".join([raw[i] if valid[i] else blank for i in ids]),
+                                self._dtype)
+            status = np.fromiter((err[i] if valid[i] else -1 for i in ids), int, len(ids))
         rad = TWO_PI / self._tpr
 
         def field(reg: Reg, scale: np.ndarray | float) -> np.ndarray:
-            return np.where(ok, rec[reg.name] * scale, np.nan)
+            out = rec[reg.name] * scale
+            return out if all_ok else np.where(ok, out, np.nan)
 
-        hw = np.full(n, -1, int)
-        status = np.array([err[i] if valid[i] else -1 for i in self.ids])
-        for k, i in enumerate(self.ids):
-            if ok[k]:
-                hw[k] = self._alert_bits(i, err[i])
-        self._track_validity(ok)
+        hw = np.where(ok, 0, -1)
+        if np.any((status >= 0) & (status & ALERT != 0)) or self._hw_cache:
+            for k, i in enumerate(ids):
+                if ok[k]:
+                    hw[k] = self._alert_bits(i, err[i])
+        self._track_validity(ok, all_ok)
         return MotorState(
             position=field(Reg.PRESENT_POSITION, rad),
             velocity=field(Reg.PRESENT_VELOCITY, self._velocity_unit),
@@ -505,22 +513,21 @@ class DynamixelBus(MotorBus):
         if not np.all(np.isfinite(q)):
             bad = [i for i, v in zip(ids, q, strict=True) if not np.isfinite(v)]
             raise CommandError(f"non-finite goal for motors {bad}; nothing sent")
-        try:
-            k = np.array([self._index[i] for i in ids])
-        except KeyError as exc:
-            raise CommandError(f"motor {exc.args[0]} is not on this bus {self.ids}") from None
-        ticks = np.clip(np.rint(q * self._tpr[k] / TWO_PI), self._lo[k], self._hi[k]).astype(int)
-        gsw = self._gsw
-        if ids != self._gsw_ids:
-            gsw.clearParam()
-            for i, t in zip(ids, ticks.tolist(), strict=True):
-                gsw.addParam(i, list(le_bytes(t, 4)))
-            self._gsw_ids = ids
+        if ids is self.ids:
+            k = self._all
         else:
-            for i, t in zip(ids, ticks.tolist(), strict=True):
-                gsw.changeParam(i, list(le_bytes(t, 4)))
+            try:
+                k = np.array([self._index[i] for i in ids])
+            except KeyError as exc:
+                raise CommandError(f"motor {exc.args[0]} is not on this bus {self.ids}") from None
+        ticks = np.clip(np.rint(q * self._tpr[k] / TWO_PI), self._lo[k], self._hi[k])
+        param = np.empty(len(ids), _GOAL_PARAM)  # [id, goal (int32 LE)] per motor
+        param["id"] = ids
+        param["goal"] = ticks
+        data = list(param.tobytes())
         self._begin()
-        result = gsw.txPacket()
+        result = self.ph.syncWriteTxOnly(self.port, self._addr[Reg.GOAL_POSITION], 4, data,
+                                         len(data))
         self.stats.transactions += 1
         if result != COMM_SUCCESS:
             self._dirty = True
@@ -828,7 +835,10 @@ class DynamixelBus(MotorBus):
         else:
             self.faults.pop(motor_id, None)
 
-    def _track_validity(self, ok: np.ndarray) -> None:
+    def _track_validity(self, ok: np.ndarray, all_ok: bool = False) -> None:
+        if all_ok:
+            self._streak[:] = 0
+            return
         self._streak = np.where(ok, 0, self._streak + 1)
         bad = np.flatnonzero(~ok)
         self.stats.invalid += len(bad)
