@@ -36,10 +36,20 @@ the motors, not what the host meant to send.
         state = bus.read_state()
 
 or over a Linux pty, where any dynamixel_sdk program can connect (``lowcostdex emulate dclaw``
-prints the path)::
+serves one from its own process and prints the path)::
 
-    server = chain.serve_pty()          # a thread; chain needs clock="realtime" or "virtual"
-    bus = DynamixelBus.from_hand(chain.hand, server.path)
+    chain = emulated_dclaw(clock="realtime", wire_time=False)   # physics on wall time
+    server = chain.serve_pty()          # a daemon thread; server.stop() when done
+    bus = DynamixelBus.from_hand(chain.hand, server.path, latency_ms=16)
+    with server.lock:                   # inspect the chain while the thread serves it
+        chain.goal_log.positions(11)
+
+Device-side truth for tests and the Robot layer: ``chain.plant`` (qpos, qvel, forces; apply
+external torques from a hook registered with ``chain.add_step_hook``), ``chain.drive.state()``
+(what the encoders and current sensors see), ``chain.motors[id]`` (control table via ``get``,
+``torque_on``, ``hardware_error``), ``chain.goal_log``, ``chain.events`` (watchdog trips,
+hardware errors, shutdowns, reboots; ``chain.event_callbacks`` to be told), ``chain.reply_log``
+(with ``record_replies=True``).
 """
 
 from __future__ import annotations
