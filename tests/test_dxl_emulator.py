@@ -399,3 +399,26 @@ def test_effects_of_the_emulated_robot_reach_the_wire():
         port.sleep(0.2)
         reads.append(to_signed(ph.read4ByteTxRx(port, 21, 132)[0], 4))
     assert reads[1] - reads[0] == 40  # the encoder reports the offset the plant applies
+
+
+def test_clear_multi_turn_and_unknown_instruction():
+    chain = emulated_dclaw()
+    port, ph = open_port(chain, latency_ms=16)
+    assert ph.write1ByteTxRx(port, 50, 11, 4) == (COMM_SUCCESS, 0)  # extended position mode
+    valve = chain.plant.model.joint("valve").qposadr[0]
+    chain.plant.data.qpos[valve] = 4 * math.pi + 0.25  # two turns by hand
+    chain.drive._state = None
+    chain.advance_to(chain.now + 0.005)
+    assert to_signed(ph.read4ByteTxRx(port, 50, 132)[0], 4) > 2 * 4096
+    assert ph.clearMultiTurn(port, 50) == (COMM_SUCCESS, 0)
+    assert 0 <= to_signed(ph.read4ByteTxRx(port, 50, 132)[0], 4) < 4096
+    from lowcostdex.hardware.protocol import instruction_packet
+
+    port.rx_trace.clear()
+    port.clearPort()
+    port.writePort(instruction_packet(50, 0x77))  # no such instruction
+    port.setPacketTimeoutMillis(5)
+    while not port.isPacketTimeout():
+        port.readPort(64)
+    (status,) = parse_packets(bytes(port.rx_trace))
+    assert status.id == 50 and status.error == E.INSTRUCTION
