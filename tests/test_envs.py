@@ -138,3 +138,16 @@ def test_vector_env_equals_a_loop_of_single_envs(env_id, kwargs):
             np.testing.assert_allclose(vobs[i], o, atol=1e-6)
             assert vrew[i] == pytest.approx(r, abs=1e-9)
             assert bool(vtrunc[i]) == trunc and bool(vterm[i]) == term
+
+
+def test_flip_goal_is_relative_to_the_start_pose():
+    env = gym.make("lowcostdex/DClawFlipBlock-v0")
+    env.reset(seed=0)
+    u = env.unwrapped
+    assert u.task.orientation_error(u.data.qpos, u.goal) == pytest.approx(np.pi)
+    qpos = u.data.qpos.copy()
+    qpos[u.task.block_quat] = [0.0, 1.0, 0.0, 0.0]  # start upside down
+    env.reset(seed=0, options={"qpos": qpos})
+    assert u.task.orientation_error(u.data.qpos, u.goal) == pytest.approx(np.pi, abs=1e-3)
+    # the goal is the upright block again: 180 deg about x from upside down
+    assert abs(abs(u.goal["quat"][0]) - 1.0) < 1e-6

@@ -82,6 +82,8 @@ class HandVectorEnv(gym.vector.VectorEnv):
         if self.randomization is not None:
             self.plant.set_effects(self._effects)
         self.plant.reset(qpos, qvel, sims=rows)
+        for i in rows:
+            self._goals[i] = t.start_goal(self.plant.qpos[i], self._goals[i])
         self._steps[rows] = 0
         self._last_action[rows] = 0.0
         self._needs_reset[rows] = False

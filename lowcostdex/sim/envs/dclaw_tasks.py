@@ -228,7 +228,12 @@ def quat_angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
 
 
 class FlipBlock(DClawTask):
-    """Flip a free block 180 deg about a horizontal axis (BAIR's D'Claw flipping task)."""
+    """Flip a free block 180 deg about a horizontal axis (BAIR's D'Claw flipping task).
+
+    The goal is relative to the pose the block starts in (``start_goal``): the same position,
+    turned 180 deg about ``flip_axis`` (a world axis). A robot's reset therefore only has to put
+    the block back on the table, with either face up.
+    """
 
     station = "block"
 
@@ -243,7 +248,7 @@ class FlipBlock(DClawTask):
         self.block_pos = np.arange(adr, adr + 3)
         self.block_quat = np.arange(adr + 3, adr + 7)
         axis = np.asarray(self.config.flip_axis, float)
-        self.goal_quat = np.array([0.0, *(axis / np.linalg.norm(axis))])  # 180 deg about axis
+        self.flip_quat = np.array([0.0, *(axis / np.linalg.norm(axis))])  # 180 deg about axis
 
     @property
     def obs_dim(self) -> int:
@@ -263,8 +268,13 @@ class FlipBlock(DClawTask):
         qpos[self.hand_qpos] = RESET_POSE
         qpos[self.block_pos] = BLOCK_CENTER
         qpos[self.block_quat] = [1.0, 0.0, 0.0, 0.0]
-        goal = {"pos": np.array(BLOCK_CENTER, float), "quat": self.goal_quat.copy()}
-        return qpos, np.zeros(self.model.nv), goal
+        return qpos, np.zeros(self.model.nv), self.start_goal(qpos, {})
+
+    def start_goal(self, qpos: np.ndarray, goal: Goal) -> Goal:
+        pos, quat = self._pose(qpos)
+        target = np.zeros(4)
+        mujoco.mju_mulQuat(target, self.flip_quat, np.asarray(quat, float))
+        return {"pos": np.array(pos, float), "quat": target}
 
     def _rep(self, pos, quat):
         if self.config.representation == "keypoints":

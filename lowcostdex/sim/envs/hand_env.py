@@ -132,14 +132,14 @@ class HandEnv(gym.Env):
         qpos, qvel, goal = self.task.initial_state(self.np_random)
         qpos = np.asarray(options.get("qpos", qpos), dtype=float)
         qvel = np.asarray(options.get("qvel", qvel), dtype=float)
-        goal = {k: np.asarray(v, float) for k, v in options.get("goal", goal).items()}
         if self.randomization is not None:
             self.backend.set_effects(self.randomization.sample(self.np_random))
         # Noise effects in the backend draw from a stream derived from the env's generator.
         self._rng_for_backend.bit_generator.state = np.random.default_rng(
             self.np_random.integers(2**63)).bit_generator.state
         self.backend.reset(qpos, qvel)
-        self._goal = goal
+        goal = options.get("goal") or self.task.start_goal(self.data.qpos, goal)
+        self._goal = {k: np.asarray(v, float) for k, v in goal.items()}
         self._steps = 0
         self._last_action = np.zeros(self.action_space.shape[0])
         self._update_marker()

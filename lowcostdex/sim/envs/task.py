@@ -93,6 +93,15 @@ class Task(ABC):
         """Scalar goal error (...) reported in info (task-specific unit)."""
         return np.zeros(np.shape(qpos)[:-1])
 
+    def start_goal(self, qpos: np.ndarray, goal: Goal) -> Goal:
+        """The episode's goal given the state the robot actually starts in (qpos (nq,)).
+
+        Called after the backend's reset; a robot's auto-reset may not reproduce the sampled
+        initial state exactly (e.g. the flip block's goal is relative to its start pose).
+        Default: the sampled goal.
+        """
+        return goal
+
     def advance_goal(self, goal: Goal, step: int) -> Goal:
         """Goal after ``step`` control steps (moving targets, e.g. the screw); default fixed."""
         return goal
