@@ -10,9 +10,10 @@
    with the effects already chosen (lockstep bounded LM on multiple-shooting training segments,
    multi-start where non-convex), and replays the fitted candidates open loop on the *select*
    episodes. The best one is accepted only if it lowers the select error by at least ``min_gain``
-   (relative MSE), its bootstrap interval over select episodes excludes no gain, and the current
-   error is above the noise floor. Otherwise the analysis stops; with no accepted effect the
-   answer is "no significant discrepancy".
+   (relative MSE), the bootstrap over select episodes does not show it clearly worse (5th
+   percentile of the gain above -``min_gain``), it changes the predictions by more than
+   ``min_effect`` noise floors, and the current error is above the noise floor. Otherwise the
+   analysis stops; with no accepted effect the answer is "no significant discrepancy".
 4. The chosen structure is refitted on train + select, then scored once on the untouched *test*
    episodes: error before and after with a bootstrap interval over episodes, the noise floor and
    the fraction of reducible error explained.
@@ -58,6 +59,8 @@ class GapConfig:
       min_effect: an accepted effect must change the select predictions by at least this many
         noise floors (RMS); smaller changes fit replay artifacts, not physics.
       rank_seconds: training data used by the score ranking (a spread subset) [s].
+      tie: candidates whose select MSE is within this fraction of the best one's are
+        equivalent explanations; the first in the canonical list (``effects.CAUSES``) is named.
       joint_k: from the second round on, the best ``joint_k`` screened candidates (fitted with
         the accepted effects held) are refitted jointly with them.
       segment: multiple-shooting segment length for fitting [s].
@@ -78,6 +81,7 @@ class GapConfig:
     min_effect: float = 0.75
     rank_seconds: float = 12.0
     joint_k: int = 3
+    tie: float = 0.01
     segment: float = 6.0
     burn_in: float = 0.15
     chunk: float | None = None
@@ -125,6 +129,7 @@ class Cause:
     heldout_rmse_after: float = math.nan
     heldout_mae_after: float = math.nan
     flags: list[str] = field(default_factory=list)
+    equivalent: list[str] = field(default_factory=list)  # explain the select data as well
 
 
 @dataclass
@@ -183,7 +188,7 @@ def _ep(w: Window, sources: list[str]) -> dict:
 def _cause_dict(c: Cause) -> dict:
     return {"effect": c.effect, "joints": list(c.joints), "params": c.params,
             "heldout_rmse_after": c.heldout_rmse_after, "heldout_mae_after": c.heldout_mae_after,
-            "flags": c.flags}
+            "flags": c.flags, "equivalent": c.equivalent}
 
 
 def _cand_dict(c: CandidateResult) -> dict:
@@ -306,6 +311,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
     rounds: list[list[CandidateResult]] = []
     fit_fn = eng.residual_fn(train_segs)
     stop_reason = "max_effects reached"
+    equivalents: dict[str, list[str]] = {}
     for step in range(cfg.max_effects):
         remaining = [c for c in cands if c not in current.effects]
         if not remaining:
@@ -371,22 +377,37 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             c.select_gain = rel
             c.params = {p: v.tolist() for e in t.effects() if e.name == n
                         for p, v in e.values.items()}
-        n_best = max(results, key=lambda n: results[n][0])
+        top_gain = max(r[0] for r in results.values())
+        # candidates the select split cannot tell apart from the best (within ``tie`` of its
+        # MSE) are equivalent explanations: the earliest in the canonical list is named, the
+        # others are reported with it
+        tied = [n for n in results
+                if (1 - results[n][0]) <= (1 - top_gain) * (1 + cfg.tie) + 1e-12]
+        n_best = min(tied, key=lambda n: CAUSES.index(n))
         rel, low, sse = results[n_best]
         size = _effect_size(eng, sel_eps, cur_pred_sel, best_track[n_best].effects())
         by_name[n_best].effect_rms = size
-        if not (rel >= cfg.min_gain and low > 0 and size >= cfg.min_effect * floor_rms):
+        significant = rel >= cfg.min_gain and low > -cfg.min_gain
+        if not (significant and size >= cfg.min_effect * floor_rms):
             stop_reason = ("no candidate lowers the select error significantly"
-                           if size >= cfg.min_effect * floor_rms else
+                           if not significant else
                            "the best candidate changes predictions by less than the noise floor")
             timing[f"round{step + 1}"] = time.perf_counter() - t0
             break
+        equivalents[n_best] = [n for n in tied if n != n_best]
         joint = fitmod.Structure.build(current.effects + (n_best,), joints, ctx)
         by_name[n_best].accepted = True
         current, cur_x = joint, joint.values_from(best_track[n_best].effects())
         sel_cur = (sse, sel_cur[1], sel_cur[2])
         cur_pred_sel = eng.predict(sel_eps, [current.to_effects(cur_x)])[0]
         timing[f"round{step + 1}"] = time.perf_counter() - t0
+
+    # ---- backward pass: drop accepted effects the final model no longer needs ---------------
+    if len(current.effects) > 1:
+        current, cur_x = _backward(eng, ds, sel_eps, current, cur_x, cfg, floor_rms, ctx,
+                                   fit_fn, dropped := [])
+        if dropped:
+            stop_reason += f"; dropped by the backward pass: {', '.join(dropped)}"
 
     # ---- 3. final refit on train + select, test once ---------------------------------------
     causes: list[Cause] = []
@@ -423,6 +444,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
             c.heldout_mae_after = float(sae.sum() / n.sum())
             c.flags = _flags(final_track.structure, final_track.u, e.name)
+            c.equivalent = equivalents.get(e.name, [])
             causes.append(c)
     verdict = _verdict(causes, gain)
     timing["total"] = time.perf_counter() - t_start
@@ -450,15 +472,18 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
         for p in effect(name).params:
             for j in range(nj):
                 f = fitmod.space(name, p.name, j, ctx)
-                vals = {q.name: np.full(nj, q.null) for q in effect(name).params}
                 null = p.null if math.isfinite(p.null) else f.hi
                 probe = f.start if not math.isclose(f.start, null) else (
                     f.from_u(f.to_u(null) + 10 * f.fd) if f.log else null + 10 * f.fd)
-                vals[p.name][j] = probe
-                if name == "stribeck_friction" and p.name == "velocity":
-                    vals["static"][j] = fitmod.space(name, "static", j, ctx).start
-                cols.append(cur_eff + [AppliedEffect(name, eng.joints, vals)])
-                owner.append(name)
+                # secants to the start and to every extra start: their span follows the shape
+                # of strongly nonlinear effects (a torque limit, a delay) better than one column
+                for v in (probe, *f.extra):
+                    vals = {q.name: np.full(nj, q.null) for q in effect(name).params}
+                    vals[p.name][j] = v
+                    if name == "stribeck_friction" and p.name == "velocity":
+                        vals["static"][j] = fitmod.space(name, "static", j, ctx).start
+                    cols.append(cur_eff + [AppliedEffect(name, eng.joints, vals)])
+                    owner.append(name)
     res = eng.residuals(segs, cols)
     r0 = res[0]
     table = []
@@ -466,6 +491,46 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
         g = np.stack([res[i + 1] - r0 for i, o in enumerate(owner) if o == name], axis=1)
         table.append(CandidateResult(name, score_fraction(r0, g)))
     return table
+
+
+def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
+              current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig, floor_rms: float,
+              ctx: fitmod.Context, fit_fn, dropped: list[str]
+              ) -> tuple[fitmod.Structure, np.ndarray]:
+    """Remove accepted effects that a later one made redundant, then order by importance.
+
+    An effect is redundant when leaving it out of the current model (others unchanged) raises
+    the select MSE by less than ``min_gain / 2`` or changes the predictions by less than
+    ``min_effect`` noise floors. The rest are ordered by how much the select MSE rises without
+    them.
+    """
+    while len(current.effects) > 1:
+        effs = current.to_effects(cur_x)
+        full = eng.predict(sel_eps, [effs])[0]
+        sse_full = _mse_by_episode(ds, sel_eps, full)[0].sum()
+        cols = [[e for e in effs if e.name != n] for n in current.effects]
+        preds = eng.predict(sel_eps, cols)
+        rise, size = {}, {}
+        for n, pr in zip(current.effects, preds, strict=True):
+            rise[n] = _mse_by_episode(ds, sel_eps, pr)[0].sum() / max(sse_full, 1e-300) - 1
+            d = np.concatenate([(a - b).ravel() for a, b in zip(pr, full, strict=True)])
+            size[n] = float(np.sqrt(np.mean(d * d)))
+        weak = [n for n in current.effects
+                if rise[n] < 0.5 * cfg.min_gain or size[n] < cfg.min_effect * floor_rms]
+        if not weak:
+            order = sorted(current.effects, key=lambda n: -rise[n])
+            if list(order) != list(current.effects):
+                s = fitmod.Structure.build(tuple(order), current.joints, ctx)
+                return s, s.values_from(effs)
+            return current, cur_x
+        drop = min(weak, key=lambda n: rise[n])
+        dropped.append(drop)
+        keep = tuple(n for n in current.effects if n != drop)
+        s = fitmod.Structure.build(keep, current.joints, ctx)
+        t = fitmod.Track(s, s.u(s.values_from(effs)), label="backward")
+        fitmod.lockstep_lm([t], fit_fn, cfg.max_rounds)
+        current, cur_x = s, t.x
+    return current, cur_x
 
 
 def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]:

@@ -31,7 +31,7 @@ _EXTRA_STARTS: dict[tuple[str, str], tuple[float, ...]] = {
     ("latency", "delay"): (0.03,),
     ("backlash", "width"): (0.004,),
     ("stribeck_friction", "velocity"): (0.05,),
-    ("torque_limit", "torque"): (0.3,),  # x peak force
+    ("torque_limit", "torque"): (0.25,),  # x peak force
     ("inertia_error", "scale"): (3.0,),
 }
 
@@ -103,7 +103,7 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
     elif (name, param) == ("torque_limit", "torque"):
         peak = float(max(ctx.peak_force[j], 2 * lo))
         hi = min(hi, peak)
-        start = 0.6 * peak
+        start = 0.5 * peak
         extra = tuple(f * peak for f in extra)
         log = True
     elif (name, param) == ("position_offset", "offset"):
@@ -231,7 +231,7 @@ class Track:
 def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int = 20,
                 rtol: float = 1e-3, on_round: Callable[[int, int], None] | None = None,
                 prune: Callable[[int, Sequence[Track]], None] | None = None,
-                max_rejects: int = 3) -> None:
+                max_rejects: int = 5) -> None:
     """Fit all tracks by bounded Levenberg-Marquardt, one batched evaluation per round.
 
     Args:
@@ -277,7 +277,8 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
                 if improvement < rtol and t.rounds > 1:
                     t.done = True
             else:
-                t.mu *= 5.0
+                # Marquardt damping scales the step by ~1 / (1 + mu): grow mu fast
+                t.mu = max(10.0 * t.mu, 0.1)
                 t.rejects += 1
                 if t.rejects >= max_rejects or t.mu > 1e6:
                     t.done = True

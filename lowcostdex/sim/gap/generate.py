@@ -39,7 +39,7 @@ HIDDEN: dict[str, dict[str, tuple[float, float]]] = {
     "load_dependent_friction": {"mu": (0.12, 0.25)},
     "viscous_damping": {"damping": (0.1, 0.4)},
     "gain_error": {"scale": (1.25, 1.6)},
-    "torque_limit": {"torque": (0.25, 0.6)},  # x the nominal stall torque
+    "torque_limit": {"torque": (0.2, 0.45)},  # x the nominal stall torque
     "velocity_limit": {"scale": (1.25, 1.6)},
     "position_offset": {"offset": (0.006, 0.04)},
     "inertia_error": {"scale": (2.0, 4.0)},
