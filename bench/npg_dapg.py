@@ -199,6 +199,11 @@ def main() -> None:
     p.add_argument("--hidden", type=int, nargs="*", default=list(TrainConfig().policy.hidden_sizes))
     p.add_argument("--init-log-std", type=float, default=TrainConfig().policy.init_log_std)
     p.add_argument("--bc-epochs", type=int, default=TrainConfig().bc.epochs)
+    p.add_argument(
+        "--bc-log-std",
+        default=TrainConfig().bc.log_std,
+        choices=["demo_spread", "residual", "keep"],
+    )
     p.add_argument("--lam0", type=float, default=TrainConfig().dapg.lam0)
     p.add_argument("--lam1", type=float, default=TrainConfig().dapg.lam1)
     p.add_argument(
@@ -221,7 +226,7 @@ def main() -> None:
         f"Settings: {args.n_traj} trajectories/iteration, delta {args.step_size}, damping {args.damping}, "
         f"gamma {args.gamma}, GAE {args.gae_lambda}, policy {tuple(args.hidden)}, init log-std "
         f"{args.init_log_std}, {args.n_demos} demos (recording noise {args.demo_noise}), BC "
-        f"{args.bc_epochs} epochs, DAPG lam0 {args.lam0} lam1 {args.lam1}, budget {args.max_samples / 1e3:.0f}k samples, "
+        f"{args.bc_epochs} epochs (noise {args.bc_log_std}), DAPG lam0 {args.lam0} lam1 {args.lam1}, budget {args.max_samples / 1e3:.0f}k samples, "
         f"{args.seeds} seeds. Success = training (stochastic) policy; eval = mean action, "
         f"{args.eval_episodes} episodes.",
         "",
@@ -258,7 +263,9 @@ def main() -> None:
                         base_config(args, task.env_id, seed),
                         algo="dapg",
                         demos=str(demos),
-                        bc=dataclasses.replace(TrainConfig().bc, epochs=args.bc_epochs),
+                        bc=dataclasses.replace(
+                            TrainConfig().bc, epochs=args.bc_epochs, log_std=args.bc_log_std
+                        ),
                         dapg=dataclasses.replace(
                             TrainConfig().dapg, lam0=args.lam0, lam1=args.lam1
                         ),

@@ -85,3 +85,28 @@ def test_bc_mle_trains_the_noise_and_is_reproducible():
 def test_bc_config_validates():
     with pytest.raises(ConfigError, match="'mse', 'mle'"):
         BCConfig(loss="l1")
+
+
+def test_bc_residual_noise_is_what_the_clone_does_not_explain():
+    obs, actions, _, _ = _linear_demos(1000)
+    noise = np.array([0.2, 0.01])
+    noisy = actions + np.random.default_rng(5).normal(0.0, 1.0, actions.shape) * noise
+    policy = GaussianMLPPolicy(
+        3, 2, PolicyConfig(hidden_sizes=()), torch.Generator().manual_seed(0)
+    )
+    behavior_clone(
+        policy,
+        obs,
+        noisy,
+        BCConfig(epochs=60, lr=1e-2, log_std="residual"),
+        torch.Generator().manual_seed(1),
+    )
+    # the second dimension is clamped at min_log_std = -3
+    np.testing.assert_allclose(np.exp(policy.log_std.detach().numpy()), [0.2, np.exp(-3)], rtol=0.1)
+    kept = GaussianMLPPolicy(
+        3, 2, PolicyConfig(hidden_sizes=(), init_log_std=-1.0), torch.Generator().manual_seed(0)
+    )
+    behavior_clone(
+        kept, obs, noisy, BCConfig(epochs=1, log_std="keep"), torch.Generator().manual_seed(1)
+    )
+    np.testing.assert_array_equal(kept.log_std.detach().numpy(), [-1.0, -1.0])

@@ -9,6 +9,13 @@ As in mjrl/hand_dapg, before fitting BC sets from the demonstrations:
   ``min_log_std``), so RL starts exploring with the teacher's spread instead of std 1 —
   with std 1 over a [-1, 1] action range a hardware claw would jerk between random targets.
 
+The demo spread measures how much the teacher's actions vary over the whole task, not how
+precise they are: for a precise (scripted or virtual) teacher it is large, and the cloned policy
+with that noise fails a task that its mean solves. ``log_std="residual"`` instead sets, after
+fitting, the noise to the per-dimension standard deviation of what the clone does not explain
+(demo action minus policy mean), clamped at ``min_log_std``; ``"keep"`` leaves the policy's own
+``init_log_std``.
+
 Then it minimises the mean-squared error between the policy mean and the demo actions ('mse',
 mjrl's default) or the Gaussian negative log-likelihood ('mle', which also trains log_std) with
 Adam over shuffled minibatches. The DAPG authors' users report DAPG "cannot learn" without this
@@ -27,6 +34,7 @@ from lowcostdex.algos.policy import GaussianMLPPolicy
 from lowcostdex.errors import ConfigError, check_choice
 
 BC_LOSSES = ("mse", "mle")
+BC_LOG_STD = ("demo_spread", "residual", "keep")
 
 
 @dataclass(frozen=True)
@@ -42,7 +50,8 @@ class BCConfig:
       freeze_obs_normalization: keep them fixed afterwards (mjrl); False lets RL batches
         update them (the policy mean is preserved at each update).
       set_action_scaling: set act_shift/act_scale from the demo actions.
-      set_log_std: set log_std from the demo action spread.
+      log_std: initial exploration noise, one of BC_LOG_STD (see the module docstring); mjrl
+        uses "demo_spread". With loss "mle" the noise is trained and this sets its start.
       min_action_scale: floor of act_scale per action dimension.
     """
 
@@ -53,11 +62,12 @@ class BCConfig:
     set_obs_normalization: bool = True
     freeze_obs_normalization: bool = True
     set_action_scaling: bool = True
-    set_log_std: bool = True
+    log_std: str = "demo_spread"
     min_action_scale: float = 0.1
 
     def __post_init__(self) -> None:
         check_choice("BC loss", self.loss, BC_LOSSES)
+        check_choice("BC log_std", self.log_std, BC_LOG_STD)
         if self.epochs < 0 or self.batch_size < 1:
             raise ConfigError(
                 f"epochs={self.epochs} must be >= 0 and batch_size={self.batch_size} >= 1"
@@ -97,7 +107,7 @@ def set_from_demos(
         policy.act_shift.copy_(torch.as_tensor(stats["act_mean"], dtype=dtype))
         scale = np.maximum(stats["act_std"], config.min_action_scale)
         policy.act_scale.copy_(torch.as_tensor(scale, dtype=dtype))
-    if config.set_log_std:
+    if config.log_std == "demo_spread":
         policy.log_std.copy_(torch.as_tensor(np.log(stats["act_std"] + 1e-12), dtype=dtype))
         policy.clamp_log_std_()
 
@@ -158,4 +168,8 @@ def behavior_clone(
             steps += 1
     with torch.no_grad():
         after = float(bc_loss(policy, obs_t, act_t, "mse"))
+        if config.log_std == "residual":
+            residual = (act_t - policy(obs_t)).std(0, unbiased=False)
+            policy.log_std.copy_(torch.log(residual + 1e-12))
+            policy.clamp_log_std_()
     return {"bc_loss_before": before, "bc_loss_after": after, "bc_steps": float(steps)}
