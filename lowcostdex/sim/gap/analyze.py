@@ -418,7 +418,9 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         prog("final refit on train + select", 0.85)
         all_segs = segments(ds, train_eps + sel_eps, cfg.segment, cfg.burn_in)
         final_track = fitmod.Track(current, current.u(cur_x), label="final")
-        fitmod.lockstep_lm([final_track], eng.residual_fn(all_segs), cfg.max_rounds)
+        # one track: converge tighter than the screening fits
+        fitmod.lockstep_lm([final_track], eng.residual_fn(all_segs), 2 * cfg.max_rounds,
+                           rtol=1e-6)
         effects = final_track.effects()
         timing["final_fit"] = time.perf_counter() - t0
     prog("held-out test", 0.95)

@@ -91,7 +91,7 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
     if (name, param) == ("latency", "delay"):
         lo = max(lo, ctx.dt)
         start = max(start, 2 * ctx.dt)
-        fd = 0.5 * ctx.dt
+        fd = 0.25 * ctx.dt
     elif (name, param) == ("backlash", "width"):
         fd = 2e-4
     elif (name, param) == ("viscous_damping", "damping"):
