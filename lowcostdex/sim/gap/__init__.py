@@ -1,2 +1,25 @@
-"""Reality-gap analysis: show what the simulation gets wrong, name the cause, extend the model,
-measure the gain (issue 6). See docs/gap_analysis.md."""
+"""Reality-gap analysis (issue 6): show what the simulation gets wrong, name the cause, extend
+the model, measure the gain. Guide: docs/gap_analysis.md.
+
+Python API, one function per step::
+
+    ds = load_dataset(["a.csv", "b.csv"], model="robot.xml")   # or BAM JSON: bench auto-detected
+    result = analyze(ds, GapConfig())                          # replay, diagnose, select, gain
+    write_report(result, "report/")                            # report.json/.md, PNGs, extended/
+    ext = load_extended("report/")                             # effects, MJCF, DR ranges
+    plant = ext.plant(); dr = ext.domain_randomization()
+"""
+
+from lowcostdex.sim.gap.analyze import GapConfig, GapResult, analyze
+from lowcostdex.sim.gap.dataset import Dataset, load_dataset
+from lowcostdex.sim.gap.extension import ExtendedModel, load_extended, save_extended
+from lowcostdex.sim.gap.generate import generate
+from lowcostdex.sim.gap.logs import LogError, Trajectory, read_log, write_log, zoh
+from lowcostdex.sim.gap.replay import Replayer
+from lowcostdex.sim.gap.report import write_report
+
+__all__ = [
+    "Dataset", "ExtendedModel", "GapConfig", "GapResult", "LogError", "Replayer", "Trajectory",
+    "analyze", "generate", "load_dataset", "load_extended", "read_log", "save_extended",
+    "write_log", "write_report", "zoh",
+]

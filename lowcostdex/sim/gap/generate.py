@@ -316,7 +316,7 @@ def generate(rig: str, hidden: Sequence[str] | None, rng: np.random.Generator, *
         high = np.array([hand.joint(j).high for j in joints])
     model = spec.compile()
     names = list(hidden or [])
-    names = [rng.choice(list(HIDDEN)) if n == "random" else n for n in names]
+    names = [str(rng.choice(list(HIDDEN))) if n == "random" else n for n in names]
     for n in names:
         check_choice("hidden effect", n, CAUSES)
     effects = [draw_hidden(n, joints, rng, model, level) for n in names]

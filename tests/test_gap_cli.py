@@ -1,0 +1,95 @@
+"""``lowcostdex gap``: generate and analyze end to end (exit codes, report.json fields, report and
+plots, a loadable extended model), and bad input refused with a clear message and nothing
+written."""
+
+from __future__ import annotations
+
+import json
+
+import mujoco
+import numpy as np
+import pytest
+
+from lowcostdex.cli import main
+from lowcostdex.sim.gap import load_extended
+
+REPORT_FIELDS = {
+    "verdict": str, "baseline": dict, "causes": list, "extended": dict, "gain": dict,
+    "noise_floor": dict, "candidates": list, "diagnostics": dict, "split": dict,
+}
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    root = tmp_path_factory.mktemp("gap")
+    assert main(["gap", "generate", "--rig", "bench", "--effect", "latency", "--seed", "5",
+                 "--logs", "3", "--duration", "6", "--out", str(root / "data")]) == 0
+    return root
+
+
+def test_analyze_writes_the_report_and_the_extended_model(demo, capsys):
+    data, out = demo / "data", demo / "report"
+    logs = sorted(str(p) for p in data.glob("log*.csv"))
+    assert main(["gap", "analyze", "--model", str(data / "model.xml"), "--log", *logs,
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "verdict: latency" in printed and "held-out RMSE" in printed
+    rep = json.loads((out / "report.json").read_text())
+    for key, typ in REPORT_FIELDS.items():
+        assert isinstance(rep[key], typ), key
+    assert rep["baseline"]["heldout_rmse"] > rep["extended"]["heldout_rmse"] > 0
+    cause = rep["causes"][0]
+    assert cause["effect"] == "latency" and cause["joints"] == ["arm"]
+    delay = cause["params"]["delay"]
+    truth = json.loads((data / "truth.json").read_text())["hidden"][0]["params"]["delay"][0]
+    assert delay["value"][0] == pytest.approx(truth, rel=0.1)
+    lo, hi = delay["interval"][0]
+    assert lo <= delay["value"][0] <= hi and delay["unit"] == "s"
+    assert cause["heldout_rmse_after"] == pytest.approx(rep["extended"]["heldout_rmse"])
+    g = rep["gain"]
+    assert g["ci95"][0] <= g["absolute"] <= g["ci95"][1] and g["ci95"][0] > 0
+    assert 0 < g["noise_floor"] < rep["extended"]["heldout_rmse"] * 2
+    for f in ("report.md", "traces.png", "residuals.png", "candidates.png"):
+        assert (out / f).stat().st_size > 1000, f
+    assert "# Reality-gap report" in (out / "report.md").read_text()
+    ext = load_extended(out)
+    assert [e.name for e in ext.effects] == ["latency"]
+    model = mujoco.MjModel.from_xml_string(next(iter(ext.extended.values())))
+    assert model.actuator_delay[0] == pytest.approx(delay["value"][0], rel=1e-4)
+    # no temporary folders left next to the report
+    assert sorted(p.name for p in demo.iterdir()) == ["data", "report"]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda c: c.replace("qpos:arm", "qpos:elbow").replace("qvel:arm", "qvel:elbow"),
+     "no joint 'elbow'"),
+    (lambda c: c.replace(c.splitlines()[0], c.splitlines()[0].replace(
+        "qpos:arm", "Q").replace("qvel:arm", "V").replace(":arm", ":wrist").replace(
+        "Q", "qpos:arm").replace("V", "qvel:arm")), "no actuator 'wrist'"),
+    (lambda c: "\n".join(c.splitlines()[:12]) + "\n", "too little data"),
+    (lambda c: c.replace(c.splitlines()[5].split(",")[2], "nan", 1), "NaN"),
+])
+def test_bad_logs_exit_non_zero_with_a_clear_message_and_write_nothing(demo, tmp_path, capsys,
+                                                                       edit, message):
+    text = (demo / "data" / "log00.csv").read_text()
+    bad = tmp_path / "bad.csv"
+    bad.write_text(edit(text))
+    out = tmp_path / "out"
+    code = main(["gap", "analyze", "--model", str(demo / "data" / "model.xml"), "--log",
+                 str(bad), "--out", str(out)])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "lowcostdex gap: error:" in err and message in err
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv"]
+
+
+def test_missing_model_and_files_are_named(tmp_path, capsys):
+    p = tmp_path / "x.csv"
+    np.savetxt(p, np.zeros((30, 3)), delimiter=",", header="time,goal:arm,qpos:arm",
+               comments="")
+    assert main(["gap", "analyze", "--log", str(p), "--out", str(tmp_path / "o")]) == 1
+    assert "need --model" in capsys.readouterr().err
+    assert main(["gap", "analyze", "--model", str(tmp_path / "none.xml"), "--log", str(p),
+                 "--out", str(tmp_path / "o")]) == 1
+    assert "no such model file" in capsys.readouterr().err
