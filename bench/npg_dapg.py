@@ -106,9 +106,11 @@ def base_config(args: argparse.Namespace, env_id: str, seed: int) -> TrainConfig
     )
 
 
-def samples_to_target(m: dict[str, np.ndarray], target: float) -> tuple[float, float]:
-    """(samples, robot hours) at the first iteration whose training success >= target."""
-    hit = np.flatnonzero(m[ex.SUCCESS_RATE] >= target)
+def samples_to_target(
+    m: dict[str, np.ndarray], target: float, key: str = ex.SUCCESS_RATE
+) -> tuple[float, float]:
+    """(samples, robot hours) at the first iteration whose ``key`` success >= target."""
+    hit = np.flatnonzero(np.nan_to_num(m[key], nan=-1.0) >= target)
     if hit.size == 0:
         return math.nan, math.nan
     return float(m[ex.SAMPLES][hit[0]]), float(m[ex.ROBOT_HOURS][hit[0]])
@@ -127,9 +129,11 @@ def run_one(config: TrainConfig, out: Path, target: float, extra: int) -> dict[s
     t0 = time.perf_counter()
     m = train(config, out, until=until).read_metrics()
     samples, hours = samples_to_target(m, target)
+    eval_samples, _ = samples_to_target(m, target, ex.EVAL_SUCCESS_RATE)
     return {
         "samples_to_target": samples,
         "robot_hours_to_target": hours,
+        "eval_samples_to_target": eval_samples,
         "final_success": float(np.mean(m[ex.SUCCESS_RATE][-3:])),
         "final_eval_success": float(m[ex.EVAL_SUCCESS_RATE][-1]),
         "samples_used": float(m[ex.SAMPLES][-1]),
@@ -156,29 +160,44 @@ def fmt_samples(x: float) -> str:
     return "not reached" if not math.isfinite(x) else f"{x / 1e3:.0f}k"
 
 
+def _median(runs: list[dict[str, float]], key: str) -> float:
+    samples = np.array([r[key] for r in runs])
+    return float(np.median(np.where(np.isnan(samples), np.inf, samples)))
+
+
+def _ratio(npg: float, dapg: float, budget: int) -> str:
+    if not math.isfinite(dapg):
+        return "n/a (DAPG median not reached)"
+    if not math.isfinite(npg):
+        return f"> {budget / dapg:.1f}x (NPG median not reached in {budget / 1e3:.0f}k)"
+    return f"{npg / dapg:.1f}x"
+
+
 def summarize(name: str, results: dict[str, list[dict[str, float]]], budget: int) -> list[str]:
-    lines = [f"### {name}", "", "| algorithm | seed | samples to 80% | robot h | final success (train / eval) |",
-             "|---|---|---|---|---|"]  # fmt: skip
-    medians = {}
+    lines = [
+        f"### {name}",
+        "",
+        "| algorithm | seed | samples to 80% (train) | robot h | samples to 80% (eval) "
+        "| final success (train / eval) |",
+        "|---|---|---|---|---|---|",
+    ]
     for algo, runs in results.items():
         for seed, r in enumerate(runs):
-            hours = (
-                "-"
-                if math.isnan(r["robot_hours_to_target"])
-                else f"{r['robot_hours_to_target']:.2f}"
-            )
+            hours = r["robot_hours_to_target"]
             lines.append(
-                f"| {algo} | {seed} | {fmt_samples(r['samples_to_target'])} | {hours} | "
+                f"| {algo} | {seed} | {fmt_samples(r['samples_to_target'])} | "
+                f"{'-' if math.isnan(hours) else f'{hours:.2f}'} | "
+                f"{fmt_samples(r['eval_samples_to_target'])} | "
                 f"{r['final_success']:.2f} / {r['final_eval_success']:.2f} |"
             )
-        samples = np.array([r["samples_to_target"] for r in runs])
-        medians[algo] = float(np.median(np.where(np.isnan(samples), np.inf, samples)))
-    if "npg" in medians and "dapg" in medians and math.isfinite(medians["dapg"]):
-        npg = medians["npg"]
-        ratio = (f"{npg / medians['dapg']:.1f}x" if math.isfinite(npg)
-                 else f"> {budget / medians['dapg']:.1f}x (NPG median not reached in {budget / 1e3:.0f}k)")  # fmt: skip
-        lines += ["", f"Median samples to 80%: NPG {fmt_samples(npg)}, DAPG {fmt_samples(medians['dapg'])}; "
-                  f"ratio NPG/DAPG = {ratio}."]  # fmt: skip
+    if "npg" in results and "dapg" in results:
+        for key, label in (("samples_to_target", "training"), ("eval_samples_to_target", "eval")):
+            npg, dapg = _median(results["npg"], key), _median(results["dapg"], key)
+            lines += [
+                "",
+                f"Median samples to 80% ({label} success): NPG {fmt_samples(npg)}, "
+                f"DAPG {fmt_samples(dapg)}; ratio NPG/DAPG = {_ratio(npg, dapg, budget)}.",
+            ]
     return lines + [""]
 
 
@@ -209,7 +228,7 @@ def main() -> None:
     p.add_argument(
         "--demo-noise", type=float, default=0.0, help="executed-action noise while recording"
     )
-    p.add_argument("--eval-every", type=int, default=10)
+    p.add_argument("--eval-every", type=int, default=5)
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument("--out", default="bench_runs/npg_dapg")
     p.add_argument("--quick", action="store_true", help="tiny budget: checks the script runs")
