@@ -13,13 +13,12 @@ Python API, one function per step::
 from lowcostdex.sim.gap.analyze import GapConfig, GapResult, analyze
 from lowcostdex.sim.gap.dataset import Dataset, load_dataset
 from lowcostdex.sim.gap.extension import ExtendedModel, load_extended, save_extended
-from lowcostdex.sim.gap.generate import generate
 from lowcostdex.sim.gap.logs import LogError, Trajectory, read_log, write_log, zoh
 from lowcostdex.sim.gap.replay import Replayer
 from lowcostdex.sim.gap.report import write_report
 
 __all__ = [
     "Dataset", "ExtendedModel", "GapConfig", "GapResult", "LogError", "Replayer", "Trajectory",
-    "analyze", "generate", "load_dataset", "load_extended", "read_log", "save_extended",
+    "analyze", "load_dataset", "load_extended", "read_log", "save_extended",
     "write_log", "write_report", "zoh",
 ]

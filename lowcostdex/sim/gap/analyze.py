@@ -60,7 +60,10 @@ class GapConfig:
         noise floors (RMS); smaller changes fit replay artifacts, not physics.
       rank_seconds: training data used by the score ranking (a spread subset) [s].
       tie: candidates whose select MSE is within this fraction of the best one's are
-        equivalent explanations; the first in the canonical list (``effects.CAUSES``) is named.
+        equivalent explanations; the first in the canonical list (``effects.CAUSES``) whose
+        parameters are not at a bound is named.
+      search: "forward" (stepwise only) or "both": also fit the top-ranked candidates
+        together and prune them backward, keeping that model when it is clearly better.
       joint_k: from the second round on, the best ``joint_k`` screened candidates (fitted with
         the accepted effects held) are refitted jointly with them.
       segment: multiple-shooting segment length for fitting [s].
@@ -81,7 +84,8 @@ class GapConfig:
     min_effect: float = 0.75
     rank_seconds: float = 12.0
     joint_k: int = 3
-    tie: float = 0.01
+    tie: float = 0.002
+    search: str = "both"
     segment: float = 6.0
     burn_in: float = 0.15
     chunk: float | None = None
@@ -100,6 +104,7 @@ class GapConfig:
                 raise ConfigError(f"{name} must be >= 1")
         if not 0 < self.min_gain < 1:
             raise ConfigError("min_gain must be in (0, 1)")
+        check_choice("search", self.search, ("forward", "both"))
         if not self.segment > 0 or self.burn_in < 0:
             raise ConfigError("segment must be > 0 s and burn_in >= 0 s")
 
@@ -383,7 +388,8 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         # others are reported with it
         tied = [n for n in results
                 if (1 - results[n][0]) <= (1 - top_gain) * (1 + cfg.tie) + 1e-12]
-        n_best = min(tied, key=lambda n: CAUSES.index(n))
+        inside = [n for n in tied if not _flags(best_track[n].structure, best_track[n].u, n)]
+        n_best = min(inside or tied, key=lambda n: CAUSES.index(n))
         rel, low, sse = results[n_best]
         size = _effect_size(eng, sel_eps, cur_pred_sel, best_track[n_best].effects())
         by_name[n_best].effect_rms = size
@@ -409,6 +415,33 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         if dropped:
             stop_reason += f"; dropped by the backward pass: {', '.join(dropped)}"
 
+    # ---- backward search: the top-ranked candidates fitted together, then pruned ------------
+    # Effects that only help in combination (a friction model needs the right inertia) are
+    # invisible to one-at-a-time forward steps; the pruned joint model replaces the forward one
+    # only when it lowers the select MSE by another ``min_gain``.
+    if cfg.search == "both" and rounds:
+        t0 = time.perf_counter()
+        prog("backward search from the top candidates", 0.8)
+        big = tuple(dict.fromkeys(current.effects + tuple(
+            c.effect for c in rounds[0][:cfg.top_k] if c.score >= cfg.min_gain)))
+        if len(big) > max(len(current.effects), 1):
+            alt, alt_x = _joint_then_prune(eng, ds, sel_eps, big, current, cur_x, cfg,
+                                           floor_rms, ctx, fit_fn)
+            if alt.effects:
+                sse_alt = _mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [
+                    alt.to_effects(alt_x)])[0])[0]
+                base_sse = _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0]
+                rel_base, _ = _select_gain_ci(base_sse, sse_alt, rng, cfg.bootstrap)
+                if (sse_alt.sum() < (1 - cfg.min_gain) * sel_cur[0].sum()
+                        and rel_base >= cfg.min_gain):
+                    stop_reason += (f"; backward search from {', '.join(big)} kept "
+                                    f"{', '.join(alt.effects)} (select MSE "
+                                    f"{100 * (1 - sse_alt.sum() / sel_cur[0].sum()):.0f} % below "
+                                    "the forward model's)")
+                    current, cur_x = alt, alt_x
+                    sel_cur = (sse_alt, sel_cur[1], sel_cur[2])
+        timing["backward_search"] = time.perf_counter() - t0
+
     # ---- 3. final refit on train + select, test once ---------------------------------------
     causes: list[Cause] = []
     effects: list[AppliedEffect] = []
@@ -419,8 +452,12 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         all_segs = segments(ds, train_eps + sel_eps, cfg.segment, cfg.burn_in)
         final_track = fitmod.Track(current, current.u(cur_x), label="final")
         # one track: converge tighter than the screening fits
-        fitmod.lockstep_lm([final_track], eng.residual_fn(all_segs), 2 * cfg.max_rounds,
-                           rtol=1e-6)
+        final_fn = eng.residual_fn(all_segs)
+        fitmod.lockstep_lm([final_track], final_fn, 2 * cfg.max_rounds, rtol=1e-6)
+        fitmod.polish(final_track, final_fn, ds.timestep)
+        if final_track.jac is not None:  # Jacobian at the polished point for the intervals
+            final_track.done, final_track.rejects = False, 0
+            fitmod.lockstep_lm([final_track], final_fn, 1)
         effects = final_track.effects()
         timing["final_fit"] = time.perf_counter() - t0
     prog("held-out test", 0.95)
@@ -497,7 +534,7 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
 
 def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
               current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig, floor_rms: float,
-              ctx: fitmod.Context, fit_fn, dropped: list[str]
+              ctx: fitmod.Context, fit_fn, dropped: list[str], min_size: int = 1
               ) -> tuple[fitmod.Structure, np.ndarray]:
     """Remove accepted effects that a later one made redundant, then order by importance.
 
@@ -506,7 +543,7 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
     ``min_effect`` noise floors. The rest are ordered by how much the select MSE rises without
     them.
     """
-    while len(current.effects) > 1:
+    while len(current.effects) > min_size:
         effs = current.to_effects(cur_x)
         full = eng.predict(sel_eps, [effs])[0]
         sse_full = _mse_by_episode(ds, sel_eps, full)[0].sum()
@@ -533,6 +570,20 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
         fitmod.lockstep_lm([t], fit_fn, cfg.max_rounds)
         current, cur_x = s, t.x
     return current, cur_x
+
+
+def _joint_then_prune(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window], names: tuple,
+                      current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig,
+                      floor_rms: float, ctx: fitmod.Context, fit_fn
+                      ) -> tuple[fitmod.Structure, np.ndarray]:
+    """Fit ``names`` jointly (from the forward model's values), then prune with ``_backward``."""
+    big = fitmod.Structure.build(names, current.joints, ctx)
+    base = big.values_from(current.to_effects(cur_x)) if current.effects else None
+    tracks = [fitmod.Track(big, big.u(x0), label="big") for x0 in big.starts(base)]
+    fitmod.lockstep_lm(tracks, fit_fn, 2 * cfg.max_rounds, prune=fitmod.prune_tracks)
+    best = min(tracks, key=lambda t: t.cost)
+    return _backward(eng, ds, sel_eps, best.structure, best.x, cfg, floor_rms, ctx, fit_fn, [],
+                     min_size=1)
 
 
 def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]:

@@ -9,7 +9,6 @@ fit. Splits (train / select / test) are made over episodes, never over samples.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -247,10 +246,47 @@ class Split:
     test: tuple[int, ...]
 
 
+def _stratum(ds: Dataset, w: Window) -> tuple:
+    """What an episode exercises: its log's trajectory name (BAM) and torque-off samples."""
+    tr = ds.trajectories[w.traj]
+    te = tr.channels.get("torque_enable")
+    off = bool(te is not None and np.any(te[w.start:w.stop] < 0.5))
+    return (str(tr.meta.get("trajectory", "")), off)
+
+
+def _deal(order: Sequence[int], shares: dict[str, float]) -> dict[str, list[int]]:
+    """Deal items in ``order`` to roles, each time to the role furthest below its share."""
+    out: dict[str, list[int]] = {r: [] for r in shares}
+    for k, item in enumerate(order):
+        role = max(shares, key=lambda r: shares[r] * (k + 1) - len(out[r]))
+        out[role].append(int(item))
+    return out
+
+
+def _stratified_order(ds: Dataset, eps: Sequence[Window], idx: Sequence[int],
+                      rng: np.random.Generator) -> list[int]:
+    """Episodes shuffled within strata, strata interleaved, so every role sees every kind."""
+    groups: dict[tuple, list[int]] = {}
+    for i in idx:
+        groups.setdefault(_stratum(ds, eps[i]), []).append(int(i))
+    lists = [list(rng.permutation(g)) for _, g in sorted(groups.items())]
+    order = []
+    while any(lists):
+        for g in lists:
+            if g:
+                order.append(g.pop())
+    return order
+
+
 def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
                    test_trajectories: Sequence[int] | None = None,
                    fractions: tuple[float, float] = (0.25, 0.25)) -> Split:
-    """Split episodes into train / select / test.
+    """Split episodes into train / select / test, stratified by what they exercise.
+
+    Episodes are grouped by stratum (the log's trajectory name when the log says it, as BAM logs
+    do, and whether the torque is switched off), shuffled within groups and dealt to the roles
+    so each role gets its share of every group: selection must see the kinds of motion it
+    selects for.
 
     Args:
       ds: the data set.
@@ -267,22 +303,18 @@ def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
     if test_trajectories is not None:
         held = set(test_trajectories)
         test = [i for i in idx if eps[i].traj in held]
-        rest = np.array([i for i in idx if eps[i].traj not in held])
+        rest = [i for i in idx if eps[i].traj not in held]
         if not test or len(rest) < 2:
             raise LogError("the held-out logs must leave at least 2 episodes for fitting and "
                            "selection, and hold out at least one")
-        rest = rng.permutation(rest)
-        n_sel = max(1, len(rest) // 2)
-        return Split(tuple(sorted(rest[n_sel:].tolist())), tuple(sorted(rest[:n_sel].tolist())),
-                     tuple(sorted(test)))
+        roles = _deal(_stratified_order(ds, eps, rest, rng), {"train": 0.5, "select": 0.5})
+        return Split(tuple(sorted(roles["train"])), tuple(sorted(roles["select"])),
+                     tuple(sorted(int(i) for i in test)))
     if n < 3:
         raise LogError(f"too little data: {n} episode(s); need at least 3 (longer or more logs) "
                        "to fit, select and test on different data")
-    perm = rng.permutation(idx)
-    n_test = max(1, int(math.floor(fractions[1] * n + 0.5)))
-    n_sel = max(1, int(math.floor(fractions[0] * n + 0.5)))
-    if n - n_test - n_sel < 1:
-        n_sel = max(1, n - n_test - 1)
-    test, sel, train = perm[:n_test], perm[n_test:n_test + n_sel], perm[n_test + n_sel:]
-    return Split(tuple(sorted(train.tolist())), tuple(sorted(sel.tolist())),
-                 tuple(sorted(test.tolist())))
+    sel, tst = fractions
+    roles = _deal(_stratified_order(ds, eps, idx, rng),
+                  {"train": 1 - sel - tst, "select": sel, "test": tst})
+    return Split(tuple(sorted(roles["train"])), tuple(sorted(roles["select"])),
+                 tuple(sorted(roles["test"])))

@@ -295,6 +295,40 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
         t.done = True
 
 
+# Parameters whose response is piecewise smooth at the physics-step scale (the native actuator
+# delay interpolates its history buffer with flat stretches): a batched 1-D scan polishes them.
+_SCAN = {("latency", "delay")}
+
+
+def polish(t: Track, residual: ResidualFn, dt: float, n: int = 17) -> None:
+    """Scan each piecewise-smooth scalar of a fitted track over +-1 physics step (others fixed,
+    one batched evaluation) and keep the best value per scalar."""
+    idx = [i for i, f in enumerate(t.structure.free) if (f.effect, f.param) in _SCAN]
+    if not idx or t.r is None:
+        return
+    lo, hi = t.structure.u_bounds()
+    x0 = t.x
+    offsets = np.linspace(-dt, dt, n)
+    points = []
+    for i in idx:
+        for o in offsets:
+            x = x0.copy()
+            x[i] = float(np.clip(x0[i] + o, t.structure.free[i].lo, t.structure.free[i].hi))
+            points.append((t.structure, x))
+    res = residual(points)
+    costs = np.array([0.5 * float(r @ r) for r in res]).reshape(len(idx), n)
+    x = x0.copy()
+    for k, i in enumerate(idx):
+        j = int(np.argmin(costs[k]))
+        if costs[k, j] < t.cost:
+            x[i] = points[k * n + j][1][i]
+    if not np.array_equal(x, x0):
+        r = residual([(t.structure, x)])[0]
+        cost = 0.5 * float(r @ r)
+        if cost < t.cost:
+            t.u, t.cost, t.r = t.structure.u(x), cost, r
+
+
 def prune_tracks(rnd: int, tracks: Sequence[Track], after: int = 4) -> None:
     """End tracks that cannot win: from round ``after`` on, starts of one structure that trail
     its best start, and structures whose cost reduction is below a tenth of the best one's."""

@@ -106,4 +106,5 @@ def episode_errors(ds, eps: Sequence, pred: Sequence[np.ndarray], joints: Sequen
                                    strict=True)),
         "per_joint_mae": dict(zip(joints, np.mean(np.abs(allr), 0).tolist(), strict=True)),
         "per_episode_rmse": [float(np.sqrt(np.mean(r ** 2))) for r in rs],
+        "per_episode_mae": [float(np.mean(np.abs(r))) for r in rs],
     }
