@@ -17,8 +17,13 @@ up to 30x on Adroit).
 Demonstrations: on the valve, 25 episodes of the scripted teacher (``lowcostdex.sim.scripted``).
 Tasks without a scripted teacher use a "computational expert" as the DAPG paper did for the pen:
 the mean action of this benchmark's NPG policy for seed 0, provided it reached the target.
-Both algorithms share every setting except the demonstrations (DAPG = BC, then NPG with the
-decaying demo term).
+Both algorithms share every RL setting (the trainer's defaults: 40 trajectories per iteration,
+delta 0.1, damping 1e-2, gamma 0.995, GAE 0.97, (32, 32) policy, init log-std -0.5); DAPG adds
+BC and the decaying demo term. DAPG defaults here: the teacher's demonstrations are recorded
+with +-0.1 executed-action noise and clean labels (as the DAPG authors injected actuator noise),
+BC runs 100 epochs and sets the exploration noise to the clone's residual. mjrl's settings
+(clean demos, 5 BC epochs, noise = demo action spread) are
+``--demo-noise 0 --bc-epochs 5 --bc-log-std demo_spread``.
 """
 
 from __future__ import annotations
@@ -217,16 +222,16 @@ def main() -> None:
     p.add_argument("--gae-lambda", type=float, default=TrainConfig().gae_lambda)
     p.add_argument("--hidden", type=int, nargs="*", default=list(TrainConfig().policy.hidden_sizes))
     p.add_argument("--init-log-std", type=float, default=TrainConfig().policy.init_log_std)
-    p.add_argument("--bc-epochs", type=int, default=TrainConfig().bc.epochs)
+    p.add_argument("--bc-epochs", type=int, default=100)
     p.add_argument(
         "--bc-log-std",
-        default=TrainConfig().bc.log_std,
+        default="residual",
         choices=["demo_spread", "residual", "keep"],
     )
     p.add_argument("--lam0", type=float, default=TrainConfig().dapg.lam0)
     p.add_argument("--lam1", type=float, default=TrainConfig().dapg.lam1)
     p.add_argument(
-        "--demo-noise", type=float, default=0.0, help="executed-action noise while recording"
+        "--demo-noise", type=float, default=0.1, help="executed-action noise while recording"
     )
     p.add_argument("--eval-every", type=int, default=5)
     p.add_argument("--eval-episodes", type=int, default=20)

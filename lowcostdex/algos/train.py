@@ -38,7 +38,7 @@ import torch
 
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.baseline import BaselineConfig, MLPBaseline
-from lowcostdex.algos.bc import BCConfig, behavior_clone
+from lowcostdex.algos.bc import BC_LOG_STD, BCConfig, behavior_clone
 from lowcostdex.algos.dapg import DAPGConfig, dapg_update
 from lowcostdex.algos.demos import Demos, load_demos
 from lowcostdex.algos.npg import NPGConfig, npg_update
@@ -572,6 +572,9 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
         p.add_argument("--lam0", type=float, default=d.dapg.lam0)
         p.add_argument("--lam1", type=float, default=d.dapg.lam1)
         p.add_argument("--demo-weight", choices=("paper", "mjrl"), default=d.dapg.demo_weight)
+        p.add_argument("--bc-epochs", type=int, default=d.bc.epochs)
+        p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=d.bc.log_std,
+                       help="initial exploration noise after BC")  # fmt: skip
     else:
         p.add_argument(
             "--bc-init", action="store_true", help="behaviour-clone the demos first (BCRL)"
@@ -623,6 +626,9 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         dapg=DAPGConfig(lam0=args.lam0, lam1=args.lam1, demo_weight=args.demo_weight)
         if args.algo == "dapg"
         else d.dapg,
+        bc=dataclasses.replace(d.bc, epochs=args.bc_epochs, log_std=args.bc_log_std)
+        if args.algo == "dapg"
+        else d.bc,
         progress=not args.no_progress,
     )
 
