@@ -231,3 +231,14 @@ def test_until_ends_the_run_early_with_an_evaluation(tmp_path):
     assert m["iteration"].tolist() == [0, 1] and seen == [480, 960]
     assert np.isnan(m["eval_success_rate"][0]) and np.isfinite(m["eval_success_rate"][1])
     assert ex.read_json(run.path / "checkpoints" / "latest.json")["iteration"] == 1
+
+
+def test_sim_training_with_the_vector_sampler_is_independent_of_num_envs(tmp_path):
+    pytest.importorskip("lowcostdex.sim.vector")
+    cfg = dict(env_id="lowcostdex/DClawTurnValve-v0", n_iter=2, n_traj=4, eval_every=0, eval_episodes=2,
+               progress=False, sampler="vector", policy=PolicyConfig(hidden_sizes=(16,)))  # fmt: skip
+    for n in (2, 4):
+        train(TrainConfig(**cfg, n_workers=n), tmp_path / f"vec{n}")
+    _assert_same_metrics(_metrics(tmp_path / "vec2"), _metrics(tmp_path / "vec4"))
+    m = _metrics(tmp_path / "vec2")
+    assert m["samples"].tolist() == [160, 320] and np.all(m["goal_error_final"] > 0)

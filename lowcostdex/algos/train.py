@@ -405,7 +405,8 @@ def train(
       out_dir: run directory (see :mod:`lowcostdex.algos.experiment`).
       resume: continue from the last checkpoint in ``out_dir``.
       env_factory: overrides the env built from ``config.env_id``/``backend`` (tests use
-        this for small inline envs; it must be picklable for the process sampler).
+        this for small inline envs; it must be picklable for the process sampler). The vector
+        sampler always batches ``config.env_id``.
       stop_after: stop after this iteration index as if killed (for tests of resume).
       until: called with each iteration's training metrics (the row's keys so far); when it
         returns True that iteration becomes the last one (evaluated, checkpointed), e.g. to
