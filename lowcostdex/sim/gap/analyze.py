@@ -43,6 +43,9 @@ from lowcostdex.sim.gap.gain import Gain, episode_errors, gain_with_ci
 from lowcostdex.sim.gap.replay import Replayer
 
 Progress = Callable[[str, float], None]
+# Without accepted causes, a held-out error above this many noise floors is reported as an
+# unexplained discrepancy rather than "no significant discrepancy".
+UNEXPLAINED = 2.0
 
 
 @dataclass(frozen=True)
@@ -121,6 +124,7 @@ class CandidateResult:
     select_gain: float | None = None  # relative MSE reduction on the select split
     effect_rms: float | None = None  # RMS change of select predictions it causes [rad]
     params: dict | None = None
+    at_bound: bool = False  # fit ended at a parameter bound: not a plausible explanation
     accepted: bool = False
 
 
@@ -382,14 +386,23 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             c.select_gain = rel
             c.params = {p: v.tolist() for e in t.effects() if e.name == n
                         for p, v in e.values.items()}
-        top_gain = max(r[0] for r in results.values())
         # candidates the select split cannot tell apart from the best (within ``tie`` of its
         # MSE) are equivalent explanations: the earliest in the canonical list is named, the
         # others are reported with it
-        tied = [n for n in results
-                if (1 - results[n][0]) <= (1 - top_gain) * (1 + cfg.tie) + 1e-12]
-        inside = [n for n in tied if not _flags(best_track[n].structure, best_track[n].u, n)]
-        n_best = min(inside or tied, key=lambda n: CAUSES.index(n))
+        # a fit that ends at a (non-null) bound is not a plausible explanation (04-sysid.md
+        # 4.3 (b)): it compensates for something else; such candidates are not named
+        plausible = {n: r for n, r in results.items()
+                     if not _flags(best_track[n].structure, best_track[n].u, n)}
+        for n in set(results) - set(plausible):
+            by_name[n].at_bound = True
+        if not plausible:
+            stop_reason = "every fitted candidate ended at a parameter bound"
+            timing[f"round{step + 1}"] = time.perf_counter() - t0
+            break
+        top_gain = max(r[0] for r in plausible.values())
+        tied = [n for n in plausible
+                if (1 - plausible[n][0]) <= (1 - top_gain) * (1 + cfg.tie) + 1e-12]
+        n_best = min(tied, key=lambda n: CAUSES.index(n))
         rel, low, sse = results[n_best]
         size = _effect_size(eng, sel_eps, cur_pred_sel, best_track[n_best].effects())
         by_name[n_best].effect_rms = size
@@ -540,8 +553,8 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
 
     An effect is redundant when leaving it out of the current model (others unchanged) raises
     the select MSE by less than ``min_gain / 2`` or changes the predictions by less than
-    ``min_effect`` noise floors. The rest are ordered by how much the select MSE rises without
-    them.
+    ``min_effect`` noise floors; an effect whose fit sits at a parameter bound is implausible and
+    goes first. The rest are ordered by how much the select MSE rises without them.
     """
     while len(current.effects) > min_size:
         effs = current.to_effects(cur_x)
@@ -554,15 +567,17 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
             rise[n] = _mse_by_episode(ds, sel_eps, pr)[0].sum() / max(sse_full, 1e-300) - 1
             d = np.concatenate([(a - b).ravel() for a, b in zip(pr, full, strict=True)])
             size[n] = float(np.sqrt(np.mean(d * d)))
+        at_bound = {f.effect for f in current.free if _flags(current, current.u(cur_x), f.effect)}
         weak = [n for n in current.effects
-                if rise[n] < 0.5 * cfg.min_gain or size[n] < cfg.min_effect * floor_rms]
+                if rise[n] < 0.5 * cfg.min_gain or size[n] < cfg.min_effect * floor_rms
+                or n in at_bound]
         if not weak:
             order = sorted(current.effects, key=lambda n: -rise[n])
             if list(order) != list(current.effects):
                 s = fitmod.Structure.build(tuple(order), current.joints, ctx)
                 return s, s.values_from(effs)
             return current, cur_x
-        drop = min(weak, key=lambda n: rise[n])
+        drop = min(weak, key=lambda n: (n not in at_bound, rise[n]))
         dropped.append(drop)
         keep = tuple(n for n in current.effects if n != drop)
         s = fitmod.Structure.build(keep, current.joints, ctx)
@@ -637,6 +652,10 @@ def _flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
 
 def _verdict(causes: Sequence[Cause], gain: Gain) -> str:
     if not causes:
+        if gain.baseline_rmse > UNEXPLAINED * gain.noise_floor:
+            return (f"discrepancy not explained by the candidate effects (held-out RMSE "
+                    f"{gain.baseline_rmse:.4g} rad, {gain.baseline_rmse / gain.noise_floor:.0f}x "
+                    "the noise floor; no candidate lowered the select error significantly)")
         return "no significant discrepancy"
     names = ", ".join(c.effect for c in causes)
     return (f"{names}: held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad "

@@ -254,28 +254,31 @@ def _stratum(ds: Dataset, w: Window) -> tuple:
     return (str(tr.meta.get("trajectory", "")), off)
 
 
-def _deal(order: Sequence[int], shares: dict[str, float]) -> dict[str, list[int]]:
-    """Deal items in ``order`` to roles, each time to the role furthest below its share."""
+def _deal(groups: Sequence[Sequence[int]], shares: dict[str, float]) -> dict[str, list[int]]:
+    """Deal each group's items to roles in proportion to ``shares``: within a group, each item
+    goes to the role furthest below its share of that group, ties to the role furthest below
+    its share overall (so small groups still spread across roles and the totals balance)."""
     out: dict[str, list[int]] = {r: [] for r in shares}
-    for k, item in enumerate(order):
-        role = max(shares, key=lambda r: shares[r] * (k + 1) - len(out[r]))
-        out[role].append(int(item))
+    total = 0
+    for group in groups:
+        local = dict.fromkeys(shares, 0)
+        for j, item in enumerate(group):
+            role = max(shares, key=lambda r: (shares[r] * (j + 1) - local[r],
+                                              shares[r] * (total + 1) - len(out[r])))
+            out[role].append(int(item))
+            local[role] += 1
+            total += 1
     return out
 
 
-def _stratified_order(ds: Dataset, eps: Sequence[Window], idx: Sequence[int],
-                      rng: np.random.Generator) -> list[int]:
-    """Episodes shuffled within strata, strata interleaved, so every role sees every kind."""
+def _strata(ds: Dataset, eps: Sequence[Window], idx: Sequence[int],
+            rng: np.random.Generator) -> list[list[int]]:
+    """Episodes grouped by stratum, shuffled within groups, groups in a shuffled order."""
     groups: dict[tuple, list[int]] = {}
     for i in idx:
         groups.setdefault(_stratum(ds, eps[i]), []).append(int(i))
-    lists = [list(rng.permutation(g)) for _, g in sorted(groups.items())]
-    order = []
-    while any(lists):
-        for g in lists:
-            if g:
-                order.append(g.pop())
-    return order
+    lists = [[int(x) for x in rng.permutation(g)] for _, g in sorted(groups.items())]
+    return [lists[k] for k in rng.permutation(len(lists))]
 
 
 def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
@@ -285,8 +288,8 @@ def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
 
     Episodes are grouped by stratum (the log's trajectory name when the log says it, as BAM logs
     do, and whether the torque is switched off), shuffled within groups and dealt to the roles
-    so each role gets its share of every group: selection must see the kinds of motion it
-    selects for.
+    so each role gets its share of every group (a group of two goes one to train, one to
+    select): selection must see the kinds of motion it selects for.
 
     Args:
       ds: the data set.
@@ -307,14 +310,14 @@ def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
         if not test or len(rest) < 2:
             raise LogError("the held-out logs must leave at least 2 episodes for fitting and "
                            "selection, and hold out at least one")
-        roles = _deal(_stratified_order(ds, eps, rest, rng), {"train": 0.5, "select": 0.5})
+        roles = _deal(_strata(ds, eps, rest, rng), {"train": 0.5, "select": 0.5})
         return Split(tuple(sorted(roles["train"])), tuple(sorted(roles["select"])),
                      tuple(sorted(int(i) for i in test)))
     if n < 3:
         raise LogError(f"too little data: {n} episode(s); need at least 3 (longer or more logs) "
                        "to fit, select and test on different data")
     sel, tst = fractions
-    roles = _deal(_stratified_order(ds, eps, idx, rng),
+    roles = _deal(_strata(ds, eps, idx, rng),
                   {"train": 1 - sel - tst, "select": sel, "test": tst})
     return Split(tuple(sorted(roles["train"])), tuple(sorted(roles["select"])),
                  tuple(sorted(roles["test"])))

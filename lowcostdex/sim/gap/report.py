@@ -145,6 +145,8 @@ def markdown(result: GapResult) -> str:
             params = ("; ".join(f"{p}={_fmt(v)}" for p, v in c.params.items())
                       if c.params else "")
             gain = f"{100 * c.select_gain:.1f} %" if c.select_gain is not None else ""
+            if c.at_bound:
+                params += " (at a bound)"
             out.append(f"| {c.effect} | {c.score:.3f} | {_mrad(c.select_rmse)} | {gain} | "
                        f"{params} | {'yes' if c.accepted else ''} |")
         out.append("")
