@@ -33,6 +33,10 @@ def _costs() -> dict[str, object]:
         "action": ActionCost(
             np.array([1e-3, 0.1, 2.0]), target=np.array([0.5, -1.0, 0.2]), final_multiplier=0.0
         ),
+        "moving_action": ActionCost(np.array([0.3, 1.0, 2.0]), target=rng.normal(size=(T, DU))),
+        "window": StateCost(
+            target, weights, l2=2.0, ramp="final_only", final_steps=3, final_multiplier=5.0
+        ),
         "sum": SumCost(
             [StateCost(target, weights, l1=0.4), ActionCost(np.array([0.1, 0.2, 0.3]))],
             weights=[2.0, 0.5],
@@ -49,7 +53,9 @@ def _fd_gradient(fn, y: np.ndarray, h: float = 1e-6) -> np.ndarray:
     return grad
 
 
-@pytest.mark.parametrize("name", ["l2", "l1", "l1l2", "moving", "action", "sum"])
+@pytest.mark.parametrize(
+    "name", ["l2", "l1", "l1l2", "moving", "action", "moving_action", "window", "sum"]
+)
 def test_cost_derivatives_match_finite_differences(name: str) -> None:
     cost = _costs()[name]
     X, U = _trajectory()
@@ -85,8 +91,25 @@ def test_ramps_shapes_and_endpoints() -> None:
     np.testing.assert_allclose(ramp_weights("linear", 4), [0.25, 0.5, 0.75, 1.0])
     np.testing.assert_allclose(ramp_weights("quadratic", 2, 3.0), [0.25, 3.0])
     np.testing.assert_allclose(ramp_weights("final_only", 3, 10.0), [0, 0, 10.0])
+    np.testing.assert_allclose(ramp_weights("final_only", 5, 10.0, final_steps=3), [0, 0, 1, 1, 10])
     with pytest.raises(ConfigError, match="final_only"):
         ramp_weights("exponential", 3)
+    with pytest.raises(ConfigError, match="final_steps"):
+        ramp_weights("final_only", 3, final_steps=4)
+
+
+def test_action_cost_with_a_target_per_step() -> None:
+    X, U = _trajectory()
+    target = np.random.default_rng(4).normal(size=(T, DU))
+    w = np.array([0.5, 1.0, 2.0])
+    d = ActionCost(w, target=target).evaluate(X, U)
+    np.testing.assert_allclose(d.value, 0.5 * np.sum(w * (U - target) ** 2, axis=1))
+    np.testing.assert_allclose(d.lu, w * (U - target))
+    assert np.all(ActionCost(w, target=U).evaluate(X, U).value == 0.0)
+    with pytest.raises(ConfigError, match="steps"):
+        ActionCost(w, target=target[:-1]).evaluate(X, U)
+    with pytest.raises(ConfigError, match="dU"):
+        ActionCost(w, target=np.zeros((T, DU + 1)))
 
 
 def test_state_cost_final_multiplier_scales_only_last_step() -> None:

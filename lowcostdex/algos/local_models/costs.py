@@ -75,15 +75,18 @@ class Cost(Protocol):
     def evaluate(self, X: Array, U: Array) -> CostDerivatives: ...
 
 
-def ramp_weights(kind: str, T: int, final_multiplier: float = 1.0) -> Array:
+def ramp_weights(kind: str, T: int, final_multiplier: float = 1.0, final_steps: int = 1) -> Array:
     """Per-step multipliers (T,) of a cost term over the horizon.
 
-    ``constant``: 1; ``linear``: (t+1)/T; ``quadratic``: ((t+1)/T)^2; ``final_only``: 1 at the
-    last step, 0 elsewhere. The last step is then multiplied by ``final_multiplier``.
+    ``constant``: 1; ``linear``: (t+1)/T; ``quadratic``: ((t+1)/T)^2; ``final_only``: 1 on the
+    last ``final_steps`` steps, 0 elsewhere (a goal that must be reached and then held). The last
+    step is then multiplied by ``final_multiplier``.
     """
     check_choice("ramp", kind, RAMP_KINDS)
     if T < 1:
         raise ConfigError(f"horizon T={T} must be >= 1")
+    if not 1 <= final_steps <= T:
+        raise ConfigError(f"final_steps={final_steps} must be in [1, T={T}]")
     frac = np.arange(1, T + 1, dtype=np.float64) / T
     if kind == "constant":
         ramp = np.ones(T)
@@ -93,7 +96,7 @@ def ramp_weights(kind: str, T: int, final_multiplier: float = 1.0) -> Array:
         ramp = frac**2
     else:
         ramp = np.zeros(T)
-        ramp[-1] = 1.0
+        ramp[T - final_steps :] = 1.0
     ramp[-1] *= final_multiplier
     return ramp
 
@@ -130,6 +133,7 @@ class StateCost:
       alpha: smoothing of the l1 term (> 0), units of d'Wd.
       ramp: how the weight grows over the horizon, one of ``RAMP_KINDS``.
       final_multiplier: extra factor on the last step.
+      final_steps: steps at the end weighted by the ``final_only`` ramp.
     """
 
     target: Array
@@ -139,6 +143,7 @@ class StateCost:
     alpha: float = 1e-2
     ramp: str = "constant"
     final_multiplier: float = 1.0
+    final_steps: int = 1
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "target", np.asarray(self.target, dtype=np.float64))
@@ -155,13 +160,15 @@ class StateCost:
         if self.alpha <= 0:
             raise ConfigError(f"alpha={self.alpha} must be > 0")
         check_choice("ramp", self.ramp, RAMP_KINDS)
+        if self.final_steps < 1:
+            raise ConfigError(f"final_steps={self.final_steps} must be >= 1")
 
     def evaluate(self, X: Array, U: Array) -> CostDerivatives:
         T, dX = X.shape
         if self.target.ndim == 2 and self.target.shape[0] != T:
             raise ConfigError(f"target has {self.target.shape[0]} steps, the trajectory {T}")
         out = _zeros(T, dX, U.shape[1])
-        ramp = ramp_weights(self.ramp, T, self.final_multiplier)
+        ramp = ramp_weights(self.ramp, T, self.final_multiplier, self.final_steps)
         w = self.weights
         d = X - self.target  # (T, dX)
         wd = w * d
@@ -185,11 +192,12 @@ class StateCost:
 
 @dataclass(frozen=True, eq=False)
 class ActionCost:
-    """Quadratic action penalty ``ramp_t * 1/2 sum_i weights_i (u_i - target_i)^2``.
+    """Quadratic action penalty ``ramp_t * 1/2 sum_i weights_i (u_t,i - target_t,i)^2``.
 
     Attributes:
       weights: (dU,) non-negative per-action weights.
-      target: (dU,) action that costs nothing (e.g. the one holding the start pose); None is 0.
+      target: (dU,) action that costs nothing (e.g. the one holding the start pose), or (T, dU)
+        one per step (e.g. the demonstrated actions); None is 0.
       ramp: how the weight varies over the horizon, one of ``RAMP_KINDS``.
       final_multiplier: factor on the last step (0 drops the action cost at the end).
     """
@@ -206,14 +214,19 @@ class ActionCost:
             raise ConfigError("action weights must be >= 0")
         target = np.zeros_like(self.weights) if self.target is None else self.target
         object.__setattr__(self, "target", np.asarray(target, dtype=np.float64))
-        if self.target.shape != self.weights.shape:
+        if self.target.ndim not in (1, 2) or self.target.shape[-1:] != self.weights.shape:
             raise ConfigError(
-                f"action target {self.target.shape} and weights {self.weights.shape} differ"
+                f"action target {self.target.shape} must be (dU,) or (T, dU) with "
+                f"dU = {self.weights.shape[0]} (the weights)"
             )
+        if not np.all(np.isfinite(self.target)):
+            raise ConfigError("action target must be finite")
         check_choice("ramp", self.ramp, RAMP_KINDS)
 
     def evaluate(self, X: Array, U: Array) -> CostDerivatives:
         T, dU = U.shape
+        if self.target.ndim == 2 and self.target.shape[0] != T:
+            raise ConfigError(f"action target has {self.target.shape[0]} steps, the trajectory {T}")
         out = _zeros(T, X.shape[1], dU)
         ramp = ramp_weights(self.ramp, T, self.final_multiplier)
         d = U - self.target
