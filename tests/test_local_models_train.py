@@ -1,6 +1,7 @@
 """The TVLG trainer on the D'Claw valve env: run directory, fixed start, resume, CLI, init."""
 
 import argparse
+import dataclasses
 import math
 
 import numpy as np
@@ -8,14 +9,17 @@ import pytest
 
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.local_models.train import (
+    TaskCostConfig,
     TVLGTrainConfig,
     add_train_commands,
     capture_start,
     config_from_args,
     controller_state,
     default_env_factory,
+    demo_hand_reference,
     hold_action,
     initial_controller,
+    is_solved,
     load_controller,
     run_episode,
     task_cost,
@@ -166,5 +170,71 @@ def test_cli_builds_the_config() -> None:
     )
     cfg = config_from_args(args)
     assert cfg.algo.traj_opt.kl_step == 0.5 and cfg.env_kwargs == {"port": "/dev/ttyUSB0"}
+    assert cfg.cost == TaskCostConfig.task()
+    args = parser.parse_args(
+        ["tvlg", "--out", "r", "--init", "teacher", "--cost", "tracking", "--final-steps", "3",
+         "--min-step-mult", "0.1", "--eval-noisy-episodes", "20"]
+    )  # fmt: skip
+    cfg = config_from_args(args)
+    assert cfg.cost == dataclasses.replace(TaskCostConfig.tracking(), final_steps=3)
+    assert cfg.algo.traj_opt.min_step_mult == 0.1 and cfg.eval_noisy_episodes == 20
     with pytest.raises(SystemExit):
         parser.parse_args(["tvlg", "--out", "r", "--backend", "simulated"])
+
+
+def test_demo_hand_reference_is_the_start_pose_then_the_demonstrated_joint_targets(valve) -> None:
+    env, start, hold = valve
+    task = env.unwrapped.task
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1.2, 1.2, size=(2, 41, 9))
+    actions[1, 30:] = np.nan  # the second demonstration is shorter
+    ref = demo_hand_reference(env, start, actions)
+    assert ref.shape == (41, 9)
+    np.testing.assert_allclose(ref[0], start.qpos[task.hand_qpos])
+    mean = np.nanmean(np.clip(actions, -1, 1), axis=0)
+    goal = 0.5 * (task.hand_high + task.hand_low) + 0.5 * (task.hand_high - task.hand_low) * mean
+    np.testing.assert_allclose(ref[1:], goal[:-1])
+    assert np.all(ref >= task.hand_low - 1e-12) and np.all(ref <= task.hand_high + 1e-12)
+
+
+def test_tracking_cost_follows_the_reference_and_pays_the_goal_only_at_the_end(valve) -> None:
+    env, start, hold = valve
+    cfg = TaskCostConfig.tracking()
+    ref = np.tile(start.qpos[env.unwrapped.task.hand_qpos], (41, 1)) + 0.1
+    hand_term, object_term, _ = task_cost(env, start, hold, cfg, 41, 29, ref).costs
+    np.testing.assert_allclose(hand_term.target[:, :9], ref)
+    assert hand_term.weights[0] == cfg.pose_weight == 0.1
+    X = np.zeros((41, 29))
+    X[:, :9] = ref
+    value = object_term.evaluate(X, np.zeros((41, 9))).value  # valve at 0, goal pi
+    np.testing.assert_allclose(value[:36], 0.0)
+    np.testing.assert_allclose(value[36:], 0.5 * cfg.object_weight * math.pi**2)
+    with pytest.raises(ConfigError, match="reference"):
+        task_cost(env, start, hold, cfg, 41, 29)
+    with pytest.raises(ConfigError, match="demonstration"):
+        TVLGTrainConfig(cost=cfg)  # init "pd" has no demonstration to track
+
+
+def test_solved_needs_the_noise_free_episode_and_enough_noisy_successes() -> None:
+    assert is_solved(True, 0.8, 0.8) and is_solved(True, math.nan, 0.8)
+    assert not is_solved(True, 0.75, 0.8) and not is_solved(False, 1.0, 0.8)
+
+
+def test_tracking_run_logs_noisy_evaluations_and_resumes_identically(tmp_path) -> None:
+    pytest.importorskip("lowcostdex.sim.scripted")
+    cfg = _small(
+        n_iter=2, init="teacher", init_noise=0.05, cost=TaskCostConfig.tracking(),
+        eval_noisy_episodes=2,
+    )  # fmt: skip
+    full = train(cfg, tmp_path / "full").read_metrics()
+    assert list(full["rollouts"]) == [2, 4]  # held-out episodes are not learning rollouts
+    assert set(full["eval_noisy_success_rate"]) <= {0.0, 0.5, 1.0}
+    solved = (full[ex.EVAL_SUCCESS_RATE] == 1.0) & (full["eval_noisy_success_rate"] >= 0.8)
+    np.testing.assert_array_equal(full["solved"], solved.astype(float))
+    # robot time: 1 teacher + 2 x (2 rollouts + 1 noise-free + 2 noisy) episodes of 4 s
+    assert full[ex.ROBOT_HOURS][-1] * 3600 == pytest.approx(11 * 4.0)
+    train(cfg, tmp_path / "cut", stop_after=0)
+    resumed = train(cfg, tmp_path / "cut", resume=True).read_metrics()
+    for key, values in full.items():
+        if key not in TIME_COLUMNS:
+            np.testing.assert_array_equal(resumed[key], values, err_msg=key)

@@ -64,6 +64,8 @@ Array = NDArray[np.float64]
 BACKENDS = ("sim", "emulated", "hardware")
 INITS = ("pd", "demos", "teacher")
 SUCCESS_MODES = ("final", "any")
+HAND_REFERENCES = ("start", "demo")
+COST_PRESETS = ("task", "tracking")
 MUTABLE_ON_RESUME = ("n_iter", "progress")
 """Config keys a resumed run may change."""
 _UPDATE = 13  # seed purpose of the update generator (the GMM's EM)
@@ -76,15 +78,26 @@ TEACHER_FILE = "teacher_demo.npz"
 class TaskCostConfig:
     """Quadratic cost of a goal-angle task (valve turning, screw), in state units.
 
+    Two presets (``preset``): ``task()`` (the defaults) pulls the object angle to the goal at every
+    step and keeps the hand near its start pose; ``tracking()`` keeps the hand joints near the
+    demonstrated joint targets and pays for the object angle only over the last ``final_steps``
+    steps (bench/RESULTS.md: from the PD-hold start the task cost has no gradient before contact,
+    and around a demonstration it pulls the valve ahead of the demonstrated gait at every step).
+
     Attributes:
       object_weight: weight of the squared object-angle error [1/rad^2].
       object_l1: weight of a smooth |error| term on the object angle (keeps pulling near the goal).
-      pose_weight: squared deviation of the hand joints from the start pose [1/rad^2].
+      pose_weight: squared deviation of the hand joints from their reference [1/rad^2].
       velocity_weight: squared hand and object joint velocities [s^2/rad^2].
       action_weight: squared deviation of the normalised action from the one holding the start
         pose.
       final_multiplier: extra weight of the final step's state terms.
       ramp: growth of the object term over the episode, one of RAMP_KINDS.
+      final_steps: steps at the end weighted by the ``final_only`` ramp (reach the goal and hold
+        it).
+      hand_reference: the hand joints' reference, one of HAND_REFERENCES: "start" (the start
+        pose) or "demo" (the joint targets of the demonstration the controller starts from; needs
+        init "teacher" or "demos").
     """
 
     object_weight: float = 1.0
@@ -94,9 +107,12 @@ class TaskCostConfig:
     action_weight: float = 1e-3
     final_multiplier: float = 10.0
     ramp: str = "constant"
+    final_steps: int = 1
+    hand_reference: str = "start"
 
     def __post_init__(self) -> None:
         check_choice("ramp", self.ramp, RAMP_KINDS)
+        check_choice("hand reference", self.hand_reference, HAND_REFERENCES)
         for name in (
             "object_weight",
             "object_l1",
@@ -108,6 +124,29 @@ class TaskCostConfig:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 0")
         if self.final_multiplier <= 0:
             raise ConfigError(f"final_multiplier={self.final_multiplier} must be > 0")
+        if self.final_steps < 1:
+            raise ConfigError(f"final_steps={self.final_steps} must be >= 1")
+
+    @classmethod
+    def task(cls) -> TaskCostConfig:
+        """The goal at every step, the hand near its start pose (the defaults)."""
+        return cls()
+
+    @classmethod
+    def tracking(cls) -> TaskCostConfig:
+        """Hand joints near the demonstrated joint targets (weight 0.1 / rad^2), the object at
+        the goal over the last 5 steps (weight 10 / rad^2): the configuration measured in
+        bench/RESULTS.md."""
+        return cls(
+            object_weight=10.0, pose_weight=0.1, final_multiplier=1.0, ramp="final_only",
+            final_steps=5, hand_reference="demo",
+        )  # fmt: skip
+
+    @classmethod
+    def preset(cls, name: str) -> TaskCostConfig:
+        """One of COST_PRESETS by name."""
+        check_choice("cost preset", name, COST_PRESETS)
+        return getattr(cls, name)()
 
 
 @dataclass(frozen=True)
@@ -135,6 +174,11 @@ class TVLGTrainConfig:
       smooth_noise: Gaussian smoothing of the exploration noise over time [steps]; 0 = white.
       success: episode success from ``info["success"]`` at the final step or at any step.
       eval_every: noise-free evaluation episode every this many iterations (0: last only).
+      eval_noisy_episodes: held-out episodes of the controller with its exploration noise at
+        every evaluation (not used for learning; counted in robot time, not in ``rollouts``);
+        logged as ``eval_noisy_success_rate``.
+      solve_rate: an evaluated iteration is ``solved`` when its noise-free episode succeeds and,
+        if ``eval_noisy_episodes`` > 0, at least this fraction of the noisy ones do.
       checkpoint_every: checkpoint period [iterations] (the last iteration always saves).
       cost: the task cost.
       algo: the optimiser (dynamics fit, KL trust region).
@@ -156,6 +200,8 @@ class TVLGTrainConfig:
     smooth_noise: float = 0.0
     success: str = "final"
     eval_every: int = 1
+    eval_noisy_episodes: int = 0
+    solve_rate: float = 0.8
     checkpoint_every: int = 1
     cost: TaskCostConfig = field(default_factory=TaskCostConfig)
     algo: TVLGConfig = field(default_factory=TVLGConfig)
@@ -170,8 +216,15 @@ class TVLGTrainConfig:
         for name in ("n_iter", "n_rollouts", "checkpoint_every", "teacher_episodes"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        if self.eval_every < 0:
-            raise ConfigError(f"eval_every={self.eval_every} must be >= 0")
+        if self.eval_every < 0 or self.eval_noisy_episodes < 0:
+            raise ConfigError("eval_every and eval_noisy_episodes must be >= 0")
+        if not 0 < self.solve_rate <= 1:
+            raise ConfigError(f"solve_rate={self.solve_rate} must be in (0, 1]")
+        if self.cost.hand_reference == "demo" and self.init not in ("teacher", "demos"):
+            raise ConfigError(
+                "cost hand_reference 'demo' (--cost tracking) needs a demonstration: "
+                "init 'teacher' or 'demos'"
+            )
         if self.init_noise <= 0 or self.smooth_noise < 0 or self.pd_gain < 0:
             raise ConfigError("init_noise must be > 0, smooth_noise and pd_gain >= 0")
 
@@ -340,16 +393,23 @@ def object_target(theta0: float, goal: float, reference: float = math.nan) -> fl
 
 
 def task_cost(
-    env: gym.Env, start: FixedStart, hold: Array, cfg: TaskCostConfig, T: int, dX: int
+    env: gym.Env,
+    start: FixedStart,
+    hold: Array,
+    cfg: TaskCostConfig,
+    T: int,
+    dX: int,
+    hand_reference: Array | None = None,
 ) -> SumCost:
     """Quadratic cost of a goal-angle task over T steps, for states of size dX.
 
     The object target is the goal angle unwrapped by :func:`object_target` (for a moving goal,
-    one target per step from ``task.advance_goal``, unwrapped continuously). The hand is kept near its start
-    pose and the action near the one holding it.
+    one target per step from ``task.advance_goal``, unwrapped continuously). The hand is kept near
+    its start pose, or near ``hand_reference`` (T, n_hand) [rad] when ``cfg.hand_reference`` is
+    "demo" (see :func:`demo_hand_reference`), and the action near the one holding the start pose.
 
     Raises:
-      ConfigError: if the task has no goal angle.
+      ConfigError: if the task has no goal angle, or the demo reference is missing or misshaped.
     """
     base = env.unwrapped
     task = base.task
@@ -362,6 +422,13 @@ def task_cost(
     obj = 2 * n_hand  # state_vector: hand qpos, hand qvel, object qpos, object qvel
     goals = np.unwrap([float(task.advance_goal(start.goal, t)["angle"]) for t in range(T)])
     target = np.tile(np.concatenate([start.qpos[task.hand_qpos], np.zeros(dX - n_hand)]), (T, 1))
+    if cfg.hand_reference == "demo":
+        if hand_reference is None or hand_reference.shape != (T, n_hand):
+            raise ConfigError(
+                f"cost hand_reference 'demo' needs a (T={T}, {n_hand}) joint reference, got "
+                f"{None if hand_reference is None else hand_reference.shape}"
+            )
+        target[:, :n_hand] = hand_reference
     target[:, obj] = (
         goals
         + object_target(float(start.qpos[task.obj_qpos]), goals[0], start.reference)
@@ -377,11 +444,30 @@ def task_cost(
         StateCost(target, w_hand, final_multiplier=cfg.final_multiplier),
         StateCost(
             target, w_obj, l2=cfg.object_weight, l1=cfg.object_l1, alpha=1e-2, ramp=cfg.ramp,
-            final_multiplier=cfg.final_multiplier,
+            final_multiplier=cfg.final_multiplier, final_steps=min(cfg.final_steps, T),
         ),
         ActionCost(cfg.action_weight * np.ones(len(hold)), target=hold),
     ]  # fmt: skip
     return SumCost(terms)
+
+
+def demo_hand_reference(env: gym.Env, start: FixedStart, demo_actions: Array) -> Array:
+    """Hand joint reference (T, n_hand) [rad] from demonstrated actions (M, T, dU).
+
+    The start pose at t = 0, then the joint targets of the mean demonstrated action of the step
+    before (servos reach their targets within a control period unless a contact stops them).
+    Steps no demonstration reaches (NaN) repeat the last reference.
+    """
+    task = env.unwrapped.task
+    mean = np.nanmean(np.clip(demo_actions, -1.0, 1.0), axis=0)  # (T, dU)
+    mid, half = 0.5 * (task.hand_high + task.hand_low), 0.5 * (task.hand_high - task.hand_low)
+    ref = np.empty((mean.shape[0], len(task.hand_qpos)))
+    ref[0] = start.qpos[task.hand_qpos]
+    ref[1:] = mid + half * mean[:-1]
+    for t in range(1, ref.shape[0]):
+        if not np.all(np.isfinite(ref[t])):
+            ref[t] = ref[t - 1]
+    return ref
 
 
 def initial_controller(
@@ -509,6 +595,14 @@ def teacher_episodes(
     return TeacherEpisodes(X, U, successes, seconds)
 
 
+def is_solved(noise_free_success: bool, noisy_success_rate: float, solve_rate: float) -> bool:
+    """The benchmark's definition: the noise-free episode succeeds and, when noisy held-out
+    episodes were run (rate not NaN), at least ``solve_rate`` of them succeed."""
+    if not noise_free_success:
+        return False
+    return math.isnan(noisy_success_rate) or noisy_success_rate >= solve_rate
+
+
 # ----------------------------------------------------------------------------------------------
 # Training loop
 
@@ -567,24 +661,32 @@ def train(
             )
             + 1
         )
+        demo_actions = None
         if ckpt is None:
             counters = {"samples": 0, "rollouts": 0, "robot_seconds": 0.0, "teacher_episodes": 0}
             if config.init == "teacher":
                 teach = teacher_episodes(env, start, config, hold, T, run.path / TEACHER_FILE)
                 obj = 2 * len(hold)  # object angle in the controller state
                 start = dataclasses.replace(start, reference=float(np.mean(teach.X[:, -1, obj])))
-                ctl = initial_controller(config, env, start, x0, hold, T, teach.U)
+                demo_actions = teach.U
                 counters["teacher_episodes"] = config.teacher_episodes
                 counters["robot_seconds"] += teach.robot_seconds
-            else:
-                ctl = initial_controller(config, env, start, x0, hold, T)
+            elif config.init == "demos":
+                demo_actions = _demo_actions(config.demos, T)
+            ctl = initial_controller(config, env, start, x0, hold, T, demo_actions)
             state = TVLGState.initial(ctl, config.algo)
             first = 0
         else:
             state = state_from_arrays(_numpy(ckpt.state["tvlg"]))
             counters = dict(ckpt.state["counters"])
             first = ckpt.iteration + 1
-        cost = task_cost(env, start, hold, config.cost, T, x0.shape[0])
+            if config.init in ("teacher", "demos"):
+                path = run.path / TEACHER_FILE if config.init == "teacher" else config.demos
+                demo_actions = _demo_actions(str(path), T)
+        reference = None
+        if config.cost.hand_reference == "demo":
+            reference = demo_hand_reference(env, start, demo_actions)
+        cost = task_cost(env, start, hold, config.cost, T, x0.shape[0], reference)
         _loop(config, run, env, state, cost, start, hold, counters, first, stop_after)
     finally:
         env.close()
@@ -637,16 +739,28 @@ def _loop(
             ex.EVAL_SUCCESS_RATE: math.nan,
             ex.EVAL_RETURN_MEAN: math.nan,
             "eval_final_abs_error": math.nan,
+            "eval_noisy_success_rate": math.nan,
+            "solved": math.nan,
         }
         if k == last or (config.eval_every > 0 and (k + 1) % config.eval_every == 0):
             ev = episode(
                 state.controller, RolloutJob(config.seed, EVAL_STREAM, k, 0, deterministic=True)
             )
-            counters["robot_seconds"] += ev.robot_seconds
+            noisy = [
+                episode(state.controller, RolloutJob(config.seed, EVAL_STREAM, k, 1 + i))
+                for i in range(config.eval_noisy_episodes)
+            ]
+            counters["robot_seconds"] += ev.robot_seconds + sum(e.robot_seconds for e in noisy)
+            noisy_rate = (
+                float(np.mean([e.success(config.success) for e in noisy])) if noisy else math.nan
+            )
             row.update({
                 ex.EVAL_SUCCESS_RATE: float(ev.success(config.success)),
                 ex.EVAL_RETURN_MEAN: float(ev.rewards.sum()),
                 "eval_final_abs_error": abs(ev.final_error),
+                "eval_noisy_success_rate": noisy_rate,
+                "solved": float(is_solved(ev.success(config.success), noisy_rate,
+                                          config.solve_rate)),
             })  # fmt: skip
         row.update(
             {ex.SAMPLES: counters["samples"], ex.ROBOT_HOURS: counters["robot_seconds"] / 3600}
@@ -736,8 +850,30 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--kl-step", type=float, default=d.algo.traj_opt.kl_step, help="KL per step [nats]"
     )
+    p.add_argument(
+        "--min-step-mult", type=float, default=d.algo.traj_opt.min_step_mult,
+        help="floor of the adaptive KL step multiplier",
+    )  # fmt: skip
     p.add_argument("--prior-strength", type=float, default=d.algo.dynamics.prior_strength)
-    p.add_argument("--object-weight", type=float, default=d.cost.object_weight)
+    p.add_argument(
+        "--cost", choices=COST_PRESETS, default="task",
+        help="task: goal at every step, hand near its start pose; tracking: hand near the "
+        "demonstrated joint targets, goal over the last steps (needs --init teacher or demos)",
+    )  # fmt: skip
+    p.add_argument(
+        "--object-weight", type=float, default=None, help="object-angle weight (preset's default)"
+    )
+    p.add_argument(
+        "--pose-weight", type=float, default=None, help="hand-joint weight (preset's default)"
+    )
+    p.add_argument(
+        "--final-steps", type=int, default=None,
+        help="last steps carrying the goal with the final_only ramp (preset's default)",
+    )  # fmt: skip
+    p.add_argument(
+        "--eval-noisy-episodes", type=int, default=d.eval_noisy_episodes,
+        help="held-out noisy episodes per evaluation (success criterion; not used for learning)",
+    )  # fmt: skip
     p.add_argument(
         "--no-last-action", action="store_true", help="leave the last action out of the state"
     )
@@ -750,6 +886,11 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
     """Build a config from parsed ``lowcostdex train tvlg`` arguments."""
     d = TVLGTrainConfig()
     env_id = args.env if "/" in args.env else f"lowcostdex/{args.env}"
+    overrides = {
+        k: getattr(args, k)
+        for k in ("object_weight", "pose_weight", "final_steps")
+        if getattr(args, k) is not None
+    }
     return TVLGTrainConfig(
         env_id=env_id,
         backend=args.backend,
@@ -764,11 +905,14 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
         init_noise=args.init_noise,
         smooth_noise=args.smooth_noise,
         eval_every=args.eval_every,
-        cost=dataclasses.replace(d.cost, object_weight=args.object_weight),
+        eval_noisy_episodes=args.eval_noisy_episodes,
+        cost=dataclasses.replace(TaskCostConfig.preset(args.cost), **overrides),
         algo=dataclasses.replace(
             d.algo,
             dynamics=dataclasses.replace(d.algo.dynamics, prior_strength=args.prior_strength),
-            traj_opt=dataclasses.replace(d.algo.traj_opt, kl_step=args.kl_step),
+            traj_opt=dataclasses.replace(
+                d.algo.traj_opt, kl_step=args.kl_step, min_step_mult=args.min_step_mult
+            ),
         ),
         progress=not args.no_progress,
     )
