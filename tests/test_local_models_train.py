@@ -2,6 +2,7 @@
 
 import argparse
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -173,11 +174,13 @@ def test_cli_builds_the_config() -> None:
     assert cfg.cost == TaskCostConfig.task()
     args = parser.parse_args(
         ["tvlg", "--out", "r", "--init", "teacher", "--cost", "tracking", "--final-steps", "3",
-         "--min-step-mult", "0.1", "--eval-noisy-episodes", "20"]
+         "--min-step-mult", "0.1", "--eval-noisy-episodes", "20", "--start-hand-qpos",
+         *["0.1"] * 9]
     )  # fmt: skip
     cfg = config_from_args(args)
     assert cfg.cost == dataclasses.replace(TaskCostConfig.tracking(), final_steps=3)
     assert cfg.algo.traj_opt.min_step_mult == 0.1 and cfg.eval_noisy_episodes == 20
+    assert cfg.start_hand_qpos == (0.1,) * 9
     with pytest.raises(SystemExit):
         parser.parse_args(["tvlg", "--out", "r", "--backend", "simulated"])
 
@@ -200,16 +203,18 @@ def test_demo_hand_reference_is_the_start_pose_then_the_demonstrated_joint_targe
 def test_tracking_cost_follows_the_reference_and_pays_the_goal_only_at_the_end(valve) -> None:
     env, start, hold = valve
     cfg = TaskCostConfig.tracking()
-    ref = np.tile(start.qpos[env.unwrapped.task.hand_qpos], (41, 1)) + 0.1
-    hand_term, object_term, _ = task_cost(env, start, hold, cfg, 41, 29, ref).costs
-    np.testing.assert_allclose(hand_term.target[:, :9], ref)
+    actions = np.random.default_rng(1).uniform(-1, 1, size=(1, 41, 9))
+    hand_term, object_term, action_term = task_cost(env, start, hold, cfg, 41, 29, actions).costs
+    np.testing.assert_allclose(hand_term.target[:, :9], demo_hand_reference(env, start, actions))
+    np.testing.assert_allclose(action_term.target, actions[0])
+    ref = hand_term.target[:, :9]
     assert hand_term.weights[0] == cfg.pose_weight == 0.1
     X = np.zeros((41, 29))
     X[:, :9] = ref
     value = object_term.evaluate(X, np.zeros((41, 9))).value  # valve at 0, goal pi
     np.testing.assert_allclose(value[:36], 0.0)
     np.testing.assert_allclose(value[36:], 0.5 * cfg.object_weight * math.pi**2)
-    with pytest.raises(ConfigError, match="reference"):
+    with pytest.raises(ConfigError, match="demonstrated actions"):
         task_cost(env, start, hold, cfg, 41, 29)
     with pytest.raises(ConfigError, match="demonstration"):
         TVLGTrainConfig(cost=cfg)  # init "pd" has no demonstration to track
@@ -238,3 +243,14 @@ def test_tracking_run_logs_noisy_evaluations_and_resumes_identically(tmp_path) -
     for key, values in full.items():
         if key not in TIME_COLUMNS:
             np.testing.assert_array_equal(resumed[key], values, err_msg=key)
+
+
+def test_fixed_start_can_put_the_hand_elsewhere(valve) -> None:
+    env, _, _ = valve
+    pose = np.tile([-0.27, -0.23, 0.79], 3)
+    start = capture_start(env, 0, pose)
+    np.testing.assert_allclose(start.qpos[env.unwrapped.task.hand_qpos], pose)
+    assert start.goal["angle"] == pytest.approx(math.pi)
+    stored = json.loads(json.dumps(dataclasses.asdict(_small(start_hand_qpos=tuple(pose)))))
+    cfg = TVLGTrainConfig.from_dict(stored)  # as read back from config.json
+    assert cfg.start_hand_qpos == tuple(pose)

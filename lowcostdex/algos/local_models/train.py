@@ -161,6 +161,8 @@ class TVLGTrainConfig:
       n_iter: iterations.
       n_rollouts: episodes per iteration (5 in Kumar et al. 2016 and the GPS examples).
       include_last_action: append the last applied action to the state.
+      start_hand_qpos: hand joint angles [rad, action order] of the fixed start instead of the
+        task's reset pose (e.g. fingertips already behind the valve's spokes); None: the task's.
       init: initial controller, one of INITS: "pd" holds the start pose (plus ``pd_gain``
         feedback) with exploration noise; "demos" replays the mean action of the demonstrations
         in ``demos`` (the DAPG demo format) with the same noise; "teacher" first runs the
@@ -192,6 +194,7 @@ class TVLGTrainConfig:
     n_iter: int = 12
     n_rollouts: int = 5
     include_last_action: bool = True
+    start_hand_qpos: tuple[float, ...] | None = None
     init: str = "pd"
     demos: str | None = None
     teacher_episodes: int = 1
@@ -232,6 +235,8 @@ class TVLGTrainConfig:
     def from_dict(cls, d: Mapping[str, Any]) -> TVLGTrainConfig:
         """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json)."""
         d = dict(d)
+        if d.get("start_hand_qpos") is not None:
+            d["start_hand_qpos"] = tuple(d["start_hand_qpos"])
         if isinstance(d.get("cost"), Mapping):
             d["cost"] = TaskCostConfig(**d["cost"])
         if isinstance(d.get("algo"), Mapping):
@@ -283,10 +288,18 @@ class FixedStart:
         )
 
 
-def capture_start(env: gym.Env, seed: int) -> FixedStart:
-    """Reset once with ``seed`` and record the start state and goal."""
+def capture_start(env: gym.Env, seed: int, hand_qpos: Array | None = None) -> FixedStart:
+    """Reset once with ``seed`` and record the start state and goal.
+
+    With ``hand_qpos`` (n_hand,) [rad] the hand starts there instead of the task's reset pose
+    (the object keeps the task's start); the state recorded is the one the robot reached.
+    """
     env.reset(seed=seed)
     base = env.unwrapped
+    if hand_qpos is not None:
+        qpos = base.data.qpos.copy()
+        qpos[base.task.hand_qpos] = np.asarray(hand_qpos, dtype=np.float64)
+        env.reset(seed=seed, options={"qpos": qpos, "qvel": np.zeros_like(base.data.qvel)})
     goal = {k: np.array(v, dtype=np.float64) for k, v in getattr(base, "goal", {}).items()}
     return FixedStart(base.data.qpos.copy(), base.data.qvel.copy(), goal)
 
@@ -399,17 +412,22 @@ def task_cost(
     cfg: TaskCostConfig,
     T: int,
     dX: int,
-    hand_reference: Array | None = None,
+    demo_actions: Array | None = None,
 ) -> SumCost:
     """Quadratic cost of a goal-angle task over T steps, for states of size dX.
 
     The object target is the goal angle unwrapped by :func:`object_target` (for a moving goal,
     one target per step from ``task.advance_goal``, unwrapped continuously). The hand is kept near
-    its start pose, or near ``hand_reference`` (T, n_hand) [rad] when ``cfg.hand_reference`` is
-    "demo" (see :func:`demo_hand_reference`), and the action near the one holding the start pose.
+    its start pose and the action near the one holding it; when ``cfg.hand_reference`` is "demo",
+    near the demonstrated joint targets (:func:`demo_hand_reference`) and the mean demonstrated
+    action instead.
+
+    Args:
+      demo_actions: (M, T, dU) demonstrated actions (NaN where an episode has ended), needed when
+        ``cfg.hand_reference`` is "demo".
 
     Raises:
-      ConfigError: if the task has no goal angle, or the demo reference is missing or misshaped.
+      ConfigError: if the task has no goal angle, or the demonstration is missing or misshaped.
     """
     base = env.unwrapped
     task = base.task
@@ -422,13 +440,15 @@ def task_cost(
     obj = 2 * n_hand  # state_vector: hand qpos, hand qvel, object qpos, object qvel
     goals = np.unwrap([float(task.advance_goal(start.goal, t)["angle"]) for t in range(T)])
     target = np.tile(np.concatenate([start.qpos[task.hand_qpos], np.zeros(dX - n_hand)]), (T, 1))
+    action_target = hold
     if cfg.hand_reference == "demo":
-        if hand_reference is None or hand_reference.shape != (T, n_hand):
+        if demo_actions is None or demo_actions.shape[1:] != (T, len(hold)):
             raise ConfigError(
-                f"cost hand_reference 'demo' needs a (T={T}, {n_hand}) joint reference, got "
-                f"{None if hand_reference is None else hand_reference.shape}"
+                f"cost hand_reference 'demo' needs demonstrated actions (M, T={T}, {len(hold)}), "
+                f"got {None if demo_actions is None else demo_actions.shape}"
             )
-        target[:, :n_hand] = hand_reference
+        target[:, :n_hand] = demo_hand_reference(env, start, demo_actions)
+        action_target = np.nanmean(np.clip(demo_actions, -1.0, 1.0), axis=0)
     target[:, obj] = (
         goals
         + object_target(float(start.qpos[task.obj_qpos]), goals[0], start.reference)
@@ -446,7 +466,7 @@ def task_cost(
             target, w_obj, l2=cfg.object_weight, l1=cfg.object_l1, alpha=1e-2, ramp=cfg.ramp,
             final_multiplier=cfg.final_multiplier, final_steps=min(cfg.final_steps, T),
         ),
-        ActionCost(cfg.action_weight * np.ones(len(hold)), target=hold),
+        ActionCost(cfg.action_weight * np.ones(len(hold)), target=action_target),
     ]  # fmt: skip
     return SumCost(terms)
 
@@ -647,7 +667,7 @@ def train(
     try:
         ckpt = run.load_latest() if resume else None
         if ckpt is None:
-            start = capture_start(env, config.seed)
+            start = capture_start(env, config.seed, config.start_hand_qpos)
         else:
             start = FixedStart.from_arrays(_numpy(ckpt.state["start"]))
         hold = hold_action(env, start)
@@ -683,10 +703,7 @@ def train(
             if config.init in ("teacher", "demos"):
                 path = run.path / TEACHER_FILE if config.init == "teacher" else config.demos
                 demo_actions = _demo_actions(str(path), T)
-        reference = None
-        if config.cost.hand_reference == "demo":
-            reference = demo_hand_reference(env, start, demo_actions)
-        cost = task_cost(env, start, hold, config.cost, T, x0.shape[0], reference)
+        cost = task_cost(env, start, hold, config.cost, T, x0.shape[0], demo_actions)
         _loop(config, run, env, state, cost, start, hold, counters, first, stop_after)
     finally:
         env.close()
@@ -877,6 +894,10 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-last-action", action="store_true", help="leave the last action out of the state"
     )
+    p.add_argument(
+        "--start-hand-qpos", type=float, nargs="+", default=None, metavar="RAD",
+        help="hand joint angles of the fixed start (action order) instead of the reset pose",
+    )  # fmt: skip
     p.add_argument("--eval-every", type=int, default=d.eval_every)
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_run_command)
@@ -899,6 +920,7 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
         n_iter=args.n_iter,
         n_rollouts=args.n_rollouts,
         include_last_action=not args.no_last_action,
+        start_hand_qpos=tuple(args.start_hand_qpos) if args.start_hand_qpos else None,
         init=args.init,
         demos=str(Path(args.demos).resolve()) if args.demos else None,
         teacher_episodes=args.teacher_episodes,
