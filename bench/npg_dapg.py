@@ -16,7 +16,9 @@ up to 30x on Adroit).
 
 Demonstrations: on the valve, 25 episodes of the scripted teacher (``lowcostdex.sim.scripted``).
 Tasks without a scripted teacher use a "computational expert" as the DAPG paper did for the pen:
-the mean action of this benchmark's NPG policy for seed 0, provided it reached the target.
+the mean action of this benchmark's NPG policy for seed 0, provided that mean action solves the
+task at the end of its run (``--expert-run DIR`` names another run); only successful expert
+episodes are kept.
 Both algorithms share every RL setting (the trainer's defaults: 40 trajectories per iteration,
 delta 0.1, damping 1e-2, gamma 0.995, GAE 0.97, (32, 32) policy, init log-std -0.5); DAPG adds
 BC and the decaying demo term. DAPG defaults here: the teacher's demonstrations are recorded
@@ -236,6 +238,11 @@ def main() -> None:
     p.add_argument("--eval-every", type=int, default=5)
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument("--out", default="bench_runs/npg_dapg")
+    p.add_argument(
+        "--expert-run",
+        default=None,
+        help="run directory whose policy records the demos (no teacher)",
+    )
     p.add_argument("--quick", action="store_true", help="tiny budget: checks the script runs")
     p.add_argument("--record", action="store_true", help="append the results to bench/RESULTS.md")
     args = p.parse_args()
@@ -270,8 +277,11 @@ def main() -> None:
                 results["npg"].append(r)
                 print(name, "npg", seed, json.dumps(r), flush=True)
         if "dapg" in args.algos:
-            expert = out_root / name / "npg_0"
-            has_expert = "npg" in results and not math.isnan(results["npg"][0]["samples_to_target"])
+            expert = Path(args.expert_run) if args.expert_run else out_root / name / "npg_0"
+            has_expert = (expert / "policy.pt").exists() and (
+                bool(args.expert_run)
+                or ("npg" in results and results["npg"][0]["final_eval_success"] >= args.target)
+            )
             demos = record_demos(
                 task, out_root / name, args.n_demos, expert if has_expert else None, args.demo_noise
             )
