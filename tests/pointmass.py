@@ -58,3 +58,8 @@ def expert_action(obs: np.ndarray) -> np.ndarray:
     """A PD controller that solves the task (the 'teacher' for BC/DAPG tests)."""
     x, v, err = obs
     return np.clip([2.0 * err - 2.0 * v], -1.0, 1.0)
+
+
+def broken_env() -> gym.Env:
+    """A factory that fails, as a robot that is not connected would."""
+    raise RuntimeError("no robot here")

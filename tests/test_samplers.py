@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from pointmass import HORIZON, make_pointmass
+from pointmass import HORIZON, broken_env, make_pointmass
 
 from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
 from lowcostdex.algos.samplers import (
@@ -75,12 +75,8 @@ def test_results_do_not_depend_on_the_number_of_workers():
             assert [p.pid for p in pool._procs] == pids and all(p.is_alive() for p in pool._procs)
 
 
-def _broken_env():
-    raise RuntimeError("no robot here")
-
-
 def test_worker_errors_surface_with_their_traceback():
-    with ProcessSampler(_broken_env, 1) as pool, pytest.raises(SamplerError, match="no robot here"):
+    with ProcessSampler(broken_env, 1) as pool, pytest.raises(SamplerError, match="no robot here"):
         pool.sample(_snapshot(), make_jobs(0, 0, 0, 1))
 
 

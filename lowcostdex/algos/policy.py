@@ -19,9 +19,9 @@ trust region.
 Parameters and buffers are float64 by default: the networks are small, and the natural-gradient
 maths (Fisher-vector products, conjugate gradient) benefits from the precision.
 
-Sampling workers do not run torch: :meth:`GaussianMLPPolicy.snapshot` returns a picklable
-numpy copy (:class:`PolicySnapshot`) that evaluates one observation at a time, so an action does
-not depend on how many trajectories a worker happens to batch.
+Sampling workers do not run (or import) torch: :meth:`GaussianMLPPolicy.snapshot` returns a
+picklable numpy copy (:class:`~lowcostdex.algos.snapshot.PolicySnapshot`) that evaluates one
+observation at a time, so an action does not depend on how many trajectories a worker batches.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from lowcostdex.algos.snapshot import PolicySnapshot
 from lowcostdex.errors import ConfigError, check_choice
 
 ACTIVATIONS = ("tanh", "relu")
@@ -335,50 +336,3 @@ class GaussianMLPPolicy(nn.Module):
                 act_scale=self.act_scale.double().numpy().copy(),
                 std=np.exp(self.log_std.detach().double().numpy()),
             )
-
-
-# ----------------------------------------------------------------------------------------------
-# Numpy copy used by samplers
-
-
-@dataclass(frozen=True)
-class PolicySnapshot:
-    """Picklable float64 numpy copy of a :class:`GaussianMLPPolicy` for rollouts.
-
-    Evaluates ONE observation at a time (matrix-vector products), so every sampler — serial,
-    process pool, vector env, Ray — computes bit-identical actions for the same observation and
-    noise, whatever the number of workers.
-    """
-
-    weights: tuple[np.ndarray, ...]
-    biases: tuple[np.ndarray, ...]
-    activation: str
-    obs_mean: np.ndarray
-    obs_std: np.ndarray
-    act_shift: np.ndarray
-    act_scale: np.ndarray
-    std: np.ndarray
-
-    @property
-    def act_dim(self) -> int:
-        return int(self.std.shape[0])
-
-    def mean(self, obs: np.ndarray) -> np.ndarray:
-        """Action mean (act_dim,) for one observation (obs_dim,)."""
-        h = (np.asarray(obs, dtype=np.float64).reshape(-1) - self.obs_mean) / self.obs_std
-        last = len(self.weights) - 1
-        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
-            h = w @ h + b
-            if i < last:
-                h = np.tanh(h) if self.activation == "tanh" else np.maximum(h, 0.0)
-        return h * self.act_scale + self.act_shift
-
-    def act(self, obs: np.ndarray, noise: np.ndarray | None) -> np.ndarray:
-        """Mean plus ``std * noise`` for one observation; ``noise=None`` gives the mean.
-
-        Args:
-          obs: (obs_dim,) observation.
-          noise: (act_dim,) standard-normal draw, or None for the deterministic action.
-        """
-        mean = self.mean(obs)
-        return mean if noise is None else mean + self.std * noise

@@ -26,7 +26,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from lowcostdex.algos.policy import PolicySnapshot
+from lowcostdex.algos.snapshot import PolicySnapshot
 from lowcostdex.errors import ConfigError, LowcostdexError, check_choice
 
 TRAIN_STREAM = 0
