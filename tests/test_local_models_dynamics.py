@@ -7,6 +7,7 @@ from lowcostdex.algos.local_models.dynamics import (
     DynamicsConfig,
     GMMPrior,
     condition_gaussian,
+    final_sensitivity,
     fit_dynamics,
     map_gaussian,
     update_gmm_prior,
@@ -160,3 +161,26 @@ def test_policy_fit_recovers_a_known_linear_gaussian_controller() -> None:
     np.testing.assert_allclose(np.diagonal(ctl.cov, axis1=1, axis2=2), 1e-4, rtol=0.5)
     with_prior = fit_policy(X[:5], U[:5], DynamicsConfig(), rng)  # N < dX + 1: still defined
     assert np.all(np.isfinite(with_prior.K))
+
+
+def test_final_sensitivity_equals_finite_differences_of_the_linear_rollout() -> None:
+    AB, c = _point_mass(t_varying=True)
+    rng = np.random.default_rng(5)
+    U = rng.normal(size=(T, DU))
+
+    def final(U: np.ndarray) -> np.ndarray:
+        x = np.zeros(DX)
+        for t in range(T - 1):
+            x = AB[t] @ np.concatenate([x, U[t]]) + c[t]
+        return x
+
+    S = final_sensitivity(AB, 3)
+    assert S.shape == (T, DU) and np.all(S[-1] == 0)
+    fd = np.zeros((T, DU))
+    for t in range(T):
+        for j in range(DU):
+            e = np.zeros((T, DU))
+            e[t, j] = 1e-3
+            fd[t, j] = (final(U + e)[3] - final(U - e)[3]) / 2e-3
+    np.testing.assert_allclose(S, fd, atol=1e-9)
+    assert np.abs(S[:-1, 1]).min() > 0.01  # velocity 3 is driven by action 1 at every step

@@ -22,6 +22,7 @@ from lowcostdex.algos.local_models.train import (
     initial_controller,
     is_solved,
     load_controller,
+    offset_start,
     run_episode,
     task_cost,
     train,
@@ -254,3 +255,30 @@ def test_fixed_start_can_put_the_hand_elsewhere(valve) -> None:
     stored = json.loads(json.dumps(dataclasses.asdict(_small(start_hand_qpos=tuple(pose)))))
     cfg = TVLGTrainConfig.from_dict(stored)  # as read back from config.json
     assert cfg.start_hand_qpos == tuple(pose)
+
+
+def test_offset_start_turns_object_and_goal_together(valve) -> None:
+    env, start, _ = valve
+    shifted = offset_start(env, start, -0.3)
+    obj = env.unwrapped.task.obj_qpos
+    assert shifted.qpos[obj] == pytest.approx(start.qpos[obj] - 0.3)
+    assert float(shifted.goal["angle"]) == pytest.approx(math.pi - 0.3)
+    hand = env.unwrapped.task.hand_qpos
+    np.testing.assert_array_equal(shifted.qpos[hand], start.qpos[hand])
+
+
+def test_tvlg_demo_script_runs(tmp_path, monkeypatch, capsys) -> None:
+    pytest.importorskip("lowcostdex.sim.scripted")
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "demos" / "tvlg_turn_valve.py"
+    spec = importlib.util.spec_from_file_location("tvlg_turn_valve", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(sys, "argv", ["tvlg_turn_valve", "--n-iter", "1", "--out", str(tmp_path)])
+    module.main()
+    out = capsys.readouterr().out
+    assert "held-out noisy success" in out and "noise-free replay" in out
+    assert (tmp_path / "demo_short.npz").exists() and (tmp_path / "controller.npz").exists()

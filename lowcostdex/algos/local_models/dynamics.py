@@ -202,3 +202,24 @@ def update_gmm_prior(
         reg=max(cfg.regularization, 1e-12),
     )
     return GMMPrior(Xb, Ub, gmm)
+
+
+def final_sensitivity(F: Array, index: int) -> Array:
+    """Open-loop sensitivity d x_T[index] / d u_t of the final state to every action.
+
+    Args:
+      F: (T-1, dX, dX+dU) transition matrices of x_t+1 = F_t [x_t; u_t] + f_t.
+      index: state coordinate of interest.
+
+    Returns:
+      (T, dU); row t is ``e' A_T-2 ... A_t+1 B_t`` with ``A_t = F_t[:, :dX]``, ``B_t =
+      F_t[:, dX:]`` (the last row, whose action is not executed, is 0).
+    """
+    dX = F.shape[1]
+    out = np.zeros((F.shape[0] + 1, F.shape[2] - dX))
+    v = np.zeros(dX)
+    v[index] = 1.0
+    for t in range(F.shape[0] - 1, -1, -1):
+        out[t] = v @ F[t][:, dX:]
+        v = v @ F[t][:, :dX]
+    return out

@@ -304,6 +304,16 @@ def capture_start(env: gym.Env, seed: int, hand_qpos: Array | None = None) -> Fi
     return FixedStart(base.data.qpos.copy(), base.data.qvel.copy(), goal)
 
 
+def offset_start(env: gym.Env, start: FixedStart, offset: float) -> FixedStart:
+    """``start`` with the object angle and the goal both turned by ``offset`` [rad] (e.g. to
+    record a demonstration from a slightly different valve position than the fixed start)."""
+    task = env.unwrapped.task
+    qpos = start.qpos.copy()
+    qpos[task.obj_qpos] += offset
+    goal = {**start.goal, "angle": np.asarray(float(start.goal["angle"]) + offset)}
+    return dataclasses.replace(start, qpos=qpos, goal=goal)
+
+
 def controller_state(env: gym.Env, last_action: Array | None) -> Array:
     """The controller's state: ``state_vector()`` and, if given, the last applied action."""
     x = np.asarray(env.unwrapped.state_vector(), dtype=np.float64)
