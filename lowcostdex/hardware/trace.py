@@ -1,0 +1,83 @@
+"""Driver logs in the project's log format, for the gap analysis (``lowcostdex.sim.gap``).
+
+``TraceRecorder`` drives a ``Robot`` at its control rate and logs, at every read, the measured
+joint state and the goal sent right after that read (the command in effect until the next one),
+on the robot's clock: ``time``, ``goal:<actuator>``, ``qpos:<joint>``, ``qvel:<joint>``,
+``current:<actuator>``, ``voltage:<actuator>``, ``temperature:<actuator>`` (actuators are named
+after the joints they drive, as in the lowcostdex MJCF models). ``excite`` runs identification
+excitations (steps from both sides, slow ramps, chirps) through the Robot's safety gate, so the
+logged goals are what reached the motors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.hardware.robot import Robot
+from lowcostdex.sim.gap.logs import Trajectory, write_log
+
+
+class TraceRecorder:
+    """Logs what a ``Robot`` is told and what it reads.
+
+    Args:
+      robot: a connected robot with torque on for ``joints``.
+      joints: the joints to command and log (default the action joints).
+    """
+
+    def __init__(self, robot: Robot, joints: Sequence[str] | None = None):
+        self.robot = robot
+        self.joints = tuple(joints or robot.action_joints)
+        self._idx = robot.index(self.joints)
+        self._rows: list[tuple[float, np.ndarray, object]] = []
+
+    def step(self, goal: np.ndarray) -> np.ndarray:
+        """Read, send ``goal`` (n,) [rad] through the safety gate, log both, wait for the tick.
+
+        Returns the goal actually sent.
+        """
+        state = self.robot.read()
+        sent = self.robot.send(np.asarray(goal, float), self.joints)
+        self._rows.append((state.time, sent.copy(), state))
+        self.robot.wait()
+        return sent
+
+    def trajectory(self, name: str = "trace") -> Trajectory:
+        """The rows logged so far as a gap-analysis ``Trajectory``."""
+        if len(self._rows) < 2:
+            raise ConfigError("a trace needs at least two logged steps")
+        i = self._idx
+        time = np.array([r[0] for r in self._rows])
+        goal = np.stack([r[1] for r in self._rows])
+        states = [r[2] for r in self._rows]
+        pick = lambda attr: np.stack([getattr(s, attr)[i] for s in states])  # noqa: E731
+        channels = {"current": pick("current"), "voltage": pick("voltage"),
+                    "temperature": pick("temperature")}
+        channels = {k: v for k, v in channels.items() if np.all(np.isfinite(v))}
+        return Trajectory(name=name, time=time - time[0], goal=goal, qpos=pick("position"),
+                          actuators=self.joints, joints=self.joints, qvel=pick("velocity"),
+                          channels=channels)
+
+    def clear(self) -> None:
+        self._rows.clear()
+
+
+def excite(robot: Robot, joints: Sequence[str], goals: np.ndarray, path: str | Path,
+           name: str | None = None, on_step: Callable[[int], None] | None = None) -> Path:
+    """Drive ``joints`` through ``goals`` (K, n) [rad] at the robot's rate and write the log.
+
+    The robot's torque is switched on for ``joints`` first (goal := present, no jump) and the
+    motion starts from where the joints are.
+    """
+    robot.torque(True, joints)
+    rec = TraceRecorder(robot, joints)
+    for k, g in enumerate(np.asarray(goals, float)):
+        rec.step(g)
+        if on_step is not None:
+            on_step(k)
+    path = Path(path)
+    return write_log(path, rec.trajectory(name or path.stem))
