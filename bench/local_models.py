@@ -1,22 +1,42 @@
 """Sample efficiency of learned local models (TVLG + KL-constrained iLQG) vs NPG.
 
-Two fixed-start tasks, both measured in episodes (rollouts) used for learning; evaluation
-episodes (one noise-free episode per iteration) are not counted for either method.
+Fixed-start tasks, measured in episodes (rollouts) used for learning; evaluation episodes are
+not counted for either method (they are reported separately).
 
-1. Pendulum swing (``lowcostdex.algos.local_models.pendulum``): the task class local models are
-   made for. Solved when the noise-free episode's cost is within 5 % (also reported: 20 %) of
-   the converged cost (reference 03: 34.4 at N = 20; thresholds 36.1 and 41.3). NPG runs the NPG/DAPG trainer on the same
-   task as a gymnasium env whose return is minus the same cost.
-2. D'Claw valve turn, fixed start (``lowcostdex/DClawTurnValve-v0``, sim): solved when the
-   noise-free episode ends within 0.1 rad of the 180 deg goal (``info["success"]``) -- the ADROIT
-   figure to beat is about 60 trials. TVLG starts from the PD hold controller (``init="pd"``)
-   and, when the scripted teacher exists (``lowcostdex.sim.scripted``), from one teacher
-   episode replayed open loop with exploration noise (``init="teacher"``); for the latter the
-   rollouts until >= 80 % of the noisy training episodes succeed are also reported.
+1. ``pendulum``: pendulum swing (``lowcostdex.algos.local_models.pendulum``), the task class local
+   models are made for. Solved when the noise-free episode's cost is within 5 % (also reported:
+   20 %) of the converged cost (reference 03: 34.4 at N = 20; thresholds 36.1 and 41.3). NPG runs
+   the NPG/DAPG trainer on the same task as a gymnasium env whose return is minus the same cost.
+2. ``valve``: D'Claw valve turn, fixed start (``lowcostdex/DClawTurnValve-v0``, sim), task cost:
+   solved when the noise-free episode ends within 0.1 rad of the 180 deg goal
+   (``info["success"]``) -- the ADROIT figure to beat is about 60 trials. TVLG starts from the PD
+   hold controller (``init="pd"``) and from one teacher episode replayed open loop with
+   exploration noise (``init="teacher"``).
+3. ``valve-demo``: the same task from ONE demonstration, with the tracking cost (hand near the
+   demonstrated joint targets, valve at the goal over the last 5 steps; ``--cost tracking``).
+   Three demonstrations of the scripted teacher: recorded from the fixed start ("exact"; replayed
+   open loop it succeeds, so exploration noise 0.1 is used, under which it mostly fails), and
+   recorded with the valve 0.3 rad behind / ahead of the fixed start ("short" / "long": replayed
+   from the fixed start they end 0.31 rad short / 0.29 rad past the goal; noise 0.05). Solved: the
+   noise-free episode succeeds AND >= 80 % of 20 held-out noisy episodes (the controller's own
+   exploration noise) succeed; the initial controller meets neither. Also reported: the
+   iteration criterion (noise-free success and >= 4 of the 5 training rollouts), the final
+   controller's noise, and its mean under the initial noise (is it a better mean, or just less
+   noise?). ``--dapg``: DAPG (BC, then NPG with the demo term) from the same single demonstration.
+4. ``valve-onspoke``: PD-hold start with the fingertips already behind the spokes (the teacher's
+   pose just before its first push; ``--start-hand-qpos``), task cost: how far the valve turns.
+5. ``valve-model``: why the local models fail where they fail. For the "short" and "long"
+   demonstrations: the sensitivity of the final valve angle to each action (steps 10-37, 9
+   joints) by central finite differences of the noise-free replay (h = 0.05), against (a) the
+   same sensitivity through the TVLG model fitted (GMM prior) on 5 noisy rollouts and (b) a
+   least-squares fit of the final angle on the whole noise sequence of 600 noisy rollouts (the
+   best any linear model of the outcome can do at that noise): correlations and R^2.
 
 Usage::
 
-    python bench/local_models.py            # full: ~10-20 min on 2 cores
+    python bench/local_models.py                            # pendulum, valve: ~10-20 min
+    python bench/local_models.py --tasks valve-demo valve-onspoke --skip-npg   # ~15 min
+    python bench/local_models.py --tasks valve-demo --dapg --seeds 0
     python bench/local_models.py --quick    # smaller budgets, a few minutes
 """
 
@@ -87,6 +107,11 @@ def npg_curve(
         return train(cfg, Path(tmp) / "npg", env_factory=env_factory).read_metrics()
 
 
+def fmt_count(value: float, budget: int) -> str:
+    """A count, or '> budget' when not reached (nan)."""
+    return f"{value:.0f}" if np.isfinite(value) else f"> {budget}"
+
+
 def first_solved(rollouts: np.ndarray, solved: np.ndarray) -> float:
     """Rollouts used when ``solved`` first holds (nan if never)."""
     idx = np.flatnonzero(solved)
@@ -132,7 +157,11 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--skip-npg", action="store_true")
     parser.add_argument(
-        "--tasks", nargs="*", choices=("pendulum", "valve"), default=["pendulum", "valve"]
+        "--tasks", nargs="*", choices=("pendulum", "valve", "valve-demo", "valve-onspoke", "valve-model"),
+        default=["pendulum", "valve"],
+    )  # fmt: skip
+    parser.add_argument(
+        "--dapg", action="store_true", help="valve-demo: DAPG from the same single demonstration"
     )
     args = parser.parse_args()
     seeds = args.seeds[:1] if args.quick else args.seeds
@@ -145,6 +174,12 @@ def main() -> None:
         pendulum_section(seeds, args.quick, args.skip_npg)
     if "valve" in args.tasks:
         valve_section(seeds, args.quick, args.skip_npg)
+    if "valve-demo" in args.tasks:
+        valve_demo_section(seeds, args.quick, args.dapg)
+    if "valve-onspoke" in args.tasks:
+        valve_onspoke_section(seeds, args.quick)
+    if "valve-model" in args.tasks:
+        valve_model_section(args.quick)
 
 
 def pendulum_section(seeds: list[int], quick: bool, skip_npg: bool) -> None:
@@ -224,6 +259,316 @@ def valve_section(seeds: list[int], quick: bool, skip_npg: bool) -> None:
                     "valve: "
                     + compare([solved], n_iter * n_traj, values, budget, f"TVLG(init={init})")
                 )
+
+
+# ----------------------------------------------------------------------------------------------
+# Valve from one demonstration (tracking cost)
+
+VALVE_ID = "lowcostdex/DClawTurnValve-v0"
+DEMOS = {"exact": (0.0, 0.1), "short": (-0.3, 0.05), "long": (0.3, 0.05)}
+"""demo name -> (valve offset of the recording [rad], exploration noise of the TVLG run)."""
+HELD_OUT = 20  # noisy held-out episodes per evaluation
+
+
+def record_demo(offset: float, path: Path) -> Path:
+    """One scripted-teacher episode recorded with the valve ``offset`` [rad] from the fixed
+    start (goal offset + pi), saved in the DAPG demo format."""
+    from lowcostdex.algos.local_models.train import (
+        TVLGTrainConfig,
+        capture_start,
+        default_env_factory,
+        hold_action,
+        offset_start,
+        teacher_episodes,
+    )
+
+    cfg = TVLGTrainConfig(init="teacher", progress=False)
+    env = default_env_factory(cfg)()
+    try:
+        start = capture_start(env, cfg.seed)
+        shifted = offset_start(env, start, offset)
+        T = env.spec.max_episode_steps + 1
+        teach = teacher_episodes(env, shifted, cfg, hold_action(env, start), T, path)
+        if not teach.successes.all():
+            raise RuntimeError(f"the teacher failed from valve offset {offset}")
+    finally:
+        env.close()
+    return path
+
+
+def controller_success(ctl, start, cfg, n: int, noise: float | None, seed: int = 7) -> tuple:
+    """(noise-free success, final |error| [rad], success rate of n noisy episodes) of a TVLG
+    controller from ``start`` in ``cfg``'s env; ``noise`` replaces its exploration noise (None
+    keeps it)."""
+    from lowcostdex.algos.local_models.controller import LinearGaussianController
+    from lowcostdex.algos.local_models.train import default_env_factory, hold_action, run_episode
+    from lowcostdex.algos.samplers import RolloutJob
+
+    if noise is not None:
+        cov = np.broadcast_to(noise**2 * np.eye(ctl.dU), ctl.cov.shape)
+        ctl = LinearGaussianController.from_cov(ctl.K, ctl.k, cov)
+    env = default_env_factory(cfg)()
+    try:
+        hold = hold_action(env, start)
+
+        def episode(job):
+            return run_episode(env, ctl, start, job, cfg.include_last_action, hold, 0.0)
+
+        nf = episode(RolloutJob(seed, 5, 0, 0, deterministic=True))
+        rate = float(np.mean([episode(RolloutJob(seed, 5, 0, 1 + i)).success("final")
+                              for i in range(n)]))  # fmt: skip
+    finally:
+        env.close()
+    return nf.success("final"), abs(nf.final_error), rate
+
+
+def tvlg_demo_run(demo: Path, noise: float, seed: int, n_iter: int, cost: str, out: Path):
+    """A TVLG run from one demonstration; its metrics and run directory."""
+    from lowcostdex.algos.local_models.train import TaskCostConfig, TVLGTrainConfig, train
+    from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
+    from lowcostdex.algos.local_models.tvlg import TVLGConfig
+
+    cfg = TVLGTrainConfig(
+        seed=seed, n_iter=n_iter, init="demos", demos=str(demo), init_noise=noise,
+        cost=TaskCostConfig.preset(cost), eval_noisy_episodes=HELD_OUT, progress=False,
+        algo=TVLGConfig(traj_opt=TrajOptConfig(kl_step=0.5 if cost == "tracking" else 0.2)),
+    )  # fmt: skip
+    run = train(cfg, out)
+    return run.read_metrics(), run.path
+
+
+def initial_stats(demo: Path, noise: float) -> tuple:
+    """``controller_success`` of the replayed demonstration (the iteration-0 controller)."""
+    from lowcostdex.algos.local_models.train import (
+        TVLGTrainConfig,
+        capture_start,
+        controller_state,
+        default_env_factory,
+        hold_action,
+        initial_controller,
+    )
+
+    cfg = TVLGTrainConfig(init="demos", demos=str(demo), init_noise=noise, progress=False)
+    env = default_env_factory(cfg)()
+    try:
+        start = capture_start(env, cfg.seed)
+        hold = hold_action(env, start)
+        env.reset(options=start.reset_options())
+        x0 = controller_state(env, hold)
+        ctl = initial_controller(cfg, env, start, x0, hold, env.spec.max_episode_steps + 1)
+    finally:
+        env.close()
+    return controller_success(ctl, start, cfg, HELD_OUT, None)
+
+
+def valve_demo_section(seeds: list[int], quick: bool, dapg: bool) -> None:
+    from lowcostdex.algos.local_models.train import load_controller
+
+    n_iter = 6 if quick else 10
+    print(
+        f"\n## D'Claw valve 180 deg, fixed start, from ONE demonstration ({VALVE_ID}, sim); "
+        f"5 rollouts/iteration, {n_iter} iterations, kl_step 0.5 (tracking) / 0.2 (task); solved: "
+        f"noise-free success AND >= 80 % of {HELD_OUT} held-out noisy episodes"
+    )
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        for name, (offset, noise) in DEMOS.items():
+            demo = record_demo(offset, tmp / f"demo_{name}.npz")
+            nf_ok, nf_err, rate = initial_stats(demo, noise)
+            print(
+                f"\n### demo '{name}' (valve {offset:+.1f} rad when recorded), exploration noise "
+                f"{noise}: the replayed demo (iteration 0) noise-free |error| {nf_err:.2f} rad "
+                f"(success {nf_ok}), noisy success {rate:.2f}"
+            )
+            costs = ["tracking"] + ([] if quick else ["task"])
+            for cost in costs:
+                solved_at, iter_at = [], []
+                for s in seeds if cost == "tracking" else seeds[:1]:
+                    m, path = tvlg_demo_run(
+                        demo, noise, s, n_iter, cost, tmp / f"{name}_{cost}_{s}"
+                    )
+                    solved = first_solved(m["rollouts"], m["solved"] == 1.0)
+                    by_iter = first_solved(
+                        m["rollouts"], (m["eval_success_rate"] == 1.0) & (m["success_rate"] >= 0.8)
+                    )
+                    solved_at.append(solved)
+                    iter_at.append(by_iter)
+                    _, _, mean_rate = controller_success(*load_controller(path), HELD_OUT, noise)
+                    std = controller_noise(path)
+                    print(
+                        f"TVLG cost={cost} seed {s}: rollouts to solved "
+                        f"{fmt_count(solved, 5 * n_iter)}, to the iteration criterion "
+                        f"{fmt_count(by_iter, 5 * n_iter)}; held-out noisy "
+                        f"success per iteration {np.round(m['eval_noisy_success_rate'], 2).tolist()}; "
+                        f"noise-free |error| {np.round(m['eval_final_abs_error'], 2).tolist()}; final "
+                        f"noise std {std:.3f} (initial {noise}), final mean + noise {noise}: "
+                        f"success {mean_rate:.2f}"
+                    )
+                med = median_rollouts(solved_at)
+                print(
+                    f"demo '{name}', cost={cost}: median rollouts to solved "
+                    f"{fmt_count(med if np.isfinite(med) else math.nan, 5 * n_iter)}"
+                )
+            if dapg and name in ("exact", "short"):
+                dapg_from_demo(demo, seeds[:1], 20, 10 if quick else 30, tmp / f"dapg_{name}")
+
+
+def controller_noise(run_dir: Path) -> float:
+    """Mean exploration std [normalised action] of a run's final controller."""
+    from lowcostdex.algos.local_models.train import load_controller
+
+    ctl, _, _ = load_controller(run_dir)
+    return float(np.mean(np.sqrt(np.diagonal(ctl.cov, axis1=1, axis2=2))))
+
+
+def dapg_from_demo(demo: Path, seeds: list[int], n_traj: int, n_iter: int, out: Path) -> None:
+    """DAPG (BC with 300 epochs on the 40 pairs, then NPG + demo term) from one demonstration."""
+    from lowcostdex.algos.bc import BCConfig
+    from lowcostdex.algos.train import TrainConfig, train
+
+    for s in seeds:
+        cfg = TrainConfig(
+            algo="dapg", demos=str(demo), seed=s, n_traj=n_traj, n_iter=n_iter, eval_every=1,
+            eval_episodes=1, progress=False, bc=BCConfig(epochs=300),
+        )  # fmt: skip
+        m = train(cfg, out / f"seed{s}").read_metrics()
+        episodes = (m["iteration"] + 1) * n_traj
+        solved = first_solved(
+            episodes, (m["eval_success_rate"] == 1.0) & (m["success_rate"] >= 0.8)
+        )
+        print(
+            f"DAPG from the same demonstration, seed {s} ({n_traj} episodes/iteration): episodes "
+            f"to eval success and >= 80 % training success {fmt_count(solved, n_iter * n_traj)}; "
+            f"best training success {np.max(m['success_rate']):.2f}, best eval return "
+            f"{np.max(m['eval_return_mean']):.1f}"
+        )
+
+
+def valve_onspoke_section(seeds: list[int], quick: bool) -> None:
+    """PD hold from the teacher's pose just before its first push, task cost."""
+    from lowcostdex.algos.local_models.train import (
+        TVLGTrainConfig,
+        capture_start,
+        default_env_factory,
+        hold_action,
+        teacher_episodes,
+        train,
+    )
+
+    cfg = TVLGTrainConfig(init="teacher", progress=False)
+    env = default_env_factory(cfg)()
+    try:
+        start = capture_start(env, cfg.seed)
+        teach = teacher_episodes(env, start, cfg, hold_action(env, start), 41)
+    finally:
+        env.close()
+    theta = teach.X[0, :, 18]
+    t_on = int(np.argmax(np.abs(theta) > 1e-3)) - 1
+    pose = tuple(float(v) for v in teach.X[0, t_on, :9])
+    n_iter = 6 if quick else 12
+    print(
+        f"\n## D'Claw valve 180 deg, PD hold from fingertips behind the spokes (teacher pose at "
+        f"step {t_on}: {np.round(pose, 3).tolist()}), task cost, {n_iter} iterations"
+    )
+    for noise in (0.1, 0.3):
+        for s in seeds:
+            c = TVLGTrainConfig(
+                seed=s, n_iter=n_iter, init="pd", init_noise=noise, start_hand_qpos=pose,
+                progress=False,
+            )  # fmt: skip
+            with tempfile.TemporaryDirectory() as tmp:
+                m = train(c, Path(tmp) / "run").read_metrics()
+            turned = np.pi - np.asarray(m["eval_final_abs_error"])
+            print(
+                f"TVLG on-spoke PD init noise {noise} seed {s}: rollouts to noise-free success "
+                f"{fmt_count(first_solved(m['rollouts'], m['eval_success_rate'] == 1.0), 5 * n_iter)}"
+                f"; noise-free valve turn per iteration [rad] "
+                f"{np.round(turned, 2).tolist()}"
+            )
+
+
+def replay(env, start, hold, actions: np.ndarray, job, noise: float = 1e-3):
+    """Episode of the open-loop controller ``actions`` (T, dU) with exploration std ``noise``."""
+    from lowcostdex.algos.local_models.controller import LinearGaussianController
+    from lowcostdex.algos.local_models.train import run_episode
+
+    T, dU = actions.shape
+    cov = np.broadcast_to(noise**2 * np.eye(dU), (T, dU, dU))
+    ctl = LinearGaussianController.from_cov(np.zeros((T, dU, 29)), actions, cov)
+    return run_episode(env, ctl, start, job, True, hold, 0.0)
+
+
+def valve_model_section(quick: bool) -> None:
+    """Final-angle sensitivities: finite differences vs the TVLG model vs a linear fit."""
+    from lowcostdex.algos.local_models.dynamics import (
+        DynamicsConfig,
+        GMMPrior,
+        final_sensitivity,
+        fit_dynamics,
+        update_gmm_prior,
+    )
+    from lowcostdex.algos.local_models.train import (
+        TVLGTrainConfig,
+        _demo_actions,
+        capture_start,
+        default_env_factory,
+        hold_action,
+    )
+    from lowcostdex.algos.samplers import RolloutJob
+
+    steps, h, n_fit, obj = np.arange(10, 38), 0.05, 150 if quick else 600, 18
+    det = RolloutJob(0, 5, 0, 0, deterministic=True)
+    print(
+        f"\n## Why the local models fail: sensitivity of the final valve angle to the actions "
+        f"at steps {steps[0]}-{steps[-1]} (9 joints), finite differences (h = {h}) vs the TVLG "
+        f"model from 5 rollouts vs a linear fit on {n_fit} noisy rollouts"
+    )
+    cfg = TVLGTrainConfig(progress=False)
+    env = default_env_factory(cfg)()
+    try:
+        start = capture_start(env, cfg.seed)
+        hold = hold_action(env, start)
+        with tempfile.TemporaryDirectory() as tmp:
+            for name in ("short", "long"):
+                demo = record_demo(DEMOS[name][0], Path(tmp) / f"{name}.npz")
+                U0 = _demo_actions(str(demo), 41)[0]
+                T, dU = U0.shape
+
+                def angle(offsets: np.ndarray, U0: np.ndarray = U0) -> float:
+                    return float(replay(env, start, hold, U0 + offsets, det).X[-1, obj])
+
+                fd = np.zeros((len(steps), dU))
+                for i, t in enumerate(steps):
+                    for j in range(dU):
+                        e = np.zeros((T, dU))
+                        e[t, j] = h
+                        fd[i, j] = (angle(e) - angle(-e)) / (2 * h)
+                for noise in (0.05, 0.02):
+                    Z = noise * np.random.default_rng(1).standard_normal((n_fit, T, dU))
+                    theta = np.array([angle(z) for z in Z])
+                    A = np.c_[Z[:, steps].reshape(n_fit, -1), np.ones(n_fit)]
+                    coef = np.linalg.lstsq(A, theta, rcond=None)[0]
+                    r2 = 1 - np.var(theta - A @ coef) / np.var(theta)
+                    r2_adj = 1 - (1 - r2) * (n_fit - 1) / (n_fit - A.shape[1])
+                    eps = [replay(env, start, hold, U0, RolloutJob(0, 0, 0, i), noise)
+                           for i in range(5)]  # fmt: skip
+                    X, U = np.stack([e.X for e in eps]), np.stack([e.U for e in eps])
+                    dc = DynamicsConfig()
+                    prior = update_gmm_prior(
+                        GMMPrior.empty(T, X.shape[2], dU), X, U, dc, np.random.default_rng(0)
+                    )
+                    model = final_sensitivity(fit_dynamics(X, U, dc, prior.gmm).F, obj)[steps]
+                    fit = coef[:-1].reshape(len(steps), dU)
+                    print(
+                        f"demo '{name}', noise {noise}: final angle {theta.mean():.2f} +- "
+                        f"{theta.std():.2f} rad; linear fit R^2 {r2:.2f} in sample, adjusted "
+                        f"{r2_adj:.2f} ({A.shape[1] - 1} regressors), corr(fit, "
+                        f"FD) {np.corrcoef(fd.ravel(), fit.ravel())[0, 1]:.2f}; corr(TVLG model, "
+                        f"FD) {np.corrcoef(fd.ravel(), model.ravel())[0, 1]:.2f}, |model| / |FD| "
+                        f"{np.linalg.norm(model) / np.linalg.norm(fd):.1f}"
+                    )
+    finally:
+        env.close()
 
 
 if __name__ == "__main__":
