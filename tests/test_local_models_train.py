@@ -181,6 +181,7 @@ def test_cli_builds_the_config() -> None:
     cfg = config_from_args(args)
     assert cfg.cost == dataclasses.replace(TaskCostConfig.tracking(), final_steps=3)
     assert cfg.algo.traj_opt.min_step_mult == 0.1 and cfg.eval_noisy_episodes == 20
+    assert cfg.algo.traj_opt.kl_step == 0.5  # the tracking preset's measured step
     assert cfg.start_hand_qpos == (0.1,) * 9
     with pytest.raises(SystemExit):
         parser.parse_args(["tvlg", "--out", "r", "--backend", "simulated"])

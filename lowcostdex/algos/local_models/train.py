@@ -66,6 +66,8 @@ INITS = ("pd", "demos", "teacher")
 SUCCESS_MODES = ("final", "any")
 HAND_REFERENCES = ("start", "demo")
 COST_PRESETS = ("task", "tracking")
+TRACKING_KL_STEP = 0.5
+"""KL step the CLI uses with ``--cost tracking`` (bench/RESULTS.md measured it at 0.5)."""
 MUTABLE_ON_RESUME = ("n_iter", "progress")
 """Config keys a resumed run may change."""
 _UPDATE = 13  # seed purpose of the update generator (the GMM's EM)
@@ -875,8 +877,10 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
         "--smooth-noise", type=float, default=d.smooth_noise, help="noise smoothing [steps]"
     )
     p.add_argument(
-        "--kl-step", type=float, default=d.algo.traj_opt.kl_step, help="KL per step [nats]"
-    )
+        "--kl-step", type=float, default=None,
+        help=f"KL per step [nats]; default {d.algo.traj_opt.kl_step}, {TRACKING_KL_STEP} with "
+        "--cost tracking (the measured configuration)",
+    )  # fmt: skip
     p.add_argument(
         "--min-step-mult", type=float, default=d.algo.traj_opt.min_step_mult,
         help="floor of the adaptive KL step multiplier",
@@ -917,6 +921,9 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
     """Build a config from parsed ``lowcostdex train tvlg`` arguments."""
     d = TVLGTrainConfig()
     env_id = args.env if "/" in args.env else f"lowcostdex/{args.env}"
+    kl_step = args.kl_step
+    if kl_step is None:
+        kl_step = TRACKING_KL_STEP if args.cost == "tracking" else d.algo.traj_opt.kl_step
     overrides = {
         k: getattr(args, k)
         for k in ("object_weight", "pose_weight", "final_steps")
@@ -943,7 +950,7 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
             d.algo,
             dynamics=dataclasses.replace(d.algo.dynamics, prior_strength=args.prior_strength),
             traj_opt=dataclasses.replace(
-                d.algo.traj_opt, kl_step=args.kl_step, min_step_mult=args.min_step_mult
+                d.algo.traj_opt, kl_step=kl_step, min_step_mult=args.min_step_mult
             ),
         ),
         progress=not args.no_progress,
