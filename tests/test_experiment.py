@@ -33,6 +33,22 @@ def test_state_round_trip_is_weights_only_safe(tmp_path):
     assert loaded["meta"] == {"iteration": 3, "name": "x", "values": (1.5, None)}
 
 
+def test_state_keeps_numpy_shapes_exactly(tmp_path):
+    arrays = {
+        "scalar": np.array(2.5),  # 0-d: must not come back as shape (1,)
+        "int_scalar": np.array(7, dtype=np.int64),
+        "empty": np.zeros((0, 3)),
+        "transposed": np.arange(6.0).reshape(2, 3).T,  # not C-contiguous
+    }
+    ex.save_state(tmp_path / "s.pt", arrays)
+    loaded = ex.load_state(tmp_path / "s.pt")
+    for key, value in arrays.items():
+        assert tuple(loaded[key].shape) == value.shape, key
+        np.testing.assert_array_equal(loaded[key].numpy(), value)
+        assert loaded[key].numpy().dtype == value.dtype
+    assert loaded["scalar"].item() == 2.5
+
+
 def test_save_state_refuses_arbitrary_objects(tmp_path):
     with pytest.raises(TypeError, match="state.net"):
         ex.save_state(tmp_path / "s.pt", {"net": torch.nn.Linear(2, 2)})

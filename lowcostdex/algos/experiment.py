@@ -111,7 +111,8 @@ def _to_safe(value: Any, where: str) -> Any:
     if isinstance(value, torch.Tensor):
         return value.detach().cpu().clone()
     if isinstance(value, np.ndarray):
-        return torch.from_numpy(np.ascontiguousarray(value).copy())
+        # np.array, not np.ascontiguousarray: the latter turns a 0-d array into shape (1,)
+        return torch.from_numpy(np.array(value, order="C", copy=True))
     if isinstance(value, np.generic):
         return value.item()
     if value is None or isinstance(value, (bool, int, float, str)):
