@@ -67,6 +67,8 @@ class GapConfig:
         parameters are not at a bound is named.
       search: "forward" (stepwise only) or "both": also fit the top-ranked candidates
         together and prune them backward, keeping that model when it is clearly better.
+      backward_above: run that backward search only when the forward model's select RMSE is
+        above this many noise floors (otherwise there is nothing left to explain).
       joint_k: from the second round on, the best ``joint_k`` screened candidates (fitted with
         the accepted effects held) are refitted jointly with them.
       segment: multiple-shooting segment length for fitting [s].
@@ -83,12 +85,13 @@ class GapConfig:
     top_k: int = 6
     max_effects: int = 3
     min_gain: float = 0.05
-    floor_margin: float = 1.05
+    floor_margin: float = 1.2
     min_effect: float = 0.75
     rank_seconds: float = 12.0
     joint_k: int = 3
     tie: float = 0.002
     search: str = "both"
+    backward_above: float = 1.5
     segment: float = 6.0
     burn_in: float = 0.15
     chunk: float | None = None
@@ -427,12 +430,15 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                                    fit_fn, dropped := [])
         if dropped:
             stop_reason += f"; dropped by the backward pass: {', '.join(dropped)}"
+            cur_pred_sel = eng.predict(sel_eps, [current.to_effects(cur_x)])[0]
+            sel_cur = (_mse_by_episode(ds, sel_eps, cur_pred_sel)[0], sel_cur[1], sel_cur[2])
 
     # ---- backward search: the top-ranked candidates fitted together, then pruned ------------
     # Effects that only help in combination (a friction model needs the right inertia) are
     # invisible to one-at-a-time forward steps; the pruned joint model replaces the forward one
     # only when it lowers the select MSE by another ``min_gain``.
-    if cfg.search == "both" and rounds:
+    fwd_rmse = math.sqrt(sel_cur[0].sum() / sel_cur[2].sum())
+    if cfg.search == "both" and rounds and fwd_rmse > cfg.backward_above * floor_rms:
         t0 = time.perf_counter()
         prog("backward search from the top candidates", 0.8)
         big = tuple(dict.fromkeys(current.effects + tuple(
@@ -445,8 +451,11 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                     alt.to_effects(alt_x)])[0])[0]
                 base_sse = _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0]
                 rel_base, _ = _select_gain_ci(base_sse, sse_alt, rng, cfg.bootstrap)
+                # the switch must be visible: the two models' predictions differ by more than
+                # the noise floor (effects that cancel each other cannot sneak in)
+                switch = _effect_size(eng, sel_eps, cur_pred_sel, alt.to_effects(alt_x))
                 if (sse_alt.sum() < (1 - cfg.min_gain) * sel_cur[0].sum()
-                        and rel_base >= cfg.min_gain):
+                        and rel_base >= cfg.min_gain and switch >= cfg.min_effect * floor_rms):
                     stop_reason += (f"; backward search from {', '.join(big)} kept "
                                     f"{', '.join(alt.effects)} (select MSE "
                                     f"{100 * (1 - sse_alt.sum() / sel_cur[0].sum()):.0f} % below "
@@ -466,7 +475,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         final_track = fitmod.Track(current, current.u(cur_x), label="final")
         # one track: converge tighter than the screening fits
         final_fn = eng.residual_fn(all_segs)
-        fitmod.lockstep_lm([final_track], final_fn, 2 * cfg.max_rounds, rtol=1e-6)
+        fitmod.lockstep_lm([final_track], final_fn, 2 * cfg.max_rounds, rtol=1e-5)
         fitmod.polish(final_track, final_fn, ds.timestep)
         if final_track.jac is not None:  # Jacobian at the polished point for the intervals
             final_track.done, final_track.rejects = False, 0

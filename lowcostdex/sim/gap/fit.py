@@ -300,7 +300,7 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
 _SCAN = {("latency", "delay")}
 
 
-def polish(t: Track, residual: ResidualFn, dt: float, n: int = 17) -> None:
+def polish(t: Track, residual: ResidualFn, dt: float, n: int = 9) -> None:
     """Scan each piecewise-smooth scalar of a fitted track over +-1 physics step (others fixed,
     one batched evaluation) and keep the best value per scalar."""
     idx = [i for i, f in enumerate(t.structure.free) if (f.effect, f.param) in _SCAN]
