@@ -100,7 +100,8 @@ def test_joint_pushed_past_its_policy_limit_is_pulled_back(claw):
 def test_jammed_valve_ends_in_reset_failed_within_a_bounded_time(claw):
     chain, robot = claw
     m = chain.plant.model
-    m.jnt_range[m.joint("valve").id] = [-0.02, 0.02]  # seized valve
+    m.jnt_limited[m.joint("valve").id] = 1  # seized valve (the hinge is normally free)
+    m.jnt_range[m.joint("valve").id] = [-0.02, 0.02]
     config = ResetConfig(max_retries=2, valve_timeout=4.0)
     t_bus, t_wall = chain.now, time.monotonic()
     with pytest.raises(ResetFailed, match=r"stage 'valve' after 3 attempt\(s\): valve off by"):

@@ -185,7 +185,8 @@ class EmulatedBackend(RobotBackend):
 
     Args:
       model, task, rng: as every backend (``cls(model, task=task, rng=rng, **kwargs)``).
-      effects: servo effects of the emulated robot (default ``default_effects``); ``()`` for a
+      effects: servo effects of the emulated robot (default ``default_effects``), as
+        ``AppliedEffect``s or their ``to_dict()`` mappings; ``()`` for a
         nominal one.
       faults: ``emulator.FaultConfig`` for the status packets (default none).
       robot_config: Robot settings (the control period is the task's).
@@ -215,6 +216,9 @@ class EmulatedBackend(RobotBackend):
         hand = robot_hand(task.hand, model)
         if effects is None:
             effects = default_effects(task.hand.joint_names)
+        # JSON configs (training runs) carry effects as AppliedEffect.to_dict() mappings
+        effects = [e if isinstance(e, AppliedEffect) else AppliedEffect.from_dict(e)
+                   for e in effects]
         self.chain = emulated_dclaw(task.station, hand=hand, effects=list(effects), rng=rng,
                                     qpos=start_qpos, faults=faults or FaultConfig(),
                                     **chain_kwargs)

@@ -65,6 +65,9 @@ class ValveGeometry:
       spoke_center: radius of the spoke centres [m].
       damping: hinge damping [N m s/rad]; frictionloss: hinge dry friction [N m].
       friction: geom sliding friction; solref: contact softness (foam: compliant).
+      limited: a hinge range of +-2 pi (ROBEL's). Off by default: a valve on a servo turns
+        freely, and a range lets a valve that overshot 180 deg end up parked against it, out of
+        reach of the valve motor's reset.
     """
 
     spokes: int = 3
@@ -76,13 +79,13 @@ class ValveGeometry:
     friction: float = 1.0
     solref: tuple[float, float] = (0.02, 1.0)
     solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
-    limited: bool = True
+    limited: bool = False
 
 
 VALVE = ValveGeometry()
 FOAM_VALVE = ValveGeometry(damping=0.2, frictionloss=0.03, friction=1.2, solref=(0.04, 1.0),
                            solimp=(0.5, 0.9, 0.01))
-SCREW = ValveGeometry(limited=False)
+SCREW = ValveGeometry()
 
 
 def build_dclaw(
