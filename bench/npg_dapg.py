@@ -51,6 +51,7 @@ from lowcostdex.algos.demos import save_demos, teacher_episodes
 from lowcostdex.algos.npg import NPGConfig
 from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.train import TrainConfig, load_policy, train
+from lowcostdex.demo_file import DatasetInfo
 
 
 @dataclass(frozen=True)
@@ -159,8 +160,10 @@ def record_demos(
     else:
         return None
     episodes = teacher_episodes(env, teacher, seeds=range(10_000, 10_000 + n), action_noise=noise)
+    source = "policy" if isinstance(teacher, PolicyTeacher) else "scripted_teacher"
+    info = DatasetInfo.from_env(env, source)
     env.close()
-    return save_demos(out / "demos.npz", episodes)
+    return save_demos(out / "demos.h5", episodes, info)
 
 
 def fmt_samples(x: float) -> str:

@@ -5,6 +5,8 @@ Subpackages:
   sim       MJCF models, the shared servo/effect model, gymnasium tasks, batched stepping, gap analysis.
   algos     policies, NPG, DAPG, BC, samplers, learned local models.
 
+Module ``demo_file``: the demonstration dataset (HDF5) every recorder writes and BC/DAPG read.
+
 Importing the package registers the gymnasium environments (ids ``lowcostdex/...``).
 """
 

@@ -60,6 +60,15 @@ def expert_action(obs: np.ndarray) -> np.ndarray:
     return np.clip([2.0 * err - 2.0 * v], -1.0, 1.0)
 
 
+def demo_info():
+    """``DatasetInfo`` of point-mass demonstration files (it is not a hand env)."""
+    from lowcostdex.demo_file import DatasetInfo
+
+    return DatasetInfo(env_id="test/PointMass", task="PointMass", hand="{}",
+                       source="scripted_teacher", control_period=0.1, obs_dim=3, act_dim=1,
+                       action_joints=("force",))
+
+
 def broken_env() -> gym.Env:
     """A factory that fails, as a robot that is not connected would."""
     raise RuntimeError("no robot here")

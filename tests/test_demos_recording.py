@@ -18,7 +18,7 @@ import pytest
 
 from lowcostdex.algos.demos import load_demos
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.demo_file import FORMAT, DatasetInfo, DemoWriter, read_episodes, read_info
+from lowcostdex.demo_file import FORMAT, DatasetInfo, DemoWriter, read_episodes, read_info
 from lowcostdex.hardware.demos import (
     KinestheticRecorder,
     VirtualTeacher,

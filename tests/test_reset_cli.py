@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from lowcostdex.cli import main
-from lowcostdex.hardware.demo_file import read_demo_pairs, read_info
+from lowcostdex.demo_file import read_demo_pairs, read_info
 
 
 def test_reset_test_reports_success_rate_and_times(tmp_path, capsys):

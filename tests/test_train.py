@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from pointmass import expert_action, make_pointmass
+from pointmass import demo_info, expert_action, make_pointmass
 
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.bc import BCConfig
 from lowcostdex.algos.dapg import DAPGConfig
-from lowcostdex.algos.demos import save_demos
+from lowcostdex.algos.demos import save_demos, teacher_episodes
 from lowcostdex.algos.npg import NPGConfig
 from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.samplers import make_jobs, rollout
@@ -58,18 +58,10 @@ def _assert_same_metrics(a, b):
 
 
 def _expert_demos(path, n=10):
-    env = make_pointmass()
-    episodes = []
-    for i in range(n):
-        obs, _ = env.reset(seed=1000 + i)
-        o, a = [], []
-        for _ in range(30):
-            act = expert_action(obs)
-            o.append(obs)
-            a.append(act)
-            obs, *_ = env.step(act)
-        episodes.append((np.array(o), np.array(a)))
-    return save_demos(path, episodes)
+    episodes = teacher_episodes(
+        make_pointmass(), lambda env, obs: expert_action(obs), seeds=range(1000, 1000 + n)
+    )
+    return save_demos(path, episodes, demo_info())
 
 
 def test_npg_improves_return_and_writes_the_run_directory(tmp_path):
@@ -160,7 +152,7 @@ def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
 
 
 def test_dapg_runs_bc_first_and_decays_the_demo_weight(tmp_path):
-    demos = _expert_demos(tmp_path / "demos.npz")
+    demos = _expert_demos(tmp_path / "demos.h5")
     cfg = _config(
         algo="dapg",
         demos=str(demos),
@@ -178,7 +170,7 @@ def test_dapg_runs_bc_first_and_decays_the_demo_weight(tmp_path):
 
 
 def test_bc_initialised_policy_tracks_the_teacher(tmp_path):
-    demos = _expert_demos(tmp_path / "demos.npz", n=20)
+    demos = _expert_demos(tmp_path / "demos.h5", n=20)
     cfg = _config(
         algo="dapg", demos=str(demos), n_iter=1, dapg=DAPGConfig(lam0=0.0), bc=BCConfig(epochs=100)
     )

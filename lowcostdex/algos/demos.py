@@ -1,28 +1,31 @@
-"""Demonstrations for BC and DAPG: (observation, action) pairs grouped in episodes.
+"""Demonstrations for BC and DAPG: reading the demo dataset, recording teachers in simulation.
 
-File format read and written here (no pickle): an NPZ with
+Every demonstration file is the HDF5 dataset of :mod:`lowcostdex.demo_file` (one group per
+episode with observations, actions, rewards, qpos/qvel, times, success flags and the goal),
+whoever produced it: a person on the robot or the emulator's virtual teacher
+(``lowcostdex record-demos``), or a teacher run here in simulation.
 
-- ``observations`` (N, obs_dim) float64,
-- ``actions`` (N, act_dim) float64, in the env's action space ([-1, 1]),
-- ``episode_ends`` (E,) int64, the exclusive end index of each episode in the arrays above.
-
-Kinesthetic demonstrations recorded on a robot (``lowcostdex record-demos``, an HDF5 file from
-``lowcostdex.hardware.demo_file``) are read through that package's reader when the file is not
-an NPZ; only their successful episodes are used.
-
-:func:`teacher_episodes` records demonstrations in any env from a scripted or learned teacher
-(a function of the env returning the next action), e.g. for simulation benchmarks.
+- :func:`load_demos` reads a file's successful episodes as :class:`Demos`, the (observation,
+  action) pairs BC and DAPG train on (the final observation of each episode is dropped).
+- :func:`teacher_episodes` runs a scripted or learned teacher (a function of the env returning
+  the next action) in an env and returns full :class:`~lowcostdex.demo_file.Episode` s;
+  :func:`save_demos` writes them as a new dataset. :class:`EpisodeRecorder` is the step-by-step
+  piece underneath, for trainers with their own rollout loop.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import os
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from lowcostdex.algos.samplers import control_period
+from lowcostdex.demo_file import DatasetInfo, DemoWriter, Episode, read_demo_pairs
 from lowcostdex.errors import ConfigError
 
 Teacher = Callable[[gym.Env, np.ndarray], np.ndarray]
@@ -82,56 +85,132 @@ class Demos:
         return cls(obs, act, ends)
 
 
-def save_demos(path: str | Path, demos: Demos | Sequence[tuple[np.ndarray, np.ndarray]]) -> Path:
-    """Write demos (or a list of episodes) as the NPZ described in the module docstring."""
-    if not isinstance(demos, Demos):
-        demos = Demos.from_episodes(demos)
+def load_demos(path: str | Path, only_successful: bool = True) -> Demos:
+    """Read a demonstration dataset (:mod:`lowcostdex.demo_file`) as BC/DAPG pairs.
+
+    Args:
+      path: the HDF5 file.
+      only_successful: keep only the episodes whose last step succeeded.
+
+    Raises:
+      ConfigError: a missing file, a file of another format (e.g. an NPZ), or no episode left.
+    """
+    episodes = read_demo_pairs(path, only_successful=only_successful)
+    if not episodes:
+        kind = "successful demonstration" if only_successful else "episode"
+        raise ConfigError(f"{path} holds no {kind}")
+    return Demos.from_episodes(episodes)
+
+
+def save_demos(path: str | Path, episodes: Sequence[Episode], info: DatasetInfo) -> Path:
+    """Write ``episodes`` as a new demonstration dataset at ``path``, replacing any file there.
+
+    The file is built next to ``path`` and moved into place when complete, so ``path`` never
+    holds a partial dataset. To add episodes to an existing file use
+    :class:`~lowcostdex.demo_file.DemoWriter`.
+
+    Args:
+      path: the HDF5 file (conventionally ``.h5``).
+      episodes: full episodes, e.g. from :func:`teacher_episodes`.
+      info: the file's metadata; for a lowcostdex env
+        ``DatasetInfo.from_env(env, "scripted_teacher")``.
+    """
+    if not episodes:
+        raise ConfigError("no demonstration episodes to save")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as f:
-        np.savez(
-            f,
-            observations=demos.observations,
-            actions=demos.actions,
-            episode_ends=demos.episode_ends,
-        )
+    partial = path.with_name(path.name + ".partial")
+    partial.unlink(missing_ok=True)
+    writer = DemoWriter(partial, info)
+    for ep in episodes:
+        writer.append(ep)
+    os.replace(partial, path)
     return path
 
 
-def load_demos(path: str | Path) -> Demos:
-    """Read demonstrations: our NPZ, or a recording from ``lowcostdex.hardware``.
+class EpisodeRecorder:
+    """Collects one episode of a running env into an :class:`~lowcostdex.demo_file.Episode`.
 
-    Raises:
-      ConfigError: missing file, missing arrays, or an unknown format.
+    Create it right after ``env.reset`` and call :meth:`step` after every ``env.step``::
+
+        obs, info = env.reset(seed=seed)
+        rec = EpisodeRecorder(env, obs, info, seed)
+        while not done:
+            obs, reward, terminated, truncated, info = env.step(executed)
+            rec.step(label, obs, reward, terminated, info)
+            done = terminated or truncated
+        episode = rec.episode()
+
+    The physical state is read from ``env.unwrapped.data`` (MuJoCo ``qpos``/``qvel``; an env
+    without one records zero-width arrays); times are ``info["time"]`` when the env reports it,
+    else steps times the control period [s]; the goal is ``env.unwrapped.goal`` at reset (if
+    it is a dict of arrays); success per step is ``info["success"]``; the auto-reset time comes
+    from the reset info's robot telemetry (NaN in simulation).
+
+    Args:
+      env: the env, just reset.
+      obs: the reset observation.
+      info: the reset info.
+      seed: the reset seed (stored with the episode).
     """
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError(f"demonstration file {path} does not exist")
-    if path.suffix == ".npz":
-        with np.load(path, allow_pickle=False) as data:
-            missing = {"observations", "actions", "episode_ends"} - set(data.files)
-            if missing:
-                raise ConfigError(f"{path} lacks {sorted(missing)}; it has {sorted(data.files)}")
-            return Demos(
-                np.asarray(data["observations"], dtype=np.float64),
-                np.asarray(data["actions"], dtype=np.float64),
-                np.asarray(data["episode_ends"], dtype=np.int64),
-            )
-    return _load_recording(path)
 
+    def __init__(self, env: gym.Env, obs: np.ndarray, info: Mapping[str, Any], seed: int = -1):
+        self.env = env
+        self.base = env.unwrapped
+        self.period = control_period(env)
+        goal = getattr(self.base, "goal", None)
+        goal = goal if isinstance(goal, Mapping) else {}
+        self.goal = {k: np.array(v, dtype=np.float64) for k, v in goal.items()}
+        self.seed = int(seed)
+        telemetry = info.get("telemetry") or {}  # robot backends report the auto-reset
+        self.reset_time = float(telemetry.get("last_reset_time", float("nan")))
+        self.observations = [np.asarray(obs, dtype=np.float64).ravel()]
+        self.actions: list[np.ndarray] = []
+        self.rewards: list[float] = []
+        self.success: list[bool] = []
+        self.qpos: list[np.ndarray] = []
+        self.qvel: list[np.ndarray] = []
+        self.time: list[float] = []
+        self.terminated = False
+        self._state(info)
 
-def _load_recording(path: Path) -> Demos:
-    """Kinesthetic recordings (HDF5, ``lowcostdex.hardware.demo_file``); successful episodes."""
-    try:
-        from lowcostdex.hardware.demo_file import read_demo_pairs
-    except ImportError as exc:  # pragma: no cover - the hardware layer ships with the package
-        raise ConfigError(
-            f"{path}: not an .npz, and the robot-recording reader is missing"
-        ) from exc
-    episodes = read_demo_pairs(path, only_successful=True)
-    if not episodes:
-        raise ConfigError(f"{path} holds no successful demonstration")
-    return Demos.from_episodes(episodes)
+    def _state(self, info: Mapping[str, Any]) -> None:
+        data = getattr(self.base, "data", None)
+        self.qpos.append(np.array(data.qpos if data is not None else [], dtype=np.float64))
+        self.qvel.append(np.array(data.qvel if data is not None else [], dtype=np.float64))
+        self.time.append(float(info.get("time", len(self.actions) * self.period)))
+
+    def step(
+        self,
+        action: np.ndarray,
+        obs: np.ndarray,
+        reward: float,
+        terminated: bool,
+        info: Mapping[str, Any],
+    ) -> None:
+        """Record one transition: the action label (act_dim,) and what ``env.step`` returned."""
+        self.actions.append(np.asarray(action, dtype=np.float64).ravel())
+        self.observations.append(np.asarray(obs, dtype=np.float64).ravel())
+        self.rewards.append(float(reward))
+        self.success.append(bool(info.get("success", False)))
+        self.terminated = bool(terminated)
+        self._state(info)
+
+    def episode(self) -> Episode:
+        """The episode so far."""
+        n_act = int(np.prod(self.env.action_space.shape))
+        return Episode(
+            observations=np.stack(self.observations),
+            actions=np.asarray(self.actions, dtype=np.float64).reshape(-1, n_act),
+            rewards=np.asarray(self.rewards, dtype=np.float64),
+            qpos=np.stack(self.qpos),
+            qvel=np.stack(self.qvel),
+            time=np.asarray(self.time),
+            success=np.asarray(self.success, dtype=bool),
+            goal=dict(self.goal),
+            seed=self.seed,
+            reset_time=self.reset_time,
+            terminated=self.terminated,
+        )
 
 
 def teacher_episodes(
@@ -141,7 +220,7 @@ def teacher_episodes(
     only_successful: bool = True,
     max_tries: int = 4,
     action_noise: float = 0.0,
-) -> list[tuple[np.ndarray, np.ndarray]]:
+) -> list[Episode]:
     """Record one demonstration per seed by running ``teacher`` in ``env``.
 
     With ``action_noise > 0`` the env executes the teacher's action plus uniform noise in
@@ -151,7 +230,7 @@ def teacher_episodes(
     collecting for the same reason; labelling the clean action is DART, Laskey et al. 2017).
 
     Args:
-      env: the environment (reset with each seed; its reset info and observations are used).
+      env: the environment (reset with each seed).
       teacher: (env, observation) -> action.
       seeds: reset seeds, one episode each; the noise of an episode is drawn from a generator
         seeded with the same seed.
@@ -161,7 +240,9 @@ def teacher_episodes(
       action_noise: half-width of the executed-action noise, in action units.
 
     Returns:
-      [(observations (T, obs_dim), actions (T, act_dim)), ...].
+      One :class:`~lowcostdex.demo_file.Episode` per seed (observations (T+1, obs_dim), the
+      teacher's actions (T, act_dim), rewards, qpos/qvel, times, success flags, goal, seed);
+      write them with :func:`save_demos`.
 
     Raises:
       ConfigError: a seed produced no successful episode in ``max_tries`` attempts.
@@ -174,22 +255,22 @@ def teacher_episodes(
             rng = np.random.default_rng(episode_seed)
             if hasattr(teacher, "reset"):
                 teacher.reset(env)
-            observations, actions = [], []
+            recorder = EpisodeRecorder(env, obs, info, episode_seed)
             done = False
             while not done:
                 action = np.asarray(teacher(env, obs), dtype=np.float64)
-                observations.append(np.asarray(obs, dtype=np.float64))
-                actions.append(action)
                 executed = action
                 if action_noise > 0:
                     noise = rng.uniform(-action_noise, action_noise, action.shape)
                     executed = np.clip(action + noise, -1.0, 1.0)
-                obs, _, terminated, truncated, info = env.step(
+                obs, reward, terminated, truncated, info = env.step(
                     executed.astype(env.action_space.dtype)
                 )
+                recorder.step(action, obs, reward, terminated, info)
                 done = terminated or truncated
-            if not only_successful or bool(info.get("success", False)):
-                episodes.append((np.asarray(observations), np.asarray(actions)))
+            episode = recorder.episode()
+            if not only_successful or (episode.length and bool(episode.success[-1])):
+                episodes.append(episode)
                 break
         else:
             raise ConfigError(f"the teacher failed {max_tries} times from seed {seed}")

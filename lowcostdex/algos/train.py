@@ -108,7 +108,8 @@ class TrainConfig:
       eval_every: evaluation period [iterations]; 0 evaluates only after the last iteration.
       eval_episodes: deterministic evaluation episodes per evaluation.
       checkpoint_every: checkpoint period [iterations] (the last iteration always saves).
-      demos: demonstration file (required for DAPG; for NPG, ``bc_init`` uses it).
+      demos: demonstration dataset (:mod:`lowcostdex.demo_file`; its successful episodes are
+        used), required for DAPG; for NPG, ``bc_init`` uses it.
       n_demos: use only the first n demo episodes (None: all).
       bc_init: behaviour-clone before RL (always on for DAPG; NPG + BC is "BCRL").
       policy, baseline, npg, dapg, bc: component configs. Defaults: the hand_dapg policy
@@ -544,7 +545,8 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
     p.add_argument("--backend", choices=BACKENDS, default=d.backend)
     p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
     p.add_argument(
-        "--demos", default=None, required=algo == "dapg", help="demonstration file (.npz)"
+        "--demos", default=None, required=algo == "dapg",
+        help="demonstration dataset (HDF5, lowcostdex.demo_file); its successful episodes are used",
     )
     p.add_argument("--n-demos", type=int, default=None, help="use the first N demo episodes")
     p.add_argument("--seed", type=int, default=d.seed)

@@ -3,7 +3,8 @@
 Per episode: the env's auto-reset brings the hand and the valve to the episode's start (verified,
 bounded); the finger servos go torque-off; a person moves the fingers through the task while the
 joint angles are read at the control rate; the episode is converted to (observation, action)
-pairs for BC/DAPG and appended to an HDF5 file (``demo_file``), one finished episode at a time.
+pairs for BC/DAPG and appended to the demonstration dataset (``lowcostdex.demo_file``), one
+finished episode at a time.
 
 The action paired with the observation at step t is the next joint position as a target,
 normalized as the env's actions are: ``a_t = goal_to_action(q_{t+1})``; the observation is
@@ -27,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.demo_file import (
+from lowcostdex.demo_file import (
     DatasetInfo,
     DemoWriter,
     Episode,
@@ -213,12 +214,7 @@ class KinestheticRecorder:
         self.teacher = teacher
         self.steps = steps or self.task.timing.episode_steps
         source = "virtual_teacher" if teacher is not None else "kinesthetic"
-        info = DatasetInfo(env_id=env_id, task=type(self.task).__name__,
-                           hand=self.task.hand.to_json(), source=source,
-                           control_period=self.henv.control_period,
-                           obs_dim=self.task.obs_dim, act_dim=len(self.task.hand.joints),
-                           action_joints=self.task.hand.joint_names)
-        self.writer = DemoWriter(path, info)
+        self.writer = DemoWriter(path, DatasetInfo.from_env(env, source, env_id=env_id))
         self.on_episode = on_episode
         self.stats = RecordingStats()
 

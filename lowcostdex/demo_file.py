@@ -1,5 +1,11 @@
 """The demonstration dataset: HDF5, one group per episode, appended episode by episode.
 
+This is lowcostdex's only demonstration format. Every source writes it: kinesthetic recordings on
+a robot and the emulator's virtual teacher (``lowcostdex.hardware.demos``), scripted teachers and
+trained policies run in simulation (``lowcostdex.algos.demos.teacher_episodes`` and
+``save_demos``); BC and DAPG read it with ``lowcostdex.algos.demos.load_demos``. It lives at the
+package top level because the hardware and the learning layers both use it.
+
 Layout (Minari's per-episode layout, plus the raw robot readings), no pickle anywhere::
 
     /                              attrs: format="lowcostdex-demos", format_version=1,
@@ -9,20 +15,26 @@ Layout (Minari's per-episode layout, plus the raw robot readings), no pickle any
     /episode_<k>/                  attrs: id, total_steps, success, seed, reset_time [s],
                                           reset_attempts, source
         observations   (T+1, obs_dim) float64   o_0 .. o_T (the last one follows the last action)
-        actions        (T, act_dim)   float64   a_t = goal_to_action(q_{t+1}) in [-1, 1]
+        actions        (T, act_dim)   float64   a_t in the env's action space [-1, 1]
         rewards        (T,)           float64   the task's reward for (o_t, a_t)
         terminations   (T,)           bool
         truncations    (T,)           bool      True at the last step (time limit)
-        infos/qpos     (T+1, nq)      float64   the env model's qpos as the encoders reported it
+        infos/qpos     (T+1, nq)      float64   the env model's qpos (encoders on a robot)
         infos/qvel     (T+1, nv)      float64
-        infos/time     (T+1,)         float64   robot clock [s]
+        infos/time     (T+1,)         float64   robot clock or env time [s]
         infos/success  (T,)           bool
-        goal/<key>     task goal arrays (e.g. goal/angle [rad])
+        goal/<key>     task goal arrays at step 0 (e.g. goal/angle [rad])
+
+``source`` (one of ``SOURCES``) says who chose the actions: ``kinesthetic`` (a person moved the
+fingers; a_t = goal_to_action(q_{t+1})), ``virtual_teacher`` (the emulator's scripted hand did,
+same conversion), ``scripted_teacher`` (a scripted controller's action, e.g.
+``lowcostdex.sim.scripted``), ``policy`` (a trained policy's mean action). A simulated teacher's
+episode may have been executed with noise added to its actions; ``actions`` are then the clean
+labels and ``infos/qpos`` the states actually visited.
 
 Crash safety: the file is opened, one finished episode is written and flushed, the totals are
 updated, and the file is closed again, so between episodes (and during recording) it is a
 complete, consistent HDF5 file; a crash loses at most the episode being recorded.
-``read_demo_pairs`` is what ``lowcostdex.algos.demos.load_demos`` calls for these files.
 """
 
 from __future__ import annotations
@@ -30,14 +42,16 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_choice
 
 FORMAT = "lowcostdex-demos"
 FORMAT_VERSION = 1
+SOURCES = ("kinesthetic", "virtual_teacher", "scripted_teacher", "policy")
 
 
 @dataclass(frozen=True)
@@ -48,7 +62,7 @@ class DatasetInfo:
       env_id: gymnasium id the demos are for.
       task: task class name.
       hand: hand spec JSON.
-      source: "kinesthetic" (a person) or "virtual_teacher" (the emulator's scripted teacher).
+      source: one of SOURCES (see the module docstring).
       control_period: [s].
       obs_dim, act_dim: observation and action lengths.
       action_joints: joint names in action order.
@@ -62,6 +76,35 @@ class DatasetInfo:
     obs_dim: int
     act_dim: int
     action_joints: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        check_choice("demonstration source", self.source, SOURCES)
+
+    @classmethod
+    def from_env(cls, env: Any, source: str, env_id: str | None = None) -> DatasetInfo:
+        """The metadata of demos recorded in a lowcostdex hand env (``HandEnv``, wrapped or not).
+
+        Args:
+          env: the env; its (outer) observation and action spaces give obs_dim and act_dim.
+          source: one of SOURCES.
+          env_id: default ``env.spec.id``.
+
+        Raises:
+          ConfigError: the env is not a lowcostdex hand env, or has no id.
+        """
+        base = env.unwrapped
+        task = getattr(base, "task", None)
+        if task is None or not hasattr(base, "control_period"):
+            raise ConfigError(f"{type(base).__name__} is not a lowcostdex hand env; build its "
+                              "DatasetInfo by hand")
+        env_id = env_id or (env.spec.id if env.spec is not None else None)
+        if not env_id:
+            raise ConfigError("the env has no gymnasium id; pass env_id")
+        return cls(env_id=env_id, task=type(task).__name__, hand=task.hand.to_json(),
+                   source=source, control_period=float(base.control_period),
+                   obs_dim=int(np.prod(env.observation_space.shape)),
+                   act_dim=int(np.prod(env.action_space.shape)),
+                   action_joints=tuple(task.hand.joint_names))
 
     def attrs(self) -> dict:
         return {"env_id": self.env_id, "task": self.task, "hand": self.hand,
@@ -130,8 +173,7 @@ class DemoWriter:
         self.path = Path(path)
         self.info = info
         if self.path.exists():
-            with h5py.File(self.path, "r") as f:
-                _check_format(f, self.path)
+            with open_dataset(self.path) as f:
                 old = DatasetInfo.from_attrs(f.attrs)
             if (old.obs_dim, old.act_dim, old.action_joints, old.env_id) != (
                     info.obs_dim, info.act_dim, info.action_joints, info.env_id):
@@ -185,31 +227,52 @@ class DemoWriter:
         return k
 
 
+_EXPECTED = (f"an HDF5 demonstration dataset (format {FORMAT!r}, lowcostdex.demo_file), as "
+             "written by `lowcostdex record-demos` or lowcostdex.algos.demos.save_demos")
+
+
 def _check_format(f: h5py.File, path: Path) -> None:
     fmt = f.attrs.get("format")
     if fmt != FORMAT:
-        raise ConfigError(f"{path} is not a {FORMAT} file (format attribute {fmt!r})")
+        raise ConfigError(f"{path} is not {_EXPECTED}: its format attribute is {fmt!r}")
     version = int(f.attrs.get("format_version", -1))
     if version > FORMAT_VERSION:
         raise ConfigError(f"{path} has format version {version}; this lowcostdex reads up to "
                           f"{FORMAT_VERSION}")
 
 
+def open_dataset(path: str | Path) -> h5py.File:
+    """Open a demo file read-only, after checking it is one.
+
+    Raises:
+      ConfigError: the file is missing, not HDF5 (e.g. an old NPZ demo file), not of this
+        format, or of a newer format version.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"demonstration file {path} does not exist")
+    if not h5py.is_hdf5(path):
+        raise ConfigError(f"{path} is not {_EXPECTED}; it is not an HDF5 file")
+    f = h5py.File(path, "r")
+    try:
+        _check_format(f, path)
+    except ConfigError:
+        f.close()
+        raise
+    return f
+
+
 def read_info(path: str | Path) -> tuple[DatasetInfo, int, int]:
     """(metadata, total episodes, total steps) of a demo file."""
-    path = Path(path)
-    with h5py.File(path, "r") as f:
-        _check_format(f, path)
+    with open_dataset(path) as f:
         return (DatasetInfo.from_attrs(f.attrs), int(f.attrs["total_episodes"]),
                 int(f.attrs["total_steps"]))
 
 
 def read_episodes(path: str | Path, only_successful: bool = False) -> list[Episode]:
     """Every complete episode in the file (those counted in ``total_episodes``)."""
-    path = Path(path)
     out = []
-    with h5py.File(path, "r") as f:
-        _check_format(f, path)
+    with open_dataset(path) as f:
         for k in range(int(f.attrs["total_episodes"])):
             g = f[f"episode_{k}"]
             if only_successful and not bool(g.attrs["success"]):
