@@ -92,11 +92,18 @@ def test_object_target_turns_half_turns_positively_or_like_the_reference() -> No
 def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
     pytest.importorskip("lowcostdex.algos.demos")
     from lowcostdex.algos.demos import save_demos
+    from lowcostdex.demo_file import DatasetInfo, Episode
 
     env, start, hold = valve
     rng = np.random.default_rng(0)
     a, b = rng.uniform(-1, 1, size=(40, 9)), rng.uniform(-1, 1, size=(30, 9))
-    path = save_demos(tmp_path / "demos.npz", [(np.zeros((40, 30)), a), (np.zeros((30, 30)), b)])
+    episodes = [
+        Episode(np.zeros((len(u) + 1, 30)), u, np.zeros(len(u)), np.zeros((len(u) + 1, 1)),
+                np.zeros((len(u) + 1, 1)), np.zeros(len(u) + 1), np.ones(len(u), bool))
+        for u in (a, b)
+    ]  # fmt: skip
+    info = DatasetInfo.from_env(env, "scripted_teacher")
+    path = save_demos(tmp_path / "demos.h5", episodes, info)
     env.reset(options=start.reset_options())
     x0 = controller_state(env, hold)
     ctl = initial_controller(_small(init="demos", demos=str(path)), env, start, x0, hold, 41)
@@ -114,9 +121,9 @@ def test_teacher_init_replays_a_successful_teacher_episode(valve, tmp_path) -> N
 
     env, start, hold = valve
     cfg = _small(init="teacher", init_noise=0.05)
-    teach = teacher_episodes(env, start, cfg, hold, 41, tmp_path / "teacher.npz")
+    teach = teacher_episodes(env, start, cfg, hold, 41, tmp_path / "teacher.h5")
     assert teach.X.shape == (1, 41, 29) and teach.successes.all()
-    assert load_demos(tmp_path / "teacher.npz").actions.shape == (40, 9)
+    assert load_demos(tmp_path / "teacher.h5").actions.shape == (40, 9)
     env.reset(options=start.reset_options())
     x0 = controller_state(env, hold)
     ctl = initial_controller(cfg, env, start, x0, hold, 41, teach.U)

@@ -73,7 +73,7 @@ MUTABLE_ON_RESUME = ("n_iter", "progress")
 _UPDATE = 13  # seed purpose of the update generator (the GMM's EM)
 _TEACHER_STREAM = 2  # rollout stream of the teacher episodes (0: training, 1: evaluation)
 CONTROLLER_FILE = "controller.npz"
-TEACHER_FILE = "teacher_demo.npz"
+TEACHER_FILE = "teacher_demo.h5"
 
 
 @dataclass(frozen=True)
@@ -169,10 +169,10 @@ class TVLGTrainConfig:
         feedback) with exploration noise; "demos" replays the mean action of the demonstrations
         in ``demos`` (the DAPG demo format) with the same noise; "teacher" first runs the
         scripted teacher (``lowcostdex.sim.scripted``) ``teacher_episodes`` times from the fixed
-        start (saved as ``teacher_demo.npz``) and replays its mean action like "demos".
+        start (saved as ``teacher_demo.h5``) and replays its mean action like "demos".
       teacher_episodes: teacher episodes for init "teacher" (logged as ``teacher_episodes``,
         counted in robot time, not in ``rollouts``).
-      demos: demonstration file (.npz with observations, actions, episode_ends).
+      demos: demonstration dataset (HDF5, :mod:`lowcostdex.demo_file`).
       init_noise: std of the initial controller's exploration noise [normalised action].
       pd_gain: position feedback of the initial controller [normalised action / rad].
       smooth_noise: Gaussian smoothing of the exploration noise over time [steps]; 0 = white.
@@ -578,8 +578,8 @@ def teacher_episodes(
 
     Gaussian noise of std ``noise`` may be added to every teacher action (reset seed and noise
     from (seed, stream 2, 0, i)), e.g. to identify the teacher's feedback with
-    :func:`.policy_fit.fit_policy`. With ``demo_path`` the episodes are also saved in the DAPG
-    demonstration format (observations, applied actions).
+    :func:`.policy_fit.fit_policy`. With ``demo_path`` the episodes are also saved as a
+    demonstration dataset (:mod:`lowcostdex.demo_file`, the applied actions as labels).
 
     Raises:
       ConfigError: if the task has no scripted teacher.
@@ -590,6 +590,7 @@ def teacher_episodes(
         raise ConfigError(
             "init 'teacher' needs lowcostdex.sim.scripted (the valve teacher)"
         ) from exc
+    from lowcostdex.algos.demos import EpisodeRecorder
     from lowcostdex.sim.envs import goal_to_action
 
     base = env.unwrapped
@@ -605,7 +606,7 @@ def teacher_episodes(
         teacher = ValveTurnTeacher()
         teacher.reset(base)
         last = hold.copy() if config.include_last_action else None
-        observations = []
+        recorder = EpisodeRecorder(env, obs, info, job.env_seed())
         for t in range(T):
             X[i, t] = controller_state(env, last)
             goal = teacher(base.data.qpos.copy(), base.goal)
@@ -614,16 +615,17 @@ def teacher_episodes(
                 U[i, t] = action
                 break
             U[i, t] = np.clip(action + noise * rng.standard_normal(dU), -1.0, 1.0)
-            observations.append(np.asarray(obs, dtype=np.float64))
-            obs, _, _, _, info = env.step(U[i, t].astype(np.float32))
+            obs, reward, terminated, _, info = env.step(U[i, t].astype(np.float32))
+            recorder.step(U[i, t], obs, reward, terminated, info)
             last = U[i, t].copy() if config.include_last_action else None
         successes[i] = bool(info.get("success", False))
         seconds += (T - 1) * control_period(env)
-        demos.append((np.asarray(observations), U[i, : T - 1].copy()))
+        demos.append(recorder.episode())
     if demo_path is not None:
         from lowcostdex.algos.demos import save_demos
+        from lowcostdex.demo_file import DatasetInfo
 
-        save_demos(demo_path, demos)
+        save_demos(demo_path, demos, DatasetInfo.from_env(env, "scripted_teacher"))
     return TeacherEpisodes(X, U, successes, seconds)
 
 
@@ -866,7 +868,7 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--n-iter", type=int, default=d.n_iter)
     p.add_argument("--n-rollouts", type=int, default=d.n_rollouts, help="episodes per iteration")
     p.add_argument("--init", choices=INITS, default=d.init)
-    p.add_argument("--demos", default=None, help="demonstration file (.npz) for --init demos")
+    p.add_argument("--demos", default=None, help="demonstration dataset (HDF5) for --init demos")
     p.add_argument(
         "--init-noise", type=float, default=d.init_noise, help="initial action noise std"
     )
