@@ -96,17 +96,30 @@ class VirtualTeacherConfig:
       kd: damping [N m s/rad].
       max_torque: largest torque a finger joint receives [N m].
       plan_period: how often the solving motion is re-planned from the true state [s].
+      motion_bound: keep each planned target within the env's per-step motion bound of the
+        present joint positions (joint ``max_velocity`` x ``plan_period``) and the joint limits,
+        as the env does with actions. A person can move the fingers faster than a policy may,
+        and a transition no action can produce cannot be cloned (unbounded, the teacher moved
+        middle joints 0.33 rad in one 0.1 s step where the env allows 0.21).
+      target_noise: std of Gaussian noise added to each planned target [rad], like a person's
+        imprecision: the demonstrations then visit states around the solving motion and show
+        the teacher recovering from them (the data DART and the DAPG authors' actuator noise
+        give a behaviour clone). The recorded actions are the executed motion, noise included.
     """
 
     kp: float = 3.0
     kd: float = 0.15
     max_torque: float = 1.5
     plan_period: float = 0.1
+    motion_bound: bool = True
+    target_noise: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd", "max_torque", "plan_period"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"VirtualTeacherConfig.{name} must be > 0")
+        if self.target_noise < 0:
+            raise ConfigError("VirtualTeacherConfig.target_noise must be >= 0")
 
 
 class VirtualTeacher:
@@ -117,11 +130,13 @@ class VirtualTeacher:
       task: the bound task (its model has the chain's qpos layout).
       solver: (qpos (nq,), goal) -> finger joint targets (9,) [rad]; ``reset(task)`` is called at
         every episode start if it has one. Default: ``ValveTurnTeacher``.
-      config: PD gains and re-planning period.
+      config: PD gains, re-planning period, motion bound, imprecision.
+      rng: generator of the imprecision noise (seeded by the caller).
     """
 
     def __init__(self, chain: Any, task: Any, solver: Any = None,
-                 config: VirtualTeacherConfig = VirtualTeacherConfig()):
+                 config: VirtualTeacherConfig = VirtualTeacherConfig(),
+                 rng: np.random.Generator | None = None):
         plant = chain.plant
         if plant.model.nq != task.model.nq:
             raise ConfigError("the emulator's model and the task's model differ in qpos layout")
@@ -130,9 +145,14 @@ class VirtualTeacher:
 
             solver = ValveTurnTeacher()
         self.chain, self.task, self.solver, self.config = chain, task, solver, config
+        self.rng = rng if rng is not None else np.random.default_rng(0)
         m = plant.model
         self.dofs = np.array([m.jnt_dofadr[m.joint(n).id] for n in task.hand.joint_names])
         self.qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in task.hand.joint_names])
+        joints = task.hand.joints
+        self.low = np.array([j.low for j in joints])
+        self.high = np.array([j.high for j in joints])
+        self.max_step = np.array([j.max_velocity for j in joints]) * config.plan_period
         self.goal: dict | None = None
         self.target: np.ndarray | None = None
         self._next_plan = -math.inf
@@ -157,7 +177,14 @@ class VirtualTeacher:
         d = chain.plant.data
         t = chain.physics_time
         if t >= self._next_plan - 1e-12:
-            self.target = np.asarray(self.solver(d.qpos.copy(), self.goal), float)
+            target = np.asarray(self.solver(d.qpos.copy(), self.goal), float)
+            if self.config.target_noise > 0:
+                target = target + self.config.target_noise * self.rng.normal(size=target.shape)
+            if self.config.motion_bound:
+                present = d.qpos[self.qadr]
+                target = np.clip(np.clip(target, present - self.max_step,
+                                         present + self.max_step), self.low, self.high)
+            self.target = target
             self._next_plan = t + self.config.plan_period
         c = self.config
         tau = c.kp * (self.target - d.qpos[self.qadr]) - c.kd * d.qvel[self.dofs]
