@@ -14,8 +14,9 @@ NPG samples / DAPG samples (median over seeds; a lower bound "> x" when NPG did 
 target within the budget). The target ratio is >= 5x (BAIR hardware: ~9 h vs < 3 h; hand_dapg:
 up to 30x on Adroit).
 
-Demonstrations: on the valve, 25 episodes of the scripted teacher (``lowcostdex.sim.scripted``).
-Tasks without a scripted teacher use a "computational expert" as the DAPG paper did for the pen:
+Demonstrations: on the D'Claw and Allegro valves, 25 episodes of the scripted teachers
+(``lowcostdex.sim.scripted``: ``ValveTurnTeacher``, ``AllegroValveTeacher``), written as the demo
+dataset (``lowcostdex.demo_file``, ``<out>/<task>/demos.h5``). Tasks without a scripted teacher use a "computational expert" as the DAPG paper did for the pen:
 the mean action of this benchmark's NPG policy for seed 0, provided that mean action solves the
 task at the end of its run (``--expert-run DIR`` names another run); only successful expert
 episodes are kept.
@@ -57,24 +58,25 @@ from lowcostdex.demo_file import DatasetInfo
 @dataclass(frozen=True)
 class Task:
     env_id: str
-    teacher: str | None  # "valve" (scripted) or None (NPG expert)
+    teacher: str | None  # class name in lowcostdex.sim.scripted, or None (NPG expert)
 
 
 TASKS = {
-    "valve": Task("lowcostdex/DClawTurnValve-v0", "valve"),
+    "valve": Task("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher"),
     "flip-keypoints": Task("lowcostdex/DClawFlipBlock-v0", None),
     "flip-quaternion": Task("lowcostdex/DClawFlipBlockQuaternion-v0", None),
-    "allegro-valve": Task("lowcostdex/AllegroTurnValve-v0", None),
+    "allegro-valve": Task("lowcostdex/AllegroTurnValve-v0", "AllegroValveTeacher"),
 }
 
 
-class ScriptedValveTeacher:
-    """The scripted valve teacher as a demo-recording policy (env, obs) -> action."""
+class ScriptedTeacher:
+    """A scripted teacher of ``lowcostdex.sim.scripted`` as a demo-recording policy
+    (env, obs) -> action: its joint goals for the observed state, as normalized actions."""
 
-    def __init__(self) -> None:
-        from lowcostdex.sim.scripted import ValveTurnTeacher
+    def __init__(self, name: str) -> None:
+        from lowcostdex.sim import scripted
 
-        self.teacher = ValveTurnTeacher()
+        self.teacher = getattr(scripted, name)()
 
     def reset(self, env: gym.Env) -> None:
         self.teacher.reset(env.unwrapped)
@@ -153,8 +155,8 @@ def record_demos(
     task: Task, out: Path, n: int, npg_expert: Path | None, noise: float
 ) -> Path | None:
     env = gym.make(task.env_id)
-    if task.teacher == "valve":
-        teacher = ScriptedValveTeacher()
+    if task.teacher is not None:
+        teacher = ScriptedTeacher(task.teacher)
     elif npg_expert is not None:
         teacher = PolicyTeacher(npg_expert)
     else:
