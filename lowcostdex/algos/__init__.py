@@ -2,6 +2,7 @@
 
 One algorithm per module, with the small pure functions underneath that tests call directly:
 
+- ``configs``     the dataclass configs of policy, baseline, NPG, DAPG, BC and a run (no torch)
 - ``policy``      Gaussian MLP policy (mjrl-style init), observation normalisation, numpy snapshot
 - ``baseline``    value MLP V(s, t) with time features, fitted after each update
 - ``returns``     discounted returns, GAE, whitening
@@ -11,7 +12,8 @@ One algorithm per module, with the small pure functions underneath that tests ca
 - ``demos``       demonstration files and teacher recordings
 - ``samplers``    serial, process-pool, vector-env and Ray samplers, seeded per trajectory
 - ``experiment``  run directories: config, metrics, safe checkpoints, resume, learning curves
-- ``train``       NPG/DAPG training runs and ``lowcostdex train npg|dapg``
+- ``train``       NPG/DAPG training runs
+- ``train_cli``   ``lowcostdex train npg|dapg`` (arguments built without importing torch)
 - ``cli``         the ``lowcostdex train`` command group
 - ``local_models`` time-varying linear-Gaussian models and KL-constrained iLQG
 """

@@ -15,54 +15,16 @@ noted in the mjrl reference:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
-from lowcostdex.algos.policy import ACTIVATIONS, ObsNormalizer
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.algos.configs import BaselineConfig
+from lowcostdex.algos.policy import ObsNormalizer
 
 N_TIME_FEATURES = 4
-
-
-@dataclass(frozen=True)
-class BaselineConfig:
-    """Value-function architecture and fit.
-
-    Attributes:
-      hidden_sizes: MLP hidden widths (mjrl: (128, 128)).
-      activation: one of ACTIVATIONS (mjrl: relu).
-      lr: Adam learning rate.
-      weight_decay: Adam weight decay (mjrl's reg_coef, 1e-3 in its job scripts).
-      epochs: passes over each batch per fit (hand_dapg configs: 2).
-      batch_size: minibatch size.
-    """
-
-    hidden_sizes: tuple[int, ...] = (128, 128)
-    activation: str = "relu"
-    lr: float = 1e-3
-    weight_decay: float = 1e-3
-    epochs: int = 2
-    batch_size: int = 64
-
-    def __post_init__(self) -> None:
-        check_choice("activation", self.activation, ACTIVATIONS)
-        if any(int(h) != h or h < 1 for h in self.hidden_sizes):
-            raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
-        if not self.lr > 0 or self.weight_decay < 0:
-            raise ConfigError(f"lr={self.lr} must be > 0 and weight_decay={self.weight_decay} >= 0")
-        if self.epochs < 1 or self.batch_size < 1:
-            raise ConfigError(f"epochs={self.epochs} and batch_size={self.batch_size} must be >= 1")
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> BaselineConfig:
-        d = dict(d)
-        if "hidden_sizes" in d:
-            d["hidden_sizes"] = tuple(int(h) for h in d["hidden_sizes"])
-        return cls(**d)
 
 
 def time_features(t: np.ndarray | torch.Tensor, horizon: int) -> torch.Tensor:

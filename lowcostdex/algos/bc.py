@@ -24,58 +24,13 @@ initialisation (hand_dapg#10).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
+from lowcostdex.algos.configs import BCConfig
 from lowcostdex.algos.policy import GaussianMLPPolicy
-from lowcostdex.errors import ConfigError, check_choice
-
-BC_LOSSES = ("mse", "mle")
-BC_LOG_STD = ("demo_spread", "residual", "keep")
-
-
-@dataclass(frozen=True)
-class BCConfig:
-    """Behaviour-cloning settings (hand_dapg: 5 epochs, batch 32, lr 1e-3, MSE).
-
-    Attributes:
-      epochs: passes over the demonstration transitions.
-      batch_size: minibatch size.
-      lr: Adam learning rate.
-      loss: one of BC_LOSSES.
-      set_obs_normalization: set the observation statistics from the demos.
-      freeze_obs_normalization: keep them fixed afterwards (mjrl); False lets RL batches
-        update them (the policy mean is preserved at each update).
-      set_action_scaling: set act_shift/act_scale from the demo actions.
-      log_std: initial exploration noise, one of BC_LOG_STD (see the module docstring); mjrl
-        uses "demo_spread". With loss "mle" the noise is trained and this sets its start.
-      min_action_scale: floor of act_scale per action dimension.
-    """
-
-    epochs: int = 5
-    batch_size: int = 32
-    lr: float = 1e-3
-    loss: str = "mse"
-    set_obs_normalization: bool = True
-    freeze_obs_normalization: bool = True
-    set_action_scaling: bool = True
-    log_std: str = "demo_spread"
-    min_action_scale: float = 0.1
-
-    def __post_init__(self) -> None:
-        check_choice("BC loss", self.loss, BC_LOSSES)
-        check_choice("BC log_std", self.log_std, BC_LOG_STD)
-        if self.epochs < 0 or self.batch_size < 1:
-            raise ConfigError(
-                f"epochs={self.epochs} must be >= 0 and batch_size={self.batch_size} >= 1"
-            )
-        if not self.lr > 0 or not self.min_action_scale > 0:
-            raise ConfigError(
-                f"lr={self.lr} and min_action_scale={self.min_action_scale} must be > 0"
-            )
 
 
 def demo_statistics(obs: np.ndarray, actions: np.ndarray) -> dict[str, np.ndarray]:

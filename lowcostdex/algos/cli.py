@@ -1,8 +1,9 @@
 """``lowcostdex train ...``: one subcommand group whose trainers come from several modules.
 
 Each module in ``TRAINER_MODULES`` exposes ``add_train_commands(train_subparsers)`` and adds
-its trainers (``npg``/``dapg`` from :mod:`lowcostdex.algos.train`, ``tvlg`` from the local-models
-package). A listed module that does not exist or does not expose the function yet is skipped;
+its trainers (``npg``/``dapg`` from :mod:`lowcostdex.algos.train_cli`, ``tvlg`` from the
+local-models package). Adding the arguments must not import torch: heavy imports belong in the
+handlers (tests/test_cli_startup.py checks this). A listed module that does not exist or does not expose the function yet is skipped;
 one that fails to import is skipped with a message on stderr, so the other commands keep
 working; ``lowcostdex train --help`` lists what is available.
 """
@@ -14,7 +15,7 @@ import importlib
 import sys
 
 TRAINER_MODULES: tuple[str, ...] = (
-    "lowcostdex.algos.train",
+    "lowcostdex.algos.train_cli",
     "lowcostdex.algos.local_models.train",
 )
 

@@ -30,47 +30,19 @@ a very large w approaches BC. k must advance every iteration: in hand_dapg it on
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import torch
 
+from lowcostdex.algos.configs import DEMO_WEIGHTS, DAPGConfig, NPGConfig
 from lowcostdex.algos.npg import (
-    NPGConfig,
     as_tensor,
     natural_gradient_step,
     prepare_advantages,
     surrogate_gradient,
 )
 from lowcostdex.algos.policy import GaussianMLPPolicy
-from lowcostdex.errors import ConfigError, check_choice
-
-DEMO_WEIGHTS = ("paper", "mjrl")
-
-
-@dataclass(frozen=True)
-class DAPGConfig:
-    """DAPG settings.
-
-    The natural-gradient step settings are an :class:`~lowcostdex.algos.npg.NPGConfig` passed
-    next to this one (the same object NPG uses).
-
-    Attributes:
-      lam0: initial demo weight factor (paper: 0.1; hand_dapg's mjrl config: 0.01).
-      lam1: per-iteration decay of the demo weight, in [0, 1] (both: 0.95).
-      demo_weight: one of DEMO_WEIGHTS, see the module docstring.
-    """
-
-    lam0: float = 0.1
-    lam1: float = 0.95
-    demo_weight: str = "paper"
-
-    def __post_init__(self) -> None:
-        check_choice("DAPG demo weight", self.demo_weight, DEMO_WEIGHTS)
-        if self.lam0 < 0:
-            raise ConfigError(f"lam0={self.lam0} must be >= 0")
-        if not 0 <= self.lam1 <= 1:
-            raise ConfigError(f"lam1={self.lam1} must be in [0, 1]")
+from lowcostdex.errors import check_choice
 
 
 def demo_weight(k: int, lam0: float, lam1: float, advantages: Any, mode: str = "paper") -> float:

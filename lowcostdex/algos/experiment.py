@@ -15,6 +15,8 @@ any moment can be resumed and a checkpoint received from someone else can be ope
 Every file is written atomically (temporary file, fsync, ``os.replace``), so a kill leaves
 either the old or the new version, never half of one. Checkpoints load with
 ``torch.load(..., weights_only=True)``: no pickled classes, numpy arrays are stored as tensors.
+torch is imported only to save or load a checkpoint, so a trainer without torch code (local
+models) and the command line do not pay for it.
 
 Typical use by a trainer::
 
@@ -40,6 +42,7 @@ import io
 import json
 import math
 import os
+import sys
 import tempfile
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -47,7 +50,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from lowcostdex.errors import ConfigError
 
@@ -108,6 +110,8 @@ def read_json(path: str | os.PathLike[str]) -> Any:
 
 def _to_safe(value: Any, where: str) -> Any:
     """Convert ``value`` into types ``torch.load(weights_only=True)`` accepts, or raise."""
+    import torch
+
     if isinstance(value, torch.Tensor):
         return value.detach().cpu().clone()
     if isinstance(value, np.ndarray):
@@ -145,6 +149,8 @@ def save_state(path: str | os.PathLike[str], state: Mapping[str, Any]) -> None:
     Raises:
       TypeError: if ``state`` holds anything else (arbitrary objects are never pickled).
     """
+    import torch
+
     buf = io.BytesIO()
     torch.save(_to_safe(dict(state), "state"), buf)
     atomic_write_bytes(path, buf.getvalue())
@@ -152,6 +158,8 @@ def save_state(path: str | os.PathLike[str], state: Mapping[str, Any]) -> None:
 
 def load_state(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Load a checkpoint written by :func:`save_state` with ``weights_only=True``."""
+    import torch
+
     return torch.load(Path(path), map_location="cpu", weights_only=True)
 
 
@@ -168,7 +176,8 @@ def _format_value(value: Any) -> str:
         return str(int(value))
     if isinstance(value, (float, np.floating)):
         return repr(float(value))
-    if isinstance(value, torch.Tensor) and value.numel() == 1:
+    torch = sys.modules.get("torch")  # a tensor exists only if torch was imported
+    if torch is not None and isinstance(value, torch.Tensor) and value.numel() == 1:
         return repr(float(value.item()))
     if isinstance(value, str):
         return value

@@ -26,66 +26,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 from torch.nn.utils import parameters_to_vector, vector_to_parameters
 
+from lowcostdex.algos.configs import NPGConfig
 from lowcostdex.algos.policy import GaussianMLPPolicy, gaussian_kl
-from lowcostdex.errors import ConfigError
 
 MatVec = Callable[[torch.Tensor], torch.Tensor]
 """A symmetric positive-definite operator: (n,) vector -> (n,) vector."""
-
-
-@dataclass(frozen=True)
-class NPGConfig:
-    """Natural-gradient step settings (mjrl NPG defaults unless noted).
-
-    Attributes:
-      step_size: delta, the normalised step size; the step's KL is about delta / 2.
-        mjrl's class default is 0.01, the hand_dapg configs use 0.05.
-      cg_iters: conjugate-gradient iterations (the truncation of truncated NPG).
-      cg_residual_tol: CG stops early when r^T r falls below this.
-      damping: added to F (F + damping I) in every Fisher-vector product.
-      fvp_sample_frac: fraction of the samples used for the Fisher (drawn without replacement
-        with the generator passed to the update); 1 uses all.
-      normalize_advantages: whiten advantages over the batch before the gradient (mjrl does).
-      max_kl: if set, backtrack the step until the measured mean KL <= max_kl; None keeps the
-        plain NPG step (no check), as in mjrl's NPG.
-      backtrack_ratio: step-length factor per backtracking trial, in (0, 1).
-      max_backtracks: trials before the step is rejected (parameters restored).
-    """
-
-    step_size: float = 0.05
-    cg_iters: int = 10
-    cg_residual_tol: float = 1e-10
-    damping: float = 1e-4
-    fvp_sample_frac: float = 1.0
-    normalize_advantages: bool = True
-    max_kl: float | None = None
-    backtrack_ratio: float = 0.8
-    max_backtracks: int = 10
-
-    def __post_init__(self) -> None:
-        if not self.step_size > 0:
-            raise ConfigError(f"step_size={self.step_size} must be > 0")
-        if self.cg_iters < 1:
-            raise ConfigError(f"cg_iters={self.cg_iters} must be >= 1")
-        if self.damping < 0 or self.cg_residual_tol < 0:
-            raise ConfigError(
-                f"damping={self.damping} and cg_residual_tol={self.cg_residual_tol} must be >= 0"
-            )
-        if not 0 < self.fvp_sample_frac <= 1:
-            raise ConfigError(f"fvp_sample_frac={self.fvp_sample_frac} must be in (0, 1]")
-        if self.max_kl is not None and not self.max_kl > 0:
-            raise ConfigError(f"max_kl={self.max_kl} must be > 0 or None")
-        if not 0 < self.backtrack_ratio < 1:
-            raise ConfigError(f"backtrack_ratio={self.backtrack_ratio} must be in (0, 1)")
-        if self.max_backtracks < 0:
-            raise ConfigError(f"max_backtracks={self.max_backtracks} must be >= 0")
 
 
 # ----------------------------------------------------------------------------------------------

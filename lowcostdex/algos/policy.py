@@ -27,63 +27,15 @@ observation at a time, so an action does not depend on how many trajectories a w
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from lowcostdex.algos.configs import PolicyConfig
 from lowcostdex.algos.snapshot import PolicySnapshot
-from lowcostdex.errors import ConfigError, check_choice
-
-ACTIVATIONS = ("tanh", "relu")
-
-
-@dataclass(frozen=True)
-class PolicyConfig:
-    """Architecture and initialisation of :class:`GaussianMLPPolicy`.
-
-    Attributes:
-      hidden_sizes: widths of the hidden layers; ``()`` gives a linear policy. mjrl's default
-        is (64, 64); the hand_dapg configs use (32, 32).
-      activation: hidden-layer non-linearity, one of ACTIVATIONS.
-      init_log_std: initial log standard deviation of the action noise (mjrl default 0,
-        i.e. std 1 over a [-1, 1] action range; its example configs use -0.5).
-      min_log_std: lower clamp of log_std applied after every update (mjrl: -3).
-      last_layer_scale: factor applied to the last layer's initial weight and bias (mjrl: 1e-2).
-      min_obs_std: floor of the observation standard deviation used for normalisation, so a
-        feature that is constant in the data does not divide by ~0.
-    """
-
-    hidden_sizes: tuple[int, ...] = (64, 64)
-    activation: str = "tanh"
-    init_log_std: float = 0.0
-    min_log_std: float = -3.0
-    last_layer_scale: float = 1e-2
-    min_obs_std: float = 1e-2
-
-    def __post_init__(self) -> None:
-        check_choice("activation", self.activation, ACTIVATIONS)
-        if any(int(h) != h or h < 1 for h in self.hidden_sizes):
-            raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
-        if not math.isfinite(self.init_log_std) or self.init_log_std < self.min_log_std:
-            raise ConfigError(
-                f"init_log_std={self.init_log_std} must be finite and >= min_log_std={self.min_log_std}"
-            )
-        if not self.last_layer_scale > 0:
-            raise ConfigError(f"last_layer_scale={self.last_layer_scale} must be > 0")
-        if not self.min_obs_std > 0:
-            raise ConfigError(f"min_obs_std={self.min_obs_std} must be > 0")
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PolicyConfig:
-        """Inverse of ``dataclasses.asdict`` (accepts lists read back from JSON)."""
-        d = dict(d)
-        if "hidden_sizes" in d:
-            d["hidden_sizes"] = tuple(int(h) for h in d["hidden_sizes"])
-        return cls(**d)
-
 
 # ----------------------------------------------------------------------------------------------
 # Diagonal Gaussian maths (pure functions)

@@ -20,16 +20,18 @@ backend); the checkpoint holds the policy, the baseline with its Adam state, and
 
 Robot time counts every episode the robot ran (training and evaluation): steps times the
 control period, plus the reset and thermal-pause time the env reports.
+
+The run's configuration is :class:`~lowcostdex.algos.configs.TrainConfig`; the command line
+``lowcostdex train npg|dapg`` is :mod:`lowcostdex.algos.train_cli`.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,16 +39,16 @@ import numpy as np
 import torch
 
 from lowcostdex.algos import experiment as ex
-from lowcostdex.algos.baseline import BaselineConfig, MLPBaseline
-from lowcostdex.algos.bc import BC_LOG_STD, BCConfig, behavior_clone
-from lowcostdex.algos.dapg import DAPGConfig, dapg_update
+from lowcostdex.algos.baseline import MLPBaseline
+from lowcostdex.algos.bc import behavior_clone
+from lowcostdex.algos.configs import TrainConfig
+from lowcostdex.algos.dapg import dapg_update
 from lowcostdex.algos.demos import Demos, load_demos
-from lowcostdex.algos.npg import NPGConfig, npg_update
-from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
+from lowcostdex.algos.npg import npg_update
+from lowcostdex.algos.policy import GaussianMLPPolicy
 from lowcostdex.algos.returns import discounted_returns, gae
 from lowcostdex.algos.samplers import (
     EVAL_STREAM,
-    SAMPLERS,
     TRAIN_STREAM,
     EnvFactory,
     EnvFactoryFn,
@@ -58,12 +60,8 @@ from lowcostdex.algos.samplers import (
     VectorSampler,
     make_jobs,
 )
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError
 
-ALGOS = ("npg", "dapg")
-BACKENDS = ("sim", "emulated", "hardware")
-OBS_NORMS = ("running", "frozen")
-SUCCESS_MODES = ("final", "any")
 ROBOT_COUNTERS = (
     "resets",
     "reset_failures",
@@ -84,128 +82,6 @@ MUTABLE_ON_RESUME = ("n_iter", "progress", "torch_threads")
 
 # Seed-sequence purposes (first spawn-key entry); trajectories use samplers.*_STREAM (0, 1).
 _POLICY_INIT, _BASELINE_INIT, _BC, _UPDATE, _BASELINE_FIT = 10, 11, 12, 13, 14
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """One NPG or DAPG run.
-
-    Attributes:
-      algo: one of ALGOS.
-      env_id: registered gymnasium id, e.g. "lowcostdex/DClawTurnValve-v0".
-      backend: one of BACKENDS; "emulated" and "hardware" sample serially on one robot.
-      env_kwargs: extra ``gym.make`` keyword arguments (e.g. ``{"port": "/dev/ttyUSB0"}``).
-      seed: the run's seed; every random draw derives from it.
-      n_iter: number of iterations.
-      n_traj: trajectories per iteration (hand_dapg: 200 of 200 steps).
-      gamma: discount (mjrl/hand_dapg: 0.995).
-      gae_lambda: GAE lambda (mjrl/hand_dapg: 0.97).
-      bootstrap_truncated: bootstrap time-limit truncations with V(s_T) (mjrl does).
-      sampler: one of SAMPLERS ("serial" on emulated/hardware backends).
-      n_workers: workers of the process/ray samplers, envs of the vector sampler.
-      obs_norm: "running" (update from each batch unless frozen, e.g. by BC) or "frozen".
-      success: trajectory success from ``info["success"]``: at the final step or at any step.
-      eval_every: evaluation period [iterations]; 0 evaluates only after the last iteration.
-      eval_episodes: deterministic evaluation episodes per evaluation.
-      checkpoint_every: checkpoint period [iterations] (the last iteration always saves).
-      demos: demonstration dataset (:mod:`lowcostdex.demo_file`; its successful episodes are
-        used), required for DAPG; for NPG, ``bc_init`` uses it.
-      n_demos: use only the first n demo episodes (None: all).
-      bc_init: behaviour-clone before RL (always on for DAPG; NPG + BC is "BCRL").
-      policy, baseline, npg, dapg, bc: component configs. Defaults: the hand_dapg policy
-        (32, 32) with init log-std -0.5; the NPG step delta 0.1 with damping 1e-2 rather than
-        mjrl's 0.05 / 1e-4: on DClawTurnValve-v0 with 40 trajectories per iteration, 0.05 /
-        1e-4 had no successful episode after 100 iterations while 0.1 / 1e-2 reached 80 %
-        training success in ~140 (bench/RESULTS.md); 1e-4 damping also let single steps reach
-        KL ~1 on small batches (second-order model off).
-      torch_threads: torch intra-op threads during training. The networks are small, so one
-        thread is fastest (two threads on a busy 2-core machine measured ~70x slower per
-        Fisher-vector product).
-      progress: show a progress bar.
-    """
-
-    algo: str = "npg"
-    env_id: str = "lowcostdex/DClawTurnValve-v0"
-    backend: str = "sim"
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    seed: int = 0
-    n_iter: int = 100
-    n_traj: int = 50
-    gamma: float = 0.995
-    gae_lambda: float = 0.97
-    bootstrap_truncated: bool = True
-    sampler: str = "serial"
-    n_workers: int = 1
-    obs_norm: str = "running"
-    success: str = "final"
-    eval_every: int = 5
-    eval_episodes: int = 10
-    checkpoint_every: int = 1
-    demos: str | None = None
-    n_demos: int | None = None
-    bc_init: bool = False
-    policy: PolicyConfig = field(
-        default_factory=lambda: PolicyConfig(hidden_sizes=(32, 32), init_log_std=-0.5)
-    )
-    baseline: BaselineConfig = field(default_factory=BaselineConfig)
-    npg: NPGConfig = field(default_factory=lambda: NPGConfig(step_size=0.1, damping=1e-2))
-    dapg: DAPGConfig = field(default_factory=DAPGConfig)
-    bc: BCConfig = field(default_factory=BCConfig)
-    torch_threads: int = 1
-    progress: bool = True
-
-    def __post_init__(self) -> None:
-        check_choice("algorithm", self.algo, ALGOS)
-        check_choice("backend", self.backend, BACKENDS)
-        check_choice("sampler", self.sampler, SAMPLERS)
-        check_choice("observation normalisation", self.obs_norm, OBS_NORMS)
-        check_choice("success mode", self.success, SUCCESS_MODES)
-        if self.backend != "sim" and self.sampler != "serial":
-            raise ConfigError(
-                f"backend {self.backend!r} runs one robot: use sampler 'serial', not {self.sampler!r}"
-            )
-        if self.algo == "dapg" and not self.demos:
-            raise ConfigError("DAPG needs demonstrations: set demos (--demos PATH)")
-        if self.bc_init and not self.demos:
-            raise ConfigError("bc_init needs demonstrations: set demos (--demos PATH)")
-        for name in (
-            "n_iter",
-            "n_traj",
-            "n_workers",
-            "eval_episodes",
-            "checkpoint_every",
-            "torch_threads",
-        ):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        if self.eval_every < 0:
-            raise ConfigError(f"eval_every={self.eval_every} must be >= 0")
-        if self.n_demos is not None and self.n_demos < 1:
-            raise ConfigError(f"n_demos={self.n_demos} must be >= 1 or None")
-        if not (0 <= self.gamma <= 1 and 0 <= self.gae_lambda <= 1):
-            raise ConfigError(
-                f"gamma={self.gamma} and gae_lambda={self.gae_lambda} must be in [0, 1]"
-            )
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
-        """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json)."""
-        d = dict(d)
-        nested = {
-            "policy": PolicyConfig.from_dict,
-            "baseline": BaselineConfig.from_dict,
-            "npg": lambda x: NPGConfig(**x),
-            "dapg": lambda x: DAPGConfig(**x),
-            "bc": lambda x: BCConfig(**x),
-        }
-        for key, build in nested.items():
-            if key in d and isinstance(d[key], dict):
-                d[key] = build(d[key])
-        return cls(**d)
-
-    @property
-    def uses_demos(self) -> bool:
-        return self.algo == "dapg" or self.bc_init
 
 
 # ----------------------------------------------------------------------------------------------
@@ -522,126 +398,3 @@ def load_policy(path: str | Path) -> GaussianMLPPolicy:
     path = Path(path)
     file = path / "policy.pt" if path.is_dir() else path
     return GaussianMLPPolicy.from_checkpoint(ex.load_state(file)["policy"])
-
-
-# ----------------------------------------------------------------------------------------------
-# CLI: `lowcostdex train npg|dapg ...`
-
-
-def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
-    """Add ``npg`` and ``dapg`` to the ``lowcostdex train`` group."""
-    for algo, help_text in (
-        ("npg", "natural policy gradient (truncated NPG)"),
-        ("dapg", "demo-augmented policy gradient (BC, then NPG with a decaying demo term)"),
-    ):
-        p = train_subparsers.add_parser(algo, help=help_text, description=help_text)
-        _add_arguments(p, algo)
-        p.set_defaults(func=_run_command, algo=algo)
-
-
-def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
-    d = TrainConfig()
-    p.add_argument("--env", default=d.env_id, help="gymnasium id (default %(default)s)")
-    p.add_argument("--backend", choices=BACKENDS, default=d.backend)
-    p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
-    p.add_argument(
-        "--demos", default=None, required=algo == "dapg",
-        help="demonstration dataset (HDF5, lowcostdex.demo_file); its successful episodes are used",
-    )
-    p.add_argument("--n-demos", type=int, default=None, help="use the first N demo episodes")
-    p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--out", required=True, help="run directory")
-    p.add_argument(
-        "--resume", action="store_true", help="continue the run in --out from its last checkpoint"
-    )
-    p.add_argument("--n-iter", type=int, default=d.n_iter)
-    p.add_argument("--n-traj", type=int, default=d.n_traj, help="trajectories per iteration")
-    p.add_argument("--sampler", choices=SAMPLERS, default=d.sampler)
-    p.add_argument("--workers", type=int, default=d.n_workers)
-    p.add_argument(
-        "--step-size", type=float, default=d.npg.step_size, help="NPG delta (KL ~ delta/2)"
-    )
-    p.add_argument("--damping", type=float, default=d.npg.damping, help="Fisher damping")
-    p.add_argument("--gamma", type=float, default=d.gamma)
-    p.add_argument("--gae-lambda", type=float, default=d.gae_lambda)
-    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes))
-    p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std)
-    p.add_argument("--eval-every", type=int, default=d.eval_every)
-    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
-    p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
-                   help="extra gym.make argument (VALUE parsed as JSON when possible)")  # fmt: skip
-    p.add_argument("--no-progress", action="store_true")
-    if algo == "dapg":
-        p.add_argument("--lam0", type=float, default=d.dapg.lam0)
-        p.add_argument("--lam1", type=float, default=d.dapg.lam1)
-        p.add_argument("--demo-weight", choices=("paper", "mjrl"), default=d.dapg.demo_weight)
-        p.add_argument("--bc-epochs", type=int, default=d.bc.epochs)
-        p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=d.bc.log_std,
-                       help="initial exploration noise after BC")  # fmt: skip
-    else:
-        p.add_argument(
-            "--bc-init", action="store_true", help="behaviour-clone the demos first (BCRL)"
-        )
-
-
-def _parse_env_kwargs(items: Sequence[str]) -> dict[str, Any]:
-    import json
-
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ConfigError(f"--env-kwarg {item!r} must be KEY=VALUE")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
-def config_from_args(args: argparse.Namespace) -> TrainConfig:
-    """Build a TrainConfig from parsed ``lowcostdex train npg|dapg`` arguments."""
-    d = TrainConfig()
-    env_kwargs = _parse_env_kwargs(args.env_kwarg)
-    if args.port:
-        env_kwargs["port"] = args.port
-    return TrainConfig(
-        algo=args.algo,
-        env_id=args.env,
-        backend=args.backend,
-        env_kwargs=env_kwargs,
-        seed=args.seed,
-        n_iter=args.n_iter,
-        n_traj=args.n_traj,
-        gamma=args.gamma,
-        gae_lambda=args.gae_lambda,
-        sampler=args.sampler,
-        n_workers=args.workers,
-        eval_every=args.eval_every,
-        eval_episodes=args.eval_episodes,
-        demos=str(Path(args.demos).resolve()) if args.demos else None,
-        n_demos=args.n_demos,
-        bc_init=bool(getattr(args, "bc_init", False)),
-        policy=dataclasses.replace(
-            d.policy, hidden_sizes=tuple(args.hidden), init_log_std=args.init_log_std
-        ),
-        npg=dataclasses.replace(d.npg, step_size=args.step_size, damping=args.damping),
-        dapg=DAPGConfig(lam0=args.lam0, lam1=args.lam1, demo_weight=args.demo_weight)
-        if args.algo == "dapg"
-        else d.dapg,
-        bc=dataclasses.replace(d.bc, epochs=args.bc_epochs, log_std=args.bc_log_std)
-        if args.algo == "dapg"
-        else d.bc,
-        progress=not args.no_progress,
-    )
-
-
-def _run_command(args: argparse.Namespace) -> int:
-    config = config_from_args(args)
-    run = train(config, args.out, resume=args.resume)
-    metrics = run.read_metrics()
-    print(f"run: {run.path}")
-    print(f"curves: {run.path / ex.CURVES_FILE}")
-    if metrics.get(ex.EVAL_SUCCESS_RATE, np.array([])).size:
-        print(f"final eval success rate: {metrics[ex.EVAL_SUCCESS_RATE][-1]:.2f}")
-    return 0

@@ -1,0 +1,356 @@
+"""Configurations of the NPG/DAPG stack: plain dataclasses, importable without torch.
+
+Each algorithm module documents its algorithm and takes its config from here
+(``PolicyConfig`` for :mod:`~lowcostdex.algos.policy`, ``BaselineConfig`` for
+:mod:`~lowcostdex.algos.baseline`, ``NPGConfig``, ``DAPGConfig``, ``BCConfig``, and
+``TrainConfig`` for a whole run of :mod:`~lowcostdex.algos.train`). They live apart from the
+torch code so that the command line (``lowcostdex train npg|dapg``, whose defaults are these),
+benchmarks and run configs can build and validate them without importing torch (~2.5 s). The
+algorithm modules re-export their config, so ``from lowcostdex.algos.npg import NPGConfig``
+works too.
+
+Every config validates itself at construction and names the valid choices on error.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from lowcostdex.algos.samplers import SAMPLERS
+from lowcostdex.errors import ConfigError, check_choice
+
+ACTIVATIONS = ("tanh", "relu")
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """Architecture and initialisation of :class:`~lowcostdex.algos.policy.GaussianMLPPolicy`.
+
+    Attributes:
+      hidden_sizes: widths of the hidden layers; ``()`` gives a linear policy. mjrl's default
+        is (64, 64); the hand_dapg configs use (32, 32).
+      activation: hidden-layer non-linearity, one of ACTIVATIONS.
+      init_log_std: initial log standard deviation of the action noise (mjrl default 0,
+        i.e. std 1 over a [-1, 1] action range; its example configs use -0.5).
+      min_log_std: lower clamp of log_std applied after every update (mjrl: -3).
+      last_layer_scale: factor applied to the last layer's initial weight and bias (mjrl: 1e-2).
+      min_obs_std: floor of the observation standard deviation used for normalisation, so a
+        feature that is constant in the data does not divide by ~0.
+    """
+
+    hidden_sizes: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"
+    init_log_std: float = 0.0
+    min_log_std: float = -3.0
+    last_layer_scale: float = 1e-2
+    min_obs_std: float = 1e-2
+
+    def __post_init__(self) -> None:
+        check_choice("activation", self.activation, ACTIVATIONS)
+        if any(int(h) != h or h < 1 for h in self.hidden_sizes):
+            raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
+        if not math.isfinite(self.init_log_std) or self.init_log_std < self.min_log_std:
+            raise ConfigError(
+                f"init_log_std={self.init_log_std} must be finite and >= min_log_std={self.min_log_std}"
+            )
+        if not self.last_layer_scale > 0:
+            raise ConfigError(f"last_layer_scale={self.last_layer_scale} must be > 0")
+        if not self.min_obs_std > 0:
+            raise ConfigError(f"min_obs_std={self.min_obs_std} must be > 0")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PolicyConfig:
+        """Inverse of ``dataclasses.asdict`` (accepts lists read back from JSON)."""
+        d = dict(d)
+        if "hidden_sizes" in d:
+            d["hidden_sizes"] = tuple(int(h) for h in d["hidden_sizes"])
+        return cls(**d)
+
+
+@dataclass(frozen=True)
+class BaselineConfig:
+    """Value-function architecture and fit (:class:`~lowcostdex.algos.baseline.MLPBaseline`).
+
+    Attributes:
+      hidden_sizes: MLP hidden widths (mjrl: (128, 128)).
+      activation: one of ACTIVATIONS (mjrl: relu).
+      lr: Adam learning rate.
+      weight_decay: Adam weight decay (mjrl's reg_coef, 1e-3 in its job scripts).
+      epochs: passes over each batch per fit (hand_dapg configs: 2).
+      batch_size: minibatch size.
+    """
+
+    hidden_sizes: tuple[int, ...] = (128, 128)
+    activation: str = "relu"
+    lr: float = 1e-3
+    weight_decay: float = 1e-3
+    epochs: int = 2
+    batch_size: int = 64
+
+    def __post_init__(self) -> None:
+        check_choice("activation", self.activation, ACTIVATIONS)
+        if any(int(h) != h or h < 1 for h in self.hidden_sizes):
+            raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
+        if not self.lr > 0 or self.weight_decay < 0:
+            raise ConfigError(f"lr={self.lr} must be > 0 and weight_decay={self.weight_decay} >= 0")
+        if self.epochs < 1 or self.batch_size < 1:
+            raise ConfigError(f"epochs={self.epochs} and batch_size={self.batch_size} must be >= 1")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> BaselineConfig:
+        d = dict(d)
+        if "hidden_sizes" in d:
+            d["hidden_sizes"] = tuple(int(h) for h in d["hidden_sizes"])
+        return cls(**d)
+
+
+@dataclass(frozen=True)
+class NPGConfig:
+    """Natural-gradient step settings (:mod:`lowcostdex.algos.npg`; mjrl defaults unless noted).
+
+    Attributes:
+      step_size: delta, the normalised step size; the step's KL is about delta / 2.
+        mjrl's class default is 0.01, the hand_dapg configs use 0.05.
+      cg_iters: conjugate-gradient iterations (the truncation of truncated NPG).
+      cg_residual_tol: CG stops early when r^T r falls below this.
+      damping: added to F (F + damping I) in every Fisher-vector product.
+      fvp_sample_frac: fraction of the samples used for the Fisher (drawn without replacement
+        with the generator passed to the update); 1 uses all.
+      normalize_advantages: whiten advantages over the batch before the gradient (mjrl does).
+      max_kl: if set, backtrack the step until the measured mean KL <= max_kl; None keeps the
+        plain NPG step (no check), as in mjrl's NPG.
+      backtrack_ratio: step-length factor per backtracking trial, in (0, 1).
+      max_backtracks: trials before the step is rejected (parameters restored).
+    """
+
+    step_size: float = 0.05
+    cg_iters: int = 10
+    cg_residual_tol: float = 1e-10
+    damping: float = 1e-4
+    fvp_sample_frac: float = 1.0
+    normalize_advantages: bool = True
+    max_kl: float | None = None
+    backtrack_ratio: float = 0.8
+    max_backtracks: int = 10
+
+    def __post_init__(self) -> None:
+        if not self.step_size > 0:
+            raise ConfigError(f"step_size={self.step_size} must be > 0")
+        if self.cg_iters < 1:
+            raise ConfigError(f"cg_iters={self.cg_iters} must be >= 1")
+        if self.damping < 0 or self.cg_residual_tol < 0:
+            raise ConfigError(
+                f"damping={self.damping} and cg_residual_tol={self.cg_residual_tol} must be >= 0"
+            )
+        if not 0 < self.fvp_sample_frac <= 1:
+            raise ConfigError(f"fvp_sample_frac={self.fvp_sample_frac} must be in (0, 1]")
+        if self.max_kl is not None and not self.max_kl > 0:
+            raise ConfigError(f"max_kl={self.max_kl} must be > 0 or None")
+        if not 0 < self.backtrack_ratio < 1:
+            raise ConfigError(f"backtrack_ratio={self.backtrack_ratio} must be in (0, 1)")
+        if self.max_backtracks < 0:
+            raise ConfigError(f"max_backtracks={self.max_backtracks} must be >= 0")
+
+
+DEMO_WEIGHTS = ("paper", "mjrl")
+
+
+@dataclass(frozen=True)
+class DAPGConfig:
+    """DAPG settings (:mod:`lowcostdex.algos.dapg`).
+
+    The natural-gradient step settings are an :class:`NPGConfig` passed
+    next to this one (the same object NPG uses).
+
+    Attributes:
+      lam0: initial demo weight factor (paper: 0.1; hand_dapg's mjrl config: 0.01).
+      lam1: per-iteration decay of the demo weight, in [0, 1] (both: 0.95).
+      demo_weight: one of DEMO_WEIGHTS, see :mod:`lowcostdex.algos.dapg`.
+    """
+
+    lam0: float = 0.1
+    lam1: float = 0.95
+    demo_weight: str = "paper"
+
+    def __post_init__(self) -> None:
+        check_choice("DAPG demo weight", self.demo_weight, DEMO_WEIGHTS)
+        if self.lam0 < 0:
+            raise ConfigError(f"lam0={self.lam0} must be >= 0")
+        if not 0 <= self.lam1 <= 1:
+            raise ConfigError(f"lam1={self.lam1} must be in [0, 1]")
+
+
+BC_LOSSES = ("mse", "mle")
+BC_LOG_STD = ("demo_spread", "residual", "keep")
+
+
+@dataclass(frozen=True)
+class BCConfig:
+    """Behaviour-cloning settings (:mod:`lowcostdex.algos.bc`; hand_dapg: 5 epochs, batch 32,
+    lr 1e-3, MSE).
+
+    Attributes:
+      epochs: passes over the demonstration transitions.
+      batch_size: minibatch size.
+      lr: Adam learning rate.
+      loss: one of BC_LOSSES.
+      set_obs_normalization: set the observation statistics from the demos.
+      freeze_obs_normalization: keep them fixed afterwards (mjrl); False lets RL batches
+        update them (the policy mean is preserved at each update).
+      set_action_scaling: set act_shift/act_scale from the demo actions.
+      log_std: initial exploration noise, one of BC_LOG_STD (see :mod:`lowcostdex.algos.bc`); mjrl
+        uses "demo_spread". With loss "mle" the noise is trained and this sets its start.
+      min_action_scale: floor of act_scale per action dimension.
+    """
+
+    epochs: int = 5
+    batch_size: int = 32
+    lr: float = 1e-3
+    loss: str = "mse"
+    set_obs_normalization: bool = True
+    freeze_obs_normalization: bool = True
+    set_action_scaling: bool = True
+    log_std: str = "demo_spread"
+    min_action_scale: float = 0.1
+
+    def __post_init__(self) -> None:
+        check_choice("BC loss", self.loss, BC_LOSSES)
+        check_choice("BC log_std", self.log_std, BC_LOG_STD)
+        if self.epochs < 0 or self.batch_size < 1:
+            raise ConfigError(
+                f"epochs={self.epochs} must be >= 0 and batch_size={self.batch_size} >= 1"
+            )
+        if not self.lr > 0 or not self.min_action_scale > 0:
+            raise ConfigError(
+                f"lr={self.lr} and min_action_scale={self.min_action_scale} must be > 0"
+            )
+
+
+ALGOS = ("npg", "dapg")
+BACKENDS = ("sim", "emulated", "hardware")
+OBS_NORMS = ("running", "frozen")
+SUCCESS_MODES = ("final", "any")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One NPG or DAPG run (:func:`lowcostdex.algos.train.train`).
+
+    Attributes:
+      algo: one of ALGOS.
+      env_id: registered gymnasium id, e.g. "lowcostdex/DClawTurnValve-v0".
+      backend: one of BACKENDS; "emulated" and "hardware" sample serially on one robot.
+      env_kwargs: extra ``gym.make`` keyword arguments (e.g. ``{"port": "/dev/ttyUSB0"}``).
+      seed: the run's seed; every random draw derives from it.
+      n_iter: number of iterations.
+      n_traj: trajectories per iteration (hand_dapg: 200 of 200 steps).
+      gamma: discount (mjrl/hand_dapg: 0.995).
+      gae_lambda: GAE lambda (mjrl/hand_dapg: 0.97).
+      bootstrap_truncated: bootstrap time-limit truncations with V(s_T) (mjrl does).
+      sampler: one of SAMPLERS ("serial" on emulated/hardware backends).
+      n_workers: workers of the process/ray samplers, envs of the vector sampler.
+      obs_norm: "running" (update from each batch unless frozen, e.g. by BC) or "frozen".
+      success: trajectory success from ``info["success"]``: at the final step or at any step.
+      eval_every: evaluation period [iterations]; 0 evaluates only after the last iteration.
+      eval_episodes: deterministic evaluation episodes per evaluation.
+      checkpoint_every: checkpoint period [iterations] (the last iteration always saves).
+      demos: demonstration dataset (:mod:`lowcostdex.demo_file`; its successful episodes are
+        used), required for DAPG; for NPG, ``bc_init`` uses it.
+      n_demos: use only the first n demo episodes (None: all).
+      bc_init: behaviour-clone before RL (always on for DAPG; NPG + BC is "BCRL").
+      policy, baseline, npg, dapg, bc: component configs. Defaults: the hand_dapg policy
+        (32, 32) with init log-std -0.5; the NPG step delta 0.1 with damping 1e-2 rather than
+        mjrl's 0.05 / 1e-4: on DClawTurnValve-v0 with 40 trajectories per iteration, 0.05 /
+        1e-4 had no successful episode after 100 iterations while 0.1 / 1e-2 reached 80 %
+        training success in ~140 (bench/RESULTS.md); 1e-4 damping also let single steps reach
+        KL ~1 on small batches (second-order model off).
+      torch_threads: torch intra-op threads during training. The networks are small, so one
+        thread is fastest (two threads on a busy 2-core machine measured ~70x slower per
+        Fisher-vector product).
+      progress: show a progress bar.
+    """
+
+    algo: str = "npg"
+    env_id: str = "lowcostdex/DClawTurnValve-v0"
+    backend: str = "sim"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    seed: int = 0
+    n_iter: int = 100
+    n_traj: int = 50
+    gamma: float = 0.995
+    gae_lambda: float = 0.97
+    bootstrap_truncated: bool = True
+    sampler: str = "serial"
+    n_workers: int = 1
+    obs_norm: str = "running"
+    success: str = "final"
+    eval_every: int = 5
+    eval_episodes: int = 10
+    checkpoint_every: int = 1
+    demos: str | None = None
+    n_demos: int | None = None
+    bc_init: bool = False
+    policy: PolicyConfig = field(
+        default_factory=lambda: PolicyConfig(hidden_sizes=(32, 32), init_log_std=-0.5)
+    )
+    baseline: BaselineConfig = field(default_factory=BaselineConfig)
+    npg: NPGConfig = field(default_factory=lambda: NPGConfig(step_size=0.1, damping=1e-2))
+    dapg: DAPGConfig = field(default_factory=DAPGConfig)
+    bc: BCConfig = field(default_factory=BCConfig)
+    torch_threads: int = 1
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        check_choice("algorithm", self.algo, ALGOS)
+        check_choice("backend", self.backend, BACKENDS)
+        check_choice("sampler", self.sampler, SAMPLERS)
+        check_choice("observation normalisation", self.obs_norm, OBS_NORMS)
+        check_choice("success mode", self.success, SUCCESS_MODES)
+        if self.backend != "sim" and self.sampler != "serial":
+            raise ConfigError(
+                f"backend {self.backend!r} runs one robot: use sampler 'serial', not {self.sampler!r}"
+            )
+        if self.algo == "dapg" and not self.demos:
+            raise ConfigError("DAPG needs demonstrations: set demos (--demos PATH)")
+        if self.bc_init and not self.demos:
+            raise ConfigError("bc_init needs demonstrations: set demos (--demos PATH)")
+        for name in (
+            "n_iter",
+            "n_traj",
+            "n_workers",
+            "eval_episodes",
+            "checkpoint_every",
+            "torch_threads",
+        ):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.eval_every < 0:
+            raise ConfigError(f"eval_every={self.eval_every} must be >= 0")
+        if self.n_demos is not None and self.n_demos < 1:
+            raise ConfigError(f"n_demos={self.n_demos} must be >= 1 or None")
+        if not (0 <= self.gamma <= 1 and 0 <= self.gae_lambda <= 1):
+            raise ConfigError(
+                f"gamma={self.gamma} and gae_lambda={self.gae_lambda} must be in [0, 1]"
+            )
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
+        """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json)."""
+        d = dict(d)
+        nested = {
+            "policy": PolicyConfig.from_dict,
+            "baseline": BaselineConfig.from_dict,
+            "npg": lambda x: NPGConfig(**x),
+            "dapg": lambda x: DAPGConfig(**x),
+            "bc": lambda x: BCConfig(**x),
+        }
+        for key, build in nested.items():
+            if key in d and isinstance(d[key], dict):
+                d[key] = build(d[key])
+        return cls(**d)
+
+    @property
+    def uses_demos(self) -> bool:
+        return self.algo == "dapg" or self.bc_init

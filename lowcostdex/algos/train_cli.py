@@ -1,0 +1,141 @@
+"""``lowcostdex train npg`` and ``lowcostdex train dapg``: arguments and their TrainConfig.
+
+Building the parser imports no torch (the defaults come from :mod:`lowcostdex.algos.configs`),
+so ``lowcostdex --help`` and every other subcommand start fast; the handler imports the
+trainer (:mod:`lowcostdex.algos.train`) when a run starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from lowcostdex.algos.configs import BACKENDS, BC_LOG_STD, DAPGConfig, TrainConfig
+from lowcostdex.algos.samplers import SAMPLERS
+from lowcostdex.errors import ConfigError
+
+
+def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
+    """Add ``npg`` and ``dapg`` to the ``lowcostdex train`` group."""
+    for algo, help_text in (
+        ("npg", "natural policy gradient (truncated NPG)"),
+        ("dapg", "demo-augmented policy gradient (BC, then NPG with a decaying demo term)"),
+    ):
+        p = train_subparsers.add_parser(algo, help=help_text, description=help_text)
+        _add_arguments(p, algo)
+        p.set_defaults(func=_run_command, algo=algo)
+
+
+def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
+    d = TrainConfig()
+    p.add_argument("--env", default=d.env_id, help="gymnasium id (default %(default)s)")
+    p.add_argument("--backend", choices=BACKENDS, default=d.backend)
+    p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
+    p.add_argument(
+        "--demos", default=None, required=algo == "dapg",
+        help="demonstration dataset (HDF5, lowcostdex.demo_file); its successful episodes are used",
+    )
+    p.add_argument("--n-demos", type=int, default=None, help="use the first N demo episodes")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument(
+        "--resume", action="store_true", help="continue the run in --out from its last checkpoint"
+    )
+    p.add_argument("--n-iter", type=int, default=d.n_iter)
+    p.add_argument("--n-traj", type=int, default=d.n_traj, help="trajectories per iteration")
+    p.add_argument("--sampler", choices=SAMPLERS, default=d.sampler)
+    p.add_argument("--workers", type=int, default=d.n_workers)
+    p.add_argument(
+        "--step-size", type=float, default=d.npg.step_size, help="NPG delta (KL ~ delta/2)"
+    )
+    p.add_argument("--damping", type=float, default=d.npg.damping, help="Fisher damping")
+    p.add_argument("--gamma", type=float, default=d.gamma)
+    p.add_argument("--gae-lambda", type=float, default=d.gae_lambda)
+    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes))
+    p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std)
+    p.add_argument("--eval-every", type=int, default=d.eval_every)
+    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                   help="extra gym.make argument (VALUE parsed as JSON when possible)")  # fmt: skip
+    p.add_argument("--no-progress", action="store_true")
+    if algo == "dapg":
+        p.add_argument("--lam0", type=float, default=d.dapg.lam0)
+        p.add_argument("--lam1", type=float, default=d.dapg.lam1)
+        p.add_argument("--demo-weight", choices=("paper", "mjrl"), default=d.dapg.demo_weight)
+        p.add_argument("--bc-epochs", type=int, default=d.bc.epochs)
+        p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=d.bc.log_std,
+                       help="initial exploration noise after BC")  # fmt: skip
+    else:
+        p.add_argument(
+            "--bc-init", action="store_true", help="behaviour-clone the demos first (BCRL)"
+        )
+
+
+def _parse_env_kwargs(items: Sequence[str]) -> dict[str, Any]:
+    import json
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--env-kwarg {item!r} must be KEY=VALUE")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
+    """Build a TrainConfig from parsed ``lowcostdex train npg|dapg`` arguments."""
+    d = TrainConfig()
+    env_kwargs = _parse_env_kwargs(args.env_kwarg)
+    if args.port:
+        env_kwargs["port"] = args.port
+    return TrainConfig(
+        algo=args.algo,
+        env_id=args.env,
+        backend=args.backend,
+        env_kwargs=env_kwargs,
+        seed=args.seed,
+        n_iter=args.n_iter,
+        n_traj=args.n_traj,
+        gamma=args.gamma,
+        gae_lambda=args.gae_lambda,
+        sampler=args.sampler,
+        n_workers=args.workers,
+        eval_every=args.eval_every,
+        eval_episodes=args.eval_episodes,
+        demos=str(Path(args.demos).resolve()) if args.demos else None,
+        n_demos=args.n_demos,
+        bc_init=bool(getattr(args, "bc_init", False)),
+        policy=dataclasses.replace(
+            d.policy, hidden_sizes=tuple(args.hidden), init_log_std=args.init_log_std
+        ),
+        npg=dataclasses.replace(d.npg, step_size=args.step_size, damping=args.damping),
+        dapg=DAPGConfig(lam0=args.lam0, lam1=args.lam1, demo_weight=args.demo_weight)
+        if args.algo == "dapg"
+        else d.dapg,
+        bc=dataclasses.replace(d.bc, epochs=args.bc_epochs, log_std=args.bc_log_std)
+        if args.algo == "dapg"
+        else d.bc,
+        progress=not args.no_progress,
+    )
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.train import train
+
+    config = config_from_args(args)
+    run = train(config, args.out, resume=args.resume)
+    metrics = run.read_metrics()
+    print(f"run: {run.path}")
+    print(f"curves: {run.path / ex.CURVES_FILE}")
+    evals = metrics.get(ex.EVAL_SUCCESS_RATE)
+    if evals is not None and len(evals):
+        print(f"final eval success rate: {evals[-1]:.2f}")
+    return 0
