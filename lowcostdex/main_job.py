@@ -1,19 +1,72 @@
 """``lowcostdex main``: the whole story in one command, on the emulated D'Claw by default.
 
-Stages write into one output folder and a short Markdown report links their PNG plots. The
-stages grow with the project; each is a function ``stage(ctx) -> dict`` whose result lands in
-``results.json`` and the report.
+1. bus: an emulated D'Claw comes up on a Dynamixel bus (the real dynamixel_sdk code path): scanned
+   (ids, models, firmware, temperatures, errors) and calibrated against the default map;
+2. demos: the virtual teacher records kinesthetic demonstrations, auto-reset between episodes;
+3. train: DAPG from those demonstrations, and NPG from scratch for comparison, on the robot with
+   its thermal guard and auto-resets active; success rates evaluated;
+4. gap: an identification recording from the robot is compared with the nominal simulation; the
+   gap analysis names what differs (the emulated robot carries servo effects the nominal sim
+   lacks: ``ROBOT_EFFECTS``), extends the model and measures the held-out gain;
+5. report: ``report.md`` (and ``report.html``) with the PNG plots, in one output folder.
+
+``--port /dev/ttyUSB0`` runs the same stages on a real D'Claw (kinesthetic demos then need a
+person); ``--size`` picks the budget: ``smoke`` (CI, about a minute), ``default`` (about 15 minutes
+on a 2-core laptop) or ``long``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+ENV_ID = "lowcostdex/DClawTurnValve-v0"
+GAP_JOINTS = ("ff_top", "ff_middle", "ff_bottom")
+SIZES = ("smoke", "default", "long")
+
+
+def robot_effects(joints: tuple[str, ...]) -> list[Any]:
+    """The emulated robot's "reality": servo effects the nominal simulation does not model.
+
+    12 ms command latency (USB latency timer plus bus), 1 deg of gear/horn backlash and 0.05 N m
+    of extra dry friction per joint: magnitudes inside the plausible D'Claw ranges of
+    ../shared/reference/04-sysid.md section 6.
+    """
+    from lowcostdex.sim.effects import AppliedEffect
+
+    return [AppliedEffect("latency", joints, {"delay": 0.012}),
+            AppliedEffect("backlash", joints, {"width": math.radians(1.0)}),
+            AppliedEffect("coulomb_friction", joints, {"frictionloss": 0.05})]
+
+
+@dataclass
+class Budget:
+    """How much each stage does."""
+
+    demos: int
+    dapg_iters: int
+    npg_iters: int
+    traj_per_iter: int
+    eval_episodes: int
+    gap_logs: int
+    gap_seconds: float
+
+
+BUDGETS = {
+    "smoke": Budget(demos=4, dapg_iters=1, npg_iters=1, traj_per_iter=4, eval_episodes=3,
+                    gap_logs=3, gap_seconds=6.0),
+    "default": Budget(demos=20, dapg_iters=8, npg_iters=8, traj_per_iter=20, eval_episodes=10,
+                      gap_logs=6, gap_seconds=15.0),
+    "long": Budget(demos=50, dapg_iters=60, npg_iters=60, traj_per_iter=40, eval_episodes=20,
+                   gap_logs=10, gap_seconds=30.0),
+}
 
 
 @dataclass
@@ -22,10 +75,10 @@ class Context:
 
     Attributes:
       out: output folder.
-      size: "smoke" (CI), "default" (~15 min on 2 cores) or "long".
+      size: one of SIZES.
       seed: master seed.
       port: serial port of a real robot, or None for the emulated D'Claw.
-      results: results of earlier stages by name.
+      results: results of earlier stages by name (JSON-serializable).
     """
 
     out: Path
@@ -34,114 +87,517 @@ class Context:
     port: str | None = None
     results: dict[str, dict[str, Any]] = field(default_factory=dict)
 
-    def budget(self, smoke: int, default: int, long: int) -> int:
-        return {"smoke": smoke, "default": default, "long": long}[self.size]
+    @property
+    def budget(self) -> Budget:
+        return BUDGETS[self.size]
+
+    @property
+    def emulated(self) -> bool:
+        return self.port is None
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """gym.make keyword arguments selecting the robot (JSON-serializable)."""
+        from lowcostdex.hardware.hands import dclaw_spec
+
+        if self.port is None:
+            effects = robot_effects(dclaw_spec().joint_names)
+            return {"backend": "emulated", "effects": [e.to_dict() for e in effects]}
+        return {"backend": "hardware", "port": self.port}
 
 
-def stage_sim_rollouts(ctx: Context) -> dict[str, Any]:
-    """Roll out the scripted valve-turning motion in simulation and plot the valve angle."""
+# ------------------------------------------------------------------------------------------------
+# 1. bus
+
+
+def stage_bus(ctx: Context) -> dict[str, Any]:
+    """Bring the D'Claw up on its bus: scan, then calibrate (emulated) or check the map."""
+    import numpy as np
+
+    from lowcostdex.hardware.backend import make_dynamixel_bus, robot_hand
+    from lowcostdex.hardware.calibration import calibrate_offsets
+    from lowcostdex.hardware.dynamixel import scan
+    from lowcostdex.hardware.emulator import emulated_dclaw
+    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.sim.effects import AppliedEffect
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    hand = dclaw_spec()
+    ids = [j.motor_id for j in hand.all_joints]
+    if ctx.emulated:
+        effects = [AppliedEffect.from_dict(e) for e in ctx.env_kwargs()["effects"]]
+        chain = emulated_dclaw("valve", hand=hand, effects=effects,
+                               rng=np.random.default_rng(ctx.seed))
+        port: Any = chain.port()
+    else:
+        port = ctx.port
+    infos = scan(port, ids=ids)
+    motors = [{"id": m.motor_id, "model": m.model, "firmware": m.firmware,
+               "temperature": m.temperature, "voltage": m.voltage,
+               "errors": list(m.hardware_error)} for m in infos]
+    missing = sorted(set(ids) - {m.motor_id for m in infos})
+    result: dict[str, Any] = {"port": "emulated (in-process dynamixel_sdk port)" if ctx.emulated
+                              else ctx.port, "motors_found": len(infos),
+                              "motors_missing": missing, "motors": motors}
+    if ctx.emulated:
+        # The calibration a user runs with the hand held in its zero pose: here the servos hold
+        # it (default map), so the recorded offsets must reproduce ROBEL's map within a tick or
+        # two of steady-state error. (On a real robot: `lowcostdex calibrate`.)
+        model = build_dclaw("valve", hand).compile()
+        h = robot_hand(hand, model)
+        bus = make_dynamixel_bus(h, chain.port(), model)
+        with bus:
+            zero = np.array([j.calibration.to_motor(0.0) for j in h.all_joints])
+            bus.set_torque(True)
+            bus.write_goal_positions(zero, [j.motor_id for j in h.all_joints])
+            bus.sleep(1.0)
+            calibrated = calibrate_offsets(bus, h)
+        change = [abs(a.calibration.offset - b.calibration.offset)
+                  for a, b in zip(h.all_joints, calibrated.all_joints, strict=True)]
+        calibrated.save(ctx.out / "hand.json")
+        result["calibration_max_change_rad"] = float(max(change))
+        result["calibration_ticks"] = float(max(change) / (2 * math.pi / 4096))
+        result["hand_spec"] = "hand.json"
+    return result
+
+
+# ------------------------------------------------------------------------------------------------
+# 2. demonstrations
+
+
+def stage_demos(ctx: Context) -> dict[str, Any]:
+    """Record kinesthetic demonstrations (the virtual teacher on the emulated robot)."""
     import gymnasium as gym
+
+    import lowcostdex  # noqa: F401
+    from lowcostdex.hardware.demos import KinestheticRecorder, VirtualTeacher
+    from lowcostdex.sim.scripted import ValveTurnTeacher
+
+    path = ctx.out / "demos.h5"
+    path.unlink(missing_ok=True)
+    env = gym.make(ENV_ID, **ctx.env_kwargs())
+    teacher = None
+    if ctx.emulated:
+        teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task,
+                                 solver=ValveTurnTeacher())
+    n = ctx.budget.demos
+    progress, bar = _progress(f"recording {n} demonstrations")
+    try:
+        with progress:
+            task = progress.add_task("demos", total=n)
+            recorder = KinestheticRecorder(env, path, ENV_ID, teacher=teacher,
+                                           on_episode=lambda k, ep: progress.advance(task))
+            stats = recorder.record(n, seed=ctx.seed)
+            robot = env.unwrapped.backend.robot.metrics.as_dict()
+    finally:
+        env.close()
+    return {"file": path.name, "episodes": stats.episodes, "successful": stats.successes,
+            "steps": stats.steps, "robot_seconds_recording": round(stats.record_time, 1),
+            "robot_seconds_resets": round(stats.reset_time, 1),
+            "robot": {k: robot[k] for k in sorted(robot) if k in _ROBOT_KEYS}}
+
+
+_ROBOT_KEYS = ("resets", "reset_failures", "reset_time", "pauses", "pause_time", "faults",
+               "max_temperature", "overloads", "invalid_reads")
+
+
+# ------------------------------------------------------------------------------------------------
+# 3. training
+
+
+def stage_train(ctx: Context) -> dict[str, Any]:
+    """DAPG from the demonstrations and NPG from scratch, on the robot."""
+    from lowcostdex.algos.train import TrainConfig, train
+
+    b = ctx.budget
+    kwargs = ctx.env_kwargs()
+    backend = kwargs.pop("backend")
+    demos = ctx.out / ctx.results["demos"]["file"]
+    out: dict[str, Any] = {}
+    for algo, iters in (("dapg", b.dapg_iters), ("npg", b.npg_iters)):
+        config = TrainConfig(algo=algo, env_id=ENV_ID, backend=backend, env_kwargs=kwargs,
+                             seed=ctx.seed, n_iter=iters, n_traj=b.traj_per_iter,
+                             eval_every=0, eval_episodes=b.eval_episodes,
+                             demos=str(demos) if algo == "dapg" else None)
+        run_dir = ctx.out / f"train_{algo}"
+        if run_dir.exists():
+            shutil.rmtree(run_dir)
+        t0 = time.perf_counter()
+        train(config, run_dir)
+        metrics = _metrics(run_dir)
+        out[algo] = {
+            "iterations": iters,
+            "samples": int(metrics["samples"][-1]),
+            "robot_hours": float(metrics["robot_hours"][-1]),
+            "first_iteration_success": float(metrics["success_rate"][0]),
+            "final_training_success": float(metrics["success_rate"][-1]),
+            "eval_success": float(metrics["eval_success_rate"][-1]),
+            "wall_seconds": round(time.perf_counter() - t0, 1),
+            "curves": f"{run_dir.name}/learning_curves.png",
+            "robot": {k: float(metrics[f"robot_{k}"][-1]) for k in
+                      ("resets", "reset_failures", "pauses", "pause_time", "max_temperature")
+                      if f"robot_{k}" in metrics},
+        }
+    # DAPG's first iteration samples the behaviour-cloned policy (with its exploration noise)
+    out["success_after_bc"] = out["dapg"]["first_iteration_success"]
+    out["plot"] = _plot_training(ctx, out)
+    return out
+
+
+def _metrics(run_dir: Path) -> dict[str, Any]:
+    import csv
+
+    import numpy as np
+
+    with (run_dir / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    return {k: np.array([float(r[k]) if r[k] not in ("", None) else np.nan for r in rows])
+            for k in rows[0]}
+
+
+def _plot_training(ctx: Context, res: dict[str, Any]) -> str:
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for algo, color in (("dapg", "tab:blue"), ("npg", "tab:orange")):
+        m = _metrics(ctx.out / f"train_{algo}")
+        label = "DAPG (demos)" if algo == "dapg" else "NPG (scratch)"
+        axes[0].plot(m["samples"], m["success_rate"], "-o", color=color, label=label)
+        axes[1].plot(m["robot_hours"] * 60, m["success_rate"], "-o", color=color, label=label)
+        axes[0].plot(m["samples"][-1:], m["eval_success_rate"][-1:], "*", ms=14, color=color)
+    axes[0].set_xlabel("samples (env steps)")
+    axes[1].set_xlabel("robot time incl. resets [min]")
+    for ax in axes:
+        ax.set_ylabel("success rate")
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+    axes[0].legend(title="training (star: evaluation)")
+    fig.suptitle("Valve turning on the emulated D'Claw" if ctx.emulated else
+                 "Valve turning on the D'Claw")
+    fig.tight_layout()
+    name = "learning_curves.png"
+    fig.savefig(ctx.out / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
+# ------------------------------------------------------------------------------------------------
+# 4. reality gap
+
+
+def stage_gap(ctx: Context) -> dict[str, Any]:
+    """Record an identification log from the robot, compare with the nominal sim, name causes."""
+    import numpy as np
+
+    from lowcostdex.hardware.backend import make_dynamixel_bus, robot_hand
+    from lowcostdex.hardware.emulator import emulated_dclaw
+    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hardware.robot import Robot, RobotConfig
+    from lowcostdex.hardware.trace import excite
+    from lowcostdex.sim.effects import AppliedEffect
+    from lowcostdex.sim.gap import GapConfig, analyze, load_dataset, write_report
+    from lowcostdex.sim.gap.generate import excitation
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    b = ctx.budget
+    gap_dir = ctx.out / "gap"
+    logs_dir = gap_dir / "logs"
+    if gap_dir.exists():
+        shutil.rmtree(gap_dir)
+    logs_dir.mkdir(parents=True)
+    hand = dclaw_spec()
+    model = build_dclaw("none", hand).compile()
+    h = robot_hand(hand, model)
+    truth = []
+    if ctx.emulated:
+        truth = [AppliedEffect.from_dict(e) for e in ctx.env_kwargs()["effects"]]
+        chain = emulated_dclaw("none", hand=hand, effects=truth,
+                               rng=np.random.default_rng(ctx.seed + 1))
+        port: Any = chain.port()
+    else:
+        port = ctx.port
+    bus = make_dynamixel_bus(h, port, model)
+    # Identification moves use wider per-step motion bounds than a policy gets (steps excite
+    # latency and backlash); the joint limits still hold.
+    robot = Robot(h, bus, RobotConfig(control_period=0.02, motion_scale=10.0))
+    rng = np.random.default_rng(ctx.seed + 2)
+    low = 0.8 * np.array([hand.joint(j).low for j in GAP_JOINTS])
+    high = 0.8 * np.array([hand.joint(j).high for j in GAP_JOINTS])
+    paths = []
+    steps = int(b.gap_seconds / 0.02)
+    progress, _ = _progress("identification recording")
+    with robot, progress:
+        task = progress.add_task("recording", total=b.gap_logs * steps)
+        for k in range(b.gap_logs):
+            goals = excitation(rng, b.gap_seconds, 0.02, low, high)
+            paths.append(excite(robot, GAP_JOINTS, goals, logs_dir / f"finger_{k}.csv",
+                                on_step=lambda _: progress.advance(task)))
+    nominal = gap_dir / "nominal_finger.xml"
+    nominal.write_text(build_dclaw("none", hand, thermal=False, fingers=("ff",)).to_xml())
+    dataset = load_dataset([str(p) for p in paths], model=str(nominal))
+    t0 = time.perf_counter()
+    result = analyze(dataset, GapConfig())
+    seconds = time.perf_counter() - t0
+    write_report(result, gap_dir / "report")
+    report = json.loads((gap_dir / "report" / "report.json").read_text())
+    causes = [{"effect": c["effect"], "joints": c["joints"],
+               "params": {p: v["value"] for p, v in c["params"].items()}} for c in report["causes"]]
+    out = {"logs": len(paths), "seconds_per_log": b.gap_seconds, "analysis_seconds": round(
+        seconds, 1), "verdict": report["verdict"], "causes": causes,
+        "baseline_heldout_rmse_mrad": 1e3 * report["gain"]["baseline_rmse"],
+        "extended_heldout_rmse_mrad": 1e3 * report["gain"]["extended_rmse"],
+        "noise_floor_mrad": 1e3 * report["noise_floor"]["rmse"],
+        "gain": report["gain"], "report": "gap/report/report.md"}
+    if truth:
+        out["truth"] = [{"effect": e.name, "params": {k: float(v[0]) for k, v in e.values.items()}}
+                        for e in truth]
+        named = {c["effect"] for c in causes}
+        out["truth_named"] = sorted(named & {e.name for e in truth})
+    out["plots"] = [f"gap/report/{p}" for p in report.get("plots", [])]
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# 5. report
+
+
+def stage_report(ctx: Context) -> dict[str, Any]:
+    """Reset and thermal statistics plot; the report itself is written by ``run``."""
+    plt = _pyplot()
+    import numpy as np
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    names, resets, failures, pause_min, temps = [], [], [], [], []
+    for algo in ("dapg", "npg"):
+        r = ctx.results.get("train", {}).get(algo, {}).get("robot", {})
+        if r:
+            names.append(algo.upper())
+            resets.append(r.get("resets", np.nan))
+            failures.append(r.get("reset_failures", np.nan))
+            pause_min.append(r.get("pause_time", 0.0) / 60)
+            temps.append(r.get("max_temperature", np.nan))
+    x = np.arange(len(names))
+    axes[0].bar(x - 0.2, resets, 0.4, label="resets")
+    axes[0].bar(x + 0.2, failures, 0.4, label="failed resets")
+    axes[0].set_xticks(x, names)
+    axes[0].set_title("auto-resets during training")
+    axes[0].legend()
+    axes[1].bar(x, temps, 0.5, color="tab:red")
+    axes[1].axhline(65, color="k", ls="--", lw=1, label="thermal pause threshold")
+    axes[1].axhline(80, color="tab:red", ls=":", lw=1, label="firmware shutdown")
+    for i, p in enumerate(pause_min):
+        axes[1].annotate(f"{p:.1f} min paused", (x[i], temps[i]), ha="center",
+                         xytext=(0, 4), textcoords="offset points")
+    axes[1].set_xticks(x, names)
+    axes[1].set_ylabel("hottest motor [deg C]")
+    axes[1].set_ylim(0, 90)
+    axes[1].legend(loc="lower right")
+    axes[1].set_title("thermal guard")
+    fig.tight_layout()
+    name = "robot_health.png"
+    fig.savefig(ctx.out / name, dpi=110)
+    plt.close(fig)
+    return {"plot": name}
+
+
+STAGES: tuple[tuple[str, Callable[[Context], dict[str, Any]]], ...] = (
+    ("bus", stage_bus),
+    ("demos", stage_demos),
+    ("train", stage_train),
+    ("gap", stage_gap),
+    ("report", stage_report),
+)
+
+
+def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
+    """Run the stages, write results.json, report.md and report.html; return report.md."""
+    from rich.console import Console
+
+    console = Console(stderr=True)
+    ctx.out.mkdir(parents=True, exist_ok=True)
+    for name, fn in STAGES:
+        if stages is not None and name not in stages:
+            continue
+        console.rule(f"[bold]{name}[/bold]: {fn.__doc__.splitlines()[0]}")
+        t0 = time.perf_counter()
+        result = fn(ctx)
+        result["seconds"] = round(time.perf_counter() - t0, 1)
+        ctx.results[name] = result
+        console.print(_summary(name, result))
+        (ctx.out / "results.json").write_text(json.dumps(ctx.results, indent=2, default=float))
+    report = ctx.out / "report.md"
+    text = _report(ctx)
+    report.write_text(text)
+    _html(text, ctx.out / "report.html")
+    return report
+
+
+def _summary(name: str, r: dict[str, Any]) -> str:
+    if name == "bus":
+        return (f"{r['motors_found']} motors found, missing {r['motors_missing'] or 'none'}; "
+                f"calibration moved offsets by {r.get('calibration_ticks', 0):.1f} ticks at most")
+    if name == "demos":
+        return f"{r['successful']}/{r['episodes']} successful demonstrations -> {r['file']}"
+    if name == "train":
+        return (f"DAPG eval success {r['dapg']['eval_success']:.2f} "
+                f"({r['dapg']['samples']} samples), NPG {r['npg']['eval_success']:.2f} "
+                f"({r['npg']['samples']} samples); success after BC {r['success_after_bc']:.2f}")
+    if name == "gap":
+        named = ", ".join(c["effect"] for c in r["causes"]) or "no cause"
+        return (f"named: {named}; held-out RMSE {r['baseline_heldout_rmse_mrad']:.1f} -> "
+                f"{r['extended_heldout_rmse_mrad']:.1f} mrad (floor {r['noise_floor_mrad']:.2f})")
+    return f"done in {r['seconds']} s"
+
+
+def _report(ctx: Context) -> str:
+    R = ctx.results
+    lines = ["# lowcostdex: the main job", "",
+             f"Robot: {'emulated D' + chr(39) + 'Claw' if ctx.emulated else ctx.port}; size "
+             f"{ctx.size}; seed {ctx.seed}.", ""]
+    if "bus" in R:
+        b = R["bus"]
+        lines += ["## 1. The robot on its bus", "",
+                  f"{b['motors_found']} motors answered on {b['port']}; missing: "
+                  f"{b['motors_missing'] or 'none'}.", "",
+                  "| id | model | firmware | temperature [C] | voltage [V] | errors |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {m['id']} | {m['model']} | {m['firmware']} | {m['temperature']} | "
+                  f"{m['voltage']} | {', '.join(m['errors']) or '-'} |" for m in b["motors"]]
+        if "calibration_ticks" in b:
+            lines += ["", f"Calibration (hand in its zero pose) changed the default offsets by at "
+                          f"most {b['calibration_ticks']:.1f} encoder ticks; the spec is "
+                          f"`{b['hand_spec']}`."]
+        lines.append("")
+    if "demos" in R:
+        d = R["demos"]
+        lines += ["## 2. Kinesthetic demonstrations", "",
+                  f"{d['successful']} of {d['episodes']} demonstrations turned the valve "
+                  f"({d['steps']} steps, `{d['file']}`); recording took "
+                  f"{d['robot_seconds_recording']} s and the auto-resets "
+                  f"{d['robot_seconds_resets']} s of robot time.", ""]
+    if "train" in R:
+        t = R["train"]
+        lines += ["## 3. DAPG vs NPG on the robot", "",
+                  "| | samples | robot time [min] | training success (last) | evaluation success |",
+                  "|---|---|---|---|---|"]
+        for algo in ("dapg", "npg"):
+            a = t[algo]
+            lines.append(f"| {algo.upper()} | {a['samples']} | {60 * a['robot_hours']:.1f} | "
+                         f"{a['final_training_success']:.2f} | {a['eval_success']:.2f} |")
+        lines += ["", f"Success right after behaviour cloning (DAPG's first iteration): "
+                      f"{t['success_after_bc']:.2f} (a random policy: 0.00).", "",
+                  f"![learning curves]({t['plot']})", "",
+                  f"Run directories: `train_dapg/`, `train_npg/` (config, metrics.csv, "
+                  f"checkpoints, curves; `lowcostdex train ... --resume` continues them).", ""]
+    if "gap" in R:
+        g = R["gap"]
+        lines += ["## 4. What the nominal simulation gets wrong", "",
+                  f"{g['logs']} identification logs of {g['seconds_per_log']:.0f} s (one finger, "
+                  f"50 Hz) replayed in the nominal model.", "", f"**Verdict:** {g['verdict']}", ""]
+        if g["causes"]:
+            lines += ["| named cause | joints | fitted parameters |", "|---|---|---|"]
+            for c in g["causes"]:
+                params = "; ".join(f"{k} = " + ", ".join(f"{v:.4g}" for v in vals)
+                                   for k, vals in c["params"].items())
+                lines.append(f"| {c['effect']} | {', '.join(c['joints'])} | {params} |")
+        if g.get("truth"):
+            truth = "; ".join(f"{e['effect']} ({', '.join(f'{k}={v:.4g}' for k, v in e['params'].items())})"
+                              for e in g["truth"])
+            lines += ["", f"What the emulated robot really carries: {truth}."]
+        gain = g["gain"]
+        lines += ["", f"Held-out RMSE: {g['baseline_heldout_rmse_mrad']:.2f} mrad (nominal) -> "
+                      f"{g['extended_heldout_rmse_mrad']:.2f} mrad (extended); noise floor "
+                      f"{g['noise_floor_mrad']:.2f} mrad. Full report: `{g['report']}`.", ""]
+        if "interval" in gain:
+            lines.insert(-1, f"Gain {1e3 * gain.get('absolute', float('nan')):.2f} mrad, 95 % "
+                             f"interval {gain['interval']}.")
+        lines += [f"![{p}]({p})" for p in g["plots"][:3]] + [""]
+    if "report" in R:
+        lines += ["## 5. Robot health", "", f"![robot health]({R['report']['plot']})", ""]
+    lines += ["Stage timings [s]: " + ", ".join(f"{k} {v['seconds']}" for k, v in R.items()), ""]
+    return "\n".join(lines)
+
+
+def _html(markdown: str, path: Path) -> None:
+    """A dependency-free HTML rendering of the report (headings, tables, images, paragraphs)."""
+    import html
+    import re
+
+    out, table = [], False
+    for line in markdown.splitlines():
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            if set("".join(cells)) <= set("-: "):
+                continue
+            if not table:
+                out.append("<table>")
+                table = True
+                out.append("<tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in cells) + "</tr>")
+            else:
+                out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+            continue
+        if table:
+            out.append("</table>")
+            table = False
+        m = re.match(r"!\[(.*)\]\((.*)\)", line)
+        if m:
+            out.append(f'<img src="{html.escape(m.group(2))}" alt="{html.escape(m.group(1))}" '
+                       'style="max-width:100%">')
+        elif line.startswith("#"):
+            level = len(line) - len(line.lstrip("#"))
+            out.append(f"<h{level}>{html.escape(line.lstrip('# '))}</h{level}>")
+        elif line.strip():
+            text = html.escape(line)
+            text = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", text)
+            text = re.sub(r"`(.+?)`", r"<code>\1</code>", text)
+            out.append(f"<p>{text}</p>")
+    if table:
+        out.append("</table>")
+    style = ("body{font-family:sans-serif;max-width:60em;margin:2em auto}table{border-collapse:"
+             "collapse}td,th{border:1px solid #ccc;padding:2px 8px}")
+    path.write_text(f"<!doctype html><meta charset='utf-8'><title>lowcostdex main job</title>"
+                    f"<style>{style}</style>\n" + "\n".join(out))
+
+
+def _pyplot() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
-    import lowcostdex  # noqa: F401
-    from lowcostdex.sim.envs import goal_to_action
-
-    env = gym.make("lowcostdex/DClawTurnValve-v0")
-    u = env.unwrapped
-    teacher = _teacher(u)
-    episodes = ctx.budget(2, 5, 20)
-    curves, successes = [], []
-    for ep in range(episodes):
-        obs, info = env.reset(seed=ctx.seed + ep)
-        teacher.reset(u)
-        angles = [float(u.data.qpos[u.task.obj_qpos])]
-        done = False
-        while not done:
-            action = goal_to_action(teacher(u.data.qpos, u.goal), u.task.hand_low,
-                                    u.task.hand_high)
-            obs, reward, term, trunc, info = env.step(action)
-            angles.append(float(u.data.qpos[u.task.obj_qpos]))
-            done = term or trunc
-        curves.append(angles)
-        successes.append(info["success"])
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    t = np.arange(len(curves[0])) * u.control_period
-    for c in curves:
-        ax.plot(t, np.degrees(c), alpha=0.7)
-    ax.axhline(180, color="k", ls="--", lw=1, label="goal")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("valve angle [deg]")
-    ax.set_title("Scripted valve turning (sim)")
-    ax.legend()
-    fig.tight_layout()
-    path = ctx.out / "sim_rollouts.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    env.close()
-    return {"episodes": episodes, "success_rate": float(np.mean(successes)),
-            "final_angle_deg": [float(np.degrees(c[-1])) for c in curves],
-            "plot": path.name, "policy": "scripted teacher (lowcostdex.sim.scripted)"}
+    return plt
 
 
-def _teacher(env: Any) -> Any:
-    from lowcostdex.sim.scripted import ValveTurnTeacher
-
-    return ValveTurnTeacher()
-
-
-STAGES: tuple[tuple[str, Callable[[Context], dict[str, Any]]], ...] = (
-    ("sim_rollouts", stage_sim_rollouts),
-)
-
-
-def run(ctx: Context) -> Path:
-    """Run every stage, write results.json and report.md into ``ctx.out``; return the report."""
+def _progress(description: str) -> tuple[Any, str]:
     from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    console = Console()
-    ctx.out.mkdir(parents=True, exist_ok=True)
-    for name, fn in STAGES:
-        t0 = time.perf_counter()
-        with console.status(f"[bold]{name}[/bold] ..."):
-            result = fn(ctx)
-        result["seconds"] = round(time.perf_counter() - t0, 1)
-        ctx.results[name] = result
-        console.print(f"[green]done[/green] {name} ({result['seconds']} s)")
-    (ctx.out / "results.json").write_text(json.dumps(ctx.results, indent=2))
-    report = ctx.out / "report.md"
-    report.write_text(_report(ctx))
-    return report
-
-
-def _report(ctx: Context) -> str:
-    lines = ["# lowcostdex main job", "", f"size: {ctx.size}, seed: {ctx.seed}", ""]
-    for name, res in ctx.results.items():
-        lines += [f"## {name.replace('_', ' ')}", ""]
-        for k, v in res.items():
-            if k != "plot":
-                lines.append(f"- {k}: {v}")
-        if "plot" in res:
-            lines += ["", f"![{name}]({res['plot']})"]
-        lines.append("")
-    return "\n".join(lines)
+    progress = Progress(TextColumn(description), BarColumn(), MofNCompleteColumn(),
+                        TimeElapsedColumn(), console=Console(stderr=True), transient=True)
+    return progress, description
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("main", help="run the main job end to end (emulated D'Claw by default)")
+    p = sub.add_parser("main", help="run the main job end to end (emulated D'Claw by default)",
+                       description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("runs/main"), help="output folder")
-    p.add_argument("--size", choices=("smoke", "default", "long"), default="default",
-                   help="budget: smoke (CI), default (~15 min on 2 cores), long")
+    p.add_argument("--size", choices=SIZES, default="default",
+                   help="budget: smoke (CI, ~1 min), default (~15 min on 2 cores), long")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--port", default=None, help="serial port of a real D'Claw (default: emulated)")
+    p.add_argument("--port", default=None,
+                   help="serial port of a real D'Claw, e.g. /dev/ttyUSB0 (default: emulated)")
+    p.add_argument("--stages", default=None,
+                   help=f"comma-separated subset of: {', '.join(n for n, _ in STAGES)}")
     p.set_defaults(func=_main)
 
 
 def _main(args: argparse.Namespace) -> int:
+    from lowcostdex.errors import check_choice
+
+    stages = None
+    if args.stages:
+        stages = tuple(s.strip() for s in args.stages.split(","))
+        for s in stages:
+            check_choice("stage", s, [n for n, _ in STAGES])
     ctx = Context(out=args.out, size=args.size, seed=args.seed, port=args.port)
-    report = run(ctx)
+    report = run(ctx, stages)
     print(f"REPORT {report.resolve()}")
     return 0
