@@ -12,7 +12,8 @@
    episodes. The best one is accepted only if it lowers the select error by at least ``min_gain``
    (relative MSE), the bootstrap over select episodes does not show it clearly worse (5th
    percentile of the gain above -``min_gain``), it changes the predictions by more than
-   ``min_effect`` noise floors, and the current error is above the noise floor. Otherwise the
+   ``min_effect`` noise floors, its fit is not at a parameter bound, and the current train or
+   select error is above the noise floor. Otherwise the
    analysis stops; with no accepted effect the answer is "no significant discrepancy".
 4. The chosen structure is refitted on train + select, then scored once on the untouched *test*
    episodes: error before and after with a bootstrap interval over episodes, the noise floor and
@@ -59,8 +60,9 @@ class GapConfig:
       min_gain: smallest relative reduction of the select-split MSE to accept an effect.
       floor_margin: the current model counts as explained when its select RMSE is within this
         factor of the noise floor.
-      min_effect: an accepted effect must change the select predictions by at least this many
-        noise floors (RMS); smaller changes fit replay artifacts, not physics.
+      min_effect: an accepted effect must change the open-loop predictions (train and select
+        episodes) by at least this many noise floors (RMS); smaller changes fit replay
+        artifacts, not physics.
       rank_seconds: training data used by the score ranking (a spread subset) [s].
       tie: candidates whose select MSE is within this fraction of the best one's are
         equivalent explanations; the first in the canonical list (``effects.CAUSES``) whose
@@ -317,8 +319,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
     # ---- 2. forward selection ------------------------------------------------------------------
     current = fitmod.Structure((), joints)
     cur_x = np.zeros(0)
-    cur_pred_sel = [base_pred[i] for i in split.select]
-    sel_cur = _mse_by_episode(ds, sel_eps, cur_pred_sel)
+    sel_cur = _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
     floor_rms = math.sqrt(floor_mse)
     rounds: list[list[CandidateResult]] = []
     fit_fn = eng.residual_fn(train_segs)
@@ -331,13 +332,14 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             break
         t0 = time.perf_counter()
         prog(f"round {step + 1}: ranking {len(remaining)} candidates", 0.1 + 0.25 * step)
-        table = _rank(eng, _subset(ds, train_segs, cfg.rank_seconds), current, cur_x,
-                      remaining, ctx)
+        table, train_rms = _rank(eng, _subset(ds, train_segs, cfg.rank_seconds), current,
+                                 cur_x, remaining, ctx)
         table.sort(key=lambda c: -c.score)
         rounds.append(table)
         cur_mse = sel_cur[0].sum() / sel_cur[2].sum()
-        if cur_mse <= (cfg.floor_margin ** 2) * floor_mse:
-            stop_reason = "select error at the noise floor"
+        near = (cfg.floor_margin ** 2) * floor_mse
+        if cur_mse <= near and train_rms ** 2 <= near:
+            stop_reason = "train and select errors at the noise floor"
             break
         if table[0].score < cfg.min_gain:
             stop_reason = "no candidate signature explains the residual"
@@ -407,7 +409,8 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                 if (1 - plausible[n][0]) <= (1 - top_gain) * (1 + cfg.tie) + 1e-12]
         n_best = min(tied, key=lambda n: CAUSES.index(n))
         rel, low, sse = results[n_best]
-        size = _effect_size(eng, sel_eps, cur_pred_sel, best_track[n_best].effects())
+        size = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x)
+                            if current.effects else [], best_track[n_best].effects())
         by_name[n_best].effect_rms = size
         significant = rel >= cfg.min_gain and low > -cfg.min_gain
         if not (significant and size >= cfg.min_effect * floor_rms):
@@ -421,7 +424,6 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         by_name[n_best].accepted = True
         current, cur_x = joint, joint.values_from(best_track[n_best].effects())
         sel_cur = (sse, sel_cur[1], sel_cur[2])
-        cur_pred_sel = eng.predict(sel_eps, [current.to_effects(cur_x)])[0]
         timing[f"round{step + 1}"] = time.perf_counter() - t0
 
     # ---- backward pass: drop accepted effects the final model no longer needs ---------------
@@ -430,8 +432,8 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                                    fit_fn, dropped := [])
         if dropped:
             stop_reason += f"; dropped by the backward pass: {', '.join(dropped)}"
-            cur_pred_sel = eng.predict(sel_eps, [current.to_effects(cur_x)])[0]
-            sel_cur = (_mse_by_episode(ds, sel_eps, cur_pred_sel)[0], sel_cur[1], sel_cur[2])
+            sel_cur = (_mse_by_episode(ds, sel_eps, eng.predict(
+                sel_eps, [current.to_effects(cur_x)])[0])[0], sel_cur[1], sel_cur[2])
 
     # ---- backward search: the top-ranked candidates fitted together, then pruned ------------
     # Effects that only help in combination (a friction model needs the right inertia) are
@@ -453,7 +455,8 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                 rel_base, _ = _select_gain_ci(base_sse, sse_alt, rng, cfg.bootstrap)
                 # the switch must be visible: the two models' predictions differ by more than
                 # the noise floor (effects that cancel each other cannot sneak in)
-                switch = _effect_size(eng, sel_eps, cur_pred_sel, alt.to_effects(alt_x))
+                switch = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x),
+                                      alt.to_effects(alt_x))
                 if (sse_alt.sum() < (1 - cfg.min_gain) * sel_cur[0].sum()
                         and rel_base >= cfg.min_gain and switch >= cfg.min_effect * floor_rms):
                     stop_reason += (f"; backward search from {', '.join(big)} kept "
@@ -523,8 +526,10 @@ def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]
 
 
 def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x: np.ndarray,
-          remaining: Sequence[str], ctx: fitmod.Context) -> list[CandidateResult]:
-    """Score statistic of every remaining candidate at the current model (one batched pass)."""
+          remaining: Sequence[str], ctx: fitmod.Context
+          ) -> tuple[list[CandidateResult], float]:
+    """Score statistic of every remaining candidate at the current model (one batched pass),
+    and the current model's RMS residual on these training segments [rad]."""
     cur_eff = current.to_effects(cur_x) if current.effects else []
     cols: list[list[AppliedEffect]] = [cur_eff]
     owner: list[str] = []
@@ -551,7 +556,7 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
     for name in remaining:
         g = np.stack([res[i + 1] - r0 for i, o in enumerate(owner) if o == name], axis=1)
         table.append(CandidateResult(name, score_fraction(r0, g)))
-    return table
+    return table, float(np.sqrt(np.mean(r0 * r0)))
 
 
 def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
@@ -622,11 +627,12 @@ def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]
     return [segs[i] for i in idx]
 
 
-def _effect_size(eng: _Engine, eps: Sequence[Window], cur: Sequence[np.ndarray],
-                 effects: Sequence[AppliedEffect]) -> float:
-    """RMS change of the predicted readings that adding ``effects`` causes [rad]."""
-    new = eng.predict(eps, [effects])[0]
-    d = np.concatenate([(a - b).ravel() for a, b in zip(new, cur, strict=True)])
+def _effect_size(eng: _Engine, eps: Sequence[Window], cur: Sequence[AppliedEffect],
+                 new: Sequence[AppliedEffect]) -> float:
+    """RMS difference between two models' open-loop predictions on ``eps`` [rad]: how visible
+    a change of model is (train and select episodes: visibility is not a held-out claim)."""
+    a, b = eng.predict(eps, [list(cur), list(new)])
+    d = np.concatenate([(x - y).ravel() for x, y in zip(a, b, strict=True)])
     return float(np.sqrt(np.mean(d * d)))
 
 
