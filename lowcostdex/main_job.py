@@ -291,10 +291,9 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     from lowcostdex.hardware.emulator import emulated_dclaw
     from lowcostdex.hardware.hands import dclaw_spec
     from lowcostdex.hardware.robot import Robot, RobotConfig
-    from lowcostdex.hardware.trace import excite
+    from lowcostdex.hardware.trace import identification_logs
     from lowcostdex.sim.effects import AppliedEffect
     from lowcostdex.sim.gap import GapConfig, analyze, load_dataset, write_report
-    from lowcostdex.sim.gap.generate import excitation
     from lowcostdex.sim.models.dclaw import build_dclaw
 
     b = ctx.budget
@@ -318,18 +317,13 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     # Identification moves use wider per-step motion bounds than a policy gets (steps excite
     # latency and backlash); the joint limits still hold.
     robot = Robot(h, bus, RobotConfig(control_period=0.02, motion_scale=10.0))
-    rng = np.random.default_rng(ctx.seed + 2)
-    low = 0.8 * np.array([hand.joint(j).low for j in GAP_JOINTS])
-    high = 0.8 * np.array([hand.joint(j).high for j in GAP_JOINTS])
-    paths = []
     steps = int(b.gap_seconds / 0.02)
     progress, _ = _progress("identification recording")
     with robot, progress:
         task = progress.add_task("recording", total=b.gap_logs * steps)
-        for k in range(b.gap_logs):
-            goals = excitation(rng, b.gap_seconds, 0.02, low, high)
-            paths.append(excite(robot, GAP_JOINTS, goals, logs_dir / f"finger_{k}.csv",
-                                on_step=lambda _: progress.advance(task)))
+        paths = identification_logs(robot, GAP_JOINTS, logs_dir, b.gap_logs, b.gap_seconds,
+                                    np.random.default_rng(ctx.seed + 2),
+                                    on_step=lambda _: progress.advance(task))
     nominal = gap_dir / "nominal_finger.xml"
     nominal.write_text(build_dclaw("none", hand, thermal=False, fingers=("ff",)).to_xml())
     dataset = load_dataset([str(p) for p in paths], model=str(nominal))

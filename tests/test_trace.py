@@ -42,3 +42,18 @@ def test_excitation_log_round_trips_and_matches_the_device(tmp_path):
     assert np.all(np.isfinite(traj.qpos)) and np.abs(final - traj.goal[-1]).max() < 0.05
     for name in ("current", "voltage", "temperature"):
         assert traj.channels[name].shape == (len(goals), 3)
+
+
+def test_record_log_and_model_commands_feed_the_gap_analysis(tmp_path):
+    from lowcostdex.cli import main
+    from lowcostdex.sim.gap import load_dataset
+
+    xml = tmp_path / "finger.xml"
+    assert main(["model", "dclaw", "--station", "none", "--fingers", "ff", "--no-thermal",
+                 "--out", str(xml)]) == 0
+    assert main(["record-log", "--port", "emulated", "--logs", "2", "--seconds", "1.5",
+                 "--out", str(tmp_path / "logs")]) == 0
+    logs = sorted((tmp_path / "logs").glob("log_*.csv"))
+    assert len(logs) == 2
+    ds = load_dataset([str(p) for p in logs], model=str(xml))  # columns match the model
+    assert len(ds.trajectories) == 2

@@ -1,4 +1,4 @@
-"""Robot subcommands: ``lowcostdex reset-test`` and ``lowcostdex record-demos``.
+"""Robot subcommands: ``lowcostdex reset-test``, ``record-demos`` and ``record-log``.
 
     lowcostdex reset-test --port emulated --trials 50            # emulated D'Claw, virtual time
     lowcostdex reset-test --port /dev/ttyUSB0 --trials 20        # the real one
@@ -6,6 +6,8 @@
         --out demos/valve.h5                                     # virtual teacher
     lowcostdex record-demos --hand dclaw --task turn-valve --port /dev/ttyUSB0 --episodes 25 \\
         --out demos/valve.h5                                     # a person moves the fingers
+    lowcostdex record-log --port /dev/ttyUSB0 --joints ff_top,ff_middle,ff_bottom --logs 6 \
+        --out logs/                                              # for `lowcostdex gap analyze`
 """
 
 from __future__ import annotations
@@ -53,6 +55,24 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--countdown", type=float, default=3.0,
                    help="seconds announced before each episode on a real robot")
     p.set_defaults(func=_record_demos)
+
+    p = sub.add_parser("record-log",
+                       help="record identification logs (steps, ramps, chirps) in the project's "
+                            "log format, for `lowcostdex gap analyze`")
+    p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
+    p.add_argument("--joints", default="ff_top,ff_middle,ff_bottom",
+                   help="comma-separated joints to excite (the others hold still)")
+    p.add_argument("--logs", type=int, default=6, help="number of logs (trajectories)")
+    p.add_argument("--seconds", type=float, default=15.0, help="length of each log [s]")
+    p.add_argument("--rate", type=float, default=50.0, help="command/read rate [Hz]")
+    p.add_argument("--out", required=True, help="folder for log_<k>.csv")
+    p.add_argument("--seed", type=int, default=0, help="seed of the excitation")
+    p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
+    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--effects", default=None,
+                   help="emulated robot only: JSON list of AppliedEffect dicts it carries "
+                        "(default: lowcostdex.hardware.backend.default_effects)")
+    p.set_defaults(func=_record_log)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -172,6 +192,53 @@ def _record_demos(args: argparse.Namespace) -> int:
     s = recorder.stats
     console.print(f"{s.episodes} episodes ({s.successes} successful), {s.steps} steps -> "
                   f"{args.out}; reset {s.reset_time:.1f} s, recording {s.record_time:.1f} s")
+    return 0
+
+
+def _record_log(args: argparse.Namespace) -> int:
+    import numpy as np
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hardware.backend import default_effects, make_dynamixel_bus, robot_hand
+    from lowcostdex.hardware.robot import Robot, RobotConfig
+    from lowcostdex.hardware.trace import identification_logs
+    from lowcostdex.sim.effects import AppliedEffect
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
+        raise ConfigError("--logs, --seconds and --rate must be positive")
+    hand = _hand(args.spec)
+    joints = tuple(j.strip() for j in args.joints.split(",") if j.strip())
+    for j in joints:
+        hand.joint(j)  # raises with the valid names
+    model = build_dclaw("none", hand).compile()
+    h = robot_hand(hand, model)
+    if args.port == "emulated":
+        from lowcostdex.hardware.emulator import emulated_dclaw
+
+        if args.effects:
+            effects = [AppliedEffect.from_dict(e) for e in json.loads(open(args.effects).read())]
+        else:
+            effects = default_effects(hand.joint_names)
+        chain = emulated_dclaw("none", hand=hand, effects=effects,
+                               rng=np.random.default_rng(args.seed))
+        port = chain.port()
+    else:
+        port = args.port
+    bus = make_dynamixel_bus(h, port, model, baudrate=args.baud)
+    robot = Robot(h, bus, RobotConfig(control_period=1.0 / args.rate, motion_scale=10.0))
+    steps = int(round(args.seconds * args.rate))
+    console = Console(stderr=True)
+    with robot, Progress(console=console) as progress:
+        bar = progress.add_task("identification logs", total=args.logs * steps)
+        paths = identification_logs(robot, joints, args.out, args.logs, args.seconds,
+                                    np.random.default_rng(args.seed),
+                                    on_step=lambda _: progress.advance(bar))
+    console.print(f"{len(paths)} logs -> {args.out}; analyse them with "
+                  f"`lowcostdex gap analyze --model MODEL.xml --log {args.out}/*.csv --out DIR` "
+                  f"(MODEL.xml: `lowcostdex model dclaw --station none --out MODEL.xml`)")
     return 0
 
 

@@ -81,3 +81,28 @@ def excite(robot: Robot, joints: Sequence[str], goals: np.ndarray, path: str | P
             on_step(k)
     path = Path(path)
     return write_log(path, rec.trajectory(name or path.stem))
+
+
+def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path, logs: int,
+                        seconds: float, rng: np.random.Generator, margin: float = 0.8,
+                        on_step: Callable[[int], None] | None = None) -> list[Path]:
+    """Record ``logs`` identification logs of ``seconds`` each on ``joints`` into ``out_dir``.
+
+    Each log is a fresh random excitation (``lowcostdex.sim.gap.generate.excitation``: steps
+    approached from both sides, slow ramps, chirps) within ``margin`` times each joint's limits,
+    sent at the robot's control rate. Use a control period of 10-20 ms and a per-step motion
+    bound wide enough for steps (``RobotConfig(control_period=0.02, motion_scale=10)``): the
+    steps are what make latency and backlash identifiable.
+    """
+    from lowcostdex.sim.gap.generate import excitation
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    idx = robot.index(joints)
+    low, high = margin * robot.low[idx], margin * robot.high[idx]
+    period = robot.config.control_period
+    paths = []
+    for k in range(logs):
+        goals = excitation(rng, seconds, period, low, high)
+        paths.append(excite(robot, joints, goals, out_dir / f"log_{k}.csv", on_step=on_step))
+    return paths

@@ -1,4 +1,5 @@
-"""Sim subcommands: ``lowcostdex envs`` lists the registered environments."""
+"""Sim subcommands: ``lowcostdex envs`` lists the environments; ``lowcostdex model`` writes an
+MJCF (e.g. the nominal model for ``lowcostdex gap analyze``)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,16 @@ import argparse
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("envs", help="list the registered gymnasium environments")
     p.set_defaults(func=_list_envs)
+
+    p = sub.add_parser("model", help="write a lowcostdex MJCF model (D'Claw, Allegro, bench)")
+    p.add_argument("hand", choices=("dclaw", "allegro", "bench"))
+    p.add_argument("--station", default=None,
+                   help="dclaw: valve, foam_valve, screw, block, none; allegro: valve, none")
+    p.add_argument("--fingers", default=None, help="dclaw: comma-separated subset of ff,mf,th")
+    p.add_argument("--motor", default=None, help="servo model, e.g. XM430-W350 (dclaw, bench)")
+    p.add_argument("--no-thermal", action="store_true", help="no winding-temperature state")
+    p.add_argument("--out", required=True, help="MJCF file to write")
+    p.set_defaults(func=_write_model)
 
 
 def _list_envs(args: argparse.Namespace) -> int:
@@ -19,4 +30,31 @@ def _list_envs(args: argparse.Namespace) -> int:
     for env_id in env_ids():
         spec = gym.spec(env_id)
         print(f"{env_id:45s} max_episode_steps={spec.max_episode_steps}")
+    return 0
+
+
+def _write_model(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from lowcostdex.hardware.hands import dclaw_spec
+
+    if args.hand == "dclaw":
+        from lowcostdex.sim.models.dclaw import build_dclaw
+
+        kwargs = {"fingers": tuple(args.fingers.split(","))} if args.fingers else {}
+        spec = build_dclaw(args.station or "valve",
+                           dclaw_spec(args.motor) if args.motor else dclaw_spec(),
+                           thermal=not args.no_thermal, **kwargs)
+    elif args.hand == "allegro":
+        from lowcostdex.sim.models.allegro import build_allegro
+
+        spec = build_allegro(args.station or "valve")
+    else:
+        from lowcostdex.sim.models.bench import BenchConfig, build_bench
+
+        spec = build_bench(BenchConfig(motor=args.motor or "XL330-M288",
+                                       thermal=not args.no_thermal))
+    spec.compile()  # fail here, not in the user's tool
+    Path(args.out).write_text(spec.to_xml())
+    print(f"wrote {args.out}")
     return 0
