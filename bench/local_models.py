@@ -373,7 +373,7 @@ def valve_demo_section(seeds: list[int], quick: bool, dapg: bool) -> None:
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         for name, (offset, noise) in DEMOS.items():
-            demo = record_demo(offset, tmp / f"demo_{name}.npz")
+            demo = record_demo(offset, tmp / f"demo_{name}.h5")
             nf_ok, nf_err, rate = initial_stats(demo, noise)
             print(
                 f"\n### demo '{name}' (valve {offset:+.1f} rad when recorded), exploration noise "
@@ -530,7 +530,7 @@ def valve_model_section(quick: bool) -> None:
         hold = hold_action(env, start)
         with tempfile.TemporaryDirectory() as tmp:
             for name in ("short", "long"):
-                demo = record_demo(DEMOS[name][0], Path(tmp) / f"{name}.npz")
+                demo = record_demo(DEMOS[name][0], Path(tmp) / f"{name}.h5")
                 U0 = _demo_actions(str(demo), 41)[0]
                 T, dU = U0.shape
 

@@ -289,4 +289,4 @@ def test_tvlg_demo_script_runs(tmp_path, monkeypatch, capsys) -> None:
     module.main()
     out = capsys.readouterr().out
     assert "held-out noisy success" in out and "noise-free replay" in out
-    assert (tmp_path / "demo_short.npz").exists() and (tmp_path / "controller.npz").exists()
+    assert (tmp_path / "demo_short.h5").exists() and (tmp_path / "controller.npz").exists()

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import gaussian_filter1d
 
 from lowcostdex.errors import ConfigError
 
@@ -144,6 +143,8 @@ def exploration_noise(
         raise ConfigError(f"smooth_sigma={smooth_sigma} must be >= 0")
     noise = rng.standard_normal((T, dU))
     if smooth_sigma > 0:
+        from scipy.ndimage import gaussian_filter1d  # imported here: 0.3 s of CLI start-up
+
         noise = gaussian_filter1d(noise, smooth_sigma, axis=0, mode="nearest")
         noise /= np.maximum(noise.std(axis=0, keepdims=True), 1e-12)
     return noise
