@@ -91,7 +91,8 @@ def summary(result: GapResult) -> str:
         vals = ", ".join(f"{p}={_fmt(d['value'])} {d['unit']}" for p, d in c.params.items())
         lines.append(f"  cause: {c.effect} on {', '.join(c.joints)}: {vals}; held-out RMSE after "
                      f"{_mrad(c.heldout_rmse_after)} mrad" + (f" [{'; '.join(c.flags)}]"
-                                                                 if c.flags else ""))
+                                                                 if c.flags else "")
+                     + (f" (equivalent: {', '.join(c.equivalent)})" if c.equivalent else ""))
     return "\n".join(lines)
 
 
@@ -135,6 +136,10 @@ def markdown(result: GapResult) -> str:
                        f"{_mrad(c.heldout_rmse_after)} |")
             for f in c.flags:
                 out.append(f"\n> flag: {c.effect}: {f}")
+            if c.equivalent:
+                out.append(f"\n> {c.effect} and {', '.join(c.equivalent)} explain the select "
+                           "data equally well (not identifiable from these logs); "
+                           f"{c.effect} is named by catalogue order.")
     out += ["", "## Candidates by selection round", "",
             "Score: share of the training residual the candidate's sensitivity explains to first "
             "order. Select: open-loop RMSE on the select episodes after fitting on train.", ""]
