@@ -8,12 +8,13 @@ package top level because the hardware and the learning layers both use it.
 
 Layout (Minari's per-episode layout, plus the raw robot readings), no pickle anywhere::
 
-    /                              attrs: format="lowcostdex-demos", format_version=1,
+    /                              attrs: format="lowcostdex-demos", format_version=2,
                                           env_id, task, hand (hand spec JSON), source,
                                           control_period [s], obs_dim, act_dim,
-                                          action_joints (JSON list), total_episodes, total_steps
+                                          action_joints (JSON list), total_episodes, total_steps,
+                                          label_model (JSON, optional: see below)
     /episode_<k>/                  attrs: id, total_steps, success, seed, reset_time [s],
-                                          reset_attempts, source
+                                          reset_attempts, source, label
         observations   (T+1, obs_dim) float64   o_0 .. o_T (the last one follows the last action)
         actions        (T, act_dim)   float64   a_t in the env's action space [-1, 1]
         rewards        (T,)           float64   the task's reward for (o_t, a_t)
@@ -26,11 +27,26 @@ Layout (Minari's per-episode layout, plus the raw robot readings), no pickle any
         goal/<key>     task goal arrays at step 0 (e.g. goal/angle [rad])
 
 ``source`` (one of ``SOURCES``) says who chose the actions: ``kinesthetic`` (a person moved the
-fingers; a_t = goal_to_action(q_{t+1})), ``virtual_teacher`` (the emulator's scripted hand did,
-same conversion), ``scripted_teacher`` (a scripted controller's action, e.g.
-``lowcostdex.sim.scripted``), ``policy`` (a trained policy's mean action). A simulated teacher's
-episode may have been executed with noise added to its actions; ``actions`` are then the clean
-labels and ``infos/qpos`` the states actually visited.
+fingers), ``virtual_teacher`` (the emulator's scripted hand did), ``playback`` (the robot's own
+servos replayed a recorded demonstration's goals, ``lowcostdex.hardware.demos``),
+``scripted_teacher`` (a scripted controller's action, e.g. ``lowcostdex.sim.scripted``),
+``policy`` (a trained policy's mean action). The file's ``source`` is the recording's; an
+episode's own ``source`` attribute may differ (the playbacks in a kinesthetic recording).
+
+``label`` (one of ``LABELS``) says what an episode's ``actions`` are:
+
+- ``commanded``: the goals the robot or env was actually sent. An episode may have been executed
+  with noise added to them; ``actions`` are then the clean labels and ``infos/qpos`` the states
+  actually visited (DART).
+- ``next_position``: a kinesthetic recording labelled with the next measured joint positions,
+  a_t = goal_to_action(q_{t+1}) (format version 1's only kinesthetic label).
+- ``servo_goal``: a kinesthetic recording labelled with the goals a position servo would need
+  to produce the recorded motion, from the measured positions and velocities through the servo
+  response model in the file attribute ``label_model`` (``lowcostdex.hardware.demos.ServoResponse``).
+
+Versions: 2 added the per-episode ``label`` attribute, the ``label_model`` file attribute and the
+``playback`` source. Version-1 files read as ``next_position`` for kinesthetic and virtual-teacher
+episodes and ``commanded`` otherwise, which is what their actions were.
 
 Crash safety: the file is opened, one finished episode is written and flushed, the totals are
 updated, and the file is closed again, so between episodes (and during recording) it is a
@@ -50,8 +66,16 @@ import numpy as np
 from lowcostdex.errors import ConfigError, check_choice
 
 FORMAT = "lowcostdex-demos"
-FORMAT_VERSION = 1
-SOURCES = ("kinesthetic", "virtual_teacher", "scripted_teacher", "policy")
+FORMAT_VERSION = 2
+SOURCES = ("kinesthetic", "virtual_teacher", "playback", "scripted_teacher", "policy")
+LABELS = ("commanded", "next_position", "servo_goal")
+
+
+def default_label(source: str) -> str:
+    """The label of an episode that does not name one (format version 1): kinesthetic and
+    virtual-teacher recordings were labelled with the next position, everything else with the
+    commanded action."""
+    return "next_position" if source in ("kinesthetic", "virtual_teacher") else "commanded"
 
 
 @dataclass(frozen=True)
@@ -132,6 +156,8 @@ class Episode:
       goal: task goal arrays.
       seed: reset seed; reset_time [s]; reset_attempts.
       terminated: the last step ended the episode by a terminal state (not the time limit).
+      source: who chose the actions (one of SOURCES); None: the file's source.
+      label: what the actions are (one of LABELS); None: ``default_label(source)``.
     """
 
     observations: np.ndarray
@@ -146,8 +172,14 @@ class Episode:
     reset_time: float = float("nan")
     reset_attempts: int = 0
     terminated: bool = False
+    source: str | None = None
+    label: str | None = None
 
     def __post_init__(self) -> None:
+        if self.source is not None:
+            check_choice("demonstration source", self.source, SOURCES)
+        if self.label is not None:
+            check_choice("demonstration label", self.label, LABELS)
         t = len(self.actions)
         shapes = {"observations": len(self.observations), "qpos": len(self.qpos),
                   "qvel": len(self.qvel), "time": len(self.time)}
@@ -167,11 +199,14 @@ class DemoWriter:
     Args:
       path: the file.
       info: its metadata; an existing file must carry the same.
+      label_model: JSON-serializable description of how ``servo_goal`` labels were computed
+        (``ServoResponse.to_dict()``), stored as the file attribute ``label_model``.
     """
 
-    def __init__(self, path: str | Path, info: DatasetInfo):
+    def __init__(self, path: str | Path, info: DatasetInfo, label_model: dict | None = None):
         self.path = Path(path)
         self.info = info
+        self.label_model = label_model
         if self.path.exists():
             with open_dataset(self.path) as f:
                 old = DatasetInfo.from_attrs(f.attrs)
@@ -193,6 +228,10 @@ class DemoWriter:
             if "format" not in f.attrs:
                 f.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION,
                                 "total_episodes": 0, "total_steps": 0, **self.info.attrs()})
+            elif int(f.attrs.get("format_version", 1)) < FORMAT_VERSION:
+                f.attrs["format_version"] = FORMAT_VERSION  # v1 episodes read the same in v2
+            if self.label_model is not None:
+                f.attrs["label_model"] = json.dumps(self.label_model)
             k = int(f.attrs["total_episodes"])
             name = f"episode_{k}"
             if name in f:  # an episode a crash left half-written: replace it
@@ -215,11 +254,12 @@ class DemoWriter:
             goal = g.create_group("goal")
             for key, value in ep.goal.items():
                 goal.create_dataset(key, data=np.asarray(value, np.float64))
+            source = ep.source or self.info.source
             g.attrs.update({"id": k, "total_steps": ep.length,
                             "success": bool(ep.success[-1]) if ep.length else False,
                             "seed": int(ep.seed), "reset_time": float(ep.reset_time),
                             "reset_attempts": int(ep.reset_attempts),
-                            "source": self.info.source})
+                            "source": source, "label": ep.label or default_label(source)})
             f.flush()
             f.attrs["total_episodes"] = k + 1
             f.attrs["total_steps"] = int(f.attrs["total_steps"]) + ep.length
@@ -269,14 +309,23 @@ def read_info(path: str | Path) -> tuple[DatasetInfo, int, int]:
                 int(f.attrs["total_steps"]))
 
 
+def read_label_model(path: str | Path) -> dict | None:
+    """The file's ``label_model`` attribute (how ``servo_goal`` labels were computed), or None."""
+    with open_dataset(path) as f:
+        text = f.attrs.get("label_model")
+    return json.loads(text) if text is not None else None
+
+
 def read_episodes(path: str | Path, only_successful: bool = False) -> list[Episode]:
     """Every complete episode in the file (those counted in ``total_episodes``)."""
     out = []
     with open_dataset(path) as f:
+        file_source = str(f.attrs["source"])
         for k in range(int(f.attrs["total_episodes"])):
             g = f[f"episode_{k}"]
             if only_successful and not bool(g.attrs["success"]):
                 continue
+            source = str(g.attrs.get("source", file_source))
             infos = g["infos"]
             out.append(Episode(
                 observations=g["observations"][()], actions=g["actions"][()],
@@ -285,7 +334,8 @@ def read_episodes(path: str | Path, only_successful: bool = False) -> list[Episo
                 goal={key: g["goal"][key][()] for key in g["goal"]},
                 seed=int(g.attrs["seed"]), reset_time=float(g.attrs["reset_time"]),
                 reset_attempts=int(g.attrs["reset_attempts"]),
-                terminated=bool(g["terminations"][-1]) if len(g["actions"]) else False))
+                terminated=bool(g["terminations"][-1]) if len(g["actions"]) else False,
+                source=source, label=str(g.attrs.get("label", default_label(source)))))
     return out
 
 

@@ -165,11 +165,18 @@ def stage_bus(ctx: Context) -> dict[str, Any]:
 
 
 def stage_demos(ctx: Context) -> dict[str, Any]:
-    """Record kinesthetic demonstrations (the virtual teacher on the emulated robot)."""
+    """Record kinesthetic demonstrations (the virtual teacher on the emulated robot): identify
+    the servos' response, record, label each step with the servo goal that reproduces it, and
+    play every successful demonstration back with noisy goals (``lowcostdex.hardware.demos``)."""
     import gymnasium as gym
+    import numpy as np
 
     import lowcostdex  # noqa: F401
-    from lowcostdex.hardware.demos import KinestheticRecorder, VirtualTeacher
+    from lowcostdex.hardware.demos import (
+        KinestheticRecorder,
+        VirtualTeacher,
+        identify_servo_response,
+    )
     from lowcostdex.sim.scripted import ValveTurnTeacher
 
     path = ctx.out / "demos.h5"
@@ -178,22 +185,47 @@ def stage_demos(ctx: Context) -> dict[str, Any]:
     teacher = None
     if ctx.emulated:
         teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task,
-                                 solver=ValveTurnTeacher())
+                                 solver=ValveTurnTeacher(), rng=np.random.default_rng(ctx.seed))
     n = ctx.budget.demos
-    progress, bar = _progress(f"recording {n} demonstrations")
+    progress, bar = _progress(f"recording {n} demonstrations + {PLAYBACKS} playbacks each")
     try:
         with progress:
+            ident = progress.add_task("servo response", total=SERVO_ID_EPISODES)
+            response, id_seconds = identify_servo_response(
+                env, episodes=SERVO_ID_EPISODES, seed=ctx.seed + 1_000_000,
+                on_episode=lambda k: progress.advance(ident))
             task = progress.add_task("demos", total=n)
-            recorder = KinestheticRecorder(env, path, ENV_ID, teacher=teacher,
-                                           on_episode=lambda k, ep: progress.advance(task))
+            recorder = KinestheticRecorder(
+                env, path, ENV_ID, teacher=teacher, response=response, playbacks=PLAYBACKS,
+                playback_noise=PLAYBACK_NOISE, rng=np.random.default_rng(ctx.seed),
+                on_episode=lambda k, ep: progress.advance(task) if ep.source != "playback"
+                else None)
             stats = recorder.record(n, seed=ctx.seed)
             robot = env.unwrapped.backend.robot.metrics.as_dict()
     finally:
         env.close()
     return {"file": path.name, "episodes": stats.episodes, "successful": stats.successes,
-            "steps": stats.steps, "robot_seconds_recording": round(stats.record_time, 1),
+            "steps": stats.steps, "playbacks": stats.playbacks,
+            "successful_playbacks": stats.playback_successes,
+            "servo_response": {"alpha": [round(a, 3) for a in response.alpha],
+                               "r2": [round(r, 3) for r in response.r2]},
+            "robot_seconds_servo_id": round(id_seconds, 1),
+            "robot_seconds_recording": round(stats.record_time, 1),
             "robot_seconds_resets": round(stats.reset_time, 1),
+            "robot_seconds_playbacks": round(stats.playback_time, 1),
             "robot": {k: robot[k] for k in sorted(robot) if k in _ROBOT_KEYS}}
+
+
+SERVO_ID_EPISODES = 2
+"""Random-goal episodes (4 s each) that identify the servo response before recording."""
+PLAYBACKS = 2
+"""Noisy playbacks of each successful demonstration."""
+PLAYBACK_NOISE = 0.05
+"""Half-width of the playback goal noise [action units]."""
+BC = {"epochs": 100, "log_std": "residual"}
+"""Behaviour cloning of the main job: 100 epochs over ~a thousand pairs (hand_dapg's 5 epochs
+are for 25 x 100-step demos of a much longer task), exploration noise from the clone's
+residual."""
 
 
 _ROBOT_KEYS = ("resets", "reset_failures", "reset_time", "pauses", "pause_time", "faults",
@@ -206,6 +238,7 @@ _ROBOT_KEYS = ("resets", "reset_failures", "reset_time", "pauses", "pause_time",
 
 def stage_train(ctx: Context) -> dict[str, Any]:
     """DAPG from the demonstrations and NPG from scratch, on the robot."""
+    from lowcostdex.algos.configs import BCConfig
     from lowcostdex.algos.train import TrainConfig, train
 
     b = ctx.budget
@@ -217,7 +250,8 @@ def stage_train(ctx: Context) -> dict[str, Any]:
         config = TrainConfig(algo=algo, env_id=ENV_ID, backend=backend, env_kwargs=kwargs,
                              seed=ctx.seed, n_iter=iters, n_traj=b.traj_per_iter,
                              eval_every=0, eval_episodes=b.eval_episodes,
-                             demos=str(demos) if algo == "dapg" else None)
+                             demos=str(demos) if algo == "dapg" else None,
+                             eval_bc=algo == "dapg", bc=BCConfig(**BC))
         run_dir = ctx.out / f"train_{algo}"
         if run_dir.exists():
             shutil.rmtree(run_dir)
@@ -237,8 +271,10 @@ def stage_train(ctx: Context) -> dict[str, Any]:
                       ("resets", "reset_failures", "pauses", "pause_time", "max_temperature")
                       if f"robot_{k}" in metrics},
         }
-    # DAPG's first iteration samples the behaviour-cloned policy (with its exploration noise)
-    out["success_after_bc"] = out["dapg"]["first_iteration_success"]
+    # the behaviour clone's own deterministic evaluation before DAPG's first iteration
+    bc = json.loads((ctx.out / "train_dapg" / "bc.json").read_text())
+    out["success_after_bc"] = float(bc["eval_success_rate"])
+    out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs", "eval_episodes") if k in bc}
     out["plot"] = _plot_training(ctx, out)
     return out
 

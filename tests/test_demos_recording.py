@@ -18,12 +18,22 @@ import pytest
 
 from lowcostdex.algos.demos import load_demos
 from lowcostdex.errors import ConfigError
-from lowcostdex.demo_file import FORMAT, DatasetInfo, DemoWriter, read_episodes, read_info
+from lowcostdex.demo_file import (
+    FORMAT,
+    DatasetInfo,
+    DemoWriter,
+    read_episodes,
+    read_info,
+    read_label_model,
+)
 from lowcostdex.hardware.demos import (
     KinestheticRecorder,
+    ServoResponse,
     VirtualTeacher,
     episode_from_states,
+    identify_servo_response,
     read_demo_pairs,
+    servo_goal_labels,
 )
 from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.registry import register_envs
@@ -180,3 +190,107 @@ def test_recorder_killed_mid_episode_leaves_every_finished_episode(tmp_path):
     assert len(pairs) == n_episodes
     assert all(np.all(np.isfinite(o)) and np.all(np.isfinite(a)) for o, a in pairs)
     assert os.path.getsize(path) > 0
+
+
+# ------------------------------------------------------------------------------------------------
+# servo response, servo-goal labels and playbacks
+
+
+def test_servo_response_fit_recovers_a_known_servo_and_inverts_exactly():
+    rng = np.random.default_rng(3)
+    truth = ServoResponse(alpha=(0.4, 0.6), beta=(0.2, 0.05), offset=(0.0, -0.01), period=0.1)
+    q = rng.uniform(-1, 1, (400, 2))
+    v = rng.uniform(-2, 2, (400, 2))
+    g = q + rng.uniform(-0.3, 0.3, (400, 2))
+    q_next = truth.predict(q, v, g) + 1e-4 * rng.normal(size=(400, 2))
+    fit = ServoResponse.fit(q, v, g, q_next, period=0.1)
+    np.testing.assert_allclose(fit.alpha, truth.alpha, atol=2e-3)
+    np.testing.assert_allclose(fit.beta, truth.beta, atol=5e-3)
+    np.testing.assert_allclose(fit.offset, truth.offset, atol=1e-3)
+    assert min(fit.r2) > 0.99
+    # the label is the goal that reproduces the recorded step
+    np.testing.assert_allclose(truth.predict(q, v, truth.goal(q, v, q_next)), q_next, atol=1e-12)
+    assert ServoResponse.from_dict(fit.to_dict()) == fit
+    # a joint that never follows its goals (torque off) is refused, not fitted to alpha ~ 0
+    with pytest.raises(ConfigError, match="did not follow"):
+        ServoResponse.fit(q, v, g, q + 0.01 * v * 0.1, period=0.1)
+
+
+@pytest.fixture(scope="module")
+def played(tmp_path_factory):
+    """The servo response identified on the emulated D'Claw, one servo-goal-labelled
+    demonstration and two noisy playbacks of it."""
+    path = tmp_path_factory.mktemp("playback") / "valve.h5"
+    env = gym.make(ENV, backend="emulated")
+    response, seconds = identify_servo_response(env, episodes=2, seed=7)
+    teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task)
+    recorder = KinestheticRecorder(env, path, ENV, teacher=teacher, response=response,
+                                   playbacks=2, playback_noise=0.05,
+                                   rng=np.random.default_rng(0))
+    demo = recorder.record_episode(3)
+    chain = env.unwrapped.backend.chain
+    task = env.unwrapped.task
+    env.close()
+    return path, response, seconds, demo, recorder, chain, task
+
+
+def test_servo_response_identified_on_the_emulated_robot(played):
+    _, response, seconds, _, _, _, _ = played
+    # 2 episodes of 4 s plus their auto-resets, in robot time
+    assert 8.0 <= seconds < 60.0
+    alpha = np.array(response.alpha)
+    # a position servo covers a share of a commanded step in one 0.1 s period, not all of it
+    assert np.all((alpha > 0.15) & (alpha < 0.95)), alpha
+    assert np.median(response.r2) > 0.7, response.r2
+
+
+def test_playbacks_are_the_robots_own_motion_labelled_with_the_clean_goals(played):
+    path, response, _, demo, recorder, chain, task = played
+    assert demo.success[-1] and demo.label == "servo_goal"
+    assert recorder.stats.playbacks == 2 and recorder.stats.episodes == 1
+    eps = read_episodes(path)
+    assert [(e.source, e.label) for e in eps] == [
+        ("virtual_teacher", "servo_goal"), ("playback", "commanded"), ("playback", "commanded")]
+    assert read_label_model(path) == response.to_dict()
+    # servo-goal labels: the goals the identified servo model needs to reproduce each step
+    q = demo.qpos[:, task.hand_qpos]
+    v = demo.qvel[:, task.hand_dof]
+    np.testing.assert_allclose(
+        demo.actions, servo_goal_labels(task, demo.qpos, demo.qvel, response, recorder.max_step))
+    unclipped = goal_to_action(response.goal(q[:-1], v[:-1], q[1:]), task.hand_low,
+                               task.hand_high)
+    inside = np.abs(unclipped) < 0.999
+    assert inside.mean() > 0.5  # most labels are the model's inverse, not the motion bound
+    sent = []
+    log = chain.goal_log
+    times, ids, values = (np.array(x) for x in (log.time, log.motor_id, log.value))
+    for pb in eps[1:]:
+        assert pb.seed == demo.seed and pb.length == demo.length
+        assert pb.time[0] > demo.time[-1]  # robot clock times, after the demonstration
+        np.testing.assert_array_equal(pb.actions, demo.actions)  # the clean labels
+        # device side: the goals that reached the first finger's top motor (id 10)
+        during = (times > pb.time[0] + 1e-6) & (times <= pb.time[-1] + 1e-6) & (ids == 10)
+        sent.append(values[during])
+    # the same clean labels reached the motor as different, noisy goals: 0.05 action units of
+    # the top joint's +-0.48 rad is +-0.024 rad, so two playbacks differ by <= 0.048 rad
+    # (31 ticks) per goal, plus what their different states do to the env's motion bound
+    n = min(len(x) for x in sent)
+    assert n >= pb.length - 5
+    diff = np.abs(sent[0][:n].astype(float) - sent[1][:n])
+    assert np.mean(diff > 0) > 0.7 and np.median(diff) <= 31, diff
+    assert read_episodes(path, only_successful=True)[0].label == "servo_goal"
+
+
+def test_playbacks_need_a_servo_response_and_version_1_files_read_as_next_position(
+        recorded, tmp_path):
+    path, _, _, _ = recorded
+    with pytest.raises(ConfigError, match="servo response"):
+        KinestheticRecorder(gym.make(ENV, backend="emulated"), tmp_path / "y.h5", ENV,
+                            playbacks=1)
+    copy = tmp_path / "v1.h5"
+    copy.write_bytes(path.read_bytes())
+    with h5py.File(copy, "r+") as f:  # what a format-version-1 file looked like
+        f.attrs["format_version"] = 1
+        for k in range(int(f.attrs["total_episodes"])):
+            del f[f"episode_{k}"].attrs["label"]
+    assert {e.label for e in read_episodes(copy)} == {"next_position"}

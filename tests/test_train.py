@@ -188,6 +188,8 @@ def test_train_config_validation_names_the_choices():
         TrainConfig(algo="dapg")
     with pytest.raises(ConfigError, match="one robot"):
         TrainConfig(backend="emulated", sampler="process")
+    with pytest.raises(ConfigError, match="eval_bc needs a behaviour clone"):
+        TrainConfig(algo="npg", eval_bc=True)
 
 
 def test_cli_trains_a_registered_env(tmp_path, capsys):

@@ -49,9 +49,14 @@ def test_dapg_with_virtual_teacher_demos_on_the_emulated_robot(tmp_path):
     demos = load_demos(tmp_path / "demos.h5")
     assert demos.n_episodes == 2 and demos.observations.shape == (80, 30)
     cfg = _config(
-        algo="dapg", demos=str(tmp_path / "demos.h5"), n_iter=1, dapg=DAPGConfig(lam0=0.1)
+        algo="dapg", demos=str(tmp_path / "demos.h5"), n_iter=1, dapg=DAPGConfig(lam0=0.1),
+        eval_bc=True, eval_episodes=2,
     )
     run = train(cfg, tmp_path / "dapg")
-    assert ex.read_json(run.path / "bc.json")["n_episodes"] == 2
+    bc = ex.read_json(run.path / "bc.json")
+    assert bc["n_episodes"] == 2 and bc["eval_episodes"] == 2
+    assert 0.0 <= bc["eval_success_rate"] <= 1.0 and np.isfinite(bc["eval_return_mean"])
     m = run.read_metrics()
+    # robot time: 2 BC evaluation + 2 training + 2 final evaluation episodes of 4 s, + resets
+    assert m["robot_hours"][0] > 6 * 40 * 0.1 / 3600 and m["robot_resets"][0] == 6
     assert m["demo_weight"][0] > 0 and np.isfinite(m["demo_log_lik"][0])

@@ -260,6 +260,9 @@ class TrainConfig:
         used), required for DAPG; for NPG, ``bc_init`` uses it.
       n_demos: use only the first n demo episodes (None: all).
       bc_init: behaviour-clone before RL (always on for DAPG; NPG + BC is "BCRL").
+      eval_bc: evaluate the behaviour clone (``eval_episodes`` deterministic episodes) before
+        the first iteration, into ``bc.json`` (``eval_success_rate``, ``eval_return_mean``); its
+        robot time counts.
       policy, baseline, npg, dapg, bc: component configs. Defaults: the hand_dapg policy
         (32, 32) with init log-std -0.5; the NPG step delta 0.1 with damping 1e-2 rather than
         mjrl's 0.05 / 1e-4: on DClawTurnValve-v0 with 40 trajectories per iteration, 0.05 /
@@ -292,6 +295,7 @@ class TrainConfig:
     demos: str | None = None
     n_demos: int | None = None
     bc_init: bool = False
+    eval_bc: bool = False
     policy: PolicyConfig = field(
         default_factory=lambda: PolicyConfig(hidden_sizes=(32, 32), init_log_std=-0.5)
     )
@@ -316,6 +320,8 @@ class TrainConfig:
             raise ConfigError("DAPG needs demonstrations: set demos (--demos PATH)")
         if self.bc_init and not self.demos:
             raise ConfigError("bc_init needs demonstrations: set demos (--demos PATH)")
+        if self.eval_bc and not self.uses_demos:
+            raise ConfigError("eval_bc needs a behaviour clone: algo 'dapg' or bc_init")
         for name in (
             "n_iter",
             "n_traj",

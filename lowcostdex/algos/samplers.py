@@ -33,6 +33,8 @@ TRAIN_STREAM = 0
 """Seed stream of training trajectories."""
 EVAL_STREAM = 1
 """Seed stream of evaluation trajectories (disjoint from training)."""
+BC_EVAL_STREAM = 2
+"""Seed stream of the behaviour clone's evaluation before RL."""
 SAMPLERS = ("serial", "process", "vector", "ray")
 
 EnvFactoryFn = Callable[[], gym.Env]

@@ -48,6 +48,7 @@ from lowcostdex.algos.npg import npg_update
 from lowcostdex.algos.policy import GaussianMLPPolicy
 from lowcostdex.algos.returns import discounted_returns, gae
 from lowcostdex.algos.samplers import (
+    BC_EVAL_STREAM,
     EVAL_STREAM,
     TRAIN_STREAM,
     EnvFactory,
@@ -231,6 +232,19 @@ def _init_state(config: TrainConfig, probe: Any, demos: Demos | None, run: ex.Ru
     return _State(policy, baseline)
 
 
+def _evaluate_bc(config: TrainConfig, run: ex.Run, sampler: Sampler, state: _State) -> None:
+    """Deterministic episodes of the behaviour clone, added to ``bc.json``; robot time counts."""
+    jobs = make_jobs(config.seed, BC_EVAL_STREAM, 0, config.eval_episodes, deterministic=True)
+    paths = sampler.sample(state.policy.snapshot(), jobs)
+    state.robot_seconds += sum(p.robot_seconds for p in paths)
+    state.pause_seconds += sum(p.pause_seconds for p in paths)
+    file = run.path / "bc.json"
+    stats = ex.read_json(file) if file.exists() else {}
+    stats.update(path_metrics(paths, config.success, prefix="eval_"))
+    stats["eval_episodes"] = len(paths)
+    run.write_json("bc.json", stats)
+
+
 def _restore(state: _State, ckpt: ex.Checkpoint) -> None:
     state.policy.load_state_dict(ckpt.state["policy"]["state_dict"])
     state.baseline.load_checkpoint(ckpt.state["baseline"])
@@ -304,6 +318,8 @@ def train(
         state = _init_state(config, env, demos if ckpt is None else None, run)
         if probe is not None:
             probe.close()
+        if ckpt is None and config.eval_bc:
+            _evaluate_bc(config, run, sampler, state)
         start = 0
         if ckpt is not None:
             _restore(state, ckpt)

@@ -68,6 +68,8 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
         p.add_argument("--bc-epochs", type=int, default=d.bc.epochs)
         p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=d.bc.log_std,
                        help="initial exploration noise after BC")  # fmt: skip
+        p.add_argument("--eval-bc", action="store_true",
+                       help="evaluate the behaviour clone (--eval-episodes) before RL")
     else:
         p.add_argument(
             "--bc-init", action="store_true", help="behaviour-clone the demos first (BCRL)"
@@ -112,6 +114,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         demos=str(Path(args.demos).resolve()) if args.demos else None,
         n_demos=args.n_demos,
         bc_init=bool(getattr(args, "bc_init", False)),
+        eval_bc=bool(getattr(args, "eval_bc", False)),
         policy=dataclasses.replace(
             d.policy, hidden_sizes=tuple(args.hidden), init_log_std=args.init_log_std
         ),

@@ -1,23 +1,42 @@
-"""Kinesthetic demonstrations, recorded the way the BAIR D'Claw work did.
+"""Kinesthetic demonstrations, recorded the way the BAIR D'Claw work did, made cloneable.
 
 Per episode: the env's auto-reset brings the hand and the valve to the episode's start (verified,
 bounded); the finger servos go torque-off; a person moves the fingers through the task while the
-joint angles are read at the control rate; the episode is converted to (observation, action)
-pairs for BC/DAPG and appended to the demonstration dataset (``lowcostdex.demo_file``), one
-finished episode at a time.
+joint angles and velocities are read at the control rate; the episode is converted to
+(observation, action) pairs for BC/DAPG and appended to the demonstration dataset
+(``lowcostdex.demo_file``), one finished episode at a time.
 
-The action paired with the observation at step t is the next joint position as a target,
-normalized as the env's actions are: ``a_t = goal_to_action(q_{t+1})``; the observation is
-the task's own, built from the mirror (hand joints, valve angle, goal, previous action).
+Labels. The BAIR work paired o_t with the next joint position as a target, a_t = q_{t+1}
+(``label="next_position"``). A position servo does not get there in one control period: the
+D'Claw's XH430s on the emulated robot cover 30-70 % of a commanded step in 0.1 s.
+``ServoResponse`` is a per-joint model of one control period of the servo,
+q_{t+1} - q_t = alpha (g_t - q_t) + beta v_t dt + offset, identified on the robot itself in a few
+seconds of random goals (``identify_servo_response``); ``servo_goal`` labels invert it,
+g_t = q_t + (q_{t+1} - q_t - beta v_t dt - offset) / alpha: the goal that would have produced the
+recorded step, from the measured positions and velocities only, clipped to the env's motion bound
+and limits.
+
+Playback. A clone of kinesthetic demonstrations alone rarely works, whatever the label: fingers
+moved by a hand follow other dynamics than the same fingers driven by their servos, and the
+clone's states leave the demonstrated ones at once (bench/RESULTS.md, "Behaviour cloning from
+kinesthetic demonstrations": 0 % with next-position labels, ~13 % with servo-goal labels). After a
+successful demonstration the recorder therefore plays its goals back ``playbacks`` times on the
+robot, torque on, from the same auto-reset start, with uniform noise on every goal
+(``playback_noise``, action units): the playbacks are the robot's own dynamics, labelled with the
+clean goals that were sent, and the noise shows the clone the states beside the demonstrated path
+together with the goal that leads back to it (DART, Laskey et al. 2017; the DAPG authors'
+actuator noise). With two playbacks per demonstration the clone turned the valve in ~90 % of
+deterministic episodes. Playbacks cost robot time, not the person's.
 
 On the emulated D'Claw a ``VirtualTeacher`` stands in for the person: it moves the limp fingers
 with external joint torques (a PD on ``qfrc_applied``, applied before every physics step of the
-emulator) along a scripted solving motion (``lowcostdex.sim.scripted.ValveTurnTeacher``), so the
-same recorder code path produces demonstrations without a human.
+emulator) along a scripted solving motion (``lowcostdex.sim.scripted.ValveTurnTeacher``) with a
+person's imprecision, so the same recorder code path produces demonstrations without a human.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Callable
@@ -39,8 +58,164 @@ from lowcostdex.sim.envs.hand_env import goal_to_action
 
 log = logging.getLogger(__name__)
 
-__all__ = ["KinestheticRecorder", "RecordingStats", "VirtualTeacher", "VirtualTeacherConfig",
-           "episode_from_states", "read_demo_pairs", "read_episodes"]
+__all__ = ["KinestheticRecorder", "RecordingStats", "ServoResponse", "VirtualTeacher",
+           "VirtualTeacherConfig", "episode_from_states", "identify_servo_response",
+           "read_demo_pairs", "read_episodes", "servo_goal_labels"]
+
+
+# ------------------------------------------------------------------------------------------------
+# servo response and labels
+
+
+@dataclass(frozen=True)
+class ServoResponse:
+    """One control period of a position servo, per joint, as a linear model:
+
+        q_{t+1} - q_t = alpha * (g_t - q_t) + beta * v_t * period + offset
+
+    with q, v the measured joint position [rad] and velocity [rad/s] at a control tick and g the
+    goal sent then [rad]. alpha is the fraction of a commanded step covered in one period, beta
+    the carried-over motion, offset a steady bias (gravity, friction).
+
+    Attributes:
+      alpha, beta, offset: per joint, in action order (offset [rad]).
+      period: control period [s].
+      r2: coefficient of determination of each joint's fit (documentation; empty if not fitted).
+    """
+
+    alpha: tuple[float, ...]
+    beta: tuple[float, ...]
+    offset: tuple[float, ...]
+    period: float
+    r2: tuple[float, ...] = ()
+
+    MIN_ALPHA = 0.05
+
+    def __post_init__(self) -> None:
+        n = len(self.alpha)
+        if n == 0 or len(self.beta) != n or len(self.offset) != n:
+            raise ConfigError(f"ServoResponse needs alpha, beta and offset of one length, got "
+                              f"{len(self.alpha)}, {len(self.beta)}, {len(self.offset)}")
+        if min(self.alpha) < self.MIN_ALPHA:
+            raise ConfigError(f"ServoResponse alpha {self.alpha} must be >= {self.MIN_ALPHA}: the "
+                              "servo must cover a share of a commanded step in one period")
+        if not self.period > 0:
+            raise ConfigError(f"ServoResponse period {self.period} must be > 0 [s]")
+
+    def predict(self, q: np.ndarray, v: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """Positions (..., n) [rad] one period after sending goals g from state (q, v)."""
+        a, b, c = (np.asarray(x, float) for x in (self.alpha, self.beta, self.offset))
+        return q + a * (g - q) + b * v * self.period + c
+
+    def goal(self, q: np.ndarray, v: np.ndarray, q_next: np.ndarray) -> np.ndarray:
+        """The goals (..., n) [rad] that move the servo from (q, v) to q_next (the inverse of
+        ``predict``; not clipped)."""
+        a, b, c = (np.asarray(x, float) for x in (self.alpha, self.beta, self.offset))
+        return q + (q_next - q - b * v * self.period - c) / a
+
+    @classmethod
+    def fit(cls, q: np.ndarray, v: np.ndarray, g: np.ndarray, q_next: np.ndarray,
+            period: float) -> ServoResponse:
+        """Least-squares fit per joint from transitions (N, n) each: positions, velocities,
+        goals sent, positions one period later.
+
+        Raises:
+          ConfigError: too few transitions, or a joint that did not respond (alpha below
+            ``MIN_ALPHA``: e.g. torque off or the joint never moved).
+        """
+        q, v, g, q_next = (np.asarray(x, float) for x in (q, v, g, q_next))
+        if q.ndim != 2 or len(q) < 4 * 3:
+            raise ConfigError(f"ServoResponse.fit needs (N, n) transitions with N >= 12, got "
+                              f"{q.shape}")
+        alpha, beta, offset, r2 = [], [], [], []
+        for j in range(q.shape[1]):
+            x = np.column_stack([g[:, j] - q[:, j], v[:, j] * period, np.ones(len(q))])
+            y = q_next[:, j] - q[:, j]
+            coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+            resid = y - x @ coef
+            alpha.append(float(coef[0]))
+            beta.append(float(coef[1]))
+            offset.append(float(coef[2]))
+            r2.append(float(1.0 - resid.var() / max(y.var(), 1e-12)))
+        if min(alpha) < cls.MIN_ALPHA:
+            raise ConfigError(f"a joint did not follow its goals (alpha {np.round(alpha, 3)}); "
+                              "are the servos torque-on and free to move?")
+        return cls(tuple(alpha), tuple(beta), tuple(offset), float(period), tuple(r2))
+
+    def to_dict(self) -> dict:
+        return {"model": "linear_servo_response", "alpha": list(self.alpha),
+                "beta": list(self.beta), "offset": list(self.offset), "period": self.period,
+                "r2": list(self.r2)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ServoResponse:
+        return cls(tuple(d["alpha"]), tuple(d["beta"]), tuple(d["offset"]), float(d["period"]),
+                   tuple(d.get("r2", ())))
+
+
+def servo_goal_labels(task: Any, qpos: np.ndarray, qvel: np.ndarray, response: ServoResponse,
+                      max_step: np.ndarray) -> np.ndarray:
+    """``servo_goal`` actions (T, n) for recorded states: the goals that would have produced the
+    recorded motion, clipped as the env clips actions.
+
+    Args:
+      task: the bound task (hand joint layout and limits).
+      qpos: (T+1, nq) states at the control ticks; qvel: (T+1, nv).
+      response: the servo model.
+      max_step: (n,) per-step motion bound [rad] (joint max_velocity x control period).
+    """
+    q = np.asarray(qpos, float)[:, task.hand_qpos]
+    v = np.asarray(qvel, float)[:, task.hand_dof]
+    g = response.goal(q[:-1], v[:-1], q[1:])
+    g = np.clip(g, q[:-1] - max_step, q[:-1] + max_step)
+    return goal_to_action(np.clip(g, task.hand_low, task.hand_high), task.hand_low,
+                          task.hand_high)
+
+
+def identify_servo_response(env: Any, episodes: int = 4, seed: int = 0,
+                            on_episode: Callable[[int], None] | None = None
+                            ) -> tuple[ServoResponse, float]:
+    """Fit the hand's ``ServoResponse`` on the robot: ``episodes`` episodes of smooth random goals
+    (servos on, the env's own safety and motion bound), about 4 s of motion each.
+
+    Args:
+      env: a robot-backed hand env (``backend="emulated"`` or ``"hardware"``) or a sim env.
+      episodes: excitation episodes.
+      seed: seed of the excitation and of the resets (seed, seed + 1, ...).
+      on_episode: called with the episode index after each.
+
+    Returns:
+      (the fitted response, robot time spent [s] including the auto-resets; 0 in sim).
+    """
+    henv = env.unwrapped
+    backend = henv.backend
+    robot = getattr(backend, "robot", None)
+    start = robot.clock.now() if robot is not None else 0.0
+    rng = np.random.default_rng(seed)
+    n = int(np.prod(env.action_space.shape))
+    task = henv.task
+    steps = task.timing.episode_steps
+    q, v, g, q_next = [], [], [], []
+    for k in range(episodes):
+        env.reset(seed=seed + k)
+        a = np.zeros(n)
+        for _ in range(steps):
+            q0 = henv.data.qpos[task.hand_qpos].copy()
+            v0 = henv.data.qvel[task.hand_dof].copy()
+            jump = (rng.random(n) < 0.2) * rng.uniform(-0.5, 0.5, n)
+            a = np.clip(0.7 * a + 0.3 * rng.uniform(-1, 1, n) + jump, -1.0, 1.0)
+            _, _, terminated, truncated, info = env.step(a.astype(env.action_space.dtype))
+            q.append(q0)
+            v.append(v0)
+            g.append(np.asarray(info["goal"], float))
+            q_next.append(henv.data.qpos[task.hand_qpos].copy())
+            if terminated or truncated:
+                break
+        if on_episode is not None:
+            on_episode(k)
+    seconds = robot.clock.now() - start if robot is not None else 0.0
+    return ServoResponse.fit(np.array(q), np.array(v), np.array(g), np.array(q_next),
+                             float(henv.control_period)), seconds
 
 
 # ------------------------------------------------------------------------------------------------
@@ -48,7 +223,8 @@ __all__ = ["KinestheticRecorder", "RecordingStats", "VirtualTeacher", "VirtualTe
 
 
 def episode_from_states(task: Any, qpos: np.ndarray, qvel: np.ndarray, goal: dict,
-                        time: np.ndarray, **meta: Any) -> Episode:
+                        time: np.ndarray, actions: np.ndarray | None = None,
+                        label: str = "next_position", **meta: Any) -> Episode:
     """Turn recorded states into an ``Episode`` of (observation, action) pairs.
 
     Args:
@@ -57,16 +233,21 @@ def episode_from_states(task: Any, qpos: np.ndarray, qvel: np.ndarray, goal: dic
       qvel: (T+1, nv).
       goal: the episode's goal at step 0 (moving goals advance with ``task.advance_goal``).
       time: (T+1,) clock times [s].
-      meta: ``Episode`` fields (seed, reset_time, reset_attempts).
+      actions: (T, n) labels in the env's action space; default the next joint positions,
+        a_t = goal_to_action(q_{t+1}).
+      label: what ``actions`` are (``lowcostdex.demo_file.LABELS``).
+      meta: ``Episode`` fields (seed, reset_time, reset_attempts, source).
 
     Returns:
-      Episode with a_t = goal_to_action(q_{t+1}), o_t = observation(state_t, goal_t, a_{t-1})
-      (a_{-1} = 0, as after an env reset), r_t and success_t of the state after the action.
+      Episode with o_t = observation(state_t, goal_t, a_{t-1}) (a_{-1} = 0, as after an env
+      reset), r_t and success_t of the state after the action.
     """
     qpos, qvel = np.asarray(qpos, float), np.asarray(qvel, float)
     steps = len(qpos) - 1
-    q = qpos[:, task.hand_qpos]
-    actions = goal_to_action(q[1:], task.hand_low, task.hand_high)  # (T, n)
+    if actions is None:
+        q = qpos[:, task.hand_qpos]
+        actions = goal_to_action(q[1:], task.hand_low, task.hand_high)  # (T, n)
+    actions = np.asarray(actions, float)
     goals = [goal]
     for t in range(1, steps + 1):
         goals.append(task.advance_goal(goal, t))
@@ -80,7 +261,7 @@ def episode_from_states(task: Any, qpos: np.ndarray, qvel: np.ndarray, goal: dic
     terminated = bool(steps and task.terminated(qpos[-1], goals[-1]))
     return Episode(obs, actions, rewards, qpos, qvel, np.asarray(time, float), success,
                    goal={k: np.asarray(v, float) for k, v in goal.items()},
-                   terminated=terminated, **meta)
+                   terminated=terminated, label=label, **meta)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -203,8 +384,10 @@ class RecordingStats:
       episodes: episodes written.
       successes: of which ended in task success.
       steps: transitions written.
-      reset_time: total auto-reset time [s].
+      reset_time: total auto-reset time [s] of the demonstrations.
       record_time: total demonstration time [s].
+      playbacks: playback episodes written; playback_successes: of which succeeded.
+      playback_time: robot time of the playbacks, their auto-resets included [s].
     """
 
     episodes: int = 0
@@ -212,6 +395,9 @@ class RecordingStats:
     steps: int = 0
     reset_time: float = 0.0
     record_time: float = 0.0
+    playbacks: int = 0
+    playback_successes: int = 0
+    playback_time: float = 0.0
 
 
 class KinestheticRecorder:
@@ -224,29 +410,57 @@ class KinestheticRecorder:
       env_id: the gymnasium id, stored in the file.
       teacher: a ``VirtualTeacher`` on the emulated robot; None for a person.
       steps: recorded control steps per episode (default the task's episode length).
-      on_episode: called with (episode index, Episode) after each write (progress display).
+      on_episode: called with (episode index, Episode) after each write (progress display),
+        playbacks included.
+      response: the robot's ``ServoResponse`` (``identify_servo_response``): demonstrations are
+        labelled ``servo_goal`` and the model is stored in the file; None labels them with the
+        next position (BAIR's labels) and allows no playbacks.
+      playbacks: after each successful demonstration, play its servo goals back on the robot this
+        many times (torque on, noisy goals; see the module docstring) and write each playback
+        as an episode (source ``playback``, label ``commanded``).
+      playback_noise: half-width of the uniform noise on each played-back goal, in action units
+        (the DAPG authors' actuator noise was +-0.1 rad, ~0.05-0.1 of the D'Claw's ranges).
+      rng: generator of the playback noise (seeded by the caller).
     """
 
     def __init__(self, env: Any, path: str | Path, env_id: str,
                  teacher: VirtualTeacher | None = None, steps: int | None = None,
-                 on_episode: Callable[[int, Episode], None] | None = None):
+                 on_episode: Callable[[int, Episode], None] | None = None,
+                 response: ServoResponse | None = None, playbacks: int = 0,
+                 playback_noise: float = 0.05, rng: np.random.Generator | None = None):
         self.env = env
         self.henv = env.unwrapped
         backend = self.henv.backend
         if not getattr(backend, "real_time", False) or not hasattr(backend, "robot"):
             raise ConfigError("kinesthetic recording needs a robot backend ('emulated' or "
                               f"'hardware'), got {type(backend).__name__}")
+        if playbacks < 0 or playback_noise < 0:
+            raise ConfigError(f"playbacks={playbacks} and playback_noise={playback_noise} must "
+                              "be >= 0")
+        if playbacks and response is None:
+            raise ConfigError("playbacks need the servo response (identify_servo_response): "
+                              "next-position labels are not goals the servos can play back")
+        n = int(np.prod(env.action_space.shape))
+        if response is not None and len(response.alpha) != n:
+            raise ConfigError(f"the servo response has {len(response.alpha)} joints, the env "
+                              f"{n} actions")
         self.backend = backend
         self.task = self.henv.task
         self.teacher = teacher
         self.steps = steps or self.task.timing.episode_steps
+        self.response, self.playbacks, self.playback_noise = response, playbacks, playback_noise
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.max_step = np.array([j.max_velocity for j in self.task.hand.joints]) * \
+            float(self.henv.control_period)
         source = "virtual_teacher" if teacher is not None else "kinesthetic"
-        self.writer = DemoWriter(path, DatasetInfo.from_env(env, source, env_id=env_id))
+        self.writer = DemoWriter(path, DatasetInfo.from_env(env, source, env_id=env_id),
+                                 label_model=response.to_dict() if response else None)
         self.on_episode = on_episode
         self.stats = RecordingStats()
 
     def record_episode(self, seed: int) -> Episode:
-        """Auto-reset, record one demonstration, append it to the file; returns it."""
+        """Auto-reset, record one demonstration, append it to the file, then its playbacks if
+        it succeeded; returns the demonstration."""
         robot = self.backend.robot
         self.env.reset(seed=seed)
         goal = {k: np.asarray(v, float) for k, v in self.henv.goal.items()}
@@ -267,8 +481,13 @@ class KinestheticRecorder:
         finally:
             if self.teacher is not None:
                 self.teacher.stop()
-        ep = episode_from_states(self.task, np.array(qpos), np.array(qvel), goal,
-                                 np.array(times), seed=seed,
+        qpos, qvel = np.array(qpos), np.array(qvel)
+        actions, label = None, "next_position"
+        if self.response is not None:
+            actions = servo_goal_labels(self.task, qpos, qvel, self.response, self.max_step)
+            label = "servo_goal"
+        ep = episode_from_states(self.task, qpos, qvel, goal, np.array(times), actions=actions,
+                                 label=label, seed=seed,
                                  reset_time=report.duration if report else float("nan"),
                                  reset_attempts=report.attempts if report else 0)
         k = self.writer.append(ep)
@@ -278,6 +497,39 @@ class KinestheticRecorder:
         s.steps += ep.length
         s.reset_time += report.duration if report else 0.0
         s.record_time += robot.clock.now() - start
+        if self.on_episode is not None:
+            self.on_episode(k, ep)
+        if ep.length and ep.success[-1]:
+            for _ in range(self.playbacks):
+                self.play_back(ep)
+        return ep
+
+    def play_back(self, demo: Episode) -> Episode:
+        """Play a demonstration's goals back on the robot (torque on, from the same auto-reset
+        start, with ``playback_noise`` on every goal) and append the playback as an episode
+        labelled with the clean goals; returns it."""
+        from lowcostdex.algos.demos import EpisodeRecorder
+
+        robot = self.backend.robot
+        start = robot.clock.now()
+        obs, info = self.env.reset(seed=demo.seed)
+        rec = EpisodeRecorder(self.env, obs, info, demo.seed)
+        times = [robot.clock.now()]  # robot clock times, as the demonstrations'
+        for a in demo.actions:
+            noise = self.rng.uniform(-self.playback_noise, self.playback_noise, a.shape)
+            executed = np.clip(a + noise, -1.0, 1.0).astype(self.env.action_space.dtype)
+            obs, reward, terminated, truncated, info = self.env.step(executed)
+            rec.step(a, obs, reward, terminated, info)
+            times.append(robot.clock.now())
+            if terminated or truncated:
+                break
+        ep = dataclasses.replace(rec.episode(), time=np.array(times), source="playback",
+                                 label="commanded")
+        k = self.writer.append(ep)
+        s = self.stats
+        s.playbacks += 1
+        s.playback_successes += int(ep.success[-1]) if ep.length else 0
+        s.playback_time += robot.clock.now() - start
         if self.on_episode is not None:
             self.on_episode(k, ep)
         return ep

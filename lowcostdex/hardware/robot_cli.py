@@ -54,6 +54,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
     p.add_argument("--countdown", type=float, default=3.0,
                    help="seconds announced before each episode on a real robot")
+    p.add_argument("--labels", default="servo_goal", choices=("servo_goal", "next_position"),
+                   help="servo_goal: identify the servos' response first (a few seconds of "
+                        "random goals) and label each step with the goal that reproduces it; "
+                        "next_position: the next measured position (BAIR's labels)")
+    p.add_argument("--playbacks", type=int, default=2,
+                   help="noisy playbacks of each successful demonstration on the robot "
+                        "(servo_goal labels only; 0: none)")
+    p.add_argument("--playback-noise", type=float, default=0.05,
+                   help="half-width of the playback goal noise [action units]")
     p.set_defaults(func=_record_demos)
 
     p = sub.add_parser("record-log",
@@ -144,16 +153,23 @@ def _reset_test(args: argparse.Namespace) -> int:
 
 def _record_demos(args: argparse.Namespace) -> int:
     import gymnasium as gym
+    import numpy as np
     from rich.console import Console
     from rich.progress import Progress
 
     from lowcostdex.errors import ConfigError
-    from lowcostdex.hardware.demos import KinestheticRecorder, VirtualTeacher
+    from lowcostdex.hardware.demos import (
+        KinestheticRecorder,
+        VirtualTeacher,
+        identify_servo_response,
+    )
     from lowcostdex.sim import scripted
     from lowcostdex.sim.registry import register_envs
 
     if args.episodes < 1:
         raise ConfigError("--episodes must be >= 1")
+    if args.labels != "servo_goal":
+        args.playbacks = 0
     register_envs()
     env_id, solver = TASKS[args.task]
     console = Console(stderr=True)
@@ -172,12 +188,26 @@ def _record_demos(args: argparse.Namespace) -> int:
             bar = progress.add_task(f"{args.task} demos", total=args.episodes)
 
             def done(k: int, ep) -> None:
-                progress.advance(bar)
-                progress.console.print(f"episode {k}: {ep.length} steps, "
+                if ep.source != "playback":
+                    progress.advance(bar)
+                what = "playback" if ep.source == "playback" else "demonstration"
+                progress.console.print(f"episode {k} ({what}): {ep.length} steps, "
                                        f"{'success' if ep.success[-1] else 'no success'}")
 
-            recorder = KinestheticRecorder(env, args.out, env_id, teacher=teacher,
-                                           on_episode=done)
+            response = None
+            if args.labels == "servo_goal":
+                ident = progress.add_task("servo response (random goals)", total=4)
+                response, seconds = identify_servo_response(
+                    env, episodes=4, seed=args.seed + 1_000_000,
+                    on_episode=lambda k: progress.advance(ident))
+                progress.console.print(
+                    f"servo response in {seconds:.0f} s: alpha "
+                    f"{np.round(response.alpha, 2).tolist()}, r2 "
+                    f"{np.round(response.r2, 3).tolist()}")
+            recorder = KinestheticRecorder(
+                env, args.out, env_id, teacher=teacher, on_episode=done, response=response,
+                playbacks=args.playbacks, playback_noise=args.playback_noise,
+                rng=np.random.default_rng(args.seed))
             for k in range(args.episodes):
                 if not emulated:
                     seconds = recorder.steps * env.unwrapped.control_period
@@ -190,8 +220,10 @@ def _record_demos(args: argparse.Namespace) -> int:
     finally:
         env.close()
     s = recorder.stats
-    console.print(f"{s.episodes} episodes ({s.successes} successful), {s.steps} steps -> "
-                  f"{args.out}; reset {s.reset_time:.1f} s, recording {s.record_time:.1f} s")
+    console.print(f"{s.episodes} demonstrations ({s.successes} successful), {s.steps} steps, "
+                  f"{s.playbacks} playbacks ({s.playback_successes} successful) -> {args.out}; "
+                  f"reset {s.reset_time:.1f} s, recording {s.record_time:.1f} s, playbacks "
+                  f"{s.playback_time:.1f} s")
     return 0
 
 
