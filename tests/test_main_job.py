@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from lowcostdex.cli import main
@@ -53,8 +54,15 @@ def test_gap_analysis_names_the_emulated_robots_effects(smoke):
     out, r = smoke
     g = r["gap"]
     assert g["causes"], g["verdict"]
-    assert g["truth_named"], "none of the emulated robot's real effects was named"
+    # exactly the emulated robot's effects, none invented, with their parameters
+    truth = {e["effect"]: e["params"] for e in g["truth"]}
+    named = {c["effect"]: c["params"] for c in g["causes"]}
+    assert set(named) == set(truth), g["verdict"]
+    for effect, params in truth.items():
+        for p, value in params.items():
+            np.testing.assert_allclose(named[effect][p], value, rtol=0.2, err_msg=effect)
     assert g["extended_heldout_rmse_mrad"] < 0.5 * g["baseline_heldout_rmse_mrad"]
+    assert g["extended_heldout_rmse_mrad"] < 1.5 * g["noise_floor_mrad"]
     assert (out / g["report"]).exists()
     for plot in g["plots"]:
         assert (out / plot).stat().st_size > 5000

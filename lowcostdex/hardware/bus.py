@@ -50,7 +50,8 @@ class MotorState:
       temperature: [deg C].
       valid: True where the motor answered with a correct packet in this read.
       hardware_error: Hardware Error Status bits (0 = none), -1 where unknown.
-      timestamp: host monotonic time of the read [s].
+      timestamp: host monotonic time the values were sampled [s] (for a sync read: when the
+        request went out, not when the last reply came back).
     """
 
     position: np.ndarray

@@ -2,7 +2,8 @@
 
 ``TraceRecorder`` drives a ``Robot`` at its control rate and logs, at every read, the measured
 joint state and the goal sent right after that read (the command in effect until the next one),
-on the robot's clock: ``time``, ``goal:<actuator>``, ``qpos:<joint>``, ``qvel:<joint>``,
+on the robot's clock: ``time`` (when the state was sampled), ``goal_time`` (when the goal had been
+sent), ``goal:<actuator>``, ``qpos:<joint>``, ``qvel:<joint>``,
 ``current:<actuator>``, ``voltage:<actuator>``, ``temperature:<actuator>`` (actuators are named
 after the joints they drive, as in the lowcostdex MJCF models). ``excite`` runs identification
 excitations (steps from both sides, slow ramps, chirps) through the Robot's safety gate, so the
@@ -33,7 +34,7 @@ class TraceRecorder:
         self.robot = robot
         self.joints = tuple(joints or robot.action_joints)
         self._idx = robot.index(self.joints)
-        self._rows: list[tuple[float, np.ndarray, object]] = []
+        self._rows: list[tuple[float, np.ndarray, object, float]] = []
 
     def step(self, goal: np.ndarray) -> np.ndarray:
         """Read, send ``goal`` (n,) [rad] through the safety gate, log both, wait for the tick.
@@ -42,7 +43,7 @@ class TraceRecorder:
         """
         state = self.robot.read()
         sent = self.robot.send(np.asarray(goal, float), self.joints)
-        self._rows.append((state.time, sent.copy(), state))
+        self._rows.append((state.time, sent.copy(), state, self.robot.clock.now()))
         self.robot.wait()
         return sent
 
@@ -58,22 +59,47 @@ class TraceRecorder:
         channels = {"current": pick("current"), "voltage": pick("voltage"),
                     "temperature": pick("temperature")}
         channels = {k: v for k, v in channels.items() if np.all(np.isfinite(v))}
+        # the goal took effect when its packet had gone out, after the read's replies
+        goal_time = np.maximum(np.array([r[3] for r in self._rows]), time)
         return Trajectory(name=name, time=time - time[0], goal=goal, qpos=pick("position"),
                           actuators=self.joints, joints=self.joints, qvel=pick("velocity"),
-                          channels=channels)
+                          channels=channels, goal_time=goal_time - time[0])
 
     def clear(self) -> None:
         self._rows.clear()
 
 
+def settle(robot: Robot, joints: Sequence[str], goal: np.ndarray, min_seconds: float = 0.3,
+           max_seconds: float = 1.5, speed: float = 0.05) -> bool:
+    """Hold ``goal`` (n,) [rad] on ``joints`` until they rest there (every |velocity| below
+    ``speed`` [rad/s] after at least ``min_seconds``), at most ``max_seconds``; returns whether
+    they came to rest. Nothing is logged."""
+    idx = robot.index(joints)
+    start = robot.clock.now()
+    while True:
+        state = robot.read()
+        elapsed = robot.clock.now() - start
+        if elapsed >= min_seconds and np.all(np.abs(state.velocity[idx]) < speed):
+            return True
+        if elapsed >= max_seconds:
+            return False
+        robot.send(np.asarray(goal, float), joints)
+        robot.wait()
+
+
 def excite(robot: Robot, joints: Sequence[str], goals: np.ndarray, path: str | Path,
-           name: str | None = None, on_step: Callable[[int], None] | None = None) -> Path:
+           name: str | None = None, on_step: Callable[[int], None] | None = None,
+           rest_first: bool = True) -> Path:
     """Drive ``joints`` through ``goals`` (K, n) [rad] at the robot's rate and write the log.
 
-    The robot's torque is switched on for ``joints`` first (goal := present, no jump) and the
-    motion starts from where the joints are.
+    The robot's torque is switched on for ``joints`` first (goal := present, no jump). With
+    ``rest_first`` the joints are first brought to rest at ``goals[0]`` (``settle``, not
+    logged): a log that starts at rest on its first goal has a known initial state and goal
+    history for the replay; one that starts mid-motion does not.
     """
     robot.torque(True, joints)
+    if rest_first and len(goals):
+        settle(robot, joints, np.asarray(goals, float)[0])
     rec = TraceRecorder(robot, joints)
     for k, g in enumerate(np.asarray(goals, float)):
         rec.step(g)

@@ -2,8 +2,12 @@
 
 The project's log format (one file = one trajectory) has one row per sample and columns
 
-    time                    [s]     strictly increasing (host clock when the row was read)
+    time                    [s]     strictly increasing (host clock when the row's values
+                                    were sampled)
     goal:<actuator>         [rad]   goal position written right after the row was read
+    goal_time               [s]     (optional) when that goal reached the motors; absent: at
+                                    ``time``. On a bus the goal follows the read's replies and
+                                    its own packet, a few ms that otherwise look like latency.
     qpos:<joint>            [rad]   measured joint position
     qvel:<joint>            [rad/s] measured joint velocity (optional)
     current:<actuator>      [A]     (optional)
@@ -58,6 +62,7 @@ class Trajectory:
       channels: {"current"|"voltage"|"temperature"|"torque_enable": (T, na)}.
       model: key of the model it replays on (``Dataset.models``).
       meta: free-form provenance (e.g. a BAM header).
+      goal_time: (T,) when each row's goal took effect [s], >= ``time``; None: at ``time``.
     """
 
     name: str
@@ -70,6 +75,12 @@ class Trajectory:
     channels: dict[str, np.ndarray] = field(default_factory=dict)
     model: str = "model"
     meta: dict = field(default_factory=dict)
+    goal_time: np.ndarray | None = None
+
+    @property
+    def goal_times(self) -> np.ndarray:
+        """(T,) when each row's goal took effect [s]."""
+        return self.time if self.goal_time is None else self.goal_time
 
     @property
     def duration(self) -> float:
@@ -83,11 +94,14 @@ class Trajectory:
         sl = slice(start, stop)
         return replace(self, name=name or self.name, time=self.time[sl], goal=self.goal[sl],
                        qpos=self.qpos[sl], qvel=None if self.qvel is None else self.qvel[sl],
-                       channels={k: v[sl] for k, v in self.channels.items()})
+                       channels={k: v[sl] for k, v in self.channels.items()},
+                       goal_time=None if self.goal_time is None else self.goal_time[sl])
 
     def to_columns(self) -> dict[str, np.ndarray]:
         """The log-format columns {name: (T,)}."""
         cols = {"time": self.time}
+        if self.goal_time is not None:
+            cols["goal_time"] = self.goal_time
         for i, a in enumerate(self.actuators):
             cols[f"goal:{a}"] = self.goal[:, i]
         for i, j in enumerate(self.joints):
@@ -187,7 +201,7 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
     acts: dict[str, dict[str, np.ndarray]] = {}
     joints: dict[str, dict[str, np.ndarray]] = {}
     for key, arr in cols.items():
-        if key == "time":
+        if key in ("time", "goal_time"):
             continue
         prefix, sep, target = key.partition(":")
         if not sep or not target:
@@ -219,6 +233,12 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
                            f"(first at row {int(np.argmax(bad))})")
     t = np.asarray(cols["time"], dtype=float)
     _check_time(t, name)
+    goal_time = None
+    if "goal_time" in cols:
+        goal_time = np.asarray(cols["goal_time"], dtype=float)
+        if np.any(goal_time < t) or np.any(np.diff(goal_time) <= 0):
+            raise LogError(f"{name}: 'goal_time' must be >= 'time' row by row and strictly "
+                           "increasing")
     has_qvel = all("qvel" in joints[j] for j in meas)
     channels = {}
     for ch in CHANNELS:
@@ -234,7 +254,7 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
         qpos=np.stack([joints[j]["qpos"] for j in meas], axis=1),
         actuators=tuple(goal_acts), joints=tuple(meas),
         qvel=np.stack([joints[j]["qvel"] for j in meas], axis=1) if has_qvel else None,
-        channels=channels)
+        channels=channels, goal_time=goal_time)
 
 
 def _check_time(t: np.ndarray, name: str) -> None:

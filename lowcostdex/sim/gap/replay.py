@@ -89,10 +89,21 @@ class Replayer:
             t = tr.time[w.start:w.stop] - tr.time[w.start]
             frac = t / self.dt
             n_steps = int(np.ceil(frac[-1])) + 1
-            switch = np.round(frac).astype(int)
+            # goals switch on the grid when they took effect (``goal_time``, else at ``time``);
+            # before the window's first switch the previous row's goal holds
+            # (index -1: ``prev_goal``, at a log's start the measured position, which a servo
+            # at rest holds; the real previous goal is not in the log)
+            switch = np.round((tr.goal_times[w.start:w.stop] - tr.time[w.start]) / self.dt)
             k = np.arange(n_steps)
-            goal_idx = w.start + np.clip(np.searchsorted(switch, k, side="right") - 1, 0, None)
-            prev = tr.goal[w.start - 1] if w.start > 0 else tr.goal[w.start]
+            goal_idx = w.start + np.searchsorted(switch, k, side="right") - 1
+            if w.start > 0 or switch[0] == 0:
+                goal_idx = np.maximum(goal_idx, w.start - 1 if switch[0] > 0 else w.start)
+            if w.start > 0:
+                prev = tr.goal[w.start - 1]
+            elif switch[0] > 0 and set(tr.actuators) <= set(tr.joints):
+                prev = tr.qpos[0, [tr.joints.index(a) for a in tr.actuators]]
+            else:
+                prev = tr.goal[0]
             g = _Grid(n_steps, goal_idx, frac, prev)
             self._grids[w] = g
         return g
@@ -177,7 +188,9 @@ class Replayer:
                                                                  windows, played))
         trs = ds.trajectories
         # commands and channels per simulation on the grid: (nsim, K, na), gathered once
-        goals = np.stack([trs[t].goal[gi] for t, gi in zip(traj_of, goal_idx, strict=True)])
+        goals = np.stack([np.where(gi[:, None] < 0, g.prev_goal, trs[t].goal[np.maximum(gi, 0)])
+                          for t, gi, g in zip(traj_of, goal_idx, grids, strict=True)])
+        goal_idx = np.maximum(goal_idx, 0)  # channels before a log's first goal: its first row
         chans = {ch: np.stack([trs[t].channels[ch][gi] for t, gi in
                                zip(traj_of, goal_idx, strict=True)])
                  for ch in plant.required_channels}
@@ -212,7 +225,7 @@ class Replayer:
                 continue
             tr = self.ds.trajectories[w.traj]
             tau = tr.time[w.start] + offsets[:-1] + 0.5 * self.dt
-            idx = np.clip(np.searchsorted(tr.time, tau, side="right") - 1, 0, w.start - 1)
+            idx = np.clip(np.searchsorted(tr.goal_times, tau, side="right") - 1, 0, w.start - 1)
             hist[s, :-1][:, act] = tr.goal[idx]
         return hist
 
