@@ -7,6 +7,8 @@
    Dynamixel bus, auto-resets before every episode, its fingers go limp, and the emulator's
    virtual teacher moves them through a valve turn while the joint angles are recorded
    (``lowcostdex record-demos --port emulated``; with a real robot a person moves the fingers).
+   Each step is labelled with the servo goal that reproduces it, and each successful
+   demonstration is played back twice by the servos with noisy goals (the clone's data).
 2. Train DAPG: behaviour cloning on the demos, then NPG with the decaying demo term, on the
    emulated robot at its real control rate (auto-reset and thermal guard between episodes) or,
    faster, in simulation. Progress shows samples, success, robot hours and thermal pauses.
@@ -24,8 +26,10 @@ import argparse
 from pathlib import Path
 
 from lowcostdex.algos import experiment
+from lowcostdex.algos.configs import BCConfig
 from lowcostdex.algos.train import TrainConfig, train
 from lowcostdex.cli import main as lowcostdex
+from lowcostdex.demo_file import read_episodes
 
 
 def main() -> None:
@@ -55,14 +59,19 @@ def main() -> None:
         n_iter=args.iters,
         n_traj=args.n_traj,
         eval_every=5,
+        eval_bc=True,
+        bc=BCConfig(epochs=100, log_std="residual"),  # the main job's: ~1000 pairs
     )
     run_dir = out / f"dapg_{args.backend}"
     run = train(config, run_dir, resume=(run_dir / "config.json").exists())
     m = run.read_metrics()
     bc = experiment.read_json(run.path / "bc.json")
+    used = read_episodes(demos, only_successful=True)
+    played = sum(e.source == "playback" for e in used)
     print(
-        f"BC on {bc['n_episodes']} demos ({bc['n_pairs']} pairs): loss {bc['bc_loss_before']:.3f} "
-        f"-> {bc['bc_loss_after']:.4f}"
+        f"BC on {len(used) - played} demos + {played} playbacks ({bc['n_pairs']} pairs): loss "
+        f"{bc['bc_loss_before']:.3f} -> {bc['bc_loss_after']:.4f}; the clone alone: success "
+        f"{bc['eval_success_rate']:.2f}"
     )
     print(
         f"{int(m[experiment.SAMPLES][-1])} samples, {m[experiment.ROBOT_HOURS][-1]:.2f} robot hours "

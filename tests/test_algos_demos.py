@@ -51,4 +51,4 @@ def test_dapg_kinesthetic_valve_demo(tmp_path, monkeypatch, capsys):
         str(tmp_path),
     ]
     _run("dapg_kinesthetic_valve", args, monkeypatch)
-    assert "BC on 2 demos" in capsys.readouterr().out
+    assert "BC on 2 demos + 4 playbacks" in capsys.readouterr().out

@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from lowcostdex.cli import main
-from lowcostdex.demo_file import read_demo_pairs, read_info
+from lowcostdex.demo_file import read_demo_pairs, read_episodes, read_info, read_label_model
 
 
 def test_reset_test_reports_success_rate_and_times(tmp_path, capsys):
@@ -25,9 +25,21 @@ def test_record_demos_with_the_virtual_teacher(tmp_path):
     assert main(["record-demos", "--hand", "dclaw", "--task", "turn-valve", "--port", "emulated",
                  "--episodes", "1", "--out", str(out)]) == 0
     info, episodes, steps = read_info(out)
-    assert (episodes, steps) == (1, 40) and info.source == "virtual_teacher"
-    (obs, act), = read_demo_pairs(out)
-    assert obs.shape == (40, info.obs_dim) and np.all(np.abs(act) <= 1)
+    # the demonstration and its two playbacks (servo-goal labels, the default)
+    assert (episodes, steps) == (3, 120) and info.source == "virtual_teacher"
+    assert [(e.source, e.label) for e in read_episodes(out)] == [
+        ("virtual_teacher", "servo_goal"), ("playback", "commanded"), ("playback", "commanded")]
+    assert read_label_model(out)["model"] == "linear_servo_response"
+    pairs = read_demo_pairs(out)
+    assert len(pairs) == 3
+    for obs, act in pairs:
+        assert obs.shape == (40, info.obs_dim) and np.all(np.abs(act) <= 1)
+    # BAIR's labels, no playbacks
+    bair = tmp_path / "bair.h5"
+    assert main(["record-demos", "--port", "emulated", "--episodes", "1", "--labels",
+                 "next_position", "--out", str(bair)]) == 0
+    assert [e.label for e in read_episodes(bair)] == ["next_position"]
+    assert read_label_model(bair) is None
 
 
 def test_bad_arguments_are_errors_not_hangs(tmp_path, capsys):
