@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -31,6 +32,18 @@ RETURN, PUSH, RISE, LOWER = "return", "push", "rise", "lower"
 
 # ------------------------------------------------------------------------------------------------
 # D'Claw finger kinematics
+
+
+def _finger_frame(model: mujoco.MjModel, finger: str, links: int
+                  ) -> tuple[np.ndarray, np.ndarray, list[float], Any]:
+    """A lowcostdex finger's base frame in the world at qpos0 (origin (3,), rotation (3, 3)),
+    the lengths [m] of its first ``links`` links (link k+1's offset along z) and its tip geom."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    link0 = model.body(f"{finger}_link0")
+    lengths = [float(model.body(f"{finger}_link{k + 1}").pos[2]) for k in range(links)]
+    return (data.xpos[link0.id].copy(), data.xmat[link0.id].reshape(3, 3).copy(), lengths,
+            model.geom(f"{finger}_tip_geom"))
 
 
 @dataclass(frozen=True)
@@ -57,16 +70,9 @@ class FingerGeometry:
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel, finger: str) -> FingerGeometry:
-        data = mujoco.MjData(model)
-        mujoco.mj_kinematics(model, data)
-        link0 = model.body(f"{finger}_link0")
-        tip = model.geom(f"{finger}_tip_geom")
-        return cls(origin=data.xpos[link0.id].copy(),
-                   rot=data.xmat[link0.id].reshape(3, 3).copy(),
-                   l0=float(model.body(f"{finger}_link1").pos[2]),
-                   l1=float(model.body(f"{finger}_link2").pos[2]),
-                   l2=float(tip.pos[2] + tip.size[1]),
-                   tip_radius=float(tip.size[0]))
+        origin, rot, links, tip = _finger_frame(model, finger, 2)
+        return cls(origin=origin, rot=rot, l0=links[0], l1=links[1],
+                   l2=float(tip.pos[2] + tip.size[1]), tip_radius=float(tip.size[0]))
 
     def forward(self, q: np.ndarray) -> np.ndarray:
         """Tip-sphere centre (..., 3) [m] in the world for joint angles q (..., 3) [rad]."""
@@ -458,15 +464,8 @@ class AllegroFingerGeometry:
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel, finger: str) -> AllegroFingerGeometry:
-        data = mujoco.MjData(model)
-        mujoco.mj_kinematics(model, data)
-        link0 = model.body(f"{finger}_link0")
-        tip = model.geom(f"{finger}_tip_geom")
-        return cls(origin=data.xpos[link0.id].copy(),
-                   rot=data.xmat[link0.id].reshape(3, 3).copy(),
-                   l0=float(model.body(f"{finger}_link1").pos[2]),
-                   l1=float(model.body(f"{finger}_link2").pos[2]),
-                   l2=float(model.body(f"{finger}_link3").pos[2]),
+        origin, rot, links, tip = _finger_frame(model, finger, 3)
+        return cls(origin=origin, rot=rot, l0=links[0], l1=links[1], l2=links[2],
                    l3=float(tip.pos[2] + tip.size[1]))
 
     def _chain(self, j2: float, j3: float) -> complex:

@@ -57,6 +57,8 @@ class AllegroTurnConfig:
 class AllegroTurnValve(Task):
     """Turn the valve above the palm-up Allegro by ``goal_offset`` (default 360 deg)."""
 
+    object_joint = "valve"
+
     def __init__(self, config: AllegroTurnConfig = AllegroTurnConfig(),
                  hand: HandSpec | None = None, pd: AllegroPD | None = None,
                  valve: AllegroValve | None = None, timing: TaskSpec | None = None):
@@ -68,11 +70,6 @@ class AllegroTurnValve(Task):
 
     def build_spec(self) -> mujoco.MjSpec:
         return build_allegro("valve", self.hand, self.pd, self.valve)
-
-    def bind(self, model: mujoco.MjModel) -> None:
-        super().bind(model)
-        self.obj_qpos = int(model.jnt_qposadr[model.joint("valve").id])
-        self.obj_dof = int(model.jnt_dofadr[model.joint("valve").id])
 
     @property
     def obs_dim(self) -> int:

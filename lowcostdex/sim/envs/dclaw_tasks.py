@@ -82,11 +82,7 @@ class ValveTask(DClawTask):
 
     config: TurnConfig | ScrewConfig
     passive_actuators = ("valve",)
-
-    def bind(self, model: mujoco.MjModel) -> None:
-        super().bind(model)
-        self.obj_qpos = int(model.jnt_qposadr[model.joint("valve").id])
-        self.obj_dof = int(model.jnt_dofadr[model.joint("valve").id])
+    object_joint = "valve"
 
     @property
     def obs_dim(self) -> int:

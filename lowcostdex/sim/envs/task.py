@@ -44,6 +44,8 @@ class Task(ABC):
     timing: TaskSpec
     #: actuators released (torque off) during episodes, e.g. the D'Claw's valve motor.
     passive_actuators: tuple[str, ...] = ()
+    object_joint: str | None = None
+    """A one-DOF object joint (e.g. "valve"): ``bind`` sets ``obj_qpos`` and ``obj_dof``."""
 
     @abstractmethod
     def build_spec(self) -> mujoco.MjSpec:
@@ -61,6 +63,10 @@ class Task(ABC):
         self.hand_high = np.array([j.high for j in self.hand.joints])
         self.passive_act = np.array([model.actuator(n).id for n in self.passive_actuators],
                                     dtype=int)
+        if self.object_joint is not None:
+            joint = model.joint(self.object_joint)
+            self.obj_qpos = int(model.jnt_qposadr[joint.id])
+            self.obj_dof = int(model.jnt_dofadr[joint.id])
 
     @abstractmethod
     def initial_state(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, Goal]:
