@@ -327,7 +327,7 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     from lowcostdex.hardware.emulator import emulated_dclaw
     from lowcostdex.hardware.hands import dclaw_spec
     from lowcostdex.hardware.robot import Robot, RobotConfig
-    from lowcostdex.hardware.trace import identification_logs
+    from lowcostdex.hardware.trace import dclaw_park, identification_logs
     from lowcostdex.sim.effects import AppliedEffect
     from lowcostdex.sim.gap import GapConfig, analyze, load_dataset, write_report
     from lowcostdex.sim.models.dclaw import build_dclaw
@@ -359,12 +359,21 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
         task = progress.add_task("recording", total=b.gap_logs * steps)
         paths = identification_logs(robot, GAP_JOINTS, logs_dir, b.gap_logs, b.gap_seconds,
                                     np.random.default_rng(ctx.seed + 2),
-                                    on_step=lambda _: progress.advance(task))
+                                    on_step=lambda _: progress.advance(task), model=model,
+                                    park=dclaw_park(hand.joint_names, GAP_JOINTS))
     nominal = gap_dir / "nominal_finger.xml"
     nominal.write_text(build_dclaw("none", hand, thermal=False, fingers=("ff",)).to_xml())
     dataset = load_dataset([str(p) for p in paths], model=str(nominal))
     t0 = time.perf_counter()
-    result = analyze(dataset, GapConfig())
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+                  console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task("gap analysis", total=1.0)
+        result = analyze(dataset, GapConfig(),
+                         lambda stage, frac: bar.update(task, completed=frac,
+                                                        description=f"gap analysis: {stage}"))
     seconds = time.perf_counter() - t0
     write_report(result, gap_dir / "report")
     report = json.loads((gap_dir / "report" / "report.json").read_text())

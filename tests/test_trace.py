@@ -132,3 +132,31 @@ def test_the_effect_free_emulator_replays_at_the_noise_floor(tmp_path):
     assert not result.causes, result.verdict
     floor = float(np.sqrt(np.mean(result.floor ** 2)))
     assert result.gain.baseline_rmse < 1.5 * floor
+
+
+def test_identification_poses_touch_nothing_with_the_neighbours_parked():
+    import mujoco
+
+    from lowcostdex.hardware.trace import contact_free, dclaw_park
+
+    hand = dclaw_spec()
+    model = build_dclaw("none", hand).compile()
+    park = dclaw_park(hand.joint_names, JOINTS)
+    assert park == {"mf_middle": -1.0, "th_middle": -1.0}
+    touching = np.array([-0.38, 0.84, 1.05])  # ff curled in, swung onto the middle finger's base
+    free = np.array([0.1, -0.3, 0.4])
+    goals = np.stack([free, touching, free])
+    out, changed = contact_free(model, JOINTS, goals, park)
+    assert changed == 1
+    np.testing.assert_array_equal(out[[0, 2]], goals[[0, 2]])  # free poses are left alone
+    assert np.linalg.norm(out[1]) < np.linalg.norm(touching)  # pulled toward the centre
+    data = mujoco.MjData(model)
+    for row in (touching, out[1]):
+        data.qpos[:] = model.qpos0
+        for name, value in park.items():
+            data.qpos[model.jnt_qposadr[model.joint(name).id]] = value
+        for name, value in zip(JOINTS, row, strict=True):
+            data.qpos[model.jnt_qposadr[model.joint(name).id]] = value
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        assert (data.ncon > 0) == (row is touching)

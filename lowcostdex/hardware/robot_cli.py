@@ -235,7 +235,7 @@ def _record_log(args: argparse.Namespace) -> int:
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.backend import default_effects, make_dynamixel_bus, robot_hand
     from lowcostdex.hardware.robot import Robot, RobotConfig
-    from lowcostdex.hardware.trace import identification_logs
+    from lowcostdex.hardware.trace import dclaw_park, identification_logs
     from lowcostdex.sim.effects import AppliedEffect
     from lowcostdex.sim.models.dclaw import build_dclaw
 
@@ -267,7 +267,8 @@ def _record_log(args: argparse.Namespace) -> int:
         bar = progress.add_task("identification logs", total=args.logs * steps)
         paths = identification_logs(robot, joints, args.out, args.logs, args.seconds,
                                     np.random.default_rng(args.seed),
-                                    on_step=lambda _: progress.advance(bar))
+                                    on_step=lambda _: progress.advance(bar), model=model,
+                                    park=dclaw_park(hand.joint_names, joints))
     console.print(f"{len(paths)} logs -> {args.out}; analyse them with "
                   f"`lowcostdex gap analyze --model MODEL.xml --log {args.out}/*.csv --out DIR` "
                   f"(MODEL.xml: `lowcostdex model dclaw --station none --out MODEL.xml`)")
