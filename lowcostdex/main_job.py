@@ -11,7 +11,7 @@
 5. report: ``report.md`` (and ``report.html``) with the PNG plots, in one output folder.
 
 ``--port /dev/ttyUSB0`` runs the same stages on a real D'Claw (kinesthetic demos then need a
-person); ``--size`` picks the budget: ``smoke`` (CI, about a minute), ``default`` (about 15 minutes
+person); ``--size`` picks the budget: ``smoke`` (CI, about a minute), ``default`` (about 5 minutes
 on a 2-core laptop) or ``long``.
 """
 
@@ -524,8 +524,8 @@ def _report(ctx: Context) -> str:
         lines += ["", f"Success right after behaviour cloning (DAPG's first iteration): "
                       f"{t['success_after_bc']:.2f} (a random policy: 0.00).", "",
                   f"![learning curves]({t['plot']})", "",
-                  f"Run directories: `train_dapg/`, `train_npg/` (config, metrics.csv, "
-                  f"checkpoints, curves; `lowcostdex train ... --resume` continues them).", ""]
+                  "Run directories: `train_dapg/`, `train_npg/` (config, metrics.csv, "
+                  "checkpoints, curves; `lowcostdex train ... --resume` continues them).", ""]
     if "gap" in R:
         g = R["gap"]
         lines += ["## 4. What the nominal simulation gets wrong", "",
@@ -619,7 +619,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                        description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("runs/main"), help="output folder")
     p.add_argument("--size", choices=SIZES, default="default",
-                   help="budget: smoke (CI, ~1 min), default (~15 min on 2 cores), long")
+                   help="budget: smoke (CI, ~1 min), default (~5 min on 2 cores), long")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--port", default=None,
                    help="serial port of a real D'Claw, e.g. /dev/ttyUSB0 (default: emulated)")
