@@ -129,6 +129,8 @@ class PtyServer:
             if exc.errno == errno.EIO:  # no slave open right now (host re-opening the port)
                 time.sleep(0.001)
                 return
+            if exc.errno == errno.EBADF and self._stop.is_set():
+                return  # stop() closed the pty between select and read
             raise
         if not data:
             return
