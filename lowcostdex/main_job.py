@@ -474,11 +474,14 @@ def _summary(name: str, r: dict[str, Any]) -> str:
         return (f"{r['motors_found']} motors found, missing {r['motors_missing'] or 'none'}; "
                 f"calibration moved offsets by {r.get('calibration_ticks', 0):.1f} ticks at most")
     if name == "demos":
-        return f"{r['successful']}/{r['episodes']} successful demonstrations -> {r['file']}"
+        played = (f", {r['successful_playbacks']}/{r['playbacks']} successful playbacks"
+                  if "playbacks" in r else "")
+        return f"{r['successful']}/{r['episodes']} successful demonstrations{played} -> {r['file']}"
     if name == "train":
         return (f"DAPG eval success {r['dapg']['eval_success']:.2f} "
                 f"({r['dapg']['samples']} samples), NPG {r['npg']['eval_success']:.2f} "
-                f"({r['npg']['samples']} samples); success after BC {r['success_after_bc']:.2f}")
+                f"({r['npg']['samples']} samples); the behaviour clone alone "
+                f"{r['success_after_bc']:.2f}")
     if name == "gap":
         named = ", ".join(c["effect"] for c in r["causes"]) or "no cause"
         return (f"named: {named}; held-out RMSE {r['baseline_heldout_rmse_mrad']:.1f} -> "
@@ -512,6 +515,16 @@ def _report(ctx: Context) -> str:
                   f"({d['steps']} steps, `{d['file']}`); recording took "
                   f"{d['robot_seconds_recording']} s and the auto-resets "
                   f"{d['robot_seconds_resets']} s of robot time.", ""]
+        if "playbacks" in d:
+            alpha = d["servo_response"]["alpha"]
+            lines += [f"Before recording, {d['robot_seconds_servo_id']} s of random goals "
+                      f"identified the servos' response (a servo covers {min(alpha):.2f}-"
+                      f"{max(alpha):.2f} of a commanded step per control period); each step is "
+                      "labelled with the goal that reproduces it. The robot then played each "
+                      f"successful demonstration back with noisy goals: {d['playbacks']} "
+                      f"playbacks, {d['successful_playbacks']} turned the valve "
+                      f"({d['robot_seconds_playbacks']} s). The behaviour clone learns from the "
+                      "successful episodes of both.", ""]
     if "train" in R:
         t = R["train"]
         lines += ["## 3. DAPG vs NPG on the robot", "",
@@ -521,8 +534,8 @@ def _report(ctx: Context) -> str:
             a = t[algo]
             lines.append(f"| {algo.upper()} | {a['samples']} | {60 * a['robot_hours']:.1f} | "
                          f"{a['final_training_success']:.2f} | {a['eval_success']:.2f} |")
-        lines += ["", f"Success right after behaviour cloning (DAPG's first iteration): "
-                      f"{t['success_after_bc']:.2f} (a random policy: 0.00).", "",
+        lines += ["", f"The behaviour clone alone, before any RL (deterministic evaluation): "
+                      f"success {t['success_after_bc']:.2f} (a random policy: 0.00).", "",
                   f"![learning curves]({t['plot']})", "",
                   "Run directories: `train_dapg/`, `train_npg/` (config, metrics.csv, "
                   "checkpoints, curves; `lowcostdex train ... --resume` continues them).", ""]
