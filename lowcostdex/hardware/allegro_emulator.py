@@ -101,7 +101,7 @@ class EmulatedAllegro:
         self.torque_log: list[tuple[float, np.ndarray]] = []
         self.frames_in = 0
         self._since_temperature = 0.0
-        self._substeps = 1
+        self._owed = 0.0  # emulated time the physics has yet to step [s]
 
     # -- state access for tests and resets ----------------------------------------------------
     @property
@@ -192,13 +192,18 @@ class EmulatedAllegro:
         """One period: apply the torques, step the physics, update temperatures, stream."""
         dt = self.cycle_period
         m, d = self.plant.model, self.plant.data
-        nstep = max(1, int(round(dt / m.opt.timestep)))
+        # whole physics steps that keep the physics in step with the wire (3 ms cycles of
+        # 2.5 ms steps: 1, 1, 2, 1, 1, 2, ...)
+        self._owed += dt
+        nstep = int(math.floor(self._owed / m.opt.timestep + 0.5))
+        self._owed -= nstep * m.opt.timestep
         tau = self.applied_torque()
         self.torque_log.append((self.time, tau.copy()))
         d.qfrc_applied[:] = 0.0
         d.qfrc_applied[self.dofs] = tau
-        self.plant.step(d.ctrl.copy(), nstep)
-        self._heat(tau, nstep * m.opt.timestep)
+        if nstep > 0:
+            self.plant.step(d.ctrl.copy(), nstep)
+            self._heat(tau, nstep * m.opt.timestep)
         if self.period_ms[0] > 0:
             for f in range(proto.N_FINGERS):
                 self._send_pose(f)
@@ -273,10 +278,12 @@ class LockstepClock:
 
 def emulated_allegro(model: mujoco.MjModel | None = None, *, channel: str | None = None,
                      effects: Sequence[AppliedEffect] = (),
-                     thermal: AllegroThermal = AllegroThermal(), **bus_kwargs):
+                     thermal: AllegroThermal = AllegroThermal(),
+                     rng: np.random.Generator | None = None, **bus_kwargs):
     """An ``AllegroBus`` wired to an ``EmulatedAllegro`` on a private virtual channel.
 
-    Returns (bus, emulator, clock); the bus is not connected yet. ``model`` defaults to the
+    Returns (bus, emulator, clock); the bus is not connected yet; ``rng`` feeds noise effects.
+    ``model`` defaults to the
     Allegro of ``lowcostdex.sim.models.allegro`` without a station (its position actuators are
     switched off: the emulated firmware applies the host's torques).
     """
@@ -287,7 +294,8 @@ def emulated_allegro(model: mujoco.MjModel | None = None, *, channel: str | None
 
         model = build_allegro("none").compile()
     channel = channel or f"lowcostdex-allegro-{id(model):x}-{time.monotonic_ns()}"
-    emulator = EmulatedAllegro(model, channel=channel, effects=effects, thermal=thermal)
+    emulator = EmulatedAllegro(model, channel=channel, hand=bus_kwargs.get("hand"),
+                               effects=effects, thermal=thermal, rng=rng)
     clock = LockstepClock(emulator)
     bus = AllegroBus(can.Bus(interface="virtual", channel=channel), threaded=False, clock=clock,
                      own_bus=True, **bus_kwargs)
