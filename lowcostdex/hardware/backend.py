@@ -15,6 +15,11 @@ motion-capture tracker a real setup needs (``HardwareBackend(tracker=...)``).
 
     env = gym.make("lowcostdex/DClawTurnValve-v0", backend="emulated")
     env = gym.make("lowcostdex/DClawTurnValve-v0", backend="hardware", port="/dev/ttyUSB0")
+
+``RobotBackend`` (the reset/step/mirror loop) is shared by every hand: the episode reset is
+pluggable (``dclaw_reset`` here, ``allegro_backend.allegro_reset`` for the Allegro, whose backends
+live in ``lowcostdex.hardware.allegro_backend``), and so is the source of an object pose the
+motors do not measure (``ObjectSensor``).
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import dataclasses
 import logging
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import mujoco
@@ -71,26 +77,48 @@ def robot_hand(hand: HandSpec, model: mujoco.MjModel) -> HandSpec:
                                                       if j.name in names))
 
 
+EpisodeReset = Callable[[np.ndarray], ResetReport]
+"""(the episode's start qpos (nq,), env model order) -> ResetReport: bring the robot (and the
+object, where it can) there, verified; raises ``reset.ResetFailed``."""
+
+
+@dataclass(frozen=True)
+class ObjectSensor:
+    """An object's pose from outside the robot's motors (motion capture, an encoder, or the
+    emulator's physics standing in for them), copied into the mirror after every step.
+
+    Attributes:
+      qpos: indices into the env model's qpos that it fills (n,).
+      read: () -> values (n,) [m, rad; quaternions (w, x, y, z)].
+    """
+
+    qpos: np.ndarray
+    read: Callable[[], np.ndarray]
+
+
 class RobotBackend(Backend):
     """A task on a Robot, with auto-reset and the encoder mirror.
+
+    At every ``reset`` the backend runs the episode reset (thermal pause, verified reset), turns
+    the action joints' torque on and mirrors the state; at every step it sends the goals, waits
+    one control period and mirrors. The mirror takes the joints from the encoders, a motorized
+    object joint (the D'Claw valve) from its encoder, and any other object pose from the
+    ``sensor``; object velocities from a sensor are not measured and stay 0.
 
     Args:
       model: the env's compiled model (the mirror's).
       task: the bound task.
       robot: a Robot (not yet connected) for the task's hand.
-      reset_config: auto-reset tolerances and bounds.
-      tracker: pose source of a free object (block), if the task has one.
-      flip_config: block re-centring and verification (flip task).
-      reorient: policy restoring the block's start orientation (flip task); see
-        ``reset.FlipBlockReset``.
+      make_reset: builds the episode reset for the connected robot (``dclaw_reset``,
+        ``allegro_backend.allegro_reset``).
+      sensor: pose source of an object the robot does not drive (flip block, Allegro valve).
     """
 
     real_time = True
 
     def __init__(self, model: mujoco.MjModel, task: Any, robot: Robot,
-                 reset_config: ResetConfig = ResetConfig(), tracker: Tracker | None = None,
-                 flip_config: FlipResetConfig = FlipResetConfig(),
-                 reorient: Reorient | None = None):
+                 make_reset: Callable[[Robot], EpisodeReset],
+                 sensor: ObjectSensor | None = None):
         self.model = model
         self.data = mujoco.MjData(model)
         self.task = task
@@ -100,34 +128,18 @@ class RobotBackend(Backend):
             raise ConfigError(f"task control period {period} s != robot control period "
                               f"{robot.config.control_period} s")
         self._act = robot.index(task.hand.joint_names)
-        valve = "valve" if "valve" in robot.joint_names else None
-        self._valve = robot.index([valve])[0] if valve else None
-        self.resetter = DClawReset(robot, reset_config, valve=valve)
-        self.tracker = tracker
+        self._valve = robot.index(["valve"])[0] if "valve" in robot.joint_names else None
+        self.sensor = sensor
         self.last_reset: ResetReport | None = None
         self.stale_steps = 0
-        self._block = None
-        self.block_reset: FlipBlockReset | None = None
-        if "block" in [model.joint(i).name for i in range(model.njnt)]:
-            adr = int(model.jnt_qposadr[model.joint("block").id])
-            self._block = np.arange(adr, adr + 7)
         robot.connect()
-        if self._block is not None and tracker is not None:
-            self.block_reset = FlipBlockReset(robot, model, tracker, flip_config, reset_config,
-                                              reorient)
+        self.episode_reset = make_reset(robot)
 
     # -- Backend --------------------------------------------------------------------------------
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
-        """Thermal pause if due, verified auto-reset to ``qpos``, fingers torque on."""
-        t = self.task
-        q = np.asarray(qpos, float)
-        if self.block_reset is not None:
-            self.last_reset = self.block_reset(q[t.hand_qpos], q[self._block[:3]],
-                                               q[self._block[3:]])
-        else:
-            valve_target = float(q[t.obj_qpos]) if self._valve is not None else None
-            self.last_reset = self.resetter(q[t.hand_qpos], valve_target)
-        self.robot.torque(True, t.hand.joint_names)
+        """Thermal pause if due, verified auto-reset to ``qpos``, action joints torque on."""
+        self.last_reset = self.episode_reset(np.asarray(qpos, float))
+        self.robot.torque(True, self.task.hand.joint_names)
         self.data.qpos[:] = qpos
         self.data.qvel[:] = 0.0
         self._mirror(self.robot.read())
@@ -174,10 +186,41 @@ class RobotBackend(Backend):
             if np.isfinite(pos[k]):
                 q[t.obj_qpos] = pos[k]
                 v[t.obj_dof] = vel[k] if np.isfinite(vel[k]) else 0.0
-        if self._block is not None and self.tracker is not None:
-            p, quat = self.tracker()
-            q[self._block[:3]], q[self._block[3:]] = p, quat
+        if self.sensor is not None:
+            q[self.sensor.qpos] = self.sensor.read()
         mujoco.mj_forward(self.model, d)
+
+
+def dclaw_reset(task: Any, model: mujoco.MjModel, config: ResetConfig | None = None,
+                tracker: Tracker | None = None, flip_config: FlipResetConfig | None = None,
+                reorient: Reorient | None = None) -> Callable[[Robot], EpisodeReset]:
+    """The D'Claw's episode reset: ``FlipBlockReset`` when the task has a block and a tracker,
+    else ``DClawReset`` (fingers, and the valve motor when the robot has one). ``config``,
+    ``flip_config``: default ``ResetConfig()``, ``FlipResetConfig()``."""
+    config = config or ResetConfig()
+    flip_config = flip_config or FlipResetConfig()
+
+    def make(robot: Robot) -> EpisodeReset:
+        hand = task.hand_qpos
+        if task.station == "block" and tracker is not None:
+            block = _block_qpos(model)
+            flip = FlipBlockReset(robot, model, tracker, flip_config, config, reorient)
+            return lambda q: flip(q[hand], q[block[:3]], q[block[3:]])
+        valve = "valve" if "valve" in robot.joint_names else None
+        fingers = DClawReset(robot, config, valve=valve)
+        return lambda q: fingers(q[hand], float(q[task.obj_qpos]) if valve else None)
+
+    return make
+
+
+def _block_qpos(model: mujoco.MjModel) -> np.ndarray:
+    adr = int(model.jnt_qposadr[model.joint("block").id])
+    return np.arange(adr, adr + 7)
+
+
+def block_sensor(model: mujoco.MjModel, tracker: Tracker) -> ObjectSensor:
+    """The flip block's pose (position, quaternion) from ``tracker`` into the mirror."""
+    return ObjectSensor(_block_qpos(model), lambda: np.concatenate(tracker()))
 
 
 class EmulatedBackend(RobotBackend):
@@ -191,7 +234,7 @@ class EmulatedBackend(RobotBackend):
       faults: ``emulator.FaultConfig`` for the status packets (default none).
       robot_config: Robot settings (the control period is the task's).
       reset_config: auto-reset settings.
-      flip_config, reorient: flip-task block reset (see ``RobotBackend``).
+      flip_config, reorient: flip-task block reset (see ``dclaw_reset``).
       start_qpos: the emulated robot's pose when it powers up (default the model's qpos0).
       chain_kwargs: more ``emulator.EmulatedChain`` options (baudrate, supply_resistance, ...).
     """
@@ -209,9 +252,9 @@ class EmulatedBackend(RobotBackend):
         if task is None:
             raise ConfigError("EmulatedBackend needs the task (it builds the task's station)")
         if task.hand.name != "dclaw":
-            raise ConfigError(f"backend='emulated' runs D'Claw tasks; {task.hand.name} tasks run "
-                              "on backend='sim' (the emulated Allegro is "
-                              "lowcostdex.hardware.allegro_emulator, a MotorBus for the Robot)")
+            raise ConfigError(f"EmulatedBackend runs D'Claw tasks, not {task.hand.name} tasks; "
+                              "gym.make(..., backend='emulated') picks the hand's backend "
+                              "(lowcostdex.sim.envs.backend.BACKENDS)")
         rng = rng if rng is not None else np.random.default_rng(0)
         hand = robot_hand(task.hand, model)
         if effects is None:
@@ -225,10 +268,12 @@ class EmulatedBackend(RobotBackend):
         self.effects = list(effects)
         port = self.chain.port()
         bus = make_dynamixel_bus(hand, port, model)
-        config = _robot_config(robot_config, task, model)
+        config = task_robot_config(robot_config, task, model)
         robot = Robot(hand, bus, config)
         tracker = self._physics_tracker() if task.station == "block" else None
-        super().__init__(model, task, robot, reset_config, tracker, flip_config, reorient)
+        super().__init__(model, task, robot,
+                         dclaw_reset(task, model, reset_config, tracker, flip_config, reorient),
+                         block_sensor(model, tracker) if tracker is not None else None)
 
     def _physics_tracker(self) -> Tracker:
         plant = self.chain.plant
@@ -269,21 +314,25 @@ class HardwareBackend(RobotBackend):
         if task is None or port is None:
             raise ConfigError("HardwareBackend needs the task and port=... (e.g. /dev/ttyUSB0)")
         if task.hand.name != "dclaw":
-            raise ConfigError(f"backend='hardware' drives a D'Claw on Dynamixels; for the "
-                              f"{task.hand.name} use lowcostdex.hardware.allegro.AllegroBus "
-                              "with a Robot")
+            raise ConfigError(f"HardwareBackend drives a D'Claw on Dynamixels, not the "
+                              f"{task.hand.name}; gym.make(..., backend='hardware') picks the "
+                              "hand's backend (lowcostdex.sim.envs.backend.BACKENDS)")
         if task.station == "block" and tracker is None:
             raise ConfigError("the flip-block task on hardware needs tracker=... (a function "
                               "returning the block's position and quaternion)")
         hand = robot_hand(hand or task.hand, model)
         bus = make_dynamixel_bus(hand, port, model, baudrate=baudrate, **bus_kwargs)
-        robot = Robot(hand, bus, _robot_config(robot_config, task, model))
-        super().__init__(model, task, robot, reset_config, tracker, flip_config, reorient)
+        robot = Robot(hand, bus, task_robot_config(robot_config, task, model))
+        super().__init__(model, task, robot,
+                         dclaw_reset(task, model, reset_config, tracker, flip_config, reorient),
+                         block_sensor(model, tracker) if task.station == "block" else None)
 
 
-def _robot_config(config: RobotConfig | None, task: Any, model: mujoco.MjModel) -> RobotConfig:
+def task_robot_config(config: RobotConfig | None, task: Any, model: mujoco.MjModel,
+                  default: RobotConfig | None = None) -> RobotConfig:
+    """``config`` (or ``default``, or ``RobotConfig()``) with the task's control period."""
     period = task.timing.frame_skip * model.opt.timestep
-    return dataclasses.replace(config or RobotConfig(), control_period=period)
+    return dataclasses.replace(config or default or RobotConfig(), control_period=period)
 
 
 def motor_limits(hand: HandSpec, model: mujoco.MjModel | None = None,

@@ -1,4 +1,4 @@
-"""The robot side of an env, swappable: pure MuJoCo, an emulated Dynamixel bus, or hardware.
+"""The robot side of an env, swappable: pure MuJoCo, an emulated robot, or hardware.
 
 An env owns a compiled model and an ``MjData`` that its task reads (the "mirror"). A backend
 brings the robot to an initial state, holds joint goals for one control period, and leaves the
@@ -90,17 +90,25 @@ class SimBackend(Backend):
                 "temperature": servo.winding_temperature(self.model, self.data)}
 
 
-# Backends outside lowcostdex.sim are named by "module:Class" and imported on first use. Every
-# backend is constructed as ``cls(model, task=task, rng=rng, **backend_kwargs)``.
-BACKENDS: dict[str, str] = {
+# Backends outside lowcostdex.sim are named by "module:Class" and imported on first use; robot
+# backends are per hand (the hand spec's name). Every backend is constructed as
+# ``cls(model, task=task, rng=rng, **backend_kwargs)``.
+BACKENDS: dict[str, str | dict[str, str]] = {
     "sim": "lowcostdex.sim.envs.backend:SimBackend",
-    "emulated": "lowcostdex.hardware.backend:EmulatedBackend",
-    "hardware": "lowcostdex.hardware.backend:HardwareBackend",
+    "emulated": {"dclaw": "lowcostdex.hardware.backend:EmulatedBackend",
+                 "allegro": "lowcostdex.hardware.allegro_backend:EmulatedAllegroBackend"},
+    "hardware": {"dclaw": "lowcostdex.hardware.backend:HardwareBackend",
+                 "allegro": "lowcostdex.hardware.allegro_backend:AllegroHardwareBackend"},
 }
 
 
-def backend_class(name: str) -> type[Backend]:
-    """Resolve a backend name to its class; the error lists the valid names."""
+def backend_class(name: str, hand: str | None = None) -> type[Backend]:
+    """Resolve a backend name (and, for robot backends, the hand's name: "dclaw", "allegro")
+    to its class; the errors list the valid names."""
     check_choice("backend", name, BACKENDS)
-    module, cls = BACKENDS[name].split(":")
+    entry = BACKENDS[name]
+    if isinstance(entry, dict):
+        check_choice(f"hand for backend {name!r}", hand, entry)
+        entry = entry[hand]
+    module, cls = entry.split(":")
     return getattr(importlib.import_module(module), cls)

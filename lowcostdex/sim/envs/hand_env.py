@@ -50,7 +50,8 @@ class HandEnv(gym.Env):
       backend: "sim", "emulated" or "hardware".
       randomization: domain randomization sampled at every reset (sim backend only).
       render_mode: None or "rgb_array".
-      backend_kwargs: passed to the backend (e.g. ``port="/dev/ttyUSB0"``).
+      backend_kwargs: passed to the backend (e.g. ``port="/dev/ttyUSB0"`` for a D'Claw,
+        ``channel="can0"`` for an Allegro).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -72,9 +73,8 @@ class HandEnv(gym.Env):
         task.bind(self.model)
         self.backend_name = backend
         self._rng_for_backend = np.random.default_rng(0)
-        self.backend: Backend = backend_class(backend)(self.model, task=task,
-                                                        rng=self._rng_for_backend,
-                                                        **backend_kwargs)
+        self.backend: Backend = backend_class(backend, task.hand.name)(
+            self.model, task=task, rng=self._rng_for_backend, **backend_kwargs)
         self.model, self.data = self.backend.model, self.backend.data
         n = len(task.hand.joints)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(n,), dtype=np.float32)
