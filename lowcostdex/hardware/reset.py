@@ -24,6 +24,10 @@ D'Claw (``DClawReset``), ROBEL's sequence (01-hardware.md section 1.6) as the ba
   blocks on ``input()``. ``RobelReset`` reproduces ROBEL's sequence (bounded) as the baseline;
   ``bench/reset.py`` compares the two on the same seeded tangles.
 
+``AllegroReset`` drives the Allegro's 16 joints to the reset pose (with integral corrections
+for joints sagging under their soft PD), verified, bounded retries, and places its unmotorized
+valve through a callback (the emulator's physics, a motorized valve or a person).
+
 ``FlipBlockReset`` re-centres the block of the flip task with a three-finger squeeze and
 reorients it with an optional policy (e.g. the learned flip policy: two 180 deg flips about the
 same axis restore the start orientation), verified against the block pose an object tracker
@@ -86,6 +90,9 @@ class ResetConfig:
         their limits) [s].
       recovery_passes: retract passes while middle joints are outside their limits.
       swing: disentangle swings the top joints to this fraction of their limit.
+      corrections: passes that move a joint's goal by the error it still has (an integral
+        correction for soft joints that sag under gravity: the Allegro's torque-driven PD;
+        goals stay inside the limits). The D'Claw's stiff servos need none.
     """
 
     tolerance: float = math.radians(5.0)
@@ -100,6 +107,7 @@ class ResetConfig:
     limp_rest: float = 0.75
     recovery_passes: int = 3
     swing: float = 0.9
+    corrections: int = 3
 
     def __post_init__(self) -> None:
         for name in ("tolerance", "valve_tolerance", "precision", "move_timeout", "valve_timeout",
@@ -110,6 +118,8 @@ class ResetConfig:
             raise ConfigError("ResetConfig: max_retries, settle, limp_rest must be >= 0")
         if self.recovery_passes < 1:
             raise ConfigError("ResetConfig.recovery_passes must be >= 1")
+        if self.corrections < 0:
+            raise ConfigError("ResetConfig.corrections must be >= 0")
 
 
 @dataclass
@@ -205,6 +215,27 @@ def _error(present: np.ndarray, target: np.ndarray, wrap: bool) -> np.ndarray:
     return np.where(np.isfinite(d), np.abs(d), np.inf)
 
 
+def verified_move(robot: Robot, config: ResetConfig, target: np.ndarray, joints: Sequence[str],
+                  name: str, stages: list[StageResult], timeout: float | None = None,
+                  tolerance: float | None = None, wrap: bool = False, final: bool = False
+                  ) -> MoveResult:
+    """One reset stage: ``move`` (bounded by ``timeout``, default ``config.move_timeout``), rest
+    ``config.settle``, verify every joint against ``tolerance`` (default ``config.tolerance``)
+    [rad]; ``final`` moves run to ``config.precision``. Appends the stage to ``stages``."""
+    cfg, r = config, robot
+    tol = cfg.tolerance if tolerance is None else tolerance
+    res = move(r, target, joints, tolerance=tol,
+               timeout=cfg.move_timeout if timeout is None else timeout,
+               stall_time=cfg.stall_time, stall_motion=cfg.stall_motion, wrap=wrap,
+               precision=cfg.precision if final else None)
+    if cfg.settle > 0:
+        r.rest(cfg.settle)
+        res.errors = _error(r.present[r.index(joints)], np.asarray(target, float), wrap)
+        res.reached = bool(np.all(res.errors < tol))
+    stages.append(StageResult(name, res.duration, float(np.max(res.errors)), res.reached))
+    return res
+
+
 class DClawReset:
     """Staged, verified reset of the D'Claw fingers and (optionally) the valve.
 
@@ -278,19 +309,9 @@ class DClawReset:
               stages: list[StageResult], timeout: float | None = None,
               tolerance: float | None = None, wrap: bool = False, final: bool = False
               ) -> MoveResult:
-        cfg, r = self.config, self.robot
-        tol = cfg.tolerance if tolerance is None else tolerance
-        res = move(r, np.array([target[j] for j in joints]), joints, tolerance=tol,
-                   timeout=cfg.move_timeout if timeout is None else timeout,
-                   stall_time=cfg.stall_time, stall_motion=cfg.stall_motion, wrap=wrap,
-                   precision=cfg.precision if final else None)
-        if cfg.settle > 0:
-            r.rest(cfg.settle)
-            idx = r.index(joints)
-            res.errors = _error(r.present[idx], np.array([target[j] for j in joints]), wrap)
-            res.reached = bool(np.all(res.errors < tol))
-        stages.append(StageResult(name, res.duration, float(np.max(res.errors)), res.reached))
-        return res
+        return verified_move(self.robot, self.config, np.array([target[j] for j in joints]),
+                             joints, name, stages, timeout=timeout, tolerance=tolerance,
+                             wrap=wrap, final=final)
 
     def _fingers(self, target: dict[str, float], stages: list[StageResult], staged: bool
                  ) -> tuple[bool, str, dict[str, float]]:
@@ -475,6 +496,113 @@ def robel_disentangle(r: Robot, target: dict[str, float], parts: dict[str, tuple
         r.rate.restart()
         while r.clock.now() < end - 1e-9:
             r.step(np.array([goal[j] for j in parts[group]]), parts[group])
+
+
+# ------------------------------------------------------------------------------------------------
+# Allegro
+
+PlaceValve = Callable[[float], None]
+"""(start angle [rad]) -> None: put an unmotorized valve at its episode's start angle (the
+emulator writes its physics; on hardware a motorized valve or a person)."""
+ValveAngle = Callable[[], float]
+"""() -> the valve's angle [rad], unwrapped (an encoder or tracker; the emulator's physics)."""
+
+
+class AllegroReset:
+    """Verified reset of the Allegro's 16 joints; optional placement of its valve.
+
+      0. rest first if the thermal guard asked for a pause;
+      1. every joint torque on and driven to its target through the Robot's gate, run to
+         ``precision`` or until it stalls; the soft PD sags under the fingers' weight (about
+         8 deg at joint 1 with the default gains), so up to ``corrections`` more moves shift
+         each goal by the error left; verified per joint against ``tolerance``; on failure
+         every joint hangs limp for ``limp_rest`` (contact forces relax) and the move is
+         retried, ``max_retries`` times;
+      2. valve (not motorized): ``place_valve(angle)``, then verified with ``valve_angle``
+         against ``valve_tolerance`` (retried like the joints). Without ``place_valve`` the valve
+         stays where it is and the episode starts from the angle the env reads.
+
+    When the retries are spent the hand is left limp and ``ResetFailed`` names the joints.
+
+    Args:
+      robot: a connected Robot for the Allegro spec.
+      config: tolerances and bounds.
+      place_valve: puts the valve at a start angle (None: not placed).
+      valve_angle: reads the valve angle, to verify the placement.
+    """
+
+    def __init__(self, robot: Robot, config: ResetConfig = ResetConfig(),
+                 place_valve: PlaceValve | None = None, valve_angle: ValveAngle | None = None):
+        if place_valve is not None and valve_angle is None:
+            raise ConfigError("AllegroReset: placing the valve needs valve_angle=... to verify it")
+        self.robot, self.config = robot, config
+        self.place_valve, self.valve_angle = place_valve, valve_angle
+
+    def __call__(self, hand_target: np.ndarray, valve_target: float | None = None
+                 ) -> ResetReport:
+        """Reset the joints to ``hand_target`` (16,) [rad, action order] and place the valve at
+        ``valve_target`` [rad] (skipped when None or without ``place_valve``).
+
+        Raises:
+          ResetFailed: the joints or the valve did not verify within ``max_retries`` retries.
+        """
+        r, cfg = self.robot, self.config
+        start = r.clock.now()
+        pause = r.pause_if_hot()
+        joints = r.action_joints
+        target = np.asarray(hand_target, float)
+        stages: list[StageResult] = []
+        failed_stage, errors = "", {}
+        for attempt in range(cfg.max_retries + 1):
+            r.metrics.reset_attempts += 1
+            if attempt > 0:
+                r.torque(False, joints)
+                r.rest(cfg.limp_rest)
+            r.torque(True, joints)
+            failed_stage, errors = "joints", self._joints(target, stages)
+            if not errors and valve_target is not None and self.place_valve is not None:
+                failed_stage, errors = "valve", self._valve(float(valve_target), stages)
+            if not errors:
+                duration = r.clock.now() - start
+                r.metrics.resets += 1
+                r.metrics.reset_time += duration
+                r.rate.restart()
+                return ResetReport(True, attempt + 1, duration, stages,
+                                   pause.duration if pause else 0.0)
+        r.torque(False, joints)  # never keep pushing against a jam
+        r.metrics.reset_failures += 1
+        r.metrics.reset_time += r.clock.now() - start
+        raise ResetFailed(failed_stage, errors, cfg.max_retries + 1)
+
+    def _joints(self, target: np.ndarray, stages: list[StageResult]) -> dict[str, float]:
+        """Move to ``target``, then up to ``corrections`` times move again with each goal
+        shifted by the joint's remaining error; verify against ``target``. Returns the joints
+        outside tolerance."""
+        r, cfg = self.robot, self.config
+        joints = r.action_joints
+        idx = r.index(joints)
+        goal = target.copy()
+        for k in range(cfg.corrections + 1):
+            verified_move(r, cfg, goal, joints, "joints" if k == 0 else f"correction_{k}",
+                          stages, final=True)
+            err = r.present[idx] - target
+            if np.all(np.abs(err) < cfg.precision):
+                break
+            goal = np.clip(goal - err, r.low[idx], r.high[idx])
+        errors = _error(r.present[idx], target, False)
+        stages[-1].max_error = float(np.max(errors))
+        stages[-1].ok = bool(np.all(errors < cfg.tolerance))
+        return {n: float(e) for n, e in zip(joints, errors, strict=True)
+                if not e < cfg.tolerance}
+
+    def _valve(self, angle: float, stages: list[StageResult]) -> dict[str, float]:
+        t0 = self.robot.clock.now()
+        self.place_valve(angle)
+        err = abs(float(self.valve_angle()) - angle)
+        err = err if math.isfinite(err) else math.inf
+        ok = err < self.config.valve_tolerance
+        stages.append(StageResult("valve", self.robot.clock.now() - t0, err, ok))
+        return {} if ok else {"valve": err}
 
 
 # ------------------------------------------------------------------------------------------------
