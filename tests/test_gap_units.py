@@ -263,6 +263,32 @@ def test_lockstep_lm_solves_bounded_least_squares_problems_together():
     assert all(c <= 6 for c in calls)  # each round evaluates both tracks with their FD columns
 
 
+def test_a_limit_stuck_where_it_never_binds_is_rescued_by_the_scan():
+    """Known answer: a torque limit above every load has a flat cost, so LM started there stays;
+    ``scan_limits`` finds the binding side and LM then converges to the true limit (1.8)."""
+    true = 1.8
+    free = fitmod.Free("torque_limit", "torque", 0, 0.02, 4.0, 2.5, True, 1e-3)
+    s = fitmod.Structure(("torque_limit",), ("j",), [free])
+    samples = np.linspace(0.0, 1.0, 40)
+
+    def residual(points):
+        out = []
+        for _, x in points:
+            v = x[0]
+            # gentle below the truth, steep just above it, flat (never binds) from 2.0 on
+            err = 0.2 * (true - v) if v < true else min(v - true, 0.2) / 0.2
+            out.append(err * (1.0 + samples))
+        return out
+
+    track = fitmod.Track(s, s.u(np.array([2.5])))
+    fitmod.lockstep_lm([track], residual, max_rounds=20)
+    assert track.x[0] > 2.0  # flat: LM cannot move
+    assert fitmod.scan_limits(track, residual)
+    fitmod.lockstep_lm([track], residual, max_rounds=40, rtol=1e-12)
+    assert track.x[0] == pytest.approx(true, rel=0.02)
+    assert not fitmod.scan_limits(track, residual)  # nothing better left on the grid
+
+
 def test_interval_formula_matches_mujoco_sysid(rng):
     sysid = pytest.importorskip("mujoco.sysid")
     jac = rng.normal(size=(300, 3))

@@ -362,6 +362,9 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             name = t.structure.effects[-1]
             if name not in best_track or t.cost < best_track[name].cost:
                 best_track[name] = t
+        rescued = [t for t in best_track.values() if fitmod.scan_limits(t, fit_fn)]
+        if rescued:
+            fitmod.lockstep_lm(rescued, fit_fn, cfg.max_rounds // 2)
         if current.effects:
             # joint refits (earlier effects free again) of the most promising candidates
             joint_tracks = []

@@ -329,6 +329,50 @@ def polish(t: Track, residual: ResidualFn, dt: float, n: int = 9) -> None:
             t.u, t.cost, t.r = t.structure.u(x), cost, r
 
 
+_LIMITS = {("torque_limit", "torque")}
+
+
+def scan_limits(t: Track, residual: ResidualFn, n: int = 25) -> bool:
+    """Rescue a fitted limit parameter from the flat side of its cost.
+
+    A saturation limit above every load it sees has zero gradient, so Levenberg-Marquardt
+    leaves a joint's limit wherever it stopped binding (seen: a finger's torque limits fitted
+    to 1.73 / 1.74 / 2.08 N m, truth 1.78 / 1.76 / 1.82, train cost 58 % above the truth's).
+    Each limit scalar is scanned over its range (``n`` evenly spaced values, the others fixed,
+    one batched evaluation) and the best value per scalar kept if it lowers the cost; the track
+    then restarts there so more LM rounds refine it (the cost rises steeply just above a
+    barely binding limit and gently below it). Returns whether it moved.
+    """
+    idx = [i for i, f in enumerate(t.structure.free) if (f.effect, f.param) in _LIMITS]
+    if not idx or t.r is None:
+        return False
+    x0 = t.x
+    points = []
+    for i in idx:
+        f = t.structure.free[i]
+        grid = np.linspace(f.lo, f.hi, n)
+        for v in grid:
+            x = x0.copy()
+            x[i] = float(v)
+            points.append((t.structure, x))
+    costs = np.array([0.5 * float(r @ r) for r in residual(points)]).reshape(len(idx), n)
+    x = x0.copy()
+    for k, i in enumerate(idx):
+        j = int(np.argmin(costs[k]))
+        if costs[k, j] < t.cost:
+            x[i] = points[k * n + j][1][i]
+    if np.array_equal(x, x0):
+        return False
+    r = residual([(t.structure, x)])[0]
+    cost = 0.5 * float(r @ r)
+    if cost >= t.cost:
+        return False
+    # restart the track there (LM re-evaluates residual and Jacobian at its first round)
+    t.u, t.cost, t.r, t.jac, t.trial = t.structure.u(x), math.inf, None, None, None
+    t.done, t.rejects, t.mu = False, 0, 1e-2
+    return True
+
+
 def prune_tracks(rnd: int, tracks: Sequence[Track], after: int = 4) -> None:
     """End tracks that cannot win: from round ``after`` on, starts of one structure that trail
     its best start, and structures whose cost reduction is below a tenth of the best one's."""
