@@ -164,6 +164,14 @@ def test_hardware_backend_needs_a_channel_and_a_valve_tracker():
         gym.make(ENV, backend="hardware", channel="can0")
     with pytest.raises(ConfigError, match="channel"):
         gym.make(ENV, backend="hardware", tracker=lambda: 0.0)
+    # sensors named by import path (JSON training configs): a bad path is a clear error
+    with pytest.raises(ConfigError, match="cannot be imported"):
+        gym.make(ENV, backend="hardware", channel="can0", tracker="no_such_module:angle")
+    with pytest.raises(ConfigError, match="is not callable"):
+        gym.make(ENV, backend="hardware", channel="can0", tracker="math:pi")
+    from lowcostdex.hardware.backend import resolve_callable
+
+    assert resolve_callable("math:cos", "tracker") is math.cos
     from lowcostdex.hardware.backend import EmulatedBackend
 
     env = gym.make(ENV)  # constructed directly, the D'Claw backend names the hand

@@ -35,6 +35,7 @@ from lowcostdex.hardware.backend import (
     EpisodeReset,
     ObjectSensor,
     RobotBackend,
+    resolve_callable,
     task_robot_config,
 )
 from lowcostdex.hardware.hands import HandSpec
@@ -149,7 +150,8 @@ class AllegroHardwareBackend(RobotBackend):
       channel: CAN channel, e.g. "can0" (socketcan, a PEAK PCAN-USB on Linux).
       interface: python-can interface name.
       tracker: () -> the valve angle [rad], unwrapped (an encoder on the valve or motion
-        capture); required: the Allegro does not sense the valve.
+        capture), or its import path "package.module:function" (JSON configs); required: the
+        Allegro does not sense the valve.
       place_valve: (angle [rad]) -> None, puts the valve at the episode's start angle (a motorized
         valve, or a function that asks a person and returns when done); default: not placed.
       hand: hand spec (default the task's).
@@ -170,6 +172,8 @@ class AllegroHardwareBackend(RobotBackend):
         if channel is None:
             raise ConfigError("the Allegro on hardware needs channel=... (e.g. 'can0') and, if "
                               "not socketcan, interface=...")
+        tracker = resolve_callable(tracker, "tracker")
+        place_valve = resolve_callable(place_valve, "place_valve")
         if tracker is None:
             raise ConfigError("the Allegro valve task on hardware needs tracker=... (a function "
                               "returning the valve angle [rad], unwrapped, from an encoder or "

@@ -218,6 +218,31 @@ def _block_qpos(model: mujoco.MjModel) -> np.ndarray:
     return np.arange(adr, adr + 7)
 
 
+def resolve_callable(spec: Any, what: str) -> Any:
+    """A callable given directly or as an import path ``"package.module:function"``.
+
+    Import paths keep robot configurations JSON-serializable, e.g. a sensor in a training run's
+    ``env_kwargs`` (``lowcostdex train ... --env-kwarg tracker=mylab.sensors:valve_angle``).
+
+    Raises:
+      ConfigError: a malformed path, a missing module or attribute, or not a callable.
+    """
+    if spec is None or callable(spec):
+        return spec
+    if not isinstance(spec, str) or spec.count(":") != 1:
+        raise ConfigError(f"{what} must be a callable or 'package.module:function', got {spec!r}")
+    import importlib
+
+    module_name, attr = spec.split(":")
+    try:
+        fn = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"{what} {spec!r} cannot be imported: {exc}") from exc
+    if not callable(fn):
+        raise ConfigError(f"{what} {spec!r} is not callable")
+    return fn
+
+
 def block_sensor(model: mujoco.MjModel, tracker: Tracker) -> ObjectSensor:
     """The flip block's pose (position, quaternion) from ``tracker`` into the mirror."""
     return ObjectSensor(_block_qpos(model), lambda: np.concatenate(tracker()))
@@ -300,7 +325,8 @@ class HardwareBackend(RobotBackend):
       baudrate: line rate [bit/s].
       hand: hand spec with this robot's calibration (default the task's).
       robot_config, reset_config: as ``EmulatedBackend``.
-      tracker: block pose source for the flip task (motion capture); required for that task.
+      tracker: block pose source for the flip task (motion capture), a callable or its import
+        path "package.module:function"; required for that task.
       bus_kwargs: more ``DynamixelBus`` options.
     """
 
@@ -317,6 +343,7 @@ class HardwareBackend(RobotBackend):
             raise ConfigError(f"HardwareBackend drives a D'Claw on Dynamixels, not the "
                               f"{task.hand.name}; gym.make(..., backend='hardware') picks the "
                               "hand's backend (lowcostdex.sim.envs.backend.BACKENDS)")
+        tracker = resolve_callable(tracker, "tracker")
         if task.station == "block" and tracker is None:
             raise ConfigError("the flip-block task on hardware needs tracker=... (a function "
                               "returning the block's position and quaternion)")
