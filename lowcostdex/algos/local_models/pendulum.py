@@ -74,13 +74,22 @@ def pendulum_cost(p: PendulumParams) -> SumCost:
 
 
 def pendulum_rollouts(
-    controller: LinearGaussianController, n: int, rng: np.random.Generator, p: PendulumParams
+    controller: LinearGaussianController,
+    n: int,
+    rng: np.random.Generator,
+    p: PendulumParams,
+    x0: Array | None = None,
 ) -> tuple[Array, Array]:
-    """n episodes from rest: X (n, T, 2), U (n, T, 1), recording the commanded torque."""
+    """n episodes: X (n, T, 2), U (n, T, 1), recording the commanded torque.
+
+    Episodes start at ``x0`` = (theta [rad], omega [rad/s]), at rest hanging if None. Any object
+    with ``T`` and ``act(t, x, noise)`` can stand in for the controller (e.g. a neural policy).
+    """
     T = controller.T
+    start = np.zeros(2) if x0 is None else np.asarray(x0, dtype=np.float64)
     X, U = np.zeros((n, T, 2)), np.zeros((n, T, 1))
     for i in range(n):
-        x, noise = np.zeros(2), exploration_noise(rng, T, 1)
+        x, noise = start.copy(), exploration_noise(rng, T, 1)
         for t in range(T):
             X[i, t] = x
             U[i, t] = controller.act(t, x, noise[t])
