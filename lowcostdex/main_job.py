@@ -292,23 +292,27 @@ def _metrics(run_dir: Path) -> dict[str, Any]:
 
 def _plot_training(ctx: Context, res: dict[str, Any]) -> str:
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
     for algo, color in (("dapg", "tab:blue"), ("npg", "tab:orange")):
         m = _metrics(ctx.out / f"train_{algo}")
         label = "DAPG (demos)" if algo == "dapg" else "NPG (scratch)"
         axes[0].plot(m["samples"], m["success_rate"], "-o", color=color, label=label)
         axes[1].plot(m["robot_hours"] * 60, m["success_rate"], "-o", color=color, label=label)
         axes[0].plot(m["samples"][-1:], m["eval_success_rate"][-1:], "*", ms=14, color=color)
+    # the behaviour clone's own evaluation, before any RL sample
+    axes[0].plot([0], [res["success_after_bc"]], "D", ms=8, color="tab:blue", mfc="white",
+                 label="behaviour clone alone")
     axes[0].set_xlabel("samples (env steps)")
     axes[1].set_xlabel("robot time incl. resets [min]")
     for ax in axes:
         ax.set_ylabel("success rate")
-        ax.set_ylim(-0.05, 1.05)
+        ax.set_ylim(-0.05, 1.12)
         ax.grid(alpha=0.3)
-    axes[0].legend(title="training (star: evaluation)")
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=3,
+               title="training (star: final evaluation)", frameon=False)
     fig.suptitle("Valve turning on the emulated D'Claw" if ctx.emulated else
                  "Valve turning on the D'Claw")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.14, 1, 1))
     name = "learning_curves.png"
     fig.savefig(ctx.out / name, dpi=110)
     plt.close(fig)
