@@ -57,8 +57,9 @@ def test_replay_switches_goals_at_the_nearest_physics_step():
     t = tr.time - tr.time[0]
     switch = np.round(t / rep.dt).astype(int)
     for i in (3, 10, 17):
-        assert g.goal_idx[switch[i]] == i
-        assert g.goal_idx[switch[i] - 1] == i - 1
+        assert g.rows[switch[i]] == i and g.rows[switch[i] - 1] == i - 1
+        np.testing.assert_array_equal(g.goals[switch[i]], tr.goal[i])
+        np.testing.assert_array_equal(g.goals[switch[i] - 1], tr.goal[i - 1])
 
 
 # ------------------------------------------------------------------------------------------------

@@ -482,9 +482,8 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         # one track: converge tighter than the screening fits
         final_fn = eng.residual_fn(all_segs)
         fitmod.lockstep_lm([final_track], final_fn, 2 * cfg.max_rounds, rtol=1e-5)
-        fitmod.polish(final_track, final_fn, ds.timestep)
-        if final_track.jac is not None:  # Jacobian at the polished point for the intervals
-            final_track.done, final_track.rejects = False, 0
+        if fitmod.polish(final_track, final_fn, ds.timestep):
+            # one round re-evaluates residual and Jacobian at the polished point (intervals)
             fitmod.lockstep_lm([final_track], final_fn, 1)
         effects = final_track.effects()
         timing["final_fit"] = time.perf_counter() - t0

@@ -300,33 +300,44 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
 _SCAN = {("latency", "delay")}
 
 
-def polish(t: Track, residual: ResidualFn, dt: float, n: int = 9) -> None:
-    """Scan each piecewise-smooth scalar of a fitted track over +-1 physics step (others fixed,
-    one batched evaluation) and keep the best value per scalar."""
-    idx = [i for i, f in enumerate(t.structure.free) if (f.effect, f.param) in _SCAN]
-    if not idx or t.r is None:
-        return
-    lo, hi = t.structure.u_bounds()
+def _scan(t: Track, residual: ResidualFn, grids: dict[int, np.ndarray]) -> np.ndarray | None:
+    """One batched evaluation of each scalar ``i`` over ``grids[i]`` (others at the track's
+    values); the best value per scalar where it beats the track's cost, combined. Returns the
+    combined point if it is distinct and lowers the cost, else None."""
     x0 = t.x
-    offsets = np.linspace(-dt, dt, n)
     points = []
-    for i in idx:
-        for o in offsets:
+    for i, grid in grids.items():
+        for v in grid:
             x = x0.copy()
-            x[i] = float(np.clip(x0[i] + o, t.structure.free[i].lo, t.structure.free[i].hi))
+            x[i] = float(v)
             points.append((t.structure, x))
-    res = residual(points)
-    costs = np.array([0.5 * float(r @ r) for r in res]).reshape(len(idx), n)
-    x = x0.copy()
-    for k, i in enumerate(idx):
-        j = int(np.argmin(costs[k]))
-        if costs[k, j] < t.cost:
-            x[i] = points[k * n + j][1][i]
-    if not np.array_equal(x, x0):
-        r = residual([(t.structure, x)])[0]
-        cost = 0.5 * float(r @ r)
-        if cost < t.cost:
-            t.u, t.cost, t.r = t.structure.u(x), cost, r
+    costs = [0.5 * float(r @ r) for r in residual(points)]
+    x, k = x0.copy(), 0
+    for i, grid in grids.items():
+        j = int(np.argmin(costs[k:k + len(grid)]))
+        if costs[k + j] < t.cost:
+            x[i] = float(grid[j])
+        k += len(grid)
+    if np.array_equal(x, x0):
+        return None
+    r = residual([(t.structure, x)])[0]
+    return x if 0.5 * float(r @ r) < t.cost else None
+
+
+def polish(t: Track, residual: ResidualFn, dt: float, n: int = 9) -> bool:
+    """Scan each piecewise-smooth scalar of a fitted track over +-1 physics step (others fixed,
+    one batched evaluation) and move the track to the best values; returns whether it moved
+    (its residual, cost and Jacobian are then to be re-evaluated: ``restart``)."""
+    free = t.structure.free
+    grids = {i: np.clip(t.x[i] + np.linspace(-dt, dt, n), f.lo, f.hi)
+             for i, f in enumerate(free) if (f.effect, f.param) in _SCAN}
+    if not grids or t.r is None:
+        return False
+    x = _scan(t, residual, grids)
+    if x is None:
+        return False
+    restart(t, x)
+    return True
 
 
 _LIMITS = {("torque_limit", "torque")}
@@ -343,34 +354,22 @@ def scan_limits(t: Track, residual: ResidualFn, n: int = 25) -> bool:
     then restarts there so more LM rounds refine it (the cost rises steeply just above a
     barely binding limit and gently below it). Returns whether it moved.
     """
-    idx = [i for i, f in enumerate(t.structure.free) if (f.effect, f.param) in _LIMITS]
-    if not idx or t.r is None:
+    grids = {i: np.linspace(f.lo, f.hi, n) for i, f in enumerate(t.structure.free)
+             if (f.effect, f.param) in _LIMITS}
+    if not grids or t.r is None:
         return False
-    x0 = t.x
-    points = []
-    for i in idx:
-        f = t.structure.free[i]
-        grid = np.linspace(f.lo, f.hi, n)
-        for v in grid:
-            x = x0.copy()
-            x[i] = float(v)
-            points.append((t.structure, x))
-    costs = np.array([0.5 * float(r @ r) for r in residual(points)]).reshape(len(idx), n)
-    x = x0.copy()
-    for k, i in enumerate(idx):
-        j = int(np.argmin(costs[k]))
-        if costs[k, j] < t.cost:
-            x[i] = points[k * n + j][1][i]
-    if np.array_equal(x, x0):
+    x = _scan(t, residual, grids)
+    if x is None:
         return False
-    r = residual([(t.structure, x)])[0]
-    cost = 0.5 * float(r @ r)
-    if cost >= t.cost:
-        return False
-    # restart the track there (LM re-evaluates residual and Jacobian at its first round)
+    restart(t, x)
+    return True
+
+
+def restart(t: Track, x: np.ndarray) -> None:
+    """Move a track to ``x`` and make it live: the next LM round re-evaluates its residual and
+    Jacobian there (and accepts it as its start)."""
     t.u, t.cost, t.r, t.jac, t.trial = t.structure.u(x), math.inf, None, None, None
     t.done, t.rejects, t.mu = False, 0, 1e-2
-    return True
 
 
 def prune_tracks(rnd: int, tracks: Sequence[Track], after: int = 4) -> None:

@@ -38,7 +38,8 @@ class _Grid:
     """One window laid on the physics grid."""
 
     n_steps: int
-    goal_idx: np.ndarray  # (K,) sample index of the goal held during grid step k
+    goals: np.ndarray  # (K, na) goal held during grid step k
+    rows: np.ndarray  # (K,) log row of the channels (current, voltage, ...) during grid step k
     frac: np.ndarray  # (n,) fractional grid position of each sample of the window
     prev_goal: np.ndarray  # (na,) goal in force just before the window
 
@@ -90,21 +91,21 @@ class Replayer:
             frac = t / self.dt
             n_steps = int(np.ceil(frac[-1])) + 1
             # goals switch on the grid when they took effect (``goal_time``, else at ``time``);
-            # before the window's first switch the previous row's goal holds
-            # (index -1: ``prev_goal``, at a log's start the measured position, which a servo
-            # at rest holds; the real previous goal is not in the log)
+            # before the window's first switch the goal in force before the window holds: the
+            # previous row's, at a log's start (when goals arrive after the first read) the
+            # measured position, which a servo at rest holds (actuators are named after the
+            # joints they drive)
             switch = np.round((tr.goal_times[w.start:w.stop] - tr.time[w.start]) / self.dt)
-            k = np.arange(n_steps)
-            goal_idx = w.start + np.searchsorted(switch, k, side="right") - 1
-            if w.start > 0 or switch[0] == 0:
-                goal_idx = np.maximum(goal_idx, w.start - 1 if switch[0] > 0 else w.start)
+            sel = np.searchsorted(switch, np.arange(n_steps), side="right") - 1  # >= -1
             if w.start > 0:
                 prev = tr.goal[w.start - 1]
             elif switch[0] > 0 and set(tr.actuators) <= set(tr.joints):
                 prev = tr.qpos[0, [tr.joints.index(a) for a in tr.actuators]]
             else:
                 prev = tr.goal[0]
-            g = _Grid(n_steps, goal_idx, frac, prev)
+            goals = np.vstack([prev, tr.goal[w.start:w.stop]])[sel + 1]
+            rows = np.maximum(w.start + sel, 0)
+            g = _Grid(n_steps, goals, rows, frac, prev)
             self._grids[w] = g
         return g
 
@@ -172,7 +173,8 @@ class Replayer:
         qpos = np.tile(model.qpos0, (nsim, 1))
         qvel = np.zeros((nsim, model.nv))
         ctrl = np.zeros((nsim, model.nu))
-        goal_idx = np.zeros((nsim, n_steps), dtype=int)
+        rows = np.zeros((nsim, n_steps), dtype=int)
+        goals = np.zeros((nsim, n_steps, len(act)))
         traj_of = np.array([windows[wi].traj for _, wi in sims])
         for s, ((c, wi), g) in enumerate(zip(sims, grids, strict=True)):
             w = windows[wi]
@@ -180,19 +182,16 @@ class Replayer:
             qpos[s, jq] = tr.qpos[w.start] - _offset(columns[c], ds.joints)
             qvel[s, jd] = tr.qvel[w.start]
             ctrl[s, act] = g.prev_goal
-            goal_idx[s, :g.n_steps] = g.goal_idx
-            goal_idx[s, g.n_steps:] = g.goal_idx[-1]
+            rows[s, :g.n_steps], rows[s, g.n_steps:] = g.rows, g.rows[-1]
+            goals[s, :g.n_steps], goals[s, g.n_steps:] = g.goals, g.goals[-1]
         played = _init_backlash(ctrl, act, self._act_of_joint[model_key], sims, windows,
                                 columns, ds)
         plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
                                                                  windows, played))
         trs = ds.trajectories
-        # commands and channels per simulation on the grid: (nsim, K, na), gathered once
-        goals = np.stack([np.where(gi[:, None] < 0, g.prev_goal, trs[t].goal[np.maximum(gi, 0)])
-                          for t, gi, g in zip(traj_of, goal_idx, grids, strict=True)])
-        goal_idx = np.maximum(goal_idx, 0)  # channels before a log's first goal: its first row
+        # channels per simulation on the grid: (nsim, K, na), gathered once
         chans = {ch: np.stack([trs[t].channels[ch][gi] for t, gi in
-                               zip(traj_of, goal_idx, strict=True)])
+                               zip(traj_of, rows, strict=True)])
                  for ch in plant.required_channels}
         has_te = any("torque_enable" in tr.channels for tr in trs)
         te = None
@@ -200,7 +199,7 @@ class Replayer:
             te = np.stack([trs[t].channels["torque_enable"][gi] > 0.5
                            if "torque_enable" in trs[t].channels
                            else np.ones((len(gi), len(act)), bool)
-                           for t, gi in zip(traj_of, goal_idx, strict=True)])
+                           for t, gi in zip(traj_of, rows, strict=True)])
         run = dict(plant=plant, sims=sims, n_steps=n_steps, act=act, jq=jq, goals=goals,
                    chans=chans, te=te, full_goal=np.array(ctrl),
                    full_chans={ch: np.zeros_like(ctrl) for ch in chans},
