@@ -207,7 +207,10 @@ class _State:
         }
 
 
-def _init_state(config: TrainConfig, probe: Any, demos: Demos | None, run: ex.Run) -> _State:
+def _init_state(config: TrainConfig, probe: Any, demos: Demos | None
+                ) -> tuple[_State, dict[str, Any] | None]:
+    """A fresh policy and baseline; with demos the policy is behaviour-cloned first and its
+    statistics (``bc.json``) returned with it."""
     obs_dim = int(np.prod(probe.observation_space.shape))
     act_dim = int(np.prod(probe.action_space.shape))
     horizon = probe.spec.max_episode_steps if probe.spec and probe.spec.max_episode_steps else 1000
@@ -226,23 +229,21 @@ def _init_state(config: TrainConfig, probe: Any, demos: Demos | None, run: ex.Ru
         stats = behavior_clone(
             policy, demos.observations, demos.actions, config.bc, seed_generator(config.seed, _BC)
         )
-        run.write_json(
-            "bc.json", {**stats, "n_episodes": demos.n_episodes, "n_pairs": len(demos.actions)}
-        )
-    return _State(policy, baseline)
+        bc = {**stats, "n_episodes": demos.n_episodes, "n_pairs": len(demos.actions)}
+        return _State(policy, baseline), bc
+    return _State(policy, baseline), None
 
 
-def _evaluate_bc(config: TrainConfig, run: ex.Run, sampler: Sampler, state: _State) -> None:
-    """Deterministic episodes of the behaviour clone, added to ``bc.json``; robot time counts."""
-    jobs = make_jobs(config.seed, BC_EVAL_STREAM, 0, config.eval_episodes, deterministic=True)
+def _evaluate(
+    config: TrainConfig, sampler: Sampler, state: _State, stream: int, k: int
+) -> tuple[list[Trajectory], dict[str, float]]:
+    """``eval_episodes`` deterministic episodes of the current policy (seed stream ``stream``,
+    iteration ``k``); their robot time counts. Returns the paths and the ``eval_`` metrics."""
+    jobs = make_jobs(config.seed, stream, k, config.eval_episodes, deterministic=True)
     paths = sampler.sample(state.policy.snapshot(), jobs)
     state.robot_seconds += sum(p.robot_seconds for p in paths)
     state.pause_seconds += sum(p.pause_seconds for p in paths)
-    file = run.path / "bc.json"
-    stats = ex.read_json(file) if file.exists() else {}
-    stats.update(path_metrics(paths, config.success, prefix="eval_"))
-    stats["eval_episodes"] = len(paths)
-    run.write_json("bc.json", stats)
+    return paths, path_metrics(paths, config.success, prefix="eval_")
 
 
 def _restore(state: _State, ckpt: ex.Checkpoint) -> None:
@@ -315,11 +316,14 @@ def train(
     try:
         env = probe.env if probe is not None else sampler.env  # type: ignore[attr-defined]
         ckpt = run.load_latest() if resume else None
-        state = _init_state(config, env, demos if ckpt is None else None, run)
+        state, bc = _init_state(config, env, demos if ckpt is None else None)
         if probe is not None:
             probe.close()
-        if ckpt is None and config.eval_bc:
-            _evaluate_bc(config, run, sampler, state)
+        if bc is not None:
+            if config.eval_bc:  # the clone alone, before any RL sample
+                paths, metrics = _evaluate(config, sampler, state, BC_EVAL_STREAM, 0)
+                bc.update(metrics, eval_episodes=len(paths))
+            run.write_json("bc.json", bc)
         start = 0
         if ckpt is not None:
             _restore(state, ckpt)
@@ -372,11 +376,8 @@ def _loop(
         evaluate = final or (config.eval_every > 0 and (k + 1) % config.eval_every == 0)
         row.update({ex.EVAL_SUCCESS_RATE: math.nan, ex.EVAL_RETURN_MEAN: math.nan})
         if evaluate:
-            jobs = make_jobs(config.seed, EVAL_STREAM, k, config.eval_episodes, deterministic=True)
-            eval_paths = sampler.sample(state.policy.snapshot(), jobs)
-            state.robot_seconds += sum(p.robot_seconds for p in eval_paths)
-            state.pause_seconds += sum(p.pause_seconds for p in eval_paths)
-            row.update(path_metrics(eval_paths, config.success, prefix="eval_"))
+            eval_paths, metrics = _evaluate(config, sampler, state, EVAL_STREAM, k)
+            row.update(metrics)
             latest = eval_paths[-1]
         else:
             latest = paths[-1]

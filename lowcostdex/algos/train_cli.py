@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from lowcostdex.algos.configs import BACKENDS, BC_LOG_STD, DAPGConfig, TrainConfig
+from lowcostdex.algos.configs import BACKENDS, BC_LOG_STD, DEMO_WEIGHTS, DAPGConfig, TrainConfig
 from lowcostdex.algos.samplers import SAMPLERS
 from lowcostdex.errors import ConfigError
 
@@ -61,15 +61,16 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                    help="extra gym.make argument (VALUE parsed as JSON when possible)")  # fmt: skip
     p.add_argument("--no-progress", action="store_true")
+    # behaviour cloning: always for DAPG, with --bc-init for NPG
+    p.add_argument("--bc-epochs", type=int, default=d.bc.epochs)
+    p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=d.bc.log_std,
+                   help="initial exploration noise after BC")  # fmt: skip
+    p.add_argument("--eval-bc", action="store_true",
+                   help="evaluate the behaviour clone (--eval-episodes) before RL")
     if algo == "dapg":
         p.add_argument("--lam0", type=float, default=d.dapg.lam0)
         p.add_argument("--lam1", type=float, default=d.dapg.lam1)
-        p.add_argument("--demo-weight", choices=("paper", "mjrl"), default=d.dapg.demo_weight)
-        p.add_argument("--bc-epochs", type=int, default=d.bc.epochs)
-        p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=d.bc.log_std,
-                       help="initial exploration noise after BC")  # fmt: skip
-        p.add_argument("--eval-bc", action="store_true",
-                       help="evaluate the behaviour clone (--eval-episodes) before RL")
+        p.add_argument("--demo-weight", choices=DEMO_WEIGHTS, default=d.dapg.demo_weight)
     else:
         p.add_argument(
             "--bc-init", action="store_true", help="behaviour-clone the demos first (BCRL)"
@@ -122,9 +123,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         dapg=DAPGConfig(lam0=args.lam0, lam1=args.lam1, demo_weight=args.demo_weight)
         if args.algo == "dapg"
         else d.dapg,
-        bc=dataclasses.replace(d.bc, epochs=args.bc_epochs, log_std=args.bc_log_std)
-        if args.algo == "dapg"
-        else d.bc,
+        bc=dataclasses.replace(d.bc, epochs=args.bc_epochs, log_std=args.bc_log_std),
         progress=not args.no_progress,
     )
 
