@@ -66,15 +66,14 @@ class TraceRecorder:
                           actuators=self.joints, joints=self.joints, qvel=pick("velocity"),
                           channels=channels, goal_time=goal_time - time[0])
 
-    def clear(self) -> None:
-        self._rows.clear()
-
 
 def settle(robot: Robot, joints: Sequence[str], goal: np.ndarray, min_seconds: float = 0.3,
            max_seconds: float = 1.5, speed: float = 0.05) -> bool:
-    """Hold ``goal`` (n,) [rad] on ``joints`` until they rest there (every |velocity| below
-    ``speed`` [rad/s] after at least ``min_seconds``), at most ``max_seconds``; returns whether
-    they came to rest. Nothing is logged."""
+    """Hold ``goal`` (n,) [rad] on ``joints`` until they rest there (every measured |velocity|
+    below ``speed`` [rad/s] after at least ``min_seconds``), at most ``max_seconds``; returns
+    whether they came to rest. Nothing is logged. (``reset.move`` stops on a position stall
+    over a window instead; a log that starts from it still creeps: on the effect-free emulator
+    the analysis then named three spurious effects.)"""
     idx = robot.index(joints)
     start = robot.clock.now()
     while True:
@@ -158,6 +157,10 @@ def contact_free(model: Any, joints: Sequence[str], goals: np.ndarray,
     return out, changed
 
 
+PARK_TOLERANCE = 0.05
+"""How close parked joints must get to their park positions [rad]."""
+
+
 def dclaw_park(hand_joints: Sequence[str], logged: Sequence[str]) -> dict[str, float]:
     """Where the D'Claw's other fingers wait while ``logged`` joints are identified: swung out
     (middle joint -1.0 rad), which clears the logged finger's workspace except for the corners
@@ -195,7 +198,13 @@ def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path
     if park:
         names = tuple(park)
         robot.torque(True, names)
-        settle(robot, names, np.array([park[n] for n in names]), max_seconds=3.0)
+        target = np.array([park[n] for n in names])
+        settle(robot, names, target, max_seconds=3.0)
+        error = np.abs(robot.present[robot.index(names)] - target)
+        if not np.all(error < PARK_TOLERANCE):  # NaN (no reading) fails too
+            raise ConfigError(f"the joints to park did not get there: {names} are "
+                              f"{np.round(error, 3).tolist()} rad off (tolerance "
+                              f"{PARK_TOLERANCE} rad); is something in the way?")
     paths = []
     for k in range(logs):
         goals = excitation(rng, seconds, period, low, high)
