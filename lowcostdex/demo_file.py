@@ -11,10 +11,10 @@ Layout (Minari's per-episode layout, plus the raw robot readings), no pickle any
     /                              attrs: format="lowcostdex-demos", format_version=2,
                                           env_id, task, hand (hand spec JSON), source,
                                           control_period [s], obs_dim, act_dim,
-                                          action_joints (JSON list), total_episodes, total_steps,
-                                          label_model (JSON, optional: see below)
+                                          action_joints (JSON list), total_episodes, total_steps
     /episode_<k>/                  attrs: id, total_steps, success, seed, reset_time [s],
-                                          reset_attempts, source, label
+                                          reset_attempts, source, label,
+                                          label_model (JSON; servo_goal episodes only)
         observations   (T+1, obs_dim) float64   o_0 .. o_T (the last one follows the last action)
         actions        (T, act_dim)   float64   a_t in the env's action space [-1, 1]
         rewards        (T,)           float64   the task's reward for (o_t, a_t)
@@ -42,9 +42,10 @@ episode's own ``source`` attribute may differ (the playbacks in a kinesthetic re
   a_t = goal_to_action(q_{t+1}) (format version 1's only kinesthetic label).
 - ``servo_goal``: a kinesthetic recording labelled with the goals a position servo would need
   to produce the recorded motion, from the measured positions and velocities through the servo
-  response model in the file attribute ``label_model`` (``lowcostdex.hardware.demos.ServoResponse``).
+  response model in the episode's attribute ``label_model`` (``lowcostdex.hardware.demos.ServoResponse``;
+  per episode: sessions appended to one file may each identify their own).
 
-Versions: 2 added the per-episode ``label`` attribute, the ``label_model`` file attribute and the
+Versions: 2 added the per-episode ``label`` and ``label_model`` attributes and the
 ``playback`` source. Version-1 files read as ``next_position`` for kinesthetic and virtual-teacher
 episodes and ``commanded`` otherwise, which is what their actions were.
 
@@ -200,7 +201,7 @@ class DemoWriter:
       path: the file.
       info: its metadata; an existing file must carry the same.
       label_model: JSON-serializable description of how ``servo_goal`` labels were computed
-        (``ServoResponse.to_dict()``), stored as the file attribute ``label_model``.
+        (``ServoResponse.to_dict()``), stored with every ``servo_goal`` episode.
     """
 
     def __init__(self, path: str | Path, info: DatasetInfo, label_model: dict | None = None):
@@ -230,8 +231,6 @@ class DemoWriter:
                                 "total_episodes": 0, "total_steps": 0, **self.info.attrs()})
             elif int(f.attrs.get("format_version", 1)) < FORMAT_VERSION:
                 f.attrs["format_version"] = FORMAT_VERSION  # v1 episodes read the same in v2
-            if self.label_model is not None:
-                f.attrs["label_model"] = json.dumps(self.label_model)
             k = int(f.attrs["total_episodes"])
             name = f"episode_{k}"
             if name in f:  # an episode a crash left half-written: replace it
@@ -260,6 +259,11 @@ class DemoWriter:
                             "seed": int(ep.seed), "reset_time": float(ep.reset_time),
                             "reset_attempts": int(ep.reset_attempts),
                             "source": source, "label": ep.label or default_label(source)})
+            if g.attrs["label"] == "servo_goal":
+                if self.label_model is None:
+                    raise ConfigError("a servo_goal episode needs the writer's label_model (the "
+                                      "servo response its labels came from)")
+                g.attrs["label_model"] = json.dumps(self.label_model)
             f.flush()
             f.attrs["total_episodes"] = k + 1
             f.attrs["total_steps"] = int(f.attrs["total_steps"]) + ep.length
@@ -309,11 +313,16 @@ def read_info(path: str | Path) -> tuple[DatasetInfo, int, int]:
                 int(f.attrs["total_steps"]))
 
 
-def read_label_model(path: str | Path) -> dict | None:
-    """The file's ``label_model`` attribute (how ``servo_goal`` labels were computed), or None."""
+def read_label_model(path: str | Path, episode: int | None = None) -> dict | None:
+    """How an episode's ``servo_goal`` labels were computed (``label_model``): of episode
+    ``episode``, or of the file's first such episode; None if it has none."""
     with open_dataset(path) as f:
-        text = f.attrs.get("label_model")
-    return json.loads(text) if text is not None else None
+        ids = range(int(f.attrs["total_episodes"])) if episode is None else [episode]
+        for k in ids:
+            text = f[f"episode_{k}"].attrs.get("label_model")
+            if text is not None:
+                return json.loads(text)
+    return None
 
 
 def read_episodes(path: str | Path, only_successful: bool = False) -> list[Episode]:

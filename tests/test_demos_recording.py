@@ -17,22 +17,22 @@ import numpy as np
 import pytest
 
 from lowcostdex.algos.demos import load_demos
-from lowcostdex.errors import ConfigError
 from lowcostdex.demo_file import (
     FORMAT,
     DatasetInfo,
     DemoWriter,
+    read_demo_pairs,
     read_episodes,
     read_info,
     read_label_model,
 )
+from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.demos import (
     KinestheticRecorder,
     ServoResponse,
     VirtualTeacher,
     episode_from_states,
     identify_servo_response,
-    read_demo_pairs,
     servo_goal_labels,
 )
 from lowcostdex.sim.envs import goal_to_action
@@ -294,3 +294,18 @@ def test_playbacks_need_a_servo_response_and_version_1_files_read_as_next_positi
         for k in range(int(f.attrs["total_episodes"])):
             del f[f"episode_{k}"].attrs["label"]
     assert {e.label for e in read_episodes(copy)} == {"next_position"}
+
+
+def test_each_servo_goal_episode_keeps_the_servo_response_it_was_labelled_with(played, tmp_path):
+    path, response, _, demo, _, _, _ = played
+    copy = tmp_path / "two_sessions.h5"
+    copy.write_bytes(path.read_bytes())
+    info, n, _ = read_info(copy)
+    later = ServoResponse(alpha=tuple(0.5 for _ in response.alpha), beta=response.beta,
+                          offset=response.offset, period=response.period)
+    DemoWriter(copy, info, label_model=later.to_dict()).append(demo)  # a later session
+    assert read_label_model(copy, episode=0) == response.to_dict()
+    assert read_label_model(copy, episode=n) == later.to_dict()
+    assert read_label_model(copy, episode=1) is None  # a playback: commanded labels
+    with pytest.raises(ConfigError, match="label_model"):
+        DemoWriter(copy, info).append(demo)

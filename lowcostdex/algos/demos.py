@@ -141,7 +141,8 @@ class EpisodeRecorder:
         episode = rec.episode()
 
     The physical state is read from ``env.unwrapped.data`` (MuJoCo ``qpos``/``qvel``; an env
-    without one records zero-width arrays); times are ``info["time"]`` when the env reports it,
+    without one records zero-width arrays); times are the robot clock
+    (``info["telemetry"]["clock"]``) on a robot, else ``info["time"]`` when the env reports it,
     else steps times the control period [s]; the goal is ``env.unwrapped.goal`` at reset (if
     it is a dict of arrays); success per step is ``info["success"]``; the auto-reset time comes
     from the reset info's robot telemetry (NaN in simulation).
@@ -177,7 +178,9 @@ class EpisodeRecorder:
         data = getattr(self.base, "data", None)
         self.qpos.append(np.array(data.qpos if data is not None else [], dtype=np.float64))
         self.qvel.append(np.array(data.qvel if data is not None else [], dtype=np.float64))
-        self.time.append(float(info.get("time", len(self.actions) * self.period)))
+        telemetry = info.get("telemetry") or {}  # a robot: its clock, as demonstrations are
+        self.time.append(float(telemetry.get("clock",
+                                              info.get("time", len(self.actions) * self.period))))
 
     def step(
         self,

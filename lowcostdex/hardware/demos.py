@@ -46,21 +46,19 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError
 from lowcostdex.demo_file import (
     DatasetInfo,
     DemoWriter,
     Episode,
-    read_demo_pairs,
-    read_episodes,
 )
+from lowcostdex.errors import ConfigError
 from lowcostdex.sim.envs.hand_env import goal_to_action
 
 log = logging.getLogger(__name__)
 
 __all__ = ["KinestheticRecorder", "RecordingStats", "ServoResponse", "VirtualTeacher",
            "VirtualTeacherConfig", "episode_from_states", "identify_servo_response",
-           "read_demo_pairs", "read_episodes", "servo_goal_labels"]
+           "servo_goal_labels"]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -168,8 +166,7 @@ def servo_goal_labels(task: Any, qpos: np.ndarray, qvel: np.ndarray, response: S
     v = np.asarray(qvel, float)[:, task.hand_dof]
     g = response.goal(q[:-1], v[:-1], q[1:])
     g = np.clip(g, q[:-1] - max_step, q[:-1] + max_step)
-    return goal_to_action(np.clip(g, task.hand_low, task.hand_high), task.hand_low,
-                          task.hand_high)
+    return goal_to_action(g, task.hand_low, task.hand_high)  # clipped to the limits there
 
 
 def identify_servo_response(env: Any, episodes: int = 4, seed: int = 0,
@@ -514,17 +511,14 @@ class KinestheticRecorder:
         start = robot.clock.now()
         obs, info = self.env.reset(seed=demo.seed)
         rec = EpisodeRecorder(self.env, obs, info, demo.seed)
-        times = [robot.clock.now()]  # robot clock times, as the demonstrations'
         for a in demo.actions:
             noise = self.rng.uniform(-self.playback_noise, self.playback_noise, a.shape)
             executed = np.clip(a + noise, -1.0, 1.0).astype(self.env.action_space.dtype)
             obs, reward, terminated, truncated, info = self.env.step(executed)
             rec.step(a, obs, reward, terminated, info)
-            times.append(robot.clock.now())
             if terminated or truncated:
                 break
-        ep = dataclasses.replace(rec.episode(), time=np.array(times), source="playback",
-                                 label="commanded")
+        ep = dataclasses.replace(rec.episode(), source="playback", label="commanded")
         k = self.writer.append(ep)
         s = self.stats
         s.playbacks += 1

@@ -523,4 +523,5 @@ class Robot:
             out.update(current=s.current.copy(), temperature=s.temperature.copy(),
                        voltage=s.voltage.copy(), valid=s.valid.copy())
         out["pause_pending"] = self.thermal.pause_pending
+        out["clock"] = self.clock.now()  # robot clock [s]: timestamps of recorded episodes
         return out
