@@ -7,7 +7,7 @@
    its thermal guard and auto-resets active; success rates evaluated;
 4. gap: an identification recording from the robot is compared with the nominal simulation; the
    gap analysis names what differs (the emulated robot carries servo effects the nominal sim
-   lacks: ``ROBOT_EFFECTS``), extends the model and measures the held-out gain;
+   lacks: ``robot_effects``), extends the model and measures the held-out gain;
 5. report: ``report.md`` (and ``report.html``) with the PNG plots, in one output folder.
 
 ``--port /dev/ttyUSB0`` runs the same stages on a real D'Claw (kinesthetic demos then need a
@@ -39,11 +39,9 @@ def robot_effects(joints: tuple[str, ...]) -> list[Any]:
     of extra dry friction per joint: magnitudes inside the plausible D'Claw ranges of
     ../shared/reference/04-sysid.md section 6.
     """
-    from lowcostdex.sim.effects import AppliedEffect
+    from lowcostdex.hardware.backend import default_effects
 
-    return [AppliedEffect("latency", joints, {"delay": 0.012}),
-            AppliedEffect("backlash", joints, {"width": math.radians(1.0)}),
-            AppliedEffect("coulomb_friction", joints, {"frictionloss": 0.05})]
+    return default_effects(joints, latency=0.012, backlash=math.radians(1.0), friction=0.05)
 
 
 @dataclass
@@ -118,13 +116,12 @@ def stage_bus(ctx: Context) -> dict[str, Any]:
     from lowcostdex.hardware.dynamixel import scan
     from lowcostdex.hardware.emulator import emulated_dclaw
     from lowcostdex.hardware.hands import dclaw_spec
-    from lowcostdex.sim.effects import AppliedEffect
     from lowcostdex.sim.models.dclaw import build_dclaw
 
     hand = dclaw_spec()
     ids = [j.motor_id for j in hand.all_joints]
     if ctx.emulated:
-        effects = [AppliedEffect.from_dict(e) for e in ctx.env_kwargs()["effects"]]
+        effects = robot_effects(hand.joint_names)
         chain = emulated_dclaw("valve", hand=hand, effects=effects,
                                rng=np.random.default_rng(ctx.seed))
         port: Any = chain.port()
@@ -187,14 +184,14 @@ def stage_demos(ctx: Context) -> dict[str, Any]:
         teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task,
                                  solver=ValveTurnTeacher(), rng=np.random.default_rng(ctx.seed))
     n = ctx.budget.demos
-    progress, bar = _progress(f"recording {n} demonstrations + {PLAYBACKS} playbacks each")
+    progress = _progress()
     try:
         with progress:
-            ident = progress.add_task("servo response", total=SERVO_ID_EPISODES)
+            ident = progress.add_task("servo response (random goals)", total=SERVO_ID_EPISODES)
             response, id_seconds = identify_servo_response(
                 env, episodes=SERVO_ID_EPISODES, seed=ctx.seed + 1_000_000,
                 on_episode=lambda k: progress.advance(ident))
-            task = progress.add_task("demos", total=n)
+            task = progress.add_task(f"{n} demonstrations, {PLAYBACKS} playbacks of each", total=n)
             recorder = KinestheticRecorder(
                 env, path, ENV_ID, teacher=teacher, response=response, playbacks=PLAYBACKS,
                 playback_noise=PLAYBACK_NOISE, rng=np.random.default_rng(ctx.seed),
@@ -246,6 +243,7 @@ def stage_train(ctx: Context) -> dict[str, Any]:
     backend = kwargs.pop("backend")
     demos = ctx.out / ctx.results["demos"]["file"]
     out: dict[str, Any] = {}
+    curves: dict[str, dict[str, Any]] = {}
     for algo, iters in (("dapg", b.dapg_iters), ("npg", b.npg_iters)):
         config = TrainConfig(algo=algo, env_id=ENV_ID, backend=backend, env_kwargs=kwargs,
                              seed=ctx.seed, n_iter=iters, n_traj=b.traj_per_iter,
@@ -256,8 +254,8 @@ def stage_train(ctx: Context) -> dict[str, Any]:
         if run_dir.exists():
             shutil.rmtree(run_dir)
         t0 = time.perf_counter()
-        train(config, run_dir)
-        metrics = _metrics(run_dir)
+        metrics = train(config, run_dir).read_metrics()
+        curves[algo] = metrics
         out[algo] = {
             "iterations": iters,
             "samples": int(metrics["samples"][-1]),
@@ -275,26 +273,16 @@ def stage_train(ctx: Context) -> dict[str, Any]:
     bc = json.loads((ctx.out / "train_dapg" / "bc.json").read_text())
     out["success_after_bc"] = float(bc["eval_success_rate"])
     out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs", "eval_episodes") if k in bc}
-    out["plot"] = _plot_training(ctx, out)
+    out["plot"] = _plot_training(ctx, out, curves)
     return out
 
 
-def _metrics(run_dir: Path) -> dict[str, Any]:
-    import csv
-
-    import numpy as np
-
-    with (run_dir / "metrics.csv").open() as f:
-        rows = list(csv.DictReader(f))
-    return {k: np.array([float(r[k]) if r[k] not in ("", None) else np.nan for r in rows])
-            for k in rows[0]}
-
-
-def _plot_training(ctx: Context, res: dict[str, Any]) -> str:
+def _plot_training(ctx: Context, res: dict[str, Any], curves: dict[str, dict[str, Any]]) -> str:
+    """Success against samples and robot time, from each run's metrics (``curves[algo]``)."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
     for algo, color in (("dapg", "tab:blue"), ("npg", "tab:orange")):
-        m = _metrics(ctx.out / f"train_{algo}")
+        m = curves[algo]
         label = "DAPG (demos)" if algo == "dapg" else "NPG (scratch)"
         axes[0].plot(m["samples"], m["success_rate"], "-o", color=color, label=label)
         axes[1].plot(m["robot_hours"] * 60, m["success_rate"], "-o", color=color, label=label)
@@ -326,14 +314,15 @@ def _plot_training(ctx: Context, res: dict[str, Any]) -> str:
 def stage_gap(ctx: Context) -> dict[str, Any]:
     """Record an identification log from the robot, compare with the nominal sim, name causes."""
     import numpy as np
+    from rich.console import Console
 
     from lowcostdex.hardware.backend import make_dynamixel_bus, robot_hand
     from lowcostdex.hardware.emulator import emulated_dclaw
     from lowcostdex.hardware.hands import dclaw_spec
     from lowcostdex.hardware.robot import Robot, RobotConfig
     from lowcostdex.hardware.trace import dclaw_park, identification_logs
-    from lowcostdex.sim.effects import AppliedEffect
     from lowcostdex.sim.gap import GapConfig, analyze, load_dataset, write_report
+    from lowcostdex.sim.gap.cli import analysis_progress
     from lowcostdex.sim.models.dclaw import build_dclaw
 
     b = ctx.budget
@@ -347,7 +336,7 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     h = robot_hand(hand, model)
     truth = []
     if ctx.emulated:
-        truth = [AppliedEffect.from_dict(e) for e in ctx.env_kwargs()["effects"]]
+        truth = robot_effects(hand.joint_names)
         chain = emulated_dclaw("none", hand=hand, effects=truth,
                                rng=np.random.default_rng(ctx.seed + 1))
         port: Any = chain.port()
@@ -358,9 +347,9 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     # latency and backlash); the joint limits still hold.
     robot = Robot(h, bus, RobotConfig(control_period=0.02, motion_scale=10.0))
     steps = int(b.gap_seconds / 0.02)
-    progress, _ = _progress("identification recording")
+    progress = _progress()
     with robot, progress:
-        task = progress.add_task("recording", total=b.gap_logs * steps)
+        task = progress.add_task("identification logs", total=b.gap_logs * steps)
         paths = identification_logs(robot, GAP_JOINTS, logs_dir, b.gap_logs, b.gap_seconds,
                                     np.random.default_rng(ctx.seed + 2),
                                     on_step=lambda _: progress.advance(task), model=model,
@@ -369,15 +358,8 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     nominal.write_text(build_dclaw("none", hand, thermal=False, fingers=("ff",)).to_xml())
     dataset = load_dataset([str(p) for p in paths], model=str(nominal))
     t0 = time.perf_counter()
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                  console=Console(stderr=True), transient=True) as bar:
-        task = bar.add_task("gap analysis", total=1.0)
-        result = analyze(dataset, GapConfig(),
-                         lambda stage, frac: bar.update(task, completed=frac,
-                                                        description=f"gap analysis: {stage}"))
+    with analysis_progress(Console(stderr=True)) as on_progress:
+        result = analyze(dataset, GapConfig(), on_progress)
     seconds = time.perf_counter() - t0
     write_report(result, gap_dir / "report")
     report = json.loads((gap_dir / "report" / "report.json").read_text())
@@ -622,13 +604,13 @@ def _pyplot() -> Any:
     return plt
 
 
-def _progress(description: str) -> tuple[Any, str]:
+def _progress() -> Any:
+    """A transient progress display (one bar per task, named by its description)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    progress = Progress(TextColumn(description), BarColumn(), MofNCompleteColumn(),
-                        TimeElapsedColumn(), console=Console(stderr=True), transient=True)
-    return progress, description
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), console=Console(stderr=True), transient=True)
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

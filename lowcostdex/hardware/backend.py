@@ -57,16 +57,16 @@ Tracker = Callable[[], tuple[np.ndarray, np.ndarray]]
 """() -> (block position (3,) [m], quaternion (4,) (w, x, y, z)) in the env model's frame."""
 
 
-def default_effects(joints: Sequence[str]) -> list[AppliedEffect]:
-    """A plausible set of servo effects for an emulated D'Claw (small; a gap to find).
-
-    4 ms command latency, 0.4 deg gear backlash and 0.02 N m extra joint friction on every
-    finger joint.
-    """
+def default_effects(joints: Sequence[str], latency: float = 0.004,
+                    backlash: float = math.radians(0.4), friction: float = 0.02
+                    ) -> list[AppliedEffect]:
+    """A plausible set of servo effects for an emulated D'Claw (a gap to find): command
+    ``latency`` [s], gear ``backlash`` [rad] and extra dry joint ``friction`` [N m] on every
+    joint in ``joints``. Defaults small: 4 ms, 0.4 deg, 0.02 N m."""
     joints = tuple(joints)
-    return [AppliedEffect("latency", joints, {"delay": 0.004}),
-            AppliedEffect("backlash", joints, {"width": math.radians(0.4)}),
-            AppliedEffect("coulomb_friction", joints, {"frictionloss": 0.02})]
+    return [AppliedEffect("latency", joints, {"delay": latency}),
+            AppliedEffect("backlash", joints, {"width": backlash}),
+            AppliedEffect("coulomb_friction", joints, {"frictionloss": friction})]
 
 
 def robot_hand(hand: HandSpec, model: mujoco.MjModel) -> HandSpec:

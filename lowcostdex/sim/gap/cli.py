@@ -8,7 +8,10 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -49,9 +52,20 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     g.set_defaults(func=_generate)
 
 
+@contextmanager
+def analysis_progress(console: Any) -> Iterator[Callable[[str, float], None]]:
+    """A transient progress bar for ``analyze``; yields its ``progress(stage, fraction)``."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+                  console=console, transient=True) as bar:
+        task = bar.add_task("gap analysis", total=1.0)
+        yield lambda stage, frac: bar.update(task, completed=frac,
+                                             description=f"gap analysis: {stage}")
+
+
 def _analyze(args: argparse.Namespace) -> int:
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.sim.gap.analyze import GapConfig, analyze
@@ -71,13 +85,7 @@ def _analyze(args: argparse.Namespace) -> int:
     cfg = GapConfig(candidates=cands, max_effects=args.max_effects, top_k=args.top_k,
                     min_gain=args.min_gain, seed=args.seed, test_logs=test,
                     nthread=args.threads)
-    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as bar:
-        task = bar.add_task("gap analysis", total=1.0)
-
-        def progress(stage: str, frac: float) -> None:
-            bar.update(task, completed=frac, description=stage)
-
+    with analysis_progress(console) as progress:
         result = analyze(ds, cfg, progress)
     out = write_report(result, args.out)
     print(summary(result))
