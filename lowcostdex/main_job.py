@@ -29,6 +29,8 @@ from typing import Any
 
 ENV_ID = "lowcostdex/DClawTurnValve-v0"
 GAP_JOINTS = ("ff_top", "ff_middle", "ff_bottom")
+GAP_RATE = 50.0
+"""Control rate of the identification logs [Hz]."""
 SIZES = ("smoke", "default", "long")
 
 
@@ -316,11 +318,8 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     import numpy as np
     from rich.console import Console
 
-    from lowcostdex.hardware.backend import make_dynamixel_bus, robot_hand
-    from lowcostdex.hardware.emulator import emulated_dclaw
     from lowcostdex.hardware.hands import dclaw_spec
-    from lowcostdex.hardware.robot import Robot, RobotConfig
-    from lowcostdex.hardware.trace import dclaw_park, identification_logs
+    from lowcostdex.hardware.trace import dclaw_identification_logs
     from lowcostdex.sim.gap import GapConfig, analyze, load_dataset, write_report
     from lowcostdex.sim.gap.cli import analysis_progress
     from lowcostdex.sim.models.dclaw import build_dclaw
@@ -332,28 +331,16 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
         shutil.rmtree(gap_dir)
     logs_dir.mkdir(parents=True)
     hand = dclaw_spec()
-    model = build_dclaw("none", hand).compile()
-    h = robot_hand(hand, model)
-    truth = []
-    if ctx.emulated:
-        truth = robot_effects(hand.joint_names)
-        chain = emulated_dclaw("none", hand=hand, effects=truth,
-                               rng=np.random.default_rng(ctx.seed + 1))
-        port: Any = chain.port()
-    else:
-        port = ctx.port
-    bus = make_dynamixel_bus(h, port, model)
-    # Identification moves use wider per-step motion bounds than a policy gets (steps excite
-    # latency and backlash); the joint limits still hold.
-    robot = Robot(h, bus, RobotConfig(control_period=0.02, motion_scale=10.0))
-    steps = int(b.gap_seconds / 0.02)
+    truth = robot_effects(hand.joint_names) if ctx.emulated else []
+    steps = int(b.gap_seconds * GAP_RATE)
     progress = _progress()
-    with robot, progress:
+    with progress:
         task = progress.add_task("identification logs", total=b.gap_logs * steps)
-        paths = identification_logs(robot, GAP_JOINTS, logs_dir, b.gap_logs, b.gap_seconds,
-                                    np.random.default_rng(ctx.seed + 2),
-                                    on_step=lambda _: progress.advance(task), model=model,
-                                    park=dclaw_park(hand.joint_names, GAP_JOINTS))
+        paths = dclaw_identification_logs(
+            hand, GAP_JOINTS, logs_dir, b.gap_logs, b.gap_seconds,
+            np.random.default_rng(ctx.seed + 2), port=ctx.port, effects=truth,
+            emulator_rng=np.random.default_rng(ctx.seed + 1), rate=GAP_RATE,
+            on_step=lambda _: progress.advance(task))
     nominal = gap_dir / "nominal_finger.xml"
     nominal.write_text(build_dclaw("none", hand, thermal=False, fingers=("ff",)).to_xml())
     dataset = load_dataset([str(p) for p in paths], model=str(nominal))

@@ -233,11 +233,9 @@ def _record_log(args: argparse.Namespace) -> int:
     from rich.progress import Progress
 
     from lowcostdex.errors import ConfigError
-    from lowcostdex.hardware.backend import default_effects, make_dynamixel_bus, robot_hand
-    from lowcostdex.hardware.robot import Robot, RobotConfig
-    from lowcostdex.hardware.trace import dclaw_park, identification_logs
+    from lowcostdex.hardware.backend import default_effects
+    from lowcostdex.hardware.trace import dclaw_identification_logs
     from lowcostdex.sim.effects import AppliedEffect
-    from lowcostdex.sim.models.dclaw import build_dclaw
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
         raise ConfigError("--logs, --seconds and --rate must be positive")
@@ -245,30 +243,19 @@ def _record_log(args: argparse.Namespace) -> int:
     joints = tuple(j.strip() for j in args.joints.split(",") if j.strip())
     for j in joints:
         hand.joint(j)  # raises with the valid names
-    model = build_dclaw("none", hand).compile()
-    h = robot_hand(hand, model)
+    effects = []
     if args.port == "emulated":
-        from lowcostdex.hardware.emulator import emulated_dclaw
-
-        if args.effects:
-            effects = [AppliedEffect.from_dict(e) for e in json.loads(open(args.effects).read())]
-        else:
-            effects = default_effects(hand.joint_names)
-        chain = emulated_dclaw("none", hand=hand, effects=effects,
-                               rng=np.random.default_rng(args.seed))
-        port = chain.port()
-    else:
-        port = args.port
-    bus = make_dynamixel_bus(h, port, model, baudrate=args.baud)
-    robot = Robot(h, bus, RobotConfig(control_period=1.0 / args.rate, motion_scale=10.0))
+        effects = ([AppliedEffect.from_dict(e) for e in json.loads(open(args.effects).read())]
+                   if args.effects else default_effects(hand.joint_names))
     steps = int(round(args.seconds * args.rate))
     console = Console(stderr=True)
-    with robot, Progress(console=console) as progress:
+    with Progress(console=console) as progress:
         bar = progress.add_task("identification logs", total=args.logs * steps)
-        paths = identification_logs(robot, joints, args.out, args.logs, args.seconds,
-                                    np.random.default_rng(args.seed),
-                                    on_step=lambda _: progress.advance(bar), model=model,
-                                    park=dclaw_park(hand.joint_names, joints))
+        paths = dclaw_identification_logs(
+            hand, joints, args.out, args.logs, args.seconds, np.random.default_rng(args.seed),
+            port=None if args.port == "emulated" else args.port, effects=effects,
+            emulator_rng=np.random.default_rng(args.seed), rate=args.rate, baudrate=args.baud,
+            on_step=lambda _: progress.advance(bar))
     console.print(f"{len(paths)} logs -> {args.out}; analyse them with "
                   f"`lowcostdex gap analyze --model MODEL.xml --log {args.out}/*.csv --out DIR` "
                   f"(MODEL.xml: `lowcostdex model dclaw --station none --out MODEL.xml`)")

@@ -212,3 +212,36 @@ def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path
             goals, _ = contact_free(model, joints, goals, park)
         paths.append(excite(robot, joints, goals, out_dir / f"log_{k}.csv", on_step=on_step))
     return paths
+
+
+def dclaw_identification_logs(hand: Any, joints: Sequence[str], out_dir: str | Path, logs: int,
+                              seconds: float, rng: np.random.Generator, *,
+                              port: str | None = None, effects: Sequence[Any] = (),
+                              emulator_rng: np.random.Generator | None = None,
+                              rate: float = 50.0, baudrate: int = 1_000_000,
+                              on_step: Callable[[int], None] | None = None) -> list[Path]:
+    """``identification_logs`` of ``joints`` on a D'Claw without its station: on the real one at
+    ``port``, or (``port=None``) on an emulated one carrying the servo ``effects``
+    (``AppliedEffect``s; ``emulator_rng`` seeds its noise). The other fingers are parked
+    (``dclaw_park``), poses that would touch anything are pulled in (``contact_free``), and the
+    per-step motion bound is 10x a policy's (steps excite latency and backlash; the joint limits
+    still hold). ``rate`` is the control rate [Hz]."""
+    from lowcostdex.hardware.backend import make_dynamixel_bus, robot_hand
+    from lowcostdex.hardware.robot import RobotConfig
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    model = build_dclaw("none", hand).compile()
+    h = robot_hand(hand, model)
+    if port is None:
+        from lowcostdex.hardware.emulator import emulated_dclaw
+
+        chain = emulated_dclaw("none", hand=hand, effects=list(effects),
+                               rng=emulator_rng or np.random.default_rng(0))
+        bus_port: Any = chain.port()
+    else:
+        bus_port = port
+    bus = make_dynamixel_bus(h, bus_port, model, baudrate=baudrate)
+    robot = Robot(h, bus, RobotConfig(control_period=1.0 / rate, motion_scale=10.0))
+    with robot:
+        return identification_logs(robot, joints, out_dir, logs, seconds, rng, on_step=on_step,
+                                   model=model, park=dclaw_park(hand.joint_names, joints))
