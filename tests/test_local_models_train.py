@@ -254,6 +254,37 @@ def test_tracking_run_logs_noisy_evaluations_and_resumes_identically(tmp_path) -
             np.testing.assert_array_equal(resumed[key], values, err_msg=key)
 
 
+def test_resume_uses_the_demonstration_the_run_started_from(tmp_path, monkeypatch) -> None:
+    """Failed teacher episodes and the un-executed last action stay in a resumed run's cost."""
+    pytest.importorskip("lowcostdex.sim.scripted")
+    from lowcostdex.algos.local_models import train as tvlg_train
+
+    teach = tvlg_train.teacher_episodes
+    noisy = {}
+
+    def noisy_teacher(*args, **kw):  # exploration noise: some teacher episodes fail
+        out = teach(*args, **kw, noise=0.1)
+        noisy["successes"] = out.successes
+        return out
+
+    monkeypatch.setattr(tvlg_train, "teacher_episodes", noisy_teacher)
+    cfg = _small(
+        n_iter=2, init="teacher", teacher_episodes=3, init_noise=0.05,
+        cost=TaskCostConfig.tracking(),
+    )  # fmt: skip
+    full = train(cfg, tmp_path / "full").read_metrics()
+    assert noisy["successes"].any() and not noisy["successes"].all()
+    train(cfg, tmp_path / "cut", stop_after=0)
+    (tmp_path / "cut" / "teacher_demo.h5").unlink()  # not read again
+    resumed = train(cfg, tmp_path / "cut", resume=True).read_metrics()
+    for key, values in full.items():
+        if key not in TIME_COLUMNS:
+            np.testing.assert_array_equal(resumed[key], values, err_msg=key)
+    ctl, cut = load_controller(tmp_path / "full")[0], load_controller(tmp_path / "cut")[0]
+    np.testing.assert_array_equal(cut.K, ctl.K)
+    np.testing.assert_array_equal(cut.k, ctl.k)
+
+
 def test_fixed_start_can_put_the_hand_elsewhere(valve) -> None:
     env, _, _ = valve
     pose = np.tile([-0.27, -0.23, 0.79], 3)

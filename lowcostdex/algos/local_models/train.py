@@ -714,11 +714,18 @@ def train(
             state = state_from_arrays(_numpy(ckpt.state["tvlg"]))
             counters = dict(ckpt.state["counters"])
             first = ckpt.iteration + 1
-            if config.init in ("teacher", "demos"):
-                path = run.path / TEACHER_FILE if config.init == "teacher" else config.demos
-                demo_actions = _demo_actions(str(path), T)
+            # the demonstration the run started from, not rebuilt from a file: the teacher's
+            # episodes are not a demo file's (failed ones kept, last action not executed) and
+            # config.demos may have changed since
+            if config.init in ("teacher", "demos") and "demo_actions" not in ckpt.state:
+                raise ConfigError(
+                    f"the checkpoint in {run.path} predates stored demonstration actions; "
+                    "start the run again"
+                )
+            saved = ckpt.state.get("demo_actions")
+            demo_actions = None if saved is None else np.asarray(saved)
         cost = task_cost(env, start, hold, config.cost, T, x0.shape[0], demo_actions)
-        _loop(config, run, env, state, cost, start, hold, counters, first, stop_after)
+        _loop(config, run, env, state, cost, start, hold, demo_actions, counters, first, stop_after)
     finally:
         env.close()
         run.close()
@@ -733,6 +740,7 @@ def _loop(
     cost: SumCost,
     start: FixedStart,
     hold: Array,
+    demo_actions: Array | None,
     counters: dict[str, Any],
     first: int,
     stop_after: int | None,
@@ -808,6 +816,7 @@ def _loop(
         if k == last or (k + 1) % config.checkpoint_every == 0 or k == stop_after:
             run.save_checkpoint(k, {
                 "tvlg": state_to_arrays(state), "start": start.to_arrays(), "counters": counters,
+                "demo_actions": demo_actions,
             })  # fmt: skip
         bar.update(1)
         bar.set_postfix(
