@@ -103,8 +103,7 @@ class EmulatedAllegroBackend(RobotBackend):
         from lowcostdex.hardware.allegro_emulator import emulated_allegro
 
         _check_task(task, "EmulatedAllegroBackend")
-        self.effects = [e if isinstance(e, AppliedEffect) else AppliedEffect.from_dict(e)
-                        for e in effects]
+        self.effects = [AppliedEffect.coerce(e) for e in effects]
         bus, self.emulator, self.clock = emulated_allegro(
             model, effects=self.effects, rng=rng if rng is not None else np.random.default_rng(0),
             hand=task.hand, **bus_kwargs)
@@ -112,8 +111,7 @@ class EmulatedAllegroBackend(RobotBackend):
         if start_qpos is not None:
             plant.data.qpos[:] = start_qpos
             mujoco.mj_forward(plant.model, plant.data)
-        self._valve_adr = int(plant.model.jnt_qposadr[plant.model.joint("valve").id])
-        self._valve_dof = int(plant.model.jnt_dofadr[plant.model.joint("valve").id])
+        self._valve_adr, self._valve_dof = task.obj_qpos, task.obj_dof  # plant: model's layout
         config = task_robot_config(robot_config, task, model, ALLEGRO_ROBOT)
         robot = Robot(task.hand, bus, config)
         super().__init__(model, task, robot,

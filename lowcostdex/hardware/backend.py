@@ -285,8 +285,7 @@ class EmulatedBackend(RobotBackend):
         if effects is None:
             effects = default_effects(task.hand.joint_names)
         # JSON configs (training runs) carry effects as AppliedEffect.to_dict() mappings
-        effects = [e if isinstance(e, AppliedEffect) else AppliedEffect.from_dict(e)
-                   for e in effects]
+        effects = [AppliedEffect.coerce(e) for e in effects]
         self.chain = emulated_dclaw(task.station, hand=hand, effects=list(effects), rng=rng,
                                     qpos=start_qpos, faults=faults or FaultConfig(),
                                     **chain_kwargs)

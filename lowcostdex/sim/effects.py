@@ -560,6 +560,11 @@ class AppliedEffect:
         return cls(d["effect"], tuple(d["joints"]), {k: np.asarray(v, float)
                                                      for k, v in d["params"].items()})
 
+    @classmethod
+    def coerce(cls, e: AppliedEffect | Mapping) -> AppliedEffect:
+        """``e`` itself, or the effect its ``to_dict()`` mapping describes (JSON configs)."""
+        return e if isinstance(e, AppliedEffect) else cls.from_dict(e)
+
 
 SampleFn = Callable[[np.random.Generator], list[AppliedEffect]]
 
