@@ -324,14 +324,20 @@ def controller_success(ctl, start, cfg, n: int, noise: float | None, seed: int =
 
 def tvlg_demo_run(demo: Path, noise: float, seed: int, n_iter: int, cost: str, out: Path):
     """A TVLG run from one demonstration; its metrics and run directory."""
-    from lowcostdex.algos.local_models.train import TaskCostConfig, TVLGTrainConfig, train
+    from lowcostdex.algos.local_models.train import (
+        TRACKING_KL_STEP,
+        TaskCostConfig,
+        TVLGTrainConfig,
+        train,
+    )
     from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
     from lowcostdex.algos.local_models.tvlg import TVLGConfig
 
+    kl_step = TRACKING_KL_STEP if cost == "tracking" else TrajOptConfig().kl_step
     cfg = TVLGTrainConfig(
         seed=seed, n_iter=n_iter, init="demos", demos=str(demo), init_noise=noise,
         cost=TaskCostConfig.preset(cost), eval_noisy_episodes=HELD_OUT, progress=False,
-        algo=TVLGConfig(traj_opt=TrajOptConfig(kl_step=0.5 if cost == "tracking" else 0.2)),
+        algo=TVLGConfig(traj_opt=TrajOptConfig(kl_step=kl_step)),
     )  # fmt: skip
     run = train(cfg, out)
     return run.read_metrics(), run.path

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from lowcostdex.algos.local_models.train import (
+    TRACKING_KL_STEP,
     TaskCostConfig,
     TVLGTrainConfig,
     capture_start,
@@ -99,7 +100,7 @@ def main() -> None:
         init_noise=args.noise if args.noise is not None else noise,
         cost=TaskCostConfig.tracking(),
         eval_noisy_episodes=20,
-        algo=TVLGConfig(traj_opt=TrajOptConfig(kl_step=0.5)),
+        algo=TVLGConfig(traj_opt=TrajOptConfig(kl_step=TRACKING_KL_STEP)),
     )
     if not args.demos and not demos.exists():
         demos.parent.mkdir(parents=True, exist_ok=True)
