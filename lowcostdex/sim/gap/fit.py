@@ -300,10 +300,12 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
 _SCAN = {("latency", "delay")}
 
 
-def _scan(t: Track, residual: ResidualFn, grids: dict[int, np.ndarray]) -> np.ndarray | None:
+def _scan(t: Track, residual: ResidualFn, grids: dict[int, np.ndarray]) -> bool:
     """One batched evaluation of each scalar ``i`` over ``grids[i]`` (others at the track's
-    values); the best value per scalar where it beats the track's cost, combined. Returns the
-    combined point if it is distinct and lowers the cost, else None."""
+    values); the best value per scalar where it beats the track's cost, combined. If that point
+    is new and lowers the cost the track restarts there (``restart``); returns whether."""
+    if not grids or t.r is None:
+        return False
     x0 = t.x
     points = []
     for i, grid in grids.items():
@@ -319,9 +321,12 @@ def _scan(t: Track, residual: ResidualFn, grids: dict[int, np.ndarray]) -> np.nd
             x[i] = float(grid[j])
         k += len(grid)
     if np.array_equal(x, x0):
-        return None
+        return False
     r = residual([(t.structure, x)])[0]
-    return x if 0.5 * float(r @ r) < t.cost else None
+    if not 0.5 * float(r @ r) < t.cost:
+        return False
+    restart(t, x)
+    return True
 
 
 def polish(t: Track, residual: ResidualFn, dt: float, n: int = 9) -> bool:
@@ -331,13 +336,7 @@ def polish(t: Track, residual: ResidualFn, dt: float, n: int = 9) -> bool:
     free = t.structure.free
     grids = {i: np.clip(t.x[i] + np.linspace(-dt, dt, n), f.lo, f.hi)
              for i, f in enumerate(free) if (f.effect, f.param) in _SCAN}
-    if not grids or t.r is None:
-        return False
-    x = _scan(t, residual, grids)
-    if x is None:
-        return False
-    restart(t, x)
-    return True
+    return _scan(t, residual, grids)
 
 
 _LIMITS = {("torque_limit", "torque")}
@@ -356,13 +355,7 @@ def scan_limits(t: Track, residual: ResidualFn, n: int = 25) -> bool:
     """
     grids = {i: np.linspace(f.lo, f.hi, n) for i, f in enumerate(t.structure.free)
              if (f.effect, f.param) in _LIMITS}
-    if not grids or t.r is None:
-        return False
-    x = _scan(t, residual, grids)
-    if x is None:
-        return False
-    restart(t, x)
-    return True
+    return _scan(t, residual, grids)
 
 
 def restart(t: Track, x: np.ndarray) -> None:
