@@ -1,32 +1,34 @@
-"""Samples to 80 % success: NPG from scratch vs DAPG with 25 demonstrations, in simulation.
+"""Samples and wall-clock to 80 % success: NPG, DAPG and PPO on the D'Claw valve and flip.
 
-    python bench/npg_dapg.py                                  # D'Claw valve, 3 seeds
-    python bench/npg_dapg.py --tasks valve flip-keypoints flip-quaternion allegro-valve
+    python bench/npg_dapg.py                                  # valve: NPG, DAPG, PPO; 3 seeds
+    python bench/npg_dapg.py --tasks flip                     # flip: DAPG, NPG, PPO; keypoints
+                                                              #   and quaternion (the flip table)
+    python bench/npg_dapg.py --tasks allegro-valve --algos dapg
     python bench/npg_dapg.py --quick                          # smoke run, tiny budget
-    python bench/npg_dapg.py --record                         # append a section to bench/RESULTS.md
+    python bench/npg_dapg.py ... --record                     # append a section to bench/RESULTS.md
 
-For every task, algorithm and seed it trains until the training (stochastic-policy) success rate
-first reaches ``--target`` (0.8) and then ``--extra-iters`` more iterations, or until
-``--max-samples``. It prints the samples (and robot-equivalent hours at the 10 Hz control rate)
-at which the target was first reached, the final training success rate (mean of the last three
-iterations) and the final deterministic evaluation success rate, and the ratio
-NPG samples / DAPG samples (median over seeds; a lower bound "> x" when NPG did not reach the
-target within the budget). The target ratio is >= 5x (BAIR hardware: ~9 h vs < 3 h; hand_dapg:
-up to 30x on Adroit).
+Every run uses the trainers' defaults (``TrainConfig`` for NPG/DAPG, ``PPOConfig`` for PPO): what a
+user gets from ``lowcostdex train npg|dapg|ppo`` without options. A run goes until its training
+(stochastic-policy) success first reaches ``--target`` (0.8) and then ``--extra-iters`` more
+iterations, or until its sample budget; deterministic (mean-action) evaluations every
+``eval_every`` iterations. For each run it prints and records, beside each other:
 
-Demonstrations: on the D'Claw and Allegro valves, 25 episodes of the scripted teachers
-(``lowcostdex.sim.scripted``: ``ValveTurnTeacher``, ``AllegroValveTeacher``), written as the demo
-dataset (``lowcostdex.demo_file``, ``<out>/<task>/demos.h5``). Tasks without a scripted teacher use a "computational expert" as the DAPG paper did for the pen:
-the mean action of this benchmark's NPG policy for seed 0, provided that mean action solves the
-task at the end of its run (``--expert-run DIR`` names another run); only successful expert
-episodes are kept.
-Both algorithms share every RL setting (the trainer's defaults: 40 trajectories per iteration,
-delta 0.1, damping 1e-2, gamma 0.995, GAE 0.97, (32, 32) policy, init log-std -0.5); DAPG adds
-BC and the decaying demo term. DAPG defaults here: the teacher's demonstrations are recorded
-with +-0.1 executed-action noise and clean labels (as the DAPG authors injected actuator noise),
-BC runs 100 epochs and sets the exploration noise to the clone's residual. mjrl's settings
-(clean demos, 5 BC epochs, noise = demo action spread) are
-``--demo-noise 0 --bc-epochs 5 --bc-log-std demo_spread``.
+- the first crossing: samples and wall-clock seconds at which training success and evaluation
+  success first reached the target;
+- the final training success (mean of the last three iterations) and the final evaluation;
+- the best evaluation (the run's policy, ``policy.pt``) and ``holds``: the share of evaluations
+  after the first evaluation crossing that are still at or above the target (1.0 = it held).
+
+Ratios: NPG / DAPG samples to the target (medians over seeds; a lower bound "> x" when NPG did
+not reach it in its budget), and PPO / NPG wall-clock to the target. On the flip NPG and PPO get
+``--scratch-budget-factor`` (5) times DAPG's median samples to the training target; the keypoint
+and quaternion variants (observation and reward) are compared with 95 % t-intervals over seeds.
+
+Demonstrations: the scripted teachers (``ValveTurnTeacher``, ``AllegroValveTeacher``,
+``FlipBlockTeacher``) run in simulation with uniform executed-action noise and clean labels
+(``lowcostdex.algos.demos.teacher_episodes``), written as the demo dataset in ``<out>/<task>/``.
+Sampling uses the vector sampler (``mujoco.batch``; trajectories identical to the serial
+sampler's), so wall-clock is what NPG/DAPG take with batched simulation on this machine.
 """
 
 from __future__ import annotations
@@ -34,12 +36,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
+import importlib
 import json
 import math
 import os
 import platform
 import shutil
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,35 +50,38 @@ import numpy as np
 
 import lowcostdex  # noqa: F401  (registers the env ids)
 from lowcostdex.algos import experiment as ex
+from lowcostdex.algos.configs import PPOConfig, TrainConfig
 from lowcostdex.algos.demos import save_demos, teacher_episodes
-from lowcostdex.algos.npg import NPGConfig
-from lowcostdex.algos.policy import PolicyConfig
-from lowcostdex.algos.train import TrainConfig, load_policy, train
 from lowcostdex.demo_file import DatasetInfo
 
 
 @dataclass(frozen=True)
 class Task:
     env_id: str
-    teacher: str | None  # class name in lowcostdex.sim.scripted, or None (NPG expert)
+    teacher: str  # class name of a scripted teacher
+    n_demos: int
+    demo_noise: float  # executed-action noise while recording [action units]
 
 
 TASKS = {
-    "valve": Task("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher"),
-    "flip-keypoints": Task("lowcostdex/DClawFlipBlock-v0", None),
-    "flip-quaternion": Task("lowcostdex/DClawFlipBlockQuaternion-v0", None),
-    "allegro-valve": Task("lowcostdex/AllegroTurnValve-v0", "AllegroValveTeacher"),
+    "valve": Task("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher", 25, 0.1),
+    "flip-keypoints": Task("lowcostdex/DClawFlipBlock-v0", "FlipBlockTeacher", 10, 0.05),
+    "flip-quaternion": Task("lowcostdex/DClawFlipBlockQuaternion-v0", "FlipBlockTeacher", 10,
+                            0.05),
+    "allegro-valve": Task("lowcostdex/AllegroTurnValve-v0", "AllegroValveTeacher", 25, 0.1),
 }
+ALIASES = {"flip": ["flip-keypoints", "flip-quaternion"]}
+ALGOS = ("npg", "dapg", "ppo")
+TEACHER_MODULES = ("lowcostdex.sim.scripted", "lowcostdex.sim.flip_teacher")
 
 
 class ScriptedTeacher:
-    """A scripted teacher of ``lowcostdex.sim.scripted`` as a demo-recording policy
-    (env, obs) -> action: its joint goals for the observed state, as normalized actions."""
+    """A scripted teacher as a demo-recording policy (env, obs) -> action: its joint goals for
+    the observed state, as normalised actions."""
 
     def __init__(self, name: str) -> None:
-        from lowcostdex.sim import scripted
-
-        self.teacher = getattr(scripted, name)()
+        modules = [importlib.import_module(m) for m in TEACHER_MODULES]
+        self.teacher = next(getattr(m, name) for m in modules if hasattr(m, name))()
 
     def reset(self, env: gym.Env) -> None:
         self.teacher.reset(env.unwrapped)
@@ -89,46 +94,21 @@ class ScriptedTeacher:
         return goal_to_action(goals, u.task.hand_low, u.task.hand_high)
 
 
-class PolicyTeacher:
-    """A trained policy's mean action as the teacher."""
-
-    def __init__(self, run_dir: Path) -> None:
-        self.snapshot = load_policy(run_dir).snapshot()
-
-    def __call__(self, env: gym.Env, obs: np.ndarray) -> np.ndarray:
-        return np.clip(self.snapshot.mean(obs), -1.0, 1.0)
-
-
-def base_config(args: argparse.Namespace, env_id: str, seed: int) -> TrainConfig:
-    horizon = gym.spec(env_id).max_episode_steps or 40
-    return TrainConfig(
-        env_id=env_id,
-        seed=seed,
-        n_iter=max(1, args.max_samples // (args.n_traj * horizon)),
-        n_traj=args.n_traj,
-        gamma=args.gamma,
-        gae_lambda=args.gae_lambda,
-        eval_every=args.eval_every,
-        eval_episodes=args.eval_episodes,
-        policy=PolicyConfig(hidden_sizes=tuple(args.hidden), init_log_std=args.init_log_std),
-        npg=NPGConfig(step_size=args.step_size, damping=args.damping),
-        progress=False,
-    )
+def record_demos(task: Task, out: Path, n: int) -> Path:
+    env = gym.make(task.env_id)
+    episodes = teacher_episodes(env, ScriptedTeacher(task.teacher),
+                                seeds=range(10_000, 10_000 + n), action_noise=task.demo_noise,
+                                max_tries=8)
+    info = DatasetInfo.from_env(env, "scripted_teacher")
+    env.close()
+    return save_demos(out / "demos.h5", episodes, info)
 
 
-def samples_to_target(
-    m: dict[str, np.ndarray], target: float, key: str = ex.SUCCESS_RATE
-) -> tuple[float, float]:
-    """(samples, robot hours) at the first iteration whose ``key`` success >= target."""
-    hit = np.flatnonzero(np.nan_to_num(m[key], nan=-1.0) >= target)
-    if hit.size == 0:
-        return math.nan, math.nan
-    return float(m[ex.SAMPLES][hit[0]]), float(m[ex.ROBOT_HOURS][hit[0]])
+# ----------------------------------------------------------------------------------------------
+# One run
 
 
-def run_one(config: TrainConfig, out: Path, target: float, extra: int) -> dict[str, float]:
-    if out.exists():
-        shutil.rmtree(out)
+def _until(target: float, extra: int):
     reached: list[int] = []
 
     def until(row: dict[str, float]) -> bool:
@@ -136,185 +116,241 @@ def run_one(config: TrainConfig, out: Path, target: float, extra: int) -> dict[s
             reached.append(int(row[ex.ITERATION]))
         return bool(reached) and row[ex.ITERATION] >= reached[0] + extra
 
-    t0 = time.perf_counter()
-    m = train(config, out, until=until).read_metrics()
-    samples, hours = samples_to_target(m, target)
-    eval_samples, _ = samples_to_target(m, target, ex.EVAL_SUCCESS_RATE)
+    return until
+
+
+def _crossing(m: dict[str, np.ndarray], key: str, target: float) -> tuple[float, float]:
+    """(samples, wall seconds) at the first row whose ``key`` >= target, else NaNs."""
+    hit = np.flatnonzero(np.nan_to_num(m[key], nan=-1.0) >= target)
+    if hit.size == 0:
+        return math.nan, math.nan
+    return float(m[ex.SAMPLES][hit[0]]), float(m[ex.WALL_SECONDS][hit[0]])
+
+
+def outcome(run_dir: Path, target: float) -> dict[str, float]:
+    """What a benchmark row reports about one finished run."""
+    m = ex.read_metrics(run_dir / ex.METRICS_FILE)
+    summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
+    train_s, train_w = _crossing(m, ex.SUCCESS_RATE, target)
+    eval_s, eval_w = _crossing(m, ex.EVAL_SUCCESS_RATE, target)
+    evals = m[ex.EVAL_SUCCESS_RATE]
+    done = np.flatnonzero(np.isfinite(evals))
+    after = done[done >= np.flatnonzero(np.nan_to_num(evals, nan=-1) >= target)[0]] \
+        if math.isfinite(eval_s) else np.array([], int)
+    best = summary.get("best") or {}
     return {
-        "samples_to_target": samples,
-        "robot_hours_to_target": hours,
-        "eval_samples_to_target": eval_samples,
-        "final_success": float(np.mean(m[ex.SUCCESS_RATE][-3:])),
-        "final_eval_success": float(m[ex.EVAL_SUCCESS_RATE][-1]),
-        "samples_used": float(m[ex.SAMPLES][-1]),
-        "wall_seconds": time.perf_counter() - t0,
+        "train_samples": train_s, "train_wall": train_w,
+        "eval_samples": eval_s, "eval_wall": eval_w,
+        "final_train": float(np.mean(m[ex.SUCCESS_RATE][-3:])),
+        "final_eval": float(evals[done[-1]]) if done.size else math.nan,
+        "best_eval": float(best.get(ex.EVAL_SUCCESS_RATE, math.nan)),
+        "best_samples": float(best.get(ex.SAMPLES, math.nan)),
+        "holds": float(np.mean(evals[after] >= target)) if after.size else math.nan,
+        "samples": float(m[ex.SAMPLES][-1]),
+        "wall": float(m[ex.WALL_SECONDS][-1]),
+        "final_goal_error": float(np.mean(m["goal_error_final"][-3:]))
+        if "goal_error_final" in m else math.nan,
     }
 
 
-def record_demos(
-    task: Task, out: Path, n: int, npg_expert: Path | None, noise: float
-) -> Path | None:
-    env = gym.make(task.env_id)
-    if task.teacher is not None:
-        teacher = ScriptedTeacher(task.teacher)
-    elif npg_expert is not None:
-        teacher = PolicyTeacher(npg_expert)
-    else:
-        return None
-    episodes = teacher_episodes(env, teacher, seeds=range(10_000, 10_000 + n), action_noise=noise)
-    source = "policy" if isinstance(teacher, PolicyTeacher) else "scripted_teacher"
-    info = DatasetInfo.from_env(env, source)
-    env.close()
-    return save_demos(out / "demos.h5", episodes, info)
+def run_train(task: Task, algo: str, seed: int, budget: float, demos: Path | None,
+              out: Path, args: argparse.Namespace) -> dict[str, float]:
+    from lowcostdex.algos.train import train
+
+    horizon = gym.spec(task.env_id).max_episode_steps
+    d = TrainConfig()
+    n_traj = args.n_traj or d.n_traj
+    cfg = TrainConfig(algo=algo, env_id=task.env_id, seed=seed, n_traj=n_traj,
+                      n_iter=max(1, int(budget // (n_traj * horizon))),
+                      demos=str(demos) if algo == "dapg" else None,
+                      sampler=args.sampler, n_workers=n_traj if args.sampler == "vector" else 1,
+                      eval_every=args.eval_every, progress=False)
+    if out.exists():
+        shutil.rmtree(out)
+    train(cfg, out, until=_until(args.target, args.extra_iters))
+    return outcome(out, args.target)
 
 
-def fmt_samples(x: float) -> str:
-    return "not reached" if not math.isfinite(x) else f"{x / 1e3:.0f}k"
+def run_ppo(task: Task, seed: int, budget: float, out: Path,
+            args: argparse.Namespace) -> dict[str, float]:
+    from lowcostdex.algos.ppo import train
+
+    horizon = gym.spec(task.env_id).max_episode_steps
+    d = PPOConfig()
+    cfg = PPOConfig(env_id=task.env_id, seed=seed,
+                    n_iter=max(1, int(budget // (d.num_envs * horizon))),
+                    eval_every=args.eval_every, progress=False)
+    if out.exists():
+        shutil.rmtree(out)
+    train(cfg, out, until=_until(args.target, args.extra_iters))
+    return outcome(out, args.target)
 
 
-def _median(runs: list[dict[str, float]], key: str) -> float:
-    samples = np.array([r[key] for r in runs])
-    return float(np.median(np.where(np.isnan(samples), np.inf, samples)))
+# ----------------------------------------------------------------------------------------------
+# Tables
 
 
-def _ratio(npg: float, dapg: float, budget: int) -> str:
-    if not math.isfinite(dapg):
-        return "n/a (DAPG median not reached)"
-    if not math.isfinite(npg):
-        return f"> {budget / dapg:.1f}x (NPG median not reached in {budget / 1e3:.0f}k)"
-    return f"{npg / dapg:.1f}x"
+def _k(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{x / 1e3:.0f}k"
 
 
-def summarize(name: str, results: dict[str, list[dict[str, float]]], budget: int) -> list[str]:
-    lines = [
-        f"### {name}",
-        "",
-        "| algorithm | seed | samples to 80% (train) | robot h | samples to 80% (eval) "
-        "| final success (train / eval) |",
-        "|---|---|---|---|---|---|",
-    ]
+def _s(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{x:.0f}"
+
+
+def _f2(x: float) -> str:
+    return "-" if not math.isfinite(x) else f"{x:.2f}"
+
+
+def _median(values: list[float]) -> float:
+    return float(np.median([v if math.isfinite(v) else math.inf for v in values]))
+
+
+def _interval(values: list[float]) -> str:
+    """Mean and 95 % t-interval over seeds (NaN entries count as not reached)."""
+    v = np.array([x for x in values if math.isfinite(x)])
+    if len(v) < len(values):
+        return f"{len(values) - len(v)}/{len(values)} not reached"
+    if len(v) == 1:
+        return f"{v[0]:.3g}"
+    t95 = {2: 12.71, 3: 4.303, 4: 3.182, 5: 2.776}.get(len(v), 1.96)
+    half = t95 * v.std(ddof=1) / math.sqrt(len(v))
+    return f"{v.mean():.3g} [{v.mean() - half:.3g}, {v.mean() + half:.3g}]"
+
+
+def _ratio(num: float, den: float, budget: float | None = None) -> str:
+    if not math.isfinite(den):
+        return "n/a (denominator not reached)"
+    if not math.isfinite(num):
+        return (f"> {budget / den:.1f}x (not reached in {budget / 1e3:.0f}k)" if budget
+                else "n/a (numerator not reached)")
+    return f"{num / den:.1f}x"
+
+
+def table(name: str, results: dict[str, list[dict[str, float]]],
+          budgets: dict[str, float]) -> list[str]:
+    lines = [f"### {name}", "",
+             "| algorithm | samples to 80 % train (per seed) | to 80 % eval | wall s to 80 % train "
+             "| final train / eval | best eval (samples) | holds | budget |",
+             "|---|---|---|---|---|---|---|---|"]
     for algo, runs in results.items():
-        for seed, r in enumerate(runs):
-            hours = r["robot_hours_to_target"]
-            lines.append(
-                f"| {algo} | {seed} | {fmt_samples(r['samples_to_target'])} | "
-                f"{'-' if math.isnan(hours) else f'{hours:.2f}'} | "
-                f"{fmt_samples(r['eval_samples_to_target'])} | "
-                f"{r['final_success']:.2f} / {r['final_eval_success']:.2f} |"
-            )
-    if "npg" in results and "dapg" in results:
-        for key, label in (("samples_to_target", "training"), ("eval_samples_to_target", "eval")):
-            npg, dapg = _median(results["npg"], key), _median(results["dapg"], key)
-            lines += [
-                "",
-                f"Median samples to 80% ({label} success): NPG {fmt_samples(npg)}, "
-                f"DAPG {fmt_samples(dapg)}; ratio NPG/DAPG = {_ratio(npg, dapg, budget)}.",
-            ]
+        def per_seed(fmt, key):
+            return "/".join(fmt(r[key]) for r in runs)
+
+        best = "/".join(f"{r['best_eval']:.0f} ({_k(r['best_samples'])})" for r in runs)
+        lines.append(
+            f"| {algo.upper()} | {per_seed(_k, 'train_samples')} | {per_seed(_k, 'eval_samples')}"
+            f" | {per_seed(_s, 'train_wall')} | {per_seed(_f2, 'final_train')} / "
+            f"{per_seed(_s, 'final_eval')} | {best} | {per_seed(_f2, 'holds')} | "
+            f"{_k(budgets[algo])} |")
+    lines.append("")
+    med = {a: {k: _median([r[k] for r in runs]) for k in ("train_samples", "eval_samples",
+                                                           "train_wall", "eval_wall")}
+           for a, runs in results.items()}
+    if "npg" in med and "dapg" in med:
+        lines.append(f"NPG / DAPG samples to 80 % (medians): training "
+                     f"{_ratio(med['npg']['train_samples'], med['dapg']['train_samples'], budgets['npg'])}"
+                     f", evaluation {_ratio(med['npg']['eval_samples'], med['dapg']['eval_samples'], budgets['npg'])}.")
+    if "ppo" in med and "npg" in med:
+        lines.append(f"PPO / NPG wall-clock to 80 % training success (medians): "
+                     f"{_ratio(med['ppo']['train_wall'], med['npg']['train_wall'])} "
+                     f"({_s(med['ppo']['train_wall'])} s vs {_s(med['npg']['train_wall'])} s); "
+                     f"samples {_ratio(med['ppo']['train_samples'], med['npg']['train_samples'])}.")
     return lines + [""]
+
+
+def representation_table(results: dict[str, dict[str, list[dict[str, float]]]]) -> list[str]:
+    lines = ["### Keypoints vs quaternion (observation and reward), 95 % t-intervals over seeds",
+             "", "| algorithm | representation | samples to 80 % train | samples to 80 % eval "
+             "| final train success | final orientation error [rad] |", "|---|---|---|---|---|---|"]
+    for algo in ALGOS:
+        for task in ("flip-keypoints", "flip-quaternion"):
+            runs = results.get(task, {}).get(algo)
+            if not runs:
+                continue
+            lines.append(
+                f"| {algo.upper()} | {task.split('-')[1]} | "
+                f"{_interval([r['train_samples'] for r in runs])} | "
+                f"{_interval([r['eval_samples'] for r in runs])} | "
+                f"{_interval([r['final_train'] for r in runs])} | "
+                f"{_interval([r['final_goal_error'] for r in runs])} |")
+    return lines + [""]
+
+
+# ----------------------------------------------------------------------------------------------
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--tasks", nargs="+", default=["valve"], choices=sorted(TASKS))
-    p.add_argument("--algos", nargs="+", default=["npg", "dapg"], choices=["npg", "dapg"])
+    p.add_argument("--tasks", nargs="+", default=["valve"],
+                   choices=sorted(TASKS) + sorted(ALIASES))
+    p.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
     p.add_argument("--seeds", type=int, default=3)
-    p.add_argument("--max-samples", type=int, default=400_000)
-    p.add_argument("--n-traj", type=int, default=40)
-    p.add_argument("--n-demos", type=int, default=25)
+    p.add_argument("--max-samples", type=int, default=400_000,
+                   help="budget of every run on the valve tasks (and of DAPG on the flip)")
+    p.add_argument("--scratch-budget-factor", type=float, default=5.0,
+                   help="flip: NPG and PPO budget = this x DAPG's median samples to the target")
+    p.add_argument("--n-traj", type=int, default=None, help="NPG/DAPG trajectories/iteration")
     p.add_argument("--target", type=float, default=0.8)
-    p.add_argument("--extra-iters", type=int, default=5)
-    p.add_argument("--step-size", type=float, default=TrainConfig().npg.step_size)
-    p.add_argument("--damping", type=float, default=TrainConfig().npg.damping)
-    p.add_argument("--gamma", type=float, default=TrainConfig().gamma)
-    p.add_argument("--gae-lambda", type=float, default=TrainConfig().gae_lambda)
-    p.add_argument("--hidden", type=int, nargs="*", default=list(TrainConfig().policy.hidden_sizes))
-    p.add_argument("--init-log-std", type=float, default=TrainConfig().policy.init_log_std)
-    p.add_argument("--bc-epochs", type=int, default=100)
-    p.add_argument(
-        "--bc-log-std",
-        default="residual",
-        choices=["demo_spread", "residual", "keep"],
-    )
-    p.add_argument("--lam0", type=float, default=TrainConfig().dapg.lam0)
-    p.add_argument("--lam1", type=float, default=TrainConfig().dapg.lam1)
-    p.add_argument(
-        "--demo-noise", type=float, default=0.1, help="executed-action noise while recording"
-    )
+    p.add_argument("--extra-iters", type=int, default=20,
+                   help="iterations after the first training crossing (shows if it holds)")
     p.add_argument("--eval-every", type=int, default=5)
-    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument("--sampler", default="vector", choices=("vector", "serial"))
     p.add_argument("--out", default="bench_runs/npg_dapg")
-    p.add_argument(
-        "--expert-run",
-        default=None,
-        help="run directory whose policy records the demos (no teacher)",
-    )
     p.add_argument("--quick", action="store_true", help="tiny budget: checks the script runs")
     p.add_argument("--record", action="store_true", help="append the results to bench/RESULTS.md")
     args = p.parse_args()
+    tasks = [t for name in args.tasks for t in ALIASES.get(name, [name])]
     if args.quick:
-        args.seeds, args.max_samples, args.n_traj, args.n_demos = 1, 3 * 8 * 40, 8, 5
+        args.seeds, args.max_samples, args.n_traj, args.extra_iters = 1, 2 * 4 * 80, 4, 0
 
     out_root = Path(args.out)
+    d, dp = TrainConfig(), PPOConfig()
     report = [
-        f"## NPG vs DAPG, samples to {args.target:.0%} success ({datetime.date.today()}, "
-        f"{platform.node()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs)",
-        "",
-        f"Settings: {args.n_traj} trajectories/iteration, delta {args.step_size}, damping {args.damping}, "
-        f"gamma {args.gamma}, GAE {args.gae_lambda}, policy {tuple(args.hidden)}, init log-std "
-        f"{args.init_log_std}, {args.n_demos} demos (recording noise {args.demo_noise}), BC "
-        f"{args.bc_epochs} epochs (noise {args.bc_log_std}), DAPG lam0 {args.lam0} lam1 {args.lam1}, budget {args.max_samples / 1e3:.0f}k samples, "
-        f"{args.seeds} seeds. Success = training (stochastic) policy; eval = mean action, "
-        f"{args.eval_episodes} episodes.",
-        "",
-    ]
-    for name in args.tasks:
+        f"## NPG, DAPG and PPO: samples and wall-clock to {args.target:.0%} success "
+        f"({datetime.date.today()}, {platform.node()}, {platform.processor() or platform.machine()}, "
+        f"{os.cpu_count()} CPUs)", "",
+        f"`python bench/npg_dapg.py --tasks {' '.join(args.tasks)} --algos {' '.join(args.algos)}"
+        f" --seeds {args.seeds}`. Trainer defaults: NPG/DAPG {args.n_traj or d.n_traj} "
+        f"trajectories/iteration, delta {d.npg.step_size}, policy {d.policy.hidden_sizes} "
+        f"init log-std {d.policy.init_log_std}, BC {d.bc.epochs} epochs (noise {d.bc.log_std}), "
+        f"DAPG lam0 {d.dapg.lam0}; PPO {dp.num_envs} envs, lr {dp.lr}, {dp.update_epochs} "
+        f"epochs x {dp.num_minibatches} minibatches, clip {dp.clip_coef}, policy "
+        f"{dp.policy.hidden_sizes} init log-std {dp.policy.init_log_std}. {args.sampler} sampler; "
+        f"evaluation every {args.eval_every} iterations (mean action). A run stops "
+        f"{args.extra_iters} iterations after its first training crossing or at its budget.", ""]
+    all_results: dict[str, dict[str, list[dict[str, float]]]] = {}
+    for name in tasks:
         task = TASKS[name]
         if task.env_id not in gym.registry:
             report += [f"### {name}", "", f"skipped: {task.env_id} is not registered", ""]
-            print(report[-2])
             continue
+        flip = name.startswith("flip")
+        n_demos = 2 if args.quick else task.n_demos
         results: dict[str, list[dict[str, float]]] = {}
-        if "npg" in args.algos:
-            results["npg"] = []
+        budgets: dict[str, float] = {}
+        order = [a for a in ("dapg", "npg", "ppo") if a in args.algos]
+        for algo in order:
+            budget = float(args.max_samples)
+            if flip and algo != "dapg" and "dapg" in results:
+                dapg_median = _median([r["train_samples"] for r in results["dapg"]])
+                if math.isfinite(dapg_median):
+                    budget = args.scratch_budget_factor * dapg_median
+            budgets[algo] = budget
+            demos = record_demos(task, out_root / name, n_demos) if algo == "dapg" else None
+            results[algo] = []
             for seed in range(args.seeds):
-                cfg = base_config(args, task.env_id, seed)
-                r = run_one(cfg, out_root / name / f"npg_{seed}", args.target, args.extra_iters)
-                results["npg"].append(r)
-                print(name, "npg", seed, json.dumps(r), flush=True)
-        if "dapg" in args.algos:
-            expert = Path(args.expert_run) if args.expert_run else out_root / name / "npg_0"
-            has_expert = (expert / "policy.pt").exists() and (
-                bool(args.expert_run)
-                or ("npg" in results and results["npg"][0]["final_eval_success"] >= args.target)
-            )
-            demos = record_demos(
-                task, out_root / name, args.n_demos, expert if has_expert else None, args.demo_noise
-            )
-            if demos is None:
-                report += [
-                    f"(DAPG on {name} skipped: no scripted teacher and no NPG expert reached the target)",
-                    "",
-                ]
-            else:
-                results["dapg"] = []
-                for seed in range(args.seeds):
-                    cfg = dataclasses.replace(
-                        base_config(args, task.env_id, seed),
-                        algo="dapg",
-                        demos=str(demos),
-                        bc=dataclasses.replace(
-                            TrainConfig().bc, epochs=args.bc_epochs, log_std=args.bc_log_std
-                        ),
-                        dapg=dataclasses.replace(
-                            TrainConfig().dapg, lam0=args.lam0, lam1=args.lam1
-                        ),
-                    )
-                    r = run_one(
-                        cfg, out_root / name / f"dapg_{seed}", args.target, args.extra_iters
-                    )
-                    results["dapg"].append(r)
-                    print(name, "dapg", seed, json.dumps(r), flush=True)
-        report += summarize(name, results, args.max_samples)
+                run_dir = out_root / name / f"{algo}_{seed}"
+                if algo == "ppo":
+                    r = run_ppo(task, seed, budget, run_dir, args)
+                else:
+                    r = run_train(task, algo, seed, budget, demos, run_dir, args)
+                results[algo].append(r)
+                print(name, algo, seed, json.dumps(r), flush=True)
+        all_results[name] = results
+        report += table(f"{name} (`{task.env_id}`, {n_demos} demos for DAPG)", results, budgets)
+    if "flip-keypoints" in all_results and "flip-quaternion" in all_results:
+        report += representation_table(all_results)
     text = "\n".join(report)
     print(text)
     if args.record:

@@ -123,3 +123,51 @@ def test_learning_curve_png(tmp_path):
     png = run.plot_learning_curves()
     data = png.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+def test_best_policy_keeps_the_best_evaluation_across_a_resume(tmp_path):
+    run = ex.Run.open(tmp_path / "run", {"x": 1}, tensorboard=False)
+    best = ex.BestPolicy(run)
+    rows = [(0, 0.0, -5.0), (1, 1.0, 10.0), (2, 1.0, 8.0), (3, 0.0, 50.0), (4, 1.0, 12.0)]
+    kept = []
+    for it, success, ret in rows[:3]:
+        row = {ex.SAMPLES: 100 * (it + 1), ex.EVAL_SUCCESS_RATE: success, ex.EVAL_RETURN_MEAN: ret}
+        kept.append(best.consider(it, row, {"policy": {"w": torch.tensor([float(it)])}}))
+    saved = best.state()
+    best = ex.BestPolicy(run)  # a resumed run restores the record from its checkpoint
+    best.load_state(saved)
+    for it, success, ret in rows[3:]:
+        row = {ex.SAMPLES: 100 * (it + 1), ex.EVAL_SUCCESS_RATE: success, ex.EVAL_RETURN_MEAN: ret}
+        kept.append(best.consider(it, row, {"policy": {"w": torch.tensor([float(it)])}}))
+    # success first, then return: 1.0/10 beats 0/-5, 1.0/8 does not, 0/50 does not, 1.0/12 does
+    assert kept == [True, True, False, False, True]
+    assert best.record[ex.ITERATION] == 4 and best.record[ex.SAMPLES] == 500
+    best.finish({"policy": {"w": torch.tensor([99.0])}})
+    assert float(ex.load_state(run.path / ex.POLICY_FILE)["policy"]["w"][0]) == 4.0
+    assert float(ex.load_state(run.path / ex.FINAL_POLICY_FILE)["policy"]["w"][0]) == 99.0
+
+
+def test_a_run_without_evaluation_keeps_its_final_policy(tmp_path):
+    run = ex.Run.open(tmp_path / "run", {"x": 1}, tensorboard=False)
+    best = ex.BestPolicy(run)
+    assert not best.consider(0, {ex.EVAL_SUCCESS_RATE: float("nan")}, {"policy": {}})
+    best.finish({"policy": {"w": torch.tensor([7.0])}})
+    assert float(ex.load_state(run.path / ex.POLICY_FILE)["policy"]["w"][0]) == 7.0
+
+
+def test_run_summary_reports_first_crossing_final_and_best_side_by_side():
+    nan = float("nan")
+    m = {ex.ITERATION: np.arange(6.0), ex.SAMPLES: 1000.0 * np.arange(1, 7),
+         ex.ROBOT_HOURS: np.arange(1, 7) / 10.0,
+         ex.SUCCESS_RATE: np.array([0.1, 0.5, 0.85, 0.6, 0.9, 0.7]),
+         ex.EVAL_SUCCESS_RATE: np.array([nan, 1.0, nan, 0.0, nan, 0.0])}
+    s = ex.run_summary(m, {ex.ITERATION: 1, ex.EVAL_SUCCESS_RATE: 1.0}, target=0.8,
+                       wall_seconds=12.0)
+    assert s["first_train_crossing"] == {ex.ITERATION: 2.0, ex.SAMPLES: 3000.0,
+                                         ex.ROBOT_HOURS: 0.3}
+    assert s["first_eval_crossing"][ex.SAMPLES] == 2000.0
+    # it reached the target at its first evaluation and fell back: final 0, best 1
+    assert s["final"][ex.EVAL_SUCCESS_RATE] == 0.0 and s["final"]["eval_iteration"] == 5
+    assert s["final"][ex.SUCCESS_RATE] == 0.7 and s["best"][ex.EVAL_SUCCESS_RATE] == 1.0
+    assert s["evaluations"] == 3 and s["eval_success_fraction"] == pytest.approx(1 / 3)
+    assert ex.run_summary(m, None, target=0.95)["first_train_crossing"] is None

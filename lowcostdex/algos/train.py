@@ -75,6 +75,7 @@ ROBOT_COUNTERS = (
     "faults",
     "invalid_reads",
     "max_temperature",
+    "person_resets",
 )
 """Robot telemetry logged every iteration on emulated/hardware backends (as ``robot_<key>``);
 cumulative over the process's lifetime (they restart after a resume)."""
@@ -190,6 +191,8 @@ class _State:
     samples: int = 0
     robot_seconds: float = 0.0
     pause_seconds: float = 0.0
+    wall_seconds: float = 0.0
+    best: ex.BestPolicy | None = None
 
     def to_checkpoint(self, iteration: int) -> dict[str, Any]:
         return {
@@ -200,7 +203,9 @@ class _State:
                 "samples": self.samples,
                 "robot_seconds": self.robot_seconds,
                 "pause_seconds": self.pause_seconds,
+                "wall_seconds": self.wall_seconds,
             },
+            "best": self.best.state() if self.best is not None else {},
             # All draws after this point derive from the seed and the iteration index, so no
             # generator state is carried; the torch default generator is recorded for audit.
             "torch_rng": torch.get_rng_state(),
@@ -253,6 +258,9 @@ def _restore(state: _State, ckpt: ex.Checkpoint) -> None:
     state.samples = int(counters["samples"])
     state.robot_seconds = float(counters["robot_seconds"])
     state.pause_seconds = float(counters["pause_seconds"])
+    state.wall_seconds = float(counters.get("wall_seconds", 0.0))
+    if state.best is not None:
+        state.best.load_state(ckpt.state.get("best"))
 
 
 def _update(
@@ -317,6 +325,7 @@ def train(
         env = probe.env if probe is not None else sampler.env  # type: ignore[attr-defined]
         ckpt = run.load_latest() if resume else None
         state, bc = _init_state(config, env, demos if ckpt is None else None)
+        state.best = ex.BestPolicy(run)
         if probe is not None:
             probe.close()
         if bc is not None:
@@ -379,10 +388,13 @@ def _loop(
             eval_paths, metrics = _evaluate(config, sampler, state, EVAL_STREAM, k)
             row.update(metrics)
             latest = eval_paths[-1]
+            state.best.consider(k, {**row, ex.SAMPLES: state.samples},
+                                {"policy": state.policy.to_checkpoint()})
         else:
             latest = paths[-1]
         if latest.telemetry:  # robot backends: the robot's cumulative counters
             row.update({f"robot_{k}": latest.telemetry.get(k, math.nan) for k in ROBOT_COUNTERS})
+        state.wall_seconds += time.perf_counter() - t0
         row.update(
             {
                 ex.SAMPLES: state.samples,
@@ -393,6 +405,7 @@ def _loop(
                 "time_sampling": t1 - t0,
                 "time_update": t2 - t1,
                 "time_eval": time.perf_counter() - t2,
+                ex.WALL_SECONDS: state.wall_seconds,
             }
         )
         run.log(row)
@@ -407,11 +420,14 @@ def _loop(
             break
     bar.close()
     run.plot_learning_curves(f"{config.algo.upper()} on {config.env_id} (seed {config.seed})")
-    ex.save_state(run.path / "policy.pt", {"policy": state.policy.to_checkpoint()})
+    state.best.finish({"policy": state.policy.to_checkpoint()})
+    run.write_json(ex.SUMMARY_FILE, ex.run_summary(run.read_metrics(), state.best.record,
+                                                   wall_seconds=state.wall_seconds))
 
 
 def load_policy(path: str | Path) -> GaussianMLPPolicy:
-    """Load the policy of a run directory (``policy.pt``) or of a checkpoint file."""
+    """Load the policy of a run directory (``policy.pt``: the best evaluated policy of the run,
+    see :class:`~lowcostdex.algos.experiment.BestPolicy`) or of a checkpoint file."""
     path = Path(path)
     file = path / "policy.pt" if path.is_dir() else path
     return GaussianMLPPolicy.from_checkpoint(ex.load_state(file)["policy"])

@@ -1,4 +1,4 @@
-"""``lowcostdex train npg`` and ``lowcostdex train dapg``: arguments and their TrainConfig.
+"""``lowcostdex train npg|dapg|ppo``: arguments and their TrainConfig / PPOConfig.
 
 Building the parser imports no torch (the defaults come from :mod:`lowcostdex.algos.configs`),
 so ``lowcostdex --help`` and every other subcommand start fast; the handler imports the
@@ -13,7 +13,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from lowcostdex.algos.configs import BACKENDS, BC_LOG_STD, DEMO_WEIGHTS, DAPGConfig, TrainConfig
+from lowcostdex.algos.configs import (
+    BACKENDS,
+    BC_LOG_STD,
+    DEMO_WEIGHTS,
+    DAPGConfig,
+    PPOConfig,
+    TrainConfig,
+)
 from lowcostdex.algos.samplers import SAMPLERS
 from lowcostdex.errors import ConfigError
 
@@ -27,6 +34,11 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
         p = train_subparsers.add_parser(algo, help=help_text, description=help_text)
         _add_arguments(p, algo)
         p.set_defaults(func=_run_command, algo=algo)
+    p = train_subparsers.add_parser(
+        "ppo", help="PPO on the batched simulator (the massively parallel baseline)",
+        description="PPO-clip on many copies of a sim task stepped together by mujoco.batch")
+    _add_ppo_arguments(p)
+    p.set_defaults(func=_run_ppo)
 
 
 def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
@@ -75,6 +87,48 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
         p.add_argument(
             "--bc-init", action="store_true", help="behaviour-clone the demos first (BCRL)"
         )
+
+
+def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
+    d = PPOConfig()
+    p.add_argument("--env", default=d.env_id, help="gymnasium id (sim; default %(default)s)")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its last checkpoint")
+    p.add_argument("--n-iter", type=int, default=d.n_iter)
+    p.add_argument("--num-envs", type=int, default=d.num_envs,
+                   help="copies stepped together = episodes per iteration")
+    p.add_argument("--lr", type=float, default=d.lr)
+    p.add_argument("--gamma", type=float, default=d.gamma)
+    p.add_argument("--gae-lambda", type=float, default=d.gae_lambda)
+    p.add_argument("--update-epochs", type=int, default=d.update_epochs)
+    p.add_argument("--num-minibatches", type=int, default=d.num_minibatches)
+    p.add_argument("--clip-coef", type=float, default=d.clip_coef)
+    p.add_argument("--ent-coef", type=float, default=d.ent_coef)
+    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes))
+    p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std)
+    p.add_argument("--eval-every", type=int, default=d.eval_every)
+    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    p.add_argument("--threads", type=int, default=d.nthread,
+                   help="mujoco.batch threads (0: all CPUs)")
+    p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
+                   help="extra gym.make argument (VALUE parsed as JSON when possible)")
+    p.add_argument("--no-progress", action="store_true")
+
+
+def ppo_config_from_args(args: argparse.Namespace) -> PPOConfig:
+    """Build a PPOConfig from parsed ``lowcostdex train ppo`` arguments."""
+    d = PPOConfig()
+    return PPOConfig(
+        env_id=args.env, env_kwargs=_parse_env_kwargs(args.env_kwarg), seed=args.seed,
+        n_iter=args.n_iter, num_envs=args.num_envs, lr=args.lr, gamma=args.gamma,
+        gae_lambda=args.gae_lambda, update_epochs=args.update_epochs,
+        num_minibatches=args.num_minibatches, clip_coef=args.clip_coef, ent_coef=args.ent_coef,
+        policy=dataclasses.replace(d.policy, hidden_sizes=tuple(args.hidden),
+                                   init_log_std=args.init_log_std),
+        eval_every=args.eval_every, eval_episodes=args.eval_episodes, nthread=args.threads,
+        progress=not args.no_progress)
 
 
 def _parse_env_kwargs(items: Sequence[str]) -> dict[str, Any]:
@@ -129,15 +183,38 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    from lowcostdex.algos import experiment as ex
     from lowcostdex.algos.train import train
 
-    config = config_from_args(args)
-    run = train(config, args.out, resume=args.resume)
-    metrics = run.read_metrics()
+    run = train(config_from_args(args), args.out, resume=args.resume)
+    _print_outcome(run)
+    return 0
+
+
+def _run_ppo(args: argparse.Namespace) -> int:
+    from lowcostdex.algos.ppo import train
+
+    run = train(ppo_config_from_args(args), args.out, resume=args.resume)
+    _print_outcome(run)
+    return 0
+
+
+def _print_outcome(run: Any) -> None:
+    """Where the run is, and its final evaluation beside the best one and the first crossing."""
+    from lowcostdex.algos import experiment as ex
+
     print(f"run: {run.path}")
     print(f"curves: {run.path / ex.CURVES_FILE}")
-    evals = metrics.get(ex.EVAL_SUCCESS_RATE)
-    if evals is not None and len(evals):
-        print(f"final eval success rate: {evals[-1]:.2f}")
-    return 0
+    summary = ex.read_json(run.path / ex.SUMMARY_FILE)
+    final, best = summary["final"], summary["best"]
+    if "eval_success_rate" in final:
+        print(f"final eval success rate: {final['eval_success_rate']:.2f} (iteration "
+              f"{final['eval_iteration']:.0f}, {final['samples']:.0f} samples)")
+    if best:
+        print(f"best eval success rate: {best['eval_success_rate']:.2f} (iteration "
+              f"{best['iteration']:.0f}, {best['samples']:.0f} samples): the run's policy, "
+              f"{ex.POLICY_FILE}")
+    first = summary["first_eval_crossing"]
+    target = summary["target"]
+    print(f"first eval success >= {target:.0%}: " + (
+        f"iteration {first['iteration']:.0f}, {first['samples']:.0f} samples" if first
+        else "not reached"))

@@ -148,6 +148,16 @@ class HandVectorEnv(gym.vector.VectorEnv):
         self._needs_reset = terminated | truncated
         return self._obs(), reward, terminated, truncated, infos
 
+    @property
+    def episode_steps(self) -> int:
+        """Control steps per episode (the time limit)."""
+        return int(self._episode_steps)
+
+    @property
+    def control_period(self) -> float:
+        """Seconds per step."""
+        return float(self._template.control_period)
+
     def state_vector(self) -> np.ndarray:
         """Physical states (num_envs, n), ordered as ``HandEnv.state_vector``."""
         t = self.task
