@@ -146,8 +146,9 @@ def test_flip_goal_is_relative_to_the_start_pose():
     u = env.unwrapped
     assert u.task.orientation_error(u.data.qpos, u.goal) == pytest.approx(np.pi)
     qpos = u.data.qpos.copy()
-    qpos[u.task.block_quat] = [0.0, 1.0, 0.0, 0.0]  # start upside down
+    assert tuple(u.task.config.flip_axis) == (0.0, 1.0, 0.0)
+    qpos[u.task.block_quat] = [0.0, 0.0, 1.0, 0.0]  # start upside down (flipped about y)
     env.reset(seed=0, options={"qpos": qpos})
     assert u.task.orientation_error(u.data.qpos, u.goal) == pytest.approx(np.pi, abs=1e-3)
-    # the goal is the upright block again: 180 deg about x from upside down
+    # the goal is the upright block again: 180 deg about the flip axis from upside down
     assert abs(abs(u.goal["quat"][0]) - 1.0) < 1e-6

@@ -98,6 +98,7 @@ class EmulatedAllegro:
         self.period_ms = (0, 0, 0)
         self.pwm = np.zeros(proto.N_JOINTS, int)
         self.temperature = np.full(proto.N_JOINTS, thermal.ambient)
+        self.step_hooks: list = []
         self.torque_log: list[tuple[float, np.ndarray]] = []
         self.frames_in = 0
         self._since_temperature = 0.0
@@ -108,6 +109,17 @@ class EmulatedAllegro:
     def time(self) -> float:
         """Emulated time [s]."""
         return self.plant.time
+
+    @property
+    def physics_time(self) -> float:
+        """Time the physics has been stepped to [s] (the emulated time)."""
+        return self.plant.time
+
+    def add_step_hook(self, hook) -> None:
+        """Call ``hook(emulator)`` at every cycle, before the motor torques are added: a hook
+        writes external joint torques into ``plant.data.qfrc_applied`` (e.g. the virtual
+        teacher's hand, ``lowcostdex.hardware.demos.VirtualTeacher``)."""
+        self.step_hooks.append(hook)
 
     @property
     def qpos(self) -> np.ndarray:
@@ -200,7 +212,9 @@ class EmulatedAllegro:
         tau = self.applied_torque()
         self.torque_log.append((self.time, tau.copy()))
         d.qfrc_applied[:] = 0.0
-        d.qfrc_applied[self.dofs] = tau
+        for hook in self.step_hooks:
+            hook(self)
+        d.qfrc_applied[self.dofs] += tau
         if nstep > 0:
             self.plant.step(d.ctrl.copy(), nstep)
             self._heat(tau, nstep * m.opt.timestep)

@@ -259,7 +259,15 @@ class EmulatedBackend(RobotBackend):
       faults: ``emulator.FaultConfig`` for the status packets (default none).
       robot_config: Robot settings (the control period is the task's).
       reset_config: auto-reset settings.
-      flip_config, reorient: flip-task block reset (see ``dclaw_reset``).
+      flip_config, reorient: flip-task block reset (see ``dclaw_reset``); ``reorient="teacher"``
+        (the default) is the flip teacher through the servos
+        (``lowcostdex.sim.flip_teacher.TeacherReorient``), None none (a block with the wrong
+        face up then fails the reset).
+      virtual_person: flip task only: when the block reset fails (the teacher did not turn the
+        block back, or the block lies beyond the squeezes' reach), the emulator puts the block
+        back at the episode's start pose, as the person a real setup needs would
+        (``FlipBlockReset`` raises ``ResetFailed`` asking for one), and the reset runs again;
+        counted as ``person_resets`` in the telemetry.
       start_qpos: the emulated robot's pose when it powers up (default the model's qpos0).
       chain_kwargs: more ``emulator.EmulatedChain`` options (baudrate, supply_resistance, ...).
     """
@@ -271,7 +279,8 @@ class EmulatedBackend(RobotBackend):
                  reset_config: ResetConfig = ResetConfig(),
                  start_qpos: np.ndarray | None = None,
                  flip_config: FlipResetConfig = FlipResetConfig(),
-                 reorient: Reorient | None = None, **chain_kwargs: Any):
+                 reorient: Reorient | str | None = "teacher", virtual_person: bool = True,
+                 **chain_kwargs: Any):
         from lowcostdex.hardware.emulator import FaultConfig, emulated_dclaw
 
         if task is None:
@@ -295,9 +304,46 @@ class EmulatedBackend(RobotBackend):
         config = task_robot_config(robot_config, task, model)
         robot = Robot(hand, bus, config)
         tracker = self._physics_tracker() if task.station == "block" else None
+        if reorient == "teacher":
+            reorient = None
+            if tracker is not None:
+                from lowcostdex.sim.flip_teacher import TeacherReorient
+
+                reorient = TeacherReorient(task)
         super().__init__(model, task, robot,
                          dclaw_reset(task, model, reset_config, tracker, flip_config, reorient),
                          block_sensor(model, tracker) if tracker is not None else None)
+        self.person_resets = 0
+        if tracker is not None and virtual_person:
+            self.episode_reset = self._with_virtual_person(self.episode_reset)
+
+    def _with_virtual_person(self, reset: EpisodeReset) -> EpisodeReset:
+        from lowcostdex.hardware.reset import ResetFailed
+
+        def with_person(qpos: np.ndarray) -> ResetReport:
+            try:
+                return reset(qpos)
+            except ResetFailed as exc:
+                if exc.stage not in ("block_orientation", "block_position"):
+                    raise
+                log.info("virtual person: %s; the block goes back to its start", exc)
+                self.place_block(qpos)
+                self.person_resets += 1
+                return reset(qpos)
+
+        return with_person
+
+    def place_block(self, qpos: np.ndarray) -> None:
+        """Put the emulated block at rest at its pose in ``qpos`` (the env model's layout): the
+        emulator standing in for a person."""
+        plant = self.chain.plant
+        m, d = plant.model, plant.data
+        block = _block_qpos(self.model)
+        adr = int(m.jnt_qposadr[m.joint("block").id])
+        dof = int(m.jnt_dofadr[m.joint("block").id])
+        d.qpos[adr:adr + 7] = np.asarray(qpos, float)[block]
+        d.qvel[dof:dof + 6] = 0.0
+        mujoco.mj_forward(m, d)
 
     def _physics_tracker(self) -> Tracker:
         plant = self.chain.plant
@@ -312,6 +358,8 @@ class EmulatedBackend(RobotBackend):
     def telemetry(self) -> dict[str, Any]:
         out = super().telemetry()
         out["bus_time"] = self.chain.now
+        if self.task.station == "block":
+            out["person_resets"] = self.person_resets
         return out
 
 

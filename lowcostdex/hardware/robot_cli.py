@@ -4,6 +4,10 @@
     lowcostdex reset-test --port /dev/ttyUSB0 --trials 20        # the real one
     lowcostdex record-demos --hand dclaw --task turn-valve --port emulated --episodes 25 \\
         --out demos/valve.h5                                     # virtual teacher
+    lowcostdex record-demos --task flip --port emulated --successes 10 --episodes 30 \\
+        --out demos/flip.h5                                      # until 10 flipped the block
+    lowcostdex record-demos --hand allegro --task turn-valve --port emulated --episodes 10 \\
+        --out demos/allegro_valve.h5                             # the emulated Allegro
     lowcostdex record-demos --hand dclaw --task turn-valve --port /dev/ttyUSB0 --episodes 25 \\
         --out demos/valve.h5                                     # a person moves the fingers
     lowcostdex record-log --port /dev/ttyUSB0 --joints ff_top,ff_middle,ff_bottom --logs 6 \
@@ -16,14 +20,26 @@ import argparse
 import json
 import sys
 
-# task name on the command line -> (registered env id, scripted solver for the virtual teacher)
-TASKS: dict[str, tuple[str, str | None]] = {
-    "turn-valve": ("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher"),
-    "turn-valve-random": ("lowcostdex/DClawTurnValveRandom-v0", "ValveTurnTeacher"),
-    "turn-foam-valve": ("lowcostdex/DClawTurnFoamValve-v0", "ValveTurnTeacher"),
-    "screw": ("lowcostdex/DClawScrew-v0", "ScrewTrackTeacher"),
-    "screw-random": ("lowcostdex/DClawScrewRandom-v0", "ScrewTrackTeacher"),
+# hand -> task name on the command line -> (registered env id, scripted solver for the virtual
+# teacher)
+TASKS: dict[str, dict[str, tuple[str, str]]] = {
+    "dclaw": {
+        "turn-valve": ("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher"),
+        "turn-valve-random": ("lowcostdex/DClawTurnValveRandom-v0", "ValveTurnTeacher"),
+        "turn-foam-valve": ("lowcostdex/DClawTurnFoamValve-v0", "ValveTurnTeacher"),
+        "screw": ("lowcostdex/DClawScrew-v0", "ScrewTrackTeacher"),
+        "screw-random": ("lowcostdex/DClawScrewRandom-v0", "ScrewTrackTeacher"),
+        "flip": ("lowcostdex/DClawFlipBlock-v0", "FlipBlockTeacher"),
+        "flip-quaternion": ("lowcostdex/DClawFlipBlockQuaternion-v0", "FlipBlockTeacher"),
+    },
+    "allegro": {
+        "turn-valve": ("lowcostdex/AllegroTurnValve-v0", "AllegroValveTeacher"),
+        "turn-valve-random": ("lowcostdex/AllegroTurnValveRandom-v0", "AllegroValveTeacher"),
+    },
 }
+DEFAULT_PLAYBACKS = {"flip": 0, "flip-quaternion": 0}
+"""Tasks whose noisy open-loop playbacks do not reproduce the demonstration (the block's outcome
+is too sensitive to the finger motion: 0 of 6 succeeded on the emulated D'Claw); 2 otherwise."""
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -44,10 +60,18 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("record-demos",
                        help="record kinesthetic demonstrations (a person, or the emulator's "
                             "virtual teacher) into an HDF5 demo file")
-    p.add_argument("--hand", default="dclaw", choices=("dclaw",))
-    p.add_argument("--task", default="turn-valve", choices=sorted(TASKS))
-    p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
-    p.add_argument("--episodes", type=int, required=True, help="demonstrations to record")
+    p.add_argument("--hand", default="dclaw", choices=sorted(TASKS))
+    p.add_argument("--task", default="turn-valve",
+                   choices=sorted({t for tasks in TASKS.values() for t in tasks}),
+                   help="D'Claw: " + ", ".join(TASKS["dclaw"]) + "; Allegro: "
+                   + ", ".join(TASKS["allegro"]))
+    p.add_argument("--port", required=True,
+                   help="D'Claw: serial device, pty path, or 'emulated'; Allegro: CAN channel "
+                        "(e.g. can0) or 'emulated'")
+    p.add_argument("--episodes", type=int, required=True,
+                   help="demonstrations to record (with --successes: the most to try)")
+    p.add_argument("--successes", type=int, default=None,
+                   help="stop once this many demonstrations succeeded")
     p.add_argument("--out", required=True, help="HDF5 demo file (appended to if it exists)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
@@ -58,9 +82,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="servo_goal: identify the servos' response first (a few seconds of "
                         "random goals) and label each step with the goal that reproduces it; "
                         "next_position: the next measured position (BAIR's labels)")
-    p.add_argument("--playbacks", type=int, default=2,
+    p.add_argument("--playbacks", type=int, default=None,
                    help="noisy playbacks of each successful demonstration on the robot "
-                        "(servo_goal labels only; 0: none)")
+                        "(servo_goal labels only; 0: none; default 2, 0 for the flip)")
     p.add_argument("--playback-noise", type=float, default=0.05,
                    help="half-width of the playback goal noise [action units]")
     p.set_defaults(func=_record_demos)
@@ -162,26 +186,44 @@ def _record_demos(args: argparse.Namespace) -> int:
         KinestheticRecorder,
         VirtualTeacher,
         identify_servo_response,
+        virtual_teacher_config,
     )
     from lowcostdex.sim import scripted
     from lowcostdex.sim.registry import register_envs
+    from lowcostdex.sim.scripted import AllegroTeacherConfig
 
-    if args.episodes < 1:
-        raise ConfigError("--episodes must be >= 1")
+    if args.episodes < 1 or (args.successes is not None and args.successes < 1):
+        raise ConfigError("--episodes and --successes must be >= 1")
+    tasks = TASKS[args.hand]
+    if args.task not in tasks:
+        raise ConfigError(f"--task {args.task!r} is not a {args.hand} task; valid: "
+                          f"{', '.join(tasks)}")
+    if args.playbacks is None:
+        args.playbacks = DEFAULT_PLAYBACKS.get(args.task, 2)
     if args.labels != "servo_goal":
         args.playbacks = 0
     register_envs()
-    env_id, solver = TASKS[args.task]
+    env_id, solver = tasks[args.task]
     console = Console(stderr=True)
     emulated = args.port == "emulated"
-    kwargs = {} if emulated else {"port": args.port, "baudrate": args.baud}
+    if args.hand == "allegro":
+        kwargs = {} if emulated else {"channel": args.port}
+    else:
+        kwargs = {} if emulated else {"port": args.port, "baudrate": args.baud}
     if args.spec and not emulated:
         kwargs["hand"] = _hand(args.spec)
     env = gym.make(env_id, backend="emulated" if emulated else "hardware", **kwargs)
     teacher = None
     if emulated:
-        teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task,
-                                 solver=getattr(scripted, solver)())
+        from lowcostdex.sim import flip_teacher
+
+        backend = env.unwrapped.backend
+        device = backend.chain if args.hand == "dclaw" else backend.emulator
+        cls = getattr(scripted, solver, None) or getattr(flip_teacher, solver)
+        solver_obj = cls(AllegroTeacherConfig(gravity_compensation=False)) \
+            if args.hand == "allegro" else cls()
+        teacher = VirtualTeacher(device, env.unwrapped.task, solver=solver_obj,
+                                 config=virtual_teacher_config(solver_obj))
     robot = env.unwrapped.backend.robot
     try:
         with Progress(console=console) as progress:
@@ -209,6 +251,8 @@ def _record_demos(args: argparse.Namespace) -> int:
                 playbacks=args.playbacks, playback_noise=args.playback_noise,
                 rng=np.random.default_rng(args.seed))
             for k in range(args.episodes):
+                if args.successes is not None and recorder.stats.successes >= args.successes:
+                    break
                 if not emulated:
                     seconds = recorder.steps * env.unwrapped.control_period
                     progress.console.print(

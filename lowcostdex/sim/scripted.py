@@ -387,57 +387,6 @@ class ScrewTrackTeacher(ValveTurnTeacher):
 
 
 # ------------------------------------------------------------------------------------------------
-# Flip block: half a flip
-
-
-class BlockRollTeacher:
-    """Rolls the flip block 90 deg about x over its bottom edge: half of ``DClawFlipBlock-v0``.
-
-    The first finger (``ff``, on the +y side) comes down beside the block's +y face near its top
-    edge and pushes towards -y along a rising arc; the block tips over its -y bottom edge and
-    lands on its side, 0.05 m further. A full flip (180 deg about x) needs a second roll in the
-    same sense, 0.1 m from the start, beyond the fingers' reach, or an in-hand pivot with a
-    regrasp: that is what a policy has to learn. This teacher checks that the block is reachable
-    and movable and can seed demonstrations.
-
-    Waypoints are tip-sphere centres relative to the block centre at ``reset`` [m], each held for
-    a number of control steps; the other fingers hold their pose.
-    """
-
-    WAYPOINTS: tuple[tuple[tuple[float, float, float], int], ...] = (
-        ((0.0, 0.05, 0.04), 4),  # above the +y top edge
-        ((0.0, 0.038, 0.017), 3),  # beside the +y face, near the top
-        *(((0.0, y, 0.02 + 0.3 * (0.03 - y)), 1)  # push towards -y, rising
-          for y in (0.03, 0.02, 0.01, 0.0, -0.01, -0.02, -0.03, -0.04)),
-        ((0.0, 0.0, 0.06), 4),  # up and away
-    )
-
-    def reset(self, task_or_env, goal: Goal | None = None) -> None:
-        """Bind to the flip task's model; the roll starts from the block's present position."""
-        task = getattr(task_or_env, "task", task_or_env)
-        self.hand_qpos = task.hand_qpos
-        self.block_pos = task.block_pos
-        self.low, self.high = task.hand_low.reshape(3, 3), task.hand_high.reshape(3, 3)
-        self.finger = FingerGeometry.from_model(task.model, DCLAW_FINGERS[0])
-        self.schedule = [w for w, n in self.WAYPOINTS for _ in range(n)]
-        self.step = 0
-        self.origin: np.ndarray | None = None
-        self.hold: np.ndarray | None = None
-
-    def __call__(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
-        q = np.asarray(qpos, float)
-        if self.origin is None:
-            self.origin = q[self.block_pos].copy()
-            self.hold = q[self.hand_qpos].copy()
-        goals = self.hold.copy()
-        waypoint = self.schedule[min(self.step, len(self.schedule) - 1)]
-        goals[:3] = self.finger.inverse(self.origin + np.asarray(waypoint), self.low[0],
-                                        self.high[0])
-        self.step += 1
-        return goals
-
-
-# ------------------------------------------------------------------------------------------------
 # Allegro: turn the valve above the palm-up hand
 
 
@@ -532,6 +481,9 @@ class AllegroTeacherConfig:
       rise_min: valve error below which a finger comes up only if no other finger is pushing.
       angle_tolerance: tip angle from its target that counts as arrived.
       height_tolerance: tip height from its target [m] that ends a rise or a descent.
+      gravity_compensation: add gravity torque / kp to the goals for the hand's soft PD (on
+        when the teacher's goals drive the servos); off when the goals are targets of the
+        emulator's virtual teacher (``VirtualTeacher``), which holds its own pose.
     """
 
     radius: float = 0.05
@@ -551,6 +503,7 @@ class AllegroTeacherConfig:
     rise_min: float = 0.25
     angle_tolerance: float = math.radians(5)
     height_tolerance: float = 0.006
+    gravity_compensation: bool = True
 
     def __post_init__(self) -> None:
         for name in ("radius", "return_drop", "sweep_speed", "travel_speed", "error_gain",
@@ -643,6 +596,8 @@ class AllegroValveTeacher:
                                             c.radius * math.sin(cmd[0] + mid), 0.0])
             point[2] = cmd[1]
             self.goals[self.slices[f]] = self._inverse(f, point)
+        if not self.config.gravity_compensation:
+            return np.clip(self.goals, self.low, self.high)
         return self._gravity_compensated(qpos, self.goals)
 
     def _finger(self, f: str, a: float, z: float, cmd: list[float], spoke: np.ndarray,
@@ -702,3 +657,4 @@ class AllegroValveTeacher:
         mujoco.mj_forward(self.model, d)
         kp = self.model.actuator_gainprm[self.hand_act, 0]
         return np.clip(goals + d.qfrc_bias[self.hand_dof] / kp, self.low, self.high)
+

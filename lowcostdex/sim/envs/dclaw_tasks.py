@@ -191,13 +191,18 @@ class FlipConfig:
     Attributes:
       representation: "keypoints" (8 cube corners, position and reward) or "quaternion"
         (position + orientation quaternion; reward on position and rotation angle).
-      flip_axis: horizontal axis the goal rotates the block about.
+      flip_axis: horizontal axis the goal rotates the block about. Default y: a flip about y
+        rolls the block along x, in the thumb's plane of flexion, which passes through the
+        block's centre, so a push turns it without yawing it; about x the push comes from the
+        first finger, whose plane is at 60 deg to the roll, and yawed the block 20-30 deg per
+        roll (the flip teacher, ``FlipBlockTeacher``: final error 0.13-0.6 rad about x, 0.04
+        rad about y; bench/RESULTS.md).
       success_angle: orientation error for success [rad].
       drop_height: block centre below this height [m] ends the episode (terminated).
     """
 
     representation: str = "keypoints"
-    flip_axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    flip_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
     success_angle: float = 0.4
     drop_height: float = 0.03
 
@@ -232,6 +237,10 @@ class FlipBlock(DClawTask):
     """
 
     station = "block"
+    identification_limits = (np.array([-0.3, -1.05, 0.5] * 3), np.array([0.3, -0.7, 1.57] * 3))
+    """Joint box [rad] (top, middle, bottom per finger) in which random goals keep the fingers
+    bent outwards, clear of the block (``identify_servo_response``): full-range goals knock the
+    block off its place (0.155 m away on the emulated D'Claw, beyond the reset's reach)."""
 
     def __init__(self, config: FlipConfig = FlipConfig(), **kw):
         kw.setdefault("timing", TaskSpec(frame_skip=40, episode_steps=80))
@@ -308,6 +317,13 @@ class FlipBlock(DClawTask):
 
     def success(self, qpos, goal):
         return self.orientation_error(qpos, goal) < self.config.success_angle
+
+    def tilt(self, qpos: np.ndarray) -> np.ndarray:
+        """Angle (...) [rad] between the block's local z axis and the world's up: 0 upright,
+        pi/2 on a side, pi upside down."""
+        _, quat = self._pose(qpos)
+        z = quat_rotate(quat, np.broadcast_to([0.0, 0.0, 1.0], quat.shape[:-1] + (1, 3)))
+        return np.arccos(np.clip(z[..., 0, 2], -1.0, 1.0))
 
     def terminated(self, qpos, goal):
         return qpos[..., self.block_pos[2]] < self.config.drop_height
