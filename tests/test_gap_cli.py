@@ -93,3 +93,32 @@ def test_missing_model_and_files_are_named(tmp_path, capsys):
     assert main(["gap", "analyze", "--model", str(tmp_path / "none.xml"), "--log", str(p),
                  "--out", str(tmp_path / "o")]) == 1
     assert "no such model file" in capsys.readouterr().err
+
+
+def _files(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+
+def test_analyze_never_deletes_the_users_folder(demo, tmp_path, capsys):
+    """Issue 12: `--out` pointed at the folder of its own input logs, or at a user's folder with
+    files, is refused before any work; every file stays byte for byte."""
+    data = demo / "data"
+    logs = sorted(str(p) for p in data.glob("log*.csv"))
+    before = _files(data)
+    assert main(["gap", "analyze", "--model", str(data / "model.xml"), "--log", *logs,
+                 "--out", str(data)]) != 0
+    assert "gap generate" in capsys.readouterr().err
+    assert _files(data) == before
+    user = tmp_path / "thesis"
+    user.mkdir()
+    (user / "chapter1.tex").write_text("\\chapter{Intro}")
+    assert main(["gap", "analyze", "--model", str(data / "model.xml"), "--log", *logs,
+                 "--out", str(user)]) != 0
+    err = capsys.readouterr().err
+    assert "chapter1.tex" in err and "Traceback" not in err
+    assert (user / "chapter1.tex").read_text() == "\\chapter{Intro}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["thesis"]
+    # generate follows the same rule
+    assert main(["gap", "generate", "--rig", "bench", "--logs", "1", "--duration", "1",
+                 "--out", str(user)]) != 0
+    assert sorted(p.name for p in user.iterdir()) == ["chapter1.tex"]

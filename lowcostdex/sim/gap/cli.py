@@ -24,7 +24,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--model", help="MJCF of the nominal model (project-format logs)")
     a.add_argument("--log", nargs="+", required=True, metavar="FILE",
                    help="logs: CSV/NPZ in the project format, or BAM raw-log JSON")
-    a.add_argument("--out", required=True, help="output folder (replaced when it exists)")
+    a.add_argument("--out", required=True, help="output folder: new or empty, or a previous report (kept in previous/)")
     a.add_argument("--bench", action="store_true",
                    help="logs are BAM JSON mapped onto the servo bench (default: auto-detect)")
     a.add_argument("--holdout", nargs="+", metavar="FILE", default=None,
@@ -48,7 +48,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--duration", type=float, default=8.0, help="seconds per log")
     g.add_argument("--rate", type=float, default=100.0, help="log rate [Hz]")
     g.add_argument("--format", choices=("csv", "npz"), default="csv")
-    g.add_argument("--out", required=True)
+    g.add_argument("--out", required=True, help="output folder: new or empty, or a previous "
+                   "generate output (kept in previous/)")
     g.set_defaults(func=_generate)
 
 
@@ -68,11 +69,13 @@ def _analyze(args: argparse.Namespace) -> int:
     from rich.console import Console
 
     from lowcostdex.errors import ConfigError
+    from lowcostdex.outdir import check_out
     from lowcostdex.sim.gap.analyze import GapConfig, analyze
     from lowcostdex.sim.gap.dataset import load_dataset
     from lowcostdex.sim.gap.report import summary, write_report
 
     console = Console(stderr=True)
+    check_out(args.out, "gap analyze")  # refuse a user's folder before minutes of work
     logs = [str(p) for p in args.log]
     ds = load_dataset(logs, model=args.model, bench=True if args.bench else None)
     test = None
@@ -99,19 +102,21 @@ def _generate(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from lowcostdex.outdir import check_out, staged_output
     from lowcostdex.sim.gap.generate import LogSettings, generate
     from lowcostdex.sim.gap.logs import write_log
 
+    out = Path(args.out)
+    check_out(out, "gap generate")
     effects = [e for e in args.effect if e != "none"]
     syn = generate(args.rig, effects, np.random.default_rng(args.seed), n_logs=args.logs,
                    duration=args.duration, settings=LogSettings(rate=args.rate))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "model.xml").write_text(syn.xml)
-    paths = [write_log(out / f"{tr.name}.{args.format}", tr) for tr in syn.trajectories]
-    truth = {"hidden": [e.to_dict() for e in syn.hidden], "noise_floor": syn.settings.floor,
-             "seed": args.seed, "rig": args.rig}
-    (out / "truth.json").write_text(json.dumps(truth, indent=2))
+    with staged_output(out, "gap generate", {"rig": args.rig, "seed": args.seed}) as tmp:
+        (tmp / "model.xml").write_text(syn.xml)
+        paths = [write_log(tmp / f"{tr.name}.{args.format}", tr) for tr in syn.trajectories]
+        truth = {"hidden": [e.to_dict() for e in syn.hidden], "noise_floor": syn.settings.floor,
+                 "seed": args.seed, "rig": args.rig}
+        (tmp / "truth.json").write_text(json.dumps(truth, indent=2))
     print(f"wrote {len(paths)} logs and model.xml to {out} (truth in truth.json: "
           f"{[e.name for e in syn.hidden] or 'no hidden effect'})")
     return 0

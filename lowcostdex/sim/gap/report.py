@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from lowcostdex.outdir import staged_output
 from lowcostdex.sim.gap.analyze import GapResult
 from lowcostdex.sim.gap.extension import save_extended
 
@@ -40,11 +39,13 @@ def _jsonable(x):
 
 
 def write_report(result: GapResult, out: str | Path) -> Path:
-    """Write report.json, report.md, plots and extended/ into ``out`` (atomically replaced)."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    """Write report.json, report.md, plots and extended/ into ``out``.
+
+    Everything is built in a temporary sibling folder and moved into place at the end
+    (:func:`lowcostdex.outdir.staged_output`): a folder holding files this command did not write
+    is refused untouched, and a previous report is kept in ``out/previous/<time>/``.
+    """
+    with staged_output(out, "gap analyze") as tmp:
         payload = _jsonable(result.to_dict())
         payload["extended_model"] = "extended/effects.json"
         payload["plots"] = list(PLOTS)
@@ -54,19 +55,7 @@ def write_report(result: GapResult, out: str | Path) -> Path:
         plot_residuals(result, tmp / "residuals.png")
         plot_candidates(result, tmp / "candidates.png")
         (tmp / "report.md").write_text(markdown(result))
-        if out.exists():
-            old = out.with_name(f".{out.name}.old")
-            if old.exists():
-                shutil.rmtree(old)
-            out.rename(old)
-            tmp.rename(out)
-            shutil.rmtree(old)
-        else:
-            tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out
+    return Path(out)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -1,0 +1,182 @@
+"""Output folders that never destroy what the tool did not write.
+
+Every command with ``--out`` goes through this module:
+
+* a folder the tool writes carries a marker file (``.lowcostdex.json``: the command that wrote it
+  and, optionally, the settings it was written with);
+* an existing non-empty folder without the marker, or with another command's marker, is refused
+  (the user's files stay where they are) and the message proposes a fresh sub-folder;
+* :func:`staged_output` writes a whole output into a temporary sibling folder and moves it into
+  place at the end; a previous output of the same command is not deleted but moved into
+  ``previous/<UTC time>/`` inside the new one, so an interrupted or failed run leaves the old
+  output untouched and a finished one keeps the old one for comparison;
+* :func:`archive` does the same for single files of a folder that is written stage by stage
+  (the main job).
+
+Nothing here ever calls ``rmtree`` on a path it did not create in the same call.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from lowcostdex.errors import LowcostdexError
+
+MARKER = ".lowcostdex.json"
+PREVIOUS = "previous"
+
+
+class OutputRefused(LowcostdexError):
+    """An ``--out`` folder holds files the tool did not write, or another run's settings."""
+
+
+def read_marker(path: str | Path) -> dict[str, Any] | None:
+    """The marker of an output folder, or None when there is none (or it is unreadable)."""
+    marker = Path(path) / MARKER
+    try:
+        data = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _is_empty(path: Path) -> bool:
+    return not any(path.iterdir())
+
+
+def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None = None,
+              *, must_match: Iterable[str] = ()) -> bool:
+    """Check that ``path`` may receive ``command``'s output; True when it holds a previous one.
+
+    Args:
+      path: the ``--out`` folder.
+      command: the command's name as a user types it, e.g. ``"gap analyze"``.
+      settings: this run's settings (JSON-able); only the keys in ``must_match`` are compared.
+      must_match: settings that must equal the previous output's (e.g. the seed of a run whose
+        stages build on each other).
+
+    Raises:
+      OutputRefused: ``path`` is a file, or a non-empty folder not written by ``command``, or a
+        previous output whose ``must_match`` settings differ.
+    """
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise OutputRefused(f"--out {out} is a file, not a folder; give a folder path")
+    if not out.exists() or _is_empty(out):
+        return False
+    marker = read_marker(out)
+    fresh = out / f"{command.split()[-1]}-{time.strftime('%Y%m%d-%H%M%S')}"
+    if marker is None:
+        raise OutputRefused(
+            f"--out {out} already holds files that lowcostdex did not write "
+            f"({_listing(out)}); they are left untouched. Give an empty or new folder, "
+            f"e.g. --out {fresh}")
+    if marker.get("command") != command:
+        raise OutputRefused(
+            f"--out {out} holds the output of 'lowcostdex {marker.get('command')}', not of "
+            f"'lowcostdex {command}'; it is left untouched. Give another folder, e.g. "
+            f"--out {fresh}")
+    old = marker.get("settings") or {}
+    for key in must_match:
+        new_value = (settings or {}).get(key)
+        if key in old and old[key] != new_value:
+            raise OutputRefused(
+                f"--out {out} holds a run with {key}={old[key]!r}; this run has "
+                f"{key}={new_value!r} and its stages cannot build on that one. Use the same "
+                f"{key} or another folder, e.g. --out {fresh}")
+    return True
+
+
+def _listing(path: Path, n: int = 3) -> str:
+    names = sorted(p.name for p in path.iterdir())
+    shown = ", ".join(names[:n])
+    return shown + (f" and {len(names) - n} more" if len(names) > n else "")
+
+
+def write_marker(path: str | Path, command: str,
+                 settings: Mapping[str, Any] | None = None) -> None:
+    """Write (atomically) the marker that says ``command`` wrote ``path``."""
+    out = Path(path)
+    out.mkdir(parents=True, exist_ok=True)
+    data = {"command": command, "settings": dict(settings or {}),
+            "written": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    write_text_atomic(out / MARKER, json.dumps(data, indent=2))
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _stamp(root: Path) -> Path:
+    base = root / PREVIOUS / time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    target, i = base, 1
+    while target.exists():
+        target, i = base.with_name(f"{base.name}-{i}"), i + 1
+    return target
+
+
+def archive(folder: str | Path, names: Iterable[str]) -> Path | None:
+    """Move the entries ``names`` of ``folder`` that exist into ``folder/previous/<time>/``.
+
+    Returns the archive folder, or None when none of them existed.
+    """
+    root = Path(folder)
+    present = [n for n in dict.fromkeys(names) if n and n != PREVIOUS and (root / n).exists()]
+    if not present:
+        return None
+    target = _stamp(root)
+    target.mkdir(parents=True)
+    for name in present:
+        dest = target / name
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(root / name, dest)
+    return target
+
+
+@contextmanager
+def staged_output(path: str | Path, command: str,
+                  settings: Mapping[str, Any] | None = None) -> Iterator[Path]:
+    """Yield a temporary folder to write ``command``'s output into; move it to ``path`` at the end.
+
+    The check (:func:`check_out`) runs before anything is written. On an exception nothing at
+    ``path`` changes and the temporary folder is removed. On success a previous output of the
+    same command at ``path`` is moved into ``path/previous/<time>/`` (its own ``previous/``
+    history is carried over), never deleted.
+    """
+    out = Path(path)
+    had_previous = check_out(out, command, settings)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    try:
+        yield tmp
+        write_marker(tmp, command, settings)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if out.exists() and had_previous:
+        keep = tmp / PREVIOUS
+        if (out / PREVIOUS).is_dir():
+            os.replace(out / PREVIOUS, keep)
+        target = _stamp(tmp)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(out, target)
+    elif out.exists():  # an empty folder
+        out.rmdir()
+    os.replace(tmp, out)
