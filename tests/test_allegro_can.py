@@ -11,6 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.hands import allegro_spec
 from lowcostdex.hardware.robot import Robot, RobotConfig
@@ -72,6 +73,64 @@ def test_frame_ids_and_payload_codecs():
     assert back_info == info and back_info.servo_on and back_info.faults == ("high_temperature",)
 
 
+# A real v4 hand on the wire: the candump trace in the docstring of Meta Platforms' MIT-licensed
+# Python Allegro driver (quoted in 05-dynamixel-protocol.md section 6), typed in byte by byte.
+#   0x80 (info)   can0  200   [7]  02 04 06 04 00 3C 05
+#   0x38 (temp)   can0  0E0   [0]  remote request      (x4: 0E0, 0E4, 0E8, 0EC)
+#                 can0  0E0   [4]  2B 2A 29 25
+#                 can0  0E4   [4]  29 2B 29 27
+#                 can0  0E8   [4]  27 27 27 24
+#                 can0  0EC   [4]  30 26 24 F6
+TRACE_INFO = (0x200, bytes([0x02, 0x04, 0x06, 0x04, 0x00, 0x3C, 0x05]))
+TRACE_TEMPERATURE = ((0x0E0, bytes([0x2B, 0x2A, 0x29, 0x25])),
+                     (0x0E4, bytes([0x29, 0x2B, 0x29, 0x27])),
+                     (0x0E8, bytes([0x27, 0x27, 0x27, 0x24])),
+                     (0x0EC, bytes([0x30, 0x26, 0x24, 0xF6])))
+# The same bytes read as one unsigned byte per joint [deg C] (the Wonik v4 Linux demo,
+# taewookim0812/allegro_hand_linux_v4 cpp/grasp_2204/main.cpp, prints data[0..3] as four values).
+# The thumb's last byte 0xF6 = 246 is what the hand sent; no driver interprets it otherwise.
+TRACE_CELSIUS = (43, 42, 41, 37, 41, 43, 41, 39, 39, 39, 39, 36, 48, 38, 36, 246)
+
+
+def test_temperature_frames_of_a_real_v4_trace_decode_to_one_byte_per_joint():
+    for finger, (can_id, data) in enumerate(TRACE_TEMPERATURE):
+        assert proto.split_id(can_id) == (0x38 + finger, 0)
+        assert proto.frame_id(proto.TEMPERATURE + finger) == can_id
+        assert proto.unpack_temperatures(data) == TRACE_CELSIUS[4 * finger:4 * finger + 4]
+        assert proto.pack_temperatures(TRACE_CELSIUS[4 * finger:4 * finger + 4]) == data
+    with pytest.raises(ValueError, match="4 temperature bytes"):
+        proto.unpack_temperatures(bytes(8))
+
+
+def test_hand_info_of_a_real_v4_trace():
+    can_id, data = TRACE_INFO
+    assert proto.split_id(can_id) == (0x80, 0)
+    info = proto.HandInfo.unpack(data)
+    # the v4 ROS driver prints "hardware version: 0x%02x%02x" from data[1], data[0] and takes
+    # data[1] as the hand version (simlabrobotics/allegro_hand_ros_v4 AllegroHandDrv.cpp)
+    assert info.hardware_version == 0x0402 and info.major_version == 4
+    assert info.firmware_version == 0x0406
+    assert not info.left and info.palm_temperature == 0x3C == 60
+    # status 0x05 from a hand that was streaming and answering: servo on plus bit 2, which the
+    # Wonik drivers call "internal communication fault" and Meta's driver "temperature throttle"
+    assert info.status == 0x05 and info.servo_on
+    assert info.faults == () and len(info.flags) == 1 and info.flags[0].startswith("bit2")
+    assert info.pack() == data
+
+
+def test_torque_constant_follows_the_hand_version():
+    # AllegroHandDrv.cpp (v4 ROS driver): data[1] == 4 -> _tau_cov_const 1200,
+    # PWM_LIMIT_GLOBAL_12V 1200; any other version -> 800 and PWM_LIMIT_GLOBAL_8V 800
+    assert proto.torque_scale(proto.HandInfo.unpack(TRACE_INFO[1]).major_version) == (1200, 1200)
+    v3 = proto.HandInfo.unpack(bytes([0x02, 0x03, 0x06, 0x04, 0x00, 0x3C, 0x01]))  # data[1] = 3
+    assert v3.major_version == 3 and proto.torque_scale(3) == (800, 800)
+    tau = np.full(16, 0.1)
+    assert proto.torque_to_pwm(tau, *proto.torque_scale(3))[0] == 80
+    assert proto.torque_to_pwm(tau, *proto.torque_scale(4))[0] == 120
+    with pytest.raises(ConfigError, match="version 5 is not supported"):
+        proto.torque_scale(5)
+
+
 def test_torque_to_pwm_scales_by_1200_and_clamps_per_joint():
     pwm = proto.torque_to_pwm(np.full(16, 10.0))
     np.testing.assert_array_equal(pwm, proto.pwm_limits())
@@ -87,8 +146,10 @@ def test_torque_to_pwm_scales_by_1200_and_clamps_per_joint():
 def test_connect_reads_hand_info_and_streams_at_333_hz(hand):
     bus, emu, clock = hand
     bus.connect()
-    assert bus.hand_info() is not None and bus.hand_info().hardware_version == 4
-    assert emu.period_ms == (3, 0, 100)
+    assert bus.hand_info() is not None and bus.hand_info().major_version == 4
+    assert bus.torque_constant == 1200.0
+    # the reference drivers' SET_PERIOD {3, 0, 0}: poses streamed, temperatures asked for by RTR
+    assert emu.period_ms == (3, 0, 0)
     before = bus.cycles
     clock.sleep(1.0)
     assert 330 <= bus.cycles - before <= 334  # one PD cycle per 3 ms pose set
@@ -114,6 +175,85 @@ def test_servo_off_until_torque_on_then_pd_tracks_goals(hand):
     clock.sleep(0.05)
     _, tau = emu.torque_log[-1]
     assert np.all(tau[:4] == 0) and np.any(tau[4:] != 0)  # device side: index finger free
+
+
+def test_driver_reads_the_trace_temperature_frames(hand):
+    bus, emu, clock = hand
+    bus.connect()
+    for can_id, data in TRACE_TEMPERATURE:  # the hand's frames, byte for byte
+        emu.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+    bus.poll()
+    np.testing.assert_array_equal(bus.read_state().temperature, TRACE_CELSIUS)
+    bad = bus.bad_frames
+    emu.bus.send(can.Message(arbitration_id=0x0E0, data=bytes(8), is_extended_id=False))
+    bus.poll()
+    assert bus.bad_frames == bad + 1  # an 8-byte frame is not a temperature frame
+
+
+def test_emulated_hand_answers_temperature_requests_with_four_bytes(hand):
+    _, emu, _ = hand
+    emu.temperature[:] = np.arange(16) + 30.2  # rounded to whole deg C on the wire
+    host = can.Bus(interface="virtual", channel=emu.channel)  # a second host on the wire
+    try:
+        for f in range(4):
+            host.send(can.Message(arbitration_id=0x0E0 + 4 * f, is_remote_frame=True,
+                                  is_extended_id=False, dlc=0))
+        emu.poll()
+        replies = [host.recv(timeout=1.0) for _ in range(4)]
+    finally:
+        host.shutdown()
+    for f, msg in enumerate(replies):
+        assert msg.arbitration_id == 0x0E0 + 4 * f and not msg.is_remote_frame
+        assert msg.dlc == 4 and bytes(msg.data) == bytes(range(30 + 4 * f, 34 + 4 * f))
+
+
+def test_temperatures_follow_the_hand_through_periodic_requests(hand):
+    bus, emu, clock = hand
+    bus.connect()  # waits for the first temperatures: the emulated hand streams none (period 0)
+    assert emu.period_ms[2] == 0
+    np.testing.assert_array_equal(bus.read_state().temperature, np.full(16, 25.0))
+    emu.temperature[:] = 55.4
+    emu.temperature[15] = 61.0
+    clock.sleep(0.25)  # requests every 100 ms
+    expected = np.full(16, 55.0)
+    expected[15] = 61.0
+    np.testing.assert_array_equal(bus.read_state().temperature, expected)
+
+
+@pytest.mark.parametrize("version, scale", [(0x0402, 1200), (0x0302, 800)])
+def test_pwm_on_the_wire_uses_the_hand_versions_torque_constant(version, scale):
+    bus, emu, clock = emulated_allegro(allegro_model(), gains=STIFF)
+    emu.set_joint_positions(MID)
+    emu.info = proto.HandInfo(version, 0x0406, False, 25, 0)
+    try:
+        bus.connect()
+        assert bus.torque_constant == scale
+        bus.set_torque(True)
+        bus.write_goal_positions(MID + 0.1)
+        clock.sleep(0.03)
+        tau = bus.read_state().extra["torque"]
+        assert np.any(np.abs(tau) > 0.05)
+        # device side: the PWM counts the hand holds are tau * (its version's constant) ...
+        lim = proto.pwm_limits(scale)
+        np.testing.assert_array_equal(emu.pwm, np.clip(np.rint(tau * scale), -lim, lim))
+        # ... so the torque the hand applies is the one the PD asked for, on a v3 hand too
+        np.testing.assert_allclose(emu.applied_torque(), tau, atol=0.5 / scale)
+    finally:
+        bus.disconnect()
+        emu.close()
+
+
+def test_connect_refuses_a_hand_version_it_has_no_torque_constant_for():
+    bus, emu, clock = emulated_allegro(allegro_model())
+    emu.info = proto.HandInfo(0x0502, 0x0100, False, 25, 0)  # a v5 hand's major version
+    try:
+        with pytest.raises(ConfigError, match="version 5 is not supported"):
+            bus.connect()
+        emu.poll()
+        assert not emu.servo_on and np.all(emu.pwm == 0)
+    finally:
+        bus.disconnect()
+        emu.close()
 
 
 def test_missing_pose_stream_marks_joints_invalid_and_robot_raises(hand):

@@ -3,7 +3,10 @@
 The v4 hand is torque-driven: it streams joint positions every period (3 ms = 333 Hz) and the
 host answers each complete set of four FINGER_POSE frames with four SET_TORQUE frames. This
 driver runs that loop: ``tau = kp (goal - q) - kd qdot`` per joint (qdot filtered from the
-position stream), clamped per joint, sent as PWM (``allegro_can``). ``write_goal_positions``
+position stream), clamped per joint, sent as PWM (``allegro_can``) with the torque constant of
+the hand's version read from HAND_INFO (1200 PWM counts per N m on a v4 hand, 800 on a v3 hand;
+other versions are refused at connect). Joint temperatures are asked for with remote (RTR)
+requests, as the reference drivers do (a v4 hand answers them whatever its streaming periods). ``write_goal_positions``
 only changes the PD goal, so the Robot above (limits, thermal guard, resets) treats the Allegro
 like a position-servo hand.
 
@@ -100,7 +103,8 @@ class AllegroBus(MotorBus):
       gains: PD gains.
       device_id: the hand's 2-bit CAN id.
       period_ms: pose streaming period requested from the hand [ms] (3 = 333 Hz).
-      temperature_period_ms: temperature streaming period [ms] (0: off).
+      temperature_period_ms: interval of the temperature requests (RTR) [ms] (0: none; the
+        temperatures then stay NaN and the thermal guard is blind).
       threaded: run the PD loop in a background thread (hardware) or in ``poll()``.
       clock: time source (a virtual clock when emulated); default the host's.
       stale_after: a joint whose last pose frame is older than this [s] reads invalid.
@@ -150,6 +154,9 @@ class AllegroBus(MotorBus):
         self._enabled = np.zeros(n, bool)
         self._tau = np.zeros(n)
         self._info: proto.HandInfo | None = None
+        self._scale, self._pwm_max = proto.TORQUE_TO_PWM, proto.PWM_MAX  # set from HAND_INFO
+        self._temperature_every = (max(1, round(temperature_period_ms / period_ms))
+                                   if temperature_period_ms > 0 else 0)  # PD cycles
         self.cycles = 0  # PD cycles run
         self.bad_frames = 0  # frames with an unexpected length
 
@@ -159,7 +166,13 @@ class AllegroBus(MotorBus):
         return self._connected
 
     def connect(self) -> None:
-        """Open the bus, query the hand, start the pose stream, wait for the first pose set."""
+        """Open the bus, query the hand (its version sets the torque constant), start the pose
+        stream, wait for the first pose set and the first temperatures.
+
+        Raises:
+          ConfigError: the hand's hardware version is not one the driver knows (3 or 4).
+          BusError: the hand does not answer within ``timeout``.
+        """
         if self._connected:
             return
         if self._bus is None:
@@ -168,10 +181,16 @@ class AllegroBus(MotorBus):
         self._drain()
         self._send(proto.message(proto.SYSTEM_OFF, device_id=self.device_id))
         self._send(proto.message(proto.HAND_INFO, device_id=self.device_id, remote=True))
-        self._send(proto.period_message(self._period_ms, 0, self._temperature_ms,
-                                        self.device_id))
-        self._wait(lambda: self._info is not None and np.all(np.isfinite(self._q)),
-                   "no HAND_INFO reply or pose stream from the Allegro")
+        self._wait(lambda: self._info is not None, "no HAND_INFO reply from the Allegro")
+        self._scale, self._pwm_max = proto.torque_scale(self._info.major_version)
+        self._send(proto.period_message(self._period_ms, 0, 0, self.device_id))
+        if self._temperature_every:
+            self.request_temperatures()
+        self._wait(lambda: bool(np.all(np.isfinite(self._q))),
+                   "no pose stream from the Allegro")
+        if self._temperature_every:
+            self._wait(lambda: bool(np.all(np.isfinite(self._temperature))),
+                       "no TEMPERATURE replies from the Allegro")
         with self._lock:
             self._goal = self._q.copy()
         self._connected = True
@@ -272,6 +291,18 @@ class AllegroBus(MotorBus):
         """Ask the hand for HAND_INFO (status bits); the reply is handled by the loop."""
         self._send(proto.message(proto.HAND_INFO, device_id=self.device_id, remote=True))
 
+    def request_temperatures(self) -> None:
+        """Ask the hand for the four fingers' TEMPERATURE frames (remote requests); the replies
+        are handled by the loop."""
+        for f in range(proto.N_FINGERS):
+            self._send(proto.message(proto.TEMPERATURE + f, device_id=self.device_id,
+                                     remote=True))
+
+    @property
+    def torque_constant(self) -> float:
+        """PWM counts per N m of the connected hand's version (1200 v4, 800 v3)."""
+        return self._scale
+
     # -- the loop -------------------------------------------------------------------------------
     def poll(self) -> int:
         """Handle every pending frame without blocking; returns the PD cycles run."""
@@ -302,12 +333,12 @@ class AllegroBus(MotorBus):
                 return
             self._on_pose(cmd - proto.FINGER_POSE, proto.unpack4(msg.data))
         elif proto.TEMPERATURE <= cmd < proto.TEMPERATURE + proto.N_FINGERS:
-            if len(msg.data) != 8:
+            if len(msg.data) != 4:
                 self.bad_frames += 1
                 return
             f = cmd - proto.TEMPERATURE
             with self._lock:
-                self._temperature[4 * f:4 * f + 4] = proto.unpack4(msg.data)
+                self._temperature[4 * f:4 * f + 4] = proto.unpack_temperatures(msg.data)
         elif cmd == proto.HAND_INFO and len(msg.data) >= 7:
             self._info = proto.HandInfo.unpack(msg.data)
 
@@ -337,12 +368,14 @@ class AllegroBus(MotorBus):
                             self.gains.max_torque)
             tau = np.where(self._enabled, tau, 0.0)
             self._tau = tau
-        pwm = proto.torque_to_pwm(tau)
+        pwm = proto.torque_to_pwm(tau, self._scale, self._pwm_max)
         for f in range(proto.N_FINGERS):
             self._send(proto.torque_message(f, pwm[4 * f:4 * f + 4], self.device_id))
         self.cycles += 1
         if self.cycles % 100 == 0:
             self.request_info()
+        if self._temperature_every and self.cycles % self._temperature_every == 0:
+            self.request_temperatures()
 
     # -- helpers --------------------------------------------------------------------------------
     def _send(self, msg: can.Message) -> None:

@@ -8,13 +8,20 @@ hand (``allegro_emulator.EmulatedAllegro``). Facts from 05-dynamixel-protocol.md
 
 Payloads (little endian):
   FINGER_POSE (0x20 + finger): 4 x int16 joint positions, ``deg = raw * 333.3 / 65536``.
-  SET_TORQUE (0x60 + finger): 4 x int16 PWM, ``pwm = tau * 1200`` [tau in N m], clamped.
+  SET_TORQUE (0x60 + finger): 4 x int16 PWM, ``pwm = tau * 1200`` [tau in N m] on a v4 hand,
+    ``tau * 800`` on a v3 hand (``torque_scale``), clamped.
   SET_PERIOD (0x81): 3 x int16 periods [ms] for position, IMU, temperature (0 = off).
   HAND_INFO (0x80, RTR): hw version u16, fw version u16, side u8 (0 right / 1 left),
-    palm temperature u8 [deg C], status u8 (bit0 servo on, bit1 high temperature fault,
-    bit2 internal communication fault).
-  TEMPERATURE (0x38 + finger): 4 x int16 joint temperatures [deg C]. This layout is assumed
-    (not confirmed against a v4 manual); check it before trusting temperatures on a real hand.
+    palm temperature u8 [deg C], status u8. The hardware version's high byte is the hand's major
+    version (4 on a v4 hand: the v4 ROS driver switches its torque constant on it, 1200 for 4,
+    800 otherwise). Status bits: bit0 servo on and bit1 high-temperature fault in every driver;
+    bit2 is "internal communication fault" to the Wonik drivers but "joint temperature throttle"
+    to Meta's Python driver, and a working hand in Meta's published trace reports 0x05, so bit2
+    (and the Meta-only bits 3, 4) are reported as flags, not as faults.
+  TEMPERATURE (0x38 + finger, RTR): 4 bytes, one unsigned byte per joint [deg C] (a real v4
+    hand's trace: ``2B 2A 29 25`` = 43, 42, 41, 37 deg C; the Wonik v4 Linux demo prints the four
+    bytes). The hand answers a remote request whatever its streaming periods (Wonik's CAN
+    protocol v4.0 page), which is how the reference drivers ask for temperatures.
 """
 
 from __future__ import annotations
@@ -48,10 +55,19 @@ N_JOINTS = N_FINGERS * JOINTS_PER_FINGER
 POSITION_UNIT = math.radians(333.3 / 65536.0)  # [rad per raw count]
 TORQUE_TO_PWM = 1200.0  # v4 ``_tau_cov_const`` [PWM per N m]
 PWM_MAX = 1200  # global clamp at 12 V
+# Hand major version -> (torque constant [PWM per N m], global PWM clamp): the v4 ROS driver's
+# 1200 at 12 V for a v4 hand and 800 at 8 V for a v3 hand. Other versions (v5 speaks another
+# protocol) are refused.
+TORQUE_SCALES = {4: (1200.0, 1200), 3: (800.0, 800)}
 # Per-joint PWM clamps of the v4 driver: fingers (roll, near, middle, far), thumb.
 PWM_LIMIT_FINGER = (375, 675, 450, 285)
 PWM_LIMIT_THUMB = (525, 405, 270, 270)
-STATUS_SERVO_ON, STATUS_HIGH_TEMPERATURE, STATUS_COMM_FAULT = 0x01, 0x02, 0x04
+STATUS_SERVO_ON, STATUS_HIGH_TEMPERATURE = 0x01, 0x02
+# Status bits read differently by different drivers (flags, not faults): the Wonik drivers' name
+# and Meta's Python driver's name.
+STATUS_FLAGS = {0x04: "bit2 (communication fault to Wonik, temperature throttle to Meta)",
+                0x08: "bit3 (joint communication fault to Meta)",
+                0x10: "bit4 (palm temperature fault to Meta)"}
 _I16 = struct.Struct("<4h")
 
 
@@ -67,20 +83,51 @@ def split_id(arbitration_id: int) -> tuple[int, int]:
     return (arbitration_id & ~3) >> 2, arbitration_id & 3
 
 
-def pwm_limits() -> np.ndarray:
-    """Per-joint PWM clamps (16,) in joint order index, middle, ring, thumb."""
-    return np.array(PWM_LIMIT_FINGER * 3 + PWM_LIMIT_THUMB, dtype=float)
+def torque_scale(major_version: int) -> tuple[float, int]:
+    """(torque constant [PWM counts per N m], global PWM clamp) of a hand's major version.
+
+    Raises:
+      ConfigError: for a version the driver does not know (not 3 or 4).
+    """
+    if major_version not in TORQUE_SCALES:
+        raise ConfigError(
+            f"Allegro hardware version {major_version} is not supported (known: "
+            f"{sorted(TORQUE_SCALES)}); its torque constant is unknown, so torques would be "
+            "wrong. A v5 hand speaks a different CAN protocol.")
+    return TORQUE_SCALES[major_version]
 
 
-def torque_to_pwm(tau: np.ndarray) -> np.ndarray:
-    """Joint torques (16,) [N m] -> PWM counts (16,) int, clamped per joint (v4 scaling)."""
-    lim = pwm_limits()
-    return np.clip(np.rint(np.asarray(tau, float) * TORQUE_TO_PWM), -lim, lim).astype(int)
+def pwm_limits(pwm_max: int = PWM_MAX) -> np.ndarray:
+    """Per-joint PWM clamps (16,) in joint order index, middle, ring, thumb, within the global
+    clamp ``pwm_max``."""
+    return np.minimum(np.array(PWM_LIMIT_FINGER * 3 + PWM_LIMIT_THUMB, dtype=float), pwm_max)
 
 
-def pwm_to_torque(pwm: np.ndarray) -> np.ndarray:
-    """PWM counts -> joint torques [N m]."""
-    return np.asarray(pwm, float) / TORQUE_TO_PWM
+def torque_to_pwm(tau: np.ndarray, scale: float = TORQUE_TO_PWM, pwm_max: int = PWM_MAX
+                  ) -> np.ndarray:
+    """Joint torques (16,) [N m] -> PWM counts (16,) int, clamped per joint.
+
+    ``scale`` [PWM counts per N m] and ``pwm_max`` are the hand version's (``torque_scale``);
+    the defaults are the v4 hand's."""
+    lim = pwm_limits(pwm_max)
+    return np.clip(np.rint(np.asarray(tau, float) * scale), -lim, lim).astype(int)
+
+
+def pwm_to_torque(pwm: np.ndarray, scale: float = TORQUE_TO_PWM) -> np.ndarray:
+    """PWM counts -> joint torques [N m] (``scale``: the hand version's torque constant)."""
+    return np.asarray(pwm, float) / scale
+
+
+def pack_temperatures(celsius: Sequence[float]) -> bytes:
+    """TEMPERATURE payload: four joint temperatures [deg C] as unsigned bytes (rounded, 0..255)."""
+    return bytes(int(min(max(round(float(t)), 0), 255)) for t in celsius)
+
+
+def unpack_temperatures(data: bytes | bytearray) -> tuple[int, int, int, int]:
+    """Four joint temperatures [deg C] of a TEMPERATURE payload (4 unsigned bytes)."""
+    if len(data) != 4:
+        raise ValueError(f"expected 4 temperature bytes, got {len(data)}")
+    return tuple(bytes(data))  # type: ignore[return-value]
 
 
 def pack4(values: Sequence[int]) -> bytes:
@@ -141,7 +188,8 @@ class HandInfo:
     """HAND_INFO reply.
 
     Attributes:
-      hardware_version, firmware_version: version numbers.
+      hardware_version, firmware_version: version numbers (u16; the hardware version's high
+        byte is the major version, e.g. 0x0402 on a v4 hand).
       left: True for a left hand.
       palm_temperature: [deg C].
       status: status bits (``STATUS_*``).
@@ -163,14 +211,20 @@ class HandInfo:
         return cls(hw, fw, bool(side), temp, status)
 
     @property
+    def major_version(self) -> int:
+        """The hand's major version (4 for a v4 hand): the hardware version's high byte."""
+        return self.hardware_version >> 8
+
+    @property
     def servo_on(self) -> bool:
         return bool(self.status & STATUS_SERVO_ON)
 
     @property
     def faults(self) -> tuple[str, ...]:
-        names = []
-        if self.status & STATUS_HIGH_TEMPERATURE:
-            names.append("high_temperature")
-        if self.status & STATUS_COMM_FAULT:
-            names.append("communication")
-        return tuple(names)
+        """Faults every driver agrees on (the high-temperature bit)."""
+        return ("high_temperature",) if self.status & STATUS_HIGH_TEMPERATURE else ()
+
+    @property
+    def flags(self) -> tuple[str, ...]:
+        """Set status bits whose meaning differs between drivers (``STATUS_FLAGS``)."""
+        return tuple(name for bit, name in STATUS_FLAGS.items() if self.status & bit)

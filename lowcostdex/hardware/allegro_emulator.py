@@ -1,10 +1,14 @@
 """An emulated Allegro Hand v4 on python-can's ``virtual`` interface, MuJoCo behind it.
 
 ``EmulatedAllegro`` answers the v4 CAN protocol (``allegro_can``) like the hand's firmware:
-HAND_INFO and SERIAL requests, SET_PERIOD, SYSTEM_ON/OFF, SET_TORQUE, and the position stream
-(four FINGER_POSE frames per period, TEMPERATURE frames at their own period). The PWM it receives
-becomes joint torque (``pwm / 1200`` N m) applied to the model's joints through
-``qfrc_applied``; the model's own actuators are switched off (the hand is torque-driven).
+HAND_INFO, SERIAL, FINGER_POSE and TEMPERATURE remote requests, SET_PERIOD, SYSTEM_ON/OFF,
+SET_TORQUE, and the position stream (four FINGER_POSE frames per period, TEMPERATURE frames at
+their own period if one is set). TEMPERATURE frames carry 4 bytes, one unsigned byte per joint
+[deg C], as a real v4 hand's do; HAND_INFO answers with the identity of the hand in Meta's
+published trace (hardware 0x0402, firmware 0x0406, right hand) unless ``info`` is changed. The
+PWM it receives becomes joint torque (``pwm / 1200`` N m on a v4 hand, ``/ 800`` on a v3 hand)
+applied to the model's joints through ``qfrc_applied``; the model's own actuators are switched
+off (the hand is torque-driven).
 A per-joint winding thermal model heats with torque squared; above its limit the firmware sets
 the high-temperature status bit and drops torque until it has cooled and is switched on again.
 Every torque the device applies is logged (``torque_log``) so tests check what reached it.
@@ -88,9 +92,11 @@ class EmulatedAllegro:
         if m.nu:
             self.plant.set_torque_enabled(np.arange(m.nu), False)
         self.bus = can_bus or can.Bus(interface="virtual", channel=channel)
+        self.channel = channel  # the virtual channel (when ``can_bus`` is None)
         self.device_id = device_id
         self.thermal = thermal
-        self.info = proto.HandInfo(hardware_version=4, firmware_version=0x0400, left=False,
+        # the identity of the v4 hand in Meta's trace (HAND_INFO 02 04 06 04 00 3C 05)
+        self.info = proto.HandInfo(hardware_version=0x0402, firmware_version=0x0406, left=False,
                                    palm_temperature=int(thermal.ambient), status=0)
         self.serial = b"EMU00001"
         self.servo_on = False
@@ -133,11 +139,15 @@ class EmulatedAllegro:
         d.qvel[:] = 0.0
         mujoco.mj_forward(self.plant.model, d)
 
+    def _scale(self) -> tuple[float, int]:
+        """(torque constant, PWM clamp) of the emulated hand's version (v4's if unknown)."""
+        return proto.TORQUE_SCALES.get(self.info.major_version, proto.TORQUE_SCALES[4])
+
     def applied_torque(self) -> np.ndarray:
         """Torque the firmware applies now (16,) [N m]."""
         if not self.servo_on or self.fault:
             return np.zeros(proto.N_JOINTS)
-        return proto.pwm_to_torque(self.pwm)
+        return proto.pwm_to_torque(self.pwm, self._scale()[0])
 
     # -- protocol -------------------------------------------------------------------------------
     def poll(self) -> None:
@@ -175,7 +185,7 @@ class EmulatedAllegro:
             self.pwm[:] = 0
         elif proto.SET_TORQUE <= cmd < proto.SET_TORQUE + 4 and len(msg.data) == 8:
             f = cmd - proto.SET_TORQUE
-            lim = proto.pwm_limits()[4 * f:4 * f + 4]
+            lim = proto.pwm_limits(self._scale()[1])[4 * f:4 * f + 4]
             self.pwm[4 * f:4 * f + 4] = np.clip(proto.unpack4(msg.data), -lim, lim)
         elif cmd == proto.SET_PERIOD:
             self.period_ms = proto.parse_period(msg.data)
@@ -191,8 +201,9 @@ class EmulatedAllegro:
         self._reply(proto.pose_message(finger, q, self.device_id))
 
     def _send_temperature(self, finger: int) -> None:
-        t = np.rint(self.temperature[4 * finger:4 * finger + 4]).astype(int)
-        self._reply(proto.message(proto.TEMPERATURE + finger, proto.pack4(t), self.device_id))
+        t = self.temperature[4 * finger:4 * finger + 4]
+        self._reply(proto.message(proto.TEMPERATURE + finger, proto.pack_temperatures(t),
+                                  self.device_id))
 
     # -- physics --------------------------------------------------------------------------------
     @property
