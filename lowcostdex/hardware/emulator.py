@@ -16,7 +16,8 @@ stepped (one firmware tick per physics step) up to the bus time of every event. 
 Fault injection (``FaultConfig``, seeded by the chain's ``rng``): status packets dropped, corrupted
 (one byte flipped) or delivered late; ``kill(id)`` makes a motor dead (silent, unpowered), a motor
 left out at construction is missing; ``inject_hardware_error(id, bits)`` latches hardware errors.
-Every goal a motor accepts is logged on the device side (``goal_log``), so tests check what reached
+Every goal a motor accepts is logged on the device side (``goal_log``) and audited against the
+motor's true position at receipt (``goal_audit``, constant memory), so tests check what reached
 the motors, not what the host meant to send.
 
 (a) An emulated D'Claw with physics, effects and a virtual clock::
@@ -28,6 +29,7 @@ the motors, not what the host meant to send.
                            rng=np.random.default_rng(0))
     chain.plant          # the Plant: true qpos/qvel, apply forces via chain.add_step_hook(fn)
     chain.goal_log       # device-side log of accepted goals
+    chain.goal_audit     # each goal against the true joint position when it arrived
 
 (b) A driver on it, in-process (the real dynamixel_sdk code path over ``chain.port()``)::
 
@@ -47,9 +49,9 @@ serves one from its own process and prints the path)::
 Device-side truth for tests and the Robot layer: ``chain.plant`` (qpos, qvel, forces; apply
 external torques from a hook registered with ``chain.add_step_hook``), ``chain.drive.state()``
 (what the encoders and current sensors see), ``chain.motors[id]`` (control table via ``get``,
-``torque_on``, ``hardware_error``), ``chain.goal_log``, ``chain.events`` (watchdog trips,
-hardware errors, shutdowns, reboots; ``chain.event_callbacks`` to be told), ``chain.reply_log``
-(with ``record_replies=True``).
+``torque_on``, ``hardware_error``), ``chain.goal_log``, ``chain.goal_audit``, ``chain.events``
+(watchdog trips, hardware errors, shutdowns, reboots; ``chain.event_callbacks`` to be told),
+``chain.reply_log`` (with ``record_replies=True``).
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -203,6 +206,84 @@ class GoalLog:
 
 
 @dataclass
+class GoalAudit:
+    """Device-side audit of every Goal Position a motor accepted, in constant memory.
+
+    Each goal [rad, joint, true mounting] is compared with the motor's *true* joint position
+    (the physics' qpos, before any encoder effect) at two moments:
+
+    * when the motor last sampled its Present Position for a read (the reading a host that
+      bounds goals around fresh positions computed this goal from): the ``read lead``;
+    * when the goal arrived (the motor may have moved since that sample): the ``lead``.
+
+    Per motor it keeps the count, the largest of both leads, the longest time from the sample
+    to the goal, the extreme goals, and counts of goals beyond the bounds set with ``watch``;
+    ``recent`` keeps the last receipts.
+
+    Attributes:
+      count: goals accepted per motor id.
+      max_lead: largest |goal - true position at receipt| per motor id [rad].
+      max_read_lead: largest |goal - true position at the last sample| per motor id [rad].
+      max_age: longest time from the last sample to a goal's receipt per motor id [s].
+      low, high: smallest and largest goal per motor id [rad, joint].
+      lead_violations: goals beyond the watched motion bound, per motor id.
+      limit_violations: goals outside the watched joint limits, per motor id.
+      recent: the last receipts (bus time [s], motor id, goal, true position at receipt, true
+        position at the last sample [rad], time since that sample [s]).
+    """
+
+    count: dict[int, int] = field(default_factory=dict)
+    max_lead: dict[int, float] = field(default_factory=dict)
+    max_read_lead: dict[int, float] = field(default_factory=dict)
+    max_age: dict[int, float] = field(default_factory=dict)
+    low: dict[int, float] = field(default_factory=dict)
+    high: dict[int, float] = field(default_factory=dict)
+    lead_violations: dict[int, int] = field(default_factory=dict)
+    limit_violations: dict[int, int] = field(default_factory=dict)
+    recent: deque[tuple[float, int, float, float, float, float]] = field(
+        default_factory=lambda: deque(maxlen=1024))
+    _bounds: dict[int, tuple[float, float, float, float]] = field(default_factory=dict)
+    _sample: dict[int, tuple[float, float]] = field(default_factory=dict)
+
+    def watch(self, motor_id: int, max_step: float, low: float = -math.inf,
+              high: float = math.inf, speed: float = 0.0) -> None:
+        """From now on count goals of ``motor_id`` leading the true position at the last sample
+        by more than ``max_step`` [rad], or the true position at receipt by more than
+        ``max_step + speed * (time since the sample)`` (``speed``: how fast the joint can move
+        [rad/s]), or outside ``[low, high]`` [rad, joint]."""
+        self._bounds[motor_id] = (max_step, low, high, speed)
+        self.lead_violations.setdefault(motor_id, 0)
+        self.limit_violations.setdefault(motor_id, 0)
+
+    def sampled(self, t: float, motor_id: int, true: float) -> None:
+        """The motor sampled its Present Position at bus time ``t`` [s]; true position [rad]."""
+        self._sample[motor_id] = (t, true)
+
+    def record(self, t: float, motor_id: int, goal: float, true: float) -> None:
+        """One accepted goal [rad] at bus time ``t`` [s] and the true joint position [rad]."""
+        t_read, at_read = self._sample.get(motor_id, (t, true))
+        lead, read_lead, age = abs(goal - true), abs(goal - at_read), t - t_read
+        self.count[motor_id] = self.count.get(motor_id, 0) + 1
+        self.max_lead[motor_id] = max(self.max_lead.get(motor_id, 0.0), lead)
+        self.max_read_lead[motor_id] = max(self.max_read_lead.get(motor_id, 0.0), read_lead)
+        self.max_age[motor_id] = max(self.max_age.get(motor_id, 0.0), age)
+        self.low[motor_id] = min(self.low.get(motor_id, math.inf), goal)
+        self.high[motor_id] = max(self.high.get(motor_id, -math.inf), goal)
+        self.recent.append((t, motor_id, goal, true, at_read, age))
+        bound = self._bounds.get(motor_id)
+        if bound is not None:
+            max_step, low, high, speed = bound
+            self.lead_violations[motor_id] += (read_lead > max_step
+                                               or lead > max_step + speed * age)
+            self.limit_violations[motor_id] += not low <= goal <= high
+
+    @property
+    def violations(self) -> int:
+        """Goals beyond a watched bound (motion or limits), all motors."""
+        return sum(self.lead_violations.values()) + sum(self.limit_violations.values())
+
+
+@dataclass
 class _State:
     """``firmware.DriveState`` as plain float lists (fast scalar access per motor)."""
 
@@ -272,6 +353,10 @@ class PlantDrive:
 
     def set_goal(self, index: int, q: float) -> None:
         self.goal[self.acts[index]] = q
+
+    def true_position(self, index: int) -> float:
+        """Servo ``index``'s joint angle in the physics [rad] (no encoder effects)."""
+        return float(self._views["qpos"][self._qadr[index]])
 
     def voltage(self) -> np.ndarray:
         """Supply voltage at every actuator [V] (nu,)."""
@@ -352,6 +437,7 @@ class EmulatedChain:
         self.wire_time = wire_time or clock == "virtual"
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.goal_log = GoalLog()
+        self.goal_audit = GoalAudit()
         self.events: list[Event] = []
         self.event_callbacks: list[Callable[[Event], None]] = []
         self.record_replies = record_replies
@@ -386,7 +472,16 @@ class EmulatedChain:
 
     # -- sink protocol (called by the firmware) ------------------------------------------------
     def on_goal(self, motor_id: int, reg: Reg, value: int) -> None:
-        self.goal_log.append(self.clock.now(), motor_id, reg, value)
+        t = self.clock.now()
+        self.goal_log.append(t, motor_id, reg, value)
+        if reg == Reg.GOAL_POSITION:
+            m = self.motors[motor_id]
+            self.goal_audit.record(t, motor_id, m.position_to_joint(value),
+                                   self.drive.true_position(m.index))
+
+    def on_sample(self, motor_id: int) -> None:
+        m = self.motors[motor_id]
+        self.goal_audit.sampled(self.clock.now(), motor_id, self.drive.true_position(m.index))
 
     def on_event(self, motor_id: int, kind: str, detail: str) -> None:
         t = self._tick_time if self._tick_time is not None else self.clock.now()

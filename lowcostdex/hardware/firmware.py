@@ -134,6 +134,9 @@ class Sink(Protocol):
 
     def on_goal(self, motor_id: int, reg: Reg, value: int) -> None: ...
 
+    def on_sample(self, motor_id: int) -> None:
+        """The motor answered a read of its Present Position (sampled it now)."""
+
     def on_event(self, motor_id: int, kind: str, detail: str) -> None: ...
 
     def on_id_change(self, old: int, new: int) -> None: ...
@@ -169,6 +172,7 @@ class MotorFirmware:
         self._where = {it.reg: (it.address, it.end, it.reg in SIGNED)
                        for it in self.table.items.values() if it.reg is not None}
         self._goal_address = self.table.address(Reg.GOAL_POSITION)
+        self._position_address = self.table.address(Reg.PRESENT_POSITION)
         self._ticks_per_rad = self.spec.ticks_per_rev / (2 * math.pi)
         self.hardware_error = 0
         self.watchdog_error = False
@@ -241,6 +245,10 @@ class MotorFirmware:
     def _joint(self, encoder: float) -> float:
         return self.calibration.to_joint((encoder - self.turn_offset) / self._ticks_per_rad)
 
+    def position_to_joint(self, value: int) -> float:
+        """Joint angle [rad] (true mounting) of a Goal/Present Position register value [ticks]."""
+        return self._joint(value - self.homing)
+
     def _wrap_one_turn(self, q_joint: float) -> None:
         """Re-express the present position within one turn (0..4095), as the firmware does."""
         present = self._encoder(q_joint) + self.homing
@@ -255,6 +263,8 @@ class MotorFirmware:
             return E.ACCESS, b""
         if address < PRESENT_END and end > PRESENT_START:
             self.refresh_present(state)
+            if address <= self._position_address and end >= self._position_address + 4:
+                self.sink.on_sample(self.id)
         return E.NONE, bytes(self.mem[address:end])
 
     def write(self, address: int, data: bytes, state: DriveState) -> int:

@@ -8,6 +8,9 @@ for the D'Claw (Dynamixel) and the Allegro (CAN):
 * every goal passes ``safety``: non-finite goals are rejected with nothing sent; goals are clipped
   to the joint limits and to a per-step motion bound (max_velocity x control period) around the
   present position; ``send`` returns what was actually sent;
+* the bound acts on fresh state only: a goal is computed from the position read since the last
+  goal went out; a joint whose read failed or was corrupt gets no new goal (it holds the one in
+  force), counted in ``metrics.holds`` and flagged in ``telemetry()["held"]``;
 * every read feeds the thermal and current guards (``guards``); critical motors are relaxed at
   once, and ``pause_if_hot`` rests the hand between episodes until it has cooled;
 * ``step`` keeps the control rate on a monotonic clock (``timing.Rate``, overruns counted);
@@ -120,6 +123,7 @@ class RobotMetrics:
       sent: goal writes.
       rejected: commands rejected (non-finite, bad shape).
       limit_clips / motion_clips: joint entries clipped by limits / by the motion bound.
+      holds: joint entries not sent because their position was not read fresh (they hold).
       invalid_reads: motor readings missing or corrupt.
       faults: (time, joint, flags) of every hardware error seen.
       reboots: motor reboots.
@@ -135,6 +139,7 @@ class RobotMetrics:
     rejected: int = 0
     limit_clips: int = 0
     motion_clips: int = 0
+    holds: int = 0
     invalid_reads: int = 0
     faults: list[tuple[float, str, tuple[str, ...]]] = field(default_factory=list)
     reboots: int = 0
@@ -153,7 +158,7 @@ class RobotMetrics:
         """Flat scalars for logging."""
         out: dict[str, float] = {
             k: float(getattr(self, k))
-            for k in ("steps", "sent", "rejected", "limit_clips", "motion_clips",
+            for k in ("steps", "sent", "rejected", "limit_clips", "motion_clips", "holds",
                       "invalid_reads", "reboots", "overloads", "resets", "reset_failures",
                       "reset_attempts", "reset_time", "thermal_relaxations", "overruns",
                       "max_lateness")
@@ -218,6 +223,8 @@ class Robot:
         self.rate = Rate(config.control_period, self.clock)
         self.metrics = RobotMetrics()
         self._present = np.full(len(self.joints), np.nan)
+        self._fresh = np.zeros(len(self.joints), bool)  # read valid since the last goal sent
+        self.held = np.zeros(len(self.joints), bool)  # joints the last send held
         self._misses = np.zeros(len(self.joints), int)
         self._torque = np.zeros(len(self.joints), bool)
         self._reboots: dict[int, int] = {}
@@ -273,6 +280,7 @@ class Robot:
         self._misses = np.where(state.valid, 0, self._misses + 1)
         self.metrics.invalid_reads += int(np.sum(~state.valid))
         self._present = np.where(state.valid, state.position, self._present)
+        self._fresh = state.valid.copy()
         if np.any(self._misses > self.config.max_invalid_reads):
             bad = [self.joint_names[i] for i in np.flatnonzero(
                 self._misses > self.config.max_invalid_reads)]
@@ -342,10 +350,15 @@ class Robot:
     # -- commanding -----------------------------------------------------------------------------
     def send(self, goal: np.ndarray, joints: Sequence[str] | None = None) -> np.ndarray:
         """Send joint goals [rad] for ``joints`` (default the action joints) after the safety
-        gate; returns the goals actually sent (same shape).
+        gate; returns the goals in force afterwards (same shape).
+
+        Each goal is bounded around the position read since the last goal went out (one read
+        is taken here if a joint has none). A joint whose read failed or was corrupt is held:
+        no goal is sent to it, its previous goal stays in force (``held``, ``metrics.holds``).
 
         Raises:
-          UnsafeCommand: non-finite entries or a wrong shape (nothing is sent).
+          UnsafeCommand: non-finite entries, a wrong shape, or a joint never read validly
+            (nothing is sent).
         """
         idx = self.index(joints)
         names = tuple(self.joint_names[i] for i in idx)
@@ -354,14 +367,13 @@ class Robot:
         except UnsafeCommand:
             self.metrics.rejected += 1
             raise
-        present = self._present[idx]
-        if not np.all(np.isfinite(present)):
+        if not np.all(self._fresh[idx]):
             self.read()
-            present = self._present[idx]
-            if not np.all(np.isfinite(present)):
-                self.metrics.rejected += 1
-                missing = [n for n, p in zip(names, present, strict=True) if not np.isfinite(p)]
-                raise UnsafeCommand(f"no valid present position for {missing}; nothing sent")
+        present, fresh = self._present[idx], self._fresh[idx]
+        if not np.all(np.isfinite(present)):
+            self.metrics.rejected += 1
+            missing = [n for n, p in zip(names, present, strict=True) if not np.isfinite(p)]
+            raise UnsafeCommand(f"no valid present position for {missing}; nothing sent")
         max_step = self.max_step[idx].copy()
         relaxed = self.current_guard.relaxed[idx]
         max_step[relaxed] = np.minimum(max_step[relaxed], self.config.current.relaxed_step)
@@ -372,14 +384,23 @@ class Robot:
                                self.config.max_lead * max_step)
         else:
             report = clip_goal(g, self.low[idx], self.high[idx], present, max_step)
-        self.metrics.limit_clips += int(np.sum(report.limit_clipped))
-        self.metrics.motion_clips += int(np.sum(report.motion_clipped))
-        motor = np.array([self.joints[i].calibration.to_motor(q)
-                          for i, q in zip(idx, report.goal, strict=True)])
-        self.bus.write_goal_positions(motor, self._ids(idx))
-        self.metrics.sent += 1
-        self.last_sent[idx] = report.goal
-        return report.goal
+        self.held[:] = False
+        self.held[idx] = ~fresh
+        self.metrics.holds += int(np.sum(~fresh))
+        self.metrics.limit_clips += int(np.sum(report.limit_clipped & fresh))
+        self.metrics.motion_clips += int(np.sum(report.motion_clipped & fresh))
+        if np.any(fresh):
+            out = idx[fresh]
+            motor = np.array([self.joints[i].calibration.to_motor(q)
+                              for i, q in zip(out, report.goal[fresh], strict=True)])
+            self.bus.write_goal_positions(motor, self._ids(out))
+            self.metrics.sent += 1
+            self.last_sent[out] = report.goal[fresh]
+            self._fresh[out] = False
+        if not np.all(fresh):
+            log.debug("held %s: no fresh position read",
+                      ", ".join(n for n, f in zip(names, fresh, strict=True) if not f))
+        return np.where(fresh, report.goal, self.last_sent[idx])
 
     def torque(self, enabled: bool, joints: Sequence[str] | None = None) -> None:
         """Torque on/off for ``joints`` (default: every joint, auxiliary motors included).
@@ -522,6 +543,7 @@ class Robot:
         if s is not None:
             out.update(current=s.current.copy(), temperature=s.temperature.copy(),
                        voltage=s.voltage.copy(), valid=s.valid.copy())
+        out["held"] = self.held.copy()  # joints the last send held (no fresh position)
         out["pause_pending"] = self.thermal.pause_pending
         out["clock"] = self.clock.now()  # robot clock [s]: timestamps of recorded episodes
         return out
