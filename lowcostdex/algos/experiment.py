@@ -42,6 +42,7 @@ import io
 import json
 import math
 import os
+import shutil
 import sys
 import tempfile
 from collections.abc import Iterable, Mapping
@@ -372,6 +373,19 @@ def _config_differences(
     return diffs
 
 
+def _last_checkpoint_iteration(checkpoint_dir: Path) -> int | None:
+    """The iteration of the newest checkpoint file in ``checkpoint_dir`` (None: none)."""
+    its = [_checkpoint_iteration(f) for f in checkpoint_dir.glob("ckpt_*.pt")]
+    its = [i for i in its if i is not None]
+    return max(its) if its else None
+
+
+def _checkpoint_iteration(file: Path) -> int | None:
+    """The iteration in a checkpoint file name ``ckpt_<iteration>.pt`` (None: another name)."""
+    digits = file.stem.removeprefix("ckpt_")
+    return int(digits) if digits.isdigit() else None
+
+
 def _jsonable(config: Mapping[str, Any]) -> dict[str, Any]:
     """Round-trip through JSON so tuples compare equal to the lists read back."""
     return json.loads(json.dumps(dict(config)))
@@ -390,6 +404,71 @@ class Run:
         self.metrics = MetricsLog(path / METRICS_FILE)
         self._tensorboard = tensorboard
         self._tb: Any = None
+        self._created = False
+        self._json_written: set[str] = set()
+
+    @classmethod
+    def check(
+        cls,
+        path: str | os.PathLike[str],
+        config: Mapping[str, Any],
+        *,
+        resume: bool = False,
+        mutable_keys: Iterable[str] = (),
+    ) -> None:
+        """Raise the error :meth:`open` would raise, without writing anything.
+
+        Trainers call it first, then validate their inputs (demonstrations, the env), and
+        only then :meth:`open` the run, so that a start refused for any reason leaves the
+        directory as it was.
+
+        A directory holding ``config.json`` but no checkpoint is a start that never completed
+        a checkpointed iteration (refused late, or killed during its first iterations): it
+        does not block a new start of the same trainer (same config keys), which replaces it.
+
+        Raises:
+          ConfigError: a new run into a directory that already holds one (a checkpoint), or
+            a ``config.json`` that is not a run configuration of this trainer; a resume whose
+            config differs in a key not listed in ``mutable_keys``.
+        """
+        path = Path(path)
+        config = _jsonable(config)
+        if path.exists() and not path.is_dir():
+            raise ConfigError(f"run directory {path} is a file; choose a directory")
+        config_file = path / CONFIG_FILE
+        if not config_file.exists():
+            clash = sorted(n for n in _RUN_NAMES if (path / n).exists())
+            if clash:  # a user's folder (inputs beside a run are fine, e.g. its demos)
+                raise ConfigError(f"{path} is not a training run but holds {', '.join(clash)}, "
+                                  "which a run would overwrite; they are left untouched. "
+                                  "Give an empty or new directory")
+            return
+        try:
+            stored = read_json(config_file)
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{config_file} is not a run configuration ({exc}); choose "
+                              "a new directory") from None
+        if not isinstance(stored, dict):
+            raise ConfigError(f"{config_file} is not a run configuration; choose a new "
+                              "directory")
+        last = _last_checkpoint_iteration(path / CHECKPOINT_DIR)
+        if last is None:  # a start that saved no checkpoint: nothing to resume or keep
+            if set(stored) != set(config):
+                raise ConfigError(f"{config_file} is not a configuration of this trainer; "
+                                  "choose a new directory")
+            return
+        if not resume:
+            raise ConfigError(f"{path} already holds a run (checkpoint after iteration {last}); "
+                              "resume it (--resume) or choose a new directory")
+        mutable = set(mutable_keys)
+        fixed_old = {k: v for k, v in stored.items() if k not in mutable}
+        fixed_new = {k: v for k, v in config.items() if k not in mutable}
+        diffs = _config_differences(fixed_old, fixed_new)
+        if diffs:
+            raise ConfigError(
+                f"cannot resume {path}: configuration differs ({'; '.join(diffs)}); "
+                f"only {sorted(mutable) or 'no keys'} may change"
+            )
 
     @classmethod
     def open(
@@ -415,30 +494,40 @@ class Run:
           tensorboard: also write TensorBoard events when the package is installed.
 
         Raises:
-          ConfigError: a new run into a directory that already holds one, or a resume whose
-            config differs in a key not listed in ``mutable_keys``.
+          ConfigError: see :meth:`check`.
         """
         if keep_last < 1:
             raise ConfigError(f"keep_last={keep_last} must be >= 1")
+        cls.check(path, config, resume=resume, mutable_keys=mutable_keys)
         path = Path(path)
-        config = _jsonable(config)
-        config_file = path / CONFIG_FILE
-        if config_file.exists() and not resume:
-            raise ConfigError(f"{path} already holds a run; resume it or choose a new directory")
-        if resume and config_file.exists():
-            stored = read_json(config_file)
-            mutable = set(mutable_keys)
-            fixed_old = {k: v for k, v in stored.items() if k not in mutable}
-            fixed_new = {k: v for k, v in config.items() if k not in mutable}
-            diffs = _config_differences(fixed_old, fixed_new)
-            if diffs:
-                raise ConfigError(
-                    f"cannot resume {path}: configuration differs ({'; '.join(diffs)}); "
-                    f"only {sorted(mutable) or 'no keys'} may change"
-                )
+        created = not path.exists()
         path.mkdir(parents=True, exist_ok=True)
-        write_json(config_file, config)
-        return cls(path, config, keep_last=keep_last, tensorboard=tensorboard)
+        write_json(path / CONFIG_FILE, _jsonable(config))
+        run = cls(path, _jsonable(config), keep_last=keep_last, tensorboard=tensorboard)
+        run._created = created
+        if not resume:  # rows of a start that saved no checkpoint
+            run.metrics.truncate(None)
+        return run
+
+    def abandon(self) -> bool:
+        """Undo a start that failed before its first checkpoint; True if it did.
+
+        Removes what the run wrote (config, metrics, TensorBoard events, JSON files written
+        with :meth:`write_json`, the best policy) and the directory if :meth:`open` created
+        it and nothing else is in it. A run with a checkpoint is left as it is (resumable).
+        """
+        if _last_checkpoint_iteration(self.checkpoint_dir) is not None:
+            return False
+        self.close()
+        names = {CONFIG_FILE, METRICS_FILE, BEST_POLICY_FILE, CURVES_FILE, *self._json_written}
+        for name in names:
+            (self.path / name).unlink(missing_ok=True)
+        for folder in (self.path / "tb", self.checkpoint_dir):
+            if folder.is_dir():
+                shutil.rmtree(folder)
+        if self._created and self.path.is_dir() and not any(self.path.iterdir()):
+            self.path.rmdir()
+        return True
 
     # -- metrics -------------------------------------------------------------------------------
     def log(self, row: Mapping[str, Any]) -> None:
@@ -528,6 +617,7 @@ class Run:
         """Atomically write a JSON file (e.g. an evaluation summary) into the run directory."""
         file = self.path / name
         write_json(file, obj)
+        self._json_written.add(name)
         return file
 
     def close(self) -> None:
@@ -554,6 +644,9 @@ FINAL_POLICY_FILE = "final_policy.pt"
 POLICY_FILE = "policy.pt"
 """The run's policy: the best evaluated one (the last one when the run never evaluated)."""
 SUMMARY_FILE = "summary.json"
+_RUN_NAMES = (METRICS_FILE, CURVES_FILE, CHECKPOINT_DIR, "tb", BEST_POLICY_FILE,
+              FINAL_POLICY_FILE, POLICY_FILE, SUMMARY_FILE)
+"""What a run writes besides its config (and its trainer's own JSON files)."""
 
 
 def evaluation_score(metrics: Mapping[str, float]) -> tuple[float, float]:

@@ -42,7 +42,7 @@ from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.configs import PPOConfig
 from lowcostdex.algos.policy import GaussianMLPPolicy, ObsNormalizer, gaussian_log_prob
 from lowcostdex.algos.returns import gae
-from lowcostdex.algos.train import seed_generator
+from lowcostdex.algos.train import check_env_id, seed_generator
 
 __all__ = ["PPOConfig", "Critic", "RewardScaler", "make_actor", "ppo_losses", "train"]
 
@@ -314,13 +314,18 @@ def train(config: PPOConfig, out_dir: str | Path, resume: bool = False,
     from lowcostdex.sim.vector import make_vec
 
     c = config
-    run = ex.Run.open(out_dir, dataclasses.asdict(c), resume=resume,
-                      mutable_keys=MUTABLE_ON_RESUME)
+    ex.Run.check(out_dir, dataclasses.asdict(c), resume=resume, mutable_keys=MUTABLE_ON_RESUME)
+    check_env_id(c.env_id)
+    run: ex.Run | None = None
+    env = eval_env = None
     threads = torch.get_num_threads()
-    torch.set_num_threads(c.torch_threads)
-    env = make_vec(c.env_id, c.num_envs, nthread=c.nthread, **dict(c.env_kwargs))
-    eval_env = make_vec(c.env_id, c.eval_episodes, nthread=c.nthread, **dict(c.env_kwargs))
     try:
+        # everything is validated before the run directory is written
+        env = make_vec(c.env_id, c.num_envs, nthread=c.nthread, **dict(c.env_kwargs))
+        eval_env = make_vec(c.env_id, c.eval_episodes, nthread=c.nthread, **dict(c.env_kwargs))
+        run = ex.Run.open(out_dir, dataclasses.asdict(c), resume=resume,
+                          mutable_keys=MUTABLE_ON_RESUME)
+        torch.set_num_threads(c.torch_threads)
         agent = _Agent(c, env.single_observation_space.shape[0],
                        env.single_action_space.shape[0])
         best = ex.BestPolicy(run)
@@ -366,9 +371,15 @@ def train(config: PPOConfig, out_dir: str | Path, resume: bool = False,
         best.finish({"policy": agent.actor.to_checkpoint()})
         run.write_json(ex.SUMMARY_FILE, ex.run_summary(run.read_metrics(), best.record,
                                                        wall_seconds=agent.wall_seconds))
+    except BaseException:
+        if run is not None and not resume:
+            run.abandon()  # a start that saved no checkpoint leaves nothing behind
+        raise
     finally:
         torch.set_num_threads(threads)
-        env.close()
-        eval_env.close()
-        run.close()
+        for e in (env, eval_env):
+            if e is not None:
+                e.close()
+        if run is not None:
+            run.close()
     return run

@@ -312,22 +312,31 @@ def train(
         returns True that iteration becomes the last one (evaluated, checkpointed), e.g. to
         stop a benchmark run some iterations after it reached a success rate.
     """
-    run = ex.Run.open(
-        out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
-    )
-    env_factory = env_factory or default_env_factory(config)
+    ex.Run.check(out_dir, dataclasses.asdict(config), resume=resume,
+                 mutable_keys=MUTABLE_ON_RESUME)
+    if env_factory is None:
+        check_env_id(config.env_id)
+        env_factory = default_env_factory(config)
     demos = load_demos(config.demos).first(config.n_demos) if config.uses_demos else None
-    probe = SerialSampler(env_factory) if config.sampler != "serial" else None
-    sampler = make_sampler(config, env_factory)
+    run: ex.Run | None = None
+    probe: SerialSampler | None = None
+    sampler: Sampler | None = None
     threads = torch.get_num_threads()
-    torch.set_num_threads(config.torch_threads)
     try:
+        # everything is validated before the run directory is written
+        probe = SerialSampler(env_factory) if config.sampler != "serial" else None
+        sampler = make_sampler(config, env_factory)
         env = probe.env if probe is not None else sampler.env  # type: ignore[attr-defined]
+        run = ex.Run.open(
+            out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
+        )
+        torch.set_num_threads(config.torch_threads)
         ckpt = run.load_latest() if resume else None
         state, bc = _init_state(config, env, demos if ckpt is None else None)
         state.best = ex.BestPolicy(run)
         if probe is not None:
             probe.close()
+            probe = None
         if bc is not None:
             if config.eval_bc:  # the clone alone, before any RL sample
                 paths, metrics = _evaluate(config, sampler, state, BC_EVAL_STREAM, 0)
@@ -338,11 +347,30 @@ def train(
             _restore(state, ckpt)
             start = ckpt.iteration + 1
         _loop(config, run, sampler, state, demos, start, stop_after, until)
+    except BaseException:
+        if run is not None and not resume:
+            run.abandon()  # a start that saved no checkpoint leaves nothing behind
+        raise
     finally:
         torch.set_num_threads(threads)
-        sampler.close()
-        run.close()
+        for s in (probe, sampler):
+            if s is not None:
+                s.close()
+        if run is not None:
+            run.close()
     return run
+
+
+def check_env_id(env_id: str) -> None:
+    """Raise ConfigError unless ``env_id`` is a registered gymnasium id (after importing
+    :mod:`lowcostdex.sim`, which registers the ``lowcostdex/...`` ids); lists those."""
+    import gymnasium as gym
+
+    import lowcostdex.sim  # noqa: F401  (registers the lowcostdex/... ids)
+
+    if env_id not in gym.registry:
+        ours = ", ".join(sorted(k for k in gym.registry if k.startswith("lowcostdex/")))
+        raise ConfigError(f"unknown env {env_id!r}; lowcostdex envs: {ours}")
 
 
 def _loop(

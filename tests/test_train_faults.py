@@ -1,0 +1,151 @@
+"""``lowcostdex train`` under bad input and faults: the real CLI entry, what goes in, what must
+come out (exit code, one line naming the file/field, no traceback, nothing of the user's gone,
+nothing left behind that blocks the next start).
+
+The runs are tiny (the point mass of tests/pointmass.py, 1-2 iterations of a few episodes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+from pointmass import demo_info, expert_action, make_pointmass
+
+from lowcostdex.algos import experiment as ex
+from lowcostdex.algos.demos import save_demos, teacher_episodes
+from lowcostdex.algos.train import TrainConfig, train
+from lowcostdex.cli import main
+
+ENV = "lowcostdex_test/PointMass-v0"
+USER_ERROR = 1
+"""Exit code of a refused command (lowcostdex.cli prints LowcostdexError without a traceback)."""
+TINY = ["--n-iter", "2", "--n-traj", "2", "--eval-every", "1", "--eval-episodes", "1",
+        "--hidden", "8", "--bc-epochs", "2", "--no-progress"]
+
+
+@pytest.fixture(autouse=True)
+def _pointmass_registered():
+    if ENV not in gym.registry:
+        gym.register(ENV, entry_point="pointmass:PointMass", max_episode_steps=30)
+
+
+def _demos(path: Path, n: int = 2) -> Path:
+    episodes = teacher_episodes(make_pointmass(), lambda env, obs: expert_action(obs),
+                                seeds=range(1000, 1000 + n))
+    return save_demos(path, episodes, dataclasses.replace(demo_info(), env_id=ENV))
+
+
+def _train(capsys, algo: str, out: Path, *extra: str) -> tuple[int, str, str]:
+    code = main(["train", algo, "--env", ENV, "--out", str(out), *TINY, *extra])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def _assert_refused(code: int, err: str, *needles: str) -> None:
+    """Refused as a user error: the exit code, one line naming ``needles``, no traceback."""
+    assert code == USER_ERROR, err
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+def _tree(path: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*"))
+            if p.is_file()}
+
+
+# ----------------------------------------------------------------------------------------------
+# 1. A failed start leaves nothing that blocks the next one
+
+
+def test_a_missing_demo_file_writes_nothing_and_the_next_start_runs(tmp_path, capsys):
+    out, missing = tmp_path / "run", tmp_path / "missing.h5"
+    code, _, err = _train(capsys, "dapg", out, "--demos", str(missing))
+    _assert_refused(code, err, str(missing), "does not exist")
+    assert not out.exists()
+    code, stdout, err = _train(capsys, "dapg", out, "--demos", str(_demos(tmp_path / "d.h5")))
+    assert code == 0, err
+    assert "final eval success rate" in stdout
+    assert ex.read_metrics(out / ex.METRICS_FILE)["iteration"].tolist() == [0, 1]
+
+
+def test_a_refused_start_in_an_existing_empty_folder_leaves_it_empty(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    code, _, err = _train(capsys, "npg", out, "--bc-init", "--demos", str(tmp_path / "no.h5"))
+    _assert_refused(code, err, "no.h5")
+    assert out.is_dir() and not any(out.iterdir())
+
+
+def test_an_unknown_env_is_refused_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = main(["train", "npg", "--env", "lowcostdex/NoSuchTask-v0", "--out", str(out), *TINY])
+    _assert_refused(code, capsys.readouterr().err, "'lowcostdex/NoSuchTask-v0'",
+                    "lowcostdex/DClawTurnValve-v0")
+    assert not out.exists()
+
+
+def test_a_start_killed_before_its_first_checkpoint_does_not_block(tmp_path, capsys):
+    """What a kill (or a power cut) during the first iteration leaves: the config, perhaps some
+    metric rows, no checkpoint. The next start replaces it; its rows are not kept."""
+    out = tmp_path / "run"
+    cfg = TrainConfig(env_id=ENV, n_iter=5, checkpoint_every=5, progress=False)
+    run = ex.Run.open(out, dataclasses.asdict(cfg))
+    run.log({ex.ITERATION: 0, ex.SAMPLES: 1})
+    run.close()
+    code, _, err = _train(capsys, "npg", out)
+    assert code == 0, err
+    assert ex.read_metrics(out / ex.METRICS_FILE)[ex.SAMPLES].tolist() == [60, 120]
+    assert ex.read_json(out / ex.CONFIG_FILE)["n_iter"] == 2
+
+
+def test_a_start_failing_during_its_first_iteration_removes_what_it_wrote(tmp_path):
+    out = tmp_path / "run"
+
+    def breaks_on_step():
+        env = make_pointmass()
+        env.step = lambda action: (_ for _ in ()).throw(RuntimeError("robot unplugged"))
+        return env
+
+    cfg = TrainConfig(env_id=ENV, n_iter=2, n_traj=2, progress=False)
+    with pytest.raises(RuntimeError, match="unplugged"):
+        train(cfg, out, env_factory=breaks_on_step)
+    assert not out.exists()
+    train(cfg, out, env_factory=make_pointmass)  # the next start runs
+    assert (out / ex.POLICY_FILE).exists()
+
+
+def test_a_run_with_a_checkpoint_is_kept_and_named(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert _train(capsys, "npg", out)[0] == 0
+    before = _tree(out)
+    code, _, err = _train(capsys, "npg", out)
+    _assert_refused(code, err, str(out), "iteration 1", "--resume")
+    assert _tree(out) == before
+
+
+@pytest.mark.parametrize("content", [{"config.json": "{\"mine\": 1}"},
+                                     {"notes.txt": "my notes", "metrics.csv": "a,b\n1,2\n"}])
+def test_a_users_folder_is_refused_untouched(tmp_path, capsys, content):
+    out = tmp_path / "mine"
+    out.mkdir()
+    for name, text in content.items():
+        (out / name).write_text(text)
+    before = _tree(out)
+    code, _, err = _train(capsys, "npg", out)
+    _assert_refused(code, err, str(out))
+    assert _tree(out) == before
+
+
+def test_a_folder_holding_only_inputs_receives_the_run_beside_them(tmp_path, capsys):
+    out = tmp_path / "run"
+    demos = _demos(out / "demos.h5")
+    data = demos.read_bytes()
+    code, _, err = _train(capsys, "dapg", out, "--demos", str(demos))
+    assert code == 0, err
+    assert demos.read_bytes() == data and (out / ex.POLICY_FILE).exists()
