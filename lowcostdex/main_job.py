@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+
 @dataclass(frozen=True)
 class TaskSetup:
     """What differs between the main job's tasks.
@@ -720,11 +721,9 @@ def _pyplot() -> Any:
 
 def _progress() -> Any:
     """A transient progress display (one bar per task, named by its description)."""
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from lowcostdex.progress import tasks
 
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), console=Console(stderr=True), transient=True)
+    return tasks()
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

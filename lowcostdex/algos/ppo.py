@@ -309,8 +309,7 @@ def train(config: PPOConfig, out_dir: str | Path, resume: bool = False,
       stop_after: stop after this iteration as if killed (tests of resume).
       until: called with each iteration's metrics; True makes it the last iteration.
     """
-    from tqdm.auto import tqdm
-
+    from lowcostdex.progress import bar as progress_bar
     from lowcostdex.sim.vector import make_vec
 
     c = config
@@ -335,8 +334,8 @@ def train(config: PPOConfig, out_dir: str | Path, resume: bool = False,
         if ckpt is not None:
             agent.load(ckpt.state, best)
             start = ckpt.iteration + 1
-        bar = tqdm(total=c.n_iter, initial=start, disable=not c.progress,
-                   desc=f"ppo {c.env_id}", unit="it", dynamic_ncols=True)
+        bar = progress_bar(total=c.n_iter, initial=start, disable=not c.progress,
+                           desc=f"ppo {c.env_id}", unit="it")
         for k in range(start, c.n_iter):
             t0 = time.perf_counter()
             roll = agent.rollout(env, k)

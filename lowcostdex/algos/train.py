@@ -282,12 +282,10 @@ def _update(
 
 
 def _progress(config: TrainConfig, start: int) -> Any:
-    from tqdm.auto import tqdm
+    from lowcostdex.progress import bar
 
-    return tqdm(
-        total=config.n_iter, initial=start, disable=not config.progress, desc=f"{config.algo} {config.env_id}",
-        unit="it", dynamic_ncols=True,
-    )  # fmt: skip
+    return bar(total=config.n_iter, initial=start, disable=not config.progress,
+               desc=f"{config.algo} {config.env_id}", unit="it")
 
 
 def train(

@@ -120,7 +120,6 @@ def _hand(spec_path: str | None):
 def _reset_test(args: argparse.Namespace) -> int:
     import numpy as np
     from rich.console import Console
-    from rich.progress import Progress
     from rich.table import Table
 
     from lowcostdex.errors import ConfigError
@@ -128,6 +127,7 @@ def _reset_test(args: argparse.Namespace) -> int:
     from lowcostdex.hardware.reset import DClawReset, RobelReset
     from lowcostdex.hardware.reset_test import reset_trials
     from lowcostdex.hardware.robot import Robot
+    from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
     from lowcostdex.sim.models.dclaw import build_dclaw
 
@@ -146,7 +146,7 @@ def _reset_test(args: argparse.Namespace) -> int:
         port = args.port
     robot = Robot(hand, make_dynamixel_bus(hand, port, model, baudrate=args.baud))
     console = Console(stderr=True)
-    with robot, Progress(console=console) as progress:
+    with robot, progress_tasks(transient=False, console=console) as progress:
         task = progress.add_task("reset trials", total=args.trials)
         procedure = (DClawReset if args.procedure == "lowcostdex" else RobelReset)(robot)
         stats = reset_trials(robot, procedure, RESET_POSE, args.trials,
@@ -179,7 +179,6 @@ def _record_demos(args: argparse.Namespace) -> int:
     import gymnasium as gym
     import numpy as np
     from rich.console import Console
-    from rich.progress import Progress
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.demos import (
@@ -188,6 +187,7 @@ def _record_demos(args: argparse.Namespace) -> int:
         identify_servo_response,
         virtual_teacher_config,
     )
+    from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim import scripted
     from lowcostdex.sim.registry import register_envs
     from lowcostdex.sim.scripted import AllegroTeacherConfig
@@ -226,7 +226,7 @@ def _record_demos(args: argparse.Namespace) -> int:
                                  config=virtual_teacher_config(solver_obj))
     robot = env.unwrapped.backend.robot
     try:
-        with Progress(console=console) as progress:
+        with progress_tasks(transient=False, console=console) as progress:
             bar = progress.add_task(f"{args.task} demos", total=args.episodes)
 
             def done(k: int, ep) -> None:
@@ -274,11 +274,11 @@ def _record_demos(args: argparse.Namespace) -> int:
 def _record_log(args: argparse.Namespace) -> int:
     import numpy as np
     from rich.console import Console
-    from rich.progress import Progress
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.backend import default_effects
     from lowcostdex.hardware.trace import dclaw_identification_logs
+    from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim.effects import AppliedEffect
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
@@ -293,7 +293,7 @@ def _record_log(args: argparse.Namespace) -> int:
                    if args.effects else default_effects(hand.joint_names))
     steps = int(round(args.seconds * args.rate))
     console = Console(stderr=True)
-    with Progress(console=console) as progress:
+    with progress_tasks(transient=False, console=console) as progress:
         bar = progress.add_task("identification logs", total=args.logs * steps)
         paths = dclaw_identification_logs(
             hand, joints, args.out, args.logs, args.seconds, np.random.default_rng(args.seed),

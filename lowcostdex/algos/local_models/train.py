@@ -646,12 +646,10 @@ def default_env_factory(config: TVLGTrainConfig) -> Callable[[], gym.Env]:
 
 
 def _progress(config: TVLGTrainConfig, start: int) -> Any:
-    from tqdm.auto import tqdm
+    from lowcostdex.progress import bar
 
-    return tqdm(
-        total=config.n_iter, initial=start, disable=not config.progress,
-        desc=f"tvlg {config.env_id}", unit="it", dynamic_ncols=True,
-    )  # fmt: skip
+    return bar(total=config.n_iter, initial=start, disable=not config.progress,
+               desc=f"tvlg {config.env_id}", unit="it")
 
 
 def _numpy(tree: Mapping[str, Any]) -> dict[str, Any]:

@@ -56,12 +56,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 @contextmanager
 def analysis_progress(console: Any) -> Iterator[Callable[[str, float], None]]:
     """A transient progress bar for ``analyze``; yields its ``progress(stage, fraction)``."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from lowcostdex.progress import tasks
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as bar:
-        task = bar.add_task("gap analysis", total=1.0)
-        yield lambda stage, frac: bar.update(task, completed=frac,
+    with tasks(console=console) as bar:
+        task = bar.add_task("gap analysis", total=100)
+        yield lambda stage, frac: bar.update(task, completed=round(100 * frac),
                                              description=f"gap analysis: {stage}")
 
 

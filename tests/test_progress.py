@@ -1,0 +1,80 @@
+"""Progress lines when the output is not a terminal (issue 13, item 4)."""
+
+from __future__ import annotations
+
+import io
+
+from lowcostdex.progress import LineBar, LineProgress, bar, duration, line, tasks
+
+
+class Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_duration_words():
+    assert duration(4.4) == "4 s"
+    assert duration(75.2) == "1 min 15 s"
+    assert duration(3725) == "1 h 02 min"
+
+
+def test_line_reports_elapsed_and_time_left_from_the_sessions_rate():
+    # 10 of 40 done in 20 s -> 2 s each -> 30 left take 60 s
+    text = line("npg", 10, 40, 20.0, "it")
+    assert "10/40 it (25 %)" in text and "20 s elapsed" in text and "about 1 min 00 s left" in text
+    # resumed at 30: 5 done this session in 10 s -> 2 s each; 5 left -> 10 s
+    assert "about 10 s left" in line("npg", 35, 40, 10.0, "it", start=30)
+    assert line("npg", 40, 40, 80.0).endswith("done")
+    assert "left" not in line("npg", 0, 40, 3.0)
+
+
+def test_line_bar_prints_at_start_every_interval_and_at_the_end():
+    out, clock = io.StringIO(), Clock()
+    b = LineBar(total=100, desc="dapg", unit="it", file=out, every=10.0, clock=clock)
+    for _ in range(100):
+        clock.t += 0.5           # 50 s in all -> a line at 10, 20, 30, 40, 50 s
+        b.update(1)
+        b.set_postfix(success="0.50")
+    b.close()
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("[progress] dapg: 0/100 it (0 %)")
+    assert len(lines) == 1 + 5 + 1, lines
+    assert "20/100 it (20 %), 10 s elapsed, about 40 s left; success=0.50" in lines[1]
+    assert lines[-1].endswith("done; success=0.50")
+
+
+def test_disabled_bar_is_silent():
+    out = io.StringIO()
+    b = LineBar(total=3, file=out, disable=True, clock=Clock())
+    b.update(3)
+    b.close()
+    assert out.getvalue() == ""
+
+
+def test_line_progress_is_a_rich_like_display():
+    out, clock = io.StringIO(), Clock()
+    with LineProgress(file=out, every=10.0, clock=clock) as p:
+        a = p.add_task("demos", total=4)
+        for _ in range(4):
+            clock.t += 6.0
+            p.advance(a)
+        g = p.add_task("gap analysis", total=1.0)
+        p.update(g, completed=0.5, description="gap analysis: fit")
+    text = out.getvalue()
+    assert "[progress] demos: 0/4 (0 %)" in text
+    assert "demos: 2/4 (50 %), 12 s elapsed, about 12 s left" in text
+    assert "demos: 4/4 (100 %), 24 s elapsed, done" in text
+    assert "gap analysis: fit: 0.5/1 (50 %)" in text
+
+
+def test_not_a_terminal_gets_lines(monkeypatch):
+    out = io.StringIO()   # StringIO.isatty() is False, like CI or nohup
+    b = bar(total=2, desc="x", file=out)
+    assert isinstance(b, LineBar)
+    b.close()
+    assert "[progress] x: 0/2" in out.getvalue()
+    monkeypatch.setattr("sys.stderr", io.StringIO())
+    assert isinstance(tasks(), LineProgress)
