@@ -3,6 +3,11 @@
 Each module in ``COMMAND_MODULES`` exposes ``add_commands(subparsers)``; it adds its
 subcommands and sets ``func`` (called with the parsed namespace, returning an exit code).
 Modules import heavy dependencies inside their handlers so ``lowcostdex --help`` is fast.
+
+One error path: a user's mistake (a ``LowcostdexError``, a file that cannot be opened, a bad
+argument) prints ONE line ``lowcostdex CMD: error: ...`` and exits with code 2, without a
+traceback (``--debug``, anywhere on the line, shows it); Ctrl-C prints one line and exits with
+130; any other exception is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import traceback
 from collections.abc import Sequence
 
 COMMAND_MODULES: tuple[str, ...] = (
@@ -20,10 +26,26 @@ COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.hardware.cli",
     "lowcostdex.hardware.robot_cli",
 )
+USER_ERROR = 2
+"""Exit code of a user's mistake (argparse's code for bad arguments)."""
+INTERRUPTED = 130
+"""Exit code after Ctrl-C (128 + SIGINT, as shells report it)."""
+
+
+class Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line, and whose every (sub)command takes ``--debug``."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                          help="show the traceback of an error")
+
+    def error(self, message: str):
+        self.exit(USER_ERROR, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="lowcostdex",
         description="Learn dexterous skills on low-cost robot hands (D'Claw, Allegro).",
     )
@@ -33,19 +55,46 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def command_prog(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str:
+    """The full name of the command ``args`` runs, e.g. ``"lowcostdex gap analyze"``."""
+    while True:
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        name = getattr(args, subs[0].dest, None) if subs else None
+        if name is None or name not in subs[0].choices:
+            return parser.prog
+        parser = subs[0].choices[name]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if getattr(args, "func", None) is None:
-        parser.print_help()
-        return 2
     from lowcostdex.errors import LowcostdexError
 
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a bad argument (2, its line already printed)
+        return exc.code if isinstance(exc.code, int) else USER_ERROR
+    if getattr(args, "func", None) is None:
+        parser.print_help()
+        return USER_ERROR
+    prog = command_prog(parser, args)
+    debug = getattr(args, "debug", False)
     try:
         return int(args.func(args) or 0)
     except LowcostdexError as exc:
-        print(f"lowcostdex {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return _report(prog, str(exc), debug, USER_ERROR)
+    except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
+        if exc.filename is None:  # not about a path the user gave: a bug
+            raise
+        return _report(prog, f"cannot open {exc.filename}: {exc.strerror}", debug, USER_ERROR)
+    except KeyboardInterrupt:
+        return _report(prog, "interrupted (Ctrl-C)", debug, INTERRUPTED)
+
+
+def _report(prog: str, message: str, debug: bool, code: int) -> int:
+    if debug:
+        traceback.print_exc()
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return code
 
 
 if __name__ == "__main__":

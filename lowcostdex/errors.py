@@ -1,4 +1,8 @@
-"""Exception hierarchy. Every error a user can trigger derives from LowcostdexError."""
+"""Exception hierarchy. Every error a user can trigger derives from LowcostdexError.
+
+The ``lowcostdex`` command prints a LowcostdexError as one line (``lowcostdex CMD: error: ...``)
+and exits with code 2; any other exception is a bug and keeps its traceback.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +15,11 @@ class LowcostdexError(Exception):
 
 class ConfigError(LowcostdexError, ValueError):
     """A configuration value is invalid; the message names the valid choices or bounds."""
+
+
+class InputError(ConfigError):
+    """A user's file or value is unusable: the message names the file (or option), the field and
+    the value, in one line. The CLI prints it without a traceback and exits with code 2."""
 
 
 class PhysicsError(LowcostdexError, RuntimeError):

@@ -77,9 +77,9 @@ def test_bad_logs_exit_non_zero_with_a_clear_message_and_write_nothing(demo, tmp
     out = tmp_path / "out"
     code = main(["gap", "analyze", "--model", str(demo / "data" / "model.xml"), "--log",
                  str(bad), "--out", str(out)])
-    assert code == 1
+    assert code == 2
     err = capsys.readouterr().err
-    assert "lowcostdex gap: error:" in err and message in err
+    assert "lowcostdex gap analyze: error:" in err and message in err
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv"]
 
@@ -88,10 +88,10 @@ def test_missing_model_and_files_are_named(tmp_path, capsys):
     p = tmp_path / "x.csv"
     np.savetxt(p, np.zeros((30, 3)), delimiter=",", header="time,goal:arm,qpos:arm",
                comments="")
-    assert main(["gap", "analyze", "--log", str(p), "--out", str(tmp_path / "o")]) == 1
+    assert main(["gap", "analyze", "--log", str(p), "--out", str(tmp_path / "o")]) == 2
     assert "need --model" in capsys.readouterr().err
     assert main(["gap", "analyze", "--model", str(tmp_path / "none.xml"), "--log", str(p),
-                 "--out", str(tmp_path / "o")]) == 1
+                 "--out", str(tmp_path / "o")]) == 2
     assert "no such model file" in capsys.readouterr().err
 
 

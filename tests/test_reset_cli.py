@@ -43,5 +43,5 @@ def test_record_demos_with_the_virtual_teacher(tmp_path):
 
 
 def test_bad_arguments_are_errors_not_hangs(tmp_path, capsys):
-    assert main(["reset-test", "--trials", "0"]) == 1
+    assert main(["reset-test", "--trials", "0"]) == 2
     assert "--trials must be >= 1" in capsys.readouterr().err

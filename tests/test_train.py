@@ -206,7 +206,7 @@ def test_cli_trains_a_registered_env(tmp_path, capsys):
     assert "final eval success rate" in capsys.readouterr().out
     assert ex.read_json(tmp_path / "run" / "config.json")["policy"]["hidden_sizes"] == [8]
     # a resume may extend the budget but not change the method
-    assert main([*args, "--resume", "--step-size", "0.3"]) == 1
+    assert main([*args, "--resume", "--step-size", "0.3"]) == 2
     assert "configuration differs" in capsys.readouterr().err
     args[args.index("--n-iter") + 1] = "3"
     assert main([*args, "--resume"]) == 0
