@@ -17,11 +17,9 @@ from pointmass import demo_info, expert_action, make_pointmass
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.demos import save_demos, teacher_episodes
 from lowcostdex.algos.train import TrainConfig, train
-from lowcostdex.cli import main
+from lowcostdex.cli import USER_ERROR, main  # USER_ERROR: exit 2, one line, no traceback
 
 ENV = "lowcostdex_test/PointMass-v0"
-USER_ERROR = 1
-"""Exit code of a refused command (lowcostdex.cli prints LowcostdexError without a traceback)."""
 TINY = ["--n-iter", "2", "--n-traj", "2", "--eval-every", "1", "--eval-episodes", "1",
         "--hidden", "8", "--bc-epochs", "2", "--no-progress"]
 
