@@ -10,7 +10,13 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from pathlib import Path
+
+from lowcostdex.errors import InputError
+
+SERIAL_PATTERNS = ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/tty.usbserial*", "/dev/tty.usbmodem*")
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -56,16 +62,69 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def parse_ids(text: str) -> list[int]:
-    """"10-12,50" -> [10, 11, 12, 50]."""
+    """"10-12,50" -> [10, 11, 12, 50]; InputError naming the part that is not an id (0-252)."""
     out: list[int] = []
     for part in text.split(","):
         part = part.strip()
-        if "-" in part:
-            a, b = part.split("-")
-            out += range(int(a), int(b) + 1)
-        elif part:
-            out.append(int(part))
+        try:
+            if "-" in part:
+                a, b = (int(x) for x in part.split("-"))
+                ids = list(range(a, b + 1))
+                if not ids:
+                    raise ValueError
+            else:
+                ids = [int(part)] if part else []
+        except ValueError:
+            raise InputError(f"--ids {text!r}: {part!r} is not an id or a range like 10-12"
+                             ) from None
+        bad = [i for i in ids if not 0 <= i <= 252]
+        if bad:
+            raise InputError(f"--ids {text!r}: Dynamixel ids are 0-252, got {bad[0]}")
+        out += ids
     return out
+
+
+def check_port(port: str) -> None:
+    """Refuse a serial device path that is not there or not usable, saying what to do.
+
+    ``emulated`` and names that are not paths (Windows ``COM3``) pass; the bus reports those.
+    """
+    if port == "emulated" or os.name != "posix" or not port.startswith("/"):
+        return
+    path = Path(port)
+    if not path.exists():
+        import glob
+
+        found = sorted(p for pattern in SERIAL_PATTERNS for p in glob.glob(pattern))
+        seen = (f"serial devices present: {', '.join(found)}" if found
+                else "no USB serial device is present")
+        raise InputError(f"--port {port}: no such device ({seen}); plug in the USB adapter "
+                         "(U2D2), check its power, or use --port emulated")
+    if path.is_dir():
+        raise InputError(f"--port {port} is a folder, not a serial device")
+    if not os.access(path, os.R_OK | os.W_OK):
+        raise InputError(f"--port {port}: permission denied; add yourself to the 'dialout' "
+                         "group (sudo usermod -aG dialout $USER, then log in again)")
+
+
+def check_baud(baud: int) -> None:
+    if baud <= 0:
+        raise InputError(f"--baud {baud}: the bit rate must be positive (Dynamixel default "
+                         "1000000, factory 57600)")
+
+
+def load_spec(path: str):
+    """``HandSpec.load`` with a one-line InputError for a file that is not a hand spec."""
+    from lowcostdex.errors import LowcostdexError
+    from lowcostdex.hardware.hands import HandSpec
+
+    try:
+        return HandSpec.load(path)
+    except (LowcostdexError, OSError):
+        raise
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise InputError(f"--spec {path}: not a hand spec JSON ({type(exc).__name__}: {exc})"
+                         ) from None
 
 
 def _emulated_chain(hand: str, clock: str = "virtual", **kwargs):
@@ -77,8 +136,10 @@ def _emulated_chain(hand: str, clock: str = "virtual", **kwargs):
 
 
 def _port(args: argparse.Namespace):
+    check_baud(args.baud)
     if args.port == "emulated":
         return _emulated_chain(args.hand, baudrate=args.baud).port()
+    check_port(args.port)
     return args.port
 
 
@@ -86,7 +147,10 @@ def _scan(args: argparse.Namespace) -> int:
     from lowcostdex.hardware.dynamixel import scan
 
     ids = parse_ids(args.ids) if args.ids else None
-    found = scan(_port(args), args.baud, ids)
+    try:
+        found = scan(_port(args), args.baud, ids)
+    except OSError as exc:  # pyserial: a path that is not a serial port, a device gone
+        raise InputError(f"--port {args.port}: cannot open it as a serial port ({exc})") from None
     if not found:
         print(f"no motors answered on {args.port} at {args.baud} bps")
         return 1
@@ -155,7 +219,18 @@ def _calibrate(args: argparse.Namespace) -> int:
     from lowcostdex.hardware.dynamixel import DynamixelBus
     from lowcostdex.hardware.hands import HandSpec, hand_spec
 
-    hand = HandSpec.load(args.spec) if args.spec else hand_spec(args.hand)
+    if args.samples < 1:
+        raise InputError(f"--samples {args.samples}: at least 1 read per joint is needed")
+    out = Path(args.out)
+    if out.is_dir() or not out.parent.is_dir():
+        raise InputError(f"--out {out}: give a JSON file path in an existing folder")
+    if out.exists():
+        try:
+            HandSpec.load(out)
+        except Exception:  # not a hand spec: the user's file, not ours to replace
+            raise InputError(f"--out {out} exists and is not a hand spec; it is left untouched "
+                             "(give a new file name)") from None
+    hand = load_spec(args.spec) if args.spec else hand_spec(args.hand)
     bus = DynamixelBus.from_hand(hand, _port(args), baudrate=args.baud, position_limits=None)
     with bus:
         bus.set_torque(False)
@@ -163,7 +238,9 @@ def _calibrate(args: argparse.Namespace) -> int:
             input(f"Torque is off. Put the {hand.name} in its zero pose (every joint at 0 rad) "
                   "and press Enter... ")
         new = calibrate_offsets(bus, hand, samples=args.samples)
-    new.save(args.out)
+    tmp = out.with_name(f".{out.name}.tmp")
+    new.save(tmp)
+    os.replace(tmp, out)  # a previous spec is replaced whole or not at all
     print(format_report(hand, new))
     print(f"wrote {args.out}")
     return 0

@@ -112,9 +112,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def _hand(spec_path: str | None):
-    from lowcostdex.hardware.hands import HandSpec, dclaw_spec
+    from lowcostdex.hardware.cli import load_spec
+    from lowcostdex.hardware.hands import dclaw_spec
 
-    return HandSpec.load(spec_path) if spec_path else dclaw_spec()
+    return load_spec(spec_path) if spec_path else dclaw_spec()
+
+
+def _check_dynamixel_port(port: str) -> None:
+    from lowcostdex.hardware.cli import check_port
+
+    check_port(port)
 
 
 def _reset_test(args: argparse.Namespace) -> int:
@@ -133,6 +140,7 @@ def _reset_test(args: argparse.Namespace) -> int:
 
     if args.trials < 1:
         raise ConfigError("--trials must be >= 1")
+    _check_dynamixel_port(args.port)
     hand = _hand(args.spec)
     model = build_dclaw("valve", hand).compile()
     if args.port == "emulated":
@@ -202,6 +210,8 @@ def _record_demos(args: argparse.Namespace) -> int:
         args.playbacks = DEFAULT_PLAYBACKS.get(args.task, 2)
     if args.labels != "servo_goal":
         args.playbacks = 0
+    if args.hand == "dclaw":
+        _check_dynamixel_port(args.port)
     register_envs()
     env_id, solver = tasks[args.task]
     console = Console(stderr=True)
@@ -283,6 +293,7 @@ def _record_log(args: argparse.Namespace) -> int:
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
         raise ConfigError("--logs, --seconds and --rate must be positive")
+    _check_dynamixel_port(args.port)
     hand = _hand(args.spec)
     joints = tuple(j.strip() for j in args.joints.split(",") if j.strip())
     for j in joints:
