@@ -171,3 +171,17 @@ def test_run_summary_reports_first_crossing_final_and_best_side_by_side():
     assert s["final"][ex.SUCCESS_RATE] == 0.7 and s["best"][ex.EVAL_SUCCESS_RATE] == 1.0
     assert s["evaluations"] == 3 and s["eval_success_fraction"] == pytest.approx(1 / 3)
     assert ex.run_summary(m, None, target=0.95)["first_train_crossing"] is None
+
+
+def test_checkpoints_after_the_one_resumed_from_are_dropped_not_the_older_ones(tmp_path):
+    """keep_last counts checkpoints of the resumed run: a later (skipped) one of the run before
+    the resume must not push out the good one it resumed from."""
+    run = ex.Run.open(tmp_path, {"x": 1}, keep_last=2, tensorboard=False)
+    for it in (2, 4):
+        run.save_checkpoint(it, {"w": torch.tensor([float(it)])})
+    (run.checkpoint_dir / "ckpt_000004.pt").write_bytes(b"PK\x03\x04 cut")
+    ckpt = run.load_latest(log=None)
+    assert ckpt.iteration == 2
+    run.save_checkpoint(3, {"w": torch.tensor([3.0])})
+    assert sorted(p.name for p in run.checkpoint_dir.glob("*.pt")) == [
+        "ckpt_000002.pt", "ckpt_000003.pt"]

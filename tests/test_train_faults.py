@@ -11,6 +11,7 @@ import dataclasses
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pytest
 from pointmass import demo_info, expert_action, make_pointmass
 
@@ -147,3 +148,71 @@ def test_a_folder_holding_only_inputs_receives_the_run_beside_them(tmp_path, cap
     code, _, err = _train(capsys, "dapg", out, "--demos", str(demos))
     assert code == 0, err
     assert demos.read_bytes() == data and (out / ex.POLICY_FILE).exists()
+
+
+# ----------------------------------------------------------------------------------------------
+# 2. --resume falls back to the newest checkpoint that loads, and says which
+
+
+def _assert_same_metrics(a, b):
+    """Equal columns and values (NaN equals NaN), the timings aside."""
+    keys = [k for k in a if not k.startswith("time_")]
+    assert keys == [k for k in b if not k.startswith("time_")]
+    for key in keys:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def _cut(file: Path) -> None:
+    """What a full disk or a copy stopped half-way leaves: the first half of the file."""
+    data = file.read_bytes()
+    file.write_bytes(data[: len(data) // 2])
+
+
+class _Payload:
+    """An object whose unpickling would create ``marker`` (a malicious checkpoint)."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (str(self.marker), "w"))
+
+
+def test_resume_skips_a_cut_checkpoint_and_equals_the_uninterrupted_run(tmp_path, capsys):
+    out, clean = tmp_path / "run", tmp_path / "clean"
+    assert _train(capsys, "npg", out, "--n-iter", "3")[0] == 0
+    _cut(out / "checkpoints" / "ckpt_000002.pt")
+    code, stdout, err = _train(capsys, "npg", out, "--n-iter", "4", "--resume")
+    assert code == 0, err
+    assert "Traceback" not in err
+    (line,) = [x for x in stdout.splitlines() if x.startswith("resuming")]
+    assert "checkpoints/ckpt_000001.pt (after iteration 1)" in line
+    assert "skipped ckpt_000002.pt (does not load" in line
+    assert _train(capsys, "npg", clean, "--n-iter", "4")[0] == 0
+    resumed, reference = (ex.read_metrics(d / ex.METRICS_FILE) for d in (out, clean))
+    assert resumed["iteration"].tolist() == [0, 1, 2, 3]
+    _assert_same_metrics(resumed, reference)
+
+
+def test_resume_never_unpickles_objects_from_a_checkpoint(tmp_path, capsys):
+    import torch
+
+    out, marker = tmp_path / "run", tmp_path / "pwned"
+    assert _train(capsys, "npg", out)[0] == 0
+    torch.save({"policy": _Payload(marker), "baseline": {}, "counters": {}},
+               out / "checkpoints" / "ckpt_000001.pt")
+    code, stdout, err = _train(capsys, "npg", out, "--n-iter", "3", "--resume")
+    assert code == 0, err
+    assert "ckpt_000000.pt (after iteration 0); skipped ckpt_000001.pt (does not load" in stdout
+    assert not marker.exists()
+
+
+def test_resume_without_a_loadable_checkpoint_is_refused_and_changes_nothing(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert _train(capsys, "npg", out)[0] == 0
+    for file in (out / "checkpoints").glob("ckpt_*.pt"):
+        _cut(file)
+    before = _tree(out)
+    code, _, err = _train(capsys, "npg", out, "--resume")
+    _assert_refused(code, err, str(out), "no checkpoint loads", "ckpt_000000.pt", "ckpt_000001.pt")
+    assert _tree(out) == before

@@ -45,7 +45,7 @@ import os
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -386,6 +386,22 @@ def _checkpoint_iteration(file: Path) -> int | None:
     return int(digits) if digits.isdigit() else None
 
 
+def _try_load(file: Path, required: tuple[str, ...]) -> tuple[dict[str, Any] | None, str]:
+    """(the checkpoint's state, "") or (None, why it cannot be resumed from)."""
+    import pickle
+
+    try:
+        state = load_state(file)
+    except pickle.UnpicklingError:  # what weights_only refuses, or not a torch file at all
+        return None, "does not load with weights_only=True: not a lowcostdex checkpoint"
+    except Exception as exc:  # RuntimeError (zip archive cut or corrupt), EOFError, OSError
+        return None, f"does not load: corrupt or cut short ({type(exc).__name__})"
+    if not isinstance(state, dict):
+        return None, f"holds a {type(state).__name__}, not a checkpoint dict"
+    missing = [k for k in required if k not in state]
+    return (None, f"lacks {', '.join(missing)}") if missing else (state, "")
+
+
 def _jsonable(config: Mapping[str, Any]) -> dict[str, Any]:
     """Round-trip through JSON so tuples compare equal to the lists read back."""
     return json.loads(json.dumps(dict(config)))
@@ -579,29 +595,59 @@ class Run:
         file = self.checkpoint_dir / name
         save_state(file, state)
         write_json(self.checkpoint_dir / LATEST_FILE, {"iteration": int(iteration), "file": name})
-        self._prune()
+        self._prune(iteration)
         return file
 
-    def _prune(self) -> None:
-        files = sorted(self.checkpoint_dir.glob("ckpt_*.pt"))
-        for old in files[: -self.keep_last]:
+    def _prune(self, current: int) -> None:
+        """Keep the ``keep_last`` newest checkpoints up to ``current``; later ones are of a
+        run resumed from an earlier checkpoint (e.g. one skipped because it did not load)."""
+        files = sorted((i, f) for f in self.checkpoint_dir.glob("ckpt_*.pt")
+                       if (i := _checkpoint_iteration(f)) is not None)
+        stale = [f for i, f in files if i > current]
+        kept = [f for i, f in files if i <= current]
+        for old in stale + kept[: -self.keep_last]:
             old.unlink(missing_ok=True)
 
-    def load_latest(self) -> Checkpoint | None:
-        """Load the newest complete checkpoint and drop metric rows logged after it.
+    def load_latest(self, required: Iterable[str] = (),
+                    log: Callable[[str], None] | None = print) -> Checkpoint | None:
+        """Load the newest checkpoint that loads and drop metric rows logged after it.
+
+        Checkpoints are tried newest first; one that does not load with ``weights_only=True``
+        (cut short, corrupt, holding pickled objects) or lacks a ``required`` key is skipped,
+        and the next older one is used.
+
+        Args:
+          required: top-level keys the trainer's state needs.
+          log: called with one line naming the checkpoint used and one per skipped file
+            (None: silent).
 
         Returns:
           The checkpoint, or None when the run has none (metrics are then cleared, so the run
           restarts from iteration 0 with a consistent CSV).
+
+        Raises:
+          ConfigError: checkpoint files exist but none of them loads (nothing is changed).
         """
-        latest = self.checkpoint_dir / LATEST_FILE
-        if not latest.exists():
+        files = sorted(((_checkpoint_iteration(f), f) for f in self.checkpoint_dir.glob("ckpt_*.pt")
+                        if _checkpoint_iteration(f) is not None), reverse=True)
+        if not files:
             self.metrics.truncate(None)
             return None
-        info = read_json(latest)
-        file = self.checkpoint_dir / info["file"]
-        ckpt = Checkpoint(int(info["iteration"]), load_state(file), file)
+        skipped = []
+        for iteration, file in files:
+            state, reason = _try_load(file, tuple(required))
+            if state is not None:
+                ckpt = Checkpoint(int(iteration), state, file)
+                break
+            skipped.append(f"{file.name} ({reason})")
+        else:
+            raise ConfigError(f"cannot resume {self.path}: no checkpoint loads: "
+                              f"{'; '.join(skipped)}")
         self.metrics.truncate(ckpt.iteration)
+        if log is not None:
+            rel = file.relative_to(self.path)
+            log(f"resuming {self.path} from {rel} (after iteration {ckpt.iteration})"
+                + (f"; skipped {', '.join(skipped)}" if skipped else ""))
         return ckpt
 
     # -- outputs -------------------------------------------------------------------------------

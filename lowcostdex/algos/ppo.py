@@ -330,7 +330,8 @@ def train(config: PPOConfig, out_dir: str | Path, resume: bool = False,
         best = ex.BestPolicy(run)
         period = float(env.control_period)
         start = 0
-        ckpt = run.load_latest() if resume else None
+        ckpt = (run.load_latest(required=("actor", "critic", "optimizer", "reward_stats",
+                                          "counters")) if resume else None)
         if ckpt is not None:
             agent.load(ckpt.state, best)
             start = ckpt.iteration + 1

@@ -329,7 +329,7 @@ def train(
             out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
         )
         torch.set_num_threads(config.torch_threads)
-        ckpt = run.load_latest() if resume else None
+        ckpt = run.load_latest(required=("policy", "baseline", "counters")) if resume else None
         state, bc = _init_state(config, env, demos if ckpt is None else None)
         state.best = ex.BestPolicy(run)
         if probe is not None:
