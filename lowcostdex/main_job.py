@@ -60,6 +60,9 @@ class TaskSetup:
 TASKS = {
     "valve": TaskSetup("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher", "valve",
                        "turned the valve", "Valve turning", 2, 1),
+    "valve-random": TaskSetup("lowcostdex/DClawTurnValveRandom-v0", "ValveTurnTeacher",
+                              "valve", "turned the valve to its random target",
+                              "Valve turning (random start and target)", 2, 1),
     "flip": TaskSetup("lowcostdex/DClawFlipBlock-v0", "FlipBlockTeacher", "block",
                       "flipped the block", "Block flipping", 0, 3),
 }
@@ -224,7 +227,6 @@ def stage_demos(ctx: Context) -> dict[str, Any]:
 
     setup = ctx.setup
     path = ctx.out / "demos.h5"
-    path.unlink(missing_ok=True)
     env = gym.make(setup.env_id, **ctx.env_kwargs())
     teacher = None
     if ctx.emulated:
@@ -299,8 +301,6 @@ def stage_train(ctx: Context) -> dict[str, Any]:
                              demos=str(demos) if algo == "dapg" else None,
                              eval_bc=algo == "dapg")
         run_dir = ctx.out / f"train_{algo}"
-        if run_dir.exists():
-            shutil.rmtree(run_dir)
         t0 = time.perf_counter()
         run = train(config, run_dir)
         metrics = run.read_metrics()
@@ -319,6 +319,9 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             "best_samples": float((summary["best"] or {}).get("samples", math.nan)),
             "first_eval_crossing_samples": float(first["samples"]) if first else None,
             "evaluations": summary["evaluations"],
+            "eval_episodes": b.eval_episodes,
+            "eval_successes": _count(summary["final"].get("eval_success_rate"),
+                                     b.eval_episodes),
             "wall_seconds": round(time.perf_counter() - t0, 1),
             "curves": f"{run_dir.name}/learning_curves.png",
             "robot": {k: float(metrics[f"robot_{k}"][-1]) for k in
@@ -329,10 +332,49 @@ def stage_train(ctx: Context) -> dict[str, Any]:
     bc = json.loads((ctx.out / "train_dapg" / "bc.json").read_text())
     out["success_after_bc"] = float(bc["eval_success_rate"])
     out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs", "eval_episodes") if k in bc}
+    out["bc"]["eval_successes"] = _count(bc["eval_success_rate"],
+                                         int(bc.get("eval_episodes", b.eval_episodes)))
+    out["random"] = _random_baseline(ctx, b.eval_episodes)
+    out["demos_finished"] = ctx.results["demos"].get("finished")
     out["plot"] = _plot_training(ctx, out, curves)
     if ctx.task == "flip":
         out["rollout"] = _flip_rollout(ctx)
     return out
+
+
+def _count(rate: float | None, n: int) -> int | None:
+    """Successful episodes from a success fraction of ``n`` episodes (None: not evaluated)."""
+    if rate is None or not math.isfinite(float(rate)):
+        return None
+    return int(round(float(rate) * n))
+
+
+def _random_baseline(ctx: Context, episodes: int) -> dict[str, Any]:
+    """Measure a policy of uniformly random actions on the same robot and task: ``episodes``
+    episodes, success at the final step as in training's evaluation (seeded)."""
+    import gymnasium as gym
+    import numpy as np
+
+    import lowcostdex  # noqa: F401
+
+    rng = np.random.default_rng(ctx.seed + 3_000_000)
+    env = gym.make(ctx.setup.env_id, **ctx.env_kwargs())
+    successes, steps, t0 = 0, 0, time.perf_counter()
+    try:
+        space = env.action_space
+        for k in range(episodes):
+            env.reset(seed=ctx.seed + 3_000_000 + k)
+            done, info = False, {}
+            while not done:
+                action = rng.uniform(space.low, space.high).astype(space.dtype)
+                _, _, term, trunc, info = env.step(action)
+                done, steps = term or trunc, steps + 1
+            successes += bool(info.get("success", False))
+    finally:
+        env.close()
+    return {"eval_episodes": episodes, "eval_successes": successes,
+            "eval_success": successes / episodes if episodes else math.nan, "steps": steps,
+            "wall_seconds": round(time.perf_counter() - t0, 1)}
 
 
 def _flip_rollout(ctx: Context) -> dict[str, Any]:
@@ -377,10 +419,11 @@ def _flip_rollout(ctx: Context) -> dict[str, Any]:
     for ax in axes:
         ax.set_xlabel("time [s]")
         ax.grid(alpha=0.3)
-    axes[1].legend(loc="upper right", fontsize="small")
     fig.suptitle("The flip, rolled out on the emulated D'Claw" if ctx.emulated else
                  "The flip, rolled out on the D'Claw")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
+    fig.legend(*axes[1].get_legend_handles_labels(), loc="lower center", ncol=3,
+               fontsize="small", frameon=False)
     name = "flip_rollout.png"
     fig.savefig(ctx.out / name, dpi=110)
     plt.close(fig)
@@ -437,8 +480,6 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     b = ctx.budget
     gap_dir = ctx.out / "gap"
     logs_dir = gap_dir / "logs"
-    if gap_dir.exists():
-        shutil.rmtree(gap_dir)
     logs_dir.mkdir(parents=True)
     hand = dclaw_spec()
     truth = robot_effects(hand.joint_names) if ctx.emulated else []
@@ -484,12 +525,23 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
 def stage_report(ctx: Context) -> dict[str, Any]:
     """Reset and thermal statistics plot; the report itself is written by ``run``."""
     plt = _pyplot()
+    fig = robot_health_figure(ctx.results)
+    name = "robot_health.png"
+    fig.savefig(ctx.out / name, dpi=110)
+    plt.close(fig)
+    return {"plot": name}
+
+
+def robot_health_figure(results: dict[str, dict[str, Any]]) -> Any:
+    """Auto-resets (attempted, failed) and the hottest motor with the time paused by the thermal
+    guard, per training run (``results["train"][algo]["robot"]``)."""
     import numpy as np
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     names, resets, failures, pause_min, temps = [], [], [], [], []
     for algo in ("dapg", "npg"):
-        r = ctx.results.get("train", {}).get(algo, {}).get("robot", {})
+        r = results.get("train", {}).get(algo, {}).get("robot", {})
         if r:
             names.append(algo.upper())
             resets.append(r.get("resets", np.nan))
@@ -500,24 +552,29 @@ def stage_report(ctx: Context) -> dict[str, Any]:
     axes[0].bar(x - 0.2, resets, 0.4, label="resets")
     axes[0].bar(x + 0.2, failures, 0.4, label="failed resets")
     axes[0].set_xticks(x, names)
+    axes[0].set_xlabel("training run")
+    axes[0].set_ylabel("auto-resets [count]")
     axes[0].set_title("auto-resets during training")
-    axes[0].legend()
-    axes[1].bar(x, temps, 0.5, color="tab:red")
-    axes[1].axhline(65, color="k", ls="--", lw=1, label="thermal pause threshold")
-    axes[1].axhline(80, color="tab:red", ls=":", lw=1, label="firmware shutdown")
+    axes[1].bar(x, temps, 0.5, color="tab:red", label="hottest motor")
+    axes[1].axhline(65, color="k", ls="--", lw=1, label="thermal pause threshold (65 C)")
+    axes[1].axhline(80, color="tab:red", ls=":", lw=1, label="firmware shutdown (80 C)")
     for i, p in enumerate(pause_min):
         axes[1].annotate(f"{p:.1f} min paused", (x[i], temps[i]), ha="center",
                          xytext=(0, 4), textcoords="offset points")
     axes[1].set_xticks(x, names)
+    axes[1].set_xlabel("training run")
     axes[1].set_ylabel("hottest motor [deg C]")
     axes[1].set_ylim(0, 90)
-    axes[1].legend(loc="lower right")
     axes[1].set_title("thermal guard")
-    fig.tight_layout()
-    name = "robot_health.png"
-    fig.savefig(ctx.out / name, dpi=110)
-    plt.close(fig)
-    return {"plot": name}
+    fig.suptitle("Robot health while it learned")
+    fig.tight_layout(rect=(0, 0.16, 1, 1))
+    handles, labels = [], []
+    for ax in axes:
+        h, lab = ax.get_legend_handles_labels()
+        handles += h
+        labels += lab
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize="small", frameon=False)
+    return fig
 
 
 STAGES: tuple[tuple[str, Callable[[Context], dict[str, Any]]], ...] = (
@@ -529,22 +586,102 @@ STAGES: tuple[tuple[str, Callable[[Context], dict[str, Any]]], ...] = (
 )
 
 
+DEPENDS: dict[str, tuple[str, ...]] = {"train": ("demos",)}
+"""Stages whose results a stage reads from ``--out`` (``train`` learns from ``demos.h5``)."""
+OUTPUTS: dict[str, tuple[str, ...]] = {
+    "bus": ("hand.json",),
+    "demos": ("demos.h5",),
+    "train": ("train_dapg", "train_npg", "learning_curves.png", "flip_rollout.png"),
+    "gap": ("gap",),
+    "report": ("robot_health.png",),
+}
+"""What each stage writes into ``--out``; a re-run moves them into ``previous/<time>/`` first."""
+COMMAND = "main"
+RESULTS = "results.json"
+
+
+def _settings(ctx: Context) -> dict[str, Any]:
+    return {"task": ctx.task, "size": ctx.size, "seed": ctx.seed, "port": ctx.port}
+
+
+def open_job(ctx: Context, stages: tuple[str, ...]) -> None:
+    """Check ``ctx.out`` and load what earlier stages left there into ``ctx.results``.
+
+    Raises:
+      OutputRefused: ``ctx.out`` holds files the main job did not write, or a run with another
+        task, size, seed or port (its stages cannot build on each other).
+      ConfigError: a requested stage needs a stage that neither runs now nor finished earlier in
+        ``ctx.out``; the message names it and the command that provides it.
+    """
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.outdir import check_out
+
+    settings = _settings(ctx)
+    previous = check_out(ctx.out, COMMAND, settings, must_match=tuple(settings))
+    if previous and (ctx.out / RESULTS).exists():
+        try:
+            loaded = json.loads((ctx.out / RESULTS).read_text())
+        except ValueError as exc:
+            raise ConfigError(f"{ctx.out / RESULTS} is not readable JSON ({exc}); move it "
+                              "away or use another --out") from exc
+        ctx.results.update({k: v for k, v in loaded.items() if k in dict(STAGES)})
+    for name in stages:
+        for need in DEPENDS.get(name, ()):
+            if need in stages:
+                continue
+            done = ctx.results.get(need)
+            missing = done is None or not (ctx.out / done.get("file", "")).is_file()
+            if missing:
+                raise ConfigError(
+                    f"stage '{name}' needs the results of stage '{need}', which neither runs "
+                    f"now nor finished earlier in {ctx.out}; run "
+                    f"`lowcostdex main --out {ctx.out} --stages {need},{name}` (plus the same "
+                    "--task/--size/--seed)")
+
+
+def _write_results(ctx: Context) -> None:
+    from lowcostdex.outdir import write_text_atomic
+
+    write_text_atomic(ctx.out / RESULTS, json.dumps(ctx.results, indent=2, default=float))
+
+
 def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
-    """Run the stages, write results.json, report.md and report.html; return report.md."""
+    """Run the stages, write results.json, report.md and report.html; return report.md.
+
+    Stages compose: results of stages that do not run now are read from ``ctx.out`` (a previous
+    run with the same task, size, seed and port), and a stage whose input is missing stops before
+    anything is written. A stage that runs again first moves its old outputs and the old
+    results.json into ``previous/<time>/``; nothing finished is ever overwritten.
+    """
     from rich.console import Console
 
+    from lowcostdex.outdir import archive, write_marker
+
     console = Console(stderr=True)
+    order = tuple(name for name, _ in STAGES)
+    chosen = order if stages is None else tuple(n for n in order if n in stages)
+    open_job(ctx, chosen)
     ctx.out.mkdir(parents=True, exist_ok=True)
+    write_marker(ctx.out, COMMAND, _settings(ctx))
     for name, fn in STAGES:
-        if stages is not None and name not in stages:
+        if name not in chosen:
             continue
+        old = [n for n in OUTPUTS[name] if (ctx.out / n).exists()]
+        if old or name in ctx.results:
+            target = archive(ctx.out, [*old, "report.md", "report.html"])
+            if target is not None and (ctx.out / RESULTS).exists():
+                shutil.copy2(ctx.out / RESULTS, target / RESULTS)
+            if target is not None:
+                console.print(f"{name}: the previous outputs are kept in "
+                              f"{target.relative_to(ctx.out)}/")
         console.rule(f"[bold]{name}[/bold]: {fn.__doc__.splitlines()[0]}")
         t0 = time.perf_counter()
         result = fn(ctx)
         result["seconds"] = round(time.perf_counter() - t0, 1)
+        result["finished"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
         ctx.results[name] = result
         console.print(_summary(name, result))
-        (ctx.out / "results.json").write_text(json.dumps(ctx.results, indent=2, default=float))
+        _write_results(ctx)
     report = ctx.out / "report.md"
     text = _report(ctx)
     report.write_text(text)
@@ -565,7 +702,8 @@ def _summary(name: str, r: dict[str, Any]) -> str:
                 f"{r['dapg']['best_eval_success']:.2f}, {r['dapg']['samples']} samples), NPG "
                 f"{r['npg']['eval_success']:.2f} (best {r['npg']['best_eval_success']:.2f}, "
                 f"{r['npg']['samples']} samples); the behaviour clone alone "
-                f"{r['success_after_bc']:.2f}")
+                f"{r['success_after_bc']:.2f}; random actions "
+                f"{r.get('random', {}).get('eval_success', math.nan):.2f}")
     if name == "gap":
         named = ", ".join(c["effect"] for c in r["causes"]) or "no cause"
         return (f"named: {named}; held-out RMSE {r['baseline_heldout_rmse_mrad']:.1f} -> "
@@ -612,6 +750,8 @@ def _report(ctx: Context) -> str:
     if "train" in R:
         t = R["train"]
         lines += ["## 3. DAPG vs NPG on the robot", "",
+                  "Evaluation success: deterministic episodes (the policy's mean action) at the "
+                  "end of training, with the number of episodes and a 95 % Wilson interval.", "",
                   "| | samples | robot time [min] | training success (last) | evaluation success "
                   "(last) | best evaluation (samples) | first evaluation >= 80 % at |",
                   "|---|---|---|---|---|---|---|"]
@@ -620,7 +760,7 @@ def _report(ctx: Context) -> str:
             first = a.get("first_eval_crossing_samples")
             lines.append(
                 f"| {algo.upper()} | {a['samples']} | {60 * a['robot_hours']:.1f} | "
-                f"{a['final_training_success']:.2f} | {a['eval_success']:.2f} | "
+                f"{a['final_training_success']:.2f} | {_rate(a)} | "
                 f"{a.get('best_eval_success', float('nan')):.2f} "
                 f"({a.get('best_samples', float('nan')):.0f}) | "
                 f"{'not reached' if first is None else f'{first:.0f} samples'} |")
@@ -628,9 +768,18 @@ def _report(ctx: Context) -> str:
                       "evaluation and the first crossing are shown beside it, so that a policy "
                       "that reached the target once and fell back is not mistaken for one that "
                       "holds it.", "",
-                  f"The behaviour clone alone, before any RL (deterministic evaluation): "
-                  f"success {t['success_after_bc']:.2f} (a random policy: 0.00).", "",
+                  "| policy | evaluation success |", "|---|---|",
+                  f"| uniformly random actions (measured) | {_rate(t.get('random', {}))} |",
+                  f"| behaviour clone alone, before any RL | {_rate(t.get('bc', {}))} |",
+                  f"| DAPG (clone + RL) | {_rate(t['dapg'])} |",
+                  f"| NPG (RL from scratch) | {_rate(t['npg'])} |", "",
+                  f"**What each stage added.** {_what_each_stage_added(t)}", "",
                   f"![learning curves]({t['plot']})", ""]
+        demos_done = R.get("demos", {}).get("finished")
+        if t.get("demos_finished") and demos_done and t["demos_finished"] != demos_done:
+            lines += ["Note: the demonstrations were recorded again after this training ran; "
+                      "these results come from the earlier demonstrations (kept in "
+                      "`previous/`).", ""]
         if "rollout" in t:
             ro = t["rollout"]
             lines += [f"One deterministic rollout of the DAPG policy: final orientation error "
@@ -667,6 +816,52 @@ def _report(ctx: Context) -> str:
         lines += ["## 5. Robot health", "", f"![robot health]({R['report']['plot']})", ""]
     lines += ["Stage timings [s]: " + ", ".join(f"{k} {v['seconds']}" for k, v in R.items()), ""]
     return "\n".join(lines)
+
+
+def _rate(r: dict[str, Any]) -> str:
+    """A measured rate with its episode count and 95 % interval, from a result's
+    ``eval_successes`` / ``eval_episodes``."""
+    from lowcostdex.stats import rate_text
+
+    k, n = r.get("eval_successes"), r.get("eval_episodes")
+    if k is None or not n:
+        return "n/a (not evaluated)"
+    return rate_text(int(k), int(n))
+
+
+def _what_each_stage_added(t: dict[str, Any]) -> str:
+    """Words for what the clone and the RL stage changed, judged by their intervals: a
+    difference is called one only when the 95 % intervals do not overlap."""
+    from lowcostdex.stats import wilson_interval
+
+    def ci(r: dict[str, Any]) -> tuple[float, float] | None:
+        k, n = r.get("eval_successes"), r.get("eval_episodes")
+        return wilson_interval(int(k), int(n)) if k is not None and n else None
+
+    def compare(a: dict[str, Any], b: dict[str, Any], what: str) -> str:
+        ia, ib = ci(a), ci(b)
+        if ia is None or ib is None:
+            return f"{what}: not measured"
+        ra, rb = a["eval_successes"] / a["eval_episodes"], b["eval_successes"] / b["eval_episodes"]
+        if ib[0] > ia[1]:
+            return f"{what} raised success from {ra:.2f} to {rb:.2f}, beyond the intervals"
+        if ib[1] < ia[0]:
+            return f"{what} lowered success from {ra:.2f} to {rb:.2f}, beyond the intervals"
+        return (f"{what} changed success from {ra:.2f} to {rb:.2f}, within the overlap of the "
+                "95 % intervals: no difference this run can show")
+
+    random, bc = t.get("random", {}), t.get("bc", {})
+    parts = [compare(random, bc, "The demonstrations (behaviour clone vs random actions)"),
+             compare(bc, t["dapg"], "RL fine-tuning (DAPG vs the clone it started from)"),
+             compare(t["npg"], t["dapg"], "Demonstrations in RL (DAPG vs NPG at the same "
+                     "sample budget)")]
+    text = "; ".join(parts) + "."
+    if (ci(bc) and ci(t["dapg"]) and bc["eval_successes"] == bc["eval_episodes"]
+            and t["dapg"]["eval_successes"] == t["dapg"]["eval_episodes"]):
+        text += (" The clone alone already solves this task here, so at this budget the RL "
+                 "stage cannot show a gain; `--task valve-random` (random start and target "
+                 "angles) is the variant where the clone is not enough.")
+    return text
 
 
 def _html(markdown: str, path: Path) -> None:
@@ -734,7 +929,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="budget: smoke (CI, ~1 min), default (~5 min on 2 cores), long")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--task", choices=sorted(TASKS), default="valve",
-                   help="valve: turn the valve 180 deg; flip: flip the block 180 deg")
+                   help="valve: turn the valve 180 deg; valve-random: random start and target "
+                   "angles; flip: flip the block 180 deg")
     p.add_argument("--port", default=None,
                    help="serial port of a real D'Claw, e.g. /dev/ttyUSB0 (default: emulated)")
     p.add_argument("--stages", default=None,

@@ -122,3 +122,21 @@ def test_analyze_never_deletes_the_users_folder(demo, tmp_path, capsys):
     assert main(["gap", "generate", "--rig", "bench", "--logs", "1", "--duration", "1",
                  "--out", str(user)]) != 0
     assert sorted(p.name for p in user.iterdir()) == ["chapter1.tex"]
+
+
+def test_report_figures_read_at_a_glance(demo):
+    """Issue 13: axis labels with units, titles, legends beside the data, on the report's
+    figures (read from the figure objects)."""
+    import matplotlib.pyplot as plt
+    from figcheck import figure_problems
+
+    from lowcostdex.sim.gap import GapConfig, analyze, load_dataset
+    from lowcostdex.sim.gap.report import candidates_figure, residuals_figure, traces_figure
+
+    data = demo / "data"
+    logs = sorted(str(p) for p in data.glob("log*.csv"))
+    result = analyze(load_dataset(logs, model=str(data / "model.xml")), GapConfig(seed=0))
+    for make in (traces_figure, residuals_figure, candidates_figure):
+        fig = make(result)
+        assert figure_problems(fig) == [], make.__name__
+        plt.close(fig)

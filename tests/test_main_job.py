@@ -77,3 +77,71 @@ def test_report_links_every_plot(smoke):
     for png in ("learning_curves.png", "robot_health.png"):
         assert f"({png})" in text and (out / png).stat().st_size > 5000
     assert (out / "report.html").read_text().count("<img") >= 3
+
+
+def test_report_measures_the_random_baseline_and_gives_counts(smoke):
+    out, r = smoke
+    t = r["train"]
+    rnd = t["random"]
+    assert rnd["eval_episodes"] == 3 and 0 <= rnd["eval_successes"] <= 3 and rnd["steps"] > 0
+    for key in ("dapg", "npg", "bc"):
+        assert t[key]["eval_episodes"] == 3 and 0 <= t[key]["eval_successes"] <= 3
+    text = (out / "report.md").read_text()
+    assert "a random policy: 0.00" not in text       # no hard-coded baseline
+    assert f"uniformly random actions (measured) | {rnd['eval_successes'] / 3:.2f} " \
+           f"({rnd['eval_successes']}/3; 95 % CI" in text
+    assert "What each stage added." in text
+
+
+def _files(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+
+def test_a_users_folder_is_refused_untouched(tmp_path, capsys):
+    user = tmp_path / "experiments"
+    user.mkdir()
+    (user / "notes.md").write_text("my notes")
+    assert main(["main", "--size", "smoke", "--out", str(user)]) != 0
+    assert "notes.md" in capsys.readouterr().err
+    assert _files(user) == {"notes.md": b"my notes"}
+
+
+def test_a_stage_without_its_input_names_the_missing_stage(tmp_path, capsys):
+    out = tmp_path / "fresh"
+    assert main(["main", "--size", "smoke", "--out", str(out), "--stages", "train"]) != 0
+    err = capsys.readouterr().err
+    assert "'demos'" in err and "--stages demos,train" in err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_rerunning_a_stage_keeps_the_finished_results(smoke, tmp_path, capsys):
+    import shutil
+
+    src, r = smoke
+    out = tmp_path / "copy"
+    shutil.copytree(src, out)
+    assert main(["main", "--size", "smoke", "--out", str(out), "--stages", "report"]) == 0
+    now = json.loads((out / "results.json").read_text())
+    for stage in ("bus", "demos", "train", "gap"):
+        assert now[stage] == r[stage], stage          # read back, not overwritten by a partial
+    assert now["report"]["finished"] >= r["report"]["finished"]
+    (old,) = (out / "previous").iterdir()
+    assert json.loads((old / "results.json").read_text()) == r
+    assert (old / "robot_health.png").stat().st_size > 5000
+    assert (old / "report.md").read_text() == (src / "report.md").read_text()
+    text = (out / "report.md").read_text()
+    for section in ("The robot on its bus", "DAPG vs NPG", "What the nominal simulation"):
+        assert section in text
+    # another seed cannot build on this run's stages
+    assert main(["main", "--size", "smoke", "--seed", "1", "--out", str(out),
+                 "--stages", "report"]) != 0
+    assert "seed=0" in capsys.readouterr().err
+
+
+def test_robot_health_figure_reads_at_a_glance(smoke):
+    from figcheck import figure_problems
+
+    from lowcostdex.main_job import robot_health_figure
+
+    _, r = smoke
+    assert figure_problems(robot_health_figure(r)) == []

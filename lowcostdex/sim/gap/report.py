@@ -177,8 +177,31 @@ def _plt():
     return plt
 
 
+def _save(fig, path: Path) -> None:
+    fig.savefig(path, dpi=80)
+    _plt().close(fig)
+
+
+def _legend_on_top(fig, axes, top: float) -> None:
+    """One figure legend above the axes (never over data), from the handles of ``axes``."""
+    handles, labels = [], []
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.tight_layout(rect=(0, 0, 1, top))
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, top + (1 - top) * 0.55),
+               ncol=min(len(labels), 6), fontsize=8, frameon=False)
+
+
 def plot_traces(result: GapResult, path: Path) -> None:
     """Measured vs nominal vs extended on the first test episodes, with their residuals."""
+    _save(traces_figure(result), path)
+
+
+def traces_figure(result: GapResult):
+    """The figure of :func:`plot_traces`."""
     plt = _plt()
     traces = result.traces
     nj = len(traces[0]["joints"]) if traces else 1
@@ -204,18 +227,22 @@ def plot_traces(result: GapResult, path: Path) -> None:
             ax_r.axhline(0, color="0.6", lw=0.8)
             ax_r.set_ylabel("residual [mrad]")
             row += 1
-    axes[0, 0].legend(fontsize=8, ncol=4)
-    axes[0, 1].legend(fontsize=8)
-    axes[-1, 0].set_xlabel("time [s]")
-    axes[-1, 1].set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    for ax in axes[-1]:
+        ax.set_xlabel("time [s]")
+    fig.suptitle("Held-out episodes: measured, nominal and extended model (left); "
+                 "residuals (right)", fontsize=10)
+    _legend_on_top(fig, [axes[0, 0], axes[0, 1]], top=1 - 0.75 / (2.6 * rows))
+    return fig
 
 
 def plot_residuals(result: GapResult, path: Path) -> None:
     """Nominal-model residual signatures per joint: over time, vs velocity, position, step size
     and temperature."""
+    _save(residuals_figure(result), path)
+
+
+def residuals_figure(result: GapResult):
+    """The figure of :func:`plot_residuals`."""
     plt = _plt()
     joints = list(result.diagnostics)
     keys = ["vs_time", "vs_velocity", "vs_position", "vs_step_size", "vs_temperature"]
@@ -237,18 +264,25 @@ def plot_residuals(result: GapResult, path: Path) -> None:
             ax.plot(mid, 1e3 * np.asarray(b["rms"], float), "s--", label="rms")
             ax.axhline(0, color="0.6", lw=0.8)
             ax.set_xlabel(lab, fontsize=8)
-            if k == 0:
-                ax.set_ylabel(f"{j}: residual [mrad]", fontsize=8)
-        axes[i, 0].set_title(f"lag {1e3 * d['lag_s']:.1f} ms, bias {1e3 * d['bias']:.2f} mrad",
-                             fontsize=8)
-    axes[0, 0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+            ax.set_ylabel(f"{j}: residual [mrad]" if k == 0 else "residual [mrad]", fontsize=8)
+        axes[i, 0].set_title(f"{j}: lag {1e3 * d['lag_s']:.1f} ms, bias "
+                             f"{1e3 * d['bias']:.2f} mrad", fontsize=8)
+    fig.suptitle("Residual of the nominal model (measured - nominal) binned by what it could "
+                 "depend on", fontsize=10)
+    _legend_on_top(fig, [ax for ax in axes.flat if ax.axison],
+                   top=1 - 0.75 / (2.8 * max(len(joints), 1)))
+    return fig
 
 
 def plot_candidates(result: GapResult, path: Path) -> None:
     """Score and select RMSE of every candidate, per round."""
+    _save(candidates_figure(result), path)
+
+
+def candidates_figure(result: GapResult):
+    """The figure of :func:`plot_candidates`."""
+    from matplotlib.patches import Patch
+
     plt = _plt()
     n = max(len(result.rounds), 1)
     fig, axes = plt.subplots(1, n, figsize=(6 * n, 4.5), squeeze=False)
@@ -267,6 +301,11 @@ def plot_candidates(result: GapResult, path: Path) -> None:
                 ax.text(0.99, yi, f"select {1e3 * c.select_rmse:.3g} mrad", ha="right",
                         va="center", fontsize=7)
         ax.set_title(f"round {k + 1}", fontsize=9)
+        ax.set_ylabel("candidate effect")
+    fig.suptitle("Candidate effects, ranked per round of the forward selection", fontsize=10)
+    axes[0, 0].legend(handles=[Patch(color="tab:green", label="accepted (held-out gain)"),
+                               Patch(color="tab:gray", label="not accepted")],
+                      loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize=8,
+                      frameon=False)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    return fig
