@@ -12,10 +12,12 @@ import numpy as np
 import pytest
 
 from lowcostdex.hardware.backend import make_dynamixel_bus
+from lowcostdex.hardware.dynamixel import WatchdogTripped
 from lowcostdex.hardware.emulator import FaultConfig, emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot import Robot, RobotConfig
 from lowcostdex.hardware.safety import UnsafeCommand
+from lowcostdex.sim import servo
 
 HAND = dclaw_spec()
 TICK = 2 * math.pi / 4096  # one encoder tick of an X-series servo [rad]
@@ -144,3 +146,104 @@ def test_soak_2000_cycles_no_goal_beyond_the_bound_or_limits_reaches_a_motor(mix
 def test_soak_10k_cycles_no_goal_beyond_the_bound_or_limits_reaches_a_motor():
     chain, robot = soak(FAULT_MIXES["all"], 10_000, seed=12)
     check_device_side(chain, robot, 10_000)
+
+
+MILD = FaultConfig(drop=0.05, corrupt=0.02, late=0.02)  # unicast torque writes retry 3 times
+
+
+def heat(chain, joint: str, celsius: float) -> None:
+    """Set ``joint``'s winding to ``celsius`` (ambient 25 deg C + the thermal state)."""
+    m, d = chain.plant.model, chain.plant.data
+    layout = servo.dcmotor_act_layout(m)
+    d.act[layout[m.actuator(joint).id, servo.ACT_THERMAL]] = celsius - 25.0
+    chain.drive._state = None
+
+
+def test_thermal_guard_under_faults_relaxes_on_the_device_and_keeps_both_motors_relaxed():
+    """X430 firmware limit 80 deg C, critical margin 7 K: a motor at 73.5 deg C is relaxed at
+    once, and stays limp when a second one goes critical; the pause rests all of them until
+    every motor is below 80 - 30 = 50 deg C. Checked on the motors, not in the host's books."""
+    chain, robot = connected_robot(seed=3)
+    chain.faults = MILD
+    rng = np.random.default_rng(3)
+    center = robot.present[:9]
+
+    def steps(n):
+        for _ in range(n):
+            robot.step(center + rng.uniform(-0.1, 0.1, size=9))
+
+    steps(5)
+    assert all(chain.motors[j.motor_id].torque_on for j in HAND.joints)
+    heat(chain, "ff_top", 73.5)
+    steps(3)
+    assert not chain.motors[10].torque_on  # device side: limp
+    assert not chain.plant.torque_enabled()[chain.plant.model.actuator("ff_top").id]
+    steps(10)
+    heat(chain, "mf_top", 74.0)
+    steps(3)
+    limp = [i for i, m in chain.motors.items() if not m.torque_on]
+    assert limp == [10, 20, 50]  # the first stays relaxed; 50 (valve) was never enabled
+    assert robot.metrics.thermal_relaxations == 2
+    steps(10)
+    assert not chain.motors[10].torque_on and not chain.motors[20].torque_on
+    record = robot.pause_if_hot()
+    assert record is not None and record.hottest in ("ff_top", "mf_top")
+    temps = servo.winding_temperature(chain.plant.model, chain.plant.data)
+    assert temps.max() < 50.0  # the device's windings, not the last reading
+    assert not [e for e in chain.events if e.kind in ("hardware_error", "shutdown")]
+    robot.torque(True, HAND.joint_names)  # the next episode may use them again
+    assert all(chain.motors[j.motor_id].torque_on for j in HAND.joints)
+
+
+def test_current_guard_under_faults_bounds_the_goals_that_reach_an_overloaded_motor():
+    """A middle joint blocked by an obstacle draws more than 0.6 x its stall current; for 20
+    steps its goals may lead its position by 0.02 rad only - checked where they arrive."""
+    chain, robot = connected_robot(seed=4)
+    m = chain.plant.model
+    m.jnt_range[m.joint("ff_middle").id] = [-1.2, 0.1]  # an obstacle the joint cannot pass
+    chain.faults = MILD
+    k = robot.index(["ff_middle"])[0]
+    goal = robot.present[:9]
+    relaxed_leads = []
+    for _ in range(60):
+        goal[k] = 0.8  # inward, far past the obstacle
+        relaxed = robot.current_guard.relaxed[k]  # decided by the reads before this goal
+        n = chain.goal_audit.count[11]
+        robot.step(goal)
+        if relaxed and chain.goal_audit.count[11] > n:  # (a held step sends nothing)
+            _, motor_id, g, _, at_read, _ = [r for r in chain.goal_audit.recent if r[1] == 11][-1]
+            relaxed_leads.append(abs(g - at_read))
+    assert robot.metrics.overloads >= 1 and len(relaxed_leads) >= 15
+    assert max(relaxed_leads) <= 0.02 + TICK
+
+
+def test_watchdog_under_faults_stops_the_motors_of_a_silent_host_and_refuses_its_goals():
+    """Bus Watchdog 100 ms (the driver's default): a host that falls silent mid-motion (hung,
+    killed) leaves motors that stop where they are and accept no goal until torque is
+    re-enabled, which starts from the present position."""
+    chain, robot = connected_robot(seed=5)
+    watch_joints(chain, MAX_STEP)
+    chain.faults = FaultConfig(drop=0.2, corrupt=0.05, late=0.05)
+    rng = np.random.default_rng(5)
+    for _ in range(200):  # faults alone never starve the watchdog: instructions still arrive
+        robot.step(rng.uniform(-2.0, 2.0, size=9))
+    assert not [e for e in chain.events if e.kind == "watchdog"]
+    far = robot.present[:9] + np.where(robot.present[:9] > 0, -1.0, 1.0)
+    robot.send(far)  # a full step towards far, then silence
+    n = sum(chain.goal_audit.count.values())
+    robot.bus.port.sleep(0.3)
+    trips = {e.motor_id for e in chain.events if e.kind == "watchdog"}
+    assert trips == {j.motor_id for j in HAND.joints}  # the valve motor had no torque
+    stopped = chain.plant.qpos.copy()
+    robot.bus.port.sleep(0.3)
+    assert np.abs(chain.plant.qpos - stopped).max() < 0.01  # holding where they stopped
+    with pytest.raises(WatchdogTripped):
+        for _ in range(3):  # the first read may not get through
+            robot.step(far)
+    assert sum(chain.goal_audit.count.values()) == n  # nothing accepted while tripped
+    chain.faults = MILD
+    robot.torque(True, HAND.joint_names)  # re-armed from the present position
+    for _ in range(20):
+        robot.step(far)
+    assert chain.goal_audit.violations == 0
+    assert all(chain.motors[j.motor_id].torque_on for j in HAND.joints)

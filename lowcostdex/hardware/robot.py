@@ -415,6 +415,7 @@ class Robot:
                                     "thermal guard until the next pause; not enabling torque")
         self.bus.set_torque(enabled, self._ids(idx))
         self._torque[idx] = enabled
+        self._fresh[idx] = False  # the motors hold (or sag) from here: the next goal reads first
         if enabled:
             self.last_sent[idx] = self._present[idx]
 
