@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from lowcostdex.demo_file import read_episodes
+from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.demos import (
     FIRM_HAND,
     KinestheticRecorder,
@@ -24,7 +25,6 @@ from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.flip_teacher import FlipBlockTeacher, FlipTeacherConfig
 from lowcostdex.sim.registry import register_envs
 from lowcostdex.sim.scripted import AllegroTeacherConfig, AllegroValveTeacher
-from lowcostdex.errors import ConfigError
 
 ENV = "lowcostdex/DClawFlipBlock-v0"
 

@@ -11,9 +11,9 @@ import pytest
 
 import lowcostdex  # noqa: F401  (registers the ids)
 from lowcostdex.sim.envs import goal_to_action
+from lowcostdex.sim.flip_teacher import FlipBlockTeacher
 from lowcostdex.sim.models.allegro import build_allegro
 from lowcostdex.sim.models.dclaw import build_dclaw
-from lowcostdex.sim.flip_teacher import FlipBlockTeacher
 from lowcostdex.sim.scripted import (
     AllegroFingerGeometry,
     AllegroValveTeacher,

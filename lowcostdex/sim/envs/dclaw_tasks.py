@@ -17,8 +17,8 @@ from lowcostdex.errors import check_choice
 from lowcostdex.hardware.hands import HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.envs.task import Goal, Task, TaskSpec, wrap_angle
-from lowcostdex.sim.models.dclaw import BLOCK_CENTER, BLOCK_HALF, build_dclaw
 from lowcostdex.sim.models.common import quat_euler
+from lowcostdex.sim.models.dclaw import BLOCK_CENTER, BLOCK_HALF, build_dclaw
 
 RESET_POSE = np.tile([0.0, -math.pi / 3, math.pi / 3], 3)  # [rad] ROBEL turn/screw reset pose
 
