@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.guards import CurrentConfig, CurrentGuard, ThermalConfig, ThermalGuard
+from lowcostdex.hardware.guards import (
+    CurrentConfig,
+    CurrentGuard,
+    PauseRecord,
+    ThermalConfig,
+    ThermalGuard,
+)
+from lowcostdex.hardware.robot import RobotConfig
 from lowcostdex.hardware.safety import UnsafeCommand, check_finite, clip_goal
 from lowcostdex.hardware.timing import Rate
 
@@ -100,3 +107,109 @@ def test_goal_referenced_rate_limit_bounds_the_lead_over_the_present_position():
     r = clip_goal(np.array([1.5, 1.5]), low, high, last_goal, np.full(2, 0.1), present,
                   np.full(2, 0.4))
     np.testing.assert_allclose(r.goal, [0.6, 0.4])  # rate limit; lead bound on the blocked one
+
+
+# -- edges a user relies on (issue 19: mutants that survived the suite) -------------------------
+
+
+def test_a_goal_below_the_lower_limit_is_clipped_to_it():
+    low, high = np.array([-0.5, -1.0]), np.array([0.5, 1.0])
+    present = np.array([-0.45, -0.95])
+    r = clip_goal(np.array([-3.0, -0.9]), low, high, present, np.full(2, 0.2))
+    np.testing.assert_allclose(r.goal, [-0.5, -0.9])  # -0.45 - 0.2 = -0.65 is below -0.5
+    np.testing.assert_array_equal(r.limit_clipped, [True, False])
+    np.testing.assert_array_equal(r.motion_clipped, [True, False])
+
+
+def test_a_goal_far_below_the_present_position_moves_one_step_down():
+    low, high = np.full(3, -2.0), np.full(3, 2.0)
+    present = np.array([0.5, 0.0, -1.0])
+    r = clip_goal(np.array([-1.5, -0.15, -1.9]), low, high, present, np.array([0.2, 0.2, 0.3]))
+    np.testing.assert_allclose(r.goal, [0.3, -0.15, -1.3])
+    np.testing.assert_array_equal(r.motion_clipped, [True, False, True])
+    assert not r.limit_clipped.any()
+
+
+def test_goal_referenced_lead_bound_below_the_present_position():
+    low, high = np.full(2, -2.0), np.full(2, 2.0)
+    last_goal, present = np.array([-0.5, -0.5]), np.array([-0.45, 0.0])  # joint 1 blocked
+    r = clip_goal(np.array([-1.5, -1.5]), low, high, last_goal, np.full(2, 0.1), present,
+                  np.full(2, 0.4))
+    np.testing.assert_allclose(r.goal, [-0.6, -0.4])  # -0.5 - 0.1; 0.0 - 0.4
+
+
+def test_thermal_guard_relaxes_at_exactly_the_critical_temperature():
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b"))  # critical 80 - 7 = 73
+    assert not g.update(np.array([72.99, 20.0])).any()
+    np.testing.assert_array_equal(g.update(np.array([73.0, 20.0])), [True, False])
+    assert g.relaxations == 1 and g.pause_pending
+
+
+def test_thermal_guard_warns_at_exactly_the_warn_temperature_once():
+    g = ThermalGuard(ThermalConfig(), limit=70.0, names=("a",))  # warn 70 - 15 = 55
+    g.update(np.array([54.99]))
+    assert not g.pause_pending and g.warnings == 0
+    g.update(np.array([55.0]))
+    g.update(np.array([56.0]))
+    assert g.pause_pending and g.warnings == 1
+
+
+def test_a_second_critical_motor_does_not_release_the_first():
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b", "c"))
+    np.testing.assert_array_equal(g.update(np.array([74.0, 60.0, 30.0])), [True, False, False])
+    np.testing.assert_array_equal(g.update(np.array([74.0, 75.0, 30.0])), [False, True, False])
+    np.testing.assert_array_equal(g.relaxed, [True, True, False])
+    assert not g.update(np.array([74.0, 75.0, 30.0])).any()  # neither is reported again
+    assert g.relaxations == 2
+
+
+def test_the_end_of_a_pause_is_recorded_and_clears_pending_and_relaxed():
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b"))
+    g.update(np.array([74.0, 66.0]))
+    assert g.pause_pending and g.relaxed[0]
+    record = PauseRecord(start=12.0, duration=300.0, peak=74.0, hottest="a", end_max=49.0)
+    g.end_pause(record)
+    assert g.pauses == [record] and not g.pause_pending and not g.relaxed.any()
+    np.testing.assert_array_equal(g.update(np.array([74.0, 20.0])), [True, False])  # again
+    assert g.relaxations == 2
+
+
+def test_an_overload_relaxation_lasts_exactly_relax_steps_control_steps():
+    g = CurrentGuard(CurrentConfig(window=2, relax_steps=3), limit=np.array([1.0]))
+    assert not g.update(np.array([1.0])).any()  # at the limit is not above it
+    g.update(np.array([1.01]))
+    assert g.update(np.array([1.01]))[0]
+    for _ in range(2):
+        g.tick()
+        assert g.relaxed[0]
+        assert not g.update(np.array([1.01])).any()  # still overloaded: not a new event
+    g.tick()
+    assert not g.relaxed[0]
+    assert g.update(np.array([1.01]))[0] and g.events == 2  # still over after it: a new one
+
+
+def test_thermal_config_boundaries():
+    ThermalConfig(critical_margin=0.0)  # relax at the firmware limit itself: allowed
+    ThermalConfig(warn_margin=7.5, critical_margin=7.0, resume_margin=7.6)
+    for bad in (dict(critical_margin=-0.1), dict(warn_margin=7.0),
+                dict(resume_margin=15.0), dict(poll_interval=0.0), dict(max_pause=0.0)):
+        with pytest.raises(ConfigError):
+            ThermalConfig(**bad)
+
+
+def test_current_config_boundaries():
+    CurrentConfig(fraction=1.0, window=1, relax_steps=1, relaxed_step=1e-6)
+    CurrentConfig(limit=1e-3)
+    for bad in (dict(limit=0.0), dict(fraction=0.0), dict(fraction=1.01), dict(window=0),
+                dict(relax_steps=0), dict(relaxed_step=0.0)):
+        with pytest.raises(ConfigError):
+            CurrentConfig(**bad)
+
+
+def test_robot_config_boundaries():
+    RobotConfig(max_lead=1.0, max_invalid_reads=0, max_reboots=0)
+    for bad in (dict(control_period=0.0), dict(motion_scale=0.0), dict(max_lead=0.99),
+                dict(max_invalid_reads=-1), dict(max_reboots=-1),
+                dict(motion_reference="previous")):
+        with pytest.raises(ConfigError):
+            RobotConfig(**bad)
