@@ -1,0 +1,38 @@
+"""The one-way layers of pyproject.toml's import-linter contracts hold, and a contract breaks when
+a lower layer imports a higher one (so this test can fail)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+LINT = shutil.which("lint-imports", path=os.path.dirname(sys.executable)) or shutil.which(
+    "lint-imports")
+
+
+def _lint(root: Path) -> subprocess.CompletedProcess:
+    assert LINT, "lint-imports is missing: install the dev extra (pip install -e '.[dev]')"
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    return subprocess.run([LINT, "--config", str(root / "pyproject.toml"), "--no-cache"],
+                          cwd=root, env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_the_layer_contracts_are_kept():
+    res = _lint(ROOT)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "0 broken" in res.stdout
+
+
+def test_a_physics_module_importing_the_learner_breaks_a_contract(tmp_path):
+    shutil.copytree(ROOT / "lowcostdex", tmp_path / "lowcostdex",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    servo = tmp_path / "lowcostdex" / "sim" / "servo.py"
+    servo.write_text(servo.read_text() + "\nimport lowcostdex.algos.npg  # noqa\n")
+    res = _lint(tmp_path)
+    assert res.returncode != 0
+    assert "BROKEN" in res.stdout and "lowcostdex.sim.servo -> lowcostdex.algos.npg" in res.stdout
