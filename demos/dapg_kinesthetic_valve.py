@@ -1,7 +1,8 @@
 """DAPG on the D'Claw valve from kinesthetic demonstrations recorded on the emulated robot.
 
     python demos/dapg_kinesthetic_valve.py                     # emulated robot, short budget
-    python demos/dapg_kinesthetic_valve.py --iters 60 --backend sim --out runs/dapg_valve
+    python demos/dapg_kinesthetic_valve.py --n-iter 60 --backend sim --out runs/dapg_valve
+    python demos/dapg_kinesthetic_valve.py --backend hardware --port /dev/ttyUSB0  # you teach
 
 1. Record demonstrations the way the BAIR D'Claw work did: the emulated D'Claw comes up on its
    Dynamixel bus, auto-resets before every episode, its fingers go limp, and the emulator's
@@ -10,8 +11,9 @@
    Each step is labelled with the servo goal that reproduces it, and each successful
    demonstration is played back twice by the servos with noisy goals (the clone's data).
 2. Train DAPG: behaviour cloning on the demos, then NPG with the decaying demo term, on the
-   emulated robot at its real control rate (auto-reset and thermal guard between episodes) or,
-   faster, in simulation. Progress shows samples, success, robot hours and thermal pauses.
+   emulated robot at its real control rate (auto-reset and thermal guard between episodes), on
+   a real D'Claw (``--backend hardware --port PORT``; a person moves the fingers in step 1) or,
+   faster, in simulation (demonstrations still recorded on the emulated robot). Progress shows samples, success, robot hours and thermal pauses.
 
 The same from the command line:
 
@@ -30,33 +32,33 @@ from lowcostdex.algos.configs import BCConfig
 from lowcostdex.algos.train import TrainConfig, train
 from lowcostdex.cli import main as lowcostdex
 from lowcostdex.demo_file import read_episodes
+from lowcostdex.options import add_robot_options, add_run_options, robot_selection
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--demos", type=int, default=25, help="demonstrations to record")
-    parser.add_argument("--iters", type=int, default=10)
-    parser.add_argument("--n-traj", type=int, default=20, help="trajectories per iteration")
-    parser.add_argument("--backend", default="emulated", choices=("emulated", "sim"))
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="runs/dapg_kinesthetic_valve")
+    add_robot_options(parser, default_backend="emulated", env="lowcostdex/DClawTurnValve-v0")
+    add_run_options(parser, out="runs/dapg_kinesthetic_valve", n_iter=10, n_traj=20)
     args = parser.parse_args()
+    backend, env_kwargs = robot_selection(args.backend, args.port)
 
     out = Path(args.out)
     demos = out / "valve_demos.h5"
     if not demos.exists():
-        code = lowcostdex(["record-demos", "--port", "emulated", "--task", "turn-valve",
+        code = lowcostdex(["record-demos", "--port", args.port or "emulated", "--task", "turn-valve",
                            "--episodes", str(args.demos), "--out", str(demos)])  # fmt: skip
         if code:
             raise SystemExit(code)
 
     config = TrainConfig(
         algo="dapg",
-        env_id="lowcostdex/DClawTurnValve-v0",
-        backend=args.backend,
+        env_id=args.env,
+        backend=backend,
+        env_kwargs=env_kwargs,
         demos=str(demos),
         seed=args.seed,
-        n_iter=args.iters,
+        n_iter=args.n_iter,
         n_traj=args.n_traj,
         eval_every=5,
         eval_bc=True,

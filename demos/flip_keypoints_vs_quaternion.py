@@ -1,6 +1,7 @@
 """Flip a block 180 deg with NPG: keypoint vs position+quaternion observations and rewards.
 
-    python demos/flip_keypoints_vs_quaternion.py --iters 100 --out runs/flip
+    python demos/flip_keypoints_vs_quaternion.py --n-iter 100 --out runs/flip
+    python demos/flip_keypoints_vs_quaternion.py --backend emulated   # on the emulated D'Claw
 
 Trains the same NPG configuration (same seed, same budget) on ``DClawFlipBlock-v0`` (8 cube-corner
 keypoints in the observation and the reward) and ``DClawFlipBlockQuaternion-v0`` (position and
@@ -20,6 +21,7 @@ import matplotlib.pyplot as plt
 
 from lowcostdex.algos import experiment
 from lowcostdex.algos.train import TrainConfig, train
+from lowcostdex.options import add_robot_options, add_run_options, robot_selection
 
 VARIANTS = {
     "keypoints": "lowcostdex/DClawFlipBlock-v0",
@@ -29,17 +31,17 @@ VARIANTS = {
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--iters", type=int, default=40)
-    parser.add_argument("--n-traj", type=int, default=40)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default="runs/flip")
+    add_robot_options(parser, default_backend="sim")
+    add_run_options(parser, out="runs/flip", n_iter=40, n_traj=40)
     args = parser.parse_args()
+    backend, env_kwargs = robot_selection(args.backend, args.port)
 
     out = Path(args.out)
     curves = {}
     for name, env_id in VARIANTS.items():
         config = TrainConfig(
-            env_id=env_id, seed=args.seed, n_iter=args.iters, n_traj=args.n_traj, eval_every=10
+            env_id=env_id, backend=backend, env_kwargs=env_kwargs, seed=args.seed,
+            n_iter=args.n_iter, n_traj=args.n_traj, eval_every=10,
         )
         curves[name] = train(
             config, out / name, resume=(out / name / "config.json").exists()
@@ -58,7 +60,8 @@ def main() -> None:
     for ax in axes:
         ax.set_xlabel("samples (env steps)")
         ax.grid(alpha=0.3)
-        ax.legend()
+    axes[0].legend(loc="upper left")
+    axes[1].legend(loc="upper right")
     fig.suptitle("NPG on the D'Claw block flip: observation representation")
     fig.tight_layout()
     fig.savefig(out / "keypoints_vs_quaternion.png", dpi=100)

@@ -1,7 +1,9 @@
 """Truncated NPG turns the D'Claw valve 180 deg in simulation.
 
     python demos/npg_valve.py                        # short run, a few minutes on 2 cores
-    python demos/npg_valve.py --iters 400 --out runs/npg_valve
+    python demos/npg_valve.py --n-iter 400 --out runs/npg_valve
+    python demos/npg_valve.py --backend emulated             # the emulated D'Claw on its bus
+    python demos/npg_valve.py --backend hardware --port /dev/ttyUSB0
     python demos/npg_valve.py --out runs/npg_valve --resume   # continue after a kill
 
 The same run from the command line:
@@ -10,7 +12,8 @@ The same run from the command line:
 
 The run directory holds config.json, metrics.csv, checkpoints/, policy.pt and
 learning_curves.png (success rate and return vs samples and vs robot-equivalent hours).
-Add ``--backend emulated`` to train on the emulated Dynamixel D'Claw at its real control rate.
+``--backend emulated`` trains on the emulated Dynamixel D'Claw at its real control rate,
+``--backend hardware --port PORT`` on a real one.
 """
 
 from __future__ import annotations
@@ -19,24 +22,24 @@ import argparse
 
 from lowcostdex.algos import experiment
 from lowcostdex.algos.train import TrainConfig, train
+from lowcostdex.options import add_robot_options, add_run_options, robot_selection
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--iters", type=int, default=60)
-    parser.add_argument("--n-traj", type=int, default=40, help="trajectories per iteration")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--backend", default="sim", choices=("sim", "emulated", "hardware"))
-    parser.add_argument("--out", default="runs/npg_valve")
+    add_robot_options(parser, default_backend="sim", env="lowcostdex/DClawTurnValve-v0")
+    add_run_options(parser, out="runs/npg_valve", n_iter=60, n_traj=40)
     parser.add_argument("--resume", action="store_true")
     args = parser.parse_args()
+    backend, env_kwargs = robot_selection(args.backend, args.port)
 
     config = TrainConfig(
         algo="npg",
-        env_id="lowcostdex/DClawTurnValve-v0",
-        backend=args.backend,
+        env_id=args.env,
+        backend=backend,
+        env_kwargs=env_kwargs,
         seed=args.seed,
-        n_iter=args.iters,
+        n_iter=args.n_iter,
         n_traj=args.n_traj,
         eval_every=10,
     )
