@@ -180,3 +180,21 @@ def staged_output(path: str | Path, command: str,
     elif out.exists():  # an empty folder
         out.rmdir()
     os.replace(tmp, out)
+
+
+def check_out_file(path: str | Path, *, overwrite: bool = False) -> Path:
+    """Check that a single output file may be written at ``path``.
+
+    Raises:
+      OutputRefused: ``path`` is a folder, its folder does not exist, or it exists and
+        ``overwrite`` is False (the user's file is left untouched).
+    """
+    out = Path(path)
+    if out.is_dir():
+        raise OutputRefused(f"--out {out} is a folder; give a file path")
+    if not out.parent.is_dir():
+        raise OutputRefused(f"--out {out}: the folder {out.parent} does not exist")
+    if out.exists() and not overwrite:
+        raise OutputRefused(f"--out {out} already exists and is left untouched; give a new file "
+                            "name, or --overwrite to replace it")
+    return out

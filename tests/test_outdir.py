@@ -91,3 +91,37 @@ def test_archive_moves_named_entries(tmp_path):
     assert (target / "results.json").exists() and (target / "train" / "x").read_text() == "1"
     assert (tmp_path / "keep.txt").exists() and not (tmp_path / "train").exists()
     assert archive(tmp_path, ["missing"]) is None
+
+
+def test_model_out_never_replaces_a_users_file(tmp_path, capsys):
+    from lowcostdex.cli import main
+
+    mine = tmp_path / "finger.xml"
+    mine.write_text("<mujoco><!-- my hand-tuned model --></mujoco>")
+    assert main(["model", "bench", "--out", str(mine)]) != 0
+    assert "left untouched" in capsys.readouterr().err
+    assert "hand-tuned" in mine.read_text()
+    assert main(["model", "bench", "--out", str(mine), "--overwrite"]) == 0
+    assert "<actuator" in mine.read_text()
+    assert main(["model", "bench", "--out", str(tmp_path)]) != 0          # a folder
+    assert main(["model", "bench", "--out", str(tmp_path / "no" / "x.xml")]) != 0
+
+
+def test_record_log_keeps_earlier_recordings_and_refuses_a_users_folder(tmp_path, capsys):
+    from lowcostdex.cli import main
+
+    user = tmp_path / "data"
+    user.mkdir()
+    (user / "calib.csv").write_text("1,2\n")
+    args = ["record-log", "--port", "emulated", "--logs", "1", "--seconds", "0.4"]
+    assert main([*args, "--out", str(user)]) != 0
+    assert sorted(p.name for p in user.iterdir()) == ["calib.csv"]
+    logs = tmp_path / "logs"
+    assert main([*args, "--out", str(logs)]) == 0
+    first = sorted(p.name for p in logs.glob("*.csv"))
+    assert first
+    first_bytes = (logs / first[0]).read_bytes()
+    assert main([*args, "--seed", "1", "--out", str(logs)]) == 0
+    (old,) = (logs / "previous").iterdir()
+    assert (old / first[0]).read_bytes() == first_bytes
+    assert sorted(p.name for p in logs.glob("*.csv")) == first

@@ -282,12 +282,15 @@ def _record_demos(args: argparse.Namespace) -> int:
 
 
 def _record_log(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     import numpy as np
     from rich.console import Console
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.backend import default_effects
     from lowcostdex.hardware.trace import dclaw_identification_logs
+    from lowcostdex.outdir import MARKER, PREVIOUS, archive, check_out, write_marker
     from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim.effects import AppliedEffect
 
@@ -304,6 +307,12 @@ def _record_log(args: argparse.Namespace) -> int:
                    if args.effects else default_effects(hand.joint_names))
     steps = int(round(args.seconds * args.rate))
     console = Console(stderr=True)
+    out = Path(args.out)
+    if check_out(out, "record-log"):  # an earlier recording here: keep it in previous/
+        kept = archive(out, [p.name for p in out.iterdir() if p.name not in (MARKER, PREVIOUS)])
+        if kept is not None:
+            console.print(f"the earlier logs in {out} are kept in {kept}")
+    write_marker(out, "record-log", {"joints": list(joints), "seed": args.seed})
     with progress_tasks(transient=False, console=console) as progress:
         bar = progress.add_task("identification logs", total=args.logs * steps)
         paths = dclaw_identification_logs(

@@ -17,7 +17,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fingers", default=None, help="dclaw: comma-separated subset of ff,mf,th")
     p.add_argument("--motor", default=None, help="servo model, e.g. XM430-W350 (dclaw, bench)")
     p.add_argument("--no-thermal", action="store_true", help="no winding-temperature state")
-    p.add_argument("--out", required=True, help="MJCF file to write")
+    p.add_argument("--out", required=True, help="MJCF file to write (a new file)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=_write_model)
 
 
@@ -34,10 +35,10 @@ def _list_envs(args: argparse.Namespace) -> int:
 
 
 def _write_model(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.outdir import check_out_file, write_text_atomic
 
+    out = check_out_file(args.out, overwrite=args.overwrite)
     if args.hand == "dclaw":
         from lowcostdex.sim.models.dclaw import build_dclaw
 
@@ -55,6 +56,6 @@ def _write_model(args: argparse.Namespace) -> int:
         spec = build_bench(BenchConfig(motor=args.motor or "XL330-M288",
                                        thermal=not args.no_thermal))
     spec.compile()  # fail here, not in the user's tool
-    Path(args.out).write_text(spec.to_xml())
-    print(f"wrote {args.out}")
+    write_text_atomic(out, spec.to_xml())
+    print(f"wrote {out}")
     return 0
