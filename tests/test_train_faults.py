@@ -8,6 +8,12 @@ The runs are tiny (the point mass of tests/pointmass.py, 1-2 iterations of a few
 from __future__ import annotations
 
 import dataclasses
+import shlex
+import signal
+import subprocess
+import sys
+import textwrap
+import time
 from pathlib import Path
 
 import gymnasium as gym
@@ -17,8 +23,9 @@ from pointmass import demo_info, expert_action, make_pointmass
 
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.demos import save_demos, teacher_episodes
+from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.train import TrainConfig, train
-from lowcostdex.cli import USER_ERROR, main  # USER_ERROR: exit 2, one line, no traceback
+from lowcostdex.cli import INTERRUPTED, USER_ERROR, main  # exit codes 130 and 2
 
 ENV = "lowcostdex_test/PointMass-v0"
 TINY = ["--n-iter", "2", "--n-traj", "2", "--eval-every", "1", "--eval-episodes", "1",
@@ -216,3 +223,106 @@ def test_resume_without_a_loadable_checkpoint_is_refused_and_changes_nothing(tmp
     code, _, err = _train(capsys, "npg", out, "--resume")
     _assert_refused(code, err, str(out), "no checkpoint loads", "ckpt_000000.pt", "ckpt_000001.pt")
     assert _tree(out) == before
+
+
+# ----------------------------------------------------------------------------------------------
+# 3. Ctrl-C saves and prints the exact resume command; exit code 130
+
+
+def _ctrl_c_after(monkeypatch, steps: int) -> None:
+    """Ctrl-C lands in the ``steps``-th env step from now (of any point mass)."""
+    from pointmass import PointMass
+
+    step, count = PointMass.step, [0]
+
+    def interrupted(self, action):
+        count[0] += 1
+        if count[0] == steps:
+            raise KeyboardInterrupt
+        return step(self, action)
+
+    monkeypatch.setattr(PointMass, "step", interrupted)
+
+
+def _resume_command(err: str) -> list[str]:
+    lines = err.splitlines()
+    i = next(i for i, line in enumerate(lines) if line.endswith("Resume with:"))
+    words = shlex.split(lines[i + 1])
+    assert words[:3] == ["lowcostdex", "train", "npg"] and words[-1] == "--resume"
+    return words[1:]
+
+
+def test_ctrl_c_saves_prints_the_resume_command_and_the_resumed_run_equals_a_clean_one(
+        tmp_path, capsys, monkeypatch):
+    out, clean = tmp_path / "my run", tmp_path / "clean"  # a space the command must quote
+    # iterations of 2 training + 1 evaluation episodes of 30 steps: Ctrl-C in iteration 2
+    _ctrl_c_after(monkeypatch, 2 * 90 + 40)
+    code, _, err = _train(capsys, "npg", out, "--n-iter", "4", "--seed", "3")
+    assert code == INTERRUPTED, err
+    assert "Traceback" not in err
+    assert "interrupted (Ctrl-C); saved the state after iteration 1" in err
+    monkeypatch.undo()
+    code, _, err = main(_resume_command(err)), *capsys.readouterr()
+    assert code == 0, err
+    assert _train(capsys, "npg", clean, "--n-iter", "4", "--seed", "3")[0] == 0
+    _assert_same_metrics(*(ex.read_metrics(d / ex.METRICS_FILE) for d in (out, clean)))
+
+
+def test_ctrl_c_between_checkpoints_saves_the_last_completed_iteration(tmp_path, monkeypatch):
+    cfg = TrainConfig(env_id=ENV, n_iter=5, n_traj=2, eval_every=0, eval_episodes=1,
+                      checkpoint_every=4, policy=PolicyConfig(hidden_sizes=(8,)),
+                      progress=False)
+    _ctrl_c_after(monkeypatch, 2 * 60 + 10)  # in iteration 2; no checkpoint until iteration 3
+    with pytest.raises(ex.Interrupted) as info:
+        train(cfg, tmp_path / "run", env_factory=make_pointmass)
+    assert info.value.iteration == 1
+    assert info.value.checkpoint == tmp_path / "run" / "checkpoints" / "ckpt_000001.pt"
+    monkeypatch.undo()
+    train(cfg, tmp_path / "run", resume=True, env_factory=make_pointmass)
+    train(cfg, tmp_path / "clean", env_factory=make_pointmass)
+    _assert_same_metrics(*(ex.read_metrics(d / ex.METRICS_FILE)
+                           for d in (tmp_path / "run", tmp_path / "clean")))
+
+
+def test_ctrl_c_before_the_first_checkpoint_leaves_nothing(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "run"
+    _ctrl_c_after(monkeypatch, 10)
+    code, _, err = _train(capsys, "npg", out)
+    assert code == INTERRUPTED and "Traceback" not in err
+    assert "before the first checkpoint; nothing to resume" in err
+    assert not out.exists()
+
+
+def test_ctrl_c_in_a_real_process_exits_130_with_the_resume_command(tmp_path):
+    """SIGINT to a training process, as a terminal's Ctrl-C sends it."""
+    script = textwrap.dedent(f"""
+        import sys, time
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        import gymnasium as gym
+        import pointmass
+        gym.register({ENV!r}, entry_point="pointmass:PointMass", max_episode_steps=30)
+        step = pointmass.PointMass.step
+        pointmass.PointMass.step = lambda self, a: (time.sleep(0.002), step(self, a))[1]
+        from lowcostdex.cli import main
+        sys.exit(main(sys.argv[1:]))
+        """)
+    (tmp_path / "cli.py").write_text(script)
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, str(tmp_path / "cli.py"), "train", "npg", "--env", ENV, "--out",
+         str(out), *TINY, "--n-iter", "50"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True)
+    latest = out / "checkpoints" / "latest.json"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None and not latest.exists():
+        time.sleep(0.05)
+    time.sleep(0.1)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == INTERRUPTED, err
+    assert "Traceback" not in err
+    words = _resume_command(err)
+    assert words[words.index("--out") + 1] == str(out) and "--n-iter" in words
+    saved = ex.read_json(latest)["iteration"]
+    assert f"saved the state after iteration {saved} " in err

@@ -345,6 +345,23 @@ def plot_learning_curves(
 # The run directory
 
 
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a run; the state after its last completed iteration is saved.
+
+    Attributes:
+      path: the run directory.
+      iteration: the iteration the saved checkpoint follows (None: the run had none and its
+        start was undone, see :meth:`Run.abandon`).
+      checkpoint: the checkpoint file (None with ``iteration``).
+    """
+
+    def __init__(self, path: Path, iteration: int | None, checkpoint: Path | None):
+        saved = (f"checkpoint after iteration {iteration}: {checkpoint}" if checkpoint
+                 else "no checkpoint yet")
+        super().__init__(f"training in {path} interrupted; {saved}")
+        self.path, self.iteration, self.checkpoint = path, iteration, checkpoint
+
+
 @dataclass(frozen=True)
 class Checkpoint:
     """A loaded checkpoint.
@@ -422,6 +439,9 @@ class Run:
         self._tb: Any = None
         self._created = False
         self._json_written: set[str] = set()
+        self.last_saved: tuple[int, Path] | None = None
+        """(iteration, file) of the checkpoint saved or resumed from last in this process."""
+        self._pending: tuple[int, dict[str, Any]] | None = None
 
     @classmethod
     def check(
@@ -596,7 +616,23 @@ class Run:
         save_state(file, state)
         write_json(self.checkpoint_dir / LATEST_FILE, {"iteration": int(iteration), "file": name})
         self._prune(iteration)
+        self.last_saved, self._pending = (int(iteration), file), None
         return file
+
+    def keep_for_interrupt(self, iteration: int, state: Mapping[str, Any]) -> None:
+        """Hold a copy of the state after ``iteration`` (one that was not checkpointed, e.g.
+        between ``checkpoint_every`` periods) for :meth:`interrupted` to save."""
+        self._pending = (int(iteration), _to_safe(dict(state), "state"))
+
+    def interrupted(self) -> Interrupted:
+        """After Ctrl-C: save the state held by :meth:`keep_for_interrupt` if it is newer than
+        the last checkpoint, and return the :class:`Interrupted` naming the checkpoint to
+        resume from (the trainer raises it)."""
+        if self._pending is not None and (self.last_saved is None
+                                          or self._pending[0] > self.last_saved[0]):
+            self.save_checkpoint(*self._pending)
+        iteration, file = self.last_saved or (None, None)
+        return Interrupted(self.path, iteration, file)
 
     def _prune(self, current: int) -> None:
         """Keep the ``keep_last`` newest checkpoints up to ``current``; later ones are of a
@@ -644,6 +680,7 @@ class Run:
             raise ConfigError(f"cannot resume {self.path}: no checkpoint loads: "
                               f"{'; '.join(skipped)}")
         self.metrics.truncate(ckpt.iteration)
+        self.last_saved = (ckpt.iteration, file)
         if log is not None:
             rel = file.relative_to(self.path)
             log(f"resuming {self.path} from {rel} (after iteration {ckpt.iteration})"
@@ -677,6 +714,22 @@ class Run:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def stopped(run: Run | None, exc: BaseException, resume: bool) -> BaseException:
+    """What a trainer raises when ``exc`` stops its run (``run``: None if not opened yet).
+
+    After Ctrl-C the state after the last completed iteration is saved and an
+    :class:`Interrupted` naming it is returned; a new run (not ``resume``) that saved no
+    checkpoint is undone (:meth:`Run.abandon`), so it does not block the next start.
+    Otherwise ``exc`` itself.
+    """
+    interrupted = None
+    if run is not None and isinstance(exc, KeyboardInterrupt):
+        interrupted = exc if isinstance(exc, Interrupted) else run.interrupted()
+    if run is not None and not resume and run.abandon() and interrupted is not None:
+        interrupted = Interrupted(run.path, None, None)
+    return interrupted or exc
 
 
 # ----------------------------------------------------------------------------------------------

@@ -362,6 +362,8 @@ def train(config: PPOConfig, out_dir: str | Path, resume: bool = False,
             run.log(row)
             if final or (k + 1) % c.checkpoint_every == 0 or k == stop_after:
                 run.save_checkpoint(k, agent.state(best))
+            else:  # saved if Ctrl-C comes before the next checkpoint
+                run.keep_for_interrupt(k, agent.state(best))
             bar.update(1)
             bar.set_postfix(samples=agent.samples, success=f"{row[ex.SUCCESS_RATE]:.2f}")
             if final or k == stop_after:
@@ -371,10 +373,11 @@ def train(config: PPOConfig, out_dir: str | Path, resume: bool = False,
         best.finish({"policy": agent.actor.to_checkpoint()})
         run.write_json(ex.SUMMARY_FILE, ex.run_summary(run.read_metrics(), best.record,
                                                        wall_seconds=agent.wall_seconds))
-    except BaseException:
-        if run is not None and not resume:
-            run.abandon()  # a start that saved no checkpoint leaves nothing behind
-        raise
+    except BaseException as exc:  # Ctrl-C saves; a start without checkpoint is undone
+        stopped = ex.stopped(run, exc, resume)
+        if stopped is exc:
+            raise
+        raise stopped from None
     finally:
         torch.set_num_threads(threads)
         for e in (env, eval_env):

@@ -345,10 +345,11 @@ def train(
             _restore(state, ckpt)
             start = ckpt.iteration + 1
         _loop(config, run, sampler, state, demos, start, stop_after, until)
-    except BaseException:
-        if run is not None and not resume:
-            run.abandon()  # a start that saved no checkpoint leaves nothing behind
-        raise
+    except BaseException as exc:
+        stopped = ex.stopped(run, exc, resume)
+        if stopped is exc:
+            raise
+        raise stopped from None
     finally:
         torch.set_num_threads(threads)
         for s in (probe, sampler):
@@ -437,6 +438,8 @@ def _loop(
         run.log(row)
         if final or (k + 1) % config.checkpoint_every == 0 or k == stop_after:
             run.save_checkpoint(k, state.to_checkpoint(k))
+        else:  # saved if Ctrl-C comes before the next checkpoint
+            run.keep_for_interrupt(k, state.to_checkpoint(k))
         bar.update(1)
         bar.set_postfix(
             samples=state.samples, success=f"{row[ex.SUCCESS_RATE]:.2f}",

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import shlex
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -33,12 +35,12 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
     ):
         p = train_subparsers.add_parser(algo, help=help_text, description=help_text)
         _add_arguments(p, algo)
-        p.set_defaults(func=_run_command, algo=algo)
+        p.set_defaults(func=_run_command, algo=algo, parser=p)
     p = train_subparsers.add_parser(
         "ppo", help="PPO on the batched simulator (the massively parallel baseline)",
         description="PPO-clip on many copies of a sim task stepped together by mujoco.batch")
     _add_ppo_arguments(p)
-    p.set_defaults(func=_run_ppo)
+    p.set_defaults(func=_run_ppo, parser=p)
 
 
 def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
@@ -185,7 +187,11 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
 def _run_command(args: argparse.Namespace) -> int:
     from lowcostdex.algos.train import train
 
-    run = train(config_from_args(args), args.out, resume=args.resume)
+    config = config_from_args(args)
+    try:
+        run = train(config, args.out, resume=args.resume)
+    except KeyboardInterrupt as exc:
+        return _interrupted(args, exc)
     _print_outcome(run)
     return 0
 
@@ -193,9 +199,59 @@ def _run_command(args: argparse.Namespace) -> int:
 def _run_ppo(args: argparse.Namespace) -> int:
     from lowcostdex.algos.ppo import train
 
-    run = train(ppo_config_from_args(args), args.out, resume=args.resume)
+    config = ppo_config_from_args(args)
+    try:
+        run = train(config, args.out, resume=args.resume)
+    except KeyboardInterrupt as exc:
+        return _interrupted(args, exc)
     _print_outcome(run)
     return 0
+
+
+def command_line(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                 resume: bool) -> str:
+    """The command that runs ``args`` again (shell-quoted): the options that differ from
+    their defaults, ``--out`` and ``--demos`` as absolute paths, ``--resume`` if asked."""
+    words = parser.prog.split()
+    for action in parser._actions:
+        if not action.option_strings or action.dest in ("help", "debug", "resume"):
+            continue
+        value = getattr(args, action.dest, action.default)
+        if value is None or value == action.default:
+            continue
+        flag = max(action.option_strings, key=len)
+        if action.dest in ("out", "demos"):
+            value = str(Path(value).resolve())
+        if isinstance(action, argparse._StoreTrueAction):
+            words.append(flag)
+        elif isinstance(action, argparse._AppendAction):
+            for item in value:
+                words += [flag, str(item)]
+        elif isinstance(value, (list, tuple)):
+            words += [flag, *map(str, value)]
+        else:
+            words += [flag, str(value)]
+    if resume:
+        words.append("--resume")
+    return shlex.join(words)
+
+
+def _interrupted(args: argparse.Namespace, exc: KeyboardInterrupt) -> int:
+    """Ctrl-C: where the run stands and the exact command that continues it."""
+    from lowcostdex.algos.experiment import Interrupted
+    from lowcostdex.cli import INTERRUPTED
+
+    prog = args.parser.prog
+    checkpoint = exc.checkpoint if isinstance(exc, Interrupted) else None
+    if checkpoint is not None:
+        print(f"{prog}: interrupted (Ctrl-C); saved the state after iteration "
+              f"{exc.iteration} ({checkpoint}). Resume with:\n"  # type: ignore[attr-defined]
+              f"  {command_line(args.parser, args, resume=True)}", file=sys.stderr)
+    else:
+        print(f"{prog}: interrupted (Ctrl-C) before the first checkpoint; nothing to resume. "
+              f"Start again with:\n  {command_line(args.parser, args, resume=args.resume)}",
+              file=sys.stderr)
+    return INTERRUPTED
 
 
 def _print_outcome(run: Any) -> None:
