@@ -135,9 +135,10 @@ def test_sustained_load_thermal_pause_before_shutdown_then_training_resumes():
 def test_without_the_guard_the_same_load_trips_the_firmware():
     """Control for the test above: the load is enough to reach the firmware's shutdown."""
     chain = emulated_dclaw("valve", hand=HAND, rng=np.random.default_rng(0))
+    # EEPROM limits from the hand's mechanical ranges; the obstacle comes after
+    bus = make_dynamixel_bus(HAND, chain.port(), chain.plant.model)
     _jam_middles(chain)
     _preheat(chain, 45.0)  # 70 deg C: the last 10 K that the guard never lets happen
-    bus = make_dynamixel_bus(HAND, chain.port(), chain.plant.model)
     with bus:
         ids = [HAND.joint(n).motor_id for n in MIDDLES]
         bus.set_torque(True, ids)

@@ -36,7 +36,7 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.bus import MotorBus
-from lowcostdex.hardware.hands import HandSpec
+from lowcostdex.hardware.hands import HandSpec, check_model_ranges
 from lowcostdex.hardware.reset import (
     DClawReset,
     FlipBlockReset,
@@ -419,7 +419,12 @@ def motor_limits(hand: HandSpec, model: mujoco.MjModel | None = None,
     the policy limits; the wider EEPROM range lets a joint that contacts pushed past its policy
     limit while limp be torqued and pulled back in, and still stops a runaway host at the
     mechanical stops. Joints spanning a full turn (the valve) keep their limits.
+
+    Raises:
+      ConfigError: a joint's limits leave the model's joint range (``check_model_ranges``).
     """
+    if model is not None:
+        check_model_ranges(hand, model)
     names = {model.joint(i).name for i in range(model.njnt)} if model is not None else set()
     out = []
     for j in hand.all_joints:

@@ -9,6 +9,12 @@ Calibration convention (invertible, per joint)::
 
 so ROBEL's D'Claw map (scale 1, offsets -pi/2 on top joints, -pi elsewhere) puts sim zero at raw
 tick 1024 (top) and 2048 (middle, bottom).
+
+Specs are checked where they are built or loaded (ConfigError naming the joint, field and value;
+``HandSpec.load`` adds the file): finite limits and calibration, ``max_velocity`` within what
+the motor can turn, one motor id per joint, and on Dynamixel hands every joint's limits inside
+the motor's one turn of position mode. ``check_model_ranges`` checks the limits against a
+model's joint ranges (the mechanical stops) where a spec meets its model.
 """
 
 from __future__ import annotations
@@ -19,7 +25,21 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, InputError, check_choice
+
+MAX_JOINT_SPEED = 50.0
+"""Largest plausible ``max_velocity`` of any joint [rad/s]: above every servo listed in
+``lowcostdex.sim.servo`` (the fastest, XL330-M077, turns 383 rpm = 40 rad/s no-load)."""
+_ONE_TURN = 2.0 * math.pi  # position mode: one turn of the motor, ticks 0 .. ticks_per_rev - 1
+
+
+def _finite(what: str, value: float) -> None:
+    try:
+        ok = math.isfinite(value)
+    except TypeError:
+        ok = False
+    if not ok:
+        raise ConfigError(f"{what} must be a finite number, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -33,6 +53,8 @@ class Calibration:
     def __post_init__(self) -> None:
         if self.sign not in (-1, 1):
             raise ConfigError(f"calibration sign must be +1 or -1, got {self.sign}")
+        _finite("calibration offset", self.offset)
+        _finite("calibration scale", self.scale)
         if not self.scale > 0:
             raise ConfigError(f"calibration scale must be > 0, got {self.scale}")
 
@@ -70,8 +92,16 @@ class JointSpec:
     calibration: Calibration = Calibration()
 
     def __post_init__(self) -> None:
+        for name in ("low", "high", "max_velocity"):
+            _finite(f"joint {self.name}: {name}", getattr(self, name))
         if not self.low < self.high:
             raise ConfigError(f"joint {self.name}: low {self.low} must be < high {self.high}")
+        if not 0 < self.max_velocity <= MAX_JOINT_SPEED:
+            raise ConfigError(f"joint {self.name}: max_velocity {self.max_velocity} rad/s is "
+                              f"outside (0, {MAX_JOINT_SPEED}]; it bounds each step's motion")
+        if not isinstance(self.calibration, Calibration):
+            raise ConfigError(f"joint {self.name}: calibration must be a Calibration, got "
+                              f"{self.calibration!r}")
 
 
 @dataclass(frozen=True)
@@ -89,6 +119,45 @@ class HandSpec:
     motor: str
     joints: tuple[JointSpec, ...]
     aux_joints: tuple[JointSpec, ...] = ()
+
+    def __post_init__(self) -> None:
+        seen: dict[int, str] = {}
+        names: set[str] = set()
+        for j in self.all_joints:
+            if j.motor_id in seen:
+                raise ConfigError(f"hand {self.name}: joints {seen[j.motor_id]} and {j.name} are "
+                                  f"both on motor id {j.motor_id}; every joint needs its own "
+                                  "motor")
+            if j.name in names:
+                raise ConfigError(f"hand {self.name}: joint name {j.name} appears twice")
+            seen[j.motor_id] = j.name
+            names.add(j.name)
+        from lowcostdex.sim import servo
+
+        if self.motor in servo.MOTORS:
+            self._check_motor_range(servo.MOTORS[self.motor])
+
+    def _check_motor_range(self, motor) -> None:
+        """Limits inside the motor's one turn of position mode; max_velocity within the joint
+        speed the motor reaches unloaded."""
+        tick = _ONE_TURN / motor.ticks_per_rev
+        for j in self.all_joints:
+            c = j.calibration
+            a, b = sorted((c.to_motor(j.low), c.to_motor(j.high)))
+            if b - a > _ONE_TURN + 1e-9:
+                raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad span "
+                                  f"{b - a:.3f} rad of motor {j.motor_id}, more than its one "
+                                  f"turn ({_ONE_TURN:.4f} rad) in position mode")
+            if b - a < _ONE_TURN - 1e-9 and (a < -tick or b > _ONE_TURN + tick):
+                raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad are motor "
+                                  f"{j.motor_id} angles [{a:.4f}, {b:.4f}] rad, outside its "
+                                  f"range [0, {_ONE_TURN:.4f}] (ticks 0..{motor.ticks_per_rev - 1});"
+                                  " check the limits and the calibration offset")
+            top = motor.no_load_speed * c.scale
+            if j.max_velocity > top:
+                raise ConfigError(f"joint {j.name}: max_velocity {j.max_velocity} rad/s is "
+                                  f"faster than a {motor.name} turns it unloaded ({top:.3f} "
+                                  "rad/s)")
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -134,7 +203,27 @@ class HandSpec:
 
     @classmethod
     def load(cls, path: str | Path) -> HandSpec:
-        return cls.from_json(Path(path).read_text())
+        """The spec in a JSON file; InputError naming the file and what is wrong with it."""
+        try:
+            return cls.from_json(Path(path).read_text())
+        except ConfigError as exc:
+            raise InputError(f"{path}: {exc}") from None
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise InputError(f"{path}: not a hand spec JSON ({type(exc).__name__}: {exc})"
+                             ) from None
+
+
+def check_model_ranges(hand: HandSpec, model) -> None:
+    """Raise ConfigError unless every joint's limits lie inside its range in ``model`` (an
+    ``mujoco.MjModel``; the mechanical stops), for the joints the model has and limits."""
+    names = {model.joint(i).name for i in range(model.njnt)}
+    for j in hand.all_joints:
+        if j.name not in names or not model.jnt_limited[model.joint(j.name).id]:
+            continue
+        lo, hi = (float(x) for x in model.jnt_range[model.joint(j.name).id])
+        if j.low < lo or j.high > hi:
+            raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad leave the "
+                              f"model's joint range [{lo}, {hi}] rad (the mechanical stops)")
 
 
 DCLAW_FINGERS = ("ff", "mf", "th")
