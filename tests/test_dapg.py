@@ -111,3 +111,22 @@ def test_demo_term_pulls_the_policy_toward_the_demos():
 def test_dapg_config_validates():
     with pytest.raises(ConfigError, match="lam1"):
         DAPGConfig(lam1=1.5)
+
+
+def test_demo_weight_by_hand_when_the_largest_advantage_is_below_one_or_negative():
+    """Issue 19: w_k = lam0 lam1^k max(A) (paper) also when max(A) < 1, 0 when all A < 0;
+    the mjrl form is lam0 lam1^k whatever the advantages."""
+    assert demo_weight(2, 0.1, 0.95, np.array([-0.3, 0.5, 0.2]), "paper") == pytest.approx(
+        0.1 * 0.9025 * 0.5)
+    assert demo_weight(0, 0.1, 0.95, np.array([-0.3, -0.1]), "paper") == 0.0
+    assert demo_weight(3, 0.01, 0.95, np.array([-5.0, -1.0]), "mjrl") == pytest.approx(
+        0.01 * 0.857375)
+    with pytest.raises(ValueError, match="k=-1"):
+        demo_weight(-1, 0.1, 0.95, np.array([1.0]), "paper")
+
+
+def test_dapg_update_in_mjrl_mode_uses_the_constant_weight():
+    cfg, ncfg = DAPGConfig(lam0=0.01, lam1=0.95, demo_weight="mjrl"), npg.NPGConfig()
+    policy, obs, actions, adv, d_obs, d_act = _setup()
+    stats = dapg_update(policy, obs, actions, adv, d_obs, d_act, 2, cfg, ncfg)
+    assert stats["demo_weight"] == pytest.approx(0.01 * 0.95**2)

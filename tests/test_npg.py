@@ -196,3 +196,59 @@ def test_gae_matches_hand_computed_example():
 def test_whiten():
     w = whiten(np.array([1.0, 2.0, 3.0, 6.0]))
     assert w.mean() == pytest.approx(0.0, abs=1e-12) and w.std() == pytest.approx(1.0, rel=1e-5)
+
+
+def test_backtracking_gives_up_after_exactly_max_backtracks_more_trials():
+    """Issue 19: the give-up count. 1 + max_backtracks trials, then (0, 0, max_backtracks + 1)."""
+    tried = []
+    alpha, kl, n = npg.backtrack_kl(lambda a: tried.append(a) or 1.0, 2.0, 0.5, 0.5, 3)
+    assert tried == [2.0, 1.0, 0.5, 0.25] and (alpha, kl, n) == (0.0, 0.0, 4)
+    # KL equal to the bound is accepted (<=): kl(a) = a, bound 0.512 = 0.8**3 exactly reachable
+    alpha, kl, n = npg.backtrack_kl(lambda a: a, 1.0, 0.8**3, 0.8, 10)
+    assert n == 3 and alpha == pytest.approx(0.512)
+
+
+def test_conjugate_gradient_stops_on_the_residual_tolerance():
+    """r^T r below the tolerance stops CG before any product; equal to it does not."""
+    calls = []
+
+    def twice(v):
+        calls.append(1)
+        return 2.0 * v
+
+    b = torch.tensor([0.5], dtype=torch.float64)          # r^T r = 0.25 at x = 0
+    x = npg.conjugate_gradient(twice, b, iters=10, residual_tol=0.25)
+    assert x.item() == pytest.approx(0.25) and len(calls) == 1   # one step solves 2x = 0.5
+    calls.clear()
+    x = npg.conjugate_gradient(twice, b, iters=10, residual_tol=0.2500001)
+    assert x.item() == 0.0 and calls == []
+    # 3x3 SPD system, tolerance never reached: exactly `iters` products
+    a = torch.tensor([[4.0, 1, 0], [1, 3, 1], [0, 1, 2]], dtype=torch.float64)
+    calls.clear()
+    npg.conjugate_gradient(lambda v: calls.append(1) or a @ v,
+                           torch.tensor([1.0, 2, 3], dtype=torch.float64), iters=2,
+                           residual_tol=0.0)
+    assert len(calls) == 2
+
+
+@pytest.mark.parametrize("frac, n, expected", [(0.25, 40, 10), (0.26, 40, 10), (0.01, 40, 1),
+                                               (0.5, 81, 40)])
+def test_fisher_subsample_size(monkeypatch, frac, n, expected):
+    """The Fisher uses round(frac * N) observations (at least 1), drawn without replacement."""
+    seen = []
+    real = npg.make_fisher_vector_product
+
+    def spy(policy, obs, damping):
+        seen.append(obs)
+        return real(policy, obs, damping)
+
+    monkeypatch.setattr(npg, "make_fisher_vector_product", spy)
+    policy = _policy(hidden=(4,))
+    obs, actions, adv = _batch(policy, n=n)
+    npg.npg_update(policy, obs, actions, adv, npg.NPGConfig(fvp_sample_frac=frac),
+                   generator=torch.Generator().manual_seed(0))
+    (used,) = seen
+    assert used.shape[0] == expected
+    assert len({tuple(r.tolist()) for r in used}) == expected        # no repeats
+    rows = {tuple(r.tolist()) for r in obs}
+    assert all(tuple(r.tolist()) in rows for r in used)
