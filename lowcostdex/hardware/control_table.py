@@ -239,25 +239,25 @@ _X430_DEFAULTS: dict[Reg, int] = {
     Reg.GOAL_PWM: 885, Reg.GOAL_CURRENT: 1193, Reg.GOAL_VELOCITY: 0,
     Reg.PROFILE_ACCELERATION: 0, Reg.PROFILE_VELOCITY: 0,
 }
-# Per-model differences (e-Manual model pages). XH430 current limits: 648 is the XH430-W210 page's
-# value; the W350 and V-series figures are [UNVERIFIED] and kept equal to the documented ones.
+# Per-model differences (the e-Manual model pages' control tables; every value is checked
+# against the e-Manual in tests/test_vendor_units.py).
 _MODEL_DEFAULTS: dict[str, dict[Reg, int]] = {
     "XM430-W210": {},
-    "XM430-W350": {},
-    "XH430-W210": {Reg.CURRENT_LIMIT: 648, Reg.GOAL_CURRENT: 648},
-    "XH430-W350": {Reg.CURRENT_LIMIT: 648, Reg.GOAL_CURRENT: 648},
-    "XH430-V210": {Reg.CURRENT_LIMIT: 689, Reg.GOAL_CURRENT: 689,
-                   Reg.MAX_VOLTAGE_LIMIT: 300, Reg.MIN_VOLTAGE_LIMIT: 150},
-    "XH430-V350": {Reg.CURRENT_LIMIT: 689, Reg.GOAL_CURRENT: 689,
-                   Reg.MAX_VOLTAGE_LIMIT: 300, Reg.MIN_VOLTAGE_LIMIT: 150},
+    "XM430-W350": {Reg.VELOCITY_LIMIT: 200},
+    "XH430-W210": {Reg.CURRENT_LIMIT: 648, Reg.GOAL_CURRENT: 648, Reg.VELOCITY_LIMIT: 210},
+    "XH430-W350": {Reg.CURRENT_LIMIT: 648, Reg.GOAL_CURRENT: 648, Reg.VELOCITY_LIMIT: 130},
+    "XH430-V210": {Reg.CURRENT_LIMIT: 689, Reg.GOAL_CURRENT: 689, Reg.VELOCITY_LIMIT: 380,
+                   Reg.MAX_VOLTAGE_LIMIT: 300, Reg.MIN_VOLTAGE_LIMIT: 110},
+    "XH430-V350": {Reg.CURRENT_LIMIT: 689, Reg.GOAL_CURRENT: 689, Reg.VELOCITY_LIMIT: 135,
+                   Reg.MAX_VOLTAGE_LIMIT: 300, Reg.MIN_VOLTAGE_LIMIT: 110},
     "XL330-M288": {Reg.TEMPERATURE_LIMIT: 70, Reg.MAX_VOLTAGE_LIMIT: 70,
                    Reg.MIN_VOLTAGE_LIMIT: 35, Reg.CURRENT_LIMIT: 1750, Reg.GOAL_CURRENT: 1750,
                    Reg.VELOCITY_LIMIT: 445, Reg.VELOCITY_I_GAIN: 1600,
-                   Reg.VELOCITY_P_GAIN: 180},
+                   Reg.VELOCITY_P_GAIN: 180, Reg.SHUTDOWN: 53},
     "XL330-M077": {Reg.TEMPERATURE_LIMIT: 70, Reg.MAX_VOLTAGE_LIMIT: 70,
                    Reg.MIN_VOLTAGE_LIMIT: 35, Reg.CURRENT_LIMIT: 1750, Reg.GOAL_CURRENT: 1750,
-                   Reg.VELOCITY_LIMIT: 445, Reg.VELOCITY_I_GAIN: 1600,
-                   Reg.VELOCITY_P_GAIN: 180},
+                   Reg.VELOCITY_LIMIT: 1620, Reg.VELOCITY_I_GAIN: 400,
+                   Reg.VELOCITY_P_GAIN: 40, Reg.SHUTDOWN: 53},
 }
 SUPPORTED_MODELS = tuple(_MODEL_DEFAULTS)
 """Models the emulator can impersonate (factory defaults known)."""
@@ -266,14 +266,18 @@ SUPPORTED_MODELS = tuple(_MODEL_DEFAULTS)
 def factory_defaults(model: str) -> dict[Reg, int]:
     """Factory value of every writable item of ``model`` (device units).
 
-    The Position P Gain default is the servo model's (``lowcostdex.sim.servo.MotorSpec.default_p``)
-    so the emulated firmware and the nominal simulation start from the same gain.
+    The Position P/I/D Gain defaults are the servo model's (``lowcostdex.sim.servo.MotorSpec``
+    ``default_p/i/d``) so the emulated firmware and the nominal simulation start from the same
+    gains.
     """
     from lowcostdex.sim.servo import motor_spec
 
     check_choice("emulated Dynamixel model", model, SUPPORTED_MODELS)
     out = {**_X430_DEFAULTS, **_MODEL_DEFAULTS[model]}
-    out[Reg.POSITION_P_GAIN] = motor_spec(model).default_p
+    m = motor_spec(model)
+    out[Reg.POSITION_P_GAIN] = m.default_p
+    out[Reg.POSITION_I_GAIN] = m.default_i
+    out[Reg.POSITION_D_GAIN] = m.default_d
     return out
 
 

@@ -97,12 +97,12 @@ class FlipTeacherConfig:
     gap: float = 0.002
     behind: float = 0.012
     clear: float = 0.03
-    release: float = math.radians(55)
+    release: float = math.radians(60)
     settle_angle: float = math.radians(20)
     settle_motion: float = 0.003
     push_yaw_gain: float = 0.04
     push_yaw_max: float = 0.016
-    carry_step: float = 0.012
+    carry_step: float = 0.010
     carry_low: float = 0.013
     carry_push: float = 0.004
     carrier_spread: float = 0.02

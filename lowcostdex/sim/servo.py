@@ -86,7 +86,8 @@ class MotorSpec:
       velocity_unit: Present Velocity LSB [rad/s] (0.229 rpm).
       ticks_per_rev: encoder resolution [ticks/rev].
       pwm_max: PWM register full scale (885 = 100 % duty on X-series).
-      default_p: factory Position P Gain.
+      default_p, default_i, default_d: factory Position P / I / D Gain (e-Manual control
+        table; the emulated firmware boots with them and the simulated servo uses them).
       thermal: winding thermal model.
       backlash: manufacturer backlash [rad] (documentation / DR prior).
       max_duty: firmware duty ceiling as a fraction of full scale (BAM's ``max_pwm``); the
@@ -105,6 +106,8 @@ class MotorSpec:
     ticks_per_rev: int = 4096
     pwm_max: int = 885
     default_p: int = 800
+    default_i: int = 0
+    default_d: int = 0
     error_gain: float = field(default=float("nan"))
     d_error_gain: float = field(default=float("nan"))
     i_error_gain: float = field(default=float("nan"))
@@ -126,6 +129,11 @@ class MotorSpec:
         if math.isnan(self.i_error_gain):
             object.__setattr__(self, "i_error_gain", tpr * 1e3 / (65536.0 * self.pwm_max))
 
+    def factory_gains(self) -> ServoGains:
+        """The factory Position P/I/D gains as ``ServoGains`` (other settings at defaults)."""
+        return ServoGains(position_p=self.default_p, position_i=self.default_i,
+                          position_d=self.default_d)
+
     @property
     def ticks_per_rad(self) -> float:
         return self.ticks_per_rev / TWO_PI
@@ -146,24 +154,27 @@ _X430_THERMAL = ThermalSpec(resistance=12.0, capacitance=8.0)
 MOTORS: dict[str, MotorSpec] = {
     m.name: m
     for m in (
-        # ROBOTIS e-Manual figures at 12 V (05-dynamixel-protocol.md section 4).
+        # ROBOTIS e-Manual figures at 12 V (05-dynamixel-protocol.md section 4). Current units
+        # and factory gains from each model's control table (checked against the e-Manual in
+        # tests/test_vendor_units.py): 2.69 mA for XM430 and XH430-W, 1.34 mA for XH430-V;
+        # Position P 900 on the XH430-W, 800 on the others.
         MotorSpec("XM430-W210", 1030, 12.0, 3.0, 77 * TWO_PI / 60, 212.6, 0.0012),
         MotorSpec("XM430-W350", 1020, 12.0, 4.1, 46 * TWO_PI / 60, 353.5, 0.0030),
         MotorSpec("XH430-W210", 1010, 12.0, 2.5, 50 * TWO_PI / 60, 212.6, 0.0012,
-                  current_unit=1.34e-3),
+                  default_p=900),
         MotorSpec("XH430-W350", 1000, 12.0, 3.4, 30 * TWO_PI / 60, 353.5, 0.0030,
-                  current_unit=1.34e-3),
+                  default_p=900),
         MotorSpec("XH430-V210", 1050, 24.0, 2.6, 52 * TWO_PI / 60, 212.6, 0.0012,
                   current_unit=1.34e-3),
         MotorSpec("XH430-V350", 1040, 24.0, 3.3, 31 * TWO_PI / 60, 353.5, 0.0030,
                   current_unit=1.34e-3),
         # XL330: 5 V class, plastic gears; BAM found the effective P divisor to be 256.
-        MotorSpec("XL330-M288", 1200, 5.0, 0.52, 103 * TWO_PI / 60, 288.35, 0.0003,
+        MotorSpec("XL330-M288", 1200, 5.0, 0.52, 103 * TWO_PI / 60, 288.4, 0.0003,
                   current_unit=1.0e-3, default_p=400,
                   error_gain=(4096 / TWO_PI) / (256.0 * 885),
                   thermal=ThermalSpec(resistance=18.0, capacitance=3.0, limit=70.0)),
-        MotorSpec("XL330-M077", 1190, 5.0, 0.215, 383 * TWO_PI / 60, 77.0, 0.0001,
-                  current_unit=1.0e-3, default_p=400,
+        MotorSpec("XL330-M077", 1190, 5.0, 0.215, 383 * TWO_PI / 60, 77.5, 0.0001,
+                  current_unit=1.0e-3, default_p=400, default_i=400,
                   error_gain=(4096 / TWO_PI) / (256.0 * 885),
                   thermal=ThermalSpec(resistance=18.0, capacitance=3.0, limit=70.0)),
         # MX-64/MX-106 (Protocol 1/2, 12 V datasheet figures). BAM measured the P path with an

@@ -86,8 +86,7 @@ class BenchConfig:
 
     def servo_gains(self) -> servo.ServoGains:
         m = self.motor_spec
-        g = self.gains or servo.ServoGains(position_p=m.default_p,
-                                           pwm_limit=round(m.max_duty * m.pwm_max))
+        g = self.gains or m.factory_gains().replace(pwm_limit=round(m.max_duty * m.pwm_max))
         if self.supply is not None:
             g = g.replace(supply_voltage=self.supply)
         return g

@@ -101,7 +101,7 @@ def build_dclaw(
     Args:
       station: one of STATIONS.
       hand: hand spec (joint names, motor model); default ``dclaw_spec()`` (XH430-W350).
-      gains: firmware gains of every servo (default: the motor's factory P gain).
+      gains: firmware gains of every servo (default: the motor's factory P/I/D gains).
       thermal: model winding temperature (one activation state per servo).
       fingers: fingers to build (a subset of DCLAW_FINGERS, e.g. ("ff",) for a single-finger
         test model with station "none"); the hand's other joints and servos are left out.
@@ -111,7 +111,7 @@ def build_dclaw(
         check_choice("D'Claw finger", f, DCLAW_FINGERS)
     hand = hand or dclaw_spec()
     motor = servo.motor_spec(hand.motor)
-    gains = gains or servo.ServoGains(position_p=motor.default_p)
+    gains = gains or motor.factory_gains()
     spec = new_spec(f"dclaw_{station}")
     add_floor(spec)
     spec.worldbody.add_camera(name="front", pos=[0.0, -0.45, 0.35], xyaxes=[1, 0, 0, 0, 0.6, 0.8])

@@ -1,0 +1,198 @@
+"""Every unit and factory default the project uses for a Dynamixel model, checked against the
+vendor's own published numbers typed in below (never against the project's constants).
+
+Sources, one row per model:
+  * the ROBOTIS e-Manual model page's control table, ROBOTIS-GIT/emanual
+    ``docs/en/dxl/x/<model>.md`` (commit named per row): the "Initial/Default Value" and "Unit"
+    columns of rows Model Number (0), ID (7), Baud Rate (8), Return Delay Time (9),
+    Operating Mode (11), Moving Threshold (24), Temperature Limit (31), Max/Min Voltage Limit
+    (32/34), PWM Limit (36), Current Limit (38, unit = the current unit), Velocity Limit (44),
+    Max/Min Position Limit (48/52), Shutdown (63), Velocity I/P Gain (76/78), Position D/I/P
+    Gain (80/82/84), Present Current (126) and Present Velocity (128) units;
+  * the e-Manual's spec data ``_data/dxl_x_info.yml`` (commit 0028038): resolution
+    "4096 [pulse/rev]" (0.088 deg), gear ratio, the bold (recommended-voltage) stall torque and
+    no-load speed;
+  * the Baud Rate table include (``_includes/en/dxl/control_table_baudrate_2.md``, quoted in
+    05-dynamixel-protocol.md section 4): value 1 = 57,600 bps, 3 = 1 Mbps;
+  * as an independent second source, the control-table files dynamixel-sdk 4.1 ships
+    (``dynamixel_easy_sdk/control_table/*.model``), read directly here: model number map, item
+    addresses, the velocity unit (rad/s per count) and the tick of 0 rad.
+"""
+
+from __future__ import annotations
+
+import math
+from importlib import resources
+
+import pytest
+
+from lowcostdex.hardware.control_table import Reg, factory_defaults, load_control_table
+from lowcostdex.hardware.protocol import BAUD_CODES
+from lowcostdex.sim.servo import MOTORS
+
+RPM = 2 * math.pi / 60  # rad/s per rev/min
+
+# e-Manual rows common to the X430 and XL330 pages (identical on every page below).
+COMMON = {
+    "id": 1,  # ID(7) initial value
+    "baud_index": 1,  # Baud Rate(8) initial value (= 57,600 bps)
+    "return_delay": 250,  # Return Delay Time(9), unit 2 us
+    "operating_mode": 3,  # Operating Mode(11): position control
+    "moving_threshold": 10,  # Moving Threshold(24)
+    "pwm_limit": 885,  # PWM Limit(36), unit 0.113 %
+    "max_position": 4095, "min_position": 0,  # Max/Min Position Limit(48/52)
+    "velocity_rpm": 0.229,  # Present Velocity(128) unit [rev/min]
+    "pulse_per_rev": 4096,  # dxl_x_info.yml resolution "4096 [pulse/rev]"
+    "degree": 0.088,  # "Degree of Precision 0.088 deg" / 360 / 4096
+}
+
+EMANUAL = {
+    # docs/en/dxl/x/xm430-w210.md @8bb7656; dxl_x_info.yml xm430-w210
+    "XM430-W210": dict(model_number=1030, current_ma=2.69, current_limit=1193,
+                       velocity_limit=330, temperature_limit=80, max_voltage=160,
+                       min_voltage=95, shutdown=52, velocity_i=1920, velocity_p=100,
+                       position_d=0, position_i=0, position_p=800, volts=12.0,
+                       stall_torque=3.0, no_load_rpm=77, gear_ratio=212.6),
+    # docs/en/dxl/x/xm430-w350.md @0855172
+    "XM430-W350": dict(model_number=1020, current_ma=2.69, current_limit=1193,
+                       velocity_limit=200, temperature_limit=80, max_voltage=160,
+                       min_voltage=95, shutdown=52, velocity_i=1920, velocity_p=100,
+                       position_d=0, position_i=0, position_p=800, volts=12.0,
+                       stall_torque=4.1, no_load_rpm=46, gear_ratio=353.5),
+    # docs/en/dxl/x/xh430-w210.md @1cf2abe (2.69 mA; 1.34 mA is the XH430-V value)
+    "XH430-W210": dict(model_number=1010, current_ma=2.69, current_limit=648,
+                       velocity_limit=210, temperature_limit=80, max_voltage=160,
+                       min_voltage=95, shutdown=52, velocity_i=1920, velocity_p=100,
+                       position_d=0, position_i=0, position_p=900, volts=12.0,
+                       stall_torque=2.5, no_load_rpm=50, gear_ratio=212.6),
+    # docs/en/dxl/x/xh430-w350.md @028a13d and @6aca77e agree (the D'Claw's default motor)
+    "XH430-W350": dict(model_number=1000, current_ma=2.69, current_limit=648,
+                       velocity_limit=130, temperature_limit=80, max_voltage=160,
+                       min_voltage=95, shutdown=52, velocity_i=1920, velocity_p=100,
+                       position_d=0, position_i=0, position_p=900, volts=12.0,
+                       stall_torque=3.4, no_load_rpm=30, gear_ratio=353.5),
+    # docs/en/dxl/x/xh430-v210.md @00fc361 (the newest stored page; older layout with an
+    # Acceleration Limit row; its Current Limit unit "about 1.34 [mA]")
+    "XH430-V210": dict(model_number=1050, current_ma=1.34, current_limit=689,
+                       velocity_limit=380, temperature_limit=80, max_voltage=300,
+                       min_voltage=110, shutdown=52, velocity_i=1920, velocity_p=100,
+                       position_d=0, position_i=0, position_p=800, volts=24.0,
+                       stall_torque=2.6, no_load_rpm=52, gear_ratio=212.6),
+    # docs/en/dxl/x/xh430-v350.md @6058d27
+    "XH430-V350": dict(model_number=1040, current_ma=1.34, current_limit=689,
+                       velocity_limit=135, temperature_limit=80, max_voltage=300,
+                       min_voltage=110, shutdown=52, velocity_i=1920, velocity_p=100,
+                       position_d=0, position_i=0, position_p=800, volts=24.0,
+                       stall_torque=3.3, no_load_rpm=31, gear_ratio=353.5),
+    # docs/en/dxl/x/xl330-m288.md @c72095b
+    "XL330-M288": dict(model_number=1200, current_ma=1.0, current_limit=1750,
+                       velocity_limit=445, temperature_limit=70, max_voltage=70,
+                       min_voltage=35, shutdown=53, velocity_i=1600, velocity_p=180,
+                       position_d=0, position_i=0, position_p=400, volts=5.0,
+                       stall_torque=0.52, no_load_rpm=103, gear_ratio=288.4),
+    # docs/en/dxl/x/xl330-m077.md @296754a
+    "XL330-M077": dict(model_number=1190, current_ma=1.0, current_limit=1750,
+                       velocity_limit=1620, temperature_limit=70, max_voltage=70,
+                       min_voltage=35, shutdown=53, velocity_i=400, velocity_p=40,
+                       position_d=0, position_i=400, position_p=400, volts=5.0,
+                       stall_torque=0.215, no_load_rpm=383, gear_ratio=77.5),
+}
+
+# dynamixel-sdk 4.1's dynamixel_easy_sdk/control_table/<model>.model "[control table]" rows
+# the driver uses (address, size).
+SDK_ITEMS = {Reg.ID: (7, 1), Reg.BAUD_RATE: (8, 1), Reg.TEMPERATURE_LIMIT: (31, 1),
+             Reg.CURRENT_LIMIT: (38, 2), Reg.TORQUE_ENABLE: (64, 1),
+             Reg.POSITION_D_GAIN: (80, 2), Reg.POSITION_I_GAIN: (82, 2),
+             Reg.POSITION_P_GAIN: (84, 2), Reg.BUS_WATCHDOG: (98, 1),
+             Reg.GOAL_POSITION: (116, 4), Reg.PRESENT_CURRENT: (126, 2),
+             Reg.PRESENT_VELOCITY: (128, 4), Reg.PRESENT_POSITION: (132, 4),
+             Reg.PRESENT_TEMPERATURE: (146, 1)}
+
+
+def _sdk_text(name: str) -> str:
+    return resources.files("dynamixel_easy_sdk").joinpath("control_table", name).read_text()
+
+
+def _sdk_model_numbers() -> dict[int, str]:
+    """The SDK's dynamixel.model: model number -> control-table file name."""
+    rows = (line.split("\t") for line in _sdk_text("dynamixel.model").splitlines())
+    return {int(cols[0]): cols[1] for cols in rows if len(cols) == 2 and cols[0].isdigit()}
+
+
+def _sdk_model_file(name: str) -> dict[str, dict[str, list[str]]]:
+    """Sections of an SDK .model file: {section: {name: columns}}; control-table rows are keyed
+    by their item name, the other sections by their first column."""
+    sections: dict[str, dict[str, list[str]]] = {}
+    current = None
+    for line in _sdk_text(name).splitlines():
+        line = line.strip()
+        if line.startswith("[") and line.endswith("]"):
+            current = sections.setdefault(line[1:-1], {})
+        elif line and current is not None:
+            cols = line.split("\t")
+            key = cols[2] if len(cols) == 3 and cols[0].isdigit() else cols[0]
+            current.setdefault(key, cols)
+    return sections
+
+
+@pytest.mark.parametrize("model", sorted(EMANUAL))
+def test_units_and_factory_defaults_match_the_vendor(model):
+    row = {**COMMON, **EMANUAL[model]}
+    motor = MOTORS[model]
+    defaults = factory_defaults(model)
+
+    # units the driver decodes with and the emulator encodes with
+    assert motor.current_unit == pytest.approx(row["current_ma"] * 1e-3, rel=1e-12)
+    assert motor.velocity_unit == pytest.approx(row["velocity_rpm"] * RPM, rel=1e-12)
+    assert motor.ticks_per_rev == row["pulse_per_rev"]
+    assert round(360.0 / motor.ticks_per_rev, 3) == row["degree"]
+    assert motor.pwm_max == row["pwm_limit"]  # PWM full scale = factory PWM Limit (100 %)
+
+    # the motor's physics at its recommended voltage (the bold row of the spec table)
+    assert motor.model_number == row["model_number"]
+    assert motor.voltage == row["volts"]
+    assert motor.stall_torque == pytest.approx(row["stall_torque"])
+    assert motor.no_load_speed == pytest.approx(row["no_load_rpm"] * RPM)
+    assert motor.gear_ratio == pytest.approx(row["gear_ratio"])
+    assert motor.thermal.limit == row["temperature_limit"]
+
+    # factory gains: the simulated servo's and the emulated firmware's
+    assert (motor.default_p, motor.default_i, motor.default_d) == (
+        row["position_p"], row["position_i"], row["position_d"])
+    g = motor.factory_gains()
+    assert (g.position_p, g.position_i, g.position_d) == (
+        row["position_p"], row["position_i"], row["position_d"])
+
+    # the control table the emulated motor boots with
+    expected = {
+        Reg.ID: row["id"], Reg.BAUD_RATE: row["baud_index"],
+        Reg.RETURN_DELAY_TIME: row["return_delay"], Reg.OPERATING_MODE: row["operating_mode"],
+        Reg.MOVING_THRESHOLD: row["moving_threshold"],
+        Reg.TEMPERATURE_LIMIT: row["temperature_limit"],
+        Reg.MAX_VOLTAGE_LIMIT: row["max_voltage"], Reg.MIN_VOLTAGE_LIMIT: row["min_voltage"],
+        Reg.PWM_LIMIT: row["pwm_limit"], Reg.CURRENT_LIMIT: row["current_limit"],
+        Reg.VELOCITY_LIMIT: row["velocity_limit"],
+        Reg.MAX_POSITION_LIMIT: row["max_position"],
+        Reg.MIN_POSITION_LIMIT: row["min_position"], Reg.SHUTDOWN: row["shutdown"],
+        Reg.VELOCITY_I_GAIN: row["velocity_i"], Reg.VELOCITY_P_GAIN: row["velocity_p"],
+        Reg.POSITION_D_GAIN: row["position_d"], Reg.POSITION_I_GAIN: row["position_i"],
+        Reg.POSITION_P_GAIN: row["position_p"], Reg.TORQUE_ENABLE: 0, Reg.BUS_WATCHDOG: 0,
+    }
+    assert {r: defaults[r] for r in expected} == expected
+    # Baud Rate value 1 is 57,600 bps, value 3 is 1 Mbps (e-Manual Baud Rate table)
+    assert BAUD_CODES[row["baud_index"]] == 57_600 and BAUD_CODES[3] == 1_000_000
+
+    # the second source: the SDK's own control-table file for this model
+    numbers = _sdk_model_numbers()
+    sdk = _sdk_model_file(numbers[row["model_number"]])
+    assert numbers[row["model_number"]] == model.lower().replace("-", "_") + ".model"
+    table = load_control_table(model)
+    for reg, (address, size) in SDK_ITEMS.items():
+        cols = sdk["control table"][reg.value]
+        assert (int(cols[0]), int(cols[1])) == (address, size)
+        assert (table[reg].address, table[reg].size) == (address, size)
+    sdk_velocity = float(sdk["unit info"]["Present Velocity"][1])  # rad/s per count
+    assert sdk["unit info"]["Present Velocity"][2] == "rad/s"
+    # 0.0239691227 rad/s = 0.22889 rpm: the SDK's value and 0.229 agree to 0.05 %
+    assert motor.velocity_unit == pytest.approx(sdk_velocity, rel=1e-3)
+    assert int(sdk["type info"]["value_of_zero_radian_position"][1]) == table.zero_tick == 2048
