@@ -19,7 +19,14 @@ from sysfs, warn when it is above 1 ms and size the status timeouts from it; pin
 check its Model Number (one error listing every missing or mismatched id); torque off; Return
 Delay Time := 0, Operating Mode := position, Min/Max Position Limit := the configured limits
 (EEPROM, written only when different, so the motors refuse out-of-range goals even if the host
-misbehaves); Bus Watchdog cleared; latched hardware errors reported by name; Fast Sync Read probed.
+misbehaves); Position P/I/D Gain and PWM Limit written if configured, then read back into
+``bus.gains`` (the numbers a simulation of this robot should use; a ``GainMismatchWarning`` when
+they are not the motor model's factory gains, which the simulation assumes by default); Bus
+Watchdog cleared; latched hardware errors reported by name; Fast Sync Read probed.
+
+Bus Watchdog (98) exists from firmware v38 (e-Manual, "Bus Watchdog(98, Available from Firmware
+v38)"): the firmware version is read at connect, the watchdog is never written to older motors,
+and a ``WatchdogUnavailableWarning`` names them (they keep their last goal if the host dies).
 
 Per control step: ``read_state`` is one sync read (fast sync read when the firmware answers it)
 of the 21-byte block Present Current .. Present Temperature; ``write_goal_positions`` is one sync
@@ -82,7 +89,7 @@ from lowcostdex.hardware.protocol import (
     status_error_text,
     to_signed,
 )
-from lowcostdex.sim.servo import motor_spec
+from lowcostdex.sim.servo import ServoGains, motor_spec
 
 log = logging.getLogger(__name__)
 
@@ -96,10 +103,22 @@ _LAYOUT = BLOCK + (Reg.GOAL_POSITION, Reg.TORQUE_ENABLE, Reg.BUS_WATCHDOG,
                    Reg.HARDWARE_ERROR_STATUS, Reg.MIN_POSITION_LIMIT, Reg.MAX_POSITION_LIMIT)
 _FAULT_POLL = 0.5  # [s] re-read Hardware Error Status at most this often while an alert persists
 _GOAL_PARAM = np.dtype([("id", "u1"), ("goal", "<i4")])  # one SYNC_WRITE slot of Goal Position
+WATCHDOG_MIN_FIRMWARE = 38  # e-Manual: "Bus Watchdog(98, Available from Firmware v38)"
+_GAIN_REGS = (Reg.POSITION_P_GAIN, Reg.POSITION_I_GAIN, Reg.POSITION_D_GAIN)
 
 
 class LatencyWarning(UserWarning):
     """The USB-serial latency timer is above 1 ms (the loop will run far slower than the wire)."""
+
+
+class GainMismatchWarning(UserWarning):
+    """The motors' Position P/I/D gains are not their model's factory gains, which the
+    simulation uses unless told otherwise."""
+
+
+class WatchdogUnavailableWarning(UserWarning):
+    """Motors with firmware older than v38 have no Bus Watchdog: nothing stops them if the host
+    dies with torque on."""
 
 
 class InstructionError(BusError):
@@ -139,6 +158,8 @@ class DynamixelConfig:
       position_limits: (low, high) motor angle [rad] per id, written to Min/Max Position Limit
         and used to clip goals; None keeps the limits stored in the motors.
       operating_mode: Operating Mode written at connect (3 position, 4 extended position).
+      position_gains: (P, I, D) written to Position P/I/D Gain at connect (when different);
+        None keeps the motors' own gains. Either way they are read back into ``bus.gains``.
       fast_read: "auto" (probe), "on" or "off" for Fast Sync Read.
       read_retries: extra sync reads of the motors missing from a read.
       retries: extra attempts of a failed unicast read/write/ping.
@@ -157,6 +178,7 @@ class DynamixelConfig:
     watchdog_ms: int = 100
     position_limits: tuple[tuple[float, float], ...] | None = None
     operating_mode: int = 3
+    position_gains: tuple[int, int, int] | None = None
     fast_read: str = "auto"
     read_retries: int = 1
     retries: int = 3
@@ -182,6 +204,10 @@ class DynamixelConfig:
             raise ConfigError(f"watchdog_ms={self.watchdog_ms}: a multiple of 20 in 0..2540")
         if not 0 <= self.return_delay <= 254:
             raise ConfigError(f"return_delay={self.return_delay} outside 0..254")
+        if self.position_gains is not None and (
+                len(self.position_gains) != 3
+                or not all(0 <= int(g) <= 16383 for g in self.position_gains)):
+            raise ConfigError(f"position_gains={self.position_gains}: (P, I, D), each 0..16383")
         if self.latency_ms <= 0 or self.settle_ms < 0 or self.read_retries < 0 or self.retries < 0:
             raise ConfigError("latency_ms must be > 0; settle_ms, read_retries, retries >= 0")
         if self.position_limits is not None:
@@ -263,6 +289,8 @@ class DynamixelBus(MotorBus):
         self._hw_cache: dict[int, tuple[int, float]] = {}
         self.faults: dict[int, tuple[str, ...]] = {}
         self.firmware: dict[int, int] = {}
+        self.gains: dict[int, ServoGains] = {}  # read at connect: Position P/I/D, PWM Limit
+        self._no_watchdog: set[int] = set()  # ids whose firmware has no Bus Watchdog
         self.stats = BusStats()
         self.fast_read = False
         self._dirty = False
@@ -383,7 +411,21 @@ class DynamixelBus(MotorBus):
             raise BusError("motor check failed on " + self.port.getPortName() + " at "
                            + f"{self.config.baudrate} bps:\n   id  expected     problem\n"
                            + "\n".join(rows))
-        self.firmware = {i: found[i][1] for i in self.ids}
+        self.firmware = {i: found[i][1] if found[i][1] >= 0
+                         else self.read_register(i, Reg.FIRMWARE_VERSION) for i in self.ids}
+        self._no_watchdog = {i for i, fw in self.firmware.items()
+                             if fw < WATCHDOG_MIN_FIRMWARE}
+        if self._no_watchdog and self.config.watchdog_ms:
+            old = ", ".join(f"{i} (v{self.firmware[i]})" for i in sorted(self._no_watchdog))
+            warnings.warn(f"motors {old} have firmware older than v{WATCHDOG_MIN_FIRMWARE}, "
+                          "which has no Bus Watchdog: they will not stop by themselves if this "
+                          "host dies with torque on. Update their firmware (DYNAMIXEL Wizard 2.0, "
+                          "Firmware Update) to get the watchdog.", WatchdogUnavailableWarning,
+                          stacklevel=3)
+
+    def _watchdog_ids(self, ids: Sequence[int]) -> tuple[int, ...]:
+        """The ids among ``ids`` whose firmware has a Bus Watchdog."""
+        return tuple(i for i in ids if i not in self._no_watchdog)
 
     def _configure(self) -> None:
         cfg = self.config
@@ -399,7 +441,14 @@ class DynamixelBus(MotorBus):
                 else:
                     self._ensure(i, Reg.MIN_POSITION_LIMIT, lo)
                     self._ensure(i, Reg.MAX_POSITION_LIMIT, hi)
-            self.write_register(i, Reg.BUS_WATCHDOG, 0)  # clears a watchdog error, too
+            if cfg.position_gains is not None:
+                for reg, value in zip(_GAIN_REGS, cfg.position_gains, strict=True):
+                    self._ensure(i, reg, int(value))
+            p, i_gain, d = (self.read_register(i, r) for r in _GAIN_REGS)
+            self.gains[i] = ServoGains(position_p=p, position_i=i_gain, position_d=d,
+                                       pwm_limit=self.read_register(i, Reg.PWM_LIMIT))
+            if i not in self._no_watchdog:
+                self.write_register(i, Reg.BUS_WATCHDOG, 0)  # clears a watchdog error, too
             if cfg.operating_mode == 3:
                 self._lo[k] = self.read_register(i, Reg.MIN_POSITION_LIMIT)
                 self._hi[k] = self.read_register(i, Reg.MAX_POSITION_LIMIT)
@@ -407,6 +456,23 @@ class DynamixelBus(MotorBus):
                 self._lo[k], self._hi[k] = -1_048_575, 1_048_575
             bits = self.read_register(i, Reg.HARDWARE_ERROR_STATUS)
             self._note_hardware_error(i, bits)
+        self._check_gains()
+
+    def _check_gains(self) -> None:
+        """Warn when motors run other gains than their model's factory gains (the simulation's
+        default), naming the motors and both sets."""
+        rows = []
+        for i, model in zip(self.ids, self.config.models, strict=True):
+            f, g = motor_spec(model).factory_gains(), self.gains[i]
+            if (g.position_p, g.position_i, g.position_d) != (
+                    f.position_p, f.position_i, f.position_d):
+                rows.append(f"{i}: {g.position_p}/{g.position_i}/{g.position_d} (factory "
+                            f"{f.position_p}/{f.position_i}/{f.position_d})")
+        if rows:
+            warnings.warn("Position P/I/D gains differ from the motor model's factory gains "
+                          "that the simulation uses by default: " + "; ".join(rows)
+                          + ". Simulate with bus.gains, or set DynamixelConfig.position_gains.",
+                          GainMismatchWarning, stacklevel=3)
 
     def _limit_ticks(self, k: int, lo: float, hi: float) -> tuple[int, int]:
         tpr = self._tpr[k]
@@ -565,7 +631,8 @@ class DynamixelBus(MotorBus):
                     " move it inside (torque off) before enabling torque")
             goals[i] = g
         for i in ids:
-            self.write_register(i, Reg.BUS_WATCHDOG, 0)
+            if i not in self._no_watchdog:
+                self.write_register(i, Reg.BUS_WATCHDOG, 0)
             self.write_register(i, Reg.GOAL_POSITION, goals[i])
             try:
                 self.write_register(i, Reg.TORQUE_ENABLE, 1)
@@ -586,7 +653,8 @@ class DynamixelBus(MotorBus):
         together (one by one, the first motors would wait through the others' transactions),
         then confirm with one sync read, falling back to unicast writes."""
         wd = self.config.watchdog_ms // 20
-        if not wd:
+        ids = self._watchdog_ids(ids)
+        if not wd or not ids:
             return
         addr = self._addr[Reg.BUS_WATCHDOG]
         for _ in range(self.config.retries + 1):
@@ -704,7 +772,7 @@ class DynamixelBus(MotorBus):
         self._silence = self.clock() - self._last_tx
         if period <= 0 or not self._torque_ids or self._silence < 0.9 * period:
             return
-        for i in sorted(self._torque_ids):
+        for i in sorted(self._watchdog_ids(self._torque_ids)):
             try:
                 if self.read_register(i, Reg.BUS_WATCHDOG) == -1:
                     self.watchdog_tripped.add(i)
