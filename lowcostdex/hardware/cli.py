@@ -14,6 +14,7 @@ import os
 import sys
 from pathlib import Path
 
+from lowcostdex.argtypes import SEED, integer, number
 from lowcostdex.errors import InputError
 
 SERIAL_PATTERNS = ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/tty.usbserial*", "/dev/tty.usbmodem*")
@@ -39,13 +40,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="physics on wall time, or on bus time (advances with the bytes only)")
     p.add_argument("--wire-time", action="store_true",
                    help="delay replies by their wire time (bytes x 10 / baud + return delay)")
-    p.add_argument("--drop", type=float, default=0.0, help="status packet drop probability")
-    p.add_argument("--corrupt", type=float, default=0.0, help="status packet corruption prob.")
-    p.add_argument("--late", type=float, default=0.0, help="late status packet probability")
+    p.add_argument("--drop", type=number(0, 1), default=0.0,
+                   help="status packet drop probability")
+    p.add_argument("--corrupt", type=number(0, 1), default=0.0,
+                   help="status packet corruption prob.")
+    p.add_argument("--late", type=number(0, 1), default=0.0, help="late status packet probability")
     p.add_argument("--no-fast-read", action="store_true", help="firmware without Fast Sync Read")
     p.add_argument("--effects", default=None,
                    help="JSON file: a list of AppliedEffect dicts the emulated robot carries")
-    p.add_argument("--seed", type=int, default=0, help="seed of the fault generator")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the fault generator")
     p.add_argument("--quiet", action="store_true", help="do not print motor events")
     p.set_defaults(func=_emulate)
 
@@ -56,7 +59,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
     p.add_argument("--baud", type=int, default=1_000_000)
     p.add_argument("--out", required=True, help="where to write the calibrated hand spec JSON")
-    p.add_argument("--samples", type=int, default=20, help="reads averaged per joint")
+    p.add_argument("--samples", type=integer(1, 100_000), default=20,
+                   help="reads averaged per joint")
     p.add_argument("--yes", action="store_true", help="do not wait for Enter")
     p.set_defaults(func=_calibrate)
 
@@ -219,8 +223,6 @@ def _calibrate(args: argparse.Namespace) -> int:
     from lowcostdex.hardware.dynamixel import DynamixelBus
     from lowcostdex.hardware.hands import HandSpec, hand_spec
 
-    if args.samples < 1:
-        raise InputError(f"--samples {args.samples}: at least 1 read per joint is needed")
     out = Path(args.out)
     if out.is_dir() or not out.parent.is_dir():
         raise InputError(f"--out {out}: give a JSON file path in an existing folder")

@@ -20,6 +20,8 @@ import argparse
 import json
 import sys
 
+from lowcostdex.argtypes import SEED, integer, number
+
 # hand -> task name on the command line -> (registered env id, scripted solver for the virtual
 # teacher)
 TASKS: dict[str, dict[str, tuple[str, str]]] = {
@@ -47,7 +49,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                        help="tangle the D'Claw N times and auto-reset it: success rate and time")
     p.add_argument("--port", default="emulated", help="serial device, pty path, or 'emulated'")
     p.add_argument("--trials", type=int, default=20, help="tangle + reset trials")
-    p.add_argument("--seed", type=int, default=0, help="seed of the tangles and valve angles")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the tangles and valve angles")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
     p.add_argument("--no-effects", action="store_true",
@@ -73,19 +75,19 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--successes", type=int, default=None,
                    help="stop once this many demonstrations succeeded")
     p.add_argument("--out", required=True, help="HDF5 demo file (appended to if it exists)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the first episode")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
-    p.add_argument("--countdown", type=float, default=3.0,
+    p.add_argument("--countdown", type=number(0, 600), default=3.0,
                    help="seconds announced before each episode on a real robot")
     p.add_argument("--labels", default="servo_goal", choices=("servo_goal", "next_position"),
                    help="servo_goal: identify the servos' response first (a few seconds of "
                         "random goals) and label each step with the goal that reproduces it; "
                         "next_position: the next measured position (BAIR's labels)")
-    p.add_argument("--playbacks", type=int, default=None,
+    p.add_argument("--playbacks", type=integer(0, 100), default=None,
                    help="noisy playbacks of each successful demonstration on the robot "
                         "(servo_goal labels only; 0: none; default 2, 0 for the flip)")
-    p.add_argument("--playback-noise", type=float, default=0.05,
+    p.add_argument("--playback-noise", type=number(0, 1), default=0.05,
                    help="half-width of the playback goal noise [action units]")
     p.set_defaults(func=_record_demos)
 
@@ -96,10 +98,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--joints", default="ff_top,ff_middle,ff_bottom",
                    help="comma-separated joints to excite (the others hold still)")
     p.add_argument("--logs", type=int, default=6, help="number of logs (trajectories)")
-    p.add_argument("--seconds", type=float, default=15.0, help="length of each log [s]")
-    p.add_argument("--rate", type=float, default=50.0, help="command/read rate [Hz]")
+    p.add_argument("--seconds", type=number(0.5, 3600), default=15.0,
+                   help="length of each log [s]")
+    p.add_argument("--rate", type=number(1, 1000), default=50.0, help="command/read rate [Hz]")
     p.add_argument("--out", required=True, help="folder for log_<k>.csv")
-    p.add_argument("--seed", type=int, default=0, help="seed of the excitation")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the excitation")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
     p.add_argument("--effects", default=None,

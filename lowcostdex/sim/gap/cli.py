@@ -13,6 +13,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from lowcostdex.argtypes import SEED, integer, number
+
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     gap = sub.add_parser("gap", help="reality-gap analysis of measured servo logs")
@@ -31,22 +33,24 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="logs held out for the test (default: random episodes)")
     a.add_argument("--candidates", default=None,
                    help="comma-separated effects to consider (default: all with logged channels)")
-    a.add_argument("--max-effects", type=int, default=3)
-    a.add_argument("--top-k", type=int, default=6, help="candidates fitted per round")
-    a.add_argument("--min-gain", type=float, default=0.05,
+    a.add_argument("--max-effects", type=integer(1, 20), default=3)
+    a.add_argument("--top-k", type=integer(1, 50), default=6, help="candidates fitted per round")
+    a.add_argument("--min-gain", type=number(0, 1, open_low=True, open_high=True), default=0.05,
                    help="smallest relative select-MSE reduction to accept an effect")
-    a.add_argument("--seed", type=int, default=0)
-    a.add_argument("--threads", type=int, default=0, help="simulation threads (0: all CPUs)")
+    a.add_argument("--seed", type=SEED, default=0)
+    a.add_argument("--threads", type=integer(0, 1024), default=0,
+                   help="simulation threads (0: all CPUs)")
     a.set_defaults(func=_analyze)
 
     g = gsub.add_parser("generate", help="write synthetic logs with hidden effects (demo/tests)")
     g.add_argument("--rig", choices=("bench", "finger"), default="bench")
     g.add_argument("--effect", action="append", default=[],
                    help="effect to hide (repeat for several; 'random' draws one; none: clean)")
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--logs", type=int, default=4)
-    g.add_argument("--duration", type=float, default=8.0, help="seconds per log")
-    g.add_argument("--rate", type=float, default=100.0, help="log rate [Hz]")
+    g.add_argument("--seed", type=SEED, default=0)
+    g.add_argument("--logs", type=integer(1, 1000), default=4)
+    g.add_argument("--duration", type=number(1.0, 3600.0), default=8.0,
+                   help="seconds per log")
+    g.add_argument("--rate", type=number(2.0, 10_000.0), default=100.0, help="log rate [Hz]")
     g.add_argument("--format", choices=("csv", "npz"), default="csv")
     g.add_argument("--out", required=True, help="output folder: new or empty, or a previous "
                    "generate output (kept in previous/)")
@@ -77,12 +81,15 @@ def _analyze(args: argparse.Namespace) -> int:
     check_out(args.out, "gap analyze")  # refuse a user's folder before minutes of work
     logs = [str(p) for p in args.log]
     ds = load_dataset(logs, model=args.model, bench=True if args.bench else None)
+    for note in ds.notes:
+        console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False)
     test = None
     if args.holdout:
         resolved = {str(Path(p).resolve()) for p in args.holdout}
-        test = tuple(i for i, p in enumerate(logs) if str(Path(p).resolve()) in resolved)
-        if len(test) != len(resolved):
+        if not resolved <= {str(Path(p).resolve()) for p in logs}:
             raise ConfigError("every --holdout file must also be given with --log")
+        # a log split at a gap is held out whole
+        test = tuple(i for i, p in enumerate(ds.sources) if str(Path(p).resolve()) in resolved)
     cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else None
     cfg = GapConfig(candidates=cands, max_effects=args.max_effects, top_k=args.top_k,
                     min_gain=args.min_gain, seed=args.seed, test_logs=test,

@@ -25,9 +25,12 @@ from lowcostdex.sim.gap.logs import (
     is_bam,
     read_bam,
     read_log,
+    split_at_gaps,
 )
 from lowcostdex.sim.models.bench import build_bench
 
+MAX_TOTAL_DURATION = 4 * 3600.0
+"""Most seconds of logs one analysis takes (its run time grows with them)."""
 
 @dataclass(frozen=True)
 class Window:
@@ -51,11 +54,13 @@ class Dataset:
       models: {key: MJCF XML} of the nominal models.
       trajectories: measured trajectories; ``trajectory.model`` names its model.
       sources: input file of each trajectory.
+      notes: what loading did to the logs that a user should know (e.g. a log split at a gap).
     """
 
     models: dict[str, str]
     trajectories: list[Trajectory]
     sources: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if not self.trajectories:
@@ -126,12 +131,18 @@ def load_dataset(paths: Sequence[str | Path], model: str | Path | None = None,
       model: MJCF file for project-format logs (required for them).
       bench: True: the logs are BAM JSON mapped onto the bench; None: auto-detect.
       timestep: physics step for BAM benches [s] (default: the bench's).
+    Logs whose time stamps jump (logging paused) are split there (``split_at_gaps``; said in
+    ``Dataset.notes``); the total duration is bounded by ``MAX_TOTAL_DURATION``.
+
     Raises:
       LogError with the file and problem.
     """
     if not paths:
         raise LogError("no log files given")
     paths = [Path(p) for p in paths]
+    for p in paths:
+        if not p.exists():
+            raise LogError(f"{p}: no such file")
     bam = [is_bam(p) for p in paths]
     if bench is None:
         bench = all(bam)
@@ -161,7 +172,17 @@ def load_dataset(paths: Sequence[str | Path], model: str | Path | None = None,
             raise LogError(f"{model}: cannot load the model: {exc}") from None
         models["model"] = spec.to_xml()
         trajs = [read_log(p) for p in paths]
-    return Dataset(models, trajs, [str(p) for p in paths])
+    total = sum(tr.duration for tr in trajs)
+    if total > MAX_TOTAL_DURATION:
+        raise LogError(f"{len(trajs)} logs of {total:.6g} s in all; one analysis takes at most "
+                       f"{MAX_TOTAL_DURATION:g} s of logs (give fewer or shorter logs)")
+    pieces, sources, notes = [], [], []
+    for p, tr in zip(paths, trajs, strict=True):
+        cut, said = split_at_gaps(tr)
+        pieces += cut
+        sources += [str(p)] * len(cut)
+        notes += said
+    return Dataset(models, pieces, sources, notes)
 
 
 # ------------------------------------------------------------------------------------------------

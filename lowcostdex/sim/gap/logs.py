@@ -32,7 +32,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, InputError
 from lowcostdex.sim import servo
 from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig
 
@@ -41,9 +41,38 @@ PREFIXES_JOINT = ("qpos", "qvel")
 CHANNELS = ("current", "voltage", "temperature", "torque_enable")
 MIN_SAMPLES = 20
 MIN_DURATION = 0.5  # [s]
+MAX_SAMPLES = 2_000_000  # per log: bounds memory and run time (about 1 h at 500 Hz)
+MAX_DURATION = 3600.0  # [s] per log
+MAX_JSON_BYTES = 256 * 2**20  # a BAM log of 6 s is about 250 kB
+STEP_RANGE = (5e-5, 0.5)  # [s] plausible median sample step (20 kHz .. 2 Hz)
+GAP_FACTOR = 10.0  # a step this many median steps long (and >= GAP_MIN) is a gap
+GAP_MIN = 0.1  # [s]
+MIN_MOTION = 0.02  # [rad] some measured joint must move at least this much (peak to peak)
+FROZEN_CROSS = 0.2  # [rad] a reading that repeats while the goal passes it by this, both ways
+RANGE_MARGIN = 0.2  # [rad] measured positions beyond a limited joint's model range by more
+SATURATED_SHARE = 0.2  # a channel at exactly its extreme value in this share of the samples
+# plausible magnitudes per column kind (SI units); beyond them the unit is wrong or the data broken
+PLAUSIBLE: dict[str, tuple[float, float, str]] = {
+    "goal": (-4 * math.pi, 4 * math.pi, "rad"),
+    "qpos": (-4 * math.pi, 4 * math.pi, "rad"),
+    "qvel": (-100.0, 100.0, "rad/s"),
+    "current": (-30.0, 30.0, "A"),
+    "voltage": (0.0, 60.0, "V"),
+    "temperature": (-40.0, 150.0, "deg C"),
+    "torque_enable": (0.0, 1.0, "0/1"),
+}
+_UNIT_HINTS: dict[str, tuple[tuple[float, str], ...]] = {
+    # (largest |value| that fits the other unit, hint)
+    "goal": ((400.0, "degrees? write rad"), (65536.0, "raw encoder ticks? write rad")),
+    "qpos": ((400.0, "degrees? write rad"), (65536.0, "raw encoder ticks? write rad")),
+    "qvel": ((6000.0, "deg/s or rpm? write rad/s"),),
+    "current": ((30000.0, "mA? write A"),),
+    "voltage": ((600.0, "0.1 V register units? write V"), (60000.0, "mV? write V")),
+    "temperature": ((430.0, "kelvin? write deg C"),),
+}
 
 
-class LogError(ConfigError):
+class LogError(InputError):
     """A measured log is unusable; the message names the file, the column and the problem."""
 
 
@@ -156,9 +185,14 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
     if not path.exists():
         raise LogError(f"{path}: no such file")
     suffix = path.suffix.lower()
+    if path.is_dir():
+        raise LogError(f"{path}: is a folder, not a log file")
     if suffix == ".npz":
-        with np.load(path, allow_pickle=False) as z:
-            cols = {k: np.asarray(z[k], dtype=float) for k in z.files}
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                cols = {k: np.asarray(z[k], dtype=float) for k in z.files}
+        except (OSError, ValueError, TypeError, EOFError) as exc:  # not a zip, object arrays
+            raise LogError(f"{path}: not a readable NPZ log ({exc})") from None
     elif suffix == ".csv":
         cols = _read_csv(path)
     else:
@@ -169,29 +203,52 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
     lengths = {len(v) for v in cols.values()}
     if len(lengths) > 1:
         raise LogError(f"{path}: columns have different lengths {sorted(lengths)}")
+    if lengths and max(lengths) > MAX_SAMPLES:
+        raise LogError(f"{path}: {max(lengths)} samples; at most {MAX_SAMPLES} per log "
+                       "(split the log into shorter ones)")
     return cols
 
 
 def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    if not rows:
-        raise LogError(f"{path}: empty file")
-    header = [h.strip() for h in rows[0]]
-    if len(set(header)) != len(header):
-        dup = sorted({h for h in header if header.count(h) > 1})
-        raise LogError(f"{path}: duplicate columns {dup}")
-    data = np.full((len(rows) - 1, len(header)), np.nan)
-    for r, row in enumerate(rows[1:]):
-        if len(row) != len(header):
-            raise LogError(f"{path}: row {r + 2} has {len(row)} fields, header has {len(header)}")
-        for c, cell in enumerate(row):
-            try:
-                data[r, c] = float(cell) if cell.strip() else np.nan
-            except ValueError:
-                raise LogError(f"{path}: row {r + 2}, column {header[c]!r}: "
-                               f"{cell!r} is not a number") from None
+    """Rows streamed (at most MAX_SAMPLES), a UTF-8 byte-order mark (spreadsheets) ignored."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            reader = csv.reader(f)
+            header = [h.strip() for h in next(reader, [])]
+            if not header:
+                raise LogError(f"{path}: empty file (no header row)")
+            if len(header) == 1 and ";" in header[0]:
+                raise LogError(f"{path}: the header {header[0]!r} is separated by ';'; the log "
+                               "format separates columns by ',' (and uses '.' for decimals)")
+            if len(set(header)) != len(header):
+                dup = sorted({h for h in header if header.count(h) > 1})
+                raise LogError(f"{path}: duplicate columns {dup}")
+            rows = []
+            for r, row in enumerate(reader):
+                if r >= MAX_SAMPLES:
+                    raise LogError(f"{path}: more than {MAX_SAMPLES} rows; at most "
+                                   f"{MAX_SAMPLES} per log (split the log into shorter ones)")
+                if len(row) != len(header):
+                    raise LogError(f"{path}: row {r + 2} has {len(row)} fields, header has "
+                                   f"{len(header)}")
+                try:
+                    rows.append([float(cell) if cell.strip() else np.nan for cell in row])
+                except ValueError:
+                    c = next(i for i, cell in enumerate(row) if not _is_float(cell))
+                    raise LogError(f"{path}: row {r + 2}, column {header[c]!r}: "
+                                   f"{row[c]!r} is not a number") from None
+    except UnicodeDecodeError:
+        raise LogError(f"{path}: not a text CSV file (binary data?)") from None
+    data = np.array(rows, dtype=float).reshape(len(rows), len(header))
     return {h: data[:, i] for i, h in enumerate(header)}
+
+
+def _is_float(cell: str) -> bool:
+    try:
+        float(cell) if cell.strip() else None
+    except ValueError:
+        return False
+    return True
 
 
 def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> Trajectory:
@@ -233,6 +290,8 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
                            f"(first at row {int(np.argmax(bad))})")
     t = np.asarray(cols["time"], dtype=float)
     _check_time(t, name)
+    for key, arr in cols.items():
+        _check_range(key, arr, name)
     goal_time = None
     if "goal_time" in cols:
         goal_time = np.asarray(cols["goal_time"], dtype=float)
@@ -248,25 +307,189 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
             raise LogError(f"{name}: channel {ch!r} is missing for actuators {missing}")
         if present:
             channels[ch] = np.stack([acts[a][ch] for a in goal_acts], axis=1)
-    return Trajectory(
+    traj = Trajectory(
         name=name, time=t,
         goal=np.stack([acts[a]["goal"] for a in goal_acts], axis=1),
         qpos=np.stack([joints[j]["qpos"] for j in meas], axis=1),
         actuators=tuple(goal_acts), joints=tuple(meas),
         qvel=np.stack([joints[j]["qvel"] for j in meas], axis=1) if has_qvel else None,
         channels=channels, goal_time=goal_time)
+    check_signals(traj)
+    return traj
 
 
 def _check_time(t: np.ndarray, name: str) -> None:
+    """Enough samples, strictly increasing, in seconds (unit told from the median step), bounded.
+
+    Gaps are not refused here: ``split_at_gaps`` cuts the log there.
+    """
+    if len(t) < MIN_SAMPLES:
+        raise LogError(f"{name}: too little data: {len(t)} samples; need at least "
+                       f"{MIN_SAMPLES} samples and {MIN_DURATION} s")
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
-        raise LogError(f"{name}: 'time' must be strictly increasing (row {i + 1}: "
-                       f"{t[i + 1]:.6g} s after {t[i]:.6g} s)")
-    if len(t) < MIN_SAMPLES or t[-1] - t[0] < MIN_DURATION:
-        dur = float(t[-1] - t[0]) if len(t) else 0.0
-        raise LogError(f"{name}: too little data: {len(t)} samples over {dur:.3g} s; need at "
-                       f"least {MIN_SAMPLES} samples and {MIN_DURATION} s")
+        what = "repeats" if dt[i] == 0 else f"goes back from {t[i]:.9g}"
+        raise LogError(f"{name}: column 'time' must be strictly increasing: row {i + 1} "
+                       f"(0-based) {what} to {t[i + 1]:.9g} (duplicate or unsorted rows?)")
+    step = float(np.median(dt))
+    if not STEP_RANGE[0] <= step <= STEP_RANGE[1]:
+        raise LogError(f"{name}: column 'time' must be in seconds, but its median step is "
+                       f"{step:.6g}{_time_unit_hint(step)}")
+    dur = float(t[-1] - t[0])
+    if dur < MIN_DURATION:
+        hint = (f" ({1 / step:.4g} Hz: is 'time' in seconds?)" if len(t) >= 10 * MIN_SAMPLES
+                else "")
+        raise LogError(f"{name}: too little data: {len(t)} samples over {dur:.3g} s{hint}; need "
+                       f"at least {MIN_SAMPLES} samples and {MIN_DURATION} s")
+    if dur > MAX_DURATION:
+        raise LogError(f"{name}: column 'time' spans {dur:.6g} s; at most {MAX_DURATION:g} s "
+                       "per log (split the log into shorter ones)")
+
+
+def _time_unit_hint(step: float) -> str:
+    for factor, unit in ((1e3, "ms"), (1e6, "us"), (1e9, "ns")):
+        if STEP_RANGE[0] <= step / factor <= STEP_RANGE[1]:
+            return (f": {unit}? ({1 / (step / factor):.4g} Hz if so); divide the time stamps by "
+                    f"{factor:.0e}")
+    return (f" s (a {1 / step:.4g} Hz log); a servo log has steps of "
+            f"{STEP_RANGE[0]:g}-{STEP_RANGE[1]:g} s")
+
+
+def _check_range(key: str, arr: np.ndarray, name: str) -> None:
+    """Values of a column within the plausible magnitudes of its kind (wrong units, broken data)."""
+    kind = key.partition(":")[0]
+    if kind not in PLAUSIBLE:
+        return
+    lo, hi, unit = PLAUSIBLE[kind]
+    if kind == "torque_enable":
+        bad = (arr != 0) & (arr != 1)
+    else:
+        bad = (arr < lo) | (arr > hi)
+    if not bad.any():
+        return
+    i = int(np.argmax(bad))
+    if kind == "torque_enable":
+        raise LogError(f"{name}: column {key!r} must be 0 or 1, row {i} (0-based) is {arr[i]:g}")
+    worst = float(np.max(np.abs(arr)))
+    hint = next((h for limit, h in _UNIT_HINTS.get(kind, ()) if worst <= limit),
+                "broken data?")
+    raise LogError(f"{name}: column {key!r} has {arr[i]:.6g} {unit} at row {i} (0-based); "
+                   f"plausible: {lo:g} to {hi:g} {unit} ({hint})")
+
+
+def check_signals(traj: Trajectory) -> None:
+    """Refuse what no model can be identified from, naming the column and the values.
+
+    * a frozen encoder: a joint's reading repeats exactly (torque on) while its goal passes it
+      by more than FROZEN_CROSS on both sides (a servo that stalls under load, its goal on one
+      side, is physics: BAM's XL330 holds one reading for 3 s while its goal moves 0.3 rad);
+    * a saturated current: at exactly its largest or smallest (non-zero) value in at least
+      SATURATED_SHARE of the torque-on samples (a clipped sensor or register range; the
+      current-dependent effects would fit the clip). Velocities may plateau (a profile velocity,
+      the robot's motion bound), so they are not checked;
+    * too little motion: no measured joint moves MIN_MOTION peak to peak;
+    * positions that change faster than a servo moves (the 99th percentile of |dq/dt| beyond the
+      plausible qvel): time not in seconds (minutes pass the step check as a 6 kHz log) or
+      positions not in rad.
+    Measured logs (BAM's five rigs) repeat a reading for at most 0.32 s and by 0.05 rad of goal.
+    """
+    name = traj.name
+    on = np.ones(len(traj), bool)
+    if "torque_enable" in traj.channels:
+        on = np.all(traj.channels["torque_enable"] > 0.5, axis=1)
+    ids = {a: k for k, a in enumerate(traj.actuators)}
+    for j, joint in enumerate(traj.joints):
+        q = traj.qpos[:, j]
+        if joint in ids:
+            _check_frozen(traj, q, traj.goal[:, ids[joint]], on, joint)
+    if "current" in traj.channels:
+        for k, col in enumerate(traj.channels["current"].T):
+            _check_saturated(name, f"current:{traj.actuators[k]}", col[on])
+    speed = np.abs(np.diff(traj.qpos, axis=0)) / np.diff(traj.time)[:, None]
+    fast = np.percentile(speed, 99, axis=0)
+    vmax = PLAUSIBLE["qvel"][1]
+    if float(fast.max()) > vmax:
+        j = int(np.argmax(fast))
+        raise LogError(f"{name}: column 'qpos:{traj.joints[j]}' moves at up to "
+                       f"{fast[j]:.4g} rad/s (99th percentile of its steps); servos move below "
+                       f"{vmax:g} rad/s: is 'time' in seconds (not minutes) and 'qpos' in rad?")
+    motion = np.ptp(traj.qpos, axis=0)
+    if float(motion.max()) < MIN_MOTION:
+        moved = ", ".join(f"{j} {m:.3g}" for j, m in zip(traj.joints, motion, strict=True))
+        raise LogError(f"{name}: too little motion to identify anything: peak-to-peak qpos "
+                       f"[rad] {moved}; some joint must move at least {MIN_MOTION} rad")
+
+
+def _check_frozen(traj: Trajectory, q: np.ndarray, goal: np.ndarray, on: np.ndarray,
+                  joint: str) -> None:
+    t = traj.time
+    change = np.union1d(np.flatnonzero(np.diff(q) != 0), find_gaps(t)) + 1
+    starts = np.concatenate([[0], change])
+    stops = np.concatenate([change, [len(q)]])
+    for a, b in zip(starts, stops, strict=True):
+        if b - a < 5 or not on[a:b].all():
+            continue
+        err = goal[a:b] - q[a]
+        seconds = t[b - 1] - t[a]
+        if min(float(err.max()), float(-err.min())) > FROZEN_CROSS:
+            raise LogError(
+                f"{traj.name}: column 'qpos:{joint}' is frozen at {q[a]:.6g} rad for "
+                f"{seconds:.3g} s (from {t[a]:.6g} s) while 'goal:{joint}' moves over "
+                f"[{goal[a:b].min():.3g}, {goal[a:b].max():.3g}] rad with torque on: the encoder "
+                "or its read is stuck (or the joint is blocked); nothing can be identified there")
+
+
+def _check_saturated(name: str, key: str, col: np.ndarray) -> None:
+    if len(col) < MIN_SAMPLES or len(np.unique(col)) < 10:
+        return
+    for extreme, what in ((col.max(), "largest"), (col.min(), "smallest")):
+        if extreme == 0:  # at rest, or a sign the register does not carry: not a clip
+            continue
+        share = float(np.mean(col == extreme))
+        if share >= SATURATED_SHARE:
+            raise LogError(f"{name}: column {key!r} sits at its {what} value {extreme:.6g} in "
+                           f"{100 * share:.0f} % of the samples with torque on: a saturated "
+                           "(clipped) reading; log a range that holds the signal")
+
+
+def find_gaps(t: np.ndarray) -> np.ndarray:
+    """Indices i where the step t[i] -> t[i + 1] is a gap (GAP_FACTOR median steps, >= GAP_MIN)."""
+    dt = np.diff(np.asarray(t, float))
+    if not len(dt):
+        return np.zeros(0, int)
+    return np.flatnonzero(dt > max(GAP_FACTOR * float(np.median(dt)), GAP_MIN))
+
+
+def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
+    """Cut a trajectory where its time stamps jump (logging paused): each piece replays from its
+    own measured state. Pieces too short to use are left out.
+
+    Returns:
+      (pieces, notes): the usable pieces (the trajectory itself when it has no gap) and one line
+      per gap saying where it is and what was done.
+    Raises:
+      LogError: no piece is long enough (the message names the gaps).
+    """
+    gaps = find_gaps(traj.time)
+    if not len(gaps):
+        return [traj], []
+    t = traj.time
+    said = ", ".join(f"{t[i + 1] - t[i]:.3g} s after {t[i]:.6g} s (row {i})" for i in gaps[:3])
+    said += f" and {len(gaps) - 3} more" if len(gaps) > 3 else ""
+    edges = [0, *(int(i) + 1 for i in gaps), len(t)]
+    pieces, dropped = [], 0
+    for k, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        if b - a >= MIN_SAMPLES and t[b - 1] - t[a] >= MIN_DURATION:
+            pieces.append(traj.slice(a, b, name=f"{traj.name}#{k + 1}"))
+        else:
+            dropped += 1
+    if not pieces:
+        raise LogError(f"{traj.name}: time stamps jump ({said}) and no stretch between the "
+                       f"jumps has {MIN_SAMPLES} samples over {MIN_DURATION} s")
+    note = (f"{traj.name}: time jumps {said}; split into {len(pieces)} piece(s)"
+            + (f", {dropped} too short to use left out" if dropped else ""))
+    return pieces, [note]
 
 
 def read_log(path: str | Path) -> Trajectory:
@@ -312,9 +535,20 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
         if j not in jnt_names:
             raise LogError(f"{traj.name}: 'qpos:{j}': no joint {j!r} in the model; "
                            f"joints: {', '.join(jnt_names)}")
-        jt = model.jnt_type[model.joint(j).id]
+        jid = model.joint(j).id
+        jt = model.jnt_type[jid]
         if int(jt) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             raise LogError(f"{traj.name}: joint {j!r} is not a hinge or slide joint")
+        if model.jnt_limited[jid]:
+            lo, hi = model.jnt_range[jid]
+            q = traj.qpos[:, traj.joints.index(j)]
+            bad = (q < lo - RANGE_MARGIN) | (q > hi + RANGE_MARGIN)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise LogError(f"{traj.name}: column 'qpos:{j}' reads {q[i]:.6g} rad at row {i} "
+                               f"(0-based), outside the model's joint range [{lo:.4g}, "
+                               f"{hi:.4g}] rad by more than {RANGE_MARGIN} rad (calibration "
+                               "offset or sign, or another joint's column?)")
     missing = [a for a in act_names if a not in traj.actuators]
     if missing:
         raise LogError(f"{traj.name}: no goal for actuators {missing}; the log must command "
@@ -337,16 +571,50 @@ _BAM_ENTRY = ("timestamp", "position", "goal_position")
 
 
 def is_bam(path: str | Path) -> bool:
-    """True when ``path`` looks like a BAM raw log (JSON with ``entries``)."""
-    path = Path(path)
-    if path.suffix.lower() != ".json":
-        return False
-    try:
-        with open(path) as f:
-            head = f.read(4096)
-    except OSError:
-        return False
-    return '"entries"' in head or '"mass"' in head
+    """True when ``path`` is to be read as a BAM raw log: a ``.json`` file (the project format is
+    CSV/NPZ, so a JSON file that is not a BAM log is refused by ``read_bam`` with its reason)."""
+    return Path(path).suffix.lower() == ".json"
+
+
+def _bam_number(value: object, where: str, positive: bool = False) -> float:
+    """A JSON number (not a bool, string or null), finite (and > 0 when ``positive``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise LogError(f"{where}: {json.dumps(value)[:40]} is not a number")
+    x = float(value)
+    if not math.isfinite(x) or (positive and x <= 0):
+        raise LogError(f"{where}: {value!r} must be a finite{' positive' if positive else ''} "
+                       "number")
+    return x
+
+
+def _bam_entries(path: Path, entries: object) -> list[dict]:
+    """Check the entries' types: a list of objects whose values are numbers (torque_enable may be
+    a bool; optional fields may be null)."""
+    if not isinstance(entries, list):
+        raise LogError(f"{path}: 'entries' must be a list of samples, got "
+                       f"{type(entries).__name__}")
+    if not entries:
+        raise LogError(f"{path}: BAM log has no entries")
+    if len(entries) > MAX_SAMPLES:
+        raise LogError(f"{path}: {len(entries)} entries; at most {MAX_SAMPLES} per log")
+    for i, e in enumerate(entries):
+        if not isinstance(e, dict):
+            raise LogError(f"{path}: entries[{i}] must be an object with {list(_BAM_ENTRY)}, "
+                           f"got {json.dumps(e)[:40]}")
+        for k in _BAM_ENTRY:
+            if k not in e:
+                raise LogError(f"{path}: entries[{i}] lacks {k!r}")
+        for k, v in e.items():
+            if v is None and k not in _BAM_ENTRY:
+                continue
+            if k == "torque_enable" and isinstance(v, bool):
+                continue
+            if k in _BAM_ENTRY or k in _BAM_NUMERIC:
+                _bam_number(v, f"{path}: entries[{i}].{k}")
+    return entries
+
+
+_BAM_NUMERIC = ("speed", "load", "input_volts", "temp", "torque_enable")
 
 
 def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajectory, BenchConfig]:
@@ -361,28 +629,46 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
     Returns:
       (trajectory on joint/actuator ``BENCH_JOINT``, bench config). ``trajectory.model`` is a key
       naming the setup, so logs of one rig share a model.
+    Raises:
+      LogError naming the file, the field and the value: not JSON (binary, empty, truncated),
+      wrong types, missing fields, unknown motor, implausible values (see
+      ``trajectory_from_columns``).
     """
     path = Path(path)
+    if not path.exists():
+        raise LogError(f"{path}: no such file")
+    if path.is_dir():
+        raise LogError(f"{path}: is a folder, not a log file")
+    size = path.stat().st_size
+    if size == 0:
+        raise LogError(f"{path}: empty file")
+    if size > MAX_JSON_BYTES:
+        raise LogError(f"{path}: {size / 2**20:.0f} MB; a BAM log is at most "
+                       f"{MAX_JSON_BYTES / 2**20:.0f} MB here (split it)")
     try:
-        with open(path) as f:
+        with open(path, encoding="utf-8") as f:
             raw = json.load(f)
-    except (OSError, json.JSONDecodeError) as exc:
+    except UnicodeDecodeError:
+        raise LogError(f"{path}: not a BAM JSON log (binary data, not text)") from None
+    except (OSError, ValueError) as exc:  # JSONDecodeError is a ValueError
         raise LogError(f"{path}: not a readable BAM JSON log ({exc})") from None
     if not isinstance(raw, dict):
-        raise LogError(f"{path}: BAM log must be a JSON object")
+        raise LogError(f"{path}: BAM log must be a JSON object, got {type(raw).__name__}")
     missing = [k for k in _BAM_HEADER if k not in raw]
     if missing:
         raise LogError(f"{path}: BAM log lacks fields {missing}; need {list(_BAM_HEADER)}")
-    motor = str(raw["motor"]).lower()
+    if not isinstance(raw["motor"], str):
+        raise LogError(f"{path}: 'motor' must be a string, got {json.dumps(raw['motor'])[:40]}")
+    motor = raw["motor"].lower()
     if motor not in BAM_MOTORS:
         raise LogError(f"{path}: unknown BAM motor {raw['motor']!r}; valid: "
                        + ", ".join(sorted(BAM_MOTORS)))
-    entries = raw["entries"]
-    if not entries:
-        raise LogError(f"{path}: BAM log has no entries")
-    for k in _BAM_ENTRY:
-        if k not in entries[0]:
-            raise LogError(f"{path}: BAM entries lack {k!r}")
+    for k in ("mass", "length", "kp", "vin"):
+        _bam_number(raw[k], f"{path}: {k!r}", positive=True)
+    if raw.get("arm_mass") is not None:
+        if _bam_number(raw["arm_mass"], f"{path}: 'arm_mass'") < 0:
+            raise LogError(f"{path}: 'arm_mass' {raw['arm_mass']!r} must be >= 0")
+    entries = _bam_entries(path, raw["entries"])
 
     def col(key: str, default: float | None = None) -> np.ndarray:
         return np.array([float(e.get(key, default)) if e.get(key, default) is not None

@@ -1,0 +1,74 @@
+"""argparse types for numbers: finite and in range, refused at parse time with the option named.
+
+    p.add_argument("--min-gain", type=number(0, 1, open_low=True, open_high=True), default=0.05)
+    p.add_argument("--threads", type=integer(0, 1024), default=0)
+
+A bad value stops the command before it reads or writes anything, in one line:
+``lowcostdex gap analyze: error: argument --min-gain: 'nan' is not a finite number in (0, 1)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def _fmt(x: float) -> str:
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
+def _interval(low: float | None, high: float | None, open_low: bool, open_high: bool) -> str:
+    if low is None and high is None:
+        return ""
+    if high is None:
+        return f" {'>' if open_low else '>='} {_fmt(low)}"
+    if low is None:
+        return f" {'<' if open_high else '<='} {_fmt(high)}"
+    return (f" in {'(' if open_low else '['}{_fmt(low)}, {_fmt(high)}"
+            f"{')' if open_high else ']'}")
+
+
+def _inside(x: float, low, high, open_low: bool, open_high: bool) -> bool:
+    if low is not None and (x < low or (open_low and x == low)):
+        return False
+    return not (high is not None and (x > high or (open_high and x == high)))
+
+
+def number(low: float | None = None, high: float | None = None, *, open_low: bool = False,
+           open_high: bool = False) -> Callable[[str], float]:
+    """A finite float in the interval (bounds closed unless ``open_low``/``open_high``)."""
+    where = _interval(low, high, open_low, open_high)
+
+    def parse(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            x = math.nan
+        if not math.isfinite(x) or not _inside(x, low, high, open_low, open_high):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number{where}")
+        return x
+
+    parse.__name__ = "number"
+    return parse
+
+
+def integer(low: int | None = None, high: int | None = None) -> Callable[[str], int]:
+    """An integer in [low, high]."""
+    where = _interval(low, high, False, False)
+
+    def parse(text: str) -> int:
+        try:
+            x = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer{where}") from None
+        if not _inside(x, low, high, False, False):
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer{where}")
+        return x
+
+    parse.__name__ = "integer"
+    return parse
+
+
+SEED = integer(0)
+"""A seed for ``numpy.random.default_rng`` (which refuses negative ones)."""
