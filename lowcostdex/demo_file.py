@@ -64,7 +64,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, InputError, check_choice
 
 FORMAT = "lowcostdex-demos"
 FORMAT_VERSION = 2
@@ -289,21 +289,50 @@ def open_dataset(path: str | Path) -> h5py.File:
     """Open a demo file read-only, after checking it is one.
 
     Raises:
-      ConfigError: the file is missing, not HDF5 (e.g. an old NPZ demo file), not of this
-        format, or of a newer format version.
+      InputError: the file is missing, unreadable, not HDF5 (e.g. an old NPZ demo file), cut
+        short or corrupt, not of this format, or of a newer format version.
     """
     path = Path(path)
     if not path.exists():
-        raise ConfigError(f"demonstration file {path} does not exist")
-    if not h5py.is_hdf5(path):
-        raise ConfigError(f"{path} is not {_EXPECTED}; it is not an HDF5 file")
-    f = h5py.File(path, "r")
+        raise InputError(f"demonstration file {path} does not exist")
+    if path.is_dir():
+        raise InputError(f"demonstration file {path} is a folder; give the .h5 file")
+    try:
+        if not h5py.is_hdf5(path):
+            raise InputError(f"{path} is not {_EXPECTED}; it is not an HDF5 file")
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise InputError(f"{path} cannot be read as HDF5 (cut short or corrupt?): "
+                         f"{_first_line(exc)}") from None
     try:
         _check_format(f, path)
     except ConfigError:
         f.close()
         raise
     return f
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0][:160] if text else type(exc).__name__
+
+
+def _read(group: h5py.Group, key: str, path: Path, kind: type | None = None) -> Any:
+    """``group[key]`` (a dataset's array, or an attribute with ``kind`` given), or an
+    InputError naming the file and the field."""
+    where = f"{group.name.strip('/')}/{key}".strip("/")
+    try:
+        if kind is None:
+            return group[key][()]
+        return kind(group.attrs[key])
+    except KeyError:
+        raise InputError(f"{path}: {where} is missing") from None
+    except (OSError, RuntimeError) as exc:  # h5py: data cut short or corrupt
+        raise InputError(f"{path}: {where} cannot be read (cut short or corrupt?): "
+                         f"{_first_line(exc)}") from None
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: {where} is not a {kind.__name__ if kind else 'dataset'}: "
+                         f"{_first_line(exc)}") from None
 
 
 def read_info(path: str | Path) -> tuple[DatasetInfo, int, int]:
@@ -326,26 +355,65 @@ def read_label_model(path: str | Path, episode: int | None = None) -> dict | Non
 
 
 def read_episodes(path: str | Path, only_successful: bool = False) -> list[Episode]:
-    """Every complete episode in the file (those counted in ``total_episodes``)."""
+    """Every complete episode in the file (those counted in ``total_episodes``).
+
+    Raises:
+      InputError: see :func:`open_dataset`; or a field missing, unreadable, or of a shape
+        that does not match the file's ``obs_dim``/``act_dim`` and the episode's length (the
+        message names the file and the field).
+    """
+    return [ep for _, ep in read_numbered_episodes(path, only_successful)]
+
+
+def read_numbered_episodes(path: str | Path, only_successful: bool = False
+                           ) -> list[tuple[int, Episode]]:
+    """:func:`read_episodes` with each episode's number k (its group ``episode_<k>``)."""
+    path = Path(path)
     out = []
     with open_dataset(path) as f:
-        file_source = str(f.attrs["source"])
-        for k in range(int(f.attrs["total_episodes"])):
-            g = f[f"episode_{k}"]
-            if only_successful and not bool(g.attrs["success"]):
+        file_source = _read(f, "source", path, str)
+        dims = {"observations": _read(f, "obs_dim", path, int),
+                "actions": _read(f, "act_dim", path, int)}
+        for k in range(_read(f, "total_episodes", path, int)):
+            try:
+                g = f.get(f"episode_{k}")
+            except (OSError, RuntimeError) as exc:
+                raise InputError(f"{path}: episode_{k} cannot be read (cut short or "
+                                 f"corrupt?): {_first_line(exc)}") from None
+            if not isinstance(g, h5py.Group):
+                raise InputError(f"{path}: episode_{k} is missing (total_episodes is "
+                                 f"{int(f.attrs['total_episodes'])})")
+            if only_successful and not _read(g, "success", path, bool):
                 continue
-            source = str(g.attrs.get("source", file_source))
-            infos = g["infos"]
-            out.append(Episode(
-                observations=g["observations"][()], actions=g["actions"][()],
-                rewards=g["rewards"][()], qpos=infos["qpos"][()], qvel=infos["qvel"][()],
-                time=infos["time"][()], success=infos["success"][()],
-                goal={key: g["goal"][key][()] for key in g["goal"]},
-                seed=int(g.attrs["seed"]), reset_time=float(g.attrs["reset_time"]),
-                reset_attempts=int(g.attrs["reset_attempts"]),
-                terminated=bool(g["terminations"][-1]) if len(g["actions"]) else False,
-                source=source, label=str(g.attrs.get("label", default_label(source)))))
+            out.append((k, _read_episode(g, path, file_source, dims)))
     return out
+
+
+def _read_episode(g: h5py.Group, path: Path, file_source: str, dims: dict[str, int]
+                  ) -> Episode:
+    arrays = {key: np.asarray(_read(g, key, path)) for key in
+              ("observations", "actions", "rewards", "terminations")}
+    infos = {key: np.asarray(_read(g, f"infos/{key}", path))
+             for key in ("qpos", "qvel", "time", "success")}
+    for key, width in dims.items():
+        shape = arrays[key].shape
+        if len(shape) != 2 or shape[1] != width:
+            raise InputError(f"{path}: {g.name.strip('/')}/{key} has shape {shape}; the file's "
+                             f"{'obs_dim' if key == 'observations' else 'act_dim'} is {width}")
+    goal = g.get("goal")
+    source = str(g.attrs.get("source", file_source))
+    try:
+        return Episode(
+            observations=arrays["observations"], actions=arrays["actions"],
+            rewards=arrays["rewards"], qpos=infos["qpos"], qvel=infos["qvel"],
+            time=infos["time"], success=infos["success"],
+            goal={key: _read(goal, key, path) for key in goal} if goal is not None else {},
+            seed=_read(g, "seed", path, int), reset_time=_read(g, "reset_time", path, float),
+            reset_attempts=_read(g, "reset_attempts", path, int),
+            terminated=bool(arrays["terminations"][-1]) if len(arrays["actions"]) else False,
+            source=source, label=str(g.attrs.get("label", default_label(source))))
+    except ConfigError as exc:  # inconsistent lengths, unknown source or label
+        raise InputError(f"{path}: {g.name.strip('/')}: {exc}") from None
 
 
 def read_demo_pairs(path: str | Path, only_successful: bool = False

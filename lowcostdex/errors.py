@@ -6,6 +6,8 @@ and exits with code 2; any other exception is a bug and keeps its traceback.
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Iterable
 
 
@@ -44,3 +46,33 @@ def check_range(name: str, value: float, low: float, high: float) -> None:
     """Raise ConfigError unless ``low <= value <= high``."""
     if not (low <= value <= high):
         raise ConfigError(f"{name}={value!r} is outside [{low}, {high}]")
+
+
+def check_number(name: str, value: object, low: float = -math.inf, high: float = math.inf, *,
+                 low_open: bool = False, high_open: bool = False, integer: bool = False,
+                 none_ok: bool = False) -> None:
+    """Raise ConfigError unless ``value`` is a finite number in the interval, listing it.
+
+    Args:
+      name: the setting, e.g. "damping".
+      value: the user's value (NaN and +-inf are refused whatever the bounds).
+      low, high: the bounds; ``low_open``/``high_open`` exclude them.
+      integer: also require an integral value.
+      none_ok: None is valid too.
+    """
+    if value is None and none_ok:
+        return
+    ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if ok:
+        x = float(value)  # type: ignore[arg-type]
+        ok = (math.isfinite(x) and (x > low if low_open else x >= low)
+              and (x < high if high_open else x <= high) and (not integer or x.is_integer()))
+    if not ok:
+        def bound(b: float) -> str:
+            return "inf" if b == math.inf else "-inf" if b == -math.inf else f"{b:g}"
+
+        interval = (f"{'(' if low_open or low == -math.inf else '['}{bound(low)}, "
+                    f"{bound(high)}{')' if high_open or high == math.inf else ']'}")
+        kind = "an integer" if integer else "a finite number"
+        raise ConfigError(f"{name}={value!r} must be {kind} in {interval}"
+                          + (" or None" if none_ok else ""))

@@ -14,9 +14,11 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import gymnasium as gym
+import h5py
 import numpy as np
 import pytest
 from pointmass import demo_info, expert_action, make_pointmass
@@ -326,3 +328,119 @@ def test_ctrl_c_in_a_real_process_exits_130_with_the_resume_command(tmp_path):
     assert words[words.index("--out") + 1] == str(out) and "--n-iter" in words
     saved = ex.read_json(latest)["iteration"]
     assert f"saved the state after iteration {saved} " in err
+
+
+# ----------------------------------------------------------------------------------------------
+# 4. Demo files and numbers validated where they enter: one line naming the file, field and
+#    value; nothing written
+
+
+def _set(name: str, value) -> Callable[[h5py.File], None]:
+    def edit(f):
+        f[name][value[0]] = value[1]
+    return edit
+
+
+def _drop(name: str) -> Callable[[h5py.File], None]:
+    def edit(f):
+        del f[name]
+    return edit
+
+
+def _attr(name: str, value) -> Callable[[h5py.File], None]:
+    def edit(f):
+        f.attrs[name] = value
+    return edit
+
+
+def _wider_observations(f) -> None:
+    """Demos of an env with a 4-wide observation (the file consistent in itself)."""
+    f.attrs["obs_dim"] = 4
+    for k in range(int(f.attrs["total_episodes"])):
+        obs = f[f"episode_{k}/observations"][()]
+        del f[f"episode_{k}/observations"]
+        f[f"episode_{k}/observations"] = np.hstack([obs, np.zeros((len(obs), 1))])
+
+
+DEMO_CASES = {  # what is done to a good 2-episode file: the line names these
+    "truncated file": (lambda path: path.write_bytes(path.read_bytes()[:1500]),
+                       ["cannot be read as HDF5"]),
+    "not HDF5": (lambda path: path.write_bytes(b"obs,act\n0.1,0.2\n"), ["not an HDF5 file"]),
+    "missing field": (_drop("episode_1/actions"), ["episode_1/actions is missing"]),
+    "NaN action": (_set("episode_0/actions", ((5, 0), np.nan)),
+                   ["episode_0/actions[5, 0] = nan is not finite"]),
+    "inf observation": (_set("episode_1/observations", ((2, 1), np.inf)),
+                        ["episode_1/observations[2, 1] = inf is not finite"]),
+    "1e6 action": (_set("episode_1/actions", ((3, 0), 1e6)),
+                   ["episode_1/actions[3, 0] = 1000000.0", "action bounds [-1.0, 1.0]"]),
+    "action beyond the bounds": (_set("episode_0/actions", ((0, 0), -1.2)),
+                                 ["episode_0/actions[0, 0] = -1.2", "action bounds"]),
+    "another env's id": (_attr("env_id", "lowcostdex/DClawTurnValve-v0"),
+                         ["env_id is 'lowcostdex/DClawTurnValve-v0'", f"trains '{ENV}'"]),
+    "another env's shapes": (_wider_observations, ["obs_dim/act_dim are 4/1", "has 3/1"]),
+    "actions of the wrong width": (_attr("act_dim", 2),
+                                   ["episode_0/actions has shape (30, 1)", "act_dim is 2"]),
+}
+
+
+@pytest.mark.parametrize("case", list(DEMO_CASES))
+def test_a_bad_demo_file_is_refused_naming_file_field_and_value(tmp_path, capsys, case):
+    edit, needles = DEMO_CASES[case]
+    demos = _demos(tmp_path / "demos.h5")
+    if case in ("truncated file", "not HDF5"):
+        edit(demos)
+    else:
+        with h5py.File(demos, "r+") as f:
+            edit(f)
+    data, out = demos.read_bytes(), tmp_path / "run"
+    code, _, err = _train(capsys, "dapg", out, "--demos", str(demos))
+    _assert_refused(code, err, str(demos), *needles)
+    assert demos.read_bytes() == data and not out.exists()
+
+
+def test_a_folder_given_as_demo_file_is_refused(tmp_path, capsys):
+    code, _, err = _train(capsys, "dapg", tmp_path / "run", "--demos", str(tmp_path))
+    _assert_refused(code, err, str(tmp_path), "is a folder")
+
+
+NUMBER_CASES = [  # (trainer, option, value, what the line says)
+    ("npg", "--damping", "nan", "damping=nan must be a finite number in [0, inf)"),
+    ("npg", "--damping", "-0.1", "damping=-0.1 must be a finite number in [0, inf)"),
+    ("npg", "--step-size", "0", "step_size=0.0 must be a finite number in (0, inf)"),
+    ("npg", "--step-size", "-0.05", "step_size=-0.05 must be a finite number in (0, inf)"),
+    ("npg", "--step-size", "inf", "step_size=inf must be a finite number in (0, inf)"),
+    ("npg", "--gamma", "1.5", "gamma=1.5 must be a finite number in [0, 1]"),
+    ("npg", "--gae-lambda", "nan", "gae_lambda=nan must be a finite number in [0, 1]"),
+    ("npg", "--init-log-std", "nan", "init_log_std=nan must be a finite number in [-3, inf)"),
+    ("npg", "--n-traj", "0", "n_traj=0 must be an integer in [1, inf)"),
+    ("npg", "--n-iter", "-3", "n_iter=-3 must be an integer in [1, inf)"),
+    ("npg", "--workers", "0", "n_workers=0 must be an integer in [1, inf)"),
+    ("npg", "--eval-episodes", "0", "eval_episodes=0 must be an integer in [1, inf)"),
+    ("npg", "--eval-every", "-1", "eval_every=-1 must be an integer in [0, inf)"),
+    ("npg", "--seed", "-1", "seed=-1 must be an integer in [0, inf)"),
+    ("npg", "--bc-epochs", "-1", "BC epochs=-1 must be an integer in [0, inf)"),
+    ("npg", "--hidden", "0", "hidden_sizes=(0,) must be positive integers"),
+    ("dapg", "--lam0", "inf", "lam0=inf must be a finite number in [0, inf)"),
+    ("dapg", "--lam1", "nan", "lam1=nan must be a finite number in [0, 1]"),
+    ("dapg", "--n-demos", "0", "n_demos=0 must be an integer in [1, inf) or None"),
+    ("ppo", "--lr", "nan", "lr=nan must be a finite number in (0, inf)"),
+    ("ppo", "--lr", "-0.001", "lr=-0.001 must be a finite number in (0, inf)"),
+    ("ppo", "--num-minibatches", "0", "num_minibatches=0 must be an integer in [1, inf)"),
+    ("ppo", "--num-envs", "0", "num_envs=0 must be an integer in [1, inf)"),
+    ("ppo", "--clip-coef", "inf", "clip_coef=inf must be a finite number in (0, inf)"),
+    ("ppo", "--ent-coef", "-0.01", "ent_coef=-0.01 must be a finite number in [0, inf)"),
+    ("ppo", "--gamma", "0", "gamma=0.0 must be a finite number in (0, 1]"),
+]
+
+
+@pytest.mark.parametrize("algo,option,value,message", NUMBER_CASES,
+                         ids=[f"{a} {o} {v}" for a, o, v, _ in NUMBER_CASES])
+def test_a_bad_number_is_refused_with_its_valid_range(tmp_path, capsys, algo, option, value,
+                                                      message):
+    out = tmp_path / "run"
+    extra = ["--demos", str(tmp_path / "d.h5")] if algo == "dapg" else []
+    argv = (["train", "ppo", "--out", str(out), "--no-progress", option, value] if algo == "ppo"
+            else ["train", algo, "--env", ENV, "--out", str(out), *TINY, *extra, option, value])
+    code = main(argv)
+    _assert_refused(code, capsys.readouterr().err, message)
+    assert not out.exists()

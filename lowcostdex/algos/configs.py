@@ -14,12 +14,11 @@ Every config validates itself at construction and names the valid choices on err
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from lowcostdex.algos.samplers import SAMPLERS
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, check_number
 
 ACTIVATIONS = ("tanh", "relu")
 
@@ -51,14 +50,10 @@ class PolicyConfig:
         check_choice("activation", self.activation, ACTIVATIONS)
         if any(int(h) != h or h < 1 for h in self.hidden_sizes):
             raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
-        if not math.isfinite(self.init_log_std) or self.init_log_std < self.min_log_std:
-            raise ConfigError(
-                f"init_log_std={self.init_log_std} must be finite and >= min_log_std={self.min_log_std}"
-            )
-        if not self.last_layer_scale > 0:
-            raise ConfigError(f"last_layer_scale={self.last_layer_scale} must be > 0")
-        if not self.min_obs_std > 0:
-            raise ConfigError(f"min_obs_std={self.min_obs_std} must be > 0")
+        check_number("min_log_std", self.min_log_std)
+        check_number("init_log_std", self.init_log_std, low=self.min_log_std)  # >= min_log_std
+        check_number("last_layer_scale", self.last_layer_scale, 0, low_open=True)
+        check_number("min_obs_std", self.min_obs_std, 0, low_open=True)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PolicyConfig:
@@ -93,10 +88,10 @@ class BaselineConfig:
         check_choice("activation", self.activation, ACTIVATIONS)
         if any(int(h) != h or h < 1 for h in self.hidden_sizes):
             raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
-        if not self.lr > 0 or self.weight_decay < 0:
-            raise ConfigError(f"lr={self.lr} must be > 0 and weight_decay={self.weight_decay} >= 0")
-        if self.epochs < 1 or self.batch_size < 1:
-            raise ConfigError(f"epochs={self.epochs} and batch_size={self.batch_size} must be >= 1")
+        check_number("baseline lr", self.lr, 0, low_open=True)
+        check_number("baseline weight_decay", self.weight_decay, 0)
+        check_number("baseline epochs", self.epochs, 1, integer=True)
+        check_number("baseline batch_size", self.batch_size, 1, integer=True)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> BaselineConfig:
@@ -136,22 +131,15 @@ class NPGConfig:
     max_backtracks: int = 10
 
     def __post_init__(self) -> None:
-        if not self.step_size > 0:
-            raise ConfigError(f"step_size={self.step_size} must be > 0")
-        if self.cg_iters < 1:
-            raise ConfigError(f"cg_iters={self.cg_iters} must be >= 1")
-        if self.damping < 0 or self.cg_residual_tol < 0:
-            raise ConfigError(
-                f"damping={self.damping} and cg_residual_tol={self.cg_residual_tol} must be >= 0"
-            )
-        if not 0 < self.fvp_sample_frac <= 1:
-            raise ConfigError(f"fvp_sample_frac={self.fvp_sample_frac} must be in (0, 1]")
-        if self.max_kl is not None and not self.max_kl > 0:
-            raise ConfigError(f"max_kl={self.max_kl} must be > 0 or None")
-        if not 0 < self.backtrack_ratio < 1:
-            raise ConfigError(f"backtrack_ratio={self.backtrack_ratio} must be in (0, 1)")
-        if self.max_backtracks < 0:
-            raise ConfigError(f"max_backtracks={self.max_backtracks} must be >= 0")
+        check_number("step_size", self.step_size, 0, low_open=True)
+        check_number("cg_iters", self.cg_iters, 1, integer=True)
+        check_number("cg_residual_tol", self.cg_residual_tol, 0)
+        check_number("damping", self.damping, 0)
+        check_number("fvp_sample_frac", self.fvp_sample_frac, 0, 1, low_open=True)
+        check_number("max_kl", self.max_kl, 0, low_open=True, none_ok=True)
+        check_number("backtrack_ratio", self.backtrack_ratio, 0, 1, low_open=True,
+                     high_open=True)
+        check_number("max_backtracks", self.max_backtracks, 0, integer=True)
 
 
 DEMO_WEIGHTS = ("paper", "mjrl")
@@ -176,10 +164,8 @@ class DAPGConfig:
 
     def __post_init__(self) -> None:
         check_choice("DAPG demo weight", self.demo_weight, DEMO_WEIGHTS)
-        if self.lam0 < 0:
-            raise ConfigError(f"lam0={self.lam0} must be >= 0")
-        if not 0 <= self.lam1 <= 1:
-            raise ConfigError(f"lam1={self.lam1} must be in [0, 1]")
+        check_number("lam0", self.lam0, 0)
+        check_number("lam1", self.lam1, 0, 1)
 
 
 BC_LOSSES = ("mse", "mle")
@@ -218,14 +204,10 @@ class BCConfig:
     def __post_init__(self) -> None:
         check_choice("BC loss", self.loss, BC_LOSSES)
         check_choice("BC log_std", self.log_std, BC_LOG_STD)
-        if self.epochs < 0 or self.batch_size < 1:
-            raise ConfigError(
-                f"epochs={self.epochs} must be >= 0 and batch_size={self.batch_size} >= 1"
-            )
-        if not self.lr > 0 or not self.min_action_scale > 0:
-            raise ConfigError(
-                f"lr={self.lr} and min_action_scale={self.min_action_scale} must be > 0"
-            )
+        check_number("BC epochs", self.epochs, 0, integer=True)
+        check_number("BC batch_size", self.batch_size, 1, integer=True)
+        check_number("BC lr", self.lr, 0, low_open=True)
+        check_number("BC min_action_scale", self.min_action_scale, 0, low_open=True)
 
 
 ALGOS = ("npg", "dapg")
@@ -333,24 +315,14 @@ class TrainConfig:
             raise ConfigError("bc_init needs demonstrations: set demos (--demos PATH)")
         if self.eval_bc and not self.uses_demos:
             raise ConfigError("eval_bc needs a behaviour clone: algo 'dapg' or bc_init")
-        for name in (
-            "n_iter",
-            "n_traj",
-            "n_workers",
-            "eval_episodes",
-            "checkpoint_every",
-            "torch_threads",
-        ):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        if self.eval_every < 0:
-            raise ConfigError(f"eval_every={self.eval_every} must be >= 0")
-        if self.n_demos is not None and self.n_demos < 1:
-            raise ConfigError(f"n_demos={self.n_demos} must be >= 1 or None")
-        if not (0 <= self.gamma <= 1 and 0 <= self.gae_lambda <= 1):
-            raise ConfigError(
-                f"gamma={self.gamma} and gae_lambda={self.gae_lambda} must be in [0, 1]"
-            )
+        for name in ("n_iter", "n_traj", "n_workers", "eval_episodes", "checkpoint_every",
+                     "torch_threads"):
+            check_number(name, getattr(self, name), 1, integer=True)
+        check_number("seed", self.seed, 0, integer=True)
+        check_number("eval_every", self.eval_every, 0, integer=True)
+        check_number("n_demos", self.n_demos, 1, integer=True, none_ok=True)
+        check_number("gamma", self.gamma, 0, 1)
+        check_number("gae_lambda", self.gae_lambda, 0, 1)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
@@ -439,21 +411,16 @@ class PPOConfig:
     def __post_init__(self) -> None:
         for name in ("n_iter", "num_envs", "update_epochs", "num_minibatches", "eval_episodes",
                      "checkpoint_every", "torch_threads"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        if self.eval_every < 0 or self.nthread < 0:
-            raise ConfigError(f"eval_every={self.eval_every} and nthread={self.nthread} must "
-                              "be >= 0")
-        if not (0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1):
-            raise ConfigError(f"gamma={self.gamma} must be in (0, 1] and gae_lambda="
-                              f"{self.gae_lambda} in [0, 1]")
+            check_number(name, getattr(self, name), 1, integer=True)
+        for name in ("seed", "eval_every", "nthread"):
+            check_number(name, getattr(self, name), 0, integer=True)
+        check_number("gamma", self.gamma, 0, 1, low_open=True)
+        check_number("gae_lambda", self.gae_lambda, 0, 1)
         for name in ("lr", "clip_coef", "max_grad_norm"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"{name}={getattr(self, name)} must be > 0")
-        if self.ent_coef < 0 or self.vf_coef < 0:
-            raise ConfigError(f"ent_coef={self.ent_coef} and vf_coef={self.vf_coef} must be >= 0")
-        if self.target_kl is not None and not self.target_kl > 0:
-            raise ConfigError(f"target_kl={self.target_kl} must be > 0 or None")
+            check_number(name, getattr(self, name), 0, low_open=True)
+        check_number("ent_coef", self.ent_coef, 0)
+        check_number("vf_coef", self.vf_coef, 0)
+        check_number("target_kl", self.target_kl, 0, low_open=True, none_ok=True)
         if any(int(h) != h or h < 1 for h in self.critic_hidden):
             raise ConfigError(f"critic_hidden={self.critic_hidden} must be positive integers")
 

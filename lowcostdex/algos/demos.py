@@ -25,8 +25,14 @@ import gymnasium as gym
 import numpy as np
 
 from lowcostdex.algos.samplers import control_period
-from lowcostdex.demo_file import DatasetInfo, DemoWriter, Episode, read_demo_pairs
-from lowcostdex.errors import ConfigError
+from lowcostdex.demo_file import (
+    DatasetInfo,
+    DemoWriter,
+    Episode,
+    read_info,
+    read_numbered_episodes,
+)
+from lowcostdex.errors import ConfigError, InputError
 
 Teacher = Callable[[gym.Env, np.ndarray], np.ndarray]
 """(env, observation (obs_dim,)) -> action (act_dim,) in the env's action space. A teacher
@@ -41,11 +47,13 @@ class Demos:
       observations: (N, obs_dim).
       actions: (N, act_dim) in the env's action space.
       episode_ends: (E,) exclusive end index of each episode.
+      episode_ids: (E,) each episode's index in its file (``episode_<id>``); None: 0..E-1.
     """
 
     observations: np.ndarray
     actions: np.ndarray
     episode_ends: np.ndarray
+    episode_ids: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = self.observations.shape[0]
@@ -72,17 +80,26 @@ class Demos:
         if n is None or n >= self.n_episodes:
             return self
         end = int(self.episode_ends[n - 1])
-        return Demos(self.observations[:end], self.actions[:end], self.episode_ends[:n])
+        ids = None if self.episode_ids is None else self.episode_ids[:n]
+        return Demos(self.observations[:end], self.actions[:end], self.episode_ends[:n], ids)
+
+    def locate(self, row: int) -> tuple[int, int]:
+        """(episode id, step) of pair ``row``."""
+        e = int(np.searchsorted(self.episode_ends, row, side="right"))
+        start = int(self.episode_ends[e - 1]) if e else 0
+        return (int(self.episode_ids[e]) if self.episode_ids is not None else e), row - start
 
     @classmethod
-    def from_episodes(cls, episodes: Sequence[tuple[np.ndarray, np.ndarray]]) -> Demos:
+    def from_episodes(cls, episodes: Sequence[tuple[np.ndarray, np.ndarray]],
+                      episode_ids: Sequence[int] | None = None) -> Demos:
         """Concatenate (observations (T, obs_dim), actions (T, act_dim)) episodes."""
         if not episodes:
             raise ConfigError("no demonstration episodes")
         obs = np.concatenate([np.asarray(o, dtype=np.float64) for o, _ in episodes])
         act = np.concatenate([np.asarray(a, dtype=np.float64) for _, a in episodes])
         ends = np.cumsum([len(o) for o, _ in episodes]).astype(np.int64)
-        return cls(obs, act, ends)
+        ids = None if episode_ids is None else np.asarray(episode_ids, dtype=np.int64)
+        return cls(obs, act, ends, ids)
 
 
 def load_demos(path: str | Path, only_successful: bool = True) -> Demos:
@@ -93,13 +110,66 @@ def load_demos(path: str | Path, only_successful: bool = True) -> Demos:
       only_successful: keep only the episodes whose last step succeeded.
 
     Raises:
-      ConfigError: a missing file, a file of another format (e.g. an NPZ), or no episode left.
+      InputError: a missing, unreadable or corrupt file, a file of another format (e.g. an
+        NPZ), a field of the wrong shape, or a NaN/inf observation or action (the message
+        names the file, the field and the value).
+      ConfigError: no episode left.
     """
-    episodes = read_demo_pairs(path, only_successful=only_successful)
-    if not episodes:
+    used = read_numbered_episodes(path, only_successful=only_successful)
+    if not used:
         kind = "successful demonstration" if only_successful else "episode"
         raise ConfigError(f"{path} holds no {kind}")
-    return Demos.from_episodes(episodes)
+    for k, ep in used:
+        for field in ("observations", "actions"):
+            values = getattr(ep, field)
+            bad = np.argwhere(~np.isfinite(values))
+            if bad.size:
+                t, j = (int(i) for i in bad[0])
+                value = float(values[t, j])
+                raise InputError(f"{path}: episode_{k}/{field}[{t}, {j}] = {value!r} is not "
+                                 "finite")
+    return Demos.from_episodes([(ep.observations[:-1], ep.actions) for _, ep in used],
+                               [k for k, _ in used])
+
+
+ACTION_TOLERANCE = 1e-6
+"""How far [action units] a demonstration action may lie outside the env's action bounds."""
+
+
+def check_demos(demos: Demos, path: str | Path, env: gym.Env, env_id: str) -> None:
+    """Check that demonstrations read from ``path`` fit the env a run trains.
+
+    Args:
+      demos: from :func:`load_demos`.
+      path: their file (its ``env_id``, ``obs_dim`` and ``act_dim`` attributes are compared).
+      env: the run's env.
+      env_id: the run's gymnasium id.
+
+    Raises:
+      InputError: the demos were recorded in another env (id or sizes), or an action lies
+        outside the env's action bounds (the message names the file, the field, the value).
+    """
+    info = read_info(path)[0]
+    obs_dim = int(np.prod(env.observation_space.shape))
+    act_dim = int(np.prod(env.action_space.shape))
+    if info.env_id != env_id:
+        raise InputError(f"{path}: env_id is {info.env_id!r}: these demonstrations are of "
+                         f"another env; this run trains {env_id!r}")
+    if (info.obs_dim, info.act_dim) != (obs_dim, act_dim) or \
+            demos.observations.shape[1] != obs_dim or demos.actions.shape[1] != act_dim:
+        raise InputError(f"{path}: obs_dim/act_dim are {demos.observations.shape[1]}/"
+                         f"{demos.actions.shape[1]}; the env {env_id} has {obs_dim}/{act_dim}")
+    low = np.broadcast_to(np.asarray(env.action_space.low, np.float64).ravel(), (act_dim,))
+    high = np.broadcast_to(np.asarray(env.action_space.high, np.float64).ravel(), (act_dim,))
+    outside = (demos.actions < low - ACTION_TOLERANCE) | (demos.actions > high + ACTION_TOLERANCE)
+    bad = np.argwhere(outside)
+    if bad.size:
+        row, j = (int(i) for i in bad[0])
+        k, t = demos.locate(row)
+        value = float(demos.actions[row, j])
+        raise InputError(f"{path}: episode_{k}/actions[{t}, {j}] = {value!r} is "
+                         f"outside the env's action bounds [{low[j]}, {high[j]}] "
+                         f"({int(outside.any(axis=1).sum())} actions outside)")
 
 
 def save_demos(path: str | Path, episodes: Sequence[Episode], info: DatasetInfo) -> Path:

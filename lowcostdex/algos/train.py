@@ -43,7 +43,7 @@ from lowcostdex.algos.baseline import MLPBaseline
 from lowcostdex.algos.bc import behavior_clone
 from lowcostdex.algos.configs import TrainConfig
 from lowcostdex.algos.dapg import dapg_update
-from lowcostdex.algos.demos import Demos, load_demos
+from lowcostdex.algos.demos import Demos, check_demos, load_demos
 from lowcostdex.algos.npg import npg_update
 from lowcostdex.algos.policy import GaussianMLPPolicy
 from lowcostdex.algos.returns import discounted_returns, gae
@@ -325,6 +325,8 @@ def train(
         probe = SerialSampler(env_factory) if config.sampler != "serial" else None
         sampler = make_sampler(config, env_factory)
         env = probe.env if probe is not None else sampler.env  # type: ignore[attr-defined]
+        if demos is not None:
+            check_demos(demos, config.demos, env, config.env_id)  # type: ignore[arg-type]
         run = ex.Run.open(
             out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
         )
