@@ -155,7 +155,7 @@ CASES: list[Case] = [
          "give a JSON file path in an existing folder"),
     Case("calibrate from a spec that is a CSV", ("calibrate", "--port", "emulated", "--spec",
                                                  "{tmp}/log.csv", "--out", "{tmp}/c.json", "--yes"),
-         "--spec {tmp}/log.csv: not a hand spec JSON", files={"log.csv": "time,qpos:arm\n0,1\n"}),
+         "{tmp}/log.csv: not a hand spec JSON", files={"log.csv": "time,qpos:arm\n0,1\n"}),
     Case("calibrate from a missing spec", ("calibrate", "--port", "emulated", "--spec",
                                            "{tmp}/dclaw_calibrated.json", "--out", "{tmp}/c.json",
                                            "--yes"), "No such file or directory"),
