@@ -1,10 +1,12 @@
 """Hardware subcommands: ``lowcostdex scan``, ``lowcostdex emulate``, ``lowcostdex calibrate``.
 
+    lowcostdex scan                                # candidate ports: USB ids, by-id names, problems
     lowcostdex scan --port /dev/ttyUSB0            # ping, models, firmware, temperatures, errors
     lowcostdex scan --port emulated --hand dclaw   # the same against an in-process emulated D'Claw
     lowcostdex emulate dclaw                       # prints "PORT /dev/pts/N", serves until Ctrl-C
     lowcostdex emulate bench --clock virtual       # single servo; bus time instead of wall time
     lowcostdex calibrate --hand dclaw --port /dev/ttyUSB0 --out dclaw_calibrated.json
+    lowcostdex setup-motors --hand dclaw           # new motors: ids and baud, one at a time
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ SERIAL_PATTERNS = ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/tty.usbserial*", "/dev/
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("scan", help="find Dynamixel motors: models, firmware, temperature, errors")
-    p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
+    p.add_argument("--port", default=None,
+                   help="serial device, pty path, or 'emulated'; without it, list the candidate "
+                        "ports (USB id, serial number, /dev/serial/by-id names) and their problems")
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
     p.add_argument("--ids", default=None,
                    help="comma-separated ids or ranges (e.g. 10-12,50); default broadcast ping")
@@ -63,6 +67,19 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="reads averaged per joint")
     p.add_argument("--yes", action="store_true", help="do not wait for Enter")
     p.set_defaults(func=_calibrate)
+
+    p = sub.add_parser("setup-motors",
+                       help="new motors (id 1, 57600 bps): give each its id and baud rate, one "
+                            "motor at a time, then scan the hand")
+    p.add_argument("--hand", default="dclaw", choices=("dclaw", "bench"))
+    p.add_argument("--spec", default=None, help="hand spec JSON (default: built-in)")
+    p.add_argument("--port", default=None,
+                   help="serial device or pty path (default: the one USB serial port found)")
+    p.add_argument("--baud", type=int, default=1_000_000, help="rate to set [bit/s]")
+    p.add_argument("--ids", default=None, help="set up only these of the hand's ids (e.g. 21)")
+    p.add_argument("--reassign", action="store_true",
+                   help="accept a motor that has another of the hand's ids")
+    p.set_defaults(func=_setup_motors)
 
 
 def parse_ids(text: str) -> list[int]:
@@ -147,9 +164,41 @@ def _port(args: argparse.Namespace):
     return args.port
 
 
+def _list_ports() -> int:
+    from lowcostdex.hardware.ports import format_ports, list_serial_ports
+
+    ports = list_serial_ports()
+    print(format_ports(ports))
+    if ports:
+        print("scan one with: lowcostdex scan --port PORT (a /dev/serial/by-id name stays the "
+              "same when the adapter is replugged)")
+    return 0 if ports else 1
+
+
+def pick_port(port: str | None) -> str:
+    """``port``, or the one usable USB serial port; InputError listing the candidates else."""
+    if port is not None:
+        check_port(port)
+        return port
+    from lowcostdex.hardware.ports import format_ports, list_serial_ports
+
+    ports = list_serial_ports()
+    usable = [p for p in ports if p.accessible]
+    if len(usable) == 1:
+        chosen = usable[0]
+        print(f"using {chosen.device} ({chosen.usb_id} {chosen.description})")
+        for problem in chosen.problems():
+            print(f"  ! {problem}")
+        return chosen.device
+    what = "no usable USB serial port" if not usable else "several USB serial ports"
+    raise InputError(f"{what}; pass --port. Ports found:\n{format_ports(ports)}")
+
+
 def _scan(args: argparse.Namespace) -> int:
     from lowcostdex.hardware.dynamixel import scan
 
+    if args.port is None:
+        return _list_ports()
     ids = parse_ids(args.ids) if args.ids else None
     try:
         found = scan(_port(args), args.baud, ids)
@@ -246,3 +295,42 @@ def _calibrate(args: argparse.Namespace) -> int:
     print(format_report(hand, new))
     print(f"wrote {args.out}")
     return 0
+
+
+def _setup_motors(args: argparse.Namespace) -> int:
+    from lowcostdex.hardware.dynamixel import scan
+    from lowcostdex.hardware.hands import hand_spec
+    from lowcostdex.hardware.setup_motors import check_hand, setup_motors
+
+    check_baud(args.baud)
+    hand = load_spec(args.spec) if args.spec else hand_spec(args.hand)
+    ids = parse_ids(args.ids) if args.ids else None
+    port = pick_port(args.port)
+
+    def ask(joint) -> None:
+        _wait_for_enter(f"Connect ONLY the motor for {joint.name} (id {joint.motor_id}) to the "
+                        "adapter, power it, then press Enter... ")
+
+    results = setup_motors(port, hand, baudrate=args.baud, ids=ids, prompt=ask,
+                           reassign=args.reassign)
+    print(f"{len(results)} motors set to their ids at {args.baud} bps.")
+    _wait_for_enter("Now connect all the hand's motors in a chain, power them, then press "
+                    "Enter to scan... ")
+    found = scan(port, args.baud)
+    for m in found:
+        print(f"  id {m.motor_id:>3}  {m.model:<12} fw {m.firmware}")
+    problems = check_hand(found, hand, ids)
+    for problem in problems:
+        print(f"  ! {problem}")
+    if problems:
+        print("the hand is not complete; set up the motors named above with --ids")
+        return 1
+    print(f"all {len(found)} motors of the {hand.name} answer at {args.baud} bps")
+    return 0
+
+
+def _wait_for_enter(text: str) -> None:
+    try:
+        input(text)
+    except EOFError:
+        raise InputError("setup-motors needs a person at the keyboard (stdin is closed)") from None

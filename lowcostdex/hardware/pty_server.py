@@ -7,6 +7,10 @@ put in raw mode right after ``openpty`` (a fresh pty echoes and translates newli
 keeps its own slave fd open for its whole life (otherwise the master reads EIO while the SDK
 re-opens the port in ``setBaudRate``), and nothing is written before the host sends a packet.
 
+Baud rate: the server reads the rate the host set on the pty (termios, as pyserial sets it on a
+real tty) and hands it to the chain, so motors set to another rate do not hear the host, as on a
+real line; a rate termios cannot name is treated as unknown (every motor hears).
+
 Time: with a real-time chain the loop keeps the physics up with the wall clock (so the Bus
 Watchdog trips on a silent host) and, when the chain models wire time, holds each reply until its
 bus time; with a virtual-clock chain bus time advances only by the bytes exchanged, and replies go
@@ -28,18 +32,21 @@ import heapq
 import os
 import select
 import sys
+import termios
 import threading
 import time
 import tty
 from typing import TYPE_CHECKING
 
-from lowcostdex.hardware.protocol import wire_time
+from lowcostdex.hardware.protocol import BAUD_CODES, wire_time
 
 if TYPE_CHECKING:
     from lowcostdex.hardware.emulator import EmulatedChain, Reply
 
 _MAX_CATCHUP = 0.25  # [s] of physics a real-time loop may step in one go before skipping ahead
 _SPIN = 0.002  # [s] replies due sooner than this are timed by spinning, not by select()
+_SPEEDS = {getattr(termios, f"B{rate}"): rate for rate in BAUD_CODES.values()
+           if hasattr(termios, f"B{rate}")}  # termios speed constant -> bit rate
 
 
 class PtyServer:
@@ -99,6 +106,13 @@ class PtyServer:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def line_baudrate(self) -> int | None:
+        """The bit rate the host set on the pty [bit/s], or None if termios does not name it."""
+        try:
+            return _SPEEDS.get(termios.tcgetattr(self._slave)[4])
+        except (termios.error, OSError):
+            return None
+
     # -- loop ------------------------------------------------------------------------------------
     def serve(self) -> None:
         """Serve until ``stop()`` (or KeyboardInterrupt in the foreground)."""
@@ -136,12 +150,13 @@ class PtyServer:
             return
         self.packets_in += 1
         chain, clock = self.chain, self.chain.clock
-        wire = wire_time(len(data), chain.baudrate) if chain.wire_time else 0.0
+        baud = self.line_baudrate()
+        wire = wire_time(len(data), baud or chain.baudrate) if chain.wire_time else 0.0
         if clock.virtual:
             t_in = max(clock.now(), self._line_free) + wire
         else:
             t_in = clock.now() + wire
-        replies = chain.handle(data, t_in)
+        replies = chain.handle(data, t_in, baud)
         if clock.virtual:
             ends = [r.time for r in replies if not r.late]
             self._line_free = max([t_in] + ends)
