@@ -283,6 +283,13 @@ CASES: list[Case] = [
     Case("generate into a user's folder", ("gap", "generate", "--out", "{tmp}/data"),
          "already holds files that lowcostdex did not write",
          files={"data/run1.csv": csv_text(servo_log())}),
+    Case("record-log into a user's folder", ("record-log", "--port", "emulated", "--logs", "1",
+                                             "--out", "{tmp}/logs"),
+         "already holds files that lowcostdex did not write (log_0.csv)",
+         files={"logs/log_0.csv": csv_text(servo_log())}),
+    Case("model over a user's file", ("model", "bench", "--out", "{tmp}/arm.xml"),
+         "--out {tmp}/arm.xml already exists and is left untouched",
+         files={"arm.xml": "<mujoco model='my tuned arm'/>\n"}),
 ]
 
 
