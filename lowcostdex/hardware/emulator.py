@@ -62,6 +62,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import mujoco
 import numpy as np
@@ -298,6 +299,25 @@ class _State:
     step: int
 
 
+class ServoImperfection(Protocol):
+    """Servo firmware behaviour outside the effect catalogue, bound to the drive's servos (e.g.
+    a hidden robot's PWM deadband or encoder nonlinearity: ``lowcostdex.hardware.hidden_robots``).
+    Arrays are per servo in drive order, joint angles [rad]."""
+
+    def encoder(self, q: np.ndarray) -> np.ndarray:
+        """What the encoders read (n,) at true joint angles ``q`` (n,)."""
+
+    def command(self, goal: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """The setpoint the physics' servo loop tracks (n,) for firmware setpoints ``goal``
+        (n,) [encoder frame] with the joints at true angles ``q`` (n,)."""
+
+
+class Imperfection(Protocol):
+    """Unbound ``ServoImperfection``: ``bind(joints)`` gives the one for those servos."""
+
+    def bind(self, joints: Sequence[str]) -> ServoImperfection: ...
+
+
 class PlantDrive:
     """The physics behind emulated firmware: servo k drives ``plant`` actuator ``actuators[k]``.
 
@@ -308,15 +328,18 @@ class PlantDrive:
       supply_resistance: shared supply's internal resistance [Ohm]: every motor reads
         V = V_nominal - R_s * sum |i| (voltage sag). Add the ``voltage_sag`` effect to the plant if
         the physics should feel it too.
+      imperfection: firmware behaviour no catalogue effect models (``ServoImperfection``), applied
+        between the firmware and the physics every step; None: none.
     """
 
     def __init__(self, plant: Plant, actuators: Sequence[int], motors: Sequence[servo.MotorSpec],
-                 supply_resistance: float = 0.0):
+                 supply_resistance: float = 0.0, imperfection: ServoImperfection | None = None):
         m = plant.model
         self.plant = plant
         self.acts = np.asarray(actuators, dtype=int)
         self.motors = list(motors)
         self.supply_resistance = supply_resistance
+        self.imperfection = imperfection
         jnt = m.actuator_trnid[self.acts, 0]
         self._qadr = m.jnt_qposadr[jnt]
         self._dadr = m.jnt_dofadr[jnt]
@@ -381,7 +404,10 @@ class PlantDrive:
         duty = (r * current + k * qd) / volts
         temp = self._ambient + v["act"][self._thermal] * (self._thermal >= 0)
         qpos = self.plant.measured_qpos() if self._observed else v["qpos"]
-        self._state = _State(qpos[self._qadr].tolist(), qd.tolist(), current.tolist(),
+        q = qpos[self._qadr]
+        if self.imperfection is not None:
+            q = self.imperfection.encoder(q)
+        self._state = _State(q.tolist(), qd.tolist(), current.tolist(),
                              duty.tolist(), temp.tolist(), volts.tolist(), self.steps)
         return self._state
 
@@ -392,7 +418,12 @@ class PlantDrive:
             m, d = self.plant.model, self.plant.data
             channels = {"temperature": servo.winding_temperature(m, d, self._layout),
                         "voltage": self.voltage()}
-        self.plant.step(self.goal, 1, channels)
+        goal = self.goal
+        if self.imperfection is not None:
+            goal = goal.copy()
+            goal[self.acts] = self.imperfection.command(goal[self.acts],
+                                                        self._views["qpos"][self._qadr])
+        self.plant.step(goal, 1, channels)
         self.steps += 1
 
 
@@ -415,6 +446,8 @@ class EmulatedChain:
       wire_time: schedule replies by wire time (always on with the virtual clock).
       supply_resistance: see ``PlantDrive``.
       rng: seeded generator for faults.
+      imperfection: servo firmware behaviour no catalogue effect models (``Imperfection``, bound
+        to the motors' joints here); see ``PlantDrive``.
       record_replies: keep ``reply_log``: (instruction number, id, instruction, error byte +
         status data) of every status sent, before faults (fast reads: one entry per slot).
     """
@@ -423,7 +456,8 @@ class EmulatedChain:
                  missing: Sequence[int] = (), faults: FaultConfig | None = None,
                  options: FirmwareOptions | None = None, baudrate: int = 1_000_000,
                  clock: str = "virtual", wire_time: bool = True, supply_resistance: float = 0.0,
-                 rng: np.random.Generator | None = None, record_replies: bool = False):
+                 rng: np.random.Generator | None = None, record_replies: bool = False,
+                 imperfection: Imperfection | None = None):
         check_choice("emulator clock", clock, CLOCKS)
         baud_code(baudrate)
         names = [plant.model.actuator(i).name for i in range(plant.model.nu)]
@@ -461,7 +495,9 @@ class EmulatedChain:
             raise ConfigError(f"missing ids {sorted(unknown)} are not in hand {hand.name}")
         motor = servo.motor_spec(hand.motor)
         self.drive = PlantDrive(plant, [names.index(j.name) for j in specs],
-                                [motor] * len(specs), supply_resistance)
+                                [motor] * len(specs), supply_resistance,
+                                imperfection.bind([j.name for j in specs])
+                                if imperfection is not None else None)
         self.motors: dict[int, MotorFirmware] = {}
         for k, j in enumerate(specs):
             self.motors[j.motor_id] = MotorFirmware(
@@ -836,7 +872,9 @@ _HANDLERS = {
 
 def emulate_hand(hand: HandSpec, spec: mujoco.MjSpec, *,
                  effects: Sequence[AppliedEffect] = (), qpos: np.ndarray | None = None,
-                 rng: np.random.Generator | None = None, **chain_kwargs) -> EmulatedChain:
+                 rng: np.random.Generator | None = None,
+                 modify_model: Callable[[mujoco.MjSpec], None] | None = None,
+                 **chain_kwargs) -> EmulatedChain:
     """An emulated chain for ``hand`` on the model ``spec`` (actuators named by the hand's joints).
 
     Args:
@@ -845,10 +883,14 @@ def emulate_hand(hand: HandSpec, spec: mujoco.MjSpec, *,
       effects: effects the emulated robot carries (latency, backlash, friction, ...).
       qpos: initial joint positions (default the model's qpos0).
       rng: seeded generator (plant noise and faults).
+      modify_model: edits ``spec`` before it is compiled: a robot that differs from the model in
+        ways no effect names (masses, lengths, mounting; ``hidden_robots``).
       **chain_kwargs: ``EmulatedChain`` options (mounting, missing, faults, options, baudrate,
-        clock, wire_time, supply_resistance, record_replies).
+        clock, wire_time, supply_resistance, record_replies, imperfection).
     """
     rng = rng if rng is not None else np.random.default_rng(0)
+    if modify_model is not None:
+        modify_model(spec)
     prepare_spec(spec, effects)
     plant = Plant(spec.compile(), effects, rng=rng)
     plant.reset(qpos=qpos)

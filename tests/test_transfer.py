@@ -1,0 +1,197 @@
+"""Hidden robots (lowcostdex.hardware.hidden_robots) and the transfer table (bench/transfer.py).
+
+The hidden robots stand in for real D'Claws: each must differ measurably from the nominal
+model, seen by a host through the real driver path, and be the same robot under the same seed.
+The firmware imperfection is checked against its physics written out here (an encoder reading
+q + A sin(q + phase), a position loop that does not act on errors below its deadband).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lowcostdex.hardware.backend import make_dynamixel_bus
+from lowcostdex.hardware.emulator import emulated_dclaw
+from lowcostdex.hardware.hands import dclaw_spec
+from lowcostdex.hardware.hidden_robots import (
+    FirmwareImperfection,
+    ModelPerturbation,
+    hidden_robot,
+    hidden_robots,
+    pwm_deadband_error,
+)
+from lowcostdex.sim.models.dclaw import build_dclaw
+
+HAND = dclaw_spec()
+TICK = 2 * math.pi / 4096  # [rad] one encoder tick of an XH430
+START = np.array([0.0, -1.0, 1.0] * 3)  # [rad] fingers bent, clear of each other
+STEP = np.array([0.3, 0.3, 0.3] * 3)  # [rad] a step on every joint
+
+
+def _bus(chain):
+    model = build_dclaw("none", chain.hand).compile()
+    return make_dynamixel_bus(chain.hand, chain.port(), model)
+
+
+def _goals(q: np.ndarray) -> np.ndarray:
+    return np.array([j.calibration.to_motor(v) for j, v in zip(HAND.joints, q, strict=True)])
+
+
+def step_response(chain, seconds: float = 0.3, period: float = 0.01) -> np.ndarray:
+    """Joint readings [rad] (k, 9) a host sees after a step from START to START + STEP, read
+    through DynamixelBus on the chain's port every ``period`` [s]."""
+    ids = [j.motor_id for j in HAND.joints]
+    out = []
+    with _bus(chain) as bus:
+        bus.set_torque(True)
+        bus.write_goal_positions(_goals(START), ids)
+        bus.sleep(1.0)
+        bus.write_goal_positions(_goals(START + STEP), ids)
+        for _ in range(round(seconds / period)):
+            bus.sleep(period)
+            state = bus.read_state()
+            out.append([j.calibration.to_joint(p) for j, p in
+                        zip(HAND.joints, state.position[:9], strict=True)])
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def nominal_response() -> np.ndarray:
+    return step_response(emulated_dclaw("none", effects=()))
+
+
+def test_every_hidden_robot_differs_from_nominal_in_every_finger(nominal_response):
+    for robot in hidden_robots(3, seed=0):
+        diff = np.abs(step_response(robot.chain("none")) - nominal_response).max(axis=0)
+        per_finger = diff.reshape(3, 3).max(axis=1)
+        # more than 3 encoder ticks in every finger, more than 10 mrad somewhere
+        assert np.all(per_finger > 3 * TICK), (robot.name, per_finger)
+        assert diff.max() > 0.010, (robot.name, diff)
+
+
+def test_a_hidden_robot_is_deterministic_under_its_seed():
+    a, b, c = hidden_robot(7), hidden_robot(7), hidden_robot(8)
+    assert a.to_dict() == b.to_dict()
+    assert a.to_dict() != c.to_dict()
+    ra, rb = step_response(a.chain("none")), step_response(b.chain("none"))
+    np.testing.assert_array_equal(ra, rb)
+
+
+def test_hidden_robots_mix_effects_per_finger():
+    robots = hidden_robots(3, seed=0)
+    mixes = [tuple(e.name for e in r.effects) for r in robots]
+    assert len(set(mixes)) == 3  # each robot its own mix
+    partial = 0
+    for r in robots:
+        assert 3 <= len(r.effects) <= 5
+        for e in r.effects:
+            name, values = next(iter(e.values.items()))
+            rows = values.reshape(3, 3)  # finger x joint
+            carried = [row for row in rows if not np.allclose(row, e.cls.param(name).null)]
+            assert carried, (r.name, e.name)
+            # different per finger: no two fingers that carry the effect share values
+            assert len({tuple(row) for row in carried}) == len(carried), (r.name, e.name)
+            partial += len(carried) < 3
+    assert partial > 0  # some effect is on some fingers only
+
+
+def test_model_perturbation_edits_the_mjcf():
+    p = ModelPerturbation(link_mass={"ff_link1": 1.05}, link_length={"mf": 0.97},
+                          base_tilt={"th": ((1.0, 0.0, 0.0), math.radians(3.0))},
+                          valve_frictionloss=0.01, valve_damping=1.5, valve_inertia=1.2)
+    nominal = build_dclaw("valve").compile()
+    spec = build_dclaw("valve")
+    p.apply(spec)
+    m = spec.compile()
+    body = lambda model, n: model.body(n).id  # noqa: E731
+    assert m.body_mass[body(m, "ff_link1")] == pytest.approx(
+        1.05 * nominal.body_mass[body(nominal, "ff_link1")])
+    assert m.body_pos[body(m, "mf_link2")][2] == pytest.approx(
+        0.97 * nominal.body_pos[body(nominal, "mf_link2")][2])
+    # a 3 deg tilt of the base about its x axis: the angle between the quaternions is 3 deg
+    q0, q1 = nominal.body_quat[body(nominal, "th_base")], m.body_quat[body(m, "th_base")]
+    assert 2 * math.degrees(math.acos(min(1.0, abs(float(np.dot(q0, q1)))))) == pytest.approx(3.0)
+    j0, j1 = nominal.joint("valve"), m.joint("valve")
+    assert m.dof_frictionloss[j1.dofadr[0]] == pytest.approx(
+        nominal.dof_frictionloss[j0.dofadr[0]] + 0.01)
+    assert m.dof_damping[j1.dofadr[0]] == pytest.approx(1.5 * nominal.dof_damping[j0.dofadr[0]])
+    assert m.body_mass[body(m, "valve_body")] == pytest.approx(
+        1.2 * nominal.body_mass[body(nominal, "valve_body")])
+    # the station without a valve takes the same perturbation
+    spec = build_dclaw("none")
+    p.apply(spec)
+    spec.compile()
+
+
+def test_pwm_deadband_in_position_error():
+    # XH430-W350 factory Position P 900: K_PP = 900 / 128 PWM units per tick of error
+    assert pwm_deadband_error(900 / 128 * 3, "XH430-W350") == pytest.approx(3 * TICK)
+
+
+def test_encoder_nonlinearity_reads_q_plus_a_sin_and_the_servo_tracks_its_reading():
+    amp, phase = 0.01, 0.7  # [rad]
+    fw = FirmwareImperfection(amplitude={"ff_middle": amp}, phase={"ff_middle": phase})
+    chain = emulated_dclaw("none", effects=(), imperfection=fw)
+    ids = [j.motor_id for j in HAND.joints]
+    with _bus(chain) as bus:
+        bus.set_torque(True)
+        bus.write_goal_positions(_goals(START + 0.2), ids)
+        bus.sleep(1.5)
+        reading = HAND.joints[1].calibration.to_joint(bus.read_state().position[1])
+    true = chain.drive.true_position(1)
+    # the reading is the encoder's: q + A sin(q + phase), within a tick of quantization
+    assert abs(reading - (true + amp * math.sin(true + phase))) < 1.5 * TICK
+    # the servo closes its loop on that reading: it rests where the encoder says "goal"
+    assert abs(reading - (START[1] + 0.2)) < 3 * TICK
+    assert abs(true - (START[1] + 0.2)) > 0.5 * amp * abs(math.sin(true + phase))
+
+
+def test_position_deadband_ignores_small_errors_and_acts_on_large_ones():
+    band = 0.01  # [rad]
+    fw = FirmwareImperfection(deadband={j.name: band for j in HAND.joints})
+    moved = {}
+    for name, kwargs in (("ideal", {}), ("deadband", {"imperfection": fw})):
+        chain = emulated_dclaw("none", effects=(), **kwargs)
+        ids = [j.motor_id for j in HAND.joints]
+        with _bus(chain) as bus:
+            bus.set_torque(True)
+            bus.write_goal_positions(_goals(START), ids)
+            bus.sleep(1.5)
+            before = chain.drive.true_position(0)
+            bus.write_goal_positions(_goals(START + np.r_[0.5 * band, [0.0] * 8]), ids)
+            bus.sleep(1.0)
+            small = chain.drive.true_position(0) - before
+            bus.write_goal_positions(_goals(START + np.r_[0.1, [0.0] * 8]), ids)
+            bus.sleep(1.0)
+            large = chain.drive.true_position(0) - before
+        moved[name] = (small, large)
+    assert moved["ideal"][0] == pytest.approx(0.5 * band, abs=2 * TICK)
+    assert abs(moved["deadband"][0]) < 2 * TICK  # a half-band step does not move the joint
+    # a large step does, and stops within the band of its goal
+    assert abs(moved["deadband"][1] - 0.1) < band + 2 * TICK
+    assert moved["deadband"][1] > 0.1 - band - 2 * TICK
+
+
+def test_the_training_side_importing_the_hidden_robots_breaks_a_contract(tmp_path):
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    lint = shutil.which("lint-imports", path=os.path.dirname(sys.executable))
+    assert lint, "lint-imports is missing: install the dev extra"
+    shutil.copytree(root / "lowcostdex", tmp_path / "lowcostdex",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(root / "pyproject.toml", tmp_path / "pyproject.toml")
+    train = tmp_path / "lowcostdex" / "algos" / "dapg.py"
+    train.write_text(train.read_text() + "\nimport lowcostdex.hardware.hidden_robots  # noqa\n")
+    res = subprocess.run([lint, "--config", str(tmp_path / "pyproject.toml"), "--no-cache"],
+                         cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(tmp_path)},
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode != 0
+    assert "lowcostdex.algos.dapg -> lowcostdex.hardware.hidden_robots" in res.stdout
