@@ -238,6 +238,42 @@ def test_domain_randomization_is_seeded_and_in_range():
     assert 0.9 <= v[0] <= 0.91
 
 
+def test_domain_randomization_ranges_per_joint_and_json_round_trip():
+    import json
+
+    fixed = [0.01, 0.02, 0.03]
+    dr = DomainRandomization(("latency", "backlash"), ("a", "b", "c"),
+                             {"latency": {"delay": (fixed, fixed)},
+                              "backlash": {"width": ([0.0, 0.01, 0.02], [0.001, 0.011, 0.021])}})
+    back = DomainRandomization.from_dict(json.loads(json.dumps(dr.to_dict())))
+    for d in (dr, back):
+        lat, bl = d.sample(np.random.default_rng(3))
+        np.testing.assert_array_equal(lat.values["delay"], fixed)  # low == high: held fixed
+        w = bl.values["width"]
+        assert np.all((np.array([0.0, 0.01, 0.02]) <= w) & (w <= [0.001, 0.011, 0.021]))
+    with pytest.raises(ConfigError, match="one value per joint"):
+        DomainRandomization(("latency",), ("a", "b"), {"latency": {"delay": ([0.0] * 3, 0.1)}})
+    with pytest.raises(ConfigError, match="above high"):
+        DomainRandomization(("latency",), ("a",), {"latency": {"delay": (0.02, 0.01)}})
+
+
+def test_an_env_takes_a_randomization_mapping_with_per_joint_values():
+    import gymnasium as gym
+
+    import lowcostdex  # noqa: F401  (registers the ids)
+    from lowcostdex.hardware.hands import dclaw_spec
+
+    joints = dclaw_spec().joint_names
+    delay = np.linspace(0.0, 0.02, len(joints))
+    dr = DomainRandomization(("latency",), joints, {"latency": {"delay": (delay, delay)}})
+    env = gym.make("lowcostdex/DClawTurnValve-v0", randomize=dr.to_dict())
+    env.reset(seed=0)
+    model = env.unwrapped.backend.plant.model
+    acts = [model.actuator(j).id for j in joints]
+    np.testing.assert_allclose(model.actuator_delay[acts], delay)
+    env.close()
+
+
 def test_latency_without_prepared_history_is_refused():
     spec = hinge_spec()
     servo.add_servo(spec, "j", MOTOR)

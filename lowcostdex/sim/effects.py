@@ -576,7 +576,9 @@ class DomainRandomization:
     Attributes:
       effects: canonical effect names to randomize (each independently per joint).
       joints: joints the effects act on.
-      ranges: optional overrides {effect: {param: (low, high)}} (e.g. from a gap-analysis fit).
+      ranges: optional overrides {effect: {param: (low, high)}} (e.g. from a gap-analysis fit);
+        ``low`` and ``high`` are scalars or one value per joint (an identified robot whose
+        joints differ; ``low == high`` holds a value fixed).
     """
 
     effects: tuple[str, ...]
@@ -586,10 +588,31 @@ class DomainRandomization:
     def __post_init__(self) -> None:
         for name in self.effects:
             effect(name)
+        n = len(self.joints)
         for name, params in self.ranges.items():
             cls = effect(name)
-            for p in params:
+            for p, (lo, hi) in params.items():
                 cls.param(p)
+                lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+                if lo.shape not in ((), (n,)) or hi.shape not in ((), (n,)):
+                    raise ConfigError(f"range of {name}.{p}: low and high must be scalars or "
+                                      f"one value per joint ({n}), got shapes {lo.shape}, "
+                                      f"{hi.shape}")
+                if not np.all(lo <= hi):
+                    raise ConfigError(f"range of {name}.{p}: low {lo.tolist()} above high "
+                                      f"{hi.tolist()}")
+
+    def to_dict(self) -> dict:
+        """JSON form (training configs' env kwargs; ``from_dict`` reads it back)."""
+        return {"effects": list(self.effects), "joints": list(self.joints),
+                "ranges": {k: {p: [np.asarray(lo, float).tolist(), np.asarray(hi, float).tolist()]
+                               for p, (lo, hi) in r.items()} for k, r in self.ranges.items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> DomainRandomization:
+        ranges = {k: {p: (v[0], v[1]) for p, v in r.items()}
+                  for k, r in dict(d.get("ranges", {})).items()}
+        return cls(tuple(d["effects"]), tuple(d["joints"]), ranges)
 
     def sample(self, rng: np.random.Generator) -> list[AppliedEffect]:
         """Draw one set of effect values (seeded by ``rng``)."""

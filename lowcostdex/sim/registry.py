@@ -1,14 +1,15 @@
 """Registered gymnasium ids (``lowcostdex/...``) and their factories.
 
 Every factory accepts ``backend`` ("sim", "emulated", "hardware"), ``motor`` (servo model of the
-hand, e.g. "XM430-W350"), ``randomize`` (effect names to randomize per episode, sim only) and
+hand, e.g. "XM430-W350"), ``randomize`` (effect names to randomize per episode, or a
+``DomainRandomization`` / its ``to_dict()``; sim only) and
 backend keyword arguments (e.g. ``port``). ``ENVS`` lists the ids; tests iterate it.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -31,7 +32,8 @@ NAMESPACE = "lowcostdex"
 
 def _dclaw(task_cls: Callable[..., Task], config: Any, **task_kw: Any) -> Callable[..., HandEnv]:
     def make(backend: str = "sim", motor: str | None = None,
-             randomize: Sequence[str] | None = None, render_mode: str | None = None,
+             randomize: Sequence[str] | Mapping[str, Any] | None = None,
+             render_mode: str | None = None,
              **kwargs: Any) -> HandEnv:
         hand = dclaw_spec() if motor is None else dclaw_spec(motor)
         cfg_overrides = {k: kwargs.pop(k) for k in list(kwargs) if hasattr(config, k)}

@@ -10,7 +10,7 @@ the env's seeded generator (``reset(seed=...)``).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -189,10 +189,17 @@ class HandEnv(gym.Env):
         self.backend.close()
 
 
-def make_hand_env(task: Task, backend: str = "sim", randomize: Sequence[str] | None = None,
+def make_hand_env(task: Task, backend: str = "sim",
+                  randomize: Sequence[str] | Mapping[str, Any] | DomainRandomization | None = None,
                   **kwargs: Any) -> HandEnv:
-    """Build a HandEnv, optionally randomizing the named effects on every hand joint."""
+    """Build a HandEnv, optionally with domain randomization: ``randomize`` names effects (each
+    over its plausible D'Claw range on every hand joint), or is a ``DomainRandomization`` or its
+    ``to_dict()`` mapping (JSON run configs; ranges per joint, e.g. an identified model's)."""
     dr = None
-    if randomize:
+    if isinstance(randomize, DomainRandomization):
+        dr = randomize
+    elif isinstance(randomize, Mapping):
+        dr = DomainRandomization.from_dict(randomize)
+    elif randomize:
         dr = DomainRandomization(tuple(randomize), task.hand.joint_names)
     return HandEnv(task, backend=backend, randomization=dr, **kwargs)
