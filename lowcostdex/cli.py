@@ -26,10 +26,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.hardware.cli",
     "lowcostdex.hardware.robot_cli",
 )
-USER_ERROR = 2
-"""Exit code of a user's mistake (argparse's code for bad arguments)."""
-INTERRUPTED = 130
-"""Exit code after Ctrl-C (128 + SIGINT, as shells report it)."""
+# the exit codes live in the core (lowcostdex.errors) so that any layer can name them
+from lowcostdex.errors import INTERRUPTED, USER_ERROR  # noqa: E402
 
 
 class Parser(argparse.ArgumentParser):

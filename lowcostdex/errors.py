@@ -10,6 +10,11 @@ import math
 import numbers
 from collections.abc import Iterable
 
+USER_ERROR = 2
+"""Exit code of a user's mistake (argparse's code for bad arguments)."""
+INTERRUPTED = 130
+"""Exit code after Ctrl-C (128 + SIGINT, as shells report it)."""
+
 
 class LowcostdexError(Exception):
     """Root of all lowcostdex errors."""

@@ -239,7 +239,7 @@ def command_line(parser: argparse.ArgumentParser, args: argparse.Namespace,
 def _interrupted(args: argparse.Namespace, exc: KeyboardInterrupt) -> int:
     """Ctrl-C: where the run stands and the exact command that continues it."""
     from lowcostdex.algos.experiment import Interrupted
-    from lowcostdex.cli import INTERRUPTED
+    from lowcostdex.errors import INTERRUPTED
 
     prog = args.parser.prog
     checkpoint = exc.checkpoint if isinstance(exc, Interrupted) else None

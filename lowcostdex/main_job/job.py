@@ -1,0 +1,169 @@
+"""Running the main job: stages that compose in one output folder, and its command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from lowcostdex.main_job.report import markdown_report, stage_summary, write_html
+from lowcostdex.main_job.setup import SIZES, TASKS, Context
+from lowcostdex.main_job.stages import (
+    stage_bus,
+    stage_demos,
+    stage_gap,
+    stage_report,
+    stage_train,
+)
+
+STAGES: tuple[tuple[str, Callable[[Context], dict[str, Any]]], ...] = (
+    ("bus", stage_bus),
+    ("demos", stage_demos),
+    ("train", stage_train),
+    ("gap", stage_gap),
+    ("report", stage_report),
+)
+
+
+DEPENDS: dict[str, tuple[str, ...]] = {"train": ("demos",)}
+"""Stages whose results a stage reads from ``--out`` (``train`` learns from ``demos.h5``)."""
+OUTPUTS: dict[str, tuple[str, ...]] = {
+    "bus": ("hand.json",),
+    "demos": ("demos.h5",),
+    "train": ("train_dapg", "train_npg", "learning_curves.png", "flip_rollout.png"),
+    "gap": ("gap",),
+    "report": ("robot_health.png",),
+}
+"""What each stage writes into ``--out``; a re-run moves them into ``previous/<time>/`` first."""
+COMMAND = "main"
+RESULTS = "results.json"
+
+
+def _settings(ctx: Context) -> dict[str, Any]:
+    return {"task": ctx.task, "size": ctx.size, "seed": ctx.seed, "port": ctx.port}
+
+
+def open_job(ctx: Context, stages: tuple[str, ...]) -> None:
+    """Check ``ctx.out`` and load what earlier stages left there into ``ctx.results``.
+
+    Raises:
+      OutputRefused: ``ctx.out`` holds files the main job did not write, or a run with another
+        task, size, seed or port (its stages cannot build on each other).
+      ConfigError: a requested stage needs a stage that neither runs now nor finished earlier in
+        ``ctx.out``; the message names it and the command that provides it.
+    """
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.outdir import check_out
+
+    settings = _settings(ctx)
+    previous = check_out(ctx.out, COMMAND, settings, must_match=tuple(settings))
+    if previous and (ctx.out / RESULTS).exists():
+        try:
+            loaded = json.loads((ctx.out / RESULTS).read_text())
+        except ValueError as exc:
+            raise ConfigError(f"{ctx.out / RESULTS} is not readable JSON ({exc}); move it "
+                              "away or use another --out") from exc
+        ctx.results.update({k: v for k, v in loaded.items() if k in dict(STAGES)})
+    for name in stages:
+        for need in DEPENDS.get(name, ()):
+            if need in stages:
+                continue
+            done = ctx.results.get(need)
+            missing = done is None or not (ctx.out / done.get("file", "")).is_file()
+            if missing:
+                raise ConfigError(
+                    f"stage '{name}' needs the results of stage '{need}', which neither runs "
+                    f"now nor finished earlier in {ctx.out}; run "
+                    f"`lowcostdex main --out {ctx.out} --stages {need},{name}` (plus the same "
+                    "--task/--size/--seed)")
+
+
+def _write_results(ctx: Context) -> None:
+    from lowcostdex.outdir import write_text_atomic
+
+    write_text_atomic(ctx.out / RESULTS, json.dumps(ctx.results, indent=2, default=float))
+
+
+def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
+    """Run the stages, write results.json, report.md and report.html; return report.md.
+
+    Stages compose: results of stages that do not run now are read from ``ctx.out`` (a previous
+    run with the same task, size, seed and port), and a stage whose input is missing stops before
+    anything is written. A stage that runs again first moves its old outputs and the old
+    results.json into ``previous/<time>/``; nothing finished is ever overwritten.
+    """
+    from rich.console import Console
+
+    from lowcostdex.outdir import archive, write_marker
+
+    console = Console(stderr=True)
+    order = tuple(name for name, _ in STAGES)
+    chosen = order if stages is None else tuple(n for n in order if n in stages)
+    open_job(ctx, chosen)
+    ctx.out.mkdir(parents=True, exist_ok=True)
+    write_marker(ctx.out, COMMAND, _settings(ctx))
+    for name, fn in STAGES:
+        if name not in chosen:
+            continue
+        old = [n for n in OUTPUTS[name] if (ctx.out / n).exists()]
+        if old or name in ctx.results:
+            target = archive(ctx.out, [*old, "report.md", "report.html"])
+            if target is not None and (ctx.out / RESULTS).exists():
+                shutil.copy2(ctx.out / RESULTS, target / RESULTS)
+            if target is not None:
+                console.print(f"{name}: the previous outputs are kept in "
+                              f"{target.relative_to(ctx.out)}/")
+        console.rule(f"[bold]{name}[/bold]: {fn.__doc__.splitlines()[0]}")
+        t0 = time.perf_counter()
+        result = fn(ctx)
+        result["seconds"] = round(time.perf_counter() - t0, 1)
+        result["finished"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        ctx.results[name] = result
+        console.print(stage_summary(name, result))
+        _write_results(ctx)
+    report = ctx.out / "report.md"
+    text = markdown_report(ctx)
+    report.write_text(text)
+    write_html(text, ctx.out / "report.html")
+    return report
+
+
+def _overview() -> str:
+    import lowcostdex.main_job as package
+
+    return (package.__doc__ or "").split("\n\n")[0]
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("main", help="run the main job end to end (emulated D'Claw by default)",
+                       description=_overview())
+    p.add_argument("--out", type=Path, default=Path("runs/main"), help="output folder")
+    p.add_argument("--size", choices=SIZES, default="default",
+                   help="budget: smoke (CI, ~1 min), default (~5 min on 2 cores), long")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--task", choices=sorted(TASKS), default="valve",
+                   help="valve: turn the valve 180 deg; valve-random: random start and target "
+                   "angles; flip: flip the block 180 deg")
+    p.add_argument("--port", default=None,
+                   help="serial port of a real D'Claw, e.g. /dev/ttyUSB0 (default: emulated)")
+    p.add_argument("--stages", default=None,
+                   help=f"comma-separated subset of: {', '.join(n for n, _ in STAGES)}")
+    p.set_defaults(func=_main)
+
+
+def _main(args: argparse.Namespace) -> int:
+    from lowcostdex.errors import check_choice
+
+    stages = None
+    if args.stages:
+        stages = tuple(s.strip() for s in args.stages.split(","))
+        for s in stages:
+            check_choice("stage", s, [n for n, _ in STAGES])
+    ctx = Context(out=args.out, size=args.size, seed=args.seed, port=args.port, task=args.task)
+    report = run(ctx, stages)
+    print(f"REPORT {report.resolve()}")
+    return 0

@@ -1,0 +1,225 @@
+"""The main job's report: one summary line per stage, report.md and its HTML rendering."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+from lowcostdex.main_job.setup import Context
+
+
+def stage_summary(name: str, r: dict[str, Any]) -> str:
+    if name == "bus":
+        return (f"{r['motors_found']} motors found, missing {r['motors_missing'] or 'none'}; "
+                f"calibration moved offsets by {r.get('calibration_ticks', 0):.1f} ticks at most")
+    if name == "demos":
+        played = (f", {r['successful_playbacks']}/{r['playbacks']} successful playbacks"
+                  if "playbacks" in r else "")
+        return f"{r['successful']}/{r['episodes']} successful demonstrations{played} -> {r['file']}"
+    if name == "train":
+        return (f"DAPG eval success {r['dapg']['eval_success']:.2f} (best "
+                f"{r['dapg']['best_eval_success']:.2f}, {r['dapg']['samples']} samples), NPG "
+                f"{r['npg']['eval_success']:.2f} (best {r['npg']['best_eval_success']:.2f}, "
+                f"{r['npg']['samples']} samples); the behaviour clone alone "
+                f"{r['success_after_bc']:.2f}; random actions "
+                f"{r.get('random', {}).get('eval_success', math.nan):.2f}")
+    if name == "gap":
+        named = ", ".join(c["effect"] for c in r["causes"]) or "no cause"
+        return (f"named: {named}; held-out RMSE {r['baseline_heldout_rmse_mrad']:.1f} -> "
+                f"{r['extended_heldout_rmse_mrad']:.1f} mrad (floor {r['noise_floor_mrad']:.2f})")
+    return f"done in {r['seconds']} s"
+
+
+def markdown_report(ctx: Context) -> str:
+    R = ctx.results
+    lines = ["# lowcostdex: the main job", "",
+             f"Robot: {'emulated D' + chr(39) + 'Claw' if ctx.emulated else ctx.port}; task "
+             f"{ctx.task} (`{ctx.setup.env_id}`); size {ctx.size}; seed {ctx.seed}.", ""]
+    if "bus" in R:
+        b = R["bus"]
+        lines += ["## 1. The robot on its bus", "",
+                  f"{b['motors_found']} motors answered on {b['port']}; missing: "
+                  f"{b['motors_missing'] or 'none'}.", "",
+                  "| id | model | firmware | temperature [C] | voltage [V] | errors |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {m['id']} | {m['model']} | {m['firmware']} | {m['temperature']} | "
+                  f"{m['voltage']} | {', '.join(m['errors']) or '-'} |" for m in b["motors"]]
+        if "calibration_ticks" in b:
+            lines += ["", f"Calibration (hand in its zero pose) changed the default offsets by at "
+                          f"most {b['calibration_ticks']:.1f} encoder ticks; the spec is "
+                          f"`{b['hand_spec']}`."]
+        lines.append("")
+    if "demos" in R:
+        d = R["demos"]
+        lines += ["## 2. Kinesthetic demonstrations", "",
+                  f"{d['successful']} of {d['episodes']} demonstrations {ctx.setup.did} "
+                  f"({d['steps']} steps, `{d['file']}`); recording took "
+                  f"{d['robot_seconds_recording']} s and the auto-resets "
+                  f"{d['robot_seconds_resets']} s of robot time.", ""]
+        if "playbacks" in d:
+            alpha = d["servo_response"]["alpha"]
+            lines += [f"Before recording, {d['robot_seconds_servo_id']} s of random goals "
+                      f"identified the servos' response (a servo covers {min(alpha):.2f}-"
+                      f"{max(alpha):.2f} of a commanded step per control period); each step is "
+                      "labelled with the goal that reproduces it. The robot then played each "
+                      f"successful demonstration back with noisy goals: {d['playbacks']} "
+                      f"playbacks, {d['successful_playbacks']} {ctx.setup.did} "
+                      f"({d['robot_seconds_playbacks']} s). The behaviour clone learns from the "
+                      "successful episodes of both.", ""]
+    if "train" in R:
+        t = R["train"]
+        lines += ["## 3. DAPG vs NPG on the robot", "",
+                  "Evaluation success: deterministic episodes (the policy's mean action) at the "
+                  "end of training, with the number of episodes and a 95 % Wilson interval.", "",
+                  "| | samples | robot time [min] | training success (last) | evaluation success "
+                  "(last) | best evaluation (samples) | first evaluation >= 80 % at |",
+                  "|---|---|---|---|---|---|---|"]
+        for algo in ("dapg", "npg"):
+            a = t[algo]
+            first = a.get("first_eval_crossing_samples")
+            lines.append(
+                f"| {algo.upper()} | {a['samples']} | {60 * a['robot_hours']:.1f} | "
+                f"{a['final_training_success']:.2f} | {_rate(a)} | "
+                f"{a.get('best_eval_success', float('nan')):.2f} "
+                f"({a.get('best_samples', float('nan')):.0f}) | "
+                f"{'not reached' if first is None else f'{first:.0f} samples'} |")
+        lines += ["", "The run's policy (`train_*/policy.pt`) is its best evaluated one; the last "
+                      "evaluation and the first crossing are shown beside it, so that a policy "
+                      "that reached the target once and fell back is not mistaken for one that "
+                      "holds it.", "",
+                  "| policy | evaluation success |", "|---|---|",
+                  f"| uniformly random actions (measured) | {_rate(t.get('random', {}))} |",
+                  f"| behaviour clone alone, before any RL | {_rate(t.get('bc', {}))} |",
+                  f"| DAPG (clone + RL) | {_rate(t['dapg'])} |",
+                  f"| NPG (RL from scratch) | {_rate(t['npg'])} |", "",
+                  f"**What each stage added.** {_what_each_stage_added(t)}", "",
+                  f"![learning curves]({t['plot']})", ""]
+        demos_done = R.get("demos", {}).get("finished")
+        if t.get("demos_finished") and demos_done and t["demos_finished"] != demos_done:
+            lines += ["Note: the demonstrations were recorded again after this training ran; "
+                      "these results come from the earlier demonstrations (kept in "
+                      "`previous/`).", ""]
+        if "rollout" in t:
+            ro = t["rollout"]
+            lines += [f"One deterministic rollout of the DAPG policy: final orientation error "
+                      f"{ro['final_orientation_error_deg']} deg "
+                      f"({'success' if ro['success'] else 'no success'}), beside a recorded "
+                      "demonstration:", "", f"![flip rollout]({ro['plot']})", ""]
+        lines += ["Run directories: `train_dapg/`, `train_npg/` (config, metrics.csv, "
+                  "checkpoints, curves, summary.json; `lowcostdex train ... --resume` continues "
+                  "them).", ""]
+    if "gap" in R:
+        g = R["gap"]
+        lines += ["## 4. What the nominal simulation gets wrong", "",
+                  f"{g['logs']} identification logs of {g['seconds_per_log']:.0f} s (one finger, "
+                  f"50 Hz) replayed in the nominal model.", "", f"**Verdict:** {g['verdict']}", ""]
+        if g["causes"]:
+            lines += ["| named cause | joints | fitted parameters |", "|---|---|---|"]
+            for c in g["causes"]:
+                params = "; ".join(f"{k} = " + ", ".join(f"{v:.4g}" for v in vals)
+                                   for k, vals in c["params"].items())
+                lines.append(f"| {c['effect']} | {', '.join(c['joints'])} | {params} |")
+        if g.get("truth"):
+            truth = "; ".join(f"{e['effect']} ({', '.join(f'{k}={v:.4g}' for k, v in e['params'].items())})"
+                              for e in g["truth"])
+            lines += ["", f"What the emulated robot really carries: {truth}."]
+        gain = g["gain"]
+        lines += ["", f"Held-out RMSE: {g['baseline_heldout_rmse_mrad']:.2f} mrad (nominal) -> "
+                      f"{g['extended_heldout_rmse_mrad']:.2f} mrad (extended); noise floor "
+                      f"{g['noise_floor_mrad']:.2f} mrad. Full report: `{g['report']}`.", ""]
+        if "interval" in gain:
+            lines.insert(-1, f"Gain {1e3 * gain.get('absolute', float('nan')):.2f} mrad, 95 % "
+                             f"interval {gain['interval']}.")
+        lines += [f"![{p}]({p})" for p in g["plots"][:3]] + [""]
+    if "report" in R:
+        lines += ["## 5. Robot health", "", f"![robot health]({R['report']['plot']})", ""]
+    lines += ["Stage timings [s]: " + ", ".join(f"{k} {v['seconds']}" for k, v in R.items()), ""]
+    return "\n".join(lines)
+
+
+def _rate(r: dict[str, Any]) -> str:
+    """A measured rate with its episode count and 95 % interval, from a result's
+    ``eval_successes`` / ``eval_episodes``."""
+    from lowcostdex.stats import rate_text
+
+    k, n = r.get("eval_successes"), r.get("eval_episodes")
+    if k is None or not n:
+        return "n/a (not evaluated)"
+    return rate_text(int(k), int(n))
+
+
+def _what_each_stage_added(t: dict[str, Any]) -> str:
+    """Words for what the clone and the RL stage changed, judged by their intervals: a
+    difference is called one only when the 95 % intervals do not overlap."""
+    from lowcostdex.stats import wilson_interval
+
+    def ci(r: dict[str, Any]) -> tuple[float, float] | None:
+        k, n = r.get("eval_successes"), r.get("eval_episodes")
+        return wilson_interval(int(k), int(n)) if k is not None and n else None
+
+    def compare(a: dict[str, Any], b: dict[str, Any], what: str) -> str:
+        ia, ib = ci(a), ci(b)
+        if ia is None or ib is None:
+            return f"{what}: not measured"
+        ra, rb = a["eval_successes"] / a["eval_episodes"], b["eval_successes"] / b["eval_episodes"]
+        if ib[0] > ia[1]:
+            return f"{what} raised success from {ra:.2f} to {rb:.2f}, beyond the intervals"
+        if ib[1] < ia[0]:
+            return f"{what} lowered success from {ra:.2f} to {rb:.2f}, beyond the intervals"
+        return (f"{what} changed success from {ra:.2f} to {rb:.2f}, within the overlap of the "
+                "95 % intervals: no difference this run can show")
+
+    random, bc = t.get("random", {}), t.get("bc", {})
+    parts = [compare(random, bc, "The demonstrations (behaviour clone vs random actions)"),
+             compare(bc, t["dapg"], "RL fine-tuning (DAPG vs the clone it started from)"),
+             compare(t["npg"], t["dapg"], "Demonstrations in RL (DAPG vs NPG at the same "
+                     "sample budget)")]
+    text = "; ".join(parts) + "."
+    if (ci(bc) and ci(t["dapg"]) and bc["eval_successes"] == bc["eval_episodes"]
+            and t["dapg"]["eval_successes"] == t["dapg"]["eval_episodes"]):
+        text += (" The clone alone already solves this task here, so at this budget the RL "
+                 "stage cannot show a gain; `--task valve-random` (random start and target "
+                 "angles) is the variant where the clone is not enough.")
+    return text
+
+
+def write_html(markdown: str, path: Path) -> None:
+    """A dependency-free HTML rendering of the report (headings, tables, images, paragraphs)."""
+    import html
+    import re
+
+    out, table = [], False
+    for line in markdown.splitlines():
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            if set("".join(cells)) <= set("-: "):
+                continue
+            if not table:
+                out.append("<table>")
+                table = True
+                out.append("<tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in cells) + "</tr>")
+            else:
+                out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+            continue
+        if table:
+            out.append("</table>")
+            table = False
+        m = re.match(r"!\[(.*)\]\((.*)\)", line)
+        if m:
+            out.append(f'<img src="{html.escape(m.group(2))}" alt="{html.escape(m.group(1))}" '
+                       'style="max-width:100%">')
+        elif line.startswith("#"):
+            level = len(line) - len(line.lstrip("#"))
+            out.append(f"<h{level}>{html.escape(line.lstrip('# '))}</h{level}>")
+        elif line.strip():
+            text = html.escape(line)
+            text = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", text)
+            text = re.sub(r"`(.+?)`", r"<code>\1</code>", text)
+            out.append(f"<p>{text}</p>")
+    if table:
+        out.append("</table>")
+    style = ("body{font-family:sans-serif;max-width:60em;margin:2em auto}table{border-collapse:"
+             "collapse}td,th{border:1px solid #ccc;padding:2px 8px}")
+    path.write_text(f"<!doctype html><meta charset='utf-8'><title>lowcostdex main job</title>"
+                    f"<style>{style}</style>\n" + "\n".join(out))

@@ -1,0 +1,128 @@
+"""The main job's tasks, budgets and the context every stage sees."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+@dataclass(frozen=True)
+class TaskSetup:
+    """What differs between the main job's tasks.
+
+    Attributes:
+      env_id: the registered task.
+      teacher: class name of the scripted solver the virtual teacher follows.
+      station: the D'Claw station (``valve`` has the valve motor, ``block`` does not).
+      did: what a successful episode did ("turned the valve").
+      title: plot titles.
+      playbacks: noisy playbacks of each successful demonstration (see
+        ``lowcostdex.hardware.demos``); 0 for the flip, whose open-loop playbacks fail (the block
+        outcome is too sensitive to the finger motion: bench/RESULTS.md).
+      demo_tries: the demos stage records until ``Budget.demos`` demonstrations succeeded, at
+        most this many times as many episodes (a person also throws failed ones away).
+    """
+
+    env_id: str
+    teacher: str
+    station: str
+    did: str
+    title: str
+    playbacks: int
+    demo_tries: int
+
+
+TASKS = {
+    "valve": TaskSetup("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher", "valve",
+                       "turned the valve", "Valve turning", 2, 1),
+    "valve-random": TaskSetup("lowcostdex/DClawTurnValveRandom-v0", "ValveTurnTeacher",
+                              "valve", "turned the valve to its random target",
+                              "Valve turning (random start and target)", 2, 1),
+    "flip": TaskSetup("lowcostdex/DClawFlipBlock-v0", "FlipBlockTeacher", "block",
+                      "flipped the block", "Block flipping", 0, 3),
+}
+ENV_ID = TASKS["valve"].env_id
+GAP_JOINTS = ("ff_top", "ff_middle", "ff_bottom")
+GAP_RATE = 50.0
+"""Control rate of the identification logs [Hz]."""
+SIZES = ("smoke", "default", "long")
+
+
+def robot_effects(joints: tuple[str, ...]) -> list[Any]:
+    """The emulated robot's "reality": servo effects the nominal simulation does not model.
+
+    12 ms command latency (USB latency timer plus bus), 1 deg of gear/horn backlash and 0.05 N m
+    of extra dry friction per joint: magnitudes inside the plausible D'Claw ranges of
+    ../shared/reference/04-sysid.md section 6.
+    """
+    from lowcostdex.hardware.backend import default_effects
+
+    return default_effects(joints, latency=0.012, backlash=math.radians(1.0), friction=0.05)
+
+
+@dataclass
+class Budget:
+    """How much each stage does."""
+
+    demos: int
+    dapg_iters: int
+    npg_iters: int
+    traj_per_iter: int
+    eval_episodes: int
+    eval_every: int
+    gap_logs: int
+    gap_seconds: float
+
+
+BUDGETS = {
+    "smoke": Budget(demos=4, dapg_iters=1, npg_iters=1, traj_per_iter=4, eval_episodes=3,
+                    eval_every=0, gap_logs=3, gap_seconds=6.0),
+    "default": Budget(demos=20, dapg_iters=8, npg_iters=8, traj_per_iter=20, eval_episodes=10,
+                      eval_every=2, gap_logs=6, gap_seconds=15.0),
+    "long": Budget(demos=50, dapg_iters=60, npg_iters=60, traj_per_iter=40, eval_episodes=20,
+                   eval_every=5, gap_logs=10, gap_seconds=30.0),
+}
+
+
+@dataclass
+class Context:
+    """What every stage sees.
+
+    Attributes:
+      out: output folder.
+      size: one of SIZES.
+      seed: master seed.
+      port: serial port of a real robot, or None for the emulated D'Claw.
+      task: one of TASKS.
+      results: results of earlier stages by name (JSON-serializable).
+    """
+
+    out: Path
+    size: str = "default"
+    seed: int = 0
+    port: str | None = None
+    task: str = "valve"
+    results: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    @property
+    def budget(self) -> Budget:
+        return BUDGETS[self.size]
+
+    @property
+    def setup(self) -> TaskSetup:
+        return TASKS[self.task]
+
+    @property
+    def emulated(self) -> bool:
+        return self.port is None
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """gym.make keyword arguments selecting the robot (JSON-serializable)."""
+        from lowcostdex.hardware.hands import dclaw_spec
+
+        if self.port is None:
+            effects = robot_effects(dclaw_spec().joint_names)
+            return {"backend": "emulated", "effects": [e.to_dict() for e in effects]}
+        return {"backend": "hardware", "port": self.port}

@@ -1,0 +1,451 @@
+"""The main job's stages: bus, demos, train, gap, report (each returns its results)."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from typing import Any
+
+from lowcostdex.main_job.setup import GAP_JOINTS, GAP_RATE, Context, robot_effects
+
+# ------------------------------------------------------------------------------------------------
+# 1. bus
+
+
+def stage_bus(ctx: Context) -> dict[str, Any]:
+    """Bring the D'Claw up on its bus: scan, then calibrate (emulated) or check the map."""
+    import numpy as np
+
+    from lowcostdex.hardware.backend import make_dynamixel_bus, robot_hand
+    from lowcostdex.hardware.calibration import calibrate_offsets
+    from lowcostdex.hardware.dynamixel import scan
+    from lowcostdex.hardware.emulator import emulated_dclaw
+    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    hand = robot_hand(dclaw_spec(), build_dclaw(ctx.setup.station).compile())
+    ids = [j.motor_id for j in hand.all_joints]
+    if ctx.emulated:
+        effects = robot_effects(hand.joint_names)
+        chain = emulated_dclaw(ctx.setup.station, hand=hand, effects=effects,
+                               rng=np.random.default_rng(ctx.seed))
+        port: Any = chain.port()
+    else:
+        port = ctx.port
+    infos = scan(port, ids=ids)
+    motors = [{"id": m.motor_id, "model": m.model, "firmware": m.firmware,
+               "temperature": m.temperature, "voltage": m.voltage,
+               "errors": list(m.hardware_error)} for m in infos]
+    missing = sorted(set(ids) - {m.motor_id for m in infos})
+    result: dict[str, Any] = {"port": "emulated (in-process dynamixel_sdk port)" if ctx.emulated
+                              else ctx.port, "motors_found": len(infos),
+                              "motors_missing": missing, "motors": motors}
+    if ctx.emulated:
+        # The calibration a user runs with the hand held in its zero pose: here the servos hold
+        # it (default map), so the recorded offsets must reproduce ROBEL's map within a tick or
+        # two of steady-state error. (On a real robot: `lowcostdex calibrate`.)
+        model = build_dclaw(ctx.setup.station, hand).compile()
+        h = robot_hand(hand, model)
+        bus = make_dynamixel_bus(h, chain.port(), model)
+        with bus:
+            zero = np.array([j.calibration.to_motor(0.0) for j in h.all_joints])
+            bus.set_torque(True)
+            bus.write_goal_positions(zero, [j.motor_id for j in h.all_joints])
+            bus.sleep(1.0)
+            calibrated = calibrate_offsets(bus, h)
+        change = [abs(a.calibration.offset - b.calibration.offset)
+                  for a, b in zip(h.all_joints, calibrated.all_joints, strict=True)]
+        calibrated.save(ctx.out / "hand.json")
+        result["calibration_max_change_rad"] = float(max(change))
+        result["calibration_ticks"] = float(max(change) / (2 * math.pi / 4096))
+        result["hand_spec"] = "hand.json"
+    return result
+
+
+# ------------------------------------------------------------------------------------------------
+# 2. demonstrations
+
+
+def stage_demos(ctx: Context) -> dict[str, Any]:
+    """Record kinesthetic demonstrations (the virtual teacher on the emulated robot): identify
+    the servos' response, record, label each step with the servo goal that reproduces it, and
+    play every successful demonstration back with noisy goals (``lowcostdex.hardware.demos``)."""
+    import gymnasium as gym
+    import numpy as np
+
+    import lowcostdex  # noqa: F401
+    from lowcostdex.hardware.demos import (
+        KinestheticRecorder,
+        VirtualTeacher,
+        identify_servo_response,
+        virtual_teacher_config,
+    )
+    from lowcostdex.sim import flip_teacher, scripted
+
+    setup = ctx.setup
+    path = ctx.out / "demos.h5"
+    env = gym.make(setup.env_id, **ctx.env_kwargs())
+    teacher = None
+    if ctx.emulated:
+        solver = (getattr(scripted, setup.teacher, None)
+                  or getattr(flip_teacher, setup.teacher))()
+        teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task, solver=solver,
+                                 config=virtual_teacher_config(solver),
+                                 rng=np.random.default_rng(ctx.seed))
+    n = ctx.budget.demos
+    progress = _progress()
+    try:
+        with progress:
+            ident = progress.add_task("servo response (random goals)", total=SERVO_ID_EPISODES)
+            response, id_seconds = identify_servo_response(
+                env, episodes=SERVO_ID_EPISODES, seed=ctx.seed + 1_000_000,
+                on_episode=lambda k: progress.advance(ident))
+            task = progress.add_task(f"{n} successful demonstrations, {setup.playbacks} "
+                                     "playbacks of each", total=n)
+            recorder = KinestheticRecorder(
+                env, path, setup.env_id, teacher=teacher, response=response,
+                playbacks=setup.playbacks, playback_noise=PLAYBACK_NOISE,
+                rng=np.random.default_rng(ctx.seed),
+                on_episode=lambda k, ep: progress.advance(task) if ep.source != "playback"
+                and ep.length and ep.success[-1] else None)
+            stats = recorder.record(n * setup.demo_tries, seed=ctx.seed,
+                                    successes=n if setup.demo_tries > 1 else None)
+            robot = env.unwrapped.backend.robot.metrics.as_dict()
+    finally:
+        env.close()
+    return {"file": path.name, "episodes": stats.episodes, "successful": stats.successes,
+            "steps": stats.steps, "playbacks": stats.playbacks,
+            "successful_playbacks": stats.playback_successes,
+            "servo_response": {"alpha": [round(a, 3) for a in response.alpha],
+                               "r2": [round(r, 3) for r in response.r2]},
+            "robot_seconds_servo_id": round(id_seconds, 1),
+            "robot_seconds_recording": round(stats.record_time, 1),
+            "robot_seconds_resets": round(stats.reset_time, 1),
+            "robot_seconds_playbacks": round(stats.playback_time, 1),
+            "robot": {k: robot[k] for k in sorted(robot) if k in _ROBOT_KEYS}}
+
+
+SERVO_ID_EPISODES = 2
+"""Random-goal episodes (4 s each) that identify the servo response before recording."""
+PLAYBACK_NOISE = 0.05
+"""Half-width of the playback goal noise [action units]."""
+
+
+_ROBOT_KEYS = ("resets", "reset_failures", "reset_time", "pauses", "pause_time", "faults",
+               "max_temperature", "overloads", "invalid_reads")
+
+
+# ------------------------------------------------------------------------------------------------
+# 3. training
+
+
+def stage_train(ctx: Context) -> dict[str, Any]:
+    """DAPG from the demonstrations and NPG from scratch, on the robot."""
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.train import TrainConfig, train
+
+    b = ctx.budget
+    kwargs = ctx.env_kwargs()
+    backend = kwargs.pop("backend")
+    demos = ctx.out / ctx.results["demos"]["file"]
+    out: dict[str, Any] = {}
+    curves: dict[str, dict[str, Any]] = {}
+    for algo, iters in (("dapg", b.dapg_iters), ("npg", b.npg_iters)):
+        config = TrainConfig(algo=algo, env_id=ctx.setup.env_id, backend=backend,
+                             env_kwargs=kwargs, seed=ctx.seed, n_iter=iters,
+                             n_traj=b.traj_per_iter, eval_every=b.eval_every,
+                             eval_episodes=b.eval_episodes,
+                             demos=str(demos) if algo == "dapg" else None,
+                             eval_bc=algo == "dapg")
+        run_dir = ctx.out / f"train_{algo}"
+        t0 = time.perf_counter()
+        run = train(config, run_dir)
+        metrics = run.read_metrics()
+        summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
+        curves[algo] = metrics
+        first = summary["first_eval_crossing"]
+        out[algo] = {
+            "iterations": iters,
+            "samples": int(metrics["samples"][-1]),
+            "robot_hours": float(metrics["robot_hours"][-1]),
+            "first_iteration_success": float(metrics["success_rate"][0]),
+            "final_training_success": float(metrics["success_rate"][-1]),
+            "eval_success": float(summary["final"].get("eval_success_rate", math.nan)),
+            "best_eval_success": float((summary["best"] or {}).get("eval_success_rate",
+                                                                    math.nan)),
+            "best_samples": float((summary["best"] or {}).get("samples", math.nan)),
+            "first_eval_crossing_samples": float(first["samples"]) if first else None,
+            "evaluations": summary["evaluations"],
+            "eval_episodes": b.eval_episodes,
+            "eval_successes": _count(summary["final"].get("eval_success_rate"),
+                                     b.eval_episodes),
+            "wall_seconds": round(time.perf_counter() - t0, 1),
+            "curves": f"{run_dir.name}/learning_curves.png",
+            "robot": {k: float(metrics[f"robot_{k}"][-1]) for k in
+                      ("resets", "reset_failures", "pauses", "pause_time", "max_temperature")
+                      if f"robot_{k}" in metrics},
+        }
+    # the behaviour clone's own deterministic evaluation before DAPG's first iteration
+    bc = json.loads((ctx.out / "train_dapg" / "bc.json").read_text())
+    out["success_after_bc"] = float(bc["eval_success_rate"])
+    out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs", "eval_episodes") if k in bc}
+    out["bc"]["eval_successes"] = _count(bc["eval_success_rate"],
+                                         int(bc.get("eval_episodes", b.eval_episodes)))
+    out["random"] = _random_baseline(ctx, b.eval_episodes)
+    out["demos_finished"] = ctx.results["demos"].get("finished")
+    out["plot"] = _plot_training(ctx, out, curves)
+    if ctx.task == "flip":
+        out["rollout"] = _flip_rollout(ctx)
+    return out
+
+
+def _count(rate: float | None, n: int) -> int | None:
+    """Successful episodes from a success fraction of ``n`` episodes (None: not evaluated)."""
+    if rate is None or not math.isfinite(float(rate)):
+        return None
+    return int(round(float(rate) * n))
+
+
+def _random_baseline(ctx: Context, episodes: int) -> dict[str, Any]:
+    """Measure a policy of uniformly random actions on the same robot and task: ``episodes``
+    episodes, success at the final step as in training's evaluation (seeded)."""
+    import gymnasium as gym
+    import numpy as np
+
+    import lowcostdex  # noqa: F401
+
+    rng = np.random.default_rng(ctx.seed + 3_000_000)
+    env = gym.make(ctx.setup.env_id, **ctx.env_kwargs())
+    successes, steps, t0 = 0, 0, time.perf_counter()
+    try:
+        space = env.action_space
+        for k in range(episodes):
+            env.reset(seed=ctx.seed + 3_000_000 + k)
+            done, info = False, {}
+            while not done:
+                action = rng.uniform(space.low, space.high).astype(space.dtype)
+                _, _, term, trunc, info = env.step(action)
+                done, steps = term or trunc, steps + 1
+            successes += bool(info.get("success", False))
+    finally:
+        env.close()
+    return {"eval_episodes": episodes, "eval_successes": successes,
+            "eval_success": successes / episodes if episodes else math.nan, "steps": steps,
+            "wall_seconds": round(time.perf_counter() - t0, 1)}
+
+
+def _flip_rollout(ctx: Context) -> dict[str, Any]:
+    """One deterministic episode of the DAPG run's policy on the robot, the block's orientation
+    recorded at every step; plotted beside the first successful demonstration."""
+    import gymnasium as gym
+    import numpy as np
+
+    import lowcostdex  # noqa: F401
+    from lowcostdex.algos.train import load_policy
+    from lowcostdex.demo_file import read_episodes
+
+    snap = load_policy(ctx.out / "train_dapg").snapshot()
+    env = gym.make(ctx.setup.env_id, **ctx.env_kwargs())
+    u = env.unwrapped
+    try:
+        obs, _ = env.reset(seed=ctx.seed + 2_000_000)
+        qpos, done = [u.data.qpos.copy()], False
+        while not done:
+            obs, _, term, trunc, info = env.step(np.clip(snap.mean(obs), -1, 1)
+                                                 .astype(np.float32))
+            qpos.append(u.data.qpos.copy())
+            done = term or trunc
+        goal, period, task = dict(u.goal), u.control_period, u.task
+    finally:
+        env.close()
+    demos = [e for e in read_episodes(ctx.out / ctx.results["demos"]["file"])
+             if e.length and e.success[-1]]
+    curves = {"DAPG policy (mean action)": (np.array(qpos), goal)}
+    if demos:
+        curves["a demonstration"] = (demos[0].qpos, demos[0].goal)
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for (label, (q, g)), color in zip(curves.items(), ("tab:blue", "tab:gray"), strict=False):
+        t = np.arange(len(q)) * period
+        axes[0].plot(t, np.degrees(task.tilt(q)), color=color, label=label)
+        axes[1].plot(t, np.degrees(task.orientation_error(q, g)), color=color, label=label)
+    axes[0].set_ylabel("block's top face from up [deg]")
+    axes[1].set_ylabel("orientation error to the goal [deg]")
+    axes[1].axhline(np.degrees(task.config.success_angle), color="k", ls="--", lw=1,
+                    label="success threshold")
+    for ax in axes:
+        ax.set_xlabel("time [s]")
+        ax.grid(alpha=0.3)
+    fig.suptitle("The flip, rolled out on the emulated D'Claw" if ctx.emulated else
+                 "The flip, rolled out on the D'Claw")
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
+    fig.legend(*axes[1].get_legend_handles_labels(), loc="lower center", ncol=3,
+               fontsize="small", frameon=False)
+    name = "flip_rollout.png"
+    fig.savefig(ctx.out / name, dpi=110)
+    plt.close(fig)
+    err = float(task.orientation_error(np.array(qpos[-1]), goal))
+    return {"plot": name, "final_orientation_error_deg": round(math.degrees(err), 1),
+            "success": bool(err < task.config.success_angle), "steps": len(qpos) - 1}
+
+
+def _plot_training(ctx: Context, res: dict[str, Any], curves: dict[str, dict[str, Any]]) -> str:
+    """Success against samples and robot time, from each run's metrics (``curves[algo]``)."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    for algo, color in (("dapg", "tab:blue"), ("npg", "tab:orange")):
+        m = curves[algo]
+        label = "DAPG (demos)" if algo == "dapg" else "NPG (scratch)"
+        axes[0].plot(m["samples"], m["success_rate"], "-o", color=color, label=label)
+        axes[1].plot(m["robot_hours"] * 60, m["success_rate"], "-o", color=color, label=label)
+        axes[0].plot(m["samples"][-1:], m["eval_success_rate"][-1:], "*", ms=14, color=color)
+    # the behaviour clone's own evaluation, before any RL sample
+    axes[0].plot([0], [res["success_after_bc"]], "D", ms=8, color="tab:blue", mfc="white",
+                 label="behaviour clone alone")
+    axes[0].set_xlabel("samples (env steps)")
+    axes[1].set_xlabel("robot time incl. resets [min]")
+    for ax in axes:
+        ax.set_ylabel("success rate")
+        ax.set_ylim(-0.05, 1.12)
+        ax.grid(alpha=0.3)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=3,
+               title="training (star: final evaluation)", frameon=False)
+    fig.suptitle(f"{ctx.setup.title} on the emulated D'Claw" if ctx.emulated else
+                 f"{ctx.setup.title} on the D'Claw")
+    fig.tight_layout(rect=(0, 0.14, 1, 1))
+    name = "learning_curves.png"
+    fig.savefig(ctx.out / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
+# ------------------------------------------------------------------------------------------------
+# 4. reality gap
+
+
+def stage_gap(ctx: Context) -> dict[str, Any]:
+    """Record an identification log from the robot, compare with the nominal sim, name causes."""
+    import numpy as np
+    from rich.console import Console
+
+    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hardware.trace import dclaw_identification_logs
+    from lowcostdex.sim.gap import GapConfig, analyze, load_dataset, write_report
+    from lowcostdex.sim.gap.cli import analysis_progress
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    b = ctx.budget
+    gap_dir = ctx.out / "gap"
+    logs_dir = gap_dir / "logs"
+    logs_dir.mkdir(parents=True)
+    hand = dclaw_spec()
+    truth = robot_effects(hand.joint_names) if ctx.emulated else []
+    steps = int(b.gap_seconds * GAP_RATE)
+    progress = _progress()
+    with progress:
+        task = progress.add_task("identification logs", total=b.gap_logs * steps)
+        paths = dclaw_identification_logs(
+            hand, GAP_JOINTS, logs_dir, b.gap_logs, b.gap_seconds,
+            np.random.default_rng(ctx.seed + 2), port=ctx.port, effects=truth,
+            emulator_rng=np.random.default_rng(ctx.seed + 1), rate=GAP_RATE,
+            on_step=lambda _: progress.advance(task))
+    nominal = gap_dir / "nominal_finger.xml"
+    nominal.write_text(build_dclaw("none", hand, thermal=False, fingers=("ff",)).to_xml())
+    dataset = load_dataset([str(p) for p in paths], model=str(nominal))
+    t0 = time.perf_counter()
+    with analysis_progress(Console(stderr=True)) as on_progress:
+        result = analyze(dataset, GapConfig(), on_progress)
+    seconds = time.perf_counter() - t0
+    write_report(result, gap_dir / "report")
+    report = json.loads((gap_dir / "report" / "report.json").read_text())
+    causes = [{"effect": c["effect"], "joints": c["joints"],
+               "params": {p: v["value"] for p, v in c["params"].items()}} for c in report["causes"]]
+    out = {"logs": len(paths), "seconds_per_log": b.gap_seconds, "analysis_seconds": round(
+        seconds, 1), "verdict": report["verdict"], "causes": causes,
+        "baseline_heldout_rmse_mrad": 1e3 * report["gain"]["baseline_rmse"],
+        "extended_heldout_rmse_mrad": 1e3 * report["gain"]["extended_rmse"],
+        "noise_floor_mrad": 1e3 * report["noise_floor"]["rmse"],
+        "gain": report["gain"], "report": "gap/report/report.md"}
+    if truth:
+        out["truth"] = [{"effect": e.name, "params": {k: float(v[0]) for k, v in e.values.items()}}
+                        for e in truth]
+        named = {c["effect"] for c in causes}
+        out["truth_named"] = sorted(named & {e.name for e in truth})
+    out["plots"] = [f"gap/report/{p}" for p in report.get("plots", [])]
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# 5. report
+
+
+def stage_report(ctx: Context) -> dict[str, Any]:
+    """Reset and thermal statistics plot; the report itself is written by ``run``."""
+    plt = _pyplot()
+    fig = robot_health_figure(ctx.results)
+    name = "robot_health.png"
+    fig.savefig(ctx.out / name, dpi=110)
+    plt.close(fig)
+    return {"plot": name}
+
+
+def robot_health_figure(results: dict[str, dict[str, Any]]) -> Any:
+    """Auto-resets (attempted, failed) and the hottest motor with the time paused by the thermal
+    guard, per training run (``results["train"][algo]["robot"]``)."""
+    import numpy as np
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    names, resets, failures, pause_min, temps = [], [], [], [], []
+    for algo in ("dapg", "npg"):
+        r = results.get("train", {}).get(algo, {}).get("robot", {})
+        if r:
+            names.append(algo.upper())
+            resets.append(r.get("resets", np.nan))
+            failures.append(r.get("reset_failures", np.nan))
+            pause_min.append(r.get("pause_time", 0.0) / 60)
+            temps.append(r.get("max_temperature", np.nan))
+    x = np.arange(len(names))
+    axes[0].bar(x - 0.2, resets, 0.4, label="resets")
+    axes[0].bar(x + 0.2, failures, 0.4, label="failed resets")
+    axes[0].set_xticks(x, names)
+    axes[0].set_xlabel("training run")
+    axes[0].set_ylabel("auto-resets [count]")
+    axes[0].set_title("auto-resets during training")
+    axes[1].bar(x, temps, 0.5, color="tab:red", label="hottest motor")
+    axes[1].axhline(65, color="k", ls="--", lw=1, label="thermal pause threshold (65 C)")
+    axes[1].axhline(80, color="tab:red", ls=":", lw=1, label="firmware shutdown (80 C)")
+    for i, p in enumerate(pause_min):
+        axes[1].annotate(f"{p:.1f} min paused", (x[i], temps[i]), ha="center",
+                         xytext=(0, 4), textcoords="offset points")
+    axes[1].set_xticks(x, names)
+    axes[1].set_xlabel("training run")
+    axes[1].set_ylabel("hottest motor [deg C]")
+    axes[1].set_ylim(0, 90)
+    axes[1].set_title("thermal guard")
+    fig.suptitle("Robot health while it learned")
+    fig.tight_layout(rect=(0, 0.16, 1, 1))
+    handles, labels = [], []
+    for ax in axes:
+        h, lab = ax.get_legend_handles_labels()
+        handles += h
+        labels += lab
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize="small", frameon=False)
+    return fig
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _progress() -> Any:
+    """A transient progress display (one bar per task, named by its description)."""
+    from lowcostdex.progress import tasks
+
+    return tasks()
