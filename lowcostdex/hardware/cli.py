@@ -141,6 +141,8 @@ def load_spec(path: str):
 
     try:
         return HandSpec.load(path)
+    except InputError as exc:  # names the file and the field; say which option gave it
+        raise InputError(f"--spec {exc}") from None
     except (LowcostdexError, OSError):
         raise
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
