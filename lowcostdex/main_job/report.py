@@ -179,8 +179,10 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
     if (ci(bc) and ci(t["dapg"]) and bc["eval_successes"] == bc["eval_episodes"]
             and t["dapg"]["eval_successes"] == t["dapg"]["eval_episodes"]):
         text += (" The clone alone already solves this task here, so at this budget the RL "
-                 "stage cannot show a gain; `--task valve-random` (random start and target "
-                 "angles) is the variant where the clone is not enough.")
+                 "stage cannot show a gain. With random start and target angles "
+                 "(`--task valve-random`) the clone is not enough, but RL has not raised it "
+                 "within the budgets measured so far either (bench/RESULTS.md): a budget at "
+                 "which RL visibly adds on the robot is still to be found.")
     return text
 
 
