@@ -195,3 +195,103 @@ def test_the_training_side_importing_the_hidden_robots_breaks_a_contract(tmp_pat
                          capture_output=True, text=True, timeout=300)
     assert res.returncode != 0
     assert "lowcostdex.algos.dapg -> lowcostdex.hardware.hidden_robots" in res.stdout
+
+
+# ------------------------------------------------------------------------------------------------
+# bench/transfer.py
+
+
+def _bench():
+    """bench/transfer.py as a module (loaded once)."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    if "bench_transfer" not in sys.modules:
+        path = Path(__file__).resolve().parents[1] / "bench" / "transfer.py"
+        spec = importlib.util.spec_from_file_location("bench_transfer", path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+    return sys.modules["bench_transfer"]
+
+
+IDENT = {"fingers": {"ff": {"causes": [
+    {"effect": "latency", "joints": ["ff_top", "ff_middle", "ff_bottom"],
+     "params": {"delay": {"value": [0.010, 0.012, 0.020],
+                          "interval": [[0.0099, 0.0101], [0.011, 0.013], [0.019, 0.021]]}}},
+]}, "mf": {"causes": [
+    {"effect": "gain_error", "joints": ["mf_top", "mf_middle", "mf_bottom"],
+     "params": {"scale": {"value": [0.8, 0.9, 1.2], "interval": None}}},
+]}}}
+
+
+def test_identified_conditions_load_the_fitted_values_per_joint():
+    from lowcostdex.sim.effects import DomainRandomization
+
+    bench = _bench()
+    joints = HAND.joint_names
+    fixed = DomainRandomization.from_dict(bench.condition_randomize("identified", IDENT, joints))
+    narrow = DomainRandomization.from_dict(
+        bench.condition_randomize("identified_randomized", IDENT, joints))
+    assert set(fixed.effects) == {"latency", "gain_error"}
+    delay = [0.010, 0.012, 0.020] + [0.0] * 6  # mf, th: not named, latency off
+    scale = [1.0] * 3 + [0.8, 0.9, 1.2] + [1.0] * 3
+    for _ in range(3):
+        by_name = {e.name: e for e in fixed.sample(np.random.default_rng(_))}
+        np.testing.assert_allclose(by_name["latency"].values["delay"], delay)
+        np.testing.assert_allclose(by_name["gain_error"].values["scale"], scale)
+    lo, hi = (np.asarray(x) for x in narrow.ranges["latency"]["delay"])
+    # the interval, widened to at least +-10 % of the value; not-named joints stay at the null
+    np.testing.assert_allclose(lo[:3], [0.009, 0.0108, 0.018])
+    np.testing.assert_allclose(hi[:3], [0.011, 0.0132, 0.022])
+    np.testing.assert_array_equal(lo[3:], 0.0)
+    np.testing.assert_array_equal(hi[3:], 0.0)
+    lo, hi = (np.asarray(x) for x in narrow.ranges["gain_error"]["scale"])
+    np.testing.assert_allclose(lo[3:6], [0.72, 0.81, 1.08])  # no interval: +-10 %
+    np.testing.assert_allclose(hi[3:6], [0.88, 0.99, 1.32])
+    assert bench.condition_randomize("nominal", None, joints) is None
+    assert bench.condition_randomize("identified", {"fingers": {}}, joints) is None
+
+
+def test_quick_transfer_table_runs_end_to_end_and_resumes(tmp_path):
+    import json
+
+    from figcheck import figure_problems
+
+    from lowcostdex.sim.effects import DomainRandomization
+
+    bench = _bench()
+    size = bench.SIZES["quick"]
+    res = bench.run(tmp_path, size, [0], "valve-random")
+    rows = json.loads((tmp_path / "transfer.json").read_text())["rows"]
+    robots = [r.name for r in hidden_robots(size.robots)]
+    for cond in ("nominal", "randomized"):  # every robot
+        assert sorted(r["robot"] for r in rows if r["condition"] == cond) == robots
+    for cond in ("identified", "identified_randomized"):  # each robot's own model
+        assert sorted(r["robot"] for r in rows if r["condition"] == cond) == robots
+    for r in rows:
+        assert r["episodes"] == size.episodes and 0 <= r["success"] <= r["episodes"]
+        assert r["sim_episodes"] == size.episodes and len(r["final_error"]) == size.episodes
+    assert figure_problems(res["figure"]) == []
+    assert (tmp_path / "transfer.png").stat().st_size > 0
+    table = (tmp_path / "table.md").read_text()
+    for cond in bench.CONDITIONS:
+        assert f"| {cond} |" in table
+    # the identified sim carries what the analysis fitted on that robot, per joint
+    ident = json.loads((tmp_path / "identified.json").read_text())
+    for robot in hidden_robots(size.robots):
+        causes = ident[robot.name]["fingers"]["ff"]["causes"]
+        truth = {e.name for e in robot.effects
+                 if not np.allclose(e.values[next(iter(e.values))][:3],
+                                    e.cls.params[0].null)}
+        assert "latency" in truth and "latency" in {c["effect"] for c in causes}
+        config = json.loads((tmp_path / "runs" / f"identified_{robot.name}_seed0" /
+                             "config.json").read_text())
+        dr = DomainRandomization.from_dict(config["env_kwargs"]["randomize"])
+        lat = {e.name: e for e in dr.sample(np.random.default_rng(0))}["latency"]
+        fitted = next(c for c in causes if c["effect"] == "latency")["params"]["delay"]["value"]
+        np.testing.assert_allclose(lat.values["delay"][:3], fitted)
+    # a second run finds every piece done and reports the same table
+    again = bench.run(tmp_path, size, [0], "valve-random")
+    assert again["rows"] == res["rows"]
