@@ -228,7 +228,7 @@ def test_domain_randomization_is_seeded_and_in_range():
     dr = DomainRandomization(("gain_error", "latency"), ("a", "b", "c"))
     s1 = dr.sample(np.random.default_rng(7))
     s2 = dr.sample(np.random.default_rng(7))
-    for a, b in zip(s1, s2):
+    for a, b in zip(s1, s2, strict=True):
         for k in a.values:
             np.testing.assert_array_equal(a.values[k], b.values[k])
             lo, hi = effect(a.name).param(k).dr
@@ -279,3 +279,82 @@ def test_latency_without_prepared_history_is_refused():
     servo.add_servo(spec, "j", MOTOR)
     with pytest.raises(ConfigError, match="prepare_spec"):
         Plant(spec.compile(), [E("latency", delay=0.02)])
+
+
+# ------------------------------------------------------------------------------------------------
+# standard MJCF actuators (issue 11): each effect means the same physical thing on each
+
+_ARM = """
+<mujoco><option timestep="0.002"/>
+  <worldbody><body><joint name="j" axis="1 0 0" damping="0.1" armature="0.01"/>
+    <geom type="sphere" pos="0 0 -0.1" size="0.01" mass="0.3"/></body></worldbody>
+  <actuator>{act}</actuator>
+</mujoco>"""
+
+
+def _standard(act: str, effects=(), batch=None):
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string(_ARM.format(act=act))
+    if batch:
+        return BatchPlant(model, batch, effects, nthread=1)
+    return Plant(model, effects)
+
+
+def _hold(plant, goal, steps=1500):
+    plant.reset()
+    for _ in range(steps):
+        plant.step(np.atleast_1d(goal), 1)
+    return float(np.asarray(plant.qpos).ravel()[0])
+
+
+def test_gain_error_scales_the_stiffness_of_a_position_actuator():
+    # hanging 0.3 kg at 0.1 m held at 0.5 rad by kp = 4 N m/rad: it sags by
+    # m g l sin(q) / kp (small sag), so a kp twice as stiff sags half as much
+    pos = '<position joint="j" kp="4" kv="0.3"/>'
+    sag = 0.5 - _hold(_standard(pos), 0.5)
+    expect = 0.3 * 9.81 * 0.1 * math.sin(0.5 - sag) / 4
+    assert sag == pytest.approx(expect, rel=0.02)
+    sag2 = 0.5 - _hold(_standard(pos, [E("gain_error", scale=2.0)]), 0.5)
+    assert sag2 == pytest.approx(0.3 * 9.81 * 0.1 * math.sin(0.5 - sag2) / 8, rel=0.02)
+    # the same in a batch with per-simulation values
+    bp = _standard(pos, [[E("gain_error", scale=2.0)], [E("gain_error", scale=0.5)]], batch=2)
+    bp.reset()
+    for _ in range(1500):
+        bp.step(np.full((2, 1), 0.5), 1)
+    assert 0.5 - bp.qpos[0, 0] == pytest.approx(sag2, rel=1e-6)
+    assert bp.model.actuator_gainprm[0, 0] == 4.0  # the nominal copy is untouched
+
+
+def test_gain_error_on_velocity_and_motor_actuators_and_velocity_limit_only_on_dcmotors():
+    import mujoco
+
+    vel = _standard('<velocity joint="j" kv="0.5"/>', [E("gain_error", scale=3.0)])
+    assert vel.model.actuator_gainprm[0, 0] == pytest.approx(1.5)
+    assert vel.model.actuator_biasprm[0, 2] == pytest.approx(-1.5)
+    mot = _standard('<motor joint="j" gear="1"/>', [E("gain_error", scale=0.5)])
+    assert mot.model.actuator_gainprm[0, 0] == pytest.approx(0.5)
+    pos = _standard('<position joint="j" kp="4" kv="0.3"/>', [E("velocity_limit", scale=0.5)])
+    ref = mujoco.MjModel.from_xml_string(_ARM.format(act='<position joint="j" kp="4" kv="0.3"/>'))
+    np.testing.assert_array_equal(pos.model.actuator_gainprm, ref.actuator_gainprm)
+    np.testing.assert_array_equal(pos.model.actuator_biasprm, ref.actuator_biasprm)
+
+
+def test_torque_limit_on_a_force_limited_position_actuator():
+    # null (inf): the nominal +-3 N m range stays (a batch column without the effect must not
+    # lose its force); a finite limit narrows it, never widens it
+    act = '<position joint="j" kp="40" forcelimited="true" forcerange="-3 3"/>'
+    for effects in ([], [E("torque_limit", torque=math.inf)]):
+        p = _standard(act, effects)
+        np.testing.assert_array_equal(p.model.actuator_forcerange[0], [-3, 3])
+        assert p.model.actuator_forcelimited[0] == 1
+        p.reset()
+        p.step(np.array([1.0]), 1)
+        assert float(p.actuator_force[0]) == pytest.approx(3.0)
+    assert _standard(act, [E("torque_limit", torque=1.0)]).model.actuator_forcerange[0, 1] == 1.0
+    assert _standard(act, [E("torque_limit", torque=9.0)]).model.actuator_forcerange[0, 1] == 3.0
+    bp = _standard(act, [[E("torque_limit", torque=math.inf)], [E("torque_limit", torque=1.0)]],
+                   batch=2)
+    bp.reset()
+    bp.step(np.ones((2, 1)), 1)
+    np.testing.assert_allclose(bp.actuator_force[:, 0], [3.0, 1.0])

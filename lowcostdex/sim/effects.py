@@ -250,19 +250,40 @@ class ViscousDamping(Effect):
 class GainError(Effect):
     name = "gain_error"
     kind = "model"
-    doc = "position gain off by a factor (firmware P/I/D to torque)"
+    doc = ("position gain off by a factor: a dcmotor servo's firmware P/I/D (torque per volt "
+           "of error), a position actuator's stiffness kp (gain and bias together), a velocity "
+           "actuator's kv, a motor's torque gain")
     params = (Param("scale", 1.0, 0.2, 4.0, "1", (0.7, 1.4)),)
-    fields = ("actuator_gainprm",)
+    fields = ("actuator_gainprm", "actuator_biasprm")
 
     @classmethod
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:
         g, nom = f.array("actuator_gainprm"), f.nominal("actuator_gainprm")
-        a = t.actuators
-        backemf = nom[a, servo.GAIN_K] ** 2 / nom[a, servo.GAIN_R]
-        s = v["scale"]
-        g[..., a, servo.GAIN_KP] = g[..., a, servo.GAIN_KP] * s
-        g[..., a, servo.GAIN_KI] = g[..., a, servo.GAIN_KI] * s
-        g[..., a, servo.GAIN_KD] = backemf + (g[..., a, servo.GAIN_KD] - backemf) * s
+        bias, nom_bias = f.array("actuator_biasprm"), f.nominal("actuator_biasprm")
+        s = np.asarray(v["scale"], dtype=float)
+        s = np.broadcast_to(s, g.shape[:-2] + (len(t.actuators),))
+        dc = _dcmotor(f, t)
+        if np.any(dc):
+            a, sd = t.actuators[dc], s[..., dc]
+            backemf = nom[a, servo.GAIN_K] ** 2 / nom[a, servo.GAIN_R]
+            g[..., a, servo.GAIN_KP] = g[..., a, servo.GAIN_KP] * sd
+            g[..., a, servo.GAIN_KI] = g[..., a, servo.GAIN_KI] * sd
+            g[..., a, servo.GAIN_KD] = backemf + (g[..., a, servo.GAIN_KD] - backemf) * sd
+        if np.any(~dc):
+            # fixed gain: force = gain * ctrl + b0 + b1 * length + b2 * velocity. A position
+            # servo (b1 = -kp) is stiffer or softer: gain and b1 scale together so it still
+            # holds its goal; a velocity servo (b1 = 0, b2 = -kv) scales kv; a motor its gain.
+            a, sf = t.actuators[~dc], s[..., ~dc]
+            g[..., a, 0] = g[..., a, 0] * sf
+            pos = nom_bias[a, 1] != 0
+            vel = ~pos & (nom_bias[a, 2] != 0)
+            bias[..., a[pos], 1] = bias[..., a[pos], 1] * sf[..., pos]
+            bias[..., a[vel], 2] = bias[..., a[vel], 2] * sf[..., vel]
+
+
+def _dcmotor(f: Fields, t: Targets) -> np.ndarray:
+    """(n_targets,) whether each target's actuator is a dcmotor servo."""
+    return f.nominal("actuator_gaintype")[t.actuators] == int(mujoco.mjtGain.mjGAIN_DCMOTOR)
 
 
 class TorqueLimit(Effect):
@@ -274,18 +295,20 @@ class TorqueLimit(Effect):
 
     @classmethod
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        # the force range becomes +-torque, never wider than the nominal range; the null (inf)
+        # keeps the nominal range and limit flag (a force-limited actuator stays as it was)
         tau = np.asarray(v["torque"], dtype=float)
-        lim = f.array("actuator_forcelimited")
-        rng_ = f.array("actuator_forcerange")
+        a = t.actuators
+        nom_rng = f.nominal("actuator_forcerange")[a]
+        nom_lim = f.nominal("actuator_forcelimited")[a] > 0
+        lo_nom = np.where(nom_lim, nom_rng[:, 0], -np.inf)
+        hi_nom = np.where(nom_lim, nom_rng[:, 1], np.inf)
         finite = np.isfinite(tau)
         bound = np.where(finite, tau, 0.0)
-        nominal = f.nominal("actuator_forcerange")[t.actuators, 1]
-        nominal = np.where(nominal > 0, nominal, np.inf)
-        bound = np.where(finite, np.minimum(bound, nominal), 0.0)
-        rng_[..., t.actuators, 0] = -bound
-        rng_[..., t.actuators, 1] = bound
-        lim[..., t.actuators] = np.where(finite | (f.nominal("actuator_forcelimited")[
-            t.actuators] > 0), 1, 0)
+        rng_ = f.array("actuator_forcerange")
+        rng_[..., a, 0] = np.where(finite, np.maximum(-bound, lo_nom), nom_rng[:, 0])
+        rng_[..., a, 1] = np.where(finite, np.minimum(bound, hi_nom), nom_rng[:, 1])
+        f.array("actuator_forcelimited")[..., a] = np.where(finite | nom_lim, 1, 0)
 
 
 class VelocityLimit(Effect):
@@ -297,9 +320,11 @@ class VelocityLimit(Effect):
 
     @classmethod
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        # the no-load speed of a dcmotor servo (K, R); other actuators have no back-EMF model
+        dc = _dcmotor(f, t)
         g = f.array("actuator_gainprm")
-        a = t.actuators
-        s = v["scale"]
+        a = t.actuators[dc]
+        s = np.broadcast_to(np.asarray(v["scale"], float), g.shape[:-2] + (len(dc),))[..., dc]
         k, r = g[..., a, servo.GAIN_K], g[..., a, servo.GAIN_R]
         backemf = k * k / r
         g[..., a, servo.GAIN_KD] = g[..., a, servo.GAIN_KD] - backemf + backemf / s
