@@ -358,3 +358,44 @@ def test_threaded_driver_against_a_real_time_emulated_hand():
         stop.set()
         server.join(2.0)
         emu.close()
+
+
+# -- issue 19: codec edges and the constants the driver and the emulator share, from the reference
+# (05-dynamixel-protocol.md section 6: the v4 drivers' command table and frame ids)
+
+def test_command_bytes_and_frame_ids_typed_from_the_reference():
+    assert (proto.SYSTEM_ON, proto.SYSTEM_OFF) == (0x40, 0x41)
+    assert [proto.frame_id(proto.SET_TORQUE + f) for f in range(4)] == [0x180, 0x184, 0x188,
+                                                                        0x18C]
+    assert [proto.frame_id(proto.FINGER_POSE + f) for f in range(4)] == [0x080, 0x084, 0x088,
+                                                                         0x08C]
+    assert proto.frame_id(proto.HAND_INFO) == 0x200
+    assert (proto.SET_PERIOD, proto.CONFIG, proto.SERIAL, proto.IMU) == (0x81, 0x68, 0x88, 0x30)
+    assert (proto.SET_POSE, proto.TEMPERATURE) == (0xE0, 0x38)
+    # every device id 0..3 lands in the two low bits and comes back out; 4 is refused
+    for dev in range(4):
+        assert proto.frame_id(proto.SET_TORQUE + 1, dev) == 0x184 | dev
+        assert proto.split_id(0x184 | dev) == (0x61, dev)
+        msg = proto.torque_message(1, np.zeros(4, int), device_id=dev)
+        assert msg.arbitration_id == 0x184 | dev and not msg.is_extended_id and msg.dlc == 8
+    with pytest.raises(ConfigError, match="outside 0..3"):
+        proto.frame_id(proto.SET_TORQUE, 4)
+    with pytest.raises(ConfigError):
+        proto.frame_id(proto.SET_TORQUE, -1)
+
+
+def test_negative_torques_clamp_per_joint_and_int16_saturates():
+    # the v4 driver's per-joint PWM limits, typed: fingers (375, 675, 450, 285), thumb
+    # (525, 405, 270, 270)
+    limits = [375, 675, 450, 285] * 3 + [525, 405, 270, 270]
+    np.testing.assert_array_equal(proto.torque_to_pwm(np.full(16, -10.0)),
+                                  [-x for x in limits])
+    # just inside a limit is kept: 0.3 N m * 1200 = 360 < 375 on joint 0, -360 too
+    assert proto.torque_to_pwm(np.full(16, -0.3))[0] == -360
+    # int16 payloads saturate instead of wrapping: 32767 = FF 7F, -32768 = 00 80 (little endian)
+    assert proto.pack4((40000, -40000, 32768, -32769)) == bytes(
+        [0xFF, 0x7F, 0x00, 0x80, 0xFF, 0x7F, 0x00, 0x80])
+    raw = proto.radians_to_raw(np.array([100.0, -100.0, 0.0, 1e-9]))
+    assert raw.tolist() == [32767, -32768, 0, 0]
+    # one count is 333.3 / 65536 deg: 1 deg is 196.6 -> 197 counts
+    assert proto.radians_to_raw(np.radians([1.0]))[0] == 197
