@@ -127,7 +127,7 @@ def check_device_side(chain, robot, cycles: int) -> None:
         assert audit.max_read_lead[j.motor_id] > MAX_STEP - TICK
     # the lead over the position at arrival adds what the motor moved since the sample (up to
     # tens of ms when a read was retried); before reads had to be fresh it reached 2.3 x
-    assert max(audit.max_lead[i] for i in ids) < 1.5 * MAX_STEP
+    assert max(audit.arrival_excess[i] for i in ids) < 0.5 * MAX_STEP
     # the faults really happened, and the Robot held rather than stopped
     assert robot.metrics.invalid_reads > 0.02 * 10 * cycles
     assert robot.metrics.holds > 0.005 * 9 * cycles
@@ -234,9 +234,14 @@ def test_watchdog_under_faults_stops_the_motors_of_a_silent_host_and_refuses_its
     robot.bus.port.sleep(0.3)
     trips = {e.motor_id for e in chain.events if e.kind == "watchdog"}
     assert trips == {j.motor_id for j in HAND.joints}  # the valve motor had no torque
-    stopped = chain.plant.qpos.copy()
+    fingers = [chain.plant.model.joint(j.name).qposadr[0] for j in HAND.joints]
+    setpoints = [chain.motors[j.motor_id].setpoint for j in HAND.joints]
+    stopped = chain.plant.qpos[fingers].copy()
     robot.bus.port.sleep(0.3)
-    assert np.abs(chain.plant.qpos - stopped).max() < 0.01  # holding where they stopped
+    # holding where they stopped: the firmware's setpoints stay put, the fingers barely move
+    # (the valve, unpowered and pushed, may still turn and brush them)
+    assert [chain.motors[j.motor_id].setpoint for j in HAND.joints] == setpoints
+    assert np.abs(chain.plant.qpos[fingers] - stopped).max() < 0.02
     with pytest.raises(WatchdogTripped):
         for _ in range(3):  # the first read may not get through
             robot.step(far)

@@ -230,6 +230,8 @@ class GoalAudit:
       max_age: longest time from the last sample to a goal's receipt per motor id [s].
       low, high: smallest and largest goal per motor id [rad, joint].
       lead_violations: goals whose read lead exceeded the watched motion bound, per motor id.
+      arrival_excess: largest lead at receipt beyond the watched motion bound (and limit
+        allowance), per watched motor id [rad]: what the motor moved between sample and goal.
       limit_violations: goals outside the watched joint limits, per motor id.
       recent: the last receipts (bus time [s], motor id, goal, true position at receipt, true
         position at the last sample [rad], time since that sample [s]).
@@ -243,6 +245,7 @@ class GoalAudit:
     high: dict[int, float] = field(default_factory=dict)
     lead_violations: dict[int, int] = field(default_factory=dict)
     limit_violations: dict[int, int] = field(default_factory=dict)
+    arrival_excess: dict[int, float] = field(default_factory=dict)
     recent: deque[tuple[float, int, float, float, float, float]] = field(
         default_factory=lambda: deque(maxlen=1024))
     _bounds: dict[int, tuple[float, float, float]] = field(default_factory=dict)
@@ -257,6 +260,7 @@ class GoalAudit:
         self._bounds[motor_id] = (max_step, low, high)
         self.lead_violations.setdefault(motor_id, 0)
         self.limit_violations.setdefault(motor_id, 0)
+        self.arrival_excess.setdefault(motor_id, -math.inf)
 
     def sampled(self, t: float, motor_id: int, true: float) -> None:
         """The motor sampled its Present Position at bus time ``t`` [s]; true position [rad]."""
@@ -278,6 +282,8 @@ class GoalAudit:
             max_step, low, high = bound
             outside = max(low - at_read, at_read - high, 0.0)
             self.lead_violations[motor_id] += read_lead > max_step + outside
+            self.arrival_excess[motor_id] = max(self.arrival_excess[motor_id],
+                                                lead - max_step - outside)
             self.limit_violations[motor_id] += not low <= goal <= high
 
     @property
