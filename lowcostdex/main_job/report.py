@@ -113,7 +113,10 @@ def markdown_report(ctx: Context) -> str:
         g = R["gap"]
         lines += ["## 4. What the nominal simulation gets wrong", "",
                   f"{g['logs']} identification logs of {g['seconds_per_log']:.0f} s (one finger, "
-                  f"50 Hz) replayed in the nominal model.", "", f"**Verdict:** {g['verdict']}", ""]
+                  f"50 Hz) replayed in the nominal model.", ""]
+        if g.get("log_notes"):
+            lines += ["What loading did to the logs: " + "; ".join(g["log_notes"]) + ".", ""]
+        lines += [f"**Verdict:** {g['verdict']}", ""]
         if g["causes"]:
             lines += ["| named cause | joints | fitted parameters |", "|---|---|---|"]
             for c in g["causes"]:

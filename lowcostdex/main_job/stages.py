@@ -366,7 +366,8 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
         "baseline_heldout_rmse_mrad": 1e3 * report["gain"]["baseline_rmse"],
         "extended_heldout_rmse_mrad": 1e3 * report["gain"]["extended_rmse"],
         "noise_floor_mrad": 1e3 * report["noise_floor"]["rmse"],
-        "gain": report["gain"], "report": "gap/report/report.md"}
+        "gain": report["gain"], "report": "gap/report/report.md",
+        "log_notes": list(dataset.notes)}
     if truth:
         out["truth"] = [{"effect": e.name, "params": {k: float(v[0]) for k, v in e.values.items()}}
                         for e in truth]
