@@ -3,6 +3,7 @@
     python bench/transfer.py --out bench_runs/transfer                 # 3 hidden robots, 1 seed
     python bench/transfer.py --out bench_runs/transfer --seeds 3
     python bench/transfer.py --out /tmp/transfer_quick --quick         # smoke check (tests)
+    python bench/transfer.py --task valve-near ...                     # +-0.25 rad starts, goals
 
 Hidden robots (``lowcostdex.hardware.hidden_robots``) stand in for real D'Claws: emulated
 robots behind the real dynamixel_sdk code path, each with its own mix of servo effects, MJCF
@@ -46,8 +47,31 @@ from typing import Any
 import numpy as np
 
 CONDITIONS = ("nominal", "randomized", "identified", "identified_randomized")
-ENVS = {"valve-random": "lowcostdex/DClawTurnValveRandom-v0",
-        "valve": "lowcostdex/DClawTurnValve-v0"}
+
+
+@dataclass(frozen=True)
+class Task:
+    """The task every condition trains and is evaluated on: a registered id and its task
+    options (``gym.make`` keyword arguments, e.g. ``TurnConfig`` fields)."""
+
+    env_id: str
+    kwargs: tuple[tuple[str, Any], ...] = ()
+
+    def make_kwargs(self, **more: Any) -> dict[str, Any]:
+        return {**dict(self.kwargs), **more}
+
+    def label(self) -> str:
+        opts = ", ".join(f"{k}={v}" for k, v in self.kwargs)
+        return self.env_id.split("/")[1] + (f" ({opts})" if opts else "")
+
+
+TASKS = {
+    "valve": Task("lowcostdex/DClawTurnValve-v0"),  # 180 deg from the fixed start
+    # start and goal each within +-0.25 rad of the fixed ones
+    "valve-near": Task("lowcostdex/DClawTurnValve-v0", (("init_range", 0.25),
+                                                         ("goal_range", 0.25))),
+    "valve-random": Task("lowcostdex/DClawTurnValveRandom-v0"),  # +-60 deg start and goal
+}
 FINGERS = ("ff", "mf", "th")
 EVAL_SEED = 20261125  # seeds of the evaluation episodes (same in every cell)
 NARROW_PAD = 0.1  # identified_randomized: ranges at least +-10 % of each identified value
@@ -128,7 +152,7 @@ def cached(path: Path, make) -> Any:
 # 1. demonstrations: the virtual teacher on a nominal emulated D'Claw
 
 
-def record_demos(out: Path, env_id: str, size: Size, seed: int) -> dict[str, Any]:
+def record_demos(out: Path, task: Task, size: Size, seed: int) -> dict[str, Any]:
     import gymnasium as gym
 
     import lowcostdex  # noqa: F401  (registers the ids)
@@ -144,14 +168,15 @@ def record_demos(out: Path, env_id: str, size: Size, seed: int) -> dict[str, Any
     if path.exists():
         path.unlink()  # a recording cut short is redone whole
     t0 = time.perf_counter()
-    env = gym.make(env_id, backend="emulated", effects=[])
+    env = gym.make(task.env_id, **task.make_kwargs(backend="emulated", effects=[]))
     try:
         solver = ValveTurnTeacher()
         teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task, solver=solver,
                                  config=virtual_teacher_config(solver),
                                  rng=np.random.default_rng(seed))
         response, _ = identify_servo_response(env, episodes=2, seed=seed + 1_000_000)
-        recorder = KinestheticRecorder(env, path, env_id, teacher=teacher, response=response,
+        recorder = KinestheticRecorder(env, path, task.env_id, teacher=teacher,
+                                       response=response,
                                        playbacks=size.playbacks, playback_noise=0.05,
                                        rng=np.random.default_rng(seed))
         stats = recorder.record(size.demos, seed=seed)
@@ -280,7 +305,7 @@ def condition_randomize(condition: str, ident: dict[str, Any] | None,
 # 3. training and evaluation
 
 
-def train_condition(run_dir: Path, env_id: str, randomize: Any, demos: Path, size: Size,
+def train_condition(run_dir: Path, task: Task, randomize: Any, demos: Path, size: Size,
                     seed: int) -> dict[str, Any]:
     from lowcostdex.algos import experiment as ex
     from lowcostdex.algos.configs import TrainConfig
@@ -292,8 +317,9 @@ def train_condition(run_dir: Path, env_id: str, randomize: Any, demos: Path, siz
 
         if run_dir.exists():
             shutil.rmtree(run_dir)  # cut short: train again from the start
-        config = TrainConfig(algo="dapg", env_id=env_id,
-                             env_kwargs={} if randomize is None else {"randomize": randomize},
+        extra = {} if randomize is None else {"randomize": randomize}
+        config = TrainConfig(algo="dapg", env_id=task.env_id,
+                             env_kwargs=task.make_kwargs(**extra),
                              seed=seed, n_iter=size.n_iter, n_traj=size.n_traj,
                              sampler="vector", n_workers=size.n_traj,
                              eval_every=size.eval_every, eval_episodes=size.eval_episodes,
@@ -309,7 +335,7 @@ def train_condition(run_dir: Path, env_id: str, randomize: Any, demos: Path, siz
             "final_training_success": float(metrics[ex.SUCCESS_RATE][-1])}
 
 
-def evaluate(run_dir: Path, env_id: str, env_kwargs: dict[str, Any], episodes: int
+def evaluate(run_dir: Path, task: Task, env_kwargs: dict[str, Any], episodes: int
              ) -> dict[str, Any]:
     """Mean-action episodes of the run's policy; the same episode seeds for every cell."""
     import gymnasium as gym
@@ -319,7 +345,7 @@ def evaluate(run_dir: Path, env_id: str, env_kwargs: dict[str, Any], episodes: i
     from lowcostdex.algos.train import load_policy
 
     policy = load_policy(run_dir).snapshot()
-    env = gym.make(env_id, **env_kwargs)
+    env = gym.make(task.env_id, **task.make_kwargs(**env_kwargs))
     t0 = time.perf_counter()
     try:
         paths = [rollout(env, policy, RolloutJob(EVAL_SEED, 0, 0, i, deterministic=True))
@@ -436,13 +462,13 @@ def named_vs_truth(idents: dict[str, dict[str, Any]]) -> list[str]:
 # ------------------------------------------------------------------------------------------------
 
 
-def run(out: Path, size: Size, seeds: list[int], env_name: str, robot_seed: int = 0
+def run(out: Path, size: Size, seeds: list[int], task_name: str, robot_seed: int = 0
         ) -> dict[str, Any]:
     """The whole table into ``out`` (resumable); returns the summary."""
     from lowcostdex.hardware.hands import dclaw_spec
     from lowcostdex.hardware.hidden_robots import hidden_robots
 
-    env_id = ENVS[env_name]
+    task = TASKS[task_name]
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     robots = hidden_robots(size.robots, seed=robot_seed)
@@ -451,7 +477,7 @@ def run(out: Path, size: Size, seeds: list[int], env_name: str, robot_seed: int 
 
     t0 = time.perf_counter()
     log(f"demonstrations: {size.demos} by the virtual teacher on a nominal emulated D'Claw")
-    demos = cached(out / "demos.json", lambda: record_demos(out, env_id, size, seeds[0]))
+    demos = cached(out / "demos.json", lambda: record_demos(out, task, size, seeds[0]))
     wall["demos"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -476,16 +502,16 @@ def run(out: Path, size: Size, seeds: list[int], env_name: str, robot_seed: int 
             t0 = time.perf_counter()
             log(f"seed {seed}: train DAPG, {condition}" + (f" (robot {robot.name})" if robot
                                                           else ""))
-            trained = train_condition(run_dir, env_id, randomize, out / demos["file"], size, seed)
+            trained = train_condition(run_dir, task, randomize, out / demos["file"], size, seed)
             t_train += time.perf_counter() - t0
             t0 = time.perf_counter()
             sim_kwargs = {} if randomize is None else {"randomize": randomize}
             sim = cached(run_dir.parent / f"{tag}_seed{seed}.sim.json",
-                         lambda d=run_dir, k=sim_kwargs: evaluate(d, env_id, k, size.episodes))
+                         lambda d=run_dir, k=sim_kwargs: evaluate(d, task, k, size.episodes))
             targets = robots if robot is None else [robot]
             for target in targets:
                 cell = cached(run_dir.parent / f"{tag}_seed{seed}.on_{target.name}.json",
-                              lambda t=target, d=run_dir: evaluate(d, env_id, t.env_kwargs(),
+                              lambda t=target, d=run_dir: evaluate(d, task, t.env_kwargs(),
                                                                    size.episodes))
                 rows.append({"condition": condition, "robot": target.name, "seed": seed,
                              "success": cell["successes"], "episodes": cell["episodes"],
@@ -505,11 +531,11 @@ def run(out: Path, size: Size, seeds: list[int], env_name: str, robot_seed: int 
     summary = summarize(rows, names)
     table = table_markdown(summary, names)
     truth = named_vs_truth(idents)
-    title = (f"DAPG on {env_id.split('/')[1]}: {len(seeds)} seed(s), "
+    title = (f"DAPG on {task.label()}: {len(seeds)} seed(s), "
              f"{size.n_iter * size.n_traj * 40 // 1000}k samples per policy")
     fig = plot(summary, names, out / "transfer.png", title)
     info = {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(),
-            "cpus": __import__("os").cpu_count(), "env_id": env_id, "seeds": seeds,
+            "cpus": __import__("os").cpu_count(), "task": task.label(), "seeds": seeds,
             "robot_seed": robot_seed, "size": asdict(size),
             "wall_seconds": {k: round(v, 1) for k, v in wall.items()}}
     write_json(out / "transfer.json", {"info": info, "rows": rows})
@@ -526,7 +552,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", default="bench_runs/transfer")
     p.add_argument("--seeds", type=int, default=1, help="training seeds (0, 1, ...)")
-    p.add_argument("--env", default="valve-random", choices=sorted(ENVS))
+    p.add_argument("--task", default="valve", choices=sorted(TASKS))
     p.add_argument("--robots", type=int, default=None, help="hidden robots (default by size)")
     p.add_argument("--robot-seed", type=int, default=0, help="the hidden robots' seed")
     p.add_argument("--episodes", type=int, default=None, help="evaluation episodes per cell")
@@ -537,7 +563,7 @@ def main(argv: list[str] | None = None) -> int:
         size = Size(**{**asdict(size), "robots": args.robots})
     if args.episodes is not None:
         size = Size(**{**asdict(size), "episodes": args.episodes})
-    run(Path(args.out), size, list(range(args.seeds)), args.env, args.robot_seed)
+    run(Path(args.out), size, list(range(args.seeds)), args.task, args.robot_seed)
     return 0
 
 

@@ -263,7 +263,7 @@ def test_quick_transfer_table_runs_end_to_end_and_resumes(tmp_path):
 
     bench = _bench()
     size = bench.SIZES["quick"]
-    res = bench.run(tmp_path, size, [0], "valve-random")
+    res = bench.run(tmp_path, size, [0], "valve-near")
     rows = json.loads((tmp_path / "transfer.json").read_text())["rows"]
     robots = [r.name for r in hidden_robots(size.robots)]
     for cond in ("nominal", "randomized"):  # every robot
@@ -293,5 +293,5 @@ def test_quick_transfer_table_runs_end_to_end_and_resumes(tmp_path):
         fitted = next(c for c in causes if c["effect"] == "latency")["params"]["delay"]["value"]
         np.testing.assert_allclose(lat.values["delay"][:3], fitted)
     # a second run finds every piece done and reports the same table
-    again = bench.run(tmp_path, size, [0], "valve-random")
+    again = bench.run(tmp_path, size, [0], "valve-near")
     assert again["rows"] == res["rows"]
