@@ -421,6 +421,28 @@ def test_scan_on_a_missing_port_is_one_line_for_a_user():
     assert "plug in the USB adapter" in run.stderr and "--port emulated" in run.stderr
 
 
+def test_ctrl_c_during_an_analysis_leaves_no_output_and_the_logs_as_they_were(tmp_path):
+    """A real SIGINT to a running `gap analyze` (as a user's Ctrl-C): exit 130, one line, no
+    traceback, no report or temporary folder left, the inputs byte for byte."""
+    import signal
+
+    (tmp_path / "bench.xml").write_text(bench_model())
+    (tmp_path / "log.csv").write_text(csv_text(servo_log()))
+    before = _snapshot(tmp_path)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "lowcostdex.cli", "gap", "analyze", "--model", "bench.xml", "--log",
+         "log.csv", "--out", "report"], cwd=tmp_path, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    first = proc.stderr.readline()  # the progress line: the analysis is under way
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert "gap analysis" in first, first + err
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "lowcostdex gap analyze: error: interrupted (Ctrl-C)"
+    assert "Traceback" not in err + out
+    assert _snapshot(tmp_path) == before
+
+
 def test_debug_shows_the_traceback_of_a_user_error():
     """As a user runs it (a process): one line without --debug; the traceback with it, before or
     after the subcommand."""
