@@ -164,7 +164,7 @@ CASES: list[Case] = [
     Case("emulate with a drop probability of 1.5", ("emulate", "bench", "--drop", "1.5"),
          "argument --drop: '1.5' is not a finite number in [0, 1]"),
     Case("record-log for nan seconds", ("record-log", "--port", "emulated", "--seconds", "nan",
-                                        "--out", "{tmp}/logs"), "argument --seconds: 'nan'"),
+                                        "--out", "{tmp}/logs"), "argument --seconds: 'nan' is not a finite number in (0, 3600]"),
     # gap analyze: the time column
     csv_case("time in ns since the epoch",
              csv_text(servo_log(), time=lambda t: str(EPOCH_NS + round(t * 1e9))),

@@ -98,7 +98,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--joints", default="ff_top,ff_middle,ff_bottom",
                    help="comma-separated joints to excite (the others hold still)")
     p.add_argument("--logs", type=int, default=6, help="number of logs (trajectories)")
-    p.add_argument("--seconds", type=number(0.5, 3600), default=15.0,
+    p.add_argument("--seconds", type=number(0, 3600, open_low=True), default=15.0,
                    help="length of each log [s]")
     p.add_argument("--rate", type=number(1, 1000), default=50.0, help="command/read rate [Hz]")
     p.add_argument("--out", required=True, help="folder for log_<k>.csv")

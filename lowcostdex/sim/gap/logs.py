@@ -50,6 +50,7 @@ GAP_MIN = 0.1  # [s]
 MIN_MOTION = 0.02  # [rad] some measured joint must move at least this much (peak to peak)
 FROZEN_CROSS = 0.2  # [rad] a reading that repeats while the goal passes it by this, both ways
 RANGE_MARGIN = 0.2  # [rad] measured positions beyond a limited joint's model range by more
+CLIP_PILE = 5.0  # ... and this many times as often as at any value between the extremes
 SATURATED_SHARE = 0.2  # a channel at exactly its extreme value in this share of the samples
 # plausible magnitudes per column kind (SI units); beyond them the unit is wrong or the data broken
 PLAUSIBLE: dict[str, tuple[float, float, str]] = {
@@ -385,7 +386,8 @@ def check_signals(traj: Trajectory) -> None:
       by more than FROZEN_CROSS on both sides (a servo that stalls under load, its goal on one
       side, is physics: BAM's XL330 holds one reading for 3 s while its goal moves 0.3 rad);
     * a saturated current: at exactly its largest or smallest (non-zero) value in at least
-      SATURATED_SHARE of the torque-on samples (a clipped sensor or register range; the
+      SATURATED_SHARE of the torque-on samples and CLIP_PILE times as often as at any value
+      between the extremes (a clipped sensor or register range; the
       current-dependent effects would fit the clip). Velocities may plateau (a profile velocity,
       the robot's motion bound), so they are not checked;
     * too little motion: no measured joint moves MIN_MOTION peak to peak;
@@ -443,11 +445,15 @@ def _check_frozen(traj: Trajectory, q: np.ndarray, goal: np.ndarray, on: np.ndar
 def _check_saturated(name: str, key: str, col: np.ndarray) -> None:
     if len(col) < MIN_SAMPLES or len(np.unique(col)) < 10:
         return
-    for extreme, what in ((col.max(), "largest"), (col.min(), "smallest")):
+    values, counts = np.unique(col, return_counts=True)
+    for k, what in ((len(values) - 1, "largest"), (0, "smallest")):
+        extreme = values[k]
         if extreme == 0:  # at rest, or a sign the register does not carry: not a clip
             continue
-        share = float(np.mean(col == extreme))
-        if share >= SATURATED_SHARE:
+        share = counts[k] / len(col)
+        # a clip piles the samples up at the edge: far more than at any other value (a small,
+        # quantised signal such as a parked joint's current of a few counts does not)
+        if share >= SATURATED_SHARE and counts[k] >= CLIP_PILE * counts[1:-1].max():
             raise LogError(f"{name}: column {key!r} sits at its {what} value {extreme:.6g} in "
                            f"{100 * share:.0f} % of the samples with torque on: a saturated "
                            "(clipped) reading; log a range that holds the signal")
