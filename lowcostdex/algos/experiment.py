@@ -18,6 +18,13 @@ either the old or the new version, never half of one. Checkpoints load with
 torch is imported only to save or load a checkpoint, so a trainer without torch code (local
 models) and the command line do not pay for it.
 
+Faults: :meth:`Run.check` refuses a directory before anything is written (trainers call it, then
+validate their inputs, then :meth:`Run.open`); a start that fails before its first checkpoint is
+undone (:meth:`Run.abandon`) and a ``config.json`` without checkpoint never blocks a new start;
+:meth:`Run.load_latest` resumes from the newest checkpoint that loads and says which; after Ctrl-C
+:func:`stopped` saves the state after the last completed iteration and returns an
+:class:`Interrupted` naming it.
+
 Typical use by a trainer::
 
     run = Run.open(out_dir, config=dataclasses.asdict(cfg), resume=resume)
