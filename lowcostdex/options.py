@@ -57,3 +57,44 @@ def robot_selection(backend: str, port: str | None) -> tuple[str, dict[str, Any]
         raise ConfigError(f"--port {port} is for --backend hardware; with --backend {backend} "
                           "leave it out")
     return backend, {}
+
+
+ROBOT_BACKENDS = ("emulated", "hardware")
+
+
+def add_robot_port_options(parser: argparse.ArgumentParser, port_help: str | None = None
+                           ) -> None:
+    """``--backend emulated|hardware`` and ``--port`` for commands that drive a robot (never sim).
+
+    ``--port emulated`` is still understood (it was these commands' way to ask for the emulated
+    robot); :func:`robot_port` resolves the pair.
+    """
+    parser.add_argument("--backend", choices=ROBOT_BACKENDS, default=None,
+                        help="the emulated D'Claw or a real robot (default: hardware when "
+                             "--port names a device, else emulated)")
+    parser.add_argument("--port", default=None,
+                        help=port_help or "serial device or pty path of a real robot "
+                                          "(hardware backend)")
+
+
+def robot_port(backend: str | None, port: str | None) -> str:
+    """``"emulated"`` or the serial port, from ``--backend`` / ``--port``.
+
+    Raises:
+      ConfigError: ``hardware`` without a device, or ``emulated`` with one.
+    """
+    device = None if port in (None, "", "emulated") else port
+    if backend is None:
+        backend = "hardware" if device else "emulated"
+    if backend not in ROBOT_BACKENDS:
+        raise ConfigError(f"unknown backend {backend!r}; valid choices: "
+                          f"{', '.join(ROBOT_BACKENDS)}")
+    if backend == "hardware":
+        if device is None:
+            raise ConfigError("--backend hardware needs --port (e.g. /dev/ttyUSB0; "
+                              "`lowcostdex scan` lists candidate ports)")
+        return device
+    if device is not None:
+        raise ConfigError(f"--port {device} is for --backend hardware; the emulated robot "
+                          "needs no port")
+    return "emulated"

@@ -49,3 +49,32 @@ def test_every_training_demo_speaks_the_vocabulary(script):
     shared = {"add_robot_options", "add_run_options"} <= called
     own = {"--backend", "--port", "--seed", "--out"} <= literal and "hardware" in literal
     assert shared or own, script
+
+
+def test_robot_commands_take_backend_and_port():
+    from lowcostdex.options import robot_port
+
+    assert robot_port(None, None) == "emulated"
+    assert robot_port(None, "emulated") == "emulated"          # the older spelling still works
+    assert robot_port("emulated", None) == "emulated"
+    assert robot_port(None, "/dev/ttyUSB0") == "/dev/ttyUSB0"  # a device implies hardware
+    assert robot_port("hardware", "can0") == "can0"
+    with pytest.raises(ConfigError, match="needs --port"):
+        robot_port("hardware", None)
+    with pytest.raises(ConfigError, match="needs no port"):
+        robot_port("emulated", "/dev/ttyUSB0")
+
+
+@pytest.mark.parametrize("command", ["record-log", "record-demos", "reset-test"])
+def test_robot_commands_refuse_hardware_without_a_port(command, tmp_path, capsys):
+    from lowcostdex.cli import main
+
+    out = tmp_path / "out"
+    args = [command, "--backend", "hardware"]
+    if command != "reset-test":
+        args += ["--out", str(out)]
+    if command == "record-demos":
+        args += ["--episodes", "1"]
+    assert main(args) == 2
+    assert "needs --port" in capsys.readouterr().err
+    assert not out.exists()

@@ -21,6 +21,7 @@ import json
 import sys
 
 from lowcostdex.argtypes import SEED, integer, number
+from lowcostdex.options import add_robot_port_options, robot_port
 
 # hand -> task name on the command line -> (registered env id, scripted solver for the virtual
 # teacher)
@@ -47,7 +48,7 @@ is too sensitive to the finger motion: 0 of 6 succeeded on the emulated D'Claw);
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reset-test",
                        help="tangle the D'Claw N times and auto-reset it: success rate and time")
-    p.add_argument("--port", default="emulated", help="serial device, pty path, or 'emulated'")
+    add_robot_port_options(p)
     p.add_argument("--trials", type=int, default=20, help="tangle + reset trials")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the tangles and valve angles")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
@@ -67,9 +68,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    choices=sorted({t for tasks in TASKS.values() for t in tasks}),
                    help="D'Claw: " + ", ".join(TASKS["dclaw"]) + "; Allegro: "
                    + ", ".join(TASKS["allegro"]))
-    p.add_argument("--port", required=True,
-                   help="D'Claw: serial device, pty path, or 'emulated'; Allegro: CAN channel "
-                        "(e.g. can0) or 'emulated'")
+    add_robot_port_options(p, port_help="D'Claw: serial device or pty path; Allegro: CAN "
+                                        "channel (e.g. can0); hardware backend")
     p.add_argument("--episodes", type=int, required=True,
                    help="demonstrations to record (with --successes: the most to try)")
     p.add_argument("--successes", type=int, default=None,
@@ -94,7 +94,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("record-log",
                        help="record identification logs (steps, ramps, chirps) in the project's "
                             "log format, for `lowcostdex gap analyze`")
-    p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
+    add_robot_port_options(p)
     p.add_argument("--joints", default="ff_top,ff_middle,ff_bottom",
                    help="comma-separated joints to excite (the others hold still)")
     p.add_argument("--logs", type=int, default=6, help="number of logs (trajectories)")
@@ -128,6 +128,7 @@ def _check_dynamixel_port(port: str) -> None:
 
 
 def _reset_test(args: argparse.Namespace) -> int:
+    args.port = robot_port(args.backend, args.port)
     import numpy as np
     from rich.console import Console
     from rich.table import Table
@@ -187,6 +188,7 @@ def _reset_test(args: argparse.Namespace) -> int:
 
 
 def _record_demos(args: argparse.Namespace) -> int:
+    args.port = robot_port(args.backend, args.port)
     import gymnasium as gym
     import numpy as np
     from rich.console import Console
@@ -285,6 +287,7 @@ def _record_demos(args: argparse.Namespace) -> int:
 
 
 def _record_log(args: argparse.Namespace) -> int:
+    args.port = robot_port(args.backend, args.port)
     from pathlib import Path
 
     import numpy as np
