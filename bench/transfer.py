@@ -381,10 +381,14 @@ def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[s
             per_robot[name] = (sum(r["success"] for r in cell), sum(r["episodes"] for r in cell))
         robot_k = sum(k for k, _ in per_robot.values())
         robot_n = sum(n for _, n in per_robot.values())
-        sim_k = sum(r["sim_success"] for r in rs)
-        sim_n = sum(r["sim_episodes"] for r in rs)
+        # each policy's own-sim evaluation once (a nominal policy has one row per robot)
+        sims = {(r["policy"], r["seed"]): r for r in rs}.values()
+        sim_k = sum(r["sim_success"] for r in sims)
+        sim_n = sum(r["sim_episodes"] for r in sims)
+        identical = all(len(set(r["sim_final_error"])) == 1 for r in sims)
         errors = [e for r in rs for e in r["final_error"]]
         out[cond] = {"per_robot": per_robot, "robots": (robot_k, robot_n), "sim": (sim_k, sim_n),
+                     "sim_identical": identical, "policies": len(sims),
                      "drop": sim_k / sim_n - robot_k / robot_n,
                      "median_final_error": float(np.median(errors)) if errors else math.nan}
     return out
@@ -396,7 +400,11 @@ def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for cond, s in summary.items():
         cells = [_cell(*s["per_robot"][r]) for r in robots]
-        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]), _cell(*s["sim"]),
+        sim = _cell(*s["sim"])
+        if s["sim_identical"]:  # a deterministic policy from a fixed start in a fixed sim
+            k, n = s["sim"]
+            sim = f"{k / n:.2f} (one deterministic episode per policy, x{s['policies']})"
+        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]), sim,
                                         f"{s['drop']:+.2f}", f"{s['median_final_error']:.2f}"])
                      + " |")
     return "\n".join(lines)
@@ -517,8 +525,8 @@ def run(out: Path, size: Size, seeds: list[int], task_name: str, robot_seed: int
                              "success": cell["successes"], "episodes": cell["episodes"],
                              "final_error": cell["final_error"],
                              "sim_success": sim["successes"], "sim_episodes": sim["episodes"],
-                             "trained_on": "nominal" if robot is None and condition == "nominal"
-                             else tag, "samples": trained["samples"],
+                             "sim_final_error": sim["final_error"], "policy": tag,
+                             "samples": trained["samples"],
                              "train_wall_seconds": round(trained["wall_seconds"], 1),
                              "eval_wall_seconds": cell["wall_seconds"]})
                 log(f"  on robot {target.name}: {cell['successes']}/{cell['episodes']}, in its "

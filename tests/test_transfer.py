@@ -273,6 +273,9 @@ def test_quick_transfer_table_runs_end_to_end_and_resumes(tmp_path):
     for r in rows:
         assert r["episodes"] == size.episodes and 0 <= r["success"] <= r["episodes"]
         assert r["sim_episodes"] == size.episodes and len(r["final_error"]) == size.episodes
+    # each policy's own-sim evaluation counts once: one nominal policy, one per robot identified
+    assert res["summary"]["nominal"]["sim"][1] == size.episodes
+    assert res["summary"]["identified"]["sim"][1] == size.robots * size.episodes
     assert figure_problems(res["figure"]) == []
     assert (tmp_path / "transfer.png").stat().st_size > 0
     table = (tmp_path / "table.md").read_text()
