@@ -40,3 +40,11 @@ def hinge_servo_model(motor: str = "XM430-W350", gains: servo.ServoGains | None 
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
+
+
+def pytest_addoption(parser):
+    group = parser.getgroup("lowcostdex hardware")
+    group.addoption("--dxl-port", default=None,
+                    help="serial port of a real D'Claw for the `hardware` acceptance tests")
+    group.addoption("--can-channel", default=None,
+                    help="CAN channel of a real Allegro hand for the `hardware` acceptance tests")
