@@ -152,3 +152,11 @@ def test_flip_goal_is_relative_to_the_start_pose():
     assert u.task.orientation_error(u.data.qpos, u.goal) == pytest.approx(np.pi, abs=1e-3)
     # the goal is the upright block again: 180 deg about the flip axis from upside down
     assert abs(abs(u.goal["quat"][0]) - 1.0) < 1e-6
+
+
+def test_a_wrong_action_shape_is_named_with_the_joints():
+    env = gym.make("lowcostdex/DClawTurnValve-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape \(5,\); this env takes \(9,\).*ff_top"):
+        env.step(np.zeros(5, np.float32))
+    env.close()

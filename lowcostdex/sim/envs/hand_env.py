@@ -146,7 +146,12 @@ class HandEnv(gym.Env):
         return self._obs(), self._info(self._terms(self._last_action))
 
     def step(self, action):
-        a = np.asarray(action, dtype=float).reshape(self.action_space.shape)
+        a = np.asarray(action, dtype=float)
+        if a.size != int(np.prod(self.action_space.shape)):
+            raise ValueError(f"action has shape {a.shape}; this env takes "
+                             f"{self.action_space.shape} (one value in [-1, 1] per joint: "
+                             f"{', '.join(self.task.hand.joint_names)})")
+        a = a.reshape(self.action_space.shape)
         if not np.all(np.isfinite(a)):
             raise ValueError(f"action has NaN/inf entries: {a}")
         a = np.clip(a, -1.0, 1.0)
