@@ -106,8 +106,9 @@ class LineBar:
 
     def update(self, n: float = 1) -> None:
         self.n += n
-        if self._clock() - self._last >= self._every:
-            self._emit()
+        finished = self.total is not None and self.n >= self.total
+        if not finished and self._clock() - self._last >= self._every:
+            self._emit()  # the final line comes from close(), with the final postfix
 
     def set_postfix(self, ordered_dict: dict[str, Any] | None = None, refresh: bool = True,
                     **kwargs: Any) -> None:

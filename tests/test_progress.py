@@ -35,13 +35,14 @@ def test_line_bar_prints_at_start_every_interval_and_at_the_end():
     out, clock = io.StringIO(), Clock()
     b = LineBar(total=100, desc="dapg", unit="it", file=out, every=10.0, clock=clock)
     for _ in range(100):
-        clock.t += 0.5           # 50 s in all -> a line at 10, 20, 30, 40, 50 s
+        clock.t += 0.5           # 50 s in all -> a line at 10, 20, 30, 40 s; 50 s is the end
         b.update(1)
         b.set_postfix(success="0.50")
     b.close()
     lines = out.getvalue().splitlines()
     assert lines[0].startswith("[progress] dapg: 0/100 it (0 %)")
-    assert len(lines) == 1 + 5 + 1, lines
+    assert len(lines) == 1 + 4 + 1, lines
+    assert sum("100/100" in x for x in lines) == 1     # the end is said once, by close()
     assert "20/100 it (20 %), 10 s elapsed, about 40 s left; success=0.50" in lines[1]
     assert lines[-1].endswith("done; success=0.50")
 
