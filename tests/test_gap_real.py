@@ -1,5 +1,6 @@
 """The gap analysis on real servo logs (BAM pendulum benches). Skips cleanly when the measured
-data folder is absent (LOWCOSTDEX_MEASURED_DATA overrides ../shared/data/measured)."""
+data folder is absent (LOWCOSTDEX_MEASURED_DATA or LOWCOSTDEX_MEASURED overrides
+../shared/data/measured next to the repository)."""
 
 from __future__ import annotations
 
@@ -10,10 +11,13 @@ import numpy as np
 import pytest
 
 from lowcostdex.sim.gap import GapConfig, analyze, load_dataset
+from lowcostdex.sim.gap import bam_measure as bm
 
-ROOT = Path(os.environ.get("LOWCOSTDEX_MEASURED_DATA",
-                           Path(__file__).resolve().parents[2] / "shared" / "data" / "measured"))
+ROOT = Path(os.environ.get("LOWCOSTDEX_MEASURED_DATA") or os.environ.get("LOWCOSTDEX_MEASURED")
+            or Path(__file__).resolve().parents[2] / "shared" / "data" / "measured")
 STS3250 = ROOT / "rhoban-bam-feetech-sts3250"
+RHOBAN = ROOT / "rhoban-bam-xl330"
+PHAM = ROOT / "pham-tuan-binh-bam-xl330"
 
 
 @pytest.mark.skipif(not STS3250.is_dir(), reason=f"measured data not found at {ROOT}")
@@ -31,3 +35,82 @@ def test_real_feetech_bench_logs_are_explained_better_after_extension():
     ext = np.mean(res.extended["per_episode_mae"])
     assert ext < 0.5 * base
     assert res.extended["heldout_rmse"] < res.baseline["heldout_rmse"]
+
+
+# BAM's published XL330 parameters, typed in from Rhoban/bam@1b5a1cee2e6dcd2ab8c12b013f1e05482b16cb96
+# bam/params/xl330/m1.json and m3.json (kt [N m/A], R [Ohm], armature [kg m^2], q_offset [rad],
+# friction_base [N m], load_friction_base [1], friction_viscous [N m s/rad]).
+BAM_M1 = dict(kt=0.3866957639281311, R=4.017129222290597, armature=0.0018141672784458866,
+              q_offset=0.030871000250528358, friction_base=0.01283272036582759,
+              load_friction_base=0.0, friction_viscous=0.003661672282824312)
+BAM_M3 = dict(kt=0.38042022855161584, R=3.380066954773944, armature=0.001917772275220315,
+              q_offset=0.029439576907685533, friction_base=0.008881712972862601,
+              load_friction_base=0.12166455532811028, friction_viscous=0.004379099756757558)
+XL330_ERROR_GAIN = (4096 / (2 * np.pi)) / (256 * 885)  # duty per (kp rad), BAM's XL330Actuator
+
+
+def bam_reference_rollout(tr, p: dict, dt: float = bm.BAM_DT) -> np.ndarray:
+    """BAM's pendulum rollout written out from its documented physics (not its code): duty =
+    clip(error_gain kp (goal - q), +-1), tau_m = kt (vin duty - kt qdot) / R (0 with the torque
+    off), gravity at q + q_offset, a friction budget friction_base + load_friction_base
+    |tau_e - tau_m| + viscous |qdot| clipping the torque that would stop the arm in one step,
+    semi-implicit Euler at dt."""
+    h = tr.meta
+    m, l_, arm = h["mass"], h["length"], h.get("arm_mass", 0.0)
+    inertia = m * l_ ** 2 + arm * l_ ** 2 / 3 + p["armature"]
+    q, dq = float(tr.qpos[0, 0]), float(tr.qvel[0, 0])
+    out = np.empty(len(tr.time))
+    on = tr.channels["torque_enable"][:, 0] > 0.5
+    for k in range(len(tr.time)):
+        out[k] = q
+        duty = np.clip((tr.goal[k, 0] - q) * h["kp"] * XL330_ERROR_GAIN, -1.0, 1.0)
+        tau_m = (p["kt"] * h["vin"] * duty - p["kt"] ** 2 * dq) / p["R"] if on[k] else 0.0
+        tau_e = -(m + arm / 2) * 9.80665 * l_ * np.sin(q + p["q_offset"])
+        budget = (p["friction_base"] + p["load_friction_base"] * abs(tau_e - tau_m)
+                  + p["friction_viscous"] * abs(dq))
+        net = tau_m + tau_e
+        stop = inertia / dt * dq + net
+        net -= np.sign(stop) * min(abs(stop), budget)
+        acc = net / inertia
+        dq += acc * dt
+        q += dq * dt + 0.5 * acc * dt * dt
+    return out
+
+
+@pytest.mark.skipif(not (RHOBAN.is_dir() and PHAM.is_dir()),
+                    reason=f"measured data not found at {ROOT}")
+def test_bam_grid_reproduces_bams_published_errors():
+    # 08-bam-reference-errors.md section 2: bam.mae on bam.process'ed logs, mean per-log MAE
+    published = {("rhoban", "m1"): 0.0819, ("rhoban", "m3"): 0.0691,
+                 ("pham", "m1"): 0.0259, ("pham", "m3"): 0.0218}
+    for name, folder in (("rhoban", RHOBAN), ("pham", PHAM)):
+        ds = load_dataset(sorted(folder.glob("*.json")))
+        grid = [bm.resample(tr) for tr in ds.trajectories]
+        for tr, raw in zip(grid, ds.trajectories, strict=True):
+            assert tr.time[0] == 0.0 and tr.time[-1] < raw.time[-1] <= tr.time[-1] + bm.BAM_DT
+            assert set(np.unique(tr.channels["torque_enable"])) <= {0.0, 1.0}
+        for model, p in (("m1", BAM_M1), ("m3", BAM_M3)):
+            mae = np.mean([np.mean(np.abs(bam_reference_rollout(tr, p) - tr.qpos[:, 0]))
+                           for tr in grid])
+            assert mae == pytest.approx(published[(name, model)], abs=5e-5)
+
+
+def test_resample_interpolates_like_bam_process():
+    from lowcostdex.sim.gap.logs import Trajectory
+
+    t = np.array([0.0035, 0.0087, 0.0121, 0.0200, 0.0260])
+    q = np.array([0.0, 0.1, 0.3, 0.2, 0.6])[:, None]
+    te = np.array([1.0, 1.0, 0.0, 0.0, 0.0])[:, None]
+    tr = Trajectory("t", t, q + 1, q, ("j",), ("j",), qvel=2 * q,
+                    channels={"torque_enable": te})
+    g = bm.resample(tr)
+    np.testing.assert_allclose(g.time, [0.0, 0.005, 0.010, 0.015, 0.020, 0.025], atol=1e-15)
+    # t = 0 extrapolates the first segment; later times interpolate the segment that ends at
+    # the first sample at or after them
+    want = [0.0 - 0.1 * 0.0035 / 0.0052, 0.1 * 0.0015 / 0.0052,
+            0.1 + 0.2 * 0.0013 / 0.0034, 0.3 - 0.1 * 0.0029 / 0.0079, 0.2, 0.2 + 0.4 * 5 / 6]
+    np.testing.assert_allclose(g.qpos[:, 0], want, atol=1e-12)
+    np.testing.assert_allclose(g.goal[:, 0], np.array(want) + 1, atol=1e-12)
+    np.testing.assert_allclose(g.qvel[:, 0], 2 * np.array(want), atol=1e-12)
+    # torque_enable interpolated, then thresholded at 0.5: 1 - 0.0013 / 0.0034 = 0.62 -> on
+    np.testing.assert_array_equal(g.channels["torque_enable"][:, 0], [1, 1, 1, 0, 0, 0])

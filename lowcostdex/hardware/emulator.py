@@ -363,7 +363,7 @@ class PlantDrive:
             self._views["act"] = np.zeros(1)
         self.goal = np.array(plant.ctrl, copy=True)  # (nu,) [rad]
         # encoder errors the emulated robot carries (offset, noise, quantization) reach the wire
-        self._observed = any(e.cls.kind == "observation" for e in plant.effects)
+        self._observed = any(e.cls.kind in ("observation", "calibration") for e in plant.effects)
         self.steps = 0
         self._state: _State | None = None
 

@@ -10,6 +10,8 @@ a domain-randomization range, and knows how to extend a servo-driven MuJoCo mode
                   (Stribeck, load-dependent);
   ``command``     transforms the goal position before it reaches the servo (backlash, action noise);
   ``observation`` transforms what the encoder reports (offset, noise, quantization);
+  ``calibration`` both: the servo's own encoder frame is shifted from the model's joint, so the
+                  servo holds goals in its frame and reports readings in it (mounting offset);
   ``exogenous``   rescales gains from a measured channel each control step (temperature, voltage).
 
 Values are arrays over the effect's targets (actuated joints): shape (n,) for one simulation or
@@ -128,7 +130,7 @@ class Effect:
     """Base class: a named, parameterized extension of a servo-driven model."""
 
     name: ClassVar[str]
-    kind: ClassVar[str]  # model | friction | command | observation | exogenous
+    kind: ClassVar[str]  # model | friction | command | observation | calibration | exogenous
     params: ClassVar[tuple[Param, ...]]
     requires: ClassVar[tuple[str, ...]] = ()  # measured channels needed (e.g. "temperature")
     fields: ClassVar[tuple[str, ...]] = ()  # model fields written by ``apply``
@@ -167,9 +169,11 @@ class Effect:
         """kind model: write model fields from their nominal values."""
 
     @classmethod
-    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
+                 external: np.ndarray | None = None) -> np.ndarray:
         """kind friction: extra dry friction [N m] per target, from dof velocities [rad/s]
-        (..., nv) and actuator forces [N m] (..., nu)."""
+        (..., nv), actuator forces [N m] (..., nu) and the external generalized force on each
+        dof [N m] (..., nv): gravity and velocity-product terms, ``-qfrc_bias`` (None: zero)."""
         raise NotImplementedError
 
     @classmethod
@@ -332,6 +336,22 @@ class VelocityLimit(Effect):
         g[..., a, servo.GAIN_R] = r / s
 
 
+class MotorStrength(Effect):
+    name = "motor_strength"
+    kind = "model"
+    doc = ("torque per volt (K/R) off by a factor: stall torque and the firmware's torque per "
+           "position error scale with it, the no-load speed is kept (winding resistance R / scale)")
+    params = (Param("scale", 1.0, 0.2, 5.0, "1", (0.8, 1.25)),)
+    fields = ("actuator_gainprm",)
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        g = f.array("actuator_gainprm")
+        dc = _dcmotor(f, t)
+        s = np.broadcast_to(np.asarray(v["scale"], float), g.shape[:-2] + (len(dc),))[..., dc]
+        _scale_resistance(g, t.actuators[dc], 1.0 / s)
+
+
 class InertiaError(Effect):
     name = "inertia_error"
     kind = "model"
@@ -375,7 +395,8 @@ class StribeckFriction(Effect):
     )
 
     @classmethod
-    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
+                 external: np.ndarray | None = None) -> np.ndarray:
         w = qvel[..., t.dofs] / v["velocity"]
         return v["static"] * np.exp(-w * w)
 
@@ -383,12 +404,33 @@ class StribeckFriction(Effect):
 class LoadDependentFriction(Effect):
     name = "load_dependent_friction"
     kind = "friction"
-    doc = "gearbox friction growing with transmitted torque: extra = mu * |tau_motor|"
+    doc = "gearbox friction growing with the motor's torque: extra = mu * |tau_motor|"
     params = (Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05),)
 
     @classmethod
-    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
+                 external: np.ndarray | None = None) -> np.ndarray:
         return v["mu"] * np.abs(force[..., t.actuators])
+
+
+class GearboxFriction(Effect):
+    name = "gearbox_friction"
+    kind = "friction"
+    doc = ("gear-train friction growing with the torque the gears carry: extra = mu * "
+           "|tau_motor - tau_ext|, tau_ext the external (gravity) torque on the joint; unlike "
+           "load_dependent_friction it acts when the load back-drives the servo with the torque "
+           "off (BAM's load-dependent model M3)")
+    # Rhoban/bam docs (theory) and bam/model.py: a friction budget share of the "gearbox
+    # torque" |tau_ext - tau_motor|.
+    params = (Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05),)
+
+    @classmethod
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
+                 external: np.ndarray | None = None) -> np.ndarray:
+        gear = force[..., t.actuators]
+        if external is not None:
+            gear = gear - external[..., t.dofs]
+        return v["mu"] * np.abs(gear)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -423,6 +465,24 @@ class ActionNoise(Effect):
     def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
                 rng: np.random.Generator) -> np.ndarray:
         return goal + rng.normal(size=goal.shape) * v["std"]
+
+
+class MountingOffset(Effect):
+    name = "mounting_offset"
+    kind = "calibration"
+    doc = ("the servo's encoder zero is off the model's joint zero: the servo reads and holds "
+           "q + offset (a horn mounted off by that angle, a tilted bench; BAM's q_offset)")
+    params = (Param("offset", 0.0, -0.3, 0.3, "rad", (-0.03, 0.03)),)
+
+    @classmethod
+    def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
+                rng: np.random.Generator) -> np.ndarray:
+        return goal - v["offset"]
+
+    @classmethod
+    def observe(cls, t: Targets, v: Values, q: np.ndarray,
+                rng: np.random.Generator) -> np.ndarray:
+        return q + v["offset"]
 
 
 class PositionOffset(Effect):
@@ -524,8 +584,10 @@ EFFECTS: dict[str, type[Effect]] = {
     e.name: e
     for e in (
         Latency, Backlash, CoulombFriction, StribeckFriction, LoadDependentFriction,
-        ViscousDamping, GainError, TorqueLimit, VelocityLimit, PositionOffset, InertiaError,
-        MassError, ThermalDerating, VoltageSag, ObservationNoise, ActionNoise, Quantization,
+        GearboxFriction,
+        ViscousDamping, GainError, TorqueLimit, VelocityLimit, MotorStrength, PositionOffset,
+        MountingOffset, InertiaError, MassError, ThermalDerating, VoltageSag, ObservationNoise,
+        ActionNoise, Quantization,
     )
 }
 

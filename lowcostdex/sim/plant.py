@@ -12,7 +12,8 @@ Order inside one control step (``step``):
   2. exogenous effects rescale the servo gains from measured channels (temperature, voltage);
   3. physics advances ``nstep`` substeps: natively (``mj_step(nstep)``) unless a friction effect
      needs its state-dependent level written every substep.
-Observation effects (offset, noise, quantization) apply in ``measured_qpos``.
+Observation effects (offset, noise, quantization) apply in ``measured_qpos``; calibration effects
+(the servo's encoder frame shifted from the joint's) map the goal in step 1 and the reading there.
 """
 
 from __future__ import annotations
@@ -235,7 +236,7 @@ class _PlantBase:
         """Apply command effects to a full goal vector (..., nu) [rad]; returns ctrl."""
         ctrl = np.array(goal, dtype=float, copy=True)
         for b in self._bound:
-            if b.cls.kind == "command":
+            if b.cls.kind in ("command", "calibration"):
                 a = b.targets.actuators
                 key_state = {k[len(b.cls.name) + 1:]: v for k, v in self._state.items()
                              if k.startswith(b.cls.name + ":")}
@@ -262,19 +263,21 @@ class _PlantBase:
         self._mask_controller(gain)
         self.array("actuator_gainprm")[...] = gain
 
-    def _friction_level(self, qvel: np.ndarray, force: np.ndarray) -> np.ndarray:
+    def _friction_level(self, qvel: np.ndarray, force: np.ndarray,
+                        external: np.ndarray | None = None) -> np.ndarray:
         level = np.array(self._static_friction, copy=True)
         for b in self._bound:
             if b.cls.kind == "friction":
                 d = b.targets.dofs
-                level[..., d] = level[..., d] + b.cls.friction(b.targets, b.values, qvel, force)
+                level[..., d] = level[..., d] + b.cls.friction(b.targets, b.values, qvel, force,
+                                                               external)
         return level
 
     def measured_qpos(self, qpos: np.ndarray | None = None) -> np.ndarray:
         """qpos as the encoders report it: observation effects applied (..., nq)."""
         q = np.array(self.qpos if qpos is None else qpos, dtype=float, copy=True)
         for b in self._bound:
-            if b.cls.kind == "observation":
+            if b.cls.kind in ("observation", "calibration"):
                 ad = b.targets.qpos
                 q[..., ad] = b.cls.observe(b.targets, b.values, q[..., ad], self.rng)
         return q
@@ -294,7 +297,8 @@ class _PlantBase:
         if self._has_friction:
             fl = self.array("dof_frictionloss")
             for _ in range(nstep):
-                fl[...] = self._friction_level(self.qvel, self.actuator_force)
+                fl[...] = self._friction_level(self.qvel, self.actuator_force,
+                                               -self.qfrc_bias)
                 self._advance(1)
         else:
             self._advance(nstep)
@@ -349,6 +353,10 @@ class Plant(_PlantBase):
     @property
     def actuator_force(self) -> np.ndarray:
         return self.data.actuator_force
+
+    @property
+    def qfrc_bias(self) -> np.ndarray:
+        return self.data.qfrc_bias
 
     @property
     def time(self) -> float:
@@ -409,7 +417,7 @@ class BatchPlant(_PlantBase):
         self.nsim = nsim
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._views = {n: self.batch.bind(n) for n in ("qpos", "qvel", "ctrl", "act", "time",
-                                                       "actuator_force", "history")}
+                                                       "actuator_force", "qfrc_bias", "history")}
         self._init_effects()
         self.set_effects(effects)
         self.batch.forward()
@@ -439,6 +447,10 @@ class BatchPlant(_PlantBase):
     @property
     def actuator_force(self) -> np.ndarray:
         return self._views["actuator_force"]
+
+    @property
+    def qfrc_bias(self) -> np.ndarray:
+        return self._views["qfrc_bias"]
 
     @property
     def act(self) -> np.ndarray:

@@ -98,7 +98,7 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
         lo = max(lo, -float(ctx.damping[j]))
     elif (name, param) == ("coulomb_friction", "frictionloss"):
         hi = min(hi, float(ctx.stall[j]))
-    elif (name, param) == ("load_dependent_friction", "mu"):
+    elif name == "load_dependent_friction":
         hi = 0.9  # plastic gear trains reach ~0.46 (BAM's XL330 fit); friction < torque
     elif (name, param) == ("torque_limit", "torque"):
         peak = float(max(ctx.peak_force[j], 2 * lo))
@@ -106,7 +106,7 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
         start = 0.5 * peak
         extra = tuple(f * peak for f in extra)
         log = True
-    elif (name, param) == ("position_offset", "offset"):
+    elif param == "offset":
         fd = 1e-4
     if log:
         fd = 1e-3

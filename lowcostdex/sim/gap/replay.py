@@ -279,10 +279,10 @@ def _fill(col: Column, union: Sequence[tuple[str, tuple[str, ...]]]) -> list[App
 
 
 def _offset(col: Column, joints: Sequence[str]) -> np.ndarray:
-    """Sum of position offsets per measured joint in a column [rad]."""
+    """Sum of reading offsets (position and mounting offsets) per measured joint [rad]."""
     out = np.zeros(len(joints))
     for e in col:
-        if e.name == "position_offset":
+        if e.name in ("position_offset", "mounting_offset"):
             for j, v in zip(e.joints, e.values["offset"], strict=True):
                 if j in joints:
                     out[list(joints).index(j)] += v
