@@ -176,7 +176,7 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
     random, bc = t.get("random", {}), t.get("bc", {})
     parts = [compare(random, bc, "The demonstrations (behaviour clone vs random actions)"),
              compare(bc, t["dapg"], "RL fine-tuning (DAPG vs the clone it started from)"),
-             compare(t["npg"], t["dapg"], "Demonstrations in RL (DAPG vs NPG at the same "
+             compare(t["npg"], t["dapg"], "demonstrations in RL (DAPG vs NPG at the same "
                      "sample budget)")]
     text = "; ".join(parts) + "."
     if (ci(bc) and ci(t["dapg"]) and bc["eval_successes"] == bc["eval_episodes"]
