@@ -213,3 +213,22 @@ def test_robot_config_boundaries():
                 dict(motion_reference="previous")):
         with pytest.raises(ConfigError):
             RobotConfig(**bad)
+
+
+def test_config_errors_name_the_field_and_small_positive_values_pass():
+    """The messages a user reads name what to fix (message-dropping mutants survived before);
+    sub-second poll intervals and pauses are valid."""
+    ThermalConfig(poll_interval=0.01, max_pause=0.5)
+    CurrentConfig(fraction=0.001, relaxed_step=0.001)
+    with pytest.raises(ConfigError, match="pause mode.*'torque_off'"):
+        ThermalConfig(pause_mode="freeze")
+    with pytest.raises(ConfigError, match="resume_margin > warn_margin > critical_margin"):
+        ThermalConfig(warn_margin=40.0)
+    with pytest.raises(ConfigError, match="poll_interval and max_pause"):
+        ThermalConfig(max_pause=-1.0)
+    with pytest.raises(ConfigError, match="limit must be > 0"):
+        CurrentConfig(limit=-1.0)
+    with pytest.raises(ConfigError, match=r"fraction must be in \(0, 1\]"):
+        CurrentConfig(fraction=2.0)
+    with pytest.raises(ConfigError, match="window, relax_steps >= 1"):
+        CurrentConfig(window=0)
