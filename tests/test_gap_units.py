@@ -47,8 +47,10 @@ def test_zoh_holds_the_last_written_value_and_never_interpolates():
     np.testing.assert_array_equal(zoh(t_src, two, np.array([0.15]))[0], [2.0, -2.0])
 
 
-def test_replay_switches_goals_at_the_nearest_physics_step():
-    # goals logged at jittered times switch at round(t / dt): jitter below dt / 2 costs nothing
+def test_replay_goals_act_from_their_instant_and_channels_switch_at_the_nearest_step():
+    # goals logged at jittered times hold from their instant: each physics step's ctrl is the
+    # mean goal over the step (fine integration of the held goals); channel rows (current,
+    # voltage, ...) switch at round(t / dt)
     ds = _tiny_dataset()
     rep = Replayer(ds)
     w = Window(0, 0, len(ds.trajectories[0]), 0)
@@ -58,8 +60,10 @@ def test_replay_switches_goals_at_the_nearest_physics_step():
     switch = np.round(t / rep.dt).astype(int)
     for i in (3, 10, 17):
         assert g.rows[switch[i]] == i and g.rows[switch[i] - 1] == i - 1
-        np.testing.assert_array_equal(g.goals[switch[i]], tr.goal[i])
-        np.testing.assert_array_equal(g.goals[switch[i] - 1], tr.goal[i - 1])
+    fine = (np.arange(g.n_steps * 200) + 0.5) * rep.dt / 200
+    held = tr.goal[np.maximum(np.searchsorted(t, fine, side="right") - 1, 0)]
+    expect = held.reshape(g.n_steps, 200, -1).mean(axis=1)
+    np.testing.assert_allclose(g.goals, expect, atol=1e-2 * np.ptp(tr.goal))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -457,3 +461,21 @@ def test_plant_reset_with_ctrl_history_continues_a_delayed_servo_exactly():
             out.append(float(p.qpos[0]))
     np.testing.assert_allclose(qb, qa, atol=1e-12)
     assert np.max(np.abs(np.array(qc) - qa)) > 1e-3
+
+
+def test_goals_act_at_their_instant_inside_a_physics_step():
+    from lowcostdex.sim.gap.replay import _single_switches, _step_means
+
+    # goals held from u = 0, 1.3, 1.6, 4.0 steps: the mean over each step, by fine integration
+    u = np.array([0.0, 1.3, 1.6, 4.0])
+    v = np.array([[1.0], [2.0], [3.0], [4.0]])
+    fine = np.arange(0, 6, 1e-4) + 5e-5
+    held = v[np.searchsorted(u, fine, side="right") - 1, 0]
+    expect = held.reshape(6, -1).mean(axis=1)
+    np.testing.assert_allclose(_step_means(u, v, np.array([0.0]), 6)[:, 0], expect, atol=1e-3)
+    split, before, after = _single_switches(u, v, np.array([0.0]), 6)
+    # step 1 holds two switches (mean only); no step switches inside steps 0, 2, 3, 5
+    assert np.isnan(split).all()
+    split, before, after = _single_switches(np.array([0.0, 2.25]), v[:2], np.array([0.0]), 4)
+    assert split[2] == pytest.approx(0.25) and np.isnan(split[[0, 1, 3]]).all()
+    assert before[2, 0] == 1.0 and after[2, 0] == 2.0

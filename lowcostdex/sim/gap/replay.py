@@ -4,9 +4,11 @@
 list of ``AppliedEffect`` (a candidate model with parameter values), in ``BatchPlant``s stepped
 together at the physics timestep:
 
-* commands are zero-order held on the physics grid; a goal logged at t_i takes effect at the grid
-  step nearest to t_i (rounding, so timestamp jitter below dt/2 costs nothing) and is never
-  interpolated (sysid trap 4);
+* commands are zero-order held in continuous time (never interpolated, sysid trap 4) and take
+  effect at their instant (``goal_time``, else ``time``): the ctrl of each physics step is the
+  mean of the goals in force during it, so a goal written 0.3 steps into a step drives the servo
+  for 0.7 of it (position servos are linear in ctrl: the same impulse as switching mid-step;
+  rounding to the nearest step instead biased replays of jittered logs by up to dt/2);
 * each window starts from the measured state at its first sample (multiple shooting when windows
   are short segments, open loop when a window is a whole episode); the servo's setpoint before the
   window is the goal in force just before it, or, with backlash, the play operator's state after
@@ -42,6 +44,9 @@ class _Grid:
     rows: np.ndarray  # (K,) log row of the channels (current, voltage, ...) during grid step k
     frac: np.ndarray  # (n,) fractional grid position of each sample of the window
     prev_goal: np.ndarray  # (na,) goal in force just before the window
+    split: np.ndarray  # (K,) fraction of step k before its one goal switch (NaN: none or several)
+    before: np.ndarray  # (K, na) goal before that switch
+    after: np.ndarray  # (K, na) goal after it
 
 
 class Replayer:
@@ -103,11 +108,72 @@ class Replayer:
                 prev = tr.qpos[0, [tr.joints.index(a) for a in tr.actuators]]
             else:
                 prev = tr.goal[0]
-            goals = np.vstack([prev, tr.goal[w.start:w.stop]])[sel + 1]
+            u = (tr.goal_times[w.start:w.stop] - tr.time[w.start]) / self.dt
+            goals = _step_means(u, tr.goal[w.start:w.stop], prev, n_steps)
+            split, before, after = _single_switches(u, tr.goal[w.start:w.stop], prev, n_steps)
             rows = np.maximum(w.start + sel, 0)
-            g = _Grid(n_steps, goals, rows, frac, prev)
+            g = _Grid(n_steps, goals, rows, frac, prev, split, before, after)
             self._grids[w] = g
         return g
+
+    def _position_servos(self, key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fixed-gain position servos among the logged actuators: (their columns in the log's
+        actuator list, model actuator ids, qpos and dof addresses of the joints they drive)."""
+        cache = self.__dict__.setdefault("_pos_servos", {})
+        if key not in cache:
+            m = self.models[key]
+            cols, acts, qadr, dadr = [], [], [], []
+            for col, a in enumerate(self._act_idx[key]):
+                kp = float(m.actuator_gainprm[a, 0])
+                if (m.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+                        and m.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE
+                        and m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
+                        and kp > 0 and m.actuator_biasprm[a, 1] == -kp
+                        and m.actuator_biasprm[a, 0] == 0 and m.actuator_gear[a, 0] == 1):
+                    jid = int(m.actuator_trnid[a, 0])
+                    cols.append(col)
+                    acts.append(int(a))
+                    qadr.append(int(m.jnt_qposadr[jid]))
+                    dadr.append(int(m.jnt_dofadr[jid]))
+            cache[key] = (np.array(cols, int), np.array(acts, int),
+                          np.array(qadr, int), np.array(dadr, int))
+        return cache[key]
+
+    def _match_saturation(self, run: dict, k: int, goal: np.ndarray) -> None:
+        """Where a position servo saturates in the step holding a goal switch, give it the mean
+        *force* of the old and new goals instead of the force of the mean goal, in place.
+
+        A goal written a fraction ``a`` into a step drives the servo with the old goal for
+        ``a`` of it and the new one for the rest. In the linear range the mean goal gives the
+        same impulse; when the new goal saturates the force (a large step), the mean goal
+        saturates it for the whole step, a systematic lead that a torque limit would then
+        "explain". Forces are those of the simulation's state and its (effect-modified) kp,
+        kv and force range at the step's start (servos with an actuator delay keep the mean
+        goal: they act on it later, from another state).
+        """
+        cols, acts, qadr, dadr = run["servos"]
+        split = run["split"][:, k]
+        sims = np.flatnonzero(np.isfinite(split))
+        if not len(cols) or not len(sims):
+            return
+        plant = run["plant"]
+        a = split[sims, None]
+        kp = plant.array("actuator_gainprm")[sims[:, None], acts, 0]
+        kv = -plant.array("actuator_biasprm")[sims[:, None], acts, 2]
+        rng_ = plant.array("actuator_forcerange")[sims[:, None], acts]
+        lim = plant.array("actuator_forcelimited")[sims[:, None], acts] > 0
+        lo, hi = np.where(lim, rng_[..., 0], -np.inf), np.where(lim, rng_[..., 1], np.inf)
+        q, qd = plant.qpos[sims[:, None], qadr], plant.qvel[sims[:, None], dadr]
+        f_old = np.clip(kp * (run["before"][sims, k][:, cols] - q) - kv * qd, lo, hi)
+        f_new = np.clip(kp * (run["after"][sims, k][:, cols] - q) - kv * qd, lo, hi)
+        f_mean = a * f_old + (1 - a) * f_new
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = q + (f_mean + kv * qd) / kp
+        # a delayed servo reads this ctrl later, in another state: it keeps the mean goal
+        delayed = plant.array("actuator_delay")[sims[:, None], acts] > 0
+        live = np.isfinite(c) & (kp > 0) & ~delayed
+        cur = goal[sims[:, None], acts]
+        goal[sims[:, None], acts] = np.where(live, c, cur)
 
     # ------------------------------------------------------------------------------------------
     def run(self, windows: Sequence[Window], columns: Sequence[Column],
@@ -175,6 +241,8 @@ class Replayer:
         ctrl = np.zeros((nsim, model.nu))
         rows = np.zeros((nsim, n_steps), dtype=int)
         goals = np.zeros((nsim, n_steps, len(act)))
+        split = np.full((nsim, n_steps), np.nan)
+        before, after = np.zeros_like(goals), np.zeros_like(goals)
         traj_of = np.array([windows[wi].traj for _, wi in sims])
         for s, ((c, wi), g) in enumerate(zip(sims, grids, strict=True)):
             w = windows[wi]
@@ -184,6 +252,8 @@ class Replayer:
             ctrl[s, act] = g.prev_goal
             rows[s, :g.n_steps], rows[s, g.n_steps:] = g.rows, g.rows[-1]
             goals[s, :g.n_steps], goals[s, g.n_steps:] = g.goals, g.goals[-1]
+            split[s, :g.n_steps] = g.split
+            before[s, :g.n_steps], after[s, :g.n_steps] = g.before, g.after
         played = _init_backlash(ctrl, act, self._act_of_joint[model_key], sims, windows,
                                 columns, ds)
         plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
@@ -201,6 +271,8 @@ class Replayer:
                            else np.ones((len(gi), len(act)), bool)
                            for t, gi in zip(traj_of, rows, strict=True)])
         run = dict(plant=plant, sims=sims, n_steps=n_steps, act=act, jq=jq, goals=goals,
+                   split=split, before=before, after=after,
+                   servos=self._position_servos(model_key),
                    chans=chans, te=te, full_goal=np.array(ctrl),
                    full_chans={ch: np.zeros_like(ctrl) for ch in chans},
                    record=np.empty((nsim, n_steps + 1, len(jq))),
@@ -254,6 +326,7 @@ class Replayer:
         act = run["act"]
         goal = run["full_goal"]
         goal[:, act] = run["goals"][:, k]
+        self._match_saturation(run, k, goal)
         channels = None
         if run["chans"]:
             channels = run["full_chans"]
@@ -263,6 +336,60 @@ class Replayer:
             self._set_torque(run, k)
         plant.step(goal, 1, channels)
         self.steps_run += plant.nsim
+
+
+def _step_means(u: np.ndarray, values: np.ndarray, before: np.ndarray, n_steps: int
+                ) -> np.ndarray:
+    """Mean of a zero-order-held signal over each physics step.
+
+    Args:
+      u: (n,) increasing switch instants in steps (>= 0): ``values[i]`` holds from ``u[i]``.
+      values: (n, k) values.
+      before: (k,) value before ``u[0]``.
+      n_steps: steps [k, k + 1) to average, k = 0 .. n_steps - 1.
+    Returns:
+      (n_steps, k) step means.
+    """
+    u = np.asarray(u, float)
+    v = np.asarray(values, float)
+    before = np.asarray(before, float)
+    # integral of the signal from 0 to each switch instant
+    c = np.empty_like(v)
+    c[0] = before * u[0]
+    if len(u) > 1:
+        c[1:] = c[0] + np.cumsum(v[:-1] * np.diff(u)[:, None], axis=0)
+    x = np.arange(n_steps + 1, dtype=float)
+    i = np.searchsorted(u, x, side="right") - 1
+    ii = np.maximum(i, 0)
+    integral = np.where((i >= 0)[:, None], c[ii] + v[ii] * (x - u[ii])[:, None],
+                        before[None, :] * x[:, None])
+    return np.diff(integral, axis=0)
+
+
+def _single_switches(u: np.ndarray, values: np.ndarray, before: np.ndarray, n_steps: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps holding exactly one goal switch strictly inside them.
+
+    Args: as ``_step_means``.
+    Returns:
+      (split (n_steps,) fraction of the step before the switch, NaN elsewhere; the goal before
+      and after the switch, (n_steps, k) each).
+    """
+    u = np.asarray(u, float)
+    v = np.asarray(values, float)
+    split = np.full(n_steps, np.nan)
+    old = np.zeros((n_steps, v.shape[1]))
+    new = np.zeros((n_steps, v.shape[1]))
+    k = np.floor(u).astype(int)
+    frac = u - k
+    one = (k >= 0) & (k < n_steps) & (frac > 0)
+    one[1:] &= k[1:] != k[:-1]
+    one[:-1] &= k[:-1] != k[1:]
+    i = np.flatnonzero(one)
+    split[k[i]] = frac[i]
+    old[k[i]] = np.vstack([before[None, :], v])[i]
+    new[k[i]] = v[i]
+    return split, old, new
 
 
 def _union(cols: Sequence[Column]) -> list[tuple[str, tuple[str, ...]]]:
