@@ -236,3 +236,31 @@ def test_sim_training_with_the_vector_sampler_is_independent_of_num_envs(tmp_pat
     _assert_same_metrics(_metrics(tmp_path / "vec2"), _metrics(tmp_path / "vec4"))
     m = _metrics(tmp_path / "vec2")
     assert m["samples"].tolist() == [160, 320] and np.all(m["goal_error_final"] > 0)
+
+
+def test_an_update_that_produces_nan_stops_the_run_with_a_message(tmp_path, monkeypatch):
+    """Issue 12: a step that blows the policy up (e.g. a huge finite step size) stops the run
+    with one message; the checkpoints before it stay loadable and finite."""
+    import torch
+
+    from lowcostdex.algos import train as train_module
+
+    real = train_module.npg_update
+
+    def blow_up(policy, *args, **kw):
+        stats = real(policy, *args, **kw)
+        if blow_up.calls == 2:
+            with torch.no_grad():
+                next(iter(policy.parameters())).fill_(float("nan"))
+        blow_up.calls += 1
+        return stats
+
+    blow_up.calls = 0
+    monkeypatch.setattr(train_module, "npg_update", blow_up)
+    with pytest.raises(train_module.TrainingDiverged, match="iteration 2.*non-finite"):
+        train(_config(n_iter=4, eval_every=0), tmp_path / "run", env_factory=make_pointmass)
+    files = sorted((tmp_path / "run" / ex.CHECKPOINT_DIR).glob("ckpt_*.pt"))
+    assert files and files[-1].name == "ckpt_000001.pt"       # nothing from iteration 2 on
+    state = ex.load_state(files[-1])
+    flat = torch.cat([v.reshape(-1) for v in state["policy"]["state_dict"].values()])
+    assert torch.isfinite(flat).all()

@@ -61,7 +61,7 @@ from lowcostdex.algos.samplers import (
     VectorSampler,
     make_jobs,
 )
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, LowcostdexError
 
 ROBOT_COUNTERS = (
     "resets",
@@ -263,10 +263,29 @@ def _restore(state: _State, ckpt: ex.Checkpoint) -> None:
         state.best.load_state(ckpt.state.get("best"))
 
 
+class TrainingDiverged(LowcostdexError):
+    """An update produced non-finite policy parameters (the run stops; nothing is overwritten)."""
+
+
 def _update(
     config: TrainConfig, state: _State, batch: Batch, demos: Demos | None, k: int
 ) -> dict[str, float]:
     gen = seed_generator(config.seed, _UPDATE, k)
+    before = torch.nn.utils.parameters_to_vector(state.policy.parameters()).detach().clone()
+    stats = _step(config, state, batch, demos, k, gen)
+    after = torch.nn.utils.parameters_to_vector(state.policy.parameters())
+    if not bool(torch.isfinite(after).all()):
+        torch.nn.utils.vector_to_parameters(before, state.policy.parameters())
+        raise TrainingDiverged(
+            f"iteration {k}: the {config.algo} update produced non-finite policy parameters "
+            f"(step size {config.npg.step_size}, damping {config.npg.damping}); the policy "
+            "was restored and the run stopped; its checkpoints up to the previous iteration are "
+            "kept. Start a new run with a smaller --step-size or a larger --damping.")
+    return stats
+
+
+def _step(config: TrainConfig, state: _State, batch: Batch, demos: Demos | None, k: int,
+          gen: torch.Generator) -> dict[str, float]:
     if config.algo == "dapg":
         assert demos is not None
         stats = dapg_update(
