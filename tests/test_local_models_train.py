@@ -322,3 +322,20 @@ def test_tvlg_demo_script_runs(tmp_path, monkeypatch, capsys) -> None:
     out = capsys.readouterr().out
     assert "held-out noisy success" in out and "noise-free replay" in out
     assert (tmp_path / "demo_short.h5").exists() and (tmp_path / "controller.npz").exists()
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(init_noise=float("nan")), r"init_noise=nan must be a finite number in \(0, inf\)"),
+    (dict(n_iter=0), r"n_iter=0 must be an integer in \[1, inf\)"),
+    (dict(solve_rate=0.0), r"solve_rate=0.0 must be a finite number in \(0, 1\]"),
+    (dict(pd_gain=-1.0), r"pd_gain=-1.0"),
+    (dict(seed=-1), r"seed=-1 must be an integer"),
+    (dict(eval_every=1.5), r"eval_every=1.5 must be an integer"),
+])
+def test_tvlg_config_numbers_are_checked(bad, message):
+    """Issue 12: NaN, out-of-range and fractional counts are refused with the valid range."""
+    from lowcostdex.algos.local_models.train import TVLGTrainConfig
+    from lowcostdex.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        TVLGTrainConfig(**bad)

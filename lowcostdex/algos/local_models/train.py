@@ -58,7 +58,7 @@ from lowcostdex.algos.samplers import (
     RolloutJob,
     control_period,
 )
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, check_number
 
 Array = NDArray[np.float64]
 BACKENDS = ("sim", "emulated", "hardware")
@@ -219,19 +219,18 @@ class TVLGTrainConfig:
         if self.init == "demos" and not self.demos:
             raise ConfigError("init 'demos' needs a demonstration file (--demos PATH)")
         for name in ("n_iter", "n_rollouts", "checkpoint_every", "teacher_episodes"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        if self.eval_every < 0 or self.eval_noisy_episodes < 0:
-            raise ConfigError("eval_every and eval_noisy_episodes must be >= 0")
-        if not 0 < self.solve_rate <= 1:
-            raise ConfigError(f"solve_rate={self.solve_rate} must be in (0, 1]")
+            check_number(name, getattr(self, name), 1, integer=True)
+        for name in ("eval_every", "eval_noisy_episodes", "seed"):
+            check_number(name, getattr(self, name), 0, integer=True)
+        check_number("solve_rate", self.solve_rate, 0, 1, low_open=True)
+        check_number("init_noise", self.init_noise, 0, low_open=True)
+        check_number("smooth_noise", self.smooth_noise, 0)
+        check_number("pd_gain", self.pd_gain, 0)
         if self.cost.hand_reference == "demo" and self.init not in ("teacher", "demos"):
             raise ConfigError(
                 "cost hand_reference 'demo' (--cost tracking) needs a demonstration: "
                 "init 'teacher' or 'demos'"
             )
-        if self.init_noise <= 0 or self.smooth_noise < 0 or self.pd_gain < 0:
-            raise ConfigError("init_noise must be > 0, smooth_noise and pd_gain >= 0")
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> TVLGTrainConfig:
