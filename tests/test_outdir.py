@@ -125,3 +125,19 @@ def test_record_log_keeps_earlier_recordings_and_refuses_a_users_folder(tmp_path
     (old,) = (logs / "previous").iterdir()
     assert (old / first[0]).read_bytes() == first_bytes
     assert sorted(p.name for p in logs.glob("*.csv")) == first
+
+
+def test_record_demos_refuses_a_non_demo_file_before_the_robot_moves(tmp_path, capsys):
+    import time
+
+    from lowcostdex.cli import main
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes")
+    t0 = time.perf_counter()
+    assert main(["record-demos", "--episodes", "1", "--out", str(notes)]) == 2
+    assert time.perf_counter() - t0 < 10          # refused up front, not after recording
+    assert "not an HDF5" in capsys.readouterr().err
+    assert notes.read_text() == "my notes"
+    assert main(["record-demos", "--episodes", "1", "--out", str(tmp_path)]) == 2
+    assert "is a folder" in capsys.readouterr().err

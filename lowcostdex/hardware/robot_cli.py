@@ -187,6 +187,27 @@ def _reset_test(args: argparse.Namespace) -> int:
     return 0 if stats.successes == stats.trials else 1
 
 
+def _check_demo_out(out: str, env_id: str) -> None:
+    """Refuse an ``--out`` that is not a demo file of ``env_id`` (a user's file, a folder,
+    another task's demos) before anything is recorded; a new path is fine."""
+    from pathlib import Path
+
+    from lowcostdex.demo_file import read_info
+    from lowcostdex.errors import InputError
+
+    path = Path(out)
+    if path.is_dir():
+        raise InputError(f"--out {path} is a folder; give an HDF5 file path (e.g. "
+                         f"{path / 'demos.h5'})")
+    if not path.parent.is_dir():
+        raise InputError(f"--out {path}: the folder {path.parent} does not exist")
+    if path.exists():
+        info = read_info(path)[0]  # raises, naming the file, when it is not a demo file
+        if info.env_id and info.env_id != env_id:
+            raise InputError(f"--out {path} holds demonstrations of {info.env_id}, not "
+                             f"{env_id}; it is left untouched (give a new file)")
+
+
 def _record_demos(args: argparse.Namespace) -> int:
     args.port = robot_port(args.backend, args.port)
     import gymnasium as gym
@@ -219,6 +240,7 @@ def _record_demos(args: argparse.Namespace) -> int:
         _check_dynamixel_port(args.port)
     register_envs()
     env_id, solver = tasks[args.task]
+    _check_demo_out(args.out, env_id)  # before the robot moves: the file is appended to
     console = Console(stderr=True)
     emulated = args.port == "emulated"
     if args.hand == "allegro":
