@@ -339,3 +339,35 @@ def test_tvlg_config_numbers_are_checked(bad, message):
 
     with pytest.raises(ConfigError, match=message):
         TVLGTrainConfig(**bad)
+
+
+def test_ctrl_c_saves_the_last_iteration_and_a_failed_start_leaves_nothing(tmp_path, monkeypatch):
+    """Issue 12 for `train tvlg`: Ctrl-C between checkpoints saves the iteration it finished
+    (resume continues from there); a start that fails before writing leaves no folder."""
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.local_models import train as tvlg_train
+
+    real = tvlg_train.tvlg_iteration
+    calls = {"n": 0}
+
+    def interrupt_third(*args, **kw):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kw)
+
+    monkeypatch.setattr(tvlg_train, "tvlg_iteration", interrupt_third)
+    with pytest.raises(ex.Interrupted) as caught:
+        train(_small(n_iter=4, checkpoint_every=10), tmp_path / "run")
+    assert caught.value.iteration == 1                      # iterations 0 and 1 finished
+    assert (tmp_path / "run" / ex.CHECKPOINT_DIR / "ckpt_000001.pt").exists()
+    monkeypatch.setattr(tvlg_train, "tvlg_iteration", real)
+    resumed = train(_small(n_iter=4, checkpoint_every=10), tmp_path / "run", resume=True)
+    assert resumed.read_metrics()[ex.ITERATION].tolist() == [0, 1, 2, 3]
+
+    def no_env():
+        raise ConfigError("no such robot")
+
+    with pytest.raises(ConfigError, match="no such robot"):
+        train(_small(), tmp_path / "failed", env_factory=no_env)
+    assert not (tmp_path / "failed").exists()

@@ -671,11 +671,14 @@ def train(
       env_factory: overrides the env built from ``config.env_id``/``backend``.
       stop_after: stop after this iteration index as if killed (tests of resume).
     """
-    run = ex.Run.open(
-        out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
-    )
-    env = (env_factory or default_env_factory(config))()
+    ex.Run.check(out_dir, dataclasses.asdict(config), resume=resume,
+                 mutable_keys=MUTABLE_ON_RESUME)
+    env = (env_factory or default_env_factory(config))()  # fails before anything is written
+    run: ex.Run | None = None
     try:
+        run = ex.Run.open(
+            out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
+        )
         ckpt = run.load_latest() if resume else None
         if ckpt is None:
             start = capture_start(env, config.seed, config.start_hand_qpos)
@@ -723,9 +726,15 @@ def train(
             demo_actions = None if saved is None else np.asarray(saved)
         cost = task_cost(env, start, hold, config.cost, T, x0.shape[0], demo_actions)
         _loop(config, run, env, state, cost, start, hold, demo_actions, counters, first, stop_after)
+    except BaseException as exc:  # Ctrl-C saves the last iteration; a failed start is undone
+        stopped = ex.stopped(run, exc, resume)
+        if stopped is exc:
+            raise
+        raise stopped from None
     finally:
         env.close()
-        run.close()
+        if run is not None:
+            run.close()
     return run
 
 
@@ -810,11 +819,14 @@ def _loop(
             }
         )
         run.log(row)
+        snapshot = {
+            "tvlg": state_to_arrays(state), "start": start.to_arrays(), "counters": counters,
+            "demo_actions": demo_actions,
+        }  # fmt: skip
         if k == last or (k + 1) % config.checkpoint_every == 0 or k == stop_after:
-            run.save_checkpoint(k, {
-                "tvlg": state_to_arrays(state), "start": start.to_arrays(), "counters": counters,
-                "demo_actions": demo_actions,
-            })  # fmt: skip
+            run.save_checkpoint(k, snapshot)
+        else:  # saved if Ctrl-C comes before the next checkpoint
+            run.keep_for_interrupt(k, snapshot)
         bar.update(1)
         bar.set_postfix(
             rollouts=counters["rollouts"], success=f"{row[ex.SUCCESS_RATE]:.2f}",
@@ -922,7 +934,7 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument("--eval-every", type=int, default=d.eval_every)
     p.add_argument("--no-progress", action="store_true")
-    p.set_defaults(func=_run_command)
+    p.set_defaults(func=_run_command, parser=p)
 
 
 def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
@@ -967,7 +979,12 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
 
 def _run_command(args: argparse.Namespace) -> int:
     config = config_from_args(args)
-    run = train(config, args.out, resume=args.resume)
+    try:
+        run = train(config, args.out, resume=args.resume)
+    except KeyboardInterrupt as exc:
+        from lowcostdex.algos.train_cli import _interrupted
+
+        return _interrupted(args, exc)
     metrics = run.read_metrics()
     print(f"run: {run.path}")
     print(f"curves: {run.path / ex.CURVES_FILE}")
