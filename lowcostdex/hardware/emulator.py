@@ -78,6 +78,7 @@ from lowcostdex.hardware.protocol import (
     Instruction,
     Packet,
     PacketReader,
+    Reply,
     baud_code,
     crc16,
     fast_status_packet,
@@ -155,20 +156,6 @@ class FaultConfig:
     @property
     def any(self) -> bool:
         return self.drop > 0 or self.corrupt > 0 or self.late > 0
-
-
-@dataclass(frozen=True)
-class Reply:
-    """A status packet on its way to the host: arrives (last byte) at bus time ``time`` [s];
-    ``seq`` keeps packets due at the same time in the order they were sent."""
-
-    time: float
-    data: bytes
-    late: bool = False
-    seq: int = 0
-
-    def __lt__(self, other: Reply) -> bool:
-        return (self.time, self.seq) < (other.time, other.seq)
 
 
 @dataclass(frozen=True)

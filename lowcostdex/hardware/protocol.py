@@ -23,6 +23,7 @@ import enum
 import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
@@ -342,3 +343,45 @@ def sync_read_bytes(n: int, length: int, fast: bool = False) -> tuple[int, int]:
 def sync_write_bytes(n: int, length: int) -> int:
     """Bytes on the wire of a sync write of ``length`` bytes to n ids."""
     return 14 + n * (1 + length)
+
+
+@dataclass(frozen=True)
+class Reply:
+    """A status packet on its way to the host: arrives (last byte) at bus time ``time`` [s];
+    ``seq`` keeps packets due at the same time in the order they were sent."""
+
+    time: float
+    data: bytes
+    late: bool = False
+    seq: int = 0
+
+    def __lt__(self, other: Reply) -> bool:
+        return (self.time, self.seq) < (other.time, other.seq)
+
+
+class WireDevice(Protocol):
+    """What a transport (the in-process port, the pty server) needs from the devices on the far
+    end of the wire. ``lowcostdex.hardware.emulator.EmulatedChain`` is one; the transports depend
+    on this interface, not on the emulator (no import circle between them).
+
+    Attributes:
+      clock: the bus clock (``now()``, ``virtual``, ``advance_to``).
+      wire_time: whether bytes take their time on the wire (``wire_time(n, baud)``).
+      baudrate: the devices' bit rate [bit/s].
+      hand: the hand spec the devices belong to (its ``name`` labels the port).
+      plant: the physics behind the devices (its ``model.opt.timestep`` paces a real-time server).
+    """
+
+    clock: Any
+    wire_time: bool
+    baudrate: int
+    hand: Any
+    plant: Any
+
+    def handle(self, data: bytes, t_in: float, baudrate: int | None = None) -> list[Reply]:
+        """The replies to the instruction bytes ``data`` that arrived at bus time ``t_in``."""
+        ...
+
+    def advance_to(self, t: float, max_steps: int | None = None) -> None:
+        """Run the devices and their physics up to bus time ``t`` [s]."""
+        ...

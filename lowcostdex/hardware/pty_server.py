@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING
 from lowcostdex.hardware.protocol import BAUD_CODES, wire_time
 
 if TYPE_CHECKING:
-    from lowcostdex.hardware.emulator import EmulatedChain, Reply
+    from lowcostdex.hardware.protocol import Reply, WireDevice
 
 _MAX_CATCHUP = 0.25  # [s] of physics a real-time loop may step in one go before skipping ahead
 _SPIN = 0.002  # [s] replies due sooner than this are timed by spinning, not by select()
@@ -58,7 +58,7 @@ class PtyServer:
         thread.
     """
 
-    def __init__(self, chain: EmulatedChain):
+    def __init__(self, chain: WireDevice):
         self.chain = chain
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)

@@ -31,7 +31,7 @@ from dynamixel_sdk import PortHandler
 from lowcostdex.hardware.protocol import wire_time
 
 if TYPE_CHECKING:
-    from lowcostdex.hardware.emulator import EmulatedChain, Reply
+    from lowcostdex.hardware.protocol import Reply, WireDevice
 
 SYSFS_USB_SERIAL = Path("/sys/bus/usb-serial/devices")
 _POLL = 1e-4  # [s] virtual time one empty poll costs when nothing is pending
@@ -80,7 +80,7 @@ class DxlPort(PortHandler):
 class EmulatedSerial:
     """The duck-typed pyserial object ``EmulatedPort`` installs; an ``EmulatedChain`` answers."""
 
-    def __init__(self, chain: EmulatedChain, port: EmulatedPort, baudrate: int):
+    def __init__(self, chain: WireDevice, port: EmulatedPort, baudrate: int):
         self.chain, self.port, self.baudrate = chain, port, baudrate
         self._pending: list[Reply] = []
         self._ready = bytearray()
@@ -145,7 +145,7 @@ class EmulatedPort(DxlPort):
       latency_ms: latency timer the SDK timeouts assume [ms].
     """
 
-    def __init__(self, chain: EmulatedChain, latency_ms: float = 1.0):
+    def __init__(self, chain: WireDevice, latency_ms: float = 1.0):
         super().__init__(f"emulated:{chain.hand.name}", latency_ms)
         self.chain = chain
 
