@@ -13,6 +13,25 @@ could not get beside it: over 20000 random finger poses the closest any finger g
 block over an edge. The table (0.4 m square) is wider than the fingers can push the block, so
 the block never falls off between resets.
 
+The valve differs from ROBEL's "valve3" (docs/hardware.md, "Where the D'Claw model differs from
+ROBEL's"; tests/test_dclaw_valve_reference.py computes ROBEL's side from its typed geometry):
+
+- Spoke phase (NOT on purpose, issue 18 open): ROBEL's spokes point at 0, 120, 240 deg at valve
+  angle 0 (the angle its motor-50 calibration reports, which this project copies); ours at -90, 30,
+  150 deg (``ValveGeometry.spoke_phase``). With ROBEL's phase the spokes sit midway between the
+  fingers and ``ValveTurnTeacher`` (sim/scripted.py) needs three strokes instead of two: its
+  randomized-dynamics success fell from 20/20 to 0/20 and the emulated recorder's playbacks from
+  12/12 to 5/12. A relay teacher (one finger pushes while the others return) held in simulation at
+  every phase but lost the playbacks (0/12 at ROBEL's phase, 3/12 at ours), so the phase stays
+  until a teacher holds at both.
+- Spoke/hub friction 1.0 (ROBEL 0.2): taken for rubber-coated spokes, not measured. The teacher
+  depends on it: at 0.2 its randomized-dynamics success falls from 20/20 to 0/20. Measure a real
+  valve before changing it.
+- Inertia about the hinge 4.1e-3 kg m^2, ROBEL's 2.0e-3 (+107 %): ROBEL's valve is solid at
+  water density (0.48 kg, 1.0e-3) plus armature 1e-3; ours is printed parts (0.09 kg, 1.5e-4) plus
+  armature 1e-3 plus the valve servo's reflected rotor inertia (3e-3, ``servo.add_servo``): the
+  released XH430 under the valve is back-driven through its gearbox, which ROBEL leaves out.
+
 Names: joints and actuators are the hand spec's (``ff_top`` ... ``th_bottom``); the valve hinge is
 ``valve`` with servo ``valve`` (motor id 50, torque off during episodes); the block is ``block``.
 Fingertip sites are ``<finger>_tip``.
@@ -68,6 +87,9 @@ class ValveGeometry:
       limited: a hinge range of +-2 pi (ROBEL's). Off by default: a valve on a servo turns
         freely, and a range lets a valve that overshot 180 deg end up parked against it, out of
         reach of the valve motor's reset.
+      spoke_phase: world direction of spoke 0 about the valve axis at valve angle 0 [rad, from
+        +x]; the others follow every 2 pi / spokes. ROBEL's is 0 (module docstring: ours stays
+        -pi/2 until the valve teacher works at ROBEL's phase).
     """
 
     spokes: int = 3
@@ -80,6 +102,7 @@ class ValveGeometry:
     solref: tuple[float, float] = (0.02, 1.0)
     solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
     limited: bool = False
+    spoke_phase: float = -math.pi / 2
 
 
 VALVE = ValveGeometry()
@@ -174,7 +197,7 @@ def _add_valve(spec: mujoco.MjSpec, g: ValveGeometry) -> None:
     station.add_geom(name="valve_motor_box", type=mujoco.mjtGeom.mjGEOM_BOX,
                      size=[0.01425, 0.02325, 0.017], pos=[0, 0, 0.027], mass=0.082,
                      rgba=[0.15, 0.15, 0.15, 1], group=GROUP_COLLISION)
-    valve = station.add_body(name="valve_body", pos=[0, 0, 0.048], quat=quat_euler(z=-math.pi / 2))
+    valve = station.add_body(name="valve_body", pos=[0, 0, 0.048])
     j = valve.add_joint(name="valve", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1])
     j.damping[0] = g.damping
     j.frictionloss = g.frictionloss
@@ -189,7 +212,7 @@ def _add_valve(spec: mujoco.MjSpec, g: ValveGeometry) -> None:
     valve.add_geom(name="valve_hub", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.02, 0.0275, 0],
                    pos=[0, 0, 0.027], mass=0.03, rgba=[0.8, 0.5, 0.2, 1], **contact)
     for k in range(g.spokes):
-        a = 2 * math.pi * k / g.spokes
+        a = g.spoke_phase + 2 * math.pi * k / g.spokes
         c = g.spoke_center
         valve.add_geom(
             name=f"valve_spoke{k}", type=mujoco.mjtGeom.mjGEOM_CAPSULE,
