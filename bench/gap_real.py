@@ -1,15 +1,24 @@
-"""Gap analysis on real servo logs (BAM pendulum benches), compared with BAM's own models.
+"""Real servo logs (BAM pendulum benches): our identified servo model against BAM's, BAM's measure.
 
-Reads the measured logs (never copied into the repository) from a folder given by --data or the
-environment variable LOWCOSTDEX_MEASURED_DATA (default ../shared/data/measured next to the
-repository); exits cleanly when it is absent. For each set it maps the BAM JSON logs onto the servo
-bench, runs the full analysis with BAM's train / held-out split, and prints what the nominal model
-gets wrong, the causes named, and held-out MAE before/after next to BAM's numbers from
-../shared/reference/08-bam-reference-errors.md (same logs, same error measure: mean over held-out
-logs of the per-log position MAE, open loop from the first measured state).
+Reads the measured logs (never copied into the repository) from --data, or the environment
+variable LOWCOSTDEX_MEASURED_DATA (or LOWCOSTDEX_MEASURED), default ../shared/data/measured next
+to the repository; exits cleanly when it is absent. For each set:
 
-    python bench/gap_real.py --out /tmp/gap_real          # all sets (about 10 min on 2 cores)
-    python bench/gap_real.py --sets rhoban-xl330          # one set
+* the logs are resampled onto BAM's 5 ms grid (``lowcostdex.sim.gap.bam_measure``, as
+  ``bam.process`` does) and mapped onto the servo bench (header mass, length, arm mass, kp, vin),
+  physics at BAM's 5 ms step;
+* the servo structure (``identify.servo_structure``: motor constants, armature, Coulomb, viscous,
+  gear friction with breakaway, mounting offset, measured supply voltage) is identified on the
+  training gains with ``identify.identify`` (whole logs, open loop);
+* the held-out gains are scored with BAM's measure (mean over logs of each log's position MAE,
+  open loop from the first grid state, torque-off parts included), per trajectory and per kp,
+  beside BAM's numbers on the same split, typed in from ../shared/reference/08-bam-reference-
+  errors.md (Rhoban/bam@1b5a1ce, bam.mae; '-' where the reference gives no number).
+
+    python bench/gap_real.py                       # all sets (a few minutes on 2 cores)
+    python bench/gap_real.py --sets rhoban-xl330   # one set
+    python bench/gap_real.py --effects gain_error velocity_limit ...   # another structure
+    python bench/gap_real.py --analyze             # also the automatic effect selection
 """
 
 from __future__ import annotations
@@ -22,62 +31,131 @@ from pathlib import Path
 
 import numpy as np
 
-from lowcostdex.sim.gap.analyze import GapConfig, analyze
+from lowcostdex.sim.gap import bam_measure as bm
 from lowcostdex.sim.gap.dataset import load_dataset
-from lowcostdex.sim.gap.report import summary, write_report
+from lowcostdex.sim.gap.identify import IdentifyConfig, breakdown, identify, servo_structure
 
-# name -> (folder, held-out kp values, BAM reference on the held-out logs [rad, mean per-log MAE])
+TRAJ = ("lift_and_drop", "sin_sin", "sin_time_square", "up_and_down")
+
+# BAM on the same held-out logs [rad], 08-bam-reference-errors.md: {label: (mean, {trajectory:
+# value}, {kp: value})}; empty dicts where section 2-4 give no breakdown for this split.
 SETS = {
-    "rhoban-xl330": ("rhoban-bam-xl330", (200, 800), {
-        "published M1": 0.0980, "published M3 (best published)": 0.0875,
-        "published M6": 0.0929, "BAM-fitted M1 (train kp 100, 400)": 0.0836,
-        "BAM-fitted M6 (train kp 100, 400)": 0.0599}),
-    "sts3032": ("qua-robotics-bam-sts3032", (8,), {
-        "published STS3215 M1, zero-shot": 0.2279, "BAM-fitted M1 (train kp 32)": 0.0425,
-        "BAM-fitted M4 (train kp 32)": 0.0297}),
-    "pham-xl330": ("pham-tuan-binh-bam-xl330", (400,), {
-        "published M1 (all 12 logs)": 0.0259, "published M3 (all 12 logs)": 0.0218}),
-    "sts3250": ("rhoban-bam-feetech-sts3250", None, {
-        "published STS3215 M1, zero-shot (all 4 logs)": 0.0695}),
+    "rhoban-xl330": dict(
+        folder="rhoban-bam-xl330", held_kp=(200, 800), bam={
+            # section 3 (held out kp 200, 800)
+            "BAM refit M6 (train kp 100, 400)": (0.0599, {}, {200: 0.029, 800: 0.091}),
+            "BAM refit M1 (train kp 100, 400)": (0.0836, {}, {200: 0.064, 800: 0.103}),
+            "BAM published M6": (0.0929, {}, {200: 0.062, 800: 0.124}),
+            "BAM published M3 (best published)": (0.0875, {}, {}),
+        }),
+    "sts3032": dict(
+        folder="qua-robotics-bam-sts3032", held_kp=(8,), bam={
+            # section 4 (train kp 32, held out kp 8); per trajectory in TRAJ order
+            "BAM refit M4 (train kp 32)": (0.0297, dict(zip(TRAJ, (0.039, 0.018, 0.044, 0.019),
+                                                            strict=True)), {8: 0.0297}),
+            "BAM refit M1 (train kp 32)": (0.0425, dict(zip(TRAJ, (0.040, 0.038, 0.046, 0.046),
+                                                            strict=True)), {8: 0.0425}),
+            "BAM STS3215 M1, zero-shot": (0.2279, {}, {8: 0.2279}),
+        }),
+    "pham-xl330": dict(
+        folder="pham-tuan-binh-bam-xl330", held_kp=(400,), bam={
+            # section 2 "per kp" column (published models, identified on Rhoban's own data:
+            # out of sample for this set)
+            "BAM published M3 (best)": (0.022, {}, {400: 0.022}),
+            "BAM published M4": (0.022, {}, {400: 0.022}),
+            "BAM published M1": (0.024, {}, {400: 0.024}),
+        }),
 }
 
 
 def data_root(arg: str | None) -> Path:
     if arg:
         return Path(arg)
-    env = os.environ.get("LOWCOSTDEX_MEASURED_DATA")
+    env = os.environ.get("LOWCOSTDEX_MEASURED_DATA") or os.environ.get("LOWCOSTDEX_MEASURED")
     if env:
         return Path(env)
     return Path(__file__).resolve().parents[2] / "shared" / "data" / "measured"
 
 
-def run_set(name: str, root: Path, out: Path | None, max_effects: int, seed: int) -> dict:
-    folder, held_kp, reference = SETS[name]
-    files = sorted((root / folder).glob("*.json"))
-    ds = load_dataset(files)
-    test = None
-    if held_kp is not None:
-        test = tuple(i for i, tr in enumerate(ds.trajectories) if int(tr.meta["kp"]) in held_kp)
-    cfg = GapConfig(test_logs=test, max_effects=max_effects, seed=seed)
+def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too: bool,
+            max_rounds: int) -> dict:
+    spec = SETS[name]
+    files = sorted((root / spec["folder"]).glob("*.json"))
     t0 = time.perf_counter()
-    res = analyze(ds, cfg)
+    ds = bm.grid_dataset(load_dataset(files, timestep=bm.BAM_DT))
+    kps = [int(tr.meta["kp"]) for tr in ds.trajectories]
+    test = [i for i, k in enumerate(kps) if k in spec["held_kp"]]
+    train = [i for i, k in enumerate(kps) if k not in spec["held_kp"]]
+    structure = tuple(effects) if effects else servo_structure(ds)
+    res = identify(ds, train, test, IdentifyConfig(effects=structure, max_rounds=max_rounds))
     wall = time.perf_counter() - t0
-    if out is not None:
-        write_report(res, out / name)
-    test_eps = [res.episodes[i] for i in res.split.test]
-    per_log = {"nominal": float(np.mean(res.baseline["per_episode_mae"])),
-               "extended": float(np.mean(res.extended["per_episode_mae"]))}
-    diag = {j: {k: d[k] for k in ("rmse", "bias", "lag_s", "corr_sign_velocity",
-                                  "corr_position", "hysteresis")}
-            for j, d in res.diagnostics.items()}
-    return {"set": name, "logs": len(files), "test_logs": len(test_eps), "wall_s": wall,
-            "verdict": res.verdict, "stop": res.stop_reason,
-            "causes": [{"effect": c.effect,
-                        "params": {p: d["value"] for p, d in c.params.items()},
-                        "heldout_rmse_after": c.heldout_rmse_after, "flags": c.flags}
-                       for c in res.causes],
-            "heldout_mae_per_log": per_log, "gain": res.gain.to_dict(),
-            "diagnostics": diag, "reference": reference, "summary": summary(res)}
+    out = {
+        "set": name, "logs": len(files), "train_kp": sorted({kps[i] for i in train}),
+        "test_kp": sorted(spec["held_kp"]), "structure": list(structure),
+        "wall_s": wall, "fit_s": res.fit_seconds, "rounds": res.rounds,
+        "params": res.params(), "at_bound": res.at_bound,
+        "ours": {
+            "identified": _summary(ds, res.identified_mae, test),
+            "nominal": _summary(ds, res.nominal_mae, test),
+            "identified (train logs)": {"mean": res.mean(train)},
+        },
+        "ablation": res.ablation,
+        "bam": {k: {"mean": v[0], "trajectory": v[1], "kp": v[2]} for k, v in
+                spec["bam"].items()},
+    }
+    if analyze_too:
+        from lowcostdex.sim.gap.analyze import GapConfig, analyze
+
+        a = analyze(ds, GapConfig(test_logs=tuple(test), max_effects=4, seed=0))
+        per = {a.episodes[i].traj: v for i, v in zip(a.split.test,
+                                                      a.extended["per_episode_mae"], strict=True)}
+        out["ours"]["automatic selection"] = _summary(ds, per, test)
+        out["analysis"] = {"verdict": a.verdict, "causes": [
+            {"effect": c.effect, "params": {p: d["value"] for p, d in c.params.items()}}
+            for c in a.causes]}
+    return out
+
+
+def _summary(ds, mae: dict[int, float], logs: list[int]) -> dict:
+    return {"mean": float(np.mean([mae[i] for i in logs])),
+            "trajectory": breakdown(ds, mae, logs, "trajectory"),
+            "kp": breakdown(ds, mae, logs, "kp")}
+
+
+def _fmt(v) -> str:
+    return "-" if v is None else f"{1e3 * v:.1f}"
+
+
+def table(r: dict) -> str:
+    kps = r["test_kp"]
+    head = ["model", "held-out", *TRAJ, *[f"kp {k}" for k in kps]]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = [(f"ours: {k}", v) for k, v in r["ours"].items() if "trajectory" in v]
+    rows += [(k, v) for k, v in r["bam"].items()]
+    for label, v in rows:
+        cells = [label, _fmt(v["mean"])]
+        cells += [_fmt(v["trajectory"].get(t)) for t in TRAJ]
+        cells += [_fmt(v["kp"].get(k)) for k in kps]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _print(r: dict) -> None:
+    print(f"\n=== {r['set']}: {r['logs']} logs, train kp {r['train_kp']}, held out kp "
+          f"{r['test_kp']}; fit {r['fit_s']:.0f} s ({r['rounds']} LM rounds), "
+          f"{r['wall_s']:.0f} s in all ===")
+    print("held-out MAE [mrad], BAM's measure (mean over logs of per-log MAE, 5 ms grid):")
+    print(table(r))
+    print(f"train logs: {1e3 * r['ours']['identified (train logs)']['mean']:.1f} mrad")
+    print("identified:", ", ".join(
+        f"{e} " + " ".join(f"{p}={v[0]:.4g}" for p, v in ps.items())
+        for e, ps in r["params"].items()))
+    if r["at_bound"]:
+        print("at a search bound:", ", ".join(r["at_bound"]))
+    print("held-out MAE without each effect (others kept) [mrad]:",
+          ", ".join(f"{k} {1e3 * v:.1f}" for k, v in r["ablation"].items()))
+    if "analysis" in r:
+        print("automatic selection:", r["analysis"]["verdict"])
 
 
 def main(argv=None) -> int:
@@ -85,9 +163,11 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=None, help="measured-data folder")
     ap.add_argument("--sets", nargs="+", default=list(SETS), choices=list(SETS))
-    ap.add_argument("--out", default=None, help="write each set's full report here")
-    ap.add_argument("--max-effects", type=int, default=4)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--effects", nargs="+", default=None,
+                    help="structure to identify (default: identify.servo_structure)")
+    ap.add_argument("--analyze", action="store_true",
+                    help="also run the automatic effect selection (gap analyze) on the split")
+    ap.add_argument("--max-rounds", type=int, default=30)
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     root = data_root(args.data)
@@ -95,29 +175,17 @@ def main(argv=None) -> int:
         print(f"measured data not found at {root}; set LOWCOSTDEX_MEASURED_DATA or --data "
               "(skipping)")
         return 0
-    out = Path(args.out) if args.out else None
     results = []
     for name in args.sets:
-        if not (root / SETS[name][0]).is_dir():
-            print(f"{name}: folder {SETS[name][0]} missing, skipped")
+        if not (root / SETS[name]["folder"]).is_dir():
+            print(f"{name}: folder {SETS[name]['folder']} missing, skipped")
             continue
-        r = run_set(name, root, out, args.max_effects, args.seed)
+        r = run_set(name, root, args.effects, args.analyze, args.max_rounds)
         results.append(r)
         _print(r)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=float))
     return 0
-
-
-def _print(r: dict) -> None:
-    m = r["heldout_mae_per_log"]
-    print(f"\n=== {r['set']}: {r['logs']} logs, {r['test_logs']} held out; "
-          f"{r['wall_s']:.0f} s ===")
-    print(r["summary"])
-    print(f"held-out MAE (mean per log): nominal {1e3 * m['nominal']:.1f} mrad -> extended "
-          f"{1e3 * m['extended']:.1f} mrad")
-    for label, v in r["reference"].items():
-        print(f"   BAM {label}: {1e3 * v:.1f} mrad")
 
 
 if __name__ == "__main__":

@@ -416,13 +416,20 @@ class LoadDependentFriction(Effect):
 class GearboxFriction(Effect):
     name = "gearbox_friction"
     kind = "friction"
-    doc = ("gear-train friction growing with the torque the gears carry: extra = mu * "
-           "|tau_motor - tau_ext|, tau_ext the external (gravity) torque on the joint; unlike "
-           "load_dependent_friction it acts when the load back-drives the servo with the torque "
-           "off (BAM's load-dependent model M3)")
-    # Rhoban/bam docs (theory) and bam/model.py: a friction budget share of the "gearbox
-    # torque" |tau_ext - tau_motor|.
-    params = (Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05),)
+    doc = ("gear-train friction growing with the torque the gears carry: extra = |tau_motor - "
+           "tau_ext| (mu + static exp(-(v / velocity)^2)), tau_ext the external (gravity) torque "
+           "on the joint; unlike load_dependent_friction it acts when the load back-drives the "
+           "servo with the torque off (BAM's load-dependent models M3, with Stribeck M4)")
+    # Rhoban/bam docs (theory) and bam/model.py: friction budget shares of the "gearbox torque"
+    # |tau_ext - tau_motor|, sliding and (Stribeck) at rest.
+    params = (
+        Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05,
+              doc="sliding friction per N m carried by the gears"),
+        Param("static", 0.0, 0.0, 1.0, "1", (0.0, 0.15),
+              doc="extra friction per N m carried at rest (breakaway)"),
+        Param("velocity", 0.5, 0.02, 5.0, "rad/s", (0.1, 1.0), start=0.5,
+              doc="Stribeck velocity of the breakaway share"),
+    )
 
     @classmethod
     def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
@@ -430,7 +437,8 @@ class GearboxFriction(Effect):
         gear = force[..., t.actuators]
         if external is not None:
             gear = gear - external[..., t.dofs]
-        return v["mu"] * np.abs(gear)
+        w = qvel[..., t.dofs] / v["velocity"]
+        return np.abs(gear) * (v["mu"] + v["static"] * np.exp(-w * w))
 
 
 # ------------------------------------------------------------------------------------------------
