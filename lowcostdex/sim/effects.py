@@ -207,7 +207,7 @@ class Latency(Effect):
     name = "latency"
     kind = "model"
     doc = "command latency: the servo sees the goal `delay` seconds late (native actuator delay)"
-    params = (Param("delay", 0.0, 0.0, 0.06, "s", (0.0, 0.03), start=0.01,
+    params = (Param("delay", 0.0, 0.0, 0.1, "s", (0.0, 0.03), start=0.01,
                     doc="goal-to-servo delay"),)
     fields = ("actuator_delay",)
 

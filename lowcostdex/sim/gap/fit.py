@@ -28,7 +28,7 @@ from lowcostdex.sim.effects import AppliedEffect, effect
 
 # Extra starts for non-convex parameters, as fractions of (value at start) or absolute values.
 _EXTRA_STARTS: dict[tuple[str, str], tuple[float, ...]] = {
-    ("latency", "delay"): (0.03,),
+    ("latency", "delay"): (0.03, 0.06),
     ("backlash", "width"): (0.004,),
     ("stribeck_friction", "velocity"): (0.05,),
     ("torque_limit", "torque"): (0.25,),  # x peak force
