@@ -39,6 +39,9 @@ from lowcostdex.sim.gap.replay import Replayer
 SERVO_STRUCTURE: tuple[str, ...] = (
     "velocity_limit", "motor_strength", "inertia_error", "coulomb_friction", "viscous_damping",
     "gearbox_friction", "mounting_offset")
+# Fitted in a second stage, from the first stage's optimum: the motor's constants and firmware
+# gain (they trade off against friction and inertia; alone first, the joint fit strays).
+STAGE_TWO = frozenset({"velocity_limit", "motor_strength", "gain_error", "torque_limit"})
 # A second start with a large breakaway share: stick-slip makes the cost flat around "no
 # breakaway", where the default start sits.
 BREAKAWAY_START = {("gearbox_friction", "static"): 0.3, ("gearbox_friction", "velocity"): 0.3}
@@ -59,6 +62,12 @@ class IdentifyConfig:
       effects: the structure to fit (effect names, fitted jointly on every effect joint).
       starts: extra start points besides the catalogue's: {(effect, param): value}, the other
         parameters at their catalogue start.
+      loss: "mse" (least squares) or "mae": after the least-squares stages, a polish of the
+        absolute error BAM scores, smoothed below ``delta`` (Charbonnier: sum of
+        2 (sqrt(r^2 + delta^2) - delta)) so that the Levenberg-Marquardt model of it holds;
+        from scratch that loss is too flat for LM, from the least-squares optimum it only
+        moves where it lowers the absolute error.
+      delta: [rad] the smoothing width of the "mae" loss.
       max_rounds: Levenberg-Marquardt rounds at most.
       rtol: stop when an accepted step lowers the cost by less than this fraction.
       nthread: simulation threads (0: all CPUs).
@@ -66,6 +75,8 @@ class IdentifyConfig:
 
     effects: tuple[str, ...] = SERVO_STRUCTURE
     starts: tuple[dict, ...] = (BREAKAWAY_START,)
+    loss: str = "mse"
+    delta: float = 0.005
     max_rounds: int = 30
     rtol: float = 1e-4
     nthread: int = 0
@@ -76,6 +87,10 @@ class IdentifyConfig:
         for name in self.effects:
             if name not in EFFECTS:
                 raise ConfigError(f"unknown effect {name!r}; valid: {sorted(EFFECTS)}")
+        if self.loss not in ("mse", "mae"):
+            raise ConfigError(f"unknown loss {self.loss!r}; valid: mse, mae")
+        if not self.delta > 0:
+            raise ConfigError("delta must be > 0 rad")
         if self.max_rounds < 1:
             raise ConfigError("max_rounds must be >= 1")
 
@@ -89,7 +104,8 @@ class Identified:
       train, test: log indices fitted on / held out.
       nominal_mae, identified_mae: {log index: MAE} of the nominal and identified models.
       ablation: effect name -> mean held-out MAE with that effect removed (others kept).
-      fit_seconds: wall time of the fit; rounds: LM rounds run; cost: final training cost.
+      fit_seconds: wall time of the fit; rounds: LM rounds run (all stages); cost: final
+        training cost.
       at_bound: "effect.param" of fitted values at a search bound (not at the null): the range
         is too narrow or the parameter stands in for something the structure lacks.
     """
@@ -144,30 +160,54 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     ctx = fitmod.Context(dt=ds.timestep, peak_force=_peak_force(rep, w_train, targets, m0),
                          stall=fitmod.stall_torque(m0, targets.actuators),
                          damping=m0.dof_damping[targets.dofs].copy())
-    structure = fitmod.Structure.build(config.effects, joints, ctx)
     weights = [1.0 / math.sqrt(ds.trajectories[w.traj].qpos.size) for w in w_train]
 
-    def residual(points):
+    def residual(points, absolute=False):
         pred, _ = rep.run(w_train, [s.to_effects(x) for s, x in points])
-        return [np.concatenate([(ds.trajectories[w.traj].qpos - p).ravel() * k
-                                for w, p, k in zip(w_train, col, weights, strict=True)])
-                for col in pred]
+        out = []
+        for col in pred:
+            parts = []
+            for w, p, k in zip(w_train, col, weights, strict=True):
+                r = (ds.trajectories[w.traj].qpos - p).ravel()
+                if absolute:
+                    # sum of r'^2 = sum of 2 (sqrt(r^2 + d^2) - d): |r| beyond d, smooth at 0
+                    d = config.delta
+                    r = np.sign(r) * np.sqrt(2.0 * (np.sqrt(r * r + d * d) - d))
+                parts.append(r * k)
+            out.append(np.concatenate(parts))
+        return out
 
-    starts = structure.starts()
-    for over in config.starts:
-        x = starts[0].copy()
-        for i, f in enumerate(structure.free):
-            if (f.effect, f.param) in over:
-                x[i] = float(np.clip(over[(f.effect, f.param)], f.lo, f.hi))
-        starts.append(x)
-    tracks = [fitmod.Track(structure, structure.u(x0), label=f"start{k}")
-              for k, x0 in enumerate(starts)]
     t0 = time.perf_counter()
-    fitmod.lockstep_lm(tracks, residual, config.max_rounds, rtol=config.rtol,
-                       on_round=lambda r, live: prog(f"LM round {r + 1} ({live} live)",
-                                                     0.9 * (r + 1) / config.max_rounds),
-                       prune=fitmod.prune_tracks)
-    best = min(tracks, key=lambda t: t.cost)
+    # stage 1: the motor constants held at their nominal values, stage 2: everything, from the
+    # stage-1 optimum as well as from the catalogue starts (the joint fit has local minima that
+    # the nested one avoids; with its optimum as a start the joint fit can only do better)
+    later = [n for n in config.effects if n in STAGE_TWO]
+    stages = [tuple(n for n in config.effects if n not in STAGE_TWO)] if later else []
+    stages = [st for st in stages if st] + [tuple(config.effects)]
+    best = None
+    rounds = 0
+    for k, names in enumerate(stages):
+        st = fitmod.Structure.build(names, joints, ctx)
+        starts = _starts(st, config.starts)
+        if best is not None:
+            starts.insert(0, st.values_from(best.effects()))
+        tracks = [fitmod.Track(st, st.u(x0), label=f"stage{k + 1}.start{j}")
+                  for j, x0 in enumerate(starts)]
+        frac = (k, len(stages))
+        fitmod.lockstep_lm(tracks, residual, config.max_rounds, rtol=config.rtol,
+                           on_round=lambda r, live, frac=frac: prog(
+                               f"stage {frac[0] + 1}/{frac[1]}: LM round {r + 1} ({live} live)",
+                               0.9 * (frac[0] + (r + 1) / config.max_rounds) / frac[1]),
+                           prune=fitmod.prune_tracks)
+        best = min(tracks, key=lambda t: t.cost)
+        rounds += max(t.rounds for t in tracks)
+    if config.loss == "mae":
+        prog("absolute-error polish", 0.9)
+        polished = fitmod.Track(best.structure, best.u.copy(), label="mae")
+        fitmod.lockstep_lm([polished], lambda pts: residual(pts, absolute=True),
+                           config.max_rounds, rtol=config.rtol)
+        best = polished
+        rounds += polished.rounds
     fit_s = time.perf_counter() - t0
     effects = best.effects()
     prog("scoring", 0.95)
@@ -180,13 +220,28 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     out = Identified(effects, train, test,
                      nominal_mae=dict(zip(logs, mae[0].tolist(), strict=True)),
                      identified_mae=dict(zip(logs, mae[1].tolist(), strict=True)),
-                     fit_seconds=fit_s, rounds=best.rounds, cost=best.cost,
+                     fit_seconds=fit_s, rounds=rounds, cost=best.cost,
                      at_bound=_at_bound(best))
     if test:
         k0 = len(train)
         out.ablation = {n: float(np.mean(mae[2 + i, k0:])) for i, n in enumerate(config.effects)}
     prog("done", 1.0)
     return out
+
+
+def _starts(st: fitmod.Structure, extra: Sequence[dict]) -> list[np.ndarray]:
+    """The structure's catalogue starts plus one per ``extra`` override."""
+    starts = st.starts()
+    for over in extra:
+        x = starts[0].copy()
+        hit = False
+        for i, f in enumerate(st.free):
+            if (f.effect, f.param) in over:
+                x[i] = float(np.clip(over[(f.effect, f.param)], f.lo, f.hi))
+                hit = True
+        if hit:
+            starts.append(x)
+    return starts
 
 
 def _at_bound(t: fitmod.Track) -> list[str]:
