@@ -534,6 +534,10 @@ def run(out: Path, size: Size, seeds: list[int], task_name: str, robot_seed: int
             t_eval += time.perf_counter() - t0
     wall["training"], wall["evaluation"] = t_train, t_eval
     wall["total"] = time.perf_counter() - t_start
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = usage.ru_utime + usage.ru_stime  # this process (the 2-core machine is shared)
 
     names = [r.name for r in robots]
     summary = summarize(rows, names)
@@ -545,12 +549,14 @@ def run(out: Path, size: Size, seeds: list[int], task_name: str, robot_seed: int
     info = {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(),
             "cpus": __import__("os").cpu_count(), "task": task.label(), "seeds": seeds,
             "robot_seed": robot_seed, "size": asdict(size),
-            "wall_seconds": {k: round(v, 1) for k, v in wall.items()}}
+            "wall_seconds": {k: round(v, 1) for k, v in wall.items()},
+            "cpu_seconds_this_invocation": round(cpu, 1)}
     write_json(out / "transfer.json", {"info": info, "rows": rows})
     text = "\n".join([f"# Transfer table: {title}", "", table, "",
                       "Identification (catalogue effects only; the MJCF perturbations and the "
                       "firmware imperfection have no catalogue name):", "", *truth, "",
-                      "Wall-clock [s]: " + ", ".join(f"{k} {v:.0f}" for k, v in wall.items())])
+                      "Wall-clock [s]: " + ", ".join(f"{k} {v:.0f}" for k, v in wall.items())
+                      + f" (pieces found done are not re-run); CPU of this invocation {cpu:.0f} s"])
     (out / "table.md").write_text(text + "\n")
     print(text, flush=True)
     return {"summary": summary, "rows": rows, "info": info, "figure": fig, "table": table}
