@@ -190,7 +190,8 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         st = fitmod.Structure.build(names, joints, ctx)
         starts = _starts(st, config.starts)
         if best is not None:
-            starts.insert(0, st.values_from(best.effects()))
+            # the previous optimum, and it with each extra start's overrides applied
+            starts = _starts(st, config.starts, base=st.values_from(best.effects())) + starts
         tracks = [fitmod.Track(st, st.u(x0), label=f"stage{k + 1}.start{j}")
                   for j, x0 in enumerate(starts)]
         frac = (k, len(stages))
@@ -229,9 +230,11 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     return out
 
 
-def _starts(st: fitmod.Structure, extra: Sequence[dict]) -> list[np.ndarray]:
-    """The structure's catalogue starts plus one per ``extra`` override."""
-    starts = st.starts()
+def _starts(st: fitmod.Structure, extra: Sequence[dict], base: np.ndarray | None = None
+            ) -> list[np.ndarray]:
+    """The structure's catalogue starts (or ``base`` alone) plus one per ``extra`` override
+    (applied to the first start)."""
+    starts = st.starts() if base is None else [np.asarray(base, float)]
     for over in extra:
         x = starts[0].copy()
         hit = False

@@ -1,0 +1,85 @@
+"""Servo identification mechanics (``lowcostdex.sim.gap.identify``): on bench logs simulated with
+known servo parameters it recovers them from the training logs and predicts the held-out ones;
+the split and the structure are checked. (The physics of each effect is checked against written
+out bench physics in tests/test_effects_servo.py; real logs in tests/test_gap_real.py.)"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.sim import servo
+from lowcostdex.sim.effects import AppliedEffect
+from lowcostdex.sim.gap.dataset import Dataset
+from lowcostdex.sim.gap.identify import IdentifyConfig, identify
+from lowcostdex.sim.gap.logs import Trajectory
+from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig, build_bench
+from lowcostdex.sim.plant import Plant
+
+DT = 0.005
+J = (BENCH_JOINT,)
+TRUTH = {"inertia_error": {"scale": 3.0}, "gearbox_friction": {"mu": 0.15},
+         "mounting_offset": {"offset": 0.03}}
+
+
+def _log(kp: int, kind: str) -> tuple[Trajectory, str]:
+    cfg = BenchConfig(motor="XL330-M288", mass=0.3, length=0.1, timestep=DT,
+                      gains=servo.ServoGains(position_p=kp, supply_voltage=7.4))
+    xml = build_bench(cfg).to_xml()
+    effects = [AppliedEffect(n, J, v) for n, v in TRUTH.items()]
+    plant = Plant(build_bench(cfg).compile(), effects)
+    t = np.arange(0.0, 3.0, DT)
+    if kind == "sin":
+        goal = 0.5 * np.pi * np.sin(2.0 * t) * np.minimum(t, 1.0)
+        on = np.ones_like(t)
+    else:  # lift and drop: up in 1.5 s, then the torque goes off
+        goal = -0.5 * np.pi * np.clip(t / 1.5, 0, 1) ** 2
+        on = (t < 1.5).astype(float)
+    plant.reset(qpos=np.array([0.0]), qvel=np.array([0.0]), ctrl=np.array([0.0]))
+    q, v = np.empty_like(t), np.empty_like(t)
+    for k in range(len(t)):
+        q[k] = plant.measured_qpos()[0]
+        v[k] = plant.qvel[0]
+        plant.set_torque_enabled([0], bool(on[k]))
+        plant.step(np.array([goal[k]]), 1)
+    tr = Trajectory(f"{kind}_kp{kp}", t, goal[:, None], q[:, None], J, J, qvel=v[:, None],
+                    channels={"torque_enable": on[:, None]}, model=f"kp{kp}",
+                    meta={"kp": kp, "trajectory": kind})
+    return tr, xml
+
+
+@pytest.fixture(scope="module")
+def logs() -> Dataset:
+    trs, models = [], {}
+    for kp in (100, 400, 200):
+        for kind in ("sin", "drop"):
+            tr, xml = _log(kp, kind)
+            trs.append(tr)
+            models[tr.model] = xml
+    return Dataset(models, trs)
+
+
+def test_identify_recovers_the_servo_and_predicts_held_out_gains(logs):
+    # fit kp 100 and 400, hold out kp 200 (logs 4, 5)
+    res = identify(logs, [0, 1, 2, 3], [4, 5],
+                   IdentifyConfig(effects=tuple(TRUTH), max_rounds=20))
+    got = res.params()
+    assert got["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
+    assert got["gearbox_friction"]["mu"][0] == pytest.approx(0.15, rel=0.05)
+    assert got["mounting_offset"]["offset"][0] == pytest.approx(0.03, abs=1e-3)
+    assert res.mean(res.test) < 2e-3 < 0.05 * res.mean(res.test, identified=False)
+    # each effect matters on the held-out logs: leaving one out costs error
+    assert all(v > 5 * res.mean(res.test) for v in res.ablation.values())
+    assert not res.at_bound
+
+
+def test_identify_refuses_bad_splits_and_structures(logs):
+    with pytest.raises(ConfigError, match="overlap"):
+        identify(logs, [0, 1], [1])
+    with pytest.raises(ConfigError, match="training log"):
+        identify(logs, [], [1])
+    with pytest.raises(ConfigError, match="unknown effect"):
+        IdentifyConfig(effects=("no_such_effect",))
+    with pytest.raises(ConfigError, match="loss"):
+        IdentifyConfig(loss="huber")
