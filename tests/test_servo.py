@@ -110,3 +110,22 @@ def test_gains_validated():
         servo.ServoGains(pwm_limit=900)
     with pytest.raises(ConfigError):
         servo.ServoGains(position_p=-1)
+
+
+def test_act_layout_with_a_rate_limited_setpoint():
+    # Profile Velocity compiles a dcmotor slew state; it comes first in act, before the
+    # integrator and the winding temperature (each read back from what it must hold)
+    gains = servo.ServoGains(position_p=400, position_i=100, profile_velocity=100)
+    m = hinge_servo_model("XL330-M288", gains, thermal=True)
+    lay = servo.dcmotor_act_layout(m)[0]
+    assert m.na == 3 and lay[servo.ACT_SLEW] == 0
+    d = mujoco.MjData(m)
+    d.ctrl[0] = 1.0
+    for _ in range(100):
+        mujoco.mj_step(m, d)
+    slew = 100 * servo.motor_spec("XL330-M288").velocity_unit  # [rad/s]
+    assert d.act[lay[servo.ACT_SLEW]] == pytest.approx(100 * m.opt.timestep * slew, rel=0.02)
+    assert 0 < d.act[lay[servo.ACT_INTEGRATOR]] < 0.5  # integral of a sub-rad error over 0.25 s
+    assert d.act[lay[servo.ACT_THERMAL]] > 0  # the winding warms
+    assert servo.winding_temperature(m, d, servo.dcmotor_act_layout(m))[0] == pytest.approx(
+        servo.winding_temperature(m, d)[0])

@@ -336,26 +336,30 @@ def motor_current(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
     return cur
 
 
-ACT_CURRENT, ACT_INTEGRATOR, ACT_THERMAL, ACT_LUGRE = range(4)
+ACT_CURRENT, ACT_INTEGRATOR, ACT_THERMAL, ACT_LUGRE, ACT_SLEW = range(5)
 KI_MIN = 1e-12  # smallest ki written at run time to a dcmotor compiled with an integrator state
 
 
 def dcmotor_act_layout(model: mujoco.MjModel) -> np.ndarray:
-    """Activation index of each dcmotor state, shape (nu, 4), -1 where absent.
+    """Activation index of each dcmotor state, shape (nu, 5), -1 where absent.
 
     Columns (``ACT_*``): armature current (inductance), PID integrator (compiled with ki > 0),
-    winding temperature rise (thermal), LuGre bristle deflection; dcmotor stores them in this
-    order (verified against mujoco 4.0.0). The integrator exists when the actuator was *compiled*
-    with ki > 0, whatever ki holds at run time, so it is inferred from the activation count.
+    winding temperature rise (thermal), LuGre bristle deflection, and the rate-limited setpoint
+    (compiled with slewmax > 0). Order in ``act``: setpoint, then current, integrator, thermal,
+    LuGre (setpoint before integrator before thermal verified against mujoco 4.0.0). The
+    integrator exists when the actuator was *compiled* with ki > 0, whatever ki holds at run
+    time, so it is inferred from the activation count.
     """
     dyn = model.actuator_dynprm
     adr = model.actuator_actadr
     dc = (model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR) & (adr >= 0)
     cur, th, lu = dyn[:, DYN_TE] > 0, dyn[:, DYN_CTH] > 0, dyn[:, DYN_LUGRE_STIFFNESS] > 0
-    integ = (model.actuator_actnum - cur - th - lu) == 1
-    out = np.full((model.nu, 4), -1, dtype=int)
+    slew = dyn[:, DYN_SLEWMAX] > 0
+    integ = (model.actuator_actnum - cur - th - lu - slew) == 1
+    out = np.full((model.nu, 5), -1, dtype=int)
     k = adr.copy()
-    for col, has in enumerate((cur, integ, th, lu)):
+    for col, has in ((ACT_SLEW, slew), (ACT_CURRENT, cur), (ACT_INTEGRATOR, integ),
+                     (ACT_THERMAL, th), (ACT_LUGRE, lu)):
         sel = dc & has
         out[sel, col] = k[sel]
         k += has
