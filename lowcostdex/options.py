@@ -48,16 +48,13 @@ def robot_selection(backend: str, port: str | None) -> tuple[str, dict[str, Any]
     """
     if backend not in BACKENDS:
         raise ConfigError(f"unknown backend {backend!r}; valid choices: {', '.join(BACKENDS)}")
-    if backend == "hardware":
-        if not port:
-            raise ConfigError("--backend hardware needs --port (e.g. /dev/ttyUSB0; "
-                              "`lowcostdex scan` lists candidate ports)")
-        return backend, {"port": port}
-    if port:
-        raise ConfigError(f"--port {port} is for --backend hardware; with --backend {backend} "
-                          "leave it out")
-    return backend, {}
-
+    if backend == "sim":
+        if port:
+            raise ConfigError(f"--port {port} is for --backend hardware; with --backend sim "
+                              "leave it out")
+        return backend, {}
+    device = robot_port(backend, port)  # the robot backends' one rule
+    return backend, ({} if device == "emulated" else {"port": device})
 
 ROBOT_BACKENDS = ("emulated", "hardware")
 

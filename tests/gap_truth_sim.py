@@ -1,6 +1,6 @@
 """An independent "truth" simulator for the gap analysis (issue 11): no inverse crime.
 
-The analyzer's own generator (``lowcostdex.sim.gap.generate``) makes its "measured" data with the
+The analyzer's own generator (``lowcostdex gap generate``) makes its "measured" data with the
 same effect code, plant and servo model the analyzer fits, so it cannot catch a wrong or narrow
 model of an effect. This module is written from the physics instead and imports only mujoco and
 numpy (nothing from lowcostdex): plain MJCF with standard ``position`` actuators (kp, forcerange),

@@ -152,7 +152,7 @@ CASES: list[Case] = [
          "is not a hand spec; it is left untouched", files={"notes.json": '{"todo": [1, 2]}'}),
     Case("calibrate into a missing folder", ("calibrate", "--port", "emulated", "--out",
                                              "{tmp}/no/such/dir/c.json", "--yes"),
-         "give a JSON file path in an existing folder"),
+         "/no/such/dir does not exist"),
     Case("calibrate from a spec that is a CSV", ("calibrate", "--port", "emulated", "--spec",
                                                  "{tmp}/log.csv", "--out", "{tmp}/c.json", "--yes"),
          "{tmp}/log.csv: not a hand spec JSON", files={"log.csv": "time,qpos:arm\n0,1\n"}),

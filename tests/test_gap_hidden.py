@@ -4,6 +4,12 @@ temperature and sagging supply channels). Given only the nominal model and the l
 must name the effect and bring the held-out error near the noise floor; effect-free data must give
 "no significant discrepancy".
 
+These logs are made by the project's own generator (``lowcostdex.sim.gap.generate``) with the same
+effect and servo code the analyzer fits: they check the analysis is consistent with its own models
+(a selection or fitting regression shows here), not that those models match the world. The truth
+that comes from outside the analyzer is tests/gap_truth_sim.py (tests/test_gap_independent.py)
+and the measured servo logs (tests/test_gap_real.py).
+
 The default run keeps a representative subset (three bench effects including the confusable
 friction/backlash pair, an effect drawn at random from the catalogue, one finger effect, two
 effects at once, effect-free data); the full sweep over every effect and magnitude on the bench

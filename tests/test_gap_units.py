@@ -1,6 +1,10 @@
 """Gap analysis pieces: ZOH resampling, log validation errors, BAM mapping, the bench's analytic
 physics, replay consistency, the LM fitter, statistics (bootstrap, floor, score, intervals) and the
-extended-model files."""
+extended-model files.
+
+Unit tests of the pieces; where a case needs data it uses the project's generator, so these are
+consistency checks. Hidden-effect truth from outside the analyzer: tests/test_gap_independent.py
+(tests/gap_truth_sim.py) and tests/test_gap_real.py (measured servo logs)."""
 
 from __future__ import annotations
 

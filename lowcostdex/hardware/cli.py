@@ -273,11 +273,10 @@ def _calibrate(args: argparse.Namespace) -> int:
     from lowcostdex.hardware.calibration import calibrate_offsets, format_report
     from lowcostdex.hardware.dynamixel import DynamixelBus
     from lowcostdex.hardware.hands import HandSpec, hand_spec
+    from lowcostdex.outdir import check_out_file
 
-    out = Path(args.out)
-    if out.is_dir() or not out.parent.is_dir():
-        raise InputError(f"--out {out}: give a JSON file path in an existing folder")
-    if out.exists():
+    out = check_out_file(args.out, overwrite=True)  # a folder or a missing folder is refused
+    if out.exists():  # replaced only when it is a hand spec (this command's own output)
         try:
             HandSpec.load(out)
         except Exception:  # not a hand spec: the user's file, not ours to replace

@@ -190,17 +190,11 @@ def _reset_test(args: argparse.Namespace) -> int:
 def _check_demo_out(out: str, env_id: str) -> None:
     """Refuse an ``--out`` that is not a demo file of ``env_id`` (a user's file, a folder,
     another task's demos) before anything is recorded; a new path is fine."""
-    from pathlib import Path
-
     from lowcostdex.demo_file import read_info
     from lowcostdex.errors import InputError
+    from lowcostdex.outdir import check_out_file
 
-    path = Path(out)
-    if path.is_dir():
-        raise InputError(f"--out {path} is a folder; give an HDF5 file path (e.g. "
-                         f"{path / 'demos.h5'})")
-    if not path.parent.is_dir():
-        raise InputError(f"--out {path}: the folder {path.parent} does not exist")
+    path = check_out_file(out, overwrite=True)  # appended to when it is a demo file
     if path.exists():
         info = read_info(path)[0]  # raises, naming the file, when it is not a demo file
         if info.env_id and info.env_id != env_id:
