@@ -28,9 +28,9 @@ import time
 import numpy as np
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler
 
-from lowcostdex.hardware.dynamixel import DynamixelBus
-from lowcostdex.hardware.emulator import emulated_dclaw
-from lowcostdex.hardware.protocol import sync_read_bytes, sync_write_bytes, wire_time
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+from lowcostdex.hardware.dynamixel.protocol import sync_read_bytes, sync_write_bytes, wire_time
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 
 N, LENGTH = 9, 21
 

@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import gap_truth_sim as ts  # noqa: E402
 
-from lowcostdex.sim.gap import GapConfig, analyze, load_dataset  # noqa: E402
+from lowcostdex.gap import GapConfig, analyze, load_dataset  # noqa: E402
 
 
 def run(case_id: str, rig: str, names: tuple[str, ...], seed: int, duration: float) -> dict:

@@ -4,7 +4,7 @@ Reads the measured logs (never copied into the repository) from --data, or the e
 variable LOWCOSTDEX_MEASURED_DATA (or LOWCOSTDEX_MEASURED), default ../shared/data/measured next
 to the repository; exits cleanly when it is absent. For each set:
 
-* the logs are resampled onto BAM's 5 ms grid (``lowcostdex.sim.gap.bam_measure``, as
+* the logs are resampled onto BAM's 5 ms grid (``lowcostdex.gap.bam_measure``, as
   ``bam.process`` does) and mapped onto the servo bench (header mass, length, arm mass, kp, vin),
   physics at BAM's 5 ms step;
 * the servo structure (``identify.servo_structure``: motor constants, armature, Coulomb, viscous,
@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lowcostdex.sim.gap import bam_measure as bm
-from lowcostdex.sim.gap.dataset import load_dataset
-from lowcostdex.sim.gap.identify import IdentifyConfig, breakdown, identify, servo_structure
+from lowcostdex.gap import bam_measure as bm
+from lowcostdex.gap.dataset import load_dataset
+from lowcostdex.gap.identify import IdentifyConfig, breakdown, identify, servo_structure
 
 TRAJ = ("lift_and_drop", "sin_sin", "sin_time_square", "up_and_down")
 
@@ -104,7 +104,7 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
                 spec["bam"].items()},
     }
     if analyze_too:
-        from lowcostdex.sim.gap.analyze import GapConfig, analyze
+        from lowcostdex.gap.analyze import GapConfig, analyze
 
         a = analyze(ds, GapConfig(test_logs=tuple(test), max_effects=4, seed=0))
         per = {a.episodes[i].traj: v for i, v in zip(a.split.test,

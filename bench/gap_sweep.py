@@ -25,10 +25,10 @@ import time
 
 import numpy as np
 
-from lowcostdex.sim.gap.analyze import GapConfig, analyze
-from lowcostdex.sim.gap.dataset import Dataset
-from lowcostdex.sim.gap.generate import HIDDEN, LogSettings, generate
-from lowcostdex.sim.gap.replay import Replayer
+from lowcostdex.gap.analyze import GapConfig, analyze
+from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.generate import HIDDEN, LogSettings, generate
+from lowcostdex.gap.replay import Replayer
 
 PAIRS = (("latency", "coulomb_friction"), ("backlash", "gain_error"),
          ("position_offset", "viscous_damping"))

@@ -24,12 +24,12 @@ import time
 import mujoco
 import numpy as np
 
-from lowcostdex.hardware.backend import default_effects, make_dynamixel_bus
-from lowcostdex.hardware.emulator import emulated_dclaw
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
-from lowcostdex.hardware.reset import DClawReset, RobelReset
-from lowcostdex.hardware.reset_test import reset_trials, tangle
-from lowcostdex.hardware.robot import Robot
+from lowcostdex.hardware.robot.backend import default_effects, make_dynamixel_bus
+from lowcostdex.hardware.robot.reset import DClawReset, RobelReset
+from lowcostdex.hardware.robot.reset_trials import reset_trials, tangle
+from lowcostdex.hardware.robot.robot import Robot
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
 
 

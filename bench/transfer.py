@@ -5,7 +5,7 @@
     python bench/transfer.py --out /tmp/transfer_quick --quick         # smoke check (tests)
     python bench/transfer.py --task valve-near ...                     # +-0.25 rad starts, goals
 
-Hidden robots (``lowcostdex.hardware.hidden_robots``) stand in for real D'Claws: emulated
+Hidden robots (``lowcostdex.hardware.emulated.hidden_robots``) stand in for real D'Claws: emulated
 robots behind the real dynamixel_sdk code path, each with its own mix of servo effects, MJCF
 perturbations no effect names and a firmware imperfection. The training side never sees them.
 Every condition trains DAPG with the same algorithm, demonstrations and sample budget:
@@ -196,9 +196,9 @@ def identify_finger(robot: Any, finger: str, folder: Path, size: Size, seed: int
                     ) -> dict[str, Any]:
     """Identification logs of one finger on the hidden robot (its valve-less station, the
     other fingers parked), then the gap analysis on the nominal one-finger model."""
+    from lowcostdex.gap import GapConfig, analyze, load_dataset, write_report
     from lowcostdex.hardware.hands import dclaw_spec
-    from lowcostdex.hardware.trace import dclaw_identification_logs
-    from lowcostdex.sim.gap import GapConfig, analyze, load_dataset, write_report
+    from lowcostdex.hardware.robot.trace import dclaw_identification_logs
     from lowcostdex.sim.models.dclaw import build_dclaw
 
     hand = dclaw_spec(robot.motor)
@@ -473,8 +473,8 @@ def named_vs_truth(idents: dict[str, dict[str, Any]]) -> list[str]:
 def run(out: Path, size: Size, seeds: list[int], task_name: str, robot_seed: int = 0
         ) -> dict[str, Any]:
     """The whole table into ``out`` (resumable); returns the summary."""
+    from lowcostdex.hardware.emulated.hidden_robots import hidden_robots
     from lowcostdex.hardware.hands import dclaw_spec
-    from lowcostdex.hardware.hidden_robots import hidden_robots
 
     task = TASKS[task_name]
     out.mkdir(parents=True, exist_ok=True)

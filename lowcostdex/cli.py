@@ -20,11 +20,11 @@ from collections.abc import Sequence
 
 COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.sim.cli",
-    "lowcostdex.sim.gap.cli",
+    "lowcostdex.gap.cli",
     "lowcostdex.main_job",
     "lowcostdex.algos.cli",
     "lowcostdex.hardware.cli",
-    "lowcostdex.hardware.robot_cli",
+    "lowcostdex.hardware.robot.cli",
 )
 # the exit codes live in the core (lowcostdex.errors) so that any layer can name them
 from lowcostdex.errors import INTERRUPTED, USER_ERROR  # noqa: E402

@@ -21,13 +21,13 @@ import lowcostdex  # noqa: F401  (registers the ids)
 from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.train import TrainConfig, train
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.reset import ResetConfig, ResetFailed
+from lowcostdex.hardware.robot.reset import ResetConfig, ResetFailed
 from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.envs.allegro_tasks import RESET_POSE
 
 pytest.importorskip("can", reason="python-can (the 'can' extra) is not installed")
 
-from lowcostdex.hardware.allegro_backend import (  # noqa: E402 (needs python-can)
+from lowcostdex.hardware.allegro.backend import (  # noqa: E402 (needs python-can)
     AllegroHardwareBackend,
     EmulatedAllegroBackend,
 )
@@ -169,10 +169,10 @@ def test_hardware_backend_needs_a_channel_and_a_valve_tracker():
         gym.make(ENV, backend="hardware", channel="can0", tracker="no_such_module:angle")
     with pytest.raises(ConfigError, match="is not callable"):
         gym.make(ENV, backend="hardware", channel="can0", tracker="math:pi")
-    from lowcostdex.hardware.backend import resolve_callable
+    from lowcostdex.hardware.robot.backend import resolve_callable
 
     assert resolve_callable("math:cos", "tracker") is math.cos
-    from lowcostdex.hardware.backend import EmulatedBackend
+    from lowcostdex.hardware.robot.backend import EmulatedBackend
 
     env = gym.make(ENV)  # constructed directly, the D'Claw backend names the hand
     with pytest.raises(ConfigError, match="not allegro tasks"):
@@ -183,7 +183,7 @@ def test_hardware_backend_needs_a_channel_and_a_valve_tracker():
 def test_hardware_backend_on_a_can_channel_with_the_hand_in_real_time():
     """backend="hardware" with python-can's virtual interface: the threaded driver against the
     emulated hand served in real time (a stand-in for socketcan can0)."""
-    from lowcostdex.hardware.allegro_emulator import EmulatedAllegro
+    from lowcostdex.hardware.allegro.emulator import EmulatedAllegro
     from lowcostdex.sim.envs.allegro_tasks import AllegroTurnValve
 
     channel = f"allegro-hw-{time.monotonic_ns()}"

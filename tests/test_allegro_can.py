@@ -14,15 +14,15 @@ import pytest
 from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.hands import allegro_spec
-from lowcostdex.hardware.robot import Robot, RobotConfig
-from lowcostdex.hardware.safety import UnsafeCommand
+from lowcostdex.hardware.robot.robot import Robot, RobotConfig
+from lowcostdex.hardware.robot.safety import UnsafeCommand
 from lowcostdex.sim.models.allegro import build_allegro
 
 can = pytest.importorskip("can", reason="python-can (the 'can' extra) is not installed")
 
-from lowcostdex.hardware import allegro_can as proto  # noqa: E402 (needs python-can)
-from lowcostdex.hardware.allegro import AllegroBus, AllegroGains, pd_torque  # noqa: E402
-from lowcostdex.hardware.allegro_emulator import (  # noqa: E402
+from lowcostdex.hardware.allegro import protocol as proto  # noqa: E402 (needs python-can)
+from lowcostdex.hardware.allegro.driver import AllegroBus, AllegroGains, pd_torque  # noqa: E402
+from lowcostdex.hardware.allegro.emulator import (  # noqa: E402
     AllegroThermal,
     EmulatedAllegro,
     emulated_allegro,
@@ -270,7 +270,7 @@ def test_missing_pose_stream_marks_joints_invalid_and_robot_raises(hand):
 
 def test_connect_without_a_hand_fails_bounded():
     channel = f"no-hand-{time.monotonic_ns()}"
-    from lowcostdex.hardware.allegro_emulator import LockstepClock
+    from lowcostdex.hardware.allegro.emulator import LockstepClock
 
     emu = EmulatedAllegro(allegro_model(), channel=channel)
     emu.device_id = 3  # answers nothing addressed to device 0

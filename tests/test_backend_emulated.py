@@ -8,8 +8,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.backend import EmulatedBackend, default_effects
-from lowcostdex.hardware.reset import ResetConfig
+from lowcostdex.hardware.robot.backend import EmulatedBackend, default_effects
+from lowcostdex.hardware.robot.reset import ResetConfig
 from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
 from lowcostdex.sim.registry import register_envs

@@ -334,7 +334,7 @@ def test_bad_input_is_refused_cleanly(case, tmp_path, capsys, monkeypatch):
 def test_the_unbroken_logs_load(tmp_path):
     """The control: the table's logs before their edits are accepted (CSV with a spreadsheet's
     byte-order mark, BAM JSON), so each refusal above comes from its edit."""
-    from lowcostdex.sim.gap.dataset import load_dataset
+    from lowcostdex.gap.dataset import load_dataset
 
     (tmp_path / "bench.xml").write_text(bench_model())
     (tmp_path / "log.csv").write_text("\ufeff" + csv_text(servo_log()), encoding="utf-8")
@@ -348,7 +348,7 @@ def test_the_unbroken_logs_load(tmp_path):
 def test_a_gap_splits_the_log_and_says_so(tmp_path):
     """Logging paused for 5 s: two pieces, each replayed from its own measured state; a held-out
     log stays held out whole."""
-    from lowcostdex.sim.gap.dataset import load_dataset
+    from lowcostdex.gap.dataset import load_dataset
 
     (tmp_path / "bench.xml").write_text(bench_model())
     (tmp_path / "log.csv").write_text(csv_text(edited(time=lambda t: t + 5.0 * (t >= 3.0))))
@@ -363,7 +363,7 @@ def test_a_gap_splits_the_log_and_says_so(tmp_path):
 def test_runaway_inputs_are_bounded(tmp_path, monkeypatch):
     """Rows are read up to the cap, then refused (a huge CSV does not fill the memory); the total
     duration of one analysis is bounded."""
-    from lowcostdex.sim.gap import dataset, logs
+    from lowcostdex.gap import dataset, logs
 
     (tmp_path / "bench.xml").write_text(bench_model())
     (tmp_path / "log.csv").write_text(csv_text(servo_log()))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.control_table import (
+from lowcostdex.hardware.dynamixel.control_table import (
     SUPPORTED_MODELS,
     Reg,
     factory_defaults,

@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 
 from lowcostdex.hardware.bus import BusError, CommandError, MotorFault
-from lowcostdex.hardware.calibration import calibrate_offsets
-from lowcostdex.hardware.control_table import Reg
-from lowcostdex.hardware.dynamixel import (
+from lowcostdex.hardware.dynamixel.control_table import Reg
+from lowcostdex.hardware.dynamixel.driver import (
     DynamixelBus,
     LatencyWarning,
     PositionOutOfLimits,
     WatchdogTripped,
 )
-from lowcostdex.hardware.emulator import emulated_dclaw
-from lowcostdex.hardware.firmware import FirmwareOptions
+from lowcostdex.hardware.dynamixel.protocol import HardwareError
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
+from lowcostdex.hardware.emulated.firmware import FirmwareOptions
 from lowcostdex.hardware.hands import Calibration, dclaw_spec
-from lowcostdex.hardware.protocol import HardwareError
+from lowcostdex.hardware.robot.calibration import calibrate_offsets
 
 TICK = 2 * math.pi / 4096
 

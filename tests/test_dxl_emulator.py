@@ -20,10 +20,8 @@ from dynamixel_sdk import (
     PacketHandler,
 )
 
-from lowcostdex.hardware.control_table import Reg
-from lowcostdex.hardware.emulator import emulated_bench, emulated_dclaw
-from lowcostdex.hardware.firmware import FirmwareOptions
-from lowcostdex.hardware.protocol import (
+from lowcostdex.hardware.dynamixel.control_table import Reg
+from lowcostdex.hardware.dynamixel.protocol import (
     ALERT,
     ErrorNumber,
     HardwareError,
@@ -32,6 +30,8 @@ from lowcostdex.hardware.protocol import (
     to_signed,
     to_unsigned,
 )
+from lowcostdex.hardware.emulated.chain import emulated_bench, emulated_dclaw
+from lowcostdex.hardware.emulated.firmware import FirmwareOptions
 
 E = ErrorNumber
 FINGERS = (10, 11, 12, 20, 21, 22, 30, 31, 32)
@@ -320,7 +320,7 @@ def test_dead_motor_is_silent_and_unpowered(dclaw):
 
 def test_corrupt_instruction_gets_a_crc_error(dclaw):
     chain, port, ph = dclaw
-    from lowcostdex.hardware.protocol import instruction_packet
+    from lowcostdex.hardware.dynamixel.protocol import instruction_packet
 
     pkt = bytearray(instruction_packet(10, Instruction.WRITE, bytes((65, 0, 1))))
     pkt[-1] ^= 0xFF
@@ -412,7 +412,7 @@ def test_clear_multi_turn_and_unknown_instruction():
     assert to_signed(ph.read4ByteTxRx(port, 50, 132)[0], 4) > 2 * 4096
     assert ph.clearMultiTurn(port, 50) == (COMM_SUCCESS, 0)
     assert 0 <= to_signed(ph.read4ByteTxRx(port, 50, 132)[0], 4) < 4096
-    from lowcostdex.hardware.protocol import instruction_packet
+    from lowcostdex.hardware.dynamixel.protocol import instruction_packet
 
     port.rx_trace.clear()
     port.clearPort()

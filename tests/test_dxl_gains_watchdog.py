@@ -10,14 +10,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.control_table import Reg
-from lowcostdex.hardware.dynamixel import (
+from lowcostdex.hardware.dynamixel.control_table import Reg
+from lowcostdex.hardware.dynamixel.driver import (
     DynamixelBus,
     GainMismatchWarning,
     WatchdogUnavailableWarning,
 )
-from lowcostdex.hardware.emulator import emulated_dclaw
-from lowcostdex.hardware.firmware import FirmwareOptions
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
+from lowcostdex.hardware.emulated.firmware import FirmwareOptions
 from lowcostdex.sim import servo
 from lowcostdex.sim.models.dclaw import build_dclaw
 

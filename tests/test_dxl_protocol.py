@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from dynamixel_sdk import PacketHandler, PortHandler
 
-from lowcostdex.hardware import protocol as P
+from lowcostdex.hardware.dynamixel import protocol as P
 
 
 class _CaptureSerial:

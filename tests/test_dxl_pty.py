@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, PacketHandler, PortHandler
 
-from lowcostdex.hardware.control_table import Reg
-from lowcostdex.hardware.dynamixel import DynamixelBus
-from lowcostdex.hardware.emulator import emulated_dclaw
+from lowcostdex.hardware.dynamixel.control_table import Reg
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux pty")
 TICK = 2 * math.pi / 4096
@@ -110,8 +110,8 @@ def test_lowcostdex_emulate_prints_its_port_first_and_stops_on_sigint():
 
 HOST = """
 import sys, numpy as np
-from lowcostdex.hardware.control_table import Reg
-from lowcostdex.hardware.dynamixel import DynamixelBus
+from lowcostdex.hardware.dynamixel.control_table import Reg
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
 from lowcostdex.hardware.hands import dclaw_spec
 bus = DynamixelBus.from_hand(dclaw_spec(), sys.argv[1], latency_ms=16)
 bus.connect()

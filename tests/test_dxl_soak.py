@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from lowcostdex.hardware.bus import CommandError
-from lowcostdex.hardware.dynamixel import DynamixelBus
-from lowcostdex.hardware.emulator import FaultConfig, emulated_dclaw
-from lowcostdex.hardware.protocol import Instruction
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+from lowcostdex.hardware.dynamixel.protocol import Instruction
+from lowcostdex.hardware.emulated.chain import FaultConfig, emulated_dclaw
 
 TICK = 2 * math.pi / 4096
 READS = (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from lowcostdex.hardware.bus import MotorFault
-from lowcostdex.hardware.control_table import Reg
-from lowcostdex.hardware.dynamixel import DynamixelBus
-from lowcostdex.hardware.emulator import emulated_bench
-from lowcostdex.hardware.protocol import ALERT, HardwareError
+from lowcostdex.hardware.dynamixel.control_table import Reg
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+from lowcostdex.hardware.dynamixel.protocol import ALERT, HardwareError
+from lowcostdex.hardware.emulated.chain import emulated_bench
 from lowcostdex.sim import servo
 
 

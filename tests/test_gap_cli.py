@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from lowcostdex.cli import main
-from lowcostdex.sim.gap import load_extended
+from lowcostdex.gap import load_extended
 
 REPORT_FIELDS = {
     "verdict": str, "baseline": dict, "causes": list, "extended": dict, "gain": dict,
@@ -130,8 +130,8 @@ def test_report_figures_read_at_a_glance(demo):
     import matplotlib.pyplot as plt
     from figcheck import figure_problems
 
-    from lowcostdex.sim.gap import GapConfig, analyze, load_dataset
-    from lowcostdex.sim.gap.report import candidates_figure, residuals_figure, traces_figure
+    from lowcostdex.gap import GapConfig, analyze, load_dataset
+    from lowcostdex.gap.report import candidates_figure, residuals_figure, traces_figure
 
     data = demo / "data"
     logs = sorted(str(p) for p in data.glob("log*.csv"))

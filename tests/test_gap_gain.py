@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from lowcostdex.sim.gap.gain import gain_with_ci
+from lowcostdex.gap.gain import gain_with_ci
 
 
 def test_gain_numbers_by_hand():

@@ -4,7 +4,7 @@ temperature and sagging supply channels). Given only the nominal model and the l
 must name the effect and bring the held-out error near the noise floor; effect-free data must give
 "no significant discrepancy".
 
-These logs are made by the project's own generator (``lowcostdex.sim.gap.generate``) with the same
+These logs are made by the project's own generator (``lowcostdex.gap.generate``) with the same
 effect and servo code the analyzer fits: they check the analysis is consistent with its own models
 (a selection or fitting regression shows here), not that those models match the world. The truth
 that comes from outside the analyzer is tests/gap_truth_sim.py (tests/test_gap_independent.py)
@@ -21,10 +21,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lowcostdex.sim.gap.analyze import GapConfig, analyze
-from lowcostdex.sim.gap.dataset import Dataset
-from lowcostdex.sim.gap.generate import HIDDEN, generate
-from lowcostdex.sim.gap.replay import Replayer
+from lowcostdex.gap.analyze import GapConfig, analyze
+from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.generate import HIDDEN, generate
+from lowcostdex.gap.replay import Replayer
 
 NEAR_FLOOR = 1.5  # extended held-out RMSE within this factor of the noise / replay floor
 

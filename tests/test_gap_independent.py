@@ -52,7 +52,7 @@ _RESULTS: dict[str, tuple[set[str], object]] = {}
 def analysed(case_id: str, tmp_root: Path) -> tuple[set[str], object]:
     """Analyse one case (once per session): (hidden names, GapResult)."""
     if case_id not in _RESULTS:
-        from lowcostdex.sim.gap import GapConfig, analyze, load_dataset
+        from lowcostdex.gap import GapConfig, analyze, load_dataset
 
         _, rig, names, seed, duration = next(c for c in ts.CASES if c[0] == case_id)
         case = ts.make_case(rig, list(names), seed, duration=duration)

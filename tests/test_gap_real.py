@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lowcostdex.sim.gap import GapConfig, analyze, load_dataset
-from lowcostdex.sim.gap import bam_measure as bm
+from lowcostdex.gap import GapConfig, analyze, load_dataset
+from lowcostdex.gap import bam_measure as bm
 
 ROOT = Path(os.environ.get("LOWCOSTDEX_MEASURED_DATA") or os.environ.get("LOWCOSTDEX_MEASURED")
             or Path(__file__).resolve().parents[2] / "shared" / "data" / "measured")
@@ -96,7 +96,7 @@ def test_bam_grid_reproduces_bams_published_errors():
 
 
 def test_resample_interpolates_like_bam_process():
-    from lowcostdex.sim.gap.logs import Trajectory
+    from lowcostdex.gap.logs import Trajectory
 
     t = np.array([0.0035, 0.0087, 0.0121, 0.0200, 0.0260])
     q = np.array([0.0, 0.1, 0.3, 0.2, 0.6])[:, None]
@@ -125,7 +125,7 @@ def _split(ds, held_kp):
 @pytest.mark.skipif(not (RHOBAN.is_dir() and PHAM.is_dir()),
                     reason=f"measured data not found at {ROOT}")
 def test_identified_servo_beats_bam_on_held_out_gains():
-    from lowcostdex.sim.gap.identify import IdentifyConfig, identify, servo_structure
+    from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure
 
     # BAM on the same held-out logs, 08-bam-reference-errors.md: Rhoban XL330 held out kp 200
     # and 800 after fitting kp 100 and 400, BAM's refit M6 0.0599 rad (section 3); Pham XL330 at

@@ -15,14 +15,13 @@ import mujoco
 import numpy as np
 import pytest
 
-from lowcostdex.sim.effects import AppliedEffect, DomainRandomization
-from lowcostdex.sim.gap import fit as fitmod
-from lowcostdex.sim.gap.dataset import Dataset, Window, episodes, segments, split_episodes
-from lowcostdex.sim.gap.diagnostics import lag_estimate, noise_floor, score_fraction
-from lowcostdex.sim.gap.extension import bake_mjcf, dr_ranges, load_extended, save_extended
-from lowcostdex.sim.gap.gain import bootstrap_ci, gain_with_ci
-from lowcostdex.sim.gap.generate import LogSettings, bench_config, generate
-from lowcostdex.sim.gap.logs import (
+from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
+from lowcostdex.gap.diagnostics import lag_estimate, noise_floor, score_fraction
+from lowcostdex.gap.extension import bake_mjcf, dr_ranges, load_extended, save_extended
+from lowcostdex.gap.gain import bootstrap_ci, gain_with_ci
+from lowcostdex.gap.generate import LogSettings, bench_config, generate
+from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
     quantization_step,
@@ -33,7 +32,8 @@ from lowcostdex.sim.gap.logs import (
     zoh,
     zoh_index,
 )
-from lowcostdex.sim.gap.replay import Replayer, play_operator
+from lowcostdex.gap.replay import Replayer, play_operator
+from lowcostdex.sim.effects import AppliedEffect, DomainRandomization
 from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig, build_bench
 from lowcostdex.sim.plant import Plant, prepare_spec
 
@@ -205,7 +205,7 @@ def _tiny_dataset(seed=0, n_logs=2, duration=4.0):
 
 
 def generate_with(effects, seed, n_logs, duration):
-    from lowcostdex.sim.gap import generate as gen
+    from lowcostdex.gap import generate as gen
 
     rng = np.random.default_rng(seed)
     spec = build_bench(bench_config())
@@ -468,7 +468,7 @@ def test_plant_reset_with_ctrl_history_continues_a_delayed_servo_exactly():
 
 
 def test_goals_act_at_their_instant_inside_a_physics_step():
-    from lowcostdex.sim.gap.replay import _single_switches, _step_means
+    from lowcostdex.gap.replay import _single_switches, _step_means
 
     # goals held from u = 0, 1.3, 1.6, 4.0 steps: the mean over each step, by fine integration
     u = np.array([0.0, 1.3, 1.6, 4.0])

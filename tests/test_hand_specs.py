@@ -11,9 +11,9 @@ import pytest
 
 from lowcostdex.cli import main
 from lowcostdex.errors import ConfigError, InputError, LowcostdexError
-from lowcostdex.hardware.backend import make_dynamixel_bus
-from lowcostdex.hardware.emulator import emulated_dclaw
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import Calibration, HandSpec, JointSpec, dclaw_spec
+from lowcostdex.hardware.robot.backend import make_dynamixel_bus
 
 HAND = dclaw_spec()  # XH430-W350 servos
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.dynamixel import DynamixelBus, WatchdogTripped, scan
-from lowcostdex.hardware.emulator import emulated_dclaw
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus, WatchdogTripped, scan
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
 
 pytestmark = pytest.mark.hardware

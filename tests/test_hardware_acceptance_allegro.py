@@ -20,8 +20,8 @@ from lowcostdex.sim.models.allegro import build_allegro
 
 can = pytest.importorskip("can", reason="python-can (the 'can' extra) is not installed")
 
-from lowcostdex.hardware.allegro import AllegroBus, AllegroGains  # noqa: E402 (python-can)
-from lowcostdex.hardware.allegro_emulator import emulated_allegro  # noqa: E402
+from lowcostdex.hardware.allegro.driver import AllegroBus, AllegroGains  # noqa: E402 (python-can)
+from lowcostdex.hardware.allegro.emulator import emulated_allegro  # noqa: E402
 
 pytestmark = pytest.mark.hardware
 HAND = allegro_spec()

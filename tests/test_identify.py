@@ -1,4 +1,4 @@
-"""Servo identification mechanics (``lowcostdex.sim.gap.identify``): on bench logs simulated with
+"""Servo identification mechanics (``lowcostdex.gap.identify``): on bench logs simulated with
 known servo parameters it recovers them from the training logs and predicts the held-out ones;
 the split and the structure are checked. (The physics of each effect is checked against written
 out bench physics in tests/test_effects_servo.py; real logs in tests/test_gap_real.py.)"""
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.identify import IdentifyConfig, identify
+from lowcostdex.gap.logs import Trajectory
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect
-from lowcostdex.sim.gap.dataset import Dataset
-from lowcostdex.sim.gap.identify import IdentifyConfig, identify
-from lowcostdex.sim.gap.logs import Trajectory
 from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig, build_bench
 from lowcostdex.sim.plant import Plant
 

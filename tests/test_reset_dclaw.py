@@ -11,12 +11,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.backend import default_effects, make_dynamixel_bus
-from lowcostdex.hardware.emulator import emulated_dclaw
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
-from lowcostdex.hardware.reset import DClawReset, ResetConfig, ResetFailed
-from lowcostdex.hardware.reset_test import reset_trials
-from lowcostdex.hardware.robot import Robot, RobotConfig
+from lowcostdex.hardware.robot.backend import default_effects, make_dynamixel_bus
+from lowcostdex.hardware.robot.reset import DClawReset, ResetConfig, ResetFailed
+from lowcostdex.hardware.robot.reset_trials import reset_trials
+from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
 from lowcostdex.sim.envs.task import wrap_angle
 
@@ -117,7 +117,7 @@ def test_jammed_valve_ends_in_reset_failed_within_a_bounded_time(claw):
 def test_robel_baseline_runs_through_the_same_gate_and_never_blocks(claw):
     """ROBEL's sequence (the benchmark baseline, bench/reset.py) resets a tangle, and raises
     instead of waiting on input() when it cannot."""
-    from lowcostdex.hardware.reset import RobelReset
+    from lowcostdex.hardware.robot.reset import RobelReset
 
     chain, robot = claw
     stats = reset_trials(robot, RobelReset(robot), RESET_POSE, 2, np.random.default_rng(3))

@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.reset import ResetFailed
+from lowcostdex.hardware.robot.reset import ResetFailed
 from lowcostdex.sim.registry import register_envs
 
 ENV = "lowcostdex/DClawFlipBlock-v0"

@@ -8,12 +8,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.backend import make_dynamixel_bus
-from lowcostdex.hardware.emulator import emulated_dclaw
-from lowcostdex.hardware.guards import CurrentConfig
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
-from lowcostdex.hardware.robot import Robot, RobotConfig
-from lowcostdex.hardware.safety import UnsafeCommand
+from lowcostdex.hardware.robot.backend import make_dynamixel_bus
+from lowcostdex.hardware.robot.guards import CurrentConfig
+from lowcostdex.hardware.robot.robot import Robot, RobotConfig
+from lowcostdex.hardware.robot.safety import UnsafeCommand
 from lowcostdex.sim import servo
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
 from lowcostdex.sim.registry import register_envs

@@ -11,12 +11,12 @@ import math
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.backend import make_dynamixel_bus
-from lowcostdex.hardware.dynamixel import WatchdogTripped
-from lowcostdex.hardware.emulator import FaultConfig, emulated_dclaw
+from lowcostdex.hardware.dynamixel.driver import WatchdogTripped
+from lowcostdex.hardware.emulated.chain import FaultConfig, emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
-from lowcostdex.hardware.robot import Robot, RobotConfig
-from lowcostdex.hardware.safety import UnsafeCommand
+from lowcostdex.hardware.robot.backend import make_dynamixel_bus
+from lowcostdex.hardware.robot.robot import Robot, RobotConfig
+from lowcostdex.hardware.robot.safety import UnsafeCommand
 from lowcostdex.sim import servo
 
 HAND = dclaw_spec()

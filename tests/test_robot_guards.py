@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.guards import (
+from lowcostdex.hardware.robot.guards import (
     CurrentConfig,
     CurrentGuard,
     PauseRecord,
     ThermalConfig,
     ThermalGuard,
 )
-from lowcostdex.hardware.robot import RobotConfig
-from lowcostdex.hardware.safety import UnsafeCommand, check_finite, clip_goal
+from lowcostdex.hardware.robot.robot import RobotConfig
+from lowcostdex.hardware.robot.safety import UnsafeCommand, check_finite, clip_goal
 from lowcostdex.hardware.timing import Rate
 
 

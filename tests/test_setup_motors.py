@@ -19,10 +19,10 @@ import pytest
 from serial.tools.list_ports_common import ListPortInfo
 
 from lowcostdex.cli import main
-from lowcostdex.hardware.control_table import Reg
-from lowcostdex.hardware.emulator import emulated_dclaw
-from lowcostdex.hardware.ports import list_serial_ports
-from lowcostdex.hardware.setup_motors import SetupError, setup_motors
+from lowcostdex.hardware.dynamixel.control_table import Reg
+from lowcostdex.hardware.dynamixel.ports import list_serial_ports
+from lowcostdex.hardware.dynamixel.setup_motors import SetupError, setup_motors
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 
 FACTORY_ID, FACTORY_BAUD_CODE = 1, 1  # e-Manual: ID(7) initial 1, Baud Rate(8) initial 1
 BAUD_1M_CODE = 3  # e-Manual Baud Rate table: value 3 = 1 Mbps
@@ -216,8 +216,8 @@ def test_cli_scan_without_port_prints_the_ports(monkeypatch, capsys, tmp_path):
 
     # the machine's own lists replaced by the stand-in adapter's (this machine has no U2D2)
     monkeypatch.setattr(serial.tools.list_ports, "comports", lambda: ports)
-    monkeypatch.setattr("lowcostdex.hardware.ports.BY_ID_DIR", link.parent)
-    monkeypatch.setattr("lowcostdex.hardware.transport.SYSFS_USB_SERIAL", sysfs)
+    monkeypatch.setattr("lowcostdex.hardware.dynamixel.ports.BY_ID_DIR", link.parent)
+    monkeypatch.setattr("lowcostdex.hardware.dynamixel.transport.SYSFS_USB_SERIAL", sysfs)
     assert main(["scan"]) == 0
     out = capsys.readouterr().out
     assert str(dev) in out and "0403:6014" in out and "[U2D2]" in out and str(link) in out

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.backend import make_dynamixel_bus, robot_hand
-from lowcostdex.hardware.emulator import emulated_dclaw
+from lowcostdex.gap import read_log
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
-from lowcostdex.hardware.robot import Robot, RobotConfig
-from lowcostdex.hardware.trace import excite
-from lowcostdex.sim.gap import read_log
+from lowcostdex.hardware.robot.backend import make_dynamixel_bus, robot_hand
+from lowcostdex.hardware.robot.robot import Robot, RobotConfig
+from lowcostdex.hardware.robot.trace import excite
 from lowcostdex.sim.models.dclaw import build_dclaw
 
 JOINTS = ("ff_top", "ff_middle", "ff_bottom")
@@ -46,7 +46,7 @@ def test_excitation_log_round_trips_and_matches_the_device(tmp_path):
 
 def test_record_log_and_model_commands_feed_the_gap_analysis(tmp_path):
     from lowcostdex.cli import main
-    from lowcostdex.sim.gap import load_dataset
+    from lowcostdex.gap import load_dataset
 
     xml = tmp_path / "finger.xml"
     assert main(["model", "dclaw", "--station", "none", "--fingers", "ff", "--no-thermal",
@@ -93,9 +93,9 @@ def test_a_goal_time_shift_replays_like_the_same_latency():
     latency of d on the nominal model."""
     from dataclasses import replace
 
-    from lowcostdex.sim.gap import generate
-    from lowcostdex.sim.gap.dataset import Dataset, episodes
-    from lowcostdex.sim.gap.replay import Replayer
+    from lowcostdex.gap import generate
+    from lowcostdex.gap.dataset import Dataset, episodes
+    from lowcostdex.gap.replay import Replayer
 
     syn = generate.generate("finger", ["latency"], np.random.default_rng(4), n_logs=1,
                             duration=4.0, level=0.6)
@@ -120,8 +120,8 @@ def test_the_effect_free_emulator_replays_at_the_noise_floor(tmp_path):
     """Negative control of the whole chain (driver timing, emulated firmware, nominal model):
     logs of an emulated D'Claw without hidden effects replay on the nominal finger within the
     encoder's noise floor, and the gap analysis finds nothing to explain."""
-    from lowcostdex.hardware.trace import identification_logs
-    from lowcostdex.sim.gap import GapConfig, analyze, load_dataset
+    from lowcostdex.gap import GapConfig, analyze, load_dataset
+    from lowcostdex.hardware.robot.trace import identification_logs
 
     hand, _, robot = _robot(seed=1)
     with robot:
@@ -137,7 +137,7 @@ def test_the_effect_free_emulator_replays_at_the_noise_floor(tmp_path):
 def test_identification_poses_touch_nothing_with_the_neighbours_parked():
     import mujoco
 
-    from lowcostdex.hardware.trace import contact_free, dclaw_park
+    from lowcostdex.hardware.robot.trace import contact_free, dclaw_park
 
     hand = dclaw_spec()
     model = build_dclaw("none", hand).compile()

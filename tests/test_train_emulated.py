@@ -11,7 +11,7 @@ from lowcostdex.algos.dapg import DAPGConfig
 from lowcostdex.algos.demos import load_demos
 from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.train import TrainConfig, train
-from lowcostdex.hardware import backend  # noqa: F401  (an import error fails, never skips)
+from lowcostdex.hardware.robot import backend  # noqa: F401  (an import error fails, never skips)
 
 ENV_ID = "lowcostdex/DClawTurnValve-v0"
 

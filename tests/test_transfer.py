@@ -1,4 +1,4 @@
-"""Hidden robots (lowcostdex.hardware.hidden_robots) and the transfer table (bench/transfer.py).
+"""Hidden robots (lowcostdex.hardware.emulated.hidden_robots) and the transfer table (bench/transfer.py).
 
 The hidden robots stand in for real D'Claws: each must differ measurably from the nominal
 model, seen by a host through the real driver path, and be the same robot under the same seed.
@@ -13,16 +13,16 @@ import math
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.backend import make_dynamixel_bus
-from lowcostdex.hardware.emulator import emulated_dclaw
-from lowcostdex.hardware.hands import dclaw_spec
-from lowcostdex.hardware.hidden_robots import (
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
+from lowcostdex.hardware.emulated.hidden_robots import (
     FirmwareImperfection,
     ModelPerturbation,
     hidden_robot,
     hidden_robots,
     pwm_deadband_error,
 )
+from lowcostdex.hardware.hands import dclaw_spec
+from lowcostdex.hardware.robot.backend import make_dynamixel_bus
 from lowcostdex.sim.models.dclaw import build_dclaw
 
 HAND = dclaw_spec()
@@ -189,12 +189,12 @@ def test_the_training_side_importing_the_hidden_robots_breaks_a_contract(tmp_pat
                     ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(root / "pyproject.toml", tmp_path / "pyproject.toml")
     train = tmp_path / "lowcostdex" / "algos" / "dapg.py"
-    train.write_text(train.read_text() + "\nimport lowcostdex.hardware.hidden_robots  # noqa\n")
+    train.write_text(train.read_text() + "\nimport lowcostdex.hardware.emulated.hidden_robots  # noqa\n")
     res = subprocess.run([lint, "--config", str(tmp_path / "pyproject.toml"), "--no-cache"],
                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(tmp_path)},
                          capture_output=True, text=True, timeout=300)
     assert res.returncode != 0
-    assert "lowcostdex.algos.dapg -> lowcostdex.hardware.hidden_robots" in res.stdout
+    assert "lowcostdex.algos.dapg -> lowcostdex.hardware.emulated.hidden_robots" in res.stdout
 
 
 # ------------------------------------------------------------------------------------------------

@@ -26,8 +26,8 @@ from importlib import resources
 
 import pytest
 
-from lowcostdex.hardware.control_table import Reg, factory_defaults, load_control_table
-from lowcostdex.hardware.protocol import BAUD_CODES
+from lowcostdex.hardware.dynamixel.control_table import Reg, factory_defaults, load_control_table
+from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES
 from lowcostdex.sim.servo import MOTORS
 
 RPM = 2 * math.pi / 60  # rad/s per rev/min

@@ -151,7 +151,7 @@ def load_spec(path: str):
 
 
 def _emulated_chain(hand: str, clock: str = "virtual", **kwargs):
-    from lowcostdex.hardware.emulator import emulated_bench, emulated_dclaw
+    from lowcostdex.hardware.emulated.chain import emulated_bench, emulated_dclaw
 
     if hand == "dclaw":
         return emulated_dclaw(clock=clock, **kwargs)
@@ -167,7 +167,7 @@ def _port(args: argparse.Namespace):
 
 
 def _list_ports() -> int:
-    from lowcostdex.hardware.ports import format_ports, list_serial_ports
+    from lowcostdex.hardware.dynamixel.ports import format_ports, list_serial_ports
 
     ports = list_serial_ports()
     print(format_ports(ports))
@@ -182,7 +182,7 @@ def pick_port(port: str | None) -> str:
     if port is not None:
         check_port(port)
         return port
-    from lowcostdex.hardware.ports import format_ports, list_serial_ports
+    from lowcostdex.hardware.dynamixel.ports import format_ports, list_serial_ports
 
     ports = list_serial_ports()
     usable = [p for p in ports if p.accessible]
@@ -197,7 +197,7 @@ def pick_port(port: str | None) -> str:
 
 
 def _scan(args: argparse.Namespace) -> int:
-    from lowcostdex.hardware.dynamixel import scan
+    from lowcostdex.hardware.dynamixel.driver import scan
 
     if args.port is None:
         return _list_ports()
@@ -228,9 +228,9 @@ def _emulate(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from lowcostdex.hardware.emulator import FaultConfig
-    from lowcostdex.hardware.firmware import FirmwareOptions
-    from lowcostdex.hardware.pty_server import PtyServer
+    from lowcostdex.hardware.emulated.chain import FaultConfig
+    from lowcostdex.hardware.emulated.firmware import FirmwareOptions
+    from lowcostdex.hardware.emulated.pty_server import PtyServer
     from lowcostdex.sim.effects import AppliedEffect
 
     effects = []
@@ -270,9 +270,9 @@ def _emulate(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from lowcostdex.hardware.calibration import calibrate_offsets, format_report
-    from lowcostdex.hardware.dynamixel import DynamixelBus
+    from lowcostdex.hardware.dynamixel.driver import DynamixelBus
     from lowcostdex.hardware.hands import HandSpec, hand_spec
+    from lowcostdex.hardware.robot.calibration import calibrate_offsets, format_report
     from lowcostdex.outdir import check_out_file
 
     out = check_out_file(args.out, overwrite=True)  # a folder or a missing folder is refused
@@ -299,9 +299,9 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _setup_motors(args: argparse.Namespace) -> int:
-    from lowcostdex.hardware.dynamixel import scan
+    from lowcostdex.hardware.dynamixel.driver import scan
+    from lowcostdex.hardware.dynamixel.setup_motors import check_hand, setup_motors
     from lowcostdex.hardware.hands import hand_spec
-    from lowcostdex.hardware.setup_motors import check_hand, setup_motors
 
     check_baud(args.baud)
     hand = load_spec(args.spec) if args.spec else hand_spec(args.hand)

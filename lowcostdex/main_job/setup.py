@@ -57,7 +57,7 @@ def robot_effects(joints: tuple[str, ...]) -> list[Any]:
     of extra dry friction per joint: magnitudes inside the plausible D'Claw ranges of
     ../shared/reference/04-sysid.md section 6.
     """
-    from lowcostdex.hardware.backend import default_effects
+    from lowcostdex.hardware.robot.backend import default_effects
 
     return default_effects(joints, latency=0.012, backlash=math.radians(1.0), friction=0.05)
 

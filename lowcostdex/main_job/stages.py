@@ -17,11 +17,11 @@ def stage_bus(ctx: Context) -> dict[str, Any]:
     """Bring the D'Claw up on its bus: scan, then calibrate (emulated) or check the map."""
     import numpy as np
 
-    from lowcostdex.hardware.backend import make_dynamixel_bus, robot_hand
-    from lowcostdex.hardware.calibration import calibrate_offsets
-    from lowcostdex.hardware.dynamixel import scan
-    from lowcostdex.hardware.emulator import emulated_dclaw
+    from lowcostdex.hardware.dynamixel.driver import scan
+    from lowcostdex.hardware.emulated.chain import emulated_dclaw
     from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hardware.robot.backend import make_dynamixel_bus, robot_hand
+    from lowcostdex.hardware.robot.calibration import calibrate_offsets
     from lowcostdex.sim.models.dclaw import build_dclaw
 
     hand = robot_hand(dclaw_spec(), build_dclaw(ctx.setup.station).compile())
@@ -329,10 +329,10 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
     import numpy as np
     from rich.console import Console
 
+    from lowcostdex.gap import GapConfig, analyze, load_dataset, write_report
+    from lowcostdex.gap.cli import analysis_progress
     from lowcostdex.hardware.hands import dclaw_spec
-    from lowcostdex.hardware.trace import dclaw_identification_logs
-    from lowcostdex.sim.gap import GapConfig, analyze, load_dataset, write_report
-    from lowcostdex.sim.gap.cli import analysis_progress
+    from lowcostdex.hardware.robot.trace import dclaw_identification_logs
     from lowcostdex.sim.models.dclaw import build_dclaw
 
     b = ctx.budget

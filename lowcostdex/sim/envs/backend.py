@@ -95,10 +95,10 @@ class SimBackend(Backend):
 # ``cls(model, task=task, rng=rng, **backend_kwargs)``.
 BACKENDS: dict[str, str | dict[str, str]] = {
     "sim": "lowcostdex.sim.envs.backend:SimBackend",
-    "emulated": {"dclaw": "lowcostdex.hardware.backend:EmulatedBackend",
-                 "allegro": "lowcostdex.hardware.allegro_backend:EmulatedAllegroBackend"},
-    "hardware": {"dclaw": "lowcostdex.hardware.backend:HardwareBackend",
-                 "allegro": "lowcostdex.hardware.allegro_backend:AllegroHardwareBackend"},
+    "emulated": {"dclaw": "lowcostdex.hardware.robot.backend:EmulatedBackend",
+                 "allegro": "lowcostdex.hardware.allegro.backend:EmulatedAllegroBackend"},
+    "hardware": {"dclaw": "lowcostdex.hardware.robot.backend:HardwareBackend",
+                 "allegro": "lowcostdex.hardware.allegro.backend:AllegroHardwareBackend"},
 }
 
 

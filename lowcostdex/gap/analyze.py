@@ -1,0 +1,694 @@
+"""The gap analysis: replay, show what is wrong, name the cause(s), extend the model, measure gain.
+
+``analyze(dataset, config)`` runs the whole loop:
+
+1. Episodes (whole logs, or chunks of long ones) are split into train / select / test.
+2. The nominal model replays every episode open loop; residual diagnostics and the noise floor
+   describe what it gets wrong.
+3. Forward selection. Each round ranks the remaining candidate effects by their score statistic
+   (the share of the training residual their sensitivity explains), fits the best ``top_k`` jointly
+   with the effects already chosen (lockstep bounded LM on multiple-shooting training segments,
+   multi-start where non-convex), and replays the fitted candidates open loop on the *select*
+   episodes. The best one is accepted only if it lowers the select error by at least ``min_gain``
+   (relative MSE), the bootstrap over select episodes does not show it clearly worse (5th
+   percentile of the gain above -``min_gain``), it changes the predictions by more than
+   ``min_effect`` noise floors, its fit is not at a parameter bound, and the current train or
+   select error is above the noise floor. Otherwise the
+   analysis stops; with no accepted effect the answer is "no significant discrepancy".
+4. The chosen structure is refitted on train + select, then scored once on the untouched *test*
+   episodes: error before and after with a bootstrap interval over episodes, the noise floor and
+   the fraction of reducible error explained.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap.dataset import Dataset, Split, Window, episodes, segments, split_episodes
+from lowcostdex.gap.diagnostics import (
+    effective_n,
+    noise_floor,
+    residual_diagnostics,
+    score_fraction,
+)
+from lowcostdex.gap.gain import Gain, episode_errors, gain_with_ci
+from lowcostdex.gap.replay import Replayer
+from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
+
+Progress = Callable[[str, float], None]
+# Without accepted causes, a held-out error above this many noise floors is reported as an
+# unexplained discrepancy rather than "no significant discrepancy".
+UNEXPLAINED = 2.0
+
+
+@dataclass(frozen=True)
+class GapConfig:
+    """Settings of one analysis.
+
+    Attributes:
+      candidates: effects to consider (None: every canonical cause whose channels are logged).
+      top_k: candidates fitted per selection round (ranked by score statistic).
+      max_effects: most effects to accept.
+      min_gain: smallest relative reduction of the select-split MSE to accept an effect.
+      floor_margin: the current model counts as explained when its select RMSE is within this
+        factor of the noise floor.
+      min_effect: an accepted effect must change the open-loop predictions (train and select
+        episodes) by at least this many noise floors (RMS); smaller changes fit replay
+        artifacts, not physics.
+      rank_seconds: training data used by the score ranking (a spread subset) [s].
+      tie: candidates whose select MSE is within this fraction of the best one's are
+        equivalent explanations; the first in the canonical list (``effects.CAUSES``) whose
+        parameters are not at a bound is named.
+      search: "forward" (stepwise only) or "both": also fit the top-ranked candidates
+        together and prune them backward, keeping that model when it is clearly better.
+      backward_above: run that backward search only when the forward model's select RMSE is
+        above this many noise floors (otherwise there is nothing left to explain).
+      joint_k: from the second round on, the best ``joint_k`` screened candidates (fitted with
+        the accepted effects held) are refitted jointly with them.
+      segment: multiple-shooting segment length for fitting [s].
+      burn_in: unscored start of segments that begin inside a log [s].
+      chunk: episode length for long logs [s] (None: auto).
+      max_rounds: Levenberg-Marquardt rounds per fit.
+      test_logs: indices of logs to hold out for the test (None: random episodes).
+      bootstrap: bootstrap resamples.
+      seed: seed of the split and the bootstrap.
+      nthread: simulation threads (0: all CPUs).
+    """
+
+    candidates: tuple[str, ...] | None = None
+    top_k: int = 6
+    max_effects: int = 3
+    min_gain: float = 0.05
+    floor_margin: float = 1.2
+    min_effect: float = 0.75
+    rank_seconds: float = 12.0
+    joint_k: int = 3
+    tie: float = 0.002
+    search: str = "both"
+    backward_above: float = 1.5
+    segment: float = 6.0
+    burn_in: float = 0.15
+    chunk: float | None = None
+    max_rounds: int = 20
+    test_logs: tuple[int, ...] | None = None
+    bootstrap: int = 2000
+    seed: int = 0
+    nthread: int = 0
+
+    def __post_init__(self) -> None:
+        if self.candidates is not None:
+            for c in self.candidates:
+                check_choice("candidate effect", c, CAUSES)
+        for name in ("top_k", "max_effects", "max_rounds", "bootstrap"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1")
+        if not 0 < self.min_gain < 1:
+            raise ConfigError("min_gain must be in (0, 1)")
+        check_choice("search", self.search, ("forward", "both"))
+        if not self.segment > 0 or self.burn_in < 0:
+            raise ConfigError("segment must be > 0 s and burn_in >= 0 s")
+
+
+@dataclass
+class CandidateResult:
+    """One candidate in one selection round."""
+
+    effect: str
+    score: float
+    fitted: bool = False
+    train_rmse: float | None = None
+    select_rmse: float | None = None
+    select_gain: float | None = None  # relative MSE reduction on the select split
+    effect_rms: float | None = None  # RMS change of select predictions it causes [rad]
+    params: dict | None = None
+    at_bound: bool = False  # fit ended at a parameter bound: not a plausible explanation
+    accepted: bool = False
+
+
+@dataclass
+class Cause:
+    """An accepted effect with its fitted parameters and the test error once it is included."""
+
+    effect: str
+    joints: tuple[str, ...]
+    params: dict  # name -> {"value": [...], "interval": [[lo, hi], ...], "unit": str}
+    heldout_rmse_after: float = math.nan
+    heldout_mae_after: float = math.nan
+    flags: list[str] = field(default_factory=list)
+    equivalent: list[str] = field(default_factory=list)  # explain the select data as well
+
+
+@dataclass
+class GapResult:
+    """Everything the analysis found (``to_dict`` is the report.json payload)."""
+
+    config: GapConfig
+    sources: list[str]
+    joints: tuple[str, ...]
+    split: Split
+    episodes: list[Window]
+    floor: np.ndarray
+    baseline: dict
+    extended: dict
+    causes: list[Cause]
+    rounds: list[list[CandidateResult]]
+    diagnostics: dict
+    gain: Gain
+    effects: list[AppliedEffect]
+    verdict: str
+    timing: dict
+    traces: list[dict]  # test episodes: time, goal, measured, baseline, extended (for plots)
+    models: dict[str, str]
+    stop_reason: str = ""
+
+    def to_dict(self) -> dict:
+        fl = self.floor
+        return {
+            "version": 1,
+            "verdict": self.verdict,
+            "stop_reason": self.stop_reason,
+            "metric": "position error [rad]: RMSE (and MAE) over held-out test episodes",
+            "sources": self.sources,
+            "joints": list(self.joints),
+            "split": {k: [_ep(self.episodes[i], self.sources) for i in v]
+                      for k, v in asdict(self.split).items()},
+            "noise_floor": {"rmse": float(np.sqrt(np.mean(fl ** 2))),
+                            "per_joint": dict(zip(self.joints, fl.tolist(), strict=True))},
+            "baseline": self.baseline,
+            "causes": [_cause_dict(c) for c in self.causes],
+            "extended": self.extended,
+            "gain": self.gain.to_dict(),
+            "candidates": [[_cand_dict(c) for c in rnd] for rnd in self.rounds],
+            "diagnostics": self.diagnostics,
+            "config": {k: (list(v) if isinstance(v, tuple) else v)
+                       for k, v in asdict(self.config).items()},
+            "timing_s": self.timing,
+        }
+
+
+def _ep(w: Window, sources: list[str]) -> dict:
+    return {"log": sources[w.traj] if w.traj < len(sources) else w.traj, "start": w.start,
+            "stop": w.stop}
+
+
+def _cause_dict(c: Cause) -> dict:
+    return {"effect": c.effect, "joints": list(c.joints), "params": c.params,
+            "heldout_rmse_after": c.heldout_rmse_after, "heldout_mae_after": c.heldout_mae_after,
+            "flags": c.flags, "equivalent": c.equivalent}
+
+
+def _cand_dict(c: CandidateResult) -> dict:
+    return {k: v for k, v in asdict(c).items()}
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[str]:
+    """Candidates whose required channels are logged (all canonical causes by default)."""
+    chans = ds.channels()
+    names = list(requested) if requested is not None else list(CAUSES)
+    return [n for n in names if all(c in chans for c in effect(n).requires)]
+
+
+class _Engine:
+    """Replays and residuals shared by the stages of one analysis."""
+
+    def __init__(self, ds: Dataset, cfg: GapConfig, candidates: Sequence[str]):
+        self.ds, self.cfg = ds, cfg
+        self.rep = Replayer(ds, candidates, nthread=cfg.nthread)
+        self.joints = ds.effect_joints
+
+    def predict(self, windows: Sequence[Window], columns: Sequence[Sequence[AppliedEffect]]
+                ) -> list[list[np.ndarray]]:
+        return self.rep.run(windows, columns)[0]
+
+    def residuals(self, windows: Sequence[Window], columns) -> list[np.ndarray]:
+        """Scored residual vectors (measured - predicted), one per column."""
+        pred = self.predict(windows, columns)
+        out = []
+        for col in pred:
+            parts = []
+            for w, p in zip(windows, col, strict=True):
+                tr = self.ds.trajectories[w.traj]
+                off = w.score_from - w.start
+                parts.append((tr.qpos[w.score_from:w.stop] - p[off:]).ravel())
+            out.append(np.concatenate(parts))
+        return out
+
+    def residual_fn(self, windows: Sequence[Window]) -> fitmod.ResidualFn:
+        def fn(points):
+            cols = [s.to_effects(x) for s, x in points]
+            return self.residuals(windows, cols)
+        return fn
+
+
+def _mse_by_episode(ds: Dataset, eps: Sequence[Window], pred: Sequence[np.ndarray]
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-episode (sum of squared errors, sum of absolute errors, sample count)."""
+    sse, sae, n = [], [], []
+    for w, p in zip(eps, pred, strict=True):
+        r = ds.trajectories[w.traj].qpos[w.start:w.stop] - p
+        sse.append(float((r * r).sum()))
+        sae.append(float(np.abs(r).sum()))
+        n.append(r.size)
+    return np.array(sse), np.array(sae), np.array(n, float)
+
+
+def _select_gain_ci(sse_cur: np.ndarray, sse_new: np.ndarray, rng: np.random.Generator,
+                    n_boot: int) -> tuple[float, float]:
+    """Relative MSE reduction and its 5 % bootstrap lower bound over select episodes."""
+    rel = 1.0 - sse_new.sum() / max(sse_cur.sum(), 1e-300)
+    k = len(sse_cur)
+    idx = rng.integers(0, k, size=(n_boot, k))
+    a, b = sse_cur[idx].sum(1), sse_new[idx].sum(1)
+    boot = 1.0 - b / np.maximum(a, 1e-300)
+    return float(rel), float(np.percentile(boot, 5))
+
+
+def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | None = None
+            ) -> GapResult:
+    """Run the gap analysis on a data set (see the module docstring).
+
+    Args:
+      ds: nominal model(s) and measured trajectories.
+      config: settings.
+      progress: optional callback (stage description, fraction done in [0, 1]).
+    """
+    t_start = time.perf_counter()
+    timing: dict[str, float] = {}
+    cfg = config
+    prog = progress or (lambda s, f: None)
+    rng = np.random.default_rng(cfg.seed)
+    eps = episodes(ds, cfg.chunk)
+    split = split_episodes(ds, eps, rng, cfg.test_logs)
+    cands = available_candidates(ds, cfg.candidates)
+    eng = _Engine(ds, cfg, cands)
+    joints = eng.joints
+    m0 = eng.rep.models[ds.trajectories[0].model]
+    targets = Targets.resolve(m0, joints)
+    train_eps = [eps[i] for i in split.train]
+    sel_eps = [eps[i] for i in split.select]
+    test_eps = [eps[i] for i in split.test]
+    train_segs = segments(ds, train_eps, cfg.segment, cfg.burn_in)
+
+    # ---- 1. baseline replay and diagnostics --------------------------------------------------
+    prog("baseline replay", 0.02)
+    base_pred, peaks = eng.rep.run(eps, [[]], force_peak=True)
+    base_pred = base_pred[0]
+    floor = noise_floor(ds.trajectories)
+    floor_mse = float(np.mean(floor ** 2))
+    jcols = [list(ds.joints).index(j) for j in joints]
+    diagnostics = {j: residual_diagnostics(ds.trajectories, eps, base_pred, c)
+                   for j, c in zip(joints, jcols, strict=True)}
+    timing["baseline"] = time.perf_counter() - t_start
+    ctx = fitmod.Context(
+        dt=ds.timestep,
+        peak_force=np.asarray(peaks[0])[_act_cols(ds, targets, m0)],
+        stall=fitmod.stall_torque(m0, targets.actuators),
+        damping=m0.dof_damping[targets.dofs].copy())
+
+    # ---- 2. forward selection ------------------------------------------------------------------
+    current = fitmod.Structure((), joints)
+    cur_x = np.zeros(0)
+    sel_cur = _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
+    floor_rms = math.sqrt(floor_mse)
+    rounds: list[list[CandidateResult]] = []
+    fit_fn = eng.residual_fn(train_segs)
+    stop_reason = "max_effects reached"
+    equivalents: dict[str, list[str]] = {}
+    for step in range(cfg.max_effects):
+        remaining = [c for c in cands if c not in current.effects]
+        if not remaining:
+            stop_reason = "no candidates left"
+            break
+        t0 = time.perf_counter()
+        prog(f"round {step + 1}: ranking {len(remaining)} candidates", 0.1 + 0.25 * step)
+        table, train_rms = _rank(eng, _subset(ds, train_segs, cfg.rank_seconds), current,
+                                 cur_x, remaining, ctx)
+        table.sort(key=lambda c: -c.score)
+        rounds.append(table)
+        cur_mse = sel_cur[0].sum() / sel_cur[2].sum()
+        near = (cfg.floor_margin ** 2) * floor_mse
+        if cur_mse <= near and train_rms ** 2 <= near:
+            stop_reason = "train and select errors at the noise floor"
+            break
+        if table[0].score < cfg.min_gain:
+            stop_reason = "no candidate signature explains the residual"
+            break
+        fixed = current.to_effects(cur_x) if current.effects else []
+        tracks = []
+        for c in table[:cfg.top_k]:
+            st = fitmod.Structure.build((c.effect,), joints, ctx, fixed=fixed)
+            for k, x0 in enumerate(st.starts()):
+                tracks.append(fitmod.Track(st, st.u(x0), label=f"{c.effect}#{k}"))
+
+        def on_round(r, live, step=step):
+            prog(f"round {step + 1}: fitting {live} tracks (LM round {r + 1})",
+                 0.1 + 0.25 * step + 0.2 * (r + 1) / cfg.max_rounds)
+
+        fitmod.lockstep_lm(tracks, fit_fn, cfg.max_rounds, on_round=on_round,
+                           prune=fitmod.prune_tracks)
+        best_track: dict[str, fitmod.Track] = {}
+        for t in tracks:
+            name = t.structure.effects[-1]
+            if name not in best_track or t.cost < best_track[name].cost:
+                best_track[name] = t
+        # limits from the flat side of their cost, delays to the best physics-step phase (the
+        # cost is piecewise smooth in a delay: LM stops at a kink, seen 22.7 ms for 18.8 ms)
+        rescued = [t for t in best_track.values()
+                   if fitmod.scan_limits(t, fit_fn) | fitmod.polish(t, fit_fn, ds.timestep)]
+        if rescued:
+            fitmod.lockstep_lm(rescued, fit_fn, cfg.max_rounds // 2)
+        if current.effects:
+            # joint refits (earlier effects free again) of the most promising candidates
+            joint_tracks = []
+            for n in sorted(best_track, key=lambda n: best_track[n].cost)[:cfg.joint_k]:
+                js = fitmod.Structure.build(current.effects + (n,), joints, ctx)
+                x0 = js.values_from(best_track[n].effects())
+                joint_tracks.append(fitmod.Track(js, js.u(x0), label=f"{n}+joint"))
+            prog(f"round {step + 1}: joint refit of {len(joint_tracks)} candidates",
+                 0.1 + 0.25 * step + 0.2)
+            fitmod.lockstep_lm(joint_tracks, fit_fn, cfg.max_rounds)
+            for t in joint_tracks:
+                n = t.structure.effects[-1]
+                if t.cost < best_track[n].cost:
+                    best_track[n] = t
+        names = list(best_track)
+        sel_pred = eng.predict(sel_eps, [best_track[n].effects() for n in names])
+        results = {}
+        by_name = {c.effect: c for c in table}
+        for n, pr in zip(names, sel_pred, strict=True):
+            sse = _mse_by_episode(ds, sel_eps, pr)[0]
+            rel, low = _select_gain_ci(sel_cur[0], sse, rng, cfg.bootstrap)
+            results[n] = (rel, low, sse)
+            c, t = by_name[n], best_track[n]
+            c.fitted = True
+            c.train_rmse = math.sqrt(2 * t.cost / max(len(t.r), 1))
+            c.select_rmse = math.sqrt(sse.sum() / sel_cur[2].sum())
+            c.select_gain = rel
+            c.params = {p: v.tolist() for e in t.effects() if e.name == n
+                        for p, v in e.values.items()}
+        # candidates the select split cannot tell apart from the best (within ``tie`` of its
+        # MSE) are equivalent explanations: the earliest in the canonical list is named, the
+        # others are reported with it
+        # a fit that ends at a (non-null) bound is not a plausible explanation (04-sysid.md
+        # 4.3 (b)): it compensates for something else; such candidates are not named
+        plausible = {n: r for n, r in results.items()
+                     if not _flags(best_track[n].structure, best_track[n].u, n)}
+        for n in set(results) - set(plausible):
+            by_name[n].at_bound = True
+        if not plausible:
+            stop_reason = "every fitted candidate ended at a parameter bound"
+            timing[f"round{step + 1}"] = time.perf_counter() - t0
+            break
+        top_gain = max(r[0] for r in plausible.values())
+        tied = [n for n in plausible
+                if (1 - plausible[n][0]) <= (1 - top_gain) * (1 + cfg.tie) + 1e-12]
+        n_best = min(tied, key=lambda n: CAUSES.index(n))
+        rel, low, sse = results[n_best]
+        size = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x)
+                            if current.effects else [], best_track[n_best].effects())
+        by_name[n_best].effect_rms = size
+        significant = rel >= cfg.min_gain and low > -cfg.min_gain
+        if not (significant and size >= cfg.min_effect * floor_rms):
+            stop_reason = ("no candidate lowers the select error significantly"
+                           if not significant else
+                           "the best candidate changes predictions by less than the noise floor")
+            timing[f"round{step + 1}"] = time.perf_counter() - t0
+            break
+        equivalents[n_best] = [n for n in tied if n != n_best]
+        joint = fitmod.Structure.build(current.effects + (n_best,), joints, ctx)
+        by_name[n_best].accepted = True
+        current, cur_x = joint, joint.values_from(best_track[n_best].effects())
+        sel_cur = (sse, sel_cur[1], sel_cur[2])
+        timing[f"round{step + 1}"] = time.perf_counter() - t0
+
+    # ---- backward pass: drop accepted effects the final model no longer needs ---------------
+    if len(current.effects) > 1:
+        current, cur_x = _backward(eng, ds, sel_eps, current, cur_x, cfg, floor_rms, ctx,
+                                   fit_fn, dropped := [])
+        if dropped:
+            stop_reason += f"; dropped by the backward pass: {', '.join(dropped)}"
+            sel_cur = (_mse_by_episode(ds, sel_eps, eng.predict(
+                sel_eps, [current.to_effects(cur_x)])[0])[0], sel_cur[1], sel_cur[2])
+
+    # ---- backward search: the top-ranked candidates fitted together, then pruned ------------
+    # Effects that only help in combination (a friction model needs the right inertia) are
+    # invisible to one-at-a-time forward steps; the pruned joint model replaces the forward one
+    # only when it lowers the select MSE by another ``min_gain``.
+    fwd_rmse = math.sqrt(sel_cur[0].sum() / sel_cur[2].sum())
+    if cfg.search == "both" and rounds and fwd_rmse > cfg.backward_above * floor_rms:
+        t0 = time.perf_counter()
+        prog("backward search from the top candidates", 0.8)
+        big = tuple(dict.fromkeys(current.effects + tuple(
+            c.effect for c in rounds[0][:cfg.top_k] if c.score >= cfg.min_gain)))
+        if len(big) > max(len(current.effects), 1):
+            alt, alt_x = _joint_then_prune(eng, ds, sel_eps, big, current, cur_x, cfg,
+                                           floor_rms, ctx, fit_fn)
+            if alt.effects:
+                sse_alt = _mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [
+                    alt.to_effects(alt_x)])[0])[0]
+                base_sse = _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0]
+                rel_base, _ = _select_gain_ci(base_sse, sse_alt, rng, cfg.bootstrap)
+                # the switch must be visible: the two models' predictions differ by more than
+                # the noise floor (effects that cancel each other cannot sneak in)
+                switch = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x),
+                                      alt.to_effects(alt_x))
+                if (sse_alt.sum() < (1 - cfg.min_gain) * sel_cur[0].sum()
+                        and rel_base >= cfg.min_gain and switch >= cfg.min_effect * floor_rms):
+                    stop_reason += (f"; backward search from {', '.join(big)} kept "
+                                    f"{', '.join(alt.effects)} (select MSE "
+                                    f"{100 * (1 - sse_alt.sum() / sel_cur[0].sum()):.0f} % below "
+                                    "the forward model's)")
+                    current, cur_x = alt, alt_x
+                    sel_cur = (sse_alt, sel_cur[1], sel_cur[2])
+        timing["backward_search"] = time.perf_counter() - t0
+
+    # ---- 3. final refit on train + select, test once ---------------------------------------
+    causes: list[Cause] = []
+    effects: list[AppliedEffect] = []
+    final_track = None
+    if current.effects:
+        t0 = time.perf_counter()
+        prog("final refit on train + select", 0.85)
+        all_segs = segments(ds, train_eps + sel_eps, cfg.segment, cfg.burn_in)
+        final_track = fitmod.Track(current, current.u(cur_x), label="final")
+        # one track: converge tighter than the screening fits
+        final_fn = eng.residual_fn(all_segs)
+        fitmod.lockstep_lm([final_track], final_fn, 2 * cfg.max_rounds, rtol=1e-5)
+        if fitmod.polish(final_track, final_fn, ds.timestep):
+            # one round re-evaluates residual and Jacobian at the polished point (intervals)
+            fitmod.lockstep_lm([final_track], final_fn, 1)
+        effects = final_track.effects()
+        timing["final_fit"] = time.perf_counter() - t0
+    prog("held-out test", 0.95)
+    prefixes = [effects[:k] for k in range(1, len(effects) + 1)]
+    test_pred = eng.predict(test_eps, prefixes) if prefixes else []
+    base_test = [base_pred[i] for i in split.test]
+    b_sse, b_sae, b_n = _mse_by_episode(ds, test_eps, base_test)
+    ext_pred = test_pred[-1] if test_pred else base_test
+    e_sse, e_sae, e_n = _mse_by_episode(ds, test_eps, ext_pred)
+    gain = gain_with_ci(b_sse, e_sse, b_n, b_sae, e_sae, floor_mse, rng, cfg.bootstrap)
+    baseline = episode_errors(ds, test_eps, base_test, joints=list(ds.joints))
+    extended = episode_errors(ds, test_eps, ext_pred, joints=list(ds.joints))
+    baseline.update(select_rmse=float(math.sqrt(
+        _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0].sum()
+        / max(sel_cur[2].sum(), 1))))
+    if final_track is not None:
+        half = fitmod.interval_halfwidths(final_track.r, final_track.jac,
+                                          effective_n(final_track.r))
+        for k, e in enumerate(effects):
+            c = Cause(e.name, e.joints, _param_report(final_track.structure, final_track.u, half,
+                                                      e.name))
+            sse, sae, n = _mse_by_episode(ds, test_eps, test_pred[k])
+            c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
+            c.heldout_mae_after = float(sae.sum() / n.sum())
+            c.flags = _flags(final_track.structure, final_track.u, e.name)
+            c.equivalent = equivalents.get(e.name, [])
+            causes.append(c)
+    verdict = _verdict(causes, gain)
+    timing["total"] = time.perf_counter() - t_start
+    traces = _traces(ds, test_eps, base_test, ext_pred)
+    prog("done", 1.0)
+    return GapResult(cfg, ds.sources or [tr.name for tr in ds.trajectories], joints, split, eps,
+                     floor, baseline, extended, causes, rounds, diagnostics, gain, effects,
+                     verdict, timing, traces, dict(ds.models), stop_reason)
+
+
+def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:
+    """Column of each effect joint's actuator in the log's actuator list."""
+    names = [model.actuator(int(a)).name for a in targets.actuators]
+    return [list(ds.actuators).index(n) for n in names]
+
+
+def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x: np.ndarray,
+          remaining: Sequence[str], ctx: fitmod.Context
+          ) -> tuple[list[CandidateResult], float]:
+    """Score statistic of every remaining candidate at the current model (one batched pass),
+    and the current model's RMS residual on these training segments [rad]."""
+    cur_eff = current.to_effects(cur_x) if current.effects else []
+    cols: list[list[AppliedEffect]] = [cur_eff]
+    owner: list[str] = []
+    nj = len(eng.joints)
+    for name in remaining:
+        for p in effect(name).params:
+            for j in range(nj):
+                f = fitmod.space(name, p.name, j, ctx)
+                null = p.null if math.isfinite(p.null) else f.hi
+                probe = f.start if not math.isclose(f.start, null) else (
+                    f.from_u(f.to_u(null) + 10 * f.fd) if f.log else null + 10 * f.fd)
+                # secants to the start and to every extra start: their span follows the shape
+                # of strongly nonlinear effects (a torque limit, a delay) better than one column
+                for v in (probe, *f.extra):
+                    vals = {q.name: np.full(nj, q.null) for q in effect(name).params}
+                    vals[p.name][j] = v
+                    if name == "stribeck_friction" and p.name == "velocity":
+                        vals["static"][j] = fitmod.space(name, "static", j, ctx).start
+                    cols.append(cur_eff + [AppliedEffect(name, eng.joints, vals)])
+                    owner.append(name)
+    res = eng.residuals(segs, cols)
+    r0 = res[0]
+    table = []
+    for name in remaining:
+        g = np.stack([res[i + 1] - r0 for i, o in enumerate(owner) if o == name], axis=1)
+        table.append(CandidateResult(name, score_fraction(r0, g)))
+    return table, float(np.sqrt(np.mean(r0 * r0)))
+
+
+def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
+              current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig, floor_rms: float,
+              ctx: fitmod.Context, fit_fn, dropped: list[str], min_size: int = 1
+              ) -> tuple[fitmod.Structure, np.ndarray]:
+    """Remove accepted effects that a later one made redundant, then order by importance.
+
+    An effect is redundant when leaving it out of the current model (others unchanged) raises
+    the select MSE by less than ``min_gain / 2`` or changes the predictions by less than
+    ``min_effect`` noise floors; an effect whose fit sits at a parameter bound is implausible and
+    goes first. The rest are ordered by how much the select MSE rises without them.
+    """
+    while len(current.effects) > min_size:
+        effs = current.to_effects(cur_x)
+        full = eng.predict(sel_eps, [effs])[0]
+        sse_full = _mse_by_episode(ds, sel_eps, full)[0].sum()
+        cols = [[e for e in effs if e.name != n] for n in current.effects]
+        preds = eng.predict(sel_eps, cols)
+        rise, size = {}, {}
+        for n, pr in zip(current.effects, preds, strict=True):
+            rise[n] = _mse_by_episode(ds, sel_eps, pr)[0].sum() / max(sse_full, 1e-300) - 1
+            d = np.concatenate([(a - b).ravel() for a, b in zip(pr, full, strict=True)])
+            size[n] = float(np.sqrt(np.mean(d * d)))
+        at_bound = {f.effect for f in current.free if _flags(current, current.u(cur_x), f.effect)}
+        weak = [n for n in current.effects
+                if rise[n] < 0.5 * cfg.min_gain or size[n] < cfg.min_effect * floor_rms
+                or n in at_bound]
+        if not weak:
+            order = sorted(current.effects, key=lambda n: -rise[n])
+            if list(order) != list(current.effects):
+                s = fitmod.Structure.build(tuple(order), current.joints, ctx)
+                return s, s.values_from(effs)
+            return current, cur_x
+        drop = min(weak, key=lambda n: (n not in at_bound, rise[n]))
+        dropped.append(drop)
+        keep = tuple(n for n in current.effects if n != drop)
+        s = fitmod.Structure.build(keep, current.joints, ctx)
+        t = fitmod.Track(s, s.u(s.values_from(effs)), label="backward")
+        fitmod.lockstep_lm([t], fit_fn, cfg.max_rounds)
+        current, cur_x = s, t.x
+    return current, cur_x
+
+
+def _joint_then_prune(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window], names: tuple,
+                      current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig,
+                      floor_rms: float, ctx: fitmod.Context, fit_fn
+                      ) -> tuple[fitmod.Structure, np.ndarray]:
+    """Fit ``names`` jointly (from the forward model's values), then prune with ``_backward``."""
+    big = fitmod.Structure.build(names, current.joints, ctx)
+    base = big.values_from(current.to_effects(cur_x)) if current.effects else None
+    tracks = [fitmod.Track(big, big.u(x0), label="big") for x0 in big.starts(base)]
+    fitmod.lockstep_lm(tracks, fit_fn, 2 * cfg.max_rounds, prune=fitmod.prune_tracks)
+    best = min(tracks, key=lambda t: t.cost)
+    return _backward(eng, ds, sel_eps, best.structure, best.x, cfg, floor_rms, ctx, fit_fn, [],
+                     min_size=1)
+
+
+def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]:
+    """Evenly spread segments totalling about ``seconds`` (all when there are fewer)."""
+    dur = [ds.trajectories[w.traj].time[w.stop - 1] - ds.trajectories[w.traj].time[w.start]
+           for w in segs]
+    total = float(sum(dur))
+    if total <= seconds:
+        return list(segs)
+    k = max(1, int(round(len(segs) * seconds / total)))
+    idx = np.unique(np.linspace(0, len(segs) - 1, k).round().astype(int))
+    return [segs[i] for i in idx]
+
+
+def _effect_size(eng: _Engine, eps: Sequence[Window], cur: Sequence[AppliedEffect],
+                 new: Sequence[AppliedEffect]) -> float:
+    """RMS difference between two models' open-loop predictions on ``eps`` [rad]: how visible
+    a change of model is (train and select episodes: visibility is not a held-out claim)."""
+    a, b = eng.predict(eps, [list(cur), list(new)])
+    d = np.concatenate([(x - y).ravel() for x, y in zip(a, b, strict=True)])
+    return float(np.sqrt(np.mean(d * d)))
+
+
+def _param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str) -> dict:
+    out: dict[str, dict] = {}
+    for i, f in enumerate(s.free):
+        if f.effect != name:
+            continue
+        lo_u, hi_u = u[i] - half[i], u[i] + half[i]
+        lo_v = f.from_u(lo_u) if math.isfinite(lo_u) else -math.inf
+        hi_v = f.from_u(hi_u) if math.isfinite(hi_u) else math.inf
+        d = out.setdefault(f.param, {"value": [], "interval": [],
+                                     "unit": effect(name).param(f.param).unit})
+        d["value"].append(f.from_u(u[i]))
+        d["interval"].append([max(lo_v, f.lo) if f.log else lo_v,
+                              min(hi_v, f.hi) if f.log else hi_v])
+    return out
+
+
+def _flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
+    lo, hi = s.u_bounds()
+    flags = []
+    for i, f in enumerate(s.free):
+        if f.effect != name:
+            continue
+        null = effect(name).param(f.param).null
+        for b, label in ((lo[i], "lower"), (hi[i], "upper")):
+            if abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
+                flags.append(f"{f.param}[{s.joints[f.joint]}] at its {label} bound")
+    return flags
+
+
+def _verdict(causes: Sequence[Cause], gain: Gain) -> str:
+    if not causes:
+        if gain.baseline_rmse > UNEXPLAINED * gain.noise_floor:
+            return (f"discrepancy not explained by the candidate effects (held-out RMSE "
+                    f"{gain.baseline_rmse:.4g} rad, {gain.baseline_rmse / gain.noise_floor:.0f}x "
+                    "the noise floor; no candidate lowered the select error significantly)")
+        return "no significant discrepancy"
+    names = ", ".join(c.effect for c in causes)
+    return (f"{names}: held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad "
+            f"({100 * gain.relative:.0f} % lower)")
+
+
+def _traces(ds: Dataset, eps: Sequence[Window], base: Sequence[np.ndarray],
+            ext: Sequence[np.ndarray], n: int = 2) -> list[dict]:
+    out = []
+    for w, b, e in list(zip(eps, base, ext, strict=True))[:n]:
+        tr = ds.trajectories[w.traj]
+        sl = slice(w.start, w.stop)
+        out.append({"name": tr.name, "time": tr.time[sl] - tr.time[w.start],
+                    "goal": tr.goal[sl], "measured": tr.qpos[sl], "baseline": b,
+                    "extended": e, "joints": ds.joints, "actuators": ds.actuators})
+    return out

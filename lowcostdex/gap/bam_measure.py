@@ -1,0 +1,92 @@
+"""BAM's error measure on measured servo logs, computed with the project's plant.
+
+BAM (Rhoban/bam, ``bam.process`` + ``bam.mae``; 08-bam-reference-errors.md section 1) scores an
+actuator model on a set of pendulum logs like this:
+
+1. every log is resampled onto a grid t = 0, dt, 2 dt, ... < (last timestamp), dt = 5 ms, by
+   linear interpolation between the two raw samples around t (linear extrapolation from the
+   first two samples before the first one); ``torque_enable`` is thresholded at 0.5;
+2. the model is rolled out open loop from the first grid state (position, speed), the firmware
+   P law recomputed from the *simulated* position and the grid's goal, the torque switched off
+   where the grid says so (free fall included);
+3. a log's error is the mean |q_sim - q_meas| over every grid sample; the set's error is the
+   mean over logs of the per-log errors.
+
+``resample`` does step 1 on a ``Trajectory``; ``grid_dataset`` does it for a whole data set (same
+nominal models); ``per_log_mae`` does steps 2-3 through ``Replayer`` (our plant: the servo model of
+``lowcostdex.sim.servo`` plus effects), one window per whole log, so a log's rollout is exactly
+BAM's protocol with our physics in place of BAM's simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from lowcostdex.gap.dataset import Dataset, Window
+from lowcostdex.gap.logs import LogError, Trajectory
+from lowcostdex.sim.effects import AppliedEffect
+
+BAM_DT = 0.005  # [s] bam.process default grid step
+
+
+def _interp(t_raw: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """BAM's interpolation: for grid time t the segment [frame, frame + 1] with the first
+    ``frame`` such that t <= t_raw[frame + 1] (extrapolating the first segment before the first
+    sample), then linear interpolation on it. values: (T, n) -> (len(t), n)."""
+    frame = np.clip(np.searchsorted(t_raw, t, side="left") - 1, 0, len(t_raw) - 2)
+    t1, t2 = t_raw[frame], t_raw[frame + 1]
+    a = ((t - t1) / (t2 - t1))[:, None]
+    return values[frame] + (values[frame + 1] - values[frame]) * a
+
+
+def resample(tr: Trajectory, dt: float = BAM_DT) -> Trajectory:
+    """A trajectory on BAM's grid (module doc, step 1); goals and channels resampled alike.
+
+    Raises:
+      LogError when the log has fewer than two samples or ends before ``dt``.
+    """
+    t_raw = np.asarray(tr.time, float)
+    if len(t_raw) < 2 or t_raw[-1] <= dt:
+        raise LogError(f"{tr.name}: too short for BAM's {dt * 1e3:g} ms grid")
+    t = np.arange(0.0, t_raw[-1], dt)
+    qvel = None if tr.qvel is None else _interp(t_raw, tr.qvel, t)
+    channels = {k: _interp(t_raw, np.asarray(v, float), t) for k, v in tr.channels.items()}
+    if "torque_enable" in channels:
+        channels["torque_enable"] = (channels["torque_enable"] > 0.5).astype(float)
+    out = Trajectory(name=tr.name, time=t, goal=_interp(t_raw, tr.goal, t),
+                     qpos=_interp(t_raw, tr.qpos, t), actuators=tr.actuators, joints=tr.joints,
+                     qvel=qvel, channels=channels, model=tr.model, meta=dict(tr.meta))
+    return out
+
+
+def grid_dataset(ds: Dataset, dt: float = BAM_DT) -> Dataset:
+    """The data set with every trajectory resampled onto BAM's grid (same nominal models)."""
+    return Dataset(dict(ds.models), [resample(tr, dt) for tr in ds.trajectories],
+                   list(ds.sources))
+
+
+def whole_logs(ds: Dataset, logs: Sequence[int] | None = None) -> list[Window]:
+    """One window per log (all of it, scored from its first sample)."""
+    idx = range(len(ds.trajectories)) if logs is None else logs
+    return [Window(int(k), 0, len(ds.trajectories[k]), 0) for k in idx]
+
+
+def per_log_mae(replayer, windows: Sequence[Window],
+                columns: Sequence[Sequence[AppliedEffect]]) -> np.ndarray:
+    """BAM's per-log MAE [rad], shape (len(columns), len(windows)), one row per effect set.
+
+    Args:
+      replayer: a ``Replayer`` over a grid data set (``grid_dataset``) with room for the effects.
+      windows: whole-log windows (``whole_logs``).
+      columns: effect sets to score (an empty list is the nominal model).
+    """
+    pred, _ = replayer.run(windows, columns)
+    ds = replayer.ds
+    out = np.empty((len(columns), len(windows)))
+    for c in range(len(columns)):
+        for i, w in enumerate(windows):
+            q = ds.trajectories[w.traj].qpos[w.start:w.stop]
+            out[c, i] = float(np.mean(np.abs(pred[c][i] - q)))
+    return out

@@ -1,0 +1,344 @@
+"""A gap-analysis data set: nominal models, measured trajectories, windows and splits.
+
+A *window* is a stretch of one trajectory replayed from its measured state at the first sample.
+*Episodes* are the units of held-out evaluation and of the bootstrap (a whole trajectory, or a
+chunk of a long one), replayed open loop; fitting replays *segments* (shorter windows, multiple
+shooting) so that all of them run in parallel in one batch and long-horizon drift cannot trap the
+fit. Splits (train / select / test) are made over episodes, never over samples.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.gap.logs import (
+    LogError,
+    Trajectory,
+    check_against_model,
+    estimate_velocity,
+    is_bam,
+    read_bam,
+    read_log,
+    split_at_gaps,
+)
+from lowcostdex.sim.models.bench import build_bench
+
+MAX_TOTAL_DURATION = 4 * 3600.0
+"""Most seconds of logs one analysis takes (its run time grows with them)."""
+
+@dataclass(frozen=True)
+class Window:
+    """Samples [start, stop) of trajectory ``traj``; residuals count from ``score_from``."""
+
+    traj: int
+    start: int
+    stop: int
+    score_from: int
+
+    @property
+    def n_scored(self) -> int:
+        return self.stop - self.score_from
+
+
+@dataclass
+class Dataset:
+    """Nominal models (MJCF strings by key) and the trajectories that replay on them.
+
+    Attributes:
+      models: {key: MJCF XML} of the nominal models.
+      trajectories: measured trajectories; ``trajectory.model`` names its model.
+      sources: input file of each trajectory.
+      notes: what loading did to the logs that a user should know (e.g. a log split at a gap).
+    """
+
+    models: dict[str, str]
+    trajectories: list[Trajectory]
+    sources: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.trajectories:
+            raise LogError("no trajectories given")
+        for tr in self.trajectories:
+            if tr.model not in self.models:
+                raise ConfigError(f"trajectory {tr.name}: unknown model {tr.model!r}; "
+                                  f"models: {sorted(self.models)}")
+        self._compiled: dict[str, mujoco.MjModel] = {}
+        for tr in self.trajectories:
+            check_against_model(tr, self.compiled(tr.model))
+            if tr.qvel is None:
+                tr.qvel = estimate_velocity(tr.time, tr.qpos)
+        names = {(tr.joints, tr.actuators) for tr in self.trajectories}
+        if len(names) > 1:
+            raise LogError("all logs must measure the same joints and command the same actuators;"
+                           f" got {sorted(names)}")
+
+    def compiled(self, key: str) -> mujoco.MjModel:
+        """The nominal model ``key`` compiled (cached)."""
+        if key not in self._compiled:
+            self._compiled[key] = mujoco.MjSpec.from_string(self.models[key]).compile()
+        return self._compiled[key]
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return self.trajectories[0].joints
+
+    @property
+    def effect_joints(self) -> tuple[str, ...]:
+        """Measured joints driven by exactly one actuator: where candidate effects can act."""
+        m = self.compiled(self.trajectories[0].model)
+        out = []
+        for j in self.joints:
+            jid = m.joint(j).id
+            n = np.sum((m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
+                       & (m.actuator_trnid[:, 0] == jid))
+            if n == 1:
+                out.append(j)
+        if not out:
+            raise LogError("no measured joint is driven by exactly one actuator; the gap analysis "
+                           "needs position-servo joints")
+        return tuple(out)
+
+    @property
+    def actuators(self) -> tuple[str, ...]:
+        return self.trajectories[0].actuators
+
+    def channels(self) -> set[str]:
+        """Channels present in every trajectory."""
+        sets = [set(tr.channels) for tr in self.trajectories]
+        return set.intersection(*sets)
+
+    @property
+    def timestep(self) -> float:
+        return float(self.compiled(self.trajectories[0].model).opt.timestep)
+
+    def duration(self) -> float:
+        return float(sum(tr.duration for tr in self.trajectories))
+
+
+def load_dataset(paths: Sequence[str | Path], model: str | Path | None = None,
+                 bench: bool | None = None, timestep: float | None = None) -> Dataset:
+    """Read logs and their model(s).
+
+    Args:
+      paths: log files (CSV/NPZ in the project format, or BAM JSON).
+      model: MJCF file for project-format logs (required for them).
+      bench: True: the logs are BAM JSON mapped onto the bench; None: auto-detect.
+      timestep: physics step for BAM benches [s] (default: the bench's).
+    Logs whose time stamps jump (logging paused) are split there (``split_at_gaps``; said in
+    ``Dataset.notes``); the total duration is bounded by ``MAX_TOTAL_DURATION``.
+
+    Raises:
+      LogError with the file and problem.
+    """
+    if not paths:
+        raise LogError("no log files given")
+    paths = [Path(p) for p in paths]
+    for p in paths:
+        if not p.exists():
+            raise LogError(f"{p}: no such file")
+    bam = [is_bam(p) for p in paths]
+    if bench is None:
+        bench = all(bam)
+        if any(bam) and not all(bam):
+            raise LogError("mixing BAM JSON logs and project logs in one analysis is not "
+                           "supported")
+    models: dict[str, str] = {}
+    trajs: list[Trajectory] = []
+    if bench:
+        for p, b in zip(paths, bam, strict=True):
+            if not b:
+                raise LogError(f"{p}: --bench expects BAM JSON logs")
+            tr, cfg = read_bam(p, timestep=timestep)
+            if tr.model not in models:
+                models[tr.model] = build_bench(cfg).to_xml()
+            trajs.append(tr)
+    else:
+        if model is None:
+            raise LogError("project-format logs need --model MODEL.xml")
+        model = Path(model)
+        if not model.exists():
+            raise LogError(f"{model}: no such model file")
+        try:
+            spec = mujoco.MjSpec.from_file(str(model))
+            spec.compile()
+        except Exception as exc:  # mujoco raises ValueError with the parser message
+            raise LogError(f"{model}: cannot load the model: {exc}") from None
+        models["model"] = spec.to_xml()
+        trajs = [read_log(p) for p in paths]
+    total = sum(tr.duration for tr in trajs)
+    if total > MAX_TOTAL_DURATION:
+        raise LogError(f"{len(trajs)} logs of {total:.6g} s in all; one analysis takes at most "
+                       f"{MAX_TOTAL_DURATION:g} s of logs (give fewer or shorter logs)")
+    pieces, sources, notes = [], [], []
+    for p, tr in zip(paths, trajs, strict=True):
+        cut, said = split_at_gaps(tr)
+        pieces += cut
+        sources += [str(p)] * len(cut)
+        notes += said
+    return Dataset(models, pieces, sources, notes)
+
+
+# ------------------------------------------------------------------------------------------------
+# windows
+
+
+def quiet_start(tr: Trajectory, lo: int, hi: int, settle: float = 0.1) -> int:
+    """The sample in [lo, hi) where a replay is best started: the joints slowest and no goal
+    change within the preceding ``settle`` seconds (a clean measured initial state; a moving,
+    saturated servo would carry any initial-state error through the whole move)."""
+    lo, hi = max(lo, 0), min(hi, len(tr))
+    if hi - lo <= 1:
+        return lo
+    v = np.abs(tr.qvel[lo:hi]).sum(axis=1) if tr.qvel is not None else np.zeros(hi - lo)
+    changed = np.concatenate([[0], np.any(np.diff(tr.goal, axis=0) != 0, axis=1)]).astype(int)
+    csum = np.cumsum(changed)
+    back = np.searchsorted(tr.time, tr.time[lo:hi] - settle)
+    recent = (csum[lo:hi] - csum[back]) > 0
+    score = v + np.where(recent, 10.0 + v.max(), 0.0)
+    return lo + int(np.argmin(score))
+
+
+def _cuts(tr: Trajectory, start: int, stop: int, n: int) -> list[int]:
+    """Cut [start, stop) into n pieces at quiet samples near the even boundaries."""
+    t0, t1 = tr.time[start], tr.time[stop - 1]
+    edges = [start]
+    width = (t1 - t0) / n
+    for k in range(1, n):
+        lo = int(np.searchsorted(tr.time, t0 + (k - 0.25) * width))
+        hi = int(np.searchsorted(tr.time, t0 + (k + 0.25) * width))
+        edges.append(max(quiet_start(tr, lo, hi), edges[-1] + 2))
+    edges.append(stop)
+    return edges
+
+
+def episodes(ds: Dataset, chunk: float | None = None) -> list[Window]:
+    """Cut trajectories into episodes of about ``chunk`` seconds (None: auto).
+
+    Auto: total duration / 16, within [2, 10] s; trajectories shorter than 1.5 chunks stay
+    whole, so a set of short logs (e.g. BAM's 6 s) keeps one episode per log. Cuts fall on
+    quiet samples (``quiet_start``) near the even boundaries.
+    """
+    if chunk is None:
+        chunk = min(max(ds.duration() / 16.0, 2.0), 10.0)
+    out = []
+    for k, tr in enumerate(ds.trajectories):
+        n = max(1, int(tr.duration // chunk)) if tr.duration >= 1.5 * chunk else 1
+        edges = _cuts(tr, 0, len(tr), n)
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            if b - a >= 2:
+                out.append(Window(k, int(a), int(b), int(a)))
+    return out
+
+
+def segments(ds: Dataset, eps: Sequence[Window], length: float, burn_in: float) -> list[Window]:
+    """Multiple-shooting segments of about ``length`` s inside episodes, cut at quiet samples.
+
+    Segments that start inside a trajectory (not at its first sample) are scored only after
+    ``burn_in`` seconds, while the hidden state (velocity estimate, filters) settles.
+    """
+    out = []
+    for ep in eps:
+        tr = ds.trajectories[ep.traj]
+        t0, t1 = tr.time[ep.start], tr.time[ep.stop - 1]
+        n = max(1, int(round((t1 - t0) / length)))
+        edges = _cuts(tr, ep.start, ep.stop, n)
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            if b - a < 2:
+                continue
+            score = a if a == 0 else int(np.searchsorted(tr.time, tr.time[a] + burn_in))
+            score = min(score, b - 1)
+            out.append(Window(ep.traj, int(a), int(b), score))
+    return out
+
+
+@dataclass(frozen=True)
+class Split:
+    """Episode indices per role: fit on ``train``, choose effects on ``select``, report ``test``."""
+
+    train: tuple[int, ...]
+    select: tuple[int, ...]
+    test: tuple[int, ...]
+
+
+def _stratum(ds: Dataset, w: Window) -> tuple:
+    """What an episode exercises: its log's trajectory name (BAM) and torque-off samples."""
+    tr = ds.trajectories[w.traj]
+    te = tr.channels.get("torque_enable")
+    off = bool(te is not None and np.any(te[w.start:w.stop] < 0.5))
+    return (str(tr.meta.get("trajectory", "")), off)
+
+
+def _deal(groups: Sequence[Sequence[int]], shares: dict[str, float]) -> dict[str, list[int]]:
+    """Deal each group's items to roles in proportion to ``shares``: within a group, each item
+    goes to the role furthest below its share of that group, ties to the role furthest below
+    its share overall (so small groups still spread across roles and the totals balance)."""
+    out: dict[str, list[int]] = {r: [] for r in shares}
+    total = 0
+    for group in groups:
+        local = dict.fromkeys(shares, 0)
+        for j, item in enumerate(group):
+            role = max(shares, key=lambda r: (shares[r] * (j + 1) - local[r],
+                                              shares[r] * (total + 1) - len(out[r])))
+            out[role].append(int(item))
+            local[role] += 1
+            total += 1
+    return out
+
+
+def _strata(ds: Dataset, eps: Sequence[Window], idx: Sequence[int],
+            rng: np.random.Generator) -> list[list[int]]:
+    """Episodes grouped by stratum, shuffled within groups, groups in a shuffled order."""
+    groups: dict[tuple, list[int]] = {}
+    for i in idx:
+        groups.setdefault(_stratum(ds, eps[i]), []).append(int(i))
+    lists = [[int(x) for x in rng.permutation(g)] for _, g in sorted(groups.items())]
+    return [lists[k] for k in rng.permutation(len(lists))]
+
+
+def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
+                   test_trajectories: Sequence[int] | None = None,
+                   fractions: tuple[float, float] = (0.25, 0.25)) -> Split:
+    """Split episodes into train / select / test, stratified by what they exercise.
+
+    Episodes are grouped by stratum (the log's trajectory name when the log says it, as BAM logs
+    do, and whether the torque is switched off), shuffled within groups and dealt to the roles
+    so each role gets its share of every group (a group of two goes one to train, one to
+    select): selection must see the kinds of motion it selects for.
+
+    Args:
+      ds: the data set.
+      eps: episodes.
+      rng: seeded generator for the random assignment.
+      test_trajectories: trajectories held out for the test (e.g. a gain the fit never sees);
+        the remaining episodes are split into train and select 1:1 (the final refit uses both).
+      fractions: (select, test) fractions of the random split.
+    Raises:
+      LogError when there are too few episodes for three roles.
+    """
+    n = len(eps)
+    idx = np.arange(n)
+    if test_trajectories is not None:
+        held = set(test_trajectories)
+        test = [i for i in idx if eps[i].traj in held]
+        rest = [i for i in idx if eps[i].traj not in held]
+        if not test or len(rest) < 2:
+            raise LogError("the held-out logs must leave at least 2 episodes for fitting and "
+                           "selection, and hold out at least one")
+        roles = _deal(_strata(ds, eps, rest, rng), {"train": 0.5, "select": 0.5})
+        return Split(tuple(sorted(roles["train"])), tuple(sorted(roles["select"])),
+                     tuple(sorted(int(i) for i in test)))
+    if n < 3:
+        raise LogError(f"too little data: {n} episode(s); need at least 3 (longer or more logs) "
+                       "to fit, select and test on different data")
+    sel, tst = fractions
+    roles = _deal(_strata(ds, eps, idx, rng),
+                  {"train": 1 - sel - tst, "select": sel, "test": tst})
+    return Split(tuple(sorted(roles["train"])), tuple(sorted(roles["select"])),
+                 tuple(sorted(roles["test"])))

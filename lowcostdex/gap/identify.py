@@ -1,0 +1,274 @@
+"""Servo identification: fit a chosen servo structure on whole logs, open loop, BAM's way.
+
+Where ``analyze`` *selects* unmodelled effects one at a time on top of a trusted nominal model,
+identification fits a fixed structure (the servo's own parameters: motor constants, rotor
+inertia, friction, mounting offset, firmware gain) jointly, the way BAM (Rhoban/bam ``bam.fit``)
+identifies an actuator model. On real servos the nominal (datasheet) model is rarely trustworthy
+in all of these at once, and a greedy one-at-a-time selection cannot move six wrong parameters
+together.
+
+The objective is BAM's: every training log is replayed whole, open loop from its first state
+(``bam_measure``), each log weighted equally (residuals scaled by 1 / sqrt(samples)), and the
+squared error is minimised by the project's bounded lockstep Levenberg-Marquardt
+(``fit.lockstep_lm``, all starts in one batched pass per round). Held-out logs are scored with
+BAM's per-log MAE; ``ablation`` reports what each effect buys on them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
+from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.replay import Replayer
+from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
+
+# The servo's own parameters, as BAM models a voltage-controlled servo on a pendulum bench:
+# back-EMF constant and torque per volt (velocity_limit, motor_strength: kt and R), reflected
+# rotor inertia (armature), Coulomb and viscous friction, gear friction carried by the load
+# (sliding and breakaway; acts back-driven), the bench's mounting offset (q_offset). The
+# firmware's duty per position error (``MotorSpec.error_gain``) is a measured constant (BAM's
+# oscilloscope values) and is not fitted: add "gain_error" to fit it (BAM's error_gain_ratio).
+SERVO_STRUCTURE: tuple[str, ...] = (
+    "velocity_limit", "motor_strength", "inertia_error", "coulomb_friction", "viscous_damping",
+    "gearbox_friction", "mounting_offset")
+# Fitted in a second stage, from the first stage's optimum: the motor's constants and firmware
+# gain (they trade off against friction and inertia; alone first, the joint fit strays).
+STAGE_TWO = frozenset({"velocity_limit", "motor_strength", "gain_error", "torque_limit"})
+# A second start with a large breakaway share: stick-slip makes the cost flat around "no
+# breakaway", where the default start sits.
+BREAKAWAY_START = {("gearbox_friction", "static"): 0.3, ("gearbox_friction", "velocity"): 0.3}
+
+
+def servo_structure(ds: Dataset) -> tuple[str, ...]:
+    """``SERVO_STRUCTURE``, plus ``voltage_sag`` when every log measures the supply voltage."""
+    return SERVO_STRUCTURE + (("voltage_sag",) if "voltage" in ds.channels() else ())
+
+Progress = Callable[[str, float], None]
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """Settings of one identification.
+
+    Attributes:
+      effects: the structure to fit (effect names, fitted jointly on every effect joint).
+      starts: extra start points besides the catalogue's: {(effect, param): value}, the other
+        parameters at their catalogue start.
+      loss: "mse" (least squares) or "mae": after the least-squares stages, a polish of the
+        absolute error BAM scores, smoothed below ``delta`` (Charbonnier: sum of
+        2 (sqrt(r^2 + delta^2) - delta)) so that the Levenberg-Marquardt model of it holds;
+        from scratch that loss is too flat for LM, from the least-squares optimum it only
+        moves where it lowers the absolute error.
+      delta: [rad] the smoothing width of the "mae" loss.
+      max_rounds: Levenberg-Marquardt rounds at most.
+      rtol: stop when an accepted step lowers the cost by less than this fraction.
+      nthread: simulation threads (0: all CPUs).
+    """
+
+    effects: tuple[str, ...] = SERVO_STRUCTURE
+    starts: tuple[dict, ...] = (BREAKAWAY_START,)
+    loss: str = "mse"
+    delta: float = 0.005
+    max_rounds: int = 30
+    rtol: float = 1e-4
+    nthread: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.effects:
+            raise ConfigError("identification needs at least one effect to fit")
+        for name in self.effects:
+            if name not in EFFECTS:
+                raise ConfigError(f"unknown effect {name!r}; valid: {sorted(EFFECTS)}")
+        if self.loss not in ("mse", "mae"):
+            raise ConfigError(f"unknown loss {self.loss!r}; valid: mse, mae")
+        if not self.delta > 0:
+            raise ConfigError("delta must be > 0 rad")
+        if self.max_rounds < 1:
+            raise ConfigError("max_rounds must be >= 1")
+
+
+@dataclass
+class Identified:
+    """An identified servo model and its errors (BAM's per-log MAE [rad]).
+
+    Attributes:
+      effects: the fitted effects (apply them to the nominal models).
+      train, test: log indices fitted on / held out.
+      nominal_mae, identified_mae: {log index: MAE} of the nominal and identified models.
+      ablation: effect name -> mean held-out MAE with that effect removed (others kept).
+      fit_seconds: wall time of the fit; rounds: LM rounds run (all stages); cost: final
+        training cost.
+      at_bound: "effect.param" of fitted values at a search bound (not at the null): the range
+        is too narrow or the parameter stands in for something the structure lacks.
+    """
+
+    effects: list[AppliedEffect]
+    train: tuple[int, ...]
+    test: tuple[int, ...]
+    nominal_mae: dict[int, float]
+    identified_mae: dict[int, float]
+    ablation: dict[str, float] = field(default_factory=dict)
+    fit_seconds: float = 0.0
+    rounds: int = 0
+    cost: float = math.nan
+    at_bound: list[str] = field(default_factory=list)
+
+    def mean(self, logs: Sequence[int], identified: bool = True) -> float:
+        """Mean per-log MAE over ``logs`` (BAM's set-level number) [rad]."""
+        src = self.identified_mae if identified else self.nominal_mae
+        return float(np.mean([src[i] for i in logs])) if logs else math.nan
+
+    def params(self) -> dict[str, dict[str, list[float]]]:
+        """{effect: {param: values per joint}} of the fitted effects."""
+        return {e.name: {p: v.tolist() for p, v in e.values.items()} for e in self.effects}
+
+
+def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
+             config: IdentifyConfig = IdentifyConfig(), progress: Progress | None = None
+             ) -> Identified:
+    """Fit ``config.effects`` on the ``train`` logs, score ``train`` and ``test`` logs.
+
+    Args:
+      ds: the data set (BAM logs resampled by ``bam_measure.grid_dataset`` give BAM's measure).
+      train: indices of the logs to fit on.
+      test: indices of held-out logs (scored, never fitted).
+      config: structure and fit settings.
+      progress: optional callback (stage, fraction done).
+    Raises:
+      ConfigError for an empty or overlapping split.
+    """
+    train, test = tuple(int(i) for i in train), tuple(int(i) for i in test)
+    if not train:
+        raise ConfigError("identification needs at least one training log")
+    if set(train) & set(test):
+        raise ConfigError("training and held-out logs overlap")
+    prog = progress or (lambda s, f: None)
+    rep = Replayer(ds, config.effects, nthread=config.nthread)
+    joints = ds.effect_joints
+    key = ds.trajectories[train[0]].model
+    m0 = rep.models[key]
+    targets = Targets.resolve(m0, joints)
+    w_train = whole_logs(ds, train)
+    ctx = fitmod.Context(dt=ds.timestep, peak_force=_peak_force(rep, w_train, targets, m0),
+                         stall=fitmod.stall_torque(m0, targets.actuators),
+                         damping=m0.dof_damping[targets.dofs].copy())
+    weights = [1.0 / math.sqrt(ds.trajectories[w.traj].qpos.size) for w in w_train]
+
+    def residual(points, absolute=False):
+        pred, _ = rep.run(w_train, [s.to_effects(x) for s, x in points])
+        out = []
+        for col in pred:
+            parts = []
+            for w, p, k in zip(w_train, col, weights, strict=True):
+                r = (ds.trajectories[w.traj].qpos - p).ravel()
+                if absolute:
+                    # sum of r'^2 = sum of 2 (sqrt(r^2 + d^2) - d): |r| beyond d, smooth at 0
+                    d = config.delta
+                    r = np.sign(r) * np.sqrt(2.0 * (np.sqrt(r * r + d * d) - d))
+                parts.append(r * k)
+            out.append(np.concatenate(parts))
+        return out
+
+    t0 = time.perf_counter()
+    # stage 1: the motor constants held at their nominal values, stage 2: everything, from the
+    # stage-1 optimum as well as from the catalogue starts (the joint fit has local minima that
+    # the nested one avoids; with its optimum as a start the joint fit can only do better)
+    later = [n for n in config.effects if n in STAGE_TWO]
+    stages = [tuple(n for n in config.effects if n not in STAGE_TWO)] if later else []
+    stages = [st for st in stages if st] + [tuple(config.effects)]
+    best = None
+    rounds = 0
+    for k, names in enumerate(stages):
+        st = fitmod.Structure.build(names, joints, ctx)
+        starts = _starts(st, config.starts)
+        if best is not None:
+            # the previous optimum, and it with each extra start's overrides applied
+            starts = _starts(st, config.starts, base=st.values_from(best.effects())) + starts
+        tracks = [fitmod.Track(st, st.u(x0), label=f"stage{k + 1}.start{j}")
+                  for j, x0 in enumerate(starts)]
+        frac = (k, len(stages))
+        fitmod.lockstep_lm(tracks, residual, config.max_rounds, rtol=config.rtol,
+                           on_round=lambda r, live, frac=frac: prog(
+                               f"stage {frac[0] + 1}/{frac[1]}: LM round {r + 1} ({live} live)",
+                               0.9 * (frac[0] + (r + 1) / config.max_rounds) / frac[1]),
+                           prune=fitmod.prune_tracks)
+        best = min(tracks, key=lambda t: t.cost)
+        rounds += max(t.rounds for t in tracks)
+    if config.loss == "mae":
+        prog("absolute-error polish", 0.9)
+        polished = fitmod.Track(best.structure, best.u.copy(), label="mae")
+        fitmod.lockstep_lm([polished], lambda pts: residual(pts, absolute=True),
+                           config.max_rounds, rtol=config.rtol)
+        best = polished
+        rounds += polished.rounds
+    fit_s = time.perf_counter() - t0
+    effects = best.effects()
+    prog("scoring", 0.95)
+    logs = train + test
+    w_all = whole_logs(ds, logs)
+    cols: list[list[AppliedEffect]] = [[], effects]
+    if test:
+        cols += [[e for e in effects if e.name != n] for n in config.effects]
+    mae = per_log_mae(rep, w_all, cols)
+    out = Identified(effects, train, test,
+                     nominal_mae=dict(zip(logs, mae[0].tolist(), strict=True)),
+                     identified_mae=dict(zip(logs, mae[1].tolist(), strict=True)),
+                     fit_seconds=fit_s, rounds=rounds, cost=best.cost,
+                     at_bound=_at_bound(best))
+    if test:
+        k0 = len(train)
+        out.ablation = {n: float(np.mean(mae[2 + i, k0:])) for i, n in enumerate(config.effects)}
+    prog("done", 1.0)
+    return out
+
+
+def _starts(st: fitmod.Structure, extra: Sequence[dict], base: np.ndarray | None = None
+            ) -> list[np.ndarray]:
+    """The structure's catalogue starts (or ``base`` alone) plus one per ``extra`` override
+    (applied to the first start)."""
+    starts = st.starts() if base is None else [np.asarray(base, float)]
+    for over in extra:
+        x = starts[0].copy()
+        hit = False
+        for i, f in enumerate(st.free):
+            if (f.effect, f.param) in over:
+                x[i] = float(np.clip(over[(f.effect, f.param)], f.lo, f.hi))
+                hit = True
+        if hit:
+            starts.append(x)
+    return starts
+
+
+def _at_bound(t: fitmod.Track) -> list[str]:
+    lo, hi = t.structure.u_bounds()
+    out = []
+    for i, f in enumerate(t.structure.free):
+        null = EFFECTS[f.effect].param(f.param).null
+        for b in (lo[i], hi[i]):
+            if abs(t.u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
+                out.append(f"{f.effect}.{f.param}")
+    return out
+
+
+def _peak_force(rep: Replayer, windows, targets: Targets, model) -> np.ndarray:
+    """Peak |actuator force| of the nominal model on ``windows`` per effect joint [N m]."""
+    _, peaks = rep.run(windows, [[]], force_peak=True)
+    names = [model.actuator(int(a)).name for a in targets.actuators]
+    cols = [list(rep.ds.actuators).index(n) for n in names]
+    return np.asarray(peaks[0])[cols]
+
+
+def breakdown(ds: Dataset, mae: dict[int, float], logs: Sequence[int], key: str) -> dict:
+    """Mean per-log MAE grouped by a log header field (e.g. "trajectory", "kp") [rad]."""
+    groups: dict = {}
+    for i in logs:
+        groups.setdefault(ds.trajectories[i].meta.get(key), []).append(mae[i])
+    return {k: float(np.mean(v)) for k, v in sorted(groups.items(), key=lambda kv: str(kv[0]))}

@@ -1,0 +1,475 @@
+"""Replay measured commands through a model with effects, many variants at once.
+
+``Replayer.run(windows, columns)`` simulates every (column, window) pair, where a column is one
+list of ``AppliedEffect`` (a candidate model with parameter values), in ``BatchPlant``s stepped
+together at the physics timestep:
+
+* commands are zero-order held in continuous time (never interpolated, sysid trap 4) and take
+  effect at their instant (``goal_time``, else ``time``): the ctrl of each physics step is the
+  mean of the goals in force during it, so a goal written 0.3 steps into a step drives the servo
+  for 0.7 of it (position servos are linear in ctrl: the same impulse as switching mid-step;
+  rounding to the nearest step instead biased replays of jittered logs by up to dt/2);
+* each window starts from the measured state at its first sample (multiple shooting when windows
+  are short segments, open loop when a window is a whole episode); the servo's setpoint before the
+  window is the goal in force just before it, or, with backlash, the play operator's state after
+  the goals that preceded the window (exact: the play acts on commands only); a position offset is
+  removed from the measured initial position;
+* measured channels (voltage, temperature, torque enable) are held like commands;
+* predictions are the encoder readings (observation effects applied) interpolated linearly at the
+  measured sample times.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from lowcostdex.gap.dataset import Dataset, Window
+from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
+from lowcostdex.sim.plant import BatchPlant, prepare_spec
+
+Column = Sequence[AppliedEffect]
+_ORDER = {name: i for i, name in enumerate(EFFECTS)}
+
+
+@dataclass
+class _Grid:
+    """One window laid on the physics grid."""
+
+    n_steps: int
+    goals: np.ndarray  # (K, na) goal held during grid step k
+    rows: np.ndarray  # (K,) log row of the channels (current, voltage, ...) during grid step k
+    frac: np.ndarray  # (n,) fractional grid position of each sample of the window
+    prev_goal: np.ndarray  # (na,) goal in force just before the window
+    split: np.ndarray  # (K,) fraction of step k before its one goal switch (NaN: none or several)
+    before: np.ndarray  # (K, na) goal before that switch
+    after: np.ndarray  # (K, na) goal after it
+
+
+class Replayer:
+    """Batched replay of a data set's windows under candidate effect sets.
+
+    Args:
+      ds: the data set.
+      effect_names: effects that may appear in columns (structural room is made for them, e.g.
+        latency history buffers; the nominal behaviour is unchanged).
+      nthread: batch threads (0: all CPUs).
+    """
+
+    def __init__(self, ds: Dataset, effect_names: Sequence[str] = (), nthread: int = 0):
+        self.ds = ds
+        self.nthread = nthread
+        self.models: dict[str, mujoco.MjModel] = {}
+        probe = [AppliedEffect(n, ds.effect_joints) for n in effect_names]
+        for key, xml in ds.models.items():
+            spec = mujoco.MjSpec.from_string(xml)
+            prepare_spec(spec, probe)
+            self.models[key] = spec.compile()
+        m0 = self.models[ds.trajectories[0].model]
+        self.dt = float(m0.opt.timestep)
+        self._plants: dict[tuple, BatchPlant] = {}
+        self._grids: dict[Window, _Grid] = {}
+        self._act_idx = {k: np.array([m.actuator(a).id for a in ds.actuators])
+                         for k, m in self.models.items()}
+        self._jnt_qpos = {k: np.array([m.jnt_qposadr[m.joint(j).id] for j in ds.joints])
+                          for k, m in self.models.items()}
+        self._jnt_dof = {k: np.array([m.jnt_dofadr[m.joint(j).id] for j in ds.joints])
+                         for k, m in self.models.items()}
+        self._act_of_joint = {}
+        for k, m in self.models.items():
+            targets = Targets.resolve(m, ds.effect_joints)
+            cols = {int(a): i for i, a in enumerate(self._act_idx[k])}
+            self._act_of_joint[k] = {j: cols[int(a)] for j, a in
+                                     zip(ds.effect_joints, targets.actuators, strict=True)}
+        self.steps_run = 0  # simulated sim-steps (for throughput reports)
+
+    # ------------------------------------------------------------------------------------------
+    def grid(self, w: Window) -> _Grid:
+        """The window's commands and sample times on the physics grid (cached)."""
+        g = self._grids.get(w)
+        if g is None:
+            tr = self.ds.trajectories[w.traj]
+            t = tr.time[w.start:w.stop] - tr.time[w.start]
+            frac = t / self.dt
+            n_steps = int(np.ceil(frac[-1])) + 1
+            # goals switch on the grid when they took effect (``goal_time``, else at ``time``);
+            # before the window's first switch the goal in force before the window holds: the
+            # previous row's, at a log's start (when goals arrive after the first read) the
+            # measured position, which a servo at rest holds (actuators are named after the
+            # joints they drive)
+            switch = np.round((tr.goal_times[w.start:w.stop] - tr.time[w.start]) / self.dt)
+            sel = np.searchsorted(switch, np.arange(n_steps), side="right") - 1  # >= -1
+            if w.start > 0:
+                prev = tr.goal[w.start - 1]
+            elif switch[0] > 0 and set(tr.actuators) <= set(tr.joints):
+                prev = tr.qpos[0, [tr.joints.index(a) for a in tr.actuators]]
+            else:
+                prev = tr.goal[0]
+            u = (tr.goal_times[w.start:w.stop] - tr.time[w.start]) / self.dt
+            goals = _step_means(u, tr.goal[w.start:w.stop], prev, n_steps)
+            split, before, after = _single_switches(u, tr.goal[w.start:w.stop], prev, n_steps)
+            rows = np.maximum(w.start + sel, 0)
+            g = _Grid(n_steps, goals, rows, frac, prev, split, before, after)
+            self._grids[w] = g
+        return g
+
+    def _position_servos(self, key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fixed-gain position servos among the logged actuators: (their columns in the log's
+        actuator list, model actuator ids, qpos and dof addresses of the joints they drive)."""
+        cache = self.__dict__.setdefault("_pos_servos", {})
+        if key not in cache:
+            m = self.models[key]
+            cols, acts, qadr, dadr = [], [], [], []
+            for col, a in enumerate(self._act_idx[key]):
+                kp = float(m.actuator_gainprm[a, 0])
+                if (m.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+                        and m.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE
+                        and m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
+                        and kp > 0 and m.actuator_biasprm[a, 1] == -kp
+                        and m.actuator_biasprm[a, 0] == 0 and m.actuator_gear[a, 0] == 1):
+                    jid = int(m.actuator_trnid[a, 0])
+                    cols.append(col)
+                    acts.append(int(a))
+                    qadr.append(int(m.jnt_qposadr[jid]))
+                    dadr.append(int(m.jnt_dofadr[jid]))
+            cache[key] = (np.array(cols, int), np.array(acts, int),
+                          np.array(qadr, int), np.array(dadr, int))
+        return cache[key]
+
+    def _match_saturation(self, run: dict, k: int, goal: np.ndarray) -> None:
+        """Where a position servo saturates in the step holding a goal switch, give it the mean
+        *force* of the old and new goals instead of the force of the mean goal, in place.
+
+        A goal written a fraction ``a`` into a step drives the servo with the old goal for
+        ``a`` of it and the new one for the rest. In the linear range the mean goal gives the
+        same impulse; when the new goal saturates the force (a large step), the mean goal
+        saturates it for the whole step, a systematic lead that a torque limit would then
+        "explain". Forces are those of the simulation's state and its (effect-modified) kp,
+        kv and force range at the step's start (servos with an actuator delay keep the mean
+        goal: they act on it later, from another state).
+        """
+        cols, acts, qadr, dadr = run["servos"]
+        split = run["split"][:, k]
+        sims = np.flatnonzero(np.isfinite(split))
+        if not len(cols) or not len(sims):
+            return
+        plant = run["plant"]
+        a = split[sims, None]
+        kp = plant.array("actuator_gainprm")[sims[:, None], acts, 0]
+        kv = -plant.array("actuator_biasprm")[sims[:, None], acts, 2]
+        rng_ = plant.array("actuator_forcerange")[sims[:, None], acts]
+        lim = plant.array("actuator_forcelimited")[sims[:, None], acts] > 0
+        lo, hi = np.where(lim, rng_[..., 0], -np.inf), np.where(lim, rng_[..., 1], np.inf)
+        q, qd = plant.qpos[sims[:, None], qadr], plant.qvel[sims[:, None], dadr]
+        f_old = np.clip(kp * (run["before"][sims, k][:, cols] - q) - kv * qd, lo, hi)
+        f_new = np.clip(kp * (run["after"][sims, k][:, cols] - q) - kv * qd, lo, hi)
+        f_mean = a * f_old + (1 - a) * f_new
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = q + (f_mean + kv * qd) / kp
+        # a delayed servo reads this ctrl later, in another state: it keeps the mean goal
+        delayed = plant.array("actuator_delay")[sims[:, None], acts] > 0
+        live = np.isfinite(c) & (kp > 0) & ~delayed
+        cur = goal[sims[:, None], acts]
+        goal[sims[:, None], acts] = np.where(live, c, cur)
+
+    # ------------------------------------------------------------------------------------------
+    def run(self, windows: Sequence[Window], columns: Sequence[Column],
+            force_peak: bool = False) -> tuple[list[list[np.ndarray]], np.ndarray | None]:
+        """Simulate every (column, window) pair.
+
+        Args:
+          windows: windows to replay.
+          columns: candidate effect sets (each a list of AppliedEffect on the data set's joints).
+          force_peak: also return the peak |actuator force| per column and actuator.
+        Returns:
+          (pred, peaks): pred[c][w] is (n_w, nj) predicted readings [rad] at the window's
+          samples; peaks is (ncol, na) [N m] or None.
+        """
+        groups: dict[tuple[str, bool], list[tuple[int, int]]] = {}
+        for c, col in enumerate(columns):
+            fric = any(e.cls.kind == "friction" for e in col)
+            for wi, w in enumerate(windows):
+                key = (self.ds.trajectories[w.traj].model, fric)
+                groups.setdefault(key, []).append((c, wi))
+        pred: list[list[np.ndarray | None]] = [[None] * len(windows) for _ in columns]
+        peaks = np.zeros((len(columns), len(self.ds.actuators))) if force_peak else None
+        runs = [self._setup(key, sims, windows, columns) for key, sims in groups.items()]
+        n_max = max(r["n_steps"] for r in runs)
+        for k in range(n_max + 1):
+            for r in runs:
+                if k <= r["n_steps"]:
+                    self._advance(r, k, force_peak)
+        for r in runs:
+            for s, (c, wi) in enumerate(r["sims"]):
+                g = self.grid(windows[wi])
+                q = r["record"][s]
+                i0 = np.minimum(np.floor(g.frac).astype(int), r["n_steps"] - 1)
+                a = (g.frac - i0)[:, None]
+                pred[c][wi] = (1 - a) * q[i0] + a * q[i0 + 1]
+                if force_peak:
+                    peaks[c] = np.maximum(peaks[c], r["peak"][s])
+        return pred, peaks  # type: ignore[return-value]
+
+    def _setup(self, key: tuple[str, bool], sims: list[tuple[int, int]],
+               windows: Sequence[Window], columns: Sequence[Column]) -> dict:
+        model_key = key[0]
+        model = self.models[model_key]
+        union = _union([columns[c] for c, _ in sims])
+        per_sim = [_fill(columns[c], union) for c, _ in sims]
+        nsim = len(sims)
+        pkey = (model_key, tuple(union), nsim)
+        plant = self._plants.get(pkey)
+        if plant is None:
+            if len(self._plants) > 24:
+                self._plants.clear()
+            # small batches step faster on one thread than on a (loaded) pool
+            nthread = 1 if nsim < 128 else self.nthread
+            plant = BatchPlant(model, nsim, per_sim, nthread=nthread)
+            self._plants[pkey] = plant
+        else:
+            plant.set_effects(per_sim)
+        ds = self.ds
+        act = self._act_idx[model_key]
+        jq, jd = self._jnt_qpos[model_key], self._jnt_dof[model_key]
+        grids = [self.grid(windows[wi]) for _, wi in sims]
+        n_steps = max(g.n_steps for g in grids)
+        qpos = np.tile(model.qpos0, (nsim, 1))
+        qvel = np.zeros((nsim, model.nv))
+        ctrl = np.zeros((nsim, model.nu))
+        rows = np.zeros((nsim, n_steps), dtype=int)
+        goals = np.zeros((nsim, n_steps, len(act)))
+        split = np.full((nsim, n_steps), np.nan)
+        before, after = np.zeros_like(goals), np.zeros_like(goals)
+        traj_of = np.array([windows[wi].traj for _, wi in sims])
+        for s, ((c, wi), g) in enumerate(zip(sims, grids, strict=True)):
+            w = windows[wi]
+            tr = ds.trajectories[w.traj]
+            qpos[s, jq] = tr.qpos[w.start] - _offset(columns[c], ds.joints)
+            qvel[s, jd] = tr.qvel[w.start]
+            ctrl[s, act] = g.prev_goal
+            rows[s, :g.n_steps], rows[s, g.n_steps:] = g.rows, g.rows[-1]
+            goals[s, :g.n_steps], goals[s, g.n_steps:] = g.goals, g.goals[-1]
+            split[s, :g.n_steps] = g.split
+            before[s, :g.n_steps], after[s, :g.n_steps] = g.before, g.after
+        played = _init_backlash(ctrl, act, self._act_of_joint[model_key], sims, windows,
+                                columns, ds)
+        plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
+                                                                 windows, played))
+        trs = ds.trajectories
+        # channels per simulation on the grid: (nsim, K, na), gathered once
+        chans = {ch: np.stack([trs[t].channels[ch][gi] for t, gi in
+                               zip(traj_of, rows, strict=True)])
+                 for ch in plant.required_channels}
+        has_te = any("torque_enable" in tr.channels for tr in trs)
+        te = None
+        if has_te:
+            te = np.stack([trs[t].channels["torque_enable"][gi] > 0.5
+                           if "torque_enable" in trs[t].channels
+                           else np.ones((len(gi), len(act)), bool)
+                           for t, gi in zip(traj_of, rows, strict=True)])
+        run = dict(plant=plant, sims=sims, n_steps=n_steps, act=act, jq=jq, goals=goals,
+                   split=split, before=before, after=after,
+                   servos=self._position_servos(model_key),
+                   chans=chans, te=te, full_goal=np.array(ctrl),
+                   full_chans={ch: np.zeros_like(ctrl) for ch in chans},
+                   record=np.empty((nsim, n_steps + 1, len(jq))),
+                   peak=np.zeros((nsim, len(act))), torque=None)
+        self._set_torque(run, 0)
+        return run
+
+    def _history(self, model: mujoco.MjModel, ctrl: np.ndarray, act: np.ndarray,
+                 sims: list[tuple[int, int]], windows: Sequence[Window], played: set[int]
+                 ) -> np.ndarray | None:
+        """Past goals for the delay buffers: (nsim, n, nu), oldest first, ending at each
+        window's start (so a latency replayed from mid-log sees the commands it would have)."""
+        n = int(model.actuator_history[:, 0].max()) if model.nu else 0
+        if n == 0:
+            return None
+        hist = np.repeat(ctrl[:, None, :], n, axis=1)
+        offsets = (np.arange(n) - (n - 1)) * self.dt  # ..., -2 dt, -dt, 0
+        for s, (_, wi) in enumerate(sims):
+            w = windows[wi]
+            if w.start == 0 or s in played:
+                continue
+            tr = self.ds.trajectories[w.traj]
+            tau = tr.time[w.start] + offsets[:-1] + 0.5 * self.dt
+            idx = np.clip(np.searchsorted(tr.goal_times, tau, side="right") - 1, 0, w.start - 1)
+            hist[s, :-1][:, act] = tr.goal[idx]
+        return hist
+
+    def _set_torque(self, run: dict, k: int) -> None:
+        if run["te"] is None:
+            return
+        plant, act = run["plant"], run["act"]
+        on = run["te"][:, min(k, run["n_steps"] - 1)]  # (nsim, na)
+        if run["torque"] is not None and np.array_equal(on, run["torque"]):
+            return
+        for j, a in enumerate(act):
+            rows_on, rows_off = np.flatnonzero(on[:, j]), np.flatnonzero(~on[:, j])
+            if len(rows_on):
+                plant.set_torque_enabled([a], True, sims=rows_on)
+            if len(rows_off):
+                plant.set_torque_enabled([a], False, sims=rows_off)
+        run["torque"] = on
+
+    def _advance(self, run: dict, k: int, force_peak: bool) -> None:
+        plant = run["plant"]
+        run["record"][:, k] = plant.measured_qpos()[:, run["jq"]]
+        if force_peak and k > 0:
+            f = np.abs(plant.actuator_force[:, run["act"]])
+            np.maximum(run["peak"], f, out=run["peak"])
+        if k == run["n_steps"]:
+            return
+        act = run["act"]
+        goal = run["full_goal"]
+        goal[:, act] = run["goals"][:, k]
+        self._match_saturation(run, k, goal)
+        channels = None
+        if run["chans"]:
+            channels = run["full_chans"]
+            for ch, arr in run["chans"].items():
+                channels[ch][:, act] = arr[:, k]
+        if run["te"] is not None:
+            self._set_torque(run, k)
+        plant.step(goal, 1, channels)
+        self.steps_run += plant.nsim
+
+
+def _step_means(u: np.ndarray, values: np.ndarray, before: np.ndarray, n_steps: int
+                ) -> np.ndarray:
+    """Mean of a zero-order-held signal over each physics step.
+
+    Args:
+      u: (n,) increasing switch instants in steps (>= 0): ``values[i]`` holds from ``u[i]``.
+      values: (n, k) values.
+      before: (k,) value before ``u[0]``.
+      n_steps: steps [k, k + 1) to average, k = 0 .. n_steps - 1.
+    Returns:
+      (n_steps, k) step means.
+    """
+    u = np.asarray(u, float)
+    v = np.asarray(values, float)
+    before = np.asarray(before, float)
+    # integral of the signal from 0 to each switch instant
+    c = np.empty_like(v)
+    c[0] = before * u[0]
+    if len(u) > 1:
+        c[1:] = c[0] + np.cumsum(v[:-1] * np.diff(u)[:, None], axis=0)
+    x = np.arange(n_steps + 1, dtype=float)
+    i = np.searchsorted(u, x, side="right") - 1
+    ii = np.maximum(i, 0)
+    integral = np.where((i >= 0)[:, None], c[ii] + v[ii] * (x - u[ii])[:, None],
+                        before[None, :] * x[:, None])
+    return np.diff(integral, axis=0)
+
+
+def _single_switches(u: np.ndarray, values: np.ndarray, before: np.ndarray, n_steps: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps holding exactly one goal switch strictly inside them.
+
+    Args: as ``_step_means``.
+    Returns:
+      (split (n_steps,) fraction of the step before the switch, NaN elsewhere; the goal before
+      and after the switch, (n_steps, k) each).
+    """
+    u = np.asarray(u, float)
+    v = np.asarray(values, float)
+    split = np.full(n_steps, np.nan)
+    old = np.zeros((n_steps, v.shape[1]))
+    new = np.zeros((n_steps, v.shape[1]))
+    k = np.floor(u).astype(int)
+    frac = u - k
+    one = (k >= 0) & (k < n_steps) & (frac > 0)
+    one[1:] &= k[1:] != k[:-1]
+    one[:-1] &= k[:-1] != k[1:]
+    i = np.flatnonzero(one)
+    split[k[i]] = frac[i]
+    old[k[i]] = np.vstack([before[None, :], v])[i]
+    new[k[i]] = v[i]
+    return split, old, new
+
+
+def _union(cols: Sequence[Column]) -> list[tuple[str, tuple[str, ...]]]:
+    seen: dict[tuple[str, tuple[str, ...]], None] = {}
+    for col in cols:
+        for e in col:
+            seen[(e.name, tuple(e.joints))] = None
+    return sorted(seen, key=lambda x: (_ORDER[x[0]], x[1]))
+
+
+def _fill(col: Column, union: Sequence[tuple[str, tuple[str, ...]]]) -> list[AppliedEffect]:
+    have = {(e.name, tuple(e.joints)): e for e in col}
+    return [have.get(u) or AppliedEffect(u[0], u[1]) for u in union]
+
+
+def _offset(col: Column, joints: Sequence[str]) -> np.ndarray:
+    """Sum of reading offsets (position and mounting offsets) per measured joint [rad]."""
+    out = np.zeros(len(joints))
+    for e in col:
+        if e.name in ("position_offset", "mounting_offset"):
+            for j, v in zip(e.joints, e.values["offset"], strict=True):
+                if j in joints:
+                    out[list(joints).index(j)] += v
+    return out
+
+
+def play_operator(goals: np.ndarray, width: np.ndarray, start: np.ndarray | None = None
+                  ) -> np.ndarray:
+    """Final state of a play (backlash) operator driven by a goal sequence.
+
+    Args:
+      goals: (T, ...) goal positions [rad].
+      width: (...) total play [rad] (broadcast against a goal row).
+      start: (...) initial state; default the first goal.
+    Returns:
+      (...) the setpoint after the last goal.
+    """
+    half = 0.5 * np.asarray(width, float)
+    g = np.asarray(goals, float)
+    s = np.array(g[0] if start is None else start, float) * np.ones_like(half)
+    # Only samples where the goal changes can move the play.
+    change = np.flatnonzero(np.any(np.diff(g.reshape(len(g), -1), axis=0) != 0, axis=1)) + 1
+    for i in change:
+        s = np.clip(s, g[i] - half, g[i] + half)
+    return s
+
+
+def _init_backlash(ctrl: np.ndarray, act: np.ndarray, act_of_joint: dict[str, int],
+                   sims: list[tuple[int, int]], windows: Sequence[Window],
+                   columns: Sequence[Column], ds: Dataset) -> set[int]:
+    """Set the setpoint before each window to the play state the preceding goals leave.
+
+    Args:
+      ctrl: (nsim, nu) setpoints to edit.
+      act: model actuator index of each log actuator.
+      act_of_joint: joint name -> index into the log's actuators of the servo driving it.
+    Returns:
+      the simulations whose setpoint was set from the play.
+    """
+    jobs: dict[int, list[tuple[int, int, list[int], np.ndarray]]] = {}
+    for s, (c, wi) in enumerate(sims):
+        w = windows[wi]
+        for e in columns[c]:
+            if e.name != "backlash" or w.start == 0 or not np.any(e.values["width"] > 0):
+                continue
+            cols = [act_of_joint[j] for j in e.joints]
+            jobs.setdefault(w.traj, []).append((s, w.start, cols, np.asarray(e.values["width"])))
+    for t, items in jobs.items():
+        goals = ds.trajectories[t].goal
+        na = goals.shape[1]
+        half = np.zeros((len(items), na))
+        starts = np.array([it[1] for it in items])
+        for r, (_, _, cols, width) in enumerate(items):
+            half[r, cols] = 0.5 * width
+        state = np.tile(goals[0], (len(items), 1))
+        change = np.flatnonzero(np.any(np.diff(goals[:starts.max()], axis=0) != 0, axis=1)) + 1
+        for i in change:
+            live = starts > i
+            g = goals[i]
+            state[live] = np.clip(state[live], g - half[live], g + half[live])
+        for r, (s, _, cols, _) in enumerate(items):
+            ctrl[s, act[cols]] = state[r, cols]
+    return {s for items in jobs.values() for s, *_ in items}

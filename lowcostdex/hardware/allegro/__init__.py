@@ -1,0 +1,1 @@
+"""Allegro Hand v4: the CAN protocol, the driver, the emulated hand and its env backend."""

@@ -1,0 +1,1040 @@
+"""DynamixelBus: the ``MotorBus`` for Dynamixel X-series servos, on dynamixel_sdk (Protocol 2.0).
+
+Construction::
+
+    bus = DynamixelBus.from_hand(dclaw_spec(), "/dev/ttyUSB0")        # real U2D2
+    bus = DynamixelBus.from_hand(chain.hand, chain.port())            # in-process emulator
+    bus = DynamixelBus.from_hand(chain.hand, server.path)             # emulator on a pty
+    with bus:                                   # connect(); torque off on exit and on errors
+        bus.set_torque(True)                    # goal := present first, watchdog armed
+        state = bus.read_state()                # one sync read of 126..146 for every motor
+        bus.write_goal_positions(goals)         # one sync write of Goal Position
+
+Units: SI at the interface (``bus.MotorBus``): motor angle = ticks * 2 pi / 4096 with tick 0 =
+0 rad, rad/s, A (per-model current LSB from ``lowcostdex.sim.servo``), V, deg C. Device units
+exist only at the wire, with two's-complement decoding of every signed register.
+
+Start-up (``connect``): open the port at the configured baud rate; read the USB latency timer
+from sysfs, warn when it is above 1 ms and size the status timeouts from it; ping every id and
+check its Model Number (one error listing every missing or mismatched id); torque off; Return
+Delay Time := 0, Operating Mode := position, Min/Max Position Limit := the configured limits
+(EEPROM, written only when different, so the motors refuse out-of-range goals even if the host
+misbehaves); Position P/I/D Gain and PWM Limit written if configured, then read back into
+``bus.gains`` (the numbers a simulation of this robot should use; a ``GainMismatchWarning`` when
+they are not the motor model's factory gains, which the simulation assumes by default); Bus
+Watchdog cleared; latched hardware errors reported by name; Fast Sync Read probed.
+
+Bus Watchdog (98) exists from firmware v38 (e-Manual, "Bus Watchdog(98, Available from Firmware
+v38)"): the firmware version is read at connect, the watchdog is never written to older motors,
+and a ``WatchdogUnavailableWarning`` names them (they keep their last goal if the host dies).
+
+Per control step: ``read_state`` is one sync read (fast sync read when the firmware answers it)
+of the 21-byte block Present Current .. Present Temperature; ``write_goal_positions`` is one sync
+write, clipped to the position limits first.
+
+Errors: every status error byte is decoded. The alert bit means a latched hardware error, not a
+failed instruction: the data is used and Hardware Error Status (70) is read and reported by name
+(``MotorState.hardware_error``, ``bus.faults``). A missing or corrupt reply makes that motor
+invalid in this read (NaN, ``valid`` False) - never the previous value. Protocol 2.0 status
+packets carry no sequence number, so a *late* reply to an earlier request looks fresh; two
+defences: after any failed transaction the driver waits ``settle_ms`` (default 10 ms) before the
+next one, so late bytes arrive and are flushed by the SDK's ``clearPort``; and a transaction that
+consumed more status packets than it asked for, or left bytes waiting, is discarded whole. A reply
+later than the status timeout plus ``settle_ms`` that lands in the slot of a reply that is itself
+missing cannot be told apart. Missing motors are retried once (``read_retries``), motors that timed
+out last (so a dead motor does not take the replies after it along). After ``max_invalid_reads``
+consecutive invalid reads of a motor, ``read_state`` raises ``BusError``. Unicast reads/writes retry
+``retries`` times, then raise. ``reboot`` clears a latched error.
+
+Lifecycle: torque off on ``disconnect`` (context-manager exit, also on exceptions), on SIGINT /
+SIGTERM (then the previous handler runs) and at interpreter exit. If the host dies without any of
+these (SIGKILL, power loss of the PC), the Bus Watchdog armed at torque-on stops the motors.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import math
+import os
+import signal
+import threading
+import warnings
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from dynamixel_sdk import COMM_RX_CORRUPT, COMM_SUCCESS, PacketHandler, PortHandler
+
+from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorFault, MotorState
+from lowcostdex.hardware.dynamixel import transport
+from lowcostdex.hardware.dynamixel.control_table import (
+    SIGNED,
+    ControlTable,
+    Reg,
+    check_same_layout,
+    load_control_table,
+    model_name,
+)
+from lowcostdex.hardware.dynamixel.protocol import (
+    ALERT,
+    BROADCAST_ID,
+    HEADER,
+    ErrorNumber,
+    hardware_error_names,
+    le_bytes,
+    status_error_text,
+    to_signed,
+)
+from lowcostdex.hardware.hands import HandSpec
+from lowcostdex.sim.servo import ServoGains, motor_spec
+
+log = logging.getLogger(__name__)
+
+TWO_PI = 2.0 * math.pi
+SDK_BAUDRATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
+                 1_000_000, 1_152_000, 2_000_000, 2_500_000, 3_000_000, 3_500_000, 4_000_000)
+BLOCK = (Reg.PRESENT_CURRENT, Reg.PRESENT_VELOCITY, Reg.PRESENT_POSITION, Reg.VELOCITY_TRAJECTORY,
+         Reg.POSITION_TRAJECTORY, Reg.PRESENT_INPUT_VOLTAGE, Reg.PRESENT_TEMPERATURE)
+"""The contiguous block read every control step (addresses 126..146 on X-series)."""
+_LAYOUT = BLOCK + (Reg.GOAL_POSITION, Reg.TORQUE_ENABLE, Reg.BUS_WATCHDOG,
+                   Reg.HARDWARE_ERROR_STATUS, Reg.MIN_POSITION_LIMIT, Reg.MAX_POSITION_LIMIT)
+_FAULT_POLL = 0.5  # [s] re-read Hardware Error Status at most this often while an alert persists
+_GOAL_PARAM = np.dtype([("id", "u1"), ("goal", "<i4")])  # one SYNC_WRITE slot of Goal Position
+WATCHDOG_MIN_FIRMWARE = 38  # e-Manual: "Bus Watchdog(98, Available from Firmware v38)"
+_GAIN_REGS = (Reg.POSITION_P_GAIN, Reg.POSITION_I_GAIN, Reg.POSITION_D_GAIN)
+
+
+class LatencyWarning(UserWarning):
+    """The USB-serial latency timer is above 1 ms (the loop will run far slower than the wire)."""
+
+
+class GainMismatchWarning(UserWarning):
+    """The motors' Position P/I/D gains are not their model's factory gains, which the
+    simulation uses unless told otherwise."""
+
+
+class WatchdogUnavailableWarning(UserWarning):
+    """Motors with firmware older than v38 have no Bus Watchdog: nothing stops them if the host
+    dies with torque on."""
+
+
+class InstructionError(BusError):
+    """A motor answered with an instruction error (access, range, limit, ...)."""
+
+    def __init__(self, motor_id: int, what: str, error: int):
+        self.motor_id, self.error = motor_id, error
+        super().__init__(f"motor {motor_id}: {what}: {status_error_text(error)}")
+
+
+class PositionOutOfLimits(BusError):
+    """Torque-on refused: the motor sits outside its position limits (moved by hand?)."""
+
+
+class WatchdogTripped(BusError):
+    """Motors stopped by their Bus Watchdog (the host was silent too long); they refuse goals
+    until ``set_torque(True, ids)`` re-arms them from their present position."""
+
+    def __init__(self, motor_ids: Sequence[int], silence: float):
+        self.motor_ids = tuple(motor_ids)
+        super().__init__(f"motors {list(self.motor_ids)} were stopped by their bus watchdog after "
+                         f"{silence * 1000:.0f} ms without a packet; call set_torque(True) to "
+                         "resume from where they stopped")
+
+
+@dataclass(frozen=True)
+class DynamixelConfig:
+    """Driver settings.
+
+    Attributes:
+      ids: motor ids in the order of every array the bus returns or takes.
+      models: expected model name per id (``ControlTable`` names, e.g. "XH430-W350").
+      baudrate: bit rate [bit/s] (the SDK accepts up to 4 Mbps).
+      latency_ms: USB latency timer assumed when sysfs cannot tell [ms].
+      return_delay: Return Delay Time written at connect [2 us units] (0: answer at once).
+      watchdog_ms: Bus Watchdog armed while torque is on [ms], multiple of 20, <= 2540; 0 = off.
+      position_limits: (low, high) motor angle [rad] per id, written to Min/Max Position Limit
+        and used to clip goals; None keeps the limits stored in the motors.
+      operating_mode: Operating Mode written at connect (3 position, 4 extended position).
+      position_gains: (P, I, D) written to Position P/I/D Gain at connect (when different);
+        None keeps the motors' own gains. Either way they are read back into ``bus.gains``.
+      fast_read: "auto" (probe), "on" or "off" for Fast Sync Read.
+      read_retries: extra sync reads of the motors missing from a read.
+      retries: extra attempts of a failed unicast read/write/ping.
+      settle_ms: wait after a failed transaction before the next one [ms].
+      max_invalid_reads: consecutive invalid reads of one motor before BusError; None = never.
+      torque_off_on_close: turn torque off in ``disconnect``.
+      handle_signals: turn torque off on SIGINT/SIGTERM (main thread only) and at exit.
+      reboot_timeout: how long ``reboot`` waits for the motor to answer again [s].
+    """
+
+    ids: tuple[int, ...]
+    models: tuple[str, ...]
+    baudrate: int = 1_000_000
+    latency_ms: float = 1.0
+    return_delay: int = 0
+    watchdog_ms: int = 100
+    position_limits: tuple[tuple[float, float], ...] | None = None
+    operating_mode: int = 3
+    position_gains: tuple[int, int, int] | None = None
+    fast_read: str = "auto"
+    read_retries: int = 1
+    retries: int = 3
+    settle_ms: float = 10.0
+    max_invalid_reads: int | None = 50
+    torque_off_on_close: bool = True
+    handle_signals: bool = True
+    reboot_timeout: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not self.ids or len(set(self.ids)) != len(self.ids):
+            raise ConfigError(f"ids must be unique and non-empty, got {self.ids}")
+        if any(not 0 <= i <= 252 for i in self.ids):
+            raise ConfigError(f"ids must be in 0..252, got {self.ids}")
+        if len(self.models) != len(self.ids):
+            raise ConfigError(f"{len(self.models)} models for {len(self.ids)} ids")
+        for m in set(self.models):
+            load_control_table(m)
+        check_choice("baud rate", self.baudrate, SDK_BAUDRATES)
+        check_choice("fast_read", self.fast_read, ("auto", "on", "off"))
+        check_choice("operating mode", self.operating_mode, (3, 4))
+        if self.watchdog_ms % 20 or not 0 <= self.watchdog_ms <= 2540:
+            raise ConfigError(f"watchdog_ms={self.watchdog_ms}: a multiple of 20 in 0..2540")
+        if not 0 <= self.return_delay <= 254:
+            raise ConfigError(f"return_delay={self.return_delay} outside 0..254")
+        if self.position_gains is not None and (
+                len(self.position_gains) != 3
+                or not all(0 <= int(g) <= 16383 for g in self.position_gains)):
+            raise ConfigError(f"position_gains={self.position_gains}: (P, I, D), each 0..16383")
+        if self.latency_ms <= 0 or self.settle_ms < 0 or self.read_retries < 0 or self.retries < 0:
+            raise ConfigError("latency_ms must be > 0; settle_ms, read_retries, retries >= 0")
+        if self.position_limits is not None:
+            if len(self.position_limits) != len(self.ids):
+                raise ConfigError(f"{len(self.position_limits)} limits for {len(self.ids)} ids")
+            for i, (lo, hi) in zip(self.ids, self.position_limits, strict=True):
+                if not lo < hi:
+                    raise ConfigError(f"motor {i}: position limit low {lo} must be < high {hi}")
+
+
+@dataclass
+class BusStats:
+    """Counters since connect."""
+
+    transactions: int = 0
+    reads: int = 0
+    invalid: int = 0  # motor-reads returned invalid
+    timeouts: int = 0
+    corrupt: int = 0
+    contaminated: int = 0
+    retries: int = 0
+    by_motor_invalid: dict[int, int] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MotorInfo:
+    """What ``scan`` finds about one motor."""
+
+    motor_id: int
+    model_number: int
+    model: str
+    firmware: int | None = None
+    temperature: int | None = None
+    voltage: float | None = None
+    torque_enabled: bool | None = None
+    hardware_error: tuple[str, ...] = ()
+
+
+class DynamixelBus(MotorBus):
+    """Dynamixel X-series motors on one serial line (see the module docstring).
+
+    Args:
+      port: device path (a U2D2 tty, a pty path) or a ``transport.DxlPort`` (e.g.
+        ``EmulatedChain.port()``).
+      config: driver settings.
+    """
+
+    def __init__(self, port: str | transport.DxlPort, config: DynamixelConfig):
+        if isinstance(port, str):
+            port = transport.DxlPort(port, config.latency_ms)
+        elif not isinstance(port, transport.DxlPort):
+            kind = "a plain PortHandler" if isinstance(port, PortHandler) else type(port).__name__
+            raise ConfigError(f"port must be a path or a transport.DxlPort, got {kind}")
+        self.config = config
+        self.ids = tuple(config.ids)
+        self.port = port
+        self.ph = PacketHandler(2.0)
+        self.tables: dict[int, ControlTable] = {
+            i: load_control_table(m) for i, m in zip(self.ids, config.models, strict=True)}
+        check_same_layout(self.tables, _LAYOUT)
+        t = self.tables[self.ids[0]]
+        self._addr = {r: t[r].address for r in _LAYOUT}
+        self._block_addr = t[BLOCK[0]].address
+        self._block_len = t[BLOCK[-1]].end - self._block_addr
+        self._dtype = np.dtype({
+            "names": [r.name for r in BLOCK],
+            "formats": [("<i" if r in SIGNED else "<u") + str(t[r].size) for r in BLOCK],
+            "offsets": [t[r].address - self._block_addr for r in BLOCK],
+            "itemsize": self._block_len})
+        specs = [motor_spec(m) for m in config.models]
+        self._tpr = np.array([s.ticks_per_rev for s in specs], float)
+        self._current_unit = np.array([s.current_unit for s in specs])
+        self._velocity_unit = np.array([s.velocity_unit for s in specs])
+        self._index = {i: k for k, i in enumerate(self.ids)}
+        self._lo = np.zeros(len(self.ids), np.int64)
+        self._hi = np.full(len(self.ids), 4095, np.int64)
+        self._streak = np.zeros(len(self.ids), int)
+        self._silent: set[int] = set()  # ids that timed out in their last read: read them last
+        self._hw_cache: dict[int, tuple[int, float]] = {}
+        self.faults: dict[int, tuple[str, ...]] = {}
+        self.firmware: dict[int, int] = {}
+        self.gains: dict[int, ServoGains] = {}  # read at connect: Position P/I/D, PWM Limit
+        self._no_watchdog: set[int] = set()  # ids whose firmware has no Bus Watchdog
+        self.stats = BusStats()
+        self.fast_read = False
+        self._dirty = False
+        self._sample_time = 0.0  # bus clock when the last sync read request went out [s]
+        self._silence = 0.0
+        self._connected = False
+        self._torque_ids: set[int] = set()
+        self.watchdog_tripped: set[int] = set()
+        self._last_tx = -math.inf
+        self._all = np.arange(len(self.ids))
+        self.sysfs = transport.SYSFS_USB_SERIAL
+
+    @classmethod
+    def from_hand(cls, hand: HandSpec, port: str | transport.DxlPort, **overrides
+                  ) -> DynamixelBus:
+        """A bus for every motor of ``hand`` (joints then auxiliary motors), with position limits
+        from the joint limits through each joint's calibration. ``overrides`` are
+        ``DynamixelConfig`` fields."""
+        joints = hand.all_joints
+        limits = []
+        for j in joints:
+            a, b = sorted((j.calibration.to_motor(j.low), j.calibration.to_motor(j.high)))
+            limits.append((a, b))
+        kwargs = dict(ids=tuple(j.motor_id for j in joints), models=(hand.motor,) * len(joints),
+                      position_limits=tuple(limits))
+        kwargs.update(overrides)
+        return cls(port, DynamixelConfig(**kwargs))
+
+    # -- lifecycle -------------------------------------------------------------------------------
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    def connect(self) -> None:
+        if self._connected:
+            return
+        self.port.baudrate = self.config.baudrate
+        try:
+            opened = self.port.openPort()
+        except Exception as exc:  # pyserial raises SerialException/OSError subclasses
+            raise BusError(f"cannot open {self.port.getPortName()}: {exc}") from exc
+        if not opened:
+            raise BusError(f"cannot open {self.port.getPortName()} at {self.config.baudrate} bps")
+        try:
+            self._check_latency()
+            self._handshake()
+            self._configure()
+            self._probe_fast_read()
+        except BaseException:
+            self._close_port()
+            raise
+        self._connected = True
+        self.stats = BusStats()
+        if self.config.handle_signals:
+            _register(self)
+
+    def disconnect(self) -> None:
+        if not self._connected:
+            self._close_port()
+            return
+        try:
+            if self.config.torque_off_on_close:
+                self._torque_off_best_effort()
+        finally:
+            self._connected = False
+            _OPEN.discard(self)
+            self._close_port()
+
+    def _close_port(self) -> None:
+        if self.port.is_open:
+            self.port.is_using = False
+            self.port.closePort()
+
+    def clock(self) -> float:
+        return self.port.now()
+
+    def sleep(self, seconds: float) -> None:
+        """Wait ``seconds`` on the bus clock; while torque may be on with the watchdog armed, the
+        motors are read every half watchdog period so the watchdog does not trip."""
+        wd = self.config.watchdog_ms / 1000.0
+        if not self._connected or wd <= 0:
+            self.port.sleep(seconds)
+            return
+        end = self.clock() + seconds
+        while (left := end - self.clock()) > 0:
+            self.port.sleep(min(left, wd / 2))
+            if end - self.clock() > 0:
+                self._read_block(self.ids, fast=self.fast_read)
+
+    # -- start-up ----------------------------------------------------------------------------------
+    def _check_latency(self) -> None:
+        if self.port.is_emulated:
+            return
+        path = self.port.getPortName()
+        value = transport.usb_latency_timer(path, self.sysfs)
+        if value is None:
+            log.info("%s is not a USB-serial adapter; assuming latency %.1f ms", path,
+                     self.config.latency_ms)
+            return
+        self.port.latency_ms = max(float(value), 1.0)
+        if value > 1:
+            tty = os.path.basename(os.path.realpath(path))
+            where = self.sysfs / tty / "latency_timer"
+            warnings.warn(f"USB latency timer of {path} is {value} ms; "
+                          + transport.LATENCY_ADVICE.format(path=where), LatencyWarning,
+                          stacklevel=3)
+
+    def _handshake(self) -> None:
+        found = {i: self.ping(i) for i in self.ids}
+        rows = []
+        for i, expected in zip(self.ids, self.config.models, strict=True):
+            got = found[i]
+            if got is None:
+                rows.append(f"  {i:>3}  {expected:<12} no reply")
+            elif model_name(got[0]) != expected:
+                rows.append(f"  {i:>3}  {expected:<12} found {model_name(got[0])} ({got[0]})")
+        if rows:
+            raise BusError("motor check failed on " + self.port.getPortName() + " at "
+                           + f"{self.config.baudrate} bps:\n   id  expected     problem\n"
+                           + "\n".join(rows))
+        self.firmware = {i: found[i][1] if found[i][1] >= 0
+                         else self.read_register(i, Reg.FIRMWARE_VERSION) for i in self.ids}
+        self._no_watchdog = {i for i, fw in self.firmware.items()
+                             if fw < WATCHDOG_MIN_FIRMWARE}
+        if self._no_watchdog and self.config.watchdog_ms:
+            old = ", ".join(f"{i} (v{self.firmware[i]})" for i in sorted(self._no_watchdog))
+            warnings.warn(f"motors {old} have firmware older than v{WATCHDOG_MIN_FIRMWARE}, "
+                          "which has no Bus Watchdog: they will not stop by themselves if this "
+                          "host dies with torque on. Update their firmware (DYNAMIXEL Wizard 2.0, "
+                          "Firmware Update) to get the watchdog.", WatchdogUnavailableWarning,
+                          stacklevel=3)
+
+    def _watchdog_ids(self, ids: Sequence[int]) -> tuple[int, ...]:
+        """The ids among ``ids`` whose firmware has a Bus Watchdog."""
+        return tuple(i for i in ids if i not in self._no_watchdog)
+
+    def _configure(self) -> None:
+        cfg = self.config
+        for k, i in enumerate(self.ids):
+            self.write_register(i, Reg.TORQUE_ENABLE, 0)
+            self._ensure(i, Reg.RETURN_DELAY_TIME, cfg.return_delay)
+            self._ensure(i, Reg.OPERATING_MODE, cfg.operating_mode)
+            if cfg.position_limits is not None:
+                lo, hi = self._limit_ticks(k, *cfg.position_limits[k])
+                if self.read_register(i, Reg.MIN_POSITION_LIMIT) > hi:
+                    self._ensure(i, Reg.MAX_POSITION_LIMIT, hi)
+                    self._ensure(i, Reg.MIN_POSITION_LIMIT, lo)
+                else:
+                    self._ensure(i, Reg.MIN_POSITION_LIMIT, lo)
+                    self._ensure(i, Reg.MAX_POSITION_LIMIT, hi)
+            if cfg.position_gains is not None:
+                for reg, value in zip(_GAIN_REGS, cfg.position_gains, strict=True):
+                    self._ensure(i, reg, int(value))
+            p, i_gain, d = (self.read_register(i, r) for r in _GAIN_REGS)
+            self.gains[i] = ServoGains(position_p=p, position_i=i_gain, position_d=d,
+                                       pwm_limit=self.read_register(i, Reg.PWM_LIMIT))
+            if i not in self._no_watchdog:
+                self.write_register(i, Reg.BUS_WATCHDOG, 0)  # clears a watchdog error, too
+            if cfg.operating_mode == 3:
+                self._lo[k] = self.read_register(i, Reg.MIN_POSITION_LIMIT)
+                self._hi[k] = self.read_register(i, Reg.MAX_POSITION_LIMIT)
+            else:
+                self._lo[k], self._hi[k] = -1_048_575, 1_048_575
+            bits = self.read_register(i, Reg.HARDWARE_ERROR_STATUS)
+            self._note_hardware_error(i, bits)
+        self._check_gains()
+
+    def _check_gains(self) -> None:
+        """Warn when motors run other gains than their model's factory gains (the simulation's
+        default), naming the motors and both sets."""
+        rows = []
+        for i, model in zip(self.ids, self.config.models, strict=True):
+            f, g = motor_spec(model).factory_gains(), self.gains[i]
+            if (g.position_p, g.position_i, g.position_d) != (
+                    f.position_p, f.position_i, f.position_d):
+                rows.append(f"{i}: {g.position_p}/{g.position_i}/{g.position_d} (factory "
+                            f"{f.position_p}/{f.position_i}/{f.position_d})")
+        if rows:
+            warnings.warn("Position P/I/D gains differ from the motor model's factory gains "
+                          "that the simulation uses by default: " + "; ".join(rows)
+                          + ". Simulate with bus.gains, or set DynamixelConfig.position_gains.",
+                          GainMismatchWarning, stacklevel=3)
+
+    def _limit_ticks(self, k: int, lo: float, hi: float) -> tuple[int, int]:
+        tpr = self._tpr[k]
+        a, b = math.ceil(lo * tpr / TWO_PI - 1e-9), math.floor(hi * tpr / TWO_PI + 1e-9)
+        if self.config.operating_mode == 3:
+            if a < -1 or b > tpr:
+                raise ConfigError(f"motor {self.ids[k]}: position limits [{lo:.3f}, {hi:.3f}] "
+                                  f"rad leave one turn; use operating_mode=4")
+            a, b = max(a, 0), min(b, int(tpr) - 1)
+        return a, b
+
+    def _ensure(self, motor_id: int, reg: Reg, value: int) -> None:
+        """Write an (EEPROM) item only if it differs: EEPROM has a limited number of writes."""
+        if self.read_register(motor_id, reg) != value:
+            self.write_register(motor_id, reg, value)
+
+    def _probe_fast_read(self) -> None:
+        mode = self.config.fast_read
+        self.fast_read = mode == "on"
+        if mode == "auto":
+            valid, _, _ = self._read_block(self.ids, fast=True)
+            self.fast_read = all(valid.values())
+            self._dirty = False
+        log.info("fast sync read %s", "on" if self.fast_read else "off")
+
+    # -- per control step ---------------------------------------------------------------------------
+    def read_state(self) -> MotorState:
+        """One sync read of every motor's present block; invalid motors are NaN, never stale."""
+        self._require_connected()
+        self._check_watchdog_gap()
+        # motors that timed out last time go last, so a dead one does not take the others along
+        order = self.ids if not self._silent else tuple(
+            sorted(self.ids, key=lambda i: i in self._silent))
+        valid, err, raw = self._read_block(order, fast=self.fast_read)
+        sampled = self._sample_time
+        attempts = 0
+        while attempts < self.config.read_retries:
+            missing = [i for i in order if not valid[i]]
+            if not missing:
+                break
+            self.stats.retries += 1
+            silent = len(self._silent)
+            fresh = sorted(missing, key=lambda i: i in self._silent)
+            v2, e2, r2 = self._read_block(tuple(fresh), fast=False)
+            for i in fresh:
+                if v2[i]:
+                    valid[i], err[i], raw[i] = True, e2[i], r2[i]
+            # a retry that found a new silent motor is free (it is read last next time);
+            # bounded, since that can happen at most once per motor
+            attempts += len(self._silent) == silent
+        return self._decode(valid, err, raw, sampled)
+
+    def _decode(self, valid: dict[int, bool], err: dict[int, int], raw: dict[int, bytes],
+                t: float) -> MotorState:
+        """Device units -> SI for every motor; NaN where invalid."""
+        ids = self.ids
+        all_ok = len(raw) == len(ids) and all(valid.values())
+        if all_ok:
+            ok = np.ones(len(ids), bool)
+            rec = np.frombuffer(b"".join([raw[i] for i in ids]), self._dtype)
+            status = np.fromiter((err[i] for i in ids), int, len(ids))
+        else:
+            ok = np.fromiter((valid[i] for i in ids), bool, len(ids))
+            blank = bytes(self._block_len)
+            rec = np.frombuffer(b"".join([raw[i] if valid[i] else blank for i in ids]),
+                                self._dtype)
+            status = np.fromiter((err[i] if valid[i] else -1 for i in ids), int, len(ids))
+        rad = TWO_PI / self._tpr
+
+        def field(reg: Reg, scale: np.ndarray | float) -> np.ndarray:
+            out = rec[reg.name] * scale
+            return out if all_ok else np.where(ok, out, np.nan)
+
+        hw = np.where(ok, 0, -1)
+        if np.any((status >= 0) & (status & ALERT != 0)) or self._hw_cache:
+            for k, i in enumerate(ids):
+                if ok[k]:
+                    hw[k] = self._alert_bits(i, err[i])
+        self._track_validity(ok, all_ok)
+        return MotorState(
+            position=field(Reg.PRESENT_POSITION, rad),
+            velocity=field(Reg.PRESENT_VELOCITY, self._velocity_unit),
+            current=field(Reg.PRESENT_CURRENT, self._current_unit),
+            voltage=field(Reg.PRESENT_INPUT_VOLTAGE, 0.1),
+            temperature=field(Reg.PRESENT_TEMPERATURE, 1.0),
+            valid=ok, hardware_error=hw, timestamp=t,
+            extra={"status_error": status,
+                   "position_trajectory": field(Reg.POSITION_TRAJECTORY, rad)})
+
+    def write_goal_positions(self, positions: np.ndarray, ids: Sequence[int] | None = None
+                             ) -> np.ndarray:
+        """Send goal positions [rad] in one sync write, clipped to the position limits.
+
+        Returns the goals actually sent [rad]. Raises CommandError (nothing sent) on a wrong
+        length or a non-finite value.
+        """
+        self._require_connected()
+        ids = self.ids if ids is None else tuple(ids)
+        self._check_watchdog_gap()
+        stopped = self.watchdog_tripped.intersection(ids)
+        if stopped:
+            raise WatchdogTripped(sorted(stopped), self._silence)
+        q = np.asarray(positions, dtype=float).reshape(-1)
+        if q.shape[0] != len(ids):
+            raise CommandError(f"{q.shape[0]} goals for {len(ids)} motors")
+        if not np.all(np.isfinite(q)):
+            bad = [i for i, v in zip(ids, q, strict=True) if not np.isfinite(v)]
+            raise CommandError(f"non-finite goal for motors {bad}; nothing sent")
+        if ids is self.ids:
+            k = self._all
+        else:
+            try:
+                k = np.array([self._index[i] for i in ids])
+            except KeyError as exc:
+                raise CommandError(f"motor {exc.args[0]} is not on this bus {self.ids}") from None
+        ticks = np.clip(np.rint(q * self._tpr[k] / TWO_PI), self._lo[k], self._hi[k])
+        param = np.empty(len(ids), _GOAL_PARAM)  # [id, goal (int32 LE)] per motor
+        param["id"] = ids
+        param["goal"] = ticks
+        data = list(param.tobytes())
+        self._begin()
+        result = self.ph.syncWriteTxOnly(self.port, self._addr[Reg.GOAL_POSITION], 4, data,
+                                         len(data))
+        self.stats.transactions += 1
+        if result != COMM_SUCCESS:
+            self._dirty = True
+            raise BusError(f"goal sync write failed: {self.ph.getTxRxResult(result)}")
+        return ticks * TWO_PI / self._tpr[k]
+
+    def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> None:
+        """Torque on/off. On: Goal Position := present (within one turn in position mode), torque
+        on, Bus Watchdog armed. Raises PositionOutOfLimits (before any torque is on) when a motor
+        sits outside its limits, MotorFault when a motor refuses because of a latched hardware
+        error (reboot it)."""
+        self._require_connected()
+        ids = self.ids if ids is None else tuple(ids)
+        if not enabled:
+            failed = []
+            for i in ids:
+                try:
+                    self.write_register(i, Reg.TORQUE_ENABLE, 0)
+                    self._torque_ids.discard(i)
+                except BusError as exc:
+                    failed.append(f"{i}: {exc}")
+            if failed:
+                raise BusError("torque off failed for " + "; ".join(failed))
+            return
+        present = self._present_ticks(ids)
+        goals = {}
+        for i in ids:
+            k = self._index[i]
+            g = present[i] % int(self._tpr[k]) if self.config.operating_mode == 3 else present[i]
+            if not self._lo[k] <= g <= self._hi[k]:
+                raise PositionOutOfLimits(
+                    f"motor {i} is at tick {g}, outside its limits [{self._lo[k]}, {self._hi[k]}];"
+                    " move it inside (torque off) before enabling torque")
+            goals[i] = g
+        for i in ids:
+            if i not in self._no_watchdog:
+                self.write_register(i, Reg.BUS_WATCHDOG, 0)
+            self.write_register(i, Reg.GOAL_POSITION, goals[i])
+            try:
+                self.write_register(i, Reg.TORQUE_ENABLE, 1)
+            except InstructionError as exc:
+                if exc.error & ALERT:
+                    bits = self.read_register(i, Reg.HARDWARE_ERROR_STATUS)
+                    self._note_hardware_error(i, bits)
+                    raise MotorFault(i, hardware_error_names(bits),
+                                     f"motor {i} refused torque: latched hardware error "
+                                     f"({', '.join(hardware_error_names(bits))}); reboot it") from exc
+                raise
+            self._torque_ids.add(i)
+            self.watchdog_tripped.discard(i)
+        self._arm_watchdog(ids)
+
+    def _arm_watchdog(self, ids: tuple[int, ...]) -> None:
+        """Arm every motor's Bus Watchdog with one broadcast SYNC_WRITE, so all timers start
+        together (one by one, the first motors would wait through the others' transactions),
+        then confirm with one sync read, falling back to unicast writes."""
+        wd = self.config.watchdog_ms // 20
+        ids = self._watchdog_ids(ids)
+        if not wd or not ids:
+            return
+        addr = self._addr[Reg.BUS_WATCHDOG]
+        for _ in range(self.config.retries + 1):
+            self._begin()
+            params = [b for i in ids for b in (i, wd)]
+            self.ph.syncWriteTxOnly(self.port, addr, 1, params, len(params))
+            valid, _, raw = self._sync_read(ids, addr, 1, fast=False)
+            if all(valid[i] and raw[i][0] == wd for i in ids):
+                return
+        for i in ids:
+            self.write_register(i, Reg.BUS_WATCHDOG, wd)
+
+    def reboot(self, motor_id: int) -> None:
+        """REBOOT a motor (clears latched hardware errors; torque is off afterwards) and wait
+        until it answers again."""
+        self._require_connected()
+        def op():
+            result, err = self.ph.reboot(self.port, motor_id)
+            return (None, err), result, err
+
+        self._unicast(motor_id, "reboot", op, 1)
+        deadline = self.clock() + self.config.reboot_timeout
+        while self.clock() < deadline:
+            self.port.sleep(0.02)
+            if self.ping(motor_id, retries=0) is not None:
+                self._hw_cache.pop(motor_id, None)
+                self.faults.pop(motor_id, None)
+                return
+        raise BusError(f"motor {motor_id} did not answer within {self.config.reboot_timeout} s "
+                       "after REBOOT")
+
+    # -- registers -------------------------------------------------------------------------------
+    def ping(self, motor_id: int, retries: int | None = None) -> tuple[int, int] | None:
+        """(model number, firmware version), or None if the motor does not answer."""
+        tries = (self.config.retries if retries is None else retries) + 1
+        for _ in range(tries):
+            self._begin()
+            model, result, err = self.ph.ping(self.port, motor_id)
+            self.stats.transactions += 1
+            if result == COMM_SUCCESS and self._end(1):
+                self._note_alert(motor_id, err)
+                fw = self._try_read(motor_id, 6, 1)
+                return model, (fw if fw is not None else -1)
+            self._dirty = True
+        return None
+
+    def read_register(self, motor_id: int, reg: Reg) -> int:
+        """Read one item (signed items decoded); raises BusError / InstructionError."""
+        it = self.tables[motor_id][reg] if motor_id in self.tables else load_control_table(
+            self.config.models[0])[reg]
+
+        def op():
+            data, result, err = self.ph.readTxRx(self.port, motor_id, it.address, it.size)
+            if result == COMM_SUCCESS and len(data) != it.size:
+                result = COMM_RX_CORRUPT
+            return (data, err), result, err
+
+        data, _ = self._unicast(motor_id, f"reading {reg.value}", op, 1)
+        raw = int.from_bytes(bytes(data), "little")
+        return to_signed(raw, it.size) if reg in SIGNED else raw
+
+    def write_register(self, motor_id: int, reg: Reg, value: int) -> None:
+        """Write one item and check the status; raises BusError / InstructionError."""
+        it = self.tables[motor_id][reg] if motor_id in self.tables else load_control_table(
+            self.config.models[0])[reg]
+        data = list(le_bytes(value, it.size))
+
+        def op():
+            result, err = self.ph.writeTxRx(self.port, motor_id, it.address, it.size, data)
+            return (None, err), result, err
+
+        self._unicast(motor_id, f"writing {reg.value}={value}", op, 1)
+
+    def _try_read(self, motor_id: int, address: int, size: int) -> int | None:
+        self._begin()
+        data, result, _ = self.ph.readTxRx(self.port, motor_id, address, size)
+        self.stats.transactions += 1
+        if result != COMM_SUCCESS or len(data) != size or not self._end(1):
+            self._dirty = True
+            return None
+        return int.from_bytes(bytes(data), "little")
+
+    def _unicast(self, motor_id: int, what: str, op, expected_headers: int):
+        """Run ``op`` with bounded retries; returns (payload, error byte)."""
+        result = COMM_SUCCESS
+        for _ in range(self.config.retries + 1):
+            self._begin()
+            (payload, err), result, _ = op()
+            self.stats.transactions += 1
+            if result == COMM_SUCCESS and self._end(expected_headers):
+                num = err & 0x7F
+                if num == ErrorNumber.CRC:
+                    continue  # the motor saw a corrupted instruction: resend
+                self._note_alert(motor_id, err)
+                if num:
+                    raise InstructionError(motor_id, what, err)
+                return payload, err
+            self._dirty = True
+        raise BusError(f"motor {motor_id}: {what} failed after {self.config.retries + 1} "
+                       f"attempts: {self.ph.getTxRxResult(result)}")
+
+    # -- transactions ------------------------------------------------------------------------------
+    def _begin(self) -> None:
+        if self._dirty:
+            self.port.sleep(self.config.settle_ms / 1000.0)
+            self._dirty = False
+        self.port.is_using = False
+        self.port.rx_trace.clear()
+        self._last_tx = self.clock()
+
+    def _check_watchdog_gap(self) -> None:
+        """After a silence longer than the watchdog period, ask the motors with torque on whether
+        their watchdog tripped (Bus Watchdog reads -1); they then ignore goal sync writes."""
+        period = self.config.watchdog_ms / 1000.0
+        self._silence = self.clock() - self._last_tx
+        if period <= 0 or not self._torque_ids or self._silence < 0.9 * period:
+            return
+        for i in sorted(self._watchdog_ids(self._torque_ids)):
+            try:
+                if self.read_register(i, Reg.BUS_WATCHDOG) == -1:
+                    self.watchdog_tripped.add(i)
+            except BusError:
+                pass
+        if self.watchdog_tripped:
+            log.warning("bus watchdog stopped motors %s after %.0f ms of silence",
+                        sorted(self.watchdog_tripped), 1000 * self._silence)
+
+    def _end(self, expected_headers: int, expected_bytes: int | None = None) -> bool:
+        """True if the transaction consumed exactly the expected status packets."""
+        trace = self.port.rx_trace
+        clean = (trace.count(HEADER) == expected_headers if expected_bytes is None
+                 else len(trace) == expected_bytes)
+        if clean and self.port.getBytesAvailable() == 0:
+            return True
+        self.stats.contaminated += 1
+        return False
+
+    def _read_block(self, ids: tuple[int, ...], fast: bool
+                    ) -> tuple[dict[int, bool], dict[int, int], dict[int, bytes]]:
+        """One (fast) sync read of the present block of ``ids``: validity, error byte, data."""
+        return self._sync_read(ids, self._block_addr, self._block_len, fast)
+
+    def _sync_read(self, ids: tuple[int, ...], address: int, length: int, fast: bool
+                   ) -> tuple[dict[int, bool], dict[int, int], dict[int, bytes]]:
+        """One (fast) sync read of ``length`` bytes at ``address``: validity, error byte, data."""
+        n = len(ids)
+        valid = dict.fromkeys(ids, False)
+        err: dict[int, int] = dict.fromkeys(ids, -1)
+        raw: dict[int, bytes] = {}
+        self._begin()
+        self.stats.transactions += 1
+        self.stats.reads += 1
+        result = self.ph.syncReadTx(self.port, address, length, list(ids), n, fast)
+        # the motors sample their present values when the instruction has arrived: the time
+        # the request left is a better timestamp than the end of n status packets (at 1 Mbit/s
+        # a full block from 10 motors takes ~2.5 ms, a systematic lag in identification logs)
+        self._sample_time = self.clock()
+        if result != COMM_SUCCESS:
+            self.port.is_using = False
+            self._dirty = True
+            return valid, err, raw
+        if fast:
+            data, result, _ = self.ph.fastSyncReadRx(self.port, BROADCAST_ID, (length + 4) * n)
+            size = length + 4
+            if result == COMM_SUCCESS and len(data) == size * n and self._end(
+                    1, 8 + size * n):
+                for j, i in enumerate(ids):
+                    s = j * size
+                    if data[s + 1] != i:
+                        break
+                    err[i] = data[s]
+                    raw[i] = bytes(data[s + 2:s + 2 + length])
+                    valid[i] = not err[i] & 0x7F
+                else:
+                    return valid, err, raw
+                valid = dict.fromkeys(ids, False)
+            self._count_failure(result)
+        else:
+            packets = 0
+            for i in ids:
+                data, result, e = self.ph.readRx(self.port, i, length)
+                if result == COMM_SUCCESS and len(data) == length:
+                    packets += 1
+                    err[i], raw[i] = e, bytes(data)
+                    valid[i] = not e & 0x7F
+                    self._silent.discard(i)
+                else:
+                    self._count_failure(result)
+                    if result != COMM_RX_CORRUPT:
+                        self._silent.add(i)
+                        break  # timed out: later replies were consumed looking for this one
+                    packets += 1
+            # Accept only a transaction that consumed no packet it did not ask for: a late reply
+            # to an earlier read (there is no sequence number) would otherwise pass as fresh.
+            if not self._end(packets):
+                valid = dict.fromkeys(ids, False)
+        if not all(valid.values()):
+            self._dirty = True
+        return valid, err, raw
+
+    def _count_failure(self, result: int) -> None:
+        if result == COMM_RX_CORRUPT:
+            self.stats.corrupt += 1
+        elif result != COMM_SUCCESS:
+            self.stats.timeouts += 1
+
+    def _present_ticks(self, ids: tuple[int, ...]) -> dict[int, int]:
+        """Present Position [ticks] of ``ids``, with bounded retries (raises BusError)."""
+        out: dict[int, int] = {}
+        for _ in range(self.config.retries + 1):
+            todo = tuple(i for i in ids if i not in out)
+            if not todo:
+                break
+            valid, _, raw = self._read_block(todo, fast=False)
+            for i in todo:
+                if valid[i]:
+                    out[i] = int(np.frombuffer(raw[i], self._dtype)[Reg.PRESENT_POSITION.name][0])
+        missing = [i for i in ids if i not in out]
+        if missing:
+            raise BusError(f"cannot read the present position of motors {missing}")
+        return out
+
+    # -- faults ----------------------------------------------------------------------------------
+    def _note_alert(self, motor_id: int, err: int) -> None:
+        if err & ALERT and motor_id not in self._hw_cache:
+            self._hw_cache[motor_id] = (-1, -math.inf)
+        elif not err & ALERT:
+            self._hw_cache.pop(motor_id, None)
+            self.faults.pop(motor_id, None)
+
+    def _alert_bits(self, motor_id: int, err: int) -> int:
+        """Hardware Error Status of a motor whose reply carried ``err`` (0 without alert)."""
+        if not err & ALERT:
+            self._hw_cache.pop(motor_id, None)
+            self.faults.pop(motor_id, None)
+            return 0
+        bits, when = self._hw_cache.get(motor_id, (-1, -math.inf))
+        if bits < 0 or self.clock() - when > _FAULT_POLL:
+            value = self._try_read(motor_id, self._addr[Reg.HARDWARE_ERROR_STATUS], 1)
+            if value is not None:
+                self._note_hardware_error(motor_id, value)
+                bits = value
+        return bits
+
+    def _note_hardware_error(self, motor_id: int, bits: int) -> None:
+        self._hw_cache[motor_id] = (bits, self.clock())
+        if bits:
+            names = hardware_error_names(bits)
+            if self.faults.get(motor_id) != names:
+                log.warning("motor %d: hardware error %s", motor_id, ", ".join(names))
+            self.faults[motor_id] = names
+        else:
+            self.faults.pop(motor_id, None)
+
+    def _track_validity(self, ok: np.ndarray, all_ok: bool = False) -> None:
+        if all_ok:
+            self._streak[:] = 0
+            return
+        self._streak = np.where(ok, 0, self._streak + 1)
+        bad = np.flatnonzero(~ok)
+        self.stats.invalid += len(bad)
+        for k in bad:
+            i = self.ids[k]
+            self.stats.by_motor_invalid[i] = self.stats.by_motor_invalid.get(i, 0) + 1
+        limit = self.config.max_invalid_reads
+        if limit is not None and np.any(self._streak >= limit):
+            dead = [self.ids[k] for k in np.flatnonzero(self._streak >= limit)]
+            raise BusError(f"motors {dead} gave no valid reply in {limit} consecutive reads")
+
+    def _require_connected(self) -> None:
+        if not self._connected:
+            raise BusError("bus is not connected (call connect() or use it as a context manager)")
+
+    # -- torque-off paths ----------------------------------------------------------------------------
+    def _torque_off_best_effort(self) -> None:
+        """Broadcast torque off (one packet reaches every motor), then confirm each motor."""
+        self.emergency_torque_off()
+        for i in self.ids:
+            try:
+                self.write_register(i, Reg.TORQUE_ENABLE, 0)
+            except BusError as exc:
+                log.warning("torque off of motor %d not confirmed: %s", i, exc)
+
+    def emergency_torque_off(self) -> None:
+        """One SYNC_WRITE of Torque Enable = 0 to every motor; no status, safe in a handler."""
+        if not self.port.is_open:
+            return
+        self.port.is_using = False
+        addr = self._addr[Reg.TORQUE_ENABLE]
+        params = [b for i in self.ids for b in (i, 0)]
+        try:
+            self.ph.syncWriteTxOnly(self.port, addr, 1, params, len(params))
+        except Exception as exc:  # a dying port must not mask the original problem
+            log.warning("emergency torque off failed: %s", exc)
+        self.port.is_using = False
+
+
+# -- scanning ----------------------------------------------------------------------------------------
+
+
+def scan(port: str | transport.DxlPort, baudrate: int = 1_000_000,
+         ids: Sequence[int] | None = None) -> list[MotorInfo]:
+    """Find motors (broadcast ping, or ping ``ids``) and read their state, without configuring.
+
+    Returns one ``MotorInfo`` per motor found, sorted by id.
+    """
+    if isinstance(port, str):
+        port = transport.DxlPort(port, latency_ms=16.0)  # not time critical: be patient
+    port.baudrate = baudrate
+    if not port.openPort():
+        raise BusError(f"cannot open {port.getPortName()} at {baudrate} bps")
+    ph = PacketHandler(2.0)
+    try:
+        if ids is None:
+            found, result = ph.broadcastPing(port)
+            found = {i: (v[0], v[1]) for i, v in found.items()}
+        else:
+            found = {}
+            for i in ids:
+                model, result, _ = ph.ping(port, i)
+                if result == COMM_SUCCESS:
+                    fw, res, _ = ph.read1ByteTxRx(port, i, 6)
+                    found[i] = (model, fw if res == COMM_SUCCESS else None)
+        out = []
+        for i in sorted(found):
+            model, fw = found[i]
+
+            def rd(address: int, size: int, motor: int = i) -> int | None:
+                data, res, _ = ph.readTxRx(port, motor, address, size)
+                return int.from_bytes(bytes(data), "little") if res == COMM_SUCCESS and len(
+                    data) == size else None
+
+            temp, volt, torque, hw = rd(146, 1), rd(144, 2), rd(64, 1), rd(70, 1)
+            out.append(MotorInfo(i, model, model_name(model), fw, temp,
+                                 None if volt is None else volt / 10.0,
+                                 None if torque is None else bool(torque),
+                                 hardware_error_names(hw) if hw else ()))
+        return out
+    finally:
+        port.closePort()
+
+
+# -- process-wide safety hooks --------------------------------------------------------------------
+
+_OPEN: weakref.WeakSet[DynamixelBus] = weakref.WeakSet()
+_PREVIOUS: dict[int, object] = {}
+_INSTALL_LOCK = threading.Lock()
+_ATEXIT = False
+
+
+def _register(bus: DynamixelBus) -> None:
+    global _ATEXIT
+    _OPEN.add(bus)
+    with _INSTALL_LOCK:
+        if not _ATEXIT:
+            atexit.register(_at_exit)
+            _ATEXIT = True
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            current = signal.getsignal(sig)
+            if current is not _on_signal:
+                _PREVIOUS[sig] = current
+                signal.signal(sig, _on_signal)
+
+
+def _on_signal(signum: int, frame: object) -> None:
+    for bus in list(_OPEN):
+        bus.emergency_torque_off()
+    prev = _PREVIOUS.get(signum, signal.SIG_DFL)
+    if callable(prev):
+        prev(signum, frame)
+    elif prev == signal.SIG_DFL:
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+
+
+def _at_exit() -> None:
+    for bus in list(_OPEN):
+        try:
+            bus.disconnect()
+        except Exception as exc:  # exiting anyway; report and go on
+            log.warning("torque off at exit failed: %s", exc)

@@ -1,0 +1,1 @@
+"""Emulated Dynamixel robots: the firmware model, the byte-level chain with MuJoCo behind it, the pty server, hidden robots."""

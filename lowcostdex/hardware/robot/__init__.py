@@ -1,0 +1,1 @@
+"""The Robot: safety limits and motion bound, thermal/current guards, calibration, auto-reset, driver logs, env backends."""
