@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from lowcostdex.hardware.bus import BusError, CommandError, MotorFault
-from lowcostdex.hardware.dynamixel.control_table import Reg
-from lowcostdex.hardware.dynamixel.driver import (
-    DynamixelBus,
+from lowcostdex.hardware.dynamixel.config import (
     LatencyWarning,
     PositionOutOfLimits,
     WatchdogTripped,
 )
+from lowcostdex.hardware.dynamixel.control_table import Reg
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
 from lowcostdex.hardware.dynamixel.protocol import HardwareError
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.emulated.firmware import FirmwareOptions

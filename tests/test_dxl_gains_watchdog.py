@@ -10,12 +10,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from lowcostdex.hardware.dynamixel.config import GainMismatchWarning, WatchdogUnavailableWarning
 from lowcostdex.hardware.dynamixel.control_table import Reg
-from lowcostdex.hardware.dynamixel.driver import (
-    DynamixelBus,
-    GainMismatchWarning,
-    WatchdogUnavailableWarning,
-)
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.emulated.firmware import FirmwareOptions
 from lowcostdex.sim import servo

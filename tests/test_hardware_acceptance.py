@@ -14,7 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.dynamixel.driver import DynamixelBus, WatchdogTripped, scan
+from lowcostdex.hardware.dynamixel.config import WatchdogTripped
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+from lowcostdex.hardware.dynamixel.scan import scan
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
 

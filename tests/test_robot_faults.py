@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.dynamixel.driver import WatchdogTripped
+from lowcostdex.hardware.dynamixel.config import WatchdogTripped
 from lowcostdex.hardware.emulated.chain import FaultConfig, emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import make_dynamixel_bus

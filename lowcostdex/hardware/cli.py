@@ -197,7 +197,7 @@ def pick_port(port: str | None) -> str:
 
 
 def _scan(args: argparse.Namespace) -> int:
-    from lowcostdex.hardware.dynamixel.driver import scan
+    from lowcostdex.hardware.dynamixel.scan import scan
 
     if args.port is None:
         return _list_ports()
@@ -299,7 +299,7 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _setup_motors(args: argparse.Namespace) -> int:
-    from lowcostdex.hardware.dynamixel.driver import scan
+    from lowcostdex.hardware.dynamixel.scan import scan
     from lowcostdex.hardware.dynamixel.setup_motors import check_hand, setup_motors
     from lowcostdex.hardware.hands import hand_spec
 

@@ -17,7 +17,7 @@ def stage_bus(ctx: Context) -> dict[str, Any]:
     """Bring the D'Claw up on its bus: scan, then calibrate (emulated) or check the map."""
     import numpy as np
 
-    from lowcostdex.hardware.dynamixel.driver import scan
+    from lowcostdex.hardware.dynamixel.scan import scan
     from lowcostdex.hardware.emulated.chain import emulated_dclaw
     from lowcostdex.hardware.hands import dclaw_spec
     from lowcostdex.hardware.robot.backend import make_dynamixel_bus, robot_hand

@@ -49,27 +49,36 @@ consecutive invalid reads of a motor, ``read_state`` raises ``BusError``. Unicas
 Lifecycle: torque off on ``disconnect`` (context-manager exit, also on exceptions), on SIGINT /
 SIGTERM (then the previous handler runs) and at interpreter exit. If the host dies without any of
 these (SIGKILL, power loss of the PC), the Bus Watchdog armed at torque-on stops the motors.
+
+Where the parts live: settings, counters, errors and warnings in ``config``; register access, sync
+reads and the late-reply defences in ``transactions``; the torque-off hooks in ``shutdown``;
+``scan`` in ``scan``. This module keeps the bus: connect, read_state, goals, torque, faults.
 """
 
 from __future__ import annotations
 
-import atexit
 import logging
 import math
 import os
-import signal
-import threading
 import warnings
-import weakref
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
-from dynamixel_sdk import COMM_RX_CORRUPT, COMM_SUCCESS, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorFault, MotorState
 from lowcostdex.hardware.dynamixel import transport
+from lowcostdex.hardware.dynamixel.config import (
+    BusStats,
+    DynamixelConfig,
+    GainMismatchWarning,
+    InstructionError,
+    LatencyWarning,
+    PositionOutOfLimits,
+    WatchdogTripped,
+    WatchdogUnavailableWarning,
+)
 from lowcostdex.hardware.dynamixel.control_table import (
     SIGNED,
     ControlTable,
@@ -78,24 +87,16 @@ from lowcostdex.hardware.dynamixel.control_table import (
     load_control_table,
     model_name,
 )
-from lowcostdex.hardware.dynamixel.protocol import (
-    ALERT,
-    BROADCAST_ID,
-    HEADER,
-    ErrorNumber,
-    hardware_error_names,
-    le_bytes,
-    status_error_text,
-    to_signed,
-)
+from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names
+from lowcostdex.hardware.dynamixel.shutdown import register as _register
+from lowcostdex.hardware.dynamixel.shutdown import unregister as _unregister
+from lowcostdex.hardware.dynamixel.transactions import SdkTransactions
 from lowcostdex.hardware.hands import HandSpec
 from lowcostdex.sim.servo import ServoGains, motor_spec
 
 log = logging.getLogger(__name__)
 
 TWO_PI = 2.0 * math.pi
-SDK_BAUDRATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
-                 1_000_000, 1_152_000, 2_000_000, 2_500_000, 3_000_000, 3_500_000, 4_000_000)
 BLOCK = (Reg.PRESENT_CURRENT, Reg.PRESENT_VELOCITY, Reg.PRESENT_POSITION, Reg.VELOCITY_TRAJECTORY,
          Reg.POSITION_TRAJECTORY, Reg.PRESENT_INPUT_VOLTAGE, Reg.PRESENT_TEMPERATURE)
 """The contiguous block read every control step (addresses 126..146 on X-series)."""
@@ -107,146 +108,7 @@ WATCHDOG_MIN_FIRMWARE = 38  # e-Manual: "Bus Watchdog(98, Available from Firmwar
 _GAIN_REGS = (Reg.POSITION_P_GAIN, Reg.POSITION_I_GAIN, Reg.POSITION_D_GAIN)
 
 
-class LatencyWarning(UserWarning):
-    """The USB-serial latency timer is above 1 ms (the loop will run far slower than the wire)."""
-
-
-class GainMismatchWarning(UserWarning):
-    """The motors' Position P/I/D gains are not their model's factory gains, which the
-    simulation uses unless told otherwise."""
-
-
-class WatchdogUnavailableWarning(UserWarning):
-    """Motors with firmware older than v38 have no Bus Watchdog: nothing stops them if the host
-    dies with torque on."""
-
-
-class InstructionError(BusError):
-    """A motor answered with an instruction error (access, range, limit, ...)."""
-
-    def __init__(self, motor_id: int, what: str, error: int):
-        self.motor_id, self.error = motor_id, error
-        super().__init__(f"motor {motor_id}: {what}: {status_error_text(error)}")
-
-
-class PositionOutOfLimits(BusError):
-    """Torque-on refused: the motor sits outside its position limits (moved by hand?)."""
-
-
-class WatchdogTripped(BusError):
-    """Motors stopped by their Bus Watchdog (the host was silent too long); they refuse goals
-    until ``set_torque(True, ids)`` re-arms them from their present position."""
-
-    def __init__(self, motor_ids: Sequence[int], silence: float):
-        self.motor_ids = tuple(motor_ids)
-        super().__init__(f"motors {list(self.motor_ids)} were stopped by their bus watchdog after "
-                         f"{silence * 1000:.0f} ms without a packet; call set_torque(True) to "
-                         "resume from where they stopped")
-
-
-@dataclass(frozen=True)
-class DynamixelConfig:
-    """Driver settings.
-
-    Attributes:
-      ids: motor ids in the order of every array the bus returns or takes.
-      models: expected model name per id (``ControlTable`` names, e.g. "XH430-W350").
-      baudrate: bit rate [bit/s] (the SDK accepts up to 4 Mbps).
-      latency_ms: USB latency timer assumed when sysfs cannot tell [ms].
-      return_delay: Return Delay Time written at connect [2 us units] (0: answer at once).
-      watchdog_ms: Bus Watchdog armed while torque is on [ms], multiple of 20, <= 2540; 0 = off.
-      position_limits: (low, high) motor angle [rad] per id, written to Min/Max Position Limit
-        and used to clip goals; None keeps the limits stored in the motors.
-      operating_mode: Operating Mode written at connect (3 position, 4 extended position).
-      position_gains: (P, I, D) written to Position P/I/D Gain at connect (when different);
-        None keeps the motors' own gains. Either way they are read back into ``bus.gains``.
-      fast_read: "auto" (probe), "on" or "off" for Fast Sync Read.
-      read_retries: extra sync reads of the motors missing from a read.
-      retries: extra attempts of a failed unicast read/write/ping.
-      settle_ms: wait after a failed transaction before the next one [ms].
-      max_invalid_reads: consecutive invalid reads of one motor before BusError; None = never.
-      torque_off_on_close: turn torque off in ``disconnect``.
-      handle_signals: turn torque off on SIGINT/SIGTERM (main thread only) and at exit.
-      reboot_timeout: how long ``reboot`` waits for the motor to answer again [s].
-    """
-
-    ids: tuple[int, ...]
-    models: tuple[str, ...]
-    baudrate: int = 1_000_000
-    latency_ms: float = 1.0
-    return_delay: int = 0
-    watchdog_ms: int = 100
-    position_limits: tuple[tuple[float, float], ...] | None = None
-    operating_mode: int = 3
-    position_gains: tuple[int, int, int] | None = None
-    fast_read: str = "auto"
-    read_retries: int = 1
-    retries: int = 3
-    settle_ms: float = 10.0
-    max_invalid_reads: int | None = 50
-    torque_off_on_close: bool = True
-    handle_signals: bool = True
-    reboot_timeout: float = 2.0
-
-    def __post_init__(self) -> None:
-        if not self.ids or len(set(self.ids)) != len(self.ids):
-            raise ConfigError(f"ids must be unique and non-empty, got {self.ids}")
-        if any(not 0 <= i <= 252 for i in self.ids):
-            raise ConfigError(f"ids must be in 0..252, got {self.ids}")
-        if len(self.models) != len(self.ids):
-            raise ConfigError(f"{len(self.models)} models for {len(self.ids)} ids")
-        for m in set(self.models):
-            load_control_table(m)
-        check_choice("baud rate", self.baudrate, SDK_BAUDRATES)
-        check_choice("fast_read", self.fast_read, ("auto", "on", "off"))
-        check_choice("operating mode", self.operating_mode, (3, 4))
-        if self.watchdog_ms % 20 or not 0 <= self.watchdog_ms <= 2540:
-            raise ConfigError(f"watchdog_ms={self.watchdog_ms}: a multiple of 20 in 0..2540")
-        if not 0 <= self.return_delay <= 254:
-            raise ConfigError(f"return_delay={self.return_delay} outside 0..254")
-        if self.position_gains is not None and (
-                len(self.position_gains) != 3
-                or not all(0 <= int(g) <= 16383 for g in self.position_gains)):
-            raise ConfigError(f"position_gains={self.position_gains}: (P, I, D), each 0..16383")
-        if self.latency_ms <= 0 or self.settle_ms < 0 or self.read_retries < 0 or self.retries < 0:
-            raise ConfigError("latency_ms must be > 0; settle_ms, read_retries, retries >= 0")
-        if self.position_limits is not None:
-            if len(self.position_limits) != len(self.ids):
-                raise ConfigError(f"{len(self.position_limits)} limits for {len(self.ids)} ids")
-            for i, (lo, hi) in zip(self.ids, self.position_limits, strict=True):
-                if not lo < hi:
-                    raise ConfigError(f"motor {i}: position limit low {lo} must be < high {hi}")
-
-
-@dataclass
-class BusStats:
-    """Counters since connect."""
-
-    transactions: int = 0
-    reads: int = 0
-    invalid: int = 0  # motor-reads returned invalid
-    timeouts: int = 0
-    corrupt: int = 0
-    contaminated: int = 0
-    retries: int = 0
-    by_motor_invalid: dict[int, int] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class MotorInfo:
-    """What ``scan`` finds about one motor."""
-
-    motor_id: int
-    model_number: int
-    model: str
-    firmware: int | None = None
-    temperature: int | None = None
-    voltage: float | None = None
-    torque_enabled: bool | None = None
-    hardware_error: tuple[str, ...] = ()
-
-
-class DynamixelBus(MotorBus):
+class DynamixelBus(SdkTransactions, MotorBus):
     """Dynamixel X-series motors on one serial line (see the module docstring).
 
     Args:
@@ -356,7 +218,7 @@ class DynamixelBus(MotorBus):
                 self._torque_off_best_effort()
         finally:
             self._connected = False
-            _OPEN.discard(self)
+            _unregister(self)
             self._close_port()
 
     def _close_port(self) -> None:
@@ -686,85 +548,7 @@ class DynamixelBus(MotorBus):
         raise BusError(f"motor {motor_id} did not answer within {self.config.reboot_timeout} s "
                        "after REBOOT")
 
-    # -- registers -------------------------------------------------------------------------------
-    def ping(self, motor_id: int, retries: int | None = None) -> tuple[int, int] | None:
-        """(model number, firmware version), or None if the motor does not answer."""
-        tries = (self.config.retries if retries is None else retries) + 1
-        for _ in range(tries):
-            self._begin()
-            model, result, err = self.ph.ping(self.port, motor_id)
-            self.stats.transactions += 1
-            if result == COMM_SUCCESS and self._end(1):
-                self._note_alert(motor_id, err)
-                fw = self._try_read(motor_id, 6, 1)
-                return model, (fw if fw is not None else -1)
-            self._dirty = True
-        return None
-
-    def read_register(self, motor_id: int, reg: Reg) -> int:
-        """Read one item (signed items decoded); raises BusError / InstructionError."""
-        it = self.tables[motor_id][reg] if motor_id in self.tables else load_control_table(
-            self.config.models[0])[reg]
-
-        def op():
-            data, result, err = self.ph.readTxRx(self.port, motor_id, it.address, it.size)
-            if result == COMM_SUCCESS and len(data) != it.size:
-                result = COMM_RX_CORRUPT
-            return (data, err), result, err
-
-        data, _ = self._unicast(motor_id, f"reading {reg.value}", op, 1)
-        raw = int.from_bytes(bytes(data), "little")
-        return to_signed(raw, it.size) if reg in SIGNED else raw
-
-    def write_register(self, motor_id: int, reg: Reg, value: int) -> None:
-        """Write one item and check the status; raises BusError / InstructionError."""
-        it = self.tables[motor_id][reg] if motor_id in self.tables else load_control_table(
-            self.config.models[0])[reg]
-        data = list(le_bytes(value, it.size))
-
-        def op():
-            result, err = self.ph.writeTxRx(self.port, motor_id, it.address, it.size, data)
-            return (None, err), result, err
-
-        self._unicast(motor_id, f"writing {reg.value}={value}", op, 1)
-
-    def _try_read(self, motor_id: int, address: int, size: int) -> int | None:
-        self._begin()
-        data, result, _ = self.ph.readTxRx(self.port, motor_id, address, size)
-        self.stats.transactions += 1
-        if result != COMM_SUCCESS or len(data) != size or not self._end(1):
-            self._dirty = True
-            return None
-        return int.from_bytes(bytes(data), "little")
-
-    def _unicast(self, motor_id: int, what: str, op, expected_headers: int):
-        """Run ``op`` with bounded retries; returns (payload, error byte)."""
-        result = COMM_SUCCESS
-        for _ in range(self.config.retries + 1):
-            self._begin()
-            (payload, err), result, _ = op()
-            self.stats.transactions += 1
-            if result == COMM_SUCCESS and self._end(expected_headers):
-                num = err & 0x7F
-                if num == ErrorNumber.CRC:
-                    continue  # the motor saw a corrupted instruction: resend
-                self._note_alert(motor_id, err)
-                if num:
-                    raise InstructionError(motor_id, what, err)
-                return payload, err
-            self._dirty = True
-        raise BusError(f"motor {motor_id}: {what} failed after {self.config.retries + 1} "
-                       f"attempts: {self.ph.getTxRxResult(result)}")
-
-    # -- transactions ------------------------------------------------------------------------------
-    def _begin(self) -> None:
-        if self._dirty:
-            self.port.sleep(self.config.settle_ms / 1000.0)
-            self._dirty = False
-        self.port.is_using = False
-        self.port.rx_trace.clear()
-        self._last_tx = self.clock()
-
+    # -- transactions (the rest: transactions.SdkTransactions) ------------------------------
     def _check_watchdog_gap(self) -> None:
         """After a silence longer than the watchdog period, ask the motors with torque on whether
         their watchdog tripped (Bus Watchdog reads -1); they then ignore goal sync writes."""
@@ -782,84 +566,10 @@ class DynamixelBus(MotorBus):
             log.warning("bus watchdog stopped motors %s after %.0f ms of silence",
                         sorted(self.watchdog_tripped), 1000 * self._silence)
 
-    def _end(self, expected_headers: int, expected_bytes: int | None = None) -> bool:
-        """True if the transaction consumed exactly the expected status packets."""
-        trace = self.port.rx_trace
-        clean = (trace.count(HEADER) == expected_headers if expected_bytes is None
-                 else len(trace) == expected_bytes)
-        if clean and self.port.getBytesAvailable() == 0:
-            return True
-        self.stats.contaminated += 1
-        return False
-
     def _read_block(self, ids: tuple[int, ...], fast: bool
                     ) -> tuple[dict[int, bool], dict[int, int], dict[int, bytes]]:
         """One (fast) sync read of the present block of ``ids``: validity, error byte, data."""
         return self._sync_read(ids, self._block_addr, self._block_len, fast)
-
-    def _sync_read(self, ids: tuple[int, ...], address: int, length: int, fast: bool
-                   ) -> tuple[dict[int, bool], dict[int, int], dict[int, bytes]]:
-        """One (fast) sync read of ``length`` bytes at ``address``: validity, error byte, data."""
-        n = len(ids)
-        valid = dict.fromkeys(ids, False)
-        err: dict[int, int] = dict.fromkeys(ids, -1)
-        raw: dict[int, bytes] = {}
-        self._begin()
-        self.stats.transactions += 1
-        self.stats.reads += 1
-        result = self.ph.syncReadTx(self.port, address, length, list(ids), n, fast)
-        # the motors sample their present values when the instruction has arrived: the time
-        # the request left is a better timestamp than the end of n status packets (at 1 Mbit/s
-        # a full block from 10 motors takes ~2.5 ms, a systematic lag in identification logs)
-        self._sample_time = self.clock()
-        if result != COMM_SUCCESS:
-            self.port.is_using = False
-            self._dirty = True
-            return valid, err, raw
-        if fast:
-            data, result, _ = self.ph.fastSyncReadRx(self.port, BROADCAST_ID, (length + 4) * n)
-            size = length + 4
-            if result == COMM_SUCCESS and len(data) == size * n and self._end(
-                    1, 8 + size * n):
-                for j, i in enumerate(ids):
-                    s = j * size
-                    if data[s + 1] != i:
-                        break
-                    err[i] = data[s]
-                    raw[i] = bytes(data[s + 2:s + 2 + length])
-                    valid[i] = not err[i] & 0x7F
-                else:
-                    return valid, err, raw
-                valid = dict.fromkeys(ids, False)
-            self._count_failure(result)
-        else:
-            packets = 0
-            for i in ids:
-                data, result, e = self.ph.readRx(self.port, i, length)
-                if result == COMM_SUCCESS and len(data) == length:
-                    packets += 1
-                    err[i], raw[i] = e, bytes(data)
-                    valid[i] = not e & 0x7F
-                    self._silent.discard(i)
-                else:
-                    self._count_failure(result)
-                    if result != COMM_RX_CORRUPT:
-                        self._silent.add(i)
-                        break  # timed out: later replies were consumed looking for this one
-                    packets += 1
-            # Accept only a transaction that consumed no packet it did not ask for: a late reply
-            # to an earlier read (there is no sequence number) would otherwise pass as fresh.
-            if not self._end(packets):
-                valid = dict.fromkeys(ids, False)
-        if not all(valid.values()):
-            self._dirty = True
-        return valid, err, raw
-
-    def _count_failure(self, result: int) -> None:
-        if result == COMM_RX_CORRUPT:
-            self.stats.corrupt += 1
-        elif result != COMM_SUCCESS:
-            self.stats.timeouts += 1
 
     def _present_ticks(self, ids: tuple[int, ...]) -> dict[int, int]:
         """Present Position [ticks] of ``ids``, with bounded retries (raises BusError)."""
@@ -950,91 +660,3 @@ class DynamixelBus(MotorBus):
         except Exception as exc:  # a dying port must not mask the original problem
             log.warning("emergency torque off failed: %s", exc)
         self.port.is_using = False
-
-
-# -- scanning ----------------------------------------------------------------------------------------
-
-
-def scan(port: str | transport.DxlPort, baudrate: int = 1_000_000,
-         ids: Sequence[int] | None = None) -> list[MotorInfo]:
-    """Find motors (broadcast ping, or ping ``ids``) and read their state, without configuring.
-
-    Returns one ``MotorInfo`` per motor found, sorted by id.
-    """
-    if isinstance(port, str):
-        port = transport.DxlPort(port, latency_ms=16.0)  # not time critical: be patient
-    port.baudrate = baudrate
-    if not port.openPort():
-        raise BusError(f"cannot open {port.getPortName()} at {baudrate} bps")
-    ph = PacketHandler(2.0)
-    try:
-        if ids is None:
-            found, result = ph.broadcastPing(port)
-            found = {i: (v[0], v[1]) for i, v in found.items()}
-        else:
-            found = {}
-            for i in ids:
-                model, result, _ = ph.ping(port, i)
-                if result == COMM_SUCCESS:
-                    fw, res, _ = ph.read1ByteTxRx(port, i, 6)
-                    found[i] = (model, fw if res == COMM_SUCCESS else None)
-        out = []
-        for i in sorted(found):
-            model, fw = found[i]
-
-            def rd(address: int, size: int, motor: int = i) -> int | None:
-                data, res, _ = ph.readTxRx(port, motor, address, size)
-                return int.from_bytes(bytes(data), "little") if res == COMM_SUCCESS and len(
-                    data) == size else None
-
-            temp, volt, torque, hw = rd(146, 1), rd(144, 2), rd(64, 1), rd(70, 1)
-            out.append(MotorInfo(i, model, model_name(model), fw, temp,
-                                 None if volt is None else volt / 10.0,
-                                 None if torque is None else bool(torque),
-                                 hardware_error_names(hw) if hw else ()))
-        return out
-    finally:
-        port.closePort()
-
-
-# -- process-wide safety hooks --------------------------------------------------------------------
-
-_OPEN: weakref.WeakSet[DynamixelBus] = weakref.WeakSet()
-_PREVIOUS: dict[int, object] = {}
-_INSTALL_LOCK = threading.Lock()
-_ATEXIT = False
-
-
-def _register(bus: DynamixelBus) -> None:
-    global _ATEXIT
-    _OPEN.add(bus)
-    with _INSTALL_LOCK:
-        if not _ATEXIT:
-            atexit.register(_at_exit)
-            _ATEXIT = True
-        if threading.current_thread() is not threading.main_thread():
-            return
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            current = signal.getsignal(sig)
-            if current is not _on_signal:
-                _PREVIOUS[sig] = current
-                signal.signal(sig, _on_signal)
-
-
-def _on_signal(signum: int, frame: object) -> None:
-    for bus in list(_OPEN):
-        bus.emergency_torque_off()
-    prev = _PREVIOUS.get(signum, signal.SIG_DFL)
-    if callable(prev):
-        prev(signum, frame)
-    elif prev == signal.SIG_DFL:
-        signal.signal(signum, signal.SIG_DFL)
-        os.kill(os.getpid(), signum)
-
-
-def _at_exit() -> None:
-    for bus in list(_OPEN):
-        try:
-            bus.disconnect()
-        except Exception as exc:  # exiting anyway; report and go on
-            log.warning("torque off at exit failed: %s", exc)
