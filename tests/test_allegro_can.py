@@ -21,7 +21,12 @@ from lowcostdex.sim.models.allegro import build_allegro
 can = pytest.importorskip("can", reason="python-can (the 'can' extra) is not installed")
 
 from lowcostdex.hardware.allegro import protocol as proto  # noqa: E402 (needs python-can)
-from lowcostdex.hardware.allegro.driver import AllegroBus, AllegroGains, pd_torque  # noqa: E402
+from lowcostdex.hardware.allegro.driver import (  # noqa: E402
+    AllegroBus,
+    AllegroGains,
+    TemperatureSensorWarning,
+    pd_torque,
+)
 from lowcostdex.hardware.allegro.emulator import (  # noqa: E402
     AllegroThermal,
     EmulatedAllegro,
@@ -88,7 +93,10 @@ TRACE_TEMPERATURE = ((0x0E0, bytes([0x2B, 0x2A, 0x29, 0x25])),
                      (0x0EC, bytes([0x30, 0x26, 0x24, 0xF6])))
 # The same bytes read as one unsigned byte per joint [deg C] (the Wonik v4 Linux demo,
 # taewookim0812/allegro_hand_linux_v4 cpp/grasp_2204/main.cpp, prints data[0..3] as four values).
-# The thumb's last byte 0xF6 = 246 is what the hand sent; no driver interprets it otherwise.
+# The thumb's last byte 0xF6 = 246 is what the hand sent, and every reference driver decodes it
+# unsigned and unchecked: Meta's driver struct.unpack("4B", data), Wonik's v4 ROS 2 SDK
+# (Wonikrobotics-git/allegro_hand_ros2 allegro_hand_hardwares/v4/hardware/src/v4_spec.hpp:
+# "uint8_t joint_temperature[4]; // Temperature in Celsius"), the Linux demo's printf %d.
 TRACE_CELSIUS = (43, 42, 41, 37, 41, 43, 41, 39, 39, 39, 39, 36, 48, 38, 36, 246)
 
 
@@ -100,6 +108,22 @@ def test_temperature_frames_of_a_real_v4_trace_decode_to_one_byte_per_joint():
         assert proto.pack_temperatures(TRACE_CELSIUS[4 * finger:4 * finger + 4]) == data
     with pytest.raises(ValueError, match="4 temperature bytes"):
         proto.unpack_temperatures(bytes(8))
+
+
+def test_a_temperature_byte_with_its_high_bit_set_is_a_sensor_fault_not_a_temperature():
+    # In the trace 0xF6 sits beside 15 joints at 36..48 deg C (TRACE_CELSIUS) and a palm at
+    # 0x3C = 60 deg C, and the same hand's HAND_INFO status 0x05 has the high-temperature fault
+    # bit (0x02, every driver) clear: the hand itself did not take 246 deg C (or -10 deg C,
+    # the byte read signed) for a joint temperature, so the driver must not either.
+    assert TRACE_INFO[1][6] & 0x02 == 0 and TRACE_INFO[1][5] == 60
+    assert max(TRACE_CELSIUS[:15]) == 48 and int.from_bytes(b"\xf6", signed=True) == -10
+    t = proto.temperatures_celsius(TRACE_CELSIUS)
+    np.testing.assert_array_equal(t[:15], TRACE_CELSIUS[:15])
+    assert np.isnan(t[15])
+    # the boundary: 0x7F is still a number, 0x80 (128 unsigned, -128 signed) is not
+    edge = proto.temperatures_celsius([0x00, 0x7F, 0x80, 0xFF])
+    np.testing.assert_array_equal(edge[:2], [0.0, 127.0])
+    assert np.isnan(edge[2]) and np.isnan(edge[3])
 
 
 def test_hand_info_of_a_real_v4_trace():
@@ -183,11 +207,28 @@ def test_driver_reads_the_trace_temperature_frames(hand):
     for can_id, data in TRACE_TEMPERATURE:  # the hand's frames, byte for byte
         emu.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
     bus.poll()
-    np.testing.assert_array_equal(bus.read_state().temperature, TRACE_CELSIUS)
+    t = bus.read_state().temperature
+    np.testing.assert_array_equal(t[:15], TRACE_CELSIUS[:15])
+    assert np.isnan(t[15])  # 0xF6: a sensor fault, unknown to the thermal guard, not 246 deg C
+    assert bus.temperature_faults == {15: 0xF6}
     bad = bus.bad_frames
     emu.bus.send(can.Message(arbitration_id=0x0E0, data=bytes(8), is_extended_id=False))
     bus.poll()
     assert bus.bad_frames == bad + 1  # an 8-byte frame is not a temperature frame
+
+
+def test_connect_names_a_joint_whose_temperature_sensor_sends_0xf6(hand):
+    bus, emu, clock = hand
+    emu.temperature[15] = 0xF6  # the traced thumb's byte, sent as-is by the emulated hand
+    with pytest.warns(TemperatureSensorWarning, match=r"thumb\S* reads 0xF6") as record:
+        bus.connect()
+    assert len(record) == 1
+    t = bus.read_state().temperature
+    assert np.isnan(t[15]) and np.all(np.isfinite(t[:15]))
+    assert bus.temperature_faults == {15: 0xF6}
+    emu.temperature[15] = 40.0  # the sensor recovers: the next reply is a temperature again
+    clock.sleep(0.15)  # temperatures are asked for every 100 ms
+    assert bus.read_state().temperature[15] == 40.0 and bus.temperature_faults == {}
 
 
 def test_emulated_hand_answers_temperature_requests_with_four_bytes(hand):

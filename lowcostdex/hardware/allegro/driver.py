@@ -25,6 +25,7 @@ each joint is in ``MotorState.extra["torque"]``.
 from __future__ import annotations
 
 import threading
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -36,6 +37,10 @@ from lowcostdex.hardware.allegro import protocol as proto
 from lowcostdex.hardware.bus import BusError, MotorBus, MotorState
 from lowcostdex.hardware.hands import HandSpec, allegro_spec
 from lowcostdex.hardware.timing import Clock, RealClock
+
+
+class TemperatureSensorWarning(UserWarning):
+    """A joint's TEMPERATURE byte is a sensor fault (>= 0x80): that joint reads NaN."""
 
 
 @dataclass(frozen=True)
@@ -150,6 +155,7 @@ class AllegroBus(MotorBus):
         self._stamp = np.full(n, -np.inf)  # clock time of each joint's last pose [s]
         self._fresh = np.zeros(proto.N_FINGERS, bool)  # fingers received since last PD cycle
         self._temperature = np.full(n, np.nan)
+        self._temperature_raw = np.full(n, -1)  # last TEMPERATURE byte per joint (-1: none yet)
         self._goal = np.zeros(n)
         self._enabled = np.zeros(n, bool)
         self._tau = np.zeros(n)
@@ -189,8 +195,17 @@ class AllegroBus(MotorBus):
         self._wait(lambda: bool(np.all(np.isfinite(self._q))),
                    "no pose stream from the Allegro")
         if self._temperature_every:
-            self._wait(lambda: bool(np.all(np.isfinite(self._temperature))),
+            self._wait(lambda: bool(np.all(self._temperature_raw >= 0)),
                        "no TEMPERATURE replies from the Allegro")
+            faults = self.temperature_faults
+            if faults:
+                warnings.warn(TemperatureSensorWarning(
+                    "Allegro temperature sensor fault: "
+                    + ", ".join(f"{self.hand.joints[j].name} reads 0x{b:02X}"
+                                for j, b in faults.items())
+                    + " (a byte >= 0x80 is not a temperature); these joints read NaN, so the "
+                    "thermal guard cannot see them and a thermal pause cannot end; only the "
+                    "hand's own high-temperature fault bit covers them"), stacklevel=2)
         with self._lock:
             self._goal = self._q.copy()
         self._connected = True
@@ -291,6 +306,15 @@ class AllegroBus(MotorBus):
         """Ask the hand for HAND_INFO (status bits); the reply is handled by the loop."""
         self._send(proto.message(proto.HAND_INFO, device_id=self.device_id, remote=True))
 
+    @property
+    def temperature_faults(self) -> dict[int, int]:
+        """Joints whose last TEMPERATURE byte is a sensor fault (joint index -> the byte); they
+        read NaN (``protocol.temperatures_celsius``)."""
+        with self._lock:
+            raw = self._temperature_raw.copy()
+        return {int(j): int(raw[j])
+                for j in np.flatnonzero(raw >= proto.TEMPERATURE_SENSOR_FAULT)}
+
     def request_temperatures(self) -> None:
         """Ask the hand for the four fingers' TEMPERATURE frames (remote requests); the replies
         are handled by the loop."""
@@ -337,8 +361,10 @@ class AllegroBus(MotorBus):
                 self.bad_frames += 1
                 return
             f = cmd - proto.TEMPERATURE
+            raw = proto.unpack_temperatures(msg.data)
             with self._lock:
-                self._temperature[4 * f:4 * f + 4] = proto.unpack_temperatures(msg.data)
+                self._temperature_raw[4 * f:4 * f + 4] = raw
+                self._temperature[4 * f:4 * f + 4] = proto.temperatures_celsius(raw)
         elif cmd == proto.HAND_INFO and len(msg.data) >= 7:
             self._info = proto.HandInfo.unpack(msg.data)
 

@@ -22,6 +22,13 @@ Payloads (little endian):
     hand's trace: ``2B 2A 29 25`` = 43, 42, 41, 37 deg C; the Wonik v4 Linux demo prints the four
     bytes). The hand answers a remote request whatever its streaming periods (Wonik's CAN
     protocol v4.0 page), which is how the reference drivers ask for temperatures.
+    A byte with its high bit set (0x80..0xFF) is not a joint temperature: the same trace's
+    thumb reads ``30 26 24 F6``, and 0xF6 is 246 deg C unsigned or -10 deg C signed, beside 15
+    joints at 36..48 deg C and a palm at 60 deg C while that hand's own high-temperature fault
+    bit is clear (status 0x05). Every reference driver decodes the byte unsigned and passes it
+    on unchecked (Meta ``struct.unpack("4B")``, Wonik's v4 SDK ``uint8_t joint_temperature``,
+    Wonik's Linux demo ``printf %d``); ``temperatures_celsius`` reports such a byte as unknown
+    (NaN) and the driver names the joint as a temperature-sensor fault.
 """
 
 from __future__ import annotations
@@ -128,6 +135,18 @@ def unpack_temperatures(data: bytes | bytearray) -> tuple[int, int, int, int]:
     if len(data) != 4:
         raise ValueError(f"expected 4 temperature bytes, got {len(data)}")
     return tuple(bytes(data))  # type: ignore[return-value]
+
+
+TEMPERATURE_SENSOR_FAULT = 0x80
+"""TEMPERATURE bytes at or above this are sensor faults, not temperatures (module docstring)."""
+
+
+def temperatures_celsius(raw: Sequence[int] | np.ndarray) -> np.ndarray:
+    """Joint temperatures [deg C] (float) of raw TEMPERATURE bytes: NaN where a byte is a sensor
+    fault (>= ``TEMPERATURE_SENSOR_FAULT``), so the thermal guard reads it as unknown rather
+    than as a 246 deg C joint."""
+    t = np.asarray(raw, float)
+    return np.where(t >= TEMPERATURE_SENSOR_FAULT, np.nan, t)
 
 
 def pack4(values: Sequence[int]) -> bytes:
