@@ -52,17 +52,18 @@ external torques from a hook registered with ``chain.add_step_hook``), ``chain.d
 ``torque_on``, ``hardware_error``), ``chain.goal_log``, ``chain.goal_audit``, ``chain.events``
 (watchdog trips, hardware errors, shutdowns, reboots; ``chain.event_callbacks`` to be told),
 ``chain.reply_log`` (with ``record_replies=True``).
+
+Where the parts live: the clocks in ``clocks``, the physics drive and firmware imperfections in
+``drive``, the device-side goal log and audit in ``goal_log``, each motor's control table and
+behaviour in ``firmware``; this module keeps the chain (packets in, status packets out, faults).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import time
-from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Protocol
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -83,51 +84,18 @@ from lowcostdex.hardware.dynamixel.protocol import (
     status_packet,
     wire_time,
 )
+from lowcostdex.hardware.emulated.clocks import CLOCKS, VirtualClock, WallClock
+from lowcostdex.hardware.emulated.drive import Imperfection, PlantDrive
 from lowcostdex.hardware.emulated.firmware import FirmwareOptions, MotorFirmware
+from lowcostdex.hardware.emulated.goal_log import GoalAudit, GoalLog
 from lowcostdex.hardware.hands import HandSpec, bench_spec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect
-from lowcostdex.sim.plant import Plant, prepare_spec, servo_supply_voltage
+from lowcostdex.sim.plant import Plant, prepare_spec
 
 Inst = Instruction
 E = ErrorNumber
-CLOCKS = ("virtual", "realtime")
 _PARTIAL_TIMEOUT = 0.010  # [s] an incomplete instruction older than this is discarded
-
-
-class VirtualClock:
-    """Bus time that advances only when told to [s]."""
-
-    virtual = True
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def now(self) -> float:
-        return self.t
-
-    def advance_to(self, t: float) -> None:
-        if t > self.t:
-            self.t = t
-
-
-class WallClock:
-    """Monotonic wall time since construction [s]."""
-
-    virtual = False
-
-    def __init__(self) -> None:
-        self._t0 = time.monotonic()
-
-    def now(self) -> float:
-        return time.monotonic() - self._t0
-
-    def advance_to(self, t: float) -> None:
-        """Wall time cannot be advanced; waiting is the caller's job."""
-
-    def to_wall(self, t: float) -> float:
-        """time.monotonic() value of bus time ``t``."""
-        return self._t0 + t
 
 
 @dataclass(frozen=True)
@@ -166,258 +134,6 @@ class Event:
     motor_id: int
     kind: str
     detail: str = ""
-
-
-@dataclass
-class GoalLog:
-    """Every goal register write a motor accepted: bus time [s], motor id, register, value."""
-
-    time: list[float] = field(default_factory=list)
-    motor_id: list[int] = field(default_factory=list)
-    reg: list[str] = field(default_factory=list)
-    value: list[int] = field(default_factory=list)
-
-    def append(self, t: float, motor_id: int, reg: Reg, value: int) -> None:
-        self.time.append(t)
-        self.motor_id.append(motor_id)
-        self.reg.append(reg.value)
-        self.value.append(value)
-
-    def __len__(self) -> int:
-        return len(self.time)
-
-    def positions(self, motor_id: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(times [s], Goal Position values [ticks]) accepted by ``motor_id`` (default all)."""
-        sel = [k for k, (r, m) in enumerate(zip(self.reg, self.motor_id, strict=True))
-               if r == Reg.GOAL_POSITION.value and (motor_id is None or m == motor_id)]
-        return (np.array([self.time[k] for k in sel]), np.array([self.value[k] for k in sel]))
-
-
-@dataclass
-class GoalAudit:
-    """Device-side audit of every Goal Position a motor accepted, in constant memory.
-
-    Each goal [rad, joint, true mounting] is compared with the motor's *true* joint position
-    (the physics' qpos, before any encoder effect) at two moments:
-
-    * when the motor last sampled its Present Position for a read (the reading a host that
-      bounds goals around fresh positions computed this goal from): the ``read lead``;
-    * when the goal arrived (the motor may have moved since that sample): the ``lead``.
-
-    Per motor it keeps the count, the largest of both leads, the longest time from the sample
-    to the goal, the extreme goals, and counts of goals beyond the bounds set with ``watch``;
-    ``recent`` keeps the last receipts. (The lead at receipt exceeds the read lead by what the
-    motor moved between the sample and the goal's arrival: a few ms on a clean bus, tens of ms
-    when the host retried a read.)
-
-    Attributes:
-      count: goals accepted per motor id.
-      max_lead: largest |goal - true position at receipt| per motor id [rad].
-      max_read_lead: largest |goal - true position at the last sample| per motor id [rad].
-      max_age: longest time from the last sample to a goal's receipt per motor id [s].
-      low, high: smallest and largest goal per motor id [rad, joint].
-      lead_violations: goals whose read lead exceeded the watched motion bound, per motor id.
-      arrival_excess: largest lead at receipt beyond the watched motion bound (and limit
-        allowance), per watched motor id [rad]: what the motor moved between sample and goal.
-      limit_violations: goals outside the watched joint limits, per motor id.
-      recent: the last receipts (bus time [s], motor id, goal, true position at receipt, true
-        position at the last sample [rad], time since that sample [s]).
-    """
-
-    count: dict[int, int] = field(default_factory=dict)
-    max_lead: dict[int, float] = field(default_factory=dict)
-    max_read_lead: dict[int, float] = field(default_factory=dict)
-    max_age: dict[int, float] = field(default_factory=dict)
-    low: dict[int, float] = field(default_factory=dict)
-    high: dict[int, float] = field(default_factory=dict)
-    lead_violations: dict[int, int] = field(default_factory=dict)
-    limit_violations: dict[int, int] = field(default_factory=dict)
-    arrival_excess: dict[int, float] = field(default_factory=dict)
-    recent: deque[tuple[float, int, float, float, float, float]] = field(
-        default_factory=lambda: deque(maxlen=1024))
-    _bounds: dict[int, tuple[float, float, float]] = field(default_factory=dict)
-    _sample: dict[int, tuple[float, float]] = field(default_factory=dict)
-
-    def watch(self, motor_id: int, max_step: float, low: float = -math.inf,
-              high: float = math.inf) -> None:
-        """From now on count goals of ``motor_id`` outside ``[low, high]`` [rad, joint], or
-        leading the true position at the last sample by more than ``max_step`` [rad] (plus, for
-        a joint sampled outside ``[low, high]``, its distance from them: the limits win over
-        the motion bound, its goal is the nearest limit)."""
-        self._bounds[motor_id] = (max_step, low, high)
-        self.lead_violations.setdefault(motor_id, 0)
-        self.limit_violations.setdefault(motor_id, 0)
-        self.arrival_excess.setdefault(motor_id, -math.inf)
-
-    def sampled(self, t: float, motor_id: int, true: float) -> None:
-        """The motor sampled its Present Position at bus time ``t`` [s]; true position [rad]."""
-        self._sample[motor_id] = (t, true)
-
-    def record(self, t: float, motor_id: int, goal: float, true: float) -> None:
-        """One accepted goal [rad] at bus time ``t`` [s] and the true joint position [rad]."""
-        t_read, at_read = self._sample.get(motor_id, (t, true))
-        lead, read_lead, age = abs(goal - true), abs(goal - at_read), t - t_read
-        self.count[motor_id] = self.count.get(motor_id, 0) + 1
-        self.max_lead[motor_id] = max(self.max_lead.get(motor_id, 0.0), lead)
-        self.max_read_lead[motor_id] = max(self.max_read_lead.get(motor_id, 0.0), read_lead)
-        self.max_age[motor_id] = max(self.max_age.get(motor_id, 0.0), age)
-        self.low[motor_id] = min(self.low.get(motor_id, math.inf), goal)
-        self.high[motor_id] = max(self.high.get(motor_id, -math.inf), goal)
-        self.recent.append((t, motor_id, goal, true, at_read, age))
-        bound = self._bounds.get(motor_id)
-        if bound is not None:
-            max_step, low, high = bound
-            outside = max(low - at_read, at_read - high, 0.0)
-            self.lead_violations[motor_id] += read_lead > max_step + outside
-            self.arrival_excess[motor_id] = max(self.arrival_excess[motor_id],
-                                                lead - max_step - outside)
-            self.limit_violations[motor_id] += not low <= goal <= high
-
-    @property
-    def violations(self) -> int:
-        """Goals beyond a watched bound (motion or limits), all motors."""
-        return sum(self.lead_violations.values()) + sum(self.limit_violations.values())
-
-
-@dataclass
-class _State:
-    """``firmware.DriveState`` as plain float lists (fast scalar access per motor)."""
-
-    q: list[float]
-    qd: list[float]
-    current: list[float]
-    duty: list[float]
-    temperature: list[float]
-    voltage: list[float]
-    step: int
-
-
-class ServoImperfection(Protocol):
-    """Servo firmware behaviour outside the effect catalogue, bound to the drive's servos (e.g.
-    a hidden robot's PWM deadband or encoder nonlinearity: ``lowcostdex.hardware.emulated.hidden_robots``).
-    Arrays are per servo in drive order, joint angles [rad]."""
-
-    def encoder(self, q: np.ndarray) -> np.ndarray:
-        """What the encoders read (n,) at true joint angles ``q`` (n,)."""
-
-    def command(self, goal: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """The setpoint the physics' servo loop tracks (n,) for firmware setpoints ``goal``
-        (n,) [encoder frame] with the joints at true angles ``q`` (n,)."""
-
-
-class Imperfection(Protocol):
-    """Unbound ``ServoImperfection``: ``bind(joints)`` gives the one for those servos."""
-
-    def bind(self, joints: Sequence[str]) -> ServoImperfection: ...
-
-
-class PlantDrive:
-    """The physics behind emulated firmware: servo k drives ``plant`` actuator ``actuators[k]``.
-
-    Args:
-      plant: the plant (its model's dcmotor actuators are the servos).
-      actuators: actuator index per servo.
-      motors: servo model per servo (for the gain mapping).
-      supply_resistance: shared supply's internal resistance [Ohm]: every motor reads
-        V = V_nominal - R_s * sum |i| (voltage sag). Add the ``voltage_sag`` effect to the plant if
-        the physics should feel it too.
-      imperfection: firmware behaviour no catalogue effect models (``ServoImperfection``), applied
-        between the firmware and the physics every step; None: none.
-    """
-
-    def __init__(self, plant: Plant, actuators: Sequence[int], motors: Sequence[servo.MotorSpec],
-                 supply_resistance: float = 0.0, imperfection: ServoImperfection | None = None):
-        m = plant.model
-        self.plant = plant
-        self.acts = np.asarray(actuators, dtype=int)
-        self.motors = list(motors)
-        self.supply_resistance = supply_resistance
-        self.imperfection = imperfection
-        jnt = m.actuator_trnid[self.acts, 0]
-        self._qadr = m.jnt_qposadr[jnt]
-        self._dadr = m.jnt_dofadr[jnt]
-        self._layout = servo.dcmotor_act_layout(m)
-        self._integrator = self._layout[self.acts, servo.ACT_INTEGRATOR]
-        self._thermal = self._layout[self.acts, servo.ACT_THERMAL]
-        self._ambient = m.actuator_dynprm[self.acts, servo.DYN_TAMB].copy()
-        self._v_nominal = servo_supply_voltage(m)
-        if np.any(self._v_nominal[self.acts] <= 0):
-            raise ConfigError("every emulated servo needs a supply voltage (servo.add_servo)")
-        d = plant.data  # views stay valid: MjData/MjModel arrays are never reallocated
-        self._views = {"qpos": d.qpos, "qvel": d.qvel, "force": d.actuator_force, "act": d.act,
-                       "gain": m.actuator_gainprm}
-        if m.na == 0:
-            self._views["act"] = np.zeros(1)
-        self.goal = np.array(plant.ctrl, copy=True)  # (nu,) [rad]
-        # encoder errors the emulated robot carries (offset, noise, quantization) reach the wire
-        self._observed = any(e.cls.kind in ("observation", "calibration") for e in plant.effects)
-        self.steps = 0
-        self._state: _State | None = None
-
-    def set_torque(self, index: int, enabled: bool) -> None:
-        a = int(self.acts[index])
-        if enabled and self._integrator[index] >= 0:
-            self.plant.data.act[self._integrator[index]] = 0.0
-        self.plant.set_torque_enabled([a], enabled)
-        self._state = None
-
-    def set_gains(self, index: int, gains: servo.ServoGains) -> None:
-        p = servo.dcmotor_params(self.motors[index], gains)
-        ki = max(p.ki, servo.KI_MIN) if self._integrator[index] >= 0 else 0.0
-        cols = [servo.GAIN_KP, servo.GAIN_KI, servo.GAIN_KD, servo.GAIN_VMAX]
-        self.plant.set_nominal("actuator_gainprm", (int(self.acts[index]), cols),
-                               [p.kp, ki, p.kd, p.vmax])
-        self._state = None
-
-    def set_goal(self, index: int, q: float) -> None:
-        self.goal[self.acts[index]] = q
-
-    def true_position(self, index: int) -> float:
-        """Servo ``index``'s joint angle in the physics [rad] (no encoder effects)."""
-        return float(self._views["qpos"][self._qadr[index]])
-
-    def voltage(self) -> np.ndarray:
-        """Supply voltage at every actuator [V] (nu,)."""
-        v = self._v_nominal.copy()
-        if self.supply_resistance > 0:
-            k = self.plant.model.actuator_gainprm[self.acts, servo.GAIN_K]
-            i = self.plant.actuator_force[self.acts] / k
-            v = v - self.supply_resistance * float(np.sum(np.abs(i)))
-        return v
-
-    def state(self) -> _State:
-        if self._state is not None and self._state.step == self.steps:
-            return self._state
-        v = self._views
-        a = self.acts
-        qd = v["qvel"][self._dadr]
-        k, r = v["gain"][a, servo.GAIN_K], v["gain"][a, servo.GAIN_R]
-        current = v["force"][a] / k
-        volts = self._v_nominal[a] if self.supply_resistance <= 0 else self.voltage()[a]
-        duty = (r * current + k * qd) / volts
-        temp = self._ambient + v["act"][self._thermal] * (self._thermal >= 0)
-        qpos = self.plant.measured_qpos() if self._observed else v["qpos"]
-        q = qpos[self._qadr]
-        if self.imperfection is not None:
-            q = self.imperfection.encoder(q)
-        self._state = _State(q.tolist(), qd.tolist(), current.tolist(),
-                             duty.tolist(), temp.tolist(), volts.tolist(), self.steps)
-        return self._state
-
-    def step(self) -> None:
-        """One physics step holding ``goal`` (exogenous channels from the present readings)."""
-        channels = None
-        if self.plant.required_channels:
-            m, d = self.plant.model, self.plant.data
-            channels = {"temperature": servo.winding_temperature(m, d, self._layout),
-                        "voltage": self.voltage()}
-        goal = self.goal
-        if self.imperfection is not None:
-            goal = goal.copy()
-            goal[self.acts] = self.imperfection.command(goal[self.acts],
-                                                        self._views["qpos"][self._qadr])
-        self.plant.step(goal, 1, channels)
-        self.steps += 1
 
 
 StepHook = Callable[["EmulatedChain"], None]

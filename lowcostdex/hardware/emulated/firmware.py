@@ -6,7 +6,7 @@ instruction on it: READ / WRITE with the firmware's checks (access, EEPROM lock 
 on, data length, range, position limits), REG_WRITE / ACTION, REBOOT, FACTORY_RESET. Packet
 framing and the instruction dispatch across a chain of motors live in ``emulator``; the physics
 lives behind the ``Drive`` protocol (implemented on a ``lowcostdex.sim.plant.Plant`` by
-``emulator.PlantDrive``).
+``drive.PlantDrive``).
 
 What the firmware model does every physics step (``tick``):
 
@@ -118,7 +118,7 @@ class DriveState(Protocol):
 
 
 class Drive(Protocol):
-    """The physics behind the firmware (``emulator.PlantDrive``), indexed by drive index."""
+    """The physics behind the firmware (``drive.PlantDrive``), indexed by drive index."""
 
     def set_torque(self, index: int, enabled: bool) -> None: ...
 

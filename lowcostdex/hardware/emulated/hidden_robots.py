@@ -139,7 +139,7 @@ class FirmwareImperfection:
     encoder's once-per-turn error; the D'Claw's joints turn 1:1 with their horns), and the
     position loop has a deadband: the firmware's loop acts on the error between its setpoint
     and that reading, and puts out nothing while |error| < ``deadband``. Joints not listed are
-    ideal. Implements ``emulator.Imperfection``.
+    ideal. Implements ``drive.Imperfection``.
 
     Attributes:
       deadband: joint -> position-error deadband [rad] (the PWM deadband over the P gain).
