@@ -40,18 +40,17 @@ Typical use by a trainer::
 Column names every trainer should use (so plots and reports work across trainers) are the
 module constants ITERATION, SAMPLES, ROBOT_HOURS, SUCCESS_RATE, RETURN_MEAN, EVAL_SUCCESS_RATE
 and EVAL_RETURN_MEAN.
+
+Where the parts live (all importable from here too): atomic files, JSON and safe checkpoint state
+in ``run_files``; the column names, the metrics CSV and the learning curves in ``metrics``; the
+best/final policy and the run summary in ``best_policy``. This module keeps ``Run``.
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import json
-import math
 import os
 import shutil
-import sys
-import tempfile
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,293 +58,50 @@ from typing import Any
 
 import numpy as np
 
+# The run directory's public names live in these modules; they are imported here so that
+# ``experiment.X`` keeps naming them (trainers use ``from lowcostdex.algos import experiment as ex``).
+from lowcostdex.algos.best_policy import (  # noqa: F401
+    BEST_POLICY_FILE,
+    FINAL_POLICY_FILE,
+    POLICY_FILE,
+    SUMMARY_FILE,
+    BestPolicy,
+    evaluation_score,
+    first_crossing,
+    run_summary,
+)
+from lowcostdex.algos.metrics import (  # noqa: F401
+    EVAL_RETURN_MEAN,
+    EVAL_SUCCESS_RATE,
+    ITERATION,
+    RETURN_MEAN,
+    ROBOT_HOURS,
+    SAMPLES,
+    SUCCESS_RATE,
+    WALL_SECONDS,
+    MetricsLog,
+    plot_learning_curves,
+    read_metrics,
+)
+from lowcostdex.algos.run_files import (  # noqa: F401
+    atomic_write_bytes,
+    atomic_write_text,
+    load_state,
+    read_json,
+    save_state,
+    to_safe,
+    write_json,
+)
 from lowcostdex.errors import ConfigError
-
-ITERATION = "iteration"
-SAMPLES = "samples"
-"""Cumulative environment steps used for learning (not counting evaluation rollouts)."""
-ROBOT_HOURS = "robot_hours"
-"""Cumulative robot wall-clock time [h]: control time of the samples plus resets and pauses."""
-SUCCESS_RATE = "success_rate"
-"""Fraction of the iteration's (stochastic) training trajectories that succeeded."""
-RETURN_MEAN = "return_mean"
-EVAL_SUCCESS_RATE = "eval_success_rate"
-"""Fraction of deterministic (mean-action) evaluation trajectories that succeeded."""
-EVAL_RETURN_MEAN = "eval_return_mean"
-WALL_SECONDS = "time_elapsed"
-"""Cumulative wall-clock time of the training [s] (sampling, updates, evaluations; a column
-named ``time_*`` like the per-iteration timings, which reproducibility checks ignore)."""
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.csv"
 CURVES_FILE = "learning_curves.png"
 CHECKPOINT_DIR = "checkpoints"
 LATEST_FILE = "latest.json"
-
-
-# ----------------------------------------------------------------------------------------------
-# Atomic files and safe state
-
-
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write ``data`` to ``path`` so that readers see the old or the new file, never a mix."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
-    """Atomically write UTF-8 text."""
-    atomic_write_bytes(path, text.encode("utf-8"))
-
-
-def write_json(path: str | os.PathLike[str], obj: Any) -> None:
-    """Atomically write ``obj`` as indented JSON (non-finite floats are written as NaN/Infinity)."""
-    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
-
-
-def read_json(path: str | os.PathLike[str]) -> Any:
-    """Read a JSON file."""
-    return json.loads(Path(path).read_text(encoding="utf-8"))
-
-
-def _to_safe(value: Any, where: str) -> Any:
-    """Convert ``value`` into types ``torch.load(weights_only=True)`` accepts, or raise."""
-    import torch
-
-    if isinstance(value, torch.Tensor):
-        return value.detach().cpu().clone()
-    if isinstance(value, np.ndarray):
-        # np.array, not np.ascontiguousarray: the latter turns a 0-d array into shape (1,)
-        return torch.from_numpy(np.array(value, order="C", copy=True))
-    if isinstance(value, np.generic):
-        return value.item()
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    if isinstance(value, Mapping):
-        out = {}
-        for key, item in value.items():
-            if not isinstance(key, (str, int)):
-                raise TypeError(f"checkpoint key {key!r} at {where} must be str or int")
-            out[key] = _to_safe(item, f"{where}.{key}")
-        return out
-    if isinstance(value, (list, tuple)):
-        items = [_to_safe(item, f"{where}[{i}]") for i, item in enumerate(value)]
-        return items if isinstance(value, list) else tuple(items)
-    raise TypeError(
-        f"checkpoint value at {where} has type {type(value).__name__}; store tensors, numpy "
-        "arrays, numbers, strings, None and lists/dicts of them (e.g. a state_dict())"
-    )
-
-
-def save_state(path: str | os.PathLike[str], state: Mapping[str, Any]) -> None:
-    """Atomically save a checkpoint dict in a format that loads with ``weights_only=True``.
-
-    Args:
-      path: destination file (``.pt``).
-      state: tensors, numpy arrays (stored as tensors), numbers, strings, None, and nested
-        dicts/lists/tuples of these, e.g. ``module.state_dict()``,
-        ``optimizer.state_dict()``, ``generator.get_state()``, ``rng.bit_generator.state``.
-
-    Raises:
-      TypeError: if ``state`` holds anything else (arbitrary objects are never pickled).
-    """
-    import torch
-
-    buf = io.BytesIO()
-    torch.save(_to_safe(dict(state), "state"), buf)
-    atomic_write_bytes(path, buf.getvalue())
-
-
-def load_state(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Load a checkpoint written by :func:`save_state` with ``weights_only=True``."""
-    import torch
-
-    return torch.load(Path(path), map_location="cpu", weights_only=True)
-
-
-# ----------------------------------------------------------------------------------------------
-# Metrics
-
-
-def _format_value(value: Any) -> str:
-    if value is None:
-        return "nan"
-    if isinstance(value, (bool, np.bool_)):
-        return str(int(value))
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    if isinstance(value, (float, np.floating)):
-        return repr(float(value))
-    torch = sys.modules.get("torch")  # a tensor exists only if torch was imported
-    if torch is not None and isinstance(value, torch.Tensor) and value.numel() == 1:
-        return repr(float(value.item()))
-    if isinstance(value, str):
-        return value
-    raise TypeError(f"metric value {value!r} must be a number, bool, str or None")
-
-
-def _read_rows(path: Path) -> list[list[str]]:
-    """CSV rows of ``path``; a last line without its newline (cut by a kill) is dropped."""
-    if not path.exists():
-        return []
-    text = path.read_text(encoding="utf-8")
-    if text and not text.endswith("\n"):
-        text = text[: text.rfind("\n") + 1]
-    return list(csv.reader(io.StringIO(text, newline="")))
-
-
-def read_metrics(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
-    """Read a metrics CSV into ``{column: (rows,) float64 array}``.
-
-    A last line cut by a kill and rows whose field count does not match the header are
-    skipped; non-numeric cells become NaN.
-    """
-    rows = _read_rows(Path(path))
-    if not rows:
-        return {}
-    header, body = rows[0], [r for r in rows[1:] if len(r) == len(rows[0])]
-    out: dict[str, np.ndarray] = {}
-    for j, name in enumerate(header):
-        values = []
-        for row in body:
-            try:
-                values.append(float(row[j]))
-            except ValueError:
-                values.append(math.nan)
-        out[name] = np.asarray(values, dtype=np.float64)
-    return out
-
-
-class MetricsLog:
-    """Append-only CSV of one row per iteration with a fixed, growing set of columns.
-
-    A key first seen after earlier rows were written widens the file (rewritten atomically,
-    earlier rows get "nan"), so rows never misalign.
-    """
-
-    def __init__(self, path: str | os.PathLike[str]):
-        self.path = Path(path)
-        self._columns: list[str] = []
-        self._rows: list[list[str]] = []
-        if self.path.exists():
-            rows = _read_rows(self.path)
-            if rows:
-                self._columns = rows[0]
-                self._rows = [r for r in rows[1:] if len(r) == len(self._columns)]
-            self._rewrite()
-
-    @property
-    def columns(self) -> list[str]:
-        return list(self._columns)
-
-    def append(self, row: Mapping[str, Any]) -> None:
-        """Append one row; keys absent from ``row`` are written as "nan"."""
-        new = [k for k in row if k not in self._columns]
-        cells = {k: _format_value(v) for k, v in row.items()}
-        if new:
-            self._columns += new
-            self._rows = [r + ["nan"] * len(new) for r in self._rows]
-        line = [cells.get(k, "nan") for k in self._columns]
-        self._rows.append(line)
-        if new or len(self._rows) == 1:
-            self._rewrite()
-        else:
-            with self.path.open("a", newline="", encoding="utf-8") as f:
-                csv.writer(f, lineterminator="\n").writerow(line)
-                f.flush()
-                os.fsync(f.fileno())
-
-    def truncate(self, last_iteration: int | None) -> None:
-        """Keep only rows with ``iteration <= last_iteration`` (all rows dropped if None)."""
-        if ITERATION not in self._columns:
-            self._rows = [] if last_iteration is None else self._rows
-        else:
-            j = self._columns.index(ITERATION)
-            limit = -math.inf if last_iteration is None else last_iteration
-            self._rows = [r for r in self._rows if float(r[j]) <= limit]
-        self._rewrite()
-
-    def _rewrite(self) -> None:
-        buf = io.StringIO()
-        writer = csv.writer(buf, lineterminator="\n")
-        if self._columns:
-            writer.writerow(self._columns)
-        writer.writerows(self._rows)
-        atomic_write_text(self.path, buf.getvalue())
-
-
-# ----------------------------------------------------------------------------------------------
-# Learning curves
-
-
-def plot_learning_curves(
-    metrics: Mapping[str, np.ndarray], png_path: str | os.PathLike[str], title: str = ""
-) -> Path:
-    """Plot success rate and return against samples and against robot hours; save a PNG.
-
-    Args:
-      metrics: columns as returned by :func:`read_metrics`; uses SAMPLES and (if present)
-        ROBOT_HOURS as x axes, SUCCESS_RATE / EVAL_SUCCESS_RATE and RETURN_MEAN /
-        EVAL_RETURN_MEAN as curves. Missing columns are skipped.
-      png_path: output file.
-      title: figure title.
-
-    Returns:
-      The PNG path.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    x_axes = [(SAMPLES, "samples (env steps)"), (ROBOT_HOURS, "robot time [h]")]
-    x_axes = [(k, label) for k, label in x_axes if k in metrics and len(metrics[k])]
-    rows = [
-        (
-            "success rate",
-            [(SUCCESS_RATE, "training (stochastic)"), (EVAL_SUCCESS_RATE, "eval (mean action)")],
-        ),
-        (
-            "return",
-            [(RETURN_MEAN, "training (stochastic)"), (EVAL_RETURN_MEAN, "eval (mean action)")],
-        ),
-    ]
-    n_cols = max(len(x_axes), 1)
-    fig, axes = plt.subplots(2, n_cols, figsize=(5.5 * n_cols, 7), squeeze=False)
-    for i, (ylabel, curves) in enumerate(rows):
-        for j, (xkey, xlabel) in enumerate(x_axes):
-            ax = axes[i][j]
-            x = metrics[xkey]
-            for ykey, label in curves:
-                if ykey in metrics:
-                    y = metrics[ykey]
-                    ok = np.isfinite(x) & np.isfinite(y)
-                    if ok.any():
-                        ax.plot(x[ok], y[ok], marker="." if ok.sum() < 30 else None, label=label)
-            ax.set_xlabel(xlabel)
-            ax.set_ylabel(ylabel)
-            ax.grid(alpha=0.3)
-            if ax.lines:
-                ax.legend(fontsize="small")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    plt.close(fig)
-    atomic_write_bytes(png_path, buf.getvalue())
-    return Path(png_path)
+_RUN_NAMES = (METRICS_FILE, CURVES_FILE, CHECKPOINT_DIR, "tb", BEST_POLICY_FILE,
+              FINAL_POLICY_FILE, POLICY_FILE, SUMMARY_FILE)
+"""What a run writes besides its config (and its trainer's own JSON files)."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -629,7 +385,7 @@ class Run:
     def keep_for_interrupt(self, iteration: int, state: Mapping[str, Any]) -> None:
         """Hold a copy of the state after ``iteration`` (one that was not checkpointed, e.g.
         between ``checkpoint_every`` periods) for :meth:`interrupted` to save."""
-        self._pending = (int(iteration), _to_safe(dict(state), "state"))
+        self._pending = (int(iteration), to_safe(dict(state), "state"))
 
     def interrupted(self) -> Interrupted:
         """After Ctrl-C: save the state held by :meth:`keep_for_interrupt` if it is newer than
@@ -737,118 +493,3 @@ def stopped(run: Run | None, exc: BaseException, resume: bool) -> BaseException:
     if run is not None and not resume and run.abandon() and interrupted is not None:
         interrupted = Interrupted(run.path, None, None)
     return interrupted or exc
-
-
-# ----------------------------------------------------------------------------------------------
-# The run's policy: the best evaluated one, and what the run reached when
-
-
-BEST_POLICY_FILE = "best_policy.pt"
-"""The best evaluated policy so far, written whenever an evaluation beats the previous best."""
-FINAL_POLICY_FILE = "final_policy.pt"
-"""The policy after the last iteration."""
-POLICY_FILE = "policy.pt"
-"""The run's policy: the best evaluated one (the last one when the run never evaluated)."""
-SUMMARY_FILE = "summary.json"
-_RUN_NAMES = (METRICS_FILE, CURVES_FILE, CHECKPOINT_DIR, "tb", BEST_POLICY_FILE,
-              FINAL_POLICY_FILE, POLICY_FILE, SUMMARY_FILE)
-"""What a run writes besides its config (and its trainer's own JSON files)."""
-
-
-def evaluation_score(metrics: Mapping[str, float]) -> tuple[float, float]:
-    """How evaluations are ranked: deterministic success first, then deterministic return.
-
-    On a task with a fixed start every deterministic episode is the same, so the success rate
-    is 0 or 1 and the return (which counts, e.g., the steps spent at the goal) separates two
-    successful policies by how well they hold the goal.
-    """
-    def finite(x: Any) -> float:
-        x = float(x)
-        return x if math.isfinite(x) else -math.inf
-
-    return finite(metrics.get(EVAL_SUCCESS_RATE, math.nan)), finite(
-        metrics.get(EVAL_RETURN_MEAN, math.nan))
-
-
-class BestPolicy:
-    """Keeps the best evaluated policy of a run (``best_policy.pt``) across resumes.
-
-    Call :meth:`consider` after every evaluation with its metrics and the policy's state; the
-    record (iteration, samples, scores) goes into the trainer's checkpoint through
-    :meth:`state` / :meth:`load_state`, the policy itself into ``best_policy.pt``.
-    """
-
-    def __init__(self, run: Run):
-        self.run = run
-        self.record: dict[str, float] | None = None
-
-    def consider(self, iteration: int, metrics: Mapping[str, Any],
-                 policy_state: Mapping[str, Any]) -> bool:
-        """Keep ``policy_state`` if its evaluation beats the best so far; True if it did."""
-        score = evaluation_score(metrics)
-        if not math.isfinite(score[0]):
-            return False
-        if self.record is not None and score <= evaluation_score(self.record):
-            return False
-        self.record = {ITERATION: int(iteration), SAMPLES: float(metrics.get(SAMPLES, math.nan)),
-                       EVAL_SUCCESS_RATE: score[0],
-                       EVAL_RETURN_MEAN: float(metrics.get(EVAL_RETURN_MEAN, math.nan))}
-        save_state(self.run.path / BEST_POLICY_FILE, {**policy_state, "best": dict(self.record)})
-        return True
-
-    def state(self) -> dict[str, Any]:
-        return {"record": dict(self.record) if self.record is not None else {}}
-
-    def load_state(self, state: Mapping[str, Any] | None) -> None:
-        record = dict((state or {}).get("record") or {})
-        self.record = {k: float(v) for k, v in record.items()} or None
-
-    def finish(self, final_state: Mapping[str, Any]) -> Path:
-        """Write ``final_policy.pt`` and ``policy.pt`` (the best, else the final one)."""
-        save_state(self.run.path / FINAL_POLICY_FILE, final_state)
-        best = self.run.path / BEST_POLICY_FILE
-        chosen = load_state(best) if self.record is not None and best.exists() else final_state
-        save_state(self.run.path / POLICY_FILE, chosen)
-        return self.run.path / POLICY_FILE
-
-
-def first_crossing(metrics: Mapping[str, np.ndarray], key: str, target: float
-                   ) -> dict[str, float] | None:
-    """The first row whose ``key`` >= ``target``: {iteration, samples, robot_hours} or None."""
-    if key not in metrics:
-        return None
-    hit = np.flatnonzero(np.nan_to_num(np.asarray(metrics[key], float), nan=-1.0) >= target)
-    if hit.size == 0:
-        return None
-    i = int(hit[0])
-    return {k: float(metrics[k][i]) for k in (ITERATION, SAMPLES, ROBOT_HOURS) if k in metrics}
-
-
-def run_summary(metrics: Mapping[str, np.ndarray], best: Mapping[str, float] | None,
-                target: float = 0.8, wall_seconds: float | None = None) -> dict[str, Any]:
-    """First crossing of ``target`` (training and evaluation success), the final and the best
-    evaluation: what a benchmark reports beside each other so that a run that reached the
-    target once and fell back is not mistaken for one that holds it."""
-    evals = np.asarray(metrics.get(EVAL_SUCCESS_RATE, []), float)
-    done = np.flatnonzero(np.isfinite(evals))
-    final: dict[str, float] = {}
-    if len(metrics.get(ITERATION, [])):
-        last = len(metrics[ITERATION]) - 1
-        final = {ITERATION: float(metrics[ITERATION][last]), SAMPLES: float(metrics[SAMPLES][last]),
-                 SUCCESS_RATE: float(metrics[SUCCESS_RATE][last]) if SUCCESS_RATE in metrics
-                 else math.nan}
-        if done.size:
-            final[EVAL_SUCCESS_RATE] = float(evals[done[-1]])
-            final["eval_iteration"] = float(metrics[ITERATION][done[-1]])
-    out: dict[str, Any] = {
-        "target": target,
-        "first_train_crossing": first_crossing(metrics, SUCCESS_RATE, target),
-        "first_eval_crossing": first_crossing(metrics, EVAL_SUCCESS_RATE, target),
-        "final": final,
-        "best": dict(best) if best else None,
-        "evaluations": int(done.size),
-        "eval_success_fraction": float(np.mean(evals[done] >= target)) if done.size else math.nan,
-    }
-    if wall_seconds is not None:
-        out["wall_seconds"] = float(wall_seconds)
-    return out
