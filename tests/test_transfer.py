@@ -1,4 +1,5 @@
-"""Hidden robots (lowcostdex.hardware.emulated.hidden_robots) and the transfer table (bench/transfer.py).
+"""Hidden robots (lowcostdex.hardware.emulated.hidden_robots) and the transfer loop
+(lowcostdex.transfer, ``lowcostdex transfer``).
 
 The hidden robots stand in for real D'Claws: each must differ measurably from the nominal
 model, seen by a host through the real driver path, and be the same robot under the same seed.
@@ -198,22 +199,7 @@ def test_the_training_side_importing_the_hidden_robots_breaks_a_contract(tmp_pat
 
 
 # ------------------------------------------------------------------------------------------------
-# bench/transfer.py
-
-
-def _bench():
-    """bench/transfer.py as a module (loaded once)."""
-    import importlib.util
-    import sys
-    from pathlib import Path
-
-    if "bench_transfer" not in sys.modules:
-        path = Path(__file__).resolve().parents[1] / "bench" / "transfer.py"
-        spec = importlib.util.spec_from_file_location("bench_transfer", path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = module
-        spec.loader.exec_module(module)
-    return sys.modules["bench_transfer"]
+# the transfer loop (lowcostdex.transfer)
 
 
 IDENT = {"fingers": {"ff": {"causes": [
@@ -228,12 +214,12 @@ IDENT = {"fingers": {"ff": {"causes": [
 
 def test_identified_conditions_load_the_fitted_values_per_joint():
     from lowcostdex.sim.effects import DomainRandomization
+    from lowcostdex.transfer.loop import condition_randomize
 
-    bench = _bench()
     joints = HAND.joint_names
-    fixed = DomainRandomization.from_dict(bench.condition_randomize("identified", IDENT, joints))
+    fixed = DomainRandomization.from_dict(condition_randomize("identified", IDENT, joints))
     narrow = DomainRandomization.from_dict(
-        bench.condition_randomize("identified_randomized", IDENT, joints))
+        condition_randomize("identified_randomized", IDENT, joints))
     assert set(fixed.effects) == {"latency", "gain_error"}
     delay = [0.010, 0.012, 0.020] + [0.0] * 6  # mf, th: not named, latency off
     scale = [1.0] * 3 + [0.8, 0.9, 1.2] + [1.0] * 3
@@ -250,51 +236,124 @@ def test_identified_conditions_load_the_fitted_values_per_joint():
     lo, hi = (np.asarray(x) for x in narrow.ranges["gain_error"]["scale"])
     np.testing.assert_allclose(lo[3:6], [0.72, 0.81, 1.08])  # no interval: +-10 %
     np.testing.assert_allclose(hi[3:6], [0.88, 0.99, 1.32])
-    assert bench.condition_randomize("nominal", None, joints) is None
-    assert bench.condition_randomize("identified", {"fingers": {}}, joints) is None
+    assert condition_randomize("nominal", None, joints) is None
+    assert condition_randomize("identified", {"fingers": {}}, joints) is None
 
 
-def test_quick_transfer_table_runs_end_to_end_and_resumes(tmp_path):
+def _row(cond, robot, k, n=10, made_for=None, seed=0):
+    return {"algo": "dapg", "condition": cond, "robot": robot, "seed": seed, "success": k,
+            "episodes": n, "policy_robot": made_for, "final_error": [0.05] * n,
+            "sim_success": n, "sim_episodes": n, "sim_final_error": [0.01, 0.02] * (n // 2),
+            "policy": f"dapg/{cond}" + (f"_{made_for}" if made_for else ""),
+            "train_wall_seconds": 1.0}
+
+
+def test_the_table_counts_each_policy_on_its_own_robot_and_the_cross_table_the_others():
+    from lowcostdex.transfer.loop import cross_markdown, summarize
+
+    rows = [_row("nominal", "A", 3), _row("nominal", "B", 5),
+            _row("identified", "A", 9, made_for="A"), _row("identified", "B", 1, made_for="A"),
+            _row("identified", "A", 2, made_for="B"), _row("identified", "B", 7, made_for="B")]
+    s = summarize(rows, ["A", "B"])
+    # own robot only: identified A->A 9/10 and B->B 7/10; the nominal policy on both
+    assert s["identified"]["per_robot"] == {"A": (9, 10), "B": (7, 10)}
+    assert s["identified"]["robots"] == (16, 20)
+    assert s["identified"]["sim"] == (20, 20)  # two policies, each evaluated once in its sim
+    assert s["identified"]["drop"] == pytest.approx(1.0 - 0.8)
+    assert s["nominal"]["robots"] == (8, 20) and s["nominal"]["sim"] == (10, 10)
+    text = cross_markdown(rows, ["A", "B"])
+    lines = text.splitlines()
+    assert lines[2].startswith("| nominal | - | 0.30 ") and "| 0.50 " in lines[2]
+    assert lines[3].startswith("| identified | A | **0.90 ") and lines[3].count("0.10 [") == 1
+    assert lines[4].startswith("| identified | B | 0.20 ") and "**0.70 " in lines[4]
+    # pooled: own 16/20, others (1 + 2)/20
+    assert "identified: own robot 0.80 " in text and "other robots 0.15 " in text
+
+
+def test_on_robot_trains_on_the_hidden_robot_itself():
+    from lowcostdex.transfer.loop import HiddenRobotEnv
+
+    robot = hidden_robot(1, "B")
+    env = HiddenRobotEnv("lowcostdex/DClawTurnValve-v0", (), 1, "B")()
+    try:
+        plant = env.unwrapped.backend.chain.plant
+        nominal = build_dclaw("valve").compile()
+        for name, factor in robot.to_dict()["model"]["link_mass"].items():
+            assert plant.model.body_mass[plant.model.body(name).id] == pytest.approx(
+                factor * nominal.body_mass[nominal.body(name).id], rel=1e-9)
+        assert {e.name for e in plant.effects} == {e.name for e in robot.effects}
+    finally:
+        env.close()
+
+
+def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp_path, capsys):
     import json
 
     from figcheck import figure_problems
 
+    from lowcostdex.cli import main
     from lowcostdex.sim.effects import DomainRandomization
+    from lowcostdex.transfer.loop import CONDITIONS, SIZES, run
 
-    bench = _bench()
-    size = bench.SIZES["quick"]
-    res = bench.run(tmp_path, size, [0], "valve-near")
-    rows = json.loads((tmp_path / "transfer.json").read_text())["rows"]
+    size = SIZES["smoke"]
+    out = tmp_path / "t"
+    assert main(["transfer", "--out", str(out), "--size", "smoke"]) == 0
+    printed = capsys.readouterr().out
+    assert "[progress] transfer: " in printed and "pieces (100 %)" in printed
+    data = json.loads((out / "transfer.json").read_text())
+    rows = data["rows"]
     robots = [r.name for r in hidden_robots(size.robots)]
-    for cond in ("nominal", "randomized"):  # every robot
-        assert sorted(r["robot"] for r in rows if r["condition"] == cond) == robots
-    for cond in ("identified", "identified_randomized"):  # each robot's own model
-        assert sorted(r["robot"] for r in rows if r["condition"] == cond) == robots
-    for r in rows:
-        assert r["episodes"] == size.episodes and 0 <= r["success"] <= r["episodes"]
-        assert r["sim_episodes"] == size.episodes and len(r["final_error"]) == size.episodes
-    # each policy's own-sim evaluation counts once: one nominal policy, one per robot identified
-    assert res["summary"]["nominal"]["sim"][1] == size.episodes
-    assert res["summary"]["identified"]["sim"][1] == size.robots * size.episodes
-    assert figure_problems(res["figure"]) == []
-    assert (tmp_path / "transfer.png").stat().st_size > 0
-    table = (tmp_path / "table.md").read_text()
-    for cond in bench.CONDITIONS:
-        assert f"| {cond} |" in table
+    for algo in ("dapg", "npg"):
+        for cond in CONDITIONS:
+            rs = [r for r in rows if r["algo"] == algo and r["condition"] == cond]
+            made_for = [None] if cond in ("nominal", "randomized") else robots
+            # every policy on every robot (the cross evaluation)
+            assert sorted((r["policy_robot"] or "", r["robot"]) for r in rs) == sorted(
+                (m or "", x) for m in made_for for x in robots), (algo, cond)
+            for r in rs:
+                assert r["seed"] == 0 and r["episodes"] == size.episodes
+                assert 0 <= r["success"] <= r["episodes"]
+                assert len(r["final_error"]) == size.episodes
+                assert r["samples"] == size.n_iter * size.n_traj * 40
     # the identified sim carries what the analysis fitted on that robot, per joint
-    ident = json.loads((tmp_path / "identified.json").read_text())
+    ident = json.loads((out / "identified.json").read_text())
     for robot in hidden_robots(size.robots):
         causes = ident[robot.name]["fingers"]["ff"]["causes"]
         truth = {e.name for e in robot.effects
                  if not np.allclose(e.values[next(iter(e.values))][:3],
                                     e.cls.params[0].null)}
         assert "latency" in truth and "latency" in {c["effect"] for c in causes}
-        config = json.loads((tmp_path / "runs" / f"identified_{robot.name}_seed0" /
+        config = json.loads((out / "runs" / "dapg" / f"identified_{robot.name}_seed0" /
                              "config.json").read_text())
         dr = DomainRandomization.from_dict(config["env_kwargs"]["randomize"])
         lat = {e.name: e for e in dr.sample(np.random.default_rng(0))}["latency"]
         fitted = next(c for c in causes if c["effect"] == "latency")["params"]["delay"]["value"]
         np.testing.assert_allclose(lat.values["delay"][:3], fitted)
-    # a second run finds every piece done and reports the same table
-    again = bench.run(tmp_path, size, [0], "valve-near")
-    assert again["rows"] == res["rows"]
+        on_robot = json.loads((out / "runs" / "npg" / f"on_robot_{robot.name}_seed0" /
+                               "config.json").read_text())
+        assert on_robot["backend"] == "emulated" and on_robot["sampler"] == "serial"
+    table = (out / "table.md").read_text()
+    for cond in CONDITIONS:
+        assert f"| {cond} |" in table
+    assert "on every robot (bold: its own robot)" in table
+    assert (out / "transfer.png").stat().st_size > 0
+
+    # a second run finds every piece done, reports the same rows, keeps the old table files
+    cell = out / "runs" / "dapg" / "nominal_seed0.on_A.json"
+    stamp = cell.stat().st_mtime_ns
+    again = run(out, size, tell=lambda s: None)
+    assert again["rows"] == rows
+    assert figure_problems(again["figure"]) == []
+    assert cell.stat().st_mtime_ns == stamp
+    kept = list((out / "previous").glob("*/transfer.json"))
+    assert len(kept) == 1 and json.loads(kept[0].read_text())["rows"] == rows
+
+    # another task cannot build on this folder; a user's folder is refused untouched
+    assert main(["transfer", "--out", str(out), "--size", "smoke", "--task", "valve-near"]) == 2
+    assert "task='valve'" in capsys.readouterr().err
+    user = tmp_path / "mine"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    assert main(["transfer", "--out", str(user), "--size", "smoke"]) == 2
+    assert sorted(p.name for p in user.iterdir()) == ["notes.txt"]
+    assert (user / "notes.txt").read_text() == "mine"

@@ -1,7 +1,7 @@
 """Hidden robots: emulated D'Claws that differ from the nominal model, for measuring transfer.
 
 A ``HiddenRobot`` is drawn from a seed (``hidden_robot``, ``hidden_robots``) and stands in for a
-real D'Claw in the transfer table (``bench/transfer.py``): policies trained in simulation are
+real D'Claw in the transfer table (``lowcostdex transfer``): policies trained in simulation are
 evaluated on it through the emulated bus, and the gap analysis identifies it from logs recorded
 on it. It differs from the nominal model in three ways:
 

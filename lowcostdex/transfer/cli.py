@@ -1,0 +1,67 @@
+"""``lowcostdex transfer``: the transfer table on your robot or on emulated hidden robots.
+
+    lowcostdex transfer --out runs/transfer --size smoke            # 2 hidden robots, < 1 min
+    lowcostdex transfer --out runs/transfer                         # 3 hidden robots, 3 seeds
+    lowcostdex transfer --out runs/transfer --port /dev/ttyUSB0     # your D'Claw (see below)
+
+With ``--port`` the identification logs move each finger through its range with the valve off:
+the command stops after them; put the valve back on and run the same command again to train
+(on_robot trains on your robot: hours of robot time at the default size) and evaluate.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from lowcostdex.argtypes import SEED, integer
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    from lowcostdex.options import add_robot_port_options
+
+    p = sub.add_parser(
+        "transfer", help="does a policy trained in simulation work on the robot? identify it, "
+        "train under each condition, evaluate on every robot, write the table",
+        description=__doc__.split("\n\n")[0] + " Resumes a run cut short in the same --out.")
+    p.add_argument("--out", required=True,
+                   help="output folder: new or empty, or a previous transfer run to resume "
+                        "(same task, robots and size)")
+    p.add_argument("--size", choices=("smoke", "default", "long"), default="default",
+                   help="budgets (default %(default)s; smoke checks the loop in under a minute)")
+    p.add_argument("--task", choices=("valve", "valve-near", "valve-random"), default="valve",
+                   help="valve: 180 deg from the fixed start; valve-near: start and goal within "
+                        "+-0.25 rad of those; valve-random: +-60 deg (default %(default)s)")
+    add_robot_port_options(p, port_help="serial port of your D'Claw (default: emulated hidden "
+                                        "robots)")
+    p.add_argument("--robots", type=integer(1, 26), default=None,
+                   help="hidden robots (default by size)")
+    p.add_argument("--robot-seed", type=SEED, default=0, help="the hidden robots' seed")
+    p.add_argument("--seeds", type=integer(1, 100), default=None,
+                   help="training seeds 0..N-1 (default by size; more seeds resume a run)")
+    p.add_argument("--algos", default=None,
+                   help="comma-separated learners: dapg, npg (default by size: both)")
+    p.add_argument("--conditions", default=None,
+                   help="comma-separated: nominal, randomized, identified, "
+                        "identified_randomized, on_robot (default: all)")
+    p.add_argument("--yes", action="store_true",
+                   help="with --port: do not ask before the robot moves")
+    p.set_defaults(func=_transfer)
+
+
+def _transfer(args: argparse.Namespace) -> int:
+    from lowcostdex.options import robot_port
+    from lowcostdex.transfer.loop import ALGOS, CONDITIONS, parse_list, run, size_with
+
+    device = robot_port(args.backend, args.port)
+    port = None if device == "emulated" else device
+    size = size_with(args.size, robots=args.robots, seeds=args.seeds,
+                     algos=parse_list(args.algos, ALGOS, "algo"),
+                     conditions=parse_list(args.conditions, CONDITIONS, "condition"))
+    if port is not None and not args.yes:
+        answer = input(f"The robot on {port} will move (identification: valve off; training "
+                       "and evaluation: valve on). Continue? [y/N] ")
+        if answer.strip().lower() not in ("y", "yes"):
+            print("stopped; nothing was written")
+            return 1
+    run(args.out, size, args.task, args.robot_seed, port)
+    return 0
