@@ -27,7 +27,7 @@ from lowcostdex.sim.envs.allegro_tasks import RESET_POSE
 
 pytest.importorskip("can", reason="python-can (the 'can' extra) is not installed")
 
-from lowcostdex.hardware.allegro.backend import (  # noqa: E402 (needs python-can)
+from lowcostdex.hardware.robot.allegro_backend import (  # noqa: E402 (needs python-can)
     AllegroHardwareBackend,
     EmulatedAllegroBackend,
 )

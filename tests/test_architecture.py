@@ -36,3 +36,15 @@ def test_a_physics_module_importing_the_learner_breaks_a_contract(tmp_path):
     res = _lint(tmp_path)
     assert res.returncode != 0
     assert "BROKEN" in res.stdout and "lowcostdex.sim.servo -> lowcostdex.algos.npg" in res.stdout
+
+
+def test_a_driver_importing_the_robot_breaks_the_hardware_layers(tmp_path):
+    shutil.copytree(ROOT / "lowcostdex", tmp_path / "lowcostdex",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    driver = tmp_path / "lowcostdex" / "hardware" / "dynamixel" / "driver.py"
+    driver.write_text(driver.read_text() + "\nimport lowcostdex.hardware.robot.safety  # noqa\n")
+    res = _lint(tmp_path)
+    assert res.returncode != 0
+    assert "Hardware folders are one-way" in res.stdout and "BROKEN" in res.stdout
+    assert "lowcostdex.hardware.dynamixel.driver -> lowcostdex.hardware.robot.safety" in res.stdout

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -20,8 +20,12 @@ from lowcostdex.algos.metrics import (
 )
 from lowcostdex.algos.run_files import load_state, save_state
 
-if TYPE_CHECKING:
-    from lowcostdex.algos.experiment import Run
+
+class Run(Protocol):
+    """What ``BestPolicy`` needs of an ``experiment.Run`` (this module does not import it)."""
+
+    path: Path
+
 
 # ----------------------------------------------------------------------------------------------
 # The run's policy: the best evaluated one, and what the run reached when

@@ -1,1 +1,1 @@
-"""Allegro Hand v4: the CAN protocol, the driver, the emulated hand and its env backend."""
+"""Allegro Hand v4 devices: the CAN protocol, the driver (AllegroBus) and the emulated hand; its env backend is robot/allegro_backend.py."""

@@ -9,14 +9,18 @@ import os
 import signal
 import threading
 import weakref
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+
+class DynamixelBus(Protocol):
+    """What the hooks need of a ``driver.DynamixelBus`` (this module does not import the driver)."""
+
+    def emergency_torque_off(self) -> None: ...
+
+    def disconnect(self) -> None: ...
+
 
 log = logging.getLogger(__name__)
-
-
 _OPEN: weakref.WeakSet[DynamixelBus] = weakref.WeakSet()
 _PREVIOUS: dict[int, object] = {}
 _INSTALL_LOCK = threading.Lock()

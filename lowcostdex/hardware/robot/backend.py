@@ -18,7 +18,7 @@ motion-capture tracker a real setup needs (``HardwareBackend(tracker=...)``).
 
 ``RobotBackend`` (the reset/step/mirror loop) is shared by every hand: the episode reset is
 pluggable (``dclaw_reset`` here, ``allegro_backend.allegro_reset`` for the Allegro, whose backends
-live in ``lowcostdex.hardware.allegro.backend``), and so is the source of an object pose the
+live in ``lowcostdex.hardware.robot.allegro_backend``), and so is the source of an object pose the
 motors do not measure (``ObjectSensor``).
 """
 

@@ -56,7 +56,7 @@ class Backend(ABC):
         """Extra readings for ``info`` (currents [A], temperatures [deg C], resets, pauses)."""
         return {}
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 (optional: a backend without a robot has nothing to release)
         """Release the robot (torque off, port closed)."""
 
 
@@ -96,9 +96,9 @@ class SimBackend(Backend):
 BACKENDS: dict[str, str | dict[str, str]] = {
     "sim": "lowcostdex.sim.envs.backend:SimBackend",
     "emulated": {"dclaw": "lowcostdex.hardware.robot.backend:EmulatedBackend",
-                 "allegro": "lowcostdex.hardware.allegro.backend:EmulatedAllegroBackend"},
+                 "allegro": "lowcostdex.hardware.robot.allegro_backend:EmulatedAllegroBackend"},
     "hardware": {"dclaw": "lowcostdex.hardware.robot.backend:HardwareBackend",
-                 "allegro": "lowcostdex.hardware.allegro.backend:AllegroHardwareBackend"},
+                 "allegro": "lowcostdex.hardware.robot.allegro_backend:AllegroHardwareBackend"},
 }
 
 
