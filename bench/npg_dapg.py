@@ -6,6 +6,13 @@
     python bench/npg_dapg.py --tasks allegro-valve --algos dapg
     python bench/npg_dapg.py --quick                          # smoke run, tiny budget
     python bench/npg_dapg.py ... --record                     # append a section to bench/RESULTS.md
+    python bench/npg_dapg.py --tasks flip-keypoints --algos dapg --seeds 2 --reuse
+                                          # runs seed 1 only: seed 0's finished run is reused
+
+Each finished run writes ``outcome.json`` in its run folder; ``--reuse`` reads it instead of
+training again when the run's settings match, so a long table is built one seed (one process)
+at a time and survives an interrupted session. ``--max-wall`` stops a run after that many
+wall-clock seconds (how far it got within e.g. the issue's 30 min is then what it reports).
 
 Every run uses the trainers' defaults (``TrainConfig`` for NPG/DAPG, ``PPOConfig`` for PPO): what a
 user gets from ``lowcostdex train npg|dapg|ppo`` without options. A run goes until its training
@@ -17,7 +24,10 @@ iterations, or until its sample budget; deterministic (mean-action) evaluations 
   success first reached the target;
 - the final training success (mean of the last three iterations) and the final evaluation;
 - the best evaluation (the run's policy, ``policy.pt``) and ``holds``: the share of evaluations
-  after the first evaluation crossing that are still at or above the target (1.0 = it held).
+  after the first evaluation crossing that are still at or above the target (1.0 = it held);
+  final and best deterministic success with 95 % Wilson intervals over their evaluation episodes;
+- the run's wall-clock and CPU seconds (this process, all threads) and the 1-min load average
+  at its start and end (the machine is shared).
 
 Ratios: NPG / DAPG samples to the target (medians over seeds; a lower bound "> x" when NPG did
 not reach it in its budget), and PPO / NPG wall-clock to the target. On the flip NPG and PPO get
@@ -41,7 +51,9 @@ import json
 import math
 import os
 import platform
+import resource
 import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,6 +65,7 @@ from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.configs import PPOConfig, TrainConfig
 from lowcostdex.algos.demos import save_demos, teacher_episodes
 from lowcostdex.demo_file import DatasetInfo
+from lowcostdex.stats import wilson_interval
 
 
 @dataclass(frozen=True)
@@ -108,15 +121,94 @@ def record_demos(task: Task, out: Path, n: int) -> Path:
 # One run
 
 
-def _until(target: float, extra: int):
+OUTCOME_FILE = "outcome.json"
+
+
+def _until(target: float, extra: int, max_wall: float | None = None,
+           stopped: dict[str, str] | None = None):
+    """Stop ``extra`` iterations after training success first reaches ``target``, or once
+    ``max_wall`` wall-clock seconds have passed since this call; ``stopped["why"]`` says which."""
     reached: list[int] = []
+    t0 = time.perf_counter()
 
     def until(row: dict[str, float]) -> bool:
         if not reached and row[ex.SUCCESS_RATE] >= target:
             reached.append(int(row[ex.ITERATION]))
-        return bool(reached) and row[ex.ITERATION] >= reached[0] + extra
+        if bool(reached) and row[ex.ITERATION] >= reached[0] + extra:
+            if stopped is not None:
+                stopped["why"] = "target"
+            return True
+        if max_wall is not None and time.perf_counter() - t0 >= max_wall:
+            if stopped is not None:
+                stopped["why"] = "wall limit"
+            return True
+        return False
 
     return until
+
+
+def _usage() -> tuple[float, float]:
+    """(wall seconds, CPU seconds of this process and its children)."""
+    cpu = sum(r.ru_utime + r.ru_stime for r in (resource.getrusage(resource.RUSAGE_SELF),
+                                                resource.getrusage(resource.RUSAGE_CHILDREN)))
+    return time.perf_counter(), cpu
+
+
+def _timed(run, out: Path, settings: dict, target: float) -> dict[str, float]:
+    """Run ``run(stopped)`` in ``out`` (emptied first) and write its outcome with the wall/CPU
+    seconds and loads beside the settings it ran with."""
+    if out.exists():
+        shutil.rmtree(out)
+    stopped = {"why": "budget"}
+    load0 = os.getloadavg()[0]
+    w0, c0 = _usage()
+    run(stopped)
+    w1, c1 = _usage()
+    r = outcome(out, target)
+    r.update({"run_wall": w1 - w0, "run_cpu": c1 - c0, "load_start": load0,
+              "load_end": os.getloadavg()[0], "stopped": stopped["why"],
+              "eval_distinct": distinct_episodes(out)})
+    (out / OUTCOME_FILE).write_text(json.dumps({"settings": settings, "outcome": r}, indent=1))
+    return r
+
+
+def reused(out: Path, settings: dict) -> dict[str, float] | None:
+    """The outcome of a finished run in ``out`` made with the same settings, else None."""
+    f = out / OUTCOME_FILE
+    if not f.exists():
+        return None
+    saved = json.loads(f.read_text())
+    if saved["settings"] != settings:
+        return None
+    if "eval_distinct" not in saved["outcome"]:  # written before the count existed
+        saved["outcome"]["eval_distinct"] = distinct_episodes(out)
+        f.write_text(json.dumps(saved, indent=1))
+    return saved["outcome"]
+
+
+def distinct_episodes(run_dir: Path, n: int = 3) -> float:
+    """How many different episodes the run's final policy (mean action) makes from ``n`` reset
+    seeds: 1 means a fixed start in a noise-free simulation, where the trainer's evaluation
+    episodes are copies of one episode (its success rate is 0 or 1, an n = 1 sample)."""
+    import torch
+
+    from lowcostdex.algos.train import load_policy
+
+    config = ex.read_json(run_dir / ex.CONFIG_FILE)
+    policy = load_policy(run_dir / ex.FINAL_POLICY_FILE)
+    env = gym.make(config["env_id"], **dict(config.get("env_kwargs") or {}))
+    ends = set()
+    for seed in range(n):
+        obs, _ = env.reset(seed=1000 + seed)
+        done = False
+        while not done:
+            with torch.no_grad():
+                a = policy.act(obs, deterministic=True)[0].numpy()
+            obs, _, term, trunc, _ = env.step(a)
+            done = term or trunc
+        ends.add(tuple(np.round(obs, 9)))
+    env.close()
+    return float(len(ends))
 
 
 def _crossing(m: dict[str, np.ndarray], key: str, target: float) -> tuple[float, float]:
@@ -145,12 +237,20 @@ def outcome(run_dir: Path, target: float) -> dict[str, float]:
         "final_eval": float(evals[done[-1]]) if done.size else math.nan,
         "best_eval": float(best.get(ex.EVAL_SUCCESS_RATE, math.nan)),
         "best_samples": float(best.get(ex.SAMPLES, math.nan)),
+        "eval_episodes": float(ex.read_json(run_dir / ex.CONFIG_FILE).get("eval_episodes",
+                                                                         math.nan)),
         "holds": float(np.mean(evals[after] >= target)) if after.size else math.nan,
         "samples": float(m[ex.SAMPLES][-1]),
         "wall": float(m[ex.WALL_SECONDS][-1]),
         "final_goal_error": float(np.mean(m["goal_error_final"][-3:]))
         if "goal_error_final" in m else math.nan,
     }
+
+
+def _settings(cfg, args: argparse.Namespace) -> dict:
+    """What makes two runs the same run (for ``--reuse``)."""
+    return {"config": json.loads(json.dumps(dataclasses.asdict(cfg))), "target": args.target,
+            "extra_iters": args.extra_iters, "max_wall": args.max_wall}
 
 
 def run_train(task: Task, algo: str, seed: int, budget: float, demos: Path | None,
@@ -165,10 +265,11 @@ def run_train(task: Task, algo: str, seed: int, budget: float, demos: Path | Non
                       demos=str(demos) if algo == "dapg" else None,
                       sampler=args.sampler, n_workers=n_traj if args.sampler == "vector" else 1,
                       eval_every=args.eval_every, progress=False)
-    if out.exists():
-        shutil.rmtree(out)
-    train(cfg, out, until=_until(args.target, args.extra_iters))
-    return outcome(out, args.target)
+    settings = _settings(cfg, args)
+    if args.reuse and (r := reused(out, settings)) is not None:
+        return r
+    return _timed(lambda stopped: train(cfg, out, until=_until(
+        args.target, args.extra_iters, args.max_wall, stopped)), out, settings, args.target)
 
 
 def run_ppo(task: Task, seed: int, budget: float, out: Path,
@@ -180,10 +281,11 @@ def run_ppo(task: Task, seed: int, budget: float, out: Path,
     cfg = PPOConfig(env_id=task.env_id, seed=seed,
                     n_iter=max(1, int(budget // (d.num_envs * horizon))),
                     eval_every=args.eval_every, progress=False)
-    if out.exists():
-        shutil.rmtree(out)
-    train(cfg, out, until=_until(args.target, args.extra_iters))
-    return outcome(out, args.target)
+    settings = _settings(cfg, args)
+    if args.reuse and (r := reused(out, settings)) is not None:
+        return r
+    return _timed(lambda stopped: train(cfg, out, until=_until(
+        args.target, args.extra_iters, args.max_wall, stopped)), out, settings, args.target)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -227,23 +329,59 @@ def _ratio(num: float, den: float, budget: float | None = None) -> str:
     return f"{num / den:.1f}x"
 
 
-def table(name: str, results: dict[str, list[dict[str, float]]],
-          budgets: dict[str, float]) -> list[str]:
-    lines = [f"### {name}", "",
-             "| algorithm | samples to 80 % train (per seed) | to 80 % eval | wall s to 80 % train "
-             "| final train / eval | best eval (samples) | holds | budget |",
-             "|---|---|---|---|---|---|---|---|"]
-    for algo, runs in results.items():
-        def per_seed(fmt, key):
-            return "/".join(fmt(r[key]) for r in runs)
+def _rate(rate: float, n: float, distinct: float = math.nan) -> str:
+    """A success rate over ``n`` evaluation episodes with its 95 % Wilson interval; when the
+    episodes are copies of one (``distinct`` == 1) the interval is that of one episode."""
+    if not (math.isfinite(rate) and math.isfinite(n) and n > 0):
+        return "-"
+    if distinct == 1:
+        k = round(rate)
+        low, high = wilson_interval(k, 1)
+        return f"{k}/1 [{low:.2f}, {high:.2f}]"
+    k = round(rate * n)
+    low, high = wilson_interval(k, int(n))
+    return f"{k}/{int(n)} [{low:.2f}, {high:.2f}]"
 
-        best = "/".join(f"{r['best_eval']:.0f} ({_k(r['best_samples'])})" for r in runs)
-        lines.append(
-            f"| {algo.upper()} | {per_seed(_k, 'train_samples')} | {per_seed(_k, 'eval_samples')}"
-            f" | {per_seed(_s, 'train_wall')} | {per_seed(_f2, 'final_train')} / "
-            f"{per_seed(_s, 'final_eval')} | {best} | {per_seed(_f2, 'holds')} | "
-            f"{_k(budgets[algo])} |")
+
+def _train_rate(r: dict[str, float], n_traj: int) -> str:
+    """Final training success (stochastic policy, last three iterations, ``3 n_traj``
+    independent episodes) with its 95 % Wilson interval."""
+    if not math.isfinite(r["final_train"]):
+        return "-"
+    n = 3 * n_traj
+    k = round(r["final_train"] * n)
+    low, high = wilson_interval(k, n)
+    return f"{k / n:.2f} [{low:.2f}, {high:.2f}]"
+
+
+def table(name: str, results: dict[str, list[dict[str, float]]],
+          budgets: dict[str, float], n_traj: dict[str, int]) -> list[str]:
+    lines = [f"### {name}", "",
+             "| algorithm | seed | samples to 80 % train | to 80 % eval | wall s to 80 % train "
+             "/ eval | final train [95 % Wilson] | final eval [95 % Wilson] | best eval [95 % Wilson] "
+             "(samples) | holds | ran: samples, wall s, CPU s | load start/end | stopped by |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for algo, runs in results.items():
+        for seed, r in enumerate(runs):
+            n, dist = r.get("eval_episodes", math.nan), r.get("eval_distinct", math.nan)
+            lines.append(
+                f"| {algo.upper()} | {seed} | {_k(r['train_samples'])} | {_k(r['eval_samples'])}"
+                f" | {_s(r['train_wall'])} / {_s(r['eval_wall'])} | "
+                f"{_train_rate(r, n_traj[algo])} | "
+                f"{_rate(r['final_eval'], n, dist)} | {_rate(r['best_eval'], n, dist)} "
+                f"({_k(r['best_samples'])}) | {_f2(r['holds'])} | {_k(r['samples'])}, "
+                f"{_s(r.get('run_wall', math.nan))}, {_s(r.get('run_cpu', math.nan))} | "
+                f"{_f2(r.get('load_start', math.nan))}/{_f2(r.get('load_end', math.nan))} | "
+                f"{r.get('stopped', '-')} (budget {_k(budgets[algo])}) |")
+    distinct = [r.get("eval_distinct", math.nan) for runs in results.values() for r in runs]
     lines.append("")
+    if 1.0 in distinct:
+        lines.append("Evaluation episodes marked n/1: the final policy's mean-action episodes "
+                     "from different reset seeds were identical (a fixed start in a noise-free "
+                     "simulation), so each evaluation is one episode repeated; the interval is "
+                     "that of one episode. The training success is over 3 x the trajectories "
+                     "per iteration independent stochastic episodes (last three iterations).")
+        lines.append("")
     med = {a: {k: _median([r[k] for r in runs]) for k in ("train_samples", "eval_samples",
                                                            "train_wall", "eval_wall")}
            for a, runs in results.items()}
@@ -297,6 +435,10 @@ def main() -> None:
     p.add_argument("--eval-every", type=int, default=5)
     p.add_argument("--sampler", default="vector", choices=("vector", "serial"))
     p.add_argument("--out", default="bench_runs/npg_dapg")
+    p.add_argument("--max-wall", type=float, default=None,
+                   help="stop each run after this many wall-clock seconds (default: no limit)")
+    p.add_argument("--reuse", action="store_true",
+                   help="reuse finished runs (their outcome.json) made with the same settings")
     p.add_argument("--quick", action="store_true", help="tiny budget: checks the script runs")
     p.add_argument("--record", action="store_true", help="append the results to bench/RESULTS.md")
     args = p.parse_args()
@@ -348,7 +490,9 @@ def main() -> None:
                 results[algo].append(r)
                 print(name, algo, seed, json.dumps(r), flush=True)
         all_results[name] = results
-        report += table(f"{name} (`{task.env_id}`, {n_demos} demos for DAPG)", results, budgets)
+        n_traj = {a: (dp.num_envs if a == "ppo" else args.n_traj or d.n_traj) for a in results}
+        report += table(f"{name} (`{task.env_id}`, {n_demos} demos for DAPG)", results, budgets,
+                        n_traj)
     if "flip-keypoints" in all_results and "flip-quaternion" in all_results:
         report += representation_table(all_results)
     text = "\n".join(report)
