@@ -13,13 +13,13 @@ import pytest
 import torch
 
 from lowcostdex.algos.configs import PolicyConfig
+from lowcostdex.algos.local_models.conditions import PendulumConditions
 from lowcostdex.algos.local_models.controller import LinearGaussianController
 from lowcostdex.algos.local_models.costs import average_expansion
 from lowcostdex.algos.local_models.dynamics import DynamicsConfig, fit_dynamics
 from lowcostdex.algos.local_models.lqr import forward_pass, kl_per_step
 from lowcostdex.algos.local_models.mdgps import (
     MDGPSConfig,
-    PendulumConditions,
     PreviousCondition,
     controller_cost,
     controller_targets,
@@ -236,7 +236,7 @@ def test_env_driver_runs_on_the_dclaw_valve_conditions() -> None:
     # The interface of the TVLG trainer (FixedStart, offset_start, run_episode) on the simulated
     # D'Claw: two valve offsets, 2 iterations of 3 rollouts (about 3 s). Checks the plumbing and
     # the trust region only; learning the valve turn needs far more iterations.
-    from lowcostdex.algos.local_models.mdgps import env_problem
+    from lowcostdex.algos.local_models.conditions import env_problem
     from lowcostdex.algos.local_models.train import TVLGTrainConfig, default_env_factory
 
     env = default_env_factory(TVLGTrainConfig())()
