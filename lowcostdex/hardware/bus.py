@@ -52,6 +52,8 @@ class MotorState:
       hardware_error: Hardware Error Status bits (0 = none), -1 where unknown.
       timestamp: host monotonic time the values were sampled [s] (for a sync read: when the
         request went out, not when the last reply came back).
+      sample_time: per motor, when its values were sampled [s] (a motor answering only a
+        retried read was sampled later than ``timestamp``); None: all at ``timestamp``.
     """
 
     position: np.ndarray
@@ -63,6 +65,7 @@ class MotorState:
     hardware_error: np.ndarray
     timestamp: float = 0.0
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    sample_time: np.ndarray | None = None
 
     @classmethod
     def invalid(cls, n: int, timestamp: float = 0.0) -> MotorState:
@@ -101,6 +104,11 @@ class MotorBus(abc.ABC):
     @abc.abstractmethod
     def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> None:
         """Torque on/off for ``ids`` (default all). Turning on first sets goal := present."""
+
+    def goal_delay(self, n: int) -> float:
+        """Upper bound [s] on the time from now until goals for ``n`` motors written now take
+        effect in the motors (pending bus waits plus the write's transmission); 0 if unknown."""
+        return 0.0
 
     def reboot(self, motor_id: int) -> None:
         """Clear a latched hardware error by rebooting the motor (torque is off afterwards)."""

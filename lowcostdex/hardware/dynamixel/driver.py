@@ -87,7 +87,7 @@ from lowcostdex.hardware.dynamixel.control_table import (
     load_control_table,
     model_name,
 )
-from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names
+from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names, wire_time
 from lowcostdex.hardware.dynamixel.shutdown import register as _register
 from lowcostdex.hardware.dynamixel.shutdown import unregister as _unregister
 from lowcostdex.hardware.dynamixel.transactions import SdkTransactions
@@ -370,6 +370,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
             sorted(self.ids, key=lambda i: i in self._silent))
         valid, err, raw = self._read_block(order, fast=self.fast_read)
         sampled = self._sample_time
+        times = dict.fromkeys(order, sampled)  # a motor read in a retry was sampled then
         attempts = 0
         while attempts < self.config.read_retries:
             missing = [i for i in order if not valid[i]]
@@ -382,10 +383,20 @@ class DynamixelBus(SdkTransactions, MotorBus):
             for i in fresh:
                 if v2[i]:
                     valid[i], err[i], raw[i] = True, e2[i], r2[i]
+                    times[i] = self._sample_time
             # a retry that found a new silent motor is free (it is read last next time);
             # bounded, since that can happen at most once per motor
             attempts += len(self._silent) == silent
-        return self._decode(valid, err, raw, sampled)
+        state = self._decode(valid, err, raw, sampled)
+        state.sample_time = np.fromiter((times[i] for i in self.ids), float, len(self.ids))
+        return state
+
+    def goal_delay(self, n: int) -> float:
+        """Upper bound [s] from now until a goal sync write for ``n`` motors reaches them: the
+        settle wait still owed after a failed transaction, the packet's wire time (14 + 5 n
+        bytes, 8N1) and one USB frame (1 ms) for the adapter to put it on the wire."""
+        settle = self.config.settle_ms / 1000.0 if self._dirty else 0.0
+        return settle + wire_time(14 + 5 * n, self.config.baudrate) + 1e-3
 
     def _decode(self, valid: dict[int, bool], err: dict[int, int], raw: dict[int, bytes],
                 t: float) -> MotorState:

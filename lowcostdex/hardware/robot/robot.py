@@ -11,6 +11,11 @@ for the D'Claw (Dynamixel) and the Allegro (CAN):
 * the bound acts on fresh state only: a goal is computed from the position read since the last
   goal went out; a joint whose read failed or was corrupt gets no new goal (it holds the one in
   force), counted in ``metrics.holds`` and flagged in ``telemetry()["held"]``;
+* the bound holds where the goal arrives, not only where the position was sampled: the motor
+  keeps moving between its sample and the goal's arrival (the read's replies, a retried read,
+  the settle wait after a failed one, the host's own computing), so the bound is narrowed by
+  ``motor_speed`` x that time (``RobotConfig.motor_speed``); a joint whose sample is so old
+  that nothing is left holds;
 * every read feeds the thermal and current guards (``guards``); critical motors are relaxed at
   once, and ``pause_if_hot`` rests the hand between episodes until it has cooled;
 * ``step`` keeps the control rate on a monotonic clock (``timing.Rate``, overruns counted);
@@ -66,6 +71,13 @@ class RobotConfig:
       current: current guard thresholds.
       max_invalid_reads: consecutive reads a motor may miss before ``read`` raises BusError.
       max_reboots: reboots per motor per session when recovering from hardware errors.
+      motor_speed: fastest a joint can move [rad/s, joint], by its own drive or pushed (contacts,
+        the finger's swing); with ``motion_reference`` "present" the motion bound is narrowed by
+        this times the time from the position's sample to the goal's arrival, so the goal leads
+        the position *where it arrives* by at most the bound. None: 1.5 x the hand's motor's
+        no-load speed (``servo.MotorSpec``: XH430-W350 3.14 rad/s -> 4.71; the D'Claw's joints
+        reached 4.06 rad/s in the emulated fault soak); 0 (and the Allegro, whose motors have no
+        spec) turns the narrowing off.
     """
 
     control_period: float = 0.1
@@ -76,6 +88,7 @@ class RobotConfig:
     current: CurrentConfig = CurrentConfig()
     max_invalid_reads: int = 5
     max_reboots: int = 2
+    motor_speed: float | None = None
 
     def __post_init__(self) -> None:
         if not self.control_period > 0:
@@ -87,6 +100,9 @@ class RobotConfig:
             raise ConfigError("RobotConfig.max_lead must be >= 1")
         if self.max_invalid_reads < 0 or self.max_reboots < 0:
             raise ConfigError("RobotConfig.max_invalid_reads and max_reboots must be >= 0")
+        if self.motor_speed is not None and not 0 <= self.motor_speed < float("inf"):
+            raise ConfigError(f"RobotConfig.motor_speed must be finite and >= 0 [rad/s], got "
+                              f"{self.motor_speed}")
 
 
 @dataclass
@@ -173,6 +189,21 @@ class RobotMetrics:
         return out
 
 
+MOTOR_SPEED_MARGIN = 1.5
+"""Default ``RobotConfig.motor_speed`` over the motor's no-load speed: a joint pushed by contacts
+or by its finger's swing moves faster than its motor drives it (measured 1.29x in the emulated
+D'Claw fault soak, tests/test_robot_faults.py)."""
+
+
+def motor_speed(hand: HandSpec) -> float:
+    """Default fastest motor speed [rad/s, motor] for the hand's motor model (0: unknown)."""
+    if hand.motor == "allegro":
+        return 0.0
+    from lowcostdex.sim import servo
+
+    return MOTOR_SPEED_MARGIN * servo.motor_spec(hand.motor).no_load_speed
+
+
 def motor_limits(hand: HandSpec) -> tuple[float, float]:
     """(firmware temperature limit [deg C], stall current [A]) of the hand's motor model."""
     if hand.motor == "allegro":
@@ -214,6 +245,11 @@ class Robot:
         self.high = np.array([j.high for j in self.joints])
         self.max_step = (np.array([j.max_velocity for j in self.joints])
                          * config.control_period * config.motion_scale)
+        if config.motor_speed is not None:
+            self.speed = np.full(len(self.joints), config.motor_speed)
+        else:  # a motor's speed bound seen at the joint
+            v = motor_speed(hand)
+            self.speed = np.array([abs(j.calibration.rate_to_joint(v)) for j in self.joints])
         limit, stall = motor_limits(hand)
         limit = config.thermal.limit if config.thermal.limit is not None else limit
         self.thermal = ThermalGuard(config.thermal, limit, self.joint_names)
@@ -224,6 +260,7 @@ class Robot:
         self.metrics = RobotMetrics()
         self._present = np.full(len(self.joints), np.nan)
         self._fresh = np.zeros(len(self.joints), bool)  # read valid since the last goal sent
+        self._sampled = np.full(len(self.joints), -np.inf)  # bus time of each valid position
         self.held = np.zeros(len(self.joints), bool)  # joints the last send held
         self._misses = np.zeros(len(self.joints), int)
         self._torque = np.zeros(len(self.joints), bool)
@@ -281,6 +318,9 @@ class Robot:
         self.metrics.invalid_reads += int(np.sum(~state.valid))
         self._present = np.where(state.valid, state.position, self._present)
         self._fresh = state.valid.copy()
+        sampled = (raw.sample_time[self._bus_index] if raw.sample_time is not None
+                   else np.full(len(self.joints), raw.timestamp))
+        self._sampled = np.where(state.valid, sampled, self._sampled)
         if np.any(self._misses > self.config.max_invalid_reads):
             bad = [self.joint_names[i] for i in np.flatnonzero(
                 self._misses > self.config.max_invalid_reads)]
@@ -353,8 +393,10 @@ class Robot:
         gate; returns the goals in force afterwards (same shape).
 
         Each goal is bounded around the position read since the last goal went out (one read
-        is taken here if a joint has none). A joint whose read failed or was corrupt is held:
-        no goal is sent to it, its previous goal stays in force (``held``, ``metrics.holds``).
+        is taken here if a joint has none), the bound narrowed by what the joint may move
+        before the goal arrives (``RobotConfig.motor_speed``). A joint whose read failed or was
+        corrupt, or whose sample is too old to leave any room, is held: no goal is sent to it,
+        its previous goal stays in force (``held``, ``metrics.holds``).
 
         Raises:
           UnsafeCommand: non-finite entries, a wrong shape, or a joint never read validly
@@ -375,6 +417,12 @@ class Robot:
             missing = [n for n, p in zip(names, present, strict=True) if not np.isfinite(p)]
             raise UnsafeCommand(f"no valid present position for {missing}; nothing sent")
         max_step = self.max_step[idx].copy()
+        if self.config.motion_reference == "present":
+            # what each joint may move from its sample until the goal arrives
+            arrival = self.bus.clock() + self.bus.goal_delay(int(np.sum(fresh)))
+            max_step -= self.speed[idx] * np.maximum(arrival - self._sampled[idx], 0.0)
+            fresh = fresh & (max_step > 0)  # sampled too long ago: nothing left, hold
+            max_step = np.maximum(max_step, 0.0)
         relaxed = self.current_guard.relaxed[idx]
         max_step[relaxed] = np.minimum(max_step[relaxed], self.config.current.relaxed_step)
         if self.config.motion_reference == "goal":
