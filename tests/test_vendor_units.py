@@ -96,6 +96,20 @@ EMANUAL = {
                        min_voltage=35, shutdown=53, velocity_i=400, velocity_p=40,
                        position_d=0, position_i=400, position_p=400, volts=5.0,
                        stall_torque=0.215, no_load_rpm=383, gear_ratio=77.5),
+    # Protocol 2.0 MX pages: docs/en/dxl/mx/mx-64-2.md @07a9912 (Current Limit and Goal
+    # Current unit "about 3.36[mA]", Position P 850, "5.5Nm @ 11.1V / 6.0Nm @ 12V", "63rpm @
+    # 12V", "Gear Ratio 200 : 1", "Resolution 0.088 deg", "Recommended : 12V")
+    "MX-64": dict(model_number=311, current_ma=3.36, current_limit=1941,
+                  velocity_limit=435, temperature_limit=80, max_voltage=160, min_voltage=95,
+                  shutdown=52, velocity_i=1920, velocity_p=100, position_d=0, position_i=0,
+                  position_p=850, volts=12.0, stall_torque=6.0, no_load_rpm=63,
+                  gear_ratio=200.0),
+    # docs/en/dxl/mx/mx-106-2.md @07fe860 ("8.4Nm @ 12V", "45rpm @ 12V", "225 : 1")
+    "MX-106": dict(model_number=321, current_ma=3.36, current_limit=2047,
+                   velocity_limit=360, temperature_limit=80, max_voltage=160, min_voltage=95,
+                   shutdown=52, velocity_i=1920, velocity_p=100, position_d=0, position_i=0,
+                   position_p=850, volts=12.0, stall_torque=8.4, no_load_rpm=45,
+                   gear_ratio=225.0),
 }
 
 # dynamixel-sdk 4.1's dynamixel_easy_sdk/control_table/<model>.model "[control table]" rows
@@ -121,7 +135,7 @@ def _sdk_model_numbers() -> dict[int, str]:
 
 def _sdk_model_file(name: str) -> dict[str, dict[str, list[str]]]:
     """Sections of an SDK .model file: {section: {name: columns}}; control-table rows are keyed
-    by their item name, the other sections by their first column."""
+    by their item name in lower case, the other sections by their first column."""
     sections: dict[str, dict[str, list[str]]] = {}
     current = None
     for line in _sdk_text(name).splitlines():
@@ -130,7 +144,8 @@ def _sdk_model_file(name: str) -> dict[str, dict[str, list[str]]]:
             current = sections.setdefault(line[1:-1], {})
         elif line and current is not None:
             cols = line.split("\t")
-            key = cols[2] if len(cols) == 3 and cols[0].isdigit() else cols[0]
+            # control-table names lower-cased: the MX files write "BUS Watchdog"
+            key = cols[2].lower() if len(cols) == 3 and cols[0].isdigit() else cols[0]
             current.setdefault(key, cols)
     return sections
 
@@ -188,7 +203,7 @@ def test_units_and_factory_defaults_match_the_vendor(model):
     assert numbers[row["model_number"]] == model.lower().replace("-", "_") + ".model"
     table = load_control_table(model)
     for reg, (address, size) in SDK_ITEMS.items():
-        cols = sdk["control table"][reg.value]
+        cols = sdk["control table"][reg.value.lower()]
         assert (int(cols[0]), int(cols[1])) == (address, size)
         assert (table[reg].address, table[reg].size) == (address, size)
     sdk_velocity = float(sdk["unit info"]["Present Velocity"][1])  # rad/s per count
@@ -196,3 +211,116 @@ def test_units_and_factory_defaults_match_the_vendor(model):
     # 0.0239691227 rad/s = 0.22889 rpm: the SDK's value and 0.229 agree to 0.05 %
     assert motor.velocity_unit == pytest.approx(sdk_velocity, rel=1e-3)
     assert int(sdk["type info"]["value_of_zero_radian_position"][1]) == table.zero_tick == 2048
+
+
+# -- MX with Protocol 1.0 firmware (BAM's MX benches) ---------------------------------------------
+# docs/en/dxl/mx/mx-64.md @0117956: Model Number(0) 310, P Gain(28) initial 32, Temperature
+# Limit(11) 80, CCW Angle Limit 4,095, Moving Speed "the unit is about 0.114rpm", Current(68)
+# "I = ( 4.5mA ) * (CURRENT - 2048 )". BAM (Rhoban/bam README @c50ae40, quoted in
+# 07-measured-data.md section 4): the P path measured with an oscilloscope at 15 V, H = 2.391 V
+# per (P unit * rad) on the MX-64 -> 0.158 duty per (P unit * rad) (2.391 / 15 = 0.159), PWM
+# ceiling 0.9625.
+MX_P1 = {"MX-64(1.0)": dict(model_number=310, stall_torque=6.0, no_load_rpm=63),
+         "MX-106(1.0)": dict(model_number=320, stall_torque=8.4, no_load_rpm=45)}
+
+
+@pytest.mark.parametrize("model", sorted(MX_P1))
+def test_mx_protocol_1_units_and_bams_measured_gain(model):
+    motor, row = MOTORS[model], MX_P1[model]
+    assert motor.model_number == row["model_number"]
+    assert (motor.default_p, motor.default_i, motor.default_d) == (32, 0, 0)
+    assert motor.velocity_unit == pytest.approx(0.114 * RPM, rel=1e-12)
+    assert motor.current_unit == pytest.approx(4.5e-3, rel=1e-12)
+    assert motor.ticks_per_rev == 4095 + 1 and motor.thermal.limit == 80
+    assert motor.error_gain == pytest.approx(2.391 / 15.0, rel=0.01)
+    assert motor.max_duty == 0.9625
+    # the same motor as its Protocol 2.0 twin (same datasheet rows)
+    twin = MOTORS[model.removesuffix("(1.0)")]
+    assert (motor.stall_torque, motor.no_load_speed) == (twin.stall_torque, twin.no_load_speed)
+    assert motor.stall_torque == row["stall_torque"]
+    assert motor.no_load_speed == pytest.approx(row["no_load_rpm"] * RPM)
+
+
+def test_mx_factory_stiffness_agrees_between_the_two_firmwares():
+    # Protocol 2.0: K_P = P / 128 (e-Manual control_table_position_pid_gain include) in PWM
+    # counts per encoder tick, PWM full scale 885, 4096 ticks per turn, factory P 850:
+    p2 = 850 / 128 / 885 * 4096 / (2 * math.pi)  # duty per rad = 4.891
+    # Protocol 1.0: BAM's oscilloscope measurement at the factory P 32: 0.158 duty per P rad
+    p1 = 32 * 0.158  # = 5.056
+    assert p2 == pytest.approx(4.891, abs=1e-3) and abs(p1 / p2 - 1) < 0.04
+    for p2_model in ("MX-64", "MX-106"):
+        m = MOTORS[p2_model]
+        assert m.default_p * m.error_gain == pytest.approx(p2, rel=1e-9)
+        m1 = MOTORS[p2_model + "(1.0)"]
+        assert m1.default_p * m1.error_gain == pytest.approx(p1, rel=1e-9)
+
+
+def test_bam_mx_logs_read_with_the_protocol_1_motor():
+    from lowcostdex.gap.logs import BAM_MOTORS
+
+    # BAM's MX recorder drives Protocol 1.0 firmware (friction_1.json: "register 36 at 1 Mbps",
+    # Present Position's P1 address), so its header kp is the P1 P Gain
+    assert BAM_MOTORS["mx64"] == "MX-64(1.0)" and BAM_MOTORS["mx106"] == "MX-106(1.0)"
+
+
+# -- MX(2.0) on the wire: the SDK's MX files and the driver -----------------------------------------
+
+
+def test_an_mx64_protocol_2_motor_is_driven_through_the_sdk(recwarn):
+    from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+    from lowcostdex.hardware.emulated.chain import emulated_bench
+
+    # e-Manual mx-64-2 row "|98|1|[BUS Watchdog]": the SDK file spells it "BUS Watchdog", the X
+    # files "Bus Watchdog"; the driver needs it by one name on every motor
+    assert "98\t1\tBUS Watchdog" in _sdk_text("mx_64.model")
+    assert load_control_table("MX-64")[Reg.BUS_WATCHDOG].address == 98
+    chain = emulated_bench("MX-64")
+    with DynamixelBus.from_hand(chain.hand, chain.port(), handle_signals=False) as bus:
+        assert bus.read_register(1, Reg.MODEL_NUMBER) == 311
+        assert bus.gains[1].position_p == 850  # factory gain read back: no mismatch warning
+        assert bus.read_register(1, Reg.CURRENT_LIMIT) == 1941
+        bus.write_register(1, Reg.BUS_WATCHDOG, 5)  # 100 ms, by its e-Manual name
+        assert bus.read_register(1, Reg.BUS_WATCHDOG) == 5
+        bus.write_register(1, Reg.BUS_WATCHDOG, 0)
+        s = bus.read_state()
+        assert s.valid.all() and abs(s.temperature[0] - 25) < 5
+    assert not [w for w in recwarn if "gain" in str(w.message).lower()]
+
+
+def test_an_mx28_protocol_2_motor_is_refused_it_reports_load_not_current():
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hardware.dynamixel.config import DynamixelConfig
+    from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+    from lowcostdex.hardware.emulated.chain import emulated_bench
+
+    # e-Manual mx-28-2.md @07fe860: Model Number 30, "|126|2|[Present Load]" where the X and
+    # MX-64/106 pages have Present Current; the SDK's mx_28.model agrees
+    assert "126\t2\tPresent Load" in _sdk_text("mx_28.model")
+    table = load_control_table(30)
+    assert table.model == "MX-28" and Reg.PRESENT_CURRENT not in table
+    chain = emulated_bench("MX-64")
+    with pytest.raises(ConfigError, match="MX-28.*Present Current"):
+        DynamixelBus(chain.port(), DynamixelConfig(ids=(1,), models=("MX-28",)))
+
+
+# -- Feetech STS ----------------------------------------------------------------------------------
+# lerobot src/lerobot/motors/feetech/tables.py @0558acc: MODEL_NUMBER_TABLE "sts3250": 2825
+# (read from the motor's Model_Number at address 3), MODEL_RESOLUTION "sts3250": 4096; Feetech's
+# STS memory table (transcribed in the STS3215 control-table overview, "STS&SCS参数表解析220328"):
+# Present Speed (58) "step/s", Present Current (69) "6.5mA", Present Voltage (62) "0.1V";
+# lerobot robot_devices/robots/manipulator.py set_so100_robot_preset: "Set P_Coefficient to
+# lower value to avoid shakiness (Default is 32)".
+FEETECH = {"STS3250": dict(model_number=2825), "STS3032": dict(model_number=None)}
+
+
+@pytest.mark.parametrize("model", sorted(FEETECH))
+def test_feetech_sts_units(model):
+    motor = MOTORS[model]
+    if FEETECH[model]["model_number"] is not None:
+        assert motor.model_number == FEETECH[model]["model_number"]
+    else:  # no published number for the STS3032: the spec must not invent one
+        assert motor.model_number == 0
+    assert motor.ticks_per_rev == 4096
+    assert motor.velocity_unit == pytest.approx(2 * math.pi / 4096, rel=1e-12)  # 1 step/s
+    assert motor.current_unit == pytest.approx(6.5e-3, rel=1e-12)
+    assert motor.default_p == 32

@@ -564,11 +564,12 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
 # ------------------------------------------------------------------------------------------------
 # BAM raw logs
 
-# BAM motor name -> (lowcostdex motor, input_volts scale when the raw register is in 0.1 V)
+# BAM motor name -> lowcostdex motor (BAM drives its MX benches with Protocol 1.0 firmware, so
+# their kp is the P1 P Gain register)
 BAM_MOTORS: dict[str, str] = {
     "xl330": "XL330-M288",
-    "mx64": "MX-64",
-    "mx106": "MX-106",
+    "mx64": "MX-64(1.0)",
+    "mx106": "MX-106(1.0)",
     "sts3250": "STS3250",
     "sts3032": "STS3032",
 }

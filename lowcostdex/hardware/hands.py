@@ -269,9 +269,13 @@ def allegro_spec() -> HandSpec:
 
 def bench_spec(motor: str = "XL330-M288", motor_id: int = 1) -> HandSpec:
     """A single servo on a pendulum test bench (as in BAM's logs); joint 0 is the middle of the
-    servo's turn (tick 2048), so the joint range maps inside position mode's 0..4095."""
+    servo's turn (tick 2048), so the joint range maps inside position mode's 0..4095; the speed
+    bound is 10 rad/s or the motor's no-load speed if slower."""
+    from lowcostdex.sim import servo
+
+    top = min(10.0, servo.motor_spec(motor).no_load_speed)
     return HandSpec("bench", motor, (JointSpec("bench", motor_id, -math.pi, math.pi,
-                                               max_velocity=10.0,
+                                               max_velocity=top,
                                                calibration=Calibration(offset=-math.pi)),))
 
 

@@ -71,7 +71,8 @@ class MotorSpec:
 
     Attributes:
       name: model name as ROBOTIS writes it, e.g. "XM430-W350".
-      model_number: value of the Model Number register (address 0).
+      model_number: value of the Model Number register (Dynamixel address 0, Feetech address 3;
+        0 where the vendor publishes none).
       voltage: nominal supply voltage [V].
       stall_torque: output stall torque at ``voltage`` [N m].
       no_load_speed: output no-load speed at ``voltage`` [rad/s].
@@ -177,27 +178,46 @@ MOTORS: dict[str, MotorSpec] = {
                   current_unit=1.0e-3, default_p=400, default_i=400,
                   error_gain=(4096 / TWO_PI) / (256.0 * 885),
                   thermal=ThermalSpec(resistance=18.0, capacitance=3.0, limit=70.0)),
-        # MX-64/MX-106 (Protocol 1/2, 12 V datasheet figures). BAM measured the P path with an
-        # oscilloscope at 15 V: duty = 0.158 per (P unit * rad), ceiling 0.9625; default P 32
-        # (07-measured-data.md section 4). Armature: Menagerie dynamixel_2r's fitted 0.005
-        # [uncertain: a prior, not a measurement of these units].
-        MotorSpec("MX-64", 311, 12.0, 6.0, 63 * TWO_PI / 60, 200.0, 0.005, default_p=32,
+        # MX-64/MX-106 with Protocol 2.0 firmware (Model Number 311/321, the tables dynamixel-sdk
+        # ships): e-Manual mx-64-2 / mx-106-2 pages, 12 V rows; current 3.36 mA per count,
+        # factory Position P 850, the P2 gain law K_P = P/128 (error_gain from pwm_max, as the
+        # X series). Armature: Menagerie dynamixel_2r's fitted 0.005 [uncertain: a prior].
+        MotorSpec("MX-64", 311, 12.0, 6.0, 63 * TWO_PI / 60, 200.0, 0.005,
+                  current_unit=3.36e-3, default_p=850),
+        MotorSpec("MX-106", 321, 12.0, 8.4, 45 * TWO_PI / 60, 225.0, 0.005,
+                  current_unit=3.36e-3, default_p=850),
+        # The same motors with Protocol 1.0 firmware (Model Number 310/320), as on BAM's MX
+        # benches: P Gain register 28 (factory 32), Present Speed 0.114 rpm per count
+        # (e-Manual mx-64 page). BAM measured the P path with an oscilloscope at 15 V: duty =
+        # 0.158 per (P unit * rad), ceiling 0.9625 (07-measured-data.md section 4). At the
+        # factory gains both firmwares give nearly the same stiffness: 32 * 0.158 = 5.06 duty/rad
+        # vs 850 * 4096 / (2 pi 128 885) = 4.89 duty/rad. The P1 Current register (68) reads
+        # 4.5 mA * (value - 2048); current_unit holds the 4.5 mA (the offset is not modelled).
+        MotorSpec("MX-64(1.0)", 310, 12.0, 6.0, 63 * TWO_PI / 60, 200.0, 0.005,
+                  current_unit=4.5e-3, velocity_unit=0.114 * TWO_PI / 60.0, default_p=32,
                   error_gain=0.158, max_duty=0.9625),
-        MotorSpec("MX-106", 321, 12.0, 8.4, 45 * TWO_PI / 60, 225.0, 0.005, default_p=32,
+        MotorSpec("MX-106(1.0)", 320, 12.0, 8.4, 45 * TWO_PI / 60, 225.0, 0.005,
+                  current_unit=4.5e-3, velocity_unit=0.114 * TWO_PI / 60.0, default_p=32,
                   error_gain=0.158, max_duty=0.9625),
-        # Feetech STS3250: 50 kg cm (4.9 N m) stall, 0.133 s/60 deg at 12 V (vendor sheet as
-        # quoted by robonine.com). No error_gain has been measured: BAM's STS3215 value 0.166
-        # and its 0.97 ceiling are used [uncertain]. Gear ratio and armature [uncertain].
-        MotorSpec("STS3250", 3250, 12.0, 4.9, (math.pi / 3) / 0.133, 345.0, 0.003,
-                  current_unit=6.5e-3, default_p=32, error_gain=0.166, max_duty=0.97,
-                  thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
-        # Feetech STS3032 (6 V class): no datasheet found. Stall torque and no-load speed come
-        # from BAM's STS3215-model fit to the STS3032 bench logs (kt 0.483 N m/A, R 3.29 Ohm at
-        # 6 V -> 0.88 N m, 12.4 rad/s; 08-bam-reference-errors.md section 4), armature likewise
-        # (0.00103). error_gain/ceiling as STS3215 [all uncertain].
-        MotorSpec("STS3032", 3032, 6.0, 0.88, 6.0 / 0.483, 345.0, 0.00103,
-                  current_unit=6.5e-3, default_p=32, error_gain=0.166, max_duty=0.97,
-                  thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
+        # Feetech STS series (memory table: position 4096 steps per turn, Present Speed in
+        # steps/s, Present Current 6.5 mA, voltage 0.1 V, temperature 1 deg C; P coefficient
+        # factory 32). STS3250: Model Number 2825 (lerobot's table, read from the motor);
+        # 50 kg cm (4.9 N m) stall, 0.133 s/60 deg at 12 V (vendor sheet as quoted by
+        # robonine.com). No error_gain has been measured: BAM's STS3215 value 0.166 and its 0.97
+        # ceiling are used [uncertain]. Gear ratio and armature [uncertain].
+        MotorSpec("STS3250", 2825, 12.0, 4.9, (math.pi / 3) / 0.133, 345.0, 0.003,
+                  current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32,
+                  error_gain=0.166, max_duty=0.97, thermal=ThermalSpec(limit=70.0),
+                  backlash=math.radians(0.5)),
+        # Feetech STS3032 (6 V class): no datasheet and no published Model Number (0 = unknown).
+        # Stall torque and no-load speed come from BAM's STS3215-model fit to the STS3032 bench
+        # logs (kt 0.483 N m/A, R 3.29 Ohm at 6 V -> 0.88 N m, 12.4 rad/s;
+        # 08-bam-reference-errors.md section 4), armature likewise (0.00103). error_gain/ceiling
+        # as STS3215 [all uncertain].
+        MotorSpec("STS3032", 0, 6.0, 0.88, 6.0 / 0.483, 345.0, 0.00103,
+                  current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32,
+                  error_gain=0.166, max_duty=0.97, thermal=ThermalSpec(limit=70.0),
+                  backlash=math.radians(0.5)),
     )
 }
 

@@ -96,6 +96,9 @@ SIGNED = frozenset({
 })
 GOALS = frozenset({Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_POSITION})
 _REG_BY_NAME = {r.value: r for r in Reg}
+# The SDK's files spell a few names differently per series (the MX(2.0) files: "BUS Watchdog");
+# items are keyed by the e-Manual name above whatever the case.
+_CANONICAL = {r.value.lower(): r.value for r in Reg}
 
 
 @dataclass(frozen=True)
@@ -192,7 +195,8 @@ def _parse_model_file(text: str) -> tuple[dict[str, Item], int]:
             continue
         cols = line.split("\t")
         if section == "control table" and cols[0].isdigit():
-            items.setdefault(cols[2], Item(cols[2], int(cols[0]), int(cols[1])))
+            name = _CANONICAL.get(cols[2].lower(), cols[2])
+            items.setdefault(name, Item(name, int(cols[0]), int(cols[1])))
         elif section == "type info" and cols[0] == "value_of_zero_radian_position":
             zero = int(cols[1])
     return dict(sorted(items.items(), key=lambda kv: kv[1].address)), zero
@@ -258,6 +262,9 @@ _MODEL_DEFAULTS: dict[str, dict[Reg, int]] = {
                    Reg.MIN_VOLTAGE_LIMIT: 35, Reg.CURRENT_LIMIT: 1750, Reg.GOAL_CURRENT: 1750,
                    Reg.VELOCITY_LIMIT: 1620, Reg.VELOCITY_I_GAIN: 400,
                    Reg.VELOCITY_P_GAIN: 40, Reg.SHUTDOWN: 53},
+    # MX(2.0) pages (mx-64-2, mx-106-2): the X430 defaults but for these rows
+    "MX-64": {Reg.CURRENT_LIMIT: 1941, Reg.GOAL_CURRENT: 1941, Reg.VELOCITY_LIMIT: 435},
+    "MX-106": {Reg.CURRENT_LIMIT: 2047, Reg.GOAL_CURRENT: 2047, Reg.VELOCITY_LIMIT: 360},
 }
 SUPPORTED_MODELS = tuple(_MODEL_DEFAULTS)
 """Models the emulator can impersonate (factory defaults known)."""
