@@ -126,6 +126,56 @@ def test_a_temperature_byte_with_its_high_bit_set_is_a_sensor_fault_not_a_temper
     assert np.isnan(edge[2]) and np.isnan(edge[3])
 
 
+# More of the same trace (Meta's driver docstring): a pose frame of the index finger, the host's
+# SET_TORQUE answer, and what the driver sends for SYSTEM_ON (no data) and SET_PERIOD.
+TRACE_POSE = (0x080, bytes([0xCA, 0xFD, 0xBD, 0xFE, 0x90, 0xFF, 0xCE, 0xFF]))
+TRACE_TORQUE = (0x180, bytes([0x02, 0x00, 0xCB, 0x00, 0x42, 0x00, 0x25, 0x00]))
+
+
+def test_pose_and_torque_frames_of_the_trace_round_trip_through_si_units():
+    can_id, data = TRACE_POSE
+    raw = proto.unpack4(data)
+    assert raw == (-566, -323, -112, -50)  # int16 little endian, typed from the bytes
+    q = proto.raw_to_radians(np.array(raw))
+    assert q[0] == pytest.approx(-566 * 333.3 / 65536 * np.pi / 180)
+    counts = proto.radians_to_raw(q)
+    assert counts.dtype.kind == "i" and tuple(counts) == raw
+    msg = proto.pose_message(0, q)  # default device id 0: the traced hand's 0x080
+    assert (msg.arbitration_id, bytes(msg.data), msg.is_extended_id) == (can_id, data, False)
+    can_id, data = TRACE_TORQUE
+    pwm = np.array(proto.unpack4(data))
+    assert tuple(pwm) == (2, 203, 66, 37)
+    tau = proto.pwm_to_torque(pwm)  # v4: 1200 PWM per N m
+    np.testing.assert_allclose(tau, np.array([2, 203, 66, 37]) / 1200.0, rtol=1e-15)
+    back = proto.torque_to_pwm(np.concatenate([tau, np.zeros(12)]))
+    assert back.dtype.kind == "i" and tuple(back[:4]) == (2, 203, 66, 37)
+    msg = proto.torque_message(0, back[:4])
+    assert (msg.arbitration_id, bytes(msg.data)) == (can_id, data)
+
+
+def test_commands_without_data_and_the_period_payloads_of_the_reference_drivers():
+    # Meta's driver: set_motor sends SYSTEM_ON/OFF with data=None, standard 11-bit ids
+    on = proto.message(proto.SYSTEM_ON)
+    assert (on.arbitration_id, bytes(on.data), on.dlc, on.is_extended_id) == (0x100, b"", 0,
+                                                                               False)
+    # Meta's set_period packs "HHHH" (position, imu, temperature, status): 8 bytes
+    assert proto.parse_period(bytes([3, 0, 0, 0, 0, 0, 0, 0])) == (3, 0, 0)
+    # Wonik's data_period_t: three uint16 (a short payload reads the missing periods as 0)
+    assert proto.parse_period(bytes([0xFF, 0xFF, 0x2C, 0x01])) == (65535, 300, 0)
+    assert bytes(proto.period_message(3, 0, 500).data) == bytes([3, 0, 0, 0, 0xF4, 0x01])
+    with pytest.raises(ValueError, match="expected 8 data bytes, got 7"):
+        proto.unpack4(bytes(7))
+
+
+def test_codec_edges_of_the_vendor_field_types():
+    # TEMPERATURE bytes are unsigned deg C: below 0.5 deg C -> 0, above 255 -> 255
+    assert proto.pack_temperatures([-5.0, 0.4, 0.6, 300.0]) == bytes([0, 0, 1, 255])
+    # HAND_INFO fields are uint16 / uint8 (Wonik's data_info_t): the whole range packs
+    info = proto.HandInfo(0xFFFF, 0x8000, True, 200, 0x9F)
+    assert info.pack() == bytes([0xFF, 0xFF, 0x00, 0x80, 0x01, 200, 0x9F])
+    assert proto.HandInfo.unpack(info.pack()) == info
+
+
 def test_hand_info_of_a_real_v4_trace():
     can_id, data = TRACE_INFO
     assert proto.split_id(can_id) == (0x80, 0)

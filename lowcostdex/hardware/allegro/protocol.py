@@ -10,7 +10,7 @@ Payloads (little endian):
   FINGER_POSE (0x20 + finger): 4 x int16 joint positions, ``deg = raw * 333.3 / 65536``.
   SET_TORQUE (0x60 + finger): 4 x int16 PWM, ``pwm = tau * 1200`` [tau in N m] on a v4 hand,
     ``tau * 800`` on a v3 hand (``torque_scale``), clamped.
-  SET_PERIOD (0x81): 3 x int16 periods [ms] for position, IMU, temperature (0 = off).
+  SET_PERIOD (0x81): 3 x uint16 periods [ms] for position, IMU, temperature (0 = off).
   HAND_INFO (0x80, RTR): hw version u16, fw version u16, side u8 (0 right / 1 left),
     palm temperature u8 [deg C], status u8. The hardware version's high byte is the hand's major
     version (4 on a v4 hand: the v4 ROS driver switches its torque constant on it, 1200 for 4,
@@ -192,14 +192,15 @@ def torque_message(finger: int, pwm: np.ndarray, device_id: int = 0) -> can.Mess
 def period_message(position_ms: int, imu_ms: int = 0, temperature_ms: int = 0,
                    device_id: int = 0) -> can.Message:
     """SET_PERIOD frame: streaming periods [ms] (0 stops a stream)."""
-    data = struct.pack("<3h", position_ms, imu_ms, temperature_ms)
+    data = struct.pack("<3H", position_ms, imu_ms, temperature_ms)
     return message(SET_PERIOD, data, device_id)
 
 
 def parse_period(data: bytes | bytearray) -> tuple[int, int, int]:
-    """(position, IMU, temperature) periods [ms] of a SET_PERIOD payload (missing = 0)."""
+    """(position, IMU, temperature) periods [ms] of a SET_PERIOD payload (missing = 0; unsigned
+    16-bit like Wonik's ``data_period_t``; Meta's driver sends a fourth, status period)."""
     raw = bytes(data) + b"\x00" * (6 - len(data))
-    return struct.unpack("<3h", raw[:6])
+    return struct.unpack("<3H", raw[:6])
 
 
 @dataclass(frozen=True)
