@@ -36,7 +36,7 @@ and quaternion variants (observation and reward) are compared with 95 % t-interv
 
 Demonstrations: the scripted teachers (``ValveTurnTeacher``, ``AllegroValveTeacher``,
 ``FlipBlockTeacher``) run in simulation with uniform executed-action noise and clean labels
-(``lowcostdex.algos.demos.teacher_episodes``), written as the demo dataset in ``<out>/<task>/``.
+(``lowcostdex.demonstrations.dataset.teacher_episodes``), written as the demo dataset in ``<out>/<task>/``.
 Sampling uses the vector sampler (``mujoco.batch``; trajectories identical to the serial
 sampler's), so wall-clock is what NPG/DAPG take with batched simulation on this machine.
 """
@@ -44,7 +44,6 @@ sampler's), so wall-clock is what NPG/DAPG take with batched simulation on this 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import importlib
 import json
@@ -63,8 +62,8 @@ import numpy as np
 import lowcostdex  # noqa: F401  (registers the env ids)
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.configs import PPOConfig, TrainConfig
-from lowcostdex.algos.demos import save_demos, teacher_episodes
-from lowcostdex.demo_file import DatasetInfo
+from lowcostdex.demonstrations.dataset import save_demos, teacher_episodes
+from lowcostdex.demonstrations.file import DatasetInfo
 from lowcostdex.stats import wilson_interval
 
 
@@ -85,7 +84,7 @@ TASKS = {
 }
 ALIASES = {"flip": ["flip-keypoints", "flip-quaternion"]}
 ALGOS = ("npg", "dapg", "ppo")
-TEACHER_MODULES = ("lowcostdex.sim.scripted", "lowcostdex.sim.flip_teacher")
+TEACHER_MODULES = ("lowcostdex.demonstrations.teachers.valve", "lowcostdex.demonstrations.teachers.flip")
 
 
 class ScriptedTeacher:

@@ -31,7 +31,7 @@ from lowcostdex.algos import experiment
 from lowcostdex.algos.configs import BCConfig
 from lowcostdex.algos.train import TrainConfig, train
 from lowcostdex.cli import main as lowcostdex
-from lowcostdex.demo_file import read_episodes
+from lowcostdex.demonstrations.file import read_episodes
 from lowcostdex.options import add_robot_options, add_run_options, robot_selection
 
 

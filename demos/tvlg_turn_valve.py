@@ -13,7 +13,7 @@ Demonstration (``--demo``):
            stops 0.31 rad short of the goal and never succeeds. TVLG fixes it (bench/RESULTS.md).
   exact    the teacher recorded from the fixed start: its replay succeeds noise-free, so the run
            uses exploration noise 0.1, under which the replay mostly fails.
-  --demos PATH   your own demonstration file (the HDF5 dataset of lowcostdex.demo_file).
+  --demos PATH   your own demonstration file (the HDF5 dataset of lowcostdex.demonstrations.file).
 
 What does not work (measured in bench/RESULTS.md): starting without a demonstration (the 180 deg
 turn needs a two-stroke gait), and a demonstration that overshoots (the learned models get the

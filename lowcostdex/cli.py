@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.hardware.cli",
     "lowcostdex.hardware.robot.cli",
     "lowcostdex.transfer.cli",
+    "lowcostdex.demonstrations.cli",
 )
 # the exit codes live in the core (lowcostdex.errors) so that any layer can name them
 from lowcostdex.errors import INTERRUPTED, USER_ERROR  # noqa: E402

@@ -62,7 +62,7 @@ def expert_action(obs: np.ndarray) -> np.ndarray:
 
 def demo_info():
     """``DatasetInfo`` of point-mass demonstration files (it is not a hand env)."""
-    from lowcostdex.demo_file import DatasetInfo
+    from lowcostdex.demonstrations.file import DatasetInfo
 
     return DatasetInfo(env_id="test/PointMass", task="PointMass", hand="{}",
                        source="scripted_teacher", control_period=0.1, obs_dim=3, act_dim=1,

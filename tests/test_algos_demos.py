@@ -35,7 +35,7 @@ def test_flip_keypoints_vs_quaternion_demo(tmp_path, monkeypatch):
 
 
 def test_dapg_kinesthetic_valve_demo(tmp_path, monkeypatch, capsys):
-    import lowcostdex.hardware.demos  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.demonstrations.kinesthetic  # noqa: F401  (an import error fails, never skips)
     args = [
         "--demos",
         "2",

@@ -1,5 +1,5 @@
 """Teacher recordings in simulation, written to and read from the one demonstration format
-(the HDF5 dataset of ``lowcostdex.demo_file``) as BC/DAPG inputs."""
+(the HDF5 dataset of ``lowcostdex.demonstrations.file``) as BC/DAPG inputs."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 from pointmass import demo_info, expert_action, make_pointmass
 
 import lowcostdex  # noqa: F401  (registers the env ids)
-from lowcostdex.algos.demos import Demos, load_demos, save_demos, teacher_episodes
-from lowcostdex.demo_file import DatasetInfo, read_episodes, read_info
+from lowcostdex.demonstrations.dataset import Demos, load_demos, save_demos, teacher_episodes
+from lowcostdex.demonstrations.file import DatasetInfo, read_episodes, read_info
 from lowcostdex.errors import ConfigError
 
 
@@ -100,9 +100,9 @@ def test_noisy_execution_keeps_clean_teacher_labels():
 
 
 def test_valve_teacher_episode_records_the_mujoco_state_it_visited(tmp_path):
-    import lowcostdex.sim.scripted  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
+    from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
     from lowcostdex.sim.envs import goal_to_action
-    from lowcostdex.sim.scripted import ValveTurnTeacher
 
     class Teacher:
         def __init__(self):

@@ -1,6 +1,6 @@
 """Kinesthetic demonstrations: (observation, action) conversion, the virtual teacher recording on
 the emulated D'Claw through the same recorder path a person uses, the HDF5 round trip (also
-through ``lowcostdex.algos.demos.load_demos``), appending, and crash safety (a SIGKILLed recorder
+through ``lowcostdex.demonstrations.dataset.load_demos``), appending, and crash safety (a SIGKILLed recorder
 leaves a readable file holding every finished episode)."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import h5py
 import numpy as np
 import pytest
 
-from lowcostdex.algos.demos import load_demos
-from lowcostdex.demo_file import (
+from lowcostdex.demonstrations.dataset import load_demos
+from lowcostdex.demonstrations.file import (
     FORMAT,
     DatasetInfo,
     DemoWriter,
@@ -26,8 +26,7 @@ from lowcostdex.demo_file import (
     read_info,
     read_label_model,
 )
-from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.demos import (
+from lowcostdex.demonstrations.kinesthetic import (
     KinestheticRecorder,
     ServoResponse,
     VirtualTeacher,
@@ -35,6 +34,7 @@ from lowcostdex.hardware.demos import (
     identify_servo_response,
     servo_goal_labels,
 )
+from lowcostdex.errors import ConfigError
 from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.registry import register_envs
 
@@ -162,7 +162,7 @@ RECORDER = textwrap.dedent("""
     import sys
     import gymnasium as gym
     from lowcostdex.sim.registry import register_envs
-    from lowcostdex.hardware.demos import KinestheticRecorder, VirtualTeacher
+    from lowcostdex.demonstrations.kinesthetic import KinestheticRecorder, VirtualTeacher
     register_envs()
     env = gym.make("lowcostdex/DClawTurnValve-v0", backend="emulated")
     teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task)

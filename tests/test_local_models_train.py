@@ -90,9 +90,9 @@ def test_object_target_turns_half_turns_positively_or_like_the_reference() -> No
 
 
 def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
-    import lowcostdex.algos.demos  # noqa: F401  (an import error fails, never skips)
-    from lowcostdex.algos.demos import save_demos
-    from lowcostdex.demo_file import DatasetInfo, Episode
+    import lowcostdex.demonstrations.dataset  # noqa: F401  (an import error fails, never skips)
+    from lowcostdex.demonstrations.dataset import save_demos
+    from lowcostdex.demonstrations.file import DatasetInfo, Episode
 
     env, start, hold = valve
     rng = np.random.default_rng(0)
@@ -115,9 +115,9 @@ def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
 
 
 def test_teacher_init_replays_a_successful_teacher_episode(valve, tmp_path) -> None:
-    import lowcostdex.sim.scripted  # noqa: F401  (an import error fails, never skips)
-    from lowcostdex.algos.demos import load_demos
+    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
     from lowcostdex.algos.local_models.train import teacher_episodes
+    from lowcostdex.demonstrations.dataset import load_demos
 
     env, start, hold = valve
     cfg = _small(init="teacher", init_noise=0.05)
@@ -235,7 +235,7 @@ def test_solved_needs_the_noise_free_episode_and_enough_noisy_successes() -> Non
 
 
 def test_tracking_run_logs_noisy_evaluations_and_resumes_identically(tmp_path) -> None:
-    import lowcostdex.sim.scripted  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
     cfg = _small(
         n_iter=2, init="teacher", init_noise=0.05, cost=TaskCostConfig.tracking(),
         eval_noisy_episodes=2,
@@ -256,7 +256,7 @@ def test_tracking_run_logs_noisy_evaluations_and_resumes_identically(tmp_path) -
 
 def test_resume_uses_the_demonstration_the_run_started_from(tmp_path, monkeypatch) -> None:
     """Failed teacher episodes and the un-executed last action stay in a resumed run's cost."""
-    import lowcostdex.sim.scripted  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
     from lowcostdex.algos.local_models import train as tvlg_train
 
     teach = tvlg_train.teacher_episodes
@@ -311,7 +311,7 @@ def test_tvlg_demo_script_runs(tmp_path, monkeypatch, capsys) -> None:
     import sys
     from pathlib import Path
 
-    import lowcostdex.sim.scripted  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
 
     path = Path(__file__).resolve().parents[1] / "demos" / "tvlg_turn_valve.py"
     spec = importlib.util.spec_from_file_location("tvlg_turn_valve", path)

@@ -7,7 +7,12 @@ import json
 import numpy as np
 
 from lowcostdex.cli import main
-from lowcostdex.demo_file import read_demo_pairs, read_episodes, read_info, read_label_model
+from lowcostdex.demonstrations.file import (
+    read_demo_pairs,
+    read_episodes,
+    read_info,
+    read_label_model,
+)
 
 
 def test_reset_test_reports_success_rate_and_times(tmp_path, capsys):

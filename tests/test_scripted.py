@@ -1,6 +1,6 @@
 """Physics sanity: the released valve turns freely; the scripted D'Claw teacher turns it to the
-goal within the 40-step episode (``lowcostdex.sim.scripted``); the flip block is reachable and
-one finger rolls it (``lowcostdex.sim.flip_teacher``); the Allegro teacher turns its valve a full turn."""
+goal within the 40-step episode (``lowcostdex.demonstrations.teachers.valve``); the flip block is reachable and
+one finger rolls it (``lowcostdex.demonstrations.teachers.flip``); the Allegro teacher turns its valve a full turn."""
 
 from __future__ import annotations
 
@@ -10,17 +10,13 @@ import numpy as np
 import pytest
 
 import lowcostdex  # noqa: F401  (registers the ids)
+from lowcostdex.demonstrations.teachers.allegro import AllegroValveTeacher
+from lowcostdex.demonstrations.teachers.flip import FlipBlockTeacher
+from lowcostdex.demonstrations.teachers.valve import ScrewTrackTeacher, ValveTurnTeacher
 from lowcostdex.sim.envs import goal_to_action
-from lowcostdex.sim.flip_teacher import FlipBlockTeacher
+from lowcostdex.sim.kinematics import AllegroFingerGeometry, FingerGeometry
 from lowcostdex.sim.models.allegro import build_allegro
 from lowcostdex.sim.models.dclaw import build_dclaw
-from lowcostdex.sim.scripted import (
-    AllegroFingerGeometry,
-    AllegroValveTeacher,
-    FingerGeometry,
-    ScrewTrackTeacher,
-    ValveTurnTeacher,
-)
 
 
 def run_teacher(env, teacher, seed):
@@ -186,3 +182,20 @@ def test_allegro_teacher_turns_the_valve_a_full_turn(env_id, seed):
     assert turned > 1.5 * np.pi  # one way round, not the short way back
     assert sum(i["success"] for i in infos) >= 10  # with time to spare
     env.close()
+
+
+def test_every_task_table_names_a_teacher_that_exists():
+    """record-demos and the main job pick teachers by name: a renamed class must fail here,
+    not on a user's first recording."""
+    from lowcostdex.demonstrations.cli import TASKS
+    from lowcostdex.demonstrations.teachers import teacher_class
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.main_job.setup import TASKS as JOB_TASKS
+
+    names = {solver for tasks in TASKS.values() for _, solver in tasks.values()}
+    names |= {setup.teacher for setup in JOB_TASKS.values()}
+    assert "ValveTurnTeacher" in names and "FlipBlockTeacher" in names
+    for name in names:
+        assert teacher_class(name).__name__ == name
+    with pytest.raises(ConfigError, match="valid: .*FlipBlockTeacher.*ValveTurnTeacher"):
+        teacher_class("ValveTeacher")

@@ -19,11 +19,11 @@ from pointmass import demo_info, expert_action, make_pointmass
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.bc import BCConfig
 from lowcostdex.algos.dapg import DAPGConfig
-from lowcostdex.algos.demos import save_demos, teacher_episodes
 from lowcostdex.algos.npg import NPGConfig
 from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.samplers import make_jobs, rollout
 from lowcostdex.algos.train import TrainConfig, load_policy, train
+from lowcostdex.demonstrations.dataset import save_demos, teacher_episodes
 from lowcostdex.errors import ConfigError
 
 TESTS = Path(__file__).parent

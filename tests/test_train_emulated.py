@@ -8,9 +8,9 @@ import numpy as np
 
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.dapg import DAPGConfig
-from lowcostdex.algos.demos import load_demos
 from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.train import TrainConfig, train
+from lowcostdex.demonstrations.dataset import load_demos
 from lowcostdex.hardware.robot import backend  # noqa: F401  (an import error fails, never skips)
 
 ENV_ID = "lowcostdex/DClawTurnValve-v0"
@@ -37,7 +37,7 @@ def test_npg_on_the_emulated_robot_counts_resets_in_robot_time(tmp_path):
 
 
 def test_dapg_with_virtual_teacher_demos_on_the_emulated_robot(tmp_path):
-    from lowcostdex.hardware.demos import KinestheticRecorder, VirtualTeacher
+    from lowcostdex.demonstrations.kinesthetic import KinestheticRecorder, VirtualTeacher
 
     env = gym.make(ENV_ID, backend="emulated")
     teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task)

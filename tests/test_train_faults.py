@@ -24,10 +24,10 @@ import pytest
 from pointmass import demo_info, expert_action, make_pointmass
 
 from lowcostdex.algos import experiment as ex
-from lowcostdex.algos.demos import save_demos, teacher_episodes
 from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.train import TrainConfig, train
 from lowcostdex.cli import INTERRUPTED, USER_ERROR, main  # exit codes 130 and 2
+from lowcostdex.demonstrations.dataset import save_demos, teacher_episodes
 
 ENV = "lowcostdex_test/PointMass-v0"
 TINY = ["--n-iter", "2", "--n-traj", "2", "--eval-every", "1", "--eval-episodes", "1",

@@ -238,7 +238,7 @@ class TrainConfig:
       eval_every: evaluation period [iterations]; 0 evaluates only after the last iteration.
       eval_episodes: deterministic evaluation episodes per evaluation.
       checkpoint_every: checkpoint period [iterations] (the last iteration always saves).
-      demos: demonstration dataset (:mod:`lowcostdex.demo_file`; its successful episodes are
+      demos: demonstration dataset (:mod:`lowcostdex.demonstrations.file`; its successful episodes are
         used), required for DAPG; for NPG, ``bc_init`` uses it.
       n_demos: use only the first n demo episodes (None: all).
       bc_init: behaviour-clone before RL (always on for DAPG; NPG + BC is "BCRL").

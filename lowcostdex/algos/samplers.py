@@ -28,6 +28,7 @@ import numpy as np
 
 from lowcostdex.algos.snapshot import PolicySnapshot
 from lowcostdex.errors import ConfigError, LowcostdexError, check_choice
+from lowcostdex.sim.envs.hand_env import control_period
 
 TRAIN_STREAM = 0
 """Seed stream of training trajectories."""
@@ -134,16 +135,6 @@ class Trajectory:
     @property
     def total_reward(self) -> float:
         return float(self.rewards.sum())
-
-
-def control_period(env: gym.Env) -> float:
-    """Seconds per env step: ``control_period`` or ``dt`` of the unwrapped env, else 0."""
-    base = env.unwrapped
-    for name in ("control_period", "dt"):
-        value = getattr(base, name, None)
-        if isinstance(value, (int, float)) and value > 0:
-            return float(value)
-    return 0.0
 
 
 def rollout(

@@ -43,7 +43,6 @@ from lowcostdex.algos.baseline import MLPBaseline
 from lowcostdex.algos.bc import behavior_clone
 from lowcostdex.algos.configs import TrainConfig
 from lowcostdex.algos.dapg import dapg_update
-from lowcostdex.algos.demos import Demos, check_demos, load_demos
 from lowcostdex.algos.npg import npg_update
 from lowcostdex.algos.policy import GaussianMLPPolicy
 from lowcostdex.algos.returns import discounted_returns, gae
@@ -61,6 +60,7 @@ from lowcostdex.algos.samplers import (
     VectorSampler,
     make_jobs,
 )
+from lowcostdex.demonstrations.dataset import Demos, check_demos, load_demos
 from lowcostdex.errors import ConfigError, LowcostdexError
 
 ROBOT_COUNTERS = (

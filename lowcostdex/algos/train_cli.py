@@ -50,7 +50,7 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
     p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
     p.add_argument(
         "--demos", default=None, required=algo == "dapg",
-        help="demonstration dataset (HDF5, lowcostdex.demo_file); its successful episodes are used",
+        help="demonstration dataset (HDF5, lowcostdex.demonstrations.file); its successful episodes are used",
     )
     p.add_argument("--n-demos", type=int, default=None, help="use the first N demo episodes")
     p.add_argument("--seed", type=int, default=d.seed)

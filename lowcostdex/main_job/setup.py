@@ -19,7 +19,7 @@ class TaskSetup:
       did: what a successful episode did ("turned the valve").
       title: plot titles.
       playbacks: noisy playbacks of each successful demonstration (see
-        ``lowcostdex.hardware.demos``); 0 for the flip, whose open-loop playbacks fail (the block
+        ``lowcostdex.demonstrations.kinesthetic``); 0 for the flip, whose open-loop playbacks fail (the block
         outcome is too sensitive to the finger motion: bench/RESULTS.md).
       demo_tries: the demos stage records until ``Budget.demos`` demonstrations succeeded, at
         most this many times as many episodes (a person also throws failed ones away).

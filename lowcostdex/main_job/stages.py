@@ -70,26 +70,25 @@ def stage_bus(ctx: Context) -> dict[str, Any]:
 def stage_demos(ctx: Context) -> dict[str, Any]:
     """Record kinesthetic demonstrations (the virtual teacher on the emulated robot): identify
     the servos' response, record, label each step with the servo goal that reproduces it, and
-    play every successful demonstration back with noisy goals (``lowcostdex.hardware.demos``)."""
+    play every successful demonstration back with noisy goals (``lowcostdex.demonstrations.kinesthetic``)."""
     import gymnasium as gym
     import numpy as np
 
     import lowcostdex  # noqa: F401
-    from lowcostdex.hardware.demos import (
+    from lowcostdex.demonstrations.kinesthetic import (
         KinestheticRecorder,
         VirtualTeacher,
         identify_servo_response,
         virtual_teacher_config,
     )
-    from lowcostdex.sim import flip_teacher, scripted
+    from lowcostdex.demonstrations.teachers import teacher_class
 
     setup = ctx.setup
     path = ctx.out / "demos.h5"
     env = gym.make(setup.env_id, **ctx.env_kwargs())
     teacher = None
     if ctx.emulated:
-        solver = (getattr(scripted, setup.teacher, None)
-                  or getattr(flip_teacher, setup.teacher))()
+        solver = teacher_class(setup.teacher)()
         teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task, solver=solver,
                                  config=virtual_teacher_config(solver),
                                  rng=np.random.default_rng(ctx.seed))
@@ -243,7 +242,7 @@ def _flip_rollout(ctx: Context) -> dict[str, Any]:
 
     import lowcostdex  # noqa: F401
     from lowcostdex.algos.train import load_policy
-    from lowcostdex.demo_file import read_episodes
+    from lowcostdex.demonstrations.file import read_episodes
 
     snap = load_policy(ctx.out / "train_dapg").snapshot()
     env = gym.make(ctx.setup.env_id, **ctx.env_kwargs())

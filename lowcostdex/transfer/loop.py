@@ -299,14 +299,14 @@ def record_demos(out: Path, task: Task, size: Size, seed: int) -> dict[str, Any]
     import gymnasium as gym
 
     import lowcostdex.sim  # noqa: F401  (registers the ids)
-    from lowcostdex.hardware.demos import (
+    from lowcostdex.demonstrations.kinesthetic import (
         KinestheticRecorder,
         VirtualTeacher,
         identify_servo_response,
         virtual_teacher_config,
     )
     from lowcostdex.outdir import archive
-    from lowcostdex.sim.scripted import ValveTurnTeacher
+    from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
 
     path = out / "demos.h5"
     archive(out, [path.name])  # a recording cut short is redone whole (the old one kept)

@@ -168,11 +168,11 @@ class TVLGTrainConfig:
       init: initial controller, one of INITS: "pd" holds the start pose (plus ``pd_gain``
         feedback) with exploration noise; "demos" replays the mean action of the demonstrations
         in ``demos`` (the DAPG demo format) with the same noise; "teacher" first runs the
-        scripted teacher (``lowcostdex.sim.scripted``) ``teacher_episodes`` times from the fixed
+        scripted teacher (``lowcostdex.demonstrations.teachers.valve``) ``teacher_episodes`` times from the fixed
         start (saved as ``teacher_demo.h5``) and replays its mean action like "demos".
       teacher_episodes: teacher episodes for init "teacher" (logged as ``teacher_episodes``,
         counted in robot time, not in ``rollouts``).
-      demos: demonstration dataset (HDF5, :mod:`lowcostdex.demo_file`).
+      demos: demonstration dataset (HDF5, :mod:`lowcostdex.demonstrations.file`).
       init_noise: std of the initial controller's exploration noise [normalised action].
       pd_gain: position feedback of the initial controller [normalised action / rad].
       smooth_noise: Gaussian smoothing of the exploration noise over time [steps]; 0 = white.
@@ -532,7 +532,7 @@ def initial_controller(
 def _demo_actions(path: str | None, T: int) -> Array:
     """Actions (M, T, dU) of a demo file's episodes, nan-padded; a step no episode reaches
     repeats the last action of the longest one."""
-    from lowcostdex.algos.demos import load_demos
+    from lowcostdex.demonstrations.dataset import load_demos
 
     demos = load_demos(path)
     starts = np.concatenate([[0], demos.episode_ends[:-1]])
@@ -578,18 +578,18 @@ def teacher_episodes(
     Gaussian noise of std ``noise`` may be added to every teacher action (reset seed and noise
     from (seed, stream 2, 0, i)), e.g. to identify the teacher's feedback with
     :func:`.policy_fit.fit_policy`. With ``demo_path`` the episodes are also saved as a
-    demonstration dataset (:mod:`lowcostdex.demo_file`, the applied actions as labels).
+    demonstration dataset (:mod:`lowcostdex.demonstrations.file`, the applied actions as labels).
 
     Raises:
       ConfigError: if the task has no scripted teacher.
     """
     try:
-        from lowcostdex.sim.scripted import ValveTurnTeacher
+        from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
     except ImportError as exc:
         raise ConfigError(
-            "init 'teacher' needs lowcostdex.sim.scripted (the valve teacher)"
+            "init 'teacher' needs lowcostdex.demonstrations.teachers.valve (the valve teacher)"
         ) from exc
-    from lowcostdex.algos.demos import EpisodeRecorder
+    from lowcostdex.demonstrations.dataset import EpisodeRecorder
     from lowcostdex.sim.envs import goal_to_action
 
     base = env.unwrapped
@@ -621,8 +621,8 @@ def teacher_episodes(
         seconds += (T - 1) * control_period(env)
         demos.append(recorder.episode())
     if demo_path is not None:
-        from lowcostdex.algos.demos import save_demos
-        from lowcostdex.demo_file import DatasetInfo
+        from lowcostdex.demonstrations.dataset import save_demos
+        from lowcostdex.demonstrations.file import DatasetInfo
 
         save_demos(demo_path, demos, DatasetInfo.from_env(env, "scripted_teacher"))
     return TeacherEpisodes(X, U, successes, seconds)

@@ -124,7 +124,7 @@ class EmulatedAllegro:
     def add_step_hook(self, hook) -> None:
         """Call ``hook(emulator)`` at every cycle, before the motor torques are added: a hook
         writes external joint torques into ``plant.data.qfrc_applied`` (e.g. the virtual
-        teacher's hand, ``lowcostdex.hardware.demos.VirtualTeacher``)."""
+        teacher's hand, ``lowcostdex.demonstrations.kinesthetic.VirtualTeacher``)."""
         self.step_hooks.append(hook)
 
     @property

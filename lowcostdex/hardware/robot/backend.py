@@ -261,7 +261,7 @@ class EmulatedBackend(RobotBackend):
       reset_config: auto-reset settings.
       flip_config, reorient: flip-task block reset (see ``dclaw_reset``); ``reorient="teacher"``
         (the default) is the flip teacher through the servos
-        (``lowcostdex.sim.flip_teacher.TeacherReorient``), None none (a block with the wrong
+        (``lowcostdex.demonstrations.teachers.flip.TeacherReorient``), None none (a block with the wrong
         face up then fails the reset).
       virtual_person: flip task only: when the block reset fails (the teacher did not turn the
         block back, or the block lies beyond the squeezes' reach), the emulator puts the block
@@ -307,7 +307,7 @@ class EmulatedBackend(RobotBackend):
         if reorient == "teacher":
             reorient = None
             if tracker is not None:
-                from lowcostdex.sim.flip_teacher import TeacherReorient
+                from lowcostdex.demonstrations.teachers.flip import TeacherReorient
 
                 reorient = TeacherReorient(task)
         super().__init__(model, task, robot,

@@ -672,7 +672,7 @@ class FlipBlockReset:
                  config: FlipResetConfig = FlipResetConfig(),
                  reset_config: ResetConfig = ResetConfig(), reorient: Reorient | None = None):
         from lowcostdex.hardware.hands import DCLAW_FINGERS
-        from lowcostdex.sim.scripted import FingerGeometry
+        from lowcostdex.sim.kinematics import FingerGeometry
 
         self.robot, self.tracker, self.config, self.reorient = robot, tracker, config, reorient
         self.fingers = DClawReset(robot, reset_config, valve=None)

@@ -208,3 +208,13 @@ def make_hand_env(task: Task, backend: str = "sim",
     elif randomize:
         dr = DomainRandomization(tuple(randomize), task.hand.joint_names)
     return HandEnv(task, backend=backend, randomization=dr, **kwargs)
+
+
+def control_period(env: gym.Env) -> float:
+    """Seconds per env step: ``control_period`` or ``dt`` of the unwrapped env, else 0."""
+    base = env.unwrapped
+    for name in ("control_period", "dt"):
+        value = getattr(base, name, None)
+        if isinstance(value, (int, float)) and value > 0:
+            return float(value)
+    return 0.0

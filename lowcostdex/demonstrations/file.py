@@ -1,9 +1,9 @@
 """The demonstration dataset: HDF5, one group per episode, appended episode by episode.
 
 This is lowcostdex's only demonstration format. Every source writes it: kinesthetic recordings on
-a robot and the emulator's virtual teacher (``lowcostdex.hardware.demos``), scripted teachers and
-trained policies run in simulation (``lowcostdex.algos.demos.teacher_episodes`` and
-``save_demos``); BC and DAPG read it with ``lowcostdex.algos.demos.load_demos``. It lives at the
+a robot and the emulator's virtual teacher (``lowcostdex.demonstrations.kinesthetic``), scripted teachers and
+trained policies run in simulation (``lowcostdex.demonstrations.dataset.teacher_episodes`` and
+``save_demos``); BC and DAPG read it with ``lowcostdex.demonstrations.dataset.load_demos``. It lives at the
 package top level because the hardware and the learning layers both use it.
 
 Layout (Minari's per-episode layout, plus the raw robot readings), no pickle anywhere::
@@ -28,8 +28,8 @@ Layout (Minari's per-episode layout, plus the raw robot readings), no pickle any
 
 ``source`` (one of ``SOURCES``) says who chose the actions: ``kinesthetic`` (a person moved the
 fingers), ``virtual_teacher`` (the emulator's scripted hand did), ``playback`` (the robot's own
-servos replayed a recorded demonstration's goals, ``lowcostdex.hardware.demos``),
-``scripted_teacher`` (a scripted controller's action, e.g. ``lowcostdex.sim.scripted``),
+servos replayed a recorded demonstration's goals, ``lowcostdex.demonstrations.kinesthetic``),
+``scripted_teacher`` (a scripted controller's action, e.g. ``lowcostdex.demonstrations.teachers.valve``),
 ``policy`` (a trained policy's mean action). The file's ``source`` is the recording's; an
 episode's own ``source`` attribute may differ (the playbacks in a kinesthetic recording).
 
@@ -42,7 +42,7 @@ episode's own ``source`` attribute may differ (the playbacks in a kinesthetic re
   a_t = goal_to_action(q_{t+1}) (format version 1's only kinesthetic label).
 - ``servo_goal``: a kinesthetic recording labelled with the goals a position servo would need
   to produce the recorded motion, from the measured positions and velocities through the servo
-  response model in the episode's attribute ``label_model`` (``lowcostdex.hardware.demos.ServoResponse``;
+  response model in the episode's attribute ``label_model`` (``lowcostdex.demonstrations.kinesthetic.ServoResponse``;
   per episode: sessions appended to one file may each identify their own).
 
 Versions: 2 added the per-episode ``label`` and ``label_model`` attributes and the
@@ -271,8 +271,8 @@ class DemoWriter:
         return k
 
 
-_EXPECTED = (f"an HDF5 demonstration dataset (format {FORMAT!r}, lowcostdex.demo_file), as "
-             "written by `lowcostdex record-demos` or lowcostdex.algos.demos.save_demos")
+_EXPECTED = (f"an HDF5 demonstration dataset (format {FORMAT!r}, lowcostdex.demonstrations.file), as "
+             "written by `lowcostdex record-demos` or lowcostdex.demonstrations.dataset.save_demos")
 
 
 def _check_format(f: h5py.File, path: Path) -> None:

@@ -1,6 +1,6 @@
 """Demonstrations for BC and DAPG: reading the demo dataset, recording teachers in simulation.
 
-Every demonstration file is the HDF5 dataset of :mod:`lowcostdex.demo_file` (one group per
+Every demonstration file is the HDF5 dataset of :mod:`lowcostdex.demonstrations.file` (one group per
 episode with observations, actions, rewards, qpos/qvel, times, success flags and the goal),
 whoever produced it: a person on the robot or the emulator's virtual teacher
 (``lowcostdex record-demos``), or a teacher run here in simulation.
@@ -8,7 +8,7 @@ whoever produced it: a person on the robot or the emulator's virtual teacher
 - :func:`load_demos` reads a file's successful episodes as :class:`Demos`, the (observation,
   action) pairs BC and DAPG train on (the final observation of each episode is dropped).
 - :func:`teacher_episodes` runs a scripted or learned teacher (a function of the env returning
-  the next action) in an env and returns full :class:`~lowcostdex.demo_file.Episode` s;
+  the next action) in an env and returns full :class:`~lowcostdex.demonstrations.file.Episode` s;
   :func:`save_demos` writes them as a new dataset. :class:`EpisodeRecorder` is the step-by-step
   piece underneath, for trainers with their own rollout loop.
 """
@@ -24,8 +24,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from lowcostdex.algos.samplers import control_period
-from lowcostdex.demo_file import (
+from lowcostdex.demonstrations.file import (
     DatasetInfo,
     DemoWriter,
     Episode,
@@ -33,6 +32,7 @@ from lowcostdex.demo_file import (
     read_numbered_episodes,
 )
 from lowcostdex.errors import ConfigError, InputError
+from lowcostdex.sim.envs.hand_env import control_period
 
 Teacher = Callable[[gym.Env, np.ndarray], np.ndarray]
 """(env, observation (obs_dim,)) -> action (act_dim,) in the env's action space. A teacher
@@ -103,7 +103,7 @@ class Demos:
 
 
 def load_demos(path: str | Path, only_successful: bool = True) -> Demos:
-    """Read a demonstration dataset (:mod:`lowcostdex.demo_file`) as BC/DAPG pairs.
+    """Read a demonstration dataset (:mod:`lowcostdex.demonstrations.file`) as BC/DAPG pairs.
 
     Args:
       path: the HDF5 file.
@@ -177,7 +177,7 @@ def save_demos(path: str | Path, episodes: Sequence[Episode], info: DatasetInfo)
 
     The file is built next to ``path`` and moved into place when complete, so ``path`` never
     holds a partial dataset. To add episodes to an existing file use
-    :class:`~lowcostdex.demo_file.DemoWriter`.
+    :class:`~lowcostdex.demonstrations.file.DemoWriter`.
 
     Args:
       path: the HDF5 file (conventionally ``.h5``).
@@ -198,7 +198,7 @@ def save_demos(path: str | Path, episodes: Sequence[Episode], info: DatasetInfo)
 
 
 class EpisodeRecorder:
-    """Collects one episode of a running env into an :class:`~lowcostdex.demo_file.Episode`.
+    """Collects one episode of a running env into an :class:`~lowcostdex.demonstrations.file.Episode`.
 
     Create it right after ``env.reset`` and call :meth:`step` after every ``env.step``::
 
@@ -313,7 +313,7 @@ def teacher_episodes(
       action_noise: half-width of the executed-action noise, in action units.
 
     Returns:
-      One :class:`~lowcostdex.demo_file.Episode` per seed (observations (T+1, obs_dim), the
+      One :class:`~lowcostdex.demonstrations.file.Episode` per seed (observations (T+1, obs_dim), the
       teacher's actions (T, act_dim), rewards, qpos/qvel, times, success flags, goal, seed);
       write them with :func:`save_demos`.
 

@@ -19,7 +19,7 @@ beyond the fingers' reach, so the teacher alternates: roll, carry the lying bloc
 
 Everything is computed from the measured ``qpos`` (fingers and block pose) at every call, so the
 same teacher drives the simulation (through ``goal_to_action``), the emulated D'Claw's limp
-fingers (``lowcostdex.hardware.demos.VirtualTeacher``) and the robot's servos
+fingers (``lowcostdex.demonstrations.kinesthetic.VirtualTeacher``) and the robot's servos
 (:class:`TeacherReorient`, the flip task's reorientation). The number of 90 deg rolls comes
 from the goal's orientation (2 for the task's flip, 1-3 to restore a block lying on a side).
 Deterministic; it draws no random numbers.
@@ -43,8 +43,8 @@ from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.hands import DCLAW_FINGERS
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE, quat_rotate
 from lowcostdex.sim.envs.task import Goal
+from lowcostdex.sim.kinematics import FingerGeometry
 from lowcostdex.sim.models.dclaw import BLOCK_HALF
-from lowcostdex.sim.scripted import FingerGeometry
 
 UP = np.array([0.0, 0.0, 1.0])
 ROLL, CARRY, DONE = "roll", "carry", "done"

@@ -4,7 +4,7 @@ Per episode: the env's auto-reset brings the hand and the valve to the episode's
 bounded); the finger servos go torque-off; a person moves the fingers through the task while the
 joint angles and velocities are read at the control rate; the episode is converted to
 (observation, action) pairs for BC/DAPG and appended to the demonstration dataset
-(``lowcostdex.demo_file``), one finished episode at a time.
+(``lowcostdex.demonstrations.file``), one finished episode at a time.
 
 Labels. The BAIR work paired o_t with the next joint position as a target, a_t = q_{t+1}
 (``label="next_position"``). A position servo does not get there in one control period: the
@@ -30,7 +30,7 @@ deterministic episodes. Playbacks cost robot time, not the person's.
 
 On the emulated D'Claw a ``VirtualTeacher`` stands in for the person: it moves the limp fingers
 with external joint torques (a PD on ``qfrc_applied``, applied before every physics step of the
-emulator) along a scripted solving motion (``lowcostdex.sim.scripted.ValveTurnTeacher``) with a
+emulator) along a scripted solving motion (``lowcostdex.demonstrations.teachers.valve.ValveTurnTeacher``) with a
 person's imprecision, so the same recorder code path produces demonstrations without a human.
 """
 
@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.demo_file import (
+from lowcostdex.demonstrations.file import (
     DatasetInfo,
     DemoWriter,
     Episode,
@@ -241,7 +241,7 @@ def episode_from_states(task: Any, qpos: np.ndarray, qvel: np.ndarray, goal: dic
       time: (T+1,) clock times [s].
       actions: (T, n) labels in the env's action space; default the next joint positions,
         a_t = goal_to_action(q_{t+1}).
-      label: what ``actions`` are (``lowcostdex.demo_file.LABELS``).
+      label: what ``actions`` are (``lowcostdex.demonstrations.file.LABELS``).
       meta: ``Episode`` fields (seed, reset_time, reset_attempts, source).
 
     Returns:
@@ -341,7 +341,7 @@ class VirtualTeacher:
         if plant.model.nq != task.model.nq:
             raise ConfigError("the emulator's model and the task's model differ in qpos layout")
         if solver is None:
-            from lowcostdex.sim.scripted import ValveTurnTeacher
+            from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
 
             solver = ValveTurnTeacher()
         self.chain, self.task, self.solver, self.config = chain, task, solver, config
@@ -527,7 +527,7 @@ class KinestheticRecorder:
         """Play a demonstration's goals back on the robot (torque on, from the same auto-reset
         start, with ``playback_noise`` on every goal) and append the playback as an episode
         labelled with the clean goals; returns it."""
-        from lowcostdex.algos.demos import EpisodeRecorder
+        from lowcostdex.demonstrations.dataset import EpisodeRecorder
 
         robot = self.backend.robot
         start = robot.clock.now()

@@ -1,0 +1,33 @@
+"""Virtual teachers: scripted closed-loop solving motions (valve, screw, flip, Allegro valve) that
+map the present state to joint goals. They drive the fingers of an emulated hand while
+demonstrations are recorded, reorient the flip block in the auto-reset, and serve as the
+physics sanity tests of the tasks. Each needs only the simulation (models, tasks, kinematics).
+"""
+
+from __future__ import annotations
+
+from lowcostdex.demonstrations.teachers.allegro import AllegroTeacherConfig, AllegroValveTeacher
+from lowcostdex.demonstrations.teachers.flip import FlipBlockTeacher, FlipTeacherConfig
+from lowcostdex.demonstrations.teachers.valve import (
+    ScrewTrackTeacher,
+    ValveTeacherConfig,
+    ValveTurnTeacher,
+)
+from lowcostdex.errors import ConfigError
+
+TEACHERS = {cls.__name__: cls for cls in
+            (ValveTurnTeacher, ScrewTrackTeacher, FlipBlockTeacher, AllegroValveTeacher)}
+"""Teacher classes by name (the names the task tables use)."""
+
+
+def teacher_class(name: str) -> type:
+    """The teacher class called ``name``; ConfigError listing the valid names otherwise."""
+    try:
+        return TEACHERS[name]
+    except KeyError:
+        raise ConfigError(f"unknown teacher {name!r}; valid: {', '.join(sorted(TEACHERS))}") from None
+
+
+__all__ = ["TEACHERS", "AllegroTeacherConfig", "AllegroValveTeacher", "FlipBlockTeacher",
+           "FlipTeacherConfig", "ScrewTrackTeacher", "ValveTeacherConfig", "ValveTurnTeacher",
+           "teacher_class"]
