@@ -44,6 +44,7 @@ sampler's), so wall-clock is what NPG/DAPG take with batched simulation on this 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import importlib
 import json

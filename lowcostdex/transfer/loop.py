@@ -305,8 +305,8 @@ def record_demos(out: Path, task: Task, size: Size, seed: int) -> dict[str, Any]
         identify_servo_response,
         virtual_teacher_config,
     )
-    from lowcostdex.outdir import archive
     from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
+    from lowcostdex.outdir import archive
 
     path = out / "demos.h5"
     archive(out, [path.name])  # a recording cut short is redone whole (the old one kept)
