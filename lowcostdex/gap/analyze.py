@@ -515,7 +515,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             c.flags = _flags(final_track.structure, final_track.u, e.name)
             c.equivalent = equivalents.get(e.name, [])
             causes.append(c)
-    verdict = _verdict(causes, gain)
+    verdict = _verdict(causes, gain, stop_reason)
     timing["total"] = time.perf_counter() - t_start
     traces = _traces(ds, test_eps, base_test, ext_pred)
     prog("done", 1.0)
@@ -670,12 +670,12 @@ def _flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
     return flags
 
 
-def _verdict(causes: Sequence[Cause], gain: Gain) -> str:
+def _verdict(causes: Sequence[Cause], gain: Gain, stop_reason: str) -> str:
     if not causes:
         if gain.baseline_rmse > UNEXPLAINED * gain.noise_floor:
             return (f"discrepancy not explained by the candidate effects (held-out RMSE "
                     f"{gain.baseline_rmse:.4g} rad, {gain.baseline_rmse / gain.noise_floor:.0f}x "
-                    "the noise floor; no candidate lowered the select error significantly)")
+                    f"the noise floor; the selection stopped: {stop_reason})")
         return "no significant discrepancy"
     names = ", ".join(c.effect for c in causes)
     return (f"{names}: held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad "
