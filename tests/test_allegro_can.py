@@ -192,6 +192,20 @@ def test_hand_info_of_a_real_v4_trace():
     assert info.pack() == data
 
 
+def test_status_bits_one_at_a_time():
+    # bit0 servo on, bit1 high-temperature fault (every driver); bit2 / bit3 / bit4 are Meta's
+    # joint_temp_throttle / joint_comm_fault / palm_temp_fault (stat & 0x4, 0x8, 0x10), Wonik's
+    # v4 data_info_t names only bit2 (internal_communication_fault)
+    servo_only = proto.HandInfo(0x0402, 0x0406, False, 30, 0x01)
+    assert servo_only.servo_on and servo_only.faults == () and servo_only.flags == ()
+    hot = proto.HandInfo(0x0402, 0x0406, False, 30, 0x02)
+    assert not hot.servo_on and hot.faults == ("high_temperature",) and hot.flags == ()
+    for bit, name in ((0x04, "bit2"), (0x08, "bit3"), (0x10, "bit4")):
+        info = proto.HandInfo(0x0402, 0x0406, False, 30, bit)
+        assert info.faults == () and len(info.flags) == 1 and info.flags[0].startswith(name)
+    assert proto.HandInfo(0x0402, 0x0406, False, 30, 0x20).flags == ()  # no driver names bit5
+
+
 def test_torque_constant_follows_the_hand_version():
     # AllegroHandDrv.cpp (v4 ROS driver): data[1] == 4 -> _tau_cov_const 1200,
     # PWM_LIMIT_GLOBAL_12V 1200; any other version -> 800 and PWM_LIMIT_GLOBAL_8V 800
