@@ -27,7 +27,8 @@ import numpy as np
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import default_effects, make_dynamixel_bus
-from lowcostdex.hardware.robot.reset import DClawReset, RobelReset
+from lowcostdex.hardware.robot.reset_dclaw import DClawReset
+from lowcostdex.hardware.robot.reset_robel import RobelReset
 from lowcostdex.hardware.robot.reset_trials import reset_trials, tangle
 from lowcostdex.hardware.robot.robot import Robot
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE

@@ -14,7 +14,8 @@ import pytest
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import default_effects, make_dynamixel_bus
-from lowcostdex.hardware.robot.reset import DClawReset, ResetConfig, ResetFailed
+from lowcostdex.hardware.robot.reset import ResetConfig, ResetFailed
+from lowcostdex.hardware.robot.reset_dclaw import DClawReset
 from lowcostdex.hardware.robot.reset_trials import reset_trials
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
@@ -117,7 +118,7 @@ def test_jammed_valve_ends_in_reset_failed_within_a_bounded_time(claw):
 def test_robel_baseline_runs_through_the_same_gate_and_never_blocks(claw):
     """ROBEL's sequence (the benchmark baseline, bench/reset.py) resets a tangle, and raises
     instead of waiting on input() when it cannot."""
-    from lowcostdex.hardware.robot.reset import RobelReset
+    from lowcostdex.hardware.robot.reset_robel import RobelReset
 
     chain, robot = claw
     stats = reset_trials(robot, RobelReset(robot), RESET_POSE, 2, np.random.default_rng(3))

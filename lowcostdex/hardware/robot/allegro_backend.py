@@ -2,7 +2,7 @@
 
 The same path as the D'Claw's (``backend.RobotBackend``): a ``Robot`` (safety gate, thermal
 guard, step timing) on an ``AllegroBus`` (the real python-can driver and its host-side PD), an
-auto-reset at every ``reset`` (``reset.AllegroReset``: thermal pause first, the 16 joints driven
+auto-reset at every ``reset`` (``reset_allegro.AllegroReset``: thermal pause first, the 16 joints driven
 to the reset pose and verified, bounded retries, then ``ResetFailed``), and the mirror ``MjData``
 the task reads. The Allegro's joints are soft and torque-driven, so the Robot rate-limits goals
 from the previous goal (``RobotConfig(motion_reference="goal")``, the default here).
@@ -39,7 +39,8 @@ from lowcostdex.hardware.robot.backend import (
     resolve_callable,
     task_robot_config,
 )
-from lowcostdex.hardware.robot.reset import AllegroReset, PlaceValve, ResetConfig, ValveAngle
+from lowcostdex.hardware.robot.reset import ResetConfig
+from lowcostdex.hardware.robot.reset_allegro import AllegroReset, PlaceValve, ValveAngle
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.sim.effects import AppliedEffect
 

@@ -37,14 +37,9 @@ import numpy as np
 from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.bus import MotorBus
 from lowcostdex.hardware.hands import HandSpec, check_model_ranges
-from lowcostdex.hardware.robot.reset import (
-    DClawReset,
-    FlipBlockReset,
-    FlipResetConfig,
-    Reorient,
-    ResetConfig,
-    ResetReport,
-)
+from lowcostdex.hardware.robot.reset import ResetConfig, ResetReport
+from lowcostdex.hardware.robot.reset_dclaw import DClawReset
+from lowcostdex.hardware.robot.reset_flip import FlipBlockReset, FlipResetConfig, Reorient
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.envs.backend import Backend

@@ -76,7 +76,8 @@ def _reset_test(args: argparse.Namespace) -> int:
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.robot.backend import default_effects, make_dynamixel_bus
-    from lowcostdex.hardware.robot.reset import DClawReset, RobelReset
+    from lowcostdex.hardware.robot.reset_dclaw import DClawReset
+    from lowcostdex.hardware.robot.reset_robel import RobelReset
     from lowcostdex.hardware.robot.reset_trials import reset_trials
     from lowcostdex.hardware.robot.robot import Robot
     from lowcostdex.progress import tasks as progress_tasks

@@ -15,7 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lowcostdex.hardware.robot.reset import DClawReset, ResetFailed, RobelReset
+from lowcostdex.hardware.robot.reset import ResetFailed
+from lowcostdex.hardware.robot.reset_dclaw import DClawReset
+from lowcostdex.hardware.robot.reset_robel import RobelReset
 from lowcostdex.hardware.robot.robot import Robot
 
 
