@@ -142,7 +142,8 @@ def compare(
 
 
 def valve_tvlg(seed: int, n_iter: int, init: str, demos: str | None, **kw) -> dict[str, np.ndarray]:
-    from lowcostdex.algos.local_models.train import TVLGTrainConfig, train
+    from lowcostdex.algos.local_models.train import train
+    from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
 
     cfg = TVLGTrainConfig(seed=seed, n_iter=n_iter, init=init, demos=demos, progress=False, **kw)
     with tempfile.TemporaryDirectory() as tmp:
@@ -273,14 +274,10 @@ HELD_OUT = 20  # noisy held-out episodes per evaluation
 def record_demo(offset: float, path: Path) -> Path:
     """One scripted-teacher episode recorded with the valve ``offset`` [rad] from the fixed
     start (goal offset + pi), saved in the DAPG demo format."""
-    from lowcostdex.algos.local_models.train import (
-        TVLGTrainConfig,
-        capture_start,
-        default_env_factory,
-        hold_action,
-        offset_start,
-        teacher_episodes,
-    )
+    from lowcostdex.algos.local_models.episodes import capture_start, hold_action, offset_start
+    from lowcostdex.algos.local_models.initial import teacher_episodes
+    from lowcostdex.algos.local_models.train import default_env_factory
+    from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
 
     cfg = TVLGTrainConfig(init="teacher", progress=False)
     env = default_env_factory(cfg)()
@@ -301,7 +298,8 @@ def controller_success(ctl, start, cfg, n: int, noise: float | None, seed: int =
     controller from ``start`` in ``cfg``'s env; ``noise`` replaces its exploration noise (None
     keeps it)."""
     from lowcostdex.algos.local_models.controller import LinearGaussianController
-    from lowcostdex.algos.local_models.train import default_env_factory, hold_action, run_episode
+    from lowcostdex.algos.local_models.episodes import hold_action, run_episode
+    from lowcostdex.algos.local_models.train import default_env_factory
     from lowcostdex.algos.samplers import RolloutJob
 
     if noise is not None:
@@ -324,11 +322,11 @@ def controller_success(ctl, start, cfg, n: int, noise: float | None, seed: int =
 
 def tvlg_demo_run(demo: Path, noise: float, seed: int, n_iter: int, cost: str, out: Path):
     """A TVLG run from one demonstration; its metrics and run directory."""
-    from lowcostdex.algos.local_models.train import (
+    from lowcostdex.algos.local_models.train import train
+    from lowcostdex.algos.local_models.train_config import (
         TRACKING_KL_STEP,
         TaskCostConfig,
         TVLGTrainConfig,
-        train,
     )
     from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
     from lowcostdex.algos.local_models.tvlg import TVLGConfig
@@ -345,14 +343,10 @@ def tvlg_demo_run(demo: Path, noise: float, seed: int, n_iter: int, cost: str, o
 
 def initial_stats(demo: Path, noise: float) -> tuple:
     """``controller_success`` of the replayed demonstration (the iteration-0 controller)."""
-    from lowcostdex.algos.local_models.train import (
-        TVLGTrainConfig,
-        capture_start,
-        controller_state,
-        default_env_factory,
-        hold_action,
-        initial_controller,
-    )
+    from lowcostdex.algos.local_models.episodes import capture_start, controller_state, hold_action
+    from lowcostdex.algos.local_models.initial import initial_controller
+    from lowcostdex.algos.local_models.train import default_env_factory
+    from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
 
     cfg = TVLGTrainConfig(init="demos", demos=str(demo), init_noise=noise, progress=False)
     env = default_env_factory(cfg)()
@@ -452,14 +446,10 @@ def dapg_from_demo(demo: Path, seeds: list[int], n_traj: int, n_iter: int, out: 
 
 def valve_onspoke_section(seeds: list[int], quick: bool) -> None:
     """PD hold from the teacher's pose just before its first push, task cost."""
-    from lowcostdex.algos.local_models.train import (
-        TVLGTrainConfig,
-        capture_start,
-        default_env_factory,
-        hold_action,
-        teacher_episodes,
-        train,
-    )
+    from lowcostdex.algos.local_models.episodes import capture_start, hold_action
+    from lowcostdex.algos.local_models.initial import teacher_episodes
+    from lowcostdex.algos.local_models.train import default_env_factory, train
+    from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
 
     cfg = TVLGTrainConfig(init="teacher", progress=False)
     env = default_env_factory(cfg)()
@@ -496,7 +486,7 @@ def valve_onspoke_section(seeds: list[int], quick: bool) -> None:
 def replay(env, start, hold, actions: np.ndarray, job, noise: float = 1e-3):
     """Episode of the open-loop controller ``actions`` (T, dU) with exploration std ``noise``."""
     from lowcostdex.algos.local_models.controller import LinearGaussianController
-    from lowcostdex.algos.local_models.train import run_episode
+    from lowcostdex.algos.local_models.episodes import run_episode
 
     T, dU = actions.shape
     cov = np.broadcast_to(noise**2 * np.eye(dU), (T, dU, dU))
@@ -513,13 +503,9 @@ def valve_model_section(quick: bool) -> None:
         fit_dynamics,
         update_gmm_prior,
     )
-    from lowcostdex.algos.local_models.train import (
-        TVLGTrainConfig,
-        _demo_actions,
-        capture_start,
-        default_env_factory,
-        hold_action,
-    )
+    from lowcostdex.algos.local_models.episodes import capture_start, hold_action
+    from lowcostdex.algos.local_models.train import _demo_actions, default_env_factory
+    from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
     from lowcostdex.algos.samplers import RolloutJob
 
     steps, h, n_fit, obj = np.arange(10, 38), 0.05, 150 if quick else 600, 18

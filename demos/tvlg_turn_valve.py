@@ -36,18 +36,18 @@ from pathlib import Path
 
 import numpy as np
 
-from lowcostdex.algos.local_models.train import (
+from lowcostdex.algos.local_models.episodes import (
+    capture_start,
+    hold_action,
+    offset_start,
+    run_episode,
+)
+from lowcostdex.algos.local_models.initial import teacher_episodes
+from lowcostdex.algos.local_models.train import default_env_factory, load_controller, train
+from lowcostdex.algos.local_models.train_config import (
     TRACKING_KL_STEP,
     TaskCostConfig,
     TVLGTrainConfig,
-    capture_start,
-    default_env_factory,
-    hold_action,
-    load_controller,
-    offset_start,
-    run_episode,
-    teacher_episodes,
-    train,
 )
 from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
 from lowcostdex.algos.local_models.tvlg import TVLGConfig

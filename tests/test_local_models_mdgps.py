@@ -237,7 +237,8 @@ def test_env_driver_runs_on_the_dclaw_valve_conditions() -> None:
     # D'Claw: two valve offsets, 2 iterations of 3 rollouts (about 3 s). Checks the plumbing and
     # the trust region only; learning the valve turn needs far more iterations.
     from lowcostdex.algos.local_models.conditions import env_problem
-    from lowcostdex.algos.local_models.train import TVLGTrainConfig, default_env_factory
+    from lowcostdex.algos.local_models.train import default_env_factory
+    from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
 
     env = default_env_factory(TVLGTrainConfig())()
     try:

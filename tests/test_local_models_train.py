@@ -9,24 +9,24 @@ import numpy as np
 import pytest
 
 from lowcostdex.algos import experiment as ex
-from lowcostdex.algos.local_models.train import (
-    TaskCostConfig,
-    TVLGTrainConfig,
-    add_train_commands,
+from lowcostdex.algos.local_models.episodes import (
     capture_start,
-    config_from_args,
     controller_state,
-    default_env_factory,
-    demo_hand_reference,
     hold_action,
-    initial_controller,
-    is_solved,
-    load_controller,
     offset_start,
     run_episode,
-    task_cost,
+)
+from lowcostdex.algos.local_models.initial import initial_controller
+from lowcostdex.algos.local_models.task_cost import demo_hand_reference, task_cost
+from lowcostdex.algos.local_models.train import (
+    add_train_commands,
+    config_from_args,
+    default_env_factory,
+    is_solved,
+    load_controller,
     train,
 )
+from lowcostdex.algos.local_models.train_config import TaskCostConfig, TVLGTrainConfig
 from lowcostdex.algos.samplers import TRAIN_STREAM, RolloutJob
 from lowcostdex.errors import ConfigError
 
@@ -80,7 +80,7 @@ def test_valve_cost_targets_half_turn_positive_and_start_pose(valve) -> None:
 
 
 def test_object_target_turns_half_turns_positively_or_like_the_reference() -> None:
-    from lowcostdex.algos.local_models.train import object_target
+    from lowcostdex.algos.local_models.task_cost import object_target
 
     assert object_target(0.0, math.pi) == pytest.approx(math.pi)
     assert object_target(-0.01, math.pi) == pytest.approx(math.pi)  # not -pi for a hair off 0
@@ -116,7 +116,7 @@ def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
 
 def test_teacher_init_replays_a_successful_teacher_episode(valve, tmp_path) -> None:
     import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
-    from lowcostdex.algos.local_models.train import teacher_episodes
+    from lowcostdex.algos.local_models.initial import teacher_episodes
     from lowcostdex.demonstrations.dataset import load_demos
 
     env, start, hold = valve
@@ -334,7 +334,7 @@ def test_tvlg_demo_script_runs(tmp_path, monkeypatch, capsys) -> None:
 ])
 def test_tvlg_config_numbers_are_checked(bad, message):
     """Issue 12: NaN, out-of-range and fractional counts are refused with the valid range."""
-    from lowcostdex.algos.local_models.train import TVLGTrainConfig
+    from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
     from lowcostdex.errors import ConfigError
 
     with pytest.raises(ConfigError, match=message):

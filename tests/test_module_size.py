@@ -19,9 +19,6 @@ EXCEPTIONS: dict[str, str] = {
     "lowcostdex/transfer/loop.py": (
         "the transfer loop (issue 14), landed 2026-11-25 22:05 while its author keeps working "
         "on it; split with its author"),
-    "lowcostdex/algos/local_models/train.py": (
-        "the lead is rewriting its demo imports (demonstrations/) on 2026-11-25; split "
-        "(config, episodes and costs, teacher, loop, CLI) after that lands"),
 }
 
 

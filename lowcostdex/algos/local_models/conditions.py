@@ -14,17 +14,17 @@ from numpy.typing import NDArray
 
 from lowcostdex.algos.local_models.controller import LinearGaussianController, pd_controller
 from lowcostdex.algos.local_models.costs import SumCost
-from lowcostdex.algos.local_models.pendulum import PendulumParams, pendulum_rollouts
-from lowcostdex.algos.local_models.train import (
+from lowcostdex.algos.local_models.episodes import (
     FixedStart,
-    TaskCostConfig,
     capture_start,
     controller_state,
     hold_action,
     offset_start,
     run_episode,
-    task_cost,
 )
+from lowcostdex.algos.local_models.pendulum import PendulumParams, pendulum_rollouts
+from lowcostdex.algos.local_models.task_cost import task_cost
+from lowcostdex.algos.local_models.train_config import TaskCostConfig
 from lowcostdex.algos.samplers import RolloutJob
 
 Array = NDArray[np.float64]
