@@ -58,6 +58,30 @@ def servo_log(seconds: float = 8.0, rate: float = 100.0, lag: float = 0.06) -> d
             "current:arm": np.round(current, 3)}
 
 
+def with_velocity(cols: dict[str, np.ndarray], lag: float = 0.06) -> dict[str, np.ndarray]:
+    """``cols`` plus 'qvel:arm' as a servo's Present Velocity reports it: the first-order lag's
+    own rate (goal - q) / lag [rad/s], in 0.229 rev/min counts (0.0240 rad/s)."""
+    count = 0.229 * 2 * math.pi / 60
+    q, goal = cols["qpos:arm"], cols["goal:arm"]
+    return {**cols, "qvel:arm": np.round((goal - q) / lag / count) * count}
+
+
+def slow_log(seconds: float = 5.0, rate: float = 50.0) -> dict[str, np.ndarray]:
+    """A slow sweep (0.5 rad at 0.2 Hz: at most 0.63 rad/s) with its logged velocity."""
+    t = np.arange(int(round(seconds * rate))) / rate
+    q = 0.5 * np.sin(2 * np.pi * 0.2 * t)
+    v = 0.5 * 2 * np.pi * 0.2 * np.cos(2 * np.pi * 0.2 * t)
+    return {"time": t, "goal:arm": q + 0.05 * v, "qpos:arm": np.round(q / ENCODER_STEP) * ENCODER_STEP,
+            "qvel:arm": np.round(v / 0.0240) * 0.0240}
+
+
+def window_12bit(q: np.ndarray, zero_tick: int) -> np.ndarray:
+    """What a logger reading a 12-bit Present Position (ticks 0..4095, clipped) logs [rad] for a
+    joint whose 0 rad sits at ``zero_tick``."""
+    ticks = np.clip(np.round(q / ENCODER_STEP) + zero_tick, 0, 4095)
+    return (ticks - zero_tick) * ENCODER_STEP
+
+
 def csv_text(cols: dict[str, np.ndarray], time: Callable[[float], str] = lambda t: f"{t:.4f}",
              sep: str = ",") -> str:
     names = list(cols)
@@ -172,9 +196,17 @@ CASES: list[Case] = [
     csv_case("time in ms", csv_text(servo_log(), time=lambda t: f"{t * 1e3:.1f}"),
              "median step is 10: ms?"),
     csv_case("time in minutes", csv_text(servo_log(seconds=60), time=lambda t: f"{t / 60:.8f}"),
-             "column 'qpos:arm' moves at up to 561.4 rad/s"),
+             "column 'time' looks like minutes, not seconds: read as seconds, 'qpos:arm' would "
+             "move at 561.4 rad/s (99th percentile; servos stay below 100), in minutes at 9.36; "
+             "6000 samples over 59.99 s at 100 Hz if so: multiply the time stamps by 60"),
     csv_case("8 s in minutes", csv_text(servo_log(), time=lambda t: f"{t / 60:.8f}"),
-             "800 samples over 0.133 s (6000 Hz: is 'time' in seconds?)"),
+             "column 'time' looks like minutes, not seconds: read as seconds, 'qpos:arm' would "
+             "move at"),
+    csv_case("a slow sweep in minutes, with velocities",
+             csv_text(slow_log(), time=lambda t: f"{t / 60:.8f}"),
+             "column 'time' looks like minutes, not seconds: read as seconds, 'qpos:arm' changes "
+             "57.5 x faster than its logged velocity 'qvel:arm'; 250 samples over 4.98 s at 50 Hz "
+             "if so: multiply the time stamps by 60"),
     csv_case("two rows swapped", csv_text(rows(servo_log(), np.r_[0:300, 301, 300, 302:800])),
              "column 'time' must be strictly increasing: row 301 (0-based) goes back from 3.01 to 3"),
     csv_case("a duplicated row", csv_text(rows(servo_log(), np.r_[0:300, 299, 300:800])),
@@ -211,6 +243,25 @@ CASES: list[Case] = [
     csv_case("a current clipped by its sensor",
              csv_text(edited(current=lambda c: np.clip(c, -0.3, 0.3))),
              "column 'current:arm' sits at its largest value 0.3 in"),
+    csv_case("a position clipped by a 12-bit register, with velocities",
+             csv_text({**with_velocity(servo_log()),
+                       "qpos:arm": window_12bit(servo_log()["qpos:arm"], 3600)}),
+             "column 'qpos:arm' is pinned at its largest value 0.75932 rad for 0.44 s (from "
+             "0.32 s) while 'goal:arm' is up to 0.341 rad beyond it, while 'qvel:arm' takes the "
+             "motor 0.346 rad beyond it and back"),  # to 1.105 rad, the lag's true peak
+    csv_case("a position clipped at the encoder window's edge",
+             csv_text(edited(qpos=lambda q: window_12bit(q, 0))),
+             "column 'qpos:arm' is pinned at its smallest value 0 rad for"),
+    csv_case("a position register that wraps",
+             csv_text(edited(qpos=lambda q: np.mod(q, 2 * np.pi))),
+             "column 'qpos:arm' jumps by +6.265 rad (one turn) from row 116 to 117 (0-based, at "
+             "1.17 s), 8 time(s): a position register wrapping at its range"),
+    csv_case("a voltage column of zeros", csv_text({**servo_log(), "voltage:arm": np.zeros(800)}),
+             "column 'voltage:arm' reads 0 V in 100 % of the samples with torque on while the "
+             "motor moves its joint"),
+    csv_case("a temperature column of zeros",
+             csv_text({**servo_log(), "temperature:arm": np.zeros(800)}),
+             "column 'temperature:arm' reads exactly 0 deg C all along"),
     csv_case("too little motion to identify anything",
              csv_text(edited(goal=lambda g: 0.004 * g, qpos=lambda q: np.round(
                  0.004 * q / ENCODER_STEP) * ENCODER_STEP)),
@@ -343,6 +394,33 @@ def test_the_unbroken_logs_load(tmp_path):
     (tmp_path / "bam.json").write_text(json.dumps(bam_log()))
     ds = load_dataset([tmp_path / "bam.json"])
     assert len(ds.trajectories[0]) == 1140 and ds.trajectories[0].channels["torque_enable"].all()
+
+
+def test_steady_channels_and_a_hard_stop_are_not_refused():
+    """What the clip and dead-channel rules must leave alone: a supply that reads one 0.1 V count
+    all along, a winding at 31-32 deg C (quantised channels at rest), and a joint held by a hard
+    stop at 0.8 rad while its goal pushes up to 0.3 rad past it - reading still, its Present
+    Velocity 0 (a stall is physics, not a clip)."""
+    from lowcostdex.gap.logs import trajectory_from_columns
+
+    cols = servo_log()
+    n = len(cols["time"])
+    steady = {**cols, "voltage:arm": np.full(n, 12.1),
+              "temperature:arm": np.where(np.arange(n) < 500, 31.0, 32.0)}
+    traj = trajectory_from_columns(steady)
+    assert set(traj.channels) == {"current", "voltage", "temperature"}
+    stop, lag = 0.8, 0.06
+    goal, keep = cols["goal:arm"], math.exp(-1 / (100.0 * lag))
+    q = np.zeros(n)
+    for k in range(1, n):  # servo_log's lag, stopped at 0.8 rad
+        q[k] = min(keep * q[k - 1] + (1 - keep) * goal[k - 1], stop)
+    blocked = (q >= stop) & (goal > stop)
+    cols["qpos:arm"] = np.round(q / ENCODER_STEP) * ENCODER_STEP
+    cols["qvel:arm"] = np.where(blocked, 0.0, (goal - q) / lag)
+    assert blocked.sum() > 20 and (goal - stop).max() > 0.29  # held there, the goal beyond
+    trajectory_from_columns(cols)
+    del cols["qvel:arm"]
+    trajectory_from_columns(cols)
 
 
 def test_a_gap_splits_the_log_and_says_so(tmp_path):

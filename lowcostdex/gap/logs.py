@@ -52,6 +52,11 @@ FROZEN_CROSS = 0.2  # [rad] a reading that repeats while the goal passes it by t
 RANGE_MARGIN = 0.2  # [rad] measured positions beyond a limited joint's model range by more
 CLIP_PILE = 5.0  # ... and this many times as often as at any value between the extremes
 SATURATED_SHARE = 0.2  # a channel at exactly its extreme value in this share of the samples
+PINNED_RUN = 5  # samples: a position reading repeated this long at its extreme may be a clip
+PINNED_TRAVEL = 0.05  # [rad] how far the logged qvel moves a motor whose reading stands still
+PINNED_SPEED = 0.2  # [rad/s] ... at a median speed of at least this (many velocity counts)
+WRAP_TOLERANCE = 0.25  # [rad] a one-sample jump this close to one turn (2 pi) is a register wrap
+MIN_SUPPLY = 3.0  # [V] below every servo's operating range (XL330 3.7 V, SG90 4.8 V)
 # plausible magnitudes per column kind (SI units); beyond them the unit is wrong or the data broken
 PLAUSIBLE: dict[str, tuple[float, float, str]] = {
     "goal": (-4 * math.pi, 4 * math.pi, "rad"),
@@ -293,6 +298,9 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
     _check_time(t, name)
     for key, arr in cols.items():
         _check_range(key, arr, name)
+    _check_minutes(t, {j: d["qpos"] for j, d in joints.items()},
+                   {j: d["qvel"] for j, d in joints.items() if "qvel" in d}, name)
+    _check_duration(t, name)
     goal_time = None
     if "goal_time" in cols:
         goal_time = np.asarray(cols["goal_time"], dtype=float)
@@ -320,9 +328,10 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
 
 
 def _check_time(t: np.ndarray, name: str) -> None:
-    """Enough samples, strictly increasing, in seconds (unit told from the median step), bounded.
+    """Enough samples, strictly increasing, in seconds (unit told from the median step).
 
-    Gaps are not refused here: ``split_at_gaps`` cuts the log there.
+    Gaps are not refused here: ``split_at_gaps`` cuts the log there. The duration is checked by
+    ``_check_duration`` (after ``_check_minutes``, which names a log in minutes).
     """
     if len(t) < MIN_SAMPLES:
         raise LogError(f"{name}: too little data: {len(t)} samples; need at least "
@@ -337,6 +346,47 @@ def _check_time(t: np.ndarray, name: str) -> None:
     if not STEP_RANGE[0] <= step <= STEP_RANGE[1]:
         raise LogError(f"{name}: column 'time' must be in seconds, but its median step is "
                        f"{step:.6g}{_time_unit_hint(step)}")
+
+
+def _check_minutes(t: np.ndarray, qpos: dict[str, np.ndarray], qvel: dict[str, np.ndarray],
+                   name: str) -> None:
+    """Refuse time stamps in minutes, named as such. A log in minutes has a plausible median step
+    (100 Hz: 1.7e-4 "s"), so the step alone cannot tell; the motion can: read as seconds, the
+    positions change 60 x faster than the joint moves - faster than any servo (the 99th
+    percentile of |dq/dt| above the plausible qvel, and plausible once divided by 60), or, when
+    velocities are logged, dq/dt is 30-120 x the logged qvel (rad/s).
+    """
+    dt = np.diff(t)
+    step = float(np.median(dt))
+    if not STEP_RANGE[0] <= 60 * step <= STEP_RANGE[1]:
+        return
+    vmax = PLAUSIBLE["qvel"][1]
+    evidence = ""
+    for joint, q in qpos.items():
+        rate = np.abs(np.diff(q)) / dt
+        fast = float(np.percentile(rate, 99))
+        v = qvel.get(joint)
+        if fast > vmax and fast / 60 <= vmax:
+            evidence = (f"read as seconds, 'qpos:{joint}' would move at {fast:.4g} rad/s (99th "
+                        f"percentile; servos stay below {vmax:g}), in minutes at {fast / 60:.3g}")
+        elif v is not None and np.median(np.abs(v)) > 0:
+            moving = np.abs(v[1:]) > 0.1 * float(np.percentile(np.abs(v), 90))
+            if moving.sum() >= MIN_SAMPLES:
+                ratio = float(np.median(rate[moving]) / np.median(np.abs(v[1:][moving])))
+                if 30 <= ratio <= 120:
+                    evidence = (f"read as seconds, 'qpos:{joint}' changes {ratio:.3g} x faster "
+                                f"than its logged velocity 'qvel:{joint}'")
+        if evidence:
+            break
+    if evidence:
+        raise LogError(f"{name}: column 'time' looks like minutes, not seconds: {evidence}; "
+                       f"{len(t)} samples over {float(t[-1] - t[0]) * 60:.4g} s at "
+                       f"{1 / (60 * step):.4g} Hz if so: multiply the time stamps by 60")
+
+
+def _check_duration(t: np.ndarray, name: str) -> None:
+    """At least MIN_DURATION, at most MAX_DURATION seconds."""
+    step = float(np.median(np.diff(t)))
     dur = float(t[-1] - t[0])
     if dur < MIN_DURATION:
         hint = (f" ({1 / step:.4g} Hz: is 'time' in seconds?)" if len(t) >= 10 * MIN_SAMPLES
@@ -390,6 +440,19 @@ def check_signals(traj: Trajectory) -> None:
       between the extremes (a clipped sensor or register range; the
       current-dependent effects would fit the clip). Velocities may plateau (a profile velocity,
       the robot's motion bound), so they are not checked;
+    * a position register's range: a reading that jumps by one turn (2 pi) between two samples
+      (a register that wraps, e.g. 0..4095 ticks), or that is pinned at its largest (smallest)
+      value for PINNED_RUN samples with torque on while the goal is beyond it by FROZEN_CROSS,
+      where the motor is shown moving on (its logged qvel, at a median |qvel| of PINNED_SPEED,
+      integrates to PINNED_TRAVEL beyond the reading while it stands still; real XL330 logs:
+      8 mrad in 36 ms at a peak, the velocity filter's lag, and 78 mrad at one 0.024 rad/s count
+      through a 3 s stall) or the value is an edge
+      of the encoder's one-turn window (tick 0, N - 1, -N/2, N/2 - 1 of N per turn) - a joint
+      held by a hard stop reads still, so without either sign a pinned reading is left alone;
+    * a dead voltage or temperature channel: below MIN_SUPPLY volts (a servo cannot drive its
+      joint on it) or exactly 0 deg C throughout, while the motor moves its joint with torque on:
+      an unread register logged as 0, or a broken sensor (a steady reading is not one: supply and
+      winding temperature are quantised, 0.1 V and 1 deg C, and sit still for minutes);
     * too little motion: no measured joint moves MIN_MOTION peak to peak;
     * positions that change faster than a servo moves (the 99th percentile of |dq/dt| beyond the
       plausible qvel): time not in seconds (minutes pass the step check as a 6 kHz log) or
@@ -401,6 +464,10 @@ def check_signals(traj: Trajectory) -> None:
     if "torque_enable" in traj.channels:
         on = np.all(traj.channels["torque_enable"] > 0.5, axis=1)
     ids = {a: k for k, a in enumerate(traj.actuators)}
+    for j, joint in enumerate(traj.joints):  # a clip or wrap first: they also look frozen
+        _check_wrapped(traj, j)
+        if joint in ids:
+            _check_pinned(traj, j, traj.goal[:, ids[joint]], on)
     for j, joint in enumerate(traj.joints):
         q = traj.qpos[:, j]
         if joint in ids:
@@ -408,6 +475,8 @@ def check_signals(traj: Trajectory) -> None:
     if "current" in traj.channels:
         for k, col in enumerate(traj.channels["current"].T):
             _check_saturated(name, f"current:{traj.actuators[k]}", col[on])
+    for k in range(len(traj.actuators)):
+        _check_dead_channels(traj, k, on)
     speed = np.abs(np.diff(traj.qpos, axis=0)) / np.diff(traj.time)[:, None]
     fast = np.percentile(speed, 99, axis=0)
     vmax = PLAUSIBLE["qvel"][1]
@@ -432,13 +501,14 @@ def _check_frozen(traj: Trajectory, q: np.ndarray, goal: np.ndarray, on: np.ndar
     for a, b in zip(starts, stops, strict=True):
         if b - a < 5 or not on[a:b].all():
             continue
-        err = goal[a:b] - q[a]
+        acting = goal[max(a - 1, 0):b - 1]  # a row's goal is written after it was read
+        err = acting - q[a]
         seconds = t[b - 1] - t[a]
         if min(float(err.max()), float(-err.min())) > FROZEN_CROSS:
             raise LogError(
                 f"{traj.name}: column 'qpos:{joint}' is frozen at {q[a]:.6g} rad for "
                 f"{seconds:.3g} s (from {t[a]:.6g} s) while 'goal:{joint}' moves over "
-                f"[{goal[a:b].min():.3g}, {goal[a:b].max():.3g}] rad with torque on: the encoder "
+                f"[{acting.min():.3g}, {acting.max():.3g}] rad with torque on: the encoder "
                 "or its read is stuck (or the joint is blocked); nothing can be identified there")
 
 
@@ -457,6 +527,87 @@ def _check_saturated(name: str, key: str, col: np.ndarray) -> None:
             raise LogError(f"{name}: column {key!r} sits at its {what} value {extreme:.6g} in "
                            f"{100 * share:.0f} % of the samples with torque on: a saturated "
                            "(clipped) reading; log a range that holds the signal")
+
+
+def _check_wrapped(traj: Trajectory, j: int) -> None:
+    q, t = traj.qpos[:, j], traj.time
+    jump = np.diff(q)
+    wrap = (np.abs(np.abs(jump) - 2 * math.pi) < WRAP_TOLERANCE) & (
+        np.abs(jump) / np.diff(t) > PLAUSIBLE["qvel"][1])
+    if wrap.any():
+        i = int(np.argmax(wrap))
+        raise LogError(f"{traj.name}: column 'qpos:{traj.joints[j]}' jumps by {jump[i]:+.4g} rad "
+                       f"(one turn) from row {i} to {i + 1} (0-based, at {t[i + 1]:.6g} s), "
+                       f"{int(wrap.sum())} time(s): a position register wrapping at its range; "
+                       "unwrap the positions (numpy.unwrap) or log a multi-turn position")
+
+
+def _check_pinned(traj: Trajectory, j: int, goal: np.ndarray, on: np.ndarray) -> None:
+    q, t = traj.qpos[:, j], traj.time
+    grid = quantization_step(q[:, None])
+    per_turn = round(2 * math.pi / grid) if grid else 0
+    for side, extreme in ((1.0, float(q.max())), (-1.0, float(q.min()))):
+        at = (q == extreme) & on
+        # goals that acted on each row: a row's goal is written after it was read
+        acting = np.concatenate([goal[:1], goal[:-1]])
+        beyond = side * (acting - extreme) > FROZEN_CROSS
+        # stretches of the reading at its extreme
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], at.astype(int), [0]])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if b - a < PINNED_RUN or not beyond[a:b].any():
+                continue
+            sign = ""
+            travel = 0.0
+            if traj.qvel is not None:
+                v = traj.qvel[a:b, j]
+                if np.median(np.abs(v)) > PINNED_SPEED:  # beyond the reading and back
+                    travel = float(np.max(np.cumsum(side * v[:-1] * np.diff(t[a:b])), initial=0))
+            if travel > PINNED_TRAVEL:
+                sign = (f"while 'qvel:{traj.joints[j]}' takes the motor {travel:.3g} rad "
+                        "beyond it and back")
+            elif per_turn:
+                tick = extreme / grid
+                edge = [e for e in (0, per_turn - 1, -per_turn // 2, per_turn // 2 - 1)
+                        if abs(tick - e) < 0.01]
+                if edge:
+                    sign = (f"tick {edge[0]} of {per_turn} per turn, an edge of the encoder's "
+                            "one-turn window")
+            if sign:
+                far = float(np.max(side * (acting[a:b] - extreme)))
+                raise LogError(
+                    f"{traj.name}: column 'qpos:{traj.joints[j]}' is pinned at its "
+                    f"{'largest' if side > 0 else 'smallest'} value {extreme:.6g} rad for "
+                    f"{t[b - 1] - t[a]:.3g} s (from {t[a]:.6g} s) while 'goal:{traj.joints[j]}' "
+                    f"is up to {far:.3g} rad beyond it, {sign}: a position clipped at its "
+                    "register's range; log a reading whose range holds the motion (a multi-turn "
+                    "or wider register, the limits moved)")
+
+
+def _check_dead_channels(traj: Trajectory, k: int, on: np.ndarray) -> None:
+    """Voltage below MIN_SUPPLY, or temperature exactly 0 deg C throughout, while the joint of
+    actuator ``k`` (if measured) moves with torque on."""
+    actuator = traj.actuators[k]
+    if not on.any():
+        return
+    if actuator in traj.joints:
+        if np.ptp(traj.qpos[on, traj.joints.index(actuator)]) < MIN_MOTION:
+            return
+    if "voltage" in traj.channels:
+        v = traj.channels["voltage"][on, k]
+        low = v < MIN_SUPPLY
+        if low.mean() >= SATURATED_SHARE:
+            raise LogError(f"{traj.name}: column 'voltage:{actuator}' reads "
+                           f"{np.median(v[low]):.3g} V in {100 * low.mean():.0f} % of the samples with torque on while the "
+                           f"motor moves its joint; no servo runs below {MIN_SUPPLY:g} V: the "
+                           "register is not read (0 logged for no data?) or the sensor is broken; "
+                           "drop the column or log Present Input Voltage")
+    if "temperature" in traj.channels:
+        c = traj.channels["temperature"][on, k]
+        if np.all(c == 0):
+            raise LogError(f"{traj.name}: column 'temperature:{actuator}' reads exactly 0 deg C "
+                           "all along while the motor moves its joint with torque on: the "
+                           "register is not read (0 logged for no data?) or the sensor is "
+                           "broken; drop the column or log Present Temperature")
 
 
 def find_gaps(t: np.ndarray) -> np.ndarray:
