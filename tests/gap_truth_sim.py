@@ -390,8 +390,10 @@ class Case:
 
 
 def make_case(rig: str, names: list[str], seed: int, n_logs: int = 3,
-              duration: float = 6.0) -> Case:
-    """Logs of ``rig`` with the named effects hidden at random realistic magnitudes."""
+              duration: float = 6.0, values: dict[str, float] | None = None) -> Case:
+    """Logs of ``rig`` with the named effects hidden at random realistic magnitudes, or at the
+    given ``values`` ({effect: magnitude on every joint}; the same excitation and noise as the
+    drawn case of this seed)."""
     if rig not in RIGS:
         raise ValueError(f"unknown rig {rig!r}; valid: {', '.join(RIGS)}")
     rng = np.random.default_rng(seed)
@@ -405,6 +407,9 @@ def make_case(rig: str, names: list[str], seed: int, n_logs: int = 3,
     if "torque_limit" in names:
         peak = np.max([peak_force(rig, t, g) for t, g in plans], axis=0)
     hidden = draw(rig, list(names), rng, peak)
+    if values is not None:
+        n = len(links)
+        hidden = Hidden({k: np.full(n, float(v)) for k, v in values.items()})
     logs = [simulate(rig, hidden, t, g, rng) for t, g in plans]
     return Case(rig, hidden, build_xml(rig), logs)
 
@@ -430,6 +435,21 @@ CASES: tuple[tuple[str, str, tuple[str, ...], int, float], ...] = (
     ("finger-latency+damping", "finger", ("latency", "viscous_damping"), 302, 4.0),
     ("bench-clean", "bench", (), 401, 5.0),
     ("finger-clean", "finger", (), 402, 4.0),
+)
+
+# Sizes written out, beyond the drawn ranges above (issue 11's real-world magnitudes) and beyond
+# the analyzer's usual search ranges (latency 0.1 s, offsets +-0.2 rad, gain 0.2-4x): (case id,
+# rig, {effect: magnitude}, seed, seconds per log). The last three exercise the range widening.
+WIDE_CASES: tuple[tuple[str, str, dict[str, float], int, float], ...] = (
+    ("bench-latency-80ms", "bench", {"latency": 0.08}, 501, 5.0),
+    ("bench-offset-0.15rad", "bench", {"position_offset": 0.15}, 502, 5.0),
+    ("bench-gain-2.5x", "bench", {"gain_error": 2.5}, 503, 5.0),
+    # a horn mounted one spline tooth off (25-tooth spline: 2 pi / 25 = 0.251 rad)
+    ("bench-offset-1tooth", "bench", {"position_offset": -2 * math.pi / 25}, 504, 5.0),
+    # a P gain set to 5x the model's (e.g. firmware P 640 where the model assumed 128)
+    ("bench-gain-5x", "bench", {"gain_error": 5.0}, 505, 5.0),
+    # a slow host loop: 130 ms from the goal's write to the servo
+    ("bench-latency-130ms", "bench", {"latency": 0.13}, 506, 5.0),
 )
 
 # Confusable families (04-sysid.md 4.2): effects whose residual signatures overlap on this kind

@@ -298,6 +298,68 @@ def test_a_limit_stuck_where_it_never_binds_is_rescued_by_the_scan():
     assert not fitmod.scan_limits(track, residual)  # nothing better left on the grid
 
 
+def _ctx(**kw) -> fitmod.Context:
+    base = dict(dt=0.002, peak_force=np.array([5.0]), stall=np.array([np.inf]),
+                damping=np.array([0.05]))
+    return fitmod.Context(**{**base, **kw})
+
+
+@pytest.mark.parametrize("truth, expect, widened, on_bound", [
+    (2.0, 2.0, False, False),  # inside the usual range 0.2-4: nothing to widen
+    (6.0, 6.0, True, False),  # beyond it: the range widens (8x after one pass) and LM gets there
+    (35.0, 20.0, True, True),  # beyond the hard limit 20: stays there, still on a bound
+])
+def test_a_fit_on_its_bound_widens_toward_the_hard_limit(truth, expect, widened, on_bound):
+    """Known answer: a gain error whose residual is linear in log(scale) around ``truth``
+    (catalogue search range 0.2-4, hard limit 0.05-20, typed from effects.GainError)."""
+    ctx = _ctx()
+    s = fitmod.Structure.build(("gain_error",), ("j",), ctx)
+    assert (s.free[0].lo, s.free[0].hi) == (0.2, 4.0)
+    assert fitmod.hard_limits("gain_error", "scale", 0, ctx) == (0.05, 20.0)
+    k = np.linspace(1.0, 2.0, 30)
+
+    def residual(points):
+        return [k * (math.log(truth) - math.log(x[0])) for _, x in points]
+
+    t = fitmod.Track(s, s.u(np.array([1.0])))
+    fitmod.lockstep_lm([t], residual, max_rounds=30, rtol=1e-12)
+    t, ranges, notes = fitmod.widen_and_refit(t, residual, ctx, max_rounds=30)
+    assert t.x[0] == pytest.approx(expect, rel=1e-4)
+    assert bool(ranges) == widened and bool(notes) == widened
+    assert bool(fitmod.at_bounds(t.structure, t.u)) == on_bound
+    if widened:
+        assert ranges[("gain_error", "scale", 0)][1] <= 20.0
+        assert notes[0][0] == "gain_error" and "upper search bound 4" in notes[0][1]
+        # later structures built from the context keep the wider range
+        s2 = fitmod.Structure.build(("gain_error",), ("j",), ctx.with_ranges(ranges))
+        assert s2.free[0].hi == ranges[("gain_error", "scale", 0)][1]
+
+
+def test_model_aware_hard_limits():
+    """Dry friction stays below the stall torque, a torque limit below the peak force the
+    model uses, total damping non-negative, a delay at least one physics step."""
+    ctx = _ctx(stall=np.array([0.3]), peak_force=np.array([1.2]), damping=np.array([0.08]))
+    assert fitmod.hard_limits("coulomb_friction", "frictionloss", 0, ctx) == (0.0, 0.3)
+    assert fitmod.hard_limits("torque_limit", "torque", 0, ctx)[1] == 1.2
+    assert fitmod.hard_limits("viscous_damping", "damping", 0, ctx)[0] == -0.08
+    assert fitmod.hard_limits("latency", "delay", 0, ctx) == (0.002, 0.25)
+
+
+def test_lm_past_a_rippled_response_with_wider_secants():
+    """Known answer 2.5: a smooth residual with a fine ripple (period 0.003, like a replay's
+    switching at physics steps) whose 1e-3 log-step secant slopes point the wrong way in places.
+    LM restarts with 10x wider secants when it stalls and reaches the optimum."""
+    s = fitmod.Structure.build(("gain_error",), ("j",), _ctx())
+    k = np.linspace(1.0, 2.0, 30)
+
+    def residual(points):
+        return [k * (2.5 - x[0]) + 0.003 * np.sin(2 * math.pi * x[0] / 0.003) for _, x in points]
+
+    t = fitmod.Track(s, s.u(np.array([1.0])))
+    fitmod.lockstep_lm([t], residual, max_rounds=40)
+    assert t.x[0] == pytest.approx(2.5, abs=0.02)
+
+
 def test_interval_formula_matches_mujoco_sysid(rng):
     # The dev extra installs mujoco[sysid]; without its dependencies the module imports empty.
     sysid = pytest.importorskip("mujoco.sysid")

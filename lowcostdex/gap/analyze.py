@@ -9,11 +9,13 @@
    (the share of the training residual their sensitivity explains), fits the best ``top_k`` jointly
    with the effects already chosen (lockstep bounded LM on multiple-shooting training segments,
    multi-start where non-convex), and replays the fitted candidates open loop on the *select*
-   episodes. The best one is accepted only if it lowers the select error by at least ``min_gain``
-   (relative MSE), the bootstrap over select episodes does not show it clearly worse (5th
-   percentile of the gain above -``min_gain``), it changes the predictions by more than
-   ``min_effect`` noise floors, its fit is not at a parameter bound, and the current train or
-   select error is above the noise floor. Otherwise the
+   episodes. A candidate whose fit lands on a search bound and would otherwise beat the best
+   in-range one is refitted in a range widened toward the parameter's physical hard limit
+   (``fit.widen``; the report says so). The best one is accepted only if it lowers the select
+   error by at least ``min_gain`` (relative MSE), the bootstrap over select episodes does not show
+   it clearly worse (5th percentile of the gain above -``min_gain``), it changes the predictions
+   by more than ``min_effect`` noise floors, its fit is not at a parameter bound it may not
+   leave, and the current train or select error is above the noise floor. Otherwise the
    analysis stops; with no accepted effect the answer is "no significant discrepancy".
 4. The chosen structure is refitted on train + select, then scored once on the untouched *test*
    episodes: error before and after with a bootstrap interval over episodes, the noise floor and
@@ -131,6 +133,7 @@ class CandidateResult:
     params: dict | None = None
     at_bound: bool = False  # fit ended at a parameter bound: not a plausible explanation
     accepted: bool = False
+    widened: list[str] = field(default_factory=list)  # search ranges widened for this fit
 
 
 @dataclass
@@ -144,6 +147,7 @@ class Cause:
     heldout_mae_after: float = math.nan
     flags: list[str] = field(default_factory=list)
     equivalent: list[str] = field(default_factory=list)  # explain the select data as well
+    widened: list[str] = field(default_factory=list)  # search ranges widened beyond the usual
 
 
 @dataclass
@@ -202,7 +206,7 @@ def _ep(w: Window, sources: list[str]) -> dict:
 def _cause_dict(c: Cause) -> dict:
     return {"effect": c.effect, "joints": list(c.joints), "params": c.params,
             "heldout_rmse_after": c.heldout_rmse_after, "heldout_mae_after": c.heldout_mae_after,
-            "flags": c.flags, "equivalent": c.equivalent}
+            "flags": c.flags, "equivalent": c.equivalent, "widened": c.widened}
 
 
 def _cand_dict(c: CandidateResult) -> dict:
@@ -325,6 +329,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
     fit_fn = eng.residual_fn(train_segs)
     stop_reason = "max_effects reached"
     equivalents: dict[str, list[str]] = {}
+    widened_notes: dict[str, list[str]] = {}  # accepted effect -> widened-range report lines
     for step in range(cfg.max_effects):
         remaining = [c for c in cands if c not in current.effects]
         if not remaining:
@@ -383,14 +388,29 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                 if t.cost < best_track[n].cost:
                     best_track[n] = t
         names = list(best_track)
-        sel_pred = eng.predict(sel_eps, [best_track[n].effects() for n in names])
-        results = {}
+        results = _select_results(eng, ds, sel_eps, best_track, names, sel_cur, rng, cfg)
+        # a fit on a search bound that would beat every in-range fit: real sizes can lie beyond
+        # the usual range, so widen toward the hard limit and refit (reported with the cause)
+        top_in = max((results[n][0] for n in names
+                      if not _flags(best_track[n].structure, best_track[n].u, n)),
+                     default=-math.inf)
+        widened: dict[str, tuple[dict, list]] = {}
+        for n in names:
+            t = best_track[n]
+            if results[n][0] > top_in and _flags(t.structure, t.u, n):
+                prog(f"round {step + 1}: {n} on a bound, refit in a wider range",
+                     0.1 + 0.25 * step + 0.22)
+                t, ranges, notes = fitmod.widen_and_refit(t, fit_fn, ctx, cfg.max_rounds)
+                if ranges:
+                    best_track[n], widened[n] = t, (ranges, notes)
+        if widened:
+            results.update(_select_results(eng, ds, sel_eps, best_track, list(widened),
+                                           sel_cur, rng, cfg))
         by_name = {c.effect: c for c in table}
-        for n, pr in zip(names, sel_pred, strict=True):
-            sse = _mse_by_episode(ds, sel_eps, pr)[0]
-            rel, low = _select_gain_ci(sel_cur[0], sse, rng, cfg.bootstrap)
-            results[n] = (rel, low, sse)
+        for n in names:
+            rel, low, sse = results[n]
             c, t = by_name[n], best_track[n]
+            c.widened = [line for _, line in widened.get(n, ({}, []))[1]]
             c.fitted = True
             c.train_rmse = math.sqrt(2 * t.cost / max(len(t.r), 1))
             c.select_rmse = math.sqrt(sse.sum() / sel_cur[2].sum())
@@ -407,7 +427,8 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         for n in set(results) - set(plausible):
             by_name[n].at_bound = True
         if not plausible:
-            stop_reason = "every fitted candidate ended at a parameter bound"
+            stop_reason = ("every fitted candidate ended at a parameter bound (at its hard "
+                           "limit, or not the best fit)")
             timing[f"round{step + 1}"] = time.perf_counter() - t0
             break
         top_gain = max(r[0] for r in plausible.values())
@@ -426,6 +447,10 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             timing[f"round{step + 1}"] = time.perf_counter() - t0
             break
         equivalents[n_best] = [n for n in tied if n != n_best]
+        if n_best in widened:
+            ctx.widened.update(widened[n_best][0])
+            for eff, line in widened[n_best][1]:
+                widened_notes.setdefault(eff, []).append(line)
         joint = fitmod.Structure.build(current.effects + (n_best,), joints, ctx)
         by_name[n_best].accepted = True
         current, cur_x = joint, joint.values_from(best_track[n_best].effects())
@@ -488,6 +513,12 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         if fitmod.polish(final_track, final_fn, ds.timestep):
             # one round re-evaluates residual and Jacobian at the polished point (intervals)
             fitmod.lockstep_lm([final_track], final_fn, 1)
+        if fitmod.at_bounds(final_track.structure, final_track.u):
+            final_track, ranges, notes = fitmod.widen_and_refit(final_track, final_fn, ctx,
+                                                                2 * cfg.max_rounds)
+            ctx.widened.update(ranges)
+            for eff, line in notes:
+                widened_notes.setdefault(eff, []).append(line)
         effects = final_track.effects()
         timing["final_fit"] = time.perf_counter() - t0
     prog("held-out test", 0.95)
@@ -514,6 +545,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             c.heldout_mae_after = float(sae.sum() / n.sum())
             c.flags = _flags(final_track.structure, final_track.u, e.name)
             c.equivalent = equivalents.get(e.name, [])
+            c.widened = widened_notes.get(e.name, [])
             causes.append(c)
     verdict = _verdict(causes, gain, stop_reason)
     timing["total"] = time.perf_counter() - t_start
@@ -522,6 +554,20 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
     return GapResult(cfg, ds.sources or [tr.name for tr in ds.trajectories], joints, split, eps,
                      floor, baseline, extended, causes, rounds, diagnostics, gain, effects,
                      verdict, timing, traces, dict(ds.models), stop_reason)
+
+
+def _select_results(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
+                    tracks: dict[str, fitmod.Track], names: Sequence[str], sel_cur: tuple,
+                    rng: np.random.Generator, cfg: GapConfig
+                    ) -> dict[str, tuple[float, float, np.ndarray]]:
+    """Select-split gain of each named track: (relative MSE reduction, its 5 % bootstrap lower
+    bound, per-episode SSE)."""
+    preds = eng.predict(sel_eps, [tracks[n].effects() for n in names])
+    out = {}
+    for n, pr in zip(names, preds, strict=True):
+        sse = _mse_by_episode(ds, sel_eps, pr)[0]
+        out[n] = (*_select_gain_ci(sel_cur[0], sse, rng, cfg.bootstrap), sse)
+    return out
 
 
 def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:
@@ -658,16 +704,8 @@ def _param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: st
 
 
 def _flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
-    lo, hi = s.u_bounds()
-    flags = []
-    for i, f in enumerate(s.free):
-        if f.effect != name:
-            continue
-        null = effect(name).param(f.param).null
-        for b, label in ((lo[i], "lower"), (hi[i], "upper")):
-            if abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
-                flags.append(f"{f.param}[{s.joints[f.joint]}] at its {label} bound")
-    return flags
+    return [f"{s.free[i].param}[{s.joints[s.free[i].joint]}] at its {side} bound"
+            for i, side in fitmod.at_bounds(s, u) if s.free[i].effect == name]
 
 
 def _verdict(causes: Sequence[Cause], gain: Gain, stop_reason: str) -> str:

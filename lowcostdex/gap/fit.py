@@ -12,13 +12,16 @@ Parameter spaces come from the effect catalogue (``Param.low/high/start``) made 
 latency bound starts at one physics step (the native delay is quantized below it, sysid trap 8),
 torque limits are searched below the peak force the baseline model actually uses, scale factors
 and Stribeck velocities are searched in log space, and non-convex parameters get extra starts.
+A fit that lands on a search bound may widen that bound toward the parameter's physical hard limit
+(``Param.hard``) and refit (``widen``): real-world sizes beyond the usual range are then named
+with their value, and only a fit at its hard limit is rejected.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -45,12 +48,19 @@ class Context:
       peak_force: (nj,) peak |actuator force| of the current model on the training data [N m].
       stall: (nj,) stall torque of each servo at its supply [N m].
       damping: (nj,) nominal joint damping [N m s/rad].
+      widened: search ranges widened beyond the catalogue's, (effect, param, joint index) ->
+        (low, high) in parameter units (``widen``).
     """
 
     dt: float
     peak_force: np.ndarray
     stall: np.ndarray
     damping: np.ndarray
+    widened: dict[tuple[str, str, int], tuple[float, float]] = field(default_factory=dict)
+
+    def with_ranges(self, ranges: dict[tuple[str, str, int], tuple[float, float]]) -> Context:
+        """A copy with these widened ranges added."""
+        return replace(self, widened={**self.widened, **ranges})
 
 
 @dataclass(frozen=True)
@@ -81,8 +91,26 @@ class Free:
         return self.to_u(self.lo), self.to_u(self.hi)
 
 
+def hard_limits(name: str, param: str, j: int, ctx: Context) -> tuple[float, float]:
+    """Physical hard limits of one effect parameter on joint ``j``: the catalogue's
+    ``Param.hard`` made model-aware (dry friction below the servo's stall torque, a torque limit
+    below the peak force the model uses, total damping not negative, a delay of a step or more)."""
+    p = effect(name).param(param)
+    lo, hi = p.hard
+    if (name, param) == ("latency", "delay"):
+        lo = max(lo, ctx.dt)
+    elif (name, param) == ("viscous_damping", "damping"):
+        lo = max(lo, -float(ctx.damping[j]))
+    elif (name, param) in (("coulomb_friction", "frictionloss"), ("stribeck_friction", "static")):
+        hi = min(hi, float(ctx.stall[j]))
+    elif (name, param) == ("torque_limit", "torque"):
+        hi = min(hi, float(max(ctx.peak_force[j], 2 * p.low)))
+    return lo, hi
+
+
 def space(name: str, param: str, j: int, ctx: Context) -> Free:
-    """The bounded search space of one effect parameter on joint ``j``."""
+    """The bounded search space of one effect parameter on joint ``j`` (a range widened by
+    ``widen`` replaces the catalogue's)."""
     p = effect(name).param(param)
     lo, hi, start = p.low, p.high, p.initial
     log = lo > 0 and hi / lo >= 8.0
@@ -110,6 +138,8 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
         fd = 1e-4
     if log:
         fd = 1e-3
+    if (name, param, j) in ctx.widened:
+        lo, hi = ctx.widened[(name, param, j)]
     start = float(np.clip(start, lo, hi))
     extra = tuple(float(np.clip(e, lo, hi)) for e in extra)
     return Free(name, param, j, lo, hi, start, log, fd, extra)
@@ -198,6 +228,79 @@ class Structure:
         return b[:, 0], b[:, 1]
 
 
+def at_bounds(s: Structure, u: np.ndarray) -> list[tuple[int, str]]:
+    """Free scalars of ``s`` whose value ``u`` (optimizer coordinates) sits on a search bound
+    that is not the effect's null (a friction at 0 is absent, not at a bound): (index, "lower" or
+    "upper")."""
+    lo, hi = s.u_bounds()
+    out = []
+    for i, f in enumerate(s.free):
+        null = effect(f.effect).param(f.param).null
+        for b, side in ((lo[i], "lower"), (hi[i], "upper")):
+            if abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
+                out.append((i, side))
+    return out
+
+
+def widen(s: Structure, u: np.ndarray, ctx: Context
+          ) -> tuple[dict[tuple[str, str, int], tuple[float, float]], list[tuple[str, str]]]:
+    """Wider search ranges for the scalars of ``s`` sitting on a bound at ``u``.
+
+    The bound moves out by the range's own span (in optimizer coordinates: a factor for log
+    scalars), never past the hard limit (``hard_limits``). Returns the new ranges
+    {(effect, param, joint): (low, high)} (empty when every such scalar is at its hard limit)
+    and (effect, line) per widened range for the report.
+    """
+    ranges: dict[tuple[str, str, int], tuple[float, float]] = {}
+    notes: list[tuple[str, str]] = []
+    for i, side in at_bounds(s, u):
+        f = s.free[i]
+        h_lo, h_hi = hard_limits(f.effect, f.param, f.joint, ctx)
+        lo_u, hi_u = f.u_bounds
+        span = hi_u - lo_u
+        lo, hi = f.lo, f.hi
+        if side == "lower" and f.lo > h_lo:
+            lo = max(f.from_u(lo_u - span), h_lo) if not f.log or h_lo > 0 else h_lo
+        elif side == "upper" and f.hi < h_hi:
+            hi = min(f.from_u(hi_u + span), h_hi)
+        if (lo, hi) == (f.lo, f.hi):
+            continue
+        ranges[(f.effect, f.param, f.joint)] = (lo, hi)
+        unit = effect(f.effect).param(f.param).unit
+        unit = "" if unit == "1" else " " + unit
+        notes.append((f.effect, f"{f.param}[{s.joints[f.joint]}] reached its {side} search "
+                      f"bound {f.lo if side == 'lower' else f.hi:.4g}{unit}: range widened to "
+                      f"[{lo:.4g}, {hi:.4g}]{unit} (hard limit [{h_lo:.4g}, {h_hi:.4g}])"))
+    return ranges, notes
+
+
+def widen_and_refit(t: Track, residual: ResidualFn, ctx: Context, max_rounds: int,
+                    passes: int = 3) -> tuple[Track, dict, list[tuple[str, str]]]:
+    """Refit a track whose fit landed on search bounds in wider ranges (``widen``), up to
+    ``passes`` times or until no scalar is on a bound it may leave.
+
+    Returns the (possibly new) track, the ranges widened for it and the report lines; the new
+    track replaces ``t`` only if it fits at least as well.
+    """
+    ranges: dict[tuple[str, str, int], tuple[float, float]] = {}
+    notes: list[tuple[str, str]] = []
+    for _ in range(passes):
+        if t.r is None:
+            break
+        new, lines = widen(t.structure, t.u, ctx.with_ranges(ranges))
+        if not new:
+            break
+        trial_ranges = {**ranges, **new}
+        s = Structure.build(t.structure.effects, t.structure.joints,
+                            ctx.with_ranges(trial_ranges), fixed=t.structure.fixed)
+        nt = Track(s, s.u(t.x), label=t.label + "+widened")
+        lockstep_lm([nt], residual, max_rounds)
+        if not nt.cost <= t.cost:
+            break
+        t, ranges, notes = nt, trial_ranges, notes + lines
+    return t, ranges, notes
+
+
 # A residual function evaluates many parameter points at once: list of (structure, x) ->
 # list of residual vectors (measured - predicted over the scored training samples).
 ResidualFn = Callable[[list[tuple[Structure, np.ndarray]]], list[np.ndarray]]
@@ -219,6 +322,7 @@ class Track:
     rounds: int = 0
     rejects: int = 0
     history: list[float] = field(default_factory=list)
+    fd_scale: float = 1.0  # finite-difference steps x this (10 after a stall, see lockstep_lm)
 
     @property
     def x(self) -> np.ndarray:
@@ -242,7 +346,11 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
       rtol: stop when an accepted step lowers the cost by less than this fraction.
       on_round: progress callback (round, live tracks).
       prune: called after each round with (round, tracks); may end tracks (``done = True``).
-      max_rejects: a track ends after this many rejected trials in a row.
+      max_rejects: a track ends after this many rejected trials in a row, unless its
+        Jacobian came from the fine finite-difference steps: the replayed response has small
+        steps of its own (saturation and delay switching at physics steps; seen: a 2.5x gain
+        fit stalled at 2.06 because the 1e-3 secant's slope had the wrong sign, the 1e-2 one
+        the right sign), so it restarts there once with steps 10x wider.
     """
     for t in tracks:
         t.trial = t.u.copy()
@@ -267,7 +375,8 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
             if not np.isfinite(cost):
                 cost = math.inf
             if t.r is None or cost < t.cost:
-                improvement = (t.cost - cost) / t.cost if np.isfinite(t.cost) else 1.0
+                improvement = ((t.cost - cost) / t.cost if np.isfinite(t.cost) and t.r is not None
+                               else 1.0)
                 t.u, t.cost, t.r = cols[0].copy(), cost, r_trial
                 t.jac = np.stack([(fr - r_trial) / (c - cols[0])[i]
                                   for i, (fr, c) in enumerate(zip(fd_r, cols[1:], strict=True))],
@@ -281,6 +390,11 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
                 t.mu = max(10.0 * t.mu, 0.1)
                 t.rejects += 1
                 if t.rejects >= max_rejects or t.mu > 1e6:
+                    if t.fd_scale == 1.0 and t.jac is not None and t.jac.shape[1]:
+                        # the next round re-evaluates the Jacobian here with wider steps
+                        t.fd_scale, t.trial, t.r, t.rejects, t.mu = 10.0, t.u.copy(), None, 0, 1e-2
+                        t.history.append(t.cost)
+                        continue
                     t.done = True
             t.history.append(t.cost)
             if not t.done:
@@ -391,7 +505,7 @@ def _fd_points(t: Track) -> list[np.ndarray]:
     lo, hi = t.structure.u_bounds()
     cols = [u.copy()]
     for i, f in enumerate(t.structure.free):
-        step = f.fd
+        step = f.fd * t.fd_scale
         if u[i] + step > hi[i]:
             step = -step
         c = u.copy()

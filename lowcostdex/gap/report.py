@@ -82,6 +82,7 @@ def summary(result: GapResult) -> str:
                      f"{_mrad(c.heldout_rmse_after)} mrad" + (f" [{'; '.join(c.flags)}]"
                                                                  if c.flags else "")
                      + (f" (equivalent: {', '.join(c.equivalent)})" if c.equivalent else ""))
+        lines += [f"    range widened: {w}" for w in c.widened]
     return "\n".join(lines)
 
 
@@ -125,6 +126,9 @@ def markdown(result: GapResult) -> str:
                        f"{_mrad(c.heldout_rmse_after)} |")
             for f in c.flags:
                 out.append(f"\n> flag: {c.effect}: {f}")
+            for w in c.widened:
+                out.append(f"\n> range widened: {c.effect}: {w} (a size beyond the usual "
+                           "range: check it is physical)")
             if c.equivalent:
                 out.append(f"\n> {c.effect} and {', '.join(c.equivalent)} explain the select "
                            "data equally well (not identifiable from these logs); "
@@ -141,6 +145,8 @@ def markdown(result: GapResult) -> str:
             gain = f"{100 * c.select_gain:.1f} %" if c.select_gain is not None else ""
             if c.at_bound:
                 params += " (at a bound)"
+            if c.widened:
+                params += " (range widened)"
             out.append(f"| {c.effect} | {c.score:.3f} | {_mrad(c.select_rmse)} | {gain} | "
                        f"{params} | {'yes' if c.accepted else ''} |")
         out.append("")

@@ -19,7 +19,10 @@ Values are arrays over the effect's targets (actuated joints): shape (n,) for on
 per-rollout state (e.g. the backlash play position) and calls these pure functions.
 
 Magnitudes: ``Param.dr`` holds plausible D'Claw ranges (04-sysid.md section 6; ROBEL
-RandomDynamics; OpenAI Table 1); ``low``/``high`` are wider fit bounds.
+RandomDynamics; OpenAI Table 1); ``low``/``high`` are wider fit bounds covering real-world sizes
+(issue 11: latency to 80 ms, offsets to +-0.2 rad, gains 0.3-3x, ...); ``limit`` is the physical
+hard limit a fit may widen its range to when it lands on ``low``/``high`` (latency 0.25 s; offsets
++-0.8 rad; scale factors 0.02-50 ... 0.1-10; friction shares below 1).
 """
 
 from __future__ import annotations
@@ -51,6 +54,8 @@ class Param:
       dr: plausible range for domain randomization on a D'Claw [unit].
       start: initial guess for fitting (default: ``null`` moved inside the bounds).
       doc: one-line meaning.
+      limit: physical hard limits [unit]: a fit that lands on ``low`` or ``high`` may widen its
+        search range up to these, never beyond (default: ``(low, high)``, no widening).
     """
 
     name: str
@@ -61,12 +66,20 @@ class Param:
     dr: tuple[float, float]
     start: float | None = None
     doc: str = ""
+    limit: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if not self.low < self.high:
             raise ConfigError(f"param {self.name}: low must be < high")
         if not (self.low <= self.dr[0] <= self.dr[1] <= self.high):
             raise ConfigError(f"param {self.name}: dr range {self.dr} outside bounds")
+        if self.limit is not None and not self.limit[0] <= self.low < self.high <= self.limit[1]:
+            raise ConfigError(f"param {self.name}: hard limit {self.limit} inside the bounds")
+
+    @property
+    def hard(self) -> tuple[float, float]:
+        """Physical hard limits of the parameter (``limit``, or the fit bounds)."""
+        return self.limit if self.limit is not None else (self.low, self.high)
 
     @property
     def initial(self) -> float:
@@ -208,13 +221,13 @@ class Latency(Effect):
     kind = "model"
     doc = "command latency: the servo sees the goal `delay` seconds late (native actuator delay)"
     params = (Param("delay", 0.0, 0.0, 0.1, "s", (0.0, 0.03), start=0.01,
-                    doc="goal-to-servo delay"),)
+                    doc="goal-to-servo delay", limit=(0.0, 0.25)),)
     fields = ("actuator_delay",)
 
     @classmethod
     def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
         dt = spec.option.timestep
-        need = int(math.ceil(cls.params[0].high / dt)) + 2
+        need = int(math.ceil(cls.params[0].hard[1] / dt)) + 2
         for act in spec.actuators:
             if act.target in joints:
                 act.nsample = max(act.nsample, need)
@@ -229,7 +242,8 @@ class CoulombFriction(Effect):
     name = "coulomb_friction"
     kind = "model"
     doc = "extra dry (Coulomb) friction in the joint, with stiction (MuJoCo frictionloss)"
-    params = (Param("frictionloss", 0.0, 0.0, 0.5, "N m", (0.0, 0.1), start=0.02),)
+    params = (Param("frictionloss", 0.0, 0.0, 0.5, "N m", (0.0, 0.1), start=0.02,
+                    limit=(0.0, 5.0)),)
     fields = ("dof_frictionloss",)
 
     @classmethod
@@ -242,7 +256,8 @@ class ViscousDamping(Effect):
     name = "viscous_damping"
     kind = "model"
     doc = "extra viscous damping in the joint (negative: less than nominal)"
-    params = (Param("damping", 0.0, -0.5, 2.0, "N m s/rad", (0.0, 0.3), start=0.05),)
+    params = (Param("damping", 0.0, -0.5, 2.0, "N m s/rad", (0.0, 0.3), start=0.05,
+                    limit=(-0.5, 10.0)),)
     fields = ("dof_damping",)
 
     @classmethod
@@ -257,7 +272,7 @@ class GainError(Effect):
     doc = ("position gain off by a factor: a dcmotor servo's firmware P/I/D (torque per volt "
            "of error), a position actuator's stiffness kp (gain and bias together), a velocity "
            "actuator's kv, a motor's torque gain")
-    params = (Param("scale", 1.0, 0.2, 4.0, "1", (0.7, 1.4)),)
+    params = (Param("scale", 1.0, 0.2, 4.0, "1", (0.7, 1.4), limit=(0.05, 20.0)),)
     fields = ("actuator_gainprm", "actuator_biasprm")
 
     @classmethod
@@ -294,7 +309,8 @@ class TorqueLimit(Effect):
     name = "torque_limit"
     kind = "model"
     doc = "the servo delivers at most `torque` (current limit, weak supply, worn motor)"
-    params = (Param("torque", math.inf, 0.02, 10.0, "N m", (1.5, 4.0), start=1.0),)
+    params = (Param("torque", math.inf, 0.02, 10.0, "N m", (1.5, 4.0), start=1.0,
+                    limit=(0.002, 10.0)),)
     fields = ("actuator_forcerange", "actuator_forcelimited")
 
     @classmethod
@@ -319,7 +335,7 @@ class VelocityLimit(Effect):
     name = "velocity_limit"
     kind = "model"
     doc = "no-load speed off by a factor (back-EMF constant; stall torque kept)"
-    params = (Param("scale", 1.0, 0.2, 3.0, "1", (0.8, 1.2)),)
+    params = (Param("scale", 1.0, 0.2, 3.0, "1", (0.8, 1.2), limit=(0.05, 10.0)),)
     fields = ("actuator_gainprm",)
 
     @classmethod
@@ -341,7 +357,7 @@ class MotorStrength(Effect):
     kind = "model"
     doc = ("torque per volt (K/R) off by a factor: stall torque and the firmware's torque per "
            "position error scale with it, the no-load speed is kept (winding resistance R / scale)")
-    params = (Param("scale", 1.0, 0.2, 5.0, "1", (0.8, 1.25)),)
+    params = (Param("scale", 1.0, 0.2, 5.0, "1", (0.8, 1.25), limit=(0.05, 20.0)),)
     fields = ("actuator_gainprm",)
 
     @classmethod
@@ -356,7 +372,7 @@ class InertiaError(Effect):
     name = "inertia_error"
     kind = "model"
     doc = "reflected rotor inertia (armature) off by a factor"
-    params = (Param("scale", 1.0, 0.1, 10.0, "1", (0.7, 1.5)),)
+    params = (Param("scale", 1.0, 0.1, 10.0, "1", (0.7, 1.5), limit=(0.02, 50.0)),)
     fields = ("dof_armature",)
 
     @classmethod
@@ -369,7 +385,7 @@ class MassError(Effect):
     name = "mass_error"
     kind = "model"
     doc = "mass (and inertia) of the body the joint moves off by a factor"
-    params = (Param("scale", 1.0, 0.3, 3.0, "1", (0.8, 1.25)),)
+    params = (Param("scale", 1.0, 0.3, 3.0, "1", (0.8, 1.25), limit=(0.1, 10.0)),)
     fields = ("body_mass", "body_inertia")
 
     @classmethod
@@ -390,8 +406,9 @@ class StribeckFriction(Effect):
     doc = ("breakaway friction above the sliding level at low speed: "
            "extra = static * exp(-(v / velocity)^2)")
     params = (
-        Param("static", 0.0, 0.0, 0.5, "N m", (0.0, 0.08), start=0.03),
-        Param("velocity", 0.2, 0.01, 2.0, "rad/s", (0.05, 0.5), start=0.2),
+        Param("static", 0.0, 0.0, 0.5, "N m", (0.0, 0.08), start=0.03, limit=(0.0, 5.0)),
+        Param("velocity", 0.2, 0.01, 2.0, "rad/s", (0.05, 0.5), start=0.2,
+              limit=(0.002, 20.0)),
     )
 
     @classmethod
@@ -405,7 +422,7 @@ class LoadDependentFriction(Effect):
     name = "load_dependent_friction"
     kind = "friction"
     doc = "gearbox friction growing with the motor's torque: extra = mu * |tau_motor|"
-    params = (Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05),)
+    params = (Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05, limit=(0.0, 0.95)),)
 
     @classmethod
     def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
@@ -424,11 +441,11 @@ class GearboxFriction(Effect):
     # |tau_ext - tau_motor|, sliding and (Stribeck) at rest.
     params = (
         Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05,
-              doc="sliding friction per N m carried by the gears"),
+              doc="sliding friction per N m carried by the gears", limit=(0.0, 0.95)),
         Param("static", 0.0, 0.0, 1.0, "1", (0.0, 0.15),
-              doc="extra friction per N m carried at rest (breakaway)"),
+              doc="extra friction per N m carried at rest (breakaway)", limit=(0.0, 2.0)),
         Param("velocity", 0.5, 0.02, 5.0, "rad/s", (0.1, 1.0), start=0.5,
-              doc="Stribeck velocity of the breakaway share"),
+              doc="Stribeck velocity of the breakaway share", limit=(0.005, 20.0)),
     )
 
     @classmethod
@@ -449,7 +466,8 @@ class Backlash(Effect):
     name = "backlash"
     kind = "command"
     doc = "gear/horn play of total `width`: a play operator between goal and servo setpoint"
-    params = (Param("width", 0.0, 0.0, 0.1, "rad", (0.0, 0.017), start=0.01),)
+    params = (Param("width", 0.0, 0.0, 0.1, "rad", (0.0, 0.017), start=0.01,
+                    limit=(0.0, 0.3)),)
 
     @classmethod
     def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
@@ -480,7 +498,7 @@ class MountingOffset(Effect):
     kind = "calibration"
     doc = ("the servo's encoder zero is off the model's joint zero: the servo reads and holds "
            "q + offset (a horn mounted off by that angle, a tilted bench; BAM's q_offset)")
-    params = (Param("offset", 0.0, -0.3, 0.3, "rad", (-0.03, 0.03)),)
+    params = (Param("offset", 0.0, -0.3, 0.3, "rad", (-0.03, 0.03), limit=(-0.8, 0.8)),)
 
     @classmethod
     def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
@@ -497,7 +515,7 @@ class PositionOffset(Effect):
     name = "position_offset"
     kind = "observation"
     doc = "calibration offset: the encoder reading is off by a constant"
-    params = (Param("offset", 0.0, -0.2, 0.2, "rad", (-0.03, 0.03)),)
+    params = (Param("offset", 0.0, -0.2, 0.2, "rad", (-0.03, 0.03), limit=(-0.8, 0.8)),)
 
     @classmethod
     def observe(cls, t: Targets, v: Values, q: np.ndarray,
@@ -540,7 +558,8 @@ class ThermalDerating(Effect):
     kind = "exogenous"
     requires = ("temperature",)
     doc = "winding resistance rises with the measured temperature: R = R0 (1 + a (T - T_ref))"
-    params = (Param("tempcoef", 0.0, 0.0, 0.03, "1/K", (0.0039, 0.0039), start=0.004),)
+    params = (Param("tempcoef", 0.0, 0.0, 0.03, "1/K", (0.0039, 0.0039), start=0.004,
+                    limit=(0.0, 0.1)),)
 
     @classmethod
     def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
@@ -559,7 +578,7 @@ class VoltageSag(Effect):
     requires = ("voltage",)
     doc = ("the supply follows the measured input voltage instead of the nominal one: "
            "V = V_nom + weight (V_meas - V_nom)")
-    params = (Param("weight", 0.0, 0.0, 1.5, "1", (1.0, 1.0), start=0.5),)
+    params = (Param("weight", 0.0, 0.0, 1.5, "1", (1.0, 1.0), start=0.5, limit=(0.0, 3.0)),)
 
     @classmethod
     def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
