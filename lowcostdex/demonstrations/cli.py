@@ -104,7 +104,8 @@ def _record_demos(args: argparse.Namespace) -> int:
     )
     from lowcostdex.demonstrations.teachers import AllegroTeacherConfig, teacher_class
     from lowcostdex.errors import ConfigError
-    from lowcostdex.hardware.cli import check_port, load_spec
+    from lowcostdex.hardware.dynamixel.ports import check_port
+    from lowcostdex.hardware.hands import load_spec
     from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim.registry import register_envs
 

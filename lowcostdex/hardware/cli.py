@@ -14,12 +14,10 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from pathlib import Path
 
 from lowcostdex.argtypes import SEED, integer, number
 from lowcostdex.errors import InputError
-
-SERIAL_PATTERNS = ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/tty.usbserial*", "/dev/tty.usbmodem*")
+from lowcostdex.hardware.hands import load_spec
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -105,49 +103,10 @@ def parse_ids(text: str) -> list[int]:
     return out
 
 
-def check_port(port: str) -> None:
-    """Refuse a serial device path that is not there or not usable, saying what to do.
-
-    ``emulated`` and names that are not paths (Windows ``COM3``) pass; the bus reports those.
-    """
-    if port == "emulated" or os.name != "posix" or not port.startswith("/"):
-        return
-    path = Path(port)
-    if not path.exists():
-        import glob
-
-        found = sorted(p for pattern in SERIAL_PATTERNS for p in glob.glob(pattern))
-        seen = (f"serial devices present: {', '.join(found)}" if found
-                else "no USB serial device is present")
-        raise InputError(f"--port {port}: no such device ({seen}); plug in the USB adapter "
-                         "(U2D2), check its power, or use --port emulated")
-    if path.is_dir():
-        raise InputError(f"--port {port} is a folder, not a serial device")
-    if not os.access(path, os.R_OK | os.W_OK):
-        raise InputError(f"--port {port}: permission denied; add yourself to the 'dialout' "
-                         "group (sudo usermod -aG dialout $USER, then log in again)")
-
-
 def check_baud(baud: int) -> None:
     if baud <= 0:
         raise InputError(f"--baud {baud}: the bit rate must be positive (Dynamixel default "
                          "1000000, factory 57600)")
-
-
-def load_spec(path: str):
-    """``HandSpec.load`` with a one-line InputError for a file that is not a hand spec."""
-    from lowcostdex.errors import LowcostdexError
-    from lowcostdex.hardware.hands import HandSpec
-
-    try:
-        return HandSpec.load(path)
-    except InputError as exc:  # names the file and the field; say which option gave it
-        raise InputError(f"--spec {exc}") from None
-    except (LowcostdexError, OSError):
-        raise
-    except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise InputError(f"--spec {path}: not a hand spec JSON ({type(exc).__name__}: {exc})"
-                         ) from None
 
 
 def _emulated_chain(hand: str, clock: str = "virtual", **kwargs):
@@ -159,6 +118,8 @@ def _emulated_chain(hand: str, clock: str = "virtual", **kwargs):
 
 
 def _port(args: argparse.Namespace):
+    from lowcostdex.hardware.dynamixel.ports import check_port
+
     check_baud(args.baud)
     if args.port == "emulated":
         return _emulated_chain(args.hand, baudrate=args.baud).port()
@@ -175,25 +136,6 @@ def _list_ports() -> int:
         print("scan one with: lowcostdex scan --port PORT (a /dev/serial/by-id name stays the "
               "same when the adapter is replugged)")
     return 0 if ports else 1
-
-
-def pick_port(port: str | None) -> str:
-    """``port``, or the one usable USB serial port; InputError listing the candidates else."""
-    if port is not None:
-        check_port(port)
-        return port
-    from lowcostdex.hardware.dynamixel.ports import format_ports, list_serial_ports
-
-    ports = list_serial_ports()
-    usable = [p for p in ports if p.accessible]
-    if len(usable) == 1:
-        chosen = usable[0]
-        print(f"using {chosen.device} ({chosen.usb_id} {chosen.description})")
-        for problem in chosen.problems():
-            print(f"  ! {problem}")
-        return chosen.device
-    what = "no usable USB serial port" if not usable else "several USB serial ports"
-    raise InputError(f"{what}; pass --port. Ports found:\n{format_ports(ports)}")
 
 
 def _scan(args: argparse.Namespace) -> int:
@@ -299,6 +241,7 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _setup_motors(args: argparse.Namespace) -> int:
+    from lowcostdex.hardware.dynamixel.ports import pick_port
     from lowcostdex.hardware.dynamixel.scan import scan
     from lowcostdex.hardware.dynamixel.setup_motors import check_hand, setup_motors
     from lowcostdex.hardware.hands import hand_spec

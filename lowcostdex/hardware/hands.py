@@ -25,7 +25,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from lowcostdex.errors import ConfigError, InputError, check_choice
+from lowcostdex.errors import ConfigError, InputError, LowcostdexError, check_choice
 
 MAX_JOINT_SPEED = 50.0
 """Largest plausible ``max_velocity`` of any joint [rad/s]: above every servo listed in
@@ -286,3 +286,17 @@ def hand_spec(name: str) -> HandSpec:
     """The default spec of a named hand; the error lists the known hands."""
     check_choice("hand", name, HANDS)
     return HANDS[name]()
+
+
+def load_spec(path: str):
+    """``HandSpec.load`` for a command's ``--spec`` option: a one-line InputError for a file that
+    is not a hand spec."""
+    try:
+        return HandSpec.load(path)
+    except InputError as exc:  # names the file and the field; say which option gave it
+        raise InputError(f"--spec {exc}") from None
+    except (LowcostdexError, OSError):
+        raise
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise InputError(f"--spec {path}: not a hand spec JSON ({type(exc).__name__}: {exc})"
+                         ) from None

@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from lowcostdex.errors import InputError
 from lowcostdex.hardware.dynamixel import transport
 
 U2D2_USB_ID = (0x0403, 0x6014)  # FTDI FT232H, the ROBOTIS U2D2 (05-dynamixel-protocol.md sec. 5)
@@ -155,3 +156,46 @@ def _group_of(device: str) -> tuple[str | None, bool | None]:
     except KeyError:
         return group.gr_name, None
     return group.gr_name, user.pw_gid == gid or user.pw_name in group.gr_mem
+
+
+SERIAL_PATTERNS = ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/tty.usbserial*", "/dev/tty.usbmodem*")
+
+
+def check_port(port: str) -> None:
+    """Refuse a serial device path that is not there or not usable, saying what to do.
+
+    ``emulated`` and names that are not paths (Windows ``COM3``) pass; the bus reports those.
+    """
+    if port == "emulated" or os.name != "posix" or not port.startswith("/"):
+        return
+    path = Path(port)
+    if not path.exists():
+        import glob
+
+        found = sorted(p for pattern in SERIAL_PATTERNS for p in glob.glob(pattern))
+        seen = (f"serial devices present: {', '.join(found)}" if found
+                else "no USB serial device is present")
+        raise InputError(f"--port {port}: no such device ({seen}); plug in the USB adapter "
+                         "(U2D2), check its power, or use --port emulated")
+    if path.is_dir():
+        raise InputError(f"--port {port} is a folder, not a serial device")
+    if not os.access(path, os.R_OK | os.W_OK):
+        raise InputError(f"--port {port}: permission denied; add yourself to the 'dialout' "
+                         "group (sudo usermod -aG dialout $USER, then log in again)")
+
+
+def pick_port(port: str | None) -> str:
+    """``port``, or the one usable USB serial port; InputError listing the candidates else."""
+    if port is not None:
+        check_port(port)
+        return port
+    ports = list_serial_ports()
+    usable = [p for p in ports if p.accessible]
+    if len(usable) == 1:
+        chosen = usable[0]
+        print(f"using {chosen.device} ({chosen.usb_id} {chosen.description})")
+        for problem in chosen.problems():
+            print(f"  ! {problem}")
+        return chosen.device
+    what = "no usable USB serial port" if not usable else "several USB serial ports"
+    raise InputError(f"{what}; pass --port. Ports found:\n{format_ports(ports)}")

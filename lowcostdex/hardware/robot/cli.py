@@ -56,14 +56,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def _hand(spec_path: str | None):
-    from lowcostdex.hardware.cli import load_spec
-    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hardware.hands import dclaw_spec, load_spec
 
     return load_spec(spec_path) if spec_path else dclaw_spec()
 
 
 def _check_dynamixel_port(port: str) -> None:
-    from lowcostdex.hardware.cli import check_port
+    from lowcostdex.hardware.dynamixel.ports import check_port
 
     check_port(port)
 
