@@ -14,8 +14,12 @@ EXCEPTIONS: dict[str, str] = {
         "the effect catalogue; edited by three gap-analysis branches at once on 2026-11-25, "
         "split (catalogue entries by family) when they have landed"),
     "lowcostdex/gap/logs.py": (
-        "log formats and their validation; edited by two branches on 2026-11-25, split (one "
-        "module per format: CSV/NPZ, BAM JSON) when they have landed"),
+        "log formats and their validation, grown to 922 lines by the log checks of issue 12 "
+        "(landed 22:30 on 2026-11-25); split into the Trajectory and its CSV/NPZ files, the "
+        "entry checks and BAM's JSON logs when the gap branches have landed"),
+    "lowcostdex/gap/analyze.py": (
+        "the gap analysis's selection rounds, grown to 732 lines at 22:31 on 2026-11-25 and "
+        "still being edited on the gap-cands branch; split with its author"),
     "lowcostdex/transfer/loop.py": (
         "the transfer loop (issue 14), landed 2026-11-25 22:05 while its author keeps working "
         "on it; split with its author"),
