@@ -53,6 +53,9 @@ these (SIGKILL, power loss of the PC), the Bus Watchdog armed at torque-on stops
 Where the parts live: settings, counters, errors and warnings in ``config``; register access, sync
 reads and the late-reply defences in ``transactions``; the torque-off hooks in ``shutdown``;
 ``scan`` in ``scan``. This module keeps the bus: connect, read_state, goals, torque, faults.
+It is over 600 lines because it is one class whose methods share one state (control-table
+addresses, position limits, validity streaks, the fault cache, the torque set); the parts that
+need none of it live in the modules above.
 """
 
 from __future__ import annotations

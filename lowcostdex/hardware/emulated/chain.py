@@ -56,6 +56,8 @@ external torques from a hook registered with ``chain.add_step_hook``), ``chain.d
 Where the parts live: the clocks in ``clocks``, the physics drive and firmware imperfections in
 ``drive``, the device-side goal log and audit in ``goal_log``, each motor's control table and
 behaviour in ``firmware``; this module keeps the chain (packets in, status packets out, faults).
+It is over 600 lines because it is the instruction set (PING .. FAST_BULK_READ) over one
+shared state (bus clock, motors, pending faults, logs); each instruction's handler is short.
 """
 
 from __future__ import annotations
