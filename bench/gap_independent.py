@@ -45,13 +45,15 @@ def run(case_id: str, rig: str, names: tuple[str, ...], seed: int, duration: flo
         res = analyze(load_dataset(paths, model=model), GapConfig(seed=0))
         wall = time.perf_counter() - t0
     named = {c.effect for c in res.causes}
-    cover = []  # (effect, joint, truth, value, low, high) for each named hidden effect
+    # (effect, joint, truth, value, low, high, noise-only low, high) per named hidden effect
+    cover = []
     for c in res.causes:
         if c.effect in case.hidden.values:
             (d,) = c.params.values()  # every truth-simulator effect has one parameter
-            for j, (v, iv) in enumerate(zip(d["value"], d["interval"], strict=True)):
+            for j, (v, iv, nv) in enumerate(zip(d["value"], d["interval"], d["interval_noise"],
+                                                strict=True)):
                 cover.append((c.effect, j, float(case.hidden.values[c.effect][j]), float(v),
-                              float(iv[0]), float(iv[1])))
+                              float(iv[0]), float(iv[1]), float(nv[0]), float(nv[1])))
     return {
         "case": case_id, "rig": rig, "seed": seed, "hidden": list(names),
         "truth": {k: v.tolist() for k, v in case.hidden.values.items()},
@@ -111,16 +113,17 @@ def main() -> None:
         print(f"  {h:18s} exact {g.count('exact')}/{len(g)}, family "
               f"{sum(x in ('exact', 'family') for x in g)}/{len(g)}")
     cov = [x for r in out for x in r["cover"]]
-    inside = [lo <= t <= hi for _, _, t, _, lo, hi in cov]
+    inside = [x[4] <= x[2] <= x[5] for x in cov]
+    noise_in = [x[6] <= x[2] <= x[7] for x in cov]
     print(f"\n95 % intervals of named hidden effects containing the truth: {sum(inside)}/"
-          f"{len(cov)}" + (f" ({100 * sum(inside) / len(cov):.0f} %)" if cov else ""))
+          f"{len(cov)}" + (f" ({100 * sum(inside) / len(cov):.0f} %)" if cov else "")
+          + f"; residual-noise intervals alone: {sum(noise_in)}/{len(cov)}")
     by: dict[str, list[tuple]] = {}
     for x, ok in zip(cov, inside, strict=True):
         by.setdefault(x[0], []).append((ok, x))
     for h, xs in sorted(by.items()):
         # how far off the misses are, in interval half-widths
-        miss = [abs(t - v) / max(0.5 * (hi - lo), 1e-300) for ok, (_, _, t, v, lo, hi) in xs
-                if not ok]
+        miss = [abs(x[2] - x[3]) / max(0.5 * (x[5] - x[4]), 1e-300) for ok, x in xs if not ok]
         print(f"  {h:18s} {sum(ok for ok, _ in xs)}/{len(xs)}"
               + (f"; misses off by {', '.join(f'{m:.1f}' for m in sorted(miss))} half-widths"
                  if miss else ""))

@@ -360,6 +360,36 @@ def test_lm_past_a_rippled_response_with_wider_secants():
     assert t.x[0] == pytest.approx(2.5, abs=0.02)
 
 
+def test_block_intervals_cover_a_slope_that_varies_between_blocks():
+    """Known answers from a written-out regression y = a_b x + noise over 20 blocks of 50
+    samples. With one slope (a_b = 1) and white noise, the block interval covers the truth at
+    about its nominal 95 %. With a slope that differs between blocks (a_b = 1 + 0.05 z_b, z_b
+    standard normal; the truth is their population mean 1) and little noise, the residual-noise
+    interval covers rarely and the block interval still about 95 %."""
+    rng = np.random.default_rng(7)
+    x = np.linspace(-1, 1, 1000)
+    blocks = [slice(50 * b, 50 * (b + 1)) for b in range(20)]
+    hits = {"white": [], "varying_noise": [], "varying_block": []}
+    for _ in range(300):
+        for case in ("white", "varying"):
+            slope = np.ones(20) if case == "white" else 1 + 0.05 * rng.standard_normal(20)
+            y = np.repeat(slope, 50) * x + (0.1 if case == "white" else 0.005) * \
+                rng.standard_normal(1000)
+            a = float(x @ y / (x @ x))
+            r, jac = y - a * x, -x[:, None]
+            hb = fitmod.block_halfwidths(r, jac, blocks)[0]
+            if case == "white":
+                hits["white"].append(abs(a - 1.0) <= hb)
+            else:
+                hn = fitmod.interval_halfwidths(r, jac, 1000)[0]
+                hits["varying_noise"].append(abs(a - 1.0) <= hn)
+                hits["varying_block"].append(abs(a - 1.0) <= hb)
+    assert 0.9 <= np.mean(hits["white"]) <= 0.99
+    assert np.mean(hits["varying_noise"]) < 0.5
+    assert 0.88 <= np.mean(hits["varying_block"]) <= 0.99
+    assert np.all(np.isinf(fitmod.block_halfwidths(np.zeros(10), np.zeros((10, 1)), blocks[:3])))
+
+
 def test_interval_formula_matches_mujoco_sysid(rng):
     # The dev extra installs mujoco[sysid]; without its dependencies the module imports empty.
     sysid = pytest.importorskip("mujoco.sysid")

@@ -81,6 +81,9 @@ class GapConfig:
       max_rounds: Levenberg-Marquardt rounds per fit.
       test_logs: indices of logs to hold out for the test (None: random episodes).
       bootstrap: bootstrap resamples.
+      interval_block: block length of the data-spread interval [s]: a parameter's reported
+        95 % interval is the wider of the residual-noise one (Jacobian, autocorrelation
+        inflated) and the spread of what blocks of this length pull it to (model error).
       seed: seed of the split and the bootstrap.
       nthread: simulation threads (0: all CPUs).
     """
@@ -102,6 +105,7 @@ class GapConfig:
     max_rounds: int = 20
     test_logs: tuple[int, ...] | None = None
     bootstrap: int = 2000
+    interval_block: float = 0.5
     seed: int = 0
     nthread: int = 0
 
@@ -117,6 +121,8 @@ class GapConfig:
         check_choice("search", self.search, ("forward", "both"))
         if not self.segment > 0 or self.burn_in < 0:
             raise ConfigError("segment must be > 0 s and burn_in >= 0 s")
+        if not self.interval_block > 0:
+            raise ConfigError("interval_block must be > 0 s")
 
 
 @dataclass
@@ -535,11 +541,14 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
         _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0].sum()
         / max(sel_cur[2].sum(), 1))))
     if final_track is not None:
-        half = fitmod.interval_halfwidths(final_track.r, final_track.jac,
-                                          effective_n(final_track.r))
+        noise = fitmod.interval_halfwidths(final_track.r, final_track.jac,
+                                           effective_n(final_track.r))
+        spread = fitmod.block_halfwidths(final_track.r, final_track.jac,
+                                         _blocks(ds, all_segs, cfg.interval_block))
+        half = np.maximum(noise, spread)
         for k, e in enumerate(effects):
             c = Cause(e.name, e.joints, _param_report(final_track.structure, final_track.u, half,
-                                                      e.name))
+                                                      e.name, noise))
             sse, sae, n = _mse_by_episode(ds, test_eps, test_pred[k])
             c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
             c.heldout_mae_after = float(sae.sum() / n.sum())
@@ -687,20 +696,46 @@ def _effect_size(eng: _Engine, eps: Sequence[Window], cur: Sequence[AppliedEffec
     return float(np.sqrt(np.mean(d * d)))
 
 
-def _param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str) -> dict:
+def _blocks(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[slice]:
+    """Slices of the residual vector of ``segs`` (``_Engine.residuals`` layout: each segment's
+    scored samples x logged joints) in blocks of about ``seconds`` (a short tail joins the
+    block before it)."""
+    out, pos = [], 0
+    nj = len(ds.joints)
+    for w in segs:
+        t = ds.trajectories[w.traj].time[w.score_from:w.stop]
+        k = np.searchsorted(t, t[0] + seconds * np.arange(1, int((t[-1] - t[0]) / seconds) + 1))
+        edges = [0, *[int(e) for e in k if 0 < e < len(t)], len(t)]
+        if len(edges) > 2 and t[-1] - t[edges[-2]] < 0.5 * seconds:
+            edges.pop(-2)
+        out += [slice(pos + nj * a, pos + nj * b) for a, b in zip(edges[:-1], edges[1:],
+                                                                 strict=True) if b > a]
+        pos += nj * len(t)
+    return out
+
+
+def _param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str,
+                  noise: np.ndarray | None = None) -> dict:
+    """Value and 95 % interval per parameter (``noise``: also the residual-noise-only
+    interval, ``interval_noise``)."""
     out: dict[str, dict] = {}
     for i, f in enumerate(s.free):
         if f.effect != name:
             continue
-        lo_u, hi_u = u[i] - half[i], u[i] + half[i]
-        lo_v = f.from_u(lo_u) if math.isfinite(lo_u) else -math.inf
-        hi_v = f.from_u(hi_u) if math.isfinite(hi_u) else math.inf
         d = out.setdefault(f.param, {"value": [], "interval": [],
                                      "unit": effect(name).param(f.param).unit})
         d["value"].append(f.from_u(u[i]))
-        d["interval"].append([max(lo_v, f.lo) if f.log else lo_v,
-                              min(hi_v, f.hi) if f.log else hi_v])
+        d["interval"].append(_interval(f, u[i], half[i]))
+        if noise is not None:
+            d.setdefault("interval_noise", []).append(_interval(f, u[i], noise[i]))
     return out
+
+
+def _interval(f: fitmod.Free, u: float, half: float) -> list[float]:
+    lo_u, hi_u = u - half, u + half
+    lo_v = f.from_u(lo_u) if math.isfinite(lo_u) else -math.inf
+    hi_v = f.from_u(hi_u) if math.isfinite(hi_u) else math.inf
+    return [max(lo_v, f.lo) if f.log else lo_v, min(hi_v, f.hi) if f.log else hi_v]
 
 
 def _flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:

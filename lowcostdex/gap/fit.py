@@ -580,6 +580,36 @@ def interval_halfwidths(r: np.ndarray, jac: np.ndarray, n_eff: float) -> np.ndar
     return half * math.sqrt(n / max(n_eff, 1.0))
 
 
+def block_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice]) -> np.ndarray:
+    """95 % half-widths in optimizer coordinates from how differently stretches of data pull
+    on the parameters: the block sandwich covariance A^-1 (sum_b g_b g_b^T) A^-1 with A = J^T J
+    and g_b = J_b^T r_b centred over the blocks (a linearized jackknife over blocks), times
+    nb / (nb - p), Student-t with nb - p degrees of freedom.
+
+    The residual-noise interval (``interval_halfwidths``) only knows the noise level; when the
+    model is slightly wrong, different blocks want different values and this one grows with
+    their spread. Null directions and fewer blocks than parameters + 1 give inf.
+    """
+    from scipy import special
+
+    n, p = jac.shape
+    nb = len(blocks)
+    if p == 0:
+        return np.zeros(0)
+    if nb <= p:
+        return np.full(p, np.inf)
+    lam, v = np.linalg.eigh(jac.T @ jac)
+    lam_max = float(np.max(lam))
+    null = lam / lam_max < 1e-15 if lam_max > 0 else np.ones(p, bool)
+    ainv = (v[:, ~null] / lam[~null]) @ v[:, ~null].T
+    g = np.stack([jac[b].T @ r[b] for b in blocks])
+    g = g - g.mean(axis=0)
+    cov = ainv @ (g.T @ g) @ ainv * nb / (nb - p)
+    half = np.sqrt(np.maximum(np.diag(cov), 0.0)) * special.stdtrit(nb - p, 0.975)
+    touches_null = np.any(np.abs(v[:, null]) > 1e-8, axis=1) if null.any() else np.zeros(p, bool)
+    return np.where(touches_null, np.inf, half)
+
+
 def stall_torque(model, actuators: np.ndarray) -> np.ndarray:
     """Stall torque K Vmax / R of dcmotor servos [N m] (inf for other actuators)."""
     g = model.actuator_gainprm[actuators]
