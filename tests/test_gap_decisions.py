@@ -184,3 +184,75 @@ def test_final_refit_after_the_delay_polish_moves(root, monkeypatch):
     lo, hi = p["interval"][0]
     assert math.isfinite(lo) and math.isfinite(hi) and lo < p["value"][0] < hi
     assert res.gain.relative > 0.9
+
+
+@pytest.fixture(scope="module")
+def offset_gain_case(root):
+    # seed 301 (bench-offset+gain of the independent suite): reading offset +55.2 mrad and the
+    # servo's kp x1.865
+    case = ts.make_case("bench", ["position_offset", "gain_error"], 301, duration=5.0)
+    model, paths = case.write(root / "offset+gain")
+    ds = load_dataset(paths, model=model)
+    res = analyze(ds, GapConfig(seed=0, max_effects=1,
+                                candidates=("position_offset", "gain_error", "viscous_damping")))
+    return case, res
+
+
+def test_backward_search_replaces_a_one_effect_forward_model(offset_gain_case):
+    case, res = offset_gain_case
+    # one forward step can only take one of the two hidden effects (36 % lower held out with
+    # the gain alone); the joint fit of the top-ranked candidates, pruned, explains both and
+    # replaces the forward model
+    assert "backward search from" in res.stop_reason and "kept" in res.stop_reason
+    named = {c.effect: c.params for c in res.causes}
+    assert {"position_offset", "gain_error"} <= set(named)
+    assert named["position_offset"]["offset"]["value"][0] == pytest.approx(
+        float(case.hidden.values["position_offset"][0]), abs=1e-3)
+    assert named["gain_error"]["scale"]["value"][0] == pytest.approx(
+        float(case.hidden.values["gain_error"][0]), rel=0.02)
+    assert res.gain.relative > 0.95
+
+
+@pytest.mark.xfail(strict=True, reason="the pruned joint model keeps a -0.0018 N m s/rad "
+                   "damping the truth does not have: at the noise floor, leaving it out raises "
+                   "the select MSE by more than min_gain / 2")
+def test_backward_search_names_only_the_hidden_effects(offset_gain_case):
+    _, res = offset_gain_case
+    assert {c.effect for c in res.causes} == {"position_offset", "gain_error"}
+
+
+def test_gain_numbers_at_the_edges():
+    from lowcostdex.gap.gain import gain_with_ci
+
+    rng = np.random.default_rng(0)
+    # a perfect baseline (zero error): the relative gain is 0, not 0/0
+    with np.errstate(invalid="ignore"):  # the bootstrap of 0/0 is NaN; the point value is not
+        g = gain_with_ci(np.zeros(3), np.zeros(3), np.full(3, 10.0), np.zeros(3), np.zeros(3),
+                         0.0, rng, 50)
+    assert g.relative == 0.0 and g.baseline_rmse == 0.0 and g.reducible_explained is None
+    # to_dict carries every field under its own name
+    g = _gain(0.01, 0.004, 0.001)
+    assert g.to_dict() == {
+        "baseline_rmse": 0.01, "extended_rmse": 0.004, "baseline_mae": 0.01,
+        "extended_mae": 0.004, "absolute": 0.006, "relative": 0.6, "ci95": [0.0, 0.0],
+        "relative_ci95": [0.0, 0.0], "noise_floor": 0.001, "reducible_explained": None,
+        "episodes": 3}
+
+
+def test_episode_errors_by_hand():
+    from types import SimpleNamespace
+
+    from lowcostdex.gap.gain import episode_errors
+
+    q = np.array([[0.0, 0.0], [0.1, 0.2], [0.3, -0.4]])
+    ds = SimpleNamespace(trajectories=[SimpleNamespace(qpos=q)])
+    ep = SimpleNamespace(traj=0, start=1, stop=3)
+    pred = [np.array([[0.0, 0.0], [0.0, 0.0]])]
+    e = episode_errors(ds, [ep], pred, joints=["a", "b"])
+    # residuals (0.1, 0.2), (0.3, -0.4): joint a sqrt((0.01 + 0.09) / 2), b sqrt(0.2 / 2)
+    assert e["per_joint_rmse"]["a"] == pytest.approx(math.sqrt(0.05))
+    assert e["per_joint_rmse"]["b"] == pytest.approx(math.sqrt(0.1))
+    assert e["per_joint_mae"] == pytest.approx({"a": 0.2, "b": 0.3})
+    assert e["heldout_rmse"] == pytest.approx(math.sqrt(0.3 / 4))
+    assert e["heldout_mae"] == pytest.approx(1.0 / 4)
+    assert e["per_episode_rmse"] == [pytest.approx(math.sqrt(0.3 / 4))]
