@@ -8,8 +8,9 @@ to the repository; exits cleanly when it is absent. For each set:
   ``bam.process`` does) and mapped onto the servo bench (header mass, length, arm mass, kp, vin),
   physics at BAM's 5 ms step;
 * the servo structure (``identify.servo_structure``: motor constants, armature, Coulomb, viscous,
-  gear friction with breakaway, mounting offset, measured supply voltage) is identified on the
-  training gains with ``identify.identify`` (whole logs, open loop);
+  gear friction with breakaway and back-driven share, mounting offset, measured supply voltage)
+  is identified on the training gains with ``identify.identify`` (whole logs, open loop; the
+  back-driven share free or held at 1, chosen on the training logs);
 * the held-out gains are scored with BAM's measure (mean over logs of each log's position MAE,
   open loop from the first grid state, torque-off parts included), per trajectory and per kp,
   beside BAM's numbers on the same split, typed in from ../shared/reference/08-bam-reference-
@@ -93,7 +94,8 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
         "set": name, "logs": len(files), "train_kp": sorted({kps[i] for i in train}),
         "test_kp": sorted(spec["held_kp"]), "structure": list(structure),
         "wall_s": wall, "fit_s": res.fit_seconds, "rounds": res.rounds,
-        "params": res.params(), "at_bound": res.at_bound,
+        "params": res.params(), "at_bound": res.at_bound, "family": res.family,
+        "family_train_mae": res.family_train_mae,
         "ours": {
             "identified": _summary(ds, res.identified_mae, test),
             "nominal": _summary(ds, res.nominal_mae, test),
@@ -150,6 +152,9 @@ def _print(r: dict) -> None:
     print("identified:", ", ".join(
         f"{e} " + " ".join(f"{p}={v[0]:.4g}" for p, v in ps.items())
         for e, ps in r["params"].items()))
+    if r["family_train_mae"]:
+        print(f"family: {r['family']} (train logs: " + ", ".join(
+            f"{k} {1e3 * v:.1f}" for k, v in r["family_train_mae"].items()) + " mrad)")
     if r["at_bound"]:
         print("at a search bound:", ", ".join(r["at_bound"]))
     print("held-out MAE without each effect (others kept) [mrad]:",

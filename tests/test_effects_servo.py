@@ -106,3 +106,39 @@ def test_gearbox_friction_holding_against_gravity_carries_both_torques():
     assert np.max(np.abs(hold(p, goal, 1.0, q0=q0) - q0)) < 1e-4
     p, _ = bench([E("load_dependent_friction", mu=mu)], p_gain=200)
     assert hold(p, goal, 1.0, q0=q0)[-1] - q0 > 5e-3
+
+
+def test_gearbox_friction_backdrive_share_scales_the_load_side_torque_only():
+    # BAM's directional gearbox (M5): friction mu |tau_m - backdrive tau_ext|. With the torque
+    # off only the load side drives the gears: the fall is braked as by a share mu backdrive
+    a0, mu, r = 1.0, 0.3, 0.5
+    ext = hold(bench([E("gearbox_friction", mu=mu, backdrive=r)])[0], 0.0, 2.0, q0=a0,
+               torque=False)
+    assert _first_turn(ext) == pytest.approx(_amplitude_after_half_swing(a0, mu * r), abs=0.01)
+
+
+@pytest.mark.parametrize("r", [0.5, 0.2, 0.0])
+def test_gearbox_friction_backdrive_share_sets_the_holding_budget(r):
+    # at rest at q0 the servo pulls up with tau_m = 1.15 M g L sin(q0) against gravity
+    # tau_ext = -M g L sin(q0): a net 0.15 M g L sin(q0) upwards, against a friction budget
+    # mu (1.15 + r) M g L sin(q0). With mu = 0.1 it holds for r = 0.5 (0.165 > 0.15); for r =
+    # 0.2 and 0 (0.135, 0.115) the arm slides up past the angle q1 where the drive has fallen
+    # to the budget, kp (goal - q1) - M g L sin(q1) = mu (kp (goal - q1) + r M g L sin(q1)),
+    # and stops before twice that distance (a released spring against dry friction)
+    mu, q0 = 0.1, 0.5
+    p, cfg = bench([E("gearbox_friction", mu=mu, backdrive=r)], p_gain=200)
+    kp = servo.dcmotor_params(cfg.motor_spec, cfg.servo_gains()).kp
+    goal = q0 + 1.15 * MGL * math.sin(q0) / kp
+    q = hold(p, goal, 1.0, q0=q0)
+    if r == 0.5:
+        assert np.max(np.abs(q - q0)) < 1e-4
+        return
+    lo, hi = q0, goal  # bisection on the drive - budget balance
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        net = (kp * (goal - mid) - MGL * math.sin(mid)
+               - mu * (kp * (goal - mid) + r * MGL * math.sin(mid)))
+        lo, hi = (mid, hi) if net > 0 else (lo, mid)
+    d = lo - q0
+    assert d > 3e-3
+    assert d < q[-1] - q0 < 2 * d

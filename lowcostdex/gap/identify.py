@@ -45,6 +45,13 @@ STAGE_TWO = frozenset({"velocity_limit", "motor_strength", "gain_error", "torque
 # A second start with a large breakaway share: stick-slip makes the cost flat around "no
 # breakaway", where the default start sits.
 BREAKAWAY_START = {("gearbox_friction", "static"): 0.3, ("gearbox_friction", "velocity"): 0.3}
+# Parameters also fitted held at their null, as a second family: the gear friction's
+# back-driven share (1: a symmetric gearbox, BAM M3/M4; free: directional, BAM M5). Freeing it
+# moves the fit into other basins, so both families are fitted and the training logs decide.
+HELD_FIRST = frozenset({("gearbox_friction", "backdrive")})
+# The freed family must lower the training logs' mean per-log MAE by this fraction and by 0.1 mrad
+# (a tenth of an encoder tick) to be chosen over the held (nested) one.
+FAMILY_MARGIN = 0.02
 
 
 def servo_structure(ds: Dataset) -> tuple[str, ...]:
@@ -120,6 +127,8 @@ class Identified:
     rounds: int = 0
     cost: float = math.nan
     at_bound: list[str] = field(default_factory=list)
+    family: str = "free"
+    family_train_mae: dict[str, float] = field(default_factory=dict)
 
     def mean(self, logs: Sequence[int], identified: bool = True) -> float:
         """Mean per-log MAE over ``logs`` (BAM's set-level number) [rad]."""
@@ -180,28 +189,55 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     t0 = time.perf_counter()
     # stage 1: the motor constants held at their nominal values, stage 2: everything, from the
     # stage-1 optimum as well as from the catalogue starts (the joint fit has local minima that
-    # the nested one avoids; with its optimum as a start the joint fit can only do better)
+    # the nested one avoids; with its optimum as a start the joint fit can only do better).
+    # Each family (HELD_FIRST parameters free / held at their null) runs both stages, in the
+    # same batched passes but pruned apart; the freed family is kept when it lowers BAM's error
+    # (mean per-log MAE) on the training logs by FAMILY_MARGIN.
     later = [n for n in config.effects if n in STAGE_TWO]
     stages = [tuple(n for n in config.effects if n not in STAGE_TWO)] if later else []
     stages = [st for st in stages if st] + [tuple(config.effects)]
-    best = None
+    full = fitmod.Structure.build(config.effects, joints, ctx)
+    families = {"free": frozenset()}
+    if _hold(full, HELD_FIRST) is not None:
+        families["held"] = HELD_FIRST
+    best: dict[str, fitmod.Track] = {}
     rounds = 0
     for k, names in enumerate(stages):
-        st = fitmod.Structure.build(names, joints, ctx)
-        starts = _starts(st, config.starts)
-        if best is not None:
-            # the previous optimum, and it with each extra start's overrides applied
-            starts = _starts(st, config.starts, base=st.values_from(best.effects())) + starts
-        tracks = [fitmod.Track(st, st.u(x0), label=f"stage{k + 1}.start{j}")
-                  for j, x0 in enumerate(starts)]
+        groups: dict[str, list[fitmod.Track]] = {}
+        for fam, hold in families.items():
+            st = fitmod.Structure.build(names, joints, ctx)
+            st = _hold(st, hold) or st
+            starts = _starts(st, config.starts)
+            if fam in best:
+                # the previous optimum, and it with each extra start's overrides applied
+                base = st.values_from(best[fam].effects())
+                starts = _starts(st, config.starts, base=base) + starts
+            groups[fam] = [fitmod.Track(st, st.u(x0), label=f"{fam}.stage{k + 1}.start{j}")
+                           for j, x0 in enumerate(starts)]
         frac = (k, len(stages))
-        fitmod.lockstep_lm(tracks, residual, config.max_rounds, rtol=config.rtol,
+
+        def prune(rnd, _tracks, groups=groups):
+            for g in groups.values():
+                fitmod.prune_tracks(rnd, g)
+
+        fitmod.lockstep_lm([t for g in groups.values() for t in g], residual, config.max_rounds,
+                           rtol=config.rtol,
                            on_round=lambda r, live, frac=frac: prog(
                                f"stage {frac[0] + 1}/{frac[1]}: LM round {r + 1} ({live} live)",
                                0.9 * (frac[0] + (r + 1) / config.max_rounds) / frac[1]),
-                           prune=fitmod.prune_tracks)
-        best = min(tracks, key=lambda t: t.cost)
-        rounds += max(t.rounds for t in tracks)
+                           prune=prune)
+        best = {fam: min(g, key=lambda t: t.cost) for fam, g in groups.items()}
+        rounds += max(t.rounds for g in groups.values() for t in g)
+    fam_mae = {}
+    if len(best) > 1:
+        prog("choosing the family on the training logs", 0.88)
+        fams = list(best)
+        mae_tr = per_log_mae(rep, w_train, [best[f].effects() for f in fams])
+        fam_mae = {f: float(np.mean(mae_tr[i])) for i, f in enumerate(fams)}
+    chosen = "free"
+    if fam_mae and not fam_mae["free"] < (1.0 - FAMILY_MARGIN) * fam_mae["held"] - 1e-4:
+        chosen = "held"  # the nested (simpler) family unless the freed parameters pay
+    best = best[chosen]
     if config.loss == "mae":
         prog("absolute-error polish", 0.9)
         polished = fitmod.Track(best.structure, best.u.copy(), label="mae")
@@ -222,7 +258,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                      nominal_mae=dict(zip(logs, mae[0].tolist(), strict=True)),
                      identified_mae=dict(zip(logs, mae[1].tolist(), strict=True)),
                      fit_seconds=fit_s, rounds=rounds, cost=best.cost,
-                     at_bound=_at_bound(best))
+                     at_bound=_at_bound(best), family=chosen, family_train_mae=fam_mae)
     if test:
         k0 = len(train)
         out.ablation = {n: float(np.mean(mae[2 + i, k0:])) for i, n in enumerate(config.effects)}
@@ -245,6 +281,14 @@ def _starts(st: fitmod.Structure, extra: Sequence[dict], base: np.ndarray | None
         if hit:
             starts.append(x)
     return starts
+
+
+def _hold(st: fitmod.Structure, params: frozenset) -> fitmod.Structure | None:
+    """``st`` with ``params`` ((effect, param) pairs) held at their null (None: none in it)."""
+    free = [f for f in st.free if (f.effect, f.param) not in params]
+    if len(free) == len(st.free):
+        return None
+    return fitmod.Structure(st.effects, st.joints, free, st.fixed)
 
 
 def _at_bound(t: fitmod.Track) -> list[str]:

@@ -434,11 +434,14 @@ class GearboxFriction(Effect):
     name = "gearbox_friction"
     kind = "friction"
     doc = ("gear-train friction growing with the torque the gears carry: extra = |tau_motor - "
-           "tau_ext| (mu + static exp(-(v / velocity)^2)), tau_ext the external (gravity) torque "
-           "on the joint; unlike load_dependent_friction it acts when the load back-drives the "
-           "servo with the torque off (BAM's load-dependent models M3, with Stribeck M4)")
+           "backdrive tau_ext| (mu + static exp(-(v / velocity)^2)), tau_ext the external "
+           "(gravity) torque on the joint; unlike load_dependent_friction it acts when the load "
+           "back-drives the servo with the torque off (BAM's load-dependent models M3, with "
+           "Stribeck M4; backdrive != 1: a load-side torque loads the gears differently from a "
+           "motor-side one, BAM's directional M5)")
     # Rhoban/bam docs (theory) and bam/model.py: friction budget shares of the "gearbox torque"
-    # |tau_ext - tau_motor|, sliding and (Stribeck) at rest.
+    # |tau_ext - tau_motor|, sliding and (Stribeck) at rest; directional (M5/M6):
+    # |lfe tau_ext - lfm tau_motor|, here mu = lfm and backdrive = lfe / lfm.
     params = (
         Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05,
               doc="sliding friction per N m carried by the gears", limit=(0.0, 0.95)),
@@ -446,6 +449,8 @@ class GearboxFriction(Effect):
               doc="extra friction per N m carried at rest (breakaway)", limit=(0.0, 2.0)),
         Param("velocity", 0.5, 0.02, 5.0, "rad/s", (0.1, 1.0), start=0.5,
               doc="Stribeck velocity of the breakaway share", limit=(0.005, 20.0)),
+        Param("backdrive", 1.0, 0.05, 3.0, "1", (0.2, 1.0), limit=(0.01, 10.0),
+              doc="friction per N m of external torque relative to per N m of motor torque"),
     )
 
     @classmethod
@@ -453,7 +458,7 @@ class GearboxFriction(Effect):
                  external: np.ndarray | None = None) -> np.ndarray:
         gear = force[..., t.actuators]
         if external is not None:
-            gear = gear - external[..., t.dofs]
+            gear = gear - v["backdrive"] * external[..., t.dofs]
         w = qvel[..., t.dofs] / v["velocity"]
         return np.abs(gear) * (v["mu"] + v["static"] * np.exp(-w * w))
 
