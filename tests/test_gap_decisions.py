@@ -108,9 +108,18 @@ def test_min_effect_rejects_a_candidate_below_its_size_and_accepts_it_above(offs
     assert cand.effect_rms == pytest.approx(offset, rel=0.03)
     assert res.verdict.startswith("discrepancy not explained") and res.stop_reason in res.verdict
     # 0.9x its size: accepted, with the hidden value
+    progress = []
     res = analyze(ds, GapConfig(seed=0, candidates=("position_offset",),
-                                min_effect=0.9 * offset / floor_rms))
+                                min_effect=0.9 * offset / floor_rms),
+                  progress=lambda stage, f: progress.append((stage, f)))
     assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.stop_reason == "no candidates left"
+    cand = res.rounds[0][0]
+    assert cand.accepted and cand.train_rmse < 2 * ts.FLOOR  # the true offset leaves the noise
+    assert {"round1", "final_fit", "total"} <= set(res.timing)
+    # progress: fractions in [0, 1] ending at 1, the LM rounds reported while fitting
+    assert all(0.0 <= f <= 1.0 for _, f in progress) and progress[-1] == ("done", 1.0)
+    assert any("LM round" in stage for stage, _ in progress)
     assert res.causes[0].params["offset"]["value"][0] == pytest.approx(
         float(case.hidden.values["position_offset"][0]), abs=1e-3)
 
