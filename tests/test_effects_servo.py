@@ -142,3 +142,20 @@ def test_gearbox_friction_backdrive_share_sets_the_holding_budget(r):
     d = lo - q0
     assert d > 3e-3
     assert d < q[-1] - q0 < 2 * d
+
+
+@pytest.mark.parametrize("alpha", [2.0, 8.0])
+def test_gearbox_friction_stribeck_curvature(alpha):
+    # BAM's Stribeck coefficient exp(-|v / v_s|^alpha): at v_s the breakaway share is down to
+    # 1/e whatever alpha; at v_s / 2 it keeps exp(-0.5^alpha) (0.7788 for 2, 0.9961 for 8); the
+    # gears carry |tau_m - tau_ext| = |0.2 - (-0.1)| = 0.3 N m
+    from lowcostdex.sim.effects import GearboxFriction, Targets
+
+    t = Targets(("j",), np.array([0]), np.array([0]), np.array([0]), np.array([1]))
+    v = {"mu": np.array([0.1]), "static": np.array([0.4]), "velocity": np.array([0.8]),
+         "backdrive": np.array([1.0]), "alpha": np.array([alpha])}
+    force, ext = np.array([0.2]), np.array([-0.1])
+    for qd, share in ((0.8, math.exp(-1.0)), (-0.4, {2.0: 0.7788008, 8.0: 0.9961014}[alpha]),
+                      (0.0, 1.0)):
+        got = GearboxFriction.friction(t, v, np.array([qd]), force, ext)[0]
+        assert got == pytest.approx(0.3 * (0.1 + 0.4 * share), rel=1e-6)

@@ -68,6 +68,7 @@ def test_identify_recovers_the_servo_and_predicts_held_out_gains(logs):
     assert got["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
     assert got["gearbox_friction"]["mu"][0] == pytest.approx(0.15, rel=0.05)
     assert got["mounting_offset"]["offset"][0] == pytest.approx(0.03, abs=1e-3)
+    assert got["gearbox_friction"]["alpha"][0] == 2.0  # held at its null by default
     assert res.mean(res.test) < 2e-3 < 0.05 * res.mean(res.test, identified=False)
     # each effect matters on the held-out logs: leaving one out costs error
     assert all(v > 5 * res.mean(res.test) for v in res.ablation.values())
@@ -83,3 +84,5 @@ def test_identify_refuses_bad_splits_and_structures(logs):
         IdentifyConfig(effects=("no_such_effect",))
     with pytest.raises(ConfigError, match="loss"):
         IdentifyConfig(loss="huber")
+    with pytest.raises(ConfigError, match="alpha"):
+        IdentifyConfig(hold=frozenset({("gearbox_friction", "no_such_param")}))

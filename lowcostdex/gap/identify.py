@@ -49,6 +49,9 @@ BREAKAWAY_START = {("gearbox_friction", "static"): 0.3, ("gearbox_friction", "ve
 # back-driven share (1: a symmetric gearbox, BAM M3/M4; free: directional, BAM M5). Freeing it
 # moves the fit into other basins, so both families are fitted and the training logs decide.
 HELD_FIRST = frozenset({("gearbox_friction", "backdrive")})
+# Parameters held at their null in every fit unless ``IdentifyConfig.hold`` says otherwise: the
+# Stribeck curvature (2, Gaussian).
+HELD_ALWAYS = frozenset({("gearbox_friction", "alpha")})
 # The freed family must lower the training logs' mean per-log MAE by this fraction and by 0.1 mrad
 # (a tenth of an encoder tick) to be chosen over the held (nested) one.
 FAMILY_MARGIN = 0.02
@@ -69,6 +72,7 @@ class IdentifyConfig:
       effects: the structure to fit (effect names, fitted jointly on every effect joint).
       starts: extra start points besides the catalogue's: {(effect, param): value}, the other
         parameters at their catalogue start.
+      hold: (effect, param) pairs held at their null in every fit.
       loss: "mse" (least squares) or "mae": after the least-squares stages, a polish of the
         absolute error BAM scores, smoothed below ``delta`` (Charbonnier: sum of
         2 (sqrt(r^2 + delta^2) - delta)) so that the Levenberg-Marquardt model of it holds;
@@ -83,6 +87,7 @@ class IdentifyConfig:
     effects: tuple[str, ...] = SERVO_STRUCTURE
     starts: tuple[dict, ...] = (BREAKAWAY_START,)
     loss: str = "mse"
+    hold: frozenset = HELD_ALWAYS
     delta: float = 0.005
     max_rounds: int = 30
     rtol: float = 1e-4
@@ -94,6 +99,10 @@ class IdentifyConfig:
         for name in self.effects:
             if name not in EFFECTS:
                 raise ConfigError(f"unknown effect {name!r}; valid: {sorted(EFFECTS)}")
+        for name, param in self.hold:
+            if name not in EFFECTS:
+                raise ConfigError(f"hold: unknown effect {name!r}; valid: {sorted(EFFECTS)}")
+            EFFECTS[name].param(param)  # raises with the valid parameter names
         if self.loss not in ("mse", "mae"):
             raise ConfigError(f"unknown loss {self.loss!r}; valid: mse, mae")
         if not self.delta > 0:
@@ -197,9 +206,10 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     stages = [tuple(n for n in config.effects if n not in STAGE_TWO)] if later else []
     stages = [st for st in stages if st] + [tuple(config.effects)]
     full = fitmod.Structure.build(config.effects, joints, ctx)
-    families = {"free": frozenset()}
+    full = _hold(full, config.hold) or full
+    families = {"free": frozenset(config.hold)}
     if _hold(full, HELD_FIRST) is not None:
-        families["held"] = HELD_FIRST
+        families["held"] = HELD_FIRST | config.hold
     best: dict[str, fitmod.Track] = {}
     rounds = 0
     for k, names in enumerate(stages):

@@ -434,14 +434,15 @@ class GearboxFriction(Effect):
     name = "gearbox_friction"
     kind = "friction"
     doc = ("gear-train friction growing with the torque the gears carry: extra = |tau_motor - "
-           "backdrive tau_ext| (mu + static exp(-(v / velocity)^2)), tau_ext the external "
+           "backdrive tau_ext| (mu + static exp(-|v / velocity|^alpha)), tau_ext the external "
            "(gravity) torque on the joint; unlike load_dependent_friction it acts when the load "
            "back-drives the servo with the torque off (BAM's load-dependent models M3, with "
            "Stribeck M4; backdrive != 1: a load-side torque loads the gears differently from a "
            "motor-side one, BAM's directional M5)")
     # Rhoban/bam docs (theory) and bam/model.py: friction budget shares of the "gearbox torque"
     # |tau_ext - tau_motor|, sliding and (Stribeck) at rest; directional (M5/M6):
-    # |lfe tau_ext - lfm tau_motor|, here mu = lfm and backdrive = lfe / lfm.
+    # |lfe tau_ext - lfm tau_motor|, here mu = lfm and backdrive = lfe / lfm; the Stribeck
+    # curvature alpha (bam: exp(-|dtheta / dtheta_stribeck|^alpha)).
     params = (
         Param("mu", 0.0, 0.0, 0.5, "1", (0.0, 0.15), start=0.05,
               doc="sliding friction per N m carried by the gears", limit=(0.0, 0.95)),
@@ -451,6 +452,8 @@ class GearboxFriction(Effect):
               doc="Stribeck velocity of the breakaway share", limit=(0.005, 20.0)),
         Param("backdrive", 1.0, 0.05, 3.0, "1", (0.2, 1.0), limit=(0.01, 10.0),
               doc="friction per N m of external torque relative to per N m of motor torque"),
+        Param("alpha", 2.0, 1.0, 10.0, "1", (2.0, 2.0), limit=(0.5, 20.0),
+              doc="Stribeck exponent: the breakaway share falls as exp(-|v / velocity|^alpha)"),
     )
 
     @classmethod
@@ -459,8 +462,8 @@ class GearboxFriction(Effect):
         gear = force[..., t.actuators]
         if external is not None:
             gear = gear - v["backdrive"] * external[..., t.dofs]
-        w = qvel[..., t.dofs] / v["velocity"]
-        return np.abs(gear) * (v["mu"] + v["static"] * np.exp(-w * w))
+        w = np.abs(qvel[..., t.dofs] / v["velocity"])
+        return np.abs(gear) * (v["mu"] + v["static"] * np.exp(-(w ** v["alpha"])))
 
 
 # ------------------------------------------------------------------------------------------------
