@@ -167,6 +167,21 @@ def test_commands_without_data_and_the_period_payloads_of_the_reference_drivers(
         proto.unpack4(bytes(7))
 
 
+def test_frames_of_other_device_ids_and_default_periods():
+    # frame id = command << 2 | device id (v4 driver); a hand at device id 2
+    q = np.zeros(4)
+    assert proto.pose_message(2, q, device_id=2).arbitration_id == (0x20 + 2) << 2 | 2
+    assert proto.period_message(3, device_id=1).arbitration_id == 0x81 << 2 | 1
+    # the reference drivers' SET_PERIOD {3, 0, 0}: only the pose stream, no IMU, no temperature
+    msg = proto.period_message(3)
+    assert (msg.arbitration_id, bytes(msg.data)) == (0x204, bytes([3, 0, 0, 0, 0, 0]))
+    assert bytes(proto.period_message(40000).data)[:2] == (40000).to_bytes(2, "little")  # uint16
+    with pytest.raises(ConfigError, match="A v5 hand speaks a different CAN protocol"):
+        proto.torque_scale(5)
+    # the driver accepts HAND_INFO frames of 7 or more bytes: an 8th byte does not change them
+    assert proto.HandInfo.unpack(TRACE_INFO[1] + b"\x00") == proto.HandInfo.unpack(TRACE_INFO[1])
+
+
 def test_codec_edges_of_the_vendor_field_types():
     # TEMPERATURE bytes are unsigned deg C: below 0.5 deg C -> 0, above 255 -> 255
     assert proto.pack_temperatures([-5.0, 0.4, 0.6, 300.0]) == bytes([0, 0, 1, 255])
