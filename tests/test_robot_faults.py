@@ -32,9 +32,11 @@ SPEED = 1.5 * 30 * 2 * math.pi / 60
 
 
 def connected_robot(config: RobotConfig | None = None, seed: int = 0):
+    """An emulated D'Claw's Robot; the motion bound narrowed for the time each goal is in
+    flight (``motor_speed=None``: the motor spec's speed bound) unless ``config`` says."""
     chain = emulated_dclaw("valve", hand=HAND, rng=np.random.default_rng(seed))
     bus = make_dynamixel_bus(HAND, chain.port(), chain.plant.model, handle_signals=False)
-    robot = Robot(HAND, bus, config or RobotConfig())
+    robot = Robot(HAND, bus, config or RobotConfig(motor_speed=None))
     robot.connect()
     robot.torque(True, HAND.joint_names)
     return chain, robot
@@ -116,7 +118,8 @@ def soak(faults: FaultConfig, cycles: int, seed: int):
     +-2 rad (outside every finger's limits, many motion bounds away), pushes of every joint
     past its limits, NaN now and then. Returns the chain, the robot and ``track_speed``'s
     record."""
-    chain, robot = connected_robot(RobotConfig(max_invalid_reads=20), seed=seed)
+    chain, robot = connected_robot(RobotConfig(max_invalid_reads=20, motor_speed=None),
+                                   seed=seed)
     watch_joints(chain, MAX_STEP)
     fastest = track_speed(chain)
     chain.faults = faults

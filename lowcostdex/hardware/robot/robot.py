@@ -14,8 +14,8 @@ for the D'Claw (Dynamixel) and the Allegro (CAN):
 * the bound holds where the goal arrives, not only where the position was sampled: the motor
   keeps moving between its sample and the goal's arrival (the read's replies, a retried read,
   the settle wait after a failed one, the host's own computing), so the bound is narrowed by
-  ``motor_speed`` x that time (``RobotConfig.motor_speed``); a joint whose sample is so old
-  that nothing is left holds;
+  ``motor_speed`` x that time (``RobotConfig.motor_speed``, opt-in: the simulation's bound
+  does not narrow yet); a joint whose sample is so old that nothing is left holds;
 * every read feeds the thermal and current guards (``guards``); critical motors are relaxed at
   once, and ``pause_if_hot`` rests the hand between episodes until it has cooled;
 * ``step`` keeps the control rate on a monotonic clock (``timing.Rate``, overruns counted);
@@ -76,8 +76,11 @@ class RobotConfig:
         this times the time from the position's sample to the goal's arrival, so the goal leads
         the position *where it arrives* by at most the bound. None: 1.5 x the hand's motor's
         no-load speed (``servo.MotorSpec``: XH430-W350 3.14 rad/s -> 4.71; the D'Claw's joints
-        reached 4.06 rad/s in the emulated fault soak); 0 (and the Allegro, whose motors have no
-        spec) turns the narrowing off.
+        reached 4.06 rad/s in the emulated fault soak); 0 (the default, and the Allegro, whose
+        motors have no spec) turns the narrowing off. Off by default because the simulation's
+        motion bound (``sim.envs.hand_env.action_to_goal``) does not narrow: on, the robot
+        moves about 9 % less per bound-limited step than the policy's simulation
+        (tests/test_backend_emulated.py checks that they agree).
     """
 
     control_period: float = 0.1
@@ -88,7 +91,7 @@ class RobotConfig:
     current: CurrentConfig = CurrentConfig()
     max_invalid_reads: int = 5
     max_reboots: int = 2
-    motor_speed: float | None = None
+    motor_speed: float | None = 0.0
 
     def __post_init__(self) -> None:
         if not self.control_period > 0:
