@@ -130,3 +130,49 @@ def test_dapg_update_in_mjrl_mode_uses_the_constant_weight():
     policy, obs, actions, adv, d_obs, d_act = _setup()
     stats = dapg_update(policy, obs, actions, adv, d_obs, d_act, 2, cfg, ncfg)
     assert stats["demo_weight"] == pytest.approx(0.01 * 0.95**2)
+
+
+def test_augmented_gradient_is_normalised_by_the_on_policy_count_by_hand():
+    """g_aug = (1/N) [sum_pi A grad log pi + w sum_D grad log pi] with N on-policy samples
+    (not N + M): the reported gradient norm is that of this sum, computed per sample here."""
+    policy, obs, actions, adv, d_obs, d_act = _setup(n=40, m=25)
+    cfg, ncfg = DAPGConfig(lam0=0.1, lam1=0.95), npg.NPGConfig()
+    white = (adv - adv.mean()) / (adv.std(unbiased=False) + 1e-6)
+    w = 0.1 * float(white.max())
+    params = list(policy.parameters())
+    g = torch.zeros(sum(p.numel() for p in params), dtype=torch.float64)
+    for o, a, weight in [*zip(obs, actions, white, strict=True),
+                         *((o, a, w) for o, a in zip(d_obs, d_act, strict=True))]:
+        g += weight * npg.flat_grad(policy.log_prob(o[None], a[None])[0], params)
+    g /= 40
+    stats = dapg_update(policy, obs, actions, adv, d_obs, d_act, 0, cfg, ncfg)
+    assert stats["grad_norm"] == pytest.approx(float(torch.linalg.norm(g)), rel=1e-9)
+
+
+def test_dapg_fisher_subsample_uses_the_given_generator():
+    ncfg = npg.NPGConfig(fvp_sample_frac=0.5)
+    results = []
+    for _ in range(2):
+        policy, obs, actions, adv, d_obs, d_act = _setup(seed=3, n=60, m=20)
+        dapg_update(policy, obs, actions, adv, d_obs, d_act, 0, DAPGConfig(), ncfg,
+                    generator=torch.Generator().manual_seed(4))
+        results.append(torch.nn.utils.parameters_to_vector(policy.parameters()).detach())
+    assert torch.equal(results[0], results[1])
+
+
+def test_demo_weight_of_an_empty_batch_is_zero():
+    assert demo_weight(0, 0.1, 0.95, np.zeros(0), "paper") == 0.0
+
+
+def test_numpy_float32_demos_and_batch_give_the_float64_policy_the_same_step():
+    results = []
+    for as_numpy in (False, True):
+        policy, *batch = _setup(seed=5, n=50, m=20)
+        batch = [t.float().double() for t in batch]
+        if as_numpy:
+            batch = [t.float().numpy() for t in batch]
+        obs, actions, adv, d_obs, d_act = batch
+        dapg_update(policy, obs, actions, adv, d_obs, d_act, 1, DAPGConfig(), npg.NPGConfig())
+        results.append(torch.nn.utils.parameters_to_vector(policy.parameters()).detach())
+    assert results[1].dtype == torch.float64
+    torch.testing.assert_close(results[0], results[1], rtol=1e-12, atol=1e-14)

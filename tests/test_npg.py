@@ -252,3 +252,108 @@ def test_fisher_subsample_size(monkeypatch, frac, n, expected):
     assert len({tuple(r.tolist()) for r in used}) == expected        # no repeats
     rows = {tuple(r.tolist()) for r in obs}
     assert all(tuple(r.tolist()) in rows for r in used)
+
+
+def test_defaults_are_mjrls_cg_and_backtracking_settings():
+    """mjrl's cg_solve (10 iterations, residual_tol 1e-10) and TRPO line search (ratio 0.8,
+    10 backtracks after the first trial) as the functions' defaults, counted from outside."""
+    calls = []
+    a = torch.tensor(np.diag(np.arange(1.0, 31.0)))      # 30 distinct eigenvalues: CG needs 30
+    b = torch.ones(30, dtype=torch.float64)
+    npg.conjugate_gradient(lambda v: calls.append(1) or a @ v, b)
+    assert len(calls) == 10
+    # r^T r just below / above 1e-10 at x = 0: no product / one product
+    calls.clear()
+    x = npg.conjugate_gradient(lambda v: calls.append(1) or 2.0 * v,
+                               torch.tensor([0.99e-5], dtype=torch.float64))
+    assert calls == [] and x.item() == 0.0
+    x = npg.conjugate_gradient(lambda v: calls.append(1) or 2.0 * v,
+                               torch.tensor([1.01e-5], dtype=torch.float64))
+    assert calls == [1] and x.item() == pytest.approx(0.505e-5)
+    tried = []
+    assert npg.backtrack_kl(lambda s: tried.append(s) or 1.0, 1.0, 0.5) == (0.0, 0.0, 11)
+    np.testing.assert_allclose(tried, 0.8 ** np.arange(11))
+
+
+def test_zero_gradient_gives_a_finite_step_length_and_no_step():
+    g = torch.zeros(3, dtype=torch.float64)
+    assert npg.normalized_step_size(g, g, 0.05) == pytest.approx(np.sqrt(0.05 / 1e-20))
+    policy = _policy(hidden=(4,))
+    obs, actions, _ = _batch(policy, n=30)
+    before = torch.nn.utils.parameters_to_vector(policy.parameters()).detach().clone()
+    stats = npg.natural_gradient_step(policy, torch.zeros_like(before), obs, npg.NPGConfig())
+    assert torch.equal(torch.nn.utils.parameters_to_vector(policy.parameters()), before)
+    assert stats["g_f_g"] == 0.0 and stats["kl"] == 0.0
+
+
+def test_surrogate_gradient_is_the_mean_score_times_weight_by_hand():
+    """(1/N) sum_i w_i grad log pi(a_i|s_i), each score from its own backward pass; N = the
+    number of samples by default (N != obs_dim here), else the given normaliser."""
+    policy = _policy(obs_dim=3, hidden=(4,))
+    obs, actions, w = _batch(policy, n=7)
+    params = list(policy.parameters())
+    expected = torch.zeros(sum(p.numel() for p in params), dtype=torch.float64)
+    for i in range(7):
+        lp = policy.log_prob(obs[i:i + 1], actions[i:i + 1])[0]
+        expected += w[i] * npg.flat_grad(lp, params)
+    torch.testing.assert_close(npg.surrogate_gradient(policy, obs, actions, w), expected / 7)
+    torch.testing.assert_close(npg.surrogate_gradient(policy, obs, actions, w, normalizer=2),
+                               expected / 2)
+
+
+def test_flat_grad_puts_zeros_for_parameters_the_output_does_not_use():
+    a = torch.nn.Parameter(torch.tensor([1.0, 2.0]))
+    unused = torch.nn.Parameter(torch.tensor([5.0, 6.0, 7.0]))
+    g = npg.flat_grad((a**2).sum(), [a, unused])
+    torch.testing.assert_close(g, torch.tensor([2.0, 4.0, 0.0, 0.0, 0.0]))
+
+
+def test_step_statistics_by_their_definitions():
+    """The reported numbers, recomputed from outside: ||g||, g^T x, the CG residual
+    ||F x - g|| / ||g|| (with x from CG run the same way), surrogate before/after, and the
+    backtrack count with and without the KL check."""
+    policy = _policy(hidden=(6,))
+    obs, actions, adv = _batch(policy, n=60)
+    cfg = npg.NPGConfig(step_size=0.05, cg_iters=3)
+    white = (adv - adv.mean()) / (adv.std(unbiased=False) + 1e-6)
+    grad = npg.surrogate_gradient(policy, obs, actions, white)
+    fvp = npg.make_fisher_vector_product(policy, obs, cfg.damping)
+    x = npg.conjugate_gradient(fvp, grad, 3, cfg.cg_residual_tol)
+    residual = float(torch.linalg.norm(fvp(x) - grad) / torch.linalg.norm(grad))
+    logp_old = policy.log_prob(obs, actions).detach()
+    stats = npg.npg_update(policy, obs, actions, adv, cfg)
+    assert stats["grad_norm"] == pytest.approx(float(torch.linalg.norm(grad)), rel=1e-9)
+    assert stats["g_f_g"] == pytest.approx(float(grad @ x), rel=1e-9)
+    assert 1e-3 < residual < 1 and stats["cg_residual"] == pytest.approx(residual, rel=1e-6)
+    assert stats["n_backtracks"] == 0.0
+    assert stats["surr_before"] == pytest.approx(float(white.mean()), abs=1e-12)
+    with torch.no_grad():
+        after = float((torch.exp(policy.log_prob(obs, actions) - logp_old) * white).mean())
+    assert stats["surr_after"] == pytest.approx(after, rel=1e-9)
+    assert stats["surr_improvement"] == pytest.approx(after - stats["surr_before"], rel=1e-9)
+    # a huge residual tolerance stops CG at x = 0: no step at all
+    policy = _policy(hidden=(6,))
+    before = torch.nn.utils.parameters_to_vector(policy.parameters()).detach().clone()
+    stats = npg.npg_update(policy, obs, actions, adv, npg.NPGConfig(cg_residual_tol=1e30))
+    assert stats["g_f_g"] == 0.0
+    assert torch.equal(torch.nn.utils.parameters_to_vector(policy.parameters()), before)
+    # KL check that rejects every trial: 1 + max_backtracks trials counted
+    stats = npg.npg_update(_policy(hidden=(6,)), obs, actions, adv,
+                           npg.NPGConfig(max_kl=1e-15, max_backtracks=2))
+    assert stats["n_backtracks"] == 3.0 and stats["alpha"] == 0.0
+
+
+def test_numpy_float32_batches_give_the_float64_policy_the_same_step():
+    """The samplers hand over numpy arrays; a float32 batch is converted to the policy's dtype
+    (the same update as from float64 tensors of the same numbers)."""
+    results = []
+    for as_numpy in (False, True):
+        policy = _policy(seed=2, hidden=(5,))
+        obs, actions, adv = _batch(policy, n=40, seed=3)
+        obs, actions, adv = (t.float().double() for t in (obs, actions, adv))
+        if as_numpy:
+            obs, actions, adv = (t.float().numpy() for t in (obs, actions, adv))
+        npg.npg_update(policy, obs, actions, adv, npg.NPGConfig())
+        results.append(torch.nn.utils.parameters_to_vector(policy.parameters()).detach())
+    assert results[1].dtype == torch.float64
+    torch.testing.assert_close(results[0], results[1], rtol=1e-12, atol=1e-14)
