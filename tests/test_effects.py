@@ -84,7 +84,8 @@ def test_coulomb_friction_stops_short_by_f_over_kp():
     assert 0.3 - q[-1] == pytest.approx(f / kp, rel=0.1)
 
 
-def test_backlash_is_a_dead_band_of_its_width():
+def test_backlash_without_its_play_hinge_is_a_dead_band_of_its_width():
+    # the massless-motor limit (a model without hidden dofs: the emulator, env backends)
     w = 0.03
     p = make_plant([E("backlash", width=w)])
     q = run(p, np.r_[np.full(50, 0.2), np.full(50, 0.0)])
@@ -92,6 +93,83 @@ def test_backlash_is_a_dead_band_of_its_width():
     # after the reversal the servo stops short by the half width on each side
     assert q[49] == pytest.approx(base[49] - w / 2, abs=2e-3)
     assert q[-1] == pytest.approx(base[-1] + w / 2, abs=2e-3)
+
+
+_PLAY_REF = """
+<mujoco><compiler angle="radian"/><option timestep="0.002"/>
+  <worldbody><body name="motor"><joint name="j" axis="1 0 0" damping="0.1" armature="0.01"/>
+    <inertial pos="0 0 0" mass="1e-6" diaginertia="1e-12 1e-12 1e-12"/>
+    <body name="link"><joint name="play" axis="1 0 0" limited="true" range="-0.02 0.02"
+                             solreflimit="0.004 1"/>
+      <geom type="sphere" pos="0 0 -0.1" size="0.01" mass="0.3"/></body></body></worldbody>
+  <actuator><position joint="j" kp="4" kv="0.3"/></actuator>
+</mujoco>"""
+
+
+def test_backlash_matches_a_motor_body_and_a_play_hinged_link_written_out():
+    # The physics written out in plain MJCF: a (massless) motor body carrying the rotor's
+    # armature, the joint's damping and the servo; the hanging link on a hinge limited to
+    # +-width/2. The plant's play hinge must reproduce its link angle, including the free
+    # swings across the play on fast reversals, and rest on the lower stop under gravity.
+    import mujoco
+
+    ref_m = mujoco.MjModel.from_xml_string(_PLAY_REF)
+    ref = mujoco.MjData(ref_m)
+    spec = mujoco.MjSpec.from_string(_ARM.format(act='<position joint="j" kp="4" kv="0.3"/>'))
+    eff = [E("backlash", width=0.04)]
+    prepare_spec(spec, eff, hidden_dofs=True)
+    p = Plant(spec.compile(), eff)
+    q0 = 0.3
+    ref.qpos[:] = [q0 + 0.02, -0.02]  # at rest the link hangs on the lower stop
+    ref.ctrl[:] = q0
+    mujoco.mj_forward(ref_m, ref)
+    p.reset(qpos=np.r_[q0, 0.0], ctrl=np.array([q0]))
+    goals = np.r_[np.full(300, q0), q0 + 0.6 * np.sign(np.sin(np.arange(900) * 0.02))]
+    err = []
+    for g in goals:
+        ref.ctrl[:] = g
+        mujoco.mj_step(ref_m, ref)
+        p.step(np.array([g]), 1)
+        err.append(float(p.measured_qpos()[0]) - (ref.qpos[0] + ref.qpos[1]))
+    assert np.max(np.abs(err)) < 2e-4
+    # at rest (a hold after the swings) the link hangs on the lower stop, 20 mrad below the motor
+    for _ in range(500):
+        p.step(np.array([q0]), 1)
+    assert float(p.measured_qpos()[0] - p.qpos[0]) == pytest.approx(-0.02, abs=1e-4)
+
+
+def test_reset_puts_a_hanging_link_on_its_lower_stop_keeping_the_reading():
+    import mujoco
+
+    spec = mujoco.MjSpec.from_string(_ARM.format(act='<position joint="j" kp="4" kv="0.3"/>'))
+    eff = [E("backlash", width=0.04)]
+    prepare_spec(spec, eff, hidden_dofs=True)
+    p = Plant(spec.compile(), eff)
+    for q in (0.5, -0.5):
+        p.reset(qpos=np.r_[q, 0.0], ctrl=np.array([q]))
+        # gravity pulls the link towards 0: it leans on the stop on that side
+        assert float(p.measured_qpos()[0]) == pytest.approx(q)
+        assert float(p.qpos[1]) == pytest.approx(-0.02 * np.sign(q))
+
+
+def test_play_hinges_only_with_hidden_dofs_and_a_null_play_is_the_nominal_model():
+    import mujoco
+
+    act = '<position joint="j" kp="4" kv="0.3"/>'
+    eff = [E("backlash", width=0.0)]
+    plain = prepare_spec(mujoco.MjSpec.from_string(_ARM.format(act=act)), eff).compile()
+    assert plain.nq == 1  # the qpos layout is kept (the emulator shares it with its task)
+    hinged = prepare_spec(mujoco.MjSpec.from_string(_ARM.format(act=act)), eff,
+                          hidden_dofs=True).compile()
+    assert hinged.nq == 2
+    ref = Plant(mujoco.MjModel.from_xml_string(_ARM.format(act=act)))
+    p = Plant(hinged, eff)
+    for plant in (ref, p):
+        plant.reset(qpos=np.r_[0.3, np.zeros(plant.model.nq - 1)], ctrl=np.array([0.3]))
+    for g in np.r_[np.full(100, 0.3), np.full(200, -0.5), np.full(200, 0.8)]:
+        ref.step(np.array([g]), 1)
+        p.step(np.array([g]), 1)
+        assert float(p.measured_qpos()[0]) == pytest.approx(float(ref.qpos[0]), abs=1e-9)
 
 
 def test_stribeck_breakaway_holds_small_steps():

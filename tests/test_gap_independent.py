@@ -22,6 +22,10 @@ column batched with it) and gain_error acting on position actuators: exact 11/14
 With goals acting at their instant inside a physics step (step-mean goal, force-matched where a
 position servo saturates): exact 12/14, family 12/14, clean 2/2 with the verdict "no significant
 discrepancy" (the clean finger's replay error 1.4 -> 0.6 mrad, the read-noise floor).
+With backlash as a play hinge between the servo's motor side (rotor armature, damping, its own
+sensor) and the link (it was a play operator on the goal, a massless motor): the bench backlash
+is named exactly (width 0.021 for 0.0205; held-out RMSE 9.4 -> 0.7 mrad), exact 13/14 (the finger
+backlash gets its widths but a 5 % mass error beside them).
 """
 
 from __future__ import annotations
@@ -38,12 +42,11 @@ HERE = Path(__file__).parent
 # What the analysis named on each case when it was not exact: (exact reason, family reason)
 # (None: that assertion passes).
 KNOWN_FAILS: dict[str, tuple[str | None, str | None]] = {
-    # the project's backlash is a play operator on the goal (a massless motor side); here the
-    # play sits between a motor carrying the armature and a gravity-loaded link, whose contact
-    # side follows the sign of the transmitted torque, not the direction of motion
-    "bench-backlash": ("21 mrad play named latency + inertia + mass + damping",
-                       "latency and inertia are not play"),
-    "finger-backlash": ("42-54 mrad play named as nothing", "named nothing"),
+    # the widths are found (0.054, 0.045, 0.043 for 0.054, 0.045, 0.042), but the replay with
+    # the true widths stays at 1.3 mrad RMSE (floor 0.5): the light bottom link's free swings
+    # inside the play are chaotic (12-36 mrad spikes), and a 5 % mass error is named with it
+    "finger-backlash": ("42-54 mrad play named backlash + mass_error",
+                       "mass_error is not in the play family"),
 }
 
 _RESULTS: dict[str, tuple[set[str], object]] = {}

@@ -211,7 +211,7 @@ def simulate_log(spec: mujoco.MjSpec, hidden: Sequence[AppliedEffect], goals: np
       t_start: session time at the start [s] (the logs' timestamps start there).
     """
     spec = spec.copy()
-    prepare_spec(spec, hidden)
+    prepare_spec(spec, hidden, hidden_dofs=True)  # the physics the analysis replays
     model = spec.compile()
     plant = Plant(model, hidden, rng=np.random.default_rng(rng.integers(2**63)))
     dt = model.opt.timestep

@@ -11,9 +11,15 @@ together at the physics timestep:
   rounding to the nearest step instead biased replays of jittered logs by up to dt/2);
 * each window starts from the measured state at its first sample (multiple shooting when windows
   are short segments, open loop when a window is a whole episode); the servo's setpoint before the
-  window is the goal in force just before it, or, with backlash, the play operator's state after
-  the goals that preceded the window (exact: the play acts on commands only); a position offset is
-  removed from the measured initial position;
+  window is the goal in force just before it; a position offset is removed from the measured
+  initial position;
+* backlash is replayed in both of its regimes and the one closer to the data is kept: a play
+  hinge between the servo's motor side and its link (a model prepared with hidden dofs; the link
+  starts at the measured angle, leaning on the stop its static load pushes it to,
+  ``Plant.reset``) and the massless-motor play operator on the goal (no hidden dofs; the
+  servo's setpoint before the window is the operator's state after the goals that preceded
+  it, exact: the operator acts on commands only). Columns without backlash run on a model
+  without the hidden dofs, so the nominal column stays the nominal model exactly;
 * measured channels (voltage, temperature, torque enable) are held like commands;
 * predictions are the encoder readings (observation effects applied) interpolated linearly at the
   measured sample times.
@@ -62,24 +68,32 @@ class Replayer:
     def __init__(self, ds: Dataset, effect_names: Sequence[str] = (), nthread: int = 0):
         self.ds = ds
         self.nthread = nthread
+        # models without the structural effects (``models``, the nominal dynamics) and, when
+        # some are candidates, with them too: variant key (model key, structural?)
         self.models: dict[str, mujoco.MjModel] = {}
+        self._variants: dict[tuple[str, bool], mujoco.MjModel] = {}
         probe = [AppliedEffect(n, ds.effect_joints) for n in effect_names]
+        plain = [e for e in probe if not e.cls.structural]
         for key, xml in ds.models.items():
-            spec = mujoco.MjSpec.from_string(xml)
-            prepare_spec(spec, probe)
-            self.models[key] = spec.compile()
+            for structural, effs in ((False, plain), (True, probe)):
+                if structural and len(effs) == len(plain):
+                    continue
+                spec = mujoco.MjSpec.from_string(xml)
+                prepare_spec(spec, effs, hidden_dofs=structural)
+                self._variants[(key, structural)] = spec.compile()
+            self.models[key] = self._variants[(key, False)]
         m0 = self.models[ds.trajectories[0].model]
         self.dt = float(m0.opt.timestep)
         self._plants: dict[tuple, BatchPlant] = {}
         self._grids: dict[Window, _Grid] = {}
         self._act_idx = {k: np.array([m.actuator(a).id for a in ds.actuators])
-                         for k, m in self.models.items()}
+                         for k, m in self._variants.items()}
         self._jnt_qpos = {k: np.array([m.jnt_qposadr[m.joint(j).id] for j in ds.joints])
-                          for k, m in self.models.items()}
+                          for k, m in self._variants.items()}
         self._jnt_dof = {k: np.array([m.jnt_dofadr[m.joint(j).id] for j in ds.joints])
-                         for k, m in self.models.items()}
+                         for k, m in self._variants.items()}
         self._act_of_joint = {}
-        for k, m in self.models.items():
+        for k, m in self._variants.items():
             targets = Targets.resolve(m, ds.effect_joints)
             cols = {int(a): i for i, a in enumerate(self._act_idx[k])}
             self._act_of_joint[k] = {j: cols[int(a)] for j, a in
@@ -116,12 +130,13 @@ class Replayer:
             self._grids[w] = g
         return g
 
-    def _position_servos(self, key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _position_servos(self, key: tuple[str, bool]
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Fixed-gain position servos among the logged actuators: (their columns in the log's
         actuator list, model actuator ids, qpos and dof addresses of the joints they drive)."""
         cache = self.__dict__.setdefault("_pos_servos", {})
         if key not in cache:
-            m = self.models[key]
+            m = self._variants[key]
             cols, acts, qadr, dadr = [], [], [], []
             for col, a in enumerate(self._act_idx[key]):
                 kp = float(m.actuator_gainprm[a, 0])
@@ -188,11 +203,18 @@ class Replayer:
           (pred, peaks): pred[c][w] is (n_w, nj) predicted readings [rad] at the window's
           samples; peaks is (ncol, na) [N m] or None.
         """
-        groups: dict[tuple[str, bool], list[tuple[int, int]]] = {}
+        # a column with a structural effect (backlash) runs twice: with its hidden dofs (the
+        # play hinge) and without (the massless-motor play operator); the regime closer to the
+        # data is kept (``_keep_closer``)
+        n_col = len(columns)
+        dual = [c for c, col in enumerate(columns) if any(e.cls.structural for e in col)]
+        columns = list(columns) + [columns[c] for c in dual]
+        groups: dict[tuple[str, bool, bool], list[tuple[int, int]]] = {}
         for c, col in enumerate(columns):
             fric = any(e.cls.kind == "friction" for e in col)
+            structural = c < n_col and any(e.cls.structural for e in col)
             for wi, w in enumerate(windows):
-                key = (self.ds.trajectories[w.traj].model, fric)
+                key = (self.ds.trajectories[w.traj].model, structural, fric)
                 groups.setdefault(key, []).append((c, wi))
         pred: list[list[np.ndarray | None]] = [[None] * len(windows) for _ in columns]
         peaks = np.zeros((len(columns), len(self.ds.actuators))) if force_peak else None
@@ -211,12 +233,30 @@ class Replayer:
                 pred[c][wi] = (1 - a) * q[i0] + a * q[i0 + 1]
                 if force_peak:
                     peaks[c] = np.maximum(peaks[c], r["peak"][s])
-        return pred, peaks  # type: ignore[return-value]
+        for i, c in enumerate(dual):
+            if self._closer(windows, pred[n_col + i], pred[c]):
+                pred[c] = pred[n_col + i]
+                if force_peak:
+                    peaks[c] = peaks[n_col + i]
+        if force_peak:
+            peaks = peaks[:n_col]
+        return pred[:n_col], peaks  # type: ignore[return-value]
 
-    def _setup(self, key: tuple[str, bool], sims: list[tuple[int, int]],
+    def _closer(self, windows: Sequence[Window], a: list[np.ndarray], b: list[np.ndarray]
+                ) -> bool:
+        """Whether predictions ``a`` fit the measured readings (scored samples) better than
+        ``b`` (sum of squares)."""
+        sse = np.zeros(2)
+        for w, pa, pb in zip(windows, a, b, strict=True):
+            q = self.ds.trajectories[w.traj].qpos[w.score_from:w.stop]
+            k = w.score_from - w.start
+            sse += [np.sum((pa[k:] - q) ** 2), np.sum((pb[k:] - q) ** 2)]
+        return bool(sse[0] < sse[1])
+
+    def _setup(self, key: tuple[str, bool, bool], sims: list[tuple[int, int]],
                windows: Sequence[Window], columns: Sequence[Column]) -> dict:
-        model_key = key[0]
-        model = self.models[model_key]
+        model_key = key[:2]  # (model, structural variant)
+        model = self._variants[model_key]
         union = _union([columns[c] for c, _ in sims])
         per_sim = [_fill(columns[c], union) for c, _ in sims]
         nsim = len(sims)
@@ -254,8 +294,8 @@ class Replayer:
             goals[s, :g.n_steps], goals[s, g.n_steps:] = g.goals, g.goals[-1]
             split[s, :g.n_steps] = g.split
             before[s, :g.n_steps], after[s, :g.n_steps] = g.before, g.after
-        played = _init_backlash(ctrl, act, self._act_of_joint[model_key], sims, windows,
-                                columns, ds)
+        played = set() if key[1] else _init_backlash(ctrl, act, self._act_of_joint[model_key],
+                                                      sims, windows, columns, ds)
         plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
                                                                  windows, played))
         trs = ds.trajectories
@@ -414,27 +454,6 @@ def _offset(col: Column, joints: Sequence[str]) -> np.ndarray:
                 if j in joints:
                     out[list(joints).index(j)] += v
     return out
-
-
-def play_operator(goals: np.ndarray, width: np.ndarray, start: np.ndarray | None = None
-                  ) -> np.ndarray:
-    """Final state of a play (backlash) operator driven by a goal sequence.
-
-    Args:
-      goals: (T, ...) goal positions [rad].
-      width: (...) total play [rad] (broadcast against a goal row).
-      start: (...) initial state; default the first goal.
-    Returns:
-      (...) the setpoint after the last goal.
-    """
-    half = 0.5 * np.asarray(width, float)
-    g = np.asarray(goals, float)
-    s = np.array(g[0] if start is None else start, float) * np.ones_like(half)
-    # Only samples where the goal changes can move the play.
-    change = np.flatnonzero(np.any(np.diff(g.reshape(len(g), -1), axis=0) != 0, axis=1)) + 1
-    for i in change:
-        s = np.clip(s, g[i] - half, g[i] + half)
-    return s
 
 
 def _init_backlash(ctrl: np.ndarray, act: np.ndarray, act_of_joint: dict[str, int],

@@ -8,7 +8,10 @@ a domain-randomization range, and knows how to extend a servo-driven MuJoCo mode
                   to the nominal values, per simulation when the plant is batched;
   ``friction``    adds a state-dependent dry-friction level every physics substep
                   (Stribeck, load-dependent);
-  ``command``     transforms the goal position before it reaches the servo (backlash, action noise);
+  ``command``     transforms the goal position before it reaches the servo (action noise; backlash
+                  without its play hinge);
+  structural      (backlash) adds degrees of freedom to a model prepared with hidden dofs
+                  (``prepare``; the qpos layout changes) and writes their fields (``apply``);
   ``observation`` transforms what the encoder reports (offset, noise, quantization);
   ``calibration`` both: the servo's own encoder frame is shifted from the model's joint, so the
                   servo holds goals in its frame and reports readings in it (mounting offset);
@@ -16,7 +19,8 @@ a domain-randomization range, and knows how to extend a servo-driven MuJoCo mode
 
 Values are arrays over the effect's targets (actuated joints): shape (n,) for one simulation or
 (nsim, n) for a batch. Effects never hold state; the ``Plant`` (``lowcostdex.sim.plant``) owns
-per-rollout state (e.g. the backlash play position) and calls these pure functions.
+per-rollout state (the play operator's setpoint) and calls these pure functions; a backlash's
+play hinge is physical state of the model (see ``Backlash``).
 
 Magnitudes: ``Param.dr`` holds plausible D'Claw ranges (04-sysid.md section 6; ROBEL
 RandomDynamics; OpenAI Table 1); ``low``/``high`` are wider fit bounds covering real-world sizes
@@ -110,6 +114,8 @@ class Targets:
       dofs: dof address per joint.
       qpos: qpos address per joint.
       bodies: the body each joint moves.
+      play: per joint, the id of its backlash play hinge (``Backlash.prepare``), -1 when the
+        model has none; ``play_qpos`` / ``play_dofs`` its qpos and dof addresses (-1: none).
     """
 
     joints: tuple[str, ...]
@@ -117,12 +123,21 @@ class Targets:
     dofs: np.ndarray
     qpos: np.ndarray
     bodies: np.ndarray
+    play: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    play_qpos: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    play_dofs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+
+    @property
+    def has_play(self) -> np.ndarray:
+        """(n,) whether each joint has a play hinge."""
+        return (self.play >= 0) if len(self.play) == len(self.joints) else np.zeros(
+            len(self.joints), bool)
 
     @classmethod
     def resolve(cls, model: mujoco.MjModel, joints: tuple[str, ...] | list[str]) -> Targets:
         """Resolve joint names; each must be a hinge/slide driven by exactly one actuator."""
         names = [model.joint(i).name for i in range(model.njnt)]
-        acts, dofs, qpos, bodies = [], [], [], []
+        acts, dofs, qpos, bodies, play = [], [], [], [], []
         for jn in joints:
             check_choice("joint", jn, names)
             jid = model.joint(jn).id
@@ -135,8 +150,14 @@ class Targets:
             dofs.append(int(model.jnt_dofadr[jid]))
             qpos.append(int(model.jnt_qposadr[jid]))
             bodies.append(int(model.jnt_bodyid[jid]))
+            pn = Backlash.play_joint(jn)
+            play.append(int(model.joint(pn).id) if pn in names else -1)
+        play_a = np.array(play, int)
+        has = play_a >= 0
+        pq = np.where(has, model.jnt_qposadr[np.maximum(play_a, 0)], -1) if len(play_a) else play_a
+        pd = np.where(has, model.jnt_dofadr[np.maximum(play_a, 0)], -1) if len(play_a) else play_a
         return cls(tuple(joints), np.array(acts, int), np.array(dofs, int), np.array(qpos, int),
-                   np.array(bodies, int))
+                   np.array(bodies, int), play_a, np.asarray(pq, int), np.asarray(pd, int))
 
 
 class Effect:
@@ -146,6 +167,9 @@ class Effect:
     kind: ClassVar[str]  # model | friction | command | observation | calibration | exogenous
     params: ClassVar[tuple[Param, ...]]
     requires: ClassVar[tuple[str, ...]] = ()  # measured channels needed (e.g. "temperature")
+    # prepare() adds degrees of freedom (only with hidden_dofs; the qpos layout changes), and
+    # apply() writes their fields whatever the kind
+    structural: ClassVar[bool] = False
     fields: ClassVar[tuple[str, ...]] = ()  # model fields written by ``apply``
     doc: ClassVar[str] = ""
 
@@ -175,6 +199,11 @@ class Effect:
     @classmethod
     def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
         """Edit the spec so the compiled model can host any value in the bounds (default: none)."""
+
+    @classmethod
+    def written_fields(cls, t: Targets) -> tuple[str, ...]:
+        """Model fields ``apply`` writes on these targets (reset to nominal before applying)."""
+        return cls.fields
 
     # ---- hooks (overridden per kind) -----------------------------------------------------
     @classmethod
@@ -473,18 +502,76 @@ class GearboxFriction(Effect):
 class Backlash(Effect):
     name = "backlash"
     kind = "command"
-    doc = "gear/horn play of total `width`: a play operator between goal and servo setpoint"
+    structural = True
+    doc = ("gear/horn play of total `width` between the servo and the link it drives: a play "
+           "hinge in a model prepared with hidden dofs (the servo moves the motor side: rotor "
+           "inertia, friction, its own sensor; the link swings inside the play until it meets "
+           "a stop); else the massless-motor limit, a play operator on the goal")
     params = (Param("width", 0.0, 0.0, 0.1, "rad", (0.0, 0.017), start=0.01,
                     limit=(0.0, 0.3)),)
+    LOCK = 1e12  # [kg m^2] armature of a closed (null) play hinge
+
+    @staticmethod
+    def play_joint(joint: str) -> str:
+        """Name of the play hinge ``prepare`` adds for ``joint``."""
+        return f"{joint}__play"
+
+    @classmethod
+    def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
+        """Add a play hinge to each joint's body: same anchor and axis, limited to the play.
+
+        Only with ``prepare_spec(..., hidden_dofs=True)``: it changes the qpos layout. The two
+        hinges of one body compose (same axis: their angles add), so the body (the link and
+        everything it carries) sits at ``q + q_play`` while the servo's joint ``q`` keeps the
+        actuator, the rotor's armature, damping and friction: the motor side. The play hinge
+        has no inertia, damping or friction of its own; its limit (range +-width/2, set by
+        ``apply``; locked at the null) is a stiff contact (time constant 2 physics steps,
+        critical damping, MuJoCo's stiffest recommended). Joint ``q`` is the motor angle; the
+        link angle, what ``Plant.measured_qpos`` reads, is ``q + q_play``.
+        """
+        tc = 2.0 * spec.option.timestep
+        for jn in joints:
+            if spec.joint(cls.play_joint(jn)) is not None:
+                continue
+            j = spec.joint(jn)
+            if j is None or j.type != mujoco.mjtJoint.mjJNT_HINGE:
+                raise ConfigError(f"backlash: {jn!r} must be a hinge joint of the model")
+            # the compiled range is set per simulation by apply(); compile needs lo < hi
+            j.parent.add_joint(name=cls.play_joint(jn), type=mujoco.mjtJoint.mjJNT_HINGE,
+                               pos=j.pos, axis=j.axis, limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+                               range=[-1e-9, 1e-9], solref_limit=[tc, 1.0])
+
+    @classmethod
+    def written_fields(cls, t: Targets) -> tuple[str, ...]:
+        return ("jnt_range", "dof_armature") if np.any(t.has_play) else ()
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        """Play hinges: range +-width/2; a null play is locked (armature ``LOCK``: it cannot
+        move, the model is the nominal one to ~1e-12 rad, not the contact's ~1e-4 rad of
+        compliance)."""
+        has = t.has_play
+        if not np.any(has):
+            return
+        rng_ = f.array("jnt_range")
+        half = 0.5 * np.asarray(v["width"], dtype=float)
+        half = np.broadcast_to(half, rng_.shape[:-2] + (len(t.joints),))[..., has]
+        play, dofs = t.play[has], t.play_dofs[has]
+        rng_[..., play, 0] = -half
+        rng_[..., play, 1] = half
+        arm = f.array("dof_armature")
+        arm[..., dofs] = np.where(half > 0, f.nominal("dof_armature")[dofs], cls.LOCK)
 
     @classmethod
     def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
                 rng: np.random.Generator) -> np.ndarray:
+        """Joints without a play hinge: the massless-motor limit, a play operator between goal
+        and setpoint (the setpoint moves only once the goal is half the play away)."""
         half = 0.5 * np.asarray(v["width"])
         prev = state.get("play")
         prev = state["setpoint"] if prev is None else np.where(np.isnan(prev), state["setpoint"],
                                                                 prev)
-        out = np.clip(prev, goal - half, goal + half)
+        out = np.where(t.has_play, goal, np.clip(prev, goal - half, goal + half))
         state["play"] = out
         return out
 

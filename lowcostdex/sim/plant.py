@@ -8,12 +8,16 @@ fields. Both share the same code through a leading "sim" axis: arrays are (nu,) 
 (nsim, nu) for ``BatchPlant``.
 
 Order inside one control step (``step``):
-  1. command effects map the goal (backlash play, action noise) -> ``ctrl``;
+  1. command effects map the goal (action noise, mounting offset, backlash's play operator
+     where the model has no play hinge) -> ``ctrl``;
   2. exogenous effects rescale the servo gains from measured channels (temperature, voltage);
   3. physics advances ``nstep`` substeps: natively (``mj_step(nstep)``) unless a friction effect
      needs its state-dependent level written every substep.
 Observation effects (offset, noise, quantization) apply in ``measured_qpos``; calibration effects
 (the servo's encoder frame shifted from the joint's) map the goal in step 1 and the reading there.
+In a model prepared with hidden dofs (``prepare_spec(..., hidden_dofs=True)``) backlash is physics:
+a play hinge between the servo's joint (motor side) and its link; ``measured_qpos`` reads the link
+(joint + play), and ``reset`` puts the play where the static load pushes it (``rest_play``).
 """
 
 from __future__ import annotations
@@ -32,10 +36,18 @@ _ORDER = {name: i for i, name in enumerate(EFFECTS)}
 _CONTROLLER_GAINS = [servo.GAIN_KP, servo.GAIN_KI, servo.GAIN_KD]
 
 
-def prepare_spec(spec: mujoco.MjSpec, effects: Sequence[AppliedEffect]) -> mujoco.MjSpec:
-    """Make structural room for ``effects`` (e.g. actuator history buffers for latency)."""
+def prepare_spec(spec: mujoco.MjSpec, effects: Sequence[AppliedEffect],
+                 hidden_dofs: bool = False) -> mujoco.MjSpec:
+    """Make structural room for ``effects`` (e.g. actuator history buffers for latency).
+
+    ``hidden_dofs``: also add the degrees of freedom of structural effects (backlash's play
+    hinge between a servo and its link). They change the qpos layout, so models that share
+    their state with a task's model (the emulated robot, env backends) leave them out (backlash
+    is then the massless-motor play operator); the gap analysis's replays use them.
+    """
     for e in effects:
-        e.cls.prepare(spec, e.joints)
+        if hidden_dofs or not e.cls.structural:
+            e.cls.prepare(spec, e.joints)
     return spec
 
 
@@ -169,13 +181,13 @@ class _PlantBase:
         touched = {"actuator_gainprm", "dof_frictionloss", "actuator_forcerange",
                    "actuator_forcelimited"}
         for b in self._bound:
-            touched.update(b.cls.fields)
+            touched.update(b.cls.written_fields(b.targets))
         touched |= self._runtime_fields
         for name in touched:
             self.array(name)[...] = self.nominal(name)
         mass_changed = False
         for b in self._bound:
-            if b.cls.kind == "model":
+            if b.cls.kind == "model" or b.cls.structural:
                 b.cls.apply(self, b.targets, b.values)
                 mass_changed |= b.cls.name == "mass_error"
         if mass_changed:
@@ -277,6 +289,11 @@ class _PlantBase:
         """qpos as the encoders report it: observation effects applied (..., nq)."""
         q = np.array(self.qpos if qpos is None else qpos, dtype=float, copy=True)
         for b in self._bound:
+            t = b.targets
+            if b.cls.name == "backlash" and np.any(t.has_play):  # the link: motor + play
+                h = t.has_play
+                q[..., t.qpos[h]] = q[..., t.qpos[h]] + q[..., t.play_qpos[h]]
+        for b in self._bound:
             if b.cls.kind in ("observation", "calibration"):
                 ad = b.targets.qpos
                 q[..., ad] = b.cls.observe(b.targets, b.values, q[..., ad], self.rng)
@@ -305,8 +322,45 @@ class _PlantBase:
         self._check_finite()
 
     def reset_effect_state(self) -> None:
-        """Forget per-rollout effect state (backlash play position)."""
+        """Forget per-rollout effect state (the backlash play operator's setpoint)."""
         self._state.clear()
+
+    def rest_play(self, sims: np.ndarray | None = None) -> None:
+        """Put each backlash play where the static load pushes it, keeping the link angles.
+
+        For a state set from measurements (``reset``; a replay's start): the link angle is what
+        was read (joint + play, as ``measured_qpos``); its play is unknown. A link at rest leans on the
+        stop its external load (gravity, ``-qfrc_bias`` on the play hinge) pushes it to, and
+        the motor side sits half the play away; an unloaded link (load below 1e-9 N m) is put
+        in the middle. The joint angle becomes link - play, velocities are kept.
+
+        Args:
+          sims: simulations to change (BatchPlant; default all); their state must be forward-
+            computed (``qfrc_bias``), as after ``reset``.
+        """
+        plays = [b for b in self._bound if b.cls.name == "backlash" and np.any(b.targets.has_play)]
+        if not plays:
+            return
+        qpos, bias = self.qpos, self.qfrc_bias
+        rows = (slice(None) if sims is None else np.asarray(sims, int)) if self._lead else ...
+        for b in plays:
+            h = b.targets.has_play
+            jq, pq, pd = b.targets.qpos[h], b.targets.play_qpos[h], b.targets.play_dofs[h]
+            half = 0.5 * np.asarray(b.values["width"], float)
+            half = np.broadcast_to(half, self._lead + (len(h),))[..., h]
+            if self._lead:
+                half = half[rows]
+            load = -bias[rows][..., pd]
+            play = np.where(np.abs(load) > 1e-9, np.sign(load), 0.0) * half
+            link = qpos[rows][..., jq] + qpos[rows][..., pq]
+            if self._lead:
+                r = np.arange(self._lead[0])[rows]
+                qpos[np.ix_(r, pq)] = play
+                qpos[np.ix_(r, jq)] = link - play
+            else:
+                qpos[pq] = play
+                qpos[jq] = link - play
+        self._forward(sims)
 
 
 class Plant(_PlantBase):
@@ -365,6 +419,9 @@ class Plant(_PlantBase):
     def _advance(self, nstep: int) -> None:
         mujoco.mj_step(self.model, self.data, nstep=nstep)
 
+    def _forward(self, sims: np.ndarray | None = None) -> None:
+        mujoco.mj_forward(self.model, self.data)
+
     def _check_finite(self) -> None:
         if not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))):
             raise PhysicsError(f"simulation diverged at t={self.data.time:.4f}s")
@@ -378,7 +435,9 @@ class Plant(_PlantBase):
 
         Delay buffers are filled with ``ctrl`` so a delayed servo holds still instead of
         replaying zeros, or with ``ctrl_history`` (k, nu): the ctrl of the last k physics steps,
-        oldest first, the last row at the reset time (a replay starting mid-log).
+        oldest first, the last row at the reset time (a replay starting mid-log). With backlash,
+        a joint's position in ``qpos`` (plus its play hinge's, usually 0) is its link's angle,
+        and the play rests where the static load pushes it (``rest_play``).
         """
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
@@ -392,6 +451,7 @@ class Plant(_PlantBase):
         self.reset_effect_state()
         _fill_ctrl_history(m, d, ctrl_history)
         mujoco.mj_forward(m, d)
+        self.rest_play()
 
 
 class BatchPlant(_PlantBase):
@@ -463,6 +523,12 @@ class BatchPlant(_PlantBase):
     def _advance(self, nstep: int) -> None:
         self.batch.step(nstep=nstep)
 
+    def _forward(self, sims: np.ndarray | None = None) -> None:
+        if sims is None:
+            self.batch.forward()
+        else:
+            self.batch.forward(ids=np.asarray(sims, dtype=int))
+
     def _check_finite(self) -> None:
         bad = ~(np.all(np.isfinite(self.qpos), axis=1) & np.all(np.isfinite(self.qvel), axis=1))
         if np.any(bad):
@@ -474,7 +540,8 @@ class BatchPlant(_PlantBase):
         """Reset simulations ``sims`` (default all) to states given as (len(sims), n) arrays.
 
         ``ctrl_history`` (len(sims), k, nu) fills the delay buffers with past ctrl, oldest
-        first (see ``Plant.reset``); by default they hold ``ctrl``.
+        first (see ``Plant.reset``); by default they hold ``ctrl``. Backlash plays rest where
+        the static load pushes them (``rest_play``).
         """
         rows = np.arange(self.nsim) if sims is None else np.asarray(sims, dtype=int)
         self.batch.reset(ids=rows)
@@ -495,6 +562,7 @@ class BatchPlant(_PlantBase):
         for value in self._state.values():
             value[rows] = np.nan  # per-rollout effect state restarts in these simulations
         self.batch.forward(ids=rows)
+        self.rest_play(rows)
 
 
 def actuated_positions(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
