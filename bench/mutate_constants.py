@@ -74,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("module", help="module file to mutate, relative to the repository root")
     ap.add_argument("tests", nargs="+", help="test files to run")
     ap.add_argument("--rev", default="HEAD", help="commit to measure (default HEAD)")
+    ap.add_argument("--deselect", action="append", default=[],
+                    help="test id to leave out (e.g. a real-time test that fails under load)")
     ap.add_argument("--markdown", action="store_true", help="print the survivors as Markdown")
     args = ap.parse_args(argv)
     root = Path(subprocess.check_output(["git", "rev-parse", "--show-toplevel"], text=True)
@@ -90,6 +92,8 @@ def main(argv: list[str] | None = None) -> int:
         literals = module_literals(original)
         cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
                "-m", "not slow", *args.tests]
+        for test_id in args.deselect:
+            cmd += ["--deselect", test_id]
         survivors = []
         t0 = time.monotonic()
         for k, lit in enumerate(literals, 1):
