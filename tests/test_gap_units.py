@@ -357,6 +357,25 @@ def test_lm_past_a_rippled_response_with_wider_secants():
     assert t.x[0] == pytest.approx(2.5, abs=0.02)
 
 
+@pytest.mark.parametrize("rounds", [1, 2, 6, 7, 12, 40])
+def test_a_fit_cut_off_after_its_wide_step_restart_keeps_residual_and_jacobian(rounds):
+    """Known answer: the start 1.0 is the minimum of a V-shaped residual (1 + |log x|), so every LM
+    step is rejected; after 5 rejects the track restarts with wider secants. Whatever round the
+    fit is cut off in, the track ends at 1.0 with its residual vector and Jacobian (the final
+    refit's intervals read them: a cleared residual crashed `lowcostdex transfer`)."""
+    s = fitmod.Structure.build(("gain_error",), ("j",), _ctx())
+    k = np.linspace(1.0, 2.0, 30)
+
+    def residual(points):
+        return [1.0 + k * abs(math.log(x[0])) for _, x in points]
+
+    t = fitmod.Track(s, s.u(np.array([1.0])))
+    fitmod.lockstep_lm([t], residual, max_rounds=rounds)
+    assert t.x[0] == pytest.approx(1.0)
+    assert t.r is not None and t.r.shape == (30,) and t.cost == pytest.approx(15.0)
+    assert t.jac is not None and t.jac.shape == (30, 1)
+
+
 def test_block_intervals_cover_a_slope_that_varies_between_blocks():
     """Known answers from a written-out regression y = a_b x + noise over 20 blocks of 50
     samples. With one slope (a_b = 1) and white noise, the block interval covers the truth at

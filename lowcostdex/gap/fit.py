@@ -405,6 +405,13 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
             prune(rnd, tracks)
         if on_round is not None:
             on_round(rnd, len(live))
+    # a track cut off right after its wide-step restart (residual cleared, see above) gets its
+    # residual and Jacobian back at its accepted point: one more evaluation, which accepts it
+    pending = [t for t in tracks if t.r is None and t.fd_scale != 1.0]
+    for t in pending:
+        t.trial, t.done = t.u.copy(), False
+    if pending:
+        lockstep_lm(pending, residual, 1, rtol, max_rejects=max_rejects)
     for t in tracks:
         t.done = True
 
