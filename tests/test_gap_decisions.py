@@ -11,6 +11,10 @@ numbers:
 * the backward pass pruning an accepted effect the other one makes redundant;
 * the final refit after the delay polish moves (the one-round LM that re-evaluates the residual
   and Jacobian there, so the intervals are computed at the polished point).
+
+Every log here is made by ``gap_truth_sim`` (it imports nothing from lowcostdex); the project's
+``sim.effects`` names (``AppliedEffect``, ``Targets``) are imported only to address the analyzer's
+own parameter points in the backward-pass test, never to make "measured" data.
 """
 
 from __future__ import annotations
