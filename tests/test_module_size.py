@@ -10,9 +10,6 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 700
 
 EXCEPTIONS: dict[str, str] = {
-    "lowcostdex/sim/effects.py": (
-        "the effect catalogue; edited by three gap-analysis branches at once on 2026-11-25, "
-        "split (catalogue entries by family) when they have landed"),
     "lowcostdex/gap/logs.py": (
         "log formats and their validation, grown to 922 lines by the log checks of issue 12 "
         "(landed 22:30 on 2026-11-25); split into the Trajectory and its CSV/NPZ files, the "

@@ -1,245 +1,28 @@
-"""Unmodeled servo effects as first-class objects, one catalogue for every layer.
+"""The catalogue of concrete effects (latency, frictions, gains, limits, backlash, offsets, noise,
+thermal and voltage), ``EFFECTS``, ``CAUSES`` and ``effect(name)``.
 
-The simulator, the emulated bus, domain randomization and the gap analysis all use these classes:
-an effect has a canonical name, named parameters with a null value (effect absent), fit bounds and
-a domain-randomization range, and knows how to extend a servo-driven MuJoCo model. How it acts:
-
-  ``model``       writes MjModel fields (damping, frictionloss, gains, delay, mass, ...), relative
-                  to the nominal values, per simulation when the plant is batched;
-  ``friction``    adds a state-dependent dry-friction level every physics substep
-                  (Stribeck, load-dependent);
-  ``command``     transforms the goal position before it reaches the servo (action noise; backlash
-                  without its play hinge);
-  structural      (backlash) adds degrees of freedom to a model prepared with hidden dofs
-                  (``prepare``; the qpos layout changes) and writes their fields (``apply``);
-  ``observation`` transforms what the encoder reports (offset, noise, quantization);
-  ``calibration`` both: the servo's own encoder frame is shifted from the model's joint, so the
-                  servo holds goals in its frame and reports readings in it (mounting offset);
-  ``exogenous``   rescales gains from a measured channel each control step (temperature, voltage).
-
-Values are arrays over the effect's targets (actuated joints): shape (n,) for one simulation or
-(nsim, n) for a batch. Effects never hold state; the ``Plant`` (``lowcostdex.sim.plant``) owns
-per-rollout state (the play operator's setpoint) and calls these pure functions; a backlash's
-play hinge is physical state of the model (see ``Backlash``).
-
-Magnitudes: ``Param.dr`` holds plausible D'Claw ranges (04-sysid.md section 6; ROBEL
-RandomDynamics; OpenAI Table 1); ``low``/``high`` are wider fit bounds covering real-world sizes
-(issue 11: latency to 80 ms, offsets to +-0.2 rad, gains 0.3-3x, ...); ``limit`` is the physical
-hard limit a fit may widen its range to when it lands on ``low``/``high`` (latency 0.25 s; offsets
-+-0.8 rad; scale factors 0.02-50 ... 0.1-10; friction shares below 1).
+See the package docstring (``lowcostdex.sim.effects``) for the kinds and magnitudes.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from typing import ClassVar, Protocol
+from collections.abc import Mapping
 
 import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError, check_choice
 from lowcostdex.sim import servo
-
-Values = Mapping[str, np.ndarray]
-DEFAULT_REFERENCE_TEMPERATURE = 25.0  # [deg C] winding reference when the model has none
-
-
-@dataclass(frozen=True)
-class Param:
-    """A named effect parameter.
-
-    Attributes:
-      name: parameter name, unique within its effect.
-      null: value at which the effect is absent.
-      low, high: bounds for fitting [unit].
-      unit: SI unit string.
-      dr: plausible range for domain randomization on a D'Claw [unit].
-      start: initial guess for fitting (default: ``null`` moved inside the bounds).
-      doc: one-line meaning.
-      limit: physical hard limits [unit]: a fit that lands on ``low`` or ``high`` may widen its
-        search range up to these, never beyond (default: ``(low, high)``, no widening).
-    """
-
-    name: str
-    null: float
-    low: float
-    high: float
-    unit: str
-    dr: tuple[float, float]
-    start: float | None = None
-    doc: str = ""
-    limit: tuple[float, float] | None = None
-
-    def __post_init__(self) -> None:
-        if not self.low < self.high:
-            raise ConfigError(f"param {self.name}: low must be < high")
-        if not (self.low <= self.dr[0] <= self.dr[1] <= self.high):
-            raise ConfigError(f"param {self.name}: dr range {self.dr} outside bounds")
-        if self.limit is not None and not self.limit[0] <= self.low < self.high <= self.limit[1]:
-            raise ConfigError(f"param {self.name}: hard limit {self.limit} inside the bounds")
-
-    @property
-    def hard(self) -> tuple[float, float]:
-        """Physical hard limits of the parameter (``limit``, or the fit bounds)."""
-        return self.limit if self.limit is not None else (self.low, self.high)
-
-    @property
-    def initial(self) -> float:
-        """Fit start value, strictly inside the bounds."""
-        if self.start is not None:
-            return self.start
-        return float(np.clip(self.null, self.low + 1e-6 * (self.high - self.low),
-                             self.high - 1e-6 * (self.high - self.low)))
-
-
-class Fields(Protocol):
-    """Access to model fields, single (n, ...) or batched (nsim, n, ...)."""
-
-    def array(self, name: str) -> np.ndarray:
-        """Live array of a model field."""
-
-    def nominal(self, name: str) -> np.ndarray:
-        """The field's value in the nominal model, shape (n, ...)."""
-
-
-@dataclass(frozen=True)
-class Targets:
-    """Where an effect acts: actuated joints and their indices in a compiled model.
-
-    Attributes:
-      joints: joint names.
-      actuators: actuator index per joint (the servo driving it).
-      dofs: dof address per joint.
-      qpos: qpos address per joint.
-      bodies: the body each joint moves.
-      play: per joint, the id of its backlash play hinge (``Backlash.prepare``), -1 when the
-        model has none; ``play_qpos`` / ``play_dofs`` its qpos and dof addresses (-1: none).
-    """
-
-    joints: tuple[str, ...]
-    actuators: np.ndarray
-    dofs: np.ndarray
-    qpos: np.ndarray
-    bodies: np.ndarray
-    play: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    play_qpos: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    play_dofs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-
-    @property
-    def has_play(self) -> np.ndarray:
-        """(n,) whether each joint has a play hinge."""
-        return (self.play >= 0) if len(self.play) == len(self.joints) else np.zeros(
-            len(self.joints), bool)
-
-    @classmethod
-    def resolve(cls, model: mujoco.MjModel, joints: tuple[str, ...] | list[str]) -> Targets:
-        """Resolve joint names; each must be a hinge/slide driven by exactly one actuator."""
-        names = [model.joint(i).name for i in range(model.njnt)]
-        acts, dofs, qpos, bodies, play = [], [], [], [], []
-        for jn in joints:
-            check_choice("joint", jn, names)
-            jid = model.joint(jn).id
-            driving = np.flatnonzero((model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
-                                     & (model.actuator_trnid[:, 0] == jid))
-            if len(driving) != 1:
-                raise ConfigError(f"joint {jn!r} must be driven by exactly one actuator, "
-                                  f"found {len(driving)}")
-            acts.append(int(driving[0]))
-            dofs.append(int(model.jnt_dofadr[jid]))
-            qpos.append(int(model.jnt_qposadr[jid]))
-            bodies.append(int(model.jnt_bodyid[jid]))
-            pn = Backlash.play_joint(jn)
-            play.append(int(model.joint(pn).id) if pn in names else -1)
-        play_a = np.array(play, int)
-        has = play_a >= 0
-        pq = np.where(has, model.jnt_qposadr[np.maximum(play_a, 0)], -1) if len(play_a) else play_a
-        pd = np.where(has, model.jnt_dofadr[np.maximum(play_a, 0)], -1) if len(play_a) else play_a
-        return cls(tuple(joints), np.array(acts, int), np.array(dofs, int), np.array(qpos, int),
-                   np.array(bodies, int), play_a, np.asarray(pq, int), np.asarray(pd, int))
-
-
-class Effect:
-    """Base class: a named, parameterized extension of a servo-driven model."""
-
-    name: ClassVar[str]
-    kind: ClassVar[str]  # model | friction | command | observation | calibration | exogenous
-    params: ClassVar[tuple[Param, ...]]
-    requires: ClassVar[tuple[str, ...]] = ()  # measured channels needed (e.g. "temperature")
-    # prepare() adds degrees of freedom (only with hidden_dofs; the qpos layout changes), and
-    # apply() writes their fields whatever the kind
-    structural: ClassVar[bool] = False
-    fields: ClassVar[tuple[str, ...]] = ()  # model fields written by ``apply``
-    doc: ClassVar[str] = ""
-
-    # ---- parameters -----------------------------------------------------------------------
-    @classmethod
-    def param(cls, name: str) -> Param:
-        for p in cls.params:
-            if p.name == name:
-                return p
-        check_choice(f"{cls.name} parameter", name, [p.name for p in cls.params])
-        raise AssertionError
-
-    @classmethod
-    def null_values(cls, n: int) -> dict[str, np.ndarray]:
-        return {p.name: np.full(n, p.null) for p in cls.params}
-
-    @classmethod
-    def sample(cls, rng: np.random.Generator, shape: tuple[int, ...]) -> dict[str, np.ndarray]:
-        """Draw parameters uniformly from their domain-randomization ranges."""
-        return {p.name: rng.uniform(p.dr[0], p.dr[1], size=shape) for p in cls.params}
-
-    @classmethod
-    def is_null(cls, values: Values) -> bool:
-        return all(np.allclose(values[p.name], p.null) for p in cls.params)
-
-    # ---- structural edits before compile ----------------------------------------------------
-    @classmethod
-    def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
-        """Edit the spec so the compiled model can host any value in the bounds (default: none)."""
-
-    @classmethod
-    def written_fields(cls, t: Targets) -> tuple[str, ...]:
-        """Model fields ``apply`` writes on these targets (reset to nominal before applying)."""
-        return cls.fields
-
-    # ---- hooks (overridden per kind) -----------------------------------------------------
-    @classmethod
-    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
-        """kind model: write model fields from their nominal values."""
-
-    @classmethod
-    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
-                 external: np.ndarray | None = None) -> np.ndarray:
-        """kind friction: extra dry friction [N m] per target, from dof velocities [rad/s]
-        (..., nv), actuator forces [N m] (..., nu) and the external generalized force on each
-        dof [N m] (..., nv): gravity and velocity-product terms, ``-qfrc_bias`` (None: zero)."""
-        raise NotImplementedError
-
-    @classmethod
-    def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
-                rng: np.random.Generator) -> np.ndarray:
-        """kind command: map goals [rad] (..., n_targets) to what the servo receives.
-
-        ``state`` persists across steps within a rollout (NaN entries mean "restarted"); its key
-        "setpoint" is always the setpoint the servo held before this command.
-        """
-        raise NotImplementedError
-
-    @classmethod
-    def observe(cls, t: Targets, v: Values, q: np.ndarray,
-                rng: np.random.Generator) -> np.ndarray:
-        """kind observation: map true joint angles [rad] (..., n_targets) to encoder readings."""
-        raise NotImplementedError
-
-    @classmethod
-    def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
-                  gain: np.ndarray) -> None:
-        """kind exogenous: rescale the (..., n_targets, mjNGAIN) gain copy in place."""
-        raise NotImplementedError
-
+from lowcostdex.sim.effects.base import (
+    DEFAULT_REFERENCE_TEMPERATURE,
+    Effect,
+    Fields,
+    Param,
+    Targets,
+    Values,
+    play_joint_name,
+)
 
 # ------------------------------------------------------------------------------------------------
 # model-field effects
@@ -514,7 +297,7 @@ class Backlash(Effect):
     @staticmethod
     def play_joint(joint: str) -> str:
         """Name of the play hinge ``prepare`` adds for ``joint``."""
-        return f"{joint}__play"
+        return play_joint_name(joint)
 
     @classmethod
     def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
@@ -725,119 +508,3 @@ def effect(name: str) -> type[Effect]:
     """Look up an effect class by canonical name; the error lists the catalogue."""
     check_choice("effect", name, EFFECTS)
     return EFFECTS[name]
-
-
-@dataclass(frozen=True)
-class AppliedEffect:
-    """An effect bound to joints with parameter values.
-
-    Attributes:
-      name: canonical effect name.
-      joints: joints it acts on.
-      values: parameter name -> value per joint, shape (n_joints,) or a scalar for all.
-    """
-
-    name: str
-    joints: tuple[str, ...]
-    values: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        cls = effect(self.name)
-        n = len(self.joints)
-        if n == 0:
-            raise ConfigError(f"effect {self.name}: no joints given")
-        vals: dict[str, np.ndarray] = {}
-        for p in cls.params:
-            raw = self.values.get(p.name, p.null)
-            arr = np.broadcast_to(np.asarray(raw, dtype=float), (n,)).copy()
-            vals[p.name] = arr
-        unknown = set(self.values) - {p.name for p in cls.params}
-        if unknown:
-            check_choice(f"{self.name} parameter", sorted(unknown)[0], [p.name for p in cls.params])
-        object.__setattr__(self, "values", vals)
-
-    @property
-    def cls(self) -> type[Effect]:
-        return effect(self.name)
-
-    def to_dict(self) -> dict:
-        return {"effect": self.name, "joints": list(self.joints),
-                "params": {k: v.tolist() for k, v in self.values.items()}}
-
-    @classmethod
-    def from_dict(cls, d: Mapping) -> AppliedEffect:
-        return cls(d["effect"], tuple(d["joints"]), {k: np.asarray(v, float)
-                                                     for k, v in d["params"].items()})
-
-    @classmethod
-    def coerce(cls, e: AppliedEffect | Mapping) -> AppliedEffect:
-        """``e`` itself, or the effect its ``to_dict()`` mapping describes (JSON configs)."""
-        return e if isinstance(e, AppliedEffect) else cls.from_dict(e)
-
-
-SampleFn = Callable[[np.random.Generator], list[AppliedEffect]]
-
-
-@dataclass(frozen=True)
-class DomainRandomization:
-    """Which effects to randomize on which joints; samples AppliedEffects from ``Param.dr``.
-
-    Attributes:
-      effects: canonical effect names to randomize (each independently per joint).
-      joints: joints the effects act on.
-      ranges: optional overrides {effect: {param: (low, high)}} (e.g. from a gap-analysis fit);
-        ``low`` and ``high`` are scalars or one value per joint (an identified robot whose
-        joints differ; ``low == high`` holds a value fixed).
-    """
-
-    effects: tuple[str, ...]
-    joints: tuple[str, ...]
-    ranges: Mapping[str, Mapping[str, tuple[float, float]]] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        for name in self.effects:
-            effect(name)
-        n = len(self.joints)
-        for name, params in self.ranges.items():
-            cls = effect(name)
-            for p, (lo, hi) in params.items():
-                cls.param(p)
-                lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-                if lo.shape not in ((), (n,)) or hi.shape not in ((), (n,)):
-                    raise ConfigError(f"range of {name}.{p}: low and high must be scalars or "
-                                      f"one value per joint ({n}), got shapes {lo.shape}, "
-                                      f"{hi.shape}")
-                if not np.all(lo <= hi):
-                    raise ConfigError(f"range of {name}.{p}: low {lo.tolist()} above high "
-                                      f"{hi.tolist()}")
-
-    def to_dict(self) -> dict:
-        """JSON form (training configs' env kwargs; ``from_dict`` reads it back)."""
-        return {"effects": list(self.effects), "joints": list(self.joints),
-                "ranges": {k: {p: [np.asarray(lo, float).tolist(), np.asarray(hi, float).tolist()]
-                               for p, (lo, hi) in r.items()} for k, r in self.ranges.items()}}
-
-    @classmethod
-    def from_dict(cls, d: Mapping) -> DomainRandomization:
-        ranges = {k: {p: (v[0], v[1]) for p, v in r.items()}
-                  for k, r in dict(d.get("ranges", {})).items()}
-        return cls(tuple(d["effects"]), tuple(d["joints"]), ranges)
-
-    def sample(self, rng: np.random.Generator) -> list[AppliedEffect]:
-        """Draw one set of effect values (seeded by ``rng``)."""
-        out = []
-        n = len(self.joints)
-        for name in self.effects:
-            cls = effect(name)
-            vals = cls.sample(rng, (n,))
-            for p, (lo, hi) in self.ranges.get(name, {}).items():
-                vals[p] = rng.uniform(lo, hi, size=n)
-            out.append(AppliedEffect(name, self.joints, vals))
-        return out
-
-
-# ROBEL RandomDynamics / OpenAI-style defaults for the D'Claw's servos.
-DEFAULT_DR_EFFECTS: tuple[str, ...] = (
-    "coulomb_friction", "viscous_damping", "gain_error", "latency", "backlash", "inertia_error",
-    "mass_error", "observation_noise", "action_noise",
-)

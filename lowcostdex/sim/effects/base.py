@@ -1,0 +1,219 @@
+"""Effect base: parameters, the model fields and targets an effect acts on, and ``Effect``.
+
+The catalogue of concrete effects is ``lowcostdex.sim.effects.catalogue``; the package docstring
+(``lowcostdex.sim.effects``) explains the kinds and magnitudes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import ClassVar, Protocol
+
+import mujoco
+import numpy as np
+
+from lowcostdex.errors import ConfigError, check_choice
+
+Values = Mapping[str, np.ndarray]
+def play_joint_name(joint: str) -> str:
+    """Name of the play hinge a backlash adds for ``joint`` (``Backlash.prepare``)."""
+    return f"{joint}__play"
+
+
+DEFAULT_REFERENCE_TEMPERATURE = 25.0  # [deg C] winding reference when the model has none
+
+
+@dataclass(frozen=True)
+class Param:
+    """A named effect parameter.
+
+    Attributes:
+      name: parameter name, unique within its effect.
+      null: value at which the effect is absent.
+      low, high: bounds for fitting [unit].
+      unit: SI unit string.
+      dr: plausible range for domain randomization on a D'Claw [unit].
+      start: initial guess for fitting (default: ``null`` moved inside the bounds).
+      doc: one-line meaning.
+      limit: physical hard limits [unit]: a fit that lands on ``low`` or ``high`` may widen its
+        search range up to these, never beyond (default: ``(low, high)``, no widening).
+    """
+
+    name: str
+    null: float
+    low: float
+    high: float
+    unit: str
+    dr: tuple[float, float]
+    start: float | None = None
+    doc: str = ""
+    limit: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if not self.low < self.high:
+            raise ConfigError(f"param {self.name}: low must be < high")
+        if not (self.low <= self.dr[0] <= self.dr[1] <= self.high):
+            raise ConfigError(f"param {self.name}: dr range {self.dr} outside bounds")
+        if self.limit is not None and not self.limit[0] <= self.low < self.high <= self.limit[1]:
+            raise ConfigError(f"param {self.name}: hard limit {self.limit} inside the bounds")
+
+    @property
+    def hard(self) -> tuple[float, float]:
+        """Physical hard limits of the parameter (``limit``, or the fit bounds)."""
+        return self.limit if self.limit is not None else (self.low, self.high)
+
+    @property
+    def initial(self) -> float:
+        """Fit start value, strictly inside the bounds."""
+        if self.start is not None:
+            return self.start
+        return float(np.clip(self.null, self.low + 1e-6 * (self.high - self.low),
+                             self.high - 1e-6 * (self.high - self.low)))
+
+
+class Fields(Protocol):
+    """Access to model fields, single (n, ...) or batched (nsim, n, ...)."""
+
+    def array(self, name: str) -> np.ndarray:
+        """Live array of a model field."""
+
+    def nominal(self, name: str) -> np.ndarray:
+        """The field's value in the nominal model, shape (n, ...)."""
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Where an effect acts: actuated joints and their indices in a compiled model.
+
+    Attributes:
+      joints: joint names.
+      actuators: actuator index per joint (the servo driving it).
+      dofs: dof address per joint.
+      qpos: qpos address per joint.
+      bodies: the body each joint moves.
+      play: per joint, the id of its backlash play hinge (``Backlash.prepare``), -1 when the
+        model has none; ``play_qpos`` / ``play_dofs`` its qpos and dof addresses (-1: none).
+    """
+
+    joints: tuple[str, ...]
+    actuators: np.ndarray
+    dofs: np.ndarray
+    qpos: np.ndarray
+    bodies: np.ndarray
+    play: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    play_qpos: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    play_dofs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+
+    @property
+    def has_play(self) -> np.ndarray:
+        """(n,) whether each joint has a play hinge."""
+        return (self.play >= 0) if len(self.play) == len(self.joints) else np.zeros(
+            len(self.joints), bool)
+
+    @classmethod
+    def resolve(cls, model: mujoco.MjModel, joints: tuple[str, ...] | list[str]) -> Targets:
+        """Resolve joint names; each must be a hinge/slide driven by exactly one actuator."""
+        names = [model.joint(i).name for i in range(model.njnt)]
+        acts, dofs, qpos, bodies, play = [], [], [], [], []
+        for jn in joints:
+            check_choice("joint", jn, names)
+            jid = model.joint(jn).id
+            driving = np.flatnonzero((model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
+                                     & (model.actuator_trnid[:, 0] == jid))
+            if len(driving) != 1:
+                raise ConfigError(f"joint {jn!r} must be driven by exactly one actuator, "
+                                  f"found {len(driving)}")
+            acts.append(int(driving[0]))
+            dofs.append(int(model.jnt_dofadr[jid]))
+            qpos.append(int(model.jnt_qposadr[jid]))
+            bodies.append(int(model.jnt_bodyid[jid]))
+            pn = play_joint_name(jn)
+            play.append(int(model.joint(pn).id) if pn in names else -1)
+        play_a = np.array(play, int)
+        has = play_a >= 0
+        pq = np.where(has, model.jnt_qposadr[np.maximum(play_a, 0)], -1) if len(play_a) else play_a
+        pd = np.where(has, model.jnt_dofadr[np.maximum(play_a, 0)], -1) if len(play_a) else play_a
+        return cls(tuple(joints), np.array(acts, int), np.array(dofs, int), np.array(qpos, int),
+                   np.array(bodies, int), play_a, np.asarray(pq, int), np.asarray(pd, int))
+
+
+class Effect:
+    """Base class: a named, parameterized extension of a servo-driven model."""
+
+    name: ClassVar[str]
+    kind: ClassVar[str]  # model | friction | command | observation | calibration | exogenous
+    params: ClassVar[tuple[Param, ...]]
+    requires: ClassVar[tuple[str, ...]] = ()  # measured channels needed (e.g. "temperature")
+    # prepare() adds degrees of freedom (only with hidden_dofs; the qpos layout changes), and
+    # apply() writes their fields whatever the kind
+    structural: ClassVar[bool] = False
+    fields: ClassVar[tuple[str, ...]] = ()  # model fields written by ``apply``
+    doc: ClassVar[str] = ""
+
+    # ---- parameters -----------------------------------------------------------------------
+    @classmethod
+    def param(cls, name: str) -> Param:
+        for p in cls.params:
+            if p.name == name:
+                return p
+        check_choice(f"{cls.name} parameter", name, [p.name for p in cls.params])
+        raise AssertionError
+
+    @classmethod
+    def null_values(cls, n: int) -> dict[str, np.ndarray]:
+        return {p.name: np.full(n, p.null) for p in cls.params}
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator, shape: tuple[int, ...]) -> dict[str, np.ndarray]:
+        """Draw parameters uniformly from their domain-randomization ranges."""
+        return {p.name: rng.uniform(p.dr[0], p.dr[1], size=shape) for p in cls.params}
+
+    @classmethod
+    def is_null(cls, values: Values) -> bool:
+        return all(np.allclose(values[p.name], p.null) for p in cls.params)
+
+    # ---- structural edits before compile ----------------------------------------------------
+    @classmethod
+    def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
+        """Edit the spec so the compiled model can host any value in the bounds (default: none)."""
+
+    @classmethod
+    def written_fields(cls, t: Targets) -> tuple[str, ...]:
+        """Model fields ``apply`` writes on these targets (reset to nominal before applying)."""
+        return cls.fields
+
+    # ---- hooks (overridden per kind) -----------------------------------------------------
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        """kind model: write model fields from their nominal values."""
+
+    @classmethod
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
+                 external: np.ndarray | None = None) -> np.ndarray:
+        """kind friction: extra dry friction [N m] per target, from dof velocities [rad/s]
+        (..., nv), actuator forces [N m] (..., nu) and the external generalized force on each
+        dof [N m] (..., nv): gravity and velocity-product terms, ``-qfrc_bias`` (None: zero)."""
+        raise NotImplementedError
+
+    @classmethod
+    def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
+                rng: np.random.Generator) -> np.ndarray:
+        """kind command: map goals [rad] (..., n_targets) to what the servo receives.
+
+        ``state`` persists across steps within a rollout (NaN entries mean "restarted"); its key
+        "setpoint" is always the setpoint the servo held before this command.
+        """
+        raise NotImplementedError
+
+    @classmethod
+    def observe(cls, t: Targets, v: Values, q: np.ndarray,
+                rng: np.random.Generator) -> np.ndarray:
+        """kind observation: map true joint angles [rad] (..., n_targets) to encoder readings."""
+        raise NotImplementedError
+
+    @classmethod
+    def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
+                  gain: np.ndarray) -> None:
+        """kind exogenous: rescale the (..., n_targets, mjNGAIN) gain copy in place."""
+        raise NotImplementedError

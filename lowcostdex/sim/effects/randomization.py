@@ -1,0 +1,127 @@
+"""Effects bound to joints (``AppliedEffect``) and domain randomization over the catalogue."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.sim.effects.catalogue import Effect, effect
+
+
+@dataclass(frozen=True)
+class AppliedEffect:
+    """An effect bound to joints with parameter values.
+
+    Attributes:
+      name: canonical effect name.
+      joints: joints it acts on.
+      values: parameter name -> value per joint, shape (n_joints,) or a scalar for all.
+    """
+
+    name: str
+    joints: tuple[str, ...]
+    values: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        cls = effect(self.name)
+        n = len(self.joints)
+        if n == 0:
+            raise ConfigError(f"effect {self.name}: no joints given")
+        vals: dict[str, np.ndarray] = {}
+        for p in cls.params:
+            raw = self.values.get(p.name, p.null)
+            arr = np.broadcast_to(np.asarray(raw, dtype=float), (n,)).copy()
+            vals[p.name] = arr
+        unknown = set(self.values) - {p.name for p in cls.params}
+        if unknown:
+            check_choice(f"{self.name} parameter", sorted(unknown)[0], [p.name for p in cls.params])
+        object.__setattr__(self, "values", vals)
+
+    @property
+    def cls(self) -> type[Effect]:
+        return effect(self.name)
+
+    def to_dict(self) -> dict:
+        return {"effect": self.name, "joints": list(self.joints),
+                "params": {k: v.tolist() for k, v in self.values.items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> AppliedEffect:
+        return cls(d["effect"], tuple(d["joints"]), {k: np.asarray(v, float)
+                                                     for k, v in d["params"].items()})
+
+    @classmethod
+    def coerce(cls, e: AppliedEffect | Mapping) -> AppliedEffect:
+        """``e`` itself, or the effect its ``to_dict()`` mapping describes (JSON configs)."""
+        return e if isinstance(e, AppliedEffect) else cls.from_dict(e)
+
+
+SampleFn = Callable[[np.random.Generator], list[AppliedEffect]]
+
+
+@dataclass(frozen=True)
+class DomainRandomization:
+    """Which effects to randomize on which joints; samples AppliedEffects from ``Param.dr``.
+
+    Attributes:
+      effects: canonical effect names to randomize (each independently per joint).
+      joints: joints the effects act on.
+      ranges: optional overrides {effect: {param: (low, high)}} (e.g. from a gap-analysis fit);
+        ``low`` and ``high`` are scalars or one value per joint (an identified robot whose
+        joints differ; ``low == high`` holds a value fixed).
+    """
+
+    effects: tuple[str, ...]
+    joints: tuple[str, ...]
+    ranges: Mapping[str, Mapping[str, tuple[float, float]]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in self.effects:
+            effect(name)
+        n = len(self.joints)
+        for name, params in self.ranges.items():
+            cls = effect(name)
+            for p, (lo, hi) in params.items():
+                cls.param(p)
+                lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+                if lo.shape not in ((), (n,)) or hi.shape not in ((), (n,)):
+                    raise ConfigError(f"range of {name}.{p}: low and high must be scalars or "
+                                      f"one value per joint ({n}), got shapes {lo.shape}, "
+                                      f"{hi.shape}")
+                if not np.all(lo <= hi):
+                    raise ConfigError(f"range of {name}.{p}: low {lo.tolist()} above high "
+                                      f"{hi.tolist()}")
+
+    def to_dict(self) -> dict:
+        """JSON form (training configs' env kwargs; ``from_dict`` reads it back)."""
+        return {"effects": list(self.effects), "joints": list(self.joints),
+                "ranges": {k: {p: [np.asarray(lo, float).tolist(), np.asarray(hi, float).tolist()]
+                               for p, (lo, hi) in r.items()} for k, r in self.ranges.items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> DomainRandomization:
+        ranges = {k: {p: (v[0], v[1]) for p, v in r.items()}
+                  for k, r in dict(d.get("ranges", {})).items()}
+        return cls(tuple(d["effects"]), tuple(d["joints"]), ranges)
+
+    def sample(self, rng: np.random.Generator) -> list[AppliedEffect]:
+        """Draw one set of effect values (seeded by ``rng``)."""
+        out = []
+        n = len(self.joints)
+        for name in self.effects:
+            cls = effect(name)
+            vals = cls.sample(rng, (n,))
+            for p, (lo, hi) in self.ranges.get(name, {}).items():
+                vals[p] = rng.uniform(lo, hi, size=n)
+            out.append(AppliedEffect(name, self.joints, vals))
+        return out
+
+
+# ROBEL RandomDynamics / OpenAI-style defaults for the D'Claw's servos.
+DEFAULT_DR_EFFECTS: tuple[str, ...] = (
+    "coulomb_friction", "viscous_damping", "gain_error", "latency", "backlash", "inertia_error",
+    "mass_error", "observation_noise", "action_noise",
+)
