@@ -10,10 +10,6 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 700
 
 EXCEPTIONS: dict[str, str] = {
-    "lowcostdex/gap/logs.py": (
-        "log formats and their validation, grown to 922 lines by the log checks of issue 12 "
-        "(landed 22:30 on 2026-11-25); split into the Trajectory and its CSV/NPZ files, the "
-        "entry checks and BAM's JSON logs when the gap branches have landed"),
     "lowcostdex/gap/analyze.py": (
         "the gap analysis's selection rounds, grown to 732 lines at 22:31 on 2026-11-25 and "
         "still being edited on the gap-cands branch; split with its author"),

@@ -1,0 +1,178 @@
+"""BAM raw-log JSON (Rhoban/bam's pendulum benches) mapped onto the servo bench
+(``lowcostdex.sim.models.bench``) from its header (mass, length, arm_mass, kp, vin, motor).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.gap.log_checks import MAX_JSON_BYTES, MAX_SAMPLES, trajectory_from_columns
+from lowcostdex.gap.trajectory import LogError, Trajectory
+from lowcostdex.sim import servo
+from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig
+
+# ------------------------------------------------------------------------------------------------
+# BAM raw logs
+
+# BAM motor name -> lowcostdex motor (BAM drives its MX benches with Protocol 1.0 firmware, so
+# their kp is the P1 P Gain register)
+BAM_MOTORS: dict[str, str] = {
+    "xl330": "XL330-M288",
+    "mx64": "MX-64(1.0)",
+    "mx106": "MX-106(1.0)",
+    "sts3250": "STS3250",
+    "sts3032": "STS3032",
+}
+_BAM_HEADER = ("mass", "length", "kp", "vin", "motor", "entries")
+_BAM_ENTRY = ("timestamp", "position", "goal_position")
+
+
+def is_bam(path: str | Path) -> bool:
+    """True when ``path`` is to be read as a BAM raw log: a ``.json`` file (the project format is
+    CSV/NPZ, so a JSON file that is not a BAM log is refused by ``read_bam`` with its reason)."""
+    return Path(path).suffix.lower() == ".json"
+
+
+def _bam_number(value: object, where: str, positive: bool = False) -> float:
+    """A JSON number (not a bool, string or null), finite (and > 0 when ``positive``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise LogError(f"{where}: {json.dumps(value)[:40]} is not a number")
+    x = float(value)
+    if not math.isfinite(x) or (positive and x <= 0):
+        raise LogError(f"{where}: {value!r} must be a finite{' positive' if positive else ''} "
+                       "number")
+    return x
+
+
+def _bam_entries(path: Path, entries: object) -> list[dict]:
+    """Check the entries' types: a list of objects whose values are numbers (torque_enable may be
+    a bool; optional fields may be null)."""
+    if not isinstance(entries, list):
+        raise LogError(f"{path}: 'entries' must be a list of samples, got "
+                       f"{type(entries).__name__}")
+    if not entries:
+        raise LogError(f"{path}: BAM log has no entries")
+    if len(entries) > MAX_SAMPLES:
+        raise LogError(f"{path}: {len(entries)} entries; at most {MAX_SAMPLES} per log")
+    for i, e in enumerate(entries):
+        if not isinstance(e, dict):
+            raise LogError(f"{path}: entries[{i}] must be an object with {list(_BAM_ENTRY)}, "
+                           f"got {json.dumps(e)[:40]}")
+        for k in _BAM_ENTRY:
+            if k not in e:
+                raise LogError(f"{path}: entries[{i}] lacks {k!r}")
+        for k, v in e.items():
+            if v is None and k not in _BAM_ENTRY:
+                continue
+            if k == "torque_enable" and isinstance(v, bool):
+                continue
+            if k in _BAM_ENTRY or k in _BAM_NUMERIC:
+                _bam_number(v, f"{path}: entries[{i}].{k}")
+    return entries
+
+
+_BAM_NUMERIC = ("speed", "load", "input_volts", "temp", "torque_enable")
+
+
+def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajectory, BenchConfig]:
+    """Map a BAM raw log onto the servo bench.
+
+    The bench gets the log's ``mass``, ``length``, ``arm_mass`` (0 when absent, as BAM's loader
+    does), firmware ``kp`` (device units) and nominal supply ``vin``; the motor's duty ceiling is
+    the PWM limit. Channels: ``speed`` -> qvel, ``input_volts`` -> voltage (raw 0.1 V registers,
+    recognised by values above 30, are scaled), ``temp`` -> temperature (dropped when all zero),
+    ``torque_enable``. The Rhoban XL330 ``load`` (raw PWM) is not used.
+
+    Returns:
+      (trajectory on joint/actuator ``BENCH_JOINT``, bench config). ``trajectory.model`` is a key
+      naming the setup, so logs of one rig share a model.
+    Raises:
+      LogError naming the file, the field and the value: not JSON (binary, empty, truncated),
+      wrong types, missing fields, unknown motor, implausible values (see
+      ``trajectory_from_columns``).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise LogError(f"{path}: no such file")
+    if path.is_dir():
+        raise LogError(f"{path}: is a folder, not a log file")
+    size = path.stat().st_size
+    if size == 0:
+        raise LogError(f"{path}: empty file")
+    if size > MAX_JSON_BYTES:
+        raise LogError(f"{path}: {size / 2**20:.0f} MB; a BAM log is at most "
+                       f"{MAX_JSON_BYTES / 2**20:.0f} MB here (split it)")
+    try:
+        with open(path, encoding="utf-8") as f:
+            raw = json.load(f)
+    except UnicodeDecodeError:
+        raise LogError(f"{path}: not a BAM JSON log (binary data, not text)") from None
+    except (OSError, ValueError) as exc:  # JSONDecodeError is a ValueError
+        raise LogError(f"{path}: not a readable BAM JSON log ({exc})") from None
+    if not isinstance(raw, dict):
+        raise LogError(f"{path}: BAM log must be a JSON object, got {type(raw).__name__}")
+    missing = [k for k in _BAM_HEADER if k not in raw]
+    if missing:
+        raise LogError(f"{path}: BAM log lacks fields {missing}; need {list(_BAM_HEADER)}")
+    if not isinstance(raw["motor"], str):
+        raise LogError(f"{path}: 'motor' must be a string, got {json.dumps(raw['motor'])[:40]}")
+    motor = raw["motor"].lower()
+    if motor not in BAM_MOTORS:
+        raise LogError(f"{path}: unknown BAM motor {raw['motor']!r}; valid: "
+                       + ", ".join(sorted(BAM_MOTORS)))
+    for k in ("mass", "length", "kp", "vin"):
+        _bam_number(raw[k], f"{path}: {k!r}", positive=True)
+    if raw.get("arm_mass") is not None:
+        if _bam_number(raw["arm_mass"], f"{path}: 'arm_mass'") < 0:
+            raise LogError(f"{path}: 'arm_mass' {raw['arm_mass']!r} must be >= 0")
+    entries = _bam_entries(path, raw["entries"])
+
+    def col(key: str, default: float | None = None) -> np.ndarray:
+        return np.array([float(e.get(key, default)) if e.get(key, default) is not None
+                         else np.nan for e in entries])
+
+    t = col("timestamp")
+    volts = col("input_volts", np.nan)
+    if np.nanmedian(volts) > 30.0:  # Feetech registers in 0.1 V
+        volts = volts * 0.1
+    temp = col("temp", np.nan)
+    channels = {"torque_enable": col("torque_enable", 1.0)[:, None]}
+    if np.all(np.isfinite(volts)) and np.any(volts > 0):
+        channels["voltage"] = volts[:, None]
+    if np.all(np.isfinite(temp)) and np.any(temp != 0):
+        channels["temperature"] = temp[:, None]
+    speed = col("speed", np.nan)
+    mspec = servo.motor_spec(BAM_MOTORS[motor])
+    kp = float(raw["kp"])
+    if not (kp > 0 and kp == int(kp)):
+        raise LogError(f"{path}: BAM kp must be a positive integer register value, got {kp}")
+    gains = servo.ServoGains(position_p=int(kp), pwm_limit=round(mspec.max_duty * mspec.pwm_max),
+                             supply_voltage=float(raw["vin"]))
+    arm_mass = float(raw.get("arm_mass", 0.0) or 0.0)
+    cfg_kwargs = dict(motor=mspec.name, mass=float(raw["mass"]), length=float(raw["length"]),
+                      arm_mass=arm_mass, gains=gains)
+    if timestep is not None:
+        cfg_kwargs["timestep"] = timestep
+    try:
+        cfg = BenchConfig(**cfg_kwargs)
+    except ConfigError as exc:
+        raise LogError(f"{path}: {exc}") from None
+    meta = {k: v for k, v in raw.items() if k != "entries"}
+    meta["source"] = "bam"
+    key = (f"{mspec.name}_m{cfg.mass:g}_l{cfg.length:g}_a{arm_mass:g}_kp{int(kp)}"
+           f"_v{float(raw['vin']):g}")
+    cols = {"time": t, f"goal:{BENCH_JOINT}": col("goal_position"),
+            f"qpos:{BENCH_JOINT}": col("position")}
+    if np.all(np.isfinite(speed)):
+        cols[f"qvel:{BENCH_JOINT}"] = speed
+    for ch, arr in channels.items():
+        cols[f"{ch}:{BENCH_JOINT}"] = arr[:, 0]
+    traj = trajectory_from_columns(cols, name=path.name)
+    traj.model = key
+    traj.meta = meta
+    return traj, cfg

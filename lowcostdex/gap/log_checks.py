@@ -1,0 +1,416 @@
+"""Checks on entry for measured logs: the limits a log must meet (``MIN_SAMPLES``, plausible
+magnitudes per column kind, ...), building a validated ``Trajectory`` from log-format columns
+(``trajectory_from_columns``) and the signal checks (frozen, saturated, wrapped, pinned or dead
+channels) that name the file, the column and the problem.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lowcostdex.gap.trajectory import (
+    LogError,
+    Trajectory,
+    find_gaps,
+    quantization_step,
+)
+
+PREFIXES_ACTUATOR = ("goal", "current", "voltage", "temperature", "torque_enable")
+PREFIXES_JOINT = ("qpos", "qvel")
+CHANNELS = ("current", "voltage", "temperature", "torque_enable")
+MIN_SAMPLES = 20
+MIN_DURATION = 0.5  # [s]
+MAX_SAMPLES = 2_000_000  # per log: bounds memory and run time (about 1 h at 500 Hz)
+MAX_DURATION = 3600.0  # [s] per log
+MAX_JSON_BYTES = 256 * 2**20  # a BAM log of 6 s is about 250 kB
+STEP_RANGE = (5e-5, 0.5)  # [s] plausible median sample step (20 kHz .. 2 Hz)
+MIN_MOTION = 0.02  # [rad] some measured joint must move at least this much (peak to peak)
+FROZEN_CROSS = 0.2  # [rad] a reading that repeats while the goal passes it by this, both ways
+RANGE_MARGIN = 0.2  # [rad] measured positions beyond a limited joint's model range by more
+CLIP_PILE = 5.0  # ... and this many times as often as at any value between the extremes
+SATURATED_SHARE = 0.2  # a channel at exactly its extreme value in this share of the samples
+PINNED_RUN = 5  # samples: a position reading repeated this long at its extreme may be a clip
+PINNED_TRAVEL = 0.05  # [rad] how far the logged qvel moves a motor whose reading stands still
+PINNED_SPEED = 0.2  # [rad/s] ... at a median speed of at least this (many velocity counts)
+WRAP_TOLERANCE = 0.25  # [rad] a one-sample jump this close to one turn (2 pi) is a register wrap
+MIN_SUPPLY = 3.0  # [V] below every servo's operating range (XL330 3.7 V, SG90 4.8 V)
+# plausible magnitudes per column kind (SI units); beyond them the unit is wrong or the data broken
+PLAUSIBLE: dict[str, tuple[float, float, str]] = {
+    "goal": (-4 * math.pi, 4 * math.pi, "rad"),
+    "qpos": (-4 * math.pi, 4 * math.pi, "rad"),
+    "qvel": (-100.0, 100.0, "rad/s"),
+    "current": (-30.0, 30.0, "A"),
+    "voltage": (0.0, 60.0, "V"),
+    "temperature": (-40.0, 150.0, "deg C"),
+    "torque_enable": (0.0, 1.0, "0/1"),
+}
+_UNIT_HINTS: dict[str, tuple[tuple[float, str], ...]] = {
+    # (largest |value| that fits the other unit, hint)
+    "goal": ((400.0, "degrees? write rad"), (65536.0, "raw encoder ticks? write rad")),
+    "qpos": ((400.0, "degrees? write rad"), (65536.0, "raw encoder ticks? write rad")),
+    "qvel": ((6000.0, "deg/s or rpm? write rad/s"),),
+    "current": ((30000.0, "mA? write A"),),
+    "voltage": ((600.0, "0.1 V register units? write V"), (60000.0, "mV? write V")),
+    "temperature": ((430.0, "kelvin? write deg C"),),
+}
+
+
+def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> Trajectory:
+    """Parse log-format columns; raises LogError naming bad columns, NaNs or too little data."""
+    if "time" not in cols:
+        raise LogError(f"{name}: missing column 'time' [s]")
+    acts: dict[str, dict[str, np.ndarray]] = {}
+    joints: dict[str, dict[str, np.ndarray]] = {}
+    for key, arr in cols.items():
+        if key in ("time", "goal_time"):
+            continue
+        prefix, sep, target = key.partition(":")
+        if not sep or not target:
+            raise LogError(f"{name}: column {key!r} is not '<kind>:<name>'; kinds: time, "
+                           + ", ".join(PREFIXES_ACTUATOR + PREFIXES_JOINT))
+        if prefix in PREFIXES_ACTUATOR:
+            acts.setdefault(target, {})[prefix] = arr
+        elif prefix in PREFIXES_JOINT:
+            joints.setdefault(target, {})[prefix] = arr
+        else:
+            raise LogError(f"{name}: column {key!r} has unknown kind {prefix!r}; valid kinds: "
+                           + ", ".join(PREFIXES_ACTUATOR + PREFIXES_JOINT))
+    goal_acts = [a for a, d in acts.items() if "goal" in d]
+    if not goal_acts:
+        raise LogError(f"{name}: no 'goal:<actuator>' column (commanded position [rad])")
+    for a, d in acts.items():
+        if "goal" not in d:
+            raise LogError(f"{name}: channels {sorted(d)} for actuator {a!r} but no 'goal:{a}'")
+    meas = [j for j, d in joints.items() if "qpos" in d]
+    if not meas:
+        raise LogError(f"{name}: no 'qpos:<joint>' column (measured position [rad])")
+    for j, d in joints.items():
+        if "qpos" not in d:
+            raise LogError(f"{name}: 'qvel:{j}' without 'qpos:{j}'")
+    for key, arr in cols.items():
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            raise LogError(f"{name}: column {key!r} has {int(bad.sum())} NaN/inf values "
+                           f"(first at row {int(np.argmax(bad))})")
+    t = np.asarray(cols["time"], dtype=float)
+    _check_time(t, name)
+    for key, arr in cols.items():
+        _check_range(key, arr, name)
+    _check_minutes(t, {j: d["qpos"] for j, d in joints.items()},
+                   {j: d["qvel"] for j, d in joints.items() if "qvel" in d}, name)
+    _check_duration(t, name)
+    goal_time = None
+    if "goal_time" in cols:
+        goal_time = np.asarray(cols["goal_time"], dtype=float)
+        if np.any(goal_time < t) or np.any(np.diff(goal_time) <= 0):
+            raise LogError(f"{name}: 'goal_time' must be >= 'time' row by row and strictly "
+                           "increasing")
+    has_qvel = all("qvel" in joints[j] for j in meas)
+    channels = {}
+    for ch in CHANNELS:
+        present = [a for a in goal_acts if ch in acts[a]]
+        if present and len(present) != len(goal_acts):
+            missing = sorted(set(goal_acts) - set(present))
+            raise LogError(f"{name}: channel {ch!r} is missing for actuators {missing}")
+        if present:
+            channels[ch] = np.stack([acts[a][ch] for a in goal_acts], axis=1)
+    traj = Trajectory(
+        name=name, time=t,
+        goal=np.stack([acts[a]["goal"] for a in goal_acts], axis=1),
+        qpos=np.stack([joints[j]["qpos"] for j in meas], axis=1),
+        actuators=tuple(goal_acts), joints=tuple(meas),
+        qvel=np.stack([joints[j]["qvel"] for j in meas], axis=1) if has_qvel else None,
+        channels=channels, goal_time=goal_time)
+    check_signals(traj)
+    return traj
+
+
+def _check_time(t: np.ndarray, name: str) -> None:
+    """Enough samples, strictly increasing, in seconds (unit told from the median step).
+
+    Gaps are not refused here: ``split_at_gaps`` cuts the log there. The duration is checked by
+    ``_check_duration`` (after ``_check_minutes``, which names a log in minutes).
+    """
+    if len(t) < MIN_SAMPLES:
+        raise LogError(f"{name}: too little data: {len(t)} samples; need at least "
+                       f"{MIN_SAMPLES} samples and {MIN_DURATION} s")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0))
+        what = "repeats" if dt[i] == 0 else f"goes back from {t[i]:.9g}"
+        raise LogError(f"{name}: column 'time' must be strictly increasing: row {i + 1} "
+                       f"(0-based) {what} to {t[i + 1]:.9g} (duplicate or unsorted rows?)")
+    step = float(np.median(dt))
+    if not STEP_RANGE[0] <= step <= STEP_RANGE[1]:
+        raise LogError(f"{name}: column 'time' must be in seconds, but its median step is "
+                       f"{step:.6g}{_time_unit_hint(step)}")
+
+
+def _check_minutes(t: np.ndarray, qpos: dict[str, np.ndarray], qvel: dict[str, np.ndarray],
+                   name: str) -> None:
+    """Refuse time stamps in minutes, named as such. A log in minutes has a plausible median step
+    (100 Hz: 1.7e-4 "s"), so the step alone cannot tell; the motion can: read as seconds, the
+    positions change 60 x faster than the joint moves - faster than any servo (the 99th
+    percentile of |dq/dt| above the plausible qvel, and plausible once divided by 60), or, when
+    velocities are logged, dq/dt is 30-120 x the logged qvel (rad/s).
+    """
+    dt = np.diff(t)
+    step = float(np.median(dt))
+    if not STEP_RANGE[0] <= 60 * step <= STEP_RANGE[1]:
+        return
+    vmax = PLAUSIBLE["qvel"][1]
+    evidence = ""
+    for joint, q in qpos.items():
+        rate = np.abs(np.diff(q)) / dt
+        fast = float(np.percentile(rate, 99))
+        v = qvel.get(joint)
+        if fast > vmax and fast / 60 <= vmax:
+            evidence = (f"read as seconds, 'qpos:{joint}' would move at {fast:.4g} rad/s (99th "
+                        f"percentile; servos stay below {vmax:g}), in minutes at {fast / 60:.3g}")
+        elif v is not None and np.median(np.abs(v)) > 0:
+            moving = np.abs(v[1:]) > 0.1 * float(np.percentile(np.abs(v), 90))
+            if moving.sum() >= MIN_SAMPLES:
+                ratio = float(np.median(rate[moving]) / np.median(np.abs(v[1:][moving])))
+                if 30 <= ratio <= 120:
+                    evidence = (f"read as seconds, 'qpos:{joint}' changes {ratio:.3g} x faster "
+                                f"than its logged velocity 'qvel:{joint}'")
+        if evidence:
+            break
+    if evidence:
+        raise LogError(f"{name}: column 'time' looks like minutes, not seconds: {evidence}; "
+                       f"{len(t)} samples over {float(t[-1] - t[0]) * 60:.4g} s at "
+                       f"{1 / (60 * step):.4g} Hz if so: multiply the time stamps by 60")
+
+
+def _check_duration(t: np.ndarray, name: str) -> None:
+    """At least MIN_DURATION, at most MAX_DURATION seconds."""
+    step = float(np.median(np.diff(t)))
+    dur = float(t[-1] - t[0])
+    if dur < MIN_DURATION:
+        hint = (f" ({1 / step:.4g} Hz: is 'time' in seconds?)" if len(t) >= 10 * MIN_SAMPLES
+                else "")
+        raise LogError(f"{name}: too little data: {len(t)} samples over {dur:.3g} s{hint}; need "
+                       f"at least {MIN_SAMPLES} samples and {MIN_DURATION} s")
+    if dur > MAX_DURATION:
+        raise LogError(f"{name}: column 'time' spans {dur:.6g} s; at most {MAX_DURATION:g} s "
+                       "per log (split the log into shorter ones)")
+
+
+def _time_unit_hint(step: float) -> str:
+    for factor, unit in ((1e3, "ms"), (1e6, "us"), (1e9, "ns")):
+        if STEP_RANGE[0] <= step / factor <= STEP_RANGE[1]:
+            return (f": {unit}? ({1 / (step / factor):.4g} Hz if so); divide the time stamps by "
+                    f"{factor:.0e}")
+    return (f" s (a {1 / step:.4g} Hz log); a servo log has steps of "
+            f"{STEP_RANGE[0]:g}-{STEP_RANGE[1]:g} s")
+
+
+def _check_range(key: str, arr: np.ndarray, name: str) -> None:
+    """Values of a column within the plausible magnitudes of its kind (wrong units, broken data)."""
+    kind = key.partition(":")[0]
+    if kind not in PLAUSIBLE:
+        return
+    lo, hi, unit = PLAUSIBLE[kind]
+    if kind == "torque_enable":
+        bad = (arr != 0) & (arr != 1)
+    else:
+        bad = (arr < lo) | (arr > hi)
+    if not bad.any():
+        return
+    i = int(np.argmax(bad))
+    if kind == "torque_enable":
+        raise LogError(f"{name}: column {key!r} must be 0 or 1, row {i} (0-based) is {arr[i]:g}")
+    worst = float(np.max(np.abs(arr)))
+    hint = next((h for limit, h in _UNIT_HINTS.get(kind, ()) if worst <= limit),
+                "broken data?")
+    raise LogError(f"{name}: column {key!r} has {arr[i]:.6g} {unit} at row {i} (0-based); "
+                   f"plausible: {lo:g} to {hi:g} {unit} ({hint})")
+
+
+def check_signals(traj: Trajectory) -> None:
+    """Refuse what no model can be identified from, naming the column and the values.
+
+    * a frozen encoder: a joint's reading repeats exactly (torque on) while its goal passes it
+      by more than FROZEN_CROSS on both sides (a servo that stalls under load, its goal on one
+      side, is physics: BAM's XL330 holds one reading for 3 s while its goal moves 0.3 rad);
+    * a saturated current: at exactly its largest or smallest (non-zero) value in at least
+      SATURATED_SHARE of the torque-on samples and CLIP_PILE times as often as at any value
+      between the extremes (a clipped sensor or register range; the
+      current-dependent effects would fit the clip). Velocities may plateau (a profile velocity,
+      the robot's motion bound), so they are not checked;
+    * a position register's range: a reading that jumps by one turn (2 pi) between two samples
+      (a register that wraps, e.g. 0..4095 ticks), or that is pinned at its largest (smallest)
+      value for PINNED_RUN samples with torque on while the goal is beyond it by FROZEN_CROSS,
+      where the motor is shown moving on (its logged qvel, at a median |qvel| of PINNED_SPEED,
+      integrates to PINNED_TRAVEL beyond the reading while it stands still; real XL330 logs:
+      8 mrad in 36 ms at a peak, the velocity filter's lag, and 78 mrad at one 0.024 rad/s count
+      through a 3 s stall) or the value is an edge
+      of the encoder's one-turn window (tick 0, N - 1, -N/2, N/2 - 1 of N per turn) - a joint
+      held by a hard stop reads still, so without either sign a pinned reading is left alone;
+    * a dead voltage or temperature channel: below MIN_SUPPLY volts (a servo cannot drive its
+      joint on it) or exactly 0 deg C throughout, while the motor moves its joint with torque on:
+      an unread register logged as 0, or a broken sensor (a steady reading is not one: supply and
+      winding temperature are quantised, 0.1 V and 1 deg C, and sit still for minutes);
+    * too little motion: no measured joint moves MIN_MOTION peak to peak;
+    * positions that change faster than a servo moves (the 99th percentile of |dq/dt| beyond the
+      plausible qvel): time not in seconds (minutes pass the step check as a 6 kHz log) or
+      positions not in rad.
+    Measured logs (BAM's five rigs) repeat a reading for at most 0.32 s and by 0.05 rad of goal.
+    """
+    name = traj.name
+    on = np.ones(len(traj), bool)
+    if "torque_enable" in traj.channels:
+        on = np.all(traj.channels["torque_enable"] > 0.5, axis=1)
+    ids = {a: k for k, a in enumerate(traj.actuators)}
+    for j, joint in enumerate(traj.joints):  # a clip or wrap first: they also look frozen
+        _check_wrapped(traj, j)
+        if joint in ids:
+            _check_pinned(traj, j, traj.goal[:, ids[joint]], on)
+    for j, joint in enumerate(traj.joints):
+        q = traj.qpos[:, j]
+        if joint in ids:
+            _check_frozen(traj, q, traj.goal[:, ids[joint]], on, joint)
+    if "current" in traj.channels:
+        for k, col in enumerate(traj.channels["current"].T):
+            _check_saturated(name, f"current:{traj.actuators[k]}", col[on])
+    for k in range(len(traj.actuators)):
+        _check_dead_channels(traj, k, on)
+    speed = np.abs(np.diff(traj.qpos, axis=0)) / np.diff(traj.time)[:, None]
+    fast = np.percentile(speed, 99, axis=0)
+    vmax = PLAUSIBLE["qvel"][1]
+    if float(fast.max()) > vmax:
+        j = int(np.argmax(fast))
+        raise LogError(f"{name}: column 'qpos:{traj.joints[j]}' moves at up to "
+                       f"{fast[j]:.4g} rad/s (99th percentile of its steps); servos move below "
+                       f"{vmax:g} rad/s: is 'time' in seconds (not minutes) and 'qpos' in rad?")
+    motion = np.ptp(traj.qpos, axis=0)
+    if float(motion.max()) < MIN_MOTION:
+        moved = ", ".join(f"{j} {m:.3g}" for j, m in zip(traj.joints, motion, strict=True))
+        raise LogError(f"{name}: too little motion to identify anything: peak-to-peak qpos "
+                       f"[rad] {moved}; some joint must move at least {MIN_MOTION} rad")
+
+
+def _check_frozen(traj: Trajectory, q: np.ndarray, goal: np.ndarray, on: np.ndarray,
+                  joint: str) -> None:
+    t = traj.time
+    moving = np.flatnonzero(np.diff(q) != 0)
+    change = np.union1d(moving, find_gaps(t)) + 1
+    starts = np.concatenate([[0], change])
+    stops = np.concatenate([change, [len(q)]])
+    # goal and reading differ by a constant where the encoder's zero is off (a mounting offset
+    # of a spline tooth, 0.25 rad): measure the crossing from the log's usual difference while
+    # the reading moves (a dwell at a turning point is not a stuck read)
+    live = moving[on[moving]]
+    bias = float(np.median(goal[live] - q[live])) if len(live) else 0.0
+    for a, b in zip(starts, stops, strict=True):
+        if b - a < 5 or not on[a:b].all():
+            continue
+        acting = goal[max(a - 1, 0):b - 1]  # a row's goal is written after it was read
+        err = acting - q[a] - bias
+        seconds = t[b - 1] - t[a]
+        if min(float(err.max()), float(-err.min())) > FROZEN_CROSS:
+            raise LogError(
+                f"{traj.name}: column 'qpos:{joint}' is frozen at {q[a]:.6g} rad for "
+                f"{seconds:.3g} s (from {t[a]:.6g} s) while 'goal:{joint}' moves over "
+                f"[{acting.min():.3g}, {acting.max():.3g}] rad with torque on: the encoder "
+                "or its read is stuck (or the joint is blocked); nothing can be identified there")
+
+
+def _check_saturated(name: str, key: str, col: np.ndarray) -> None:
+    if len(col) < MIN_SAMPLES or len(np.unique(col)) < 10:
+        return
+    values, counts = np.unique(col, return_counts=True)
+    for k, what in ((len(values) - 1, "largest"), (0, "smallest")):
+        extreme = values[k]
+        if extreme == 0:  # at rest, or a sign the register does not carry: not a clip
+            continue
+        share = counts[k] / len(col)
+        # a clip piles the samples up at the edge: far more than at any other value (a small,
+        # quantised signal such as a parked joint's current of a few counts does not)
+        if share >= SATURATED_SHARE and counts[k] >= CLIP_PILE * counts[1:-1].max():
+            raise LogError(f"{name}: column {key!r} sits at its {what} value {extreme:.6g} in "
+                           f"{100 * share:.0f} % of the samples with torque on: a saturated "
+                           "(clipped) reading; log a range that holds the signal")
+
+
+def _check_wrapped(traj: Trajectory, j: int) -> None:
+    q, t = traj.qpos[:, j], traj.time
+    jump = np.diff(q)
+    wrap = (np.abs(np.abs(jump) - 2 * math.pi) < WRAP_TOLERANCE) & (
+        np.abs(jump) / np.diff(t) > PLAUSIBLE["qvel"][1])
+    if wrap.any():
+        i = int(np.argmax(wrap))
+        raise LogError(f"{traj.name}: column 'qpos:{traj.joints[j]}' jumps by {jump[i]:+.4g} rad "
+                       f"(one turn) from row {i} to {i + 1} (0-based, at {t[i + 1]:.6g} s), "
+                       f"{int(wrap.sum())} time(s): a position register wrapping at its range; "
+                       "unwrap the positions (numpy.unwrap) or log a multi-turn position")
+
+
+def _check_pinned(traj: Trajectory, j: int, goal: np.ndarray, on: np.ndarray) -> None:
+    q, t = traj.qpos[:, j], traj.time
+    grid = quantization_step(q[:, None])
+    per_turn = round(2 * math.pi / grid) if grid else 0
+    for side, extreme in ((1.0, float(q.max())), (-1.0, float(q.min()))):
+        at = (q == extreme) & on
+        # goals that acted on each row: a row's goal is written after it was read
+        acting = np.concatenate([goal[:1], goal[:-1]])
+        beyond = side * (acting - extreme) > FROZEN_CROSS
+        # stretches of the reading at its extreme
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], at.astype(int), [0]])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if b - a < PINNED_RUN or not beyond[a:b].any():
+                continue
+            sign = ""
+            travel = 0.0
+            if traj.qvel is not None:
+                v = traj.qvel[a:b, j]
+                if np.median(np.abs(v)) > PINNED_SPEED:  # beyond the reading and back
+                    travel = float(np.max(np.cumsum(side * v[:-1] * np.diff(t[a:b])), initial=0))
+            if travel > PINNED_TRAVEL:
+                sign = (f"while 'qvel:{traj.joints[j]}' takes the motor {travel:.3g} rad "
+                        "beyond it and back")
+            elif per_turn:
+                tick = extreme / grid
+                edge = [e for e in (0, per_turn - 1, -per_turn // 2, per_turn // 2 - 1)
+                        if abs(tick - e) < 0.01]
+                if edge:
+                    sign = (f"tick {edge[0]} of {per_turn} per turn, an edge of the encoder's "
+                            "one-turn window")
+            if sign:
+                far = float(np.max(side * (acting[a:b] - extreme)))
+                raise LogError(
+                    f"{traj.name}: column 'qpos:{traj.joints[j]}' is pinned at its "
+                    f"{'largest' if side > 0 else 'smallest'} value {extreme:.6g} rad for "
+                    f"{t[b - 1] - t[a]:.3g} s (from {t[a]:.6g} s) while 'goal:{traj.joints[j]}' "
+                    f"is up to {far:.3g} rad beyond it, {sign}: a position clipped at its "
+                    "register's range; log a reading whose range holds the motion (a multi-turn "
+                    "or wider register, the limits moved)")
+
+
+def _check_dead_channels(traj: Trajectory, k: int, on: np.ndarray) -> None:
+    """Voltage below MIN_SUPPLY, or temperature exactly 0 deg C throughout, while the joint of
+    actuator ``k`` (if measured) moves with torque on."""
+    actuator = traj.actuators[k]
+    if not on.any():
+        return
+    if actuator in traj.joints:
+        if np.ptp(traj.qpos[on, traj.joints.index(actuator)]) < MIN_MOTION:
+            return
+    if "voltage" in traj.channels:
+        v = traj.channels["voltage"][on, k]
+        low = v < MIN_SUPPLY
+        if low.mean() >= SATURATED_SHARE:
+            raise LogError(f"{traj.name}: column 'voltage:{actuator}' reads "
+                           f"{np.median(v[low]):.3g} V in {100 * low.mean():.0f} % of the samples with torque on while the "
+                           f"motor moves its joint; no servo runs below {MIN_SUPPLY:g} V: the "
+                           "register is not read (0 logged for no data?) or the sensor is broken; "
+                           "drop the column or log Present Input Voltage")
+    if "temperature" in traj.channels:
+        c = traj.channels["temperature"][on, k]
+        if np.all(c == 0):
+            raise LogError(f"{traj.name}: column 'temperature:{actuator}' reads exactly 0 deg C "
+                           "all along while the motor moves its joint with torque on: the "
+                           "register is not read (0 logged for no data?) or the sensor is "
+                           "broken; drop the column or log Present Temperature")

@@ -1,0 +1,145 @@
+"""One measured trajectory (``Trajectory``), the error a bad log raises, zero-order-hold
+resampling, gaps in its time stamps and the encoder grid of its readings. The log formats are
+described in ``lowcostdex.gap.logs``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from lowcostdex.errors import InputError
+
+
+class LogError(InputError):
+    """A measured log is unusable; the message names the file, the column and the problem."""
+
+
+GAP_FACTOR = 10.0  # a step this many median steps long (and >= GAP_MIN) is a gap
+GAP_MIN = 0.1  # [s]
+
+
+@dataclass
+class Trajectory:
+    """One measured trajectory (all arrays share the sample axis T).
+
+    Attributes:
+      name: where it came from (file name, or file name and chunk).
+      time: (T,) sample times [s], strictly increasing.
+      goal: (T, na) goal positions [rad] per actuator in ``actuators``.
+      qpos: (T, nj) measured positions [rad] per joint in ``joints``.
+      actuators: actuator names (columns of ``goal`` and of every channel).
+      joints: measured joint names (columns of ``qpos``/``qvel``).
+      qvel: (T, nj) measured velocities [rad/s] or None.
+      channels: {"current"|"voltage"|"temperature"|"torque_enable": (T, na)}.
+      model: key of the model it replays on (``Dataset.models``).
+      meta: free-form provenance (e.g. a BAM header).
+      goal_time: (T,) when each row's goal took effect [s], >= ``time``; None: at ``time``.
+    """
+
+    name: str
+    time: np.ndarray
+    goal: np.ndarray
+    qpos: np.ndarray
+    actuators: tuple[str, ...]
+    joints: tuple[str, ...]
+    qvel: np.ndarray | None = None
+    channels: dict[str, np.ndarray] = field(default_factory=dict)
+    model: str = "model"
+    meta: dict = field(default_factory=dict)
+    goal_time: np.ndarray | None = None
+
+    @property
+    def goal_times(self) -> np.ndarray:
+        """(T,) when each row's goal took effect [s]."""
+        return self.time if self.goal_time is None else self.goal_time
+
+    @property
+    def duration(self) -> float:
+        return float(self.time[-1] - self.time[0])
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+    def slice(self, start: int, stop: int, name: str | None = None) -> Trajectory:
+        """Rows [start, stop) as a new trajectory (arrays are views)."""
+        sl = slice(start, stop)
+        return replace(self, name=name or self.name, time=self.time[sl], goal=self.goal[sl],
+                       qpos=self.qpos[sl], qvel=None if self.qvel is None else self.qvel[sl],
+                       channels={k: v[sl] for k, v in self.channels.items()},
+                       goal_time=None if self.goal_time is None else self.goal_time[sl])
+
+    def to_columns(self) -> dict[str, np.ndarray]:
+        """The log-format columns {name: (T,)}."""
+        cols = {"time": self.time}
+        if self.goal_time is not None:
+            cols["goal_time"] = self.goal_time
+        for i, a in enumerate(self.actuators):
+            cols[f"goal:{a}"] = self.goal[:, i]
+        for i, j in enumerate(self.joints):
+            cols[f"qpos:{j}"] = self.qpos[:, i]
+            if self.qvel is not None:
+                cols[f"qvel:{j}"] = self.qvel[:, i]
+        for ch, arr in self.channels.items():
+            for i, a in enumerate(self.actuators):
+                cols[f"{ch}:{a}"] = arr[:, i]
+        return cols
+
+
+# ------------------------------------------------------------------------------------------------
+# zero-order hold
+
+
+def zoh_index(t_src: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
+    """Index of the sample held at each destination time: the last ``t_src <= t_dst``.
+
+    Destination times before the first source sample hold the first sample.
+
+    Args:
+      t_src: (n,) increasing source times [s].
+      t_dst: (m,) destination times [s].
+    Returns:
+      (m,) int indices into the source.
+    """
+    idx = np.searchsorted(np.asarray(t_src), np.asarray(t_dst), side="right") - 1
+    return np.clip(idx, 0, len(t_src) - 1)
+
+
+def zoh(t_src: np.ndarray, values: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
+    """Zero-order-hold resampling (commands are held, not interpolated: sysid trap 4).
+
+    Args:
+      t_src: (n,) increasing source times [s].
+      values: (n, ...) values written at ``t_src``.
+      t_dst: (m,) destination times [s].
+    Returns:
+      (m, ...) the value in force at each destination time.
+    """
+    return np.asarray(values)[zoh_index(t_src, t_dst)]
+
+
+def find_gaps(t: np.ndarray) -> np.ndarray:
+    """Indices i where the step t[i] -> t[i + 1] is a gap (GAP_FACTOR median steps, >= GAP_MIN)."""
+    dt = np.diff(np.asarray(t, float))
+    if not len(dt):
+        return np.zeros(0, int)
+    return np.flatnonzero(dt > max(GAP_FACTOR * float(np.median(dt)), GAP_MIN))
+
+
+def quantization_step(qpos: np.ndarray) -> float:
+    """Encoder step [rad] if the readings sit on a grid (e.g. 2 pi / 4096), else 0."""
+    d = np.abs(np.diff(np.asarray(qpos, float), axis=0)).ravel()
+    d = d[d > 1e-9]
+    if len(d) < 10:
+        return 0.0
+    step = float(np.min(d))
+    ratio = d / step
+    on_grid = np.abs(ratio - np.round(ratio)) < 0.02
+    if on_grid.mean() > 0.95 and step < 0.05:
+        # a 2 pi / N encoder: snap to the nearest power-of-two resolution when it matches
+        n = 2 * math.pi / step
+        n2 = 2 ** round(math.log2(n))
+        return 2 * math.pi / n2 if abs(n / n2 - 1) < 0.01 else step
+    return 0.0
