@@ -27,7 +27,7 @@ import gap_truth_sim as ts
 import numpy as np
 import pytest
 
-from lowcostdex.gap import GapConfig, analyze, load_dataset
+from lowcostdex.gap import GapConfig, analyze, load_dataset, results
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import episodes, segments, split_episodes
 from lowcostdex.gap.gain import Gain
@@ -68,17 +68,17 @@ def _gain(baseline: float, extended: float, floor: float) -> Gain:
 def test_verdict_words_follow_the_numbers():
     # no cause and a held-out RMSE of 3 noise floors: an unexplained discrepancy, with the
     # reason the selection stopped
-    v = an._verdict([], _gain(0.003, 0.003, 0.001),
+    v = results.verdict_text([], _gain(0.003, 0.003, 0.001),
                     "no candidate signature explains the residual")
     assert v.startswith("discrepancy not explained by the candidate effects")
     assert "0.003 rad" in v and "3x the noise floor" in v
     assert "no candidate signature explains the residual" in v
     # exactly 2 floors is the boundary: not above it -> nothing to explain
-    assert an._verdict([], _gain(0.002, 0.002, 0.001), "x") == "no significant discrepancy"
+    assert results.verdict_text([], _gain(0.002, 0.002, 0.001), "x") == "no significant discrepancy"
     assert an.UNEXPLAINED == 2.0
     # a cause: 10 mrad -> 4 mrad is 60 % lower
     c = an.Cause("latency", ("j",), {})
-    assert an._verdict([c], _gain(0.01, 0.004, 0.001), "x") == (
+    assert results.verdict_text([c], _gain(0.01, 0.004, 0.001), "x") == (
         "latency: held-out RMSE 0.01 -> 0.004 rad (60 % lower)")
 
 

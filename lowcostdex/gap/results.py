@@ -1,0 +1,232 @@
+"""What one gap analysis is asked (``GapConfig``) and what it found (``GapResult``: the accepted
+``Cause``s with their fitted parameters and 95 % intervals, every ``CandidateResult`` of every
+selection round, the verdict); ``to_dict`` is the report.json payload. The analysis itself is
+``lowcostdex.gap.analyze``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap.dataset import Split, Window
+from lowcostdex.gap.gain import Gain
+from lowcostdex.sim.effects import CAUSES, AppliedEffect, effect
+
+# Without accepted causes, a held-out error above this many noise floors is reported as an
+# unexplained discrepancy rather than "no significant discrepancy".
+UNEXPLAINED = 2.0
+
+
+@dataclass(frozen=True)
+class GapConfig:
+    """Settings of one analysis.
+
+    Attributes:
+      candidates: effects to consider (None: every canonical cause whose channels are logged).
+      top_k: candidates fitted per selection round (ranked by score statistic).
+      max_effects: most effects to accept.
+      min_gain: smallest relative reduction of the select-split MSE to accept an effect.
+      floor_margin: the current model counts as explained when its select RMSE is within this
+        factor of the noise floor.
+      min_effect: an accepted effect must change the open-loop predictions (train and select
+        episodes) by at least this many noise floors (RMS); smaller changes fit replay
+        artifacts, not physics.
+      rank_seconds: training data used by the score ranking (a spread subset) [s].
+      tie: candidates whose select MSE is within this fraction of the best one's are
+        equivalent explanations; the first in the canonical list (``effects.CAUSES``) whose
+        parameters are not at a bound is named.
+      search: "forward" (stepwise only) or "both": also fit the top-ranked candidates
+        together and prune them backward, keeping that model when it is clearly better.
+      backward_above: run that backward search only when the forward model's select RMSE is
+        above this many noise floors (otherwise there is nothing left to explain).
+      joint_k: from the second round on, the best ``joint_k`` screened candidates (fitted with
+        the accepted effects held) are refitted jointly with them.
+      segment: multiple-shooting segment length for fitting [s].
+      burn_in: unscored start of segments that begin inside a log [s].
+      chunk: episode length for long logs [s] (None: auto).
+      max_rounds: Levenberg-Marquardt rounds per fit.
+      test_logs: indices of logs to hold out for the test (None: random episodes).
+      bootstrap: bootstrap resamples.
+      interval_block: block length of the data-spread interval [s]: a parameter's reported
+        95 % interval is the wider of the residual-noise one (Jacobian, autocorrelation
+        inflated) and the spread of what blocks of this length pull it to (model error).
+      seed: seed of the split and the bootstrap.
+      nthread: simulation threads (0: all CPUs).
+    """
+
+    candidates: tuple[str, ...] | None = None
+    top_k: int = 6
+    max_effects: int = 3
+    min_gain: float = 0.05
+    floor_margin: float = 1.2
+    min_effect: float = 0.75
+    rank_seconds: float = 12.0
+    joint_k: int = 3
+    tie: float = 0.002
+    search: str = "both"
+    backward_above: float = 1.5
+    segment: float = 6.0
+    burn_in: float = 0.15
+    chunk: float | None = None
+    max_rounds: int = 20
+    test_logs: tuple[int, ...] | None = None
+    bootstrap: int = 2000
+    interval_block: float = 0.5
+    seed: int = 0
+    nthread: int = 0
+
+    def __post_init__(self) -> None:
+        if self.candidates is not None:
+            for c in self.candidates:
+                check_choice("candidate effect", c, CAUSES)
+        for name in ("top_k", "max_effects", "max_rounds", "bootstrap"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1")
+        if not 0 < self.min_gain < 1:
+            raise ConfigError("min_gain must be in (0, 1)")
+        check_choice("search", self.search, ("forward", "both"))
+        if not self.segment > 0 or self.burn_in < 0:
+            raise ConfigError("segment must be > 0 s and burn_in >= 0 s")
+        if not self.interval_block > 0:
+            raise ConfigError("interval_block must be > 0 s")
+
+
+@dataclass
+class CandidateResult:
+    """One candidate in one selection round."""
+
+    effect: str
+    score: float
+    fitted: bool = False
+    train_rmse: float | None = None
+    select_rmse: float | None = None
+    select_gain: float | None = None  # relative MSE reduction on the select split
+    effect_rms: float | None = None  # RMS change of select predictions it causes [rad]
+    params: dict | None = None
+    at_bound: bool = False  # fit ended at a parameter bound: not a plausible explanation
+    accepted: bool = False
+    widened: list[str] = field(default_factory=list)  # search ranges widened for this fit
+
+
+@dataclass
+class Cause:
+    """An accepted effect with its fitted parameters and the test error once it is included."""
+
+    effect: str
+    joints: tuple[str, ...]
+    params: dict  # name -> {"value": [...], "interval": [[lo, hi], ...], "unit": str}
+    heldout_rmse_after: float = math.nan
+    heldout_mae_after: float = math.nan
+    flags: list[str] = field(default_factory=list)
+    equivalent: list[str] = field(default_factory=list)  # explain the select data as well
+    widened: list[str] = field(default_factory=list)  # search ranges widened beyond the usual
+
+
+@dataclass
+class GapResult:
+    """Everything the analysis found (``to_dict`` is the report.json payload)."""
+
+    config: GapConfig
+    sources: list[str]
+    joints: tuple[str, ...]
+    split: Split
+    episodes: list[Window]
+    floor: np.ndarray
+    baseline: dict
+    extended: dict
+    causes: list[Cause]
+    rounds: list[list[CandidateResult]]
+    diagnostics: dict
+    gain: Gain
+    effects: list[AppliedEffect]
+    verdict: str
+    timing: dict
+    traces: list[dict]  # test episodes: time, goal, measured, baseline, extended (for plots)
+    models: dict[str, str]
+    stop_reason: str = ""
+
+    def to_dict(self) -> dict:
+        fl = self.floor
+        return {
+            "version": 1,
+            "verdict": self.verdict,
+            "stop_reason": self.stop_reason,
+            "metric": "position error [rad]: RMSE (and MAE) over held-out test episodes",
+            "sources": self.sources,
+            "joints": list(self.joints),
+            "split": {k: [_ep(self.episodes[i], self.sources) for i in v]
+                      for k, v in asdict(self.split).items()},
+            "noise_floor": {"rmse": float(np.sqrt(np.mean(fl ** 2))),
+                            "per_joint": dict(zip(self.joints, fl.tolist(), strict=True))},
+            "baseline": self.baseline,
+            "causes": [_cause_dict(c) for c in self.causes],
+            "extended": self.extended,
+            "gain": self.gain.to_dict(),
+            "candidates": [[_cand_dict(c) for c in rnd] for rnd in self.rounds],
+            "diagnostics": self.diagnostics,
+            "config": {k: (list(v) if isinstance(v, tuple) else v)
+                       for k, v in asdict(self.config).items()},
+            "timing_s": self.timing,
+        }
+
+
+def _ep(w: Window, sources: list[str]) -> dict:
+    return {"log": sources[w.traj] if w.traj < len(sources) else w.traj, "start": w.start,
+            "stop": w.stop}
+
+
+def _cause_dict(c: Cause) -> dict:
+    return {"effect": c.effect, "joints": list(c.joints), "params": c.params,
+            "heldout_rmse_after": c.heldout_rmse_after, "heldout_mae_after": c.heldout_mae_after,
+            "flags": c.flags, "equivalent": c.equivalent, "widened": c.widened}
+
+
+def _cand_dict(c: CandidateResult) -> dict:
+    return {k: v for k, v in asdict(c).items()}
+
+
+def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str,
+                  noise: np.ndarray | None = None) -> dict:
+    """Value and 95 % interval per parameter (``noise``: also the residual-noise-only
+    interval, ``interval_noise``)."""
+    out: dict[str, dict] = {}
+    for i, f in enumerate(s.free):
+        if f.effect != name:
+            continue
+        d = out.setdefault(f.param, {"value": [], "interval": [],
+                                     "unit": effect(name).param(f.param).unit})
+        d["value"].append(f.from_u(u[i]))
+        d["interval"].append(param_interval(f, u[i], half[i]))
+        if noise is not None:
+            d.setdefault("interval_noise", []).append(param_interval(f, u[i], noise[i]))
+    return out
+
+
+def param_interval(f: fitmod.Free, u: float, half: float) -> list[float]:
+    lo_u, hi_u = u - half, u + half
+    lo_v = f.from_u(lo_u) if math.isfinite(lo_u) else -math.inf
+    hi_v = f.from_u(hi_u) if math.isfinite(hi_u) else math.inf
+    return [max(lo_v, f.lo) if f.log else lo_v, min(hi_v, f.hi) if f.log else hi_v]
+
+
+def bound_flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
+    return [f"{s.free[i].param}[{s.joints[s.free[i].joint]}] at its {side} bound"
+            for i, side in fitmod.at_bounds(s, u) if s.free[i].effect == name]
+
+
+def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str) -> str:
+    if not causes:
+        if gain.baseline_rmse > UNEXPLAINED * gain.noise_floor:
+            return (f"discrepancy not explained by the candidate effects (held-out RMSE "
+                    f"{gain.baseline_rmse:.4g} rad, {gain.baseline_rmse / gain.noise_floor:.0f}x "
+                    f"the noise floor; the selection stopped: {stop_reason})")
+        return "no significant discrepancy"
+    names = ", ".join(c.effect for c in causes)
+    return (f"{names}: held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad "
+            f"({100 * gain.relative:.0f} % lower)")
