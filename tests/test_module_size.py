@@ -10,9 +10,6 @@ ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 700
 
 EXCEPTIONS: dict[str, str] = {
-    "lowcostdex/transfer/loop.py": (
-        "the transfer loop (issue 14), landed 2026-11-25 22:05 while its author keeps working "
-        "on it; split with its author"),
 }
 
 

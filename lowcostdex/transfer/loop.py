@@ -39,207 +39,51 @@ files move into ``previous/<time>/``.
 from __future__ import annotations
 
 import json
-import math
 import os
 import platform
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from collections.abc import Callable
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-COMMAND = "transfer"
-CONDITIONS = ("nominal", "randomized", "identified", "identified_randomized", "on_robot")
-PER_ROBOT = ("identified", "identified_randomized", "on_robot")  # one policy per robot
-ALGOS = ("dapg", "npg")
-FINGERS = ("ff", "mf", "th")
-EVAL_SEED = 20261125  # seeds of the evaluation episodes (same in every cell)
-NARROW_PAD = 0.1  # identified_randomized: ranges at least +-10 % of each identified value
-STEPS = 40  # steps per episode of the valve tasks (the sample count of an episode)
-OUTPUTS = ("table.md", "transfer.json", "transfer.png", "identified.json")
+from lowcostdex.transfer.config import (
+    ALGOS,
+    COMMAND,
+    CONDITIONS,
+    EVAL_SEED,
+    FINGERS,
+    NARROW_PAD,
+    OUTPUTS,
+    PER_ROBOT,
+    SIZES,
+    STEPS,
+    TASKS,
+    Size,
+    Task,
+    parse_list,
+    size_with,
+)
+from lowcostdex.transfer.robots import HiddenRobotEnv, HiddenRobotTarget, PortRobot, make_robots
+from lowcostdex.transfer.tables import (
+    cross_markdown,
+    named_vs_truth,
+    own_rows,
+    plot,
+    summarize,
+    table_markdown,
+)
 
-
-@dataclass(frozen=True)
-class Task:
-    """The task every condition trains and is evaluated on: a registered id and its task
-    options (``gym.make`` keyword arguments, e.g. ``TurnConfig`` fields)."""
-
-    env_id: str
-    kwargs: tuple[tuple[str, Any], ...] = ()
-
-    def make_kwargs(self, **more: Any) -> dict[str, Any]:
-        return {**dict(self.kwargs), **more}
-
-    def label(self) -> str:
-        opts = ", ".join(f"{k}={v}" for k, v in self.kwargs)
-        return self.env_id.split("/")[1] + (f" ({opts})" if opts else "")
-
-
-TASKS = {
-    "valve": Task("lowcostdex/DClawTurnValve-v0"),  # 180 deg from the fixed start
-    # start and goal each within +-0.25 rad of the fixed ones
-    "valve-near": Task("lowcostdex/DClawTurnValve-v0", (("init_range", 0.25),
-                                                         ("goal_range", 0.25))),
-    "valve-random": Task("lowcostdex/DClawTurnValveRandom-v0"),  # +-60 deg start and goal
-}
-
-
-@dataclass(frozen=True)
-class Size:
-    """How much each stage does.
-
-    Attributes:
-      robots: hidden robots (ignored with a port: one robot).
-      seeds: training seeds (0, 1, ...).
-      algos: learners ("dapg", "npg"), each trained under every condition.
-      conditions: training conditions (subset of ``CONDITIONS``).
-      demos: virtual-teacher demonstrations (each played back ``playbacks`` times).
-      n_iter, n_traj: iterations and trajectories per iteration (the sample budget:
-        ``n_iter * n_traj * 40`` steps per policy, every condition and learner).
-      eval_every, eval_episodes: in-training evaluations (choose the run's policy).
-      episodes: evaluation episodes per cell (policy x robot, policy x its sim).
-      id_logs, id_seconds: identification logs per finger and their length [s].
-      fingers: fingers identified (others keep the nominal model).
-      gap: ``GapConfig`` overrides (the smoke size trims the search; default: none, what
-        ``lowcostdex gap analyze`` does).
-      bc_epochs: behaviour-cloning epochs before DAPG (None: the trainer's default).
-    """
-
-    robots: int
-    seeds: int
-    algos: tuple[str, ...]
-    conditions: tuple[str, ...]
-    demos: int
-    playbacks: int
-    n_iter: int
-    n_traj: int
-    eval_every: int
-    eval_episodes: int
-    episodes: int
-    id_logs: int
-    id_seconds: float
-    fingers: tuple[str, ...] = FINGERS
-    gap: tuple[tuple[str, Any], ...] = ()
-    bc_epochs: int | None = None
-
-    def __post_init__(self) -> None:
-        from lowcostdex.errors import ConfigError, check_choice
-
-        for a in self.algos:
-            check_choice("algo", a, ALGOS)
-        for c in self.conditions:
-            check_choice("condition", c, CONDITIONS)
-        for f in self.fingers:
-            check_choice("finger", f, FINGERS)
-        for name in ("robots", "seeds", "demos", "n_iter", "n_traj", "episodes", "id_logs"):
-            if int(getattr(self, name)) < 1:
-                raise ConfigError(f"size: {name} must be >= 1, got {getattr(self, name)}")
-        if not self.algos or not self.conditions:
-            raise ConfigError("size: give at least one algo and one condition")
-        if not (self.id_seconds > 0 and math.isfinite(self.id_seconds)):
-            raise ConfigError(f"size: id_seconds must be > 0 [s], got {self.id_seconds}")
-
-    def budget(self) -> dict[str, Any]:
-        """The settings that finished pieces were made with (a resume must keep them)."""
-        d = asdict(self)
-        for k in ("robots", "seeds", "algos", "conditions"):
-            d.pop(k)
-        return json.loads(json.dumps(d))
-
-    @property
-    def samples(self) -> int:
-        return self.n_iter * self.n_traj * STEPS
-
-
-SIZES = {
-    # checks the loop end to end in well under a minute (2 robots, 1 seed, every condition)
-    "smoke": Size(robots=2, seeds=1, algos=("dapg", "npg"), conditions=CONDITIONS, demos=2,
-                  playbacks=1, n_iter=1, n_traj=4, eval_every=0, eval_episodes=2, episodes=2,
-                  id_logs=3, id_seconds=3.0, fingers=("ff",),
-                  gap=(("max_effects", 1), ("top_k", 2), ("search", "forward"),
-                       ("bootstrap", 100), ("max_rounds", 5), ("rank_seconds", 3.0)),
-                  bc_epochs=10),
-    # the table of bench/RESULTS.md (48k samples per policy, 50 episodes per cell)
-    "default": Size(robots=3, seeds=3, algos=("dapg", "npg"), conditions=CONDITIONS, demos=20,
-                    playbacks=2, n_iter=30, n_traj=40, eval_every=5, eval_episodes=20,
-                    episodes=50, id_logs=3, id_seconds=10.0),
-    "long": Size(robots=3, seeds=3, algos=("dapg", "npg"), conditions=CONDITIONS, demos=40,
-                 playbacks=2, n_iter=100, n_traj=40, eval_every=10, eval_episodes=20,
-                 episodes=100, id_logs=6, id_seconds=10.0),
-}
-
-
-# ------------------------------------------------------------------------------------------------
-# robots
-
-
-@dataclass(frozen=True)
-class PortRobot:
-    """The user's D'Claw on a serial port (real, or an emulated one behind a pty)."""
-
-    port: str
-    name: str = "robot"
-    motor: str = "XH430-W350"
-
-    def env_kwargs(self) -> dict[str, Any]:
-        return {"backend": "hardware", "port": self.port, "motor": self.motor}
-
-    def identification_port(self, seed: int) -> str:
-        return self.port
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "port": self.port, "motor": self.motor}
-
-
-class HiddenRobotTarget:
-    """A hidden robot as a loop target (its identification port is its station without the
-    valve, a fresh emulated chain)."""
-
-    def __init__(self, robot: Any) -> None:
-        self.robot = robot
-        self.name = robot.name
-        self.motor = robot.motor
-
-    def env_kwargs(self) -> dict[str, Any]:
-        return self.robot.env_kwargs()
-
-    def identification_port(self, seed: int) -> Any:
-        return self.robot.chain("none", rng=np.random.default_rng(seed)).port()
-
-    def to_dict(self) -> dict[str, Any]:
-        return self.robot.to_dict()
-
-
-def make_robots(n: int, robot_seed: int = 0, port: str | None = None) -> list[Any]:
-    """The loop's robots: the one on ``port``, or ``n`` hidden robots drawn from ``robot_seed``."""
-    if port is not None:
-        return [PortRobot(port)]
-    from lowcostdex.hardware.emulated.hidden_robots import hidden_robots
-
-    return [HiddenRobotTarget(r) for r in hidden_robots(n, seed=robot_seed)]
-
-
-@dataclass(frozen=True)
-class HiddenRobotEnv:
-    """``gym.make`` of the task on a hidden robot (picklable, rebuilt from its seed): the
-    on_robot condition's environment; the robot's definition stays out of the run's config."""
-
-    env_id: str
-    task_kwargs: tuple[tuple[str, Any], ...]
-    robot_seed: int
-    robot_name: str
-
-    def __call__(self) -> Any:
-        import gymnasium as gym
-
-        import lowcostdex.sim  # noqa: F401  (registers the ids)
-        from lowcostdex.hardware.emulated.hidden_robots import hidden_robot
-
-        robot = hidden_robot(self.robot_seed, self.robot_name)
-        return gym.make(self.env_id, **dict(self.task_kwargs), **robot.env_kwargs())
-
+__all__ = [
+    "ALGOS", "COMMAND", "CONDITIONS", "EVAL_SEED", "FINGERS", "NARROW_PAD", "OUTPUTS", "PER_ROBOT",
+    "SIZES", "STEPS", "TASKS", "HiddenRobotEnv", "HiddenRobotTarget", "PortRobot", "Progress",
+    "Size", "Task", "condition_randomize", "cross_markdown", "evaluate", "identified_effects",
+    "identify", "identify_finger", "make_robots", "named_vs_truth", "own_rows", "parse_list",
+    "plot", "record_demos", "run", "settings", "size_with", "summarize", "table_markdown",
+    "train_policy",
+]
 
 # ------------------------------------------------------------------------------------------------
 # small helpers
@@ -523,169 +367,6 @@ def evaluate(run_dir: Path, task: Task, env_kwargs: dict[str, Any], episodes: in
 
 
 # ------------------------------------------------------------------------------------------------
-# 4. tables, figure
-
-
-def _cell(successes: int, n: int) -> str:
-    from lowcostdex.stats import wilson_interval
-
-    if n == 0:
-        return "-"
-    lo, hi = wilson_interval(successes, n)
-    return f"{successes / n:.2f} [{lo:.2f}, {hi:.2f}]"
-
-
-def own_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Rows of policies on the robot they were made for (or, for nominal and randomized, made
-    for none): the main table."""
-    return [r for r in rows if r["policy_robot"] in (None, r["robot"])]
-
-
-def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[str, Any]]:
-    """Per condition (rows of one algo): pooled successes per robot (over seeds), on robots, in
-    training sims; only each policy on the robot it was made for."""
-    out: dict[str, dict[str, Any]] = {}
-    for cond in CONDITIONS:
-        rs = [r for r in own_rows(rows) if r["condition"] == cond]
-        if not rs:
-            continue
-        per_robot = {}
-        for name in robots:
-            cell = [r for r in rs if r["robot"] == name]
-            per_robot[name] = (sum(r["success"] for r in cell), sum(r["episodes"] for r in cell))
-        robot_k = sum(k for k, _ in per_robot.values())
-        robot_n = sum(n for _, n in per_robot.values())
-        # each policy's own-sim evaluation once (a nominal policy has one row per robot)
-        sims = list({(r["policy"], r["seed"]): r for r in rs}.values())
-        sim_k = sum(r["sim_success"] for r in sims)
-        sim_n = sum(r["sim_episodes"] for r in sims)
-        identical = all(len(set(r["sim_final_error"])) == 1 for r in sims)
-        errors = [e for r in rs for e in r["final_error"]]
-        out[cond] = {"per_robot": per_robot, "robots": (robot_k, robot_n), "sim": (sim_k, sim_n),
-                     "sim_identical": identical, "policies": len(sims),
-                     "drop": sim_k / sim_n - robot_k / robot_n,
-                     "median_final_error": float(np.median(errors)) if errors else math.nan,
-                     "train_wall_seconds": float(np.mean([r["train_wall_seconds"]
-                                                          for r in sims]))}
-    return out
-
-
-def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str:
-    head = ["condition", *[f"robot {r}" for r in robots], "mean on robots",
-            "in training sim (on_robot: the robot)", "sim-to-robot drop",
-            "median final error [rad]", "training wall [s]"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for cond, s in summary.items():
-        cells = [_cell(*s["per_robot"][r]) for r in robots]
-        sim = _cell(*s["sim"])
-        if s["sim_identical"]:  # a deterministic policy from a fixed start in a fixed sim
-            k, n = s["sim"]
-            sim = f"{k / n:.2f} (one deterministic episode per policy, x{s['policies']})"
-        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]), sim,
-                                        f"{s['drop']:+.2f}", f"{s['median_final_error']:.2f}",
-                                        f"{s['train_wall_seconds']:.0f}"]) + " |")
-    return "\n".join(lines)
-
-
-def cross_markdown(rows: list[dict[str, Any]], robots: list[str]) -> str:
-    """Per-robot policies (rows: made for robot X) on every robot (columns), pooled over seeds,
-    beside the nominal policy on the same robot: does robot A's model help on robot B?"""
-    head = ["condition", "made for", *[f"on robot {r}" for r in robots]]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-
-    def pooled(rs: list[dict[str, Any]]) -> str:
-        return _cell(sum(r["success"] for r in rs), sum(r["episodes"] for r in rs))
-
-    nominal = [r for r in rows if r["condition"] == "nominal"]
-    if nominal:
-        lines.append("| " + " | ".join(["nominal", "-", *[
-            pooled([r for r in nominal if r["robot"] == y]) for y in robots]]) + " |")
-    for cond in PER_ROBOT:
-        for x in robots:
-            rs = [r for r in rows if r["condition"] == cond and r["policy_robot"] == x]
-            if not rs:
-                continue
-            cells = []
-            for y in robots:
-                c = pooled([r for r in rs if r["robot"] == y])
-                cells.append(f"**{c}**" if x == y else c)
-            lines.append("| " + " | ".join([cond, x, *cells]) + " |")
-    if len(lines) == 2:
-        return ""
-    off = {}
-    for cond in PER_ROBOT:
-        rs = [r for r in rows if r["condition"] == cond and r["policy_robot"] is not None]
-        other = [r for r in rs if r["policy_robot"] != r["robot"]]
-        own = [r for r in rs if r["policy_robot"] == r["robot"]]
-        if other:
-            off[cond] = (pooled(own), pooled(other))
-    summary = "; ".join(f"{c}: own robot {a}, other robots {b}" for c, (a, b) in off.items())
-    return "\n".join(lines) + ("\n\nPooled: " + summary if summary else "")
-
-
-def plot(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str], path: Path,
-         title: str) -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from lowcostdex.stats import wilson_interval
-
-    columns = [*robots, "mean"]
-    fig, axes = plt.subplots(1, len(summaries), figsize=(7 * len(summaries) + 2.5, 4.5),
-                             squeeze=False)
-    colors = {"nominal": "#888888", "randomized": "#4c72b0", "identified": "#dd8452",
-              "identified_randomized": "#55a868", "on_robot": "#c44e52"}
-    for ax, (algo, summary) in zip(axes[0], summaries.items(), strict=True):
-        width = 0.8 / max(1, len(summary))
-        for i, (cond, s) in enumerate(summary.items()):
-            cells = [s["per_robot"][r] for r in robots] + [s["robots"]]
-            rate = np.array([k / n if n else np.nan for k, n in cells])
-            ci = np.array([wilson_interval(k, n) if n else (np.nan, np.nan) for k, n in cells])
-            x = np.arange(len(columns)) + (i - (len(summary) - 1) / 2) * width
-            ax.bar(x, rate, width, color=colors[cond],
-                   label=f"{cond} (training env {s['sim'][0] / s['sim'][1]:.2f})",
-                   yerr=[rate - ci[:, 0], ci[:, 1] - rate], capsize=3)
-            ax.plot(x[-1:], [s["sim"][0] / s["sim"][1]], marker="_", markersize=14, color="k",
-                    linestyle="None", label="success in the training env" if i == 0 else None)
-        ax.set_xticks(np.arange(len(columns)))
-        ax.set_xticklabels([f"robot {r}" for r in robots] + ["mean over robots"])
-        ax.set_xlabel("robot (policies on the robot they were made for)")
-        ax.set_ylabel("success rate (95 % Wilson interval)")
-        ax.set_ylim(0, 1.05)
-        ax.set_title(f"{algo.upper()}: {title}", fontsize=9)
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    return fig
-
-
-def named_vs_truth(idents: dict[str, dict[str, Any]]) -> list[str]:
-    """Per robot and finger: the catalogue effects it carries (hidden robots) vs the ones the
-    analysis named."""
-    from lowcostdex.sim.effects import effect
-
-    lines = ["| robot | finger | carries (catalogue) | named by gap analyze | held-out RMSE "
-             "before -> after [mrad] |", "|---|---|---|---|---|"]
-    for name, ident in idents.items():
-        for finger, f in ident["fingers"].items():
-            carried = []
-            for e in ident["truth"].get("effects", ()):
-                cls = effect(e["effect"])
-                idx = [k for k, j in enumerate(e["joints"]) if j.startswith(finger + "_")]
-                for p, values in e["params"].items():
-                    if any(not np.isclose(values[k], cls.param(p).null) for k in idx):
-                        carried.append(e["effect"])
-                        break
-            truth = (", ".join(carried) or "-") if "effects" in ident["truth"] else "unknown"
-            named = [c["effect"] for c in f["causes"]]
-            lines.append(f"| {name} | {finger} | {truth} | {', '.join(named) or '-'} | "
-                         f"{f['baseline_rmse_mrad']:.2f} -> {f['extended_rmse_mrad']:.2f} |")
-    return lines
-
-
-# ------------------------------------------------------------------------------------------------
 
 
 def settings(size: Size, task_name: str, robot_seed: int, port: str | None) -> dict[str, Any]:
@@ -861,23 +542,3 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     (out / "table.md").write_text(text + "\n")
     tell(f"wrote {out / 'table.md'}, {out / 'transfer.json'}, {out / 'transfer.png'}")
     return {"summaries": summaries, "rows": rows, "info": info, "figure": fig, "text": text}
-
-
-def size_with(name: str, **overrides: Any) -> Size:
-    """A named size with some fields replaced (None values are ignored)."""
-    from lowcostdex.errors import check_choice
-
-    check_choice("size", name, tuple(SIZES))
-    return replace(SIZES[name], **{k: v for k, v in overrides.items() if v is not None})
-
-
-def parse_list(text: str | None, valid: Sequence[str], what: str) -> tuple[str, ...] | None:
-    """``"a,b"`` -> ``("a", "b")`` checked against ``valid``; None stays None."""
-    from lowcostdex.errors import check_choice
-
-    if text is None:
-        return None
-    items = tuple(s.strip() for s in text.split(",") if s.strip())
-    for s in items:
-        check_choice(what, s, tuple(valid))
-    return items

@@ -1,0 +1,151 @@
+"""What the transfer loop runs: its conditions, algorithms, tasks (``Task``, ``TASKS``) and sizes
+(``Size``, ``SIZES``), and the command-line list parsing. The loop is ``lowcostdex.transfer.loop``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+COMMAND = "transfer"
+CONDITIONS = ("nominal", "randomized", "identified", "identified_randomized", "on_robot")
+PER_ROBOT = ("identified", "identified_randomized", "on_robot")  # one policy per robot
+ALGOS = ("dapg", "npg")
+FINGERS = ("ff", "mf", "th")
+EVAL_SEED = 20261125  # seeds of the evaluation episodes (same in every cell)
+NARROW_PAD = 0.1  # identified_randomized: ranges at least +-10 % of each identified value
+STEPS = 40  # steps per episode of the valve tasks (the sample count of an episode)
+OUTPUTS = ("table.md", "transfer.json", "transfer.png", "identified.json")
+
+
+@dataclass(frozen=True)
+class Task:
+    """The task every condition trains and is evaluated on: a registered id and its task
+    options (``gym.make`` keyword arguments, e.g. ``TurnConfig`` fields)."""
+
+    env_id: str
+    kwargs: tuple[tuple[str, Any], ...] = ()
+
+    def make_kwargs(self, **more: Any) -> dict[str, Any]:
+        return {**dict(self.kwargs), **more}
+
+    def label(self) -> str:
+        opts = ", ".join(f"{k}={v}" for k, v in self.kwargs)
+        return self.env_id.split("/")[1] + (f" ({opts})" if opts else "")
+
+
+TASKS = {
+    "valve": Task("lowcostdex/DClawTurnValve-v0"),  # 180 deg from the fixed start
+    # start and goal each within +-0.25 rad of the fixed ones
+    "valve-near": Task("lowcostdex/DClawTurnValve-v0", (("init_range", 0.25),
+                                                         ("goal_range", 0.25))),
+    "valve-random": Task("lowcostdex/DClawTurnValveRandom-v0"),  # +-60 deg start and goal
+}
+
+
+@dataclass(frozen=True)
+class Size:
+    """How much each stage does.
+
+    Attributes:
+      robots: hidden robots (ignored with a port: one robot).
+      seeds: training seeds (0, 1, ...).
+      algos: learners ("dapg", "npg"), each trained under every condition.
+      conditions: training conditions (subset of ``CONDITIONS``).
+      demos: virtual-teacher demonstrations (each played back ``playbacks`` times).
+      n_iter, n_traj: iterations and trajectories per iteration (the sample budget:
+        ``n_iter * n_traj * 40`` steps per policy, every condition and learner).
+      eval_every, eval_episodes: in-training evaluations (choose the run's policy).
+      episodes: evaluation episodes per cell (policy x robot, policy x its sim).
+      id_logs, id_seconds: identification logs per finger and their length [s].
+      fingers: fingers identified (others keep the nominal model).
+      gap: ``GapConfig`` overrides (the smoke size trims the search; default: none, what
+        ``lowcostdex gap analyze`` does).
+      bc_epochs: behaviour-cloning epochs before DAPG (None: the trainer's default).
+    """
+
+    robots: int
+    seeds: int
+    algos: tuple[str, ...]
+    conditions: tuple[str, ...]
+    demos: int
+    playbacks: int
+    n_iter: int
+    n_traj: int
+    eval_every: int
+    eval_episodes: int
+    episodes: int
+    id_logs: int
+    id_seconds: float
+    fingers: tuple[str, ...] = FINGERS
+    gap: tuple[tuple[str, Any], ...] = ()
+    bc_epochs: int | None = None
+
+    def __post_init__(self) -> None:
+        from lowcostdex.errors import ConfigError, check_choice
+
+        for a in self.algos:
+            check_choice("algo", a, ALGOS)
+        for c in self.conditions:
+            check_choice("condition", c, CONDITIONS)
+        for f in self.fingers:
+            check_choice("finger", f, FINGERS)
+        for name in ("robots", "seeds", "demos", "n_iter", "n_traj", "episodes", "id_logs"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"size: {name} must be >= 1, got {getattr(self, name)}")
+        if not self.algos or not self.conditions:
+            raise ConfigError("size: give at least one algo and one condition")
+        if not (self.id_seconds > 0 and math.isfinite(self.id_seconds)):
+            raise ConfigError(f"size: id_seconds must be > 0 [s], got {self.id_seconds}")
+
+    def budget(self) -> dict[str, Any]:
+        """The settings that finished pieces were made with (a resume must keep them)."""
+        d = asdict(self)
+        for k in ("robots", "seeds", "algos", "conditions"):
+            d.pop(k)
+        return json.loads(json.dumps(d))
+
+    @property
+    def samples(self) -> int:
+        return self.n_iter * self.n_traj * STEPS
+
+
+SIZES = {
+    # checks the loop end to end in well under a minute (2 robots, 1 seed, every condition)
+    "smoke": Size(robots=2, seeds=1, algos=("dapg", "npg"), conditions=CONDITIONS, demos=2,
+                  playbacks=1, n_iter=1, n_traj=4, eval_every=0, eval_episodes=2, episodes=2,
+                  id_logs=3, id_seconds=3.0, fingers=("ff",),
+                  gap=(("max_effects", 1), ("top_k", 2), ("search", "forward"),
+                       ("bootstrap", 100), ("max_rounds", 5), ("rank_seconds", 3.0)),
+                  bc_epochs=10),
+    # the table of bench/RESULTS.md (48k samples per policy, 50 episodes per cell)
+    "default": Size(robots=3, seeds=3, algos=("dapg", "npg"), conditions=CONDITIONS, demos=20,
+                    playbacks=2, n_iter=30, n_traj=40, eval_every=5, eval_episodes=20,
+                    episodes=50, id_logs=3, id_seconds=10.0),
+    "long": Size(robots=3, seeds=3, algos=("dapg", "npg"), conditions=CONDITIONS, demos=40,
+                 playbacks=2, n_iter=100, n_traj=40, eval_every=10, eval_episodes=20,
+                 episodes=100, id_logs=6, id_seconds=10.0),
+}
+
+
+def size_with(name: str, **overrides: Any) -> Size:
+    """A named size with some fields replaced (None values are ignored)."""
+    from lowcostdex.errors import check_choice
+
+    check_choice("size", name, tuple(SIZES))
+    return replace(SIZES[name], **{k: v for k, v in overrides.items() if v is not None})
+
+
+def parse_list(text: str | None, valid: Sequence[str], what: str) -> tuple[str, ...] | None:
+    """``"a,b"`` -> ``("a", "b")`` checked against ``valid``; None stays None."""
+    from lowcostdex.errors import check_choice
+
+    if text is None:
+        return None
+    items = tuple(s.strip() for s in text.split(",") if s.strip())
+    for s in items:
+        check_choice(what, s, tuple(valid))
+    return items

@@ -1,0 +1,172 @@
+"""The transfer loop's results: per-condition summaries with 95 % Wilson intervals, the Markdown
+tables (own robot, cross-robot), the figure and what the analysis named beside the truth.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lowcostdex.transfer.config import CONDITIONS, PER_ROBOT
+
+
+def _cell(successes: int, n: int) -> str:
+    from lowcostdex.stats import wilson_interval
+
+    if n == 0:
+        return "-"
+    lo, hi = wilson_interval(successes, n)
+    return f"{successes / n:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def own_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Rows of policies on the robot they were made for (or, for nominal and randomized, made
+    for none): the main table."""
+    return [r for r in rows if r["policy_robot"] in (None, r["robot"])]
+
+
+def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[str, Any]]:
+    """Per condition (rows of one algo): pooled successes per robot (over seeds), on robots, in
+    training sims; only each policy on the robot it was made for."""
+    out: dict[str, dict[str, Any]] = {}
+    for cond in CONDITIONS:
+        rs = [r for r in own_rows(rows) if r["condition"] == cond]
+        if not rs:
+            continue
+        per_robot = {}
+        for name in robots:
+            cell = [r for r in rs if r["robot"] == name]
+            per_robot[name] = (sum(r["success"] for r in cell), sum(r["episodes"] for r in cell))
+        robot_k = sum(k for k, _ in per_robot.values())
+        robot_n = sum(n for _, n in per_robot.values())
+        # each policy's own-sim evaluation once (a nominal policy has one row per robot)
+        sims = list({(r["policy"], r["seed"]): r for r in rs}.values())
+        sim_k = sum(r["sim_success"] for r in sims)
+        sim_n = sum(r["sim_episodes"] for r in sims)
+        identical = all(len(set(r["sim_final_error"])) == 1 for r in sims)
+        errors = [e for r in rs for e in r["final_error"]]
+        out[cond] = {"per_robot": per_robot, "robots": (robot_k, robot_n), "sim": (sim_k, sim_n),
+                     "sim_identical": identical, "policies": len(sims),
+                     "drop": sim_k / sim_n - robot_k / robot_n,
+                     "median_final_error": float(np.median(errors)) if errors else math.nan,
+                     "train_wall_seconds": float(np.mean([r["train_wall_seconds"]
+                                                          for r in sims]))}
+    return out
+
+
+def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str:
+    head = ["condition", *[f"robot {r}" for r in robots], "mean on robots",
+            "in training sim (on_robot: the robot)", "sim-to-robot drop",
+            "median final error [rad]", "training wall [s]"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for cond, s in summary.items():
+        cells = [_cell(*s["per_robot"][r]) for r in robots]
+        sim = _cell(*s["sim"])
+        if s["sim_identical"]:  # a deterministic policy from a fixed start in a fixed sim
+            k, n = s["sim"]
+            sim = f"{k / n:.2f} (one deterministic episode per policy, x{s['policies']})"
+        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]), sim,
+                                        f"{s['drop']:+.2f}", f"{s['median_final_error']:.2f}",
+                                        f"{s['train_wall_seconds']:.0f}"]) + " |")
+    return "\n".join(lines)
+
+
+def cross_markdown(rows: list[dict[str, Any]], robots: list[str]) -> str:
+    """Per-robot policies (rows: made for robot X) on every robot (columns), pooled over seeds,
+    beside the nominal policy on the same robot: does robot A's model help on robot B?"""
+    head = ["condition", "made for", *[f"on robot {r}" for r in robots]]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+
+    def pooled(rs: list[dict[str, Any]]) -> str:
+        return _cell(sum(r["success"] for r in rs), sum(r["episodes"] for r in rs))
+
+    nominal = [r for r in rows if r["condition"] == "nominal"]
+    if nominal:
+        lines.append("| " + " | ".join(["nominal", "-", *[
+            pooled([r for r in nominal if r["robot"] == y]) for y in robots]]) + " |")
+    for cond in PER_ROBOT:
+        for x in robots:
+            rs = [r for r in rows if r["condition"] == cond and r["policy_robot"] == x]
+            if not rs:
+                continue
+            cells = []
+            for y in robots:
+                c = pooled([r for r in rs if r["robot"] == y])
+                cells.append(f"**{c}**" if x == y else c)
+            lines.append("| " + " | ".join([cond, x, *cells]) + " |")
+    if len(lines) == 2:
+        return ""
+    off = {}
+    for cond in PER_ROBOT:
+        rs = [r for r in rows if r["condition"] == cond and r["policy_robot"] is not None]
+        other = [r for r in rs if r["policy_robot"] != r["robot"]]
+        own = [r for r in rs if r["policy_robot"] == r["robot"]]
+        if other:
+            off[cond] = (pooled(own), pooled(other))
+    summary = "; ".join(f"{c}: own robot {a}, other robots {b}" for c, (a, b) in off.items())
+    return "\n".join(lines) + ("\n\nPooled: " + summary if summary else "")
+
+
+def plot(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str], path: Path,
+         title: str) -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lowcostdex.stats import wilson_interval
+
+    columns = [*robots, "mean"]
+    fig, axes = plt.subplots(1, len(summaries), figsize=(7 * len(summaries) + 2.5, 4.5),
+                             squeeze=False)
+    colors = {"nominal": "#888888", "randomized": "#4c72b0", "identified": "#dd8452",
+              "identified_randomized": "#55a868", "on_robot": "#c44e52"}
+    for ax, (algo, summary) in zip(axes[0], summaries.items(), strict=True):
+        width = 0.8 / max(1, len(summary))
+        for i, (cond, s) in enumerate(summary.items()):
+            cells = [s["per_robot"][r] for r in robots] + [s["robots"]]
+            rate = np.array([k / n if n else np.nan for k, n in cells])
+            ci = np.array([wilson_interval(k, n) if n else (np.nan, np.nan) for k, n in cells])
+            x = np.arange(len(columns)) + (i - (len(summary) - 1) / 2) * width
+            ax.bar(x, rate, width, color=colors[cond],
+                   label=f"{cond} (training env {s['sim'][0] / s['sim'][1]:.2f})",
+                   yerr=[rate - ci[:, 0], ci[:, 1] - rate], capsize=3)
+            ax.plot(x[-1:], [s["sim"][0] / s["sim"][1]], marker="_", markersize=14, color="k",
+                    linestyle="None", label="success in the training env" if i == 0 else None)
+        ax.set_xticks(np.arange(len(columns)))
+        ax.set_xticklabels([f"robot {r}" for r in robots] + ["mean over robots"])
+        ax.set_xlabel("robot (policies on the robot they were made for)")
+        ax.set_ylabel("success rate (95 % Wilson interval)")
+        ax.set_ylim(0, 1.05)
+        ax.set_title(f"{algo.upper()}: {title}", fontsize=9)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    return fig
+
+
+def named_vs_truth(idents: dict[str, dict[str, Any]]) -> list[str]:
+    """Per robot and finger: the catalogue effects it carries (hidden robots) vs the ones the
+    analysis named."""
+    from lowcostdex.sim.effects import effect
+
+    lines = ["| robot | finger | carries (catalogue) | named by gap analyze | held-out RMSE "
+             "before -> after [mrad] |", "|---|---|---|---|---|"]
+    for name, ident in idents.items():
+        for finger, f in ident["fingers"].items():
+            carried = []
+            for e in ident["truth"].get("effects", ()):
+                cls = effect(e["effect"])
+                idx = [k for k, j in enumerate(e["joints"]) if j.startswith(finger + "_")]
+                for p, values in e["params"].items():
+                    if any(not np.isclose(values[k], cls.param(p).null) for k in idx):
+                        carried.append(e["effect"])
+                        break
+            truth = (", ".join(carried) or "-") if "effects" in ident["truth"] else "unknown"
+            named = [c["effect"] for c in f["causes"]]
+            lines.append(f"| {name} | {finger} | {truth} | {', '.join(named) or '-'} | "
+                         f"{f['baseline_rmse_mrad']:.2f} -> {f['extended_rmse_mrad']:.2f} |")
+    return lines
