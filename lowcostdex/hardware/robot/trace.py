@@ -20,6 +20,7 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap.logs import Trajectory, write_log
+from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.robot.robot import Robot
 
 
@@ -97,6 +98,14 @@ def excite(robot: Robot, joints: Sequence[str], goals: np.ndarray, path: str | P
     logged): a log that starts at rest on its first goal has a known initial state and goal
     history for the replay; one that starts mid-motion does not.
     """
+    path = Path(path)
+    return write_log(path, record(robot, joints, goals, name or path.stem, on_step, rest_first))
+
+
+def record(robot: Robot, joints: Sequence[str], goals: np.ndarray, name: str = "trace",
+           on_step: Callable[[int], None] | None = None, rest_first: bool = True
+           ) -> Trajectory:
+    """``excite`` without writing: the logged ``Trajectory`` (a missed reading: NaN in its row)."""
     robot.torque(True, joints)
     if rest_first and len(goals):
         settle(robot, joints, np.asarray(goals, float)[0])
@@ -105,8 +114,7 @@ def excite(robot: Robot, joints: Sequence[str], goals: np.ndarray, path: str | P
         rec.step(g)
         if on_step is not None:
             on_step(k)
-    path = Path(path)
-    return write_log(path, rec.trajectory(name or path.stem))
+    return rec.trajectory(name)
 
 
 def contact_free(model: Any, joints: Sequence[str], goals: np.ndarray,
@@ -173,7 +181,8 @@ def dclaw_park(hand_joints: Sequence[str], logged: Sequence[str]) -> dict[str, f
 def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path, logs: int,
                         seconds: float, rng: np.random.Generator, margin: float = 0.8,
                         on_step: Callable[[int], None] | None = None, model: Any = None,
-                        park: Mapping[str, float] | None = None) -> list[Path]:
+                        park: Mapping[str, float] | None = None, missed_retries: int = 2
+                        ) -> list[Path]:
     """Record ``logs`` identification logs of ``seconds`` each on ``joints`` into ``out_dir``.
 
     Each log is a fresh random excitation (``lowcostdex.gap.generate.excitation``: steps
@@ -187,6 +196,12 @@ def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path
         ``dclaw_park``: the neighbours out of the logged finger's way.
       model: the robot's MJCF model; with it, excitation poses that would touch anything are
         pulled in (``contact_free``), the parked joints at their park positions.
+      missed_retries: a log during which a reading was missed (a motor's reply lost or late:
+        its row would hold NaN, which the gap analysis refuses) is recorded again, the same
+        excitation, at most this many times.
+
+    Raises:
+      BusError: a log still missed readings after ``missed_retries`` more recordings.
     """
     from lowcostdex.gap.generate import excitation
 
@@ -210,7 +225,18 @@ def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path
         goals = excitation(rng, seconds, period, low, high)
         if model is not None:
             goals, _ = contact_free(model, joints, goals, park)
-        paths.append(excite(robot, joints, goals, out_dir / f"log_{k}.csv", on_step=on_step))
+        path = out_dir / f"log_{k}.csv"
+        for _ in range(missed_retries + 1):
+            traj = record(robot, joints, goals, path.stem, on_step)
+            if np.all(np.isfinite(traj.qpos)) and np.all(np.isfinite(traj.qvel)):
+                break
+        else:
+            raise BusError(f"identification log {k}: readings were missed in each of "
+                           f"{missed_retries + 1} recordings (the gap analysis needs every "
+                           "sample; a log with gaps is recorded again). Check the cabling and "
+                           "the adapter's latency (a pty or an adapter whose latency timer "
+                           "cannot be read: pass latency_ms=16)")
+        paths.append(write_log(path, traj))
     return paths
 
 
@@ -219,13 +245,16 @@ def dclaw_identification_logs(hand: Any, joints: Sequence[str], out_dir: str | P
                               port: str | None = None, effects: Sequence[Any] = (),
                               emulator_rng: np.random.Generator | None = None,
                               rate: float = 50.0, baudrate: int = 1_000_000,
+                              latency_ms: float | None = None,
                               on_step: Callable[[int], None] | None = None) -> list[Path]:
     """``identification_logs`` of ``joints`` on a D'Claw without its station: on the real one at
     ``port``, or (``port=None``) on an emulated one carrying the servo ``effects``
     (``AppliedEffect``s; ``emulator_rng`` seeds its noise). The other fingers are parked
     (``dclaw_park``), poses that would touch anything are pulled in (``contact_free``), and the
     per-step motion bound is 10x a policy's (steps excite latency and backlash; the joint limits
-    still hold). ``rate`` is the control rate [Hz]."""
+    still hold). ``rate`` is the control rate [Hz]; ``latency_ms`` the USB latency timer the
+    driver's timeouts assume when it cannot read it [ms] (None: the driver's default; 16 for a
+    pty served by ``lowcostdex emulate`` on a loaded machine)."""
     from lowcostdex.hardware.robot.backend import make_dynamixel_bus, robot_hand
     from lowcostdex.hardware.robot.robot import RobotConfig
     from lowcostdex.sim.models.dclaw import build_dclaw
@@ -240,7 +269,8 @@ def dclaw_identification_logs(hand: Any, joints: Sequence[str], out_dir: str | P
         bus_port: Any = chain.port()
     else:
         bus_port = port
-    bus = make_dynamixel_bus(h, bus_port, model, baudrate=baudrate)
+    extra = {} if latency_ms is None else {"latency_ms": latency_ms}
+    bus = make_dynamixel_bus(h, bus_port, model, baudrate=baudrate, **extra)
     robot = Robot(h, bus, RobotConfig(control_period=1.0 / rate, motion_scale=10.0))
     with robot:
         return identification_logs(robot, joints, out_dir, logs, seconds, rng, on_step=on_step,
