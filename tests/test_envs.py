@@ -4,6 +4,8 @@ of single envs."""
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -58,7 +60,7 @@ def test_determinism_under_seed_and_reward_is_sum_of_terms(env_id):
 def test_episode_is_truncated_not_terminated_at_the_time_limit():
     env = gym.make("lowcostdex/DClawTurnValve-v0")
     env.reset(seed=0)
-    for k in range(40):
+    for _ in range(40):
         _, _, term, trunc, _ = env.step(np.zeros(9))
         assert not term
     assert trunc
@@ -152,6 +154,58 @@ def test_flip_goal_is_relative_to_the_start_pose():
     assert u.task.orientation_error(u.data.qpos, u.goal) == pytest.approx(np.pi, abs=1e-3)
     # the goal is the upright block again: 180 deg about the flip axis from upside down
     assert abs(abs(u.goal["quat"][0]) - 1.0) < 1e-6
+
+
+def _flip_start(seed, **config):
+    from lowcostdex.sim.envs.dclaw_tasks import FlipConfig
+
+    env = gym.make("lowcostdex/DClawFlipBlock-v0")
+    u = env.unwrapped
+    if config:
+        u.task.config = FlipConfig(**config)
+    env.reset(seed=seed)
+    q = u.data.qpos.copy()
+    hand, pos, quat = q[u.task.hand_qpos], q[u.task.block_pos], q[u.task.block_quat]
+    env.close()
+    return hand, pos, quat
+
+
+def test_flip_start_noise_is_seeded_and_sized_by_the_robot_reset():
+    from lowcostdex.hardware.robot.reset import ResetConfig
+    from lowcostdex.hardware.robot.reset_flip import FlipResetConfig
+    from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE, FlipConfig
+
+    c = FlipConfig()
+    # the start noise stays inside what the robot's reset accepts as a start
+    assert 0 < c.position_radius <= FlipResetConfig().position_tolerance
+    assert 0 < c.joint_range <= ResetConfig().precision
+    assert 0 < c.yaw_range
+    a, b, a2 = _flip_start(3), _flip_start(4), _flip_start(3)
+    for x, y in zip(a, a2, strict=True):
+        np.testing.assert_array_equal(x, y)  # one seed, one start
+    for x, y in zip(a, b, strict=True):
+        assert np.max(np.abs(x - y)) > 1e-4  # two seeds: fingers, position, orientation differ
+    rest = np.array([0.0, 0.0, 0.1 + 0.025])  # table top 0.1 m + half the 50 mm block
+    yaws, radii = [], []
+    for seed in range(40):
+        hand, pos, quat = _flip_start(seed)
+        assert np.max(np.abs(hand - RESET_POSE)) <= c.joint_range
+        assert pos[2] == pytest.approx(rest[2])  # resting on the table
+        radii.append(np.linalg.norm(pos[:2]))
+        # upright, turned about the vertical only: q = (cos(yaw/2), 0, 0, sin(yaw/2))
+        assert quat[1] == 0.0 and quat[2] == 0.0
+        yaws.append(2.0 * math.atan2(quat[3], quat[0]))
+    assert max(radii) <= c.position_radius and max(np.abs(yaws)) <= c.yaw_range
+    # spread over the ranges: 40 uniform draws reach beyond half of each (P(miss) < 1e-11)
+    assert max(radii) > 0.5 * c.position_radius and max(np.abs(yaws)) > 0.5 * c.yaw_range
+    # with the noise off every seed starts at the one resting pose
+    for seed in (3, 4):
+        hand, pos, quat = _flip_start(seed, position_radius=0.0, yaw_range=0.0, joint_range=0.0)
+        np.testing.assert_array_equal(hand, RESET_POSE)
+        np.testing.assert_allclose(pos, rest, atol=1e-12)
+        np.testing.assert_array_equal(quat, [1.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ConfigError, match="yaw_range"):
+        FlipConfig(yaw_range=-0.1)
 
 
 def test_a_wrong_action_shape_is_named_with_the_joints():

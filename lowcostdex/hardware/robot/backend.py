@@ -200,6 +200,12 @@ def dclaw_reset(task: Any, model: mujoco.MjModel, config: ResetConfig | None = N
         if task.station == "block" and tracker is not None:
             block = _block_qpos(model)
             flip = FlipBlockReset(robot, model, tracker, flip_config, config, reorient)
+            # The block goes back to its resting place, upright: the start noise the task
+            # draws stands in (in simulation) for the scatter a robot's reset leaves by itself.
+            rest = getattr(task, "block_rest", None)
+            if rest is not None:
+                pos, quat = rest
+                return lambda q: flip(q[hand], pos, quat)
             return lambda q: flip(q[hand], q[block[:3]], q[block[3:]])
         valve = "valve" if "valve" in robot.joint_names else None
         fingers = DClawReset(robot, config, valve=valve)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import check_choice
+from lowcostdex.errors import ConfigError, check_choice
 from lowcostdex.hardware.hands import HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.envs.task import Goal, Task, TaskSpec, wrap_angle
@@ -199,15 +199,34 @@ class FlipConfig:
         rad about y; bench/RESULTS.md).
       success_angle: orientation error for success [rad].
       drop_height: block centre below this height [m] ends the episode (terminated).
+      position_radius: the block's start centre is uniform in a disc of this radius [m] about
+        its resting place on the table (``BLOCK_CENTER``).
+      yaw_range: the block's start turn about the vertical ~ U(-yaw_range, yaw_range) [rad].
+      joint_range: each finger joint starts at the reset pose + U(-joint_range, joint_range)
+        [rad].
+
+    The start noise is sized by the robot's episode reset: ``FlipBlockReset`` accepts a block
+    within 15 mm of its start (``FlipResetConfig.position_tolerance``) and the finger reset
+    ends with every joint within 0.01 rad (``ResetConfig.precision``). Measured on the emulated
+    D'Claw (2026-11-26, 10 resets of a block displaced by up to 40 mm and 1 rad): the squeezes
+    left it 1.8-19.3 mm from its start (median 8 mm) and turned by 0.015-0.16 rad (median
+    0.05). All 0: one fixed start (every episode of a deterministic policy is then the same
+    episode in the noise-free simulation).
     """
 
     representation: str = "keypoints"
     flip_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
     success_angle: float = 0.4
     drop_height: float = 0.03
+    position_radius: float = 0.015
+    yaw_range: float = 0.15
+    joint_range: float = 0.01
 
     def __post_init__(self) -> None:
         check_choice("block representation", self.representation, ("keypoints", "quaternion"))
+        for name in ("position_radius", "yaw_range", "joint_range"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"FlipConfig.{name} must be >= 0, got {getattr(self, name)}")
 
 
 _CORNERS = np.array([[sx, sy, sz] for sz in (-1, 1) for sy in (-1, 1) for sx in (-1, 1)],
@@ -265,14 +284,27 @@ class FlipBlock(DClawTask):
         return pos[..., None, :] + quat_rotate(quat, np.broadcast_to(_CORNERS, quat.shape[:-1]
                                                                      + _CORNERS.shape))
 
+    @property
+    def block_rest(self) -> tuple[np.ndarray, np.ndarray]:
+        """The block's nominal start: resting upright at the table's centre, position (3,) [m]
+        and quaternion (4,). A robot's reset aims here; ``initial_state`` adds the noise."""
+        return np.array(BLOCK_CENTER, float), np.array([1.0, 0.0, 0.0, 0.0])
+
     def _pose(self, qpos):
         return qpos[..., self.block_pos], qpos[..., self.block_quat]
 
     def initial_state(self, rng):
+        """Fingers at the reset pose and the block resting upright at the table's centre, each
+        with the config's start noise drawn from ``rng`` (see ``FlipConfig``)."""
+        c = self.config
         qpos = np.zeros(self.model.nq)
-        qpos[self.hand_qpos] = RESET_POSE
-        qpos[self.block_pos] = BLOCK_CENTER
-        qpos[self.block_quat] = [1.0, 0.0, 0.0, 0.0]
+        qpos[self.hand_qpos] = RESET_POSE + rng.uniform(-c.joint_range, c.joint_range, 9)
+        r = c.position_radius * math.sqrt(rng.uniform())  # uniform over the disc's area
+        phi = rng.uniform(-math.pi, math.pi)
+        rest, _ = self.block_rest
+        qpos[self.block_pos] = rest + [r * math.cos(phi), r * math.sin(phi), 0.0]
+        yaw = rng.uniform(-c.yaw_range, c.yaw_range)
+        qpos[self.block_quat] = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
         return qpos, np.zeros(self.model.nv), self.start_goal(qpos, {})
 
     def start_goal(self, qpos: np.ndarray, goal: Goal) -> Goal:
