@@ -117,6 +117,18 @@ def record_demos(task: Task, out: Path, n: int) -> Path:
     return save_demos(out / "demos.h5", episodes, info)
 
 
+def teacher_success(task: Task, n: int, noise: float) -> tuple[int, float, float]:
+    """The scripted teacher's final-step successes over ``n`` held-out starts with uniform
+    executed-action noise ``noise``: (successes, 95 % Wilson low, high)."""
+    env = gym.make(task.env_id)
+    episodes = teacher_episodes(env, ScriptedTeacher(task.teacher),
+                                seeds=range(HELD_OUT_SEED, HELD_OUT_SEED + n),
+                                only_successful=False, max_tries=1, action_noise=noise)
+    env.close()
+    k = int(sum(bool(e.success[-1]) for e in episodes))
+    return (k, *wilson_interval(k, n))
+
+
 # ----------------------------------------------------------------------------------------------
 # One run
 
@@ -154,7 +166,8 @@ def _usage() -> tuple[float, float]:
     return time.perf_counter(), cpu
 
 
-def _timed(run, out: Path, settings: dict, target: float) -> dict[str, float]:
+def _timed(run, out: Path, settings: dict, target: float, n_held_out: int = 0
+           ) -> dict[str, float]:
     """Run ``run(stopped)`` in ``out`` (emptied first) and write its outcome with the wall/CPU
     seconds and loads beside the settings it ran with."""
     if out.exists():
@@ -168,11 +181,13 @@ def _timed(run, out: Path, settings: dict, target: float) -> dict[str, float]:
     r.update({"run_wall": w1 - w0, "run_cpu": c1 - c0, "load_start": load0,
               "load_end": os.getloadavg()[0], "stopped": stopped["why"],
               "eval_distinct": distinct_episodes(out)})
+    if n_held_out:
+        r.update(held_out(out, n_held_out))
     (out / OUTCOME_FILE).write_text(json.dumps({"settings": settings, "outcome": r}, indent=1))
     return r
 
 
-def reused(out: Path, settings: dict) -> dict[str, float] | None:
+def reused(out: Path, settings: dict, n_held_out: int = 0) -> dict[str, float] | None:
     """The outcome of a finished run in ``out`` made with the same settings, else None."""
     f = out / OUTCOME_FILE
     if not f.exists():
@@ -183,32 +198,54 @@ def reused(out: Path, settings: dict) -> dict[str, float] | None:
     if "eval_distinct" not in saved["outcome"]:  # written before the count existed
         saved["outcome"]["eval_distinct"] = distinct_episodes(out)
         f.write_text(json.dumps(saved, indent=1))
+    if n_held_out and saved["outcome"].get("heldout_n") != n_held_out:
+        saved["outcome"].update(held_out(out, n_held_out))
+        f.write_text(json.dumps(saved, indent=1))
     return saved["outcome"]
+
+
+HELD_OUT_SEED = 50_000  # held-out reset seeds 50000.. (demos: 10000..; trainers: 32-bit SeedSequence hashes)
+
+
+def _episodes(run_dir: Path, policy_file: str, n: int) -> tuple[int, int]:
+    """(successes, distinct episodes) of a run's policy (mean action) from ``n`` reset seeds."""
+    import torch
+
+    from lowcostdex.algos.train import load_policy
+
+    config = ex.read_json(run_dir / ex.CONFIG_FILE)
+    policy = load_policy(run_dir / policy_file)
+    env = gym.make(config["env_id"], **dict(config.get("env_kwargs") or {}))
+    ends, wins = set(), 0
+    for seed in range(n):
+        obs, _ = env.reset(seed=HELD_OUT_SEED + seed)
+        done, info = False, {}
+        while not done:
+            with torch.no_grad():
+                a = policy.act(obs, deterministic=True)[0].numpy()
+            obs, _, term, trunc, info = env.step(a)
+            done = term or trunc
+        wins += bool(info.get("success", False))
+        ends.add(tuple(np.round(obs, 9)))
+    env.close()
+    return wins, len(ends)
 
 
 def distinct_episodes(run_dir: Path, n: int = 3) -> float:
     """How many different episodes the run's final policy (mean action) makes from ``n`` reset
     seeds: 1 means a fixed start in a noise-free simulation, where the trainer's evaluation
     episodes are copies of one episode (its success rate is 0 or 1, an n = 1 sample)."""
-    import torch
+    return float(_episodes(run_dir, ex.FINAL_POLICY_FILE, n)[1])
 
-    from lowcostdex.algos.train import load_policy
 
-    config = ex.read_json(run_dir / ex.CONFIG_FILE)
-    policy = load_policy(run_dir / ex.FINAL_POLICY_FILE)
-    env = gym.make(config["env_id"], **dict(config.get("env_kwargs") or {}))
-    ends = set()
-    for seed in range(n):
-        obs, _ = env.reset(seed=1000 + seed)
-        done = False
-        while not done:
-            with torch.no_grad():
-                a = policy.act(obs, deterministic=True)[0].numpy()
-            obs, _, term, trunc, _ = env.step(a)
-            done = term or trunc
-        ends.add(tuple(np.round(obs, 9)))
-    env.close()
-    return float(len(ends))
+def held_out(run_dir: Path, n: int) -> dict[str, float]:
+    """Success of the final and the best (``policy.pt``) policy, mean action, over ``n`` reset
+    seeds that neither training nor the trainer's evaluations used: the best policy was chosen
+    on the trainer's evaluations, so its own evaluation is biased upwards; this one is not."""
+    final, distinct = _episodes(run_dir, ex.FINAL_POLICY_FILE, n)
+    best, _ = _episodes(run_dir, ex.POLICY_FILE, n)
+    return {"heldout_n": float(n), "heldout_final": final / n, "heldout_best": best / n,
+            "heldout_distinct": float(distinct)}
 
 
 def _crossing(m: dict[str, np.ndarray], key: str, target: float) -> tuple[float, float]:
@@ -264,12 +301,14 @@ def run_train(task: Task, algo: str, seed: int, budget: float, demos: Path | Non
                       n_iter=max(1, int(budget // (n_traj * horizon))),
                       demos=str(demos) if algo == "dapg" else None,
                       sampler=args.sampler, n_workers=n_traj if args.sampler == "vector" else 1,
-                      eval_every=args.eval_every, progress=False)
+                      eval_every=args.eval_every, eval_episodes=args.eval_episodes,
+                      progress=False)
     settings = _settings(cfg, args)
-    if args.reuse and (r := reused(out, settings)) is not None:
+    if args.reuse and (r := reused(out, settings, args.held_out)) is not None:
         return r
     return _timed(lambda stopped: train(cfg, out, until=_until(
-        args.target, args.extra_iters, args.max_wall, stopped)), out, settings, args.target)
+        args.target, args.extra_iters, args.max_wall, stopped)), out, settings, args.target,
+        args.held_out)
 
 
 def run_ppo(task: Task, seed: int, budget: float, out: Path,
@@ -280,12 +319,14 @@ def run_ppo(task: Task, seed: int, budget: float, out: Path,
     d = PPOConfig()
     cfg = PPOConfig(env_id=task.env_id, seed=seed,
                     n_iter=max(1, int(budget // (d.num_envs * horizon))),
-                    eval_every=args.eval_every, progress=False)
+                    eval_every=args.eval_every, eval_episodes=args.eval_episodes,
+                    progress=False)
     settings = _settings(cfg, args)
-    if args.reuse and (r := reused(out, settings)) is not None:
+    if args.reuse and (r := reused(out, settings, args.held_out)) is not None:
         return r
     return _timed(lambda stopped: train(cfg, out, until=_until(
-        args.target, args.extra_iters, args.max_wall, stopped)), out, settings, args.target)
+        args.target, args.extra_iters, args.max_wall, stopped)), out, settings, args.target,
+        args.held_out)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -343,6 +384,15 @@ def _rate(rate: float, n: float, distinct: float = math.nan) -> str:
     return f"{k}/{int(n)} [{low:.2f}, {high:.2f}]"
 
 
+def _held_out(r: dict[str, float]) -> str:
+    """Held-out final and best success (``held_out``) with 95 % Wilson intervals."""
+    n = r.get("heldout_n", math.nan)
+    if not math.isfinite(n):
+        return "-"
+    return " / ".join(_rate(r[k], n, r.get("heldout_distinct", math.nan))
+                      for k in ("heldout_final", "heldout_best"))
+
+
 def _train_rate(r: dict[str, float], n_traj: int) -> str:
     """Final training success (stochastic policy, last three iterations, ``3 n_traj``
     independent episodes) with its 95 % Wilson interval."""
@@ -359,8 +409,9 @@ def table(name: str, results: dict[str, list[dict[str, float]]],
     lines = [f"### {name}", "",
              "| algorithm | seed | samples to 80 % train | to 80 % eval | wall s to 80 % train "
              "/ eval | final train [95 % Wilson] | final eval [95 % Wilson] | best eval [95 % Wilson] "
-             "(samples) | holds | ran: samples, wall s, CPU s | load start/end | stopped by |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "(samples) | holds | held-out final / best [95 % Wilson] | ran: samples, wall s, CPU s "
+             "| load start/end | stopped by |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for algo, runs in results.items():
         for seed, r in enumerate(runs):
             n, dist = r.get("eval_episodes", math.nan), r.get("eval_distinct", math.nan)
@@ -369,7 +420,8 @@ def table(name: str, results: dict[str, list[dict[str, float]]],
                 f" | {_s(r['train_wall'])} / {_s(r['eval_wall'])} | "
                 f"{_train_rate(r, n_traj[algo])} | "
                 f"{_rate(r['final_eval'], n, dist)} | {_rate(r['best_eval'], n, dist)} "
-                f"({_k(r['best_samples'])}) | {_f2(r['holds'])} | {_k(r['samples'])}, "
+                f"({_k(r['best_samples'])}) | {_f2(r['holds'])} | {_held_out(r)} | "
+                f"{_k(r['samples'])}, "
                 f"{_s(r.get('run_wall', math.nan))}, {_s(r.get('run_cpu', math.nan))} | "
                 f"{_f2(r.get('load_start', math.nan))}/{_f2(r.get('load_end', math.nan))} | "
                 f"{r.get('stopped', '-')} (budget {_k(budgets[algo])}) |")
@@ -433,6 +485,12 @@ def main() -> None:
     p.add_argument("--extra-iters", type=int, default=20,
                    help="iterations after the first training crossing (shows if it holds)")
     p.add_argument("--eval-every", type=int, default=5)
+    p.add_argument("--eval-episodes", type=int, default=10,
+                   help="mean-action episodes per evaluation (the trainers' default: 10)")
+    p.add_argument("--held-out", type=int, default=0,
+                   help="after each run: final and best policy over this many fresh starts")
+    p.add_argument("--teacher-episodes", type=int, default=0,
+                   help="measure the scripted teacher's success over this many starts first")
     p.add_argument("--sampler", default="vector", choices=("vector", "serial"))
     p.add_argument("--out", default="bench_runs/npg_dapg")
     p.add_argument("--max-wall", type=float, default=None,
@@ -453,7 +511,8 @@ def main() -> None:
         f"({datetime.date.today()}, {platform.node()}, {platform.processor() or platform.machine()}, "
         f"{os.cpu_count()} CPUs)", "",
         f"`python bench/npg_dapg.py --tasks {' '.join(args.tasks)} --algos {' '.join(args.algos)}"
-        f" --seeds {args.seeds}`. Trainer defaults: NPG/DAPG {args.n_traj or d.n_traj} "
+        f" --seeds {args.seeds} --eval-episodes {args.eval_episodes} --held-out {args.held_out}"
+        f" --teacher-episodes {args.teacher_episodes}`. Trainer defaults: NPG/DAPG {args.n_traj or d.n_traj} "
         f"trajectories/iteration, delta {d.npg.step_size}, policy {d.policy.hidden_sizes} "
         f"init log-std {d.policy.init_log_std}, BC {d.bc.epochs} epochs (noise {d.bc.log_std}), "
         f"DAPG lam0 {d.dapg.lam0}; PPO {dp.num_envs} envs, lr {dp.lr}, {dp.update_epochs} "
@@ -472,6 +531,14 @@ def main() -> None:
         results: dict[str, list[dict[str, float]]] = {}
         budgets: dict[str, float] = {}
         order = [a for a in ("dapg", "npg", "ppo") if a in args.algos]
+        if args.teacher_episodes:
+            n = args.teacher_episodes
+            for noise in (0.0, task.demo_noise):
+                k, low, high = teacher_success(task, n, noise)
+                line = (f"{name}: scripted teacher {task.teacher}, executed-action noise "
+                        f"{noise}: {k}/{n} [{low:.2f}, {high:.2f}] (95 % Wilson)")
+                print(line, flush=True)
+                report += [line, ""]
         for algo in order:
             budget = float(args.max_samples)
             if flip and algo != "dapg" and "dapg" in results:
