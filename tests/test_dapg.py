@@ -176,3 +176,35 @@ def test_numpy_float32_demos_and_batch_give_the_float64_policy_the_same_step():
         results.append(torch.nn.utils.parameters_to_vector(policy.parameters()).detach())
     assert results[1].dtype == torch.float64
     torch.testing.assert_close(results[0], results[1], rtol=1e-12, atol=1e-14)
+
+
+def test_unnormalised_advantages_dapg_step_by_hand():
+    """Issue 19: ``normalize_advantages=False`` in DAPG, by hand. A linear policy seeing only the
+    observation 0 has mean b (its bias) and log std s; per sample d log N / db = (x - b) /
+    sigma^2, d / ds = (x - b)^2 / sigma^2 - 1, and the on-policy Fisher of (b, s) is
+    diag(1 / sigma^2, 2) (+ damping). The demo weight is lam0 lam1^k max(A) of the raw
+    advantages (6 here; whitened it would be max((A - 3) / 1.87) = 1.6), the augmented gradient
+    sums the on-policy and the weighted demo terms over the N = 4 on-policy samples."""
+    policy = GaussianMLPPolicy(1, 1, PolicyConfig(hidden_sizes=(), init_log_std=np.log(0.5)),
+                               generator=None)  # weight and bias 0: mean b = 0
+    obs = torch.zeros(4, 1, dtype=torch.float64)
+    actions = torch.tensor([[0.5], [-0.25], [1.0], [0.0]], dtype=torch.float64)
+    adv = np.array([1.0, 2.0, 3.0, 6.0])
+    d_obs = torch.zeros(2, 1, dtype=torch.float64)
+    d_act = torch.tensor([[0.8], [0.6]], dtype=torch.float64)
+    cfg = DAPGConfig(lam0=0.1, lam1=0.95)
+    ncfg = npg.NPGConfig(normalize_advantages=False)  # step_size 0.05, damping 1e-4
+    stats = dapg_update(policy, obs, actions, adv, d_obs, d_act, 2, cfg, ncfg)
+
+    a, d, sigma, lam = actions.numpy()[:, 0], d_act.numpy()[:, 0], 0.5, ncfg.damping
+    w = 0.1 * 0.95**2 * 6.0
+    g_b = (np.sum(adv * a) + w * np.sum(d)) / sigma**2 / 4
+    g_s = (np.sum(adv * (a**2 / sigma**2 - 1)) + w * np.sum(d**2 / sigma**2 - 1)) / 4
+    x_b, x_s = g_b / (1 / sigma**2 + lam), g_s / (2.0 + lam)
+    alpha = np.sqrt(ncfg.step_size / (g_b * x_b + g_s * x_s))
+    b1, s1 = alpha * x_b, np.log(sigma) + alpha * x_s
+    assert stats["demo_weight"] == pytest.approx(w, rel=1e-12)
+    assert float(policy.linears[0].bias.detach()[0]) == pytest.approx(b1, rel=1e-8)
+    assert float(policy.log_std.detach()[0]) == pytest.approx(s1, rel=1e-8)
+    log_lik = -0.5 * ((d - b1) / np.exp(s1)) ** 2 - s1 - 0.5 * np.log(2 * np.pi)
+    assert stats["demo_log_lik"] == pytest.approx(float(np.mean(log_lik)), rel=1e-8)

@@ -357,3 +357,42 @@ def test_numpy_float32_batches_give_the_float64_policy_the_same_step():
         results.append(torch.nn.utils.parameters_to_vector(policy.parameters()).detach())
     assert results[1].dtype == torch.float64
     torch.testing.assert_close(results[0], results[1], rtol=1e-12, atol=1e-14)
+
+
+def _gauss(x, mean, std):
+    return np.exp(-0.5 * ((x - mean) / std) ** 2) / (std * np.sqrt(2 * np.pi))
+
+
+def test_unnormalised_advantages_step_and_surrogate_improvement_by_hand():
+    """Issue 19: ``normalize_advantages=False`` on a case small enough to do by hand. A linear
+    policy (no hidden layer) with 1-D observation and action sees the observation 0 only, so its
+    mean is the bias b (the weight has zero gradient and zero Fisher) and its parameters that
+    matter are (b, s = log std). Per sample, d log N(a; b, e^s) / db = (a - b) / sigma^2 and
+    / ds = (a - b)^2 / sigma^2 - 1; the Fisher of (b, s) is diag(1 / sigma^2, 2) (+ damping).
+    With the raw advantages A = (1, 2, 3, 6) the surrogate starts at mean(A) = 3 (whitened it
+    would start at 0), and a step of KL ~ delta / 2 along F^-1 g raises it by a little: the
+    improvement is after - before, small and positive, not after + before (~ 6)."""
+    policy = GaussianMLPPolicy(1, 1, PolicyConfig(hidden_sizes=(), init_log_std=np.log(0.5)),
+                               generator=None)  # weight and bias 0: mean b = 0
+    obs = torch.zeros(4, 1, dtype=torch.float64)
+    actions = torch.tensor([[0.5], [-0.25], [1.0], [0.0]], dtype=torch.float64)
+    adv = np.array([1.0, 2.0, 3.0, 6.0])
+    cfg = npg.NPGConfig(normalize_advantages=False)  # step_size 0.05, damping 1e-4
+    stats = npg.npg_update(policy, obs, actions, adv, cfg)
+
+    a, sigma, lam, delta = actions.numpy()[:, 0], 0.5, cfg.damping, cfg.step_size
+    g_b = np.mean(adv * a / sigma**2)
+    g_s = np.mean(adv * (a**2 / sigma**2 - 1.0))
+    x_b, x_s = g_b / (1 / sigma**2 + lam), g_s / (2.0 + lam)  # (F + lam I)^-1 g
+    g_f_g = g_b * x_b + g_s * x_s
+    alpha = np.sqrt(delta / g_f_g)
+    b1, s1 = alpha * x_b, np.log(sigma) + alpha * x_s
+    after = np.mean(adv * _gauss(a, b1, np.exp(s1)) / _gauss(a, 0.0, sigma))
+    assert stats["g_f_g"] == pytest.approx(g_f_g, rel=1e-8)
+    assert float(policy.linears[0].bias.detach()[0]) == pytest.approx(b1, rel=1e-8)
+    assert float(policy.log_std.detach()[0]) == pytest.approx(s1, rel=1e-8)
+    assert float(policy.linears[0].weight.detach()[0, 0]) == 0.0
+    assert stats["surr_before"] == pytest.approx(3.0, rel=1e-12)
+    assert stats["surr_after"] == pytest.approx(after, rel=1e-8)
+    assert stats["surr_improvement"] == pytest.approx(after - 3.0, rel=1e-6)
+    assert 0.0 < stats["surr_improvement"] < 0.5 * 3.0
