@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from lowcostdex.argtypes import SEED, integer
+from lowcostdex.argtypes import SEED, integer, number
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -43,6 +43,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--conditions", default=None,
                    help="comma-separated: nominal, randomized, identified, "
                         "identified_randomized, on_robot (default: all)")
+    p.add_argument("--latency-ms", type=number(0.5, 1000), default=None,
+                   help="with --port: the USB latency timer the driver's timeouts assume when "
+                        "it cannot read it from sysfs [ms] (a pty served by `lowcostdex "
+                        "emulate`: 16; default: the driver's 1 ms)")
     p.add_argument("--yes", action="store_true",
                    help="with --port: do not ask before the robot moves")
     p.set_defaults(func=_transfer)
@@ -54,6 +58,10 @@ def _transfer(args: argparse.Namespace) -> int:
 
     device = robot_port(args.backend, args.port)
     port = None if device == "emulated" else device
+    if port is not None:
+        from lowcostdex.hardware.dynamixel.ports import check_port
+
+        check_port(port)  # a missing device is refused before anything runs
     size = size_with(args.size, robots=args.robots, seeds=args.seeds,
                      algos=parse_list(args.algos, ALGOS, "algo"),
                      conditions=parse_list(args.conditions, CONDITIONS, "condition"))
@@ -63,5 +71,5 @@ def _transfer(args: argparse.Namespace) -> int:
         if answer.strip().lower() not in ("y", "yes"):
             print("stopped; nothing was written")
             return 1
-    run(args.out, size, args.task, args.robot_seed, port)
+    run(args.out, size, args.task, args.robot_seed, port, latency_ms=args.latency_ms)
     return 0

@@ -198,7 +198,8 @@ def identify_finger(robot: Any, finger: str, folder: Path, size: Size, seed: int
     t0 = time.perf_counter()
     paths = dclaw_identification_logs(hand, joints, folder / "logs", size.id_logs,
                                       size.id_seconds, np.random.default_rng(seed),
-                                      port=robot.identification_port(seed))
+                                      port=robot.identification_port(seed),
+                                      latency_ms=robot.latency_ms)
     t1 = time.perf_counter()
     nominal.write_text(build_dclaw("none", hand, thermal=False, fingers=(finger,)).to_xml())
     dataset = load_dataset([str(p) for p in paths], model=str(nominal))
@@ -322,8 +323,7 @@ def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Pa
             config = TrainConfig(**common, env_kwargs=task.make_kwargs(**extra),
                                  sampler="vector", n_workers=size.n_traj)
         elif isinstance(robot, PortRobot):
-            config = TrainConfig(**common, env_kwargs=task.make_kwargs(port=robot.port,
-                                                                       motor=robot.motor),
+            config = TrainConfig(**common, env_kwargs=task.make_kwargs(**robot.bus_kwargs()),
                                  backend="hardware", sampler="serial")
         else:  # a hidden robot: its definition stays out of the run's config
             config = TrainConfig(**common, env_kwargs=task.make_kwargs(), backend="emulated",
@@ -386,8 +386,10 @@ def open_out(out: Path, size: Size, task_name: str, robot_seed: int, port: str |
 
 
 def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int = 0,
-        port: str | None = None, tell: Say = say) -> dict[str, Any]:
+        port: str | None = None, tell: Say = say, latency_ms: float | None = None
+        ) -> dict[str, Any]:
     """The whole loop into ``out`` (resumable); returns the summaries, rows and figure.
+    ``latency_ms``: with ``port``, see ``PortRobot`` (not a setting: a resume may change it).
 
     Raises:
       OutputRefused: ``out`` holds files this command did not write, or a run with another
@@ -400,7 +402,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     check_choice("task", task_name, tuple(TASKS))
     out = Path(out)
     task = TASKS[task_name]
-    robots = make_robots(size.robots, robot_seed, port)
+    robots = make_robots(size.robots, robot_seed, port, latency_ms)
     open_out(out, size, task_name, robot_seed, port)
     seeds = list(range(size.seeds))
     t_start = time.perf_counter()
