@@ -4,8 +4,8 @@ A thin wrapper of ``lowcostdex transfer`` (``lowcostdex/transfer/loop.py`` holds
 arguments are the command's:
 
     python bench/transfer.py --out bench_runs/transfer --size smoke     # checks the loop
-    python bench/transfer.py --out bench_runs/transfer                  # 3 robots, 3 seeds
-    python bench/transfer.py --out bench_runs/transfer --seeds 1 --algos dapg
+    python bench/transfer.py --out bench_runs/transfer                  # 3 robots, 1 seed, DAPG
+    python bench/transfer.py --out bench_runs/transfer --seeds 3 --algos dapg,npg   # full table
     python bench/transfer.py --out bench_runs/transfer --task valve-near
 
 Record measured tables in bench/RESULTS.md ("Transfer table") with date, machine, load and the

@@ -52,11 +52,12 @@ def duration(seconds: float) -> str:
 
 
 def line(desc: str, n: float, total: float | None, elapsed: float, unit: str = "",
-         postfix: str = "", start: float = 0) -> str:
+         postfix: str = "", start: float = 0, todo: float | None = None) -> str:
     """One progress line: count, percentage, elapsed time and (when known) time left.
 
     ``start`` is the count this session began at (a resumed run); the time left is estimated
-    from this session's rate, ``elapsed / (n - start)`` per unit.
+    from this session's rate, ``elapsed / (n - start)`` per unit, times ``todo``: the units
+    still to run (default ``total - n``; fewer when some of the rest will be found done).
     """
     unit = f" {unit}" if unit else ""
     if total:
@@ -65,7 +66,8 @@ def line(desc: str, n: float, total: float | None, elapsed: float, unit: str = "
         if n >= total:
             text += ", done"
         elif n > start:
-            text += f", about {duration(elapsed * (total - n) / (n - start))} left"
+            left = total - n if todo is None else todo
+            text += f", about {duration(elapsed * left / (n - start))} left"
     else:
         text = f"{desc}: {n:g}{unit}, {duration(elapsed)} elapsed"
     return f"[progress] {text}" + (f"; {postfix}" if postfix else "")

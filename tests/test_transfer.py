@@ -270,6 +270,25 @@ def test_the_table_counts_each_policy_on_its_own_robot_and_the_cross_table_the_o
     assert "identified: own robot 0.80 " in text and "other robots 0.15 " in text
 
 
+def test_time_left_counts_only_the_pieces_still_to_run():
+    """A resume: 6 pieces, 3 of them found done (the 2nd, 4th and 6th); the others take 10 s
+    each. After the first, 2 pieces of 10 s are left (20 s), not 5 pieces."""
+    from lowcostdex.transfer.loop import Progress
+
+    now = [0.0]
+    lines: list[str] = []
+    progress = Progress(6, lines.append, found=3, clock=lambda: now[0])
+    for k in range(6):
+        fresh = k % 2 == 0
+        now[0] += 10.0 if fresh else 0.0
+        progress.step(f"piece {k}", not fresh)
+    assert "1/6 pieces (17 %), 10 s elapsed, about 20 s left" in lines[0]
+    assert "2/6 pieces (33 %), 10 s elapsed, about 20 s left" in lines[1]  # 10 s per piece run
+    assert "3/6 pieces (50 %), 20 s elapsed, about 10 s left" in lines[2]
+    assert "5/6 pieces (83 %), 30 s elapsed, about 0 s left" in lines[4]
+    assert lines[5].endswith("done; piece 5 (found done)")
+
+
 def test_on_robot_trains_on_the_hidden_robot_itself():
     from lowcostdex.transfer.loop import HiddenRobotEnv
 
@@ -347,6 +366,16 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
     assert cell.stat().st_mtime_ns == stamp
     kept = list((out / "previous").glob("*/transfer.json"))
     assert len(kept) == 1 and json.loads(kept[0].read_text())["rows"] == rows
+
+    # one cell lost: the resume re-runs it alone, and once it ran nothing is left to run
+    cell.unlink()
+    lines: list[str] = []
+    run(out, size, tell=lines.append)
+    steps = [s for s in lines if s.startswith("[progress]")]
+    fresh = [k for k, s in enumerate(steps) if "(found done)" not in s]
+    assert len(fresh) == 1 and "nominal seed 0 on robot A" in steps[fresh[0]]
+    assert all("about 0 s left" in s or "done" in s for s in steps[fresh[0]:]), steps
+    assert all(" left" not in s for s in steps[:fresh[0]])  # no rate before a piece ran
 
     # another task cannot build on this folder; a user's folder is refused untouched
     assert main(["transfer", "--out", str(out), "--size", "smoke", "--task", "valve-near"]) == 2

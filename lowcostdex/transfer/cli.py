@@ -1,8 +1,13 @@
 """``lowcostdex transfer``: the transfer table on your robot or on emulated hidden robots.
 
-    lowcostdex transfer --out runs/transfer --size smoke            # 2 hidden robots, < 1 min
-    lowcostdex transfer --out runs/transfer                         # 3 hidden robots, 3 seeds
+    lowcostdex transfer --out runs/transfer --size smoke            # 2 hidden robots, ~1 min CPU
+    lowcostdex transfer --out runs/transfer                         # 3 robots, 1 seed, DAPG: 2-4 h
+    lowcostdex transfer --out runs/transfer --seeds 3 --algos dapg,npg   # the full table: ~10 h+
     lowcostdex transfer --out runs/transfer --port /dev/ttyUSB0     # your D'Claw (see below)
+
+Times are for a 2-core machine shared with other jobs (bench/RESULTS.md): identification ~4 min
+per finger, a policy trained in simulation 1-2 min, on_robot training 21-70 min per robot (48k
+samples through the emulated bus), an evaluation cell of 50 episodes ~15 s.
 
 With ``--port`` the identification logs move each finger through its range with the valve off:
 the command stops after them; put the valve back on and run the same command again to train
@@ -27,7 +32,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="output folder: new or empty, or a previous transfer run to resume "
                         "(same task, robots and size)")
     p.add_argument("--size", choices=("smoke", "default", "long"), default="default",
-                   help="budgets (default %(default)s; smoke checks the loop in under a minute)")
+                   help="budgets: smoke checks the loop (~1 min CPU); default: 48k samples per "
+                        "policy, 50 episodes per cell, 3 hidden robots, 1 seed, DAPG, every "
+                        "condition: 2-4 h on 2 cores (the full table, --seeds 3 --algos "
+                        "dapg,npg: ~10 h or more); long: 160k samples and 100 episodes per cell, "
+                        "3 seeds, both learners (estimated 30 h or more)")
     p.add_argument("--task", choices=("valve", "valve-near", "valve-random"), default="valve",
                    help="valve: 180 deg from the fixed start; valve-near: start and goal within "
                         "+-0.25 rad of those; valve-random: +-60 deg (default %(default)s)")

@@ -121,8 +121,11 @@ SIZES = {
                   gap=(("max_effects", 1), ("top_k", 2), ("search", "forward"),
                        ("bootstrap", 100), ("max_rounds", 5), ("rank_seconds", 3.0)),
                   bc_epochs=10),
-    # the table of bench/RESULTS.md (48k samples per policy, 50 episodes per cell)
-    "default": Size(robots=3, seeds=3, algos=("dapg", "npg"), conditions=CONDITIONS, demos=20,
+    # the budgets of bench/RESULTS.md's table (48k samples per policy, 50 episodes per cell),
+    # one seed of DAPG: an evening on 2 cores (2-4 h measured piece by piece at load 3-15; a
+    # third of it or more is on_robot training, 21-70 min per robot). The full table, --seeds 3
+    # --algos dapg,npg on the same folder, is 6x the training and evaluation: ~10 h or more.
+    "default": Size(robots=3, seeds=1, algos=("dapg",), conditions=CONDITIONS, demos=20,
                     playbacks=2, n_iter=30, n_traj=40, eval_every=5, eval_episodes=20,
                     episodes=50, id_logs=3, id_seconds=10.0),
     "long": Size(robots=3, seeds=3, algos=("dapg", "npg"), conditions=CONDITIONS, demos=40,

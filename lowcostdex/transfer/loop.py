@@ -117,12 +117,16 @@ def cached(path: Path, make: Callable[[], Any]) -> Any:
 
 class Progress:
     """Progress lines over the loop's pieces (identifications, trainings, evaluation cells):
-    ``[progress] transfer: k/N pieces (x %), elapsed, about T left``; pieces found done count
-    as done without counting toward the rate."""
+    ``[progress] transfer: k/N pieces (x %), elapsed, about T left``. Pieces found done count
+    as done without counting toward the rate, and the time left counts only the pieces still
+    to run: ``found`` pieces were done when the run started (a resume), each reported once.
+    """
 
-    def __init__(self, total: int, out: Say) -> None:
-        self.total, self.done, self.skipped = total, 0, 0
-        self.t0 = time.monotonic()
+    def __init__(self, total: int, out: Say, found: int = 0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.total, self.found, self.done, self.skipped = total, found, 0, 0
+        self.clock = clock
+        self.t0 = clock()
         self.out = out
 
     def step(self, what: str, was_cached: bool) -> None:
@@ -130,9 +134,40 @@ class Progress:
 
         self.done += 1
         self.skipped += was_cached
-        text = line("transfer", self.done, self.total, time.monotonic() - self.t0, "pieces",
-                    postfix=what + (" (found done)" if was_cached else ""), start=self.skipped)
+        todo = (self.total - self.done) - max(0, self.found - self.skipped)
+        text = line("transfer", self.done, self.total, self.clock() - self.t0, "pieces",
+                    postfix=what + (" (found done)" if was_cached else ""), start=self.skipped,
+                    todo=max(0, todo))
         self.out(text)
+
+
+def jobs(conditions: tuple[str, ...], robots: list[Any]) -> list[tuple[str, Any]]:
+    """The policies of one algorithm and seed, in run order: (condition, the robot it is made
+    for, or None)."""
+    first = [(c, None) for c in conditions if c not in PER_ROBOT]
+    return first + [(c, r) for c in conditions if c in PER_ROBOT for r in robots]
+
+
+def run_tag(condition: str, made_for: Any) -> str:
+    return condition if made_for is None else f"{condition}_{made_for.name}"
+
+
+def piece_files(out: Path, size: Size, robots: list[Any]) -> list[Path]:
+    """The file that marks each piece of the run done (identified fingers, trainings,
+    evaluation cells): the progress total, and the pieces a resume will find done."""
+    files = []
+    if {"identified", "identified_randomized"} & set(size.conditions):
+        files += [out / "identify" / r.name / f / "finger.json" for r in robots
+                  for f in size.fingers]
+    for algo in size.algos:
+        for seed in range(size.seeds):
+            for condition, made_for in jobs(size.conditions, robots):
+                stem = out / "runs" / algo / f"{run_tag(condition, made_for)}_seed{seed}"
+                files.append(stem / "summary.json")
+                files += [stem.parent / f"{stem.name}.on_{t.name}.json" for t in robots]
+                if condition != "on_robot":  # its training environment is the robot
+                    files.append(stem.parent / f"{stem.name}.sim.json")
+    return files
 
 
 # ------------------------------------------------------------------------------------------------
@@ -412,12 +447,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
 
     n_id = len(robots) * len(size.fingers) if {"identified", "identified_randomized"} & set(
         size.conditions) else 0
-    per_seed = 0
-    for cond in size.conditions:
-        policies = len(robots) if cond in PER_ROBOT else 1
-        # training, its own-sim evaluation (on_robot: none) and a cell per robot
-        per_seed += policies * (1 + (cond != "on_robot") + len(robots))
-    progress = Progress(n_id + len(seeds) * len(size.algos) * per_seed, tell)
+    pieces = piece_files(out, size, robots)
+    progress = Progress(len(pieces), tell, found=sum(p.exists() for p in pieces))
     tell(f"transfer: {task.label()}, robots {', '.join(names)}, seeds {seeds}, algos "
          f"{list(size.algos)}, conditions {list(size.conditions)}; {size.samples} samples per "
          f"policy, {size.episodes} episodes per cell -> {out}")
@@ -448,11 +479,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     t_train = t_eval = 0.0
     for algo in size.algos:
         for seed in seeds:
-            jobs: list[tuple[str, Any]] = [(c, None) for c in size.conditions
-                                           if c not in PER_ROBOT]
-            jobs += [(c, r) for c in size.conditions if c in PER_ROBOT for r in robots]
-            for condition, made_for in jobs:
-                tag = condition if made_for is None else f"{condition}_{made_for.name}"
+            for condition, made_for in jobs(size.conditions, robots):
+                tag = run_tag(condition, made_for)
                 run_dir = out / "runs" / algo / f"{tag}_seed{seed}"
                 on_robot = condition == "on_robot"
                 randomize = None if on_robot else condition_randomize(
