@@ -386,3 +386,79 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
     assert main(["transfer", "--out", str(user), "--size", "smoke"]) == 2
     assert sorted(p.name for p in user.iterdir()) == ["notes.txt"]
     assert (user / "notes.txt").read_text() == "mine"
+
+
+def test_start_range_widens_only_the_training_starts():
+    from lowcostdex.transfer.loop import TASKS
+
+    valve = TASKS["valve"]
+    assert valve.training(0.0) is valve
+    assert valve.training(0.05).make_kwargs() == {"init_range": 0.05}
+    near = TASKS["valve-near"]  # already starts within +-0.25 rad: kept
+    assert near.training(0.1) is near
+    assert near.training(0.5).make_kwargs() == {"init_range": 0.5, "goal_range": 0.25}
+
+
+def test_training_starts_are_spread_and_the_same_under_a_seed():
+    """The valve's start in the training env (the true joint angle after reset) is uniform in
+    +-R (here 0.05 rad: 25x the 0.002 rad knife edge), the goal 180 deg further, and the same
+    start comes back under the same reset seed."""
+    import gymnasium as gym
+
+    import lowcostdex.sim  # noqa: F401
+    from lowcostdex.transfer.loop import TASKS
+
+    task = TASKS["valve"].training(0.05)
+    env = gym.make(task.env_id, **task.make_kwargs())
+
+    def start(seed):
+        env.reset(seed=seed)
+        u = env.unwrapped
+        q = float(u.data.qpos[u.task.obj_qpos])
+        assert float(u.goal["angle"]) - q == pytest.approx(math.pi, abs=1e-9)
+        return q
+
+    starts = np.array([start(s) for s in range(40)])
+    assert np.all(np.abs(starts) <= 0.05) and starts.min() < -0.03 and starts.max() > 0.03
+    assert [start(s) for s in (3, 17)] == [starts[3], starts[17]]
+    env.close()
+
+
+def test_a_policy_trained_from_random_starts_is_the_same_under_its_seed(tmp_path):
+    """Start randomization is drawn from the run's seed: two trainings with one seed give the
+    same policy and metrics; another seed does not."""
+    import torch
+
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.train import load_policy
+    from lowcostdex.transfer.loop import SIZES, TASKS, read_json, train_policy
+
+    size, task = SIZES["smoke"], TASKS["valve"].training(0.05)
+
+    def trained(name, seed):
+        d = tmp_path / name
+        train_policy(d, "npg", task, None, None, size, seed)
+        m = ex.read_metrics(d / ex.METRICS_FILE)
+        params = [p.detach().clone() for p in load_policy(d).parameters()]
+        keep = {k: v for k, v in m.items() if not k.startswith("time_")}  # wall-clock
+        return keep, params, read_json(d / "config.json")
+
+    a, b, c = trained("a", 0), trained("b", 0), trained("c", 1)
+    assert a[2]["env_kwargs"]["init_range"] == 0.05
+    assert a[0].keys() == b[0].keys() and len(a[0]) > 3
+    for k in a[0]:
+        np.testing.assert_array_equal(a[0][k], b[0][k], err_msg=k)
+    assert all(torch.equal(p, q) for p, q in zip(a[1], b[1], strict=True))
+    assert not all(torch.equal(p, q) for p, q in zip(a[1], c[1], strict=True))
+
+
+def test_start_range_is_a_setting_of_the_folder_and_refused_where_starts_already_vary(tmp_path):
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.transfer.loop import SIZES, run, settings
+
+    size = SIZES["smoke"]
+    assert "start_range" not in settings(size, "valve", 0, None)  # old folders still resume
+    assert settings(size, "valve", 0, None, 0.05)["start_range"] == 0.05
+    with pytest.raises(ConfigError, match="valve-random already starts"):
+        run(tmp_path / "t", size, "valve-random", start_range=0.05, tell=lambda s: None)
+    assert not (tmp_path / "t").exists()

@@ -52,6 +52,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--conditions", default=None,
                    help="comma-separated: nominal, randomized, identified, "
                         "identified_randomized, on_robot (default: all)")
+    p.add_argument("--start-range", type=number(0, 3.14159), default=0.0,
+                   help="train every condition from valve starts drawn within +-this [rad] "
+                        "(evaluation keeps the task's starts; a fixed-start policy can fail "
+                        "when the valve starts 0.002 rad off); a setting of the folder "
+                        "(default 0: the task's own starts)")
     p.add_argument("--latency-ms", type=number(0.5, 1000), default=None,
                    help="with --port: the USB latency timer the driver's timeouts assume when "
                         "it cannot read it from sysfs [ms] (a pty served by `lowcostdex "
@@ -80,5 +85,6 @@ def _transfer(args: argparse.Namespace) -> int:
         if answer.strip().lower() not in ("y", "yes"):
             print("stopped; nothing was written")
             return 1
-    run(args.out, size, args.task, args.robot_seed, port, latency_ms=args.latency_ms)
+    run(args.out, size, args.task, args.robot_seed, port, latency_ms=args.latency_ms,
+        start_range=args.start_range)
     return 0

@@ -36,6 +36,16 @@ class Task:
         opts = ", ".join(f"{k}={v}" for k, v in self.kwargs)
         return self.env_id.split("/")[1] + (f" ({opts})" if opts else "")
 
+    def training(self, start_range: float = 0.0) -> Task:
+        """The task the policies train on: this one, or, when ``start_range`` [rad] is wider
+        than the task's own, with the valve's start drawn from U(-start_range, start_range)
+        (``TurnConfig.init_range``; the goal keeps its offset from the start). Evaluation and
+        demonstrations stay on this task."""
+        if start_range <= dict(self.kwargs).get("init_range", 0.0):
+            return self
+        return Task(self.env_id, tuple({**dict(self.kwargs),
+                                        "init_range": float(start_range)}.items()))
+
 
 TASKS = {
     "valve": Task("lowcostdex/DClawTurnValve-v0"),  # 180 deg from the fixed start

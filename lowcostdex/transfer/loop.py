@@ -39,6 +39,7 @@ files move into ``previous/<time>/``.
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import time
@@ -404,41 +405,53 @@ def evaluate(run_dir: Path, task: Task, env_kwargs: dict[str, Any], episodes: in
 # ------------------------------------------------------------------------------------------------
 
 
-def settings(size: Size, task_name: str, robot_seed: int, port: str | None) -> dict[str, Any]:
-    """The output folder's settings; a resume must keep all of them (pieces build on them)."""
-    return {"task": task_name, "robot_seed": None if port else robot_seed, "port": port,
-            "budget": size.budget()}
+def settings(size: Size, task_name: str, robot_seed: int, port: str | None,
+             start_range: float = 0.0) -> dict[str, Any]:
+    """The output folder's settings; a resume must keep all of them (pieces build on them).
+    ``start_range`` is one only when set (folders made before it existed still resume)."""
+    s = {"task": task_name, "robot_seed": None if port else robot_seed, "port": port,
+         "budget": size.budget()}
+    return {**s, "start_range": start_range} if start_range else s
 
 
-def open_out(out: Path, size: Size, task_name: str, robot_seed: int, port: str | None) -> bool:
+def open_out(out: Path, size: Size, task_name: str, robot_seed: int, port: str | None,
+             start_range: float = 0.0) -> bool:
     """Check ``out`` (``lowcostdex.outdir`` rules) and mark it; True when it held a run."""
     from lowcostdex.outdir import check_out, write_marker
 
-    s = settings(size, task_name, robot_seed, port)
+    s = settings(size, task_name, robot_seed, port, start_range)
     previous = check_out(out, COMMAND, s, must_match=tuple(s))
     write_marker(out, COMMAND, s)
     return previous
 
 
 def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int = 0,
-        port: str | None = None, tell: Say = say, latency_ms: float | None = None
-        ) -> dict[str, Any]:
+        port: str | None = None, tell: Say = say, latency_ms: float | None = None,
+        start_range: float = 0.0) -> dict[str, Any]:
     """The whole loop into ``out`` (resumable); returns the summaries, rows and figure.
     ``latency_ms``: with ``port``, see ``PortRobot`` (not a setting: a resume may change it).
+    ``start_range`` [rad]: every condition trains from valve starts within +-start_range
+    (``Task.training``; the fixed-start policies sit on a knife edge of 0.002 rad) and is
+    evaluated on the task's own starts.
 
     Raises:
       OutputRefused: ``out`` holds files this command did not write, or a run with another
         task, robots or budget.
     """
-    from lowcostdex.errors import check_choice
+    from lowcostdex.errors import ConfigError, check_choice
     from lowcostdex.hardware.hands import dclaw_spec
     from lowcostdex.outdir import archive
 
     check_choice("task", task_name, tuple(TASKS))
+    if not (0.0 <= start_range <= math.pi and math.isfinite(start_range)):
+        raise ConfigError(f"start_range must be in [0, pi] rad, got {start_range}")
+    if start_range and task_name == "valve-random":
+        raise ConfigError("start_range: valve-random already starts anywhere within +-60 deg")
     out = Path(out)
     task = TASKS[task_name]
+    train_task = task.training(start_range)
     robots = make_robots(size.robots, robot_seed, port, latency_ms)
-    open_out(out, size, task_name, robot_seed, port)
+    open_out(out, size, task_name, robot_seed, port, start_range)
     seeds = list(range(size.seeds))
     t_start = time.perf_counter()
     joints = dclaw_spec().joint_names
@@ -490,7 +503,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                 done = (run_dir / "summary.json").exists()
                 if not done:
                     tell(f"{algo} seed {seed}: train {condition}{where}")
-                trained = train_policy(run_dir, algo, task, randomize,
+                trained = train_policy(run_dir, algo, train_task, randomize,
                                        out / demos["file"] if demos else None, size, seed,
                                        robot=made_for if on_robot else None,
                                        robot_seed=(robot_seed + names.index(made_for.name)
@@ -543,6 +556,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     title = (f"{task.label()}: {len(seeds)} seed(s), {size.samples // 1000}k samples per "
              "policy" if size.samples >= 1000 else
              f"{task.label()}: {len(seeds)} seed(s), {size.samples} samples per policy")
+    if train_task != task:
+        title += f", trained from valve starts within +-{start_range:g} rad"
     archive(out, OUTPUTS)  # the previous table files move into previous/<time>/
     write_json(out / "identified.json", idents)
     fig = plot(summaries, names, out / "transfer.png", title)
@@ -551,6 +566,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
             "task": task.label(), "seeds": seeds, "algos": list(size.algos),
             "conditions": list(size.conditions), "robots": [r.to_dict()["name"] for r in robots],
             "robot_seed": None if port else robot_seed, "port": port, "size": asdict(size),
+            "training_task": train_task.label(),
             "wall_seconds": {k: round(v, 1) for k, v in wall.items()},
             "cpu_seconds_this_invocation": round(cpu, 1)}
     write_json(out / "transfer.json", {"info": info, "rows": rows})
