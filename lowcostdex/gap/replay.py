@@ -9,6 +9,11 @@ together at the physics timestep:
   mean of the goals in force during it, so a goal written 0.3 steps into a step drives the servo
   for 0.7 of it (position servos are linear in ctrl: the same impulse as switching mid-step;
   rounding to the nearest step instead biased replays of jittered logs by up to dt/2);
+* a latency is a goal queue: each goal acts from its instant + the delay, with the step means
+  and the saturation matching at the shifted instants, per actuator (``Replayer._shifted``);
+  MuJoCo's native actuator delay is zeroed for these replays: its linear interpolation of ctrl
+  between physics steps leads a saturating servo (a 53 ms latency on a force-limited bench was
+  then named with a torque limit beside it);
 * each window starts from the measured state at its first sample (multiple shooting when windows
   are short segments, open loop when a window is a whole episode); the servo's setpoint before the
   window is the goal in force just before it; a position offset is removed from the measured
@@ -167,12 +172,14 @@ class Replayer:
         goal: they act on it later, from another state).
         """
         cols, acts, qadr, dadr = run["servos"]
-        split = run["split"][:, k]
-        sims = np.flatnonzero(np.isfinite(split))
-        if not len(cols) or not len(sims):
+        if not len(cols):
+            return
+        split = run["split"][:, k][:, cols]  # (nsim, n servos)
+        sims = np.flatnonzero(np.any(np.isfinite(split), axis=1))
+        if not len(sims):
             return
         plant = run["plant"]
-        a = split[sims, None]
+        a = split[sims]
         kp = plant.array("actuator_gainprm")[sims[:, None], acts, 0]
         kv = -plant.array("actuator_biasprm")[sims[:, None], acts, 2]
         rng_ = plant.array("actuator_forcerange")[sims[:, None], acts]
@@ -186,7 +193,7 @@ class Replayer:
             c = q + (f_mean + kv * qd) / kp
         # a delayed servo reads this ctrl later, in another state: it keeps the mean goal
         delayed = plant.array("actuator_delay")[sims[:, None], acts] > 0
-        live = np.isfinite(c) & (kp > 0) & ~delayed
+        live = np.isfinite(c) & np.isfinite(a) & (kp > 0) & ~delayed
         cur = goal[sims[:, None], acts]
         goal[sims[:, None], acts] = np.where(live, c, cur)
 
@@ -281,8 +288,9 @@ class Replayer:
         ctrl = np.zeros((nsim, model.nu))
         rows = np.zeros((nsim, n_steps), dtype=int)
         goals = np.zeros((nsim, n_steps, len(act)))
-        split = np.full((nsim, n_steps), np.nan)
+        split = np.full((nsim, n_steps, len(act)), np.nan)
         before, after = np.zeros_like(goals), np.zeros_like(goals)
+        delays = self._delays(model_key, sims, columns)
         traj_of = np.array([windows[wi].traj for _, wi in sims])
         for s, ((c, wi), g) in enumerate(zip(sims, grids, strict=True)):
             w = windows[wi]
@@ -291,13 +299,20 @@ class Replayer:
             qvel[s, jd] = tr.qvel[w.start]
             ctrl[s, act] = g.prev_goal
             rows[s, :g.n_steps], rows[s, g.n_steps:] = g.rows, g.rows[-1]
-            goals[s, :g.n_steps], goals[s, g.n_steps:] = g.goals, g.goals[-1]
-            split[s, :g.n_steps] = g.split
-            before[s, :g.n_steps], after[s, :g.n_steps] = g.before, g.after
+            if np.any(delays[s] > 0):
+                g_goals, g_split, g_before, g_after = self._shifted(w, delays[s])
+            else:
+                g_goals, g_split, g_before, g_after = g.goals, g.split[:, None], g.before, g.after
+            goals[s, :g.n_steps], goals[s, g.n_steps:] = g_goals, g_goals[-1]
+            split[s, :g.n_steps] = g_split
+            before[s, :g.n_steps], after[s, :g.n_steps] = g_before, g_after
         played = set() if key[1] else _init_backlash(ctrl, act, self._act_of_joint[model_key],
                                                       sims, windows, columns, ds)
         plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
                                                                  windows, played))
+        shifted = np.flatnonzero(np.any(delays > 0, axis=1))
+        if len(shifted):  # their goals arrive late on the grid: no native (interpolated) delay
+            plant.array("actuator_delay")[np.ix_(shifted, act)] = 0.0
         trs = ds.trajectories
         # channels per simulation on the grid: (nsim, K, na), gathered once
         chans = {ch: np.stack([trs[t].channels[ch][gi] for t, gi in
@@ -319,6 +334,54 @@ class Replayer:
                    peak=np.zeros((nsim, len(act))), torque=None)
         self._set_torque(run, 0)
         return run
+
+    def _delays(self, key: tuple[str, bool], sims: list[tuple[int, int]],
+                columns: Sequence[Column]) -> np.ndarray:
+        """(nsim, na) goal latency of each logged actuator in each simulation [s] (0: none)."""
+        out = np.zeros((len(sims), len(self.ds.actuators)))
+        cache = self.__dict__.setdefault("_lat_cols", {})
+        for s, (c, _) in enumerate(sims):
+            for e in columns[c]:
+                if e.name != "latency":
+                    continue
+                tk = (key, tuple(e.joints))
+                if tk not in cache:
+                    cache[tk] = [self._act_of_joint[key].get(j) for j in e.joints]
+                for col, d in zip(cache[tk], e.values["delay"], strict=True):
+                    if col is not None:
+                        out[s, col] = max(float(d), 0.0)
+        return out
+
+    def _shifted(self, w: Window, delay: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The window's goals on the grid when each actuator's goals arrive ``delay`` [s] late.
+
+        A latency is a goal queue: the goal written at t acts from t + delay, exactly (the
+        step mean and the saturation matching as for undelayed goals), not through MuJoCo's
+        actuator delay, whose linear interpolation of ctrl leads a saturating servo as a
+        step-rounded goal did. Goals written before the window that arrive inside it act
+        there. Returns (goals (K, na), split (K, na), before (K, na), after (K, na)) as in
+        ``_Grid``.
+        """
+        g = self.grid(w)
+        tr = self.ds.trajectories[w.traj]
+        n, na = g.n_steps, len(delay)
+        goals = np.empty((n, na))
+        split = np.full((n, na), np.nan)
+        before, after = np.zeros((n, na)), np.zeros((n, na))
+        for j in range(na):
+            u_all = (tr.goal_times + delay[j] - tr.time[w.start]) / self.dt
+            first = int(np.searchsorted(u_all, 0.0, side="right"))
+            last = int(np.searchsorted(u_all, n, side="left"))
+            prev = np.array([tr.goal[first - 1, j] if first > 0 else g.prev_goal[j]])
+            if last <= first:
+                goals[:, j] = prev[0]
+                continue
+            u, vals = u_all[first:last], tr.goal[first:last, j:j + 1]
+            goals[:, j] = _step_means(u, vals, prev, n)[:, 0]
+            sp, bf, af = _single_switches(u, vals, prev, n)
+            split[:, j], before[:, j], after[:, j] = sp, bf[:, 0], af[:, 0]
+        return goals, split, before, after
 
     def _history(self, model: mujoco.MjModel, ctrl: np.ndarray, act: np.ndarray,
                  sims: list[tuple[int, int]], windows: Sequence[Window], played: set[int]
