@@ -14,6 +14,7 @@ import pytest
 from lowcostdex.errors import ConfigError
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.hands import allegro_spec
+from lowcostdex.hardware.robot.guards import ThermalConfig
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.hardware.robot.safety import UnsafeCommand
 from lowcostdex.sim.models.allegro import build_allegro
@@ -453,6 +454,40 @@ def test_thermal_guard_relaxes_a_stalled_joint_before_the_firmware_fault():
         record = robot.pause_if_hot()
         assert record is not None and record.hottest == "thumb_0"
         assert np.max(emu.temperature) < robot.thermal.resume
+    emu.close()
+
+
+def test_a_thermal_pause_ends_beside_a_joint_whose_sensor_sends_0xf6():
+    """The traced thumb's 0xF6 (a sensor fault, read NaN) never reads cool: the pause must leave
+    that joint out of its cool-down test (it stays flagged) or it only ends by ThermalTimeout.
+    The rest of the hand is checked on the device: every other winding is below resume."""
+    bus, emu, clock = emulated_allegro(allegro_model(), gains=AllegroGains(kp=5.0),
+                                       thermal=AllegroThermal(capacitance=1.0))
+    emu.set_joint_positions(MID)
+    emu.sensor_fault[15] = 0xF6  # thumb_3's sensor, as in Meta's trace
+    config = RobotConfig(control_period=0.1, thermal=ThermalConfig(max_pause=60.0))
+    with pytest.warns(TemperatureSensorWarning), Robot(HAND, bus, config) as robot:
+        robot.torque(True)
+        goal = MID.copy()
+        goal[12] = HIGH[12]
+        emu.plant.model.jnt_range[emu.plant.model.joint("thumb_0").id] = [0.0, MID[12]]
+        for _ in range(600):
+            robot.step(goal)
+            if robot.thermal.pause_pending:
+                break
+        assert robot.thermal.pause_pending
+        record = robot.pause_if_hot()  # raised ThermalTimeout after 60 s before the change
+        assert record is not None and record.hottest == "thumb_0"
+        assert record.duration < 60.0 and record.end_max < robot.thermal.resume
+        assert np.max(np.delete(emu.temperature, 15)) < robot.thermal.resume  # device side
+        flagged = robot.telemetry()["temperature_faults"]
+        assert [robot.joint_names[i] for i in np.flatnonzero(flagged)] == ["thumb_3"]
+        emu.sensor_fault.clear()  # the sensor recovers: its joint counts again ...
+        emu.temperature[15] = robot.thermal.resume + 5.0
+        clock.sleep(0.25)
+        state = robot.read()
+        assert not state.temperature_fault[15] and not robot.thermal.cooled(state.temperature)
+        assert robot.telemetry()["temperature_faults"][15]  # ... and stays on the record
     emu.close()
 
 

@@ -54,6 +54,8 @@ class MotorState:
         request went out, not when the last reply came back).
       sample_time: per motor, when its values were sampled [s] (a motor answering only a
         retried read was sampled later than ``timestamp``); None: all at ``timestamp``.
+      temperature_fault: per motor, its temperature sensor reported a fault in this read (the
+        temperature is NaN: e.g. an Allegro byte >= 0x80); None: no bus-reported faults.
     """
 
     position: np.ndarray
@@ -66,6 +68,7 @@ class MotorState:
     timestamp: float = 0.0
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     sample_time: np.ndarray | None = None
+    temperature_fault: np.ndarray | None = None
 
     @classmethod
     def invalid(cls, n: int, timestamp: float = 0.0) -> MotorState:

@@ -249,6 +249,7 @@ class AllegroBus(MotorBus):
             q = np.where(valid, self._q, np.nan)
             v = np.where(valid, self._qdot, np.nan)
             temp = self._temperature.copy()
+            sensor_fault = self._temperature_raw >= proto.TEMPERATURE_SENSOR_FAULT
             tau = self._tau.copy()
             status = self._info.status if self._info else -1
         errors = np.full(proto.N_JOINTS, 0 if status >= 0 else -1, int)
@@ -257,7 +258,8 @@ class AllegroBus(MotorBus):
         n = proto.N_JOINTS
         return MotorState(position=q, velocity=v, current=np.full(n, np.nan),
                           voltage=np.full(n, np.nan), temperature=temp, valid=valid,
-                          hardware_error=errors, timestamp=now, extra={"torque": tau})
+                          hardware_error=errors, timestamp=now, extra={"torque": tau},
+                          temperature_fault=sensor_fault)
 
     def write_goal_positions(self, positions: np.ndarray, ids: Sequence[int] | None = None
                              ) -> None:

@@ -104,6 +104,7 @@ class EmulatedAllegro:
         self.period_ms = (0, 0, 0)
         self.pwm = np.zeros(proto.N_JOINTS, int)
         self.temperature = np.full(proto.N_JOINTS, thermal.ambient)
+        self.sensor_fault: dict[int, int] = {}  # joint -> byte a broken sensor sends instead
         self.step_hooks: list = []
         self.torque_log: list[tuple[float, np.ndarray]] = []
         self.frames_in = 0
@@ -202,8 +203,11 @@ class EmulatedAllegro:
 
     def _send_temperature(self, finger: int) -> None:
         t = self.temperature[4 * finger:4 * finger + 4]
-        self._reply(proto.message(proto.TEMPERATURE + finger, proto.pack_temperatures(t),
-                                  self.device_id))
+        data = bytearray(proto.pack_temperatures(t))
+        for j, byte in self.sensor_fault.items():  # a broken sensor's byte, the winding heats on
+            if 4 * finger <= j < 4 * finger + 4:
+                data[j - 4 * finger] = byte
+        self._reply(proto.message(proto.TEMPERATURE + finger, bytes(data), self.device_id))
 
     # -- physics --------------------------------------------------------------------------------
     @property

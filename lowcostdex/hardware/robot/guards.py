@@ -11,6 +11,10 @@ Thermal guard (hysteresis; three thresholds set as margins below the firmware li
 * at ``critical`` the hot motor is relaxed at once, mid-episode (torque off), so it never
   reaches the firmware limit even if an episode is long or the load extreme.
 
+A motor whose temperature sensor is faulty (the bus says so: an Allegro byte >= 0x80 reads NaN)
+is flagged (``sensor_fault``, kept for the session) and left out of the cool-down test while its
+reading is faulty: it can never read "cool", and a pause waiting for it would never end.
+
 Current guard: a motor drawing more than ``limit`` for ``window`` consecutive reads is
 overloaded; for ``relax_steps`` control steps its goal may only lead its present position by
 ``relaxed_step``, which bounds the position error and hence the current the firmware's P path
@@ -131,6 +135,8 @@ class ThermalGuard:
     def __post_init__(self) -> None:
         self.max_seen = np.full(len(self.names), -np.inf)
         self.relaxed = np.zeros(len(self.names), bool)
+        self.sensor_fault = np.zeros(len(self.names), bool)  # ever flagged (n,) bool
+        self._faulty = np.zeros(len(self.names), bool)  # faulty in the last read
 
     @property
     def warn(self) -> float:
@@ -147,10 +153,15 @@ class ThermalGuard:
         """Temperature at which a motor is relaxed mid-episode [deg C]."""
         return self.limit - self.config.critical_margin
 
-    def update(self, temperature: np.ndarray) -> np.ndarray:
-        """Feed one read (n,) [deg C] (NaN = unknown); returns the motors to relax now (n,) bool
-        (newly critical ones; already relaxed motors are not repeated)."""
+    def update(self, temperature: np.ndarray, sensor_fault: np.ndarray | None = None
+               ) -> np.ndarray:
+        """Feed one read (n,) [deg C] (NaN = unknown) and the motors whose sensor reported a
+        fault in it (n,) bool; returns the motors to relax now (n,) bool (newly critical ones;
+        already relaxed motors are not repeated)."""
         t = np.asarray(temperature, float)
+        if sensor_fault is not None:
+            self._faulty = np.asarray(sensor_fault, bool).copy()
+            self.sensor_fault |= self._faulty
         known = np.isfinite(t)
         self.max_seen = np.where(known, np.maximum(self.max_seen, t), self.max_seen)
         if np.any(known & (t >= self.warn)) and not self.pause_pending:
@@ -164,8 +175,10 @@ class ThermalGuard:
         return hot
 
     def cooled(self, temperature: np.ndarray) -> bool:
-        """True when every motor reads (validly) below ``resume``."""
-        t = np.asarray(temperature, float)
+        """True when every motor reads (validly) below ``resume``, leaving out the motors whose
+        sensor reported a fault in the last read (``update``): their reading is no temperature
+        (they stay flagged in ``sensor_fault``)."""
+        t = np.asarray(temperature, float)[~self._faulty]
         return bool(np.all(np.isfinite(t)) and np.all(t < self.resume))
 
     def end_pause(self, record: PauseRecord) -> None:

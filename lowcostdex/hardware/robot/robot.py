@@ -121,6 +121,8 @@ class RobotState:
       valid: fresh reading (n,) bool.
       hardware_error: Hardware Error Status bits (0 none, -1 unknown).
       time: clock time of the read [s].
+      temperature_fault: the temperature sensor reported a fault (n,) bool (its temperature
+        is NaN; ``MotorState.temperature_fault``).
     """
 
     position: np.ndarray
@@ -131,6 +133,7 @@ class RobotState:
     valid: np.ndarray
     hardware_error: np.ndarray
     time: float
+    temperature_fault: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
 
 @dataclass
@@ -341,11 +344,13 @@ class Robot:
         vel = np.array([c.rate_to_joint(v) for c, v in zip(cal, raw.velocity[k], strict=True)])
         cur = np.array([c.sign * i for c, i in zip(cal, raw.current[k], strict=True)])
         valid = np.asarray(raw.valid[k], bool) & np.isfinite(pos)
+        sensor = (np.zeros(len(k), bool) if raw.temperature_fault is None
+                  else np.asarray(raw.temperature_fault, bool)[k])
         return RobotState(position=np.where(valid, pos, np.nan), velocity=vel, current=cur,
                           temperature=np.asarray(raw.temperature[k], float),
                           voltage=np.asarray(raw.voltage[k], float), valid=valid,
                           hardware_error=np.asarray(raw.hardware_error[k], int),
-                          time=raw.timestamp)
+                          time=raw.timestamp, temperature_fault=sensor)
 
     def _record_faults(self, state: RobotState) -> None:
         for i in np.flatnonzero(state.hardware_error > 0):
@@ -364,7 +369,12 @@ class Robot:
                 name = self.joint_names[i]
                 self.metrics.max_temperature[name] = max(
                     self.metrics.max_temperature.get(name, -np.inf), float(t))
-        hot = self.thermal.update(state.temperature)
+        new = state.temperature_fault & ~self.thermal.sensor_fault
+        if np.any(new):
+            log.warning("temperature sensor fault: %s; left out of the thermal pause's "
+                        "cool-down test while faulty", ", ".join(
+                            self.joint_names[i] for i in np.flatnonzero(new)))
+        hot = self.thermal.update(state.temperature, state.temperature_fault)
         if np.any(hot):
             names = [self.joint_names[i] for i in np.flatnonzero(hot)]
             log.warning("thermal guard: %s at >= %.1f deg C; torque off until the next pause",
@@ -535,8 +545,10 @@ class Robot:
         hottest = int(np.nanargmax(np.where(np.isfinite(state.temperature),
                                             state.temperature, -np.inf)))
         peak = float(state.temperature[hottest])
-        log.warning("thermal pause: %s at %.1f deg C; resting until all < %.1f deg C",
-                    self.joint_names[hottest], peak, self.thermal.resume)
+        log.warning("thermal pause: %s at %.1f deg C; resting until all < %.1f deg C%s",
+                    self.joint_names[hottest], peak, self.thermal.resume,
+                    "".join(f" (not {self.joint_names[i]}: sensor fault)"
+                            for i in np.flatnonzero(state.temperature_fault)))
         enabled = self._torque.copy()
         if cfg.pause_mode == "torque_off":
             self.bus.set_torque(False)
@@ -552,7 +564,8 @@ class Robot:
             state = self.read()
         record = PauseRecord(start=start, duration=self.clock.now() - start, peak=peak,
                              hottest=self.joint_names[hottest],
-                             end_max=float(np.max(state.temperature)))
+                             end_max=float(np.nanmax(np.where(
+                                 state.temperature_fault, np.nan, state.temperature))))
         self.thermal.end_pause(record)
         self.metrics.pauses.append(record)
         log.info("thermal pause over after %.0f s (max %.1f deg C)", record.duration,
@@ -597,5 +610,6 @@ class Robot:
                        voltage=s.voltage.copy(), valid=s.valid.copy())
         out["held"] = self.held.copy()  # joints the last send held (no fresh position)
         out["pause_pending"] = self.thermal.pause_pending
+        out["temperature_faults"] = self.thermal.sensor_fault.copy()  # flagged this session
         out["clock"] = self.clock.now()  # robot clock [s]: timestamps of recorded episodes
         return out
