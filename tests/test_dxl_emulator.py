@@ -32,6 +32,7 @@ from lowcostdex.hardware.dynamixel.protocol import (
 )
 from lowcostdex.hardware.emulated.chain import emulated_bench, emulated_dclaw
 from lowcostdex.hardware.emulated.firmware import FirmwareOptions
+from lowcostdex.hardware.emulated.goal_log import GOAL_LOG_CAPACITY, GoalLog
 
 E = ErrorNumber
 FINGERS = (10, 11, 12, 20, 21, 22, 30, 31, 32)
@@ -422,3 +423,35 @@ def test_clear_multi_turn_and_unknown_instruction():
         port.readPort(64)
     (status,) = parse_packets(bytes(port.rx_trace))
     assert status.id == 50 and status.error == E.INSTRUCTION
+
+
+def test_goal_log_keeps_the_newest_writes_in_bounded_memory_over_a_long_run():
+    """A long run's goals (10k sync writes of 9 Goal Positions through the SDK: 90k entries,
+    2.5 h of a D'Claw at 10 Hz) leave the device-side goal log at its capacity: memory stops
+    growing once it is full, the newest writes are kept in order and every write is counted."""
+    chain = emulated_dclaw(rng=np.random.default_rng(0))
+    chain.goal_log = GoalLog(capacity=4096)
+    port, ph = open_port(chain)
+    write = GroupSyncWrite(port, ph, 116, 4)
+    sizes = []
+    for k in range(10_000):
+        write.clearParam()
+        for j, i in enumerate(FINGERS):
+            write.addParam(i, list((1000 + (k * 9 + j) % 2000).to_bytes(4, "little")))
+        assert write.txPacket() == COMM_SUCCESS
+        if k in (999, 4999, 9999):
+            sizes.append(chain.goal_log.nbytes)
+    log = chain.goal_log
+    assert log.total == 90_000 and len(log) == 4096 and log.dropped == 90_000 - 4096
+    assert sizes[0] == sizes[1] == sizes[2] <= 4096 * 19  # full after 456 writes: flat since
+    # the kept entries are the last 4096 writes, oldest first, as the bus sent them
+    expected = [1000 + n % 2000 for n in range(90_000 - 4096, 90_000)]
+    assert log.value.tolist() == expected
+    assert log.motor_id.tolist() == [FINGERS[n % 9] for n in range(90_000 - 4096, 90_000)]
+    assert np.all(np.diff(log.time) >= 0) and set(log.reg) == {Reg.GOAL_POSITION.value}
+    times, values = log.positions(32)
+    kept = range(90_000 - 4096, 90_000)
+    assert values.tolist() == [v for n, v in zip(kept, expected, strict=True) if n % 9 == 8]
+    assert len(times) == len(values)
+    # the default keeps about 3 h of a D'Claw (9 goals at 10 Hz) in under 20 MB
+    assert GOAL_LOG_CAPACITY >= 3 * 3600 * 10 * 9 and GOAL_LOG_CAPACITY * 19 < 20e6

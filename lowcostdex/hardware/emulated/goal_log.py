@@ -11,30 +11,88 @@ import numpy as np
 
 from lowcostdex.hardware.dynamixel.control_table import Reg
 
+GOAL_LOG_CAPACITY = 1 << 20
+"""Goal writes ``GoalLog`` keeps by default: about 3 h of a D'Claw at 10 Hz (9 goals a step),
+19 MB; older entries are dropped (the audit keeps its own counts in constant memory)."""
 
-@dataclass
+
 class GoalLog:
-    """Every goal register write a motor accepted: bus time [s], motor id, register, value."""
+    """The goal register writes the motors accepted, newest ``capacity`` kept: bus time [s],
+    motor id, register, value. A ring buffer, so a run of days holds the same memory as one
+    of hours (``total`` counts every write, ``dropped`` those no longer kept).
 
-    time: list[float] = field(default_factory=list)
-    motor_id: list[int] = field(default_factory=list)
-    reg: list[str] = field(default_factory=list)
-    value: list[int] = field(default_factory=list)
+    ``time``, ``motor_id``, ``value`` (arrays) and ``reg`` (register names) are in the order
+    the writes arrived, oldest kept first.
+    """
+
+    def __init__(self, capacity: int = GOAL_LOG_CAPACITY):
+        if capacity < 1:
+            raise ValueError(f"GoalLog capacity must be >= 1, got {capacity}")
+        self.capacity = int(capacity)
+        self.total = 0
+        size = min(self.capacity, 1024)  # grows by doubling up to the capacity
+        self._t = np.empty(size)
+        self._id = np.empty(size, np.int16)
+        self._reg = np.empty(size, np.int8)
+        self._value = np.empty(size, np.int64)
+        self._names: list[str] = []  # register names, indexed by the codes in _reg
 
     def append(self, t: float, motor_id: int, reg: Reg, value: int) -> None:
-        self.time.append(t)
-        self.motor_id.append(motor_id)
-        self.reg.append(reg.value)
-        self.value.append(value)
+        k = self.total % self.capacity
+        if k >= len(self._t):  # still growing
+            size = min(2 * len(self._t), self.capacity)
+            self._t, self._id, self._reg, self._value = (
+                np.resize(a, size) for a in (self._t, self._id, self._reg, self._value))
+        if reg.value not in self._names:
+            self._names.append(reg.value)
+        self._t[k], self._id[k], self._value[k] = t, motor_id, value
+        self._reg[k] = self._names.index(reg.value)
+        self.total += 1
 
     def __len__(self) -> int:
-        return len(self.time)
+        return min(self.total, self.capacity)
+
+    @property
+    def dropped(self) -> int:
+        """Writes no longer kept (the oldest)."""
+        return self.total - len(self)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory the kept entries take [bytes] (bounded by the capacity)."""
+        return sum(a.nbytes for a in (self._t, self._id, self._reg, self._value))
+
+    def _ordered(self, a: np.ndarray) -> np.ndarray:
+        n = len(self)
+        if self.total <= self.capacity:
+            return a[:n].copy()
+        k = self.total % self.capacity
+        return np.concatenate([a[k:], a[:k]])
+
+    @property
+    def time(self) -> np.ndarray:
+        return self._ordered(self._t)
+
+    @property
+    def motor_id(self) -> np.ndarray:
+        return self._ordered(self._id).astype(int)
+
+    @property
+    def value(self) -> np.ndarray:
+        return self._ordered(self._value)
+
+    @property
+    def reg(self) -> list[str]:
+        return [self._names[c] for c in self._ordered(self._reg)]
 
     def positions(self, motor_id: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(times [s], Goal Position values [ticks]) accepted by ``motor_id`` (default all)."""
-        sel = [k for k, (r, m) in enumerate(zip(self.reg, self.motor_id, strict=True))
-               if r == Reg.GOAL_POSITION.value and (motor_id is None or m == motor_id)]
-        return (np.array([self.time[k] for k in sel]), np.array([self.value[k] for k in sel]))
+        if Reg.GOAL_POSITION.value not in self._names:
+            return np.array([]), np.array([], np.int64)
+        sel = self._ordered(self._reg) == self._names.index(Reg.GOAL_POSITION.value)
+        if motor_id is not None:
+            sel &= self._ordered(self._id) == motor_id
+        return self.time[sel], self.value[sel]
 
 
 @dataclass
