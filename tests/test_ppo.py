@@ -50,6 +50,69 @@ def test_reward_scaler_divides_by_the_std_of_the_discounted_returns():
         np.testing.assert_allclose(scaled, np.where(alive, r, 0.0) / np.std(seen), rtol=1e-9)
 
 
+def test_one_update_is_the_ppo_step_written_out():
+    """A one-minibatch, one-epoch update equals the PPO step written out here with the public
+    pieces: the running normaliser, GAE on the critic's values, the actor's and critic's own
+    forward passes, the clipped losses, the global-norm clip and plain Adam (lr, eps 1e-5,
+    torch's reference loop); the update normalises once and steps a fused Adam."""
+    import copy
+
+    from lowcostdex.algos.ppo import _Agent
+    from lowcostdex.algos.returns import gae
+
+    cfg = PPOConfig(num_envs=3, update_epochs=1, num_minibatches=1, n_iter=10, anneal_lr=False,
+                    policy=PolicyConfig(hidden_sizes=(8,), init_log_std=-1.0),
+                    critic_hidden=(8,), ent_coef=0.5)
+    g = torch.Generator().manual_seed(3)
+    horizon, n, obs_dim, act_dim = 5, 3, 4, 2
+    agent = _Agent(cfg, obs_dim, act_dim)
+    obs = torch.randn(horizon, n, obs_dim, generator=g)
+    act = torch.randn(horizon, n, act_dim, generator=g)
+    with torch.no_grad():
+        logp = agent.actor.log_prob(obs.reshape(-1, obs_dim), act.reshape(-1, act_dim))
+    roll = {"obs": obs.numpy(), "act": act.numpy(), "logp": logp.reshape(horizon, n).numpy(),
+            "rew": torch.randn(horizon, n, generator=g, dtype=torch.float64).numpy(),
+            "lengths": np.full(n, horizon), "terminated": np.array([True, False, False]),
+            "final_obs": torch.randn(n, obs_dim, generator=g).numpy()}
+    ref = copy.deepcopy(agent)
+    agent.update(roll, 0)
+
+    actor, critic = ref.actor, ref.critic
+    flat_obs = obs.permute(1, 0, 2).reshape(-1, obs_dim)  # episode by episode
+    flat_act = act.permute(1, 0, 2).reshape(-1, act_dim)
+    actor.update_obs_normalizer(flat_obs)
+    with torch.no_grad():
+        v = critic(actor.obs_norm(flat_obs)).reshape(n, horizon).double().numpy()
+        last = critic(actor.obs_norm(torch.as_tensor(roll["final_obs"]))).double().numpy()
+    last[0] = 0.0  # terminated
+    adv = np.concatenate([gae(roll["rew"][:, i], v[i], last[i], cfg.gamma, cfg.gae_lambda)
+                          for i in range(n)])
+    adv_t = torch.as_tensor(adv, dtype=torch.float32)
+    v_t = torch.as_tensor(v.reshape(-1), dtype=torch.float32)
+    old_logp = logp.reshape(horizon, n).T.reshape(-1)
+    params = [*actor.parameters(), *critic.parameters()]
+    adam = torch.optim.Adam(params, lr=cfg.lr, eps=1e-5, foreach=False, fused=False)
+    losses = ppo_losses(actor.log_prob(flat_obs, flat_act), old_logp,
+                        (adv_t - adv_t.mean()) / (adv_t.std() + 1e-8),
+                        critic(actor.obs_norm(flat_obs)), v_t, adv_t + v_t, cfg.clip_coef,
+                        cfg.clip_vloss)
+    entropy = (actor.log_std + 0.5 * math.log(2 * math.pi * math.e)).sum()
+    loss = losses["pg"] - cfg.ent_coef * entropy + cfg.vf_coef * losses["v"]
+    adam.zero_grad()
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
+    adam.step()
+    actor.clamp_log_std_()
+    got = torch.nn.utils.parameters_to_vector([*agent.actor.parameters(),
+                                               *agent.critic.parameters()]).detach()
+    want = torch.nn.utils.parameters_to_vector(params).detach()
+    before = torch.nn.utils.parameters_to_vector(
+        [*_Agent(cfg, obs_dim, act_dim).actor.parameters(),
+         *_Agent(cfg, obs_dim, act_dim).critic.parameters()]).detach()
+    assert float((want - before).abs().max()) > 1e-4  # the step moved the parameters
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-6)
+
+
 def _config(**kw) -> PPOConfig:
     base = dict(env_id="lowcostdex/DClawTurnValve-v0", n_iter=3, num_envs=4, num_minibatches=2,
                 update_epochs=2, eval_every=1, eval_episodes=2, nthread=1, progress=False,

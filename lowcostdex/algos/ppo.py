@@ -155,7 +155,10 @@ class _Agent:
         self.actor = make_actor(obs_dim, act_dim, c, gen)
         self.critic = Critic(obs_dim, c.critic_hidden, gen)
         self.params = [*self.actor.parameters(), *self.critic.parameters()]
-        self.optimizer = torch.optim.Adam(self.params, lr=c.lr, eps=1e-5)
+        # fused: one kernel per step for all 14 tensors instead of ~10 small ops per tensor
+        # (the update's CPU time -20 % on the valve's 80 minibatch steps; same algorithm,
+        # different rounding)
+        self.optimizer = torch.optim.Adam(self.params, lr=c.lr, eps=1e-5, fused=True)
         self.rewards = RewardScaler(c.gamma)
         self.samples = 0
         self.wall_seconds = 0.0
@@ -232,44 +235,51 @@ class _Agent:
             adv[:steps, i] = gae(roll["rew"][:steps, i], values[:steps, i], float(last[i]),
                                  c.gamma, c.gae_lambda)
         b_obs = torch.as_tensor(roll["obs"][valid])
+        with torch.no_grad():  # the statistics are fixed during the update: normalise once
+            b_norm = self.actor.obs_norm(b_obs)
         b_act = torch.as_tensor(roll["act"][valid])
         b_logp = torch.as_tensor(roll["logp"][valid])
         b_adv = torch.as_tensor(adv[valid], dtype=torch.float32)
         b_val = torch.as_tensor(values[valid], dtype=torch.float32)
         b_ret = b_adv + b_val
-        size = b_obs.shape[0]
+        size = b_norm.shape[0]
         batch = max(1, size // c.num_minibatches)
         if c.anneal_lr:
             for group in self.optimizer.param_groups:
                 group["lr"] = c.lr * (1.0 - k / c.n_iter)
         gen = seed_generator(c.seed, _UPDATE, k)
-        logs: dict[str, list[float]] = {"pg": [], "v": [], "approx_kl": [], "clipfrac": []}
+        logs: dict[str, list[torch.Tensor]] = {"pg": [], "v": [], "approx_kl": [], "clipfrac": []}
+        actor = self.actor
         for _ in range(c.update_epochs):
             perm = torch.randperm(size, generator=gen)
             for start in range(0, size, batch):
                 idx = perm[start:start + batch]
-                new_logp = self.actor.log_prob(b_obs[idx], b_act[idx])
+                x = b_norm[idx]
+                mean = actor.mlp(x) * actor.act_scale + actor.act_shift  # actor(b_obs[idx])
+                new_logp = gaussian_log_prob(mean, actor.log_std, b_act[idx])
                 a = b_adv[idx]
                 if c.norm_adv and a.numel() > 1:
                     a = (a - a.mean()) / (a.std() + 1e-8)
-                new_v = self.critic(self.actor.obs_norm(b_obs[idx]))
+                new_v = self.critic(x)
                 losses = ppo_losses(new_logp, b_logp[idx], a, new_v, b_val[idx], b_ret[idx],
                                     c.clip_coef, c.clip_vloss)
-                entropy = (self.actor.log_std + 0.5 * math.log(2 * math.pi * math.e)).sum()
-                loss = losses["pg"] - c.ent_coef * entropy + c.vf_coef * losses["v"]
+                loss = losses["pg"] + c.vf_coef * losses["v"]
+                if c.ent_coef:
+                    entropy = (actor.log_std + 0.5 * math.log(2 * math.pi * math.e)).sum()
+                    loss = loss - c.ent_coef * entropy
                 self.optimizer.zero_grad()
                 loss.backward()
                 nn.utils.clip_grad_norm_(self.params, c.max_grad_norm)
                 self.optimizer.step()
-                self.actor.clamp_log_std_()
+                actor.clamp_log_std_()
                 for key in logs:
-                    logs[key].append(float(losses[key].detach()))
-            if c.target_kl is not None and logs["approx_kl"][-1] > c.target_kl:
+                    logs[key].append(losses[key].detach())
+            if c.target_kl is not None and float(logs["approx_kl"][-1]) > c.target_kl:
                 break
+        means = {key: float(torch.stack(v).double().mean()) for key, v in logs.items()}
         y, y_hat = (b_ret.numpy(), b_val.numpy())
-        return {"pg_loss": float(np.mean(logs["pg"])), "v_loss": float(np.mean(logs["v"])),
-                "approx_kl": float(np.mean(logs["approx_kl"])),
-                "clipfrac": float(np.mean(logs["clipfrac"])),
+        return {"pg_loss": means["pg"], "v_loss": means["v"], "approx_kl": means["approx_kl"],
+                "clipfrac": means["clipfrac"],
                 "explained_variance": float(1.0 - np.var(y - y_hat) / (np.var(y) + 1e-12))}
 
     @torch.no_grad()
