@@ -160,7 +160,7 @@ def cpu(pid: int) -> float:
 
 
 def emulated_hand():
-    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hands import dclaw_spec
 
     hand = dclaw_spec()
     return type(hand)(hand.name, hand.motor, hand.joints, ())  # the 9 finger motors

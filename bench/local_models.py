@@ -223,7 +223,7 @@ def valve_section(seeds: list[int], quick: bool, skip_npg: bool) -> None:
         f"\n## D'Claw valve turn 180 deg, fixed start ({env_id}, sim), solved: noise-free "
         "episode ends with |error| < 0.1 rad"
     )
-    inits = ["pd"] + (["teacher"] if importlib.util.find_spec("lowcostdex.demonstrations.teachers.valve") else [])
+    inits = ["pd"] + (["teacher"] if importlib.util.find_spec("lowcostdex.teachers.valve") else [])
     tvlg_v: dict[str, list[float]] = {}
     for init in inits:
         n_iter = (6 if quick else 12) if init == "pd" else (4 if quick else 8)

@@ -85,7 +85,7 @@ TASKS = {
 }
 ALIASES = {"flip": ["flip-keypoints", "flip-quaternion"]}
 ALGOS = ("npg", "dapg", "ppo")
-TEACHER_MODULES = ("lowcostdex.demonstrations.teachers.valve", "lowcostdex.demonstrations.teachers.flip")
+TEACHER_MODULES = ("lowcostdex.teachers.valve", "lowcostdex.teachers.flip")
 
 
 class ScriptedTeacher:

@@ -24,8 +24,8 @@ import time
 import mujoco
 import numpy as np
 
+from lowcostdex.hands import dclaw_spec
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
-from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import default_effects, make_dynamixel_bus
 from lowcostdex.hardware.robot.reset_dclaw import DClawReset
 from lowcostdex.hardware.robot.reset_robel import RobelReset

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.hands import allegro_spec
 from lowcostdex.hardware.bus import BusError
-from lowcostdex.hardware.hands import allegro_spec
 from lowcostdex.hardware.robot.guards import ThermalConfig
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.hardware.robot.safety import UnsafeCommand

@@ -12,7 +12,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import lowcostdex  # noqa: F401  (registers the ids)
-from lowcostdex.hardware.hands import allegro_spec
+from lowcostdex.hands import allegro_spec
 from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.models.allegro import TORQUE_LIMITS, AllegroPD, build_allegro
 from lowcostdex.sim.registry import env_ids

@@ -100,9 +100,9 @@ def test_noisy_execution_keeps_clean_teacher_labels():
 
 
 def test_valve_teacher_episode_records_the_mujoco_state_it_visited(tmp_path):
-    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
-    from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
+    import lowcostdex.teachers.valve  # noqa: F401  (an import error fails, never skips)
     from lowcostdex.sim.envs import goal_to_action
+    from lowcostdex.teachers.valve import ValveTurnTeacher
 
     class Teacher:
         def __init__(self):

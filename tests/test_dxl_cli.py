@@ -7,8 +7,8 @@ import math
 
 import pytest
 
+from lowcostdex.hands import HandSpec, dclaw_spec
 from lowcostdex.hardware import cli
-from lowcostdex.hardware.hands import HandSpec, dclaw_spec
 
 
 def run(argv: list[str]) -> int:

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from lowcostdex.hands import Calibration, dclaw_spec
 from lowcostdex.hardware.bus import BusError, CommandError, MotorFault
 from lowcostdex.hardware.dynamixel.config import (
     LatencyWarning,
@@ -19,7 +20,6 @@ from lowcostdex.hardware.dynamixel.driver import DynamixelBus
 from lowcostdex.hardware.dynamixel.protocol import HardwareError
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.emulated.firmware import FirmwareOptions
-from lowcostdex.hardware.hands import Calibration, dclaw_spec
 from lowcostdex.hardware.robot.calibration import calibrate_offsets
 
 TICK = 2 * math.pi / 4096

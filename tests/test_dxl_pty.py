@@ -112,7 +112,7 @@ HOST = """
 import sys, numpy as np
 from lowcostdex.hardware.dynamixel.control_table import Reg
 from lowcostdex.hardware.dynamixel.driver import DynamixelBus
-from lowcostdex.hardware.hands import dclaw_spec
+from lowcostdex.hands import dclaw_spec
 bus = DynamixelBus.from_hand(dclaw_spec(), sys.argv[1], latency_ms=16)
 bus.connect()
 for i in bus.ids:

@@ -339,7 +339,7 @@ def test_an_env_takes_a_randomization_mapping_with_per_joint_values():
     import gymnasium as gym
 
     import lowcostdex  # noqa: F401  (registers the ids)
-    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hands import dclaw_spec
 
     joints = dclaw_spec().joint_names
     delay = np.linspace(0.0, 0.02, len(joints))

@@ -1,4 +1,4 @@
-"""The flip teacher (``lowcostdex.demonstrations.teachers.flip``): it flips the block in simulation, holds up
+"""The flip teacher (``lowcostdex.teachers.flip``): it flips the block in simulation, holds up
 under executed-action noise, counts its rolls from the goal; on the emulated D'Claw it records
 flip demonstrations through the kinesthetic recorder and the robot's reset turns a flipped
 block back (the teacher through the servos, else the emulator's person); the emulated Allegro's
@@ -20,11 +20,11 @@ from lowcostdex.demonstrations.kinesthetic import (
     VirtualTeacher,
     identify_servo_response,
 )
-from lowcostdex.demonstrations.teachers.allegro import AllegroTeacherConfig, AllegroValveTeacher
-from lowcostdex.demonstrations.teachers.flip import FlipBlockTeacher, FlipTeacherConfig
 from lowcostdex.errors import ConfigError
 from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.registry import register_envs
+from lowcostdex.teachers.allegro import AllegroTeacherConfig, AllegroValveTeacher
+from lowcostdex.teachers.flip import FlipBlockTeacher, FlipTeacherConfig
 
 ENV = "lowcostdex/DClawFlipBlock-v0"
 

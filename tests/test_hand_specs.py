@@ -11,8 +11,8 @@ import pytest
 
 from lowcostdex.cli import main
 from lowcostdex.errors import ConfigError, InputError, LowcostdexError
+from lowcostdex.hands import Calibration, HandSpec, JointSpec, dclaw_spec
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
-from lowcostdex.hardware.hands import Calibration, HandSpec, JointSpec, dclaw_spec
 from lowcostdex.hardware.robot.backend import make_dynamixel_bus
 
 HAND = dclaw_spec()  # XH430-W350 servos
@@ -24,7 +24,7 @@ def with_joint(hand: HandSpec, name: str, **changes) -> HandSpec:
 
 
 def test_the_built_in_specs_pass():
-    from lowcostdex.hardware.hands import HANDS
+    from lowcostdex.hands import HANDS
 
     for make in HANDS.values():
         make()

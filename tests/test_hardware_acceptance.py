@@ -14,11 +14,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lowcostdex.hands import dclaw_spec
 from lowcostdex.hardware.dynamixel.config import WatchdogTripped
 from lowcostdex.hardware.dynamixel.driver import DynamixelBus
 from lowcostdex.hardware.dynamixel.scan import scan
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
-from lowcostdex.hardware.hands import dclaw_spec
 
 pytestmark = pytest.mark.hardware
 

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 
-from lowcostdex.hardware.hands import allegro_spec
+from lowcostdex.hands import allegro_spec
 from lowcostdex.sim.models.allegro import build_allegro
 
 can = pytest.importorskip("can", reason="python-can (the 'can' extra) is not installed")

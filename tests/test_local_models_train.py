@@ -115,7 +115,7 @@ def test_demos_init_replays_the_mean_demonstration(valve, tmp_path) -> None:
 
 
 def test_teacher_init_replays_a_successful_teacher_episode(valve, tmp_path) -> None:
-    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.teachers.valve  # noqa: F401  (an import error fails, never skips)
     from lowcostdex.algos.local_models.initial import teacher_episodes
     from lowcostdex.demonstrations.dataset import load_demos
 
@@ -235,7 +235,7 @@ def test_solved_needs_the_noise_free_episode_and_enough_noisy_successes() -> Non
 
 
 def test_tracking_run_logs_noisy_evaluations_and_resumes_identically(tmp_path) -> None:
-    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.teachers.valve  # noqa: F401  (an import error fails, never skips)
     cfg = _small(
         n_iter=2, init="teacher", init_noise=0.05, cost=TaskCostConfig.tracking(),
         eval_noisy_episodes=2,
@@ -256,7 +256,7 @@ def test_tracking_run_logs_noisy_evaluations_and_resumes_identically(tmp_path) -
 
 def test_resume_uses_the_demonstration_the_run_started_from(tmp_path, monkeypatch) -> None:
     """Failed teacher episodes and the un-executed last action stay in a resumed run's cost."""
-    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.teachers.valve  # noqa: F401  (an import error fails, never skips)
     from lowcostdex.algos.local_models import train as tvlg_train
 
     teach = tvlg_train.teacher_episodes
@@ -311,7 +311,7 @@ def test_tvlg_demo_script_runs(tmp_path, monkeypatch, capsys) -> None:
     import sys
     from pathlib import Path
 
-    import lowcostdex.demonstrations.teachers.valve  # noqa: F401  (an import error fails, never skips)
+    import lowcostdex.teachers.valve  # noqa: F401  (an import error fails, never skips)
 
     path = Path(__file__).resolve().parents[1] / "demos" / "tvlg_turn_valve.py"
     spec = importlib.util.spec_from_file_location("tvlg_turn_valve", path)

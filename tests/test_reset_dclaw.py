@@ -11,8 +11,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from lowcostdex.hands import dclaw_spec
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
-from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import default_effects, make_dynamixel_bus
 from lowcostdex.hardware.robot.reset import ResetConfig, ResetFailed
 from lowcostdex.hardware.robot.reset_dclaw import DClawReset

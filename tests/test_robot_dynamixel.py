@@ -8,8 +8,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from lowcostdex.hands import dclaw_spec
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
-from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import make_dynamixel_bus
 from lowcostdex.hardware.robot.guards import CurrentConfig
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig

@@ -15,9 +15,9 @@ import math
 import numpy as np
 import pytest
 
+from lowcostdex.hands import dclaw_spec
 from lowcostdex.hardware.dynamixel.config import WatchdogTripped
 from lowcostdex.hardware.emulated.chain import FaultConfig, emulated_dclaw
-from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import make_dynamixel_bus
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.hardware.robot.safety import UnsafeCommand

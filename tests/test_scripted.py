@@ -1,6 +1,6 @@
 """Physics sanity: the released valve turns freely; the scripted D'Claw teacher turns it to the
-goal within the 40-step episode (``lowcostdex.demonstrations.teachers.valve``); the flip block is reachable and
-one finger rolls it (``lowcostdex.demonstrations.teachers.flip``); the Allegro teacher turns its valve a full turn."""
+goal within the 40-step episode (``lowcostdex.teachers.valve``); the flip block is reachable and
+one finger rolls it (``lowcostdex.teachers.flip``); the Allegro teacher turns its valve a full turn."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 import lowcostdex  # noqa: F401  (registers the ids)
-from lowcostdex.demonstrations.teachers.allegro import AllegroValveTeacher
-from lowcostdex.demonstrations.teachers.flip import FlipBlockTeacher
-from lowcostdex.demonstrations.teachers.valve import ScrewTrackTeacher, ValveTurnTeacher
 from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.kinematics import AllegroFingerGeometry, FingerGeometry
 from lowcostdex.sim.models.allegro import build_allegro
 from lowcostdex.sim.models.dclaw import build_dclaw
+from lowcostdex.teachers.allegro import AllegroValveTeacher
+from lowcostdex.teachers.flip import FlipBlockTeacher
+from lowcostdex.teachers.valve import ScrewTrackTeacher, ValveTurnTeacher
 
 
 def run_teacher(env, teacher, seed):
@@ -188,9 +188,9 @@ def test_every_task_table_names_a_teacher_that_exists():
     """record-demos and the main job pick teachers by name: a renamed class must fail here,
     not on a user's first recording."""
     from lowcostdex.demonstrations.cli import TASKS
-    from lowcostdex.demonstrations.teachers import teacher_class
     from lowcostdex.errors import ConfigError
     from lowcostdex.main_job.setup import TASKS as JOB_TASKS
+    from lowcostdex.teachers import teacher_class
 
     names = {solver for tasks in TASKS.values() for _, solver in tasks.values()}
     names |= {setup.teacher for setup in JOB_TASKS.values()}

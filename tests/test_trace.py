@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from lowcostdex.gap import read_log
+from lowcostdex.hands import dclaw_spec
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
-from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import make_dynamixel_bus, robot_hand
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.hardware.robot.trace import excite

@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pytest
 
+from lowcostdex.hands import dclaw_spec
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.emulated.hidden_robots import (
     FirmwareImperfection,
@@ -22,7 +23,6 @@ from lowcostdex.hardware.emulated.hidden_robots import (
     hidden_robots,
     pwm_deadband_error,
 )
-from lowcostdex.hardware.hands import dclaw_spec
 from lowcostdex.hardware.robot.backend import make_dynamixel_bus
 from lowcostdex.sim.models.dclaw import build_dclaw
 

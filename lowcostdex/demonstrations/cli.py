@@ -102,12 +102,12 @@ def _record_demos(args: argparse.Namespace) -> int:
         identify_servo_response,
         virtual_teacher_config,
     )
-    from lowcostdex.demonstrations.teachers import AllegroTeacherConfig, teacher_class
     from lowcostdex.errors import ConfigError
+    from lowcostdex.hands import load_spec
     from lowcostdex.hardware.dynamixel.ports import check_port
-    from lowcostdex.hardware.hands import load_spec
     from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim.registry import register_envs
+    from lowcostdex.teachers import AllegroTeacherConfig, teacher_class
 
     if args.episodes < 1 or (args.successes is not None and args.successes < 1):
         raise ConfigError("--episodes and --successes must be >= 1")

@@ -29,7 +29,7 @@ Layout (Minari's per-episode layout, plus the raw robot readings), no pickle any
 ``source`` (one of ``SOURCES``) says who chose the actions: ``kinesthetic`` (a person moved the
 fingers), ``virtual_teacher`` (the emulator's scripted hand did), ``playback`` (the robot's own
 servos replayed a recorded demonstration's goals, ``lowcostdex.demonstrations.kinesthetic``),
-``scripted_teacher`` (a scripted controller's action, e.g. ``lowcostdex.demonstrations.teachers.valve``),
+``scripted_teacher`` (a scripted controller's action, e.g. ``lowcostdex.teachers.valve``),
 ``policy`` (a trained policy's mean action). The file's ``source`` is the recording's; an
 episode's own ``source`` attribute may differ (the playbacks in a kinesthetic recording).
 

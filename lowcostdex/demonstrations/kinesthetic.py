@@ -30,7 +30,7 @@ deterministic episodes. Playbacks cost robot time, not the person's.
 
 On the emulated D'Claw a ``VirtualTeacher`` stands in for the person: it moves the limp fingers
 with external joint torques (a PD on ``qfrc_applied``, applied before every physics step of the
-emulator) along a scripted solving motion (``lowcostdex.demonstrations.teachers.valve.ValveTurnTeacher``) with a
+emulator) along a scripted solving motion (``lowcostdex.teachers.valve.ValveTurnTeacher``) with a
 person's imprecision, so the same recorder code path produces demonstrations without a human.
 """
 
@@ -341,7 +341,7 @@ class VirtualTeacher:
         if plant.model.nq != task.model.nq:
             raise ConfigError("the emulator's model and the task's model differ in qpos layout")
         if solver is None:
-            from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
+            from lowcostdex.teachers.valve import ValveTurnTeacher
 
             solver = ValveTurnTeacher()
         self.chain, self.task, self.solver, self.config = chain, task, solver, config

@@ -15,6 +15,11 @@ and Stribeck velocities are searched in log space, and non-convex parameters get
 A fit that lands on a search bound may widen that bound toward the parameter's physical hard limit
 (``Param.hard``) and refit (``widen``): real-world sizes beyond the usual range are then named
 with their value, and only a fit at its hard limit is rejected.
+
+Why one module (over ~600 lines; issue 16 asks for the reason here): the lockstep Levenberg-
+Marquardt, the bounded parameter spaces it steps in and their widening share the
+``Structure``/``Track`` state of one algorithm; the analysis loop that calls it is ``analyze`` and
+its results ``results``.
 """
 
 from __future__ import annotations

@@ -88,7 +88,7 @@ def bench_config(motor: str = "XM430-W350") -> BenchConfig:
 
 def finger_spec(motor: str = "XM430-W350") -> mujoco.MjSpec:
     """One D'Claw finger (ff_top, ff_middle, ff_bottom) without a station."""
-    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hands import dclaw_spec
     from lowcostdex.sim.models.dclaw import build_dclaw
 
     return build_dclaw("none", hand=dclaw_spec(motor), thermal=False, fingers=("ff",))
@@ -307,7 +307,7 @@ def generate(rig: str, hidden: Sequence[str] | None, rng: np.random.Generator, *
         joints = (BENCH_JOINT,)
         low, high = np.array([-1.3]), np.array([1.3])
     else:
-        from lowcostdex.hardware.hands import dclaw_spec
+        from lowcostdex.hands import dclaw_spec
 
         spec = finger_spec(motor)
         hand = dclaw_spec(motor)

@@ -17,7 +17,7 @@ import sys
 
 from lowcostdex.argtypes import SEED, integer, number
 from lowcostdex.errors import InputError
-from lowcostdex.hardware.hands import load_spec
+from lowcostdex.hands import load_spec
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -212,8 +212,8 @@ def _emulate(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
+    from lowcostdex.hands import HandSpec, hand_spec
     from lowcostdex.hardware.dynamixel.driver import DynamixelBus
-    from lowcostdex.hardware.hands import HandSpec, hand_spec
     from lowcostdex.hardware.robot.calibration import calibrate_offsets, format_report
     from lowcostdex.outdir import check_out_file
 
@@ -241,10 +241,10 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _setup_motors(args: argparse.Namespace) -> int:
+    from lowcostdex.hands import hand_spec
     from lowcostdex.hardware.dynamixel.ports import pick_port
     from lowcostdex.hardware.dynamixel.scan import scan
     from lowcostdex.hardware.dynamixel.setup_motors import check_hand, setup_motors
-    from lowcostdex.hardware.hands import hand_spec
 
     check_baud(args.baud)
     hand = load_spec(args.spec) if args.spec else hand_spec(args.hand)

@@ -120,7 +120,7 @@ class Context:
 
     def env_kwargs(self) -> dict[str, Any]:
         """gym.make keyword arguments selecting the robot (JSON-serializable)."""
-        from lowcostdex.hardware.hands import dclaw_spec
+        from lowcostdex.hands import dclaw_spec
 
         if self.port is None:
             effects = robot_effects(dclaw_spec().joint_names)

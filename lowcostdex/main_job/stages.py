@@ -17,9 +17,9 @@ def stage_bus(ctx: Context) -> dict[str, Any]:
     """Bring the D'Claw up on its bus: scan, then calibrate (emulated) or check the map."""
     import numpy as np
 
+    from lowcostdex.hands import dclaw_spec
     from lowcostdex.hardware.dynamixel.scan import scan
     from lowcostdex.hardware.emulated.chain import emulated_dclaw
-    from lowcostdex.hardware.hands import dclaw_spec
     from lowcostdex.hardware.robot.backend import make_dynamixel_bus, robot_hand
     from lowcostdex.hardware.robot.calibration import calibrate_offsets
     from lowcostdex.sim.models.dclaw import build_dclaw
@@ -81,7 +81,7 @@ def stage_demos(ctx: Context) -> dict[str, Any]:
         identify_servo_response,
         virtual_teacher_config,
     )
-    from lowcostdex.demonstrations.teachers import teacher_class
+    from lowcostdex.teachers import teacher_class
 
     setup = ctx.setup
     path = ctx.out / "demos.h5"
@@ -330,7 +330,7 @@ def stage_gap(ctx: Context) -> dict[str, Any]:
 
     from lowcostdex.gap import GapConfig, analyze, load_dataset, write_report
     from lowcostdex.gap.cli import analysis_progress
-    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hands import dclaw_spec
     from lowcostdex.hardware.robot.trace import dclaw_identification_logs
     from lowcostdex.sim.models.dclaw import build_dclaw
 

@@ -35,7 +35,7 @@ def _list_envs(args: argparse.Namespace) -> int:
 
 
 def _write_model(args: argparse.Namespace) -> int:
-    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hands import dclaw_spec
     from lowcostdex.outdir import check_out_file, write_text_atomic
 
     out = check_out_file(args.out, overwrite=args.overwrite)

@@ -1,7 +1,7 @@
 """Finger kinematics of the lowcostdex hands, read from a compiled model: each finger's frame, link
 lengths, forward kinematics and analytic inverse kinematics (D'Claw: 3 joints; Allegro index,
 middle and ring: 4 joints with the last two coupled). Used by the virtual teachers
-(``lowcostdex.demonstrations.teachers``) and the auto-reset (``lowcostdex.hardware.robot.reset``).
+(``lowcostdex.teachers``) and the auto-reset (``lowcostdex.hardware.robot.reset``).
 """
 
 from __future__ import annotations

@@ -18,6 +18,11 @@ Observation effects (offset, noise, quantization) apply in ``measured_qpos``; ca
 In a model prepared with hidden dofs (``prepare_spec(..., hidden_dofs=True)``) backlash is physics:
 a play hinge between the servo's joint (motor side) and its link; ``measured_qpos`` reads the link
 (joint + play), and ``reset`` puts the play where the static load pushes it (``rest_play``).
+
+Why one module (over ~600 lines; issue 16 asks for the reason here): ``Plant`` and ``BatchPlant``
+share every step through the leading sim axis, so the effect hooks are called from one place for
+the envs, the emulator, domain randomization and the gap analysis; the effects themselves live in
+``sim.effects``.
 """
 
 from __future__ import annotations

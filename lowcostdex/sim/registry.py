@@ -14,7 +14,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from lowcostdex.hardware.hands import dclaw_spec
+from lowcostdex.hands import dclaw_spec
 from lowcostdex.sim.effects import DEFAULT_DR_EFFECTS
 from lowcostdex.sim.envs.dclaw_tasks import (
     FlipBlock,
@@ -64,7 +64,7 @@ ENVS: dict[str, tuple[Callable[..., HandEnv], int, dict[str, Any]]] = {
 
 def add_env(name: str, factory: Callable[..., HandEnv], max_episode_steps: int,
             defaults: dict[str, Any] | None = None) -> None:
-    """Add an id to ``ENVS`` (other modules, e.g. the Allegro tasks, call this at import)."""
+    """Add an id to ``ENVS`` (a user's own task; ``register_envs`` then registers it)."""
     ENVS[name] = (factory, max_episode_steps, defaults or {})
 
 
@@ -85,11 +85,13 @@ def env_ids() -> list[str]:
 
 
 def _load_optional_tasks() -> None:
-    """Import task modules that register themselves with ``add_env`` (e.g. Allegro)."""
+    """Add the ids of the task modules in ``TASK_MODULES`` (each lists its own in ``ENVS``;
+    imported on first use, e.g. the Allegro's)."""
     import importlib
 
     for module in TASK_MODULES:
-        importlib.import_module(module)
+        for name, entry in importlib.import_module(module).ENVS.items():
+            ENVS.setdefault(name, entry)
 
 
 TASK_MODULES: tuple[str, ...] = ("lowcostdex.sim.envs.allegro_tasks",)

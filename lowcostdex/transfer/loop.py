@@ -185,8 +185,8 @@ def record_demos(out: Path, task: Task, size: Size, seed: int) -> dict[str, Any]
         identify_servo_response,
         virtual_teacher_config,
     )
-    from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
     from lowcostdex.outdir import archive
+    from lowcostdex.teachers.valve import ValveTurnTeacher
 
     path = out / "demos.h5"
     archive(out, [path.name])  # a recording cut short is redone whole (the old one kept)
@@ -220,7 +220,7 @@ def identify_finger(robot: Any, finger: str, folder: Path, size: Size, seed: int
     """Identification logs of one finger on the robot (without its valve, the other fingers
     parked), then the gap analysis on the nominal one-finger model."""
     from lowcostdex.gap import GapConfig, analyze, load_dataset, write_report
-    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hands import dclaw_spec
     from lowcostdex.hardware.robot.trace import dclaw_identification_logs
     from lowcostdex.outdir import archive
     from lowcostdex.sim.models.dclaw import build_dclaw
@@ -439,7 +439,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
         task, robots or budget.
     """
     from lowcostdex.errors import ConfigError, check_choice
-    from lowcostdex.hardware.hands import dclaw_spec
+    from lowcostdex.hands import dclaw_spec
     from lowcostdex.outdir import archive
 
     check_choice("task", task_name, tuple(TASKS))

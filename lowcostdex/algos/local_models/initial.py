@@ -104,10 +104,10 @@ def teacher_episodes(
       ConfigError: if the task has no scripted teacher.
     """
     try:
-        from lowcostdex.demonstrations.teachers.valve import ValveTurnTeacher
+        from lowcostdex.teachers.valve import ValveTurnTeacher
     except ImportError as exc:
         raise ConfigError(
-            "init 'teacher' needs lowcostdex.demonstrations.teachers.valve (the valve teacher)"
+            "init 'teacher' needs lowcostdex.teachers.valve (the valve teacher)"
         ) from exc
     from lowcostdex.demonstrations.dataset import EpisodeRecorder
     from lowcostdex.sim.envs import goal_to_action

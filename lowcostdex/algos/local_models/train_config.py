@@ -120,7 +120,7 @@ class TVLGTrainConfig:
       init: initial controller, one of INITS: "pd" holds the start pose (plus ``pd_gain``
         feedback) with exploration noise; "demos" replays the mean action of the demonstrations
         in ``demos`` (the DAPG demo format) with the same noise; "teacher" first runs the
-        scripted teacher (``lowcostdex.demonstrations.teachers.valve``) ``teacher_episodes`` times from the fixed
+        scripted teacher (``lowcostdex.teachers.valve``) ``teacher_episodes`` times from the fixed
         start (saved as ``teacher_demo.h5``) and replays its mean action like "demos".
       teacher_episodes: teacher episodes for init "teacher" (logged as ``teacher_episodes``,
         counted in robot time, not in ``rollouts``).

@@ -33,9 +33,9 @@ import can
 import numpy as np
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.hardware.allegro import protocol as proto
 from lowcostdex.hardware.bus import BusError, MotorBus, MotorState
-from lowcostdex.hardware.hands import HandSpec, allegro_spec
 from lowcostdex.hardware.timing import Clock, RealClock
 
 
@@ -82,7 +82,7 @@ class AllegroGains:
 
 
 def _default_pd() -> tuple[np.ndarray, np.ndarray]:
-    from lowcostdex.hardware.hands import ALLEGRO_FINGERS
+    from lowcostdex.hands import ALLEGRO_FINGERS
     from lowcostdex.sim.models.allegro import AllegroPD
 
     pd = AllegroPD()

@@ -32,8 +32,8 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.hardware.allegro import protocol as proto
-from lowcostdex.hardware.hands import HandSpec, allegro_spec
 from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.plant import Plant
 

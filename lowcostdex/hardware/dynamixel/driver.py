@@ -56,6 +56,11 @@ reads and the late-reply defences in ``transactions``; the torque-off hooks in `
 It is over 600 lines because it is one class whose methods share one state (control-table
 addresses, position limits, validity streaks, the fault cache, the torque set); the parts that
 need none of it live in the modules above.
+
+Why one module (over ~600 lines; issue 16 asks for the reason here): the bus's session state (port,
+packet handler, id map, cached registers, torque and watchdog state) is shared by every public
+method; its transactions, scan and shutdown already live beside it (``transactions``, ``scan``,
+``shutdown``, ``config``).
 """
 
 from __future__ import annotations
@@ -70,6 +75,7 @@ import numpy as np
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.hands import HandSpec
 from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorFault, MotorState
 from lowcostdex.hardware.dynamixel import transport
 from lowcostdex.hardware.dynamixel.config import (
@@ -94,7 +100,6 @@ from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names, 
 from lowcostdex.hardware.dynamixel.shutdown import register as _register
 from lowcostdex.hardware.dynamixel.shutdown import unregister as _unregister
 from lowcostdex.hardware.dynamixel.transactions import SdkTransactions
-from lowcostdex.hardware.hands import HandSpec
 from lowcostdex.sim.servo import ServoGains, motor_spec
 
 log = logging.getLogger(__name__)

@@ -20,11 +20,11 @@ from dataclasses import dataclass
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.hands import HandSpec, JointSpec
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.dynamixel import transport
 from lowcostdex.hardware.dynamixel.control_table import Reg, load_control_table, model_name
 from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES, baud_code
-from lowcostdex.hardware.hands import HandSpec, JointSpec
 
 FACTORY_ID = 1  # e-Manual ID(7) initial value
 FACTORY_BAUD = 57_600  # e-Manual Baud Rate(8) initial value 1

@@ -42,6 +42,7 @@ from typing import Protocol
 import numpy as np
 
 from lowcostdex.errors import check_choice
+from lowcostdex.hands import Calibration
 from lowcostdex.hardware.dynamixel.control_table import (
     DEPENDENT,
     EEPROM_END,
@@ -61,7 +62,6 @@ from lowcostdex.hardware.dynamixel.protocol import (
     le_bytes,
     to_signed,
 )
-from lowcostdex.hardware.hands import Calibration
 from lowcostdex.sim.servo import MotorSpec, ServoGains, motor_spec
 
 E = ErrorNumber

@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.hands import DCLAW_FINGERS, HandSpec, dclaw_spec
+from lowcostdex.hands import DCLAW_FINGERS, HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect, effect
 

@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.hands import HandSpec
+from lowcostdex.hands import HandSpec
 from lowcostdex.hardware.robot.backend import (
     EpisodeReset,
     ObjectSensor,

@@ -35,8 +35,8 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.hands import HandSpec, check_model_ranges
 from lowcostdex.hardware.bus import MotorBus
-from lowcostdex.hardware.hands import HandSpec, check_model_ranges
 from lowcostdex.hardware.robot.reset import ResetConfig, ResetReport
 from lowcostdex.hardware.robot.reset_dclaw import DClawReset
 from lowcostdex.hardware.robot.reset_flip import FlipBlockReset, FlipResetConfig, Reorient
@@ -262,7 +262,7 @@ class EmulatedBackend(RobotBackend):
       reset_config: auto-reset settings.
       flip_config, reorient: flip-task block reset (see ``dclaw_reset``); ``reorient="teacher"``
         (the default) is the flip teacher through the servos
-        (``lowcostdex.demonstrations.teachers.flip.TeacherReorient``), None none (a block with the wrong
+        (``lowcostdex.teachers.flip.TeacherReorient``), None none (a block with the wrong
         face up then fails the reset).
       virtual_person: flip task only: when the block reset fails (the teacher did not turn the
         block back, or the block lies beyond the squeezes' reach), the emulator puts the block
@@ -308,7 +308,7 @@ class EmulatedBackend(RobotBackend):
         if reorient == "teacher":
             reorient = None
             if tracker is not None:
-                from lowcostdex.demonstrations.teachers.flip import TeacherReorient
+                from lowcostdex.teachers.flip import TeacherReorient
 
                 reorient = TeacherReorient(task)
         super().__init__(model, task, robot,

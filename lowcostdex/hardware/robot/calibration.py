@@ -13,8 +13,8 @@ import dataclasses
 
 import numpy as np
 
+from lowcostdex.hands import HandSpec, JointSpec
 from lowcostdex.hardware.bus import BusError, MotorBus
-from lowcostdex.hardware.hands import HandSpec, JointSpec
 
 
 def calibrate_offsets(bus: MotorBus, hand: HandSpec, reference: dict[str, float] | None = None,

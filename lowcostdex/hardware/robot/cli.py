@@ -56,7 +56,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def _hand(spec_path: str | None):
-    from lowcostdex.hardware.hands import dclaw_spec, load_spec
+    from lowcostdex.hands import dclaw_spec, load_spec
 
     return load_spec(spec_path) if spec_path else dclaw_spec()
 

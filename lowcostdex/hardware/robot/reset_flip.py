@@ -81,7 +81,7 @@ class FlipBlockReset:
     def __init__(self, robot: Robot, model, tracker: Tracker,
                  config: FlipResetConfig = FlipResetConfig(),
                  reset_config: ResetConfig = ResetConfig(), reorient: Reorient | None = None):
-        from lowcostdex.hardware.hands import DCLAW_FINGERS
+        from lowcostdex.hands import DCLAW_FINGERS
         from lowcostdex.sim.kinematics import FingerGeometry
 
         self.robot, self.tracker, self.config, self.reorient = robot, tracker, config, reorient

@@ -23,6 +23,11 @@ for the D'Claw (Dynamixel) and the Allegro (CAN):
 
 Use as a context manager: leaving the block turns torque off and closes the bus, also on
 exceptions.
+
+Why one module (over ~600 lines; issue 16 asks for the reason here): one control step (read ->
+guards -> safety -> write -> timing) is a sequence over one Robot state; the safety limits, guards,
+calibration, resets and trace already live beside it (``safety``, ``guards``, ``calibration``,
+``reset*``, ``trace``).
 """
 
 from __future__ import annotations
@@ -35,9 +40,9 @@ from typing import Any
 import numpy as np
 
 from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.hands import HandSpec, JointSpec
 from lowcostdex.hardware.bus import BusError, MotorBus, MotorFault, MotorState
 from lowcostdex.hardware.dynamixel.protocol import hardware_error_names
-from lowcostdex.hardware.hands import HandSpec, JointSpec
 from lowcostdex.hardware.robot.guards import (
     CurrentConfig,
     CurrentGuard,

@@ -6,8 +6,8 @@ reward terms -5|err|, -0.2||q - q_reset||, -||v[|v| > 0.5]||, +10 (|err| < 0.25)
 +50 (|err| < 0.1); success |err| < 0.1 rad. The goal is 2 pi past the start: the valve hinge is
 unlimited, its angle is not wrapped, and the error is the plain difference goal - angle.
 
-Importing this module registers ``AllegroTurnValve-v0`` and ``AllegroTurnValveRandom-v0``
-(``registry.add_env``).
+``ENVS`` lists ``AllegroTurnValve-v0`` and ``AllegroTurnValveRandom-v0``; ``lowcostdex.sim.registry``
+reads it (this module does not import the registry: the envs sit below it).
 """
 
 from __future__ import annotations
@@ -20,8 +20,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from lowcostdex.hardware.hands import HandSpec, allegro_spec
-from lowcostdex.sim import registry
+from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.sim.envs.hand_env import HandEnv, make_hand_env
 from lowcostdex.sim.envs.task import Goal, Task, TaskSpec
 from lowcostdex.sim.models.allegro import AllegroPD, AllegroValve, build_allegro
@@ -129,6 +128,9 @@ def _allegro(config: AllegroTurnConfig):
     return make
 
 
-registry.add_env("AllegroTurnValve-v0", _allegro(AllegroTurnConfig()), 100)
-registry.add_env("AllegroTurnValveRandom-v0",
-                 _allegro(AllegroTurnConfig(init_range=math.pi / 3, goal_range=math.pi / 3)), 100)
+# id -> (factory, max_episode_steps, default kwargs), as ``registry.ENVS``
+ENVS: dict[str, tuple[Any, int, dict[str, Any]]] = {
+    "AllegroTurnValve-v0": (_allegro(AllegroTurnConfig()), 100, {}),
+    "AllegroTurnValveRandom-v0": (
+        _allegro(AllegroTurnConfig(init_range=math.pi / 3, goal_range=math.pi / 3)), 100, {}),
+}

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError, check_choice
-from lowcostdex.hardware.hands import HandSpec, dclaw_spec
+from lowcostdex.hands import HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.envs.task import Goal, Task, TaskSpec, wrap_angle
 from lowcostdex.sim.models.common import quat_euler

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.hardware.hands import HandSpec
+from lowcostdex.hands import HandSpec
 
 Goal = dict[str, np.ndarray]
 

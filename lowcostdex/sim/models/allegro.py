@@ -20,7 +20,7 @@ they flex towards +x (the palm's front), the index finger is at +y and the thumb
     tip      capsule r 0.012, half-length 0.008 at 0.035 on the distal link (end at 0.055)
   palm    box, half sizes (0.0204, 0.0565, 0.0475) centred at (-0.0093, 0, -0.0475).
 
-Joint ranges are the hand spec's (``lowcostdex.hardware.hands.allegro_spec``, the same URDF). Link
+Joint ranges are the hand spec's (``lowcostdex.hands.allegro_spec``, the same URDF). Link
 masses are the URDF's for the fingers (0.0119, 0.065, 0.0355, 0.0096 kg, tip 0.0168 kg); the
 thumb's (0.0176, 0.0119, 0.038, 0.0388 kg) are approximate. Links collide as capsules; the hand is
 fixed (mounted), so the palm carries no free mass.
@@ -49,7 +49,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError, check_choice
-from lowcostdex.hardware.hands import ALLEGRO_FINGERS, HandSpec, allegro_spec
+from lowcostdex.hands import ALLEGRO_FINGERS, HandSpec, allegro_spec
 from lowcostdex.sim.models.common import GROUP_COLLISION, add_floor, new_spec, visual_only
 
 ALLEGRO_STATIONS = ("valve", "none")

@@ -19,7 +19,7 @@ ROBEL's"; tests/test_dclaw_valve_reference.py computes ROBEL's side from its typ
 - Spoke phase (NOT on purpose, issue 18 open): ROBEL's spokes point at 0, 120, 240 deg at valve
   angle 0 (the angle its motor-50 calibration reports, which this project copies); ours at -90, 30,
   150 deg (``ValveGeometry.spoke_phase``). With ROBEL's phase the spokes sit midway between the
-  fingers and ``ValveTurnTeacher`` (demonstrations/teachers/valve.py) needs three strokes instead of two: its
+  fingers and ``ValveTurnTeacher`` (teachers/valve.py) needs three strokes instead of two: its
   randomized-dynamics success fell from 20/20 to 0/20 and the emulated recorder's playbacks from
   12/12 to 5/12. A relay teacher (one finger pushes while the others return) held in simulation at
   every phase but lost the playbacks (0/12 at ROBEL's phase, 3/12 at ours), so the phase stays
@@ -46,7 +46,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import check_choice
-from lowcostdex.hardware.hands import DCLAW_FINGERS, HandSpec, dclaw_spec
+from lowcostdex.hands import DCLAW_FINGERS, HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.models.common import (
     GROUP_COLLISION,

@@ -1,6 +1,6 @@
 """The Allegro valve teacher: index, middle and ring turn the valve above the palm-up hand, each
 pushing a spoke along its own arc about the valve axis and returning above the spokes (the
-stroke of :class:`~lowcostdex.demonstrations.teachers.valve.ValveTurnTeacher` on four-joint
+stroke of :class:`~lowcostdex.teachers.valve.ValveTurnTeacher` on four-joint
 fingers).
 """
 
@@ -12,7 +12,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.demonstrations.teachers.valve import (
+from lowcostdex.errors import ConfigError
+from lowcostdex.sim.envs.task import Goal, wrap_angle
+from lowcostdex.sim.kinematics import AllegroFingerGeometry
+from lowcostdex.teachers.valve import (
     LOWER,
     PUSH,
     RETURN,
@@ -20,9 +23,6 @@ from lowcostdex.demonstrations.teachers.valve import (
     _angle,
     _spoke_names,
 )
-from lowcostdex.errors import ConfigError
-from lowcostdex.sim.envs.task import Goal, wrap_angle
-from lowcostdex.sim.kinematics import AllegroFingerGeometry
 
 ALLEGRO_PUSHERS = ("index", "middle", "ring")
 

@@ -6,14 +6,14 @@ physics sanity tests of the tasks. Each needs only the simulation (models, tasks
 
 from __future__ import annotations
 
-from lowcostdex.demonstrations.teachers.allegro import AllegroTeacherConfig, AllegroValveTeacher
-from lowcostdex.demonstrations.teachers.flip import FlipBlockTeacher, FlipTeacherConfig
-from lowcostdex.demonstrations.teachers.valve import (
+from lowcostdex.errors import ConfigError
+from lowcostdex.teachers.allegro import AllegroTeacherConfig, AllegroValveTeacher
+from lowcostdex.teachers.flip import FlipBlockTeacher, FlipTeacherConfig
+from lowcostdex.teachers.valve import (
     ScrewTrackTeacher,
     ValveTeacherConfig,
     ValveTurnTeacher,
 )
-from lowcostdex.errors import ConfigError
 
 TEACHERS = {cls.__name__: cls for cls in
             (ValveTurnTeacher, ScrewTrackTeacher, FlipBlockTeacher, AllegroValveTeacher)}

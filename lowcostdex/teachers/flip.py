@@ -40,7 +40,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.hands import DCLAW_FINGERS
+from lowcostdex.hands import DCLAW_FINGERS
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE, quat_rotate
 from lowcostdex.sim.envs.task import Goal
 from lowcostdex.sim.kinematics import FingerGeometry

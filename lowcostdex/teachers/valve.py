@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hardware.hands import DCLAW_FINGERS
+from lowcostdex.hands import DCLAW_FINGERS
 from lowcostdex.sim.envs.task import Goal, wrap_angle
 from lowcostdex.sim.kinematics import FingerGeometry
 

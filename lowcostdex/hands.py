@@ -26,10 +26,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lowcostdex.errors import ConfigError, InputError, LowcostdexError, check_choice
+from lowcostdex.motors import MOTORS, motor_spec
 
 MAX_JOINT_SPEED = 50.0
 """Largest plausible ``max_velocity`` of any joint [rad/s]: above every servo listed in
-``lowcostdex.sim.servo`` (the fastest, XL330-M077, turns 383 rpm = 40 rad/s no-load)."""
+``lowcostdex.motors`` (the fastest, XL330-M077, turns 383 rpm = 40 rad/s no-load)."""
 _ONE_TURN = 2.0 * math.pi  # position mode: one turn of the motor, ticks 0 .. ticks_per_rev - 1
 
 
@@ -110,7 +111,7 @@ class HandSpec:
 
     Attributes:
       name: "dclaw", "allegro", "bench".
-      motor: servo model name (a key of ``lowcostdex.sim.servo.MOTORS``) or "allegro".
+      motor: servo model name (a key of ``lowcostdex.motors.MOTORS``) or "allegro".
       joints: finger joints in action order.
       aux_joints: motors that are not part of the action (D'Claw valve motor, id 50).
     """
@@ -132,10 +133,8 @@ class HandSpec:
                 raise ConfigError(f"hand {self.name}: joint name {j.name} appears twice")
             seen[j.motor_id] = j.name
             names.add(j.name)
-        from lowcostdex.sim import servo
-
-        if self.motor in servo.MOTORS:
-            self._check_motor_range(servo.MOTORS[self.motor])
+        if self.motor in MOTORS:
+            self._check_motor_range(MOTORS[self.motor])
 
     def _check_motor_range(self, motor) -> None:
         """Limits inside the motor's one turn of position mode; max_velocity within the joint
@@ -271,9 +270,7 @@ def bench_spec(motor: str = "XL330-M288", motor_id: int = 1) -> HandSpec:
     """A single servo on a pendulum test bench (as in BAM's logs); joint 0 is the middle of the
     servo's turn (tick 2048), so the joint range maps inside position mode's 0..4095; the speed
     bound is 10 rad/s or the motor's no-load speed if slower."""
-    from lowcostdex.sim import servo
-
-    top = min(10.0, servo.motor_spec(motor).no_load_speed)
+    top = min(10.0, motor_spec(motor).no_load_speed)
     return HandSpec("bench", motor, (JointSpec("bench", motor_id, -math.pi, math.pi,
                                                max_velocity=top,
                                                calibration=Calibration(offset=-math.pi)),))
