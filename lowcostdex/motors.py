@@ -12,6 +12,8 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from lowcostdex.errors import ConfigError, check_choice
 
 TWO_PI = 2.0 * math.pi
@@ -119,6 +121,16 @@ class MotorSpec:
     def resistance(self) -> float:
         """Terminal resistance R [Ohm] such that stall torque = K V / R."""
         return self.motorconst * self.voltage / self.stall_torque
+
+    def winding_heating(self, current: np.ndarray | float, temperature: np.ndarray | float
+                        ) -> np.ndarray:
+        """Rate of change of the winding temperature [K/s] at ``current`` [A] and winding
+        ``temperature`` [deg C]: the single-node model of the simulation's dcmotor ``thermal``
+        (``thermal``), C dT/dt = I^2 R (1 + tempcoef (T - ambient)) - (T - ambient) / R_th."""
+        t = self.thermal
+        rise = np.asarray(temperature, float) - t.ambient
+        power = np.square(current) * self.resistance * (1.0 + t.tempcoef * rise)
+        return (power - rise / t.resistance) / t.capacitance
 
 
 _X430_THERMAL = ThermalSpec(resistance=12.0, capacitance=8.0)

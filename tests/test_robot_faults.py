@@ -19,6 +19,7 @@ from lowcostdex.hands import dclaw_spec
 from lowcostdex.hardware.dynamixel.config import WatchdogTripped
 from lowcostdex.hardware.emulated.chain import FaultConfig, emulated_dclaw
 from lowcostdex.hardware.robot.backend import make_dynamixel_bus
+from lowcostdex.hardware.robot.guards import CurrentConfig
 from lowcostdex.hardware.robot.robot import Robot, RobotConfig
 from lowcostdex.hardware.robot.safety import UnsafeCommand
 from lowcostdex.sim import servo
@@ -243,6 +244,67 @@ def test_thermal_guard_under_faults_relaxes_on_the_device_and_keeps_both_motors_
     assert not [e for e in chain.events if e.kind in ("hardware_error", "shutdown")]
     robot.torque(True, HAND.joint_names)  # the next episode may use them again
     assert all(chain.motors[j.motor_id].torque_on for j in HAND.joints)
+
+
+def test_a_stuck_temperature_sensor_is_found_by_the_thermal_model_and_its_motor_relaxed():
+    """ff_middle's sensor sticks at 45 deg C (its firmware's overheating shutdown sees only that)
+    while the joint stalls against an obstacle at full lead: the winding heats at ~0.8 K/s from
+    60 deg C. Reading flat, the thermal model (the current through the winding's resistance,
+    from the stuck 45 deg C) says it has heated >= 5 K: the motor is relaxed before its true
+    winding reaches the 73 deg C at which a working sensor would have had it relaxed (without
+    the check it reaches 73 after about 20 s and the firmware, blind too, never stops it). Checked on the device: the winding
+    temperature of the MuJoCo motor, its torque register, its reported temperature."""
+    config = RobotConfig(current=CurrentConfig(fraction=1.0))  # no overload relaxation: heat
+    chain, robot = connected_robot(config, seed=6)
+    chain.faults = MILD
+    m = chain.plant.model
+    m.jnt_range[m.joint("ff_middle").id] = [-1.2, 0.1]  # an obstacle the joint cannot pass
+    heat(chain, "ff_middle", 60.0)
+    chain.motors[11].stuck_temperature = 45.0
+    k = robot.index(["ff_middle"])[0]
+    goal = robot.present[:9]
+    peak, relaxed_at = 0.0, None
+    for step in range(600):
+        goal[k] = 0.8  # inward, far past the obstacle
+        robot.step(goal)
+        true = servo.winding_temperature(m, chain.plant.data)[m.actuator("ff_middle").id]
+        peak = max(peak, true)
+        if not chain.motors[11].torque_on:
+            relaxed_at = step
+            break
+    assert relaxed_at is not None, f"never relaxed; winding at {peak:.1f} deg C"
+    assert robot.read().temperature[k] == 45.0  # the device reports its stuck reading
+    assert 62.0 <= peak < 73.0  # it really heated, and was relaxed below the critical level
+    assert robot.thermal.stuck[k] and robot.telemetry()["temperature_faults"][k]
+    assert robot.thermal.stuck.sum() == 1 and robot.thermal.pause_pending
+    # a pause does not wait for the stuck reading; the motor stays relaxed afterwards
+    robot.pause_if_hot()
+    robot.torque(True, HAND.joint_names)
+    robot.step(goal)
+    assert not chain.motors[11].torque_on
+    assert all(chain.motors[j.motor_id].torque_on for j in HAND.joints if j.motor_id != 11)
+
+
+def test_winding_heating_is_the_dcmotor_thermal_model():
+    """``MotorSpec.winding_heating`` (the stuck-sensor check's model) integrates to MuJoCo's own
+    dcmotor winding temperature from the same currents: a stalled XH430 over 20 s."""
+    chain, robot = connected_robot(RobotConfig(current=CurrentConfig(fraction=1.0)), seed=7)
+    m, d = chain.plant.model, chain.plant.data
+    m.jnt_range[m.joint("ff_middle").id] = [-1.2, 0.1]
+    a = m.actuator("ff_middle").id
+    heat(chain, "ff_middle", 40.0)
+    motor = servo.motor_spec(HAND.motor)
+    model_t, true_t = 40.0, 40.0
+    goal = robot.present[:9]
+    goal[robot.index(["ff_middle"])[0]] = 0.8
+    for _ in range(200):
+        before = float(d.time)
+        robot.step(goal)
+        amps = float(chain.drive.state().current[chain.motors[11].index])
+        model_t += (float(d.time) - before) * float(motor.winding_heating(amps, model_t))
+        true_t = servo.winding_temperature(m, d)[a]
+    assert true_t > 50.0  # it heated
+    assert model_t == pytest.approx(true_t, abs=0.05 * (true_t - 40.0))
 
 
 def test_current_guard_under_faults_bounds_the_goals_that_reach_an_overloaded_motor():

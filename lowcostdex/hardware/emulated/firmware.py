@@ -176,6 +176,7 @@ class MotorFirmware:
         self._ticks_per_rad = self.spec.ticks_per_rev / (2 * math.pi)
         self.hardware_error = 0
         self.watchdog_error = False
+        self.stuck_temperature: float | None = None  # a stuck sensor's reading [deg C]
         self.registered: tuple[int, bytes] | None = None
         self.turn_offset = 0.0  # [ticks] encoder = shaft ticks + turn_offset
         self.setpoint = 0.0  # profile output [encoder ticks]
@@ -469,11 +470,19 @@ class MotorFirmware:
         self.drive.set_torque(self.index, False)
         self._present_step = -1
 
+    def sensed_temperature(self, state: DriveState) -> float:
+        """What the motor's temperature sensor reads [deg C]: the winding's, or the value a
+        stuck sensor stays at (``stuck_temperature``, a fault to inject); the firmware's own
+        overheating shutdown sees only this."""
+        if self.stuck_temperature is not None:
+            return self.stuck_temperature
+        return float(state.temperature[self.index])
+
     # -- per physics step ------------------------------------------------------------------------
     def tick(self, now: float, dt: float, state: DriveState) -> None:
         """One firmware cycle before a physics step: safety checks, then the profile setpoint."""
         k = self.index
-        if state.temperature[k] >= self.temperature_limit:
+        if self.sensed_temperature(state) >= self.temperature_limit:  # the firmware's sensor
             self.raise_hardware_error(HardwareError.OVERHEATING, state)
         lo, hi = self.voltage_limits
         if not lo <= state.voltage[k] <= hi:
@@ -556,7 +565,7 @@ class MotorFirmware:
         in_position = abs(self.target + self.homing - position) <= self.moving_threshold
         status = int(in_position) | (int(self.setpoint != self.target) << 1)
         volt = round(state.voltage[k] * 10)
-        temp = round(state.temperature[k])
+        temp = round(self.sensed_temperature(state))
         fields = (int(now * 1000) % 32768, int(moving), status, pwm, current, velocity, position,
                   traj_v, traj_p, volt, temp)
         try:

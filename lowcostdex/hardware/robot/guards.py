@@ -15,6 +15,14 @@ A motor whose temperature sensor is faulty (the bus says so: an Allegro byte >= 
 is flagged (``sensor_fault``, kept for the session) and left out of the cool-down test while its
 reading is faulty: it can never read "cool", and a pause waiting for it would never end.
 
+A stuck sensor says nothing: its reading stays flat while the current heats the winding. With
+the motor's thermal model (``servo.MotorSpec.winding_heating``, the simulation's dcmotor
+model) the guard integrates the temperature the measured current makes from the reading at
+which it last changed; when the model has risen ``stuck_rise`` K and the reading has not moved
+by a whole degree, the sensor is stuck (``stuck``, flagged in ``sensor_fault``): the guard cannot
+see that motor any more, so it is relaxed at once and at every later read, and a pause is
+requested (the pause leaves it out of the cool-down test).
+
 Current guard: a motor drawing more than ``limit`` for ``window`` consecutive reads is
 overloaded; for ``relax_steps`` control steps its goal may only lead its present position by
 ``relaxed_step``, which bounds the position error and hence the current the firmware's P path
@@ -25,6 +33,7 @@ shutdown).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -46,6 +55,8 @@ class ThermalConfig:
       pause_mode: "torque_off" (motors limp, coolest) or "hold" (torque on, goal := present).
       poll_interval: temperature read interval while paused [s].
       max_pause: a pause longer than this raises ThermalTimeout (a fan or sensor is broken) [s].
+      stuck_rise: the model's rise over a flat reading that makes a stuck sensor [K]
+        (readings are whole degrees; 5 K leaves room for a model 5x too hot).
     """
 
     warn_margin: float = 15.0
@@ -55,9 +66,13 @@ class ThermalConfig:
     pause_mode: str = "torque_off"
     poll_interval: float = 1.0
     max_pause: float = 3600.0
+    stuck_rise: float = 5.0
 
     def __post_init__(self) -> None:
         check_choice("thermal pause mode", self.pause_mode, PAUSE_MODES)
+        if not self.stuck_rise > 1.0:
+            raise ConfigError("ThermalConfig.stuck_rise must be > 1 K (readings are whole "
+                              f"degrees), got {self.stuck_rise}")
         if not self.resume_margin > self.warn_margin > self.critical_margin >= 0:
             raise ConfigError("ThermalConfig: need resume_margin > warn_margin > "
                               f"critical_margin >= 0, got {self.resume_margin}, "
@@ -120,11 +135,14 @@ class ThermalGuard:
       config: thresholds.
       limit: firmware shutdown temperature [deg C] (config.limit or the motor's).
       names: joint names aligned with the temperature arrays.
+      motor: the motors' spec (``sim.servo.MotorSpec``) whose thermal model checks for stuck
+        sensors; None (the Allegro: no current reading, no spec): no check.
     """
 
     config: ThermalConfig
     limit: float
     names: tuple[str, ...]
+    motor: Any = None
     pause_pending: bool = False
     max_seen: np.ndarray = field(init=False)
     relaxed: np.ndarray = field(init=False)
@@ -135,8 +153,13 @@ class ThermalGuard:
     def __post_init__(self) -> None:
         self.max_seen = np.full(len(self.names), -np.inf)
         self.relaxed = np.zeros(len(self.names), bool)
-        self.sensor_fault = np.zeros(len(self.names), bool)  # ever flagged (n,) bool
-        self._faulty = np.zeros(len(self.names), bool)  # faulty in the last read
+        n = len(self.names)
+        self.sensor_fault = np.zeros(n, bool)  # ever flagged (n,) bool
+        self.stuck = np.zeros(n, bool)  # flat reading while the model heated (n,) bool
+        self._faulty = np.zeros(n, bool)  # faulty in the last read
+        self._flat = np.full(n, np.nan)  # reading since it last changed [deg C]
+        self._model = np.full(n, np.nan)  # model temperature since then [deg C]
+        self._time = np.nan  # time of the last read [s]
 
     @property
     def warn(self) -> float:
@@ -153,21 +176,24 @@ class ThermalGuard:
         """Temperature at which a motor is relaxed mid-episode [deg C]."""
         return self.limit - self.config.critical_margin
 
-    def update(self, temperature: np.ndarray, sensor_fault: np.ndarray | None = None
-               ) -> np.ndarray:
-        """Feed one read (n,) [deg C] (NaN = unknown) and the motors whose sensor reported a
-        fault in it (n,) bool; returns the motors to relax now (n,) bool (newly critical ones;
-        already relaxed motors are not repeated)."""
+    def update(self, temperature: np.ndarray, sensor_fault: np.ndarray | None = None,
+               current: np.ndarray | None = None, time: float | None = None) -> np.ndarray:
+        """Feed one read (n,) [deg C] (NaN = unknown), the motors whose sensor reported a
+        fault in it (n,) bool, the winding currents (n,) [A] and the read's time [s]; returns
+        the motors to relax now (n,) bool (newly critical or stuck ones; already relaxed motors
+        are not repeated)."""
         t = np.asarray(temperature, float)
         if sensor_fault is not None:
             self._faulty = np.asarray(sensor_fault, bool).copy()
             self.sensor_fault |= self._faulty
+        if self.motor is not None and current is not None and time is not None:
+            self._check_stuck(t, np.asarray(current, float), float(time))
         known = np.isfinite(t)
         self.max_seen = np.where(known, np.maximum(self.max_seen, t), self.max_seen)
         if np.any(known & (t >= self.warn)) and not self.pause_pending:
             self.pause_pending = True
             self.warnings += 1
-        hot = known & (t >= self.critical) & ~self.relaxed
+        hot = ((known & (t >= self.critical)) | self.stuck) & ~self.relaxed
         if np.any(hot):
             self.relaxed |= hot
             self.relaxations += int(np.sum(hot))
@@ -178,8 +204,23 @@ class ThermalGuard:
         """True when every motor reads (validly) below ``resume``, leaving out the motors whose
         sensor reported a fault in the last read (``update``): their reading is no temperature
         (they stay flagged in ``sensor_fault``)."""
-        t = np.asarray(temperature, float)[~self._faulty]
+        t = np.asarray(temperature, float)[~(self._faulty | self.stuck)]
         return bool(np.all(np.isfinite(t)) and np.all(t < self.resume))
+
+    def _check_stuck(self, t: np.ndarray, current: np.ndarray, now: float) -> None:
+        """Integrate the thermal model since each reading last changed; flag ``stuck``."""
+        dt = now - self._time if np.isfinite(self._time) else 0.0
+        self._time = now
+        if dt > 0:  # explicit Euler: reads come every 0.1-1 s, the winding's constant is ~100 s
+            amps = np.where(np.isfinite(current), current, 0.0)  # unknown: no heat (no verdict)
+            self._model += dt * self.motor.winding_heating(amps, self._model)
+        moved = ~(np.abs(t - self._flat) < 1.0)  # a whole degree, or the first / a NaN read
+        self._flat = np.where(moved, t, self._flat)
+        self._model = np.where(moved, t, self._model)
+        new = ~moved & (self._model - self._flat >= self.config.stuck_rise) & ~self.stuck
+        if np.any(new):
+            self.stuck |= new
+            self.sensor_fault |= new
 
     def end_pause(self, record: PauseRecord) -> None:
         self.pauses.append(record)

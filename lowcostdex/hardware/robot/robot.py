@@ -52,6 +52,7 @@ from lowcostdex.hardware.robot.guards import (
 )
 from lowcostdex.hardware.robot.safety import UnsafeCommand, check_finite, clip_goal
 from lowcostdex.hardware.timing import BusClock, Clock, Rate
+from lowcostdex.motors import MOTORS, MotorSpec
 
 log = logging.getLogger(__name__)
 
@@ -215,6 +216,11 @@ def motor_speed(hand: HandSpec) -> float:
     return MOTOR_SPEED_MARGIN * servo.motor_spec(hand.motor).no_load_speed
 
 
+def motor_spec_of(hand: HandSpec) -> MotorSpec | None:
+    """The hand's ``motors.MotorSpec`` (its thermal model), None for the Allegro."""
+    return MOTORS.get(hand.motor)
+
+
 def motor_limits(hand: HandSpec) -> tuple[float, float]:
     """(firmware temperature limit [deg C], stall current [A]) of the hand's motor model."""
     if hand.motor == "allegro":
@@ -263,7 +269,8 @@ class Robot:
             self.speed = np.array([abs(j.calibration.rate_to_joint(v)) for j in self.joints])
         limit, stall = motor_limits(hand)
         limit = config.thermal.limit if config.thermal.limit is not None else limit
-        self.thermal = ThermalGuard(config.thermal, limit, self.joint_names)
+        self.thermal = ThermalGuard(config.thermal, limit, self.joint_names,
+                                    motor_spec_of(hand))
         climit = config.current.limit if config.current.limit is not None else (
             config.current.fraction * stall)
         self.current_guard = CurrentGuard(config.current, np.full(len(self.joints), climit))
@@ -379,11 +386,19 @@ class Robot:
             log.warning("temperature sensor fault: %s; left out of the thermal pause's "
                         "cool-down test while faulty", ", ".join(
                             self.joint_names[i] for i in np.flatnonzero(new)))
-        hot = self.thermal.update(state.temperature, state.temperature_fault)
+        stuck = self.thermal.stuck.copy()
+        hot = self.thermal.update(state.temperature, state.temperature_fault, state.current,
+                                  state.time)
+        for i in np.flatnonzero(self.thermal.stuck & ~stuck):
+            log.error("temperature sensor of %s stuck at %.0f deg C while its current heated "
+                      "the winding by >= %.0f K (thermal model); the thermal guard cannot see "
+                      "it, so it is kept relaxed: check the motor", self.joint_names[i],
+                      state.temperature[i], self.thermal.config.stuck_rise)
         if np.any(hot):
-            names = [self.joint_names[i] for i in np.flatnonzero(hot)]
-            log.warning("thermal guard: %s at >= %.1f deg C; torque off until the next pause",
-                        ", ".join(names), self.thermal.critical)
+            names = [self.joint_names[i] for i in np.flatnonzero(hot & ~self.thermal.stuck)]
+            if names:
+                log.warning("thermal guard: %s at >= %.1f deg C; torque off until the next "
+                            "pause", ", ".join(names), self.thermal.critical)
             self.metrics.thermal_relaxations += int(np.sum(hot))
             self.torque(False, [self.joint_names[i] for i in np.flatnonzero(hot)])
         over = self.current_guard.update(state.current)
