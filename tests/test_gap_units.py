@@ -530,6 +530,20 @@ def test_extended_model_folder_round_trip(tmp_path):
     plant = ext.plant()
     assert plant.model.actuator_history[0, 0] > 0  # latency got its history buffer
     assert {e.name for e in plant.effects} == {"latency", "backlash"}
+    # the backlash is the play hinge the analysis replayed: range +-width/2 beside the joint
+    nominal_nq = mujoco.MjModel.from_xml_string(xml).nq
+    play = plant.model.joint(f"{BENCH_JOINT}__play")
+    assert plant.model.nq == nominal_nq + 1
+    np.testing.assert_allclose(plant.model.jnt_range[play.id], [-0.005, 0.005])
+    jq = plant.model.jnt_qposadr[plant.model.joint(BENCH_JOINT).id]
+    pq = plant.model.jnt_qposadr[play.id]
+    for q in (0.4, -0.4):  # the arm hangs from q = 0: gravity leans the link on that side's stop
+        plant.reset(qpos=np.r_[q, np.zeros(plant.model.nq - 1)])
+        assert float(plant.measured_qpos()[jq]) == pytest.approx(q)  # the link's angle
+        assert float(plant.qpos[pq]) == pytest.approx(-0.005 * np.sign(q))
+        assert float(plant.qpos[jq]) == pytest.approx(q + 0.005 * np.sign(q))  # motor side
+    # without hidden dofs the layout is the nominal one (the play operator on the goal)
+    assert ext.plant(hidden_dofs=False).model.nq == nominal_nq
 
 
 def test_dr_ranges_widen_degenerate_intervals_and_respect_bounds():

@@ -13,8 +13,10 @@ An extended model is a folder:
 Effects MJCF cannot express (backlash, Stribeck and load-dependent friction, position offset,
 thermal derating, voltage sag) live only in effects.json and act through the ``Plant``. Two ways
 to use it: ``ExtendedModel.plant()`` (nominal model + every effect through the Plant: the one
-source of truth, used by the envs' sim backend and the emulator), or ``extended_<key>.xml``
-with ``ExtendedModel.residual_effects`` for consumers that want a plain MJCF.
+source of truth; a backlash is the play hinge the analysis replayed, which adds a dof per
+joint, or with ``hidden_dofs=False`` the play operator in the nominal qpos layout, which the
+emulator and the envs' backends still use), or ``extended_<key>.xml`` with
+``ExtendedModel.residual_effects`` for consumers that want a plain MJCF.
 """
 
 from __future__ import annotations
@@ -160,10 +162,18 @@ class ExtendedModel:
             raise ConfigError(f"unknown model {key!r}; models: {sorted(self.nominal)}")
         return key
 
-    def plant(self, key: str | None = None, rng: np.random.Generator | None = None) -> Plant:
-        """A Plant of the nominal model with every fitted effect applied."""
+    def plant(self, key: str | None = None, rng: np.random.Generator | None = None,
+              hidden_dofs: bool = True) -> Plant:
+        """A Plant of the nominal model with every fitted effect applied.
+
+        ``hidden_dofs`` (default): a backlash is the play hinge the analysis replays (the
+        model gains a ``<joint>__play`` hinge after each such joint, so its qpos layout
+        differs from the nominal one; ``Plant.measured_qpos`` reads the link, joint + play).
+        False: the nominal qpos layout, backlash as the massless-motor play operator on the
+        goal (for consumers that share a task model's state layout).
+        """
         spec = mujoco.MjSpec.from_string(self.nominal[self.key(key)])
-        prepare_spec(spec, self.effects)
+        prepare_spec(spec, self.effects, hidden_dofs=hidden_dofs)
         return Plant(spec.compile(), self.effects, rng=rng)
 
     def domain_randomization(self, joints: Sequence[str] | None = None) -> DomainRandomization:
