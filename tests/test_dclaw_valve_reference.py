@@ -13,7 +13,7 @@ dclaw_stations/assets/valve3.xml and dependencies.xml (the same files as vikashp
     .2 0.005 0.0001; compiler inertiafromgeom auto, inertiagrouprange 3 5 (density 1000).
 
 Where ours differs on purpose (friction, inertia) the test pins the documented numbers
-(docs/hardware.md); the spoke phase is a known open mismatch (issue 18), an expected failure.
+(docs/hardware.md); the spoke phase is ROBEL's (issue 18).
 """
 
 from __future__ import annotations
@@ -103,17 +103,9 @@ def test_spoke_and_hub_geometry_and_hinge_damping_are_robels(ours, robel):
         assert model.dof_damping[model.jnt_dofadr[model.joint("valve").id]] == pytest.approx(0.1)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 18: our spokes are at -90/30/150 deg; ROBEL's phase "
-                   "waits for a valve teacher that holds at it (docs/hardware.md)")
 def test_spoke_phase_is_robels(ours):
     np.testing.assert_allclose(_spoke_directions_deg(ours, "valve_body"), ROBEL_SPOKES_DEG,
                                atol=1.0)
-
-
-def test_spoke_phase_is_the_documented_one(ours):
-    # docs/hardware.md: ours -90, 30, 150 deg (= 270, 30, 150)
-    np.testing.assert_allclose(_spoke_directions_deg(ours, "valve_body"), [30, 150, 270],
-                               atol=1e-6)
 
 
 def test_friction_and_inertia_differ_as_documented(ours, robel):

@@ -310,16 +310,21 @@ class VirtualTeacherConfig:
 
 
 FIRM_HAND = VirtualTeacherConfig(kp=10.0, kd=0.5, max_torque=3.0)
-"""The virtual person's hand for the block flip: rolling and carrying the block needs a firmer
-hand than turning the valve; with the default (kp 3 N m/rad) the carry crept at 1-2 mm per
-control step against the emulated joints' friction and 4 of 10 flips succeeded, with this one 8
-of 10 (emulated D'Claw, default effects)."""
+"""The virtual person's hand for the D'Claw teachers (valve, screw, block flip). Block flip: with
+the soft default (kp 3 N m/rad) the carry crept at 1-2 mm per control step against the emulated
+joints' friction and 4 of 10 flips succeeded, with this one 8 of 10. Valve at ROBEL's spoke
+phase: one finger pushes at a time for part of the turn, and under the soft hand a single finger
+turned the valve ~5-8 deg per step (three fingers ~22): the demonstrations ended 9 deg short
+(0/6), with this hand 6/6 (emulated D'Claw, default effects; bench/RESULTS.md)."""
+
+FIRM_SOLVERS = ("FlipBlockTeacher", "ValveTurnTeacher", "ScrewTrackTeacher")
+"""Scripted solvers moved by ``FIRM_HAND``; any other (the Allegro's) by the default hand."""
 
 
 def virtual_teacher_config(solver: Any) -> VirtualTeacherConfig:
-    """The virtual person's hand for a scripted solver: ``FIRM_HAND`` for the flip teacher,
-    the default otherwise."""
-    return FIRM_HAND if type(solver).__name__ == "FlipBlockTeacher" else VirtualTeacherConfig()
+    """The virtual person's hand for a scripted solver: ``FIRM_HAND`` for the D'Claw teachers
+    (``FIRM_SOLVERS``), the default otherwise."""
+    return FIRM_HAND if type(solver).__name__ in FIRM_SOLVERS else VirtualTeacherConfig()
 
 
 class VirtualTeacher:
@@ -330,12 +335,13 @@ class VirtualTeacher:
       task: the bound task (its model has the chain's qpos layout).
       solver: (qpos (nq,), goal) -> finger joint targets (9,) [rad]; ``reset(task)`` is called at
         every episode start if it has one. Default: ``ValveTurnTeacher``.
-      config: PD gains, re-planning period, motion bound, imprecision.
+      config: PD gains, re-planning period, motion bound, imprecision (default:
+        ``virtual_teacher_config(solver)``).
       rng: generator of the imprecision noise (seeded by the caller).
     """
 
     def __init__(self, chain: Any, task: Any, solver: Any = None,
-                 config: VirtualTeacherConfig = VirtualTeacherConfig(),
+                 config: VirtualTeacherConfig | None = None,
                  rng: np.random.Generator | None = None):
         plant = chain.plant
         if plant.model.nq != task.model.nq:
@@ -344,6 +350,8 @@ class VirtualTeacher:
             from lowcostdex.teachers.valve import ValveTurnTeacher
 
             solver = ValveTurnTeacher()
+        if config is None:
+            config = virtual_teacher_config(solver)
         self.chain, self.task, self.solver, self.config = chain, task, solver, config
         self.rng = rng if rng is not None else np.random.default_rng(0)
         m = plant.model

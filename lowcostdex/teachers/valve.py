@@ -5,13 +5,16 @@ model (hand joints and object) and returns joint goals [rad] for the hand joints
 so it can drive a ``HandEnv`` (``goal_to_action``), serve as the physics sanity test, and act as the
 "virtual teacher" that moves the fingers of an emulated hand while demonstrations are recorded.
 
-``ValveTurnTeacher`` turns the D'Claw valve: every fingertip is placed, with analytic inverse
-kinematics, on a circle about the valve axis a little above the spoke axis, behind the spoke it
-is going to push; it then sweeps along the circle, pushing the spoke with the side of its tip,
-until the valve reaches the goal (the sweep speed falls with the remaining error) or the tip leaves
-its reach; then it lifts above the spokes, travels back behind the next spoke, lowers and pushes
-again. The three fingers and the three spokes share the hand's 3-fold symmetry, so all fingers
-run the same stroke in their own frames, 120 deg apart, and never meet.
+``ValveTurnTeacher`` turns the D'Claw valve as a relay: each finger runs its own stroke (wait
+lifted above the spokes, come down behind the first spoke ahead of its tip, push it along a circle
+about the valve axis with the side of the tip, rise, travel back), planned from the measured valve
+angle with analytic inverse kinematics. A finger comes down only while no finger pushes, so where
+it lands does not depend on how fast the valve turned: an open-loop playback of a recorded
+demonstration, whose valve lags the original by a few degrees, lands behind the same spoke. The
+first stroke is one finger's when the spoke ahead leaves the fingers less than ``solo_stroke``
+(ROBEL's spoke phase: spokes midway between the fingers), else all three push together. The
+tips push low on the spokes (``push_height``): the contact normal is then closer to horizontal,
+so a servo that yields under load (the playback) loses less of the stroke by riding up the spoke.
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ from lowcostdex.hands import DCLAW_FINGERS
 from lowcostdex.sim.envs.task import Goal, wrap_angle
 from lowcostdex.sim.kinematics import FingerGeometry
 
-RETURN, PUSH, RISE, LOWER = "return", "push", "rise", "lower"
+RETURN, PUSH, RISE, LOWER, WAIT = "return", "push", "rise", "lower", "wait"
+
 
 
 # ------------------------------------------------------------------------------------------------
@@ -36,52 +40,72 @@ RETURN, PUSH, RISE, LOWER = "return", "push", "rise", "lower"
 
 @dataclass(frozen=True)
 class ValveTeacherConfig:
-    """Stroke of the valve-turning teacher (lengths [m], angles [rad]).
+    """Strokes of the valve-turning teacher (lengths [m], angles [rad]).
+
+    Angles are tip angles about the valve axis from the finger's own direction, counted in the
+    turning direction (a stroke runs from negative to positive).
 
     Attributes:
       push_radius: radius of the fingertip circle about the valve axis.
       push_height: tip-sphere centre above the spoke axis while pushing.
-      return_radius: radius of the circle the tips return along, above the spokes.
-      return_height: tip-sphere centre above the spoke axis while returning.
-      reach: largest tip angle from the finger's own direction (either side); lowered at
-        ``reset`` to what the finger reaches on the push circle.
-      approach_gap: extra angular gap between tip and spoke when the tip comes down.
-      sweep_speed: largest tip advance along the circle per control step while pushing.
-      travel_speed: largest tip travel along the circle per control step while returning.
-      reach_tolerance: a stroke ends when the measured tip is this close to its reach.
-      error_gain: tip advance per step = min(sweep_speed, error_gain * |valve error| - lag).
+      wait_radius: radius of the circle the tips travel and wait on, above the spokes.
+      wait_height: tip-sphere centre above the spoke axis there (clear of a neighbour's pushing
+        tip passing below).
+      reach: a stroke ends at this tip angle (lowered at ``reset`` to what every finger
+        reaches on the push circle); strokes start no further back than -reach.
+      wait_angle: where a finger waits for the next spoke (at -wait_angle).
+      approach_gap: angle between the tip and the spoke's contact position when the tip comes
+        down behind it.
+      min_stroke: a finger comes down only behind a spoke it can push at least this far.
+      solo_stroke: the first stroke is made by one finger if it would be shorter than this (the
+        other two wait for the next spoke and push it further), else by all three.
+      clearance: a finger does not come down within this angle (about the valve axis) of
+        another finger's pushing or rising tip.
+      sweep_speed: largest lead of the tip command over the spoke's contact position per
+        control step; error_gain: lead = min(sweep_speed, error_gain * |valve error|).
+      max_lead: largest lead of the tip command over the measured tip.
+      travel_speed: largest travel of a waiting tip's command per control step.
+      reach_tolerance: a stroke ends when the measured tip is this close to ``reach``.
       hold_tolerance: |valve error| below which the fingers hold still.
       reverse_tolerance: overshoot beyond which the fingers go round to push back.
-      settle_tolerance: distance [m] from the push circle that ends a return.
-      hold_backoff: when the valve reaches the goal the tip steps back this much from where it
-        is, so it stops pressing on the spoke.
-      lift_start: a return travels only once the tip is this far [m] above the push height.
-      replan_angle: a return re-plans its stroke when the valve has turned this much since.
+      settle_tolerance: height [m] above the push height that ends a descent.
+      rise_clearance: a rising tip starts to wait (and may travel) once this far [m] above the
+        spoke tops; travel_clearance: a waiting tip travels only this far above them (tips
+        that travelled 4 mm above the push height in a playback dragged a spoke back).
+      hold_backoff: when the valve reaches the goal a pushing tip steps back this much, so it
+        stops pressing on the spoke.
       flip_margin: the turning direction chosen at the first call (the short way; +1 at exactly
         180 deg) is kept until the wrapped error passes pi - flip_margin the other way.
     """
 
     push_radius: float = 0.065
-    push_height: float = 0.027
-    return_radius: float = 0.08
-    return_height: float = 0.038
+    push_height: float = 0.022
+    wait_radius: float = 0.085
+    wait_height: float = 0.05
     reach: float = math.radians(75)
-    approach_gap: float = math.radians(10)
+    wait_angle: float = math.radians(60)
+    approach_gap: float = math.radians(8)
+    min_stroke: float = math.radians(20)
+    solo_stroke: float = math.radians(90)
+    clearance: float = math.radians(35)
     sweep_speed: float = math.radians(24)
-    travel_speed: float = math.radians(35)
-    reach_tolerance: float = math.radians(4)
     error_gain: float = 0.8
+    max_lead: float = math.radians(35)
+    travel_speed: float = math.radians(40)
+    reach_tolerance: float = math.radians(4)
     hold_tolerance: float = 0.02
     reverse_tolerance: float = 0.08
     settle_tolerance: float = 0.004
-    flip_margin: float = 0.5
+    rise_clearance: float = 0.006
+    travel_clearance: float = 0.008
     hold_backoff: float = math.radians(2)
-    lift_start: float = 0.004
-    replan_angle: float = math.radians(4)
+    flip_margin: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("push_radius", "reach", "sweep_speed", "travel_speed", "error_gain",
-                     "hold_tolerance", "settle_tolerance"):
+        if not (self.rise_clearance >= 0 and self.travel_clearance >= 0):
+            raise ConfigError("ValveTeacherConfig.rise_clearance and travel_clearance must be >= 0")
+        for name in ("push_radius", "wait_radius", "reach", "sweep_speed", "travel_speed",
+                     "max_lead", "error_gain", "hold_tolerance", "settle_tolerance"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"ValveTeacherConfig.{name} must be > 0, got {getattr(self, name)}")
         if not self.reverse_tolerance >= self.hold_tolerance:
@@ -96,8 +120,13 @@ class ValveTurnTeacher:
     (nq,) and the goal dict (``goal["angle"]`` [rad]); it returns joint goals (9,) [rad] in the
     hand's action order. The error is wrapped to [-pi, pi) as the task does.
 
-    Two phases: ``return`` brings the tips to the start of a stroke (lifted above the spokes
-    only while crossing one) and ``push`` sweeps them along the push circle.
+    A relay: every finger runs its own stroke (``wait`` above the spokes at -wait_angle,
+    ``lower`` behind the first spoke ahead of its tip, ``push`` it to ``reach``, ``rise``, back to
+    ``wait``). One finger starts; the next comes down behind the spoke reaching it as the pushing
+    finger nears the end of its stroke, so one finger pushes while the others return and the
+    valve keeps turning. Everything is planned from the measured valve angle and spoke
+    directions, so it works at any spoke phase (the fingers and spokes share the 3-fold symmetry:
+    every finger sees the spokes at the same angles in its own frame).
     """
 
     def __init__(self, config: ValveTeacherConfig = ValveTeacherConfig()):
@@ -128,24 +157,20 @@ class ValveTurnTeacher:
         side = math.sqrt(max((spoke_radius + tip_radius) ** 2 - c.push_height**2, 0.0))
         self.contact_angle = math.asin(min(side / c.push_radius, 1.0))
         self.push_z = spoke_z + c.push_height
-        self.return_z = spoke_z + c.return_height
+        self.wait_z = spoke_z + c.wait_height
         self.clear_z = spoke_z + spoke_radius + tip_radius + 0.002  # above the spoke tops
-        if not self.return_z > self.clear_z:
-            raise ConfigError(f"return_height {c.return_height} must put the tips above the "
-                              f"spokes (> {self.clear_z - spoke_z:.3f} m)")
-        self.reach = min(c.reach, self._reachable(c.push_radius, self.push_z),
-                         self._reachable(c.return_radius, self.return_z))
-        self.phase = RETURN
-        self.alpha = math.nan  # commanded tip angle from each finger's direction [rad]
-        self.z = math.nan  # commanded tip-centre height [m]
-        self.radius = c.push_radius
-        self.direction = 0.0  # direction of the current stroke (+1 / -1; 0 before the first)
-        self.target_alpha = math.nan
-        self._crossing = np.zeros(0)  # spokes between the tip and the stroke start [rad]
-        self._way = 0.0  # direction of travel to the stroke start
-        self._lifting = False
-        self._holding = False
-        self._plan_theta = math.nan
+        lift = max(c.rise_clearance, c.travel_clearance)
+        if not self.wait_z > self.clear_z + lift:
+            raise ConfigError(f"wait_height {c.wait_height} must put the tips above the "
+                              f"spokes (> {self.clear_z + lift - spoke_z:.3f} m)")
+        self.reach = min(c.reach, self._reachable(c.push_radius, self.push_z))
+        if not max(c.wait_angle, self.reach) <= self._reachable(c.wait_radius, self.wait_z):
+            raise ConfigError("wait_radius/wait_height: the fingers cannot reach the wait circle")
+        self.state = [WAIT] * 3
+        self.command: np.ndarray | None = None  # per finger: tip angle [rad], radius, height [m]
+        self.direction = 0.0  # turning direction (+1 / -1; 0 before the first call)
+        self._held = [False] * 3
+        self._started = False  # a stroke has started since the first call or the last reversal
         self._commit: float | None = None
 
     def _reachable(self, radius: float, z: float) -> float:
@@ -179,11 +204,6 @@ class ValveTurnTeacher:
         alpha = wrap_angle(np.arctan2(rel[:, 1], rel[:, 0]) - self.finger_angles)
         return alpha, np.hypot(rel[:, 0], rel[:, 1]), rel[:, 2] + self.center[2]
 
-    def joint_goals(self, alpha: float, radius: float, z: float) -> np.ndarray:
-        """Joint goals (9,) [rad] putting every tip at (alpha, radius, z) in its own frame."""
-        return np.concatenate([f.inverse(self._circle_point(i, alpha, radius, z), self.low[i],
-                                         self.high[i]) for i, f in enumerate(self.fingers)])
-
     def spoke_rel(self, theta: float) -> np.ndarray:
         """Spoke angles seen from the fingers' direction (the same for every finger) [rad]."""
         return wrap_angle(self.spoke_angles + theta - self.finger_angles[0])
@@ -204,90 +224,111 @@ class ValveTurnTeacher:
     def __call__(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
         c = self.config
         q = np.asarray(qpos, float)[self.hand_qpos]
-        theta = float(qpos[self.valve_qpos])
         err = self.error(qpos, goal)
         tips_alpha, _, tips_z = self.tip_polar(q)
-        alpha = float(np.mean(tips_alpha))
-        if math.isnan(self.alpha):
-            self.alpha, self.z = alpha, float(np.mean(tips_z))
+        if self.command is None:
+            self.command = np.stack([tips_alpha, np.full(3, c.push_radius), tips_z], axis=1)
         s = math.copysign(1.0, err)
-        if self.phase == PUSH:
-            reverse = s != self.direction and abs(err) > c.reverse_tolerance
-            if abs(err) < c.hold_tolerance or (s != self.direction and not reverse):
-                if not self._holding:  # stop pressing: back the tip off the spoke a little
-                    self.alpha = alpha - self.direction * c.hold_backoff
-                    self._holding = True
-                return self.joint_goals(self.alpha, self.radius, self.z)
-            self._holding = False
-            if reverse or s * alpha >= self.reach - c.reach_tolerance:
-                self.phase = RETURN
-                self.direction = 0.0
-            else:
-                # The tip still owes the lag between command and measurement: that much of the
-                # error will be pushed off without a new command.
-                owed = max(s * (self.alpha - alpha), 0.0)
-                step = min(c.sweep_speed, max(c.error_gain * abs(err) - owed, 0.0))
-                self.alpha = float(np.clip(self.alpha + s * step, -self.reach, self.reach))
-        if self.phase == RETURN:
-            moved = abs(float(wrap_angle(theta - self._plan_theta))) > c.replan_angle
-            if self.direction == 0.0 or moved:  # (a spoke knocked on the way moves the start)
-                self._plan_stroke(theta, alpha, s)
-            self._return_step(tips_alpha, tips_z)
-        return self.joint_goals(self.alpha, self.radius, self.z)
+        if self.direction == 0.0:
+            self.direction = s
+        elif s != self.direction and abs(err) > c.reverse_tolerance:  # go round, push back
+            self.direction = s
+            self.state = [RISE if st in (PUSH, LOWER) else st for st in self.state]
+            self._started = False
+        s = self.direction
+        hold = abs(err) < c.hold_tolerance or math.copysign(1.0, err) != s
+        lead = min(c.sweep_speed, c.error_gain * abs(err))
+        spokes = s * self.spoke_rel(float(qpos[self.valve_qpos]))  # in the turning direction
+        u_tips = s * tips_alpha
+        # a finger comes down only while no finger pushes (the valve stands still, so where
+        # the tip lands does not depend on timing); the first stroke is one finger's if it is short
+        handover = not any(st in (PUSH, LOWER) for st in self.state)
+        starts = 3 if self._started else self._first_group(spokes)
+        for i in range(3):
+            u, z, cmd = float(u_tips[i]), float(tips_z[i]), self.command[i]
+            if self.state[i] == PUSH:
+                self._push(i, u, cmd, spokes, hold, lead)
+            if self.state[i] == RISE:
+                cmd[1:] = c.wait_radius, self.wait_z
+                if z >= self.clear_z + c.rise_clearance:
+                    self.state[i] = WAIT
+            if self.state[i] == WAIT:
+                start = None
+                if handover and starts > 0 and not hold:
+                    start = self._start(i, u, spokes, self.finger_angles + tips_alpha)
+                if start is not None:
+                    starts -= 1
+                    self._started = True
+                    self.state[i] = LOWER
+                    cmd[0] = s * start
+                else:
+                    cmd[1:] = c.wait_radius, self.wait_z
+                    if z >= self.clear_z + c.travel_clearance:  # travel only above the spokes
+                        cmd[0] = s * (s * cmd[0] + float(np.clip(-c.wait_angle - s * cmd[0],
+                                                                 -c.travel_speed, c.travel_speed)))
+            if self.state[i] == LOWER:
+                # behind the spoke it came down for (the spoke may move meanwhile)
+                behind = spokes - self.contact_angle - c.approach_gap
+                k = int(np.argmin(np.abs(wrap_angle(behind - s * cmd[0]))))
+                cmd[:] = s * max(float(behind[k]), -self.reach), c.push_radius, self.push_z
+                if z <= self.push_z + c.settle_tolerance:
+                    self.state[i] = PUSH
+        return np.concatenate([f.inverse(self._circle_point(i, *self.command[i]), self.low[i],
+                                         self.high[i]) for i, f in enumerate(self.fingers)])
 
-    def _plan_stroke(self, theta: float, alpha: float, s: float) -> None:
-        """Pick the spoke to push in direction s (the tip starts behind it) and the spokes the
-        tip crosses on its way there."""
+    def _first_group(self, spokes: np.ndarray) -> int:
+        """How many fingers start the first stroke: all three if the spoke ahead leaves them a
+        stroke of ``solo_stroke`` or more, else one (the other two take the next, longer one)."""
         c = self.config
-        spokes = self.spoke_rel(theta)
-        behind = spokes - s * (self.contact_angle + c.approach_gap)
-        ok = np.abs(behind) <= self.reach
-        # the candidate furthest back gives the longest stroke
-        self.target_alpha = (float(behind[ok][np.argmin(s * behind[ok])]) if np.any(ok)
-                             else -s * self.reach)
-        lo, hi = sorted((alpha, self.target_alpha))
-        self._crossing = spokes[(spokes > lo - self.contact_angle) & (spokes < hi)]
-        self._way = math.copysign(1.0, self.target_alpha - alpha)
-        self.direction = s
-        self.alpha = alpha  # drop the push lead: no more pressing on the spoke
-        self._lifting = True
-        self._plan_theta = theta
+        d = wrap_angle(spokes + c.wait_angle)
+        start = spokes - self.contact_angle - c.approach_gap
+        stroke = self.reach - (spokes - self.contact_angle)
+        ok = (start >= -self.reach) & (d > -self.contact_angle)
+        return 3 if np.any(ok & (stroke >= c.solo_stroke)) else 1
 
-    def _return_step(self, tips_alpha: np.ndarray, tips_z: np.ndarray) -> None:
-        """Travel over the spokes in the way to the stroke start, then down to the push circle.
+    def _push(self, i: int, u: float, cmd: np.ndarray, spokes: np.ndarray, hold: bool,
+              lead: float) -> None:
+        """Lead the spoke ahead of tip i by ``lead`` (up to ``reach``); rise at the end."""
+        c, s = self.config, self.direction
+        k = int(np.argmin(np.abs(wrap_angle(spokes - (u + self.contact_angle)))))
+        contact = float(spokes[k]) - self.contact_angle
+        cmd[1:] = c.push_radius, self.push_z
+        if hold:
+            if not self._held[i]:  # stop pressing: back the tip off the spoke a little
+                cmd[0] = s * (min(u, contact) - c.hold_backoff)
+                self._held[i] = True
+            return
+        self._held[i] = False
+        cmd[0] = s * min(max(contact, u) + lead, self.reach, u + c.max_lead)
+        if u >= self.reach - c.reach_tolerance:
+            self.state[i] = RISE
 
-        The tips travel at the return height; they enter a spoke's zone only once the lowest is
-        above the spoke tops, and come down as soon as the last has passed the last spoke in
-        the way. Tips are judged one by one (worst case), not by their mean.
+    def _start(self, i: int, u: float, spokes: np.ndarray, world_tips: np.ndarray
+               ) -> float | None:
+        """Where waiting finger i comes down (tip angle in the turning direction), or None.
+
+        Behind the first spoke ahead of its tip (a spoke less than a contact angle behind the
+        tip is still under it: wait for it to pass; a spoke less than a contact angle ahead is
+        pushed from behind only by a tip that does not have to move back across it), if the stroke left is at least
+        ``min_stroke`` and no other pushing or rising tip (``world_tips``: world angles about the
+        valve axis [rad]) is within ``clearance``.
         """
         c = self.config
-        low, high = float(np.min(tips_z)), float(np.max(tips_z))
-        if self._lifting:  # first up off the spoke just pushed, so as not to drag it back
-            self.radius, self.z = c.return_radius, self.return_z
-            if low < self.push_z + c.lift_start:
-                return
-            self._lifting = False
-        way, half = self._way, self.contact_angle + 0.5 * c.approach_gap
-        ahead, behind = float(np.max(way * tips_alpha)), float(np.min(way * tips_alpha))
-        # spokes every tip has passed are behind them for good
-        self._crossing = self._crossing[behind - way * self._crossing < half]
-        new_alpha = self.alpha + float(np.clip(self.target_alpha - self.alpha,
-                                               -c.travel_speed, c.travel_speed))
-        if low < self.clear_z:  # not above the spokes yet: do not enter a spoke's zone
-            for spoke in self._crossing:
-                near = way * (spoke - way * half)  # in the travel direction's coordinate
-                if ahead > near:  # a tip is beside the spoke already: hold until lifted
-                    new_alpha = self.alpha
-                elif way * new_alpha > near:
-                    new_alpha = way * near
-        self.alpha = new_alpha
-        if self._crossing.size:
-            self.radius, self.z = c.return_radius, self.return_z
-            return
-        self.radius, self.z = c.push_radius, self.push_z
-        arrived = abs(self.target_alpha - float(np.mean(tips_alpha))) < c.approach_gap
-        if arrived and high <= self.push_z + c.settle_tolerance:
-            self.phase = PUSH
+        d = wrap_angle(spokes - u)
+        k = int(np.argmin(np.where(d > -self.contact_angle, d, np.inf)))
+        start = float(spokes[k]) - self.contact_angle - c.approach_gap
+        # behind its tip only if the tip is behind the spoke's contact position already (it
+        # then moves away from the spoke while it comes down)
+        if start < -self.reach or (start < u - c.reach_tolerance and d[k] < self.contact_angle):
+            return None
+        if self.reach - (start + c.approach_gap) < c.min_stroke:
+            return None
+        point = self.finger_angles[i] + self.direction * start  # world angle of the descent
+        for j in range(3):
+            if (j != i and self.state[j] in (PUSH, RISE)
+                    and abs(wrap_angle(world_tips[j] - point)) < c.clearance):
+                return None
+        return start
 
 
 def _spoke_names(model: mujoco.MjModel) -> list[str]:

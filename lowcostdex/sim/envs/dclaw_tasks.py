@@ -18,7 +18,7 @@ from lowcostdex.hands import HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.envs.task import Goal, Task, TaskSpec, wrap_angle
 from lowcostdex.sim.models.common import quat_euler
-from lowcostdex.sim.models.dclaw import BLOCK_CENTER, BLOCK_HALF, build_dclaw
+from lowcostdex.sim.models.dclaw import BLOCK_CENTER, BLOCK_HALF, VALVE, build_dclaw
 
 RESET_POSE = np.tile([0.0, -math.pi / 3, math.pi / 3], 3)  # [rad] ROBEL turn/screw reset pose
 
@@ -117,8 +117,9 @@ class ValveTask(DClawTask):
         return qpos[..., [self.obj_qpos]]
 
     def goal_marker(self, goal):
+        # the arrow points where spoke 0 will point when the valve is at the goal
         return (np.array([0.0, 0.0, 0.16]),
-                np.array(quat_euler(z=float(goal["angle"]) - math.pi / 2)))
+                np.array(quat_euler(z=float(goal["angle"]) + VALVE.spoke_phase)))
 
 
 class TurnValve(ValveTask):

@@ -16,14 +16,11 @@ the block never falls off between resets.
 The valve differs from ROBEL's "valve3" (docs/hardware.md, "Where the D'Claw model differs from
 ROBEL's"; tests/test_dclaw_valve_reference.py computes ROBEL's side from its typed geometry):
 
-- Spoke phase (NOT on purpose, issue 18 open): ROBEL's spokes point at 0, 120, 240 deg at valve
-  angle 0 (the angle its motor-50 calibration reports, which this project copies); ours at -90, 30,
-  150 deg (``ValveGeometry.spoke_phase``). With ROBEL's phase the spokes sit midway between the
-  fingers and ``ValveTurnTeacher`` (teachers/valve.py) needs three strokes instead of two: its
-  randomized-dynamics success fell from 20/20 to 0/20 and the emulated recorder's playbacks from
-  12/12 to 5/12. A relay teacher (one finger pushes while the others return) held in simulation at
-  every phase but lost the playbacks (0/12 at ROBEL's phase, 3/12 at ours), so the phase stays
-  until a teacher holds at both.
+- Spoke phase: ROBEL's (spokes at 0, 120, 240 deg at valve angle 0, the angle its motor-50
+  calibration reports, which this project copies), midway between the fingers. Until 2026-11-26
+  ours sat at -90, 30, 150 deg, where the three-finger valve teacher needed two strokes; at
+  ROBEL's phase it needed three and failed under randomized dynamics, so
+  ``ValveTurnTeacher`` (teachers/valve.py) became a relay.
 - Spoke/hub friction 1.0 (ROBEL 0.2): taken for rubber-coated spokes, not measured. The teacher
   depends on it: at 0.2 its randomized-dynamics success falls from 20/20 to 0/20. Measure a real
   valve before changing it.
@@ -88,8 +85,7 @@ class ValveGeometry:
         freely, and a range lets a valve that overshot 180 deg end up parked against it, out of
         reach of the valve motor's reset.
       spoke_phase: world direction of spoke 0 about the valve axis at valve angle 0 [rad, from
-        +x]; the others follow every 2 pi / spokes. ROBEL's is 0 (module docstring: ours stays
-        -pi/2 until the valve teacher works at ROBEL's phase).
+        +x]; the others follow every 2 pi / spokes. ROBEL's: 0.
     """
 
     spokes: int = 3
@@ -102,7 +98,7 @@ class ValveGeometry:
     solref: tuple[float, float] = (0.02, 1.0)
     solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
     limited: bool = False
-    spoke_phase: float = -math.pi / 2
+    spoke_phase: float = 0.0
 
 
 VALVE = ValveGeometry()
