@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Dataset
-from lowcostdex.gap.identify import IdentifyConfig, identify
+from lowcostdex.gap.identify import IdentifyConfig, _prune_trailing, identify
 from lowcostdex.gap.logs import Trajectory
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect
@@ -73,6 +74,30 @@ def test_identify_recovers_the_servo_and_predicts_held_out_gains(logs):
     # each effect matters on the held-out logs: leaving one out costs error
     assert all(v > 5 * res.mean(res.test) for v in res.ablation.values())
     assert not res.at_bound
+    # the family's training MAE, read off its least-squares residual, is the replayed one
+    assert res.family_train_mae[res.family] == pytest.approx(res.mean(res.train), rel=1e-9)
+    assert res.family_train_mae.keys() == {"free", "held"}
+
+
+def test_pruning_ends_trailing_starts_but_keeps_a_warm_start_that_falls_little():
+    """Costs by hand: a warm start at 0.0349 that fell to 0.0333 must live on beside cold starts
+    that fell from ~1 to 0.5-0.9 (they trail it by far more than 2 % and end); a start within
+    2 % of the best lives; nothing ends before round 4."""
+    free = [fitmod.Free("x", "a", 0, 0.0, 1.0, 0.5, False, 1e-3)]
+    st = fitmod.Structure(("x",), ("j",), free)
+
+    def track(first, last):
+        t = fitmod.Track(st, np.array([0.5]))
+        t.history, t.cost = [first, last], last
+        return t
+
+    warm, close, cold1, cold2 = (track(0.0349, 0.0333), track(0.036, 0.0339),
+                                 track(1.0, 0.66), track(0.98, 0.52))
+    tracks = [warm, close, cold1, cold2]
+    _prune_trailing(2, tracks)
+    assert not any(t.done for t in tracks)
+    _prune_trailing(3, tracks)
+    assert [t.done for t in tracks] == [False, False, True, True]
 
 
 def test_identify_refuses_bad_splits_and_structures(logs):
@@ -84,5 +109,7 @@ def test_identify_refuses_bad_splits_and_structures(logs):
         IdentifyConfig(effects=("no_such_effect",))
     with pytest.raises(ConfigError, match="loss"):
         IdentifyConfig(loss="huber")
+    with pytest.raises(ConfigError, match="joint_rounds"):
+        IdentifyConfig(joint_rounds=0)
     with pytest.raises(ConfigError, match="alpha"):
         IdentifyConfig(hold=frozenset({("gearbox_friction", "no_such_param")}))
