@@ -35,7 +35,8 @@ def markdown_report(ctx: Context) -> str:
     R = ctx.results
     lines = ["# lowcostdex: the main job", "",
              f"Robot: {'emulated D' + chr(39) + 'Claw' if ctx.emulated else ctx.port}; task "
-             f"{ctx.task} (`{ctx.setup.env_id}`); size {ctx.size}; seed {ctx.seed}.", ""]
+             f"{ctx.task} (`{ctx.setup.env_id}`{_overrides(ctx)}); size {ctx.size}; seed "
+             f"{ctx.seed}.", ""]
     if "bus" in R:
         b = R["bus"]
         lines += ["## 1. The robot on its bus", "",
@@ -141,6 +142,12 @@ def markdown_report(ctx: Context) -> str:
     return "\n".join(lines)
 
 
+def _overrides(ctx: Context) -> str:
+    """The task variant's configuration values, as the report names them."""
+    values = ctx.setup.env_overrides
+    return "".join(f", {k} {v}" for k, v in values.items()) if values else ""
+
+
 def _rate(r: dict[str, Any]) -> str:
     """A measured rate with its episode count and 95 % interval, from a result's
     ``eval_successes`` / ``eval_episodes``."""
@@ -152,40 +159,59 @@ def _rate(r: dict[str, Any]) -> str:
     return rate_text(int(k), int(n))
 
 
-def _what_each_stage_added(t: dict[str, Any]) -> str:
-    """Words for what the clone and the RL stage changed, judged by their intervals: a
-    difference is called one only when the 95 % intervals do not overlap."""
+COMPARISONS = (
+    ("random", "bc", "the demonstrations (behaviour clone vs uniformly random actions)"),
+    ("bc", "dapg", "RL fine-tuning (DAPG vs the clone it started from)"),
+    ("npg", "dapg", "demonstrations in RL (DAPG vs NPG from scratch at the same sample budget)"),
+)
+"""What the report judges: (before, after, what the step from before to after is)."""
+
+
+def stage_verdicts(t: dict[str, Any]) -> list[dict[str, Any]]:
+    """Each of COMPARISONS judged from the training results ``t`` (``results["train"]``): the
+    rates before and after with their 95 % Wilson intervals and a verdict, "raised" or
+    "lowered" only when the intervals do not overlap, else "no difference" ("not measured"
+    when either side has no evaluation)."""
     from lowcostdex.stats import wilson_interval
 
-    def ci(r: dict[str, Any]) -> tuple[float, float] | None:
-        k, n = r.get("eval_successes"), r.get("eval_episodes")
-        return wilson_interval(int(k), int(n)) if k is not None and n else None
+    out = []
+    for before, after, what in COMPARISONS:
+        a, b = t.get(before, {}), t.get(after, {})
+        row: dict[str, Any] = {"before": before, "after": after, "what": what}
+        counts = [(r.get("eval_successes"), r.get("eval_episodes")) for r in (a, b)]
+        if any(k is None or not n for k, n in counts):
+            out.append({**row, "verdict": "not measured"})
+            continue
+        (ka, na), (kb, nb) = ((int(k), int(n)) for k, n in counts)
+        ia, ib = wilson_interval(ka, na), wilson_interval(kb, nb)
+        verdict = ("raised" if ib[0] > ia[1] else "lowered" if ib[1] < ia[0]
+                   else "no difference")
+        out.append({**row, "verdict": verdict, "rate_before": ka / na, "rate_after": kb / nb,
+                    "ci_before": ia, "ci_after": ib})
+    return out
 
-    def compare(a: dict[str, Any], b: dict[str, Any], what: str) -> str:
-        ia, ib = ci(a), ci(b)
-        if ia is None or ib is None:
-            return f"{what}: not measured"
-        ra, rb = a["eval_successes"] / a["eval_episodes"], b["eval_successes"] / b["eval_episodes"]
-        if ib[0] > ia[1]:
-            return f"{what} raised success from {ra:.2f} to {rb:.2f}, beyond the intervals"
-        if ib[1] < ia[0]:
-            return f"{what} lowered success from {ra:.2f} to {rb:.2f}, beyond the intervals"
-        return (f"{what} changed success from {ra:.2f} to {rb:.2f}, within the overlap of the "
-                "95 % intervals: no difference this run can show")
 
-    random, bc = t.get("random", {}), t.get("bc", {})
-    parts = [compare(random, bc, "The demonstrations (behaviour clone vs random actions)"),
-             compare(bc, t["dapg"], "RL fine-tuning (DAPG vs the clone it started from)"),
-             compare(t["npg"], t["dapg"], "demonstrations in RL (DAPG vs NPG at the same "
-                     "sample budget)")]
+def _what_each_stage_added(t: dict[str, Any]) -> str:
+    """Words for what each stage changed (``stage_verdicts``): a difference is called one only
+    when the 95 % intervals do not overlap."""
+    parts = []
+    for v in stage_verdicts(t):
+        what = v["what"][0].upper() + v["what"][1:]
+        if v["verdict"] == "not measured":
+            parts.append(f"{what}: not measured")
+            continue
+        change = f"from {v['rate_before']:.2f} to {v['rate_after']:.2f}"
+        if v["verdict"] == "no difference":
+            parts.append(f"{what} changed success {change}, within the overlap of the 95 % "
+                         "intervals: no difference this run can show")
+        else:
+            parts.append(f"{what} {v['verdict']} success {change}, beyond the 95 % intervals")
     text = "; ".join(parts) + "."
-    if (ci(bc) and ci(t["dapg"]) and bc["eval_successes"] == bc["eval_episodes"]
-            and t["dapg"]["eval_successes"] == t["dapg"]["eval_episodes"]):
-        text += (" The clone alone already solves this task here, so at this budget the RL "
-                 "stage cannot show a gain. With random start and target angles "
-                 "(`--task valve-random`) the clone is not enough, but RL has not raised it "
-                 "within the budgets measured so far either (bench/RESULTS.md): a budget at "
-                 "which RL visibly adds on the robot is still to be found.")
+    bc, dapg = t.get("bc", {}), t.get("dapg", {})
+    if (bc.get("eval_episodes") and bc.get("eval_successes") == bc["eval_episodes"]
+            and dapg.get("eval_successes") == dapg.get("eval_episodes")):
+        text += (" The clone alone already solves this task here, so the RL stage cannot show "
+                 "a gain on it.")
     return text
 
 

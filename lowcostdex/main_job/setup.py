@@ -23,6 +23,8 @@ class TaskSetup:
         outcome is too sensitive to the finger motion: bench/RESULTS.md).
       demo_tries: the demos stage records until ``Budget.demos`` demonstrations succeeded, at
         most this many times as many episodes (a person also throws failed ones away).
+      env_overrides: task-configuration values passed to ``gym.make`` with the env id (e.g.
+        ``TurnConfig.goal_range``), for every stage that makes the env.
     """
 
     env_id: str
@@ -32,6 +34,7 @@ class TaskSetup:
     title: str
     playbacks: int
     demo_tries: int
+    env_overrides: dict[str, Any] = field(default_factory=dict)
 
 
 TASKS = {
@@ -122,7 +125,8 @@ class Context:
         """gym.make keyword arguments selecting the robot (JSON-serializable)."""
         from lowcostdex.hands import dclaw_spec
 
+        task = dict(self.setup.env_overrides)
         if self.port is None:
             effects = robot_effects(dclaw_spec().joint_names)
-            return {"backend": "emulated", "effects": [e.to_dict() for e in effects]}
-        return {"backend": "hardware", "port": self.port}
+            return {**task, "backend": "emulated", "effects": [e.to_dict() for e in effects]}
+        return {**task, "backend": "hardware", "port": self.port}
