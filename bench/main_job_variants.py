@@ -42,8 +42,8 @@ def record(path: Path, env_id: str, env_kwargs: dict[str, Any], n: int, playback
         VirtualTeacherConfig,
         identify_servo_response,
     )
-    from lowcostdex.demonstrations.teachers import teacher_class
     from lowcostdex.main_job.stages import SERVO_ID_EPISODES
+    from lowcostdex.teachers import teacher_class
 
     env = gym.make(env_id, **env_kwargs)
     try:

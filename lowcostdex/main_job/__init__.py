@@ -13,8 +13,9 @@
 5. report: ``report.md`` (and ``report.html``) with the PNG plots, in one output folder.
 
 ``--port /dev/ttyUSB0`` runs the same stages on a real D'Claw (kinesthetic demos then need a
-person); ``--task`` picks the task (``valve``: turn the valve 180 deg; ``flip``: flip the block 180
-deg about a horizontal axis); ``--size`` picks the budget: ``smoke`` (CI, about a minute), ``default`` (about 5 minutes
+person); ``--task`` picks the task (``valve-target``, the default: turn the valve from 0 to a random target
+180 +- 29 deg away; ``valve``: turn it 180 deg; ``valve-random``: random start and target;
+``flip``: flip the block 180 deg about a horizontal axis); ``--size`` picks the budget: ``smoke`` (CI, about a minute), ``default`` (about 5 minutes
 on a 2-core laptop) or ``long``.
 """
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from lowcostdex.main_job.report import markdown_report, stage_summary, write_html
-from lowcostdex.main_job.setup import SIZES, TASKS, Context
+from lowcostdex.main_job.setup import DEFAULT_TASK, SIZES, TASKS, Context
 from lowcostdex.main_job.stages import (
     stage_bus,
     stage_demos,
@@ -145,8 +145,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", choices=SIZES, default="default",
                    help="budget: smoke (CI, ~1 min), default (~5 min on 2 cores), long")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--task", choices=sorted(TASKS), default="valve",
-                   help="valve: turn the valve 180 deg; valve-random: random start and target "
+    p.add_argument("--task", choices=sorted(TASKS), default=DEFAULT_TASK,
+                   help="valve-target: turn the valve from 0 to a random target in 180 +- 29 "
+                   "deg; valve: turn it 180 deg; valve-random: random start and target "
                    "angles; flip: flip the block 180 deg")
     p.add_argument("--port", default=None,
                    help="serial port of a real D'Claw, e.g. /dev/ttyUSB0 (default: emulated)")
