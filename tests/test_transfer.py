@@ -393,16 +393,17 @@ def test_start_range_widens_only_the_training_starts():
 
     valve = TASKS["valve"]
     assert valve.training(0.0) is valve
-    assert valve.training(0.05).make_kwargs() == {"init_range": 0.05}
-    near = TASKS["valve-near"]  # already starts within +-0.25 rad: kept
+    assert valve.training(0.05).make_kwargs() == {"init_range": 0.05, "goal_range": 0.05}
+    near = TASKS["valve-near"]  # already starts and aims within +-0.25 rad: kept
     assert near.training(0.1) is near
-    assert near.training(0.5).make_kwargs() == {"init_range": 0.5, "goal_range": 0.25}
+    assert near.training(0.5).make_kwargs() == {"init_range": 0.5, "goal_range": 0.5}
 
 
 def test_training_starts_are_spread_and_the_same_under_a_seed():
     """The valve's start in the training env (the true joint angle after reset) is uniform in
-    +-R (here 0.05 rad: 25x the 0.002 rad knife edge), the goal 180 deg further, and the same
-    start comes back under the same reset seed."""
+    +-R (here 0.05 rad: 25x the 0.002 rad knife edge), the goal 180 deg +-R further, so the
+    start lands on both sides of goal - pi (where the wrapped error flips sign); the same
+    start and goal come back under the same reset seed."""
     import gymnasium as gym
 
     import lowcostdex.sim  # noqa: F401
@@ -415,12 +416,13 @@ def test_training_starts_are_spread_and_the_same_under_a_seed():
         env.reset(seed=seed)
         u = env.unwrapped
         q = float(u.data.qpos[u.task.obj_qpos])
-        assert float(u.goal["angle"]) - q == pytest.approx(math.pi, abs=1e-9)
-        return q
+        return q, float(u.goal["angle"]) - q - math.pi  # start, turn beyond 180 deg
 
-    starts = np.array([start(s) for s in range(40)])
-    assert np.all(np.abs(starts) <= 0.05) and starts.min() < -0.03 and starts.max() > 0.03
-    assert [start(s) for s in (3, 17)] == [starts[3], starts[17]]
+    starts, past = np.array([start(s) for s in range(40)]).T
+    for x in (starts, past):
+        assert np.all(np.abs(x) <= 0.05) and x.min() < -0.03 and x.max() > 0.03
+    assert abs(np.corrcoef(starts, past)[0, 1]) < 0.5  # drawn apart
+    assert [start(s) for s in (3, 17)] == [(starts[3], past[3]), (starts[17], past[17])]
     env.close()
 
 
@@ -444,7 +446,7 @@ def test_a_policy_trained_from_random_starts_is_the_same_under_its_seed(tmp_path
         return keep, params, read_json(d / "config.json")
 
     a, b, c = trained("a", 0), trained("b", 0), trained("c", 1)
-    assert a[2]["env_kwargs"]["init_range"] == 0.05
+    assert a[2]["env_kwargs"]["init_range"] == a[2]["env_kwargs"]["goal_range"] == 0.05
     assert a[0].keys() == b[0].keys() and len(a[0]) > 3
     for k in a[0]:
         np.testing.assert_array_equal(a[0][k], b[0][k], err_msg=k)

@@ -53,10 +53,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated: nominal, randomized, identified, "
                         "identified_randomized, on_robot (default: all)")
     p.add_argument("--start-range", type=number(0, 3.14159), default=0.0,
-                   help="train every condition from valve starts drawn within +-this [rad] "
+                   help="train every condition from valve starts within +-this [rad] of the "
+                        "task's and goals within +-this of their offset from the start "
                         "(evaluation keeps the task's starts; a fixed-start policy can fail "
-                        "when the valve starts 0.002 rad off); a setting of the folder "
-                        "(default 0: the task's own starts)")
+                        "when the valve starts 0.002 rad past goal - 180 deg); a setting of "
+                        "the folder (default 0: the task's own starts)")
     p.add_argument("--latency-ms", type=number(0.5, 1000), default=None,
                    help="with --port: the USB latency timer the driver's timeouts assume when "
                         "it cannot read it from sysfs [ms] (a pty served by `lowcostdex "

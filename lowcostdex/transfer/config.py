@@ -38,13 +38,18 @@ class Task:
 
     def training(self, start_range: float = 0.0) -> Task:
         """The task the policies train on: this one, or, when ``start_range`` [rad] is wider
-        than the task's own, with the valve's start drawn from U(-start_range, start_range)
-        (``TurnConfig.init_range``; the goal keeps its offset from the start). Evaluation and
-        demonstrations stay on this task."""
-        if start_range <= dict(self.kwargs).get("init_range", 0.0):
+        than the task's own ranges, with the valve's start drawn within +-start_range and the
+        goal within +-start_range of its offset from the start (``TurnConfig.init_range`` and
+        ``goal_range``): on a robot the start lands a tick or two off while the goal stays,
+        so what varies is the start relative to the goal (a 180 deg turn whose wrapped error
+        flips sign when the start is past goal - pi). Evaluation and demonstrations stay on
+        this task."""
+        own = dict(self.kwargs)
+        if start_range <= min(own.get("init_range", 0.0), own.get("goal_range", 0.0)):
             return self
-        return Task(self.env_id, tuple({**dict(self.kwargs),
-                                        "init_range": float(start_range)}.items()))
+        wider = {k: max(float(start_range), own.get(k, 0.0)) for k in ("init_range",
+                                                                          "goal_range")}
+        return Task(self.env_id, tuple({**own, **wider}.items()))
 
 
 TASKS = {

@@ -430,9 +430,9 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
         start_range: float = 0.0) -> dict[str, Any]:
     """The whole loop into ``out`` (resumable); returns the summaries, rows and figure.
     ``latency_ms``: with ``port``, see ``PortRobot`` (not a setting: a resume may change it).
-    ``start_range`` [rad]: every condition trains from valve starts within +-start_range
-    (``Task.training``; the fixed-start policies sit on a knife edge of 0.002 rad) and is
-    evaluated on the task's own starts.
+    ``start_range`` [rad]: every condition trains from valve starts and goals each within
+    +-start_range of the task's (``Task.training``; the fixed-start policies sit on a knife
+    edge: the start 0.002 rad past goal - pi) and is evaluated on the task's own starts.
 
     Raises:
       OutputRefused: ``out`` holds files this command did not write, or a run with another
