@@ -525,7 +525,7 @@ class MotorFirmware:
         self.target = self.setpoint = stop
         self.setpoint_velocity = 0.0
         self.sink.on_event(self.id, "watchdog",
-                           f"stopped at {round(stop + self.homing)} after {silence:.4f} s silent")
+                           f"stopped at {round(stop + self.homing)} after {silence:.6f} s silent")
 
     def raise_hardware_error(self, bits: int, state: DriveState | None = None) -> None:
         """Latch hardware error ``bits``; torque drops if Shutdown selects one of them."""
