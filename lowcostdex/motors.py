@@ -133,6 +133,9 @@ class MotorSpec:
         return (power - rise / t.resistance) / t.capacitance
 
 
+KGF_CM = 9.80665e-2
+"""N m per kgf cm (Feetech rates torque in kg cm)."""
+
 _X430_THERMAL = ThermalSpec(resistance=12.0, capacitance=8.0)
 
 MOTORS: dict[str, MotorSpec] = {
@@ -182,25 +185,38 @@ MOTORS: dict[str, MotorSpec] = {
         MotorSpec("MX-106(1.0)", 320, 12.0, 8.4, 45 * TWO_PI / 60, 225.0, 0.005,
                   current_unit=4.5e-3, velocity_unit=0.114 * TWO_PI / 60.0, default_p=32,
                   error_gain=0.158, max_duty=0.9625),
-        # Feetech STS series (memory table: position 4096 steps per turn, Present Speed in
-        # steps/s, Present Current 6.5 mA, voltage 0.1 V, temperature 1 deg C; P coefficient
-        # factory 32). STS3250: Model Number 2825 (lerobot's table, read from the motor);
-        # 50 kg cm (4.9 N m) stall, 0.133 s/60 deg at 12 V (vendor sheet as quoted by
-        # robonine.com). No error_gain has been measured: BAM's STS3215 value 0.166 and its 0.97
-        # ceiling are used [uncertain]. Gear ratio and armature [uncertain].
+        # Feetech STS series. Feetech's STS memory table (ftservo/ftservo-wiki
+        # docs/en/reference/parameter/memory-sts.md @9522ce19): position 4096 steps per turn,
+        # Present Speed in 0.0146 rpm = 1 step/s (Phase bit 2), Present Current 6.5 mA, voltage
+        # 0.1 V, temperature 1 deg C, Maximum Temperature Limit (13) initial value 70 deg C, I
+        # coefficient 0. P and D are left to the model there; lerobot's SO-100 configure() gives
+        # the STS3215's factory values "P_Coefficient ... (Default is 32)", "I_Coefficient and
+        # D_Coefficient to default value 0 and 32". The D scale in duty is unpublished and BAM's
+        # STS3215 error_gain (0.166, fitted at the factory gains) absorbs D's effect, so the
+        # model applies none (d_error_gain 0). Gear ratios and armatures [uncertain].
+        # STS3215 (LeRobot SO-100/SO-101, 7.4 V, 1/345 C001): Model Number 777 (lerobot's
+        # table); Feetech's ST-3215-C001 spec at 6 V: stall 19.5 kg cm, 0.238 s/60 deg;
+        # armature BAM's published sts3215 7.4 V M1 fit (0.0284) [a fit, not a datasheet value].
+        MotorSpec("STS3215", 777, 6.0, 19.5 * KGF_CM, (math.pi / 3) / 0.238, 345.0, 0.0284,
+                  current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32, default_d=32,
+                  error_gain=0.166, d_error_gain=0.0, max_duty=0.97,
+                  thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
+        # STS3250: Model Number 2825 (lerobot's table, read from the motor); 50 kg cm (4.9 N m)
+        # stall, 0.133 s/60 deg at 12 V (vendor sheet as quoted by robonine.com). No error_gain
+        # has been measured: BAM's STS3215 value 0.166 and its 0.97 ceiling are used [uncertain].
         MotorSpec("STS3250", 2825, 12.0, 4.9, (math.pi / 3) / 0.133, 345.0, 0.003,
-                  current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32,
-                  error_gain=0.166, max_duty=0.97, thermal=ThermalSpec(limit=70.0),
-                  backlash=math.radians(0.5)),
+                  current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32, default_d=32,
+                  error_gain=0.166, d_error_gain=0.0, max_duty=0.97,
+                  thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
         # Feetech STS3032 (6 V class): no datasheet and no published Model Number (0 = unknown).
         # Stall torque and no-load speed come from BAM's STS3215-model fit to the STS3032 bench
         # logs (kt 0.483 N m/A, R 3.29 Ohm at 6 V -> 0.88 N m, 12.4 rad/s;
         # 08-bam-reference-errors.md section 4), armature likewise (0.00103). error_gain/ceiling
         # as STS3215 [all uncertain].
         MotorSpec("STS3032", 0, 6.0, 0.88, 6.0 / 0.483, 345.0, 0.00103,
-                  current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32,
-                  error_gain=0.166, max_duty=0.97, thermal=ThermalSpec(limit=70.0),
-                  backlash=math.radians(0.5)),
+                  current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32, default_d=32,
+                  error_gain=0.166, d_error_gain=0.0, max_duty=0.97,
+                  thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
     )
 }
 

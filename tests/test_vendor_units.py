@@ -304,13 +304,28 @@ def test_an_mx28_protocol_2_motor_is_refused_it_reports_load_not_current():
 
 
 # -- Feetech STS ----------------------------------------------------------------------------------
-# lerobot src/lerobot/motors/feetech/tables.py @0558acc: MODEL_NUMBER_TABLE "sts3250": 2825
-# (read from the motor's Model_Number at address 3), MODEL_RESOLUTION "sts3250": 4096; Feetech's
-# STS memory table (transcribed in the STS3215 control-table overview, "STS&SCS参数表解析220328"):
-# Present Speed (58) "step/s", Present Current (69) "6.5mA", Present Voltage (62) "0.1V";
-# lerobot robot_devices/robots/manipulator.py set_so100_robot_preset: "Set P_Coefficient to
-# lower value to avoid shakiness (Default is 32)".
-FEETECH = {"STS3250": dict(model_number=2825), "STS3032": dict(model_number=None)}
+# Feetech's own STS memory table, ftservo/ftservo-wiki docs/en/reference/parameter/memory-sts.md
+# @9522ce192f4c7bfd40b0c3f72c0b3bb52cc24630 ("Magnetically Encoded STS Servo - Memory Table", the
+# header it names as its source is Feetech's SMS_STS.h):
+#   | 13 | 0x0D | Maximum temperature limit | 1 | 70 | R/W | 0~100 | deg C |
+#   | 21 | 0x15 | Position loop P (proportional) coefficient | 1 | – |     (per model)
+#   | 22 | 0x16 | Position loop D (derivative) coefficient | 1 | – |      (per model)
+#   | 23 | 0x17 | Position loop I (integral) coefficient | 1 | 0 |
+#   | 46 | 0x2E | Running speed | ... | 0.732RPM/0.0146RPM |  (Phase bit 2 selects the unit)
+#   | 69 | 0x45 | Present current | 2 | – | R | – | 6.5mA |
+# The P and D initial values the table leaves to the model: lerobot
+# src/lerobot/robots/so100_follower/so100_follower.py @0eff8f5ce66f6f7982a2ef25bc2d12611f22ec01,
+# configure(): "Set P_Coefficient to lower value to avoid shakiness (Default is 32)", "Set
+# I_Coefficient and D_Coefficient to default value 0 and 32" (read from STS3215 motors).
+# Model numbers: lerobot src/lerobot/motors/feetech/tables.py @0558acc: MODEL_NUMBER_TABLE
+# "sts3215": 777, "sts3250": 2825 (read from the motor's Model_Number at address 3),
+# MODEL_RESOLUTION 4096 for both.
+STS_TEMPERATURE_LIMIT = 70.0  # deg C, address 13 initial value
+STS_PID = (32, 0, 32)  # P (lerobot "Default is 32"), I (memory table 0), D (lerobot "32")
+STS_CURRENT_UNIT = 6.5e-3  # A, "6.5mA"
+STS_SPEED_UNIT_RPM = 0.0146  # rpm, the fine unit of Running/Present speed
+FEETECH = {"STS3215": dict(model_number=777), "STS3250": dict(model_number=2825),
+           "STS3032": dict(model_number=None)}
 
 
 @pytest.mark.parametrize("model", sorted(FEETECH))
@@ -322,5 +337,37 @@ def test_feetech_sts_units(model):
         assert motor.model_number == 0
     assert motor.ticks_per_rev == 4096
     assert motor.velocity_unit == pytest.approx(2 * math.pi / 4096, rel=1e-12)  # 1 step/s
-    assert motor.current_unit == pytest.approx(6.5e-3, rel=1e-12)
-    assert motor.default_p == 32
+    # ... which is the table's fine speed unit (0.0146 rpm, printed to 3 significant digits)
+    assert motor.velocity_unit == pytest.approx(STS_SPEED_UNIT_RPM * RPM, rel=4e-3)
+    assert motor.current_unit == pytest.approx(STS_CURRENT_UNIT, rel=1e-12)
+    assert (motor.default_p, motor.default_i, motor.default_d) == STS_PID
+    assert motor.thermal.limit == STS_TEMPERATURE_LIMIT
+
+
+def test_feetech_d_gain_is_a_register_value_the_model_does_not_apply():
+    # The factory D (32) is what the motor holds; its scale in duty is unpublished, and the
+    # error_gain the model uses (BAM's STS3215 fit, made at the factory gains) already absorbs
+    # its effect: the simulated servo must damp exactly as with D = 0.
+    from lowcostdex.sim.servo import dcmotor_params
+
+    for model in FEETECH:
+        motor = MOTORS[model]
+        factory = motor.factory_gains()
+        assert factory.position_d == 32
+        with_d = dcmotor_params(motor, factory)
+        without = dcmotor_params(motor, factory.replace(position_d=0))
+        assert with_d.kd == without.kd
+        assert with_d.kd == pytest.approx(motor.motorconst ** 2 / motor.resistance, rel=1e-12)
+
+
+def test_sts3215_physical_numbers_are_feetechs():
+    # Feetech's ST-3215-C001 spec table (feetechrc.com, as kept in ftservo/ftservo-wiki
+    # docs/en/products/models/st-3215-c001/official-specs.json @9522ce19): "Peak stall torque:
+    # 19.5kg.cm@6V", "No load speed: 0.238sec/60°@6V", "Operating Temperature Range: -20~70";
+    # gear 1/345: the SO-100/SO-101 parts list (TheRobotStudio/SO-ARM100 README, "STS3215 Servo
+    # 7.4V, 1/345 gear (C001)").
+    motor = MOTORS["STS3215"]
+    assert motor.voltage == 6.0
+    assert motor.stall_torque == pytest.approx(19.5 * 9.80665e-2, rel=1e-9)  # kgf cm -> N m
+    assert motor.no_load_speed == pytest.approx(math.radians(60) / 0.238, rel=1e-9)
+    assert motor.gear_ratio == 345.0
