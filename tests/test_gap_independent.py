@@ -50,6 +50,7 @@ KNOWN_FAILS: dict[str, tuple[str | None, str | None]] = {
 }
 
 _RESULTS: dict[str, tuple[set[str], object]] = {}
+_TRUTH: dict[str, dict[str, np.ndarray]] = {}  # case id -> hidden effect -> value per joint
 
 
 def analysed(case_id: str, tmp_root: Path) -> tuple[set[str], object]:
@@ -62,6 +63,7 @@ def analysed(case_id: str, tmp_root: Path) -> tuple[set[str], object]:
         model, paths = case.write(tmp_root / case_id)
         res = analyze(load_dataset(paths, model=model), GapConfig(seed=0))
         _RESULTS[case_id] = (set(names), res)
+        _TRUTH[case_id] = case.hidden.values
     return _RESULTS[case_id]
 
 
@@ -209,3 +211,30 @@ def test_clean_data_names_nothing(cid, tmp_root):
 def test_clean_data_verdict_is_no_significant_discrepancy(cid, tmp_root):
     _, res = analysed(cid, tmp_root)
     assert res.verdict == "no significant discrepancy", _describe(res)
+
+
+# Three cheap bench cases whose data-only intervals (residual noise, 0.5 s block spread) all
+# missed the truth (measured 2026-11-26: latency 25.99 ms in [25.97, 26.02] for 25.96; gain
+# 0.65202 in [0.65184, 0.65220] for 0.65230; Coulomb 0.1415 in [0.1411, 0.1418] for 0.1409): the
+# replay's own discretisation biases every stretch of data alike.
+INTERVAL_CASES = ("bench-latency", "bench-gain_error", "bench-coulomb_friction")
+
+
+def test_parameter_intervals_hold_the_truth_about_as_often_as_they_claim(tmp_root):
+    """Issue 11: 95 % intervals must contain the true value (gap_truth_sim's) >= 90 % of the
+    time. On three cases where the data-only intervals held it 0/3, the reported ones (with
+    the move of the fit at half the physics step) must hold it in at least 2/3; fails when
+    coverage falls well below nominal (at 95 % each, 2/3 or fewer happens 0.7 % of the
+    time). Cached cases: free after the exact-name tests above."""
+    rows = []
+    for cid in INTERVAL_CASES:
+        hidden, res = analysed(cid, tmp_root)
+        (c,) = [c for c in res.causes if c.effect in hidden]
+        (d,) = c.params.values()  # every truth-simulator effect has one parameter
+        true = float(_TRUTH[cid][c.effect][0])
+        lo, hi = d["interval"][0]
+        rows.append((cid, lo <= true <= hi, true, d["value"][0], (lo, hi), d["step_shift"][0]))
+        # the reported interval holds the data's and is centred on the value
+        dlo, dhi = d["interval_data"][0]
+        assert lo <= dlo <= d["value"][0] <= dhi <= hi
+    assert sum(r[1] for r in rows) >= 2, rows

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from lowcostdex.errors import ConfigError
 from lowcostdex.gap import GapConfig
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
@@ -267,6 +268,45 @@ def test_lockstep_lm_solves_bounded_least_squares_problems_together():
     np.testing.assert_allclose(tr[0].x, [3.0, 0.2], rtol=1e-4)
     assert tr[1].x[1] == pytest.approx(0.5)  # pinned at the bound
     assert all(c <= 6 for c in calls)  # each round evaluates both tracks with their FD columns
+
+
+def test_step_shift_is_the_refit_move_on_the_finer_replay():
+    """Known answer: a decay rate fitted to 3.0 on the coarse replay; the finer replay of the
+    same data puts the optimum at 3.06, so the fit moves by log(3.06 / 3.0) in its log
+    coordinate (and not at all when both replays agree)."""
+    t = np.linspace(0, 1, 60)
+    free = fitmod.Free("x", "rate", 0, 0.1, 10.0, 1.0, True, 1e-4)
+    s = fitmod.Structure(("x",), ("j",), [free])
+
+    def replay(rate_seen):
+        return lambda points: [np.exp(-rate_seen * t) - np.exp(-x[0] * t) for _, x in points]
+
+    track = fitmod.Track(s, s.u(np.array([1.0])))
+    fitmod.lockstep_lm([track], replay(3.0), max_rounds=40, rtol=1e-12)
+    assert track.x[0] == pytest.approx(3.0, rel=1e-6)
+    u0 = track.u.copy()
+    shift = fitmod.step_shift(track, replay(3.06), max_rounds=20, rtol=1e-12)
+    assert shift[0] == pytest.approx(math.log(3.06 / 3.0), rel=1e-3)
+    np.testing.assert_array_equal(track.u, u0)  # the fitted track itself does not move
+    assert fitmod.step_shift(track, replay(3.0), max_rounds=20)[0] == pytest.approx(0, abs=1e-6)
+
+
+def test_a_data_set_on_a_finer_physics_step_keeps_its_logs_and_model():
+    ds = _tiny_dataset(n_logs=1, duration=1.0)
+    fine = ds.with_timestep(0.5)
+    m, mf = ds.compiled("model"), fine.compiled("model")
+    assert mf.opt.timestep == pytest.approx(0.5 * m.opt.timestep)
+    assert (mf.nbody, mf.njnt, mf.nu) == (m.nbody, m.njnt, m.nu)
+    np.testing.assert_allclose(mf.body_mass, m.body_mass)
+    np.testing.assert_allclose(mf.actuator_gainprm, m.actuator_gainprm)
+    assert fine.trajectories is ds.trajectories
+    with pytest.raises(ConfigError, match="factor"):
+        ds.with_timestep(0.0)
+    # the analysis' setting is a fraction of the step: finer, or 0 (off)
+    assert GapConfig(interval_step=0.0).interval_step == 0.0
+    for bad in (1.0, 2.0, -0.5):
+        with pytest.raises(ConfigError, match="interval_step"):
+            GapConfig(interval_step=bad)
 
 
 def test_a_limit_stuck_where_it_never_binds_is_rescued_by_the_scan():

@@ -385,10 +385,21 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                                            effective_n(final_track.r))
         spread = fitmod.block_halfwidths(final_track.r, final_track.jac,
                                          _blocks(ds, all_segs, cfg.interval_block))
-        half = np.maximum(noise, spread)
+        half = data = np.maximum(noise, spread)
+        shift = None
+        if cfg.interval_step:
+            # the replay's own error: the move of the fit at a finer physics step joins the
+            # interval (root sum of squares with the data's)
+            t0 = time.perf_counter()
+            prog("interval: refit at a finer physics step", 0.97)
+            fine = _Engine(ds.with_timestep(cfg.interval_step), cfg, final_track.structure.names)
+            shift = fitmod.step_shift(final_track, fine.residual_fn(all_segs), cfg.max_rounds)
+            half = np.hypot(half, shift)
+            timing["interval_step"] = time.perf_counter() - t0
         for k, e in enumerate(effects):
-            c = Cause(e.name, e.joints, param_report(final_track.structure, final_track.u, half,
-                                                      e.name, noise))
+            c = Cause(e.name, e.joints, param_report(
+                final_track.structure, final_track.u, half, e.name,
+                {"interval_noise": noise, "interval_data": data}, shift))
             sse, sae, n = _mse_by_episode(ds, test_eps, test_pred[k])
             c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
             c.heldout_mae_after = float(sae.sum() / n.sum())

@@ -121,6 +121,18 @@ class Dataset:
     def duration(self) -> float:
         return float(sum(tr.duration for tr in self.trajectories))
 
+    def with_timestep(self, factor: float) -> Dataset:
+        """The same logs on models whose physics step is ``factor`` times theirs (the
+        trajectories are shared, not copied)."""
+        if not factor > 0:
+            raise ConfigError(f"timestep factor must be > 0, got {factor}")
+        models = {}
+        for key, xml in self.models.items():
+            spec = mujoco.MjSpec.from_string(xml)
+            spec.option.timestep = float(self.compiled(key).opt.timestep) * factor
+            models[key] = spec.to_xml()
+        return Dataset(models, self.trajectories, list(self.sources), list(self.notes))
+
 
 def load_dataset(paths: Sequence[str | Path], model: str | Path | None = None,
                  bench: bool | None = None, timestep: float | None = None) -> Dataset:

@@ -622,6 +622,18 @@ def block_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice]) ->
     return np.where(touches_null, np.inf, half)
 
 
+def step_shift(t: Track, residual: ResidualFn, max_rounds: int, rtol: float = 1e-4
+               ) -> np.ndarray:
+    """How far a fitted track moves (optimizer coordinates) when the same data are replayed
+    at a finer physics step: a copy of it refitted on ``residual`` (the finer replay's),
+    starting from its optimum. The replay's own discretisation (step-mean goals, the delay's
+    step phase, the integrator) biases every fitted value alike; no resampling of the data can
+    see such a bias, but the move between two steps sizes it."""
+    nt = Track(t.structure, t.u.copy(), label=t.label + "+finer step")
+    lockstep_lm([nt], residual, max_rounds, rtol=rtol)
+    return nt.u - t.u
+
+
 def stall_torque(model, actuators: np.ndarray) -> np.ndarray:
     """Stall torque K Vmax / R of dcmotor servos [N m] (inf for other actuators)."""
     g = model.actuator_gainprm[actuators]

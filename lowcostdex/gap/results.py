@@ -55,7 +55,11 @@ class GapConfig:
       bootstrap: bootstrap resamples.
       interval_block: block length of the data-spread interval [s]: a parameter's reported
         95 % interval is the wider of the residual-noise one (Jacobian, autocorrelation
-        inflated) and the spread of what blocks of this length pull it to (model error).
+        inflated) and the spread of what blocks of this length pull it to (model error),
+        combined with the replay's own error (``interval_step``).
+      interval_step: the final model is refitted on a replay at this fraction of the physics
+        step and its move joins the interval half-width (root sum of squares): the replay's
+        discretisation biases every block alike, so only a change of step shows it (0: off).
       seed: seed of the split and the bootstrap.
       nthread: simulation threads (0: all CPUs).
     """
@@ -78,6 +82,7 @@ class GapConfig:
     test_logs: tuple[int, ...] | None = None
     bootstrap: int = 2000
     interval_block: float = 0.5
+    interval_step: float = 0.5
     seed: int = 0
     nthread: int = 0
 
@@ -95,6 +100,9 @@ class GapConfig:
             raise ConfigError("segment must be > 0 s and burn_in >= 0 s")
         if not self.interval_block > 0:
             raise ConfigError("interval_block must be > 0 s")
+        if not 0 <= self.interval_step < 1:
+            raise ConfigError("interval_step must be in [0, 1) (a fraction of the physics "
+                              f"step; 0: off), got {self.interval_step}")
 
 
 @dataclass
@@ -192,9 +200,12 @@ def _cand_dict(c: CandidateResult) -> dict:
 
 
 def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str,
-                  noise: np.ndarray | None = None) -> dict:
-    """Value and 95 % interval per parameter (``noise``: also the residual-noise-only
-    interval, ``interval_noise``)."""
+                 other: dict[str, np.ndarray] | None = None, shift: np.ndarray | None = None
+                 ) -> dict:
+    """Value and 95 % interval per parameter from half-widths in optimizer coordinates;
+    ``other``: more intervals to report under their keys (e.g. ``interval_noise``: residual
+    noise only); ``shift``: the fit's move at a finer physics step in optimizer coordinates,
+    reported as ``step_shift`` (the value there minus the value)."""
     out: dict[str, dict] = {}
     for i, f in enumerate(s.free):
         if f.effect != name:
@@ -203,8 +214,10 @@ def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str
                                      "unit": effect(name).param(f.param).unit})
         d["value"].append(f.from_u(u[i]))
         d["interval"].append(param_interval(f, u[i], half[i]))
-        if noise is not None:
-            d.setdefault("interval_noise", []).append(param_interval(f, u[i], noise[i]))
+        for key, h in (other or {}).items():
+            d.setdefault(key, []).append(param_interval(f, u[i], h[i]))
+        if shift is not None:
+            d.setdefault("step_shift", []).append(f.from_u(u[i] + shift[i]) - f.from_u(u[i]))
     return out
 
 
