@@ -195,8 +195,9 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
     """Words for what each stage changed (``stage_verdicts``): a difference is called one only
     when the 95 % intervals do not overlap."""
     parts = []
-    for v in stage_verdicts(t):
-        what = v["what"][0].upper() + v["what"][1:]
+    for i, v in enumerate(stage_verdicts(t)):
+        # one sentence of clauses joined by "; ": only the first starts with a capital
+        what = v["what"][0].upper() + v["what"][1:] if i == 0 else v["what"]
         if v["verdict"] == "not measured":
             parts.append(f"{what}: not measured")
             continue
