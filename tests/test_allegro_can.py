@@ -434,22 +434,27 @@ def test_robot_clips_goals_to_limits_and_rejects_nan(hand):
     assert not emu.servo_on  # leaving the block turned the servos off
 
 
+def stall_thumb_until_a_pause_is_pending(robot, emu, steps=600):
+    """Torque on, the thumb base driven at a hard stop put at its present angle (it pushes
+    against it with all it has) until the thermal guard asks for a pause."""
+    robot.torque(True)
+    goal = MID.copy()
+    goal[12] = HIGH[12]
+    emu.plant.model.jnt_range[emu.plant.model.joint("thumb_0").id] = [0.0, MID[12]]
+    for _ in range(steps):
+        robot.step(goal)
+        if robot.thermal.pause_pending:
+            break
+    assert robot.thermal.pause_pending
+
+
 def test_thermal_guard_relaxes_a_stalled_joint_before_the_firmware_fault():
     # a small heat capacity: minutes of heating and cooling in seconds of emulated time
     bus, emu, clock = emulated_allegro(allegro_model(), gains=AllegroGains(kp=5.0),
                                        thermal=AllegroThermal(capacitance=1.0))
     emu.set_joint_positions(MID)
     with Robot(HAND, bus, RobotConfig(control_period=0.1)) as robot:
-        robot.torque(True)
-        goal = MID.copy()
-        goal[12] = HIGH[12]
-        # a hard stop at the present angle: the thumb base pushes against it with all it has
-        emu.plant.model.jnt_range[emu.plant.model.joint("thumb_0").id] = [0.0, MID[12]]
-        for _ in range(600):
-            robot.step(goal)
-            if robot.thermal.pause_pending:
-                break
-        assert robot.thermal.pause_pending
+        stall_thumb_until_a_pause_is_pending(robot, emu)
         assert not emu.fault  # the firmware limit was never reached
         record = robot.pause_if_hot()
         assert record is not None and record.hottest == "thumb_0"
@@ -467,15 +472,7 @@ def test_a_thermal_pause_ends_beside_a_joint_whose_sensor_sends_0xf6():
     emu.sensor_fault[15] = 0xF6  # thumb_3's sensor, as in Meta's trace
     config = RobotConfig(control_period=0.1, thermal=ThermalConfig(max_pause=60.0))
     with pytest.warns(TemperatureSensorWarning), Robot(HAND, bus, config) as robot:
-        robot.torque(True)
-        goal = MID.copy()
-        goal[12] = HIGH[12]
-        emu.plant.model.jnt_range[emu.plant.model.joint("thumb_0").id] = [0.0, MID[12]]
-        for _ in range(600):
-            robot.step(goal)
-            if robot.thermal.pause_pending:
-                break
-        assert robot.thermal.pause_pending
+        stall_thumb_until_a_pause_is_pending(robot, emu)
         record = robot.pause_if_hot()  # raised ThermalTimeout after 60 s before the change
         assert record is not None and record.hottest == "thumb_0"
         assert record.duration < 60.0 and record.end_max < robot.thermal.resume
