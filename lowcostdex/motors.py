@@ -172,6 +172,14 @@ MOTORS: dict[str, MotorSpec] = {
                   current_unit=3.36e-3, default_p=850),
         MotorSpec("MX-106", 321, 12.0, 8.4, 45 * TWO_PI / 60, 225.0, 0.005,
                   current_unit=3.36e-3, default_p=850),
+        # MX-28 with Protocol 2.0 firmware: e-Manual mx-28-2 page (Model Number 30, 2.5 N m and
+        # 55 rpm at 12 V, 193:1, Temperature Limit 80, Position P/I/D 850/0/0, Velocity 0.229
+        # rpm). It has no current register (Present Load, 0.1 % of the maximum, where the X and
+        # MX-64/106 tables have Present Current), so current_unit is NaN and the Dynamixel
+        # driver refuses it on the bus; the spec serves the simulation. Armature [uncertain:
+        # the XM430-W210's, a motor of the same class].
+        MotorSpec("MX-28", 30, 12.0, 2.5, 55 * TWO_PI / 60, 193.0, 0.0012,
+                  current_unit=float("nan"), default_p=850),
         # The same motors with Protocol 1.0 firmware (Model Number 310/320), as on BAM's MX
         # benches: P Gain register 28 (factory 32), Present Speed 0.114 rpm per count
         # (e-Manual mx-64 page). BAM measured the P path with an oscilloscope at 15 V: duty =

@@ -303,6 +303,21 @@ def test_an_mx28_protocol_2_motor_is_refused_it_reports_load_not_current():
         DynamixelBus(chain.port(), DynamixelConfig(ids=(1,), models=("MX-28",)))
 
 
+def test_mx28_spec_is_the_e_manuals():
+    # e-Manual docs/en/dxl/mx/mx-28-2.md @07fe860: "|0|2|[Model Number]...| 30 |", "Gear Ratio |
+    # 193 : 1", "Stall Torque | ... 2.5Nm @ 12V", "No Load Speed | ... 55rpm @ 12V",
+    # "Recommended : 12V", "|31|1|[Temperature Limit]...|80|", Position D/I/P Gain (80/82/84)
+    # initial 0/0/850, and Present Load (126) where the X pages have Present Current
+    motor = MOTORS["MX-28"]
+    assert motor.model_number == 30 and motor.voltage == 12.0
+    assert motor.stall_torque == 2.5 and motor.gear_ratio == 193.0
+    assert motor.no_load_speed == pytest.approx(55 * RPM, rel=1e-12)
+    assert motor.thermal.limit == 80
+    assert (motor.default_p, motor.default_i, motor.default_d) == (850, 0, 0)
+    assert motor.velocity_unit == pytest.approx(0.229 * RPM, rel=1e-12)
+    assert math.isnan(motor.current_unit)  # no current register: no unit may be invented
+
+
 # -- Feetech STS ----------------------------------------------------------------------------------
 # Feetech's own STS memory table, ftservo/ftservo-wiki docs/en/reference/parameter/memory-sts.md
 # @9522ce192f4c7bfd40b0c3f72c0b3bb52cc24630 ("Magnetically Encoded STS Servo - Memory Table", the
