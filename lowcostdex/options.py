@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from lowcostdex.argtypes import number
 from lowcostdex.errors import ConfigError
 
 BACKENDS = ("sim", "emulated", "hardware")
@@ -72,6 +73,21 @@ def add_robot_port_options(parser: argparse.ArgumentParser, port_help: str | Non
     parser.add_argument("--port", default=None,
                         help=port_help or "serial device or pty path of a real robot "
                                           "(hardware backend)")
+
+
+def add_latency_option(parser: argparse.ArgumentParser) -> None:
+    """``--latency-ms``: the USB latency timer [ms] the Dynamixel driver's status timeouts assume
+    when it cannot read the adapter's from sysfs (a pty, a non-FTDI adapter). One name and one
+    range for every command that talks to a D'Claw over a serial port."""
+    parser.add_argument("--latency-ms", type=number(0.5, 1000), default=None,
+                        help="with --port: the USB latency timer the driver's timeouts assume "
+                             "when it cannot read it from sysfs [ms] (a pty served by "
+                             "`lowcostdex emulate`: 16; default: the driver's 1 ms)")
+
+
+def latency_kwargs(latency_ms: float | None) -> dict[str, float]:
+    """The bus keyword for ``--latency-ms``: ``{}`` when not given (the driver's default)."""
+    return {} if latency_ms is None else {"latency_ms": float(latency_ms)}
 
 
 def robot_port(backend: str | None, port: str | None) -> str:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import sys
 
 import numpy as np
 import pytest
@@ -288,3 +290,31 @@ def test_4mbps_works_and_a_baud_mismatch_is_reported():
     with pytest.raises(BusError, match="at 4000000 bps") as info:
         bus.connect()
     assert str(info.value).count("no reply") == 9
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux pty")
+def test_a_missed_reply_names_the_latency_budget_it_waited():
+    """A unicast write to a motor that never answers (a raw pty nobody reads): with the driver's
+    1 ms budget the error says what the timeouts assumed and what a pty needs (``--latency-ms
+    16``); with 16 ms given there is nothing to advise."""
+    import tty
+
+    from lowcostdex.hardware.robot.backend import make_dynamixel_bus
+
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        for extra, advice in (({}, True), ({"latency_ms": 16}, False)):
+            bus = make_dynamixel_bus(dclaw_spec(), os.ttyname(slave), None, retries=0, **extra)
+            bus.port.baudrate = 1_000_000
+            assert bus.port.openPort()
+            try:
+                with pytest.raises(BusError, match="no status packet") as err:
+                    bus.write_register(10, Reg.TORQUE_ENABLE, 0)
+            finally:
+                bus.port.closePort()
+            assert ("latency timer of 1 ms" in str(err.value)
+                    and "--latency-ms 16" in str(err.value)) == advice
+    finally:
+        os.close(master)
+        os.close(slave)

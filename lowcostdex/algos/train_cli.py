@@ -25,6 +25,7 @@ from lowcostdex.algos.configs import (
 )
 from lowcostdex.algos.samplers import SAMPLERS
 from lowcostdex.errors import ConfigError
+from lowcostdex.options import add_latency_option, latency_kwargs
 
 
 def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
@@ -48,6 +49,7 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
     p.add_argument("--env", default=d.env_id, help="gymnasium id (default %(default)s)")
     p.add_argument("--backend", choices=BACKENDS, default=d.backend)
     p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
+    add_latency_option(p)
     p.add_argument(
         "--demos", default=None, required=algo == "dapg",
         help="demonstration dataset (HDF5, lowcostdex.demonstrations.file); its successful episodes are used",
@@ -154,6 +156,11 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     env_kwargs = _parse_env_kwargs(args.env_kwarg)
     if args.port:
         env_kwargs["port"] = args.port
+    if args.latency_ms is not None:
+        if not args.port:
+            raise ConfigError("--latency-ms is the serial adapter's latency timer: it needs "
+                              "--backend hardware --port DEVICE")
+        env_kwargs.update(latency_kwargs(args.latency_ms))
     return TrainConfig(
         algo=args.algo,
         env_id=args.env,

@@ -15,7 +15,12 @@ from __future__ import annotations
 import argparse
 
 from lowcostdex.argtypes import SEED, integer, number
-from lowcostdex.options import add_robot_port_options, robot_port
+from lowcostdex.options import (
+    add_latency_option,
+    add_robot_port_options,
+    latency_kwargs,
+    robot_port,
+)
 
 # hand -> task name on the command line -> (registered env id, scripted solver for the virtual
 # teacher)
@@ -58,6 +63,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=SEED, default=0, help="seed of the first episode")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    add_latency_option(p)
     p.add_argument("--countdown", type=number(0, 600), default=3.0,
                    help="seconds announced before each episode on a real robot")
     p.add_argument("--labels", default="servo_goal", choices=("servo_goal", "next_position"),
@@ -127,9 +133,13 @@ def _record_demos(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     emulated = args.port == "emulated"
     if args.hand == "allegro":
+        if args.latency_ms is not None:
+            raise ConfigError("--latency-ms is a serial adapter's latency timer (D'Claw); the "
+                              "Allegro hand is on CAN")
         kwargs = {} if emulated else {"channel": args.port}
     else:
-        kwargs = {} if emulated else {"port": args.port, "baudrate": args.baud}
+        kwargs = {} if emulated else {"port": args.port, "baudrate": args.baud,
+                                      **latency_kwargs(args.latency_ms)}
     if args.spec and not emulated:
         kwargs["hand"] = load_spec(args.spec)
     env = gym.make(env_id, backend="emulated" if emulated else "hardware", **kwargs)

@@ -22,7 +22,7 @@ from lowcostdex.argtypes import SEED, integer, number
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    from lowcostdex.options import add_robot_port_options
+    from lowcostdex.options import add_latency_option, add_robot_port_options
 
     p = sub.add_parser(
         "transfer", help="does a policy trained in simulation work on the robot? identify it, "
@@ -58,10 +58,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "(evaluation keeps the task's starts; a fixed-start policy can fail "
                         "when the valve starts 0.002 rad past goal - 180 deg); a setting of "
                         "the folder (default 0: the task's own starts)")
-    p.add_argument("--latency-ms", type=number(0.5, 1000), default=None,
-                   help="with --port: the USB latency timer the driver's timeouts assume when "
-                        "it cannot read it from sysfs [ms] (a pty served by `lowcostdex "
-                        "emulate`: 16; default: the driver's 1 ms)")
+    add_latency_option(p)
     p.add_argument("--yes", action="store_true",
                    help="with --port: do not ask before the robot moves")
     p.set_defaults(func=_transfer)

@@ -12,7 +12,7 @@ asked for, or left bytes waiting, is discarded whole. ``SdkTransactions`` is the
 
 from __future__ import annotations
 
-from dynamixel_sdk import COMM_RX_CORRUPT, COMM_SUCCESS
+from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.dynamixel.config import InstructionError
@@ -97,8 +97,13 @@ class SdkTransactions:
                     raise InstructionError(motor_id, what, err)
                 return payload, err
             self._dirty = True
+        hint = ""
+        if result == COMM_RX_TIMEOUT and not self.port.is_emulated and self.port.latency_ms < 16:
+            hint = (f" (the status timeouts assume a USB latency timer of "
+                    f"{self.port.latency_ms:g} ms; on a pty or an adapter whose latency timer "
+                    "cannot be read, pass --latency-ms 16)")
         raise BusError(f"motor {motor_id}: {what} failed after {self.config.retries + 1} "
-                       f"attempts: {self.ph.getTxRxResult(result)}")
+                       f"attempts: {self.ph.getTxRxResult(result)}{hint}")
 
     # -- transactions ------------------------------------------------------------------------------
     def _begin(self) -> None:

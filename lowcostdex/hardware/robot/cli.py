@@ -14,7 +14,12 @@ import json
 import sys
 
 from lowcostdex.argtypes import SEED, number
-from lowcostdex.options import add_robot_port_options, robot_port
+from lowcostdex.options import (
+    add_latency_option,
+    add_robot_port_options,
+    latency_kwargs,
+    robot_port,
+)
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +30,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=SEED, default=0, help="seed of the tangles and valve angles")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    add_latency_option(p)
     p.add_argument("--no-effects", action="store_true",
                    help="emulated robot without the default servo effects")
     p.add_argument("--procedure", default="lowcostdex", choices=("lowcostdex", "robel"),
@@ -46,6 +52,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=SEED, default=0, help="seed of the excitation")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
     p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    add_latency_option(p)
     p.add_argument("--effects", default=None,
                    help="emulated robot only: JSON list of AppliedEffect dicts it carries "
                         "(default: lowcostdex.hardware.robot.backend.default_effects)")
@@ -97,7 +104,8 @@ def _reset_test(args: argparse.Namespace) -> int:
         port = chain.port()
     else:
         port = args.port
-    robot = Robot(hand, make_dynamixel_bus(hand, port, model, baudrate=args.baud))
+    robot = Robot(hand, make_dynamixel_bus(hand, port, model, baudrate=args.baud,
+                                             **latency_kwargs(args.latency_ms)))
     console = Console(stderr=True)
     with robot, progress_tasks(transient=False, console=console) as progress:
         task = progress.add_task("reset trials", total=args.trials)
@@ -167,6 +175,7 @@ def _record_log(args: argparse.Namespace) -> int:
             hand, joints, args.out, args.logs, args.seconds, np.random.default_rng(args.seed),
             port=None if args.port == "emulated" else args.port, effects=effects,
             emulator_rng=np.random.default_rng(args.seed), rate=args.rate, baudrate=args.baud,
+            latency_ms=args.latency_ms,
             on_step=lambda _: progress.advance(bar))
     console.print(f"{len(paths)} logs -> {args.out}; analyse them with "
                   f"`lowcostdex gap analyze --model MODEL.xml --log {args.out}/*.csv --out DIR` "
