@@ -201,3 +201,49 @@ def test_identification_stops_with_a_bus_error_when_every_recording_misses(tmp_p
     with robot, pytest.raises(BusError, match="readings were missed in each of 3 recordings"):
         identification_logs(robot, JOINTS, tmp_path, 2, 2.0, np.random.default_rng(2))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log_0.csv"]  # no log with gaps
+
+
+def test_a_host_stall_that_trips_the_bus_watchdog_re_records_the_log(tmp_path):
+    """The host falls silent for 150 ms mid-log (a stalled machine; the Bus Watchdog is 100 ms):
+    the emulated motors stop themselves (seen on the device side as a watchdog event), the
+    parked finger is held again and the log is recorded again from its start, complete. A second
+    stall in every recording ends with a BusError that names the watchdog."""
+    from lowcostdex.hardware.bus import BusError
+    from lowcostdex.hardware.robot.trace import dclaw_park, identification_logs
+
+    hand = dclaw_spec()
+    model = build_dclaw("none", hand).compile()
+    chain = emulated_dclaw("none", hand=hand, effects=(), rng=np.random.default_rng(0))
+    h = robot_hand(hand, model)
+    robot = Robot(h, make_dynamixel_bus(h, chain.port(), model),
+                  RobotConfig(control_period=0.02, motion_scale=10.0))
+    port = robot.bus.port
+    steps: list[int] = []
+
+    def stall_once(k):
+        steps.append(k)
+        if len(steps) == 30:  # mid-way through log 0's first recording
+            port.sleep(0.15)  # time passes on the device, no packet is sent
+
+    park = dclaw_park(hand.joint_names, JOINTS)
+    with robot:
+        paths = identification_logs(robot, JOINTS, tmp_path / "a", 2, 1.0,
+                                    np.random.default_rng(2), on_step=stall_once, park=park)
+        parked = robot.present[robot.index(tuple(park))]
+    trips = [e for e in chain.events if e.kind == "watchdog"]
+    assert trips and {e.motor_id for e in trips} >= {10, 11, 12}  # the logged finger stopped
+    for e in trips:  # "stopped at <ticks> after <silence> s silent": just past the 100 ms
+        silence = float(e.detail.split(" after ")[1].split()[0])
+        assert 0.100 < silence <= 0.101
+    assert len(steps) == 30 + 2 * 50  # the interrupted recording, then two whole logs
+    for p in paths:
+        assert len(read_log(p)) == 50  # 1 s at 50 Hz, one recording each
+    assert np.abs(parked - np.array(list(park.values()))).max() < 0.05
+
+    chain = emulated_dclaw("none", hand=hand, effects=(), rng=np.random.default_rng(0))
+    robot = Robot(h, make_dynamixel_bus(h, chain.port(), model),
+                  RobotConfig(control_period=0.02, motion_scale=10.0))
+    port = robot.bus.port
+    with robot, pytest.raises(BusError, match="3 of them stopped by the bus watchdog"):
+        identification_logs(robot, JOINTS, tmp_path / "b", 1, 1.0, np.random.default_rng(2),
+                            on_step=lambda k: port.sleep(0.15) if k == 10 else None)

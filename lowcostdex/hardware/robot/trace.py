@@ -12,6 +12,7 @@ logged goals are what reached the motors.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,10 @@ import numpy as np
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap.logs import Trajectory, write_log
 from lowcostdex.hardware.bus import BusError
+from lowcostdex.hardware.dynamixel.config import WatchdogTripped
 from lowcostdex.hardware.robot.robot import Robot
+
+log = logging.getLogger(__name__)
 
 
 class TraceRecorder:
@@ -169,6 +173,22 @@ PARK_TOLERANCE = 0.05
 """How close parked joints must get to their park positions [rad]."""
 
 
+def _park(robot: Robot, park: Mapping[str, float] | None) -> None:
+    """Torque on for the ``park`` joints and settle them at their positions [rad]; raises
+    ConfigError when they do not get within ``PARK_TOLERANCE``."""
+    if not park:
+        return
+    names = tuple(park)
+    robot.torque(True, names)
+    target = np.array([park[n] for n in names])
+    settle(robot, names, target, max_seconds=3.0)
+    error = np.abs(robot.present[robot.index(names)] - target)
+    if not np.all(error < PARK_TOLERANCE):  # NaN (no reading) fails too
+        raise ConfigError(f"the joints to park did not get there: {names} are "
+                          f"{np.round(error, 3).tolist()} rad off (tolerance "
+                          f"{PARK_TOLERANCE} rad); is something in the way?")
+
+
 def dclaw_park(hand_joints: Sequence[str], logged: Sequence[str]) -> dict[str, float]:
     """Where the D'Claw's other fingers wait while ``logged`` joints are identified: swung out
     (middle joint -1.0 rad), which clears the logged finger's workspace except for the corners
@@ -210,32 +230,34 @@ def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path
     idx = robot.index(joints)
     low, high = margin * robot.low[idx], margin * robot.high[idx]
     period = robot.config.control_period
-    if park:
-        names = tuple(park)
-        robot.torque(True, names)
-        target = np.array([park[n] for n in names])
-        settle(robot, names, target, max_seconds=3.0)
-        error = np.abs(robot.present[robot.index(names)] - target)
-        if not np.all(error < PARK_TOLERANCE):  # NaN (no reading) fails too
-            raise ConfigError(f"the joints to park did not get there: {names} are "
-                              f"{np.round(error, 3).tolist()} rad off (tolerance "
-                              f"{PARK_TOLERANCE} rad); is something in the way?")
+    _park(robot, park)
     paths = []
     for k in range(logs):
         goals = excitation(rng, seconds, period, low, high)
         if model is not None:
             goals, _ = contact_free(model, joints, goals, park)
         path = out_dir / f"log_{k}.csv"
+        trips: list[str] = []
         for _ in range(missed_retries + 1):
-            traj = record(robot, joints, goals, path.stem, on_step)
+            try:
+                traj = record(robot, joints, goals, path.stem, on_step)
+            except WatchdogTripped as exc:
+                # the host fell silent for longer than the Bus Watchdog (a stalled machine): the
+                # motors stopped where they were. Hold the parked joints again, record again.
+                trips.append(str(exc))
+                log.warning("identification log %d: %s; recording it again", k, exc)
+                _park(robot, park)
+                continue
             if np.all(np.isfinite(traj.qpos)) and np.all(np.isfinite(traj.qvel)):
                 break
         else:
+            why = (f"; {len(trips)} of them stopped by the bus watchdog (the host was silent "
+                   f"too long: a loaded machine?): {trips[-1]}") if trips else ""
             raise BusError(f"identification log {k}: readings were missed in each of "
                            f"{missed_retries + 1} recordings (the gap analysis needs every "
                            "sample; a log with gaps is recorded again). Check the cabling and "
                            "the adapter's latency (a pty or an adapter whose latency timer "
-                           "cannot be read: pass latency_ms=16)")
+                           f"cannot be read: pass latency_ms=16){why}")
         paths.append(write_log(path, traj))
     return paths
 
