@@ -128,6 +128,46 @@ def test_nan_action_raises_and_nothing_reaches_the_motors():
     env.close()
 
 
+def test_a_host_stall_mid_episode_stops_the_motors_and_the_episode_resumes_from_there():
+    """The training process stalls 150 ms mid-episode (the Bus Watchdog is 100 ms): the motors
+    stop themselves where they are (device side: a watchdog event per finger motor), the next
+    step turns torque on from there and its goal reaches the motors; counted in telemetry.
+    More than ``MAX_WATCHDOG_STOPS`` stalls in one episode are raised, not hidden."""
+    from lowcostdex.hardware.dynamixel.config import WatchdogTripped
+
+    env = gym.make(ENV, backend="emulated")
+    env.reset(seed=0)
+    backend = env.unwrapped.backend
+    chain, port = backend.chain, backend.robot.bus.port
+    action = np.full(9, 0.5, np.float32)
+    for _ in range(3):
+        env.step(action)
+    port.sleep(0.15)  # time passes on the device, the host sends nothing
+    _, _, _, _, info = env.step(action)
+    trips = [e for e in chain.events if e.kind == "watchdog"]
+    assert sorted(e.motor_id for e in trips) == [10, 11, 12, 20, 21, 22, 30, 31, 32]
+    assert info["telemetry"]["watchdog_stops"] == 1
+    stop = {e.motor_id: int(e.detail.split()[2]) for e in trips}  # "stopped at <ticks> after"
+    for motor_id in (10, 21, 32):
+        times, ticks = chain.goal_log.positions(motor_id)
+        after = ticks[times > trips[0].time]
+        # torque on where it stopped (the arm settles a tick or two after the stop) ...
+        assert len(after) >= 2 and abs(int(after[0]) - stop[motor_id]) <= 2
+        step_ticks = backend.robot.max_step[0] / (2 * np.pi / 4096)
+        assert abs(int(after[-1]) - stop[motor_id]) <= step_ticks + 3  # ... then one bounded step
+    for _ in range(backend.MAX_WATCHDOG_STOPS - 1):
+        port.sleep(0.15)
+        env.step(action)
+    port.sleep(0.15)
+    with pytest.raises(WatchdogTripped):
+        env.step(action)
+    env.reset(seed=1)  # a new episode starts from a clean count
+    port.sleep(0.15)
+    _, _, _, _, info = env.step(action)
+    assert info["telemetry"]["watchdog_stops"] == backend.MAX_WATCHDOG_STOPS + 1
+    env.close()
+
+
 @pytest.mark.slow
 def test_hardware_backend_over_a_pty():
     """backend="hardware" on a serial device: ``lowcostdex emulate dclaw`` serves the emulated

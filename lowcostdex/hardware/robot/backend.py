@@ -37,6 +37,7 @@ import numpy as np
 from lowcostdex.errors import ConfigError
 from lowcostdex.hands import HandSpec, check_model_ranges
 from lowcostdex.hardware.bus import MotorBus
+from lowcostdex.hardware.dynamixel.config import WatchdogTripped
 from lowcostdex.hardware.robot.reset import ResetConfig, ResetReport
 from lowcostdex.hardware.robot.reset_dclaw import DClawReset
 from lowcostdex.hardware.robot.reset_flip import FlipBlockReset, FlipResetConfig, Reorient
@@ -127,6 +128,8 @@ class RobotBackend(Backend):
         self.sensor = sensor
         self.last_reset: ResetReport | None = None
         self.stale_steps = 0
+        self.watchdog_stops = 0  # steps resumed after the Bus Watchdog stopped the motors
+        self._episode_stops = 0
         robot.connect()
         self.episode_reset = make_reset(robot)
 
@@ -135,6 +138,7 @@ class RobotBackend(Backend):
         """Thermal pause if due, verified auto-reset to ``qpos``, action joints torque on."""
         self.last_reset = self.episode_reset(np.asarray(qpos, float))
         self.robot.torque(True, self.task.hand.joint_names)
+        self._episode_stops = 0
         self.data.qpos[:] = qpos
         self.data.qvel[:] = 0.0
         self._mirror(self.robot.read())
@@ -146,8 +150,29 @@ class RobotBackend(Backend):
         if nstep != frame_skip:
             raise ConfigError(f"a robot steps whole control periods ({frame_skip} substeps), "
                               f"got nstep={nstep}")
-        state = self.robot.step(np.asarray(goal)[self.task.hand_act], self.task.hand.joint_names)
+        goal = np.asarray(goal)[self.task.hand_act]
+        try:
+            state = self.robot.step(goal, self.task.hand.joint_names)
+        except WatchdogTripped as exc:
+            self._resume_after_watchdog(exc)
+            state = self.robot.step(goal, self.task.hand.joint_names)
         self._mirror(state)
+
+    MAX_WATCHDOG_STOPS = 3
+    """Watchdog stops one episode may resume from; one more is raised (the host cannot keep
+    up with the control rate: a loaded machine, swapping, a debugger)."""
+
+    def _resume_after_watchdog(self, exc: WatchdogTripped) -> None:
+        """The host fell silent for longer than the Bus Watchdog (a stall of the training
+        process) and the motors stopped where they were. Torque on again from there (goal :=
+        present, watchdog re-armed) and let the step's goal go out; the per-step motion bound
+        keeps it near where the motors stopped. Counted in telemetry (``watchdog_stops``)."""
+        self._episode_stops += 1
+        if self._episode_stops > self.MAX_WATCHDOG_STOPS:
+            raise exc
+        self.watchdog_stops += 1
+        log.warning("%s; resuming from there (%d this episode)", exc, self._episode_stops)
+        self.robot.torque(True, self.task.hand.joint_names)
 
     def passive_step(self) -> None:
         """Wait one control period without commanding (demonstrations), then mirror."""
@@ -160,6 +185,7 @@ class RobotBackend(Backend):
             out["last_reset_time"] = self.last_reset.duration
             out["last_reset_attempts"] = self.last_reset.attempts
         out["stale_steps"] = self.stale_steps
+        out["watchdog_stops"] = self.watchdog_stops
         return out
 
     def close(self) -> None:
