@@ -208,6 +208,58 @@ def test_flip_start_noise_is_seeded_and_sized_by_the_robot_reset():
         FlipConfig(yaw_range=-0.1)
 
 
+def _about_y(angle):
+    return np.array([math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0])
+
+
+def test_flip_rewards_charge_position_alike_and_orientation_on_one_scale():
+    """Keypoint and quaternion flip rewards: the same position term, and orientation terms
+    that agree at 0 and 180 deg, computed here from the cube's geometry."""
+    from lowcostdex.sim.envs.dclaw_tasks import FlipConfig
+
+    terms = {}
+    for rep in ("keypoints", "quaternion"):
+        env = gym.make("lowcostdex/DClawFlipBlock-v0")
+        u = env.unwrapped
+        u.task.config = FlipConfig(representation=rep)
+        env.reset(seed=0)
+        q0, v0 = u.data.qpos.copy(), u.data.qvel.copy()
+        goal = {"pos": np.array([0.0, 0.0, 0.125]), "quat": _about_y(math.pi)}
+        rows = []
+        for shift, angle in (([0.03, 0.0, 0.0], 0.0), ([0.0, -0.04, 0.0], math.pi),
+                             ([0.0, 0.0, 0.0], math.pi / 2)):
+            q = q0.copy()
+            q[u.task.block_pos] = goal["pos"] + shift
+            q[u.task.block_quat] = _about_y(angle)  # angle from upright; the goal is pi
+            rows.append(q)
+        batch = np.stack(rows)
+        t = u.task.reward_terms(batch, np.stack([v0] * 3), goal, np.zeros(9))
+        for i, q in enumerate(rows):  # one state at a time gives the batch's rows
+            one = u.task.reward_terms(q, v0, goal, np.zeros(9))
+            for k in one:
+                assert np.asarray(one[k]) == pytest.approx(np.asarray(t[k])[i], abs=1e-12)
+        terms[rep] = t
+        env.close()
+    orient = {"keypoints": terms["keypoints"]["keypoint_distance"],
+              "quaternion": terms["quaternion"]["orientation"]}
+    for rep in ("keypoints", "quaternion"):
+        # position: -20 per metre from the goal's centre, whatever the orientation
+        np.testing.assert_allclose(terms[rep]["position"], [-0.6, -0.8, 0.0], atol=1e-12)
+    # upright block, goal upside down: every corner (sqrt(2) h from the y axis, h half the
+    # 50 mm block) is 2 sqrt(2) h away after the 180 deg turn about y, and the angle is pi;
+    # both terms cost pi (the keypoints' scale is set by it)
+    assert orient["keypoints"][0] == pytest.approx(-math.pi, abs=1e-9)
+    assert orient["quaternion"][0] == pytest.approx(-math.pi, abs=1e-9)
+    # at the goal's orientation, 40 mm away: no orientation cost at all (the old keypoint
+    # reward charged the travel here too)
+    assert orient["keypoints"][1] == pytest.approx(0.0, abs=1e-9)
+    assert orient["quaternion"][1] == pytest.approx(0.0, abs=1e-9)
+    # 90 deg short: each corner's chord over 90 deg is sqrt(2) x sqrt(2) h = 2 h, so the
+    # keypoint term is -pi / (2 sqrt(2) h) x 2 h = -pi / sqrt(2); the angle term -pi / 2
+    assert orient["keypoints"][2] == pytest.approx(-math.pi / math.sqrt(2.0), abs=1e-9)
+    assert orient["quaternion"][2] == pytest.approx(-math.pi / 2, abs=1e-9)
+
+
 def test_a_wrong_action_shape_is_named_with_the_joints():
     env = gym.make("lowcostdex/DClawTurnValve-v0")
     env.reset(seed=0)

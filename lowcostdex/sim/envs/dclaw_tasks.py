@@ -190,8 +190,18 @@ class FlipConfig:
     """Block flipping.
 
     Attributes:
-      representation: "keypoints" (8 cube corners, position and reward) or "quaternion"
-        (position + orientation quaternion; reward on position and rotation angle).
+      representation: "keypoints" (observation: the 8 cube corners of the block and of the
+        goal; reward: the corners' mean distance from the goal's about the block's centre) or
+        "quaternion" (observation: position + orientation quaternion; reward: rotation
+        angle). Both rewards have the same position term (-20 x distance [m] from the start
+        centre), and the orientation terms have the same scale (``KEYPOINT_WEIGHT``: the flip
+        costs pi in both), so the two differ only in how they measure the orientation.
+        (Until 2026-11-26 the keypoint reward was -20 x the mean distance of the absolute
+        corners, which mixes in the block's travel: a roll moves it by one edge. Along 17
+        successful teacher flips it went from -1.41 at the start to -1.60 after the first
+        roll and -1.16 at the flipped end: the whole flip was worth 0.25, against 1.87 for the
+        quaternion reward's object terms and 1.81 for the present keypoint terms;
+        bench/RESULTS.md.)
       flip_axis: horizontal axis the goal rotates the block about. Default y: a flip about y
         rolls the block along x, in the thumb's plane of flexion, which passes through the
         block's centre, so a push turns it without yawing it; about x the push comes from the
@@ -232,6 +242,13 @@ class FlipConfig:
 
 _CORNERS = np.array([[sx, sy, sz] for sz in (-1, 1) for sy in (-1, 1) for sx in (-1, 1)],
                     dtype=float) * BLOCK_HALF
+
+
+KEYPOINT_WEIGHT = math.pi / (2.0 * math.sqrt(2.0) * BLOCK_HALF)
+"""Weight [1/m] of the flip's keypoint term: the mean distance of the block's corners, about its
+centre, from the goal's (-KEYPOINT_WEIGHT x distance). A 180 deg turn about a face axis moves
+every corner by 2 sqrt(2) BLOCK_HALF, so the flip costs pi, as the quaternion reward's angle
+term (-1 x angle [rad]) does."""
 
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -335,14 +352,15 @@ class FlipBlock(DClawTask):
 
     def reward_terms(self, qpos, qvel, goal, action):
         pos, quat = self._pose(qpos)
+        terms = {"position": -20.0 * _norm(pos - goal["pos"])}
         if self.config.representation == "keypoints":
-            kp = self.keypoints(pos, quat)
-            gkp = self.keypoints(np.asarray(goal["pos"]), np.asarray(goal["quat"]))
-            dist = np.mean(_norm(kp - gkp), axis=-1)
-            terms = {"keypoint_distance": -20.0 * dist}
+            corners = quat_rotate(quat, np.broadcast_to(_CORNERS, quat.shape[:-1] + (8, 3)))
+            gquat = np.broadcast_to(goal["quat"], quat.shape)
+            goal_corners = quat_rotate(gquat, np.broadcast_to(_CORNERS, gquat.shape[:-1] + (8, 3)))
+            dist = np.mean(_norm(corners - goal_corners), axis=-1)
+            terms["keypoint_distance"] = -KEYPOINT_WEIGHT * dist
         else:
-            terms = {"position": -20.0 * _norm(pos - goal["pos"]),
-                     "orientation": -1.0 * self.orientation_error(qpos, goal)}
+            terms["orientation"] = -1.0 * self.orientation_error(qpos, goal)
         terms.update(self.posture_terms(qpos, qvel))
         terms["pose"] = 0.1 * terms["pose"]
         terms["bonus"] = 10.0 * self.success(qpos, goal)
