@@ -133,7 +133,10 @@ class HandSpec:
                 raise ConfigError(f"hand {self.name}: joint name {j.name} appears twice")
             seen[j.motor_id] = j.name
             names.add(j.name)
-        if self.motor in MOTORS:
+        if self.motor != "allegro":  # the Allegro's joints are torque-driven, no servo table
+            if self.motor not in MOTORS:
+                raise ConfigError(f"hand {self.name}: unknown motor model {self.motor!r}; valid "
+                                  f"choices: {', '.join(MOTORS)} (or 'allegro')")
             self._check_motor_range(MOTORS[self.motor])
 
     def _check_motor_range(self, motor) -> None:

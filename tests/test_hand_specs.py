@@ -122,3 +122,16 @@ def test_the_cli_prints_one_line_for_a_bad_spec(tmp_path, capsys):
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert "ff_top and mf_middle are both on motor id 10" in err and path in err
     assert not (tmp_path / "out.json").exists()
+
+
+def test_an_unknown_motor_model_is_refused_with_the_known_ones(tmp_path):
+    """A typo in the motor model ("XM430-W530", or the Dynamixel easy SDK's lower-case
+    "xm430-w350") used to pass unchecked, skipping the motor-range checks; now it is refused
+    and the message lists the models the project has data sheets for."""
+    for typo in ("XM430-W530", "xm430-w350", ""):
+        with pytest.raises(ConfigError, match=rf"hand dclaw: unknown motor model '{typo}'; "
+                                              r"valid choices: .*XH430-W350.*STS3032"):
+            dclaw_spec(typo)
+    path = spec_file(tmp_path, lambda r: r.update(motor="XM430-W530"))
+    with pytest.raises(LowcostdexError, match=rf"{path}: .*unknown motor model 'XM430-W530'"):
+        HandSpec.load(path)
