@@ -29,7 +29,11 @@ class GapConfig:
 
     Attributes:
       candidates: effects to consider (None: every canonical cause whose channels are logged).
-      top_k: candidates fitted per selection round (ranked by score statistic).
+      top_k: candidates fitted per selection round (ranked by score statistic); when none of
+        them is a significant in-range explanation, the next ``top_k`` are fitted too.
+      rank_tie: candidates beyond ``top_k`` whose unexplained share (1 - score) is within
+        this factor + 1 of the best one's are fitted with the first ``top_k`` (the first-order
+        score cannot rank near-ties, and it favours effects with many parameters).
       max_effects: most effects to accept.
       min_gain: smallest relative reduction of the select-split MSE to accept an effect.
       floor_margin: the current model counts as explained when its select RMSE is within this
@@ -66,6 +70,7 @@ class GapConfig:
 
     candidates: tuple[str, ...] | None = None
     top_k: int = 6
+    rank_tie: float = 0.5
     max_effects: int = 3
     min_gain: float = 0.05
     floor_margin: float = 1.2
@@ -93,6 +98,8 @@ class GapConfig:
         for name in ("top_k", "max_effects", "max_rounds", "bootstrap"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")
+        if not self.rank_tie >= 0:
+            raise ConfigError(f"rank_tie must be >= 0, got {self.rank_tie}")
         if not 0 < self.min_gain < 1:
             raise ConfigError("min_gain must be in (0, 1)")
         check_choice("search", self.search, ("forward", "both"))

@@ -501,6 +501,7 @@ CAUSES: tuple[str, ...] = (
     "latency", "backlash", "coulomb_friction", "stribeck_friction", "load_dependent_friction",
     "viscous_damping", "gain_error", "torque_limit", "velocity_limit", "position_offset",
     "inertia_error", "mass_error", "thermal_derating", "voltage_sag",
+    "gearbox_friction", "mounting_offset", "motor_strength",
 )
 
 
