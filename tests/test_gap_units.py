@@ -275,7 +275,8 @@ def test_a_cause_that_ties_the_best_score_is_fitted_even_beyond_top_k():
     top_k 2): latency (0.952) ties gearbox_friction (0.962) and load_dependent_friction
     (0.958), so it is fitted in the first batch; motor_strength (0.857, 3.8x the best's
     unexplained share) is not. The second batch is the next top_k with a score >= min_gain."""
-    from lowcostdex.gap.analyze import CandidateResult, fit_batches
+    from lowcostdex.gap.results import CandidateResult
+    from lowcostdex.gap.selection import fit_batches
 
     scores = {"gearbox_friction": 0.962, "load_dependent_friction": 0.958, "latency": 0.952,
               "motor_strength": 0.857, "inertia_error": 0.725, "torque_limit": 0.722,

@@ -5,9 +5,10 @@
 1. Episodes (whole logs, or chunks of long ones) are split into train / select / test.
 2. The nominal model replays every episode open loop; residual diagnostics and the noise floor
    describe what it gets wrong.
-3. Forward selection. Each round ranks the remaining candidate effects by their score statistic
-   (the share of the training residual their sensitivity explains), fits the best ``top_k`` jointly
-   with the effects already chosen (lockstep bounded LM on multiple-shooting training segments,
+3. Forward selection (what a round fits and how the select split judges it:
+   ``gap.selection``). Each round ranks the remaining candidate effects by their score statistic
+   (the share of the training residual their sensitivity explains), fits the best ``top_k`` (and
+   any whose score ties the best's) jointly with the effects already chosen (lockstep bounded LM on multiple-shooting training segments,
    multi-start where non-convex), and replays the fitted candidates open loop on the *select*
    episodes. A candidate whose fit lands on a search bound and would otherwise beat the best
    in-range one is refitted in a range widened toward the parameter's physical hard limit
@@ -51,6 +52,7 @@ from lowcostdex.gap.results import (
     param_report,
     verdict_text,
 )
+from lowcostdex.gap.selection import fit_batches, mse_by_episode, select_gain_ci, select_results
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
 
 __all__ = [
@@ -101,29 +103,6 @@ class _Engine:
         return fn
 
 
-def _mse_by_episode(ds: Dataset, eps: Sequence[Window], pred: Sequence[np.ndarray]
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-episode (sum of squared errors, sum of absolute errors, sample count)."""
-    sse, sae, n = [], [], []
-    for w, p in zip(eps, pred, strict=True):
-        r = ds.trajectories[w.traj].qpos[w.start:w.stop] - p
-        sse.append(float((r * r).sum()))
-        sae.append(float(np.abs(r).sum()))
-        n.append(r.size)
-    return np.array(sse), np.array(sae), np.array(n, float)
-
-
-def _select_gain_ci(sse_cur: np.ndarray, sse_new: np.ndarray, rng: np.random.Generator,
-                    n_boot: int) -> tuple[float, float]:
-    """Relative MSE reduction and its 5 % bootstrap lower bound over select episodes."""
-    rel = 1.0 - sse_new.sum() / max(sse_cur.sum(), 1e-300)
-    k = len(sse_cur)
-    idx = rng.integers(0, k, size=(n_boot, k))
-    a, b = sse_cur[idx].sum(1), sse_new[idx].sum(1)
-    boot = 1.0 - b / np.maximum(a, 1e-300)
-    return float(rel), float(np.percentile(boot, 5))
-
-
 def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | None = None
             ) -> GapResult:
     """Run the gap analysis on a data set (see the module docstring).
@@ -169,7 +148,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
     # ---- 2. forward selection ------------------------------------------------------------------
     current = fitmod.Structure((), joints)
     cur_x = np.zeros(0)
-    sel_cur = _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
+    sel_cur = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
     floor_rms = math.sqrt(floor_mse)
     rounds: list[list[CandidateResult]] = []
     fit_fn = eng.residual_fn(train_segs)
@@ -238,7 +217,8 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                     if t.cost < best_track[n].cost:
                         best_track[n] = t
             names = list(best_track)
-            results = _select_results(eng, ds, sel_eps, best_track, names, sel_cur, rng, cfg)
+            results = select_results(eng.predict, ds, sel_eps, best_track, names, sel_cur,
+                                     rng, cfg)
             # a fit on a search bound that would beat every in-range fit: real sizes can lie beyond
             # the usual range, so widen toward the hard limit and refit (reported with the cause)
             top_in = max((results[n][0] for n in names
@@ -254,8 +234,8 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                     if ranges:
                         best_track[n], widened[n] = t, (ranges, notes)
             if widened:
-                results.update(_select_results(eng, ds, sel_eps, best_track, list(widened),
-                                               sel_cur, rng, cfg))
+                results.update(select_results(eng.predict, ds, sel_eps, best_track,
+                                              list(widened), sel_cur, rng, cfg))
             by_name = {c.effect: c for c in table}
             for n in names:
                 rel, low, sse = results[n]
@@ -318,7 +298,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
                                    fit_fn, dropped := [])
         if dropped:
             stop_reason += f"; dropped by the backward pass: {', '.join(dropped)}"
-            sel_cur = (_mse_by_episode(ds, sel_eps, eng.predict(
+            sel_cur = (mse_by_episode(ds, sel_eps, eng.predict(
                 sel_eps, [current.to_effects(cur_x)])[0])[0], sel_cur[1], sel_cur[2])
 
     # ---- backward search: the top-ranked candidates fitted together, then pruned ------------
@@ -335,10 +315,10 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             alt, alt_x = _joint_then_prune(eng, ds, sel_eps, big, current, cur_x, cfg,
                                            floor_rms, ctx, fit_fn)
             if alt.effects:
-                sse_alt = _mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [
+                sse_alt = mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [
                     alt.to_effects(alt_x)])[0])[0]
-                base_sse = _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0]
-                rel_base, _ = _select_gain_ci(base_sse, sse_alt, rng, cfg.bootstrap)
+                base_sse = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0]
+                rel_base, _ = select_gain_ci(base_sse, sse_alt, rng, cfg.bootstrap)
                 # the switch must be visible: the two models' predictions differ by more than
                 # the noise floor (effects that cancel each other cannot sneak in)
                 switch = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x),
@@ -380,14 +360,14 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
     prefixes = [effects[:k] for k in range(1, len(effects) + 1)]
     test_pred = eng.predict(test_eps, prefixes) if prefixes else []
     base_test = [base_pred[i] for i in split.test]
-    b_sse, b_sae, b_n = _mse_by_episode(ds, test_eps, base_test)
+    b_sse, b_sae, b_n = mse_by_episode(ds, test_eps, base_test)
     ext_pred = test_pred[-1] if test_pred else base_test
-    e_sse, e_sae, e_n = _mse_by_episode(ds, test_eps, ext_pred)
+    e_sse, e_sae, e_n = mse_by_episode(ds, test_eps, ext_pred)
     gain = gain_with_ci(b_sse, e_sse, b_n, b_sae, e_sae, floor_mse, rng, cfg.bootstrap)
     baseline = episode_errors(ds, test_eps, base_test, joints=list(ds.joints))
     extended = episode_errors(ds, test_eps, ext_pred, joints=list(ds.joints))
     baseline.update(select_rmse=float(math.sqrt(
-        _mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0].sum()
+        mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0].sum()
         / max(sel_cur[2].sum(), 1))))
     if final_track is not None:
         noise = fitmod.interval_halfwidths(final_track.r, final_track.jac,
@@ -409,7 +389,7 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
             c = Cause(e.name, e.joints, param_report(
                 final_track.structure, final_track.u, half, e.name,
                 {"interval_noise": noise, "interval_data": data}, shift))
-            sse, sae, n = _mse_by_episode(ds, test_eps, test_pred[k])
+            sse, sae, n = mse_by_episode(ds, test_eps, test_pred[k])
             c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
             c.heldout_mae_after = float(sae.sum() / n.sum())
             c.flags = bound_flags(final_track.structure, final_track.u, e.name)
@@ -423,42 +403,6 @@ def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | N
     return GapResult(cfg, ds.sources or [tr.name for tr in ds.trajectories], joints, split, eps,
                      floor, baseline, extended, causes, rounds, diagnostics, gain, effects,
                      verdict, timing, traces, dict(ds.models), stop_reason)
-
-
-def fit_batches(table: Sequence[CandidateResult], cfg: GapConfig
-                ) -> list[list[CandidateResult]]:
-    """The candidates one selection round fits, in at most two batches (the second is fitted
-    only when the first holds no significant in-range explanation).
-
-    The first batch is the ranking's top ``top_k`` (``table`` is sorted by score) and every
-    candidate whose first-order score ties the best's: its unexplained share (1 - score) within
-    ``1 + rank_tie`` of the best one's. A many-parameter effect spans more of the residual and
-    crowds one-parameter causes out of a short list (seen on test_transfer's hidden robot A:
-    gearbox_friction 0.962, load_dependent_friction 0.958, latency 0.952 with top_k 2; fitted,
-    latency lowered the select MSE by 97 %, gearbox_friction by 60 % on its search bounds). The
-    second batch is the next ``top_k`` with a score of at least ``min_gain`` (the first-order
-    score misranks on real servos: STS3250's mass error ranks 5th-7th).
-    """
-    if not table:
-        return [[], []]
-    tied = (1.0 + cfg.rank_tie) * (1.0 - table[0].score)
-    first = [c for i, c in enumerate(table) if i < cfg.top_k or 1.0 - c.score <= tied]
-    rest = [c for c in table if c not in first and c.score >= cfg.min_gain]
-    return [first, rest[:cfg.top_k]]
-
-
-def _select_results(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
-                    tracks: dict[str, fitmod.Track], names: Sequence[str], sel_cur: tuple,
-                    rng: np.random.Generator, cfg: GapConfig
-                    ) -> dict[str, tuple[float, float, np.ndarray]]:
-    """Select-split gain of each named track: (relative MSE reduction, its 5 % bootstrap lower
-    bound, per-episode SSE)."""
-    preds = eng.predict(sel_eps, [tracks[n].effects() for n in names])
-    out = {}
-    for n, pr in zip(names, preds, strict=True):
-        sse = _mse_by_episode(ds, sel_eps, pr)[0]
-        out[n] = (*_select_gain_ci(sel_cur[0], sse, rng, cfg.bootstrap), sse)
-    return out
 
 
 def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:
@@ -515,12 +459,12 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
     while len(current.effects) > min_size:
         effs = current.to_effects(cur_x)
         full = eng.predict(sel_eps, [effs])[0]
-        sse_full = _mse_by_episode(ds, sel_eps, full)[0].sum()
+        sse_full = mse_by_episode(ds, sel_eps, full)[0].sum()
         cols = [[e for e in effs if e.name != n] for n in current.effects]
         preds = eng.predict(sel_eps, cols)
         rise, size = {}, {}
         for n, pr in zip(current.effects, preds, strict=True):
-            rise[n] = _mse_by_episode(ds, sel_eps, pr)[0].sum() / max(sse_full, 1e-300) - 1
+            rise[n] = mse_by_episode(ds, sel_eps, pr)[0].sum() / max(sse_full, 1e-300) - 1
             d = np.concatenate([(a - b).ravel() for a, b in zip(pr, full, strict=True)])
             size[n] = float(np.sqrt(np.mean(d * d)))
         at_bound = {f.effect for f in current.free if bound_flags(current, current.u(cur_x), f.effect)}
