@@ -140,3 +140,36 @@ def test_report_figures_read_at_a_glance(demo):
         fig = make(result)
         assert figure_problems(fig) == [], make.__name__
         plt.close(fig)
+
+
+def test_logs_may_be_named_by_folder_or_pattern_and_analyze_says_what_it_takes(tmp_path):
+    """A user's ways to name logs: the folder ``record-log`` wrote (its marker file is not a
+    log), a glob pattern the shell did not expand, a list of files: the same two logs in
+    order. A pattern that matches nothing and a folder without logs are refused by name.
+    ``analyze`` given the file names instead of a data set says what to call first."""
+    from lowcostdex.cli import main
+    from lowcostdex.gap import LogError, analyze, load_dataset
+
+    xml, logs = tmp_path / "finger.xml", tmp_path / "logs"
+    assert main(["model", "dclaw", "--station", "none", "--fingers", "ff", "--no-thermal",
+                 "--out", str(xml)]) == 0
+    assert main(["record-log", "--port", "emulated", "--logs", "2", "--seconds", "0.8",
+                 "--out", str(logs)]) == 0
+    files = [logs / "log_0.csv", logs / "log_1.csv"]
+    assert sorted(p.name for p in logs.iterdir() if p.name.startswith(".")) == [
+        ".lowcostdex.json"]
+    reference = load_dataset([str(p) for p in files], model=str(xml))
+    for named in (str(logs), logs, [logs], str(logs / "log_*.csv"), [str(logs / "*.csv")]):
+        ds = load_dataset(named, model=str(xml))
+        assert [t.name for t in ds.trajectories] == [t.name for t in reference.trajectories]
+        for a, b in zip(ds.trajectories, reference.trajectories, strict=True):
+            np.testing.assert_array_equal(a.qpos, b.qpos)
+    with pytest.raises(LogError, match=r"no file matches this pattern"):
+        load_dataset(str(tmp_path / "*.npz"), model=str(xml))
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(LogError, match=r"empty: a folder without logs"):
+        load_dataset(tmp_path / "empty", model=str(xml))
+    with pytest.raises(TypeError, match=r"analyze takes a Dataset, not list.*load_dataset"):
+        analyze([str(p) for p in files])
+    with pytest.raises(TypeError, match=r"config must be a GapConfig, not dict"):
+        analyze(reference, {"top_k": 2})

@@ -103,18 +103,24 @@ class _Engine:
         return fn
 
 
-def analyze(ds: Dataset, config: GapConfig = GapConfig(), progress: Progress | None = None
+def analyze(ds: Dataset, config: GapConfig | None = None, progress: Progress | None = None
             ) -> GapResult:
     """Run the gap analysis on a data set (see the module docstring).
 
     Args:
-      ds: nominal model(s) and measured trajectories.
-      config: settings.
+      ds: nominal model(s) and measured trajectories (``load_dataset(logs, model=...)``).
+      config: settings (None: ``GapConfig()``).
       progress: optional callback (stage description, fraction done in [0, 1]).
     """
+    if not isinstance(ds, Dataset):
+        raise TypeError(f"analyze takes a Dataset, not {type(ds).__name__}: read the logs "
+                        "first, e.g. analyze(load_dataset(['log_0.csv', ...], "
+                        "model='model.xml'))")
+    if config is not None and not isinstance(config, GapConfig):
+        raise TypeError(f"config must be a GapConfig, not {type(config).__name__}")
     t_start = time.perf_counter()
     timing: dict[str, float] = {}
-    cfg = config
+    cfg = config if config is not None else GapConfig()
     prog = progress or (lambda s, f: None)
     rng = np.random.default_rng(cfg.seed)
     eps = episodes(ds, cfg.chunk)

@@ -25,7 +25,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "extend the model and measure the gain")
     a.add_argument("--model", help="MJCF of the nominal model (project-format logs)")
     a.add_argument("--log", nargs="+", required=True, metavar="FILE",
-                   help="logs: CSV/NPZ in the project format, or BAM raw-log JSON")
+                   help="logs: CSV/NPZ in the project format, or BAM raw-log JSON; a folder "
+                        "means every log in it, a quoted pattern ('logs/*.csv') its matches")
     a.add_argument("--out", required=True, help="output folder: new or empty, or a previous report (kept in previous/)")
     a.add_argument("--bench", action="store_true",
                    help="logs are BAM JSON mapped onto the servo bench (default: auto-detect)")

@@ -9,6 +9,7 @@ fit. Splits (train / select / test) are made over episodes, never over samples.
 
 from __future__ import annotations
 
+import glob
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -134,12 +135,45 @@ class Dataset:
         return Dataset(models, self.trajectories, list(self.sources), list(self.notes))
 
 
-def load_dataset(paths: Sequence[str | Path], model: str | Path | None = None,
+LOG_SUFFIXES = (".csv", ".npz", ".json")
+
+
+def expand_log_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
+    """The log files meant by ``paths``: one path or a sequence of them, where each may be a
+    file, a folder (its ``LOG_SUFFIXES`` files, sorted) or a glob pattern that the shell did
+    not expand (``"logs/*.csv"``, sorted matches). Raises LogError when nothing is named, a
+    folder holds no log or a pattern matches nothing. Hidden files (``.lowcostdex.json``, the
+    marker ``record-log`` leaves) are not logs."""
+    entries = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if not entries:
+        raise LogError("no log files given")
+    out: list[Path] = []
+    for entry in entries:
+        one = Path(entry)
+        if one.is_dir():
+            found = sorted(p for p in one.iterdir()  # not .lowcostdex.json (a marker)
+                           if p.is_file() and not p.name.startswith(".")
+                           and p.suffix.lower() in LOG_SUFFIXES)
+            if not found:
+                raise LogError(f"{one}: a folder without logs ({', '.join(LOG_SUFFIXES)})")
+            out += found
+        elif not one.exists() and any(c in str(one) for c in "*?["):
+            found = sorted(Path(p) for p in glob.glob(str(one)) if Path(p).is_file())
+            if not found:
+                raise LogError(f"{one}: no file matches this pattern")
+            out += found
+        else:
+            out.append(one)
+    return out
+
+
+def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | None = None,
                  bench: bool | None = None, timestep: float | None = None) -> Dataset:
     """Read logs and their model(s).
 
     Args:
-      paths: log files (CSV/NPZ in the project format, or BAM JSON).
+      paths: log files (CSV/NPZ in the project format, or BAM JSON); one path or a folder or a
+        glob pattern (``"logs/*.csv"``) is taken too: a folder means every log in it.
       model: MJCF file for project-format logs (required for them).
       bench: True: the logs are BAM JSON mapped onto the bench; None: auto-detect.
       timestep: physics step for BAM benches [s] (default: the bench's).
@@ -149,9 +183,7 @@ def load_dataset(paths: Sequence[str | Path], model: str | Path | None = None,
     Raises:
       LogError with the file and problem.
     """
-    if not paths:
-        raise LogError("no log files given")
-    paths = [Path(p) for p in paths]
+    paths = expand_log_paths(paths)
     for p in paths:
         if not p.exists():
             raise LogError(f"{p}: no such file")
