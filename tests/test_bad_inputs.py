@@ -281,7 +281,9 @@ CASES: list[Case] = [
              csv_text(servo_log()).replace("\n0.0100,", "\n0.0100 s,", 1),
              "row 3, column 'time': '0.0100 s' is not a number"),
     csv_case("a binary file named .csv", bytes(range(256)) * 64, "not a text CSV file"),
-    Case("a log that is a folder", analyze("logs.csv"), "is a folder, not a log file",
+    # a folder means every log in it (gap.dataset.expand_log_paths); this one holds none
+    Case("a log that is a folder", analyze("logs.csv"),
+         "logs.csv: a folder without logs (.csv, .npz, .json)",
          files={"bench.xml": bench_model, "logs.csv/readme.txt": "raw data\n"}),
     Case("an NPZ that is not one", analyze("log.npz"), "not a readable NPZ log",
          files={"bench.xml": bench_model, "log.npz": csv_text(servo_log())}),
