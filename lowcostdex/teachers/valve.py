@@ -8,10 +8,13 @@ so it can drive a ``HandEnv`` (``goal_to_action``), serve as the physics sanity 
 ``ValveTurnTeacher`` turns the D'Claw valve as a relay: each finger runs its own stroke (wait
 lifted above the spokes, come down behind the first spoke ahead of its tip, push it along a circle
 about the valve axis with the side of the tip, rise, travel back), planned from the measured valve
-angle with analytic inverse kinematics. A finger comes down only while no finger pushes, so where
-it lands does not depend on how fast the valve turned: an open-loop playback of a recorded
-demonstration, whose valve lags the original by a few degrees, lands behind the same spoke. The
-first stroke is one finger's when the spoke ahead leaves the fingers less than ``solo_stroke``
+angle with analytic inverse kinematics. A finger comes down while no finger pushes, or, while
+another pushes, behind a spoke that has just come into its reach (``early_window``: it lands as
+that stroke ends). Either way the spoke stands still or turns away from where the tip lands, so
+an open-loop playback of a recorded demonstration, whose valve lags the original by a few
+degrees, lands behind the same spoke. On a valve with dry friction (the foam valve, which stops
+when let go) every finger that can reach a spoke joins the stroke that finishes the turn
+(``share_last``). The first stroke is one finger's when the spoke ahead leaves the fingers less than ``solo_stroke``
 (ROBEL's spoke phase: spokes midway between the fingers), else all three push together. The
 tips push low on the spokes (``push_height``): the contact normal is then closer to horizontal,
 so a servo that yields under load (the playback) loses less of the stroke by riding up the spoke.
@@ -53,7 +56,10 @@ class ValveTeacherConfig:
         tip passing below).
       reach: a stroke ends at this tip angle (lowered at ``reset`` to what every finger
         reaches on the push circle); strokes start no further back than -reach.
-      wait_angle: where a finger waits for the next spoke (at -wait_angle).
+      wait_angle: where a finger waits for the next spoke (at -wait_angle): a little behind
+        where the furthest-back stroke starts, so the tip may come down behind a spoke as soon as
+        the spoke comes into reach (a spoke less than a contact angle ahead of a waiting tip is
+        not pushed from behind by it).
       approach_gap: angle between the tip and the spoke's contact position when the tip comes
         down behind it.
       min_stroke: a finger comes down only behind a spoke it can push at least this far.
@@ -61,6 +67,15 @@ class ValveTeacherConfig:
         other two wait for the next spoke and push it further), else by all three.
       clearance: a finger does not come down within this angle (about the valve axis) of
         another finger's pushing or rising tip.
+      early_window: while another finger pushes, a waiting finger comes down only behind a
+        spoke that has just come into reach (its stroke starts within this angle of -reach),
+        so it lands as the pushing finger's stroke ends instead of after it; the valve turns
+        away from where it lands, so a playback whose valve lags still lands behind the spoke.
+      share_last: on a valve with dry friction (it stops when let go: the foam valve), every
+        waiting finger that can reach a spoke joins the stroke that finishes the turn, so no
+        single servo carries the last, slowest part alone. Applied only where the valve hinge has
+        dry friction (``dof_frictionloss`` > 0, read from the model at ``reset``): on a valve that
+        coasts (the valve, the screw) extra fingers overshoot in the playbacks.
       sweep_speed: largest lead of the tip command over the spoke's contact position per
         control step; error_gain: lead = min(sweep_speed, error_gain * |valve error|).
       max_lead: largest lead of the tip command over the measured tip.
@@ -83,7 +98,7 @@ class ValveTeacherConfig:
     wait_radius: float = 0.085
     wait_height: float = 0.05
     reach: float = math.radians(75)
-    wait_angle: float = math.radians(60)
+    wait_angle: float = math.radians(64)
     approach_gap: float = math.radians(8)
     min_stroke: float = math.radians(20)
     solo_stroke: float = math.radians(90)
@@ -100,6 +115,8 @@ class ValveTeacherConfig:
     travel_clearance: float = 0.008
     hold_backoff: float = math.radians(2)
     flip_margin: float = 0.5
+    early_window: float = math.radians(8)
+    share_last: bool = True
 
     def __post_init__(self) -> None:
         if not (self.rise_clearance >= 0 and self.travel_clearance >= 0):
@@ -123,8 +140,8 @@ class ValveTurnTeacher:
     A relay: every finger runs its own stroke (``wait`` above the spokes at -wait_angle,
     ``lower`` behind the first spoke ahead of its tip, ``push`` it to ``reach``, ``rise``, back to
     ``wait``). One finger starts; the next comes down behind the spoke reaching it as the pushing
-    finger nears the end of its stroke, so one finger pushes while the others return and the
-    valve keeps turning. Everything is planned from the measured valve angle and spoke
+    finger ends its stroke, so one finger pushes while the others return and the valve keeps
+    turning. Everything is planned from the measured valve angle and spoke
     directions, so it works at any spoke phase (the fingers and spokes share the 3-fold symmetry:
     every finger sees the spokes at the same angles in its own frame).
     """
@@ -139,7 +156,9 @@ class ValveTurnTeacher:
         c = self.config
         self.hand_qpos = task.hand_qpos
         self.low, self.high = task.hand_low.reshape(3, 3), task.hand_high.reshape(3, 3)
-        self.valve_qpos = int(model.jnt_qposadr[model.joint("valve").id])
+        valve = model.joint("valve")
+        self.valve_qpos = int(model.jnt_qposadr[valve.id])
+        self.share_last = c.share_last and float(model.dof_frictionloss[valve.dofadr[0]]) > 0
         self.fingers = [FingerGeometry.from_model(model, f) for f in DCLAW_FINGERS]
         data = mujoco.MjData(model)
         mujoco.mj_kinematics(model, data)
@@ -254,8 +273,10 @@ class ValveTurnTeacher:
                     self.state[i] = WAIT
             if self.state[i] == WAIT:
                 start = None
-                if handover and starts > 0 and not hold:
+                if starts > 0 and not hold:
                     start = self._start(i, u, spokes, self.finger_angles + tips_alpha)
+                    if start is not None and not handover and not self._joins(start, err):
+                        start = None
                 if start is not None:
                     starts -= 1
                     self._started = True
@@ -275,6 +296,16 @@ class ValveTurnTeacher:
                     self.state[i] = PUSH
         return np.concatenate([f.inverse(self._circle_point(i, *self.command[i]), self.low[i],
                                          self.high[i]) for i, f in enumerate(self.fingers)])
+
+    def _joins(self, start: float, err: float) -> bool:
+        """Whether a finger may come down at ``start`` [rad] while another finger pushes: behind
+        a spoke just come into reach (``early_window``), or (``share_last``) for a stroke that
+        finishes the turn (the error [rad] is covered before the tip reaches ``reach``)."""
+        c = self.config
+        if start <= -self.reach + c.early_window:
+            return True
+        return self.share_last and (start + c.approach_gap + abs(err)
+                                    <= self.reach - c.reach_tolerance)
 
     def _first_group(self, spokes: np.ndarray) -> int:
         """How many fingers start the first stroke: all three if the spoke ahead leaves them a
