@@ -10,6 +10,11 @@ confusable family (``gap_truth_sim.family``), a miss; clean data: no cause, or a
     python bench/gap_independent.py --seeds 3       # each case with 3 seeds (other magnitudes)
     python bench/gap_independent.py --cases bench-latency finger-clean --json out.json
     python bench/gap_independent.py --wide          # also the sizes written out (WIDE_CASES)
+    python bench/gap_independent.py --seeds 3 --wide --json out.json --resume  # go on after a cut
+
+Runs go seed by seed (every case's first seed, then every case's second, ...), so a run cut
+short has measured every case once before it repeats one. With ``--resume`` the runs already in
+``--json`` are kept and not redone (the totals cover them all).
 
 Prints one row per run (hidden magnitudes, named causes and values, held-out RMSE before/after,
 wall clock) and the totals, and the coverage of the reported 95 % intervals: over every hidden
@@ -89,7 +94,11 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="write the raw results here")
     ap.add_argument("--wide", action="store_true",
                     help="also the sizes written out beyond the usual ranges (WIDE_CASES)")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the runs already in --json and do only the others")
     args = ap.parse_args()
+    if args.resume and not args.json:
+        ap.error("--resume needs --json")
     cases = [(*c, None) for c in ts.CASES]
     if args.wide:
         cases += [(cid, rig, tuple(v), seed, dur, v) for cid, rig, v, seed, dur in ts.WIDE_CASES]
@@ -99,8 +108,15 @@ def main() -> None:
     print(f"{'case':24s} {'seed':>5s} {'grade':6s} {'base':>7s} {'ext':>6s} {'s':>5s}  "
           "hidden -> named (held-out RMSE in mrad)")
     out = []
-    for cid, rig, names, seed, duration, values in cases:
-        for k in range(args.seeds if values is None else 1):
+    if args.resume and Path(args.json).exists():
+        out = json.loads(Path(args.json).read_text())
+        for r in out:
+            print(_fmt(r) + "  (kept)", flush=True)
+    done = {(r["case"], r["seed"]) for r in out}
+    for k in range(args.seeds):
+        for cid, rig, names, seed, duration, values in cases:
+            if (values is not None and k > 0) or (cid, seed + 1000 * k) in done:
+                continue
             r = run(cid, rig, names, seed + 1000 * k, duration, values)
             out.append(r)
             print(_fmt(r), flush=True)
