@@ -20,6 +20,7 @@ to the repository; exits cleanly when it is absent. For each set:
     python bench/gap_real.py --sets rhoban-xl330   # one set
     python bench/gap_real.py --effects gain_error velocity_limit ...   # another structure
     python bench/gap_real.py --analyze             # also the automatic effect selection
+    python bench/gap_real.py --seeds 4             # also 4 fits from jittered starts (spread)
 """
 
 from __future__ import annotations
@@ -79,7 +80,7 @@ def data_root(arg: str | None) -> Path:
 
 
 def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too: bool,
-            max_rounds: int) -> dict:
+            max_rounds: int, seeds: int = 0, jitter: float = 1e-3) -> dict:
     spec = SETS[name]
     files = sorted((root / spec["folder"]).glob("*.json"))
     t0 = time.perf_counter()
@@ -105,6 +106,16 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
         "bam": {k: {"mean": v[0], "trajectory": v[1], "kp": v[2]} for k, v in
                 spec["bam"].items()},
     }
+    # the same identification from jittered starts: how much the held-out error depends on
+    # where the least-squares path starts
+    out["jittered"] = []
+    for seed in range(1, seeds + 1):
+        rj = identify(ds, train, test, IdentifyConfig(effects=structure, max_rounds=max_rounds,
+                                                      jitter=jitter, seed=seed))
+        out["jittered"].append({"seed": seed, "jitter": jitter, "held_out": rj.mean(test),
+                                "train": rj.mean(train), "family": rj.family,
+                                "kp": breakdown(ds, rj.identified_mae, test, "kp"),
+                                "fit_s": rj.fit_seconds})
     if analyze_too:
         from lowcostdex.gap.analyze import GapConfig, analyze
 
@@ -159,6 +170,17 @@ def _print(r: dict) -> None:
         print("at a search bound:", ", ".join(r["at_bound"]))
     print("held-out MAE without each effect (others kept) [mrad]:",
           ", ".join(f"{k} {1e3 * v:.1f}" for k, v in r["ablation"].items()))
+    if r["jittered"]:
+        print(f"jittered starts (x (1 + {r['jittered'][0]['jitter']:g} N(0, 1)), seeds 1-"
+              f"{len(r['jittered'])}), held out [mrad]:")
+        for j in r["jittered"]:
+            print(f"  seed {j['seed']}: {1e3 * j['held_out']:.1f} (train {1e3 * j['train']:.1f}, "
+                  f"{j['family']}; " + ", ".join(f"kp {k} {1e3 * v:.1f}" for k, v in
+                                                 j["kp"].items()) + ")")
+        vals = [1e3 * r["ours"]["identified"]["mean"]] + [1e3 * j["held_out"]
+                                                           for j in r["jittered"]]
+        print(f"  all {len(vals)} fits: median {np.median(vals):.1f}, range "
+              f"{min(vals):.1f}-{max(vals):.1f}")
     if "analysis" in r:
         print("automatic selection:", r["analysis"]["verdict"])
 
@@ -173,6 +195,10 @@ def main(argv=None) -> int:
     ap.add_argument("--analyze", action="store_true",
                     help="also run the automatic effect selection (gap analyze) on the split")
     ap.add_argument("--max-rounds", type=int, default=30)
+    ap.add_argument("--seeds", type=int, default=0,
+                    help="also identify from N jittered starts (seeds 1..N) and print the spread")
+    ap.add_argument("--jitter", type=float, default=1e-3,
+                    help="relative spread of the jittered starts (IdentifyConfig.jitter)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     root = data_root(args.data)
@@ -185,7 +211,8 @@ def main(argv=None) -> int:
         if not (root / SETS[name]["folder"]).is_dir():
             print(f"{name}: folder {SETS[name]['folder']} missing, skipped")
             continue
-        r = run_set(name, root, args.effects, args.analyze, args.max_rounds)
+        r = run_set(name, root, args.effects, args.analyze, args.max_rounds, args.seeds,
+                    args.jitter)
         results.append(r)
         _print(r)
     if args.json:

@@ -11,7 +11,7 @@ import pytest
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Dataset
-from lowcostdex.gap.identify import IdentifyConfig, _prune_trailing, identify
+from lowcostdex.gap.identify import IdentifyConfig, _jitter, _prune_trailing, identify
 from lowcostdex.gap.logs import Trajectory
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect
@@ -77,6 +77,29 @@ def test_identify_recovers_the_servo_and_predicts_held_out_gains(logs):
     # the family's training MAE, read off its least-squares residual, is the replayed one
     assert res.family_train_mae[res.family] == pytest.approx(res.mean(res.train), rel=1e-9)
     assert res.family_train_mae.keys() == {"free", "held"}
+
+
+def test_jittered_starts_spread_as_stated_and_still_recover_the_servo(logs):
+    free = [fitmod.Free("x", "a", 0, 0.01, 10.0, 1.0, True, 1e-3),
+            fitmod.Free("x", "b", 0, 0.0, 0.5, 0.0, False, 1e-3)]
+    st = fitmod.Structure(("x",), ("j",), free)
+    x0 = np.array([2.0, 0.499])
+    draws = np.array([_jitter(st, x0, 0.01, np.random.default_rng(s)) for s in range(2000)])
+    rel = draws[:, 0] / 2.0 - 1.0
+    assert abs(rel.mean()) < 1e-3 and rel.std() == pytest.approx(0.01, rel=0.1)
+    # 0.499 (1 + 0.01 z) > 0.5 when z > 0.2: P = 0.42, those clip to the bound
+    assert draws[:, 1].max() == 0.5 and np.mean(draws[:, 1] == 0.5) == pytest.approx(0.42, abs=0.03)
+    np.testing.assert_array_equal(_jitter(st, x0, 0.01, np.random.default_rng(7)),
+                                  _jitter(st, x0, 0.01, np.random.default_rng(7)))
+    # a jittered fit of the well-posed bench logs lands where the unjittered one does
+    res = identify(logs, [0, 1, 2, 3], [4, 5],
+                   IdentifyConfig(effects=tuple(TRUTH), max_rounds=20, jitter=0.05, seed=3))
+    got = res.params()
+    assert got["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
+    assert got["gearbox_friction"]["mu"][0] == pytest.approx(0.15, rel=0.05)
+    assert got["mounting_offset"]["offset"][0] == pytest.approx(0.03, abs=1e-3)
+    with pytest.raises(ConfigError, match="jitter"):
+        IdentifyConfig(jitter=1.0)
 
 
 def test_pruning_ends_trailing_starts_but_keeps_a_warm_start_that_falls_little():

@@ -89,6 +89,11 @@ class IdentifyConfig:
         stage's optimum. Converged, the joint fit over-fits the training gains (held out,
         mrad: Rhoban XL330 54.0 vs 45.6 after 4 steps, STS3032 30.4 vs 29.5; Pham 11.1 vs
         12.4); 4 is what the joint stage ran before 2026-11-26, when pruning ended it there.
+      jitter: relative spread of the first stage's starts (each value times 1 + jitter N(0, 1),
+        clipped to its search bounds; 0: the catalogue's starts exactly). Measures how much the
+        identified model and its held-out error depend on where the least-squares path starts
+        (``bench/gap_real.py --seeds``).
+      seed: seed of the jitter's random generator.
     """
 
     effects: tuple[str, ...] = SERVO_STRUCTURE
@@ -101,6 +106,8 @@ class IdentifyConfig:
     nthread: int = 0
     cold: bool = False
     joint_rounds: int = 4
+    jitter: float = 0.0
+    seed: int = 0
 
     def __post_init__(self) -> None:
         if not self.effects:
@@ -118,6 +125,8 @@ class IdentifyConfig:
             raise ConfigError("delta must be > 0 rad")
         if self.max_rounds < 1 or self.joint_rounds < 1:
             raise ConfigError("max_rounds and joint_rounds must be >= 1")
+        if not 0.0 <= self.jitter < 1.0:
+            raise ConfigError("jitter must be in [0, 1) (a relative spread)")
 
 
 @dataclass
@@ -222,12 +231,15 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         families["held"] = HELD_FIRST | config.hold
     best: dict[str, fitmod.Track] = {}
     rounds = 0
+    rng = np.random.default_rng(config.seed)
     for k, names in enumerate(stages):
         groups: dict[str, list[fitmod.Track]] = {}
         for fam, hold in families.items():
             st = fitmod.Structure.build(names, joints, ctx)
             st = _hold(st, hold) or st
             starts = _starts(st, config.starts)
+            if config.jitter > 0 and not best:
+                starts = [_jitter(st, x, config.jitter, rng) for x in starts]
             if fam in best:
                 # the previous optimum, and it with each extra start's overrides applied
                 base = st.values_from(best[fam].effects())
@@ -329,6 +341,14 @@ def _starts(st: fitmod.Structure, extra: Sequence[dict], base: np.ndarray | None
         if hit:
             starts.append(x)
     return starts
+
+
+def _jitter(st: fitmod.Structure, x: np.ndarray, rel: float, rng: np.random.Generator
+            ) -> np.ndarray:
+    """``x`` with each value times 1 + rel N(0, 1), clipped to its search bounds."""
+    lo = np.array([f.lo for f in st.free])
+    hi = np.array([f.hi for f in st.free])
+    return np.clip(np.asarray(x, float) * (1.0 + rel * rng.standard_normal(len(x))), lo, hi)
 
 
 def _hold(st: fitmod.Structure, params: frozenset) -> fitmod.Structure | None:
