@@ -11,7 +11,13 @@ import pytest
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Dataset
-from lowcostdex.gap.identify import IdentifyConfig, _jitter, _prune_trailing, identify
+from lowcostdex.gap.identify import (
+    IdentifyConfig,
+    _choose_family,
+    _jitter,
+    _prune_trailing,
+    identify,
+)
 from lowcostdex.gap.logs import Trajectory
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect
@@ -77,6 +83,33 @@ def test_identify_recovers_the_servo_and_predicts_held_out_gains(logs):
     # the family's training MAE, read off its least-squares residual, is the replayed one
     assert res.family_train_mae[res.family] == pytest.approx(res.mean(res.train), rel=1e-9)
     assert res.family_train_mae.keys() == {"free", "held"}
+
+
+def test_family_choice_takes_the_fewest_parameters_unless_more_pay_two_percent():
+    # training MAEs [rad] by hand: 2 % of 0.0157 is 0.31 mrad
+    n = {"free": 9, "held": 8, "nominal_motor": 6}
+    assert _choose_family({"free": 0.0157, "held": 0.0197, "nominal_motor": 0.0157}, n) == \
+        "nominal_motor"  # STS3032-like: the motor constants buy nothing on the training logs
+    assert _choose_family({"free": 0.0157, "held": 0.0197, "nominal_motor": 0.0161}, n) == \
+        "nominal_motor"  # 0.98 * 0.0161 - 0.1 mrad = 0.01568 < 0.0157: within the margin
+    assert _choose_family({"free": 0.0157, "held": 0.0197, "nominal_motor": 0.0165}, n) == "free"
+    assert _choose_family({"free": 0.0291, "held": 0.0291, "nominal_motor": 0.0450}, n) == "held"
+    assert _choose_family({"free": 0.0100, "held": 0.0101}, n) == "held"
+    # both the 2 % and the 0.1 mrad must be beaten: 0.0010 vs 0.0012 is 17 % and 0.2 mrad,
+    # 0.00100 vs 0.00105 is 5 % but 0.05 mrad
+    assert _choose_family({"free": 0.0010, "held": 0.0012}, n) == "free"
+    assert _choose_family({"free": 0.00100, "held": 0.00105}, n) == "held"
+
+
+def test_a_servo_with_datasheet_motor_constants_keeps_them(logs):
+    # the bench logs were made with the catalogue motor (TRUTH has no motor effect): freeing the
+    # torque per volt buys nothing on the training logs, so the nominal-motor family is kept
+    res = identify(logs, [0, 1, 2, 3], [4, 5],
+                   IdentifyConfig(effects=tuple(TRUTH) + ("motor_strength",), max_rounds=20))
+    assert res.family_train_mae.keys() == {"free", "held", "nominal_motor"}
+    assert res.family == "nominal_motor"
+    assert res.params()["motor_strength"]["scale"][0] == 1.0
+    assert res.params()["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
 
 
 def test_jittered_starts_spread_as_stated_and_still_recover_the_servo(logs):

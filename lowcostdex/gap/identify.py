@@ -49,11 +49,17 @@ BREAKAWAY_START = {("gearbox_friction", "static"): 0.3, ("gearbox_friction", "ve
 # back-driven share (1: a symmetric gearbox, BAM M3/M4; free: directional, BAM M5). Freeing it
 # moves the fit into other basins, so both families are fitted and the training logs decide.
 HELD_FIRST = frozenset({("gearbox_friction", "backdrive")})
+# A third family holds the motor's constants and firmware gain (the STAGE_TWO effects) at their
+# catalogue values and the measured-voltage term off: a servo whose datasheet (or earlier fit)
+# constants hold needs none of them, and freeing them can move the fit into a basin that fits
+# the training gains as well and extrapolates worse (measured 2026-11-26 on STS3032, kp 32 ->
+# kp 8: 29.5 mrad with them free, 22.6 held, the same training MAE 15.7).
+MOTOR_EFFECTS = STAGE_TWO | {"voltage_sag"}
 # Parameters held at their null in every fit unless ``IdentifyConfig.hold`` says otherwise: the
 # Stribeck curvature (2, Gaussian).
 HELD_ALWAYS = frozenset({("gearbox_friction", "alpha")})
-# The freed family must lower the training logs' mean per-log MAE by this fraction and by 0.1 mrad
-# (a tenth of an encoder tick) to be chosen over the held (nested) one.
+# A family with more free parameters must lower the training logs' mean per-log MAE by this
+# fraction and by 0.1 mrad (a tenth of an encoder tick) to be chosen over one with fewer.
 FAMILY_MARGIN = 0.02
 
 
@@ -142,6 +148,9 @@ class Identified:
         training cost.
       at_bound: "effect.param" of fitted values at a search bound (not at the null): the range
         is too narrow or the parameter stands in for something the structure lacks.
+      family: the family kept ("free", "held": HELD_FIRST at their null, "nominal_motor": the
+        MOTOR_EFFECTS at their null); family_train_mae: each family's training-log mean per-log
+        MAE [rad] (empty when only one family was fitted).
     """
 
     effects: list[AppliedEffect]
@@ -218,9 +227,10 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     # ``joint_rounds`` steps from the stage-1 optimum (and it with each extra start's
     # overrides; the joint fit has local minima that the nested one avoids, and from its
     # optimum the joint fit can only do better on the training logs).
-    # Each family (HELD_FIRST parameters free / held at their null) runs both stages, in the
-    # same batched passes but pruned apart; the freed family is kept when it lowers BAM's error
-    # (mean per-log MAE) on the training logs by FAMILY_MARGIN.
+    # Each family ("free"; "held": HELD_FIRST parameters at their null; "nominal_motor": the
+    # MOTOR_EFFECTS' parameters at their null) runs both stages, in the same batched passes but
+    # pruned apart; the family with the fewest free parameters is kept unless another lowers
+    # BAM's error (mean per-log MAE) on the training logs by FAMILY_MARGIN (_choose_family).
     later = [n for n in config.effects if n in STAGE_TWO]
     stages = [tuple(n for n in config.effects if n not in STAGE_TWO)] if later else []
     stages = [st for st in stages if st] + [tuple(config.effects)]
@@ -229,6 +239,9 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     families = {"free": frozenset(config.hold)}
     if _hold(full, HELD_FIRST) is not None:
         families["held"] = HELD_FIRST | config.hold
+    motor = frozenset((f.effect, f.param) for f in full.free if f.effect in MOTOR_EFFECTS)
+    if motor and len(motor) < len(full.free):
+        families["nominal_motor"] = motor | config.hold
     best: dict[str, fitmod.Track] = {}
     rounds = 0
     rng = np.random.default_rng(config.seed)
@@ -267,9 +280,8 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         prog("choosing the family on the training logs", 0.88)
         fam_mae = {f: float(np.mean(_train_mae(t, w_train, weights, ds, rep)))
                    for f, t in best.items()}
-    chosen = "free"
-    if fam_mae and not fam_mae["free"] < (1.0 - FAMILY_MARGIN) * fam_mae["held"] - 1e-4:
-        chosen = "held"  # the nested (simpler) family unless the freed parameters pay
+    chosen = _choose_family(fam_mae, {f: len(t.structure.free) for f, t in best.items()}
+                            ) if fam_mae else "free"
     best = best[chosen]
     if config.loss == "mae":
         prog("absolute-error polish", 0.9)
@@ -294,6 +306,15 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         out.ablation = {n: float(np.mean(abl[i])) for i, n in enumerate(config.effects)}
     prog("done", 1.0)
     return out
+
+
+def _choose_family(train_mae: dict[str, float], n_free: dict[str, int],
+                   margin: float = FAMILY_MARGIN) -> str:
+    """The family with the fewest free parameters among those no other family beats on the
+    training logs by ``margin`` (and 0.1 mrad); ties by the lower training MAE [rad]."""
+    best = min(train_mae.values())
+    ok = [f for f, v in train_mae.items() if not best < (1.0 - margin) * v - 1e-4]
+    return min(ok, key=lambda f: (n_free[f], train_mae[f]))
 
 
 def _prune_trailing(rnd: int, tracks: Sequence[fitmod.Track], after: int = 4,
