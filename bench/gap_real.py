@@ -9,8 +9,10 @@ to the repository; exits cleanly when it is absent. For each set:
   physics at BAM's 5 ms step;
 * the servo structure (``identify.servo_structure``: motor constants, armature, Coulomb, viscous,
   gear friction with breakaway and back-driven share, mounting offset, measured supply voltage)
-  is identified on the training gains with ``identify.identify`` (whole logs, open loop; the
-  back-driven share free or held at 1, chosen on the training logs);
+  is identified on the training gains with ``identify.identify`` (whole logs, open loop; three
+  families: all free, the back-driven share held at 1, the motor constants nominal and the
+  voltage term off; the one with the fewest parameters unless another pays 2 % on the training
+  logs);
 * the held-out gains are scored with BAM's measure (mean over logs of each log's position MAE,
   open loop from the first grid state, torque-off parts included), per trajectory and per kp,
   beside BAM's numbers on the same split, typed in from ../shared/reference/08-bam-reference-
