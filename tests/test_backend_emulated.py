@@ -93,6 +93,55 @@ def test_same_actions_on_sim_and_emulated_agree_within_quantization_and_timing()
     assert np.max(np.abs(q_emu[:, 9] - q_sim[:, 9])) < 0.01  # the valve (barely touched)
 
 
+def bound_limited_action(task, qpos):
+    """Actions (9,) whose targets are each joint's far limit: every joint's goal is clipped."""
+    present = qpos[task.hand_qpos]
+    return np.where(present > 0.5 * (task.hand_low + task.hand_high), -1.0, 1.0).astype(
+        np.float32)
+
+
+def test_sim_and_emulated_robot_apply_the_same_narrowed_motion_bound():
+    """A goal leads the present position by the bound narrowed for the time it is in flight,
+    the same in simulation and on the emulated robot's wire. The numbers, written out: the
+    D'Claw's 2 pi / 3 rad/s per step (ROBEL's bound) x 0.1 s = 0.2094 rad, narrowed by 1.5 x
+    the XH430-W350's no-load speed (e-Manual: 30 rev/min at 12 V = 3.1416 rad/s) times a clean
+    1 Mbit/s bus's time from sample to arrival: the fast sync read's reply of 8 + 10 x (21 + 4)
+    bytes, then the Goal Position sync write of 14 + 5 x 9 bytes and one 1 ms USB frame, at 10
+    bits a byte: 2.58 + 0.59 + 1 = 4.17 ms -> 0.2094 - 4.712 x 0.00417 = 0.18979 rad."""
+    expected = 2 * np.pi / 3 * 0.1 - 1.5 * np.pi * (10 * (8 + 10 * 25 + 14 + 5 * 9) / 1e6 + 1e-3)
+    assert expected == pytest.approx(0.18979, abs=1e-5)
+    sim = gym.make(ENV)
+    sim.reset(seed=0)
+    task = sim.unwrapped.task
+    qpos = sim.unwrapped.data.qpos.copy()
+    _, _, _, _, info = sim.step(bound_limited_action(task, qpos))
+    lead = np.abs(info["goal"] - qpos[task.hand_qpos])
+    far = np.abs(np.where(bound_limited_action(task, qpos) > 0, task.hand_high, task.hand_low)
+                 - qpos[task.hand_qpos]) > 0.25
+    assert far.sum() >= 6
+    np.testing.assert_allclose(lead[far], expected, atol=1e-9)
+    sim.close()
+
+    # the Robot's own gate (the env's goal would arrive pre-clipped): far goals straight in
+    emu = gym.make(ENV, backend="emulated", effects=())
+    emu.reset(seed=0)
+    robot = emu.unwrapped.backend.robot
+    audit = emu.unwrapped.backend.chain.goal_audit
+    audit.recent.clear()
+    a = bound_limited_action(task, emu.unwrapped.data.qpos)
+    robot.step(np.where(a > 0, task.hand_high, task.hand_low), task.hand.joint_names)
+    ids = [j.motor_id for j in task.hand.joints]
+    got = {m: (goal, at_read, age) for _, m, goal, _, at_read, age in audit.recent}
+    read_lead = np.array([abs(got[m][0] - got[m][1]) for m in ids])
+    ages = np.array([got[m][2] for m in ids])
+    # sample -> arrival: the wire time alone (the emulated port has no USB adapter to hold the
+    # packet), within the 4.17 ms the bound allows for
+    np.testing.assert_allclose(ages, 10 * (8 + 10 * 25 + 14 + 5 * 9) / 1e6, atol=1e-6)
+    # the goal is computed from the read (one encoder tick from the true sampled position)
+    np.testing.assert_allclose(read_lead[far], expected, atol=TICK)
+    emu.close()
+
+
 def test_default_effects_open_a_measurable_gap():
     """The emulated robot's default servo effects make it differ from the nominal simulation
     well beyond quantization and timing (something for the gap analysis to find)."""

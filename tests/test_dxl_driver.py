@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 
+from lowcostdex import motion
 from lowcostdex.hands import Calibration, dclaw_spec
 from lowcostdex.hardware.bus import BusError, CommandError, MotorFault
 from lowcostdex.hardware.dynamixel.config import (
@@ -59,6 +60,15 @@ def test_connect_configures_the_motors(dclaw):
         assert m.get(Reg.MAX_POSITION_LIMIT) == min(4095, math.floor(hi / TICK + 1e-9))
         assert not m.torque_on and m.get(Reg.BUS_WATCHDOG) == 0
     assert bus.fast_read and bus.firmware == {i: 52 for i in bus.ids}
+
+
+def test_the_block_read_every_step_is_the_one_the_simulations_motion_bound_assumes(dclaw):
+    """The simulation narrows its motion bound by a clean bus's time computed from
+    ``motion.PRESENT_BLOCK_BYTES``; the driver reads its block from the control table: e-Manual
+    X-series Present Current (address 126) .. Present Temperature (146, 1 byte) = 21 bytes."""
+    chain, bus = dclaw
+    assert bus._block_len == motion.PRESENT_BLOCK_BYTES == 146 + 1 - 126
+    assert bus._block_addr == 126 and bus.config.baudrate == motion.DEFAULT_BAUDRATE
 
 
 def test_model_mismatch_and_missing_ids_are_listed():

@@ -243,8 +243,9 @@ class TrainConfig:
       n_demos: use only the first n demo episodes (None: all).
       bc_init: behaviour-clone before RL (always on for DAPG; NPG + BC is "BCRL").
       eval_bc: evaluate the behaviour clone (``eval_episodes`` deterministic episodes) before
-        the first iteration, into ``bc.json`` (``eval_success_rate``, ``eval_return_mean``); its
-        robot time counts.
+        the first iteration, into ``bc.json`` (``eval_success_rate``, ``eval_return_mean``,
+        ``eval_final_goal_errors``: each episode's ``|info["goal_error"]|`` after its last step,
+        when the env reports one); its robot time counts.
       policy, baseline, npg, dapg, bc: component configs. Defaults: the hand_dapg policy
         (32, 32) with init log-std -1.0 (std 0.37; hand_dapg: -0.5); the NPG step delta 0.1
         with damping 1e-2 rather than mjrl's 0.05 / 1e-4: on DClawTurnValve-v0 with 40

@@ -360,6 +360,9 @@ def train(
             if config.eval_bc:  # the clone alone, before any RL sample
                 paths, metrics = _evaluate(config, sampler, state, BC_EVAL_STREAM, 0)
                 bc.update(metrics, eval_episodes=len(paths))
+                errors = [p.final_goal_error for p in paths]
+                if all(np.isfinite(errors)):  # per episode, for a test against a baseline
+                    bc["eval_final_goal_errors"] = errors
             run.write_json("bc.json", bc)
         start = 0
         if ckpt is not None:

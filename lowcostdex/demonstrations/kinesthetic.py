@@ -52,6 +52,7 @@ from lowcostdex.demonstrations.file import (
     Episode,
 )
 from lowcostdex.errors import ConfigError
+from lowcostdex.motion import motion_bound
 from lowcostdex.sim.envs.hand_env import goal_to_action
 
 log = logging.getLogger(__name__)
@@ -160,7 +161,7 @@ def servo_goal_labels(task: Any, qpos: np.ndarray, qvel: np.ndarray, response: S
       task: the bound task (hand joint layout and limits).
       qpos: (T+1, nq) states at the control ticks; qvel: (T+1, nv).
       response: the servo model.
-      max_step: (n,) per-step motion bound [rad] (joint max_velocity x control period).
+      max_step: (n,) per-step motion bound [rad] (the env's, ``HandEnv.max_step``).
     """
     q = np.asarray(qpos, float)[:, task.hand_qpos]
     v = np.asarray(qvel, float)[:, task.hand_dof]
@@ -284,7 +285,7 @@ class VirtualTeacherConfig:
       max_torque: largest torque a finger joint receives [N m].
       plan_period: how often the solving motion is re-planned from the true state [s].
       motion_bound: keep each planned target within the env's per-step motion bound of the
-        present joint positions (joint ``max_velocity`` x ``plan_period``) and the joint limits,
+        present joint positions (``motion.motion_bound`` over ``plan_period``) and the limits,
         as the env does with actions. A person can move the fingers faster than a policy may,
         and a transition no action can produce cannot be cloned (unbounded, the teacher moved
         middle joints 0.33 rad in one 0.1 s step where the env allows 0.21).
@@ -360,7 +361,7 @@ class VirtualTeacher:
         joints = task.hand.joints
         self.low = np.array([j.low for j in joints])
         self.high = np.array([j.high for j in joints])
-        self.max_step = np.array([j.max_velocity for j in joints]) * config.plan_period
+        self.max_step = motion_bound(task.hand, config.plan_period, task.model.nu)
         self.goal: dict | None = None
         self.target: np.ndarray | None = None
         self._next_plan = -math.inf
@@ -477,8 +478,7 @@ class KinestheticRecorder:
         self.steps = steps or self.task.timing.episode_steps
         self.response, self.playbacks, self.playback_noise = response, playbacks, playback_noise
         self.rng = rng if rng is not None else np.random.default_rng(0)
-        self.max_step = np.array([j.max_velocity for j in self.task.hand.joints]) * \
-            float(self.henv.control_period)
+        self.max_step = self.henv.max_step  # the labels are clipped as the env clips goals
         source = "virtual_teacher" if teacher is not None else "kinesthetic"
         self.writer = DemoWriter(path, DatasetInfo.from_env(env, source, env_id=env_id),
                                  label_model=response.to_dict() if response else None)

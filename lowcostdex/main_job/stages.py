@@ -189,6 +189,8 @@ def stage_train(ctx: Context) -> dict[str, Any]:
     bc = json.loads((ctx.out / "train_dapg" / "bc.json").read_text())
     out["success_after_bc"] = float(bc["eval_success_rate"])
     out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs", "eval_episodes") if k in bc}
+    if "eval_final_goal_errors" in bc:
+        out["bc"]["final_goal_errors"] = bc["eval_final_goal_errors"]
     out["bc"]["eval_successes"] = _count(bc["eval_success_rate"],
                                          int(bc.get("eval_episodes", b.eval_episodes)))
     out["random"] = _random_baseline(ctx, b.eval_episodes)
@@ -208,30 +210,38 @@ def _count(rate: float | None, n: int) -> int | None:
 
 def _random_baseline(ctx: Context, episodes: int) -> dict[str, Any]:
     """Measure a policy of uniformly random actions on the same robot and task: ``episodes``
-    episodes, success at the final step as in training's evaluation (seeded)."""
+    episodes reset with the behaviour clone's evaluation seeds (the same goals and, where the task
+    draws them, starts), success at the final step as in training's evaluation, and each
+    episode's final ``|goal_error|`` (``final_goal_errors``, beside the clone's in ``bc.json``).
+    The actions are seeded."""
     import gymnasium as gym
     import numpy as np
 
     import lowcostdex  # noqa: F401
+    from lowcostdex.algos.samplers import BC_EVAL_STREAM, make_jobs
 
     rng = np.random.default_rng(ctx.seed + 3_000_000)
     env = gym.make(ctx.setup.env_id, **ctx.env_kwargs())
-    successes, steps, t0 = 0, 0, time.perf_counter()
+    successes, steps, errors, t0 = 0, 0, [], time.perf_counter()
     try:
         space = env.action_space
-        for k in range(episodes):
-            env.reset(seed=ctx.seed + 3_000_000 + k)
+        for job in make_jobs(ctx.seed, BC_EVAL_STREAM, 0, episodes):
+            env.reset(seed=job.env_seed())
             done, info = False, {}
             while not done:
                 action = rng.uniform(space.low, space.high).astype(space.dtype)
                 _, _, term, trunc, info = env.step(action)
                 done, steps = term or trunc, steps + 1
             successes += bool(info.get("success", False))
+            errors.append(abs(float(info.get("goal_error", math.nan))))
     finally:
         env.close()
-    return {"eval_episodes": episodes, "eval_successes": successes,
-            "eval_success": successes / episodes if episodes else math.nan, "steps": steps,
-            "wall_seconds": round(time.perf_counter() - t0, 1)}
+    out = {"eval_episodes": episodes, "eval_successes": successes,
+           "eval_success": successes / episodes if episodes else math.nan, "steps": steps,
+           "wall_seconds": round(time.perf_counter() - t0, 1)}
+    if all(math.isfinite(e) for e in errors):
+        out["final_goal_errors"] = errors
+    return out
 
 
 def _flip_rollout(ctx: Context) -> dict[str, Any]:

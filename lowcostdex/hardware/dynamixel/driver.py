@@ -96,10 +96,11 @@ from lowcostdex.hardware.dynamixel.control_table import (
     load_control_table,
     model_name,
 )
-from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names, wire_time
+from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names
 from lowcostdex.hardware.dynamixel.shutdown import register as _register
 from lowcostdex.hardware.dynamixel.shutdown import unregister as _unregister
 from lowcostdex.hardware.dynamixel.transactions import SdkTransactions
+from lowcostdex.motion import goal_write_time
 from lowcostdex.sim.servo import ServoGains, motor_spec
 
 log = logging.getLogger(__name__)
@@ -404,7 +405,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
         settle wait still owed after a failed transaction, the packet's wire time (14 + 5 n
         bytes, 8N1) and one USB frame (1 ms) for the adapter to put it on the wire."""
         settle = self.config.settle_ms / 1000.0 if self._dirty else 0.0
-        return settle + wire_time(14 + 5 * n, self.config.baudrate) + 1e-3
+        return settle + goal_write_time(n, self.config.baudrate)
 
     def _decode(self, valid: dict[int, bool], err: dict[int, int], raw: dict[int, bytes],
                 t: float) -> MotorState:
@@ -572,9 +573,10 @@ class DynamixelBus(SdkTransactions, MotorBus):
         """After a silence longer than the watchdog period, ask the motors with torque on whether
         their watchdog tripped (Bus Watchdog reads -1); they then ignore goal sync writes."""
         period = self.config.watchdog_ms / 1000.0
-        self._silence = self.clock() - self._last_tx
-        if period <= 0 or not self._torque_ids or self._silence < 0.9 * period:
+        silence = self.clock() - self._last_tx
+        if period <= 0 or not self._torque_ids or silence < 0.9 * period:
             return
+        self._silence = silence  # the gap that may have tripped them (WatchdogTripped says it)
         for i in sorted(self._watchdog_ids(self._torque_ids)):
             try:
                 if self.read_register(i, Reg.BUS_WATCHDOG) == -1:

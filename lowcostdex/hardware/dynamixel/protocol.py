@@ -25,6 +25,9 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+# the packet sizes and the wire time live in core (the simulation's motion bound uses them too)
+from lowcostdex.motion import sync_read_bytes, sync_write_bytes, wire_time  # noqa: F401
+
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
 MAX_ID = 0xFC
@@ -315,11 +318,6 @@ def le_bytes(value: int, size: int) -> bytes:
     return to_unsigned(value, size).to_bytes(size, "little")
 
 
-def wire_time(nbytes: int, baudrate: float) -> float:
-    """Time [s] to transmit ``nbytes`` at ``baudrate`` with 8N1 framing (10 bits per byte)."""
-    return 10.0 * nbytes / baudrate
-
-
 BAUD_CODES: dict[int, int] = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_000_000,
                               5: 3_000_000, 6: 4_000_000, 7: 4_500_000}
 """Baud Rate register (address 8) value -> bit rate [bit/s] (X-series)."""
@@ -331,18 +329,6 @@ def baud_code(baudrate: int) -> int:
         if rate == baudrate:
             return code
     raise ValueError(f"unsupported baud rate {baudrate}; valid: {sorted(BAUD_CODES.values())}")
-
-
-def sync_read_bytes(n: int, length: int, fast: bool = False) -> tuple[int, int]:
-    """(instruction, reply) bytes on the wire of a (fast) sync read of ``length`` bytes from n ids."""
-    inst = 14 + n
-    reply = 8 + n * (length + 4) if fast else n * (11 + length)
-    return inst, reply
-
-
-def sync_write_bytes(n: int, length: int) -> int:
-    """Bytes on the wire of a sync write of ``length`` bytes to n ids."""
-    return 14 + n * (1 + length)
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,9 @@ for the D'Claw (Dynamixel) and the Allegro (CAN):
 * the bound holds where the goal arrives, not only where the position was sampled: the motor
   keeps moving between its sample and the goal's arrival (the read's replies, a retried read,
   the settle wait after a failed one, the host's own computing), so the bound is narrowed by
-  ``motor_speed`` x that time (``RobotConfig.motor_speed``, opt-in: the simulation's bound
-  does not narrow yet); a joint whose sample is so old that nothing is left holds;
+  ``motor_speed`` x that time (``RobotConfig.motor_speed``; ``lowcostdex.motion``, the rule the
+  simulation's bound follows with a clean bus's time); a joint whose sample is so old that
+  nothing is left holds;
 * every read feeds the thermal and current guards (``guards``); critical motors are relaxed at
   once, and ``pause_if_hot`` rests the hand between episodes until it has cooled;
 * ``step`` keeps the control rate on a monotonic clock (``timing.Rate``, overruns counted);
@@ -52,6 +53,7 @@ from lowcostdex.hardware.robot.guards import (
 )
 from lowcostdex.hardware.robot.safety import UnsafeCommand, check_finite, clip_goal
 from lowcostdex.hardware.timing import BusClock, Clock, Rate
+from lowcostdex.motion import in_flight_step, joint_speeds
 from lowcostdex.motors import MOTORS, MotorSpec
 
 log = logging.getLogger(__name__)
@@ -80,12 +82,13 @@ class RobotConfig:
       motor_speed: fastest a joint can move [rad/s, joint], by its own drive or pushed (contacts,
         the finger's swing); with ``motion_reference`` "present" the motion bound is narrowed by
         this times the time from the position's sample to the goal's arrival, so the goal leads
-        the position *where it arrives* by at most the bound. None: 1.5 x the hand's motor's
-        no-load speed (``servo.MotorSpec``: XH430-W350 3.14 rad/s -> 4.71; the D'Claw's joints
-        reached 4.06 rad/s in the emulated fault soak); 0 (the default, and the Allegro, whose
-        motors have no spec) turns the narrowing off. Off by default because the simulation's
-        motion bound (``sim.envs.hand_env.action_to_goal``) does not narrow: on, the robot
-        moves about 9 % less per bound-limited step than the policy's simulation
+        the position *where it arrives* by at most the bound. None (the default):
+        ``motion.motor_speed``, 1.5 x the hand's motor's no-load speed (``motors.MotorSpec``:
+        XH430-W350 3.14 rad/s -> 4.71; the D'Claw's joints reached 4.06 rad/s in the emulated
+        fault soak), 0 for the Allegro, whose motors have no spec; 0 turns the narrowing off.
+        The simulation (``sim.envs.hand_env``) narrows its bound by the default speed and a
+        clean bus's time (``motion.clean_in_flight``: 4.17 ms on the D'Claw, 9 % of its
+        bound), so on a clean bus the robot and the policy's simulation apply the same bound
         (tests/test_backend_emulated.py checks that they agree).
     """
 
@@ -97,7 +100,7 @@ class RobotConfig:
     current: CurrentConfig = CurrentConfig()
     max_invalid_reads: int = 5
     max_reboots: int = 2
-    motor_speed: float | None = 0.0
+    motor_speed: float | None = None
 
     def __post_init__(self) -> None:
         if not self.control_period > 0:
@@ -201,21 +204,6 @@ class RobotMetrics:
         return out
 
 
-MOTOR_SPEED_MARGIN = 1.5
-"""Default ``RobotConfig.motor_speed`` over the motor's no-load speed: a joint pushed by contacts
-or by its finger's swing moves faster than its motor drives it (measured 1.29x in the emulated
-D'Claw fault soak, tests/test_robot_faults.py)."""
-
-
-def motor_speed(hand: HandSpec) -> float:
-    """Default fastest motor speed [rad/s, motor] for the hand's motor model (0: unknown)."""
-    if hand.motor == "allegro":
-        return 0.0
-    from lowcostdex.sim import servo
-
-    return MOTOR_SPEED_MARGIN * servo.motor_spec(hand.motor).no_load_speed
-
-
 def motor_spec_of(hand: HandSpec) -> MotorSpec | None:
     """The hand's ``motors.MotorSpec`` (its thermal model), None for the Allegro."""
     return MOTORS.get(hand.motor)
@@ -262,11 +250,8 @@ class Robot:
         self.high = np.array([j.high for j in self.joints])
         self.max_step = (np.array([j.max_velocity for j in self.joints])
                          * config.control_period * config.motion_scale)
-        if config.motor_speed is not None:
-            self.speed = np.full(len(self.joints), config.motor_speed)
-        else:  # a motor's speed bound seen at the joint
-            v = motor_speed(hand)
-            self.speed = np.array([abs(j.calibration.rate_to_joint(v)) for j in self.joints])
+        self.speed = (joint_speeds(hand) if config.motor_speed is None
+                      else np.full(len(self.joints), config.motor_speed))
         limit, stall = motor_limits(hand)
         limit = config.thermal.limit if config.thermal.limit is not None else limit
         self.thermal = ThermalGuard(config.thermal, limit, self.joint_names,
@@ -427,9 +412,10 @@ class Robot:
 
         Each goal is bounded around the position read since the last goal went out (one read
         is taken here if a joint has none), the bound narrowed by what the joint may move
-        before the goal arrives (``RobotConfig.motor_speed``). A joint whose read failed or was
-        corrupt, or whose sample is too old to leave any room, is held: no goal is sent to it,
-        its previous goal stays in force (``held``, ``metrics.holds``).
+        before the goal arrives (``RobotConfig.motor_speed``); joints whose sample is too old
+        to leave any room (the host stalled after the read) are read again first. A joint whose
+        read failed or was corrupt, or whose sample still leaves no room, is held: no goal is
+        sent to it, its previous goal stays in force (``held``, ``metrics.holds``).
 
         Raises:
           UnsafeCommand: non-finite entries, a wrong shape, or a joint never read validly
@@ -444,18 +430,11 @@ class Robot:
             raise
         if not np.all(self._fresh[idx]):
             self.read()
-        present, fresh = self._present[idx], self._fresh[idx]
-        if not np.all(np.isfinite(present)):
-            self.metrics.rejected += 1
-            missing = [n for n, p in zip(names, present, strict=True) if not np.isfinite(p)]
-            raise UnsafeCommand(f"no valid present position for {missing}; nothing sent")
-        max_step = self.max_step[idx].copy()
-        if self.config.motion_reference == "present":
-            # what each joint may move from its sample until the goal arrives
-            arrival = self.bus.clock() + self.bus.goal_delay(int(np.sum(fresh)))
-            max_step -= self.speed[idx] * np.maximum(arrival - self._sampled[idx], 0.0)
-            fresh = fresh & (max_step > 0)  # sampled too long ago: nothing left, hold
-            max_step = np.maximum(max_step, 0.0)
+        present, fresh, max_step = self._gate_inputs(idx, names)
+        if np.any(fresh & (max_step <= 0)):  # sampled too long ago (the host stalled): read now
+            self.read()
+            present, fresh, max_step = self._gate_inputs(idx, names)
+        fresh = fresh & (max_step > 0)  # still nothing left (e.g. a retried read): hold
         relaxed = self.current_guard.relaxed[idx]
         max_step[relaxed] = np.minimum(max_step[relaxed], self.config.current.relaxed_step)
         if self.config.motion_reference == "goal":
@@ -482,6 +461,21 @@ class Robot:
             log.debug("held %s: no fresh position read",
                       ", ".join(n for n, f in zip(names, fresh, strict=True) if not f))
         return np.where(fresh, report.goal, self.last_sent[idx])
+
+    def _gate_inputs(self, idx: np.ndarray, names: tuple[str, ...]
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(present positions, fresh flags, motion bound) of joints ``idx``: the bound narrowed
+        by what each joint may move from its sample until the goal arrives."""
+        present, fresh = self._present[idx], self._fresh[idx]
+        if not np.all(np.isfinite(present)):
+            self.metrics.rejected += 1
+            missing = [n for n, p in zip(names, present, strict=True) if not np.isfinite(p)]
+            raise UnsafeCommand(f"no valid present position for {missing}; nothing sent")
+        max_step = self.max_step[idx].copy()
+        if self.config.motion_reference == "present":
+            arrival = self.bus.clock() + self.bus.goal_delay(int(np.sum(fresh)))
+            max_step = in_flight_step(max_step, self.speed[idx], arrival - self._sampled[idx])
+        return present, fresh, max_step
 
     def torque(self, enabled: bool, joints: Sequence[str] | None = None) -> None:
         """Torque on/off for ``joints`` (default: every joint, auxiliary motors included).

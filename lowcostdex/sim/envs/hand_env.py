@@ -2,7 +2,8 @@
 
 Actions in [-1, 1] map to joint targets over the hand spec's limits, then are clipped to a per-step
 motion bound around the present position (max_velocity x control period) and to the limits, as
-ROBEL does. Reward = sum of the task's named terms, each reported in ``info`` as
+ROBEL does. The bound is the robot's (``lowcostdex.motion``): narrowed by what a joint may move
+while a goal is in flight on a clean bus, so a policy learns with the bound the robot applies. Reward = sum of the task's named terms, each reported in ``info`` as
 ``reward_<term>``; ``info["success"]`` is the task's success flag. Episodes end by truncation (time
 limit) unless the task reaches a terminal state (e.g. the block fell). All randomness comes from
 the env's seeded generator (``reset(seed=...)``).
@@ -18,6 +19,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.motion import motion_bound
 from lowcostdex.sim.effects import DomainRandomization
 from lowcostdex.sim.envs.backend import Backend, backend_class
 from lowcostdex.sim.envs.task import Goal, Task
@@ -82,7 +84,8 @@ class HandEnv(gym.Env):
                                                 dtype=np.float32)
         period = task.timing.frame_skip * self.model.opt.timestep
         self.control_period = period
-        self._max_step = np.array([j.max_velocity for j in task.hand.joints]) * period
+        # every actuator is a motor on the robot's bus
+        self._max_step = motion_bound(task.hand, period, self.model.nu)
         self._aux = np.setdiff1d(np.arange(self.model.nu), task.hand_act)  # e.g. valve motor
         self.render_mode = render_mode
         self._renderer: mujoco.Renderer | None = None
@@ -101,6 +104,11 @@ class HandEnv(gym.Env):
         obj_q = np.delete(q, t.hand_qpos)
         obj_v = np.delete(v, t.hand_dof)
         return np.concatenate([q[t.hand_qpos], v[t.hand_dof], obj_q, obj_v]).astype(np.float64)
+
+    @property
+    def max_step(self) -> np.ndarray:
+        """Per-step motion bound of the action joints (n,) [rad] (``motion.motion_bound``)."""
+        return self._max_step.copy()
 
     @property
     def goal(self) -> Goal:
