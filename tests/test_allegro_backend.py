@@ -106,12 +106,12 @@ def test_auto_reset_reaches_the_reset_pose_and_places_the_valve():
     for seed in (0, 1):
         # the hand powers up, or the last episode ended, somewhere else
         emu.set_joint_positions(RESET_POSE + np.tile([0.1, 0.4, 0.3, 0.2], 4))
-        n_log = len(emu.torque_log)
+        n_log = emu.torque_log.total
         obs, info = env.reset(seed=seed)
         # device side: the true joint angles of the emulated hand
         assert np.max(np.abs(emu.qpos - RESET_POSE)) < tol
         assert np.max(np.abs(emu.qpos - RESET_POSE)) < 0.02  # measured 5.4 mrad
-        applied = np.array([tau for _, tau in emu.torque_log[n_log:]])
+        applied = np.array([tau for _, tau in emu.torque_log.since(n_log)])
         assert np.max(np.abs(applied[:, 5])) > 0.05  # the hand was driven, not teleported
         # the valve was put at the episode's start angle, read back from the physics
         start = env.unwrapped.data.qpos[task.obj_qpos]
@@ -137,7 +137,7 @@ def test_a_jammed_finger_fails_the_reset_in_bounded_time():
     # the 0.56 N m joint motors can push back
     body = emu.plant.model.body("index_link3").id
     emu.plant.data.xfrc_applied[body, 2] = 12.0
-    n_log = len(emu.torque_log)
+    n_log = emu.torque_log.total
     t0, wall = backend.clock.now(), time.monotonic()
     with pytest.raises(ResetFailed) as exc:
         env.reset(seed=1)
@@ -149,7 +149,7 @@ def test_a_jammed_finger_fails_the_reset_in_bounded_time():
     assert "index_1" in exc.value.errors or "index_2" in exc.value.errors
     assert not any(j.startswith(("middle", "ring", "thumb")) for j in exc.value.errors)
     # device side: the hand pushed back at its clamp, then was left limp (no fight with a jam)
-    applied = np.array([tau for _, tau in emu.torque_log[n_log:]])
+    applied = np.array([tau for _, tau in emu.torque_log.since(n_log)])
     assert np.max(np.abs(applied[:, 1:4])) > 0.28  # at least the distal joint's 285/1200 N m
     backend.clock.sleep(0.01)  # the hand handles the frames on the wire, then cycles
     assert not emu.servo_on

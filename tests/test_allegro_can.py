@@ -4,6 +4,7 @@ What reached the hand is checked on the device side (the emulator's torque log a
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 
@@ -29,10 +30,12 @@ from lowcostdex.hardware.allegro.driver import (  # noqa: E402
     pd_torque,
 )
 from lowcostdex.hardware.allegro.emulator import (  # noqa: E402
+    TORQUES_KEPT,
     AllegroThermal,
     EmulatedAllegro,
     emulated_allegro,
 )
+from lowcostdex.hardware.ringlog import RingLog  # noqa: E402
 
 HAND = allegro_spec()
 LOW = np.array([j.low for j in HAND.joints])
@@ -551,3 +554,27 @@ def test_negative_torques_clamp_per_joint_and_int16_saturates():
     assert raw.tolist() == [32767, -32768, 0, 0]
     # one count is 333.3 / 65536 deg: 1 deg is 196.6 -> 197 counts
     assert proto.radians_to_raw(np.radians([1.0]))[0] == 197
+
+
+def test_torque_log_keeps_the_newest_cycles_in_bounded_memory(hand):
+    """An hours-long run must not grow the hand's torque log without end (one entry per 3 ms
+    cycle: ~1 GB in 3 h): past its size the log keeps the newest cycles, in order, every cycle
+    counted, and the newest entry is the torque the hand applies now."""
+    bus, emu, clock = hand
+    emu.torque_log = RingLog(256)
+    bus.connect()
+    bus.set_torque(True)
+    bus.write_goal_positions(MID + 0.1)
+    clock.sleep(3.0)  # ~1000 cycles
+    log = emu.torque_log
+    assert log.total >= 990 and len(log) == 256 and log.dropped == log.total - 256
+    times = np.array([t for t, _ in log])
+    assert np.all(np.diff(times) > 0) and emu.time - times[-1] <= 0.0051  # the newest cycles
+    now = emu.applied_torque()
+    emu.cycle()  # one more cycle: its entry is the torque applied in it
+    assert log.total == log.dropped + 256 and np.any(now != 0)
+    np.testing.assert_array_equal(log[-1][1], now)
+    # the default: 2^16 cycles (3.3 min) of a (time, 16 torques) entry each
+    t, tau = log[-1]
+    entry = sys.getsizeof(log[-1]) + sys.getsizeof(t) + sys.getsizeof(tau)
+    assert TORQUES_KEPT == 1 << 16 and TORQUES_KEPT * entry < 25e6

@@ -32,7 +32,12 @@ from lowcostdex.hardware.dynamixel.protocol import (
 )
 from lowcostdex.hardware.emulated.chain import emulated_bench, emulated_dclaw
 from lowcostdex.hardware.emulated.firmware import FirmwareOptions
-from lowcostdex.hardware.emulated.goal_log import GOAL_LOG_CAPACITY, GoalLog
+from lowcostdex.hardware.emulated.goal_log import (
+    EVENTS_KEPT,
+    GOAL_LOG_CAPACITY,
+    REPLIES_KEPT,
+    GoalLog,
+)
 
 E = ErrorNumber
 FINGERS = (10, 11, 12, 20, 21, 22, 30, 31, 32)
@@ -455,3 +460,44 @@ def test_goal_log_keeps_the_newest_writes_in_bounded_memory_over_a_long_run():
     assert len(times) == len(values)
     # the default keeps about 3 h of a D'Claw (9 goals at 10 Hz) in under 20 MB
     assert GOAL_LOG_CAPACITY >= 3 * 3600 * 10 * 9 and GOAL_LOG_CAPACITY * 19 < 20e6
+
+
+def test_events_and_replies_keep_the_newest_in_bounded_memory_over_a_long_run():
+    """An hours-long run must not grow the emulator's logs without end: reboots (one event
+    each) and sync reads (one recorded reply per motor) through the SDK past the logs' sizes
+    leave each log at its size, every entry counted, the newest kept in order, as the wire
+    carried them."""
+    chain = emulated_dclaw(rng=np.random.default_rng(0), record_replies=True, events_kept=64,
+                           replies_kept=500, options=FirmwareOptions(reboot_time=0.002))
+    port, ph = open_port(chain)
+    for i in chain.motors:  # answer at once, as in the dclaw fixture
+        assert ph.write1ByteTxRx(port, i, 9, 0) == (COMM_SUCCESS, 0)
+    times = []
+    for _ in range(300):  # a motor rebooted again and again: 300 "reboot" events
+        times.append(chain.now)
+        assert ph.reboot(port, 20)[0] == COMM_SUCCESS
+        port.sleep(0.003)
+    events = chain.events
+    assert (events.total, len(events), events.dropped) == (300, 64, 236)
+    assert all(e.kind == "reboot" and e.motor_id == 20 for e in events)
+    kept = np.array([e.time for e in events])  # the last 64 reboots, oldest first
+    assert np.all(np.array(times[-64:]) <= kept)
+    assert np.all(kept < np.array(times[-63:] + [chain.now]))
+
+    before = chain.reply_log.total  # the reboots' status packets
+    gsr = GroupSyncRead(port, ph, 132, 4)  # Present Position of the 9 fingers
+    for i in FINGERS:
+        gsr.addParam(i)
+    for _ in range(200):  # 1800 replies
+        assert gsr.txRxPacket() == COMM_SUCCESS
+    log = chain.reply_log
+    assert log.total == before + 1800 and len(log) == 500 and log.dropped == log.total - 500
+    # the last 500 replies: 55 whole sync reads and the last 5 of the one before, in wire order
+    last = chain.instruction_count
+    assert [r[0] for r in log] == [last - (499 - k) // 9 for k in range(500)]
+    assert [r[1] for r in log] == [FINGERS[(k + 4) % 9] for k in range(500)]
+    assert {r[2] for r in log} == {Instruction.SYNC_READ}
+    for r, i in zip(list(log)[-9:], FINGERS, strict=True):  # what the host read last
+        assert r[3] == bytes((0,)) + gsr.getData(i, 132, 4).to_bytes(4, "little")
+    # the defaults: events a few hundred bytes each, replies ~170 (tuple, header, payload)
+    assert EVENTS_KEPT == 10_000 and REPLIES_KEPT == 1 << 16

@@ -11,7 +11,9 @@ applied to the model's joints through ``qfrc_applied``; the model's own actuator
 off (the hand is torque-driven).
 A per-joint winding thermal model heats with torque squared; above its limit the firmware sets
 the high-temperature status bit and drops torque until it has cooled and is switched on again.
-Every torque the device applies is logged (``torque_log``) so tests check what reached it.
+Every torque the device applies is logged (``torque_log``) so tests check what reached it; the
+log keeps the newest ``TORQUES_KEPT`` cycles (a ring buffer: an hours-long run holds bounded
+memory).
 
 Time: ``LockstepClock`` is a virtual clock: ``sleep(dt)`` runs the emulated hand period by
 period and lets the driver answer each pose set, in one thread, deterministically and faster
@@ -34,8 +36,13 @@ import numpy as np
 from lowcostdex.errors import ConfigError
 from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.hardware.allegro import protocol as proto
+from lowcostdex.hardware.ringlog import RingLog
 from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.plant import Plant
+
+TORQUES_KEPT = 1 << 16
+"""Cycles of applied torque ``EmulatedAllegro.torque_log`` keeps: 3.3 min of the 3 ms stream,
+~20 MB (unbounded, 3 h of training would hold ~1 GB)."""
 
 
 @dataclass(frozen=True)
@@ -76,13 +83,14 @@ class EmulatedAllegro:
       effects: servo effects applied to the physics (e.g. joint friction).
       thermal: the thermal model.
       rng: generator for noise effects.
+      torques_kept: cycles of applied torque ``torque_log`` keeps (the newest).
     """
 
     def __init__(self, model: mujoco.MjModel, *, can_bus: can.BusABC | None = None,
                  channel: str = "lowcostdex-allegro", hand: HandSpec | None = None,
                  device_id: int = 0, effects: Sequence[AppliedEffect] = (),
                  thermal: AllegroThermal = AllegroThermal(),
-                 rng: np.random.Generator | None = None):
+                 rng: np.random.Generator | None = None, torques_kept: int = TORQUES_KEPT):
         self.hand = hand or allegro_spec()
         self.plant = Plant(model, effects=effects, rng=rng)
         m = self.plant.model
@@ -106,7 +114,7 @@ class EmulatedAllegro:
         self.temperature = np.full(proto.N_JOINTS, thermal.ambient)
         self.sensor_fault: dict[int, int] = {}  # joint -> byte a broken sensor sends instead
         self.step_hooks: list = []
-        self.torque_log: list[tuple[float, np.ndarray]] = []
+        self.torque_log = RingLog(torques_kept)  # (time [s], applied torques [N m])
         self.frames_in = 0
         self._since_temperature = 0.0
         self._owed = 0.0  # emulated time the physics has yet to step [s]

@@ -51,7 +51,8 @@ external torques from a hook registered with ``chain.add_step_hook``), ``chain.d
 (what the encoders and current sensors see), ``chain.motors[id]`` (control table via ``get``,
 ``torque_on``, ``hardware_error``), ``chain.goal_log``, ``chain.goal_audit``, ``chain.events``
 (watchdog trips, hardware errors, shutdowns, reboots; ``chain.event_callbacks`` to be told),
-``chain.reply_log`` (with ``record_replies=True``).
+``chain.reply_log`` (with ``record_replies=True``). The logs keep their newest entries only
+(goal log 2^20 writes, events 10^4, replies 2^16), so an hours-long run holds bounded memory.
 
 Where the parts live: the clocks in ``clocks``, the physics drive and firmware imperfections in
 ``drive``, the device-side goal log and audit in ``goal_log``, each motor's control table and
@@ -95,7 +96,8 @@ from lowcostdex.hardware.dynamixel.protocol import (
 from lowcostdex.hardware.emulated.clocks import CLOCKS, VirtualClock, WallClock
 from lowcostdex.hardware.emulated.drive import Imperfection, PlantDrive
 from lowcostdex.hardware.emulated.firmware import FirmwareOptions, MotorFirmware
-from lowcostdex.hardware.emulated.goal_log import GoalAudit, GoalLog
+from lowcostdex.hardware.emulated.goal_log import EVENTS_KEPT, REPLIES_KEPT, GoalAudit, GoalLog
+from lowcostdex.hardware.ringlog import RingLog
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.plant import Plant, prepare_spec
@@ -166,6 +168,8 @@ class EmulatedChain:
         to the motors' joints here); see ``PlantDrive``.
       record_replies: keep ``reply_log``: (instruction number, id, instruction, error byte +
         status data) of every status sent, before faults (fast reads: one entry per slot).
+      events_kept, replies_kept: how many of the newest ``events`` and ``reply_log`` entries
+        are kept (``hardware.ringlog.RingLog``; bounded memory over an hours-long run).
     """
 
     def __init__(self, plant: Plant, hand: HandSpec, *, mounting: HandSpec | None = None,
@@ -173,7 +177,8 @@ class EmulatedChain:
                  options: FirmwareOptions | None = None, baudrate: int = 1_000_000,
                  clock: str = "virtual", wire_time: bool = True, supply_resistance: float = 0.0,
                  rng: np.random.Generator | None = None, record_replies: bool = False,
-                 imperfection: Imperfection | None = None):
+                 imperfection: Imperfection | None = None, events_kept: int = EVENTS_KEPT,
+                 replies_kept: int = REPLIES_KEPT):
         check_choice("emulator clock", clock, CLOCKS)
         baud_code(baudrate)
         names = [plant.model.actuator(i).name for i in range(plant.model.nu)]
@@ -190,10 +195,10 @@ class EmulatedChain:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.goal_log = GoalLog()
         self.goal_audit = GoalAudit()
-        self.events: list[Event] = []
+        self.events: RingLog = RingLog(events_kept)  # of Event
         self.event_callbacks: list[Callable[[Event], None]] = []
         self.record_replies = record_replies
-        self.reply_log: list[tuple[int, int, int, bytes]] = []
+        self.reply_log: RingLog = RingLog(replies_kept)  # (inst. number, id, inst., bytes)
         self.instruction_count = 0
         self.step_hooks: list[StepHook] = []
         self.dead: set[int] = set()
@@ -602,7 +607,8 @@ def emulate_hand(hand: HandSpec, spec: mujoco.MjSpec, *,
       modify_model: edits ``spec`` before it is compiled: a robot that differs from the model in
         ways no effect names (masses, lengths, mounting; ``hidden_robots``).
       **chain_kwargs: ``EmulatedChain`` options (mounting, missing, faults, options, baudrate,
-        clock, wire_time, supply_resistance, record_replies, imperfection).
+        clock, wire_time, supply_resistance, record_replies, imperfection, events_kept,
+        replies_kept).
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     if modify_model is not None:

@@ -1,5 +1,7 @@
-"""The device side's record of what reached the motors: every accepted goal (``GoalLog``) and each
-Goal Position audited against the motor's true position (``GoalAudit``)."""
+"""The device side's record of what reached the motors: every accepted goal (``GoalLog``), each
+Goal Position audited against the motor's true position (``GoalAudit``), and the bounded logs an
+emulator keeps over an hours-long run (``hardware.ringlog.RingLog``: the chain's events and
+replies, their sizes here)."""
 
 from __future__ import annotations
 
@@ -14,6 +16,15 @@ from lowcostdex.hardware.dynamixel.control_table import Reg
 GOAL_LOG_CAPACITY = 1 << 20
 """Goal writes ``GoalLog`` keeps by default: about 3 h of a D'Claw at 10 Hz (9 goals a step),
 19 MB; older entries are dropped (the audit keeps its own counts in constant memory)."""
+
+
+EVENTS_KEPT = 10_000
+"""Chain events (``EmulatedChain.events``) kept, the newest: watchdog trips, reboots, hardware
+errors, physics lag (~230 bytes each measured with tracemalloc: ~2.3 MB when full)."""
+
+REPLIES_KEPT = 1 << 16
+"""Status replies ``EmulatedChain.reply_log`` keeps (``record_replies``), the newest: the last
+11 min of a D'Claw read at 10 Hz (10 replies a step); ~170 bytes each (tracemalloc), ~11 MB."""
 
 
 class GoalLog:
