@@ -164,6 +164,8 @@ def test_min_effect_rejects_a_candidate_below_its_size_and_accepts_it_above(offs
     p = res.causes[0].params["offset"]
     (lo, hi), (nlo, nhi) = p["interval"][0], p["interval_noise"][0]
     assert lo <= nlo < p["value"][0] < nhi <= hi
+    # -75 mrad is inside the usual +-0.2 rad range: no bound flag, no widened range
+    assert res.causes[0].flags == [] and res.causes[0].widened == []
     assert res.causes[0].params["offset"]["value"][0] == pytest.approx(
         float(case.hidden.values["position_offset"][0]), abs=1e-3)
 
