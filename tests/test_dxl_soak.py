@@ -19,8 +19,9 @@ from lowcostdex.hardware.emulated.chain import FaultConfig, emulated_dclaw
 
 TICK = 2 * math.pi / 4096
 READS = (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
-FIELDS = (("position", TICK, 6, 4), ("velocity", None, 2, 4), ("current", None, 0, 2),
-          ("voltage", 0.1, 18, 2), ("temperature", 1.0, 20, 1))
+# (state field, unit, control-table address, size): e-Manual X-series
+FIELDS = (("position", TICK, 132, 4), ("velocity", None, 128, 4), ("current", None, 126, 2),
+          ("voltage", 0.1, 144, 2), ("temperature", 1.0, 146, 1))
 
 
 def replies_since(chain, n0):
@@ -42,9 +43,9 @@ def check_fresh(bus, state, sent):
             continue
         units = {"velocity": bus._velocity_unit[k], "current": bus._current_unit[k]}
         got = []
-        for name, unit, off, size in FIELDS:
+        for name, unit, addr, size in FIELDS:
             value = getattr(state, name)[k] / (unit or units[name])
-            got.append((off, size, round(value)))
+            got.append((addr - bus._block_addr, size, round(value)))
         assert spec[i] is not None
         candidates = sent.get(i, [])
         assert any(all(int.from_bytes(raw[off:off + size], "little", signed=name != "voltage")

@@ -32,11 +32,12 @@ MAX_STEP = 2 * math.pi / 3 * 0.1
 SPEED = 1.5 * 30 * 2 * math.pi / 60
 
 
-def connected_robot(config: RobotConfig | None = None, seed: int = 0):
+def connected_robot(config: RobotConfig | None = None, seed: int = 0, **bus):
     """An emulated D'Claw's Robot; the motion bound narrowed for the time each goal is in
-    flight (``motor_speed=None``: the motor spec's speed bound) unless ``config`` says."""
+    flight (``motor_speed=None``: the motor spec's speed bound) unless ``config`` says; ``bus``:
+    ``DynamixelConfig`` fields."""
     chain = emulated_dclaw("valve", hand=HAND, rng=np.random.default_rng(seed))
-    bus = make_dynamixel_bus(HAND, chain.port(), chain.plant.model, handle_signals=False)
+    bus = make_dynamixel_bus(HAND, chain.port(), chain.plant.model, handle_signals=False, **bus)
     robot = Robot(HAND, bus, config or RobotConfig(motor_speed=None))
     robot.connect()
     robot.torque(True, HAND.joint_names)
@@ -114,13 +115,13 @@ def track_speed(chain) -> list[float]:
     return fastest
 
 
-def soak(faults: FaultConfig, cycles: int, seed: int):
+def soak(faults: FaultConfig, cycles: int, seed: int, **bus):
     """The Robot under ``faults`` for ``cycles`` control steps of wild goals: uniform over
     +-2 rad (outside every finger's limits, many motion bounds away), pushes of every joint
     past its limits, NaN now and then. Returns the chain, the robot and ``track_speed``'s
     record."""
     chain, robot = connected_robot(RobotConfig(max_invalid_reads=20, motor_speed=None),
-                                   seed=seed)
+                                   seed=seed, **bus)
     watch_joints(chain, MAX_STEP)
     fastest = track_speed(chain)
     chain.faults = faults
@@ -189,15 +190,32 @@ def test_soak_10k_cycles_no_goal_beyond_the_bound_or_limits_reaches_a_motor():
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
-    "a reply later than the status timeout + settle_ms (about 17 ms) that lands in the slot of "
-    "a lost one passes as fresh (Protocol 2.0 has no sequence number; fix: read Realtime Tick "
-    "with the block and refuse a reply that has not advanced). Measured 2026-11-25, 20 % late "
-    "replies 15-40 ms late: 23 (seed 11) and 10 (seed 12) goals beyond the bound per 2000 cycles"))
+    "by default a reply later than the status timeout + settle_ms (about 17 ms) that lands in "
+    "the slot of a lost one passes as fresh (Protocol 2.0 has no sequence number); the Realtime "
+    "Tick check refuses it but is opt-in (DynamixelConfig.realtime_tick: 6 more bytes per motor "
+    "per read, see the next test). Measured 2026-11-25, 20 % late replies 15-40 ms late: 23 "
+    "(seed 11) and 10 (seed 12) goals beyond the bound per 2000 cycles"))
 def test_soak_replies_later_than_the_settle_time_do_not_pass_as_fresh():
     faults = FaultConfig(drop=0.2, corrupt=0.05, late=0.2, late_delay=(0.015, 0.040))
     chain, robot, fastest = soak(faults, 2000, seed=11)
     assert chain.goal_audit.violations == 0
 
+
+@pytest.mark.slow
+def test_soak_late_replies_are_refused_by_their_realtime_tick():
+    """20 % of replies 15-40 ms late: beyond the status timeout + 10 ms settle, so a late reply
+    can land in the slot of a lost one; with ``realtime_tick`` the motor's own ms clock, read
+    with the block, tells it: 0 goals beyond the bound or the limits reach a motor over 2000
+    cycles (without the check: the strict xfail above)."""
+    faults = FaultConfig(drop=0.2, corrupt=0.05, late=0.2, late_delay=(0.015, 0.040))
+    chain, robot, fastest = soak(faults, 2000, seed=11, realtime_tick=True)
+    audit, ids = chain.goal_audit, [j.motor_id for j in HAND.joints]
+    assert robot.bus._block_addr == 120 and robot.bus._block_len == 27  # e-Manual: 120..146
+    assert audit.violations == 0, (audit.lead_violations, audit.limit_violations)
+    assert max(audit.arrival_excess[i] for i in ids) <= fastest * chain.plant.model.opt.timestep
+    assert robot.bus.stats.stale > 0  # the defence acted
+    # a bus this bad costs motion (stale replies hold too: 77 % of the goals went out), not safety
+    assert sum(audit.count[i] for i in ids) > 0.7 * 9 * 2000
 
 MILD = FaultConfig(drop=0.05, corrupt=0.02, late=0.02)  # unicast torque writes retry 3 times
 

@@ -72,6 +72,13 @@ class DynamixelConfig:
       read_retries: extra sync reads of the motors missing from a read.
       retries: extra attempts of a failed unicast read/write/ping.
       settle_ms: wait after a failed transaction before the next one [ms].
+      realtime_tick: read Realtime Tick (address 120) with the block and refuse a reply whose
+        tick did not advance with the host's clock: a reply later than the status timeout and
+        ``settle_ms`` that lands in the slot of a lost one (Protocol 2.0 has no sequence
+        number). Off by default: the block grows 21 -> 27 bytes (fast read of 10 motors at
+        1 Mbit/s 2.58 -> 3.18 ms), which the simulation's motion bound
+        (``motion.PRESENT_BLOCK_BYTES``) and several timing-measured tests assume (see
+        bench/RESULTS.md).
       max_invalid_reads: consecutive invalid reads of one motor before BusError; None = never.
       torque_off_on_close: turn torque off in ``disconnect``.
       handle_signals: turn torque off on SIGINT/SIGTERM (main thread only) and at exit.
@@ -91,6 +98,7 @@ class DynamixelConfig:
     read_retries: int = 1
     retries: int = 3
     settle_ms: float = 10.0
+    realtime_tick: bool = False
     max_invalid_reads: int | None = 50
     torque_off_on_close: bool = True
     handle_signals: bool = True
@@ -137,4 +145,5 @@ class BusStats:
     corrupt: int = 0
     contaminated: int = 0
     retries: int = 0
+    stale: int = 0  # replies refused because their Realtime Tick had not advanced
     by_motor_invalid: dict[int, int] = field(default_factory=dict)

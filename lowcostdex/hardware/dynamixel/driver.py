@@ -109,6 +109,10 @@ TWO_PI = 2.0 * math.pi
 BLOCK = (Reg.PRESENT_CURRENT, Reg.PRESENT_VELOCITY, Reg.PRESENT_POSITION, Reg.VELOCITY_TRAJECTORY,
          Reg.POSITION_TRAJECTORY, Reg.PRESENT_INPUT_VOLTAGE, Reg.PRESENT_TEMPERATURE)
 """The contiguous block read every control step (addresses 126..146 on X-series)."""
+TICK_BLOCK = (Reg.REALTIME_TICK, *BLOCK)
+"""The block with ``DynamixelConfig.realtime_tick`` (120..146: Moving, Moving Status and Present
+PWM in between are read and not used): Realtime Tick, the motor's ms clock (0..32767), tells a
+fresh reply from a late one to an earlier request (``SdkTransactions._stale``)."""
 _LAYOUT = BLOCK + (Reg.GOAL_POSITION, Reg.TORQUE_ENABLE, Reg.BUS_WATCHDOG,
                    Reg.HARDWARE_ERROR_STATUS, Reg.MIN_POSITION_LIMIT, Reg.MAX_POSITION_LIMIT)
 _FAULT_POLL = 0.5  # [s] re-read Hardware Error Status at most this often while an alert persists
@@ -141,12 +145,13 @@ class DynamixelBus(SdkTransactions, MotorBus):
         check_same_layout(self.tables, _LAYOUT)
         t = self.tables[self.ids[0]]
         self._addr = {r: t[r].address for r in _LAYOUT}
-        self._block_addr = t[BLOCK[0]].address
-        self._block_len = t[BLOCK[-1]].end - self._block_addr
+        block = TICK_BLOCK if config.realtime_tick else BLOCK
+        self._block_addr = t[block[0]].address
+        self._block_len = t[block[-1]].end - self._block_addr
         self._dtype = np.dtype({
-            "names": [r.name for r in BLOCK],
-            "formats": [("<i" if r in SIGNED else "<u") + str(t[r].size) for r in BLOCK],
-            "offsets": [t[r].address - self._block_addr for r in BLOCK],
+            "names": [r.name for r in block],
+            "formats": [("<i" if r in SIGNED else "<u") + str(t[r].size) for r in block],
+            "offsets": [t[r].address - self._block_addr for r in block],
             "itemsize": self._block_len})
         specs = [motor_spec(m) for m in config.models]
         self._tpr = np.array([s.ticks_per_rev for s in specs], float)
@@ -157,6 +162,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
         self._hi = np.full(len(self.ids), 4095, np.int64)
         self._streak = np.zeros(len(self.ids), int)
         self._silent: set[int] = set()  # ids that timed out in their last read: read them last
+        self._ticks: dict[int, tuple[float, int]] = {}  # id -> (sample time, Realtime Tick)
         self._hw_cache: dict[int, tuple[int, float]] = {}
         self.faults: dict[int, tuple[str, ...]] = {}
         self.firmware: dict[int, int] = {}
@@ -380,6 +386,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
         valid, err, raw = self._read_block(order, fast=self.fast_read)
         sampled = self._sample_time
         times = dict.fromkeys(order, sampled)  # a motor read in a retry was sampled then
+        self._stale(order, valid, raw, sampled)
         attempts = 0
         while attempts < self.config.read_retries:
             missing = [i for i in order if not valid[i]]
@@ -389,6 +396,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
             silent = len(self._silent)
             fresh = sorted(missing, key=lambda i: i in self._silent)
             v2, e2, r2 = self._read_block(tuple(fresh), fast=False)
+            self._stale(tuple(fresh), v2, r2, self._sample_time)
             for i in fresh:
                 if v2[i]:
                     valid[i], err[i], raw[i] = True, e2[i], r2[i]
@@ -396,6 +404,9 @@ class DynamixelBus(SdkTransactions, MotorBus):
             # a retry that found a new silent motor is free (it is read last next time);
             # bounded, since that can happen at most once per motor
             attempts += len(self._silent) == silent
+        for i in order if self.config.realtime_tick else ():
+            if valid[i]:
+                self._ticks[i] = (times[i], self._tick(raw[i]))
         state = self._decode(valid, err, raw, sampled)
         state.sample_time = np.fromiter((times[i] for i in self.ids), float, len(self.ids))
         return state
@@ -562,6 +573,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
         while self.clock() < deadline:
             self.port.sleep(0.02)
             if self.ping(motor_id, retries=0) is not None:
+                self._ticks.pop(motor_id, None)  # its Realtime Tick starts again
                 self._hw_cache.pop(motor_id, None)
                 self.faults.pop(motor_id, None)
                 return

@@ -1,17 +1,25 @@
 """One Dynamixel transaction at a time: unicast register access with bounded retries, (fast) sync
-reads, and the late-reply defences (settle after a failure, flush, contamination check).
+reads, and the late-reply defences (settle after a failure, flush, contamination check, the
+motor's Realtime Tick).
 
 Protocol 2.0 status packets carry no sequence number, so a late reply to an earlier request looks
 fresh. After any failed transaction the next one waits ``settle_ms`` first (late bytes arrive and
 the SDK's ``clearPort`` flushes them), and a transaction that consumed more status packets than it
-asked for, or left bytes waiting, is discarded whole. ``SdkTransactions`` is the base of
-``driver.DynamixelBus``, which supplies the state it uses (``port``, ``ph``, ``config``,
-``stats``, ``tables``, ``clock``, ``_note_alert``, ``_silent``, ``_dirty``, ``_last_tx``,
-``_sample_time``).
+asked for, or left bytes waiting, is discarded whole. A reply later than the timeout and the
+settle wait that lands in the slot of a lost one passes as fresh unless the block carries the
+motor's Realtime Tick (``DynamixelConfig.realtime_tick``, opt-in): then it is refused
+(``_stale``).
+``SdkTransactions`` is the base of ``driver.DynamixelBus``, which supplies the state it uses
+(``port``, ``ph``, ``config``, ``stats``, ``tables``, ``clock``, ``_note_alert``, ``_silent``,
+``_dirty``, ``_last_tx``, ``_sample_time``, ``_dtype``, ``_ticks``).
 """
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Sequence
+
+import numpy as np
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
 
 from lowcostdex.hardware.bus import BusError
@@ -24,6 +32,11 @@ from lowcostdex.hardware.dynamixel.protocol import (
     le_bytes,
     to_signed,
 )
+
+log = logging.getLogger(__name__)
+
+TICK_SLACK_MS = 2.0  # Realtime Tick is whole ms; the motor's clock against the host's
+TICK_DRIFT = 0.02  # ... plus this share of the time between two reads (oscillator tolerance)
 
 
 class SdkTransactions:
@@ -187,3 +200,32 @@ class SdkTransactions:
             self.stats.corrupt += 1
         elif result != COMM_SUCCESS:
             self.stats.timeouts += 1
+
+    def _tick(self, data: bytes) -> int:
+        return int(np.frombuffer(data, self._dtype)[Reg.REALTIME_TICK.name][0])
+
+    def _stale(self, ids: Sequence[int], valid: dict[int, bool], raw: dict[int, bytes],
+               t: float) -> None:
+        """Mark invalid the replies whose Realtime Tick did not advance with the host's clock
+        since the motor's last accepted reply: a reply to an earlier request (late beyond the
+        status timeout and the settle wait) that landed in the slot of a lost one. Protocol 2.0
+        status packets carry no sequence number; the motor's own ms clock does the job."""
+        if not self.config.realtime_tick:
+            return
+        for i in ids:
+            if not valid[i] or i not in self._ticks:
+                continue
+            t_prev, tick_prev = self._ticks[i]
+            elapsed = 1000.0 * (t - t_prev)
+            if elapsed > 30_000.0:  # the tick wraps at 32768 ms: no verdict
+                continue
+            advance = (self._tick(raw[i]) - tick_prev) % 32768
+            if advance < elapsed * (1 - TICK_DRIFT) - TICK_SLACK_MS:
+                # refused, and the reference kept: a motor whose clock restarted without a
+                # reboot from this driver (a brown-out: torque off too) keeps being refused
+                # until the Robot's invalid-read limit stops the run
+                valid[i] = False
+                self.stats.stale += 1
+                self._dirty = True  # more late replies may follow: settle first
+                log.debug("motor %d: stale reply (Realtime Tick advanced %d ms in %.1f ms)", i,
+                          advance, elapsed)
