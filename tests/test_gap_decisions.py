@@ -462,3 +462,41 @@ def test_config_rejects_a_block_that_is_not_positive():
     for bad in (0.0, -0.5):
         with pytest.raises(ConfigError, match=r"^interval_block must be > 0 s$"):
             GapConfig(interval_block=bad)
+
+
+def test_backward_pass_keeps_a_small_real_effect_and_orders_by_importance(root):
+    # truth: a -50 mrad reading offset and 0.005 N m s/rad of extra joint damping (3 s logs):
+    # the damping moves the predictions by only ~1.6 noise floors (above min_effect 0.75), yet
+    # leaving it out multiplies the select MSE by ~5 (a rise of ~4, far above min_gain / 2);
+    # leaving the offset out multiplies it by thousands. Both stay, the offset first
+    values = {"position_offset": -0.05, "viscous_damping": 0.005}
+    case = ts.make_case("bench", ["position_offset", "viscous_damping"], 301, duration=3.0,
+                        values=values)
+    model, paths = case.write(root / "offset+damping-3s")
+    ds = load_dataset(paths, model=model)
+    cfg = GapConfig(seed=0, candidates=("position_offset", "viscous_damping"))
+    eng, ctx, eps, split = _engine(ds, cfg)
+    sel_eps = [eps[i] for i in split.select]
+    fit_fn = eng.residual_fn(segments(ds, [eps[i] for i in split.train], cfg.segment,
+                                      cfg.burn_in))
+    floor_rms = math.sqrt(float(np.mean(an.noise_floor(ds.trajectories) ** 2)))
+    joints = eng.joints
+    truth = [AppliedEffect(n, joints, {"offset" if n == "position_offset" else "damping": v})
+             for n, v in values.items()]
+    for order in (("viscous_damping", "position_offset"), ("position_offset", "viscous_damping")):
+        s = fitmod.Structure.build(order, joints, ctx)
+        dropped: list[str] = []
+        kept, kept_x = an._backward(eng, ds, sel_eps, s, s.values_from(truth), cfg, floor_rms,
+                                    ctx, fit_fn, dropped)
+        assert dropped == []
+        assert kept.effects == ("position_offset", "viscous_damping")
+        assert kept_x == pytest.approx([-0.05, 0.005])
+    # asking every effect to move the predictions by 2 noise floors: the damping (1.6) goes
+    # for its size alone, the offset stays
+    cfg = GapConfig(seed=0, candidates=cfg.candidates, min_effect=2.0)
+    s = fitmod.Structure.build(("position_offset", "viscous_damping"), joints, ctx)
+    dropped = []
+    kept, kept_x = an._backward(eng, ds, sel_eps, s, s.values_from(truth), cfg, floor_rms, ctx,
+                                fit_fn, dropped)
+    assert dropped == ["viscous_damping"] and kept.effects == ("position_offset",)
+    assert kept_x[0] == pytest.approx(-0.05, abs=1e-3)
