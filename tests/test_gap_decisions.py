@@ -344,6 +344,7 @@ def one_tooth(root):
 def test_a_fit_on_its_search_bound_is_refitted_in_a_wider_range(one_tooth):
     res, wall = one_tooth
     assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.joints == ("shoulder",) and res.causes[0].joints == ("shoulder",)
     assert res.causes[0].params["offset"]["value"][0] == pytest.approx(-2 * math.pi / 25,
                                                                        abs=1e-3)
     # the screening fit stopped at -0.2 rad; the report says the range was widened
