@@ -463,6 +463,9 @@ def test_config_rejects_a_block_that_is_not_positive():
     for bad in (0.0, -0.5):
         with pytest.raises(ConfigError, match=r"^interval_block must be > 0 s$"):
             GapConfig(interval_block=bad)
+    for bad in ({"segment": 0.0}, {"burn_in": -0.1}):
+        with pytest.raises(ConfigError, match=r"^segment must be > 0 s and burn_in >= 0 s$"):
+            GapConfig(**bad)
 
 
 def test_backward_pass_keeps_a_small_real_effect_and_orders_by_importance(root):
