@@ -193,8 +193,8 @@ def test_soak_10k_cycles_no_goal_beyond_the_bound_or_limits_reaches_a_motor():
     "by default a reply later than the status timeout + settle_ms (about 17 ms) that lands in "
     "the slot of a lost one passes as fresh (Protocol 2.0 has no sequence number); the Realtime "
     "Tick check refuses it but is opt-in (DynamixelConfig.realtime_tick: 6 more bytes per motor "
-    "per read, see the next test). Measured 2026-11-25, 20 % late replies 15-40 ms late: 23 "
-    "(seed 11) and 10 (seed 12) goals beyond the bound per 2000 cycles"))
+    "per read, see the next test). Measured 2026-11-26 (narrowing on), 20 % late replies 15-40 "
+    "ms late: 23 / 0 / 15 goals beyond the bound per 2000 cycles (seeds 11 / 12 / 13)"))
 def test_soak_replies_later_than_the_settle_time_do_not_pass_as_fresh():
     faults = FaultConfig(drop=0.2, corrupt=0.05, late=0.2, late_delay=(0.015, 0.040))
     chain, robot, fastest = soak(faults, 2000, seed=11)
