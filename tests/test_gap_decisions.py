@@ -170,6 +170,25 @@ def test_min_effect_rejects_a_candidate_below_its_size_and_accepts_it_above(offs
         float(case.hidden.values["position_offset"][0]), abs=1e-3)
 
 
+def off_by_a_phase(polish, which, seen):
+    """``fit.polish`` wrapped so the tracks ``which(label)`` start 0.75 physics steps off
+    their fitted delay (residual and cost recomputed there); appends (label, moved) to
+    ``seen``."""
+
+    def wrapped(t, fn, dt, *args, **kwargs):
+        if which(t.label):
+            x = t.x.copy()
+            x[0] += 0.75 * dt
+            t.u = t.structure.u(x)
+            t.r = fn([(t.structure, x)])[0]
+            t.cost = 0.5 * float(t.r @ t.r)
+        moved = polish(t, fn, dt, *args, **kwargs)
+        seen.append((t.label, moved))
+        return moved
+
+    return wrapped
+
+
 def test_backward_pass_prunes_an_accepted_effect_the_other_makes_redundant(offset_case):
     case, ds = offset_case
     offset = float(case.hidden.values["position_offset"][0])
@@ -203,24 +222,12 @@ def test_final_refit_after_the_delay_polish_moves(root, monkeypatch):
     case, ds = _case(root, "latency", 111, 4.0)
     delay = float(case.hidden.values["latency"][0])
     assert delay == pytest.approx(0.0347, abs=1e-4)
-    polish = fitmod.polish
     seen = []
-
-    def off_by_a_phase(t, fn, dt, *args, **kwargs):
-        # the final fit stopped 0.75 physics steps off its best phase (LM stops at a kink of the
-        # piecewise-smooth delay cost); the polish must bring it back and the refit must
-        # re-evaluate residual and Jacobian there
-        if t.label == "final":
-            x = t.x.copy()
-            x[0] += 0.75 * dt
-            t.u = t.structure.u(x)
-            t.r = fn([(t.structure, x)])[0]
-            t.cost = 0.5 * float(t.r @ t.r)
-        moved = polish(t, fn, dt, *args, **kwargs)
-        seen.append((t.label, moved))
-        return moved
-
-    monkeypatch.setattr(fitmod, "polish", off_by_a_phase)
+    # the final fit stopped 0.75 physics steps off its best phase (LM stops at a kink of the
+    # piecewise-smooth delay cost); the polish must bring it back and the refit must
+    # re-evaluate residual and Jacobian there
+    monkeypatch.setattr(fitmod, "polish",
+                        off_by_a_phase(fitmod.polish, lambda label: label == "final", seen))
     res = analyze(ds, GapConfig(seed=0, candidates=("latency",)))
     assert ("final", True) in seen
     assert [c.effect for c in res.causes] == ["latency"]
@@ -389,24 +396,11 @@ def test_an_offset_beyond_its_hard_limit_is_not_named(root):
 def test_screening_fits_are_refitted_after_the_delay_polish_moves(root, monkeypatch):
     case, ds = _case(root, "latency", 111, 4.0)
     delay = float(case.hidden.values["latency"][0])
-    polish = fitmod.polish
     moved = []
-
-    def off_by_a_phase(t, fn, dt, *args, **kwargs):
-        # the screening fits stopped 0.75 physics steps off their best phase: the polish moves
-        # them back and restarts them, so they must be refitted before the select split
-        # judges them
-        if t.label.startswith("latency#"):
-            x = t.x.copy()
-            x[0] += 0.75 * dt
-            t.u = t.structure.u(x)
-            t.r = fn([(t.structure, x)])[0]
-            t.cost = 0.5 * float(t.r @ t.r)
-        out = polish(t, fn, dt, *args, **kwargs)
-        moved.append((t.label, out))
-        return out
-
-    monkeypatch.setattr(fitmod, "polish", off_by_a_phase)
+    # the screening fits stopped 0.75 physics steps off their best phase: the polish moves
+    # them back and restarts them, so they must be refitted before the select split judges them
+    monkeypatch.setattr(fitmod, "polish", off_by_a_phase(
+        fitmod.polish, lambda label: label.startswith("latency#"), moved))
     res = analyze(ds, GapConfig(seed=0, candidates=("latency",), interval_step=0))
     # (the best start of the candidate is polished)
     assert any(label.startswith("latency#") and out for label, out in moved)
