@@ -170,6 +170,16 @@ def test_min_effect_rejects_a_candidate_below_its_size_and_accepts_it_above(offs
         float(case.hidden.values["position_offset"][0]), abs=1e-3)
 
 
+def _backward_setup(ds, cfg: GapConfig):
+    """What ``analyze``'s backward pass is handed: (engine, context, select episodes, the
+    residual function on the train segments, the noise floor's RMS [rad])."""
+    eng, ctx, eps, split = _engine(ds, cfg)
+    fit_fn = eng.residual_fn(segments(ds, [eps[i] for i in split.train], cfg.segment,
+                                      cfg.burn_in))
+    floor_rms = math.sqrt(float(np.mean(an.noise_floor(ds.trajectories) ** 2)))
+    return eng, ctx, [eps[i] for i in split.select], fit_fn, floor_rms
+
+
 def off_by_a_phase(polish, which, seen):
     """``fit.polish`` wrapped so the tracks ``which(label)`` start 0.75 physics steps off
     their fitted delay (residual and cost recomputed there); appends (label, moved) to
@@ -193,11 +203,7 @@ def test_backward_pass_prunes_an_accepted_effect_the_other_makes_redundant(offse
     case, ds = offset_case
     offset = float(case.hidden.values["position_offset"][0])
     cfg = GapConfig(seed=0, candidates=("viscous_damping", "position_offset"))
-    eng, ctx, eps, split = _engine(ds, cfg)
-    sel_eps = [eps[i] for i in split.select]
-    fit_fn = eng.residual_fn(segments(ds, [eps[i] for i in split.train], cfg.segment,
-                                      cfg.burn_in))
-    floor_rms = math.sqrt(float(np.mean(an.noise_floor(ds.trajectories) ** 2)))
+    eng, ctx, sel_eps, fit_fn, floor_rms = _backward_setup(ds, cfg)
     joints = eng.joints
     # accepted: a 1e-4 N m s/rad damping (its predictions move by micro-radians) and the true
     # offset; the damping is redundant and must go, the offset must stay (refitted)
@@ -473,11 +479,7 @@ def test_backward_pass_keeps_a_small_real_effect_and_orders_by_importance(root):
     model, paths = case.write(root / "offset+damping-3s")
     ds = load_dataset(paths, model=model)
     cfg = GapConfig(seed=0, candidates=("position_offset", "viscous_damping"))
-    eng, ctx, eps, split = _engine(ds, cfg)
-    sel_eps = [eps[i] for i in split.select]
-    fit_fn = eng.residual_fn(segments(ds, [eps[i] for i in split.train], cfg.segment,
-                                      cfg.burn_in))
-    floor_rms = math.sqrt(float(np.mean(an.noise_floor(ds.trajectories) ** 2)))
+    eng, ctx, sel_eps, fit_fn, floor_rms = _backward_setup(ds, cfg)
     joints = eng.joints
     truth = [AppliedEffect(n, joints, {"offset" if n == "position_offset" else "damping": v})
              for n, v in values.items()]
