@@ -49,4 +49,12 @@ def test_dapg_kinesthetic_valve_demo(tmp_path, monkeypatch, capsys):
         str(tmp_path),
     ]
     _run("dapg_kinesthetic_valve", args, monkeypatch)
-    assert "BC on 2 demos + 4 playbacks" in capsys.readouterr().out
+    # the script reports what its demo file holds: the 2 demonstrations and the playbacks of
+    # them that reached the goal (their rate: tests/test_demos_recording.py)
+    from lowcostdex.demonstrations.file import read_episodes
+
+    episodes = read_episodes(tmp_path / "valve_demos.h5")
+    demos = [e for e in episodes if e.source == "virtual_teacher"]
+    played = [e for e in episodes if e.source == "playback" and e.success[-1]]
+    assert len(demos) == 2 and all(e.success[-1] for e in demos) and played
+    assert f"BC on 2 demos + {len(played)} playbacks" in capsys.readouterr().out
