@@ -132,5 +132,5 @@ def test_joint_pd_tracks_a_goal_and_saturates_at_the_torque_limit():
     u.data.ctrl[5] = 1.6  # kp * 1.79 rad = 0.9 N m > the 0.5625 N m clamp
     mujoco.mj_forward(u.model, u.data)
     assert abs(u.data.actuator_force[5]) == pytest.approx(TORQUE_LIMITS["finger"][1], rel=1e-6)
-    assert pd.kp[0] == pytest.approx(0.5)
+    assert pd.gains("middle", 1)[0] == pytest.approx(0.5)
     env.close()

@@ -45,9 +45,12 @@ class TemperatureSensorWarning(UserWarning):
 
 @dataclass(frozen=True)
 class AllegroGains:
-    """Host-side PD gains: one value for every joint, or 16 values; None = the v4 ROS driver's
-    defaults that the simulated hand also uses (``sim.models.allegro.AllegroPD``: 600 / 1000 PWM
-    counts per rad, 15 / 30 per rad/s, over 1200 counts per N m).
+    """Host-side PD gains: one value for every joint, or 16 values; None = the gains the
+    simulated hand uses (``sim.models.allegro.AllegroPD()``: 600 / 1000 PWM counts per rad,
+    15 / 30 per rad/s, over 1200 counts per N m, a two-set simplification of the v4 ROS PD
+    controller's compiled-in fallback). ``AllegroGains.ros_launch()`` = the gains that
+    controller is launched with (its gains_pd.yaml: 4000 counts per rad, 150-300 per rad/s),
+    4-6.7x stiffer; ``AllegroGains.ros_fallback()`` = its compiled-in fallback exactly.
 
     Attributes:
       kp: stiffness [N m/rad].
@@ -72,6 +75,22 @@ class AllegroGains:
         if not self.max_torque > 0:
             raise ConfigError("AllegroGains.max_torque must be > 0")
 
+    @classmethod
+    def ros_launch(cls, **kwargs) -> AllegroGains:
+        """The gains the v4 ROS package launches its PD controller with (``AllegroPD.ros_launch``)."""
+        from lowcostdex.sim.models.allegro import AllegroPD
+
+        kp, kd = _pd_arrays(AllegroPD.ros_launch())
+        return cls(kp=tuple(kp), kd=tuple(kd), **kwargs)
+
+    @classmethod
+    def ros_fallback(cls, **kwargs) -> AllegroGains:
+        """That controller's compiled-in fallback gains (``AllegroPD.ros_fallback``)."""
+        from lowcostdex.sim.models.allegro import AllegroPD
+
+        kp, kd = _pd_arrays(AllegroPD.ros_fallback())
+        return cls(kp=tuple(kp), kd=tuple(kd), **kwargs)
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """(kp (16,), kd (16,))."""
         n = proto.N_JOINTS
@@ -82,10 +101,15 @@ class AllegroGains:
 
 
 def _default_pd() -> tuple[np.ndarray, np.ndarray]:
-    from lowcostdex.hands import ALLEGRO_FINGERS
     from lowcostdex.sim.models.allegro import AllegroPD
 
-    pd = AllegroPD()
+    return _pd_arrays(AllegroPD())
+
+
+def _pd_arrays(pd) -> tuple[np.ndarray, np.ndarray]:
+    """(kp (16,), kd (16,)) of an ``AllegroPD`` in joint order."""
+    from lowcostdex.hands import ALLEGRO_FINGERS
+
     gains = [pd.gains(f, k) for f in ALLEGRO_FINGERS for k in range(proto.JOINTS_PER_FINGER)]
     return np.array([g[0] for g in gains]), np.array([g[1] for g in gains])
 

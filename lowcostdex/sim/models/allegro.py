@@ -29,11 +29,27 @@ Actuation. The v4 hand is torque-driven: the host runs a joint PD at 333 Hz and 
 ``pwm = tau * 1200`` clamped per joint (``TORQUE_LIMITS`` = PWM clamp / 1200: roll 375, near 675,
 middle 450, far 285; thumb 525, 405, 270, 270 counts; simlabrobotics/allegro_hand_ros_v4 driver).
 In simulation every joint has a ``position`` actuator (kp, kv) with that force range: the host PD
-integrated at the physics step (2.5 ms, ~400 Hz instead of 333 Hz). ``AllegroPD`` defaults are
-the v4 ROS package's default PD gains, 600 (1000 for distal and thumb joints) PWM counts per rad and
-15-30 counts per rad/s, divided by the v4 torque constant 1200: kp 0.5 / 0.83 N m/rad, kd 0.0125 -
-0.025 N m s/rad (allegro_hand_controllers/src/allegro_node_pd.cpp). Joint damping, dry friction
-and reflected motor inertia are not published: ``AllegroPD`` carries plausible values [uncertain].
+integrated at the physics step (2.5 ms, ~400 Hz instead of 333 Hz).
+
+Gains. The v4 ROS package's PD controller (simlabrobotics/allegro_hand_ros_v4 @b19b18e,
+allegro_hand_controllers/src/allegro_node_pd.cpp) takes ``k_p`` / ``k_d`` in PWM counts per rad
+and per rad/s (its torque is ``(k_p err - k_d qdot) / 1200`` N m, sent at 1200 counts per N m).
+Its launch file (allegro_hand_controllers/launch/allegro_hand.launch) always loads
+``gains_pd.yaml``: kp 4000 on every joint (3.33 N m/rad), kd 150 (200 for joint 1, 300 for thumb
+joint 0), ``AllegroPD.ros_launch()``; the node's compiled-in fallback, used only without the
+yaml, is kp 600 (1000 for the finger distal joints and thumb joints 0-2, 600 for the thumb
+distal joint), kd 15 (20 for joint 1, 30 for thumb joint 0), ``AllegroPD.ros_fallback()`` (the
+launch file's default controller, ``grasp``, is libBHand's, gains not published). The
+``AllegroPD`` defaults are neither: they are the fallback simplified to two sets, kp 600 / 1000
+and kd 15 / 30 (0.5 / 0.83 N m/rad, 0.0125 / 0.025 N m s/rad; the second set on the distal and
+thumb joints), so they differ from it on thumb_3's kp (1000, not 600) and on kd of joint 1 of
+index/middle/ring (15, not 20), of the four distal joints (30, not 15) and of thumb joints 1-2
+(30, not 20). The valve teacher was
+tuned on them: with the exact fallback its fixed-valve first success moves from step 65 to 85
+and the random valve from 12/12 to 11/12 seeds (0-5); with the launch gains (4-6.7x stiffer)
+to step 96 and 11/12 (measured 2026-11-26).
+Joint damping, dry friction and reflected motor inertia are not published: ``AllegroPD`` carries
+plausible values [uncertain].
 
 Station "valve": a 3-spoke valve on a free (unlimited) vertical hinge above the palm, so turning
 it 360 deg is an unwrapped angle of 2 pi. Names: joints and actuators are the hand spec's
@@ -56,6 +72,13 @@ ALLEGRO_STATIONS = ("valve", "none")
 TORQUE_TO_PWM = 1200.0  # v4 torque constant [PWM counts per N m]
 _PWM_LIMITS = {"finger": (375, 675, 450, 285), "thumb": (525, 405, 270, 270)}
 TORQUE_LIMITS = {k: tuple(p / TORQUE_TO_PWM for p in v) for k, v in _PWM_LIMITS.items()}  # [N m]
+# Host PD gains of the v4 ROS PD controller, joints j00..j33 (index, middle, ring, thumb) [PWM
+# counts per rad, per rad/s]: the compiled-in fallback (allegro_node_pd.cpp) and the launched
+# gains_pd.yaml (simlabrobotics/allegro_hand_ros_v4 @b19b18e). The three fingers share one set.
+ROS_FALLBACK_KP = (600.0, 600.0, 600.0, 1000.0) * 3 + (1000.0, 1000.0, 1000.0, 600.0)
+ROS_FALLBACK_KD = (15.0, 20.0, 15.0, 15.0) * 3 + (30.0, 20.0, 20.0, 15.0)
+ROS_LAUNCH_KP = (4000.0,) * 16
+ROS_LAUNCH_KD = (150.0, 200.0, 150.0, 150.0) * 3 + (300.0, 200.0, 200.0, 150.0)
 
 # Palm pose in the world: palm normal (+x) up, fingers (+z) along world +x, palm +y to world -y.
 PALM_POS = (0.0, 0.0, 0.1)  # [m] finger-base line
@@ -77,21 +100,32 @@ _THUMB_MASSES = (0.0176, 0.0119, 0.038, 0.0388)  # [kg] approximate
 _LINK_RADIUS = 0.0115  # [m] collision capsule radius of the proximal and medial links
 
 
+def _per_finger(counts: tuple[float, ...]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """16 PWM-count gains j00..j33 -> (fingers' 4, thumb's 4) in SI (over 1200 counts per N m);
+    the three fingers must share one set."""
+    si = tuple(c / TORQUE_TO_PWM for c in counts)
+    if not si[0:4] == si[4:8] == si[8:12]:
+        raise ConfigError("the Allegro's three fingers share one set of gains")
+    return si[0:4], si[12:16]
+
+
 @dataclass(frozen=True)
 class AllegroPD:
     """Joint PD of the torque-driven hand and the joints' passive dynamics (all 16 joints).
 
     Attributes:
-      kp: stiffness [N m/rad] for joints 0-2 of the fingers and for the distal / thumb joints.
-      kd: damping [N m s/rad], same split.
+      kp: stiffness [N m/rad] of joints 0-3, (fingers (index, middle, ring), thumb).
+      kd: damping [N m s/rad], same layout.
       damping: passive joint viscous damping [N m s/rad] [uncertain].
       frictionloss: passive joint dry friction [N m] [uncertain].
       armature: reflected motor inertia [kg m^2] [uncertain].
       torque_scale: multiplies the firmware torque limits (1 = the v4 driver's PWM clamps).
     """
 
-    kp: tuple[float, float] = (600 / TORQUE_TO_PWM, 1000 / TORQUE_TO_PWM)
-    kd: tuple[float, float] = (15 / TORQUE_TO_PWM, 30 / TORQUE_TO_PWM)
+    kp: tuple[tuple[float, ...], tuple[float, ...]] = (
+        (600 / TORQUE_TO_PWM,) * 3 + (1000 / TORQUE_TO_PWM,), (1000 / TORQUE_TO_PWM,) * 4)
+    kd: tuple[tuple[float, ...], tuple[float, ...]] = (
+        (15 / TORQUE_TO_PWM,) * 3 + (30 / TORQUE_TO_PWM,), (30 / TORQUE_TO_PWM,) * 4)
     damping: float = 0.01
     frictionloss: float = 0.005
     armature: float = 2e-4
@@ -99,18 +133,30 @@ class AllegroPD:
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd"):
-            if len(getattr(self, name)) != 2 or min(getattr(self, name)) < 0:
-                raise ConfigError(f"AllegroPD.{name} must be two values >= 0")
+            value = getattr(self, name)
+            if (len(value) != 2 or any(len(v) != 4 for v in value)
+                    or min(min(v) for v in value) < 0):
+                raise ConfigError(f"AllegroPD.{name} must be two 4-tuples (fingers, thumb) >= 0")
         for name in ("damping", "frictionloss", "armature"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"AllegroPD.{name} must be >= 0")
         if not self.torque_scale > 0:
             raise ConfigError("AllegroPD.torque_scale must be > 0")
 
+    @classmethod
+    def ros_fallback(cls, **kwargs) -> AllegroPD:
+        """The v4 ROS PD controller's compiled-in gains (used when gains_pd.yaml is not loaded)."""
+        return cls(kp=_per_finger(ROS_FALLBACK_KP), kd=_per_finger(ROS_FALLBACK_KD), **kwargs)
+
+    @classmethod
+    def ros_launch(cls, **kwargs) -> AllegroPD:
+        """The gains the v4 ROS package launches its PD controller with (gains_pd.yaml)."""
+        return cls(kp=_per_finger(ROS_LAUNCH_KP), kd=_per_finger(ROS_LAUNCH_KD), **kwargs)
+
     def gains(self, finger: str, joint: int) -> tuple[float, float]:
-        """(kp, kd) of one joint: the "stiff" set for thumb joints and distal joints."""
-        stiff = finger == "thumb" or joint == 3
-        return (self.kp[1], self.kd[1]) if stiff else (self.kp[0], self.kd[0])
+        """(kp, kd) of one joint (0-3) of a finger."""
+        i = 1 if finger == "thumb" else 0
+        return self.kp[i][joint], self.kd[i][joint]
 
 
 @dataclass(frozen=True)
