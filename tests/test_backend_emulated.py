@@ -182,7 +182,7 @@ def test_a_host_stall_mid_episode_stops_the_motors_and_the_episode_resumes_from_
     stop themselves where they are (device side: a watchdog event per finger motor), the next
     step turns torque on from there and its goal reaches the motors; counted in telemetry.
     More than ``MAX_WATCHDOG_STOPS`` stalls in one episode are raised, not hidden."""
-    from lowcostdex.hardware.dynamixel.config import WatchdogTripped
+    from lowcostdex.hardware.bus import WatchdogTripped
 
     env = gym.make(ENV, backend="emulated")
     env.reset(seed=0)

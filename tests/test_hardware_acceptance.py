@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from lowcostdex.hands import dclaw_spec
-from lowcostdex.hardware.dynamixel.config import WatchdogTripped
+from lowcostdex.hardware.bus import WatchdogTripped
 from lowcostdex.hardware.dynamixel.driver import DynamixelBus
 from lowcostdex.hardware.dynamixel.scan import scan
 from lowcostdex.hardware.emulated.chain import emulated_dclaw

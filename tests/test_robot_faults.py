@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from lowcostdex.hands import dclaw_spec
-from lowcostdex.hardware.dynamixel.config import WatchdogTripped
+from lowcostdex.hardware.bus import WatchdogTripped
 from lowcostdex.hardware.emulated.chain import FaultConfig, emulated_dclaw
 from lowcostdex.hardware.robot.backend import make_dynamixel_bus
 from lowcostdex.hardware.robot.guards import CurrentConfig

@@ -29,6 +29,19 @@ class CommandError(LowcostdexError, ValueError):
     """A command was rejected before anything was sent (non-finite goal, wrong length, ...)."""
 
 
+class WatchdogTripped(BusError):
+    """Motors stopped by their bus watchdog (the host was silent too long); they refuse goals
+    until ``set_torque(True, ids)`` re-arms them from their present position. Any bus whose
+    motors stop themselves on a silent host raises it (the Dynamixel Bus Watchdog today), so
+    the Robot's backend resumes after it without knowing the bus."""
+
+    def __init__(self, motor_ids: Sequence[int], silence: float):
+        self.motor_ids = tuple(motor_ids)
+        super().__init__(f"motors {list(self.motor_ids)} were stopped by their bus watchdog after "
+                         f"{silence * 1000:.0f} ms without a packet; call set_torque(True) to "
+                         "resume from where they stopped")
+
+
 class MotorFault(LowcostdexError, RuntimeError):
     """A motor reported a hardware error (overheating, overload, voltage, encoder, shock)."""
 

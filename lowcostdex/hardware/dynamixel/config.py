@@ -3,11 +3,11 @@ it raises."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from lowcostdex.errors import ConfigError, check_choice
 from lowcostdex.hardware.bus import BusError
+from lowcostdex.hardware.bus import WatchdogTripped as WatchdogTripped  # its home is hardware.bus
 from lowcostdex.hardware.dynamixel.control_table import load_control_table
 from lowcostdex.hardware.dynamixel.protocol import status_error_text
 
@@ -39,17 +39,6 @@ class InstructionError(BusError):
 
 class PositionOutOfLimits(BusError):
     """Torque-on refused: the motor sits outside its position limits (moved by hand?)."""
-
-
-class WatchdogTripped(BusError):
-    """Motors stopped by their Bus Watchdog (the host was silent too long); they refuse goals
-    until ``set_torque(True, ids)`` re-arms them from their present position."""
-
-    def __init__(self, motor_ids: Sequence[int], silence: float):
-        self.motor_ids = tuple(motor_ids)
-        super().__init__(f"motors {list(self.motor_ids)} were stopped by their bus watchdog after "
-                         f"{silence * 1000:.0f} ms without a packet; call set_torque(True) to "
-                         "resume from where they stopped")
 
 
 @dataclass(frozen=True)

@@ -76,6 +76,7 @@ from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.hands import HandSpec
+from lowcostdex.hardware import bus as _bus
 from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorFault, MotorState
 from lowcostdex.hardware.dynamixel import transport
 from lowcostdex.hardware.dynamixel.config import (
@@ -85,7 +86,6 @@ from lowcostdex.hardware.dynamixel.config import (
     InstructionError,
     LatencyWarning,
     PositionOutOfLimits,
-    WatchdogTripped,
     WatchdogUnavailableWarning,
 )
 from lowcostdex.hardware.dynamixel.control_table import (
@@ -467,7 +467,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
         self._check_watchdog_gap()
         stopped = self.watchdog_tripped.intersection(ids)
         if stopped:
-            raise WatchdogTripped(sorted(stopped), self._silence)
+            raise _bus.WatchdogTripped(sorted(stopped), self._silence)
         q = np.asarray(positions, dtype=float).reshape(-1)
         if q.shape[0] != len(ids):
             raise CommandError(f"{q.shape[0]} goals for {len(ids)} motors")

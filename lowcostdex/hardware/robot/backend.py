@@ -36,8 +36,7 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.hands import HandSpec, check_model_ranges
-from lowcostdex.hardware.bus import MotorBus
-from lowcostdex.hardware.dynamixel.config import WatchdogTripped
+from lowcostdex.hardware.bus import MotorBus, WatchdogTripped
 from lowcostdex.hardware.robot.reset import ResetConfig, ResetReport
 from lowcostdex.hardware.robot.reset_dclaw import DClawReset
 from lowcostdex.hardware.robot.reset_flip import FlipBlockReset, FlipResetConfig, Reorient

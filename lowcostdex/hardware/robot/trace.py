@@ -21,8 +21,7 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap.logs import Trajectory, write_log
-from lowcostdex.hardware.bus import BusError
-from lowcostdex.hardware.dynamixel.config import WatchdogTripped
+from lowcostdex.hardware.bus import BusError, WatchdogTripped
 from lowcostdex.hardware.robot.robot import Robot
 
 log = logging.getLogger(__name__)
