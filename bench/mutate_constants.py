@@ -69,6 +69,41 @@ def apply(source: str, lit: Literal) -> str:
     return "".join(lines)
 
 
+def measure(root: Path, module: str, tests: list[str], *, rev: str = "HEAD",
+            deselect: list[str] = (), verbose: bool = True
+            ) -> tuple[list[Literal], list[Literal], float]:
+    """Mutate each numeric constant of ``module`` by +1 in a ``git archive`` copy of ``rev`` and
+    run ``tests`` (``-m "not slow" -x``) once per change.
+
+    Returns (all literals, the ones no test noticed, seconds)."""
+    work = Path(tempfile.mkdtemp(prefix="mutate_constants_"))
+    try:
+        archive = subprocess.run(["git", "-C", str(root), "archive", rev], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(work)], input=archive, check=True)
+        target = work / module
+        original = target.read_text()
+        literals = module_literals(original)
+        cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
+               "-m", "not slow", *tests]
+        for test_id in deselect:
+            cmd += ["--deselect", test_id]
+        survivors = []
+        t0 = time.monotonic()
+        for k, lit in enumerate(literals, 1):
+            target.write_text(apply(original, lit))
+            r = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
+            killed = r.returncode != 0
+            if not killed:
+                survivors.append(lit)
+            if verbose:
+                print(f"[{k}/{len(literals)}] {module} line {lit.line} {lit.name}: {lit.value!r}"
+                      f" -> {lit.mutated()}: {'killed' if killed else 'SURVIVED'}", flush=True)
+        return literals, survivors, time.monotonic() - t0
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("module", help="module file to mutate, relative to the repository root")
@@ -82,39 +117,16 @@ def main(argv: list[str] | None = None) -> int:
                 .strip())
     commit = subprocess.check_output(["git", "-C", str(root), "rev-parse", "--short", args.rev],
                                      text=True).strip()
-    work = Path(tempfile.mkdtemp(prefix="mutate_constants_"))
-    try:
-        archive = subprocess.run(["git", "-C", str(root), "archive", commit], check=True,
-                                 capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(work)], input=archive, check=True)
-        target = work / args.module
-        original = target.read_text()
-        literals = module_literals(original)
-        cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
-               "-m", "not slow", *args.tests]
-        for test_id in args.deselect:
-            cmd += ["--deselect", test_id]
-        survivors = []
-        t0 = time.monotonic()
-        for k, lit in enumerate(literals, 1):
-            target.write_text(apply(original, lit))
-            r = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
-            killed = r.returncode != 0
-            if not killed:
-                survivors.append(lit)
-            print(f"[{k}/{len(literals)}] line {lit.line} {lit.name}: {lit.value!r} -> "
-                  f"{lit.mutated()}: {'killed' if killed else 'SURVIVED'}", flush=True)
-        target.write_text(original)
-        n = len(literals)
-        print(f"\n{args.module} @ {commit}: {n - len(survivors)}/{n} constant mutants killed "
-              f"({100 * (n - len(survivors)) / max(n, 1):.1f} %), {time.monotonic() - t0:.0f} s")
-        if args.markdown and survivors:
-            print("| line | constant | +1 |\n|---|---|---|")
-            for lit in survivors:
-                print(f"| {lit.line} | `{lit.name}` | {lit.value!r} -> {lit.mutated()} |")
-        return 0
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+    literals, survivors, seconds = measure(root, args.module, args.tests, rev=commit,
+                                           deselect=args.deselect)
+    n = len(literals)
+    print(f"\n{args.module} @ {commit}: {n - len(survivors)}/{n} constant mutants killed "
+          f"({100 * (n - len(survivors)) / max(n, 1):.1f} %), {seconds:.0f} s")
+    if args.markdown and survivors:
+        print("| line | constant | +1 |\n|---|---|---|")
+        for lit in survivors:
+            print(f"| {lit.line} | `{lit.name}` | {lit.value!r} -> {lit.mutated()} |")
+    return 0
 
 
 if __name__ == "__main__":

@@ -48,3 +48,26 @@ def test_a_driver_importing_the_robot_breaks_the_hardware_layers(tmp_path):
     assert res.returncode != 0
     assert "Hardware folders are one-way" in res.stdout and "BROKEN" in res.stdout
     assert "lowcostdex.hardware.dynamixel.driver -> lowcostdex.hardware.robot.safety" in res.stdout
+
+
+def _project_importorskips(source: str) -> list[str]:
+    """Modules of this project that a test file imports with ``pytest.importorskip``."""
+    import ast
+
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                and node.func.attr == "importorskip" and node.args
+                and isinstance(node.args[0], ast.Constant)
+                and str(node.args[0].value).split(".")[0] == "lowcostdex"):
+            out.append(node.args[0].value)
+    return out
+
+
+def test_no_test_skips_when_the_projects_own_module_fails_to_import():
+    # issue 19: importorskip on a lowcostdex module turns an import error into a green skip
+    assert _project_importorskips('m = pytest.importorskip("lowcostdex.algos.ppo")\n'
+                                  'c = pytest.importorskip("can")\n') == ["lowcostdex.algos.ppo"]
+    tests = Path(__file__).resolve().parent
+    found = {p.name: _project_importorskips(p.read_text()) for p in sorted(tests.glob("*.py"))}
+    assert {k: v for k, v in found.items() if v} == {}

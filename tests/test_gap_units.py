@@ -475,7 +475,7 @@ def test_block_intervals_cover_a_slope_that_varies_between_blocks():
 
 def test_interval_formula_matches_mujoco_sysid(rng):
     # The dev extra installs mujoco[sysid]; without its dependencies the module imports empty.
-    sysid = pytest.importorskip("mujoco.sysid")
+    sysid = pytest.importorskip("mujoco.sysid", reason="mujoco.sysid is not installed (the dev extra installs mujoco[sysid])")
     if not hasattr(sysid, "calculate_intervals"):
         pytest.skip("mujoco.sysid without its extra (pip install 'mujoco[sysid]')")
     jac = rng.normal(size=(300, 3))

@@ -82,7 +82,7 @@ def test_worker_errors_surface_with_their_traceback():
 
 @pytest.mark.slow  # starting Ray takes ~30 s on 2 cores
 def test_ray_sampler_matches_serial():
-    pytest.importorskip("ray")
+    pytest.importorskip("ray", reason="ray (the 'ray' extra) is not installed")
     import ray
 
     snap = _snapshot(2)
