@@ -269,9 +269,8 @@ def check_signals(traj: Trajectory) -> None:
         if joint in ids:
             _check_pinned(traj, j, traj.goal[:, ids[joint]], on)
     for j, joint in enumerate(traj.joints):
-        q = traj.qpos[:, j]
         if joint in ids:
-            _check_frozen(traj, q, traj.goal[:, ids[joint]], on, joint)
+            _check_frozen(traj, j)
     if "current" in traj.channels:
         for k, col in enumerate(traj.channels["current"].T):
             _check_saturated(name, f"current:{traj.actuators[k]}", col[on])
@@ -292,9 +291,18 @@ def check_signals(traj: Trajectory) -> None:
                        f"[rad] {moved}; some joint must move at least {MIN_MOTION} rad")
 
 
-def _check_frozen(traj: Trajectory, q: np.ndarray, goal: np.ndarray, on: np.ndarray,
-                  joint: str) -> None:
-    t = traj.time
+def frozen_crossing(traj: Trajectory, j: int) -> tuple[float, int, int]:
+    """The frozen-encoder check's statistic for joint ``j`` (``traj.joints`` order; its actuator
+    must be logged): over every stretch of at least 5 samples with torque on where the reading
+    repeats exactly, how far the acting goal passes the reading on *both* sides, the smaller of
+    the two [rad] (less the log's usual goal - reading offset), and the worst stretch's rows
+    [a, b). ``check_signals`` refuses a log where it exceeds FROZEN_CROSS; -inf, 0, 0 without
+    such a stretch."""
+    t, q = traj.time, traj.qpos[:, j]
+    goal = traj.goal[:, traj.actuators.index(traj.joints[j])]
+    on = np.ones(len(traj), bool)
+    if "torque_enable" in traj.channels:
+        on = np.all(traj.channels["torque_enable"] > 0.5, axis=1)
     moving = np.flatnonzero(np.diff(q) != 0)
     change = np.union1d(moving, find_gaps(t)) + 1
     starts = np.concatenate([[0], change])
@@ -304,18 +312,27 @@ def _check_frozen(traj: Trajectory, q: np.ndarray, goal: np.ndarray, on: np.ndar
     # the reading moves (a dwell at a turning point is not a stuck read)
     live = moving[on[moving]]
     bias = float(np.median(goal[live] - q[live])) if len(live) else 0.0
+    worst = (-math.inf, 0, 0)
     for a, b in zip(starts, stops, strict=True):
         if b - a < 5 or not on[a:b].all():
             continue
-        acting = goal[max(a - 1, 0):b - 1]  # a row's goal is written after it was read
-        err = acting - q[a] - bias
-        seconds = t[b - 1] - t[a]
-        if min(float(err.max()), float(-err.min())) > FROZEN_CROSS:
-            raise LogError(
-                f"{traj.name}: column 'qpos:{joint}' is frozen at {q[a]:.6g} rad for "
-                f"{seconds:.3g} s (from {t[a]:.6g} s) while 'goal:{joint}' moves over "
-                f"[{acting.min():.3g}, {acting.max():.3g}] rad with torque on: the encoder "
-                "or its read is stuck (or the joint is blocked); nothing can be identified there")
+        err = goal[max(a - 1, 0):b - 1] - q[a] - bias  # a row's goal is written after its read
+        crossing = min(float(err.max()), float(-err.min()))
+        if crossing > worst[0]:
+            worst = (crossing, int(a), int(b))
+    return worst
+
+
+def _check_frozen(traj: Trajectory, j: int) -> None:
+    crossing, a, b = frozen_crossing(traj, j)
+    if crossing > FROZEN_CROSS:
+        t, q, joint = traj.time, traj.qpos[:, j], traj.joints[j]
+        acting = traj.goal[max(a - 1, 0):b - 1, traj.actuators.index(joint)]
+        raise LogError(
+            f"{traj.name}: column 'qpos:{joint}' is frozen at {q[a]:.6g} rad for "
+            f"{t[b - 1] - t[a]:.3g} s (from {t[a]:.6g} s) while 'goal:{joint}' moves over "
+            f"[{acting.min():.3g}, {acting.max():.3g}] rad with torque on: the encoder "
+            "or its read is stuck (or the joint is blocked); nothing can be identified there")
 
 
 def _check_saturated(name: str, key: str, col: np.ndarray) -> None:
