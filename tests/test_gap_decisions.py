@@ -500,3 +500,30 @@ def test_backward_pass_keeps_a_small_real_effect_and_orders_by_importance(root):
                                 fit_fn, dropped)
     assert dropped == ["viscous_damping"] and kept.effects == ("position_offset",)
     assert kept_x[0] == pytest.approx(-0.05, abs=1e-3)
+
+
+def test_a_second_round_fit_on_its_bound_is_widened_and_progress_never_goes_back(root):
+    # reading offset 0.15 rad (inside the +-0.2 rad range: taken in round 1) and the servo's kp
+    # x5, beyond gain_error's usual range [0.2, 4]: its round-2 fit stops at 4 and is refitted
+    # in the wider range up to the hard limit 20; both hidden values are recovered
+    case = ts.make_case("bench", ["position_offset", "gain_error"], 301, duration=3.0,
+                        values={"position_offset": 0.15, "gain_error": 5.0})
+    model, paths = case.write(root / "offset+gain5x-3s")
+    ds = load_dataset(paths, model=model)
+    progress = []
+    res = analyze(ds, GapConfig(seed=0, candidates=("position_offset", "gain_error"),
+                                max_effects=2, joint_k=0, search="forward", interval_step=0),
+                  progress=lambda stage, f: progress.append((stage, f)))
+    named = {c.effect: c.params for c in res.causes}
+    assert list(named) == ["position_offset", "gain_error"]
+    assert named["position_offset"]["offset"]["value"][0] == pytest.approx(0.15, abs=1e-3)
+    assert named["gain_error"]["scale"]["value"][0] == pytest.approx(5.0, rel=0.01)
+    note = "scale[shoulder] reached its upper search bound 4: range widened"
+    assert [c.effect for c in res.rounds[1]] == ["gain_error"]
+    assert any(line.startswith(note) for line in res.rounds[1][0].widened)
+    # a progress bar never goes back: the second round's widening is reported after its fits
+    stages = [stage for stage, _ in progress]
+    assert "round 2: gain_error on a bound, refit in a wider range" in stages
+    fractions = [f for _, f in progress]
+    assert np.all(np.diff(fractions) >= 0), progress
+    assert fractions[-1] == 1.0
