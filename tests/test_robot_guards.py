@@ -232,3 +232,39 @@ def test_config_errors_name_the_field_and_small_positive_values_pass():
         CurrentConfig(fraction=2.0)
     with pytest.raises(ConfigError, match="window, relax_steps >= 1"):
         CurrentConfig(window=0)
+
+
+def test_stuck_rise_must_exceed_one_whole_degree():
+    """Readings are whole degrees: a flat reading can hide up to 1 K of real rise, so the
+    model's rise that calls a sensor stuck must be above 1 K (ThermalConfig's docstring)."""
+    ThermalConfig(stuck_rise=1.01)
+    ThermalConfig(stuck_rise=1.5)
+    for bad in (1.0, 0.5, 0.0):
+        with pytest.raises(ConfigError):
+            ThermalConfig(stuck_rise=bad)
+
+
+def test_config_errors_read_in_full():
+    """The whole message a user reads, the field names in their own case (the tests above match
+    a fragment, so a message wrapped in XX...XX or lower-cased passed them)."""
+    cases = [
+        (dict(pause_mode="freeze"),
+         "unknown thermal pause mode 'freeze'; valid choices: 'torque_off', 'hold'"),
+        (dict(stuck_rise=1.0),
+         "ThermalConfig.stuck_rise must be > 1 K (readings are whole degrees), got 1.0"),
+        (dict(warn_margin=40.0), "ThermalConfig: need resume_margin > warn_margin > "
+                                 "critical_margin >= 0, got 30.0, 40.0, 7.0"),
+        (dict(poll_interval=0.0), "ThermalConfig: poll_interval and max_pause must be > 0"),
+    ]
+    for kwargs, message in cases:
+        with pytest.raises(ConfigError) as err:
+            ThermalConfig(**kwargs)
+        assert str(err.value) == message
+    for kwargs, message in [
+        (dict(limit=0.0), "CurrentConfig.limit must be > 0"),
+        (dict(fraction=0.0), "CurrentConfig.fraction must be in (0, 1]"),
+        (dict(relaxed_step=0.0), "CurrentConfig: window, relax_steps >= 1 and relaxed_step > 0"),
+    ]:
+        with pytest.raises(ConfigError) as err:
+            CurrentConfig(**kwargs)
+        assert str(err.value) == message
