@@ -365,15 +365,26 @@ class VirtualTeacher:
         self.goal: dict | None = None
         self.target: np.ndarray | None = None
         self._next_plan = -math.inf
+        self._start_time = 0.0
+        # control period [s]: a moving goal (the screw's) advances once per period, as in the env
+        self._period = task.timing.frame_skip * task.model.opt.timestep
         chain.add_step_hook(self._hook)
 
     def start(self, goal: dict) -> None:
-        """Begin demonstrating toward ``goal`` (the episode's task goal)."""
+        """Begin demonstrating toward ``goal`` (the episode's task goal at step 0; a moving goal
+        advances with ``task.advance_goal`` once per control period from now)."""
         if hasattr(self.solver, "reset"):
             self.solver.reset(self.task)
         self.goal = {k: np.asarray(v, float) for k, v in goal.items()}
         self.target = None
         self._next_plan = -math.inf
+        self._start_time = self.chain.physics_time
+
+    def goal_at(self, t: float) -> dict:
+        """The task goal at physics time ``t`` [s]: the start goal advanced by the whole control
+        periods elapsed since ``start``."""
+        step = max(0, math.floor((t - self._start_time) / self._period + 1e-9))
+        return self.task.advance_goal(self.goal, step)
 
     def stop(self) -> None:
         """Let go of the fingers."""
@@ -386,7 +397,7 @@ class VirtualTeacher:
         d = chain.plant.data
         t = chain.physics_time
         if t >= self._next_plan - 1e-12:
-            target = np.asarray(self.solver(d.qpos.copy(), self.goal), float)
+            target = np.asarray(self.solver(d.qpos.copy(), self.goal_at(t)), float)
             if self.config.target_noise > 0:
                 target = target + self.config.target_noise * self.rng.normal(size=target.shape)
             if self.config.motion_bound:
