@@ -8,6 +8,13 @@ those are silent), refuses when more than one motor answers or when the motor al
 another of the hand's ids, writes ID (7) then Baud Rate (8) with torque off, verifies both at the
 new baud rate and ends with a scan of the whole hand.
 
+Every transaction is retried when its reply is missing, garbled or mixed with another: after a
+failure the next request waits ``settle_ms`` so a late reply arrives and is flushed (the SDK's
+``clearPort``) instead of being taken for the next reply, and a read-back that disagrees is read
+again (a late reply disagrees once, a motor that really holds another value every time). On the
+emulated pty at load 10 on 2 cores, without these, 3 runs of 3 failed (a timed-out torque-off
+write; "Baud Rate reads 22": the late reply of the ID read taken for the baud read).
+
 The wire work runs on the unmodified ``dynamixel_sdk`` (a ``transport.DxlPort``), so it is the
 same against a U2D2, the emulator on a pty or the in-process emulator.
 """
@@ -24,7 +31,7 @@ from lowcostdex.hands import HandSpec, JointSpec
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.dynamixel import transport
 from lowcostdex.hardware.dynamixel.control_table import Reg, load_control_table, model_name
-from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES, baud_code
+from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES, HEADER, baud_code
 
 FACTORY_ID = 1  # e-Manual ID(7) initial value
 FACTORY_BAUD = 57_600  # e-Manual Baud Rate(8) initial value 1
@@ -66,15 +73,36 @@ class MotorSetup:
     Args:
       port: device path or a ``transport.DxlPort`` (e.g. ``EmulatedChain.port()``).
       latency_ms: USB latency timer the SDK timeouts assume [ms] (16 = the Linux default).
-      retries: extra attempts of a verifying read that got no reply.
+      retries: extra attempts of a transaction that failed (no reply, garbled, or a read-back
+        that disagrees).
+      settle_ms: wait before the next transaction after a failed one [ms].
     """
 
     def __init__(self, port: str | transport.DxlPort, latency_ms: float = 16.0,
-                 retries: int = 2):
+                 retries: int = 3, settle_ms: float = 50.0):
         self.port = transport.DxlPort(port, latency_ms) if isinstance(port, str) else port
         self.ph = PacketHandler(2.0)
         self.retries = retries
+        self.settle_ms = settle_ms
         self._baud: int | None = None
+        self._dirty = False
+
+    def _begin(self) -> None:
+        """Before a transaction: after a failed one, let late replies arrive (the SDK flushes
+        them when it sends)."""
+        if self._dirty:
+            self.port.sleep(self.settle_ms / 1000.0)
+            self._dirty = False
+        self.port.is_using = False
+        self.port.rx_trace.clear()
+
+    def _end(self, ok: bool, expected_headers: int = 1) -> bool:
+        """After a transaction: clean if it succeeded, consumed exactly the status packets it
+        asked for and left nothing waiting; else the next one settles first."""
+        clean = (ok and self.port.rx_trace.count(HEADER) == expected_headers
+                 and self.port.getBytesAvailable() == 0)
+        self._dirty = self._dirty or not clean
+        return clean
 
     def open(self, baudrate: int) -> None:
         if not self.port.is_open:
@@ -87,9 +115,13 @@ class MotorSetup:
                 raise BusError(f"cannot open {self.port.getPortName()} at {baudrate} bps")
             self._baud = baudrate
         if self._baud != baudrate:
+            # every byte sent at the old rate leaves first (tcdrain; on a pty: until the
+            # emulator has read it, or it would hear the packet at the new rate)
+            self.port.ser.flush()
             if not self.port.setBaudRate(baudrate):
                 raise BusError(f"{self.port.getPortName()}: cannot set {baudrate} bps")
             self._baud = baudrate
+            self._dirty = True  # bytes of the old rate may still be on their way
 
     def close(self) -> None:
         if self.port.is_open:
@@ -98,9 +130,10 @@ class MotorSetup:
         self._baud = None
 
     def _ping(self, motor_id: int) -> tuple[int | None, int]:
-        self.port.is_using = False
+        self._begin()
         model, result, _ = self.ph.ping(self.port, motor_id)
-        return (model if result == COMM_SUCCESS else None), result
+        ok = self._end(result == COMM_SUCCESS)
+        return (model if ok else None), result
 
     def find(self, ids: Sequence[int], bauds: Sequence[int]) -> Found | None:
         """The lone motor on the bus, or None if nothing answers at any rate.
@@ -128,8 +161,9 @@ class MotorSetup:
         return None
 
     def _broadcast(self) -> dict[int, int]:
-        self.port.is_using = False
+        self._begin()
         found, _ = self.ph.broadcastPing(self.port)
+        self._dirty = True  # it waits out every id's slot; stragglers are flushed next time
         return {i: v[0] for i, v in sorted(found.items())}
 
     def _alone(self, motor: Found, found: dict[int, int] | None = None) -> Found:
@@ -142,7 +176,22 @@ class MotorSetup:
         return motor
 
     def assign(self, motor: Found, motor_id: int, baudrate: int) -> None:
-        """Torque off, write ID then Baud Rate (EEPROM), verify both at ``baudrate``."""
+        """Torque off, write ID then Baud Rate (EEPROM), verify both at ``baudrate``; when the
+        verification fails, find the motor again (at its old or new id and rate: a write may
+        not have landed) and repeat, up to ``retries`` times."""
+        for attempt in range(self.retries + 1):
+            try:
+                self._assign_once(motor, motor_id, baudrate)
+                return
+            except SetupError:
+                if attempt == self.retries:
+                    raise
+                again = self.find((motor_id, motor.motor_id), (motor.baudrate, baudrate))
+                if again is None or again.model_number != motor.model_number:
+                    raise
+                motor = again
+
+    def _assign_once(self, motor: Found, motor_id: int, baudrate: int) -> None:
         table = load_control_table(motor.model_number)
         self.open(motor.baudrate)
         self._write(motor.motor_id, table.address(Reg.TORQUE_ENABLE), 0, "torque off")
@@ -170,27 +219,39 @@ class MotorSetup:
             raise SetupError(f"after writing, no {model_name(model_number)} answers as id "
                              f"{motor_id} at {baudrate} bps; check the cable and run again")
         for reg, want in ((Reg.ID, motor_id), (Reg.BAUD_RATE, baud_code(baudrate))):
+            read = None
             for _ in range(self.retries + 1):
-                self.port.is_using = False
+                self._begin()
                 value, result, err = self.ph.read1ByteTxRx(self.port, motor_id,
                                                            table.address(reg))
-                if result == COMM_SUCCESS:
-                    break
-            if result != COMM_SUCCESS:
+                if self._end(result == COMM_SUCCESS):
+                    read = (value, err)
+                    if value == want and not err & 0x7F:
+                        break
+                    self._dirty = True  # perhaps a late reply: read again
+            if read is None:
                 raise SetupError(f"motor {motor_id}: reading {reg.value} failed "
                                  f"({self.ph.getTxRxResult(result)}); check the cable")
+            value, err = read
             if err & 0x7F or value != want:
                 raise SetupError(f"motor {motor_id}: {reg.value} reads {value}, expected {want}")
 
     def _write(self, motor_id: int, address: int, value: int, what: str,
                reply_optional: bool = False) -> None:
-        self.port.is_using = False
-        result, err = self.ph.write1ByteTxRx(self.port, motor_id, address, value)
-        if reply_optional and result == COMM_RX_TIMEOUT:
-            return
-        if result != COMM_SUCCESS or err & 0x7F:
-            raise SetupError(f"motor {motor_id}: {what} failed "
-                             f"({self.ph.getTxRxResult(result)}, error {err:#04x})")
+        """One register write; retried without a clean reply unless ``reply_optional`` (an ID
+        or Baud Rate write, whose reply may come from the new id or rate: written once)."""
+        for _ in range(1 if reply_optional else self.retries + 1):
+            self._begin()
+            result, err = self.ph.write1ByteTxRx(self.port, motor_id, address, value)
+            clean = self._end(result == COMM_SUCCESS)
+            if reply_optional and result == COMM_RX_TIMEOUT:
+                return
+            if result == COMM_SUCCESS and err & 0x7F:
+                break  # the motor refused: no retry changes that
+            if clean:
+                return
+        raise SetupError(f"motor {motor_id}: {what} failed "
+                         f"({self.ph.getTxRxResult(result)}, error {err:#04x})")
 
 
 def setup_motors(port: str | transport.DxlPort, hand: HandSpec, *, baudrate: int = 1_000_000,
