@@ -44,10 +44,9 @@ launch file's default controller, ``grasp``, is libBHand's, gains not published)
 and kd 15 / 30 (0.5 / 0.83 N m/rad, 0.0125 / 0.025 N m s/rad; the second set on the distal and
 thumb joints), so they differ from it on thumb_3's kp (1000, not 600) and on kd of joint 1 of
 index/middle/ring (15, not 20), of the four distal joints (30, not 15) and of thumb joints 1-2
-(30, not 20). The valve teacher was
-tuned on them: with the exact fallback its fixed-valve first success moves from step 65 to 85
-and the random valve from 12/12 to 11/12 seeds (0-5); with the launch gains (4-6.7x stiffer)
-to step 96 and 11/12 (measured 2026-11-26).
+(30, not 20). The valve teacher was tuned on them: with the exact fallback its fixed-valve first
+success moves from step 65 to 85 and the random valve succeeds in 5 of seeds 0-5 instead of 6;
+with the launch gains (4-6.7x stiffer) step 96 and 5 of 6 (bench/RESULTS.md, 2026-11-26).
 Joint damping, dry friction and reflected motor inertia are not published: ``AllegroPD`` carries
 plausible values [uncertain].
 
