@@ -86,6 +86,9 @@ def test_a_motor_with_other_gains_is_named_and_can_be_set_at_connect():
         bus.disconnect()
 
 
+# ROBOTIS e-Manual, _includes/en/dxl/control_table_buswatchdog.md (ROBOTIS-GIT/emanual): "NOTE:
+# Bus Watchdog (98) is available from firmware v38." (every X page but XL330's); "1 ~ 127 Activate
+# Bus Watchdog (Unit: 20 [msec])": 100 ms is the register value 5.
 @pytest.mark.parametrize("firmware, armed", [(37, False), (38, True)])
 def test_bus_watchdog_is_written_only_to_firmware_38_or_newer(firmware, armed):
     chain = emulated_dclaw(rng=np.random.default_rng(0),
