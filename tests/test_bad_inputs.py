@@ -291,6 +291,12 @@ CASES: list[Case] = [
     bam_case("BAM: an empty file", "", "empty file"),
     bam_case("BAM: a binary file", bytes(range(256)) * 64, "binary data, not text"),
     bam_case("BAM: truncated JSON", json.dumps(bam_log())[:5000], "not a readable BAM JSON log"),
+    # layout of Rhoban/bam data/pwm_mx64.json@c50ae40 (PWM duty measurements, not a time series)
+    bam_case("BAM: another JSON in the logs' folder",
+             json.dumps({"pwm_period": 42.6, "samples": [{"target": 157.24, "position": 165.2,
+                         "voltage": 15.0, "period": 4.5, "kp": 5}]}),
+             "not a BAM raw log (its keys: pwm_period, samples); a BAM raw log is an object with "
+             "mass, length, kp, vin, motor, entries"),
     bam_case("BAM: a list, not an object", json.dumps([bam_log()]), "must be a JSON object, got list"),
     bam_case("BAM: mass with its unit", json.dumps(bam_log(mass="0.49 kg")),
              "'mass': \"0.49 kg\" is not a number"),

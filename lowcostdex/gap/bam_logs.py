@@ -117,6 +117,10 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
     if not isinstance(raw, dict):
         raise LogError(f"{path}: BAM log must be a JSON object, got {type(raw).__name__}")
     missing = [k for k in _BAM_HEADER if k not in raw]
+    if len(missing) == len(_BAM_HEADER):  # another JSON file, e.g. a settings or results file
+        keys = ", ".join(sorted(map(str, raw))[:8]) or "none"
+        raise LogError(f"{path}: not a BAM raw log (its keys: {keys}); a BAM raw log is an "
+                       f"object with {', '.join(_BAM_HEADER)} (Rhoban/bam's acquisition format)")
     if missing:
         raise LogError(f"{path}: BAM log lacks fields {missing}; need {list(_BAM_HEADER)}")
     if not isinstance(raw["motor"], str):
