@@ -78,8 +78,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return USER_ERROR
     prog = command_prog(parser, args)
     debug = getattr(args, "debug", False)
+    from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
+
     try:
-        return int(args.func(args) or 0)
+        with collect_mujoco_warnings() as warned:  # counted, not printed/MUJOCO_LOG.TXT
+            code = int(args.func(args) or 0)
+        if warned.total:
+            print(f"{prog}: note: {warned.summary()}", file=sys.stderr)
+        return code
     except LowcostdexError as exc:
         return _report(prog, str(exc), debug, USER_ERROR)
     except (FileNotFoundError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:

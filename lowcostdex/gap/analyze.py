@@ -54,6 +54,7 @@ from lowcostdex.gap.results import (
 )
 from lowcostdex.gap.selection import fit_batches, mse_by_episode, select_gain_ci, select_results
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
+from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
 __all__ = [
     "UNEXPLAINED", "CandidateResult", "Cause", "GapConfig", "GapResult", "analyze",
@@ -118,10 +119,16 @@ def analyze(ds: Dataset, config: GapConfig | None = None, progress: Progress | N
                         "model='model.xml'))")
     if config is not None and not isinstance(config, GapConfig):
         raise TypeError(f"config must be a GapConfig, not {type(config).__name__}")
+    with collect_mujoco_warnings() as warned:  # counted for the report, not printed
+        result = _analyze(ds, config if config is not None else GapConfig(),
+                          progress or (lambda s, f: None))
+    result.mujoco_warnings = warned.as_dict()
+    return result
+
+
+def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     t_start = time.perf_counter()
     timing: dict[str, float] = {}
-    cfg = config if config is not None else GapConfig()
-    prog = progress or (lambda s, f: None)
     rng = np.random.default_rng(cfg.seed)
     eps = episodes(ds, cfg.chunk)
     split = split_episodes(ds, eps, rng, cfg.test_logs)

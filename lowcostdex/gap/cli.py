@@ -99,6 +99,11 @@ def _analyze(args: argparse.Namespace) -> int:
         result = analyze(ds, cfg, progress)
     out = write_report(result, args.out)
     print(summary(result))
+    if result.mujoco_warnings:
+        kinds = list(result.mujoco_warnings.items())
+        print(f"MuJoCo warned {sum(n for _, n in kinds):,} times while simulating candidate "
+              f"models (counted, not printed; in report.md): '{kinds[0][0]}' x{kinds[0][1]:,}"
+              + (f" and {len(kinds) - 1} other kinds" if len(kinds) > 1 else ""))
     print(f"report: {out / 'report.md'} (json: {out / 'report.json'}; extended model: "
           f"{out / 'extended'})")
     return 0

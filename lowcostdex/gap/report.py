@@ -167,6 +167,10 @@ def markdown(result: GapResult) -> str:
             "intervals.", ""]
     t = r.timing
     out.append("Timing: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()) + ".")
+    if r.mujoco_warnings:
+        out += ["", "MuJoCo warnings while simulating the nominal and candidate models (counted "
+                "here instead of printed): " + "; ".join(f"'{k}' x{n:,}" for k, n in
+                                                 r.mujoco_warnings.items()) + "."]
     return "\n".join(out) + "\n"
 
 

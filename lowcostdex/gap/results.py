@@ -165,6 +165,7 @@ class GapResult:
     traces: list[dict]  # test episodes: time, goal, measured, baseline, extended (for plots)
     models: dict[str, str]
     stop_reason: str = ""
+    mujoco_warnings: dict[str, int] = field(default_factory=dict)  # kind -> count
 
     def to_dict(self) -> dict:
         fl = self.floor
@@ -188,6 +189,7 @@ class GapResult:
             "config": {k: (list(v) if isinstance(v, tuple) else v)
                        for k, v in asdict(self.config).items()},
             "timing_s": self.timing,
+            "mujoco_warnings": self.mujoco_warnings,
         }
 
 
