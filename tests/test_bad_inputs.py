@@ -512,6 +512,15 @@ def test_scan_on_a_missing_port_is_one_line_for_a_user():
     assert "plug in the USB adapter" in run.stderr and "--port emulated" in run.stderr
 
 
+def _as_at_a_terminal() -> None:
+    """SIGINT back to its default in the child, as a shell gives a command run at a terminal: a
+    background job (`pytest ... &`) inherits SIGINT ignored, and Python then never raises
+    KeyboardInterrupt, so the signal would test nothing."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_during_an_analysis_leaves_no_output_and_the_logs_as_they_were(tmp_path):
     """A real SIGINT to a running `gap analyze` (as a user's Ctrl-C): exit 130, one line, no
     traceback, no report or temporary folder left, the inputs byte for byte."""
@@ -523,7 +532,7 @@ def test_ctrl_c_during_an_analysis_leaves_no_output_and_the_logs_as_they_were(tm
     proc = subprocess.Popen(
         [sys.executable, "-m", "lowcostdex.cli", "gap", "analyze", "--model", "bench.xml", "--log",
          "log.csv", "--out", "report"], cwd=tmp_path, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True)
+        stderr=subprocess.PIPE, text=True, preexec_fn=_as_at_a_terminal)
     first = proc.stderr.readline()  # the progress line: the analysis is under way
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=120)

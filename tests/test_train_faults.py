@@ -313,7 +313,9 @@ def test_ctrl_c_in_a_real_process_exits_130_with_the_resume_command(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, str(tmp_path / "cli.py"), "train", "npg", "--env", ENV, "--out",
          str(out), *TINY, "--n-iter", "50"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True)
+        text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as at a
+    # terminal: a background job (`pytest ... &`) passes SIGINT on ignored, and Python then
+    # never raises KeyboardInterrupt
     latest = out / "checkpoints" / "latest.json"
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None and not latest.exists():
