@@ -24,10 +24,12 @@ from __future__ import annotations
 import math
 from importlib import resources
 
+import numpy as np
 import pytest
 
 from lowcostdex.hardware.dynamixel.control_table import Reg, factory_defaults, load_control_table
-from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES
+from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES, ErrorNumber
+from lowcostdex.hardware.emulated.chain import emulated_bench
 from lowcostdex.sim.servo import MOTORS
 
 RPM = 2 * math.pi / 60  # rad/s per rev/min
@@ -211,6 +213,39 @@ def test_units_and_factory_defaults_match_the_vendor(model):
     # 0.0239691227 rad/s = 0.22889 rpm: the SDK's value and 0.229 agree to 0.05 %
     assert motor.velocity_unit == pytest.approx(sdk_velocity, rel=1e-3)
     assert int(sdk["type info"]["value_of_zero_radian_position"][1]) == table.zero_tick == 2048
+
+
+# Range column of the XL330 pages' EEPROM rows, where it differs from the X430 pages'
+# (docs/en/dxl/x/xl330-m288.md @028a13d, xl330-m077.md @01ba971; the Baud Rate include
+# _includes/en/dxl/control_table_baudrate_2.md lists 0-6 for product group xl330 and 0-7, 7 =
+# 4.5M, for the others): Baud Rate(8) 0 ~ 6, Drive Mode(10) 0 ~ 5, Max/Min Voltage Limit(32/34)
+# 31 ~ 70, Velocity Limit(44) 0 ~ 2,047. X430 pages (xh430-w350.md): Baud Rate 0 ~ 7, Velocity
+# Limit 0 ~ 1,023.
+XL330_RANGES = {Reg.BAUD_RATE: (0, 6), Reg.DRIVE_MODE: (0, 5), Reg.MAX_VOLTAGE_LIMIT: (31, 70),
+                Reg.MIN_VOLTAGE_LIMIT: (31, 70), Reg.VELOCITY_LIMIT: (0, 2047)}
+X430_RANGES = {Reg.BAUD_RATE: (0, 7), Reg.VELOCITY_LIMIT: (0, 1023)}
+
+
+@pytest.mark.parametrize("model, ranges", [("XL330-M288", XL330_RANGES),
+                                           ("XL330-M077", XL330_RANGES),
+                                           ("XH430-W350", X430_RANGES)])
+def test_the_emulated_motor_accepts_the_e_manuals_ranges_and_refuses_beyond(model, ranges):
+    """Device side: the emulated firmware takes each range's ends and answers a Data Range Error
+    one past them (an XL330-M077 written its own factory Velocity Limit 1,620 must accept it;
+    an XL330 has no 4.5 Mbps)."""
+    chain = emulated_bench(model, rng=np.random.default_rng(0))
+    fw = chain.motors[1]
+    state = chain.drive.state()
+    for reg, (lo, hi) in ranges.items():
+        size = fw.table[reg].size
+        for value, error in ((lo, 0), (hi, 0), (hi + 1, ErrorNumber.DATA_RANGE)):
+            assert fw.write(fw.table.address(reg), value.to_bytes(size, "little"), state) == error, \
+                (reg, value)
+        if lo > 0:
+            assert fw.write(fw.table.address(reg), (lo - 1).to_bytes(size, "little"), state) == \
+                ErrorNumber.DATA_RANGE
+        assert fw.write(fw.table.address(reg), factory_defaults(model)[reg].to_bytes(size, "little"),
+                        state) == 0  # its own factory value
 
 
 # -- MX with Protocol 1.0 firmware (BAM's MX benches) ---------------------------------------------

@@ -294,6 +294,8 @@ def value_range(reg: Reg, values: Mapping[Reg, int], model: str) -> tuple[int, i
 
     Goal Position is not here: its bounds depend on the operating mode (firmware checks them).
     """
+    if reg in _MODEL_RANGES.get(model, {}):
+        return _MODEL_RANGES[model][reg]
     if reg in _FIXED_RANGES:
         return _FIXED_RANGES[reg]
     if reg in _GAINS:
@@ -326,6 +328,13 @@ _FIXED_RANGES: dict[Reg, tuple[int, int]] = {
     Reg.STATUS_RETURN_LEVEL: (0, 2), Reg.BUS_WATCHDOG: (0, 127),
     Reg.PROFILE_ACCELERATION: (0, 32767), Reg.PROFILE_VELOCITY: (0, 32767),
 }
+# Where a model's Range column differs from the X430 pages' (tests/test_vendor_units.py types them):
+# the XL330 pages have no 4.5 Mbps (Baud Rate 0 ~ 6), Drive Mode 0 ~ 5, a 3.1-7.0 V supply window
+# and a Velocity Limit up to 2,047 (the M077's factory value, 1,620, is above the X430's 1,023).
+_XL330_RANGES = {Reg.BAUD_RATE: (0, 6), Reg.DRIVE_MODE: (0, 5), Reg.MAX_VOLTAGE_LIMIT: (31, 70),
+                 Reg.MIN_VOLTAGE_LIMIT: (31, 70), Reg.VELOCITY_LIMIT: (0, 2047)}
+_MODEL_RANGES: dict[str, dict[Reg, tuple[int, int]]] = {
+    "XL330-M288": _XL330_RANGES, "XL330-M077": _XL330_RANGES}
 DEPENDENT = frozenset({Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY})
 """Items whose range depends on other registers (PWM / Current / Velocity Limit)."""
 
