@@ -19,6 +19,8 @@ or a seeded sample (``random.Random(seed).sample(sorted(names), n)``) and runs t
 ``--max-children`` (default 1), reads mutmut's per-module ``.meta`` results and prints (and
 writes, ``--out``) a Markdown block for bench/RESULTS.md: the score per module, each surviving
 mutant with its one-line diff (from ``mutmut show``), and the constants no test noticed.
+``--report WORKDIR`` prints that block again for an earlier copy, also of a run stopped halfway
+(mutmut saves each mutant's result as it goes; the unchecked ones are left out of the score).
 
 Time (2-core VM shared by ~7 people, load ~10, 2026-11-26): generating the safety group's 459
 mutants (and mutmut's one run of its tests) 166 s, then ~0.1-0.2 mutants/s; the gap group's
@@ -30,6 +32,7 @@ installed (the dev extra pins it).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import random
@@ -273,8 +276,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mutmut", default=str(Path(sys.executable).with_name("mutmut")),
                     help="the mutmut executable (default: next to this Python)")
     ap.add_argument("--out", type=Path, help="also write the Markdown block to this file")
+    ap.add_argument("--report", type=Path, metavar="WORKDIR",
+                    help="only print the block for an earlier run's copy (finished or stopped; "
+                         "unchecked mutants are left out of the score)")
     args = ap.parse_args(argv)
     group = GROUPS[args.group]
+    if args.report:
+        return report(args.group, args.report, args.mutmut, "see the run's log", None,
+                      args.max_children, args.out)
     if not Path(args.mutmut).exists() and shutil.which(args.mutmut) is None:
         raise SystemExit(f"mutmut not found at {args.mutmut}: pip install -e '.[dev]'")
     root = Path(subprocess.check_output(["git", "rev-parse", "--show-toplevel"], text=True)
@@ -313,23 +322,13 @@ def main(argv: list[str] | None = None) -> int:
                    f"`random.Random({args.seed}).sample(sorted(names), {args.sample})` "
                    f"of {len(names)} mutants")
     (work / "mutants_chosen.txt").write_text("\n".join(chosen) + "\n")
+    (work / "run.json").write_text(json.dumps({"commit": commit, "sampled": sampled,
+                                               "group": dataclasses.asdict(group)}))
     print(f"{len(names)} mutants in {t_gen:.0f} s; running {len(chosen)}", flush=True)
     t1 = time.monotonic()
     run_cmd = [args.mutmut, "run", "--max-children", str(args.max_children)]
     _run(run_cmd + ([] if len(chosen) == len(names) else chosen), work, log)
     t_run = time.monotonic() - t1
-    results = {}
-    for path in metas.values():
-        results.update(meta_results(json.loads(path.read_text())))
-    results = {n: results[n] for n in chosen}
-    scores = score_by_module(results, group.modules)
-    survivors = {}
-    for name, st in results.items():
-        if st in KILLED or st in NOT_SCORED:
-            continue
-        shown = _run([args.mutmut, "show", name], work, log, check=False).stdout
-        survivors[name] = one_line_diff(shown) + ("" if st == "survived" else f" ({st})")
-
     constants = None
     t2 = time.monotonic()
     if not args.no_constants:
@@ -340,20 +339,49 @@ def main(argv: list[str] | None = None) -> int:
             constants.append((module, len(lits), [
                 f"`{lit.name}` {lit.value!r} (line {lit.line})" for lit in surv]))
     t_const = time.monotonic() - t2
+    timing = (f"generation {t_gen:.0f} s, {len(chosen)} mutants {t_run:.0f} s "
+              f"({len(chosen) / max(t_run, 1e-9):.3f} mutants/s)"
+              + ("" if constants is None else f", constants {t_const:.0f} s"))
+    return report(args.group, work, args.mutmut, timing, constants, args.max_children, args.out)
+
+
+def report(group_name: str, work: Path, mutmut: str, timing: str, constants,
+           max_children: int, out: Path | None) -> int:
+    """Read the results of a run in ``work`` (finished or stopped) and print the Markdown."""
+    run = json.loads((work / "run.json").read_text())
+    # the group as that run defined it (tests may have been added since)
+    group = Group(**{k: tuple(v) if isinstance(v, list) else v
+                     for k, v in run["group"].items()}) if "group" in run else GROUPS[group_name]
+    chosen = (work / "mutants_chosen.txt").read_text().split()
+    results = {}
+    for m in group.modules:
+        results.update(meta_results(json.loads((work / "mutants" / (m + ".meta")).read_text())))
+    results = {n: results[n] for n in chosen}
+    scores = score_by_module(results, group.modules)
+    log = work / "mutation.log"
+    survivors = {}
+    for name, st in results.items():
+        if st in KILLED or st in NOT_SCORED:
+            continue
+        shown = _run([mutmut, "show", name], work, log, check=False).stdout
+        survivors[name] = one_line_diff(shown) + ("" if st == "survived" else f" ({st})")
+    unchecked = sum(st in NOT_SCORED for st in results.values())
+    sampled = run["sampled"] + ("" if not unchecked else
+                                f" ({len(chosen) - unchecked} of the {len(chosen)} checked: "
+                                "the run was stopped)")
     load = os.getloadavg()[0]
     header = (f"{time.strftime('%Y-%m-%d')}, 2-core VM (shared, load {load:.0f} at the end), "
-              f"`--max-children {args.max_children}`; {group.note}. Tests (`-m \"not slow\"`): "
-              + ", ".join(f"`{Path(t).name}`" for t in group.tests)
-              + (f" (deselected: {', '.join(group.deselect)})" if group.deselect else "")
-              + f". Time: generation {t_gen:.0f} s, {len(chosen)} mutants {t_run:.0f} s "
-              f"({len(chosen) / max(t_run, 1e-9):.3f} mutants/s)"
-              + ("" if constants is None else f", constants {t_const:.0f} s") + ".")
-    block = markdown(args.group, commit, scores, survivors, constants, header=header,
+              f"`--max-children {max_children}`; {group.note}. Tests (`-m \"not slow\"`): "
+              + ", ".join(f"`{t.removeprefix('tests/')}`" for t in group.tests)
+              + (f" (deselected: {', '.join(f'`{t}`' for t in group.deselect)})"
+                 if group.deselect else "")
+              + f". Time: {timing}.")
+    block = markdown(group_name, run["commit"], scores, survivors, constants, header=header,
                      sampled=sampled)
     print("\n" + block)
     (work / "mutation.md").write_text(block)
-    if args.out:
-        args.out.write_text(block)
+    if out:
+        out.write_text(block)
     return 0
 
 

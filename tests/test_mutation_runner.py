@@ -9,6 +9,7 @@ run on this repository (2026-11-26, /work/mut-mut/fresh).
 from __future__ import annotations
 
 import importlib.util
+import json
 import random
 import sys
 from collections import Counter
@@ -172,3 +173,27 @@ def test_every_group_names_files_that_exist():
 def test_mutmut_is_pinned_in_the_dev_extra():
     dev = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
     assert "mutmut==3.8.1" in dev["dev"]
+
+
+def test_report_of_a_stopped_run_leaves_the_unchecked_out(tmp_path, capsys):
+    # a copy as the runner leaves it: run.json, the chosen names, mutmut's .meta per module
+    group = {"modules": ["lowcostdex/a.py"], "tests": ["tests/test_a.py"], "deselect": [],
+             "note": "n"}
+    (tmp_path / "run.json").write_text(json.dumps(
+        {"commit": "abc1234", "sampled": "all 4 mutants", "group": group}))
+    names = [f"lowcostdex.a.x_f__mutmut_{i}" for i in range(1, 5)]
+    (tmp_path / "mutants_chosen.txt").write_text("\n".join(names) + "\n")
+    (tmp_path / "mutants" / "lowcostdex").mkdir(parents=True)
+    (tmp_path / "mutants" / "lowcostdex" / "a.py.meta").write_text(json.dumps(
+        {"exit_code_by_key": dict(zip(names, [1, 0, 36, None], strict=True))}))
+    fake = tmp_path / "mutmut"  # stands in for `mutmut show NAME`
+    fake.write_text("#!/bin/sh\nprintf '%s\\n' '--- a.py' '+++ a.py' '-    x < 1' '+    x <= 1'\n")
+    fake.chmod(0o755)
+    assert mutation.report("safety", tmp_path, str(fake), "t", None, 1, tmp_path / "o.md") == 0
+    md = (tmp_path / "o.md").read_text()
+    assert md == (tmp_path / "mutation.md").read_text() and md in capsys.readouterr().out
+    # 3 checked (killed, survived, timeout), the unchecked one left out: 2/3
+    assert "| `lowcostdex/a.py` | 3 | 2 (1) | 1 | 0 | 0 | 66.7 % |" in md
+    assert "all 4 mutants (3 of the 4 checked: the run was stopped)" in md
+    assert "- `x_f__mutmut_2` (a.py): `x < 1` -> `x <= 1`" in md
+    assert "`test_a.py`" in md
