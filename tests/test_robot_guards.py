@@ -16,6 +16,7 @@ from lowcostdex.hardware.robot.guards import (
 from lowcostdex.hardware.robot.robot import RobotConfig
 from lowcostdex.hardware.robot.safety import UnsafeCommand, check_finite, clip_goal
 from lowcostdex.hardware.timing import Rate
+from lowcostdex.motors import MOTORS
 
 
 class FakeClock:
@@ -170,6 +171,7 @@ def test_the_end_of_a_pause_is_recorded_and_clears_pending_and_relaxed():
     record = PauseRecord(start=12.0, duration=300.0, peak=74.0, hottest="a", end_max=49.0)
     g.end_pause(record)
     assert g.pauses == [record] and not g.pause_pending and not g.relaxed.any()
+    assert g.pause_pending is False  # a bool, as telemetry reports it (pause_pending: bool)
     np.testing.assert_array_equal(g.update(np.array([74.0, 20.0])), [True, False])  # again
     assert g.relaxations == 2
 
@@ -268,3 +270,21 @@ def test_config_errors_read_in_full():
         with pytest.raises(ConfigError) as err:
             CurrentConfig(**kwargs)
         assert str(err.value) == message
+
+
+def test_a_stuck_sensor_neither_holds_a_pause_open_nor_ends_it():
+    """A stuck reading says nothing about its winding: the cool-down test leaves it out (the
+    guards' docstring), whether it reads hot or cool; the other motors still count. Stuck
+    here at 60 deg C, above resume (50): 1 A in the XH430-W350's winding heats it
+    (I^2 R (1 + 0.0039 x 35 K) - 35 K / 12 K/W) / 8 J/K = 1.55 K/s (R = 13.5 Ohm), so its
+    model is 5 K above the flat reading after ~3.2 s."""
+    spec = MOTORS["XH430-W350"]
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b"), motor=spec)
+    t = 0.0
+    while not g.stuck[0] and t < 60.0:
+        g.update(np.array([60.0, 40.0]), current=np.array([1.0, 0.0]), time=t)
+        t += 0.5
+    assert g.stuck.tolist() == [True, False] and 2.0 < t < 6.0
+    assert g.cooled(np.array([60.0, 40.0]))  # the stuck 60 does not hold the pause open
+    assert not g.cooled(np.array([60.0, 55.0]))  # the other motor, still warm, does
+    assert not g.cooled(np.array([60.0, np.nan]))  # and an unknown reading of it too
