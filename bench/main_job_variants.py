@@ -33,14 +33,16 @@ EVAL_STREAM = 7
 
 def record(path: Path, env_id: str, env_kwargs: dict[str, Any], n: int, playbacks: int,
            playback_noise: float, teacher_noise: float, seed: int) -> dict[str, Any]:
+    import dataclasses
+
     import gymnasium as gym
 
     import lowcostdex  # noqa: F401
     from lowcostdex.demonstrations.kinesthetic import (
         KinestheticRecorder,
         VirtualTeacher,
-        VirtualTeacherConfig,
         identify_servo_response,
+        virtual_teacher_config,
     )
     from lowcostdex.main_job.stages import SERVO_ID_EPISODES
     from lowcostdex.teachers import teacher_class
@@ -48,8 +50,11 @@ def record(path: Path, env_id: str, env_kwargs: dict[str, Any], n: int, playback
     env = gym.make(env_id, **env_kwargs)
     try:
         solver = teacher_class("ValveTurnTeacher")()
+        # the main job's hand (FIRM_HAND for the valve teacher); until 2026-11-26 06:40 this
+        # script used the soft default hand, so its clones were weaker than the main job's
+        hand = dataclasses.replace(virtual_teacher_config(solver), target_noise=teacher_noise)
         teacher = VirtualTeacher(env.unwrapped.backend.chain, env.unwrapped.task, solver=solver,
-                                 config=VirtualTeacherConfig(target_noise=teacher_noise),
+                                 config=hand,
                                  rng=np.random.default_rng(seed))
         response, _ = identify_servo_response(env, episodes=SERVO_ID_EPISODES,
                                               seed=seed + 1_000_000)

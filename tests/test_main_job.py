@@ -50,9 +50,9 @@ def test_training_ran_on_the_robot_and_bc_beats_chance(smoke):
         assert (out / t[algo]["curves"]).stat().st_size > 5000
         assert t[algo]["robot"]["resets"] > 0
         assert t[algo]["robot"]["max_temperature"] < 65  # below the thermal guard's pause
-    # Chance is measured: uniformly random actions on the same robot, reset with the clone's
-    # evaluation seeds. The clone beats it if its episodes end nearer the goal: one-sided exact
-    # Mann-Whitney U test on the final |goal error| (scipy), p <= 0.05; with 3 episodes each
+    # Chance is measured: uniformly random actions on the same robot, on the same held-out
+    # episodes (reset seeds) as the clone, DAPG and NPG. The clone beats it if its episodes
+    # end nearer the goal: one-sided exact Mann-Whitney U test on the final |goal error| (scipy), p <= 0.05; with 3 episodes each
     # that is every clone episode nearer than every random one (p = 1/20). (Was: the clone
     # succeeds in >= 1 of 3 episodes; 1 of 3 vs 0 of 3 is no evidence, Fisher p = 0.5, and one
     # episode flipped with the in-flight motion bound: bench/RESULTS.md.)

@@ -117,3 +117,48 @@ def test_the_report_states_the_task_variant(tmp_path, monkeypatch):
     assert ctx.env_kwargs()["goal_range"] == 0.5 and ctx.env_kwargs()["backend"] == "emulated"
     text = markdown_report(ctx)
     assert f"`{variant.env_id}`, goal_range 0.5)" in text
+
+
+def test_a_run_whose_policy_is_the_clone_says_so():
+    # validation chose the clone (iteration -1): DAPG's held-out row is the clone's own episodes
+    t = results((0, 20), (9, 20), (9, 20), (0, 20))
+    assert "DAPG's policy is the clone itself" not in _what_each_stage_added(t)
+    t["dapg"]["best_iteration"] = -1
+    text = _what_each_stage_added(t)
+    assert "DAPG's policy is the clone itself" in text and "RL did not improve on it" in text
+    t["dapg"]["best_iteration"] = 3
+    assert "clone itself" not in _what_each_stage_added(t)
+
+
+def mcnemar_upper(b: int, c: int) -> float:
+    """P(X >= b) for X ~ Binomial(b + c, 1/2), written out (1 when b + c = 0)."""
+    n = b + c
+    return sum(math.comb(n, k) for k in range(b, n + 1)) / 2**n if n else 1.0
+
+
+def test_mcnemar_written_here_matches_a_textbook_value():
+    # 10 discordant pairs all one way: p = 1/1024 (one-sided exact sign test); 5 vs 5: 0.623
+    assert mcnemar_upper(10, 0) == pytest.approx(1 / 1024)
+    assert mcnemar_upper(5, 5) == pytest.approx(638 / 1024)
+
+
+@pytest.mark.parametrize("only_dapg,only_bc,both", [(0, 0, 7), (6, 0, 5), (9, 2, 4), (1, 4, 0)])
+def test_the_paired_test_on_the_same_heldout_episodes(only_dapg, only_bc, both):
+    n = 40
+    bc = [False] * n
+    dapg = [False] * n
+    for i in range(both):
+        bc[i] = dapg[i] = True
+    for i in range(both, both + only_dapg):
+        dapg[i] = True
+    for i in range(both + only_dapg, both + only_dapg + only_bc):
+        bc[i] = True
+    t = results((0, n), (sum(bc), n), (sum(dapg), n), (0, n))
+    t["bc"]["solved"], t["dapg"]["solved"] = bc, dapg
+    text = _what_each_stage_added(t)
+    p = mcnemar_upper(only_dapg, only_bc)
+    assert (f"Paired on the same {n} held-out episodes: DAPG alone solved {only_dapg}, the "
+            f"clone alone {only_bc} (exact one-sided McNemar test that DAPG solves more, "
+            f"p = {p:.3g})") in text, text
+    del t["dapg"]["solved"]
+    assert "Paired on" not in _what_each_stage_added(t)

@@ -264,3 +264,30 @@ def test_an_update_that_produces_nan_stops_the_run_with_a_message(tmp_path, monk
     state = ex.load_state(files[-1])
     flat = torch.cat([v.reshape(-1) for v in state["policy"]["state_dict"].values()])
     assert torch.isfinite(flat).all()
+
+
+@pytest.mark.parametrize("step_size", [0.05, 20.0])
+def test_the_evaluated_clone_competes_for_the_runs_policy(tmp_path, step_size):
+    """With ``eval_bc`` the clone is a candidate (iteration -1): the run's policy is the clone
+    unless an RL evaluation scored higher (success, then return), else that best iterate. A
+    huge step (KL ~ 10 nats) wrecks the clone's tracking, so the clone must be kept there."""
+    demos = _expert_demos(tmp_path / "demos.h5")
+    cfg = _config(algo="dapg", demos=str(demos), n_iter=4, eval_every=2, eval_bc=True,
+                  dapg=DAPGConfig(lam0=0.0), bc=BCConfig(epochs=25),
+                  npg=NPGConfig(step_size=step_size, damping=1e-2))
+    run = train(cfg, tmp_path / "run", env_factory=make_pointmass)
+    bc, m = ex.read_json(run.path / "bc.json"), run.read_metrics()
+    scores = [(bc["eval_success_rate"], bc["eval_return_mean"], -1)] + [
+        (s, r, int(i)) for s, r, i in zip(m["eval_success_rate"], m["eval_return_mean"],
+                                          m["iteration"], strict=True) if np.isfinite(s)]
+    best = scores[0]
+    for s in scores[1:]:  # the first of equal scores is kept
+        best = s if s[:2] > best[:2] else best
+    summary = ex.read_json(run.path / ex.SUMMARY_FILE)
+    assert summary["best"]["iteration"] == best[2]
+    chosen = load_policy(run.path).state_dict()
+    clone = load_policy(run.path / ex.BC_POLICY_FILE).state_dict()
+    same = all(torch.equal(chosen[k], clone[k]) for k in clone)
+    assert same == (best[2] == -1)
+    if step_size > 1:
+        assert best[2] == -1, scores

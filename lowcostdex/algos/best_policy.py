@@ -37,6 +37,8 @@ FINAL_POLICY_FILE = "final_policy.pt"
 """The policy after the last iteration."""
 POLICY_FILE = "policy.pt"
 """The run's policy: the best evaluated one (the last one when the run never evaluated)."""
+BC_POLICY_FILE = "bc_policy.pt"
+"""The behaviour clone a run started from (runs with demonstrations), before any RL step."""
 SUMMARY_FILE = "summary.json"
 
 

@@ -245,7 +245,10 @@ class TrainConfig:
       eval_bc: evaluate the behaviour clone (``eval_episodes`` deterministic episodes) before
         the first iteration, into ``bc.json`` (``eval_success_rate``, ``eval_return_mean``,
         ``eval_final_goal_errors``: each episode's ``|info["goal_error"]|`` after its last step,
-        when the env reports one); its robot time counts.
+        when the env reports one); its robot time counts. The clone then competes for the
+        run's policy as iteration -1 (``BestPolicy``): RL's iterates replace it only by beating
+        it in their evaluations. Every run with demonstrations saves the clone
+        (``bc_policy.pt``).
       policy, baseline, npg, dapg, bc: component configs. Defaults: the hand_dapg policy
         (32, 32) with init log-std -1.0 (std 0.37; hand_dapg: -0.5); the NPG step delta 0.1
         with damping 1e-2 rather than mjrl's 0.05 / 1e-4: on DClawTurnValve-v0 with 40

@@ -61,6 +61,7 @@ import numpy as np
 # The run directory's public names live in these modules; they are imported here so that
 # ``experiment.X`` keeps naming them (trainers use ``from lowcostdex.algos import experiment as ex``).
 from lowcostdex.algos.best_policy import (  # noqa: F401
+    BC_POLICY_FILE,
     BEST_POLICY_FILE,
     FINAL_POLICY_FILE,
     POLICY_FILE,
@@ -100,7 +101,7 @@ CURVES_FILE = "learning_curves.png"
 CHECKPOINT_DIR = "checkpoints"
 LATEST_FILE = "latest.json"
 _RUN_NAMES = (METRICS_FILE, CURVES_FILE, CHECKPOINT_DIR, "tb", BEST_POLICY_FILE,
-              FINAL_POLICY_FILE, POLICY_FILE, SUMMARY_FILE)
+              FINAL_POLICY_FILE, POLICY_FILE, SUMMARY_FILE, BC_POLICY_FILE)
 """What a run writes besides its config (and its trainer's own JSON files)."""
 
 
@@ -318,7 +319,8 @@ class Run:
         if _last_checkpoint_iteration(self.checkpoint_dir) is not None:
             return False
         self.close()
-        names = {CONFIG_FILE, METRICS_FILE, BEST_POLICY_FILE, CURVES_FILE, *self._json_written}
+        names = {CONFIG_FILE, METRICS_FILE, BEST_POLICY_FILE, BC_POLICY_FILE, CURVES_FILE,
+                 *self._json_written}
         for name in names:
             (self.path / name).unlink(missing_ok=True)
         for folder in (self.path / "tb", self.checkpoint_dir):

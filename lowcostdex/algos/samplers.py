@@ -36,6 +36,11 @@ EVAL_STREAM = 1
 """Seed stream of evaluation trajectories (disjoint from training)."""
 BC_EVAL_STREAM = 2
 """Seed stream of the behaviour clone's evaluation before RL."""
+HELDOUT_STREAM = 3
+"""Seed stream of held-out evaluation episodes: disjoint from training (0) and from the
+evaluations that choose a run's best policy (1, 2), so a comparison of policies on them is not
+biased by that choice (the main job compares the clone, DAPG, NPG and random actions on the
+same held-out episodes)."""
 SAMPLERS = ("serial", "process", "vector", "ray")
 
 EnvFactoryFn = Callable[[], gym.Env]

@@ -357,12 +357,17 @@ def train(
             probe.close()
             probe = None
         if bc is not None:
+            clone = {"policy": state.policy.to_checkpoint()}
+            ex.save_state(run.path / ex.BC_POLICY_FILE, clone)
             if config.eval_bc:  # the clone alone, before any RL sample
                 paths, metrics = _evaluate(config, sampler, state, BC_EVAL_STREAM, 0)
                 bc.update(metrics, eval_episodes=len(paths))
                 errors = [p.final_goal_error for p in paths]
                 if all(np.isfinite(errors)):  # per episode, for a test against a baseline
                     bc["eval_final_goal_errors"] = errors
+                # the clone competes for the run's policy (iteration -1, 0 samples): RL's
+                # policy replaces it only by beating it in these evaluations
+                state.best.consider(-1, {**metrics, ex.SAMPLES: 0}, clone)
             run.write_json("bc.json", bc)
         start = 0
         if ckpt is not None:

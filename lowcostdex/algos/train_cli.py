@@ -273,9 +273,10 @@ def _print_outcome(run: Any) -> None:
         print(f"final eval success rate: {final['eval_success_rate']:.2f} (iteration "
               f"{final['eval_iteration']:.0f}, {final['samples']:.0f} samples)")
     if best:
-        print(f"best eval success rate: {best['eval_success_rate']:.2f} (iteration "
-              f"{best['iteration']:.0f}, {best['samples']:.0f} samples): the run's policy, "
-              f"{ex.POLICY_FILE}")
+        when = ("the behaviour clone, before any RL step" if best["iteration"] < 0 else
+                f"iteration {best['iteration']:.0f}, {best['samples']:.0f} samples")
+        print(f"best eval success rate: {best['eval_success_rate']:.2f} ({when}): the run's "
+              f"policy, {ex.POLICY_FILE}")
     first = summary["first_eval_crossing"]
     target = summary["target"]
     print(f"first eval success >= {target:.0%}: " + (

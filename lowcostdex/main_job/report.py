@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -18,12 +17,14 @@ def stage_summary(name: str, r: dict[str, Any]) -> str:
                   if "playbacks" in r else "")
         return f"{r['successful']}/{r['episodes']} successful demonstrations{played} -> {r['file']}"
     if name == "train":
-        return (f"DAPG eval success {r['dapg']['eval_success']:.2f} (best "
-                f"{r['dapg']['best_eval_success']:.2f}, {r['dapg']['samples']} samples), NPG "
-                f"{r['npg']['eval_success']:.2f} (best {r['npg']['best_eval_success']:.2f}, "
-                f"{r['npg']['samples']} samples); the behaviour clone alone "
-                f"{r['success_after_bc']:.2f}; random actions "
-                f"{r.get('random', {}).get('eval_success', math.nan):.2f}")
+        def held(key: str) -> str:
+            a = r.get(key, {})
+            return (f"{a['eval_successes']}/{a['eval_episodes']}" if "eval_successes" in a
+                    else "n/a")
+
+        return (f"held-out success: DAPG {held('dapg')} ({r['dapg']['samples']} samples), NPG "
+                f"{held('npg')}, the behaviour clone alone {held('bc')}, random actions "
+                f"{held('random')}")
     if name == "gap":
         named = ", ".join(c["effect"] for c in r["causes"]) or "no cause"
         return (f"named: {named}; held-out RMSE {r['baseline_heldout_rmse_mrad']:.1f} -> "
@@ -70,26 +71,33 @@ def markdown_report(ctx: Context) -> str:
                       "successful episodes of both.", ""]
     if "train" in R:
         t = R["train"]
+        n_held = t.get("bc", {}).get("eval_episodes", "?")
         lines += ["## 3. DAPG vs NPG on the robot", "",
-                  "Evaluation success: deterministic episodes (the policy's mean action) at the "
-                  "end of training, with the number of episodes and a 95 % Wilson interval.", "",
-                  "| | samples | robot time [min] | training success (last) | evaluation success "
-                  "(last) | best evaluation (samples) | first evaluation >= 80 % at |",
-                  "|---|---|---|---|---|---|---|"]
+                  "Validation: deterministic episodes (the policy's mean action) every "
+                  f"{ctx.budget.eval_every or 'last'} iteration(s) during training "
+                  f"({ctx.budget.eval_episodes} episodes each; the behaviour clone's evaluation "
+                  "before the first RL step counts as one of DAPG's). They choose each run's "
+                  "policy (`train_*/policy.pt`): the best validated one, the clone itself when "
+                  "no RL iterate beat it.", "",
+                  "| | samples | robot time [min] | training success (last) | validation "
+                  "success (last) | best validation (iteration) | first validation >= 80 % at "
+                  "|", "|---|---|---|---|---|---|---|"]
         for algo in ("dapg", "npg"):
             a = t[algo]
             first = a.get("first_eval_crossing_samples")
+            best_it = a.get("best_iteration")
+            where = ("the clone" if best_it is not None and best_it < 0
+                     else "-" if best_it is None else str(best_it))
             lines.append(
                 f"| {algo.upper()} | {a['samples']} | {60 * a['robot_hours']:.1f} | "
-                f"{a['final_training_success']:.2f} | {_rate(a)} | "
-                f"{a.get('best_eval_success', float('nan')):.2f} "
-                f"({a.get('best_samples', float('nan')):.0f}) | "
+                f"{a['final_training_success']:.2f} | "
+                f"{a.get('last_validation_success', float('nan')):.2f} | "
+                f"{a.get('best_eval_success', float('nan')):.2f} ({where}) | "
                 f"{'not reached' if first is None else f'{first:.0f} samples'} |")
-        lines += ["", "The run's policy (`train_*/policy.pt`) is its best evaluated one; the last "
-                      "evaluation and the first crossing are shown beside it, so that a policy "
-                      "that reached the target once and fell back is not mistaken for one that "
-                      "holds it.", "",
-                  "| policy | evaluation success |", "|---|---|",
+        lines += ["", f"Held-out: each policy on the same {n_held} episodes (reset seeds "
+                      "disjoint from training and validation), mean action, success at the "
+                      "last step, with a 95 % Wilson interval.", "",
+                  "| policy | held-out success |", "|---|---|",
                   f"| uniformly random actions (measured) | {_rate(t.get('random', {}))} |",
                   f"| behaviour clone alone, before any RL | {_rate(t.get('bc', {}))} |",
                   f"| DAPG (clone + RL) | {_rate(t['dapg'])} |",
@@ -213,7 +221,33 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
             and dapg.get("eval_successes") == dapg.get("eval_episodes")):
         text += (" The clone alone already solves this task here, so the RL stage cannot show "
                  "a gain on it.")
+    paired = paired_test(bc, dapg)
+    if paired is not None:
+        only_after, only_before, pvalue = paired
+        text += (f" Paired on the same {len(bc['solved'])} held-out episodes: DAPG alone solved "
+                 f"{only_after}, the clone alone {only_before} (exact one-sided McNemar test "
+                 f"that DAPG solves more, p = {pvalue:.3g}).")
+    if dapg.get("best_iteration") == -1:
+        text += (" No DAPG iterate beat the clone on the validation episodes, so DAPG's policy "
+                 "is the clone itself: at this budget RL did not improve on it.")
     return text
+
+
+def paired_test(before: dict[str, Any], after: dict[str, Any]) -> tuple[int, int, float] | None:
+    """Exact one-sided McNemar test on two policies' per-episode successes (``"solved"``) on
+    the same held-out episodes: (episodes only ``after`` solved, only ``before`` solved, p that
+    ``after`` solves more), a binomial test at 1/2 on the discordant episodes (p = 1 when there
+    are none); None when either has no per-episode record or the records differ in length."""
+    from scipy.stats import binomtest
+
+    a, b = before.get("solved"), after.get("solved")
+    if not a or not b or len(a) != len(b):
+        return None
+    only_after = sum(1 for x, y in zip(a, b, strict=True) if y and not x)
+    only_before = sum(1 for x, y in zip(a, b, strict=True) if x and not y)
+    n = only_after + only_before
+    pvalue = binomtest(only_after, n, 0.5, alternative="greater").pvalue if n else 1.0
+    return only_after, only_before, float(pvalue)
 
 
 def write_html(markdown: str, path: Path) -> None:

@@ -7,7 +7,7 @@ import math
 import time
 from typing import Any
 
-from lowcostdex.main_job.setup import GAP_JOINTS, GAP_RATE, Context, robot_effects
+from lowcostdex.main_job.setup import DAPG_LAM0, GAP_JOINTS, GAP_RATE, Context, robot_effects
 
 # ------------------------------------------------------------------------------------------------
 # 1. bus
@@ -142,6 +142,7 @@ _ROBOT_KEYS = ("resets", "reset_failures", "reset_time", "pauses", "pause_time",
 def stage_train(ctx: Context) -> dict[str, Any]:
     """DAPG from the demonstrations and NPG from scratch, on the robot."""
     from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.configs import DAPGConfig
     from lowcostdex.algos.train import TrainConfig, train
 
     b = ctx.budget
@@ -156,7 +157,7 @@ def stage_train(ctx: Context) -> dict[str, Any]:
                              n_traj=b.traj_per_iter, eval_every=b.eval_every,
                              eval_episodes=b.eval_episodes,
                              demos=str(demos) if algo == "dapg" else None,
-                             eval_bc=algo == "dapg")
+                             eval_bc=algo == "dapg", dapg=DAPGConfig(lam0=DAPG_LAM0))
         run_dir = ctx.out / f"train_{algo}"
         t0 = time.perf_counter()
         run = train(config, run_dir)
@@ -164,21 +165,21 @@ def stage_train(ctx: Context) -> dict[str, Any]:
         summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
         curves[algo] = metrics
         first = summary["first_eval_crossing"]
+        best = summary["best"] or {}
         out[algo] = {
             "iterations": iters,
             "samples": int(metrics["samples"][-1]),
             "robot_hours": float(metrics["robot_hours"][-1]),
             "first_iteration_success": float(metrics["success_rate"][0]),
             "final_training_success": float(metrics["success_rate"][-1]),
-            "eval_success": float(summary["final"].get("eval_success_rate", math.nan)),
-            "best_eval_success": float((summary["best"] or {}).get("eval_success_rate",
-                                                                    math.nan)),
-            "best_samples": float((summary["best"] or {}).get("samples", math.nan)),
+            "last_validation_success": float(summary["final"].get("eval_success_rate",
+                                                                  math.nan)),
+            "best_eval_success": float(best.get("eval_success_rate", math.nan)),
+            "best_iteration": int(best["iteration"]) if best else None,
+            "best_samples": float(best.get("samples", math.nan)),
             "first_eval_crossing_samples": float(first["samples"]) if first else None,
             "evaluations": summary["evaluations"],
-            "eval_episodes": b.eval_episodes,
-            "eval_successes": _count(summary["final"].get("eval_success_rate"),
-                                     b.eval_episodes),
+            "validation_episodes": b.eval_episodes,
             "wall_seconds": round(time.perf_counter() - t0, 1),
             "curves": f"{run_dir.name}/learning_curves.png",
             "robot": {k: float(metrics[f"robot_{k}"][-1]) for k in
@@ -188,12 +189,12 @@ def stage_train(ctx: Context) -> dict[str, Any]:
     # the behaviour clone's own deterministic evaluation before DAPG's first iteration
     bc = json.loads((ctx.out / "train_dapg" / "bc.json").read_text())
     out["success_after_bc"] = float(bc["eval_success_rate"])
-    out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs", "eval_episodes") if k in bc}
-    if "eval_final_goal_errors" in bc:
-        out["bc"]["final_goal_errors"] = bc["eval_final_goal_errors"]
-    out["bc"]["eval_successes"] = _count(bc["eval_success_rate"],
-                                         int(bc.get("eval_episodes", b.eval_episodes)))
-    out["random"] = _random_baseline(ctx, b.eval_episodes)
+    out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs") if k in bc}
+    out["bc"]["validation_success"] = float(bc["eval_success_rate"])
+    heldout = _heldout(ctx, b.heldout_episodes)
+    out["random"] = heldout.pop("random")
+    for name, r in heldout.items():
+        out[name].update(r)
     out["demos_finished"] = ctx.results["demos"].get("finished")
     out["plot"] = _plot_training(ctx, out, curves)
     if ctx.task == "flip":
@@ -201,44 +202,67 @@ def stage_train(ctx: Context) -> dict[str, Any]:
     return out
 
 
-def _count(rate: float | None, n: int) -> int | None:
-    """Successful episodes from a success fraction of ``n`` episodes (None: not evaluated)."""
-    if rate is None or not math.isfinite(float(rate)):
-        return None
-    return int(round(float(rate) * n))
-
-
-def _random_baseline(ctx: Context, episodes: int) -> dict[str, Any]:
-    """Measure a policy of uniformly random actions on the same robot and task: ``episodes``
-    episodes reset with the behaviour clone's evaluation seeds (the same goals and, where the task
-    draws them, starts), success at the final step as in training's evaluation, and each
-    episode's final ``|goal_error|`` (``final_goal_errors``, beside the clone's in ``bc.json``).
-    The actions are seeded."""
-    import gymnasium as gym
+def _heldout(ctx: Context, episodes: int) -> dict[str, dict[str, Any]]:
+    """Uniformly random actions, the behaviour clone (before any RL step), DAPG's and NPG's run
+    policies (each its best on the validation evaluations) on the same ``episodes`` held-out
+    episodes of the robot: reset seeds of ``HELDOUT_STREAM``, disjoint from the training episodes
+    and from the evaluations that chose each run's policy, so the comparison is paired and not
+    biased by that choice. Policies act with their mean action; success at the final step as in
+    training's evaluation; each episode's final ``|goal_error|`` is kept
+    (``final_goal_errors``). The random actions are seeded."""
     import numpy as np
 
-    import lowcostdex  # noqa: F401
-    from lowcostdex.algos.samplers import BC_EVAL_STREAM, make_jobs
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, SerialSampler, make_jobs
+    from lowcostdex.algos.train import load_policy, trajectory_success
 
-    rng = np.random.default_rng(ctx.seed + 3_000_000)
-    env = gym.make(ctx.setup.env_id, **ctx.env_kwargs())
-    successes, steps, errors, t0 = 0, 0, [], time.perf_counter()
+    jobs = make_jobs(ctx.seed, HELDOUT_STREAM, 0, episodes, deterministic=True)
+    policies = {"bc": ctx.out / "train_dapg" / ex.BC_POLICY_FILE,
+                "dapg": ctx.out / "train_dapg", "npg": ctx.out / "train_npg"}
+    sampler = SerialSampler(EnvFactory(ctx.setup.env_id, ctx.env_kwargs()))
+    out: dict[str, dict[str, Any]] = {}
+    progress = _progress()
     try:
-        space = env.action_space
-        for job in make_jobs(ctx.seed, BC_EVAL_STREAM, 0, episodes):
-            env.reset(seed=job.env_seed())
-            done, info = False, {}
-            while not done:
-                action = rng.uniform(space.low, space.high).astype(space.dtype)
-                _, _, term, trunc, info = env.step(action)
-                done, steps = term or trunc, steps + 1
-            successes += bool(info.get("success", False))
-            errors.append(abs(float(info.get("goal_error", math.nan))))
+        with progress:
+            task = progress.add_task(f"held-out episodes: random actions, clone, DAPG, NPG "
+                                     f"({episodes} each)", total=4 * episodes)
+            t0 = time.perf_counter()
+            out["random"] = _random_actions(sampler.env, jobs,
+                                            np.random.default_rng(ctx.seed + 3_000_000))
+            out["random"]["wall_seconds"] = round(time.perf_counter() - t0, 1)
+            progress.advance(task, episodes)
+            for name, path in policies.items():
+                snap = load_policy(path).snapshot()
+                paths = []
+                for job in jobs:
+                    paths += sampler.sample(snap, [job])
+                    progress.advance(task)
+                solved = [trajectory_success(p, "final") for p in paths]
+                out[name] = {"eval_episodes": episodes, "eval_successes": int(sum(solved)),
+                             "eval_success": sum(solved) / episodes, "solved": solved,
+                             "final_goal_errors": [float(p.final_goal_error) for p in paths]}
     finally:
-        env.close()
-    out = {"eval_episodes": episodes, "eval_successes": successes,
-           "eval_success": successes / episodes if episodes else math.nan, "steps": steps,
-           "wall_seconds": round(time.perf_counter() - t0, 1)}
+        sampler.close()
+    return out
+
+
+def _random_actions(env: Any, jobs: list[Any], rng: Any) -> dict[str, Any]:
+    """Uniformly random actions (``rng``) on ``env``, one episode per job (reset with its
+    seed); success at the final step, each episode's final ``|goal_error|``."""
+    successes, steps, errors = 0, 0, []
+    space = env.action_space
+    for job in jobs:
+        env.reset(seed=job.env_seed())
+        done, info = False, {}
+        while not done:
+            action = rng.uniform(space.low, space.high).astype(space.dtype)
+            _, _, term, trunc, info = env.step(action)
+            done, steps = term or trunc, steps + 1
+        successes += bool(info.get("success", False))
+        errors.append(abs(float(info.get("goal_error", math.nan))))
+    n = len(jobs)
+    out = {"eval_episodes": n, "eval_successes": successes,
+           "eval_success": successes / n if n else math.nan, "steps": steps}
     if all(math.isfinite(e) for e in errors):
         out["final_goal_errors"] = errors
     return out
