@@ -150,3 +150,34 @@ def test_soak_100k_cycles():
                 bus.write_goal_positions(center + 0.5 * np.sin(0.003 * cycle))
             else:
                 center = state.position
+
+
+@pytest.mark.parametrize("realtime_tick", [True, False])
+def test_a_late_reply_in_the_slot_of_a_lost_one_is_not_taken_for_the_torque_on_position(
+        realtime_tick):
+    """Torque-on sets each motor's goal to its present position, read just before
+    (``set_torque``). Every reply of one read of motors 10-12 comes 17 ms late (past its
+    timeout and the 10 ms settle wait, so past the next read's flush: measured, 15-19 ms land in
+    the next read) and every fresh reply of the next is lost: the late replies land in its
+    slots, one per motor, and the packet count cannot tell. Their Realtime
+    Tick has not advanced with the host's clock: refused, no position, torque stays off. The
+    control, without the tick: they pass as the present position."""
+    from lowcostdex.hardware.bus import BusError
+    from lowcostdex.hardware.dynamixel.config import DynamixelConfig
+
+    chain = emulated_dclaw(station="none", rng=np.random.default_rng(3))
+    ids = (10, 11, 12)
+    bus = DynamixelBus(chain.port(), DynamixelConfig(
+        ids=ids, models=("XH430-W350",) * 3, handle_signals=False, fast_read="off",
+        read_retries=0, retries=0, max_invalid_reads=None, realtime_tick=realtime_tick))
+    with bus:
+        assert bus.read_state().valid.all()  # each motor's tick and the host's time, noted
+        chain.faults = FaultConfig(late=1.0, late_delay=(0.017, 0.017))
+        assert not bus.read_state().valid.any()
+        chain.faults = FaultConfig(drop=1.0)
+        if realtime_tick:
+            with pytest.raises(BusError, match="cannot read the present position"):
+                bus._present_ticks(ids)
+            assert bus.stats.stale == 3 and not any(m.torque_on for m in chain.motors.values())
+        else:
+            assert set(bus._present_ticks(ids)) == set(ids)  # the late replies, taken as present

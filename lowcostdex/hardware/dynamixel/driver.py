@@ -605,16 +605,20 @@ class DynamixelBus(SdkTransactions, MotorBus):
         return self._sync_read(ids, self._block_addr, self._block_len, fast)
 
     def _present_ticks(self, ids: tuple[int, ...]) -> dict[int, int]:
-        """Present Position [ticks] of ``ids``, with bounded retries (raises BusError)."""
+        """Present Position [ticks] of ``ids``, with bounded retries (raises BusError); a late
+        reply is refused by its Realtime Tick here too (torque-on sets the goal to this)."""
         out: dict[int, int] = {}
         for _ in range(self.config.retries + 1):
             todo = tuple(i for i in ids if i not in out)
             if not todo:
                 break
             valid, _, raw = self._read_block(todo, fast=False)
+            self._stale(todo, valid, raw, self._sample_time)
             for i in todo:
                 if valid[i]:
                     out[i] = int(np.frombuffer(raw[i], self._dtype)[Reg.PRESENT_POSITION.name][0])
+                    if self.config.realtime_tick:
+                        self._ticks[i] = (self._sample_time, self._tick(raw[i]))
         missing = [i for i in ids if i not in out]
         if missing:
             raise BusError(f"cannot read the present position of motors {missing}")
