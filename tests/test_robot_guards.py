@@ -288,3 +288,46 @@ def test_a_stuck_sensor_neither_holds_a_pause_open_nor_ends_it():
     assert g.cooled(np.array([60.0, 40.0]))  # the stuck 60 does not hold the pause open
     assert not g.cooled(np.array([60.0, 55.0]))  # the other motor, still warm, does
     assert not g.cooled(np.array([60.0, np.nan]))  # and an unknown reading of it too
+
+
+def _stuck_run(g, readings, currents, period=0.5):
+    """Feed reads (each (n,) deg C) with currents (n,) [A] every ``period`` s."""
+    for k, t in enumerate(readings):
+        g.update(np.asarray(t, float), current=np.asarray(currents, float), time=k * period)
+
+
+def test_a_sensor_flickering_a_whole_degree_is_alive_and_an_unknown_current_heats_nothing():
+    """Stuck means "has not moved by a whole degree" while the model rose 5 K (the guards'
+    docstring). A reading flickering between 60 and 61 (a real winding near 60.5 deg C) moves a
+    whole degree every read: alive, however hot the model says the winding is (1 A: 1.55 K/s,
+    stuck after ~3 s if the flicker were ignored). A NaN current is unknown: no heat, no
+    verdict, over the same 30 s."""
+    spec = MOTORS["XH430-W350"]
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b"), motor=spec)
+    flicker = [[60.0 + k % 2, 40.0] for k in range(60)]
+    _stuck_run(g, flicker, [1.0, np.nan])
+    assert not g.stuck.any() and not g.sensor_fault.any()
+    # control: the same current with a flat reading is found stuck within seconds
+    h = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b"), motor=spec)
+    _stuck_run(h, [[60.0, 40.0]] * 60, [1.0, np.nan])
+    assert h.stuck.tolist() == [True, False]
+
+
+def test_a_second_stuck_sensor_does_not_clear_the_first():
+    """Both stay flagged for the session (stuck, sensor_fault) and relaxed at every read."""
+    spec = MOTORS["XH430-W350"]
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b"), motor=spec)
+    # a at 1 A is stuck after ~3 s, b at 0.5 A (I^2: a quarter of the heat) much later
+    _stuck_run(g, [[60.0, 45.0]] * 120, [1.0, 0.5])
+    assert g.stuck.tolist() == [True, True]
+    assert g.sensor_fault.tolist() == [True, True]
+    assert g.relaxed.tolist() == [True, True] and g.relaxations == 2
+
+
+def test_check_finite_returns_floats_and_its_shape_message_lists_the_joints():
+    names = ("a", "b", "c")
+    g = check_finite([1, 2, 3], names)  # "the goal as a float array" (its docstring)
+    assert g.dtype == np.float64
+    with pytest.raises(UnsafeCommand) as err:
+        check_finite(np.zeros(2), names)
+    assert str(err.value) == "goal has shape (2,), expected (3,) for joints a, b, c; nothing sent"
