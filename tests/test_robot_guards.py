@@ -331,3 +331,31 @@ def test_check_finite_returns_floats_and_its_shape_message_lists_the_joints():
     with pytest.raises(UnsafeCommand) as err:
         check_finite(np.zeros(2), names)
     assert str(err.value) == "goal has shape (2,), expected (3,) for joints a, b, c; nothing sent"
+
+
+def test_a_faulty_sensor_is_left_out_of_the_cool_down_while_faulty_and_stays_flagged():
+    """The bus says which readings are no temperature (an Allegro byte >= 0x80 reads NaN): the
+    pause does not wait for them; a recovered sensor counts again but stays on the record."""
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a", "b"))
+    g.update(np.array([np.nan, 40.0]), sensor_fault=np.array([True, False]))
+    assert g.sensor_fault.tolist() == [True, False]
+    assert g.cooled(np.array([np.nan, 40.0]))  # b is cool; a's reading is no temperature
+    g.update(np.array([55.0, 40.0]), sensor_fault=np.array([False, False]))  # a recovered
+    assert not g.cooled(np.array([55.0, 40.0]))  # and counts again: 55 is above resume 50
+    assert g.sensor_fault.tolist() == [True, False]  # flagged for the session
+
+
+def test_a_guard_without_a_motor_spec_makes_no_stuck_verdict():
+    # the Allegro: no motor spec, so no thermal model; currents and times change nothing
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a",))
+    for k in range(20):
+        g.update(np.array([60.0]), current=np.array([1.0]), time=0.5 * k)
+    assert not g.stuck.any() and not g.relaxed.any()
+
+
+def test_each_pause_request_is_counted():
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a",))
+    g.update(np.array([66.0]))
+    g.end_pause(PauseRecord(start=0.0, duration=60.0, peak=66.0, hottest="a", end_max=49.0))
+    g.update(np.array([66.0]))
+    assert g.pause_pending and g.warnings == 2
