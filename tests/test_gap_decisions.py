@@ -172,12 +172,11 @@ def test_min_effect_rejects_a_candidate_below_its_size_and_accepts_it_above(offs
 
 def _backward_setup(ds, cfg: GapConfig):
     """What ``analyze``'s backward pass is handed: (engine, context, select episodes, the
-    residual function on the train segments, the noise floor's RMS [rad])."""
+    residual function on the train segments, the noise floor's RMS [rad], the train segments)."""
     eng, ctx, eps, split = _engine(ds, cfg)
-    fit_fn = eng.residual_fn(segments(ds, [eps[i] for i in split.train], cfg.segment,
-                                      cfg.burn_in))
+    train = segments(ds, [eps[i] for i in split.train], cfg.segment, cfg.burn_in)
     floor_rms = math.sqrt(float(np.mean(an.noise_floor(ds.trajectories) ** 2)))
-    return eng, ctx, [eps[i] for i in split.select], fit_fn, floor_rms
+    return eng, ctx, [eps[i] for i in split.select], eng.residual_fn(train), floor_rms, train
 
 
 def off_by_a_phase(polish, which, seen):
@@ -203,7 +202,7 @@ def test_backward_pass_prunes_an_accepted_effect_the_other_makes_redundant(offse
     case, ds = offset_case
     offset = float(case.hidden.values["position_offset"][0])
     cfg = GapConfig(seed=0, candidates=("viscous_damping", "position_offset"))
-    eng, ctx, sel_eps, fit_fn, floor_rms = _backward_setup(ds, cfg)
+    eng, ctx, sel_eps, fit_fn, floor_rms, train = _backward_setup(ds, cfg)
     joints = eng.joints
     # accepted: a 1e-4 N m s/rad damping (its predictions move by micro-radians) and the true
     # offset; the damping is redundant and must go, the offset must stay (refitted)
@@ -211,7 +210,8 @@ def test_backward_pass_prunes_an_accepted_effect_the_other_makes_redundant(offse
     x = s.values_from([AppliedEffect("viscous_damping", joints, {"damping": 1e-4}),
                        AppliedEffect("position_offset", joints, {"offset": offset})])
     dropped: list[str] = []
-    kept, kept_x = an._backward(eng, ds, sel_eps, s, x, cfg, floor_rms, ctx, fit_fn, dropped)
+    kept, kept_x = an._backward(eng, ds, sel_eps, s, x, cfg, floor_rms, ctx, fit_fn, dropped,
+                                train)
     assert dropped == ["viscous_damping"]
     assert kept.effects == ("position_offset",)
     assert kept_x[0] == pytest.approx(offset, abs=1e-3)
@@ -220,7 +220,7 @@ def test_backward_pass_prunes_an_accepted_effect_the_other_makes_redundant(offse
     x = s.values_from([AppliedEffect("viscous_damping", joints, {"damping": 0.3}),
                        AppliedEffect("position_offset", joints, {"offset": offset})])
     dropped = []
-    kept, _ = an._backward(eng, ds, sel_eps, s, x, cfg, floor_rms, ctx, fit_fn, dropped)
+    kept, _ = an._backward(eng, ds, sel_eps, s, x, cfg, floor_rms, ctx, fit_fn, dropped, train)
     assert dropped == ["viscous_damping"] and kept.effects == ("position_offset",)
 
 
@@ -479,7 +479,7 @@ def test_backward_pass_keeps_a_small_real_effect_and_orders_by_importance(root):
     model, paths = case.write(root / "offset+damping-3s")
     ds = load_dataset(paths, model=model)
     cfg = GapConfig(seed=0, candidates=("position_offset", "viscous_damping"))
-    eng, ctx, sel_eps, fit_fn, floor_rms = _backward_setup(ds, cfg)
+    eng, ctx, sel_eps, fit_fn, floor_rms, train = _backward_setup(ds, cfg)
     joints = eng.joints
     truth = [AppliedEffect(n, joints, {"offset" if n == "position_offset" else "damping": v})
              for n, v in values.items()]
@@ -487,7 +487,7 @@ def test_backward_pass_keeps_a_small_real_effect_and_orders_by_importance(root):
         s = fitmod.Structure.build(order, joints, ctx)
         dropped: list[str] = []
         kept, kept_x = an._backward(eng, ds, sel_eps, s, s.values_from(truth), cfg, floor_rms,
-                                    ctx, fit_fn, dropped)
+                                    ctx, fit_fn, dropped, train)
         assert dropped == []
         assert kept.effects == ("position_offset", "viscous_damping")
         assert kept_x == pytest.approx([-0.05, 0.005])
@@ -497,7 +497,7 @@ def test_backward_pass_keeps_a_small_real_effect_and_orders_by_importance(root):
     s = fitmod.Structure.build(("position_offset", "viscous_damping"), joints, ctx)
     dropped = []
     kept, kept_x = an._backward(eng, ds, sel_eps, s, s.values_from(truth), cfg, floor_rms, ctx,
-                                fit_fn, dropped)
+                                fit_fn, dropped, train)
     assert dropped == ["viscous_damping"] and kept.effects == ("position_offset",)
     assert kept_x[0] == pytest.approx(-0.05, abs=1e-3)
 

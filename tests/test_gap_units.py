@@ -672,3 +672,33 @@ def test_goals_act_at_their_instant_inside_a_physics_step():
     split, before, after = _single_switches(np.array([0.0, 2.25]), v[:2], np.array([0.0]), 4)
     assert split[2] == pytest.approx(0.25) and np.isnan(split[[0, 1, 3]]).all()
     assert before[2, 0] == 1.0 and after[2, 0] == 2.0
+
+
+def test_a_goal_shift_probe_is_the_same_replay_later():
+    """Time invariance (the physics, not the code): when every goal arrives tau later, a stable
+    servo's response is the same one tau later, q_tau(t) = q(t - tau). On the bench, shifted by
+    1 and 2 physics steps, the replay matches the unshifted one read at t - tau to a small
+    fraction of what the shift changes. ``analyze``'s probes shift by 0.01-0.03 steps: a stable
+    replay moves by less than a time shift would (RMS velocity x tau, 0.1 mrad here), far
+    below the read noise."""
+    ds = _tiny_dataset(n_logs=1, duration=3.0)
+    (w,) = episodes(ds)
+    rep = Replayer(ds)
+    ((q0,),), _ = rep.run([w], [[]])
+    t = ds.trajectories[w.traj].time[w.start:w.stop]
+    late = t >= t[0] + 0.2  # past the start (the initial state is the measured one)
+    rms = lambda d: float(np.sqrt(np.mean(d[late] ** 2)))  # noqa: E731
+    vel = rms(np.gradient(q0[:, 0], t))
+    for steps in (1.0, 2.0):
+        tau = steps * ds.timestep
+        ((q1,),), _ = rep.run([w], [[]], goal_shift=tau)
+        moved = rms(q1[:, 0] - q0[:, 0])
+        assert moved == pytest.approx(vel * tau, rel=0.2)
+        assert rms(q1[:, 0] - np.interp(t - tau, t, q0[:, 0])) < 0.15 * moved
+    for f in GapConfig().probes:
+        ((q1,),), _ = rep.run([w], [[]], goal_shift=f * ds.timestep)
+        assert 0 < rms(q1[:, 0] - q0[:, 0]) < vel * f * ds.timestep
+    assert GapConfig(probes=()).probes == ()
+    for bad in ((1.0,), (-0.01,)):
+        with pytest.raises(ConfigError, match="probes"):
+            GapConfig(probes=bad)

@@ -16,11 +16,21 @@
    error by at least ``min_gain`` (relative MSE), the bootstrap over select episodes does not show
    it clearly worse (5th percentile of the gain above -``min_gain``), it changes the predictions
    by more than ``min_effect`` noise floors, its fit is not at a parameter bound it may not
-   leave, and the current train or select error is above the noise floor. Otherwise the
-   analysis stops; with no accepted effect the answer is "no significant discrepancy".
+   leave, and the current train or select error is above the noise floor. The gain must be
+   robust too: ``min_gain`` on the training segments it was fitted to (a fit's in-sample gain
+   is, in expectation, at least its held-out one) and on the select split replayed with every
+   goal a fraction of a physics step later (``GapConfig.probes``; a chaotic replay, a light link
+   swinging inside a play, rewards lucky alignments of its impacts). Otherwise the analysis
+   stops; with no accepted effect the answer is "no significant discrepancy".
 4. The chosen structure is refitted on train + select, then scored once on the untouched *test*
    episodes: error before and after with a bootstrap interval over episodes, the noise floor and
    the fraction of reducible error explained.
+
+Why one module: these stages are one loop over one analysis' state (the split, the engine's
+replays, the current structure and its select error, the stop reason); the helpers below are the
+loop's own steps (ranking, backward pass and search, effect size, interval blocks). What a round
+fits and how the select split judges a candidate live in ``gap.selection``, the fits in
+``gap.fit``, the report in ``gap.results``.
 """
 
 from __future__ import annotations
@@ -52,7 +62,13 @@ from lowcostdex.gap.results import (
     param_report,
     verdict_text,
 )
-from lowcostdex.gap.selection import fit_batches, mse_by_episode, select_gain_ci, select_results
+from lowcostdex.gap.selection import (
+    fit_batches,
+    mse_by_episode,
+    probe_gains,
+    select_gain_ci,
+    select_results,
+)
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
 from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
@@ -188,6 +204,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             stop_reason = "no candidate signature explains the residual"
             break
         fixed = current.to_effects(cur_x) if current.effects else []
+        r_cur = eng.residuals(train_segs, [list(fixed)])[0]
+        train_sse = float(r_cur @ r_cur)
         stop = ""
         for pool in fit_batches(table, cfg):
             if not pool:
@@ -288,6 +306,16 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             if size < cfg.min_effect * floor_rms:
                 stop = "the best candidate changes predictions by less than the noise floor"
                 break
+            train_gain = 1 - 2 * best_track[n_best].cost / max(train_sse, 1e-300)
+            probe = probe_gains(eng.rep.run, ds, sel_eps, current.to_effects(cur_x)
+                                if current.effects else [], best_track[n_best].effects(),
+                                cfg.probes)
+            if min(train_gain, *probe) < cfg.min_gain:
+                stop = (f"the best candidate ({n_best}, select MSE {100 * rel:.0f} % lower) "
+                        f"lowers the training error by {100 * train_gain:.1f} % and the select "
+                        f"error with goals a fraction of a step later by "
+                        f"{', '.join(f'{100 * g:.0f}' for g in probe)} %: not robust")
+                continue
             stop = ""
             break
         if stop:
@@ -308,7 +336,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     # ---- backward pass: drop accepted effects the final model no longer needs ---------------
     if len(current.effects) > 1:
         current, cur_x = _backward(eng, ds, sel_eps, current, cur_x, cfg, floor_rms, ctx,
-                                   fit_fn, dropped := [])
+                                   fit_fn, dropped := [], train_segs)
         if dropped:
             stop_reason += f"; dropped by the backward pass: {', '.join(dropped)}"
             sel_cur = (mse_by_episode(ds, sel_eps, eng.predict(
@@ -326,7 +354,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             c.effect for c in rounds[0][:cfg.top_k] if c.score >= cfg.min_gain)))
         if len(big) > max(len(current.effects), 1):
             alt, alt_x = _joint_then_prune(eng, ds, sel_eps, big, current, cur_x, cfg,
-                                           floor_rms, ctx, fit_fn)
+                                           floor_rms, ctx, fit_fn, train_segs)
             if alt.effects:
                 sse_alt = mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [
                     alt.to_effects(alt_x)])[0])[0]
@@ -336,8 +364,18 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 # the noise floor (effects that cancel each other cannot sneak in)
                 switch = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x),
                                       alt.to_effects(alt_x))
-                if (sse_alt.sum() < (1 - cfg.min_gain) * sel_cur[0].sum()
-                        and rel_base >= cfg.min_gain and switch >= cfg.min_effect * floor_rms):
+                better = (sse_alt.sum() < (1 - cfg.min_gain) * sel_cur[0].sum()
+                          and rel_base >= cfg.min_gain and switch >= cfg.min_effect * floor_rms)
+                if better:  # ... on the data it was fitted to too
+                    ra, rc = eng.residuals(train_segs, [alt.to_effects(alt_x),
+                                                        current.to_effects(cur_x)])
+                    tg = 1 - float(ra @ ra) / max(float(rc @ rc), 1e-300)
+                    better = tg >= cfg.min_gain
+                if better:  # ... and it pays on the probes too
+                    probe = probe_gains(eng.rep.run, ds, sel_eps, current.to_effects(cur_x),
+                                        alt.to_effects(alt_x), cfg.probes)
+                    better = min(probe, default=math.inf) >= cfg.min_gain
+                if better:
                     stop_reason += (f"; backward search from {', '.join(big)} kept "
                                     f"{', '.join(alt.effects)} (select MSE "
                                     f"{100 * (1 - sse_alt.sum() / sel_cur[0].sum()):.0f} % below "
@@ -460,14 +498,15 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
 
 def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
               current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig, floor_rms: float,
-              ctx: fitmod.Context, fit_fn, dropped: list[str], min_size: int = 1
-              ) -> tuple[fitmod.Structure, np.ndarray]:
+              ctx: fitmod.Context, fit_fn, dropped: list[str], train_segs: Sequence[Window],
+              min_size: int = 1) -> tuple[fitmod.Structure, np.ndarray]:
     """Remove accepted effects that a later one made redundant, then order by importance.
 
     An effect is redundant when leaving it out of the current model (others unchanged) raises
-    the select MSE by less than ``min_gain / 2`` or changes the predictions by less than
+    the select MSE by less than ``min_gain / 2`` (on the select split, on each of its goal-shift
+    probes, or on the training segments) or changes the predictions by less than
     ``min_effect`` noise floors; an effect whose fit sits at a parameter bound is implausible and
-    goes first. The rest are ordered by how much the select MSE rises without them.
+    goes first. The rest are ordered by the smallest of those rises without them.
     """
     while len(current.effects) > min_size:
         effs = current.to_effects(cur_x)
@@ -481,6 +520,15 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
             d = np.concatenate([(a - b).ravel() for a, b in zip(pr, full, strict=True)])
             size[n] = float(np.sqrt(np.mean(d * d)))
         at_bound = {f.effect for f in current.free if bound_flags(current, current.u(cur_x), f.effect)}
+        # ... also when every goal arrives a fraction of a step later, and on the training data
+        for f in cfg.probes:
+            sse_p = [mse_by_episode(ds, sel_eps, p)[0].sum() for p in eng.rep.run(
+                sel_eps, [effs, *cols], goal_shift=f * ds.timestep)[0]]
+            rise = {n: min(rise[n], s / max(sse_p[0], 1e-300) - 1)
+                    for n, s in zip(current.effects, sse_p[1:], strict=True)}
+        tr = [float(r @ r) for r in eng.residuals(train_segs, [effs, *cols])]
+        rise = {n: min(rise[n], s / max(tr[0], 1e-300) - 1)
+                for n, s in zip(current.effects, tr[1:], strict=True)}
         weak = [n for n in current.effects
                 if rise[n] < 0.5 * cfg.min_gain or size[n] < cfg.min_effect * floor_rms
                 or n in at_bound]
@@ -502,7 +550,7 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
 
 def _joint_then_prune(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window], names: tuple,
                       current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig,
-                      floor_rms: float, ctx: fitmod.Context, fit_fn
+                      floor_rms: float, ctx: fitmod.Context, fit_fn, train_segs: Sequence[Window]
                       ) -> tuple[fitmod.Structure, np.ndarray]:
     """Fit ``names`` jointly (from the forward model's values), then prune with ``_backward``."""
     big = fitmod.Structure.build(names, current.joints, ctx)
@@ -511,7 +559,7 @@ def _joint_then_prune(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window], name
     fitmod.lockstep_lm(tracks, fit_fn, 2 * cfg.max_rounds, prune=fitmod.prune_tracks)
     best = min(tracks, key=lambda t: t.cost)
     return _backward(eng, ds, sel_eps, best.structure, best.x, cfg, floor_rms, ctx, fit_fn, [],
-                     min_size=1)
+                     train_segs, min_size=1)
 
 
 def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]:

@@ -199,13 +199,17 @@ class Replayer:
 
     # ------------------------------------------------------------------------------------------
     def run(self, windows: Sequence[Window], columns: Sequence[Column],
-            force_peak: bool = False) -> tuple[list[list[np.ndarray]], np.ndarray | None]:
+            force_peak: bool = False, goal_shift: float = 0.0
+            ) -> tuple[list[list[np.ndarray]], np.ndarray | None]:
         """Simulate every (column, window) pair.
 
         Args:
           windows: windows to replay.
           columns: candidate effect sets (each a list of AppliedEffect on the data set's joints).
           force_peak: also return the peak |actuator force| per column and actuator.
+          goal_shift: every goal arrives this much later [s] (on top of a column's latency):
+          a probe of how much the predictions depend on a change far below what a log's
+          timestamps resolve (``analyze``'s replay chaos).
         Returns:
           (pred, peaks): pred[c][w] is (n_w, nj) predicted readings [rad] at the window's
           samples; peaks is (ncol, na) [N m] or None.
@@ -225,7 +229,8 @@ class Replayer:
                 groups.setdefault(key, []).append((c, wi))
         pred: list[list[np.ndarray | None]] = [[None] * len(windows) for _ in columns]
         peaks = np.zeros((len(columns), len(self.ds.actuators))) if force_peak else None
-        runs = [self._setup(key, sims, windows, columns) for key, sims in groups.items()]
+        runs = [self._setup(key, sims, windows, columns, goal_shift)
+                for key, sims in groups.items()]
         n_max = max(r["n_steps"] for r in runs)
         for k in range(n_max + 1):
             for r in runs:
@@ -261,7 +266,8 @@ class Replayer:
         return bool(sse[0] < sse[1])
 
     def _setup(self, key: tuple[str, bool, bool], sims: list[tuple[int, int]],
-               windows: Sequence[Window], columns: Sequence[Column]) -> dict:
+               windows: Sequence[Window], columns: Sequence[Column],
+               goal_shift: float = 0.0) -> dict:
         model_key = key[:2]  # (model, structural variant)
         model = self._variants[model_key]
         union = _union([columns[c] for c, _ in sims])
@@ -290,7 +296,7 @@ class Replayer:
         goals = np.zeros((nsim, n_steps, len(act)))
         split = np.full((nsim, n_steps, len(act)), np.nan)
         before, after = np.zeros_like(goals), np.zeros_like(goals)
-        delays = self._delays(model_key, sims, columns)
+        delays = self._delays(model_key, sims, columns) + max(goal_shift, 0.0)
         traj_of = np.array([windows[wi].traj for _, wi in sims])
         for s, ((c, wi), g) in enumerate(zip(sims, grids, strict=True)):
             w = windows[wi]

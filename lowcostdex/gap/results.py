@@ -41,6 +41,12 @@ class GapConfig:
       min_effect: an accepted effect must change the open-loop predictions (train and select
         episodes) by at least this many noise floors (RMS); smaller changes fit replay
         artifacts, not physics.
+      probes: an accepted change of model (a forward step, the backward search's switch, an
+        effect the backward pass keeps) must also lower the select error by ``min_gain`` (keep
+        it up by ``min_gain / 2``) when every goal arrives this many physics steps later, for
+        each value: far below what a log's timestamps resolve, a stable replay barely moves,
+        while a chaotic one (a light link swinging inside a play) gives another realisation of
+        its impacts, and a gain that was a lucky alignment of them is gone. (): no probes.
       rank_seconds: training data used by the score ranking (a spread subset) [s].
       tie: candidates whose select MSE is within this fraction of the best one's are
         equivalent explanations; the first in the canonical list (``effects.CAUSES``) whose
@@ -75,6 +81,7 @@ class GapConfig:
     min_gain: float = 0.05
     floor_margin: float = 1.2
     min_effect: float = 0.75
+    probes: tuple[float, ...] = (0.01, 0.02, 0.03)
     rank_seconds: float = 12.0
     joint_k: int = 3
     tie: float = 0.002
@@ -100,6 +107,8 @@ class GapConfig:
                 raise ConfigError(f"{name} must be >= 1")
         if not self.rank_tie >= 0:
             raise ConfigError(f"rank_tie must be >= 0, got {self.rank_tie}")
+        if not all(0 <= f < 1 for f in self.probes):
+            raise ConfigError(f"probes must be in [0, 1) physics steps, got {self.probes}")
         if not 0 < self.min_gain < 1:
             raise ConfigError("min_gain must be in (0, 1)")
         check_choice("search", self.search, ("forward", "both"))

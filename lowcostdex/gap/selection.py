@@ -19,10 +19,11 @@ from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.gap.results import CandidateResult, GapConfig
 from lowcostdex.sim.effects import AppliedEffect
 
-__all__ = ["fit_batches", "mse_by_episode", "select_gain_ci", "select_results"]
+__all__ = ["fit_batches", "mse_by_episode", "probe_gains", "select_gain_ci", "select_results"]
 
 Predict = Callable[[Sequence[Window], Sequence[Sequence[AppliedEffect]]],
                    list[list[np.ndarray]]]
+Run = Callable[..., tuple[list[list[np.ndarray]], np.ndarray | None]]  # ``Replayer.run``
 
 
 def fit_batches(table: Sequence[CandidateResult], cfg: GapConfig
@@ -82,4 +83,19 @@ def select_results(predict: Predict, ds: Dataset, sel_eps: Sequence[Window],
     for n, pr in zip(names, preds, strict=True):
         sse = mse_by_episode(ds, sel_eps, pr)[0]
         out[n] = (*select_gain_ci(sel_cur[0], sse, rng, cfg.bootstrap), sse)
+    return out
+
+
+def probe_gains(run: Run, ds: Dataset, eps: Sequence[Window], cur: Sequence[AppliedEffect],
+                new: Sequence[AppliedEffect], probes: Sequence[float]) -> list[float]:
+    """Relative MSE reduction of model ``new`` over ``cur`` on ``eps`` when every goal arrives
+    ``f`` physics steps later, for each ``f`` in ``probes`` (``GapConfig.probes``): far below
+    what a log's timestamps resolve, so a gain that is physics holds on every probe, while in a
+    chaotic replay (impacts inside a play) each probe is another realisation of the spikes.
+    ``run`` is ``Replayer.run``."""
+    out = []
+    for f in probes:
+        a, b = run(eps, [list(cur), list(new)], goal_shift=f * ds.timestep)[0]
+        sa, sb = (mse_by_episode(ds, eps, p)[0].sum() for p in (a, b))
+        out.append(float(1.0 - sb / max(sa, 1e-300)))
     return out
