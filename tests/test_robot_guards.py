@@ -359,3 +359,15 @@ def test_each_pause_request_is_counted():
     g.end_pause(PauseRecord(start=0.0, duration=60.0, peak=66.0, hottest="a", end_max=49.0))
     g.update(np.array([66.0]))
     assert g.pause_pending and g.warnings == 2
+
+
+def test_a_lead_bound_applies_only_when_both_present_and_max_lead_are_given():
+    # clip_goal's docstring: "then (if given) to present +- max_lead"; the Robot passes the
+    # present position with max_lead None when no lead bound is configured
+    low, high = np.full(2, -1.0), np.full(2, 1.0)
+    goal, ref, step = np.array([0.5, -0.5]), np.zeros(2), np.full(2, 0.3)
+    plain = clip_goal(goal, low, high, ref, step)
+    for present, lead in ((np.array([0.2, -0.2]), None), (None, np.full(2, 0.01))):
+        r = clip_goal(goal, low, high, ref, step, present=present, max_lead=lead)
+        np.testing.assert_array_equal(r.goal, plain.goal)
+        np.testing.assert_array_equal(r.goal, [0.3, -0.3])
