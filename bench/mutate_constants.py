@@ -1,8 +1,9 @@
 """Module-constant mutation: does any test notice when a module-level number changes by +1?
 
-mutmut 3 mutates code inside functions only, so a constant such as ``SET_TORQUE = 0x60`` or a
-per-joint clamp table is never changed by it. This script changes each numeric literal of the
-module's top-level assignments by +1, one at a time, in a throw-away copy of the repository
+mutmut 3 mutates code inside functions only, so a constant such as ``SET_TORQUE = 0x60``, a
+per-joint clamp table or a config dataclass's default threshold is never changed by it. This
+script changes each numeric literal of the module's top-level assignments and class-body defaults
+(``ThermalConfig.warn_margin``) by +1, one at a time, in a throw-away copy of the repository
 (``git archive`` of HEAD or ``--rev``; the working tree is never touched), runs the given test files there and
 reports which changes no test noticed. Uncommitted changes are not measured.
 
@@ -40,17 +41,23 @@ class Literal:
         return repr(self.value + 1)
 
 
-def module_literals(source: str) -> list[Literal]:
-    """Numeric literals (not bools) inside the module's top-level assignments, in source order."""
-    out = []
-    for node in ast.parse(source).body:
-        if isinstance(node, ast.Assign):
-            targets, value = node.targets, node.value
+def _assignments(body, prefix: str = ""):
+    """(name, value node) of the assignments in ``body``, and of the class bodies in it (a
+    dataclass's defaults, named ``Class.field``)."""
+    for node in body:
+        if isinstance(node, ast.ClassDef):
+            yield from _assignments(node.body, f"{prefix}{node.name}.")
+        elif isinstance(node, ast.Assign):
+            yield prefix + ", ".join(ast.unparse(t) for t in node.targets), node.value
         elif isinstance(node, ast.AnnAssign) and node.value is not None:
-            targets, value = [node.target], node.value
-        else:
-            continue
-        name = ", ".join(ast.unparse(t) for t in targets)
+            yield prefix + ast.unparse(node.target), node.value
+
+
+def module_literals(source: str) -> list[Literal]:
+    """Numeric literals (not bools) inside the module's top-level assignments and class-body
+    defaults (mutmut mutates neither), in source order."""
+    out = []
+    for name, value in _assignments(ast.parse(source).body):
         for sub in ast.walk(value):
             if (isinstance(sub, ast.Constant) and isinstance(sub.value, (int, float))
                     and not isinstance(sub.value, bool) and sub.lineno == sub.end_lineno):

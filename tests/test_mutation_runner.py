@@ -197,3 +197,20 @@ def test_report_of_a_stopped_run_leaves_the_unchecked_out(tmp_path, capsys):
     assert "all 4 mutants (3 of the 4 checked: the run was stopped)" in md
     assert "- `x_f__mutmut_2` (a.py): `x < 1` -> `x <= 1`" in md
     assert "`test_a.py`" in md
+
+
+def test_constants_include_a_dataclass_default_and_are_applied_in_place():
+    mc = _load("mutate_constants")
+    src = ("LIMIT = 80.0\n"
+           "class Config:\n"
+           "    warn_margin: float = 15.0\n"
+           "    flag: bool = True\n"
+           "    def f(self):\n"
+           "        return 3\n"
+           "OTHER = -2\n")
+    lits = mc.module_literals(src)
+    # the function body's 3 is mutmut's; the bool is no number
+    assert [(lit.name, lit.value, lit.line) for lit in lits] == [
+        ("LIMIT", 80.0, 1), ("Config.warn_margin", 15.0, 3), ("OTHER", 2, 7)]
+    assert mc.apply(src, lits[1]).splitlines()[2] == "    warn_margin: float = 16.0"
+    assert mc.apply(src, lits[2]).splitlines()[6] == "OTHER = -3"
