@@ -371,3 +371,33 @@ def test_a_lead_bound_applies_only_when_both_present_and_max_lead_are_given():
         r = clip_goal(goal, low, high, ref, step, present=present, max_lead=lead)
         np.testing.assert_array_equal(r.goal, plain.goal)
         np.testing.assert_array_equal(r.goal, [0.3, -0.3])
+
+
+def test_stuck_is_called_at_the_first_read_where_the_model_has_risen_5_k():
+    """ThermalConfig's docstring: 5 K of model rise over a flat reading (room for a model 5x too
+    hot). The model integrated here by hand (explicit Euler at the read interval, the dcmotor
+    heating checked against MuJoCo in test_robot_faults) says when: not a read earlier or later."""
+    spec, period, amps, flat = MOTORS["XH430-W350"], 0.5, 1.0, 60.0
+    model, k_expected = flat, 0
+    while model - flat < 5.0:
+        model += period * float(spec.winding_heating(amps, model))
+        k_expected += 1
+    g = ThermalGuard(ThermalConfig(), limit=80.0, names=("a",), motor=spec)
+    for k in range(k_expected):
+        g.update(np.array([flat]), current=np.array([amps]), time=k * period)
+        assert not g.stuck[0]
+    g.update(np.array([flat]), current=np.array([amps]), time=k_expected * period)
+    assert g.stuck[0] and k_expected == 7
+
+
+def test_current_guard_defaults_overload_after_5_reads_and_hold_it_20_steps():
+    # CurrentConfig's documented defaults as a user meets them: window 5 reads, relax_steps 20
+    g = CurrentGuard(CurrentConfig(), limit=np.array([1.0]))
+    for _ in range(4):
+        assert not g.update(np.array([1.5])).any()
+    assert g.update(np.array([1.5]))[0]
+    for _ in range(19):
+        g.tick()
+        assert g.relaxed[0]
+    g.tick()
+    assert not g.relaxed[0]
