@@ -83,7 +83,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with collect_mujoco_warnings() as warned:  # counted, not printed/MUJOCO_LOG.TXT
             code = int(args.func(args) or 0)
-        if warned.total:
+        if warned.messages:
             print(f"{prog}: note: {warned.summary()}", file=sys.stderr)
         return code
     except LowcostdexError as exc:

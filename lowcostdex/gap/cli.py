@@ -101,8 +101,8 @@ def _analyze(args: argparse.Namespace) -> int:
     print(summary(result))
     if result.mujoco_warnings:
         kinds = list(result.mujoco_warnings.items())
-        print(f"MuJoCo warned {sum(n for _, n in kinds):,} times while simulating candidate "
-              f"models (counted, not printed; in report.md): '{kinds[0][0]}' x{kinds[0][1]:,}"
+        print(f"MuJoCo warned while simulating candidate models (recorded, not printed; in "
+              f"report.md): '{kinds[0][0]}' (at {kinds[0][1]:,} distinct simulation times)"
               + (f" and {len(kinds) - 1} other kinds" if len(kinds) > 1 else ""))
     print(f"report: {out / 'report.md'} (json: {out / 'report.json'}; extended model: "
           f"{out / 'extended'})")

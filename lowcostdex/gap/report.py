@@ -169,8 +169,9 @@ def markdown(result: GapResult) -> str:
     out.append("Timing: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()) + ".")
     if r.mujoco_warnings:
         out += ["", "MuJoCo warnings while simulating the nominal and candidate models (counted "
-                "here instead of printed): " + "; ".join(f"'{k}' x{n:,}" for k, n in
-                                                 r.mujoco_warnings.items()) + "."]
+                "here instead of printed): " + "; ".join(
+                    f"'{k}' (at {n:,} distinct simulation times)"
+                    for k, n in r.mujoco_warnings.items()) + "."]
     return "\n".join(out) + "\n"
 
 

@@ -174,7 +174,7 @@ class GapResult:
     traces: list[dict]  # test episodes: time, goal, measured, baseline, extended (for plots)
     models: dict[str, str]
     stop_reason: str = ""
-    mujoco_warnings: dict[str, int] = field(default_factory=dict)  # kind -> count
+    mujoco_warnings: dict[str, int] = field(default_factory=dict)  # kind -> distinct times
 
     def to_dict(self) -> dict:
         fl = self.floor
