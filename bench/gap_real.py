@@ -11,8 +11,10 @@ to the repository; exits cleanly when it is absent. For each set:
   gear friction with breakaway and back-driven share, mounting offset, measured supply voltage)
   is identified on the training gains with ``identify.identify`` (whole logs, open loop; three
   families: all free, the back-driven share held at 1, the motor constants nominal and the
-  voltage term off; the one with the fewest parameters unless another pays 2 % on the training
-  logs);
+  voltage term off; each from 3 jittered starts, fitted on the training logs but those at the
+  smallest value of the first header field that varies among them (kp, else length, mass, ...),
+  and the family and fit chosen on those held-back logs: the one with the fewest parameters
+  unless another pays 2 %);
 * the held-out gains are scored with BAM's measure (mean over logs of each log's position MAE,
   open loop from the first grid state, torque-off parts included), per trajectory and per kp,
   beside BAM's numbers on the same split, typed in from ../shared/reference/08-bam-reference-
@@ -22,7 +24,9 @@ to the repository; exits cleanly when it is absent. For each set:
     python bench/gap_real.py --sets rhoban-xl330   # one set
     python bench/gap_real.py --effects gain_error velocity_limit ...   # another structure
     python bench/gap_real.py --analyze             # also the automatic effect selection
-    python bench/gap_real.py --seeds 4             # also 4 fits from jittered starts (spread)
+    python bench/gap_real.py --seeds 3             # also 3 runs from jittered starts (spread)
+    python bench/gap_real.py --select train --restarts 1   # the family chosen on the training
+                                                   # logs, one start (before 2026-11-26 07:00)
 """
 
 from __future__ import annotations
@@ -82,7 +86,8 @@ def data_root(arg: str | None) -> Path:
 
 
 def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too: bool,
-            max_rounds: int, seeds: int = 0, jitter: float = 1e-3) -> dict:
+            max_rounds: int, seeds: int = 0, jitter: float = 1e-3, select: str = "inner",
+            restarts: int = 3) -> dict:
     spec = SETS[name]
     files = sorted((root / spec["folder"]).glob("*.json"))
     t0 = time.perf_counter()
@@ -91,12 +96,17 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
     test = [i for i, k in enumerate(kps) if k in spec["held_kp"]]
     train = [i for i, k in enumerate(kps) if k not in spec["held_kp"]]
     structure = tuple(effects) if effects else servo_structure(ds)
-    res = identify(ds, train, test, IdentifyConfig(effects=structure, max_rounds=max_rounds))
+    sel = dict(select=select, restarts=restarts)
+    c0 = time.process_time()
+    res = identify(ds, train, test, IdentifyConfig(effects=structure, max_rounds=max_rounds,
+                                                   **sel))
+    cpu = time.process_time() - c0
     wall = time.perf_counter() - t0
     out = {
         "set": name, "logs": len(files), "train_kp": sorted({kps[i] for i in train}),
         "test_kp": sorted(spec["held_kp"]), "structure": list(structure),
-        "wall_s": wall, "fit_s": res.fit_seconds, "rounds": res.rounds,
+        "wall_s": wall, "fit_s": res.fit_seconds, "rounds": res.rounds, "identify_cpu_s": cpu,
+        "selection": res.selection,
         "params": res.params(), "at_bound": res.at_bound, "family": res.family,
         "family_train_mae": res.family_train_mae,
         "ours": {
@@ -113,10 +123,13 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
     out["jittered"] = []
     for seed in range(1, seeds + 1):
         rj = identify(ds, train, test, IdentifyConfig(effects=structure, max_rounds=max_rounds,
-                                                      jitter=jitter, seed=seed))
+                                                      jitter=jitter, seed=seed, **sel))
         out["jittered"].append({"seed": seed, "jitter": jitter, "held_out": rj.mean(test),
                                 "train": rj.mean(train), "family": rj.family,
+                                "chosen": rj.selection.get("chosen", rj.family),
                                 "kp": breakdown(ds, rj.identified_mae, test, "kp"),
+                                "trajectory": breakdown(ds, rj.identified_mae, test,
+                                                        "trajectory"),
                                 "fit_s": rj.fit_seconds})
     if analyze_too:
         from lowcostdex.gap.analyze import GapConfig, analyze
@@ -158,7 +171,7 @@ def table(r: dict) -> str:
 def _print(r: dict) -> None:
     print(f"\n=== {r['set']}: {r['logs']} logs, train kp {r['train_kp']}, held out kp "
           f"{r['test_kp']}; fit {r['fit_s']:.0f} s ({r['rounds']} LM rounds), "
-          f"{r['wall_s']:.0f} s in all ===")
+          f"{r['wall_s']:.0f} s in all, identify {r['identify_cpu_s']:.0f} s CPU ===")
     print("held-out MAE [mrad], BAM's measure (mean over logs of per-log MAE, 5 ms grid):")
     print(table(r))
     print(f"train logs: {1e3 * r['ours']['identified (train logs)']['mean']:.1f} mrad")
@@ -168,6 +181,12 @@ def _print(r: dict) -> None:
     if r["family_train_mae"]:
         print(f"family: {r['family']} (train logs: " + ", ".join(
             f"{k} {1e3 * v:.1f}" for k, v in r["family_train_mae"].items()) + " mrad)")
+    sel = r["selection"]
+    if sel:
+        print(f"inner validation: fit {len(sel['fit_logs'])} training logs, validate on "
+              f"{len(sel['val_logs'])} (split by {sel['field']}); chosen {sel['chosen']}; "
+              "validation MAE [mrad]: " + ", ".join(f"{k} {1e3 * v:.1f}" for k, v in
+                                                    sel["val_mae"].items()))
     if r["at_bound"]:
         print("at a search bound:", ", ".join(r["at_bound"]))
     print("held-out MAE without each effect (others kept) [mrad]:",
@@ -177,8 +196,9 @@ def _print(r: dict) -> None:
               f"{len(r['jittered'])}), held out [mrad]:")
         for j in r["jittered"]:
             print(f"  seed {j['seed']}: {1e3 * j['held_out']:.1f} (train {1e3 * j['train']:.1f}, "
-                  f"{j['family']}; " + ", ".join(f"kp {k} {1e3 * v:.1f}" for k, v in
-                                                 j["kp"].items()) + ")")
+                  f"{j['chosen']}; " + ", ".join(f"kp {k} {1e3 * v:.1f}" for k, v in
+                                                 j["kp"].items()) + "; " +
+                  ", ".join(f"{k} {1e3 * v:.1f}" for k, v in j["trajectory"].items()) + ")")
         vals = [1e3 * r["ours"]["identified"]["mean"]] + [1e3 * j["held_out"]
                                                            for j in r["jittered"]]
         print(f"  all {len(vals)} fits: median {np.median(vals):.1f}, range "
@@ -201,6 +221,11 @@ def main(argv=None) -> int:
                     help="also identify from N jittered starts (seeds 1..N) and print the spread")
     ap.add_argument("--jitter", type=float, default=1e-3,
                     help="relative spread of the jittered starts (IdentifyConfig.jitter)")
+    ap.add_argument("--select", default="inner", choices=("inner", "train"),
+                    help="family and fit chosen on an inner validation (default) or on the "
+                    "training logs (IdentifyConfig.select)")
+    ap.add_argument("--restarts", type=int, default=3,
+                    help="jittered fits per family with --select inner")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     root = data_root(args.data)
@@ -214,7 +239,7 @@ def main(argv=None) -> int:
             print(f"{name}: folder {SETS[name]['folder']} missing, skipped")
             continue
         r = run_set(name, root, args.effects, args.analyze, args.max_rounds, args.seeds,
-                    args.jitter)
+                    args.jitter, args.select, args.restarts)
         results.append(r)
         _print(r)
     if args.json:

@@ -17,6 +17,7 @@ from lowcostdex.gap.identify import (
     _jitter,
     _prune_trailing,
     identify,
+    inner_split,
 )
 from lowcostdex.gap.logs import Trajectory
 from lowcostdex.sim import servo
@@ -68,9 +69,9 @@ def logs() -> Dataset:
 
 
 def test_identify_recovers_the_servo_and_predicts_held_out_gains(logs):
-    # fit kp 100 and 400, hold out kp 200 (logs 4, 5)
+    # fit kp 100 and 400, hold out kp 200 (logs 4, 5); the family chosen on the training logs
     res = identify(logs, [0, 1, 2, 3], [4, 5],
-                   IdentifyConfig(effects=tuple(TRUTH), max_rounds=20))
+                   IdentifyConfig(effects=tuple(TRUTH), max_rounds=20, select="train"))
     got = res.params()
     assert got["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
     assert got["gearbox_friction"]["mu"][0] == pytest.approx(0.15, rel=0.05)
@@ -104,12 +105,14 @@ def test_family_choice_takes_the_fewest_parameters_unless_more_pay_two_percent()
 def test_a_servo_with_datasheet_motor_constants_keeps_them(logs):
     # the bench logs were made with the catalogue motor (TRUTH has no motor effect): freeing the
     # torque per volt buys nothing on the training logs, so the nominal-motor family is kept
-    res = identify(logs, [0, 1, 2, 3], [4, 5],
-                   IdentifyConfig(effects=tuple(TRUTH) + ("motor_strength",), max_rounds=20))
-    assert res.family_train_mae.keys() == {"free", "held", "nominal_motor"}
-    assert res.family == "nominal_motor"
-    assert res.params()["motor_strength"]["scale"][0] == 1.0
-    assert res.params()["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
+    for select in ("train", "inner"):
+        res = identify(logs, [0, 1, 2, 3], [4, 5],
+                       IdentifyConfig(effects=tuple(TRUTH) + ("motor_strength",), max_rounds=20,
+                                      select=select, restarts=1))
+        assert res.family_train_mae.keys() == {"free", "held", "nominal_motor"}
+        assert res.family == "nominal_motor", (select, res.family_train_mae)
+        assert res.params()["motor_strength"]["scale"][0] == 1.0
+        assert res.params()["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
 
 
 def test_jittered_starts_spread_as_stated_and_still_recover_the_servo(logs):
@@ -169,3 +172,64 @@ def test_identify_refuses_bad_splits_and_structures(logs):
         IdentifyConfig(joint_rounds=0)
     with pytest.raises(ConfigError, match="alpha"):
         IdentifyConfig(hold=frozenset({("gearbox_friction", "no_such_param")}))
+
+
+def _headers(metas: list[dict]) -> Dataset:
+    t = np.arange(3) * DT
+    z = np.zeros((3, 1))
+    xml = build_bench(BenchConfig(motor="XL330-M288", timestep=DT)).to_xml()
+    return Dataset({"bench": xml}, [Trajectory(f"log{i}", t, z, z, J, J, model="bench", meta=m)
+                                    for i, m in enumerate(metas)])
+
+
+def test_inner_split_reads_the_headers_only():
+    # Rhoban-like: kp 100 and 400, four trajectories each -> split by kp
+    traj = ("lift_and_drop", "sin_sin", "sin_time_square", "up_and_down")
+    rh = _headers([{"kp": kp, "length": 0.1, "mass": 0.49, "trajectory": t}
+                   for kp in (100, 400) for t in traj])
+    field_, fit_logs, val_logs = inner_split(rh, range(8))
+    assert field_ == "kp"
+    assert {rh.trajectories[i].meta["kp"] for i in val_logs} == {100}  # the smallest is validated on
+    assert sorted(fit_logs + val_logs) == list(range(8)) and len(val_logs) == 4
+    # STS3032-like: one gain, 3 lengths x 3 masses -> the first varying field after kp: length
+    sts = _headers([{"kp": 32, "length": ln, "mass": m, "trajectory": "sin_sin"}
+                    for ln in (0.05, 0.07, 0.1) for m in (0.259, 0.3247, 0.457)])
+    field_, fit_logs, val_logs = inner_split(sts, range(9))
+    assert field_ == "length" and len(val_logs) == 3 and len(fit_logs) == 6
+    assert {sts.trajectories[i].meta["length"] for i in val_logs} == {0.05}
+    # only the logs passed are split (the held-out ones are never looked at)
+    field_, fit_logs, val_logs = inner_split(sts, [0, 1, 2])  # length 0.05, three masses
+    assert field_ == "mass" and len(val_logs) == 1
+    # nothing varies, or a header lacks the field: no split
+    assert inner_split(sts, [0]) is None
+    assert inner_split(_headers([{"kp": 1}, {"kp": 2, "length": 0.1}, {"length": 0.2}]),
+                       [0, 1, 2]) is None
+
+
+def test_inner_selection_fits_the_larger_gain_and_chooses_on_the_smaller(logs):
+    # training kp 100 (logs 0, 1) and 400 (logs 2, 3): fitted on kp 400, chosen on kp 100
+    res = identify(logs, [0, 1, 2, 3], [4, 5],
+                   IdentifyConfig(effects=tuple(TRUTH), max_rounds=20, restarts=2))
+    sel = res.selection
+    assert sel["field"] == "kp" and sel["fit_logs"] == [2, 3] and sel["val_logs"] == [0, 1]
+    assert sel["val_mae"].keys() == {"free.0", "free.1", "held.0", "held.1"}
+    # the identified model is the chosen fit: its replayed MAE on the validation logs is the
+    # number it was chosen by, and no other fit validated better by the 2 % margin
+    assert res.mean([0, 1]) == pytest.approx(sel["val_mae"][sel["chosen"]], rel=1e-9)
+    assert res.family_train_mae[res.family] == sel["val_mae"][sel["chosen"]]
+    assert sel["val_mae"][sel["chosen"]] <= min(sel["val_mae"].values()) / 0.98 + 1e-4
+    # the well-posed bench logs: the truth from the kp-400 logs alone, kp 100 and 200 predicted
+    got = res.params()
+    assert got["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
+    assert got["gearbox_friction"]["mu"][0] == pytest.approx(0.15, rel=0.05)
+    assert got["mounting_offset"]["offset"][0] == pytest.approx(0.03, abs=1e-3)
+    assert res.mean([0, 1, 4, 5]) < 2e-3
+    # one gain in the training logs and no other field: the training logs choose (no split)
+    one = identify(logs, [2, 3], [4, 5], IdentifyConfig(effects=tuple(TRUTH), max_rounds=20,
+                                                        restarts=2))
+    assert one.selection == {} and one.family_train_mae[one.family] == pytest.approx(
+        one.mean(one.train), rel=1e-9)
+    with pytest.raises(ConfigError, match="select"):
+        IdentifyConfig(select="test")
+    with pytest.raises(ConfigError, match="restarts"):
+        IdentifyConfig(restarts=0)
