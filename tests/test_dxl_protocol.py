@@ -75,6 +75,16 @@ def test_crc_matches_sdk_table_on_random_data():
     assert P.crc16(b, P.crc16(a)) == P.crc16(a + b)
 
 
+def test_crc_table_builder_matches_the_sdks_table():
+    # CRC_TABLE is built at import, so a check of crc16 cannot reach its builder (mutmut cannot
+    # switch code that ran before the test): the builder itself against the SDK's table, whose
+    # entry i is the CRC of the single byte i from 0 (non-reflected CRC-16, init 0)
+    ph = PacketHandler(2.0)
+    sdk = [ph.updateCRC(0, [i], 1) for i in range(256)]
+    assert P._crc_table(0x8005) == tuple(sdk) == P.CRC_TABLE
+    assert sdk[:4] == [0x0000, 0x8005, 0x800F, 0x000A]
+
+
 def test_stuffing_of_header_pattern():
     body = bytes((0x03, 0x74, 0x00, 0xFF, 0xFF, 0xFD, 0xFF))
     assert P.stuff(body) == bytes((0x03, 0x74, 0x00, 0xFF, 0xFF, 0xFD, 0xFD, 0xFF))
