@@ -74,7 +74,7 @@ class Dataset:
         for tr in self.trajectories:
             check_against_model(tr, self.compiled(tr.model))
             if tr.qvel is None:
-                tr.qvel = estimate_velocity(tr.time, tr.qpos)
+                tr.qvel = estimate_velocity(tr.time, tr.qpos, goal=tr.goal)
         names = {(tr.joints, tr.actuators) for tr in self.trajectories}
         if len(names) > 1:
             raise LogError("all logs must measure the same joints and command the same actuators;"
