@@ -11,6 +11,7 @@ confusable family (``gap_truth_sim.family``), a miss; clean data: no cause, or a
     python bench/gap_independent.py --cases bench-latency finger-clean --json out.json
     python bench/gap_independent.py --wide          # also the sizes written out (WIDE_CASES)
     python bench/gap_independent.py --seeds 3 --wide --json out.json --resume  # go on after a cut
+    python bench/gap_independent.py --positions-only  # logs without qvel columns (LeRobot-style)
 
 Runs go seed by seed (every case's first seed, then every case's second, ...), so a run cut
 short has measured every case once before it repeats one. With ``--resume`` the runs already in
@@ -26,6 +27,7 @@ noise alone (``interval_noise``).
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import platform
@@ -43,10 +45,13 @@ from lowcostdex.gap import GapConfig, analyze, load_dataset  # noqa: E402
 
 
 def run(case_id: str, rig: str, names: tuple[str, ...], seed: int, duration: float,
-        values: dict[str, float] | None = None) -> dict:
+        values: dict[str, float] | None = None, positions_only: bool = False) -> dict:
     case = ts.make_case(rig, list(names), seed, duration=duration, values=values)
     with tempfile.TemporaryDirectory() as d:
         model, paths = case.write(d)
+        if positions_only:
+            for p in paths:
+                _drop_velocity(Path(p))
         t0 = time.perf_counter()
         res = analyze(load_dataset(paths, model=model), GapConfig(seed=0))
         wall = time.perf_counter() - t0
@@ -78,6 +83,14 @@ def run(case_id: str, rig: str, names: tuple[str, ...], seed: int, duration: flo
     }
 
 
+def _drop_velocity(path: Path) -> None:
+    """Remove the ``qvel:`` columns of a CSV log (a position-only recording, as LeRobot's)."""
+    rows = list(csv.reader(path.open()))
+    keep = [i for i, name in enumerate(rows[0]) if not name.startswith("qvel:")]
+    with path.open("w", newline="") as f:
+        csv.writer(f).writerows([[row[i] for i in keep] for row in rows])
+
+
 def _fmt(r: dict) -> str:
     truth = ", ".join(f"{k} {np.round(v, 3).tolist()}" for k, v in r["truth"].items()) or "-"
     named = ", ".join(f"{n['effect']} " + " ".join(f"{np.round(v, 3).tolist()}"
@@ -96,6 +109,8 @@ def main() -> None:
                     help="also the sizes written out beyond the usual ranges (WIDE_CASES)")
     ap.add_argument("--resume", action="store_true",
                     help="keep the runs already in --json and do only the others")
+    ap.add_argument("--positions-only", action="store_true",
+                    help="drop the logs' qvel columns (position-only recordings)")
     args = ap.parse_args()
     if args.resume and not args.json:
         ap.error("--resume needs --json")
@@ -117,7 +132,7 @@ def main() -> None:
         for cid, rig, names, seed, duration, values in cases:
             if (values is not None and k > 0) or (cid, seed + 1000 * k) in done:
                 continue
-            r = run(cid, rig, names, seed + 1000 * k, duration, values)
+            r = run(cid, rig, names, seed + 1000 * k, duration, values, args.positions_only)
             out.append(r)
             print(_fmt(r), flush=True)
             if args.json:  # after every run: a run cut short keeps what it measured
