@@ -50,7 +50,7 @@ def test_warnings_are_recorded_not_printed_and_no_log_file_is_written(tmp_path, 
         raised = _step_unstable(data, model, 3) + _step_unstable(data, model, 2, steps_before=5)
     assert raised == 5  # MuJoCo counted one per reset
     assert seen.as_dict() == {BADQACC: 2}  # at t = 0 and at t = 5 steps: 2 distinct times
-    assert seen.summary().startswith(f"MuJoCo warned (counted, not printed): '{BADQACC}' (at 2 ")
+    assert seen.summary().startswith(f"MuJoCo warned (recorded, not printed): '{BADQACC}' (at 2 ")
     out, err = capfd.readouterr()
     assert "WARNING" not in out + err
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
@@ -130,3 +130,14 @@ def test_ctrl_c_while_mujoco_warns_interrupts_cleanly():
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 130, (proc.returncode, err[-300:])
+
+
+def test_one_description_for_the_console_and_the_report():
+    from lowcostdex.sim.mjwarnings import describe_warnings
+
+    kinds = {"a": 5, "b": 2, "c": 1}
+    assert describe_warnings({}) == ""
+    assert describe_warnings(kinds, 1) == ("MuJoCo warned (recorded, not printed): 'a' (at 5 distinct "
+                                           "simulation times); and 2 other kinds")
+    assert describe_warnings(kinds, None).count("distinct simulation times") == 3
+    assert "other kinds" not in describe_warnings(kinds, None)

@@ -77,6 +77,7 @@ def _analyze(args: argparse.Namespace) -> int:
     from lowcostdex.gap.dataset import load_dataset
     from lowcostdex.gap.report import summary, write_report
     from lowcostdex.outdir import check_out
+    from lowcostdex.sim.mjwarnings import describe_warnings
 
     console = Console(stderr=True)
     check_out(args.out, "gap analyze")  # refuse a user's folder before minutes of work
@@ -100,10 +101,7 @@ def _analyze(args: argparse.Namespace) -> int:
     out = write_report(result, args.out)
     print(summary(result))
     if result.mujoco_warnings:
-        kinds = list(result.mujoco_warnings.items())
-        print(f"MuJoCo warned while simulating candidate models (recorded, not printed; in "
-              f"report.md): '{kinds[0][0]}' (at {kinds[0][1]:,} distinct simulation times)"
-              + (f" and {len(kinds) - 1} other kinds" if len(kinds) > 1 else ""))
+        print(describe_warnings(result.mujoco_warnings, 1) + " (all in report.md)")
     print(f"report: {out / 'report.md'} (json: {out / 'report.json'}; extended model: "
           f"{out / 'extended'})")
     return 0

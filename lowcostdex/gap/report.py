@@ -15,6 +15,7 @@ import numpy as np
 from lowcostdex.gap.analyze import GapResult
 from lowcostdex.gap.extension import save_extended
 from lowcostdex.outdir import staged_output
+from lowcostdex.sim.mjwarnings import describe_warnings
 
 PLOTS = ("traces.png", "residuals.png", "candidates.png")
 
@@ -168,10 +169,8 @@ def markdown(result: GapResult) -> str:
     t = r.timing
     out.append("Timing: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()) + ".")
     if r.mujoco_warnings:
-        out += ["", "MuJoCo warnings while simulating the nominal and candidate models (counted "
-                "here instead of printed): " + "; ".join(
-                    f"'{k}' (at {n:,} distinct simulation times)"
-                    for k, n in r.mujoco_warnings.items()) + "."]
+        out += ["", "While simulating the nominal and candidate models: "
+                + describe_warnings(r.mujoco_warnings, None) + "."]
     return "\n".join(out) + "\n"
 
 

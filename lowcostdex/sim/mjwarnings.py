@@ -56,13 +56,19 @@ class MujocoWarnings:
 
     def summary(self, top: int = 3) -> str:
         """One line for a person; empty when MuJoCo raised nothing."""
-        kinds = self.kinds
-        if not kinds:
-            return ""
-        parts = [f"'{k}' (at {n:,} distinct simulation times)" for k, n in kinds.most_common(top)]
-        more = len(kinds) - top
-        return ("MuJoCo warned (counted, not printed): " + "; ".join(parts)
-                + (f"; and {more} other kinds" if more > 0 else ""))
+        return describe_warnings(self.as_dict(), top)
+
+
+def describe_warnings(kinds: dict[str, int], top: int | None = 3) -> str:
+    """``kinds`` (kind -> distinct simulation times, most frequent first, as ``as_dict`` gives
+    and report.json keeps) in one line; empty when there are none; ``top`` None: all kinds."""
+    if not kinds:
+        return ""
+    shown = list(kinds.items())[:top]
+    parts = [f"'{k}' (at {n:,} distinct simulation times)" for k, n in shown]
+    more = len(kinds) - len(shown)
+    return ("MuJoCo warned (recorded, not printed): " + "; ".join(parts)
+            + (f"; and {more} other kinds" if more > 0 else ""))
 
 
 @contextmanager
