@@ -81,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
     try:
-        with collect_mujoco_warnings() as warned:  # counted, not printed/MUJOCO_LOG.TXT
+        with collect_mujoco_warnings() as warned:  # recorded, not printed or MUJOCO_LOG.TXT
             code = int(args.func(args) or 0)
         if warned.messages:
             print(f"{prog}: note: {warned.summary()}", file=sys.stderr)
