@@ -12,7 +12,7 @@ import math
 
 import pytest
 
-from lowcostdex.main_job.report import _what_each_stage_added, markdown_report
+from lowcostdex.main_job.report import _validation_words, _what_each_stage_added, markdown_report
 from lowcostdex.main_job.setup import Context
 
 Z95 = 1.959963984540054
@@ -162,3 +162,13 @@ def test_the_paired_test_on_the_same_heldout_episodes(only_dapg, only_bc, both):
             f"p = {p:.3g})") in text, text
     del t["dapg"]["solved"]
     assert "Paired on" not in _what_each_stage_added(t)
+
+
+def test_the_report_says_whether_validation_was_paired():
+    # "the same episodes" only when both runs validated on one fixed set (TrainConfig.eval_paired)
+    t = results((0, 20), (9, 20), (9, 20), (0, 20))
+    assert _validation_words(t, 20) == "20 episodes each"
+    t["dapg"]["validation_paired"] = True
+    assert "same" not in _validation_words(t, 20)
+    t["npg"]["validation_paired"] = True
+    assert _validation_words(t, 20).startswith("the same 20 episodes every time")

@@ -11,6 +11,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -264,6 +265,39 @@ def test_an_update_that_produces_nan_stops_the_run_with_a_message(tmp_path, monk
     state = ex.load_state(files[-1])
     flat = torch.cat([v.reshape(-1) for v in state["policy"]["state_dict"].values()])
     assert torch.isfinite(flat).all()
+
+
+class _SeedLog(gym.Wrapper):
+    """Records the seed of every reset the trainer asks the env for (the env's side)."""
+
+    def __init__(self, env, log):
+        super().__init__(env)
+        self.log = log
+
+    def reset(self, *, seed=None, options=None):
+        self.log.append(seed)
+        return self.env.reset(seed=seed, options=options)
+
+
+@pytest.mark.parametrize("paired", [False, True])
+def test_paired_evaluations_run_the_clones_episodes_again(tmp_path, paired):
+    """With ``eval_paired`` the clone and every evaluation reset the env with the same seeds
+    (the same episodes), so the run's policy is chosen on paired comparisons; without it each
+    evaluation draws new ones. Read from the env's resets: the clone's 3 evaluation episodes,
+    then per iteration 2 training episodes and after iterations 1 and 3 an evaluation of 3."""
+    log = []
+    demos = _expert_demos(tmp_path / "demos.h5")
+    cfg = _config(algo="dapg", demos=str(demos), n_iter=4, n_traj=2, eval_every=2,
+                  eval_episodes=3, eval_bc=True, eval_paired=paired, bc=BCConfig(epochs=5))
+    train(cfg, tmp_path / "run", env_factory=lambda: _SeedLog(make_pointmass(), log))
+    assert len(log) == 3 + 4 * 2 + 2 * 3 and None not in log
+    clone, evals = log[:3], [log[7:10], log[14:17]]
+    training = log[3:7] + log[10:14]
+    assert len(set(clone)) == 3 and not set(training) & set(clone + evals[0] + evals[1])
+    if paired:
+        assert evals[0] == clone and evals[1] == clone
+    else:
+        assert not set(evals[0]) & set(clone) and not set(evals[1]) & set(evals[0] + clone)
 
 
 @pytest.mark.parametrize("step_size", [0.05, 20.0])

@@ -249,6 +249,14 @@ class TrainConfig:
         run's policy as iteration -1 (``BestPolicy``): RL's iterates replace it only by beating
         it in their evaluations. Every run with demonstrations saves the clone
         (``bc_policy.pt``).
+      eval_paired: every evaluation runs the same episodes (reset seeds of the evaluation
+        stream's iteration 0), the clone's too with ``eval_bc``, so the run's policy is chosen
+        by paired comparisons: two candidates differ by their policies, not by which episodes
+        they drew. False (the default) draws new episodes for each evaluation (the evaluation
+        stream at that iteration; the clone's from ``samplers.BC_EVAL_STREAM``), which tracks
+        the learning curve over more distinct episodes but adds the episode draw's noise to
+        the choice (with 20 episodes, several successes: bench/RESULTS.md, "The RL stage in
+        the main job").
       policy, baseline, npg, dapg, bc: component configs. Defaults: the hand_dapg policy
         (32, 32) with init log-std -1.0 (std 0.37; hand_dapg: -0.5); the NPG step delta 0.1
         with damping 1e-2 rather than mjrl's 0.05 / 1e-4: on DClawTurnValve-v0 with 40
@@ -293,6 +301,7 @@ class TrainConfig:
     n_demos: int | None = None
     bc_init: bool = False
     eval_bc: bool = False
+    eval_paired: bool = False
     policy: PolicyConfig = field(
         default_factory=lambda: PolicyConfig(hidden_sizes=(32, 32), init_log_std=-1.0)
     )

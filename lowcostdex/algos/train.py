@@ -54,6 +54,7 @@ from lowcostdex.algos.samplers import (
     EnvFactoryFn,
     ProcessSampler,
     RaySampler,
+    RolloutJob,
     Sampler,
     SerialSampler,
     Trajectory,
@@ -239,12 +240,23 @@ def _init_state(config: TrainConfig, probe: Any, demos: Demos | None
     return _State(policy, baseline), None
 
 
+def evaluation_jobs(config: TrainConfig, k: int, clone: bool = False) -> list[RolloutJob]:
+    """The deterministic episodes of the evaluation after iteration ``k`` (the behaviour
+    clone's before iteration 0 with ``clone``): with ``config.eval_paired`` always those of
+    (EVAL_STREAM, 0); otherwise (EVAL_STREAM, k), the clone's (BC_EVAL_STREAM, 0)."""
+    if config.eval_paired:
+        stream, k = EVAL_STREAM, 0
+    else:
+        stream, k = (BC_EVAL_STREAM, 0) if clone else (EVAL_STREAM, k)
+    return make_jobs(config.seed, stream, k, config.eval_episodes, deterministic=True)
+
+
 def _evaluate(
-    config: TrainConfig, sampler: Sampler, state: _State, stream: int, k: int
+    config: TrainConfig, sampler: Sampler, state: _State, k: int, clone: bool = False
 ) -> tuple[list[Trajectory], dict[str, float]]:
-    """``eval_episodes`` deterministic episodes of the current policy (seed stream ``stream``,
-    iteration ``k``); their robot time counts. Returns the paths and the ``eval_`` metrics."""
-    jobs = make_jobs(config.seed, stream, k, config.eval_episodes, deterministic=True)
+    """``eval_episodes`` deterministic episodes of the current policy (:func:`evaluation_jobs`);
+    their robot time counts. Returns the paths and the ``eval_`` metrics."""
+    jobs = evaluation_jobs(config, k, clone)
     paths = sampler.sample(state.policy.snapshot(), jobs)
     state.robot_seconds += sum(p.robot_seconds for p in paths)
     state.pause_seconds += sum(p.pause_seconds for p in paths)
@@ -360,7 +372,7 @@ def train(
             clone = {"policy": state.policy.to_checkpoint()}
             ex.save_state(run.path / ex.BC_POLICY_FILE, clone)
             if config.eval_bc:  # the clone alone, before any RL sample
-                paths, metrics = _evaluate(config, sampler, state, BC_EVAL_STREAM, 0)
+                paths, metrics = _evaluate(config, sampler, state, 0, clone=True)
                 bc.update(metrics, eval_episodes=len(paths))
                 errors = [p.final_goal_error for p in paths]
                 if all(np.isfinite(errors)):  # per episode, for a test against a baseline
@@ -441,7 +453,7 @@ def _loop(
         evaluate = final or (config.eval_every > 0 and (k + 1) % config.eval_every == 0)
         row.update({ex.EVAL_SUCCESS_RATE: math.nan, ex.EVAL_RETURN_MEAN: math.nan})
         if evaluate:
-            eval_paths, metrics = _evaluate(config, sampler, state, EVAL_STREAM, k)
+            eval_paths, metrics = _evaluate(config, sampler, state, k)
             row.update(metrics)
             latest = eval_paths[-1]
             state.best.consider(k, {**row, ex.SAMPLES: state.samples},

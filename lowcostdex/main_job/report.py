@@ -75,7 +75,7 @@ def markdown_report(ctx: Context) -> str:
         lines += ["## 3. DAPG vs NPG on the robot", "",
                   "Validation: deterministic episodes (the policy's mean action) every "
                   f"{ctx.budget.eval_every or 'last'} iteration(s) during training "
-                  f"({ctx.budget.eval_episodes} episodes each; the behaviour clone's evaluation "
+                  f"({_validation_words(t, ctx.budget.eval_episodes)}; the behaviour clone's evaluation "
                   "before the first RL step counts as one of DAPG's). They choose each run's "
                   "policy (`train_*/policy.pt`): the best validated one, the clone itself when "
                   "no RL iterate beat it.", "",
@@ -197,6 +197,14 @@ def stage_verdicts(t: dict[str, Any]) -> list[dict[str, Any]]:
         out.append({**row, "verdict": verdict, "rate_before": ka / na, "rate_after": kb / nb,
                     "ci_before": ia, "ci_after": ib})
     return out
+
+
+def _validation_words(t: dict[str, Any], n: int) -> str:
+    """How many validation episodes, and whether every validation ran the same ones."""
+    if all(t.get(a, {}).get("validation_paired") for a in ("dapg", "npg")):
+        return (f"the same {n} episodes every time, so the candidates are compared on the "
+                "same episodes")
+    return f"{n} episodes each"
 
 
 def _what_each_stage_added(t: dict[str, Any]) -> str:

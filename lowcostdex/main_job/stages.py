@@ -157,7 +157,8 @@ def stage_train(ctx: Context) -> dict[str, Any]:
                              n_traj=b.traj_per_iter, eval_every=b.eval_every,
                              eval_episodes=b.eval_episodes,
                              demos=str(demos) if algo == "dapg" else None,
-                             eval_bc=algo == "dapg", dapg=DAPGConfig(lam0=DAPG_LAM0))
+                             eval_bc=algo == "dapg", dapg=DAPGConfig(lam0=DAPG_LAM0),
+                             eval_paired=True)
         run_dir = ctx.out / f"train_{algo}"
         t0 = time.perf_counter()
         run = train(config, run_dir)
@@ -180,6 +181,7 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             "first_eval_crossing_samples": float(first["samples"]) if first else None,
             "evaluations": summary["evaluations"],
             "validation_episodes": b.eval_episodes,
+            "validation_paired": config.eval_paired,
             "wall_seconds": round(time.perf_counter() - t0, 1),
             "curves": f"{run_dir.name}/learning_curves.png",
             "robot": {k: float(metrics[f"robot_{k}"][-1]) for k in
