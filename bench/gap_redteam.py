@@ -102,9 +102,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", nargs="+", help="case names (default: all)")
     ap.add_argument("--json", help="write the rows and summary to this file")
     ap.add_argument("--keep", help="folder for data and reports (default: a temporary one)")
-    ap.add_argument("--threads", type=int, default=1, help="gap analyze --threads")
+    ap.add_argument("--threads", type=int, default=2, help="gap analyze --threads")
+    ap.add_argument("--skip", nargs="+", default=[], help="case names to leave out")
     args = ap.parse_args(argv)
     names = args.cases or (QUICK if args.quick else [c.name for c in sim.CASES])
+    names = [n for n in names if n not in args.skip]
     unknown = [n for n in names if n not in sim.CASE_BY_NAME]
     if unknown:
         ap.error(f"unknown case(s) {unknown}; valid: {sorted(sim.CASE_BY_NAME)}")
