@@ -34,12 +34,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import tempfile
 import time
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from lowcostdex.gap import bam_measure as bm
+from lowcostdex.gap.bam_logs import BAM_MOTORS
 from lowcostdex.gap.dataset import load_dataset
 from lowcostdex.gap.identify import IdentifyConfig, breakdown, identify, servo_structure
 
@@ -73,7 +76,13 @@ SETS = {
             "BAM published M4": (0.022, {}, {400: 0.022}),
             "BAM published M1": (0.024, {}, {400: 0.024}),
         }),
+    # one setup (kp 32, 1.13 kg at 0.12 m), 4 logs: no gain to hold out and no BAM number in
+    # the reference; held out one trajectory at a time (--loso trajectory is its headline)
+    "sts3250": dict(folder="rhoban-bam-feetech-sts3250", held_kp=None, bam={}),
 }
+# Header fields whose values a leave-one-setup-out run holds out in turn (--loso auto: those
+# taking two or more values in the set).
+LOSO_FIELDS = ("kp", "mass", "length", "trajectory")
 
 
 def data_root(arg: str | None) -> Path:
@@ -85,27 +94,52 @@ def data_root(arg: str | None) -> Path:
     return Path(__file__).resolve().parents[2] / "shared" / "data" / "measured"
 
 
+def load_set(name: str, root: Path):
+    files = sorted((root / SETS[name]["folder"]).glob("*.json"))
+    return files, bm.grid_dataset(load_dataset(files, timestep=bm.BAM_DT))
+
+
 def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too: bool,
             max_rounds: int, seeds: int = 0, jitter: float = 1e-3, select: str = "inner",
-            restarts: int = 3) -> dict:
+            restarts: int = 3, loso_fields: Sequence[str] = (), json_path: str | None = None,
+            done: Sequence[dict] = (), loso_only: bool = False) -> dict:
     spec = SETS[name]
-    files = sorted((root / spec["folder"]).glob("*.json"))
     t0 = time.perf_counter()
-    ds = bm.grid_dataset(load_dataset(files, timestep=bm.BAM_DT))
+    files, ds = load_set(name, root)
+    structure = tuple(effects) if effects else servo_structure(ds)
+    sel = dict(select=select, restarts=restarts, max_rounds=max_rounds)
+    out: dict = {"set": name, "logs": len(files), "structure": list(structure), "jittered": [],
+                 "reference_all": {k: float(np.mean(list(v.values())))
+                                   for k, v in reference_mae(ds).items()}}
+    if spec["held_kp"] is not None and not loso_only:
+        out.update(_bam_split(name, ds, structure, sel, analyze_too, seeds, jitter))
+    out["wall_s"] = time.perf_counter() - t0
+    fields = list(loso_fields)
+    if spec["held_kp"] is None and "trajectory" not in fields:
+        fields.append("trajectory")  # one setup: its only held-out view
+    out["loso"] = []
+    for row in loso(ds, fields, structure, sel):
+        out["loso"].append(row)
+        if json_path:  # written fold by fold: a stopped run keeps what it measured
+            Path(json_path).write_text(json.dumps([*done, out], indent=1, default=float))
+    return out
+
+
+def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: int,
+               jitter: float) -> dict:
+    """The identification on BAM's split (train / held-out gains) beside BAM's numbers."""
+    spec = SETS[name]
     kps = [int(tr.meta["kp"]) for tr in ds.trajectories]
     test = [i for i, k in enumerate(kps) if k in spec["held_kp"]]
     train = [i for i, k in enumerate(kps) if k not in spec["held_kp"]]
-    structure = tuple(effects) if effects else servo_structure(ds)
-    sel = dict(select=select, restarts=restarts)
     c0 = time.process_time()
-    res = identify(ds, train, test, IdentifyConfig(effects=structure, max_rounds=max_rounds,
-                                                   **sel))
+    res = identify(ds, train, test, IdentifyConfig(effects=structure, **sel))
     cpu = time.process_time() - c0
-    wall = time.perf_counter() - t0
+    refs = reference_mae(ds)
     out = {
-        "set": name, "logs": len(files), "train_kp": sorted({kps[i] for i in train}),
-        "test_kp": sorted(spec["held_kp"]), "structure": list(structure),
-        "wall_s": wall, "fit_s": res.fit_seconds, "rounds": res.rounds, "identify_cpu_s": cpu,
+        "train_kp": sorted({kps[i] for i in train}),
+        "test_kp": sorted(spec["held_kp"]),
+        "fit_s": res.fit_seconds, "rounds": res.rounds, "identify_cpu_s": cpu,
         "selection": res.selection,
         "params": res.params(), "at_bound": res.at_bound, "family": res.family,
         "family_train_mae": res.family_train_mae,
@@ -113,17 +147,18 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
             "identified": _summary(ds, res.identified_mae, test),
             "nominal": _summary(ds, res.nominal_mae, test),
             "identified (train logs)": {"mean": res.mean(train)},
+            **{f"reference {k}": _summary(ds, v, test) for k, v in refs.items()},
         },
         "ablation": res.ablation,
         "bam": {k: {"mean": v[0], "trajectory": v[1], "kp": v[2]} for k, v in
                 spec["bam"].items()},
+        "jittered": [],
     }
     # the same identification from jittered starts: how much the held-out error depends on
     # where the least-squares path starts
-    out["jittered"] = []
     for seed in range(1, seeds + 1):
-        rj = identify(ds, train, test, IdentifyConfig(effects=structure, max_rounds=max_rounds,
-                                                      jitter=jitter, seed=seed, **sel))
+        rj = identify(ds, train, test, IdentifyConfig(effects=structure, jitter=jitter,
+                                                      seed=seed, **sel))
         out["jittered"].append({"seed": seed, "jitter": jitter, "held_out": rj.mean(test),
                                 "train": rj.mean(train), "family": rj.family,
                                 "chosen": rj.selection.get("chosen", rj.family),
@@ -144,6 +179,102 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
     return out
 
 
+def reference_mae(ds) -> dict[str, dict[int, float]]:
+    """Two trivial predictions scored with BAM's measure on the 5 ms grid, per log [rad]:
+    the arm at its goal (q = goal_position) and the arm where it started (q = q(0)); reference
+    08 gives both for Rhoban (0.654, 0.416 rad), Pham (0.163, 0.965) and STS3032 (0.395, 0.726
+    over all 72 logs)."""
+    out: dict[str, dict[int, float]] = {"q = goal": {}, "q = q(0)": {}}
+    for i, tr in enumerate(ds.trajectories):
+        q = tr.qpos[:, 0]
+        out["q = goal"][i] = float(np.mean(np.abs(tr.goal[:, 0] - q)))
+        out["q = q(0)"][i] = float(np.mean(np.abs(q[0] - q)))
+    return out
+
+
+def loso(ds, fields: Sequence[str], structure, sel: dict) -> Iterator[dict]:
+    """Leave one setup out: for each header field in ``fields`` that takes two or more values,
+    each value in turn held out (its logs scored, the rest identified with the same default
+    configuration). Yields one row per fold as it finishes."""
+    n = len(ds.trajectories)
+    refs = reference_mae(ds)
+    for f in fields:
+        vals = [ds.trajectories[i].meta.get(f) for i in range(n)]
+        if any(v is None for v in vals) or len(set(vals)) < 2:
+            continue
+        for v in sorted(set(vals), key=str):
+            test = [i for i in range(n) if vals[i] == v]
+            train = [i for i in range(n) if vals[i] != v]
+            c0 = time.process_time()
+            r = identify(ds, train, test, IdentifyConfig(effects=structure, **sel))
+            row = {"field": f, "value": v, "n_train": len(train), "n_test": len(test),
+                   "held_out": r.mean(test), "train": r.mean(train),
+                   "nominal": float(np.mean([r.nominal_mae[i] for i in test])),
+                   **{k: float(np.mean([m[i] for i in test])) for k, m in refs.items()},
+                   "chosen": r.selection.get("chosen", r.family),
+                   "split": (r.selection or {}).get("field"),
+                   "at_bound": r.at_bound, "cpu_s": time.process_time() - c0,
+                   "fit_s": r.fit_seconds}
+            print(f"  loso {f}={v}: held out {1e3 * row['held_out']:.1f} mrad (train "
+                  f"{1e3 * row['train']:.1f}; nominal {1e3 * row['nominal']:.1f}, q = goal "
+                  f"{1e3 * row['q = goal']:.1f}); {row['chosen']}, inner split "
+                  f"{row['split']}, {row['cpu_s']:.0f} s CPU", flush=True)
+            yield row
+
+
+def mx_checks(root: Path) -> dict:
+    """The MX set is not a pendulum log set: the no-load speed per supply volt and the firmware's
+    duty per P-gain and position error are measured directly (Rhoban/bam data/ README), and one
+    passive fall (torque off) of an MX servo with 0.335 kg at 0.105 m. Checked here: the
+    catalogue's MX-64/MX-106 (Protocol 1.0) no-load speed and error_gain against them, and the
+    nominal bench model's replay of the fall (BAM's measure) beside two trivial predictions.
+    The fall's servo model is not recorded (MX-64 and MX-106 are both tried); its angle is
+    measured from the horizontal, so hanging is -pi/2 there and 0 on the bench."""
+    from lowcostdex.gap.replay import Replayer
+    from lowcostdex.sim import servo
+
+    folder = root / "rhoban-bam-mx-atomic"
+    out: dict = {"set": "mx", "speed": {}, "error_gain": {}, "fall": {}}
+    for mx in ("mx64", "mx106"):
+        spec = servo.motor_spec(BAM_MOTORS[mx])
+        vel = json.loads((folder / f"velocity_{mx}.json").read_text())
+        v = np.array([float(k) for k in vel])
+        w = np.array([float(x) for x in vel.values()])
+        slope = float(np.sum(v * w) / np.sum(v * v))  # rad/s per V through the origin
+        out["speed"][mx] = {"measured rad/s/V": slope,
+                            "catalogue rad/s/V": spec.no_load_speed / spec.voltage}
+        pwm = json.loads((folder / f"pwm_{mx}.json").read_text())
+        duty = np.array([s["period"] / pwm["pwm_period"] for s in pwm["samples"]])
+        x = np.array([s["kp"] * abs(np.deg2rad(s["target"] - s["position"]))
+                      for s in pwm["samples"]])
+        out["error_gain"][mx] = {"measured": float(np.sum(x * duty) / np.sum(x * x)),
+                                 "catalogue": spec.error_gain}
+    raw = json.loads((folder / "friction_1.json").read_text())
+    q = np.asarray(raw["positions"], float) + np.pi / 2  # bench angle: 0 hanging
+    t = np.asarray(raw["timestamps"], float)
+    with tempfile.TemporaryDirectory() as tmp:
+        for mx in ("mx64", "mx106"):
+            log = {"mass": raw["m"], "length": raw["l"], "kp": 32, "vin": 12.0, "motor": mx,
+                   "trajectory": "passive_fall",
+                   "entries": [{"timestamp": float(a), "position": float(b),
+                                "goal_position": float(b), "torque_enable": False}
+                               for a, b in zip(t, q, strict=True)]}
+            path = Path(tmp) / f"fall_{mx}.json"
+            path.write_text(json.dumps(log))
+            ds = bm.grid_dataset(load_dataset([path], timestep=bm.BAM_DT))
+            nominal = bm.per_log_mae(Replayer(ds), bm.whole_logs(ds), [[]])[0, 0]
+            refs = reference_mae(ds)
+            qf = ds.trajectories[0].qpos[:, 0]
+            ins = identify(ds, [0], [], IdentifyConfig(effects=servo_structure(ds)))
+            out["fall"][mx] = {"nominal": float(nominal), "q = q(0)": refs["q = q(0)"][0],
+                               "in sample": ins.identified_mae[0], "params": ins.params(),
+                               "release_s": float(bm.BAM_DT * np.argmax(
+                                   np.abs(qf - qf[0]) > 0.01)),
+                               "q = 0 (hanging)": float(np.mean(np.abs(ds.trajectories[0]
+                                                                       .qpos[:, 0])))}
+    return out
+
+
 def _summary(ds, mae: dict[int, float], logs: list[int]) -> dict:
     return {"mean": float(np.mean([mae[i] for i in logs])),
             "trajectory": breakdown(ds, mae, logs, "trajectory"),
@@ -158,7 +289,8 @@ def table(r: dict) -> str:
     kps = r["test_kp"]
     head = ["model", "held-out", *TRAJ, *[f"kp {k}" for k in kps]]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    rows = [(f"ours: {k}", v) for k, v in r["ours"].items() if "trajectory" in v]
+    rows = [(k if k.startswith("reference") else f"ours: {k}", v)
+            for k, v in r["ours"].items() if "trajectory" in v]
     rows += [(k, v) for k, v in r["bam"].items()]
     for label, v in rows:
         cells = [label, _fmt(v["mean"])]
@@ -169,6 +301,10 @@ def table(r: dict) -> str:
 
 
 def _print(r: dict) -> None:
+    if "ours" not in r:  # no BAM split run (one setup, or --loso-only)
+        print(f"\n=== {r['set']}: {r['logs']} logs, leave one setup out only ===")
+        _print_loso(r)
+        return
     print(f"\n=== {r['set']}: {r['logs']} logs, train kp {r['train_kp']}, held out kp "
           f"{r['test_kp']}; fit {r['fit_s']:.0f} s ({r['rounds']} LM rounds), "
           f"{r['wall_s']:.0f} s in all, identify {r['identify_cpu_s']:.0f} s CPU ===")
@@ -191,6 +327,13 @@ def _print(r: dict) -> None:
         print("at a search bound:", ", ".join(r["at_bound"]))
     print("held-out MAE without each effect (others kept) [mrad]:",
           ", ".join(f"{k} {1e3 * v:.1f}" for k, v in r["ablation"].items()))
+    _print_jittered(r)
+    if "analysis" in r:
+        print("automatic selection:", r["analysis"]["verdict"])
+    _print_loso(r)
+
+
+def _print_jittered(r: dict) -> None:
     if r["jittered"]:
         print(f"jittered starts (x (1 + {r['jittered'][0]['jitter']:g} N(0, 1)), seeds 1-"
               f"{len(r['jittered'])}), held out [mrad]:")
@@ -203,15 +346,82 @@ def _print(r: dict) -> None:
                                                            for j in r["jittered"]]
         print(f"  all {len(vals)} fits: median {np.median(vals):.1f}, range "
               f"{min(vals):.1f}-{max(vals):.1f}")
-    if "analysis" in r:
-        print("automatic selection:", r["analysis"]["verdict"])
+
+
+def _print_loso(r: dict) -> None:
+    if not r.get("loso"):
+        return
+    print(f"leave one setup out ({r['set']}; each value held out in turn, the rest identified "
+          "with the default configuration), held-out MAE [mrad]:")
+    print(loso_table(r["loso"]))
+
+
+def loso_table(rows: Sequence[dict]) -> str:
+    head = ["held out", "logs train/test", "ours", "train", "nominal", "q = goal", "q = q(0)",
+            "chosen (inner split)", "CPU s"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for x in rows:
+        lines.append("| " + " | ".join([
+            f"{x['field']} {x['value']}", f"{x['n_train']}/{x['n_test']}", _fmt(x["held_out"]),
+            _fmt(x["train"]), _fmt(x["nominal"]), _fmt(x["q = goal"]), _fmt(x["q = q(0)"]),
+            f"{x['chosen']} ({x['split'] or '-'})", f"{x['cpu_s']:.0f}"]) + " |")
+    return "\n".join(lines)
+
+
+def summary_table(results: Sequence[dict]) -> str:
+    """One row per set: BAM's split where the reference has one, else the mean over the
+    leave-one-trajectory-out folds; then each leave-one-setup-out field's fold mean."""
+    head = ["set", "held out", "ours", "nominal", "q = goal", "q = q(0)", "BAM (best, same split)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in results:
+        if r["set"] == "mx":
+            continue
+        if "ours" in r:
+            o = r["ours"]
+            bam = min(r["bam"].items(), key=lambda kv: kv[1]["mean"]) if r["bam"] else None
+            lines.append("| " + " | ".join([
+                r["set"], "kp " + ", ".join(map(str, r["test_kp"])),
+                _fmt(o["identified"]["mean"]), _fmt(o["nominal"]["mean"]),
+                _fmt(o["reference q = goal"]["mean"]), _fmt(o["reference q = q(0)"]["mean"]),
+                f"{_fmt(bam[1]['mean'])} ({bam[0]})" if bam else "- (none in ref 08)"]) + " |")
+        by: dict = {}
+        for x in r.get("loso", []):
+            by.setdefault(x["field"], []).append(x)
+        for f, xs in by.items():
+            lines.append("| " + " | ".join([
+                r["set"], f"each {f} in turn ({len(xs)} folds, mean)",
+                *[_fmt(float(np.mean([x[k] for x in xs])))
+                  for k in ("held_out", "nominal", "q = goal", "q = q(0)")],
+                "-"]) + " |")
+    return "\n".join(lines)
+
+
+def _print_mx(m: dict) -> None:
+    print("\n=== mx (Rhoban/bam data/: component measurements, one passive fall) ===")
+    for mx in ("mx64", "mx106"):
+        sp, eg = m["speed"][mx], m["error_gain"][mx]
+        print(f"{mx}: no-load speed {sp['measured rad/s/V']:.4f} rad/s per V measured vs "
+              f"{sp['catalogue rad/s/V']:.4f} catalogue; duty per (kp rad) "
+              f"{eg['measured']:.4f} measured vs {eg['catalogue']:.4f} catalogue")
+    for mx, f in m["fall"].items():
+        print(f"passive fall (0.335 kg at 0.105 m, torque off) as {mx}, BAM's measure [mrad]: "
+              f"nominal model {1e3 * f['nominal']:.1f}, q = q(0) {1e3 * f['q = q(0)']:.1f}, "
+              f"q = 0 (hanging) {1e3 * f['q = 0 (hanging)']:.1f}; identified on this one log "
+              f"(in sample, nothing held out) {1e3 * f['in sample']:.1f}; the real arm leaves "
+              f"its start only at {f['release_s']:.2f} s (held until released)")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=None, help="measured-data folder")
-    ap.add_argument("--sets", nargs="+", default=list(SETS), choices=list(SETS))
+    ap.add_argument("--sets", nargs="+", default=[*SETS, "mx"], choices=[*SETS, "mx"])
+    ap.add_argument("--loso", nargs="*", default=[], metavar="FIELD",
+                    help="also leave one setup out: each value of these header fields "
+                    f"({', '.join(LOSO_FIELDS)}; 'auto': all) held out in turn; a set with "
+                    "one setup always gets 'trajectory'")
+    ap.add_argument("--loso-only", action="store_true",
+                    help="skip BAM's split (only the leave-one-setup-out folds)")
     ap.add_argument("--effects", nargs="+", default=None,
                     help="structure to identify (default: identify.servo_structure)")
     ap.add_argument("--analyze", action="store_true",
@@ -233,17 +443,26 @@ def main(argv=None) -> int:
         print(f"measured data not found at {root}; set LOWCOSTDEX_MEASURED_DATA or --data "
               "(skipping)")
         return 0
-    results = []
+    fields = LOSO_FIELDS if "auto" in args.loso else tuple(args.loso)
+    results: list[dict] = []
     for name in args.sets:
-        if not (root / SETS[name]["folder"]).is_dir():
-            print(f"{name}: folder {SETS[name]['folder']} missing, skipped")
+        folder = "rhoban-bam-mx-atomic" if name == "mx" else SETS[name]["folder"]
+        if not (root / folder).is_dir():
+            print(f"{name}: folder {folder} missing, skipped")
             continue
-        r = run_set(name, root, args.effects, args.analyze, args.max_rounds, args.seeds,
-                    args.jitter, args.select, args.restarts)
+        if name == "mx":
+            r = mx_checks(root)
+            _print_mx(r)
+        else:
+            r = run_set(name, root, args.effects, args.analyze, args.max_rounds, args.seeds,
+                        args.jitter, args.select, args.restarts, fields, args.json, results,
+                        args.loso_only)
+            _print(r)
         results.append(r)
-        _print(r)
-    if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=1, default=float))
+        if args.json:
+            Path(args.json).write_text(json.dumps(results, indent=1, default=float))
+    print("\nall sets, held-out MAE [mrad], BAM's measure, default configuration:")
+    print(summary_table(results))
     return 0
 
 

@@ -142,7 +142,7 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
 
     t = col("timestamp")
     volts = col("input_volts", np.nan)
-    if np.nanmedian(volts) > 30.0:  # Feetech registers in 0.1 V
+    if np.any(np.isfinite(volts)) and np.nanmedian(volts) > 30.0:  # Feetech: 0.1 V registers
         volts = volts * 0.1
     temp = col("temp", np.nan)
     channels = {"torque_enable": col("torque_enable", 1.0)[:, None]}

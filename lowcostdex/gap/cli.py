@@ -2,6 +2,8 @@
 
     lowcostdex gap analyze --model MODEL.xml --log a.csv b.csv --out report/
     lowcostdex gap analyze --bench --log ../shared/data/measured/rhoban-bam-xl330/*.json --out r/
+    lowcostdex gap identify --log ../shared/data/measured/rhoban-bam-xl330/ \
+        --holdout held/*.json --json identified.json
     lowcostdex gap generate --rig bench --effect latency --seed 1 --out demo/
 """
 
@@ -42,6 +44,22 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--threads", type=integer(0, 1024), default=0,
                    help="simulation threads (0: all CPUs)")
     a.set_defaults(func=_analyze)
+
+    i = gsub.add_parser("identify", help="fit the servo's own parameters (motor constants, "
+                        "inertia, friction, mounting offset) on whole BAM bench logs, open loop, "
+                        "and score held-out logs with BAM's per-log MAE")
+    i.add_argument("--log", nargs="+", required=True, metavar="FILE",
+                   help="BAM raw-log JSON files (a folder: every log in it; include the "
+                        "--holdout logs here too)")
+    i.add_argument("--holdout", nargs="+", metavar="FILE", default=None,
+                   help="logs scored, not fitted (default: none; every log fitted)")
+    i.add_argument("--restarts", type=integer(1, 20), default=3,
+                   help="jittered fits per family (identify.IdentifyConfig.restarts)")
+    i.add_argument("--threads", type=integer(0, 1024), default=0,
+                   help="simulation threads (0: all CPUs)")
+    i.add_argument("--json", default=None, metavar="FILE",
+                   help="also write the identified parameters and per-log MAE here")
+    i.set_defaults(func=_identify)
 
     g = gsub.add_parser("generate", help="write synthetic logs with hidden effects (demo/tests)")
     g.add_argument("--rig", choices=("bench", "finger"), default="bench")
@@ -104,6 +122,71 @@ def _analyze(args: argparse.Namespace) -> int:
         print(describe_warnings(result.mujoco_warnings, 1) + " (all in report.md)")
     print(f"report: {out / 'report.md'} (json: {out / 'report.json'}; extended model: "
           f"{out / 'extended'})")
+    return 0
+
+
+def _holdout(logs: list[str], holdout: list[str] | None, sources: list) -> tuple[int, ...] | None:
+    """Indices of the data set's trajectories from the ``holdout`` files (a log split at a
+    gap is held out whole); None without ``holdout``."""
+    from lowcostdex.errors import ConfigError
+
+    if not holdout:
+        return None
+    resolved = {str(Path(p).resolve()) for p in holdout}
+    if not resolved <= {str(Path(p).resolve()) for p in logs}:
+        raise ConfigError("every --holdout file must also be given with --log")
+    return tuple(i for i, p in enumerate(sources) if str(Path(p).resolve()) in resolved)
+
+
+def _identify(args: argparse.Namespace) -> int:
+    import json
+    import time
+
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.gap import bam_measure as bm
+    from lowcostdex.gap.dataset import expand_log_paths, load_dataset
+    from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure
+
+    logs = [str(p) for p in expand_log_paths(args.log)]
+    if args.holdout:
+        args.holdout = [str(p) for p in expand_log_paths(args.holdout)]
+    ds = load_dataset(logs, bench=True, timestep=bm.BAM_DT)
+    ds = bm.grid_dataset(ds)  # BAM's 5 ms grid, as bam.process
+    test = _holdout(logs, args.holdout, ds.sources) or ()
+    train = [i for i in range(len(ds.trajectories)) if i not in test]
+    if not train:
+        raise ConfigError("every log is held out: nothing to fit")
+    cfg = IdentifyConfig(effects=servo_structure(ds), restarts=args.restarts,
+                         nthread=args.threads)
+    t0 = time.perf_counter()
+    res = identify(ds, train, list(test), cfg)
+    wall = time.perf_counter() - t0
+    names = [Path(ds.sources[i]).name for i in range(len(ds.trajectories))]
+    print(f"identified on {len(train)} logs ({wall:.0f} s); family {res.family}"
+          + (f", chosen on an inner validation split by {res.selection['field']}"
+             if res.selection else ""))
+    for e, ps in res.params().items():
+        print(f"  {e}: " + ", ".join(f"{p} {v[0]:.4g}" for p, v in ps.items()))
+    if res.at_bound:
+        print("  at a search bound: " + ", ".join(res.at_bound))
+    print("per-log MAE [mrad] (BAM's measure: 5 ms grid, open loop from the first state):")
+    for part, idx in (("held out", list(test)), ("fitted", train)):
+        for i in idx:
+            print(f"  {part:8s} {names[i]}: identified {1e3 * res.identified_mae[i]:.1f}, "
+                  f"nominal {1e3 * res.nominal_mae[i]:.1f}")
+        if idx:
+            print(f"  {part} mean: identified {1e3 * res.mean(idx):.1f}, nominal "
+                  f"{1e3 * res.mean(idx, identified=False):.1f}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({
+            "params": res.params(), "family": res.family, "selection": res.selection,
+            "at_bound": res.at_bound, "fit_seconds": res.fit_seconds, "wall_seconds": wall,
+            "held_out": {names[i]: res.identified_mae[i] for i in test},
+            "fitted": {names[i]: res.identified_mae[i] for i in train},
+            "nominal": {names[i]: res.nominal_mae[i] for i in range(len(names))},
+            "held_out_mean": res.mean(list(test)) if test else None,
+            "ablation": res.ablation}, indent=1, default=float))
+        print(f"json: {args.json}")
     return 0
 
 
