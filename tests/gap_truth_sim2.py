@@ -579,8 +579,9 @@ def score(report: dict, truth: dict) -> dict:
 
     ``result``: ``clean`` (no cause hidden, none named), ``false`` (no cause hidden, some
     named: a false discovery), ``exact`` (the named causes are exactly the hidden ones),
-    ``family`` (every hidden cause named or stood in for by a confusable neighbour and nothing
-    named outside those families), ``miss`` otherwise. ``params``: per expected parameter of an
+    ``extra`` (every hidden cause named, and more besides), ``family`` (every hidden cause named
+    or stood in for by a confusable neighbour and nothing named outside those families),
+    ``miss`` otherwise. ``params``: per expected parameter of an
     exactly named cause, {effect, param, joint, truth, value, interval, inside}."""
     named = sorted({c["effect"] for c in report.get("causes", [])})
     hidden = set(truth["causes"])
@@ -588,6 +589,8 @@ def score(report: dict, truth: dict) -> dict:
         result = "clean" if not named else "false"
     elif set(named) == hidden:
         result = "exact"
+    elif hidden < set(named):
+        result = "extra"
     else:
         covered = all(_neighbours(h) & set(named) for h in hidden)
         allowed = set().union(*(_neighbours(h) for h in hidden))

@@ -1,0 +1,135 @@
+"""The gap analysis judged on a second, independently written truth simulator (issue 11, redteam).
+
+``tests/gap_truth_sim2.py`` was written without reading the analyzer, its effect catalogue or the
+first truth simulator: plain MuJoCo rigs (a pendulum with a ``position`` kp-only actuator and a
+force range, a 2-link arm with ``general`` position servos, a vertical-axis turntable with kp+kv
+and no force range), hidden effects implemented there from their physics at real-world sizes,
+and logs as a user would bring them (50-200 Hz, jittery rows, a host stall, position-only logs).
+Each case is analysed as the CLI does (``lowcostdex gap analyze --model ... --log ... --out ...
+--seed 0 --threads 2``) and its report.json scored by ``gap_truth_sim2.score``: the named
+causes must be exactly the hidden ones (catalogue names; nothing on a clean case), and every
+parameter whose meaning the docs make plain must lie inside its reported 95 % interval.
+
+The truth comes from outside the code under test: the rigs, effects and expected parameters are
+this folder's own physics. Cases the analysis misses today are strict xfails whose reason says
+what it named instead (``bench/gap_redteam.py`` run of 2026-11-26, bench/RESULTS.md); they flip
+to a failure (XPASS) when fixed, and must then lose their mark. The default run holds the cases
+that are cheap; each analysis takes 1-3 min of CPU, so the rest are ``slow``.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import sys
+
+import pytest
+
+from lowcostdex.cli import main
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import gap_truth_sim2 as sim  # noqa: E402
+
+# in the default run (the rest are slow): one that passes, one documented miss
+FAST = ("latency_queue_pendulum", "clean_pendulum")
+
+# what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
+MISSES: dict[str, str] = {
+    "clean_pendulum": "false discovery: viscous_damping +0.0021 N m s/rad [0.0009, 0.0033] "
+                      "(0.8 % of the nominal 0.25) on noise + quantisation only; the same data "
+                      "with the model at a 0.5 ms step (clean_pendulum_fine_step) is clean: the "
+                      "replay's 2 ms discretisation is named as a cause",
+    "backlash_body_pendulum": "backlash exact (width 0.0260 vs 0.0262) plus a spurious "
+                              "viscous_damping +0.0027 (the 2 ms step, see clean_pendulum)",
+    "gain_low_pendulum_posonly": "gain_error exact (0.6006 vs 0.6) plus a spurious "
+                                 "viscous_damping +0.0019 that raises the held-out RMSE "
+                                 "(1.56 -> 1.82 mrad)",
+    "latency_17ms_arm2_50hz_posonly": "latency (23.1 / 18.3 ms vs 17 ms, intervals exclude 17 "
+                                      "ms) plus gain_error (1.08 / 0.96) and mass_error "
+                                      "(1.38 / 0.91) on a general-actuator arm, 50 Hz, "
+                                      "position-only",
+}
+
+
+def _params():
+    for case in sim.CASES:
+        marks = []
+        if case.name not in FAST:
+            marks.append(pytest.mark.slow)
+        if case.name in MISSES:
+            marks.append(pytest.mark.xfail(strict=True, reason=MISSES[case.name]))
+        yield pytest.param(case.name, marks=marks, id=case.name)
+
+
+def analyze_case(name: str, root: pathlib.Path) -> dict:
+    """Write the case's model and logs, run ``gap analyze`` on them as a user would, score."""
+    files = sim.write_case(sim.CASE_BY_NAME[name], root / "data")
+    out = root / "report"
+    code = main(["gap", "analyze", "--model", files["model"], "--log", *files["logs"],
+                 "--out", str(out), "--seed", "0", "--threads", "2"])
+    assert code == 0, f"gap analyze exited {code} on {name}"
+    return sim.score(json.loads((out / "report.json").read_text()), files["truth"])
+
+
+@pytest.mark.parametrize("name", list(_params()))
+def test_names_exactly_the_hidden_causes_with_intervals_holding_the_truth(name, tmp_path):
+    s = analyze_case(name, tmp_path)
+    assert s["result"] in ("exact", "clean"), (
+        f"hidden {s['hidden'] or 'nothing'}, named {s['named'] or 'nothing'}")
+    outside = [p for p in s["params"] if not p["inside"]]
+    assert not outside, f"true values outside their 95 % intervals: {outside}"
+
+
+def test_scoring_tells_exact_family_miss_and_false_apart():
+    """The scorer itself, on hand-written reports (so a wrong scorer cannot pass the cases)."""
+    truth = {"causes": ["latency"], "expected_params": [
+        dict(effect="latency", param="delay", joint="j", value=0.02, abs=False)]}
+
+    def rep(*causes):
+        return {"causes": [{"effect": c, "joints": ["j"], "params": {
+            "delay": {"value": [0.021], "interval": [[0.019, 0.022]]}}} for c in causes]}
+
+    s = sim.score(rep("latency"), truth)
+    assert s["result"] == "exact" and s["params"][0]["inside"]
+    assert sim.score(rep("latency", "backlash"), truth)["result"] == "extra"
+    assert sim.score(rep("backlash"), truth)["result"] == "miss"
+    assert sim.score(rep(), truth)["result"] == "miss"
+    fam = {"causes": ["coulomb_friction"], "expected_params": []}
+    assert sim.score(rep("stribeck_friction"), fam)["result"] == "family"
+    assert sim.score(rep("stribeck_friction", "latency"), fam)["result"] == "miss"
+    clean = {"causes": [], "expected_params": []}
+    assert sim.score(rep(), clean)["result"] == "clean"
+    assert sim.score(rep("viscous_damping"), clean)["result"] == "false"
+    # an offset's sign convention is not documented: magnitudes are compared
+    off = {"causes": ["position_offset"], "expected_params": [
+        dict(effect="position_offset", param="offset", joint="j", value=0.05, abs=True)]}
+    r = {"causes": [{"effect": "position_offset", "joints": ["j"], "params": {
+        "offset": {"value": [-0.049], "interval": [[-0.052, -0.046]]}}}]}
+    assert sim.score(r, off)["params"][0]["inside"]
+    r["causes"][0]["params"]["offset"]["interval"] = [[-0.049, -0.048]]
+    assert not sim.score(r, off)["params"][0]["inside"]
+
+
+def test_truth_simulator_effects_are_physical():
+    """The hidden effects act as written: a reading offset shifts every read by its size, a
+    mounting offset on a vertical axis changes nothing observable, a latency queue delays the
+    response by whole control periods (checked on the simulator alone, no analysis)."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    t = sim.row_times(3.0, 100.0, 0.0, 0.0, rng)
+    g = sim.goals("steps", t, np.array([-1.0]), np.array([1.0]), rng)
+    base = sim.Case("b", "turntable")
+
+    def run(case):
+        return sim.simulate(case, t, g, np.random.default_rng(1))[0][:, 0]
+
+    q0 = run(base)
+    off = run(sim.Case("o", "turntable", (sim.Effect("reading_offset", 0.05),)))
+    assert np.median(off - q0) == pytest.approx(0.05, abs=sim.TICK)
+    mount = run(sim.Case("m", "turntable", (sim.Effect("mounting_offset", 0.05),)))
+    assert np.abs(mount - q0).max() <= 2 * sim.TICK
+    late = run(sim.Case("l", "turntable", (sim.Effect("latency_queue", 3),)))
+    # the delayed response matches the undelayed one 3 rows (30 ms) later, not before
+    err = [np.sqrt(np.mean((late[k:] - q0[:len(q0) - k]) ** 2)) for k in range(6)]
+    assert int(np.argmin(err)) == 3
