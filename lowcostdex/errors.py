@@ -81,3 +81,29 @@ def check_number(name: str, value: object, low: float = -math.inf, high: float =
         kind = "an integer" if integer else "a finite number"
         raise ConfigError(f"{name}={value!r} must be {kind} in {interval}"
                           + (" or None" if none_ok else ""))
+
+
+def check_bool(name: str, value: object) -> None:
+    """Raise ConfigError unless ``value`` is True or False (a JSON string "false" is truthy, and
+    2 is not a flag)."""
+    numpy_bool = type(value).__module__ == "numpy" and type(value).__name__ in ("bool", "bool_")
+    if not isinstance(value, bool) and not numpy_bool:
+        raise ConfigError(f"{name}={value!r} must be True or False")
+
+
+def check_sizes(name: str, value: object) -> None:
+    """Raise ConfigError unless ``value`` is a tuple/list of positive integers (layer widths)."""
+    ok = isinstance(value, (tuple, list))
+    if ok:
+        for h in value:  # type: ignore[union-attr]
+            ok = ok and isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1
+    if not ok:
+        raise ConfigError(f"{name}={value!r} must be positive integers (a tuple, e.g. (64, 64))")
+
+
+def check_keys(kind: str, given: Iterable[str], valid: Iterable[str]) -> None:
+    """Raise ConfigError naming the first unknown key of ``given`` and listing ``valid``."""
+    options = list(valid)
+    unknown = [k for k in given if k not in options]
+    if unknown:
+        raise ConfigError(f"unknown {kind} {unknown[0]!r}; valid: {', '.join(options)}")

@@ -14,11 +14,19 @@ Every config validates itself at construction and names the valid choices on err
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import os
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from lowcostdex.algos.samplers import SAMPLERS
-from lowcostdex.errors import ConfigError, check_choice, check_number
+from lowcostdex.errors import (
+    ConfigError,
+    check_bool,
+    check_choice,
+    check_keys,
+    check_number,
+    check_sizes,
+)
 
 ACTIVATIONS = ("tanh", "relu")
 
@@ -48,8 +56,7 @@ class PolicyConfig:
 
     def __post_init__(self) -> None:
         check_choice("activation", self.activation, ACTIVATIONS)
-        if any(int(h) != h or h < 1 for h in self.hidden_sizes):
-            raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
+        check_sizes("hidden_sizes", self.hidden_sizes)
         check_number("min_log_std", self.min_log_std)
         check_number("init_log_std", self.init_log_std, low=self.min_log_std)  # >= min_log_std
         check_number("last_layer_scale", self.last_layer_scale, 0, low_open=True)
@@ -58,9 +65,9 @@ class PolicyConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PolicyConfig:
         """Inverse of ``dataclasses.asdict`` (accepts lists read back from JSON)."""
-        d = dict(d)
-        if "hidden_sizes" in d:
-            d["hidden_sizes"] = tuple(int(h) for h in d["hidden_sizes"])
+        d = _known(cls, d)
+        if isinstance(d.get("hidden_sizes"), list):
+            d["hidden_sizes"] = tuple(d["hidden_sizes"])
         return cls(**d)
 
 
@@ -86,8 +93,7 @@ class BaselineConfig:
 
     def __post_init__(self) -> None:
         check_choice("activation", self.activation, ACTIVATIONS)
-        if any(int(h) != h or h < 1 for h in self.hidden_sizes):
-            raise ConfigError(f"hidden_sizes={self.hidden_sizes} must be positive integers")
+        check_sizes("baseline hidden_sizes", self.hidden_sizes)
         check_number("baseline lr", self.lr, 0, low_open=True)
         check_number("baseline weight_decay", self.weight_decay, 0)
         check_number("baseline epochs", self.epochs, 1, integer=True)
@@ -95,9 +101,9 @@ class BaselineConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> BaselineConfig:
-        d = dict(d)
-        if "hidden_sizes" in d:
-            d["hidden_sizes"] = tuple(int(h) for h in d["hidden_sizes"])
+        d = _known(cls, d)
+        if isinstance(d.get("hidden_sizes"), list):
+            d["hidden_sizes"] = tuple(d["hidden_sizes"])
         return cls(**d)
 
 
@@ -140,6 +146,7 @@ class NPGConfig:
         check_number("backtrack_ratio", self.backtrack_ratio, 0, 1, low_open=True,
                      high_open=True)
         check_number("max_backtracks", self.max_backtracks, 0, integer=True)
+        check_bool("normalize_advantages", self.normalize_advantages)
 
 
 DEMO_WEIGHTS = ("paper", "mjrl")
@@ -208,6 +215,8 @@ class BCConfig:
         check_number("BC batch_size", self.batch_size, 1, integer=True)
         check_number("BC lr", self.lr, 0, low_open=True)
         check_number("BC min_action_scale", self.min_action_scale, 0, low_open=True)
+        for name in ("set_obs_normalization", "freeze_obs_normalization", "set_action_scaling"):
+            check_bool(f"BC {name}", getattr(self, name))
 
 
 ALGOS = ("npg", "dapg")
@@ -336,17 +345,26 @@ class TrainConfig:
         check_number("n_demos", self.n_demos, 1, integer=True, none_ok=True)
         check_number("gamma", self.gamma, 0, 1)
         check_number("gae_lambda", self.gae_lambda, 0, 1)
+        for name in ("bootstrap_truncated", "bc_init", "eval_bc", "eval_paired", "progress"):
+            check_bool(name, getattr(self, name))
+        _check_env(self.env_id, self.env_kwargs)
+        if self.demos is not None and not isinstance(self.demos, (str, os.PathLike)):
+            raise ConfigError(f"demos={self.demos!r:.80} must be the path of a demonstration "
+                              "file (.h5) or None")
+        for name, cls in (("policy", PolicyConfig), ("baseline", BaselineConfig),
+                          ("npg", NPGConfig), ("dapg", DAPGConfig), ("bc", BCConfig)):
+            _check_part(name, getattr(self, name), cls)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
         """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json)."""
-        d = dict(d)
+        d = _known(cls, d)
         nested = {
             "policy": PolicyConfig.from_dict,
             "baseline": BaselineConfig.from_dict,
-            "npg": lambda x: NPGConfig(**x),
-            "dapg": lambda x: DAPGConfig(**x),
-            "bc": lambda x: BCConfig(**x),
+            "npg": lambda x: NPGConfig(**_known(NPGConfig, x)),
+            "dapg": lambda x: DAPGConfig(**_known(DAPGConfig, x)),
+            "bc": lambda x: BCConfig(**_known(BCConfig, x)),
         }
         for key, build in nested.items():
             if key in d and isinstance(d[key], dict):
@@ -434,15 +452,43 @@ class PPOConfig:
         check_number("ent_coef", self.ent_coef, 0)
         check_number("vf_coef", self.vf_coef, 0)
         check_number("target_kl", self.target_kl, 0, low_open=True, none_ok=True)
-        if any(int(h) != h or h < 1 for h in self.critic_hidden):
-            raise ConfigError(f"critic_hidden={self.critic_hidden} must be positive integers")
+        check_sizes("critic_hidden", self.critic_hidden)
+        for name in ("anneal_lr", "clip_vloss", "norm_adv", "reward_norm", "progress"):
+            check_bool(name, getattr(self, name))
+        _check_env(self.env_id, self.env_kwargs)
+        _check_part("policy", self.policy, PolicyConfig)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PPOConfig:
         """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json)."""
-        d = dict(d)
+        d = _known(cls, d)
         if isinstance(d.get("policy"), dict):
             d["policy"] = PolicyConfig.from_dict(d["policy"])
-        if "critic_hidden" in d:
-            d["critic_hidden"] = tuple(int(h) for h in d["critic_hidden"])
+        if isinstance(d.get("critic_hidden"), list):
+            d["critic_hidden"] = tuple(d["critic_hidden"])
         return cls(**d)
+
+
+def _known(cls: type, d: Any) -> dict[str, Any]:
+    """A copy of ``d`` (a config read from JSON) after checking that it is a dict whose keys are
+    fields of ``cls``: an unknown (misspelt) key is refused, listing the valid ones, instead of
+    a TypeError from the constructor."""
+    if not isinstance(d, dict):
+        raise ConfigError(f"{cls.__name__} settings must be a dict, got {d!r:.80}")
+    check_keys(f"{cls.__name__} setting", d, [f.name for f in fields(cls)])
+    return dict(d)
+
+
+def _check_env(env_id: object, env_kwargs: object) -> None:
+    if not isinstance(env_id, str) or not env_id:
+        raise ConfigError(f"env_id={env_id!r} must be a gymnasium id such as "
+                          "'lowcostdex/DClawTurnValve-v0' (`lowcostdex envs` lists them)")
+    if not isinstance(env_kwargs, dict) or not all(isinstance(k, str) for k in env_kwargs):
+        raise ConfigError(f"env_kwargs={env_kwargs!r:.80} must be a dict of gym.make keyword "
+                          "arguments, e.g. {'port': '/dev/ttyUSB0'}")
+
+
+def _check_part(name: str, value: object, cls: type) -> None:
+    if not isinstance(value, cls):
+        raise ConfigError(f"{name}={value!r:.80} must be a {cls.__name__} (or, in from_dict, a "
+                          "dict of its settings)")

@@ -167,7 +167,7 @@ def _checkpoint_iteration(file: Path) -> int | None:
     return int(digits) if digits.isdigit() else None
 
 
-def _try_load(file: Path, required: tuple[str, ...]) -> tuple[dict[str, Any] | None, str]:
+def try_load(file: Path, required: tuple[str, ...]) -> tuple[dict[str, Any] | None, str]:
     """(the checkpoint's state, "") or (None, why it cannot be resumed from)."""
     import pickle
 
@@ -436,7 +436,7 @@ class Run:
             return None
         skipped = []
         for iteration, file in files:
-            state, reason = _try_load(file, tuple(required))
+            state, reason = try_load(file, tuple(required))
             if state is not None:
                 ckpt = Checkpoint(int(iteration), state, file)
                 break

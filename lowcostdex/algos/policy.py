@@ -36,6 +36,7 @@ from torch import nn
 
 from lowcostdex.algos.configs import PolicyConfig
 from lowcostdex.algos.snapshot import PolicySnapshot
+from lowcostdex.errors import ConfigError, check_keys, check_number
 
 # ----------------------------------------------------------------------------------------------
 # Diagonal Gaussian maths (pure functions)
@@ -166,6 +167,8 @@ class GaussianMLPPolicy(nn.Module):
         dtype: torch.dtype = torch.float64,
     ):
         super().__init__()
+        check_number("obs_dim", obs_dim, 1, integer=True)
+        check_number("act_dim", act_dim, 1, integer=True)
         self.config = config or PolicyConfig()
         self.obs_dim, self.act_dim = int(obs_dim), int(act_dim)
         self.obs_norm = ObsNormalizer(obs_dim, self.config.min_obs_std, dtype)
@@ -220,12 +223,19 @@ class GaussianMLPPolicy(nn.Module):
         ``deterministic=True`` (evaluation mode) returns the mean; otherwise the noise is drawn
         from ``generator``, which is then required.
         """
-        obs_t = torch.as_tensor(obs, dtype=self.log_std.dtype).reshape(-1, self.obs_dim)
-        mean = self(obs_t)
+        obs_t = torch.as_tensor(obs, dtype=self.log_std.dtype)
+        if obs_t.ndim not in (1, 2) or obs_t.shape[-1] != self.obs_dim:
+            # reshape(-1, obs_dim) would turn an observation of another env with twice the
+            # size into two rows of this one's
+            raise ValueError(f"observation of shape {tuple(obs_t.shape)}; this policy takes "
+                             f"({self.obs_dim},) or (n, {self.obs_dim}) (an env of another "
+                             "observation size?)")
+        mean = self(obs_t.reshape(-1, self.obs_dim))
         if deterministic:
             return mean
-        if generator is None:
-            raise ValueError("stochastic actions need a seeded torch.Generator")
+        if not isinstance(generator, torch.Generator):
+            raise ValueError("stochastic actions need a seeded torch.Generator, got "
+                             f"{generator!r} (or pass deterministic=True)")
         noise = torch.randn(mean.shape, generator=generator, dtype=mean.dtype)
         return mean + torch.exp(self.log_std) * noise
 
@@ -266,11 +276,34 @@ class GaussianMLPPolicy(nn.Module):
     @classmethod
     def from_checkpoint(cls, ckpt: dict[str, Any]) -> GaussianMLPPolicy:
         """Rebuild a policy saved with :meth:`to_checkpoint` (e.g. loaded with weights_only)."""
-        dtype = getattr(torch, ckpt.get("dtype", "float64"))
+        if not isinstance(ckpt, dict):
+            raise ConfigError(f"a policy checkpoint is a dict (to_checkpoint()), not a "
+                              f"{type(ckpt).__name__}")
+        check_keys("policy checkpoint entry", ckpt,
+                   ("obs_dim", "act_dim", "config", "dtype", "state_dict"))
+        missing = [k for k in ("obs_dim", "act_dim", "config", "state_dict") if k not in ckpt]
+        if missing:
+            raise ConfigError(f"policy checkpoint lacks {', '.join(missing)}")
+        dtype = getattr(torch, str(ckpt.get("dtype", "float64")), None)
+        if dtype not in (torch.float32, torch.float64):
+            raise ConfigError(f"policy checkpoint dtype {ckpt.get('dtype')!r}; valid: "
+                              "'float32', 'float64'")
+        for key in ("obs_dim", "act_dim"):
+            check_number(f"policy checkpoint {key}", ckpt[key], 1, integer=True)
         policy = cls(
             ckpt["obs_dim"], ckpt["act_dim"], PolicyConfig.from_dict(ckpt["config"]), None, dtype
         )
-        policy.load_state_dict(ckpt["state_dict"])
+        try:
+            policy.load_state_dict(ckpt["state_dict"])
+        except (RuntimeError, TypeError, AttributeError) as e:  # sizes or keys of another net
+            first = str(e).strip().splitlines()
+            detail = " ".join(line.strip() for line in first[1:3]) or first[0]
+            raise ConfigError(f"policy checkpoint's weights do not fit its own sizes "
+                              f"{ckpt['obs_dim']} -> {tuple(ckpt['config'].get('hidden_sizes', ()))}"
+                              f" -> {ckpt['act_dim']}: {detail[:200]}") from None
+        if not all(bool(torch.isfinite(t).all()) for t in policy.state_dict().values()
+                   if t.is_floating_point()):
+            raise ConfigError("policy checkpoint holds NaN/inf weights or statistics")
         return policy
 
     def snapshot(self) -> PolicySnapshot:

@@ -28,6 +28,7 @@ The run's configuration is :class:`~lowcostdex.algos.configs.TrainConfig`; the c
 from __future__ import annotations
 
 import dataclasses
+import errno
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -62,7 +63,7 @@ from lowcostdex.algos.samplers import (
     make_jobs,
 )
 from lowcostdex.demonstrations.dataset import Demos, check_demos, load_demos
-from lowcostdex.errors import ConfigError, LowcostdexError
+from lowcostdex.errors import ConfigError, InputError, LowcostdexError
 
 ROBOT_COUNTERS = (
     "resets",
@@ -500,4 +501,13 @@ def load_policy(path: str | Path) -> GaussianMLPPolicy:
     see :class:`~lowcostdex.algos.experiment.BestPolicy`) or of a checkpoint file."""
     path = Path(path)
     file = path / "policy.pt" if path.is_dir() else path
-    return GaussianMLPPolicy.from_checkpoint(ex.load_state(file)["policy"])
+    if not file.is_file():
+        raise FileNotFoundError(errno.ENOENT, "no policy here (a run directory holds policy.pt)"
+                                if path.is_dir() else "no such policy file", str(file))
+    state, why = ex.try_load(file, ("policy",))
+    if state is None:
+        raise InputError(f"{file}: {why}")
+    try:
+        return GaussianMLPPolicy.from_checkpoint(state["policy"])
+    except ConfigError as e:
+        raise InputError(f"{file}: {e}") from None

@@ -57,6 +57,7 @@ complete, consistent HDF5 file; a crash loses at most the episode being recorded
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -292,6 +293,9 @@ def open_dataset(path: str | Path) -> h5py.File:
       InputError: the file is missing, unreadable, not HDF5 (e.g. an old NPZ demo file), cut
         short or corrupt, not of this format, or of a newer format version.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"a demonstration file is given by its path (.h5), not "
+                         f"{type(path).__name__}")
     path = Path(path)
     if not path.exists():
         raise InputError(f"demonstration file {path} does not exist")
@@ -368,9 +372,9 @@ def read_episodes(path: str | Path, only_successful: bool = False) -> list[Episo
 def read_numbered_episodes(path: str | Path, only_successful: bool = False
                            ) -> list[tuple[int, Episode]]:
     """:func:`read_episodes` with each episode's number k (its group ``episode_<k>``)."""
-    path = Path(path)
     out = []
-    with open_dataset(path) as f:
+    with open_dataset(path) as f:  # refuses what is not a path first
+        path = Path(path)
         file_source = _read(f, "source", path, str)
         dims = {"observations": _read(f, "obs_dim", path, int),
                 "actions": _read(f, "act_dim", path, int)}

@@ -10,14 +10,15 @@ fit. Splits (train / select / test) are made over episodes, never over samples.
 from __future__ import annotations
 
 import glob
-from collections.abc import Sequence
+import os
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_number
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
@@ -144,7 +145,16 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
     not expand (``"logs/*.csv"``, sorted matches). Raises LogError when nothing is named, a
     folder holds no log or a pattern matches nothing. Hidden files (``.lowcostdex.json``, the
     marker ``record-log`` leaves) are not logs."""
-    entries = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    entries: list = []
+    if isinstance(paths, (str, os.PathLike)):
+        entries = [paths]
+    elif isinstance(paths, Iterable) and not isinstance(paths, (Mapping, np.ndarray, bytes)):
+        entries = list(paths)
+    if not all(isinstance(p, (str, os.PathLike)) for p in entries) or (
+            not entries and not isinstance(paths, (list, tuple))):
+        raise LogError(f"logs are given as file paths (a path, a folder, a glob pattern or a "
+                       f"list of them), not {type(paths).__name__}; write arrays to a file "
+                       "first with lowcostdex.gap.write_log")
     if not entries:
         raise LogError("no log files given")
     out: list[Path] = []
@@ -167,6 +177,10 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
     return out
 
 
+MAX_BENCH_TIMESTEP = 0.05
+"""[s] Largest physics step ``load_dataset(timestep=...)`` takes (BAM's grid is 5 ms)."""
+
+
 def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | None = None,
                  bench: bool | None = None, timestep: float | None = None) -> Dataset:
     """Read logs and their model(s).
@@ -187,6 +201,8 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     for p in paths:
         if not p.exists():
             raise LogError(f"{p}: no such file")
+    if timestep is not None:  # a physics step: 1 (meant as ms) would run a 1 s Euler step
+        check_number("timestep [s]", timestep, 0, MAX_BENCH_TIMESTEP, low_open=True)
     bam = [is_bam(p) for p in paths]
     if bench is None:
         bench = all(bam)
@@ -209,6 +225,8 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         model = Path(model)
         if not model.exists():
             raise LogError(f"{model}: no such model file")
+        if model.is_dir():
+            raise LogError(f"{model}: a folder, not an MJCF model file (.xml)")
         try:
             spec = mujoco.MjSpec.from_file(str(model))
             spec.compile()

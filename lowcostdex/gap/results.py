@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, check_number
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Split, Window
 from lowcostdex.gap.gain import Gain
@@ -100,8 +100,14 @@ class GapConfig:
 
     def __post_init__(self) -> None:
         if self.candidates is not None:
+            if isinstance(self.candidates, str) or not isinstance(self.candidates,
+                                                                 (tuple, list)):
+                raise ConfigError(f"candidates={self.candidates!r} must be a tuple of effect "
+                                  f"names, e.g. ('latency',), or None; valid names: "
+                                  f"{', '.join(CAUSES)}")
             for c in self.candidates:
                 check_choice("candidate effect", c, CAUSES)
+        _check_numbers(self)
         for name in ("top_k", "max_effects", "max_rounds", "bootstrap"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1")
@@ -119,6 +125,40 @@ class GapConfig:
         if not 0 <= self.interval_step < 1:
             raise ConfigError("interval_step must be in [0, 1) (a fraction of the physics "
                               f"step; 0: off), got {self.interval_step}")
+
+
+_INTEGERS = {"top_k": 1, "max_effects": 1, "max_rounds": 1, "bootstrap": 1, "joint_k": 0,
+             "seed": 0, "nthread": 0}
+_REALS = {"rank_tie": 0.0, "min_gain": 0.0, "floor_margin": 0.0, "min_effect": 0.0,
+          "rank_seconds": 0.0, "tie": 0.0, "backward_above": 0.0, "segment": 0.0,
+          "burn_in": 0.0, "interval_block": 0.0, "interval_step": 0.0}
+
+
+def _check_numbers(c: GapConfig) -> None:
+    """Types and finiteness of GapConfig's numbers (a string from a JSON file, NaN, 1.5
+    rounds), and the lower bounds the range checks after it do not state. Values that are
+    finite numbers of the right kind reach the range checks with their own messages."""
+    for name, low in _INTEGERS.items():
+        check_number(name, getattr(c, name), low, integer=True)
+    for name in _REALS:
+        check_number(name, getattr(c, name))
+    for name in ("floor_margin", "rank_seconds"):
+        check_number(name, getattr(c, name), 0, low_open=True)
+    for name in ("min_effect", "backward_above"):
+        check_number(name, getattr(c, name), 0)
+    check_number("tie", c.tie, 0, 1, high_open=True)
+    check_number("chunk", c.chunk, 0, low_open=True, none_ok=True)
+    if isinstance(c.probes, str) or not isinstance(c.probes, (tuple, list)):
+        raise ConfigError(f"probes={c.probes!r} must be a tuple of fractions of a physics "
+                          "step in [0, 1), e.g. (0.01, 0.02)")
+    for f in c.probes:
+        check_number("probes entry", f, 0, 1, high_open=True)
+    if c.test_logs is not None:
+        if isinstance(c.test_logs, str) or not isinstance(c.test_logs, (tuple, list)):
+            raise ConfigError(f"test_logs={c.test_logs!r} must be a tuple of log indices "
+                              "(0-based, in the order given) or None")
+        for i in c.test_logs:
+            check_number("test_logs entry", i, 0, integer=True)
 
 
 @dataclass

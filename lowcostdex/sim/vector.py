@@ -20,7 +20,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 import lowcostdex  # noqa: F401  (registers ids)
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_number
 from lowcostdex.sim.effects import DomainRandomization
 from lowcostdex.sim.envs.hand_env import HandEnv, action_to_goal
 from lowcostdex.sim.envs.task import Goal, Task
@@ -45,8 +45,8 @@ class HandVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, task: Task, num_envs: int, randomization: DomainRandomization | None = None,
                  nthread: int = 0):
-        if num_envs < 1:
-            raise ConfigError("num_envs must be >= 1")
+        check_number("num_envs", num_envs, 1, integer=True)
+        check_number("nthread", nthread, 0, integer=True)
         # A template env builds and binds the model exactly as the single env does.
         self._template = HandEnv(task, backend="sim", randomization=randomization)
         self.task, self.randomization = task, randomization
@@ -118,7 +118,12 @@ class HandVectorEnv(gym.vector.VectorEnv):
         return self._obs(), self._infos(self._last_action)
 
     def step(self, actions: np.ndarray):
-        a = np.asarray(actions, dtype=float).reshape(self.action_space.shape)
+        raw = np.asarray(actions)
+        if raw.dtype.kind not in "iuf" or raw.shape != self.action_space.shape:
+            raise ValueError(f"actions of shape {raw.shape} and dtype {raw.dtype}; this vector "
+                             f"env takes real numbers of shape {self.action_space.shape} (one "
+                             "row per copy, one value in [-1, 1] per joint)")
+        a = raw.astype(float)
         if not np.all(np.isfinite(a)):
             raise ValueError("actions have NaN/inf entries")
         a = np.clip(a, -1.0, 1.0)

@@ -15,6 +15,7 @@ import numpy as np
 from lowcostdex.errors import ConfigError
 from lowcostdex.sim.envs.task import Goal, wrap_angle
 from lowcostdex.sim.kinematics import AllegroFingerGeometry
+from lowcostdex.teachers.binding import bound_task, check_call
 from lowcostdex.teachers.valve import (
     LOWER,
     PUSH,
@@ -104,9 +105,11 @@ class AllegroValveTeacher:
 
     def reset(self, task_or_env, goal: Goal | None = None) -> None:
         """Bind to a task's model and forget the previous episode (``goal`` is unused)."""
-        task = getattr(task_or_env, "task", task_or_env)
+        task = bound_task(task_or_env, type(self).__name__, "allegro",
+                          "the Allegro's valve tasks", joint="valve")
         model = task.model
         c = self.config
+        self._nq = model.nq
         self.model, self.data = model, mujoco.MjData(model)
         self.hand_qpos, self.hand_dof, self.hand_act = task.hand_qpos, task.hand_dof, task.hand_act
         self.low, self.high = task.hand_low, task.hand_high
@@ -138,7 +141,7 @@ class AllegroValveTeacher:
 
     def __call__(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
         c = self.config
-        qpos = np.asarray(qpos, float)
+        qpos = check_call(self, qpos, goal, ("angle",))
         q = qpos[self.hand_qpos]
         if self.goals is None:
             self.goals = q.copy()  # the thumb keeps this pose

@@ -45,6 +45,7 @@ from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE, quat_rotate
 from lowcostdex.sim.envs.task import Goal
 from lowcostdex.sim.kinematics import FingerGeometry
 from lowcostdex.sim.models.dclaw import BLOCK_HALF
+from lowcostdex.teachers.binding import bound_task, check_call
 
 UP = np.array([0.0, 0.0, 1.0])
 ROLL, CARRY, DONE = "roll", "carry", "done"
@@ -145,8 +146,10 @@ class FlipBlockTeacher:
 
     def reset(self, task_or_env: Any, goal: Goal | None = None) -> None:
         """Bind to a task's model and forget the previous episode (``goal`` is unused)."""
-        task = getattr(task_or_env, "task", task_or_env)
+        task = bound_task(task_or_env, type(self).__name__, "dclaw",
+                          "the D'Claw's flip-block tasks", attributes=("block_pos", "block_quat"))
         c = self.config
+        self._nq = task.model.nq
         self.hand_qpos = task.hand_qpos
         self.block_pos, self.block_quat = task.block_pos, task.block_quat
         self.low, self.high = task.hand_low.reshape(3, 3), task.hand_high.reshape(3, 3)
@@ -207,7 +210,7 @@ class FlipBlockTeacher:
     # -- policy -----------------------------------------------------------------------------
     def __call__(self, qpos: np.ndarray, goal: Goal | None) -> np.ndarray:
         c = self.config
-        qpos = np.asarray(qpos, float)
+        qpos = check_call(self, qpos, goal, ())
         q = qpos[self.hand_qpos]
         pos, quat = qpos[self.block_pos], qpos[self.block_quat]
         if self.start_quat is None:

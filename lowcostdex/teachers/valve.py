@@ -32,6 +32,7 @@ from lowcostdex.errors import ConfigError
 from lowcostdex.hands import DCLAW_FINGERS
 from lowcostdex.sim.envs.task import Goal, wrap_angle
 from lowcostdex.sim.kinematics import FingerGeometry
+from lowcostdex.teachers.binding import bound_task, check_call
 
 RETURN, PUSH, RISE, LOWER, WAIT = "return", "push", "rise", "lower", "wait"
 
@@ -151,9 +152,11 @@ class ValveTurnTeacher:
 
     def reset(self, task_or_env, goal: Goal | None = None) -> None:
         """Bind to a task's model and forget the previous episode (``goal`` is unused)."""
-        task = getattr(task_or_env, "task", task_or_env)
+        task = bound_task(task_or_env, type(self).__name__, "dclaw",
+                          "the D'Claw's valve, foam-valve and screw tasks", joint="valve")
         model = task.model
         c = self.config
+        self._nq = model.nq
         self.hand_qpos = task.hand_qpos
         self.low, self.high = task.hand_low.reshape(3, 3), task.hand_high.reshape(3, 3)
         valve = model.joint("valve")
@@ -242,7 +245,8 @@ class ValveTurnTeacher:
 
     def __call__(self, qpos: np.ndarray, goal: Goal) -> np.ndarray:
         c = self.config
-        q = np.asarray(qpos, float)[self.hand_qpos]
+        qpos = check_call(self, qpos, goal, ("angle",))
+        q = qpos[self.hand_qpos]
         err = self.error(qpos, goal)
         tips_alpha, _, tips_z = self.tip_polar(q)
         if self.command is None:

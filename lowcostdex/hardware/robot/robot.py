@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number
 from lowcostdex.hands import HandSpec, JointSpec
 from lowcostdex.hardware.bus import BusError, MotorBus, MotorFault, MotorState
 from lowcostdex.hardware.dynamixel.protocol import hardware_error_names
@@ -51,7 +51,7 @@ from lowcostdex.hardware.robot.guards import (
     ThermalConfig,
     ThermalGuard,
 )
-from lowcostdex.hardware.robot.safety import UnsafeCommand, check_finite, clip_goal
+from lowcostdex.hardware.robot.safety import UnsafeCommand, check_finite, check_units, clip_goal
 from lowcostdex.hardware.timing import BusClock, Clock, Rate
 from lowcostdex.motion import in_flight_step, joint_speeds
 from lowcostdex.motors import MOTORS, MotorSpec
@@ -425,6 +425,7 @@ class Robot:
         names = tuple(self.joint_names[i] for i in idx)
         try:
             g = check_finite(goal, names)
+            check_units(g, self.low[idx], self.high[idx], names)
         except UnsafeCommand:
             self.metrics.rejected += 1
             raise
@@ -482,6 +483,7 @@ class Robot:
 
         Turning on writes goal := present first (the bus does), so nothing jumps.
         """
+        check_bool("enabled", enabled)  # torque("off") would switch the motors on
         idx = np.arange(len(self.joints)) if joints is None else self.index(joints)
         if enabled:
             hot = idx[self.thermal.relaxed[idx]]
@@ -535,6 +537,7 @@ class Robot:
 
     def rest(self, seconds: float) -> RobotState:
         """Let ``seconds`` pass without commanding, reading at the control period."""
+        check_number("seconds", seconds, 0)
         end = self.clock.now() + seconds
         state = self.read()
         while self.clock.now() < end - 1e-9:

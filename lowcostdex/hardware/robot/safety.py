@@ -6,6 +6,7 @@ policy, a reset procedure and a demo teacher all pass through the same gate.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +36,11 @@ class ClipReport:
 
 def check_finite(goal: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
     """The goal as a float array (n,); raises UnsafeCommand naming the non-finite joints."""
-    g = np.asarray(goal, dtype=float)
+    try:
+        g = np.asarray(goal, dtype=float)
+    except (TypeError, ValueError):
+        raise UnsafeCommand(f"goal {goal!r:.60} is not {len(names)} numbers [rad] for joints "
+                            f"{', '.join(names)}; nothing sent") from None
     if g.shape != (len(names),):
         raise UnsafeCommand(f"goal has shape {g.shape}, expected ({len(names)},) for joints "
                             f"{', '.join(names)}; nothing sent")
@@ -44,6 +49,25 @@ def check_finite(goal: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
         listed = ", ".join(f"{n}={v}" for n, v, b in zip(names, g, bad, strict=True) if b)
         raise UnsafeCommand(f"non-finite goal for {listed}; nothing sent")
     return g
+
+
+UNIT_MARGIN = 2 * math.pi
+"""[rad] A goal more than a full turn outside its joint's range is not a goal in rad (degrees,
+ticks): refused, not clipped. Within it, a goal beyond a limit is clipped to it (a policy, a
+test's wild goals of +-4-5 rad, or a person asking for the limit). On the D'Claw this refuses
+a degree value above about 7-8 (e.g. 30 deg); smaller degree values cannot be told from rad."""
+
+
+def check_units(goal: np.ndarray, low: np.ndarray, high: np.ndarray,
+                names: tuple[str, ...]) -> None:
+    """Raise UnsafeCommand when a goal lies more than ``UNIT_MARGIN`` outside its joint's
+    limits [rad]: 90 for a 90 deg goal would otherwise be clipped silently to the limit."""
+    far = (goal < low - UNIT_MARGIN) | (goal > high + UNIT_MARGIN)
+    if np.any(far):
+        listed = ", ".join(f"{n}={v:g} (limits {lo:.3g}..{hi:.3g})" for n, v, lo, hi, f
+                           in zip(names, goal, low, high, far, strict=True) if f)
+        raise UnsafeCommand(f"goal far outside the joint limits: {listed}; goals are in rad "
+                            "(degrees or ticks?); nothing sent")
 
 
 def clip_goal(goal: np.ndarray, low: np.ndarray, high: np.ndarray, reference: np.ndarray,

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, check_keys
 from lowcostdex.sim.effects.catalogue import Effect, effect
 
 
@@ -79,6 +80,11 @@ class DomainRandomization:
     ranges: Mapping[str, Mapping[str, tuple[float, float]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        for field_name in ("effects", "joints"):
+            value = getattr(self, field_name)
+            if isinstance(value, str) or not isinstance(value, (tuple, list)):
+                raise ConfigError(f"DomainRandomization.{field_name}={value!r} must be a tuple "
+                                  f"of names, e.g. ('latency',) (a string is not a tuple)")
         for name in self.effects:
             effect(name)
         n = len(self.joints)
@@ -91,9 +97,19 @@ class DomainRandomization:
                     raise ConfigError(f"range of {name}.{p}: low and high must be scalars or "
                                       f"one value per joint ({n}), got shapes {lo.shape}, "
                                       f"{hi.shape}")
+                if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+                    raise ConfigError(f"range of {name}.{p}: low {lo.tolist()} and high "
+                                      f"{hi.tolist()} must be finite")
                 if not np.all(lo <= hi):
                     raise ConfigError(f"range of {name}.{p}: low {lo.tolist()} above high "
                                       f"{hi.tolist()}")
+                par = cls.param(p)
+                bottom, top = par.hard
+                if np.any(lo < bottom) or np.any(hi > top):
+                    raise ConfigError(f"range of {name}.{p} [{par.unit}]: ({lo.tolist()}, "
+                                      f"{hi.tolist()}) outside the parameter's limits "
+                                      f"[{bottom:g}, {top:g}] {par.unit} (SI units: s, rad, "
+                                      "N m, ...)")
 
     def to_dict(self) -> dict:
         """JSON form (training configs' env kwargs; ``from_dict`` reads it back)."""
@@ -103,9 +119,20 @@ class DomainRandomization:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> DomainRandomization:
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"a DomainRandomization dict (to_dict()) is a mapping, not "
+                              f"{type(d).__name__}")
+        check_keys("DomainRandomization key", d, ("effects", "joints", "ranges"))
+        for key in ("effects", "joints"):
+            if key not in d:
+                raise ConfigError(f"a DomainRandomization dict needs {key!r} (to_dict() "
+                                  "writes effects, joints and ranges)")
         ranges = {k: {p: (v[0], v[1]) for p, v in r.items()}
                   for k, r in dict(d.get("ranges", {})).items()}
-        return cls(tuple(d["effects"]), tuple(d["joints"]), ranges)
+        def names(v: Any) -> Any:  # a string stays one, for __post_init__ to refuse
+            return v if isinstance(v, str) else tuple(v)
+
+        return cls(names(d["effects"]), names(d["joints"]), ranges)
 
     def sample(self, rng: np.random.Generator) -> list[AppliedEffect]:
         """Draw one set of effect values (seeded by ``rng``)."""

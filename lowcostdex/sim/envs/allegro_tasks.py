@@ -22,7 +22,7 @@ import numpy as np
 
 from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.sim.envs.hand_env import HandEnv, make_hand_env
-from lowcostdex.sim.envs.task import Goal, Task, TaskSpec
+from lowcostdex.sim.envs.task import VALVE_BOUNDS, Goal, Task, TaskSpec, check_settings
 from lowcostdex.sim.models.allegro import AllegroPD, AllegroValve, build_allegro
 from lowcostdex.sim.models.common import quat_euler
 
@@ -51,6 +51,9 @@ class AllegroTurnConfig:
     goal_range: float = 0.0
     success_tol: float = 0.1
     pose_noise: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_settings(self, VALVE_BOUNDS)
 
 
 class AllegroTurnValve(Task):

@@ -16,7 +16,15 @@ import numpy as np
 from lowcostdex.errors import ConfigError, check_choice
 from lowcostdex.hands import HandSpec, dclaw_spec
 from lowcostdex.sim import servo
-from lowcostdex.sim.envs.task import Goal, Task, TaskSpec, wrap_angle
+from lowcostdex.sim.envs.task import (
+    VALVE_BOUNDS,
+    Goal,
+    Task,
+    TaskSpec,
+    check_flag,
+    check_settings,
+    wrap_angle,
+)
 from lowcostdex.sim.models.common import quat_euler
 from lowcostdex.sim.models.dclaw import BLOCK_CENTER, BLOCK_HALF, VALVE, build_dclaw
 
@@ -67,6 +75,9 @@ class TurnConfig:
     goal_range: float = 0.0
     success_tol: float = 0.1
     pose_noise: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_settings(self, VALVE_BOUNDS)
 
 
 class ValveTask(DClawTask):
@@ -158,6 +169,11 @@ class ScrewConfig:
     random: bool = False
     success_tol: float = 0.2
 
+    def __post_init__(self) -> None:
+        check_settings(self, {"speed": (-2 * math.pi, 2 * math.pi, "rad/s"),
+                              "success_tol": (0.0, math.pi, "rad")})
+        check_flag(self, "random")
+
 
 class Screw(ValveTask):
     """Keep the valve (continuous rotation) at a goal angle moving at constant speed."""
@@ -235,9 +251,23 @@ class FlipConfig:
 
     def __post_init__(self) -> None:
         check_choice("block representation", self.representation, ("keypoints", "quaternion"))
-        for name in ("position_radius", "yaw_range", "joint_range"):
-            if not getattr(self, name) >= 0:
-                raise ConfigError(f"FlipConfig.{name} must be >= 0, got {getattr(self, name)}")
+        check_settings(self, {"success_angle": (0.0, math.pi, "rad"),
+                              "drop_height": (-1.0, 1.0, "m"),
+                              "position_radius": (0.0, 0.1, "m"),
+                              "yaw_range": (0.0, math.pi, "rad"),
+                              "joint_range": (0.0, 1.0, "rad")})
+        axis = np.asarray(self.flip_axis, dtype=float) if _numbers(self.flip_axis) else None
+        if axis is None or axis.shape != (3,) or not np.all(np.isfinite(axis)) or not (
+                np.linalg.norm(axis) > 0):
+            raise ConfigError(f"FlipConfig.flip_axis={self.flip_axis!r} must be 3 finite numbers, "
+                              "not all 0 (an axis, e.g. (0, 1, 0))")
+
+
+def _numbers(x: object) -> bool:
+    try:
+        return np.asarray(x).dtype.kind in "iuf"
+    except (TypeError, ValueError):
+        return False
 
 
 _CORNERS = np.array([[sx, sy, sz] for sz in (-1, 1) for sy in (-1, 1) for sx in (-1, 1)],

@@ -44,6 +44,90 @@ def goal_to_action(goal: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.nd
     return np.clip((2.0 * goal - (high + low)) / (high - low), -1.0, 1.0)
 
 
+def check_action(action: Any, n: int, joints: Sequence[str]) -> np.ndarray:
+    """The action as a float array (n,), or ValueError naming what is wrong with it.
+
+    Accepted: any real-valued array-like of n values shaped (n,), (1, n) or (n, 1) (a batch of
+    one); refused: another number of values, another layout of n values (e.g. (3, 3) for 9),
+    booleans, complex numbers, strings, NaN/inf. Values outside [-1, 1] are clipped by the env
+    (documented; Gaussian policies sample beyond the bounds).
+    """
+    what = f"one value in [-1, 1] per joint: {', '.join(joints)}"
+    try:
+        raw = np.asarray(action)
+    except Exception:  # e.g. a ragged nested list
+        raise ValueError(f"action of type {type(action).__name__} is not an array of {n} "
+                         f"numbers ({what})") from None
+    if raw.dtype.kind not in "iuf":
+        raise ValueError(f"action of type {type(action).__name__} has dtype {raw.dtype}; this "
+                         f"env takes {n} real numbers ({what})")
+    if raw.size != n or max(raw.shape, default=1) != raw.size:
+        raise ValueError(f"action has shape {raw.shape}; this env takes ({n},) ({what})")
+    a = raw.astype(float).reshape(n)
+    if not np.all(np.isfinite(a)):
+        bad = ", ".join(f"{j}={v}" for j, v in zip(joints, a, strict=False) if not np.isfinite(v))
+        raise ValueError(f"action has NaN/inf entries: {bad}")
+    return a
+
+
+def _check_options(options: Mapping[str, Any], qpos: np.ndarray, qvel: np.ndarray,
+                   goal: Goal) -> None:
+    """Refuse reset options that would be ignored (unknown keys), fail deep in MuJoCo (shapes) or
+    put NaN into the simulation."""
+    if not isinstance(options, Mapping):
+        raise ValueError(f"reset options must be a dict with keys 'qpos', 'qvel', 'goal', got "
+                         f"{options!r:.80}")
+    unknown = sorted(set(options) - {"qpos", "qvel", "goal"})
+    if unknown:
+        raise ValueError(f"unknown reset option {unknown[0]!r}; valid: 'qpos', 'qvel', 'goal'")
+    for key, like in (("qpos", qpos), ("qvel", qvel)):
+        if key not in options:
+            continue
+        try:
+            value = np.asarray(options[key], dtype=float)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"reset option {key!r} is not an array of numbers: "
+                             f"{options[key]!r:.80}") from e
+        if value.shape != np.shape(like):
+            raise ValueError(f"reset option {key!r} has shape {value.shape}; this env's model "
+                             f"takes {np.shape(like)}")
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"reset option {key!r} has NaN/inf entries")
+    given = options.get("goal")
+    if given:
+        if not isinstance(given, Mapping):
+            raise ValueError(f"reset option 'goal' must be a dict with keys "
+                             f"{sorted(goal)}, got {given!r:.80}")
+        unknown = sorted(set(given) - set(goal))
+        missing = sorted(set(goal) - set(given))
+        if unknown or missing:
+            raise ValueError(f"reset option 'goal' has keys {sorted(given)}; this task's goal "
+                             f"has {sorted(goal)}")
+        for k, v in given.items():
+            try:
+                value = np.asarray(v, dtype=float)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"reset option goal[{k!r}] is not a number: {v!r:.80}") from e
+            if value.shape != np.shape(goal[k]) or not np.all(np.isfinite(value)):
+                raise ValueError(f"reset option goal[{k!r}]={v!r:.80} must be finite with shape "
+                                 f"{np.shape(goal[k])}")
+
+
+def _keywords(cls: type, task: Task) -> list[str]:
+    """Keyword arguments ``gym.make`` passes on for this backend: the backend's own, then the
+    task's settings (its config's fields)."""
+    import dataclasses
+    import inspect
+
+    names = [p.name for p in inspect.signature(cls.__init__).parameters.values()
+             if p.name not in ("self", "model", "task", "rng")
+             and p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)]
+    config = getattr(task, "config", None)
+    if dataclasses.is_dataclass(config):
+        names += [f.name for f in dataclasses.fields(config)]
+    return names + ["motor", "randomize", "render_mode"]
+
+
 class HandEnv(gym.Env):
     """A hand task on a backend.
 
@@ -63,6 +147,13 @@ class HandEnv(gym.Env):
                  render_mode: str | None = None, **backend_kwargs: Any):
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode {render_mode!r}; valid: None, 'rgb_array'")
+        if not isinstance(task, Task):
+            raise ConfigError(f"HandEnv takes a task instance (e.g. TurnValve()), not "
+                              f"{task!r:.60}")
+        if randomization is not None and not isinstance(randomization, DomainRandomization):
+            raise ConfigError(f"randomization must be a DomainRandomization, not "
+                              f"{type(randomization).__name__} (make_hand_env and gym.make take "
+                              "effect names or a to_dict() mapping as randomize=...)")
         self.task = task
         self.randomization = randomization
         spec = task.build_spec()
@@ -75,8 +166,19 @@ class HandEnv(gym.Env):
         task.bind(self.model)
         self.backend_name = backend
         self._rng_for_backend = np.random.default_rng(0)
-        self.backend: Backend = backend_class(backend, task.hand.name)(
-            self.model, task=task, rng=self._rng_for_backend, **backend_kwargs)
+        cls = backend_class(backend, task.hand.name)
+        try:
+            self.backend: Backend = cls(self.model, task=task, rng=self._rng_for_backend,
+                                        **backend_kwargs)
+        except TypeError as e:
+            # a keyword the backend (or the bus behind it) does not take: name it and the valid
+            # ones instead of the constructor's own message from deep inside
+            bad = [k for k in backend_kwargs if f"argument '{k}'" in str(e)]
+            if not bad:
+                raise
+            raise ConfigError(
+                f"unknown keyword argument {bad[0]!r} for backend {backend!r} of "
+                f"{type(task).__name__}; valid: {', '.join(_keywords(cls, task))}") from None
         self.model, self.data = self.backend.model, self.backend.data
         n = len(task.hand.joints)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(n,), dtype=np.float32)
@@ -138,6 +240,7 @@ class HandEnv(gym.Env):
         super().reset(seed=seed)
         options = options or {}
         qpos, qvel, goal = self.task.initial_state(self.np_random)
+        _check_options(options, qpos, qvel, goal)
         qpos = np.asarray(options.get("qpos", qpos), dtype=float)
         qvel = np.asarray(options.get("qvel", qvel), dtype=float)
         if self.randomization is not None:
@@ -154,12 +257,7 @@ class HandEnv(gym.Env):
         return self._obs(), self._info(self._terms(self._last_action))
 
     def step(self, action):
-        a = np.asarray(action, dtype=float)
-        if a.size != int(np.prod(self.action_space.shape)):
-            raise ValueError(f"action has shape {a.shape}; this env takes "
-                             f"{self.action_space.shape} (one value in [-1, 1] per joint: "
-                             f"{', '.join(self.task.hand.joint_names)})")
-        a = a.reshape(self.action_space.shape)
+        a = check_action(action, self.action_space.shape[0], self.task.hand.joint_names)
         if not np.all(np.isfinite(a)):
             raise ValueError(f"action has NaN/inf entries: {a}")
         a = np.clip(a, -1.0, 1.0)
@@ -213,6 +311,8 @@ def make_hand_env(task: Task, backend: str = "sim",
         dr = randomize
     elif isinstance(randomize, Mapping):
         dr = DomainRandomization.from_dict(randomize)
+    elif isinstance(randomize, str):  # one effect's name, not its letters
+        dr = DomainRandomization((randomize,), task.hand.joint_names)
     elif randomize:
         dr = DomainRandomization(tuple(randomize), task.hand.joint_names)
     return HandEnv(task, backend=backend, randomization=dr, **kwargs)

@@ -14,9 +14,43 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from lowcostdex.errors import ConfigError, check_bool, check_number
 from lowcostdex.hands import HandSpec
 
 Goal = dict[str, np.ndarray]
+
+
+def check_settings(config: object, bounds: dict[str, tuple[float, float, str]]) -> None:
+    """Validate a task config's numbers at construction: each named field must be a finite
+    number in its closed interval ``(low, high, unit)``. An angle beyond its bound names the
+    unit, so 180 for a 180 deg offset is refused as degrees rather than run as 180 rad.
+
+    Raises:
+      ConfigError naming the config, the field, the value and the interval.
+    """
+    kind = type(config).__name__
+    for name, (low, high, unit) in bounds.items():
+        value = getattr(config, name)
+        try:
+            check_number(f"{kind}.{name}", value, low, high)
+        except ConfigError as e:
+            big = isinstance(value, (int, float)) and abs(value) > high
+            hint = {"rad": " (an angle in rad, not degrees)",
+                    "rad/s": " (in rad/s, not deg/s)"}.get(unit, "") if big else ""
+            raise ConfigError(f"{e} [{unit}]{hint}") from None
+
+
+VALVE_BOUNDS = {"init_range": (0.0, math.pi, "rad"),
+                "goal_offset": (-4 * math.pi, 4 * math.pi, "rad"),
+                "goal_range": (0.0, math.pi, "rad"), "success_tol": (0.0, math.pi, "rad"),
+                "pose_noise": (0.0, 1.0, "rad")}
+"""Bounds of the valve tasks' settings (D'Claw and Allegro; ``check_settings``): ranges up to
+half a turn either way, offsets up to two turns, a start-pose noise std up to 1 rad."""
+
+
+def check_flag(config: object, name: str) -> None:
+    """A config's bool field must be True or False (a string "false" is truthy)."""
+    check_bool(f"{type(config).__name__}.{name}", getattr(config, name))
 
 
 def wrap_angle(x: np.ndarray) -> np.ndarray:
