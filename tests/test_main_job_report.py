@@ -12,7 +12,12 @@ import math
 
 import pytest
 
-from lowcostdex.main_job.report import _validation_words, _what_each_stage_added, markdown_report
+from lowcostdex.main_job.report import (
+    _validation_words,
+    _what_each_stage_added,
+    markdown_report,
+    paired_errors,
+)
 from lowcostdex.main_job.setup import Context
 
 Z95 = 1.959963984540054
@@ -172,3 +177,36 @@ def test_the_report_says_whether_validation_was_paired():
     assert "same" not in _validation_words(t, 20)
     t["npg"]["validation_paired"] = True
     assert _validation_words(t, 20).startswith("the same 20 episodes every time")
+
+
+def signed_rank_p_less(d: list[float]) -> float:
+    """Exact P(R+ <= observed R+) under the null, written out: R+ is the sum of the ranks of
+    |d| over the positive d; every one of the 2^n sign patterns is equally likely (no ties)."""
+    ranks = {v: i + 1 for i, v in enumerate(sorted(abs(x) for x in d))}
+    observed = sum(ranks[abs(x)] for x in d if x > 0)
+    n, hits = len(d), 0
+    for mask in range(2**n):
+        hits += sum(r for i, r in enumerate(ranks.values()) if mask >> i & 1) <= observed
+    return hits / 2**n
+
+
+def test_the_paired_error_test_on_the_same_heldout_episodes():
+    clone = [0.30, 0.12, 0.45, 0.21, 0.08, 0.33, 0.17, 0.26]
+    change = [-0.11, -0.05, -0.32, 0.04, -0.02, -0.21, 0.015, -0.07]  # DAPG - clone, distinct |.|
+    dapg = [c + d for c, d in zip(clone, change, strict=True)]
+    before, after, p = paired_errors({"final_goal_errors": clone}, {"final_goal_errors": dapg})
+    assert before == pytest.approx((0.21 + 0.26) / 2)
+    assert after == pytest.approx((0.13 + 0.185) / 2)  # .06 .07 .12 .13 .185 .19 .19 .25
+    assert p == pytest.approx(signed_rank_p_less(change), rel=1e-9)
+    # R+ = 1 + 3 (0.015, 0.04); rank sets with sum <= 4: {}, 1, 2, 3, 4, {1,2}, {1,3}
+    assert p == pytest.approx(7 / 256)
+    # the words follow: a run where DAPG ends nearer the goal, and one where it does not
+    t = results((0, 8), (3, 8), (3, 8), (0, 8))
+    t["bc"]["final_goal_errors"], t["dapg"]["final_goal_errors"] = clone, dapg
+    text = _what_each_stage_added(t)
+    assert f"median {before:.3f} rad for the clone, {after:.3f} rad for DAPG" in text
+    assert "DAPG ended nearer the goal than the clone" in text
+    t["dapg"]["final_goal_errors"] = clone[::-1]
+    assert "no paired difference this run can show" in _what_each_stage_added(t)
+    assert paired_errors({"final_goal_errors": clone}, {"final_goal_errors": clone})[2] == 1.0
+    assert paired_errors({"final_goal_errors": clone}, {}) is None

@@ -235,6 +235,14 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
         text += (f" Paired on the same {len(bc['solved'])} held-out episodes: DAPG alone solved "
                  f"{only_after}, the clone alone {only_before} (exact one-sided McNemar test "
                  f"that DAPG solves more, p = {pvalue:.3g}).")
+    errors = paired_errors(bc, dapg)
+    if errors is not None:
+        med_before, med_after, pvalue = errors
+        text += (f" Their final |goal error| on those episodes: median {med_before:.3f} rad for "
+                 f"the clone, {med_after:.3f} rad for DAPG (one-sided Wilcoxon signed-rank test "
+                 f"that DAPG ends nearer the goal, p = {pvalue:.3g}"
+                 + ("): DAPG ended nearer the goal than the clone." if pvalue <= 0.05 else
+                    "): no paired difference this run can show."))
     if dapg.get("best_iteration") == -1:
         text += (" No DAPG iterate beat the clone on the validation episodes, so DAPG's policy "
                  "is the clone itself: at this budget RL did not improve on it.")
@@ -256,6 +264,28 @@ def paired_test(before: dict[str, Any], after: dict[str, Any]) -> tuple[int, int
     n = only_after + only_before
     pvalue = binomtest(only_after, n, 0.5, alternative="greater").pvalue if n else 1.0
     return only_after, only_before, float(pvalue)
+
+
+def paired_errors(before: dict[str, Any], after: dict[str, Any]
+                  ) -> tuple[float, float, float] | None:
+    """Two policies' final |goal error| (``"final_goal_errors"``) on the same held-out episodes:
+    (median before, median after, p of the one-sided Wilcoxon signed-rank test that ``after``'s
+    errors are smaller; zero differences dropped, p = 1 when all are zero); None when either
+    has no per-episode record or the records differ in length."""
+    import numpy as np
+    from scipy.stats import wilcoxon
+
+    a, b = before.get("final_goal_errors"), after.get("final_goal_errors")
+    if not a or not b or len(a) != len(b):
+        return None
+    a, b = np.abs(np.asarray(a, float)), np.abs(np.asarray(b, float))
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return None
+    if np.all(a == b):
+        pvalue = 1.0
+    else:
+        pvalue = float(wilcoxon(b, a, alternative="less", zero_method="wilcox").pvalue)
+    return float(np.median(a)), float(np.median(b)), pvalue
 
 
 def write_html(markdown: str, path: Path) -> None:
