@@ -4,7 +4,8 @@ On a terminal: tqdm bars (:func:`bar`) and rich progress displays (:func:`tasks`
 ``nohup``, a notebook's captured stream, a pipe) those draw nothing useful, so the same calls print
 plain lines instead: one when a step starts, one every ``LOWCOSTDEX_PROGRESS_INTERVAL`` seconds
 (default 10) while it runs, and one when it ends, each with the count, the elapsed time and an
-estimate of what remains::
+estimate of what remains. The interval lines come from a heartbeat thread too, so a step that
+does not advance the count for minutes (one long fit) still prints a line every interval::
 
     [progress] dapg lowcostdex/DClawTurnValve-v0: 12/40 it (30 %), 1 min 02 s elapsed, about 2 min 24 s left; success=0.35
 
@@ -14,9 +15,12 @@ branch on the terminal.
 
 from __future__ import annotations
 
+import atexit
 import os
 import sys
+import threading
 import time
+import weakref
 from collections.abc import Callable
 from typing import Any, TextIO
 
@@ -90,7 +94,15 @@ class LineBar:
         self._last = self._t0
         self._postfix = ""
         self._closed = False
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
         self._emit()
+        if not disable and self._every > 0 and clock is time.monotonic:
+            # the heartbeat holds only a weak reference: a bar dropped without close() stops it
+            beat = threading.Thread(target=_heartbeat, args=(weakref.ref(self), self._stop),
+                                    name="lowcostdex-progress", daemon=True)
+            _HEARTBEATS[beat] = self._stop
+            beat.start()
 
     @property
     def file(self) -> TextIO:
@@ -102,9 +114,22 @@ class LineBar:
     def _emit(self) -> None:
         if self.disable:
             return
-        print(line(self.desc, self.n, self.total, self._elapsed(), self.unit, self._postfix,
-                   self._start), file=self.file, flush=True)
-        self._last = self._clock()
+        with self._lock:
+            print(line(self.desc, self.n, self.total, self._elapsed(), self.unit, self._postfix,
+                       self._start), file=self.file, flush=True)
+            self._last = self._clock()
+
+    def _beat(self) -> float:
+        """The heartbeat's tick: a line when none was printed for an interval; returns the
+        seconds until the next line is due."""
+        due = self._every - (self._clock() - self._last)
+        if due > 0 or self._closed:
+            return due
+        try:
+            self._emit()
+        except (OSError, ValueError):  # the stream went away (closed file, captured stream)
+            self._stop.set()
+        return self._every
 
     def update(self, n: float = 1) -> None:
         self.n += n
@@ -123,13 +148,45 @@ class LineBar:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            self._stop.set()
             self._emit()
+
+    def __del__(self) -> None:
+        stop = getattr(self, "_stop", None)
+        if stop is not None:
+            stop.set()
 
     def __enter__(self) -> LineBar:
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+_HEARTBEATS: weakref.WeakKeyDictionary[threading.Thread, threading.Event] = (
+    weakref.WeakKeyDictionary())
+
+
+def _heartbeat(ref: weakref.ref[LineBar], stop: threading.Event) -> None:
+    """Print the bar's line whenever none came for an interval, until it is closed or gone."""
+    wait = 0.0
+    while not stop.wait(max(wait, 0.01)):
+        b = ref()
+        if b is None:
+            return
+        wait = b._beat()
+        del b
+
+
+@atexit.register
+def _stop_heartbeats() -> None:
+    """Stop every heartbeat before the interpreter finalises (a daemon thread caught writing to
+    stderr then can abort the process)."""
+    beats = list(_HEARTBEATS.items())
+    for _, stop in beats:
+        stop.set()
+    for beat, _ in beats:
+        beat.join(timeout=1.0)
 
 
 def bar(total: float | None = None, initial: float = 0, desc: str = "", unit: str = "it",

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import gc
 import io
+import os
+import subprocess
+import sys
+import threading
+import time
 
 from lowcostdex.progress import LineBar, LineProgress, bar, duration, line, tasks
 
@@ -79,3 +85,60 @@ def test_not_a_terminal_gets_lines(monkeypatch):
     assert "[progress] x: 0/2" in out.getvalue()
     monkeypatch.setattr("sys.stderr", io.StringIO())
     assert isinstance(tasks(), LineProgress)
+
+
+def _lines(out: io.StringIO) -> list[str]:
+    return [x for x in out.getvalue().splitlines() if x.startswith("[progress]")]
+
+
+def test_a_step_that_does_not_advance_still_prints_a_line_every_interval():
+    # the lead's 16-joint gap analysis printed nothing for 14 min inside one long fit: lines came
+    # only from update(); now a heartbeat prints the current line when none came for an interval
+    out = io.StringIO()
+    b = LineBar(total=5, desc="one long fit", file=out, every=0.05)
+    time.sleep(0.4)                              # no update at all
+    during = _lines(out)
+    assert len(during) >= 1 + 4, during          # the start line + one per ~0.05 s
+    assert all("one long fit: 0/5" in x for x in during)
+    b.update(1)
+    b.close()
+    n_closed = len(_lines(out))
+    time.sleep(0.2)
+    assert len(_lines(out)) == n_closed           # closed: the heartbeat is quiet
+
+
+def test_updates_reset_the_heartbeat():
+    out = io.StringIO()
+    b = LineBar(total=1000, desc="busy", file=out, every=0.2)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.5:
+        b.update(1)                               # updates print on their own schedule
+        time.sleep(0.01)
+    b.close()
+    # start + about one line per 0.2 s + the end: never a burst from two sources
+    assert 3 <= len(_lines(out)) <= 6, _lines(out)
+
+
+def test_a_bar_dropped_without_close_stops_its_heartbeat():
+    out = io.StringIO()
+    before = set(threading.enumerate())
+    b = LineBar(total=3, desc="dropped", file=out, every=0.02)
+    (beat,) = [t for t in threading.enumerate() if t not in before]
+    assert beat.name == "lowcostdex-progress" and beat.is_alive()
+    del b
+    gc.collect()
+    beat.join(timeout=2.0)
+    assert not beat.is_alive()
+
+
+def test_exit_while_a_heartbeat_is_printing_is_clean():
+    # a daemon thread caught writing to stderr at interpreter shutdown can abort the process
+    code = ("from lowcostdex.progress import LineBar\n"
+            "bars = [LineBar(total=9, desc=f'b{i}', every=0.001) for i in range(4)]\n"
+            "import time; time.sleep(0.05)\n")
+    for _ in range(3):
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           timeout=60, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert "Fatal Python error" not in r.stderr
+        assert "[progress] b0: 0/9" in r.stderr
