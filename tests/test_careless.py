@@ -43,6 +43,8 @@ from lowcostdex.algos.train import load_policy
 from lowcostdex.demonstrations.dataset import load_demos
 from lowcostdex.errors import ConfigError, InputError
 from lowcostdex.gap import GapConfig, LogError, load_dataset
+from lowcostdex.gap.identify import IdentifyConfig
+from lowcostdex.hardware.robot.robot import RobotConfig
 from lowcostdex.hardware.robot.safety import UnsafeCommand
 from lowcostdex.sim.effects import DomainRandomization
 from lowcostdex.sim.envs.dclaw_tasks import TurnValve
@@ -82,6 +84,12 @@ def _step(action) -> Callable[[Path], object]:
 
 def _reset(**options) -> Callable[[Path], object]:
     return lambda _: _env().reset(seed=1, options=options)
+
+
+def _dxl(**kwargs):
+    from lowcostdex.hardware.dynamixel.config import DynamixelConfig
+
+    return DynamixelConfig(ids=(10, 11), models=("XH430-W350", "XH430-W350"), **kwargs)
 
 
 def _teacher() -> ValveTurnTeacher:
@@ -281,6 +289,29 @@ CASES: list[Case] = [
          "probes='0.01' must be a tuple"),
     Case("gap-negative-segment", lambda _: GapConfig(segment=-6.0), ConfigError,
          "segment must be > 0 s"),
+    Case("identify-rounds-as-string", lambda _: IdentifyConfig(max_rounds="30"), ConfigError,
+         "max_rounds='30' must be an integer in [1, inf)"),
+    Case("identify-nan-tolerance", lambda _: IdentifyConfig(rtol=math.nan), ConfigError,
+         "rtol=nan must be a finite number"),
+    Case("identify-one-effect-as-string",
+         lambda _: IdentifyConfig(effects="coulomb_friction"), ConfigError,
+         "effects='coulomb_friction' must be a tuple of effect names"),
+    Case("identify-start-of-unknown-parameter",
+         lambda _: IdentifyConfig(starts=({("coulomb_friction", "force"): 0.1},)), ConfigError,
+         "unknown coulomb_friction parameter 'force'"),
+    # the Dynamixel bus's config (README: realtime_tick=True, a DynamixelConfig field)
+    Case("dxl-flag-as-string", lambda _: _dxl(torque_off_on_close="no"), ConfigError,
+         "torque_off_on_close='no' must be True or False"),
+    Case("dxl-realtime-tick-as-string", lambda _: _dxl(realtime_tick="true"), ConfigError,
+         "realtime_tick='true' must be True or False"),
+    Case("dxl-nan-latency", lambda _: _dxl(latency_ms=math.nan), ConfigError,
+         "latency_ms=nan must be a finite number"),
+    Case("dxl-baudrate-as-string", lambda _: _dxl(baudrate="1000000"), ConfigError,
+         "baudrate='1000000' must be an integer"),
+    Case("robot-unbounded-motion", lambda _: RobotConfig(motion_scale=math.inf), ConfigError,
+         "RobotConfig.motion_scale=inf must be a finite number"),
+    Case("robot-period-in-ms", lambda _: RobotConfig(control_period=100), ConfigError,
+         "RobotConfig.control_period [s]=100 must be a finite number in (0, 1]"),
     # policies and checkpoints: the file named, never a torch/unpickler traceback
     Case("load-policy-empty-run-dir", lambda d: load_policy(d), FileNotFoundError,
          "a run directory holds policy.pt"),

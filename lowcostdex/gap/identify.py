@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_bool, check_number
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
 from lowcostdex.gap.dataset import Dataset
@@ -135,6 +135,7 @@ class IdentifyConfig:
     restart_jitter: float = 1e-3
 
     def __post_init__(self) -> None:
+        _check_types(self)
         if not self.effects:
             raise ConfigError("identification needs at least one effect to fit")
         for name in self.effects:
@@ -156,6 +157,36 @@ class IdentifyConfig:
             raise ConfigError(f"unknown select {self.select!r}; valid: train, inner")
         if self.restarts < 1:
             raise ConfigError("restarts must be >= 1")
+
+
+def _check_types(c: IdentifyConfig) -> None:
+    """Types and finiteness of IdentifyConfig's fields (a string from a JSON file, NaN, 1.5
+    rounds, one effect name given as a string), before the range checks."""
+    for name, low in (("max_rounds", 1), ("joint_rounds", 1), ("restarts", 1), ("nthread", 0),
+                      ("seed", 0)):
+        check_number(name, getattr(c, name), low, integer=True)
+    for name in ("delta", "rtol", "jitter", "restart_jitter"):
+        check_number(name, getattr(c, name))
+    check_number("rtol", c.rtol, 0)
+    check_bool("cold", c.cold)
+    if isinstance(c.effects, str) or not isinstance(c.effects, (tuple, list)):
+        raise ConfigError(f"effects={c.effects!r} must be a tuple of effect names, e.g. "
+                          "servo_structure(ds)")
+    pairs = isinstance(c.hold, (set, frozenset, tuple, list)) and all(
+        isinstance(h, tuple) and len(h) == 2 for h in c.hold)
+    if not pairs:
+        raise ConfigError(f"hold={c.hold!r:.80} must be a set of (effect, parameter) pairs")
+    if isinstance(c.starts, (str, dict)) or not isinstance(c.starts, (tuple, list)) or not all(
+            isinstance(d, dict) for d in c.starts):
+        raise ConfigError(f"starts={c.starts!r:.80} must be a tuple of dicts "
+                          "{(effect, parameter): value}")
+    for d in c.starts:
+        for key, value in d.items():
+            if not (isinstance(key, tuple) and len(key) == 2 and key[0] in EFFECTS):
+                raise ConfigError(f"starts: key {key!r} must be an (effect, parameter) pair; "
+                                  f"effects: {sorted(EFFECTS)}")
+            EFFECTS[key[0]].param(key[1])  # raises with the valid parameter names
+            check_number(f"starts[{key!r}]", value)
 
 
 @dataclass

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.bus import WatchdogTripped as WatchdogTripped  # its home is hardware.bus
 from lowcostdex.hardware.dynamixel.control_table import load_control_table
@@ -94,6 +94,15 @@ class DynamixelConfig:
     reboot_timeout: float = 2.0
 
     def __post_init__(self) -> None:
+        # types first: "false" for a flag is truthy (torque_off_on_close="no" would leave the
+        # motors powered at close), NaN passes every comparison below
+        for name in ("realtime_tick", "torque_off_on_close", "handle_signals"):
+            check_bool(name, getattr(self, name))
+        for name in ("latency_ms", "settle_ms", "reboot_timeout"):
+            check_number(f"{name}", getattr(self, name), 0)
+        for name in ("baudrate", "return_delay", "watchdog_ms", "read_retries", "retries"):
+            check_number(name, getattr(self, name), 0, integer=True)
+        check_number("max_invalid_reads", self.max_invalid_reads, 0, integer=True, none_ok=True)
         if not self.ids or len(set(self.ids)) != len(self.ids):
             raise ConfigError(f"ids must be unique and non-empty, got {self.ids}")
         if any(not 0 <= i <= 252 for i in self.ids):

@@ -103,6 +103,14 @@ class RobotConfig:
     motor_speed: float | None = None
 
     def __post_init__(self) -> None:
+        # finite numbers first: motion_scale=inf would lift the motion bound, control_period=100
+        # (ms typed as s) would step once per 100 s; "0.1" would fail a comparison below
+        check_number("RobotConfig.control_period [s]", self.control_period, 0, 1,
+                     low_open=True)
+        for name in ("motion_scale", "max_lead"):
+            check_number(f"RobotConfig.{name}", getattr(self, name))
+        for name in ("max_invalid_reads", "max_reboots"):
+            check_number(f"RobotConfig.{name}", getattr(self, name), integer=True)
         if not self.control_period > 0:
             raise ConfigError("RobotConfig.control_period must be > 0")
         if not self.motion_scale > 0:
