@@ -133,7 +133,8 @@ def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: in
     test = [i for i, k in enumerate(kps) if k in spec["held_kp"]]
     train = [i for i, k in enumerate(kps) if k not in spec["held_kp"]]
     c0 = time.process_time()
-    res = identify(ds, train, test, IdentifyConfig(effects=structure, **sel))
+    res = identify(ds, train, test, IdentifyConfig(effects=structure, **sel),
+                   progress=_timer(c0) if PROGRESS else None)
     cpu = time.process_time() - c0
     refs = reference_mae(ds)
     out = {
@@ -177,6 +178,21 @@ def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: in
             {"effect": c.effect, "params": {p: d["value"] for p, d in c.params.items()}}
             for c in a.causes]}
     return out
+
+
+PROGRESS = False  # --progress: print each identification stage's CPU time
+
+
+def _timer(c0: float):
+    """A progress callback printing the process CPU time [s] and wall clock at each report
+    (where the identification's time goes: LM rounds per stage, selection, scoring)."""
+    last = [c0]
+
+    def report(stage: str, frac: float) -> None:
+        now = time.process_time()
+        print(f"    [{now - c0:7.1f} s CPU, +{now - last[0]:6.1f}] {stage}", flush=True)
+        last[0] = now
+    return report
 
 
 def reference_mae(ds) -> dict[str, dict[int, float]]:
@@ -436,6 +452,8 @@ def main(argv=None) -> int:
                     "training logs (IdentifyConfig.select)")
     ap.add_argument("--restarts", type=int, default=3,
                     help="jittered fits per family with --select inner")
+    ap.add_argument("--progress", action="store_true",
+                    help="print the CPU time of each identification stage (BAM's split)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     root = data_root(args.data)
@@ -443,6 +461,8 @@ def main(argv=None) -> int:
         print(f"measured data not found at {root}; set LOWCOSTDEX_MEASURED_DATA or --data "
               "(skipping)")
         return 0
+    global PROGRESS
+    PROGRESS = args.progress
     fields = LOSO_FIELDS if "auto" in args.loso else tuple(args.loso)
     results: list[dict] = []
     for name in args.sets:
