@@ -26,12 +26,19 @@ SUCCESS_TOL = 0.1
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "2026-11-26, seed 0: no DAPG iterate beat the clone on validation (6, 4, 5 of 20 vs 7), so "
-    "DAPG's policy is the clone: held-out 17/40 both, no episode solved by one only"))
+# the run takes 10-11 min at load 10 and timed out at the default 600 s at load ~18 (2026-11-26,
+# 617 s): a timeout inside a strict xfail would pass as "xfailed" without measuring anything,
+# so only the gain's assertions (AssertionError) are the expected failure
+@pytest.mark.timeout(2400)
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+    "2026-11-26 at f176a16 (validation on one fixed episode set), seed 0: DAPG's policy is "
+    "iteration 11 (validation 8/20 vs the clone's 7/20); held-out 19/40 vs the clone's 17/40, "
+    "4 vs 2 episodes solved by one only (McNemar p 0.34, needs <= 0.05); its final errors are "
+    "lower (Wilcoxon p 0.0016, that part holds)"))
 def test_dapg_beats_the_clone_it_started_from_on_the_same_heldout_episodes(tmp_path):
     out = tmp_path / "main"
-    assert main(["main", "--out", str(out), "--stages", "bus,demos,train", "--seed", "0"]) == 0
+    if main(["main", "--out", str(out), "--stages", "bus,demos,train", "--seed", "0"]) != 0:
+        pytest.fail("the main job failed")  # not an AssertionError: a failure, not the xfail
     t = json.loads((out / "results.json").read_text())["train"]
     bc = np.array(t["bc"]["final_goal_errors"])
     dapg = np.array(t["dapg"]["final_goal_errors"])

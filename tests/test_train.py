@@ -300,6 +300,17 @@ def test_paired_evaluations_run_the_clones_episodes_again(tmp_path, paired):
         assert not set(evals[0]) & set(clone) and not set(evals[1]) & set(evals[0] + clone)
 
 
+def test_eval_paired_on_the_command_line():
+    from lowcostdex.algos.train_cli import config_from_args
+    from lowcostdex.cli import build_parser
+
+    parser = build_parser()
+    for algo in ("npg", "dapg"):
+        argv = ["train", algo, "--out", "x"] + (["--demos", "d.h5"] if algo == "dapg" else [])
+        assert not config_from_args(parser.parse_args(argv)).eval_paired
+        assert config_from_args(parser.parse_args([*argv, "--eval-paired"])).eval_paired
+
+
 @pytest.mark.parametrize("step_size", [0.05, 20.0])
 def test_the_evaluated_clone_competes_for_the_runs_policy(tmp_path, step_size):
     """With ``eval_bc`` the clone is a candidate (iteration -1): the run's policy is the clone

@@ -83,6 +83,9 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
                    help="initial exploration noise after BC")  # fmt: skip
     p.add_argument("--eval-bc", action="store_true",
                    help="evaluate the behaviour clone (--eval-episodes) before RL")
+    p.add_argument("--eval-paired", action="store_true",
+                   help="run every evaluation (the clone's too) on the same episodes, so the "
+                        "run's policy is chosen on paired comparisons")
     if algo == "dapg":
         p.add_argument("--lam0", type=float, default=d.dapg.lam0)
         p.add_argument("--lam1", type=float, default=d.dapg.lam1)
@@ -179,6 +182,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         n_demos=args.n_demos,
         bc_init=bool(getattr(args, "bc_init", False)),
         eval_bc=bool(getattr(args, "eval_bc", False)),
+        eval_paired=bool(getattr(args, "eval_paired", False)),
         policy=dataclasses.replace(
             d.policy, hidden_sizes=tuple(args.hidden), init_log_std=args.init_log_std
         ),
