@@ -31,6 +31,26 @@ Hidden effects, written out (magnitudes per joint, drawn by ``draw``):
 * ``torque_limit``: forcerange cut to 35-60 % of the peak force the nominal servo uses on the
   same goals.
 
+Actuator kinds (``kind``; a user's MJCF is not always a plain ``position`` servo), each the
+same servo physics written another way in MuJoCo, the log's goal being the ctrl it writes:
+
+* ``position``: ``<position kp kv forcerange>`` (the default).
+* ``dampratio``: ``<position kp dampratio>``: MuJoCo computes kv from the reflected inertia at
+  compile time; models with hidden effects write the nominal model's compiled kv out (a real
+  servo's D gain does not change with the load it carries).
+* ``general``: ``<general gaintype="fixed" biastype="affine" gainprm="kp" biasprm="0 -kp -kv">``.
+* ``gear``: a position actuator with ``gear`` = GEAR (2): ctrl and force in actuator units, kp
+  and kv divided by GEAR^2, the force range by GEAR (the same joint stiffness and torque); the
+  goals are GEAR times the joint angles and the torque limit is GEAR times the force limit.
+* ``intvelocity``: ``<intvelocity kp kv actrange>``: the goal is a velocity [rad/s] that the
+  actuator integrates into its setpoint (activation); the goals are the clipped velocities
+  (at most VMAX) that bring the setpoint to the position excitation by the next row, the
+  setpoint starting at the first position goal.
+* ``timeconst``: ``<position kp kv timeconst>``: the servo follows its goal through a
+  first-order filter of time constant TIMECONST (its activation), starting at the first goal.
+* ``joint_set``: the position servo on joints that already carry a frictionloss (FRICTIONLOSS)
+  besides their armature and damping (hidden Coulomb friction adds to it).
+
 Logging, like a host polling a Dynamixel bus: rows at 100 Hz with +-30 % jitter; each row's
 position is read at its time (linear interpolation between physics steps), noise std 0.3 mrad,
 quantised to 4096 ticks/rev; the goal is written right after the read (takes effect at ``time``;
@@ -55,6 +75,13 @@ RATE = 100.0  # [Hz] log rate
 JITTER = 0.3  # fraction of the period
 TIMESTEP = 0.002  # [s]
 FLOOR = math.sqrt(NOISE ** 2 + (2 * math.pi / TICKS) ** 2 / 12)  # [rad] reading noise floor
+
+KINDS = ("position", "dampratio", "general", "gear", "intvelocity", "timeconst", "joint_set")
+TIMECONST = 0.02  # [s] the ``timeconst`` kind's goal filter
+GEAR = 2.0  # the ``gear`` kind's transmission ratio (actuator length = GEAR * joint angle)
+DAMPRATIO = 1.0  # the ``dampratio`` kind's damping ratio
+VMAX = 8.0  # [rad/s] the ``intvelocity`` kind's largest velocity goal
+FRICTIONLOSS = 0.03  # [N m] the ``joint_set`` kind's nominal joint frictionloss
 
 EFFECTS = ("latency", "backlash", "position_offset", "gain_error", "viscous_damping",
            "coulomb_friction", "inertia_error", "mass_error", "torque_limit")
@@ -110,18 +137,28 @@ class Hidden:
         return set(self.values)
 
 
-def build_xml(rig: str, hidden: Hidden | None = None) -> str:
-    """MJCF of ``rig`` with the model-expressible hidden effects written in (None: nominal).
+def build_xml(rig: str, hidden: Hidden | None = None, kind: str = "position",
+              timestep: float = TIMESTEP) -> str:
+    """MJCF of ``rig`` with the model-expressible hidden effects written in (None: nominal),
+    its servos written as actuator ``kind`` (``KINDS``).
 
     Backlash adds a play hinge ``<joint>_play`` between the motor body and the link; the motor
     body then carries the armature, the link everything else.
     """
+    if kind not in KINDS:
+        raise ValueError(f"unknown actuator kind {kind!r}; valid: {', '.join(KINDS)}")
     h = hidden.values if hidden is not None else {}
+    if kind == "dampratio" and h:
+        # the servo's D gain is the nominal model's, whatever the hidden effects
+        nominal = mujoco.MjModel.from_xml_string(build_xml(rig, None, kind, timestep))
+        kvs = [-float(nominal.actuator_biasprm[nominal.actuator(ln.joint).id, 2])
+               for ln in RIGS[rig]]
+    fl0 = FRICTIONLOSS if kind == "joint_set" else 0.0
     links = RIGS[rig]
     body_xml = ""
     for i, ln in reversed(list(enumerate(links))):
         kd = ln.damping + (h["viscous_damping"][i] if "viscous_damping" in h else 0.0)
-        fl = h["coulomb_friction"][i] if "coulomb_friction" in h else 0.0
+        fl = fl0 + (h["coulomb_friction"][i] if "coulomb_friction" in h else 0.0)
         arm = ln.armature * (h["inertia_error"][i] if "inertia_error" in h else 1.0)
         ms = h["mass_error"][i] if "mass_error" in h else 1.0
         ax = " ".join(f"{a:g}" for a in ln.axis)
@@ -147,10 +184,29 @@ def build_xml(rig: str, hidden: Hidden | None = None) -> str:
     for i, ln in enumerate(links):
         kp = ln.kp * (h["gain_error"][i] if "gain_error" in h else 1.0)
         f = h["torque_limit"][i] if "torque_limit" in h else ln.force
-        acts += (f'<position name="{ln.joint}" joint="{ln.joint}" kp="{kp:.6g}" '
-                 f'kv="{ln.kv:g}" forcelimited="true" forcerange="{-f:.6g} {f:.6g}"/>')
+        lim = f'forcelimited="true" forcerange="{-f:.6g} {f:.6g}"'
+        head = f'name="{ln.joint}" joint="{ln.joint}"'
+        if kind in ("position", "joint_set"):
+            acts += f'<position {head} kp="{kp:.6g}" kv="{ln.kv:g}" {lim}/>'
+        elif kind == "timeconst":
+            acts += (f'<position {head} kp="{kp:.6g}" kv="{ln.kv:g}" '
+                     f'timeconst="{TIMECONST:g}" {lim}/>')
+        elif kind == "dampratio":
+            damp = f'kv="{kvs[i]:.9g}"' if h else f'dampratio="{DAMPRATIO:g}"'
+            acts += f'<position {head} kp="{kp:.6g}" {damp} {lim}/>'
+        elif kind == "general":
+            acts += (f'<general {head} gaintype="fixed" biastype="affine" gainprm="{kp:.6g}" '
+                     f'biasprm="0 {-kp:.6g} {-ln.kv:g}" {lim}/>')
+        elif kind == "gear":
+            fg = f / GEAR
+            acts += (f'<position {head} gear="{GEAR:g}" kp="{kp / GEAR ** 2:.6g}" '
+                     f'kv="{ln.kv / GEAR ** 2:.6g}" forcelimited="true" '
+                     f'forcerange="{-fg:.6g} {fg:.6g}"/>')
+        else:  # intvelocity
+            acts += (f'<intvelocity {head} kp="{kp:.6g}" kv="{ln.kv:g}" '
+                     f'actrange="{ln.low - 1:g} {ln.high + 1:g}" {lim}/>')
     return (f'<mujoco model="truth_{rig}"><compiler angle="radian"/>'
-            f'<option timestep="{TIMESTEP}" '
+            f'<option timestep="{timestep}" '
             'integrator="implicitfast"/>'
             f"<worldbody>{body_xml}</worldbody><actuator>{acts}</actuator></mujoco>")
 
@@ -242,20 +298,51 @@ def log_times(rng: np.random.Generator, duration: float) -> np.ndarray:
     return np.maximum.accumulate(t + np.arange(n) * 1e-9)
 
 
+def commands(kind: str, times: np.ndarray, goals: np.ndarray) -> np.ndarray:
+    """The ctrl a host writes to servos of actuator ``kind`` for joint-angle goals.
+
+    Args:
+      times: (T,) write instants [s].
+      goals: (T, n) joint-angle goals [rad].
+    Returns:
+      (T, n): the goals for position servos, GEAR times them for ``gear``, for ``intvelocity``
+      the velocity [rad/s] (within +-VMAX) that moves the integrated setpoint from where it is
+      to the next row's goal by the next row (0 on the last row; the setpoint starts at the
+      first goal).
+    """
+    if kind == "gear":
+        return GEAR * goals
+    if kind != "intvelocity":
+        return goals.copy()
+    out = np.zeros_like(goals)
+    setpoint = goals[0].astype(float).copy()
+    dt = np.diff(times)
+    for k in range(len(times) - 1):
+        out[k] = np.clip((goals[k + 1] - setpoint) / dt[k], -VMAX, VMAX)
+        setpoint = setpoint + out[k] * dt[k]
+    return out
+
+
 def simulate(rig: str, hidden: Hidden, times: np.ndarray, goals: np.ndarray,
-             rng: np.random.Generator) -> Log:
+             rng: np.random.Generator, kind: str = "position",
+             truth_step: float = TIMESTEP) -> Log:
     """Run the truth model on goals written at ``times`` and log the readings.
 
     Args:
       rig: "bench" or "finger".
       hidden: hidden effects.
       times: (T,) read/write instants [s].
-      goals: (T, n) goal written right after the read at each instant [rad].
+      goals: (T, n) joint-angle goal written right after the read at each instant [rad]; the
+        servos of ``kind`` get (and the log holds) ``commands(kind, times, goals)``.
       rng: noise generator.
+      kind: actuator kind (``KINDS``).
+      truth_step: the truth's largest physics step [s] (TIMESTEP, the nominal model's; smaller:
+        closer to continuous time, as a real robot is).
     """
     links = RIGS[rig]
     h = hidden.values
-    model = mujoco.MjModel.from_xml_string(build_xml(rig, hidden))
+    model = mujoco.MjModel.from_xml_string(build_xml(rig, hidden, kind, truth_step))
+    ctrl = commands(kind, times, goals)
     data = mujoco.MjData(model)
     n = len(links)
     motor_q = np.array([model.jnt_qposadr[model.joint(ln.joint).id] for ln in links])
@@ -271,12 +358,20 @@ def simulate(rig: str, hidden: Hidden, times: np.ndarray, goals: np.ndarray,
             q += data.qpos[play_q]
         return q
 
-    # start at rest at the first goal, servos holding it
+    # start at rest at the first goal, servos holding it (an integrating servo's setpoint is
+    # its activation, its velocity goal 0 while it settles)
     data.qpos[motor_q] = goals[0]
-    data.ctrl[act] = goals[0]
+    if kind == "intvelocity":
+        data.act[model.actuator_actadr[act]] = goals[0]
+        data.ctrl[act] = 0.0
+    elif kind == "timeconst":
+        data.act[model.actuator_actadr[act]] = goals[0]
+        data.ctrl[act] = ctrl[0]
+    else:
+        data.ctrl[act] = ctrl[0]
     mujoco.mj_forward(model, data)
     # settle under gravity (the play hangs where the load pushes it)
-    for _ in range(int(0.5 / TIMESTEP)):
+    for _ in range(int(0.5 / truth_step)):
         mujoco.mj_step(model, data)
     data.time = 0.0
     # Continuous time: physics advances in steps of at most TIMESTEP that land exactly on every
@@ -289,7 +384,7 @@ def simulate(rig: str, hidden: Hidden, times: np.ndarray, goals: np.ndarray,
     k_read = 0
     for t_ev in events:
         while data.time < t_ev - 1e-9:
-            model.opt.timestep = min(TIMESTEP, t_ev - data.time)
+            model.opt.timestep = min(truth_step, t_ev - data.time)
             mujoco.mj_step(model, data)
         data.time = t_ev
         while k_read < len(times) and times[k_read] <= t_ev + 1e-12:
@@ -297,16 +392,17 @@ def simulate(rig: str, hidden: Hidden, times: np.ndarray, goals: np.ndarray,
             k_read += 1
         for j in range(n):
             while nxt[j] < len(times) and arrive[nxt[j], j] <= t_ev + 1e-12:
-                data.ctrl[act[j]] = goals[nxt[j], j]
+                data.ctrl[act[j]] = ctrl[nxt[j], j]
                 nxt[j] += 1
     reads = reads + offset[None, :] + rng.normal(size=reads.shape) * NOISE
     step = 2 * math.pi / TICKS
     reads = np.round(reads / step) * step
-    return Log(times.copy(), goals.copy(), reads, tuple(ln.joint for ln in links))
+    return Log(times.copy(), ctrl, reads, tuple(ln.joint for ln in links))
 
 
 def peak_force(rig: str, times: np.ndarray, goals: np.ndarray) -> np.ndarray:
-    """Peak |actuator force| per joint of the nominal rig on these goals [N m]."""
+    """Peak |actuator force| per joint of the nominal rig (position servos) on these goals
+    [N m]."""
     links = RIGS[rig]
     model = mujoco.MjModel.from_xml_string(build_xml(rig))
     data = mujoco.MjData(model)
@@ -378,6 +474,7 @@ class Case:
     hidden: Hidden
     nominal_xml: str
     logs: list[Log]
+    kind: str = "position"
 
     def write(self, folder: str | Path) -> tuple[Path, list[Path]]:
         """Write ``model.xml`` (nominal) and ``logNN.csv``; returns (model path, log paths)."""
@@ -390,10 +487,13 @@ class Case:
 
 
 def make_case(rig: str, names: list[str], seed: int, n_logs: int = 3,
-              duration: float = 6.0, values: dict[str, float] | None = None) -> Case:
+              duration: float = 6.0, values: dict[str, float] | None = None,
+              kind: str = "position", truth_step: float = TIMESTEP) -> Case:
     """Logs of ``rig`` with the named effects hidden at random realistic magnitudes, or at the
     given ``values`` ({effect: magnitude on every joint}; the same excitation and noise as the
-    drawn case of this seed)."""
+    drawn case of this seed), its servos written as actuator ``kind`` (the same joint-angle
+    excitation, drawn magnitudes and noise for every kind), the truth simulated with physics
+    steps of at most ``truth_step`` (the nominal model keeps TIMESTEP)."""
     if rig not in RIGS:
         raise ValueError(f"unknown rig {rig!r}; valid: {', '.join(RIGS)}")
     rng = np.random.default_rng(seed)
@@ -410,8 +510,8 @@ def make_case(rig: str, names: list[str], seed: int, n_logs: int = 3,
     if values is not None:
         n = len(links)
         hidden = Hidden({k: np.full(n, float(v)) for k, v in values.items()})
-    logs = [simulate(rig, hidden, t, g, rng) for t, g in plans]
-    return Case(rig, hidden, build_xml(rig), logs)
+    logs = [simulate(rig, hidden, t, g, rng, kind, truth_step) for t, g in plans]
+    return Case(rig, hidden, build_xml(rig, None, kind), logs, kind)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -51,6 +51,7 @@ from lowcostdex.gap.diagnostics import (
     score_fraction,
 )
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
+from lowcostdex.gap.logs import rate_goal_actuators
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import (
     UNEXPLAINED,
@@ -82,9 +83,16 @@ Progress = Callable[[str, float], None]
 
 
 def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[str]:
-    """Candidates whose required channels are logged (all canonical causes by default)."""
+    """Candidates whose required channels are logged (all canonical causes by default).
+
+    Servos that integrate a velocity goal (``intvelocity``) have no position offsets: their
+    setpoint is anchored to the measured reading (``Replayer``), so a reading offset moves the
+    replay with the data and cannot be seen (on clean data a 1 mrad read error of each log's
+    first sample was named one), and a mounting offset on a velocity goal means nothing."""
     chans = ds.channels()
     names = list(requested) if requested is not None else list(CAUSES)
+    if set(ds.actuators) <= rate_goal_actuators(ds.compiled(ds.trajectories[0].model)):
+        names = [n for n in names if n not in ("position_offset", "mounting_offset")]
     return [n for n in names if all(c in chans for c in effect(n).requires)]
 
 
@@ -148,6 +156,9 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     rng = np.random.default_rng(cfg.seed)
     eps = episodes(ds, cfg.chunk)
     split = split_episodes(ds, eps, rng, cfg.test_logs)
+    timestep = {"model": ds.timestep, "used": ds.timestep, "rmse": []}
+    if cfg.refine_step:
+        ds, timestep = _refine_step(ds, [eps[i] for i in split.train + split.select], cfg)
     cands = available_candidates(ds, cfg.candidates)
     eng = _Engine(ds, cfg, cands)
     joints = eng.joints
@@ -453,7 +464,38 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     prog("done", 1.0)
     return GapResult(cfg, ds.sources or [tr.name for tr in ds.trajectories], joints, split, eps,
                      floor, baseline, extended, causes, rounds, diagnostics, gain, effects,
-                     verdict, timing, traces, dict(ds.models), stop_reason)
+                     verdict, timing, traces, dict(ds.models), stop_reason,
+                     timestep=timestep)
+
+
+def _refine_step(ds: Dataset, eps: Sequence[Window], cfg: GapConfig
+                 ) -> tuple[Dataset, dict]:
+    """The data set on the finest useful physics step (``GapConfig.refine_step``): halve the
+    step while the nominal replay of ``eps`` gets closer to the data by ``refine_gain`` of its
+    MSE above the noise floor's (what a model can explain) and ``min_gain`` of all of it. Returns (data set, the timestep
+    record of ``GapResult.timestep``)."""
+    floor_mse = float(np.mean(noise_floor(ds.trajectories) ** 2))
+    dt0 = ds.timestep
+
+    def replay(d: Dataset) -> float:
+        (pred,), _ = Replayer(d, nthread=cfg.nthread).run(eps, [[]])
+        res = np.concatenate([(d.trajectories[w.traj].qpos[w.score_from:w.stop]
+                               - p[w.score_from - w.start:]).ravel()
+                              for w, p in zip(eps, pred, strict=True)])
+        return float(np.mean(res ** 2))
+
+    cur = ds
+    mse = replay(ds)
+    tried = [(dt0, math.sqrt(mse))]
+    while cur.timestep / 2 >= cfg.min_step * (1 - 1e-9):
+        finer = ds.with_timestep(cur.timestep / 2 / dt0)
+        m2 = replay(finer)
+        tried.append((finer.timestep, math.sqrt(m2)))
+        if not (m2 - floor_mse <= (1 - cfg.refine_gain) * (mse - floor_mse)
+                and m2 <= (1 - cfg.min_gain) * mse):  # and not a wiggle at the floor
+            break
+        cur, mse = finer, m2
+    return cur, {"model": dt0, "used": cur.timestep, "rmse": tried}
 
 
 def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:

@@ -94,6 +94,7 @@ def _analyze(args: argparse.Namespace) -> int:
     from lowcostdex.gap.analyze import GapConfig, analyze
     from lowcostdex.gap.dataset import load_dataset
     from lowcostdex.gap.report import summary, write_report
+    from lowcostdex.gap.results import timestep_note
     from lowcostdex.outdir import check_out
     from lowcostdex.sim.mjwarnings import describe_warnings
 
@@ -120,6 +121,8 @@ def _analyze(args: argparse.Namespace) -> int:
     print(summary(result))
     if result.mujoco_warnings:
         print(describe_warnings(result.mujoco_warnings, 1) + " (all in report.md)")
+    if timestep_note(result.timestep):
+        print("note: " + timestep_note(result.timestep))
     print(f"report: {out / 'report.md'} (json: {out / 'report.json'}; extended model: "
           f"{out / 'extended'})")
     return 0

@@ -22,9 +22,11 @@ from lowcostdex.errors import ConfigError, check_number
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
+    actuator_gears,
     check_against_model,
     estimate_velocity,
     is_bam,
+    rate_goal_actuators,
     read_bam,
     read_log,
     split_at_gaps,
@@ -229,11 +231,12 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             raise LogError(f"{model}: a folder, not an MJCF model file (.xml)")
         try:
             spec = mujoco.MjSpec.from_file(str(model))
-            spec.compile()
+            compiled = spec.compile()
         except Exception as exc:  # mujoco raises ValueError with the parser message
             raise LogError(f"{model}: cannot load the model: {exc}") from None
         models["model"] = spec.to_xml()
-        trajs = [read_log(p) for p in paths]
+        rate, gears = rate_goal_actuators(compiled), actuator_gears(compiled)
+        trajs = [read_log(p, rate, gears) for p in paths]
     total = sum(tr.duration for tr in trajs)
     if total > MAX_TOTAL_DURATION:
         raise LogError(f"{len(trajs)} logs of {total:.6g} s in all; one analysis takes at most "

@@ -57,8 +57,13 @@ _UNIT_HINTS: dict[str, tuple[tuple[float, str], ...]] = {
 }
 
 
-def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> Trajectory:
-    """Parse log-format columns; raises LogError naming bad columns, NaNs or too little data."""
+def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
+                            rate_goals: frozenset[str] | set[str] = frozenset(),
+                            gears: dict[str, float] | None = None) -> Trajectory:
+    """Parse log-format columns; raises LogError naming bad columns, NaNs or too little data.
+    ``rate_goals``: actuators whose goal is a velocity (an integrating servo's input, rad/s;
+    the goal-against-reading checks skip them); ``gears``: actuator -> its gear (the goal is
+    in actuator units, gear x the joint angle; default 1)."""
     if "time" not in cols:
         raise LogError(f"{name}: missing column 'time' [s]")
     acts: dict[str, dict[str, np.ndarray]] = {}
@@ -123,7 +128,7 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log") -> T
         actuators=tuple(goal_acts), joints=tuple(meas),
         qvel=np.stack([joints[j]["qvel"] for j in meas], axis=1) if has_qvel else None,
         channels=channels, goal_time=goal_time)
-    check_signals(traj)
+    check_signals(traj, rate_goals, gears)
     return traj
 
 
@@ -229,8 +234,12 @@ def _check_range(key: str, arr: np.ndarray, name: str) -> None:
                    f"plausible: {lo:g} to {hi:g} {unit} ({hint})")
 
 
-def check_signals(traj: Trajectory) -> None:
+def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = frozenset(),
+                  gears: dict[str, float] | None = None) -> None:
     """Refuse what no model can be identified from, naming the column and the values.
+    Actuators in ``rate_goals`` take a velocity goal (an ``intvelocity`` servo integrates it
+    into its setpoint): the checks comparing a goal with its joint's reading skip them; a goal
+    of an actuator with a gear (``gears``) is compared as goal / gear.
 
     * a frozen encoder: a joint's reading repeats exactly (torque on) while its goal passes it
       by more than FROZEN_CROSS on both sides (a servo that stalls under load, its goal on one
@@ -264,13 +273,14 @@ def check_signals(traj: Trajectory) -> None:
     if "torque_enable" in traj.channels:
         on = np.all(traj.channels["torque_enable"] > 0.5, axis=1)
     ids = {a: k for k, a in enumerate(traj.actuators)}
+    gear = gears or {}
     for j, joint in enumerate(traj.joints):  # a clip or wrap first: they also look frozen
         _check_wrapped(traj, j)
-        if joint in ids:
-            _check_pinned(traj, j, traj.goal[:, ids[joint]], on)
+        if joint in ids and joint not in rate_goals:
+            _check_pinned(traj, j, traj.goal[:, ids[joint]] / gear.get(joint, 1.0), on)
     for j, joint in enumerate(traj.joints):
-        if joint in ids:
-            _check_frozen(traj, j)
+        if joint in ids and joint not in rate_goals:
+            _check_frozen(traj, j, gear.get(joint, 1.0))
     if "current" in traj.channels:
         for k, col in enumerate(traj.channels["current"].T):
             _check_saturated(name, f"current:{traj.actuators[k]}", col[on])
@@ -291,7 +301,7 @@ def check_signals(traj: Trajectory) -> None:
                        f"[rad] {moved}; some joint must move at least {MIN_MOTION} rad")
 
 
-def frozen_crossing(traj: Trajectory, j: int) -> tuple[float, int, int]:
+def frozen_crossing(traj: Trajectory, j: int, gear: float = 1.0) -> tuple[float, int, int]:
     """The frozen-encoder check's statistic for joint ``j`` (``traj.joints`` order; its actuator
     must be logged): over every stretch of at least 5 samples with torque on where the reading
     repeats exactly, how far the acting goal passes the reading on *both* sides, the smaller of
@@ -299,7 +309,7 @@ def frozen_crossing(traj: Trajectory, j: int) -> tuple[float, int, int]:
     [a, b). ``check_signals`` refuses a log where it exceeds FROZEN_CROSS; -inf, 0, 0 without
     such a stretch."""
     t, q = traj.time, traj.qpos[:, j]
-    goal = traj.goal[:, traj.actuators.index(traj.joints[j])]
+    goal = traj.goal[:, traj.actuators.index(traj.joints[j])] / gear
     on = np.ones(len(traj), bool)
     if "torque_enable" in traj.channels:
         on = np.all(traj.channels["torque_enable"] > 0.5, axis=1)
@@ -323,8 +333,8 @@ def frozen_crossing(traj: Trajectory, j: int) -> tuple[float, int, int]:
     return worst
 
 
-def _check_frozen(traj: Trajectory, j: int) -> None:
-    crossing, a, b = frozen_crossing(traj, j)
+def _check_frozen(traj: Trajectory, j: int, gear: float = 1.0) -> None:
+    crossing, a, b = frozen_crossing(traj, j, gear)
     if crossing > FROZEN_CROSS:
         t, q, joint = traj.time, traj.qpos[:, j], traj.joints[j]
         acting = traj.goal[max(a - 1, 0):b - 1, traj.actuators.index(joint)]

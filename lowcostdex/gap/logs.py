@@ -75,7 +75,8 @@ __all__ = [
     "MIN_SUPPLY", "PINNED_RUN", "PINNED_SPEED", "PINNED_TRAVEL", "PLAUSIBLE", "PREFIXES_ACTUATOR",
     "PREFIXES_JOINT", "RANGE_MARGIN", "SATURATED_SHARE", "STEP_RANGE", "Trajectory",
     "WRAP_TOLERANCE", "check_against_model", "check_signals", "estimate_velocity", "find_gaps",
-    "is_bam", "quantization_step", "read_bam", "read_columns", "read_log", "split_at_gaps",
+    "actuator_gears", "is_bam", "quantization_step", "rate_goal_actuators", "read_bam", "read_columns", "read_log",
+    "split_at_gaps",
     "trajectory_from_columns", "write_log", "zoh", "zoh_index",
 ]
 
@@ -187,12 +188,32 @@ def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
     return pieces, [note]
 
 
-def read_log(path: str | Path) -> Trajectory:
-    """Read one log (CSV, NPZ or BAM JSON; BAM logs carry their bench setup in ``meta``)."""
+def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset(),
+             gears: dict[str, float] | None = None) -> Trajectory:
+    """Read one log (CSV, NPZ or BAM JSON; BAM logs carry their bench setup in ``meta``).
+    ``rate_goals``: actuators whose goal is a velocity [rad/s] (integrating servos);
+    ``gears``: actuator -> gear (its goal is gear x the joint angle)."""
     path = Path(path)
     if path.suffix.lower() == ".json":
         return read_bam(path)[0]
-    return trajectory_from_columns(read_columns(path), name=path.name)
+    return trajectory_from_columns(read_columns(path), name=path.name, rate_goals=rate_goals,
+                                   gears=gears)
+
+
+def rate_goal_actuators(model: mujoco.MjModel) -> frozenset[str]:
+    """Actuators whose input is a velocity that they integrate into a position setpoint (an
+    ``intvelocity``, or any non-dcmotor actuator with integrator dynamics): their log goal is
+    in rad/s."""
+    dyn = model.actuator_dyntype == mujoco.mjtDyn.mjDYN_INTEGRATOR
+    dc = model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR
+    return frozenset(model.actuator(int(a)).name for a in np.flatnonzero(dyn & ~dc))
+
+
+def actuator_gears(model: mujoco.MjModel) -> dict[str, float]:
+    """Actuator name -> gear, for actuators whose gear is not 1 (their goal is in actuator
+    units: gear x the joint angle)."""
+    return {model.actuator(i).name: float(model.actuator_gear[i, 0]) for i in range(model.nu)
+            if model.actuator_gear[i, 0] not in (0.0, 1.0)}
 
 
 def write_log(path: str | Path, traj: Trajectory) -> Path:
@@ -265,11 +286,18 @@ def estimate_velocity(time: np.ndarray, qpos: np.ndarray, window: float = 0.02,
     A step written at row 0 itself cannot be told from motion before the log: without a
     measured velocity the first sample then reads the step's mean speed over the first row.
 
+    The window is at least 1.75 median row periods (a 100 Hz log keeps +-20 ms): at 50 Hz (rows
+    20 ms +-20 % apart) a +-20 ms window often held the row alone, and the velocity was set to 0
+    there; episodes of a 2-link arm then started from rest while moving at 0.7 rad/s (redteam's
+    clean arm, position-only at 50 Hz: nominal replay 67.7 mrad off, 4.9 with the neighbours).
+
     Args:
       time: (T,) [s]; qpos: (T, n) [rad]; goal: (T, nu) goals [rad] or None.
     Returns:
       (T, n) velocity estimates.
     """
+    if len(time) > 1:
+        window = max(window, 1.75 * float(np.median(np.diff(np.asarray(time, float)))))
     v = _linear_slope(time, qpos, window)
     if goal is None or len(time) < 2:
         return v

@@ -26,6 +26,10 @@ together at the physics timestep:
   it, exact: the operator acts on commands only). Columns without backlash run on a model
   without the hidden dofs, so the nominal column stays the nominal model exactly;
 * measured channels (voltage, temperature, torque enable) are held like commands;
+* actuators of any gear (force matching in actuator units, peak forces reported at the joint)
+  and servos that integrate a velocity goal (``intvelocity``): their setpoint (activation) at a
+  window's start is the integral of the goals that arrived before it from the log's start, where
+  the servo held its measured angle against the static load (``gap.activation``);
 * predictions are the encoder readings (observation effects applied) interpolated linearly at the
   measured sample times.
 """
@@ -38,6 +42,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from lowcostdex.gap.activation import Activations, position_like
 from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
 from lowcostdex.sim.plant import BatchPlant, prepare_spec
@@ -103,6 +108,7 @@ class Replayer:
             cols = {int(a): i for i, a in enumerate(self._act_idx[k])}
             self._act_of_joint[k] = {j: cols[int(a)] for j, a in
                                      zip(ds.effect_joints, targets.actuators, strict=True)}
+        self._acts = Activations(ds, self._variants, self._act_idx)
         self.steps_run = 0  # simulated sim-steps (for throughput reports)
 
     # ------------------------------------------------------------------------------------------
@@ -124,7 +130,10 @@ class Replayer:
             if w.start > 0:
                 prev = tr.goal[w.start - 1]
             elif switch[0] > 0 and set(tr.actuators) <= set(tr.joints):
-                prev = tr.qpos[0, [tr.joints.index(a) for a in tr.actuators]]
+                prev = tr.qpos[0, [tr.joints.index(a) for a in tr.actuators]] * (
+                    self.models[tr.model].actuator_gear[self._act_idx[(tr.model, False)], 0])
+                for col, _, _ in self._acts.integrators((tr.model, False)):
+                    prev[col] = 0.0  # an integrating servo at rest: velocity goal 0
             else:
                 prev = tr.goal[0]
             u = (tr.goal_times[w.start:w.stop] - tr.time[w.start]) / self.dt
@@ -137,26 +146,24 @@ class Replayer:
 
     def _position_servos(self, key: tuple[str, bool]
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Fixed-gain position servos among the logged actuators: (their columns in the log's
-        actuator list, model actuator ids, qpos and dof addresses of the joints they drive)."""
+        """Fixed-gain position servos acting on their ctrl directly (no activation dynamics)
+        among the logged actuators: (their columns in the log's actuator list, model actuator
+        ids, qpos and dof addresses of the joints they drive, gears)."""
         cache = self.__dict__.setdefault("_pos_servos", {})
         if key not in cache:
             m = self._variants[key]
-            cols, acts, qadr, dadr = [], [], [], []
+            cols, acts, qadr, dadr, gear = [], [], [], [], []
             for col, a in enumerate(self._act_idx[key]):
-                kp = float(m.actuator_gainprm[a, 0])
-                if (m.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
-                        and m.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE
-                        and m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
-                        and kp > 0 and m.actuator_biasprm[a, 1] == -kp
-                        and m.actuator_biasprm[a, 0] == 0 and m.actuator_gear[a, 0] == 1):
+                if (position_like(m, a)
+                        and m.actuator_dyntype[a] == mujoco.mjtDyn.mjDYN_NONE):
                     jid = int(m.actuator_trnid[a, 0])
                     cols.append(col)
                     acts.append(int(a))
                     qadr.append(int(m.jnt_qposadr[jid]))
                     dadr.append(int(m.jnt_dofadr[jid]))
+                    gear.append(float(m.actuator_gear[a, 0]))
             cache[key] = (np.array(cols, int), np.array(acts, int),
-                          np.array(qadr, int), np.array(dadr, int))
+                          np.array(qadr, int), np.array(dadr, int), np.array(gear, float))
         return cache[key]
 
     def _match_saturation(self, run: dict, k: int, goal: np.ndarray) -> None:
@@ -171,7 +178,7 @@ class Replayer:
         kv and force range at the step's start (servos with an actuator delay keep the mean
         goal: they act on it later, from another state).
         """
-        cols, acts, qadr, dadr = run["servos"]
+        cols, acts, qadr, dadr, gear = run["servos"]
         if not len(cols):
             return
         split = run["split"][:, k][:, cols]  # (nsim, n servos)
@@ -185,7 +192,8 @@ class Replayer:
         rng_ = plant.array("actuator_forcerange")[sims[:, None], acts]
         lim = plant.array("actuator_forcelimited")[sims[:, None], acts] > 0
         lo, hi = np.where(lim, rng_[..., 0], -np.inf), np.where(lim, rng_[..., 1], np.inf)
-        q, qd = plant.qpos[sims[:, None], qadr], plant.qvel[sims[:, None], dadr]
+        # actuator length and velocity (gear times the joint's); force in actuator units
+        q, qd = gear * plant.qpos[sims[:, None], qadr], gear * plant.qvel[sims[:, None], dadr]
         f_old = np.clip(kp * (run["before"][sims, k][:, cols] - q) - kv * qd, lo, hi)
         f_new = np.clip(kp * (run["after"][sims, k][:, cols] - q) - kv * qd, lo, hi)
         f_mean = a * f_old + (1 - a) * f_new
@@ -206,7 +214,8 @@ class Replayer:
         Args:
           windows: windows to replay.
           columns: candidate effect sets (each a list of AppliedEffect on the data set's joints).
-          force_peak: also return the peak |actuator force| per column and actuator.
+          force_peak: also return the peak |actuator force| x |gear| (the torque at the
+            joint) per column and actuator.
           goal_shift: every goal arrives this much later [s] (on top of a column's latency):
           a probe of how much the predictions depend on a change far below what a log's
           timestamps resolve (``analyze``'s replay chaos).
@@ -245,6 +254,7 @@ class Replayer:
                 pred[c][wi] = (1 - a) * q[i0] + a * q[i0 + 1]
                 if force_peak:
                     peaks[c] = np.maximum(peaks[c], r["peak"][s])
+        self._acts.anchor(windows, pred)
         for i, c in enumerate(dual):
             if self._closer(windows, pred[n_col + i], pred[c]):
                 pred[c] = pred[n_col + i]
@@ -315,7 +325,9 @@ class Replayer:
         played = set() if key[1] else _init_backlash(ctrl, act, self._act_of_joint[model_key],
                                                       sims, windows, columns, ds)
         plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
-                                                                 windows, played))
+                                                                 windows, played),
+                    act=self._acts.setpoints(model_key, sims, windows, delays,
+                                        plant.array("actuator_gainprm")))
         shifted = np.flatnonzero(np.any(delays > 0, axis=1))
         if len(shifted):  # their goals arrive late on the grid: no native (interpolated) delay
             plant.array("actuator_delay")[np.ix_(shifted, act)] = 0.0
@@ -334,6 +346,7 @@ class Replayer:
         run = dict(plant=plant, sims=sims, n_steps=n_steps, act=act, jq=jq, goals=goals,
                    split=split, before=before, after=after,
                    servos=self._position_servos(model_key),
+                   gear=model.actuator_gear[act, 0],
                    chans=chans, te=te, full_goal=np.array(ctrl),
                    full_chans={ch: np.zeros_like(ctrl) for ch in chans},
                    record=np.empty((nsim, n_steps + 1, len(jq))),
@@ -427,8 +440,8 @@ class Replayer:
     def _advance(self, run: dict, k: int, force_peak: bool) -> None:
         plant = run["plant"]
         run["record"][:, k] = plant.measured_qpos()[:, run["jq"]]
-        if force_peak and k > 0:
-            f = np.abs(plant.actuator_force[:, run["act"]])
+        if force_peak and k > 0:  # at the joint: gear x actuator force
+            f = np.abs(plant.actuator_force[:, run["act"]] * run["gear"])
             np.maximum(run["peak"], f, out=run["peak"])
         if k == run["n_steps"]:
             return

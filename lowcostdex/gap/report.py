@@ -14,6 +14,7 @@ import numpy as np
 
 from lowcostdex.gap.analyze import GapResult
 from lowcostdex.gap.extension import save_extended
+from lowcostdex.gap.results import timestep_note
 from lowcostdex.outdir import staged_output
 from lowcostdex.sim.mjwarnings import describe_warnings
 
@@ -171,6 +172,8 @@ def markdown(result: GapResult) -> str:
     if r.mujoco_warnings:
         out += ["", "While simulating the nominal and candidate models: "
                 + describe_warnings(r.mujoco_warnings, None) + "."]
+    if timestep_note(r.timestep):
+        out += ["", "Physics step: " + timestep_note(r.timestep) + "."]
     return "\n".join(out) + "\n"
 
 

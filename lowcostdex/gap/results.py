@@ -70,6 +70,18 @@ class GapConfig:
       interval_step: the final model is refitted on a replay at this fraction of the physics
         step and its move joins the interval half-width (root sum of squares): the replay's
         discretisation biases every block alike, so only a change of step shows it (0: off).
+      refine_step: halve the model's physics step (down to ``min_step`` s) while the nominal
+        replay of the training and select episodes gets closer to the data by at least
+        ``refine_gain`` of its MSE above the noise floor's (and ``min_gain`` of all of it) per
+        halving: a model written
+        at a coarse step carries a discretisation error (a continuous-time truth at 0.25 ms
+        replayed at 2 ms: 2.1 mrad against a 0.54 floor, named as viscous damping) that no
+        effect should stand in for. The analysis then runs at the finer step and the extended
+        model carries it (``GapResult.timestep``).
+      min_step: the finest physics step ``refine_step`` goes to [s].
+      refine_gain: the share of the MSE above the floor a halving must remove (a hidden effect
+        the step interacts with also moves the nominal replay: the independent bench's 0.14 N m
+        Coulomb friction, simulated at 2 ms, came 8.7 % closer at 1 ms).
       seed: seed of the split and the bootstrap.
       nthread: simulation threads (0: all CPUs).
     """
@@ -95,6 +107,9 @@ class GapConfig:
     bootstrap: int = 2000
     interval_block: float = 0.5
     interval_step: float = 0.5
+    refine_step: bool = True
+    min_step: float = 2.5e-4
+    refine_gain: float = 0.2
     seed: int = 0
     nthread: int = 0
 
@@ -122,6 +137,10 @@ class GapConfig:
             raise ConfigError("segment must be > 0 s and burn_in >= 0 s")
         if not self.interval_block > 0:
             raise ConfigError("interval_block must be > 0 s")
+        if not 0 < self.refine_gain < 1:
+            raise ConfigError(f"refine_gain must be in (0, 1), got {self.refine_gain}")
+        if not self.min_step > 0:
+            raise ConfigError(f"min_step must be > 0 s, got {self.min_step}")
         if not 0 <= self.interval_step < 1:
             raise ConfigError("interval_step must be in [0, 1) (a fraction of the physics "
                               f"step; 0: off), got {self.interval_step}")
@@ -215,6 +234,9 @@ class GapResult:
     models: dict[str, str]
     stop_reason: str = ""
     mujoco_warnings: dict[str, int] = field(default_factory=dict)  # kind -> distinct times
+    # physics step: the model's and the one analysed at, the nominal replay's train + select
+    # RMSE [rad] at each step tried (``GapConfig.refine_step``)
+    timestep: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         fl = self.floor
@@ -239,6 +261,7 @@ class GapResult:
                        for k, v in asdict(self.config).items()},
             "timing_s": self.timing,
             "mujoco_warnings": self.mujoco_warnings,
+            "timestep": self.timestep,
         }
 
 
@@ -301,3 +324,14 @@ def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str) -> str:
     names = ", ".join(c.effect for c in causes)
     return (f"{names}: held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad "
             f"({100 * gain.relative:.0f} % lower)")
+
+
+def timestep_note(timestep: dict) -> str:
+    """One line on a refined physics step ('' when the model's step was kept)."""
+    if not timestep or timestep.get("used") == timestep.get("model"):
+        return ""
+    tried = ", ".join(f"{1e3 * float(dt):.3g} ms {1e3 * r:.3g} mrad"
+                      for dt, r in timestep["rmse"])
+    return (f"the model's physics step {1e3 * timestep['model']:.3g} ms is too coarse for these "
+            f"logs (nominal replay RMSE on train + select: {tried}); analysed at "
+            f"{1e3 * timestep['used']:.3g} ms, which the extended model carries")

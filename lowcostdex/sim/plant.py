@@ -541,12 +541,13 @@ class BatchPlant(_PlantBase):
 
     def reset(self, qpos: np.ndarray | None = None, qvel: np.ndarray | None = None,
               ctrl: np.ndarray | None = None, sims: np.ndarray | None = None,
-              ctrl_history: np.ndarray | None = None) -> None:
+              ctrl_history: np.ndarray | None = None, act: np.ndarray | None = None) -> None:
         """Reset simulations ``sims`` (default all) to states given as (len(sims), n) arrays.
 
         ``ctrl_history`` (len(sims), k, nu) fills the delay buffers with past ctrl, oldest
-        first (see ``Plant.reset``); by default they hold ``ctrl``. Backlash plays rest where
-        the static load pushes them (``rest_play``).
+        first (see ``Plant.reset``); by default they hold ``ctrl``. ``act`` (len(sims), na):
+        actuator activations (an integrating servo's setpoint; default 0). Backlash plays rest
+        where the static load pushes them (``rest_play``).
         """
         rows = np.arange(self.nsim) if sims is None else np.asarray(sims, dtype=int)
         self.batch.reset(ids=rows)
@@ -557,11 +558,15 @@ class BatchPlant(_PlantBase):
                 d.qpos[:] = qpos[k]
             if qvel is not None:
                 d.qvel[:] = qvel[k]
+            if act is not None:
+                d.act[:] = act[k]
             d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl[k]
             _fill_ctrl_history(m, d, None if ctrl_history is None else ctrl_history[k])
             self.qpos[i] = d.qpos
             self.qvel[i] = d.qvel
             self.ctrl[i] = d.ctrl
+            if act is not None:
+                self.act[i] = d.act
             if m.nhistory:
                 self._views["history"][i] = d.history
         for value in self._state.values():

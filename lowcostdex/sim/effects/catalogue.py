@@ -120,7 +120,8 @@ def _dcmotor(f: Fields, t: Targets) -> np.ndarray:
 class TorqueLimit(Effect):
     name = "torque_limit"
     kind = "model"
-    doc = "the servo delivers at most `torque` (current limit, weak supply, worn motor)"
+    doc = ("the servo delivers at most `torque` at the joint (current limit, weak supply, worn "
+           "motor); an actuator with a gear clips its own force at torque / |gear|")
     params = (Param("torque", math.inf, 0.02, 10.0, "N m", (1.5, 4.0), start=1.0,
                     limit=(0.002, 10.0)),)
     fields = ("actuator_forcerange", "actuator_forcelimited")
@@ -129,8 +130,9 @@ class TorqueLimit(Effect):
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:
         # the force range becomes +-torque, never wider than the nominal range; the null (inf)
         # keeps the nominal range and limit flag (a force-limited actuator stays as it was)
-        tau = np.asarray(v["torque"], dtype=float)
         a = t.actuators
+        # joint torque -> actuator force (a gear's force range is in actuator units)
+        tau = np.asarray(v["torque"], dtype=float) / np.abs(f.nominal("actuator_gear")[a, 0])
         nom_rng = f.nominal("actuator_forcerange")[a]
         nom_lim = f.nominal("actuator_forcelimited")[a] > 0
         lo_nom = np.where(nom_lim, nom_rng[:, 0], -np.inf)
