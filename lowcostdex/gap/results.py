@@ -137,6 +137,8 @@ class GapConfig:
             raise ConfigError("segment must be > 0 s and burn_in >= 0 s")
         if not self.interval_block > 0:
             raise ConfigError("interval_block must be > 0 s")
+        if not isinstance(self.refine_step, bool):
+            raise ConfigError(f"refine_step must be True or False, got {self.refine_step!r}")
         if not 0 < self.refine_gain < 1:
             raise ConfigError(f"refine_gain must be in (0, 1), got {self.refine_gain}")
         if not self.min_step > 0:
@@ -150,7 +152,8 @@ _INTEGERS = {"top_k": 1, "max_effects": 1, "max_rounds": 1, "bootstrap": 1, "joi
              "seed": 0, "nthread": 0}
 _REALS = {"rank_tie": 0.0, "min_gain": 0.0, "floor_margin": 0.0, "min_effect": 0.0,
           "rank_seconds": 0.0, "tie": 0.0, "backward_above": 0.0, "segment": 0.0,
-          "burn_in": 0.0, "interval_block": 0.0, "interval_step": 0.0}
+          "burn_in": 0.0, "interval_block": 0.0, "interval_step": 0.0, "min_step": 0.0,
+          "refine_gain": 0.0}
 
 
 def _check_numbers(c: GapConfig) -> None:
