@@ -107,3 +107,30 @@ def check_keys(kind: str, given: Iterable[str], valid: Iterable[str]) -> None:
     unknown = [k for k in given if k not in options]
     if unknown:
         raise ConfigError(f"unknown {kind} {unknown[0]!r}; valid: {', '.join(options)}")
+
+
+def check_fields(config: object) -> None:
+    """Check every number and flag of a dataclass config by its default's type: a field whose
+    default is a bool must be True or False, an int an integral finite number, a float a finite
+    number, a None-default ``float | None`` field a finite number or None. Strings from a JSON
+    file, NaN and inf are refused naming ``Config.field``; the config's own range checks run
+    after this with their messages."""
+    import dataclasses
+
+    kind = type(config).__name__
+    for f in dataclasses.fields(config):  # type: ignore[arg-type]
+        default, value, name = f.default, getattr(config, f.name), f"{kind}.{f.name}"
+        if isinstance(default, bool):
+            check_bool(name, value)
+            continue
+        scalar = isinstance(default, numbers.Real) or (
+            default is None and str(f.type).replace(" ", "") in ("float|None", "int|None"))
+        if not scalar or (value is None and default is None):
+            continue
+        integer = isinstance(default, numbers.Integral) or str(f.type).startswith("int")
+        ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(
+            float(value)) and (not integer or float(value).is_integer())  # type: ignore[arg-type]
+        if not ok:
+            what = "an integer" if integer else "a finite number"
+            raise ConfigError(f"{name}={value!r} must be {what}"
+                              + (" or None" if default is None else ""))

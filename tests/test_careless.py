@@ -38,12 +38,16 @@ from lowcostdex.algos.configs import (
     PPOConfig,
     TrainConfig,
 )
+from lowcostdex.algos.local_models.mdgps import MDGPSConfig
+from lowcostdex.algos.local_models.train_config import TaskCostConfig
 from lowcostdex.algos.policy import GaussianMLPPolicy
 from lowcostdex.algos.train import load_policy
 from lowcostdex.demonstrations.dataset import load_demos
 from lowcostdex.errors import ConfigError, InputError
-from lowcostdex.gap import GapConfig, LogError, load_dataset
+from lowcostdex.gap import GapConfig, LogError, load_dataset, write_log
 from lowcostdex.gap.identify import IdentifyConfig
+from lowcostdex.hardware.robot.guards import CurrentConfig, ThermalConfig
+from lowcostdex.hardware.robot.reset import ResetConfig
 from lowcostdex.hardware.robot.robot import RobotConfig
 from lowcostdex.hardware.robot.safety import UnsafeCommand
 from lowcostdex.sim.effects import DomainRandomization
@@ -90,6 +94,13 @@ def _dxl(**kwargs):
     from lowcostdex.hardware.dynamixel.config import DynamixelConfig
 
     return DynamixelConfig(ids=(10, 11), models=("XH430-W350", "XH430-W350"), **kwargs)
+
+
+def _trajectory():
+    from lowcostdex.gap import Trajectory
+
+    t = np.arange(3) * 0.01
+    return Trajectory("log", t, np.zeros((3, 1)), np.zeros((3, 1)), ("a",), ("a",))
 
 
 def _teacher() -> ValveTurnTeacher:
@@ -312,6 +323,16 @@ CASES: list[Case] = [
          "RobotConfig.motion_scale=inf must be a finite number"),
     Case("robot-period-in-ms", lambda _: RobotConfig(control_period=100), ConfigError,
          "RobotConfig.control_period [s]=100 must be a finite number in (0, 1]"),
+    Case("thermal-pause-without-end", lambda _: ThermalConfig(max_pause=math.inf),
+         ConfigError, "ThermalConfig.max_pause=inf must be a finite number"),
+    Case("current-fraction-as-string", lambda _: CurrentConfig(fraction="0.5"), ConfigError,
+         "CurrentConfig.fraction='0.5' must be a finite number"),
+    Case("reset-nan-tolerance", lambda _: ResetConfig(tolerance=math.nan), ConfigError,
+         "ResetConfig.tolerance=nan must be a finite number"),
+    Case("mdgps-iterations-as-string", lambda _: MDGPSConfig(iterations="6"), ConfigError,
+         "MDGPSConfig.iterations='6' must be an integer"),
+    Case("task-cost-nan-weight", lambda _: TaskCostConfig(pose_weight=math.nan), ConfigError,
+         "TaskCostConfig.pose_weight=nan must be a finite number"),
     # policies and checkpoints: the file named, never a torch/unpickler traceback
     Case("load-policy-empty-run-dir", lambda d: load_policy(d), FileNotFoundError,
          "a run directory holds policy.pt"),
@@ -346,7 +367,13 @@ CASES: list[Case] = [
          "logs are given as file paths (a path, a folder, a glob pattern or a list of them), "
          "not ndarray"),
     Case("gap-dict-as-logs", lambda _: load_dataset({"time": [0.0, 0.01]}), LogError,
-         "not dict; write arrays to a file first with lowcostdex.gap.write_log"),
+         "not dict; write arrays to a file first: lowcostdex.gap.write_log(path, "
+         "Trajectory(...))"),
+    Case("gap-write-log-of-columns",
+         lambda d: write_log(d / "log.csv", {"time": np.arange(3) * 0.01}), LogError,
+         "write_log(path, traj) writes a lowcostdex.gap.Trajectory"),
+    Case("gap-write-log-swapped", lambda d: write_log(_trajectory(), d / "log.csv"), LogError,
+         "write_log(path, traj): the path comes first"),
     Case("gap-none-as-logs", lambda _: load_dataset(None), LogError, "not NoneType"),
     Case("gap-folder-as-model", lambda d: load_dataset([d / "log.csv"], model=d), LogError,
          "a folder, not an MJCF model file", {"log.csv": lambda: b"time,goal:a,qpos:a\n0,0,0\n"}),

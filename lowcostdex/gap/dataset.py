@@ -156,7 +156,7 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
             not entries and not isinstance(paths, (list, tuple))):
         raise LogError(f"logs are given as file paths (a path, a folder, a glob pattern or a "
                        f"list of them), not {type(paths).__name__}; write arrays to a file "
-                       "first with lowcostdex.gap.write_log")
+                       "first: lowcostdex.gap.write_log(path, Trajectory(...))")
     if not entries:
         raise LogError("no log files given")
     out: list[Path] = []

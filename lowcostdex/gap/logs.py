@@ -218,6 +218,12 @@ def actuator_gears(model: mujoco.MjModel) -> dict[str, float]:
 
 def write_log(path: str | Path, traj: Trajectory) -> Path:
     """Write a trajectory in the project format (CSV or NPZ by suffix)."""
+    if isinstance(path, Trajectory) and not isinstance(traj, Trajectory):
+        raise LogError("write_log(path, traj): the path comes first")
+    if not isinstance(traj, Trajectory):
+        raise LogError(f"write_log(path, traj) writes a lowcostdex.gap.Trajectory (name, time "
+                       f"[s], goal and qpos [rad] arrays, actuator and joint names), not "
+                       f"{type(traj).__name__}")
     path = Path(path)
     cols = traj.to_columns()
     if path.suffix.lower() == ".npz":

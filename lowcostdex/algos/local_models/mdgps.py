@@ -56,7 +56,7 @@ from lowcostdex.algos.local_models.traj_opt import (
 )
 from lowcostdex.algos.local_models.tvlg import laplace_cost
 from lowcostdex.algos.policy import GaussianMLPPolicy
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, check_fields
 
 Array = NDArray[np.float64]
 POLICY_LOSSES = ("precision", "mse")
@@ -110,6 +110,7 @@ class MDGPSConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        check_fields(self)  # types, NaN and inf first
         check_choice("policy loss", self.policy_loss, POLICY_LOSSES)
         for name in ("conditions", "samples_per_condition", "iterations", "policy_steps"):
             if getattr(self, name) < 1:

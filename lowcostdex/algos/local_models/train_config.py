@@ -14,7 +14,7 @@ from lowcostdex.algos.local_models.costs import RAMP_KINDS
 from lowcostdex.algos.local_models.dynamics import DynamicsConfig
 from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
 from lowcostdex.algos.local_models.tvlg import TVLGConfig
-from lowcostdex.errors import ConfigError, check_choice, check_number
+from lowcostdex.errors import ConfigError, check_bool, check_choice, check_fields, check_number
 
 Array = NDArray[np.float64]
 BACKENDS = ("sim", "emulated", "hardware")
@@ -65,6 +65,7 @@ class TaskCostConfig:
     hand_reference: str = "start"
 
     def __post_init__(self) -> None:
+        check_fields(self)  # types, NaN and inf first
         check_choice("ramp", self.ramp, RAMP_KINDS)
         check_choice("hand reference", self.hand_reference, HAND_REFERENCES)
         for name in (
@@ -165,6 +166,8 @@ class TVLGTrainConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
+        for name in ("include_last_action", "progress"):  # its numbers are checked below
+            check_bool(name, getattr(self, name))
         check_choice("backend", self.backend, BACKENDS)
         check_choice("initial controller", self.init, INITS)
         check_choice("success mode", self.success, SUCCESS_MODES)

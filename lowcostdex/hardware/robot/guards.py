@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, check_fields
 
 PAUSE_MODES = ("torque_off", "hold")
 
@@ -69,6 +69,7 @@ class ThermalConfig:
     stuck_rise: float = 5.0
 
     def __post_init__(self) -> None:
+        check_fields(self)  # types, NaN and inf first
         check_choice("thermal pause mode", self.pause_mode, PAUSE_MODES)
         if not self.stuck_rise > 1.0:
             raise ConfigError("ThermalConfig.stuck_rise must be > 1 K (readings are whole "
@@ -100,6 +101,7 @@ class CurrentConfig:
     relax_steps: int = 20
 
     def __post_init__(self) -> None:
+        check_fields(self)  # types, NaN and inf first
         if self.limit is not None and not self.limit > 0:
             raise ConfigError("CurrentConfig.limit must be > 0")
         if not 0 < self.fraction <= 1:

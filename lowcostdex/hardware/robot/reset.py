@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, LowcostdexError
+from lowcostdex.errors import ConfigError, LowcostdexError, check_fields
 from lowcostdex.hardware.robot.robot import Robot
 from lowcostdex.sim.envs.task import wrap_angle
 
@@ -87,6 +87,7 @@ class ResetConfig:
     corrections: int = 3
 
     def __post_init__(self) -> None:
+        check_fields(self)  # types, NaN and inf first
         for name in ("tolerance", "valve_tolerance", "precision", "move_timeout", "valve_timeout",
                      "stall_time", "stall_motion"):
             if not getattr(self, name) > 0:
