@@ -10,7 +10,9 @@ driven through ``PlantDrive``.
 Time. The chain has one clock. With ``clock="virtual"`` (tests, training) bus time advances with
 the bytes on the wire (10 bits per byte at the chain's baud rate, plus each motor's Return Delay
 Time) and whenever a host waits, so runs are deterministic and faster than real time; physics is
-stepped (one firmware tick per physics step) up to the bus time of every event. With
+stepped (one firmware tick per physics step) up to the bus time of every event; a read is
+sampled at its arrival (the physics integrated to it, a partial step), a goal acts from its
+arrival (``drive``), and a bus watchdog trips at its expiry, not at the next grid point. With
 ``clock="realtime"`` the clock is the wall clock and physics keeps up with it.
 
 Fault injection (``FaultConfig``, seeded by the chain's ``rng``): status packets dropped, corrupted
@@ -57,13 +59,11 @@ external torques from a hook registered with ``chain.add_step_hook``), ``chain.d
 Where the parts live: the clocks in ``clocks``, the physics drive and firmware imperfections in
 ``drive``, the device-side goal log and audit in ``goal_log``, each motor's control table and
 behaviour in ``firmware``; this module keeps the chain (packets in, status packets out, faults).
-It is over 600 lines because it is the instruction set (PING .. FAST_BULK_READ) over one
-shared state (bus clock, motors, pending faults, logs); each instruction's handler is short.
 
-Why one module (over ~600 lines; issue 16 asks for the reason here): packet dispatch, status
-replies and the one bus clock are a single state machine over the chain's motors; the clocks, the
-physics drive and the goal log already live beside it (``clocks``, ``drive``, ``goal_log``) and
-each motor's control table in ``firmware``.
+Why one module (over ~600 lines; issue 16 asks for the reason here): it is the instruction set
+(PING .. FAST_BULK_READ; each handler is short) and the one bus clock, a single state machine
+over the chain's motors; the clocks, the physics drive and the goal log already live beside it
+(``clocks``, ``drive``, ``goal_log``) and each motor's control table in ``firmware``.
 """
 
 from __future__ import annotations
@@ -105,6 +105,10 @@ from lowcostdex.sim.plant import Plant, prepare_spec
 Inst = Instruction
 E = ErrorNumber
 _PARTIAL_TIMEOUT = 0.010  # [s] an incomplete instruction older than this is discarded
+_PARTIAL_STEP = 1e-7  # [s] a read this close after a physics step samples that step
+_WATCHDOG_CHECK = 1e-5  # [s] a bus watchdog's trip is checked this long after its expiry
+_READS = frozenset((Instruction.READ, Instruction.SYNC_READ, Instruction.BULK_READ,
+                    Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ))
 
 
 @dataclass(frozen=True)
@@ -209,6 +213,8 @@ class EmulatedChain:
         self._last_rx_time = -math.inf
         self._phys_time = 0.0
         self._dt = float(plant.model.opt.timestep)
+        self._ahead = 0.0  # [s] the instruction being handled arrived this long after a step
+        self._deadline = math.inf  # [s] just past the earliest bus watchdog expiry
         joints = {j.name: j for j in self.mounting.all_joints}
         specs = [j for j in hand.all_joints if j.name in names and j.motor_id not in missing]
         unknown = set(missing) - {j.motor_id for j in hand.all_joints}
@@ -236,11 +242,12 @@ class EmulatedChain:
         if reg == Reg.GOAL_POSITION:
             m = self.motors[motor_id]
             self.goal_audit.record(t, motor_id, m.position_to_joint(value),
-                                   self.drive.true_position(m.index))
+                                   self.drive.true_position(m.index, self._ahead))
 
     def on_sample(self, motor_id: int) -> None:
         m = self.motors[motor_id]
-        self.goal_audit.sampled(self.clock.now(), motor_id, self.drive.true_position(m.index))
+        self.goal_audit.sampled(self.clock.now(), motor_id,
+                                self.drive.true_position(m.index, self._ahead))
 
     def on_event(self, motor_id: int, kind: str, detail: str) -> None:
         t = self._tick_time if self._tick_time is not None else self.clock.now()
@@ -269,27 +276,51 @@ class EmulatedChain:
     def advance_to(self, t: float, max_steps: int | None = None) -> None:
         """Step physics (firmware tick + one physics step each) up to bus time ``t`` [s]."""
         self.clock.advance_to(t)
-        if self._phys_time + self._dt > t + 1e-12:
-            return
         n = 0
-        while self._phys_time + self._dt <= t + 1e-12:
+        while True:
+            if self._deadline <= min(t, self._phys_time + self._dt):
+                self._expire()
+                continue
+            if self._phys_time + self._dt > t + 1e-12:
+                return
             if max_steps is not None and n >= max_steps:
                 self._phys_time = t  # fell behind real time: skip ahead
                 self.on_event(0, "lag", f"physics skipped to {t:.4f}s")
-                break
-            for hook in self.step_hooks:
-                hook(self)
-            state = self.drive.state()
-            self._tick_time = self._phys_time
-            try:
-                for m in self.motors.values():
-                    if m.id not in self.dead:
-                        m.tick(self._phys_time, self._dt, state)
-            finally:
-                self._tick_time = None
-            self.drive.step()
-            self._phys_time += self._dt
+                return
+            self._step(self._dt)
             n += 1
+
+    def _expire(self) -> None:
+        """Step to the earliest bus watchdog expiry and check the watchdogs there (a real servo
+        checks within its ~1 ms control period, not at the next 2.5 ms physics step)."""
+        if self._deadline > self._phys_time:
+            self._step(self._deadline - self._phys_time)
+            self._phys_time = max(self._phys_time, self._deadline)
+        state, self._tick_time = self.drive.state(), self._phys_time
+        try:
+            for m in self.motors.values():
+                if m.id not in self.dead:
+                    m.check_watchdog(self._phys_time, state)
+        finally:
+            self._tick_time = None
+        due = [m.last_rx + m.watchdog_period + _WATCHDOG_CHECK for m in self.motors.values()
+               if m.watchdog_period > 0 and m.torque_on and m.id not in self.dead]
+        self._deadline = min((d for d in due if d > self._phys_time), default=math.inf)
+
+    def _step(self, h: float) -> None:
+        """Firmware tick, then one physics step of ``h`` [s] (the timestep, or less)."""
+        for hook in self.step_hooks:
+            hook(self)
+        state = self.drive.state()
+        self._tick_time = self._phys_time
+        try:
+            for m in self.motors.values():
+                if m.id not in self.dead:
+                    m.tick(self._phys_time, h, state)
+        finally:
+            self._tick_time = None
+        self.drive.step(h)
+        self._phys_time += h
 
     def add_step_hook(self, hook: StepHook) -> None:
         """Call ``hook(chain)`` before every physics step (e.g. apply external forces)."""
@@ -329,6 +360,7 @@ class EmulatedChain:
             self.advance_to(t_in)
             self.instruction_count += 1
             replies += self._schedule(self._dispatch(pkt, t_in, baudrate), t_in)
+            self._deadline = -math.inf  # instructions reset watchdogs: found anew (``_expire``)
         return replies
 
     def _listening(self, baudrate: int | None) -> list[MotorFirmware]:
@@ -340,6 +372,10 @@ class EmulatedChain:
     def _dispatch(self, pkt: Packet, t_in: float, baudrate: int | None
                   ) -> list[tuple[MotorFirmware, int, bytes, bytes]]:
         """Execute one instruction; returns (motor, instruction, status params, wire bytes)."""
+        if pkt.instruction in _READS and pkt.crc_ok and t_in - self._phys_time > _PARTIAL_STEP:
+            self._step(t_in - self._phys_time)  # motors sample at the read's arrival (the grid
+            # goes on from there), not at the last physics step before it
+        self._ahead = min(max(t_in - self._phys_time, 0.0), self._dt)
         listening = {m.id: m for m in self._listening(baudrate)}
         for m in listening.values():  # an instruction is answered per the level it arrived under
             m.srl_rx = m.status_return_level
@@ -355,6 +391,9 @@ class EmulatedChain:
         handler = _HANDLERS.get(pkt.instruction, EmulatedChain._unknown)
         return handler(self, pkt, targets, listening)
 
+    def _state(self):  # the drive's readings at the arrival of the instruction being handled
+        return self.drive.state_at(self._ahead)
+
     def _status(self, m: MotorFirmware, inst: int, err: int, params: bytes = b""
                 ) -> tuple[MotorFirmware, int, bytes, bytes]:
         return (m, inst, params, status_packet(m.id, err | m.error_byte, params))
@@ -363,8 +402,7 @@ class EmulatedChain:
     def _replies(m: MotorFirmware, inst: int) -> bool:
         if inst == Inst.PING:
             return True
-        reads = (Inst.READ, Inst.SYNC_READ, Inst.BULK_READ, Inst.FAST_SYNC_READ, Inst.FAST_BULK_READ)
-        return m.srl_rx >= (1 if inst in reads else 2)
+        return m.srl_rx >= (1 if inst in _READS else 2)
 
     def _unicast(self, pkt: Packet, targets: list[MotorFirmware], err: int, params: bytes = b""
                  ) -> list[tuple[MotorFirmware, int, bytes, bytes]]:
@@ -385,14 +423,14 @@ class EmulatedChain:
         if len(pkt.params) != 4:
             return self._unicast(pkt, targets, E.DATA_LENGTH)
         addr, n = _u16(pkt.params, 0), _u16(pkt.params, 2)
-        err, data = targets[0].read(addr, n, self.drive.state())
+        err, data = targets[0].read(addr, n, self._state())
         return self._unicast(pkt, targets, err, data)
 
     def _write(self, pkt, targets, listening):
         if len(pkt.params) < 3:
             return self._unicast(pkt, targets, E.DATA_LENGTH)
         addr, data = _u16(pkt.params, 0), pkt.params[2:]
-        state = self.drive.state()
+        state = self._state()
         errs = [m.write(addr, data, state) for m in targets]
         return self._unicast(pkt, targets, errs[0] if errs else E.NONE)
 
@@ -403,7 +441,7 @@ class EmulatedChain:
         return self._unicast(pkt, targets, errs[0] if errs else E.NONE)
 
     def _action(self, pkt, targets, listening):
-        state = self.drive.state()
+        state = self._state()
         errs = [m.action(state) for m in targets]
         return self._unicast(pkt, targets, errs[0] if errs else E.NONE)
 
@@ -428,7 +466,7 @@ class EmulatedChain:
     def _clear(self, pkt, targets, listening):
         if pkt.params != b"\x01\x44\x58\x4c\x22":
             return self._unicast(pkt, targets, E.DATA_RANGE)
-        state = self.drive.state()
+        state = self._state()
         errs = []
         for m in targets:
             if abs(state.qd[m.index]) > 1e-3 and m.torque_on:
@@ -442,7 +480,7 @@ class EmulatedChain:
         if pkt.id != BROADCAST_ID or len(pkt.params) < 5:
             return []
         addr, n = _u16(pkt.params, 0), _u16(pkt.params, 2)
-        state = self.drive.state()
+        state = self._state()
         out = []
         for dev in pkt.params[4:]:
             m = listening.get(dev)
@@ -454,7 +492,7 @@ class EmulatedChain:
     def _bulk_read(self, pkt, targets, listening):
         if pkt.id != BROADCAST_ID or len(pkt.params) % 5:
             return []
-        state = self.drive.state()
+        state = self._state()
         out = []
         for k in range(0, len(pkt.params), 5):
             m = listening.get(pkt.params[k])
@@ -468,7 +506,7 @@ class EmulatedChain:
         """One packet for all devices; an absent device leaves its announced slot out."""
         if not self.options.fast_read or pkt.id != BROADCAST_ID:
             return []
-        state = self.drive.state()
+        state = self._state()
         slots, first = [], None
         for dev, addr, n in requests:
             m = listening.get(dev)
@@ -503,7 +541,7 @@ class EmulatedChain:
         if pkt.id != BROADCAST_ID or len(pkt.params) < 4:
             return []
         addr, n = _u16(pkt.params, 0), _u16(pkt.params, 2)
-        state = self.drive.state()
+        state = self._state()
         body = pkt.params[4:]
         for k in range(0, len(body) - n, n + 1):
             m = listening.get(body[k])
@@ -515,7 +553,7 @@ class EmulatedChain:
         if pkt.id != BROADCAST_ID:
             return []
         p, k = pkt.params, 0
-        state = self.drive.state()
+        state = self._state()
         while k + 5 <= len(p):
             dev, addr, n = p[k], _u16(p, k + 1), _u16(p, k + 3)
             m = listening.get(dev)

@@ -1,6 +1,19 @@
 """The physics behind the emulated firmware: ``PlantDrive`` drives a plant's dcmotor actuators with
 the motors' setpoints and gains and reads back what encoders and sensors see; firmware behaviour
-outside the effect catalogue enters as an ``Imperfection``."""
+outside the effect catalogue enters as an ``Imperfection``.
+
+Time between physics steps. The physics steps on its grid (``model.opt.timestep``, 2.5 ms for the
+D'Claw), but packets arrive at any instant of the bus clock, and a real servo samples and applies
+within its own ~1 ms control period. So the chain integrates the physics to a read's arrival (a
+partial step, ``step(h)``) before the motors sample; a setpoint that changes part of the way into a
+step drives that step for the rest of it only (the step's ctrl is the time-weighted mean of the
+setpoints in force during it: the servo loop is linear in its setpoint, so this is the impulse of
+switching at that instant, as ``lowcostdex.gap.replay`` replays logged goals); other instructions
+see the state carried forward to their arrival at the joint velocities (``state_at``, first
+order). Before, a goal acted from the last grid point before its arrival and a read returned that
+point's state: a control loop phase-locked to the grid saw a hidden latency of up to one step
+that changed with the packet lengths (tests/test_dxl_emulator.py, test_trace.py's noise floor).
+"""
 
 from __future__ import annotations
 
@@ -84,7 +97,8 @@ class PlantDrive:
                        "gain": m.actuator_gainprm}
         if m.na == 0:
             self._views["act"] = np.zeros(1)
-        self.goal = np.array(plant.ctrl, copy=True)  # (nu,) [rad]
+        self.goal = np.array(plant.ctrl, copy=True)  # (nu,) [rad] setpoints in force now
+        self._step_goal = self.goal.copy()  # (nu,) [rad] the coming step's mean setpoint
         # encoder errors the emulated robot carries (offset, noise, quantization) reach the wire
         self._observed = any(e.cls.kind in ("observation", "calibration") for e in plant.effects)
         self.steps = 0
@@ -105,12 +119,19 @@ class PlantDrive:
                                [p.kp, ki, p.kd, p.vmax])
         self._state = None
 
-    def set_goal(self, index: int, q: float) -> None:
-        self.goal[self.acts[index]] = q
+    def set_goal(self, index: int, q: float, after: float = 0.0) -> None:
+        """Servo ``index``'s setpoint becomes ``q`` [rad] ``after`` (0..1) of the way into the
+        coming physics step: the step is driven by the time-weighted mean of the setpoints in
+        force during it."""
+        a = self.acts[index]
+        self._step_goal[a] += (1.0 - after) * (q - self.goal[a])
+        self.goal[a] = q
 
-    def true_position(self, index: int) -> float:
-        """Servo ``index``'s joint angle in the physics [rad] (no encoder effects)."""
-        return float(self._views["qpos"][self._qadr[index]])
+    def true_position(self, index: int, ahead: float = 0.0) -> float:
+        """Servo ``index``'s joint angle in the physics [rad] (no encoder effects), ``ahead`` [s]
+        past the last step (carried forward at the joint velocity)."""
+        q = float(self._views["qpos"][self._qadr[index]])
+        return q + ahead * float(self._views["qvel"][self._dadr[index]]) if ahead else q
 
     def voltage(self) -> np.ndarray:
         """Supply voltage at every actuator [V] (nu,)."""
@@ -140,17 +161,37 @@ class PlantDrive:
                              duty.tolist(), temp.tolist(), volts.tolist(), self.steps)
         return self._state
 
-    def step(self) -> None:
-        """One physics step holding ``goal`` (exogenous channels from the present readings)."""
+    def state_at(self, ahead: float) -> _State:
+        """``state()`` ``ahead`` [s] (less than a step) past the last physics step: the joint
+        positions carried forward at the joint velocities (first order); velocities, currents,
+        duty, temperatures and voltages as at the step."""
+        s = self.state()
+        if ahead <= 0.0:
+            return s
+        return _State([q + ahead * v for q, v in zip(s.q, s.qd, strict=True)], s.qd, s.current,
+                      s.duty, s.temperature, s.voltage, s.step)
+
+    def step(self, h: float | None = None) -> None:
+        """One physics step of ``h`` [s] (default the model's timestep; less: a partial step to
+        an instant between two grid points) driven by the mean of the setpoints in force during it (``set_goal``;
+        exogenous channels from the present readings)."""
         channels = None
         if self.plant.required_channels:
             m, d = self.plant.model, self.plant.data
             channels = {"temperature": servo.winding_temperature(m, d, self._layout),
                         "voltage": self.voltage()}
-        goal = self.goal
+        goal = self._step_goal
         if self.imperfection is not None:
             goal = goal.copy()
             goal[self.acts] = self.imperfection.command(goal[self.acts],
                                                         self._views["qpos"][self._qadr])
-        self.plant.step(goal, 1, channels)
+        opt = self.plant.model.opt
+        dt = opt.timestep
+        if h is not None and h != dt:
+            opt.timestep = h
+        try:
+            self.plant.step(goal, 1, channels)
+        finally:
+            opt.timestep = dt
+        self._step_goal[:] = self.goal
         self.steps += 1

@@ -124,7 +124,8 @@ class Drive(Protocol):
 
     def set_gains(self, index: int, gains: ServoGains) -> None: ...
 
-    def set_goal(self, index: int, q: float) -> None: ...
+    def set_goal(self, index: int, q: float, after: float = 0.0) -> None:
+        """The setpoint becomes ``q`` [rad] ``after`` (0..1) of the way into the coming step."""
 
     def state(self) -> DriveState: ...
 
@@ -182,6 +183,7 @@ class MotorFirmware:
         self.setpoint = 0.0  # profile output [encoder ticks]
         self.setpoint_velocity = 0.0  # [ticks/s]
         self.target = 0.0  # goal [encoder ticks]
+        self._target_time = -math.inf  # bus time [s] the goal arrived
         self._goal_sent = math.nan  # setpoint last handed to the drive
         self.offline_until = -math.inf
         self.last_rx = 0.0
@@ -301,6 +303,7 @@ class MotorFirmware:
             return E.DATA_RANGE
         self.mem[self._goal_address:self._goal_address + 4] = data
         self.target = float(value - self.homing)
+        self._target_time = self.clock()
         self.sink.on_goal(self.id, Reg.GOAL_POSITION, value)
         return E.NONE
 
@@ -424,6 +427,7 @@ class MotorFirmware:
             self._push_gains()
         elif reg == Reg.GOAL_POSITION:
             self.target = float(value - self.homing)
+            self._target_time = self.clock()
             self.sink.on_goal(self.id, reg, value)
         elif reg in GOALS:
             self.sink.on_goal(self.id, reg, value)
@@ -480,7 +484,9 @@ class MotorFirmware:
 
     # -- per physics step ------------------------------------------------------------------------
     def tick(self, now: float, dt: float, state: DriveState) -> None:
-        """One firmware cycle before a physics step: safety checks, then the profile setpoint."""
+        """One firmware cycle before the physics step from ``now`` to ``now + dt`` [s]: safety
+        checks, then the profile setpoint; a goal that arrived during the step acts from its
+        arrival (``Drive.set_goal``'s ``after``), not from the step's start."""
         k = self.index
         if self.sensed_temperature(state) >= self.temperature_limit:  # the firmware's sensor
             self.raise_hardware_error(HardwareError.OVERHEATING, state)
@@ -489,13 +495,19 @@ class MotorFirmware:
             self.raise_hardware_error(HardwareError.INPUT_VOLTAGE, state)
         if not self.torque_on:
             return
-        if self.watchdog_period > 0 and now - self.last_rx > self.watchdog_period:
-            self._trip_watchdog(state, now - self.last_rx)
+        self.check_watchdog(now, state)
         if self.setpoint != self.target or self.setpoint_velocity:
             self._profile(dt)
         if self.setpoint != self._goal_sent:
             self._goal_sent = self.setpoint
-            self.drive.set_goal(k, self._joint(self.setpoint))
+            after = min(max((self._target_time - now) / dt, 0.0), 1.0)
+            self.drive.set_goal(k, self._joint(self.setpoint), after)
+
+    def check_watchdog(self, now: float, state: DriveState) -> None:
+        """Bus watchdog: stop (and latch the error) after ``watchdog_period`` without an
+        instruction, at bus time ``now`` [s]."""
+        if self.torque_on and self.watchdog_period > 0 and now - self.last_rx > self.watchdog_period:
+            self._trip_watchdog(state, now - self.last_rx)
 
     def _profile(self, dt: float) -> None:
         e = self.target - self.setpoint
