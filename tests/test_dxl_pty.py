@@ -48,8 +48,10 @@ def lines_of(stream) -> queue.Queue:
     return q
 
 
-def wait_for(q: queue.Queue, pattern: str, timeout: float) -> list[str]:
-    """Lines up to and including the first matching ``pattern``."""
+def wait_for(q: queue.Queue, pattern: str, timeout: float,
+             err: queue.Queue | None = None) -> list[str]:
+    """Lines up to and including the first matching ``pattern``; on failure the message also
+    holds what arrived on ``err`` (a host's stderr, read all along so its pipe never fills)."""
     seen, end = [], time.monotonic() + timeout
     while time.monotonic() < end:
         try:
@@ -59,7 +61,11 @@ def wait_for(q: queue.Queue, pattern: str, timeout: float) -> list[str]:
         seen.append(line)
         if re.search(pattern, line):
             return seen
-    raise AssertionError(f"no line matching {pattern!r} within {timeout} s; got {seen}")
+    errs = []
+    while err is not None and not err.empty():
+        errs.append(err.get())
+    raise AssertionError(f"no line matching {pattern!r} within {timeout} s; got {seen}; "
+                         f"stderr: {errs[-40:]}")
 
 
 def test_unmodified_sdk_and_driver_over_the_pty(served):
@@ -138,7 +144,7 @@ def test_host_killed_mid_motion_motors_stop_within_the_watchdog_time(served):
     host = subprocess.Popen([sys.executable, "-c", HOST, server.path, "loop"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
     try:
-        wait_for(lines_of(host.stdout), "MOVING", timeout=60)
+        wait_for(lines_of(host.stdout), "MOVING", timeout=60, err=lines_of(host.stderr))
         time.sleep(0.3)  # mid-motion
         with server.lock:
             state = {i: (m.torque_on, m.get(Reg.BUS_WATCHDOG)) for i, m in chain.motors.items()}
@@ -184,7 +190,7 @@ def test_torque_off_on_sigterm_sigint_and_exit(served, how):
     host = subprocess.Popen([sys.executable, "-c", HOST, server.path, mode],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
     try:
-        wait_for(lines_of(host.stdout), "MOVING", timeout=60)
+        wait_for(lines_of(host.stdout), "MOVING", timeout=60, err=lines_of(host.stderr))
         if how == "exit":
             assert host.wait(timeout=20) == 0
         else:
