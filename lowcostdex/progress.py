@@ -186,7 +186,9 @@ def _stop_heartbeats() -> None:
     for _, stop in beats:
         stop.set()
     for beat, _ in beats:
-        beat.join(timeout=1.0)
+        # a Ctrl-C inside Thread.start() leaves a registered thread that never started
+        if beat.is_alive():
+            beat.join(timeout=1.0)
 
 
 def bar(total: float | None = None, initial: float = 0, desc: str = "", unit: str = "it",

@@ -10,6 +10,8 @@ import sys
 import threading
 import time
 
+import pytest
+
 from lowcostdex.progress import LineBar, LineProgress, bar, duration, line, tasks
 
 
@@ -142,3 +144,23 @@ def test_exit_while_a_heartbeat_is_printing_is_clean():
         assert r.returncode == 0, r.stderr[-2000:]
         assert "Fatal Python error" not in r.stderr
         assert "[progress] b0: 0/9" in r.stderr
+
+
+def test_ctrl_c_while_the_heartbeat_starts_leaves_a_clean_exit(monkeypatch):
+    # CI: a SIGINT right after a bar's first line landed inside Thread.start(); at exit the
+    # stop hook joined the never-started thread: "RuntimeError: cannot join thread before it
+    # is started" became the last line instead of the one-line "interrupted (Ctrl-C)"
+    from lowcostdex import progress
+
+    kept = []   # threading keeps a starting thread referenced (its _limbo); so does this test
+
+    def interrupted_start(self):
+        kept.append(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(threading.Thread, "start", interrupted_start)
+    with pytest.raises(KeyboardInterrupt):
+        LineBar(total=3, desc="x", file=io.StringIO(), every=0.05)
+    monkeypatch.undo()
+    assert kept and not kept[0].is_alive()
+    progress._stop_heartbeats()     # the exit hook: no RuntimeError
