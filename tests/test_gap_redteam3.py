@@ -1,0 +1,280 @@
+"""The gap analysis judged on a THIRD independently written truth simulator (issue 11 item 4).
+
+``tests/gap_truth_sim3.py`` (mujoco + numpy only, written without reading the analyzer, its
+effect catalogue, plant, servo or the two earlier truth simulators): a D'Claw-like 3-joint finger
+on plain ``position`` actuators with an effect on one joint (or a pair on two), and a one-joint
+servo whose truth is a ``motor`` driven by its own 1 kHz integer-tick P-D firmware.
+
+The fast tests check the truth physics itself against physics written out here (the play band,
+the latency's time shift, frictions that only dissipate and hold below their breakaway, the
+torque-speed line, the gain's steady-state sag, offsets, the firmware against the user's
+position model) and the log format and scorer. The slow tests run every case through ``gap
+analyze`` as a user would (``bench/gap_redteam3.py`` prints the table); a case the analysis
+misses today is a strict xfail whose reason is the MEASURED result (bench/RESULTS.md), so a fix
+turns it into XPASS and the mark must go. Unmeasured cases carry no mark.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import pathlib
+import sys
+
+import mujoco
+import numpy as np
+import pytest
+
+from lowcostdex.cli import main
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import gap_truth_sim3 as sim  # noqa: E402
+
+# measured by bench/gap_redteam3.py (2026-11-26, see bench/RESULTS.md): what was named instead
+MISSES: dict[str, str] = {}
+
+
+def _steps(goals_at, t_end, rate=100.0):
+    t = np.arange(0.0, t_end, 1.0 / rate)
+    return t, np.array([goals_at(x) for x in t])
+
+
+def _case(rig, *effects, **kw):
+    return sim.Case("t", rig, tuple(effects), **kw)
+
+
+# ------------------------------------------------------------ truth physics
+
+
+def test_backlash_output_stays_in_the_play_band_and_crosses_it():
+    """The link (output) moves relative to the rotor only inside the play, and a trajectory
+    with reversals drives it to both ends of the band (15 % allowed for the stiff contact)."""
+    for case, j in ((_case("servo", sim.Effect("backlash", ("q",), 0.06)), 0),
+                    (_case("finger", sim.Effect("backlash", ("prox",), 0.08)), 1)):
+        nj = len(case.joints)
+        t, g = _steps(lambda x, nj=nj: np.full(nj, 0.5 * np.sin(2 * np.pi * 0.8 * x)), 3.0)
+        tr = sim.simulate(case, g, t)
+        rel = tr["q_link"][:, j] - tr["q_motor"][:, j]
+        h = case.effects[0].value / 2
+        assert np.all(np.abs(rel) <= 1.15 * h), (rel.min(), rel.max(), h)
+        assert rel.max() > 0.9 * h and rel.min() < -0.9 * h, (rel.min(), rel.max(), h)
+        clean = sim.simulate(_case(case.rig), g, t)
+        assert np.all(np.abs(clean["q_link"] - clean["q_motor"]) == 0)
+
+
+@pytest.mark.parametrize("rig", ["finger", "servo"])
+def test_latency_shifts_the_response_by_the_set_time(rig):
+    """A goal that arrives d late gives the same response d later (a time-invariant plant,
+    started at rest on its first goal); d = 40 ms is a whole number of firmware cycles."""
+    d = 0.040
+    joints = ("abd", "prox", "dist") if rig == "finger" else ("q",)
+    t, g = _steps(lambda x: np.full(len(joints), 0.0 if x < 0.3 else 0.4), 1.0)
+    base = sim.simulate(_case(rig), g, t)
+    late = sim.simulate(_case(rig, sim.Effect("latency", joints, d)), g, t)
+    k = int(round(d / sim.TRUTH_DT))
+    moved = np.abs(base["q"][:-k] - base["q"][0]).max()
+    assert moved > 0.3
+    tol = 1e-6 if rig == "finger" else 2 * sim.TICK   # the firmware's integer chatter
+    assert np.abs(late["q"][k:] - base["q"][:-k]).max() < tol
+    # and not the same response unshifted
+    assert np.abs(late["q"] - base["q"]).max() > 0.1
+
+
+def _servo_free(effect, q0, v0, applied=0.0, seconds=1.5):
+    """Servo bench truth model with the firmware off (torque 0) and gravity off, a constant
+    external torque ``applied``: returns (t, q, v, energy)."""
+    case = _case("servo", effect)
+    model = mujoco.MjModel.from_xml_string(sim.servo_xml(case, truth=True))
+    model.opt.gravity[:] = 0
+    model.dof_damping[:] = 0
+    data = mujoco.MjData(model)
+    data.qpos[0], data.qvel[0] = q0, v0
+    inertia = model.dof_armature[0] + model.body_mass[1] * sim.SERVO_ARM[1] ** 2 + model.body_inertia[1][0]
+    out = []
+    for _ in range(int(seconds / sim.TRUTH_DT)):
+        data.qfrc_applied[0] = applied
+        push = data.qfrc_actuator[0] + data.qfrc_passive[0] - data.qfrc_bias[0] + applied
+        model.dof_frictionloss[0] = sim._friction_level(effect, data.qvel[0], push)
+        mujoco.mj_step(model, data)
+        out.append((data.time, data.qpos[0], data.qvel[0], 0.5 * inertia * data.qvel[0] ** 2))
+    return np.array(out)
+
+
+def test_stribeck_breaks_away_above_coulomb_and_only_dissipates():
+    """Stribeck (Coulomb 0.08, breakaway 0.2 N m): 0.15 N m from rest does not move it, the same
+    torque keeps it sliding once it moves (0.15 > Coulomb), and unforced it only loses energy
+    at the Coulomb rate (dE/dt ~ -Fc |v| at speed)."""
+    e = sim.Effect("stribeck", ("q",), 0.08, (0.20, 0.05))
+    rest = _servo_free(e, 0.0, 0.0, applied=0.15)
+    assert np.abs(rest[:, 1]).max() < 1e-3
+    slide = _servo_free(e, 0.0, 1.0, applied=0.15)
+    assert slide[-1, 2] > 1.0 and slide[-1, 1] > 1.0      # accelerates: 0.15 - 0.08 > 0
+    free = _servo_free(e, 0.0, 3.0)
+    energy = free[:, 3]
+    assert np.all(np.diff(energy) <= 1e-9)
+    assert free[-1, 2] == pytest.approx(0.0, abs=1e-3)
+    fast = free[:, 2] > 1.0                                 # far above the Stribeck speed
+    p = -np.diff(energy)[fast[1:]] / sim.TRUTH_DT / free[1:, 2][fast[1:]]
+    assert np.median(p) == pytest.approx(0.08, rel=0.05)
+
+
+def test_direction_dependent_friction_and_friction_near_stall():
+    """dirfric (0.15 N m for positive motion, 0.05 negative): +-0.1 N m from rest moves it only
+    backwards. Coulomb 1.2 N m (80 % of stall): 1.1 N m from rest does not move it."""
+    e = sim.Effect("dirfric", ("q",), 0.15, (0.05,))
+    assert np.abs(_servo_free(e, 0.0, 0.0, applied=0.1)[:, 1]).max() < 1e-3
+    assert _servo_free(e, 0.0, 0.0, applied=-0.1)[-1, 1] < -0.5
+    stall = sim.Effect("coulomb", ("q",), 1.2)
+    assert np.abs(_servo_free(stall, 0.0, 0.0, applied=1.1)[:, 1]).max() < 1e-3
+    assert _servo_free(stall, 0.0, 0.0, applied=1.3)[-1, 1] > 0.5
+    # and the firmware can still move it: a 1 rad step (P saturates at the 1.5 N m stall)
+    case = _case("servo", stall)
+    t, g = _steps(lambda x: np.array([0.0 if x < 0.2 else 1.0]), 2.0)
+    tr = sim.simulate(case, g, t)
+    assert 0.4 < tr["q"][-1, 0] < 1.0      # stops short: 3 N m/rad x error = 1.2 N m - gravity
+
+
+def test_velocity_limit_caps_the_speed_that_the_nominal_servo_exceeds():
+    t, g = _steps(lambda x: np.array([0.0 if x < 0.2 else (1.0 if x < 1.2 else -1.0)]), 2.2)
+    fast = sim.simulate(_case("servo"), g, t)
+    slow = sim.simulate(_case("servo", sim.Effect("vlimit", ("q",), 1.5)), g, t)
+    assert np.abs(fast["v"]).max() > 4.0
+    assert np.abs(slow["v"]).max() < 1.5 * 1.05
+    assert np.abs(slow["v"]).max() > 1.5 * 0.8
+
+
+def test_gain_error_scales_the_stiffness_seen_in_the_gravity_sag():
+    """At the end of a hold, kp_true (goal - q) balances gravity (MuJoCo's bias force, plain
+    mujoco on the nominal model): kp_true = 0.35 x 3 N m/rad on abd only."""
+    case = _case("finger", sim.Effect("gain", ("abd",), 0.35))
+    goal = np.array([0.3, 0.9, 0.7])
+    t, g = _steps(lambda x: goal, 2.0)
+    tr = sim.simulate(case, g, t)
+    q = tr["q"][-1]
+    model = mujoco.MjModel.from_xml_string(sim.finger_xml())
+    data = mujoco.MjData(model)
+    data.qpos[:] = q
+    mujoco.mj_forward(model, data)
+    kp = data.qfrc_bias / (goal - q)
+    assert kp == pytest.approx([0.35 * 3.0, 3.0, 3.0], rel=0.02)
+
+
+def test_mass_and_armature_errors_change_only_their_link_and_joint():
+    nominal = mujoco.MjModel.from_xml_string(sim.finger_xml())
+    case = _case("finger", sim.Effect("mass", ("dist",), 2.5), sim.Effect("armature", ("prox",), 0.4))
+    truth = mujoco.MjModel.from_xml_string(sim.finger_xml(case, truth=True))
+    ratio_m = truth.body_mass[2:] / nominal.body_mass[2:]
+    assert ratio_m == pytest.approx([1.0, 1.0, 2.5])
+    assert truth.body_inertia[4] / nominal.body_inertia[4] == pytest.approx([2.5] * 3, rel=1e-3)
+    assert truth.dof_armature / nominal.dof_armature == pytest.approx([1.0, 0.4, 1.0])
+
+
+def test_offsets_reading_and_mounting():
+    """Reading offset: the log reads q + 0.15, the servo holds q at the goal. Mounting offset:
+    the servo reads q + 0.2 and holds that reading at the goal (the true angle is 0.2 lower)."""
+    rng = np.random.default_rng(0)
+    read = _case("finger", sim.Effect("offset_read", ("prox",), 0.15), noise=0.0)
+    run = sim.make_run(read, 3.0, 0, rng)
+    i = np.round(run.t / sim.TRUTH_DT).astype(int)
+    assert np.abs(run.qpos[:, 1] - run.extra["q"][i, 1] - 0.15).max() <= sim.TICK
+    assert np.abs(run.qpos[:, 0] - run.extra["q"][i, 0]).max() <= sim.TICK
+    mount = _case("servo", sim.Effect("offset_mount", ("q",), 0.2))
+    t, g = _steps(lambda x: np.array([0.5]), 1.5)
+    tr = sim.simulate(mount, g, t)
+    sag = 0.15 * 9.81 * 0.06 * np.sin(0.3) / sim.SERVO_KP        # gravity at the true angle
+    assert tr["q"][-1, 0] == pytest.approx(0.5 - 0.2 - sag, abs=3 * sim.TICK)
+
+
+def test_clean_truth_matches_the_users_model_in_plain_mujoco():
+    """Without effects the truth (0.25 ms; the servo's 1 kHz integer firmware) and the user's
+    nominal model (here replayed at 0.25 ms with plain mujoco) agree within a few mrad: the
+    clean controls are clean, and the user's model is a fair nominal."""
+    for rig, tol in (("finger", 1e-4), ("servo", 6e-3)):
+        case = _case(rig)
+        n = len(case.joints)
+        t, g = _steps(lambda x, n=n: np.full(n, 0.0 if x < 0.3 else 0.6 * np.sin(3 * x)), 2.0)
+        tr = sim.simulate(case, g, t)
+        xml = sim.finger_xml() if rig == "finger" else sim.servo_xml()
+        model = mujoco.MjModel.from_xml_string(xml)
+        model.opt.timestep = sim.TRUTH_DT
+        data = mujoco.MjData(model)
+        data.qpos[:] = g[0]
+        for _ in range(int(1.0 / sim.TRUTH_DT)):
+            data.ctrl[:] = g[0]
+            mujoco.mj_step(model, data)
+        q = []
+        for k in range(len(tr["t"])):
+            tt = tr["t"][k]
+            data.ctrl[:] = g[max(np.searchsorted(t + sim.BUS_DELAY, tt, side="right") - 1, 0)]
+            mujoco.mj_step(model, data)
+            q.append(data.qpos.copy())
+        err = np.abs(np.array(q) - tr["q"]).max()
+        assert err < tol, (rig, err)
+        assert np.abs(tr["q"] - tr["q"][0]).max() > 0.3
+
+
+def test_logs_are_in_the_project_format(tmp_path):
+    case = dataclasses.replace(sim.CASE_BY_NAME["fin_gain035_abd_50hz_posonly"], durations=(2.0,))
+    files = sim.write_case(case, tmp_path)
+    with open(files["logs"][0]) as fh:
+        rows = list(csv.reader(fh))
+    head, body = rows[0], np.array(rows[1:], dtype=float)
+    assert head == ["time", "goal_time", "goal:servo_abd", "goal:servo_prox", "goal:servo_dist",
+                    "qpos:abd", "qpos:prox", "qpos:dist"]
+    assert np.diff(body[:, 0]) == pytest.approx(0.02)
+    assert body[:, 1] - body[:, 0] == pytest.approx(sim.BUS_DELAY)
+    ticks = body[:, 2:8] / sim.TICK
+    assert np.abs(ticks - np.round(ticks)).max() < 1e-5
+    model = mujoco.MjModel.from_xml_string((tmp_path / "model.xml").read_text())
+    assert [model.actuator(i).name for i in range(model.nu)] == [h[5:] for h in head[2:5]]
+    assert json.loads((tmp_path / "truth.json").read_text())["causes"][0]["effect"] == "gain_error"
+    jit = dataclasses.replace(sim.CASE_BY_NAME["fin_clean_jitter_posonly"], durations=(3.0,))
+    t = sim.row_times(jit, 3.0, np.random.default_rng(0))
+    assert 0.010 <= np.diff(t).min() and np.diff(t).max() <= 0.030 and np.diff(t).std() > 0.004
+
+
+def test_scoring_tells_exact_extra_family_miss_and_false_apart():
+    def report(*causes):
+        return {"causes": [{"effect": e, "joints": [j], "params": {p: {"value": [v], "interval": [[lo, hi]]}}}
+                           for e, j, p, v, lo, hi in causes]}
+    truth = sim.truth_dict(_case("finger", sim.Effect("latency", ("prox",), 0.06)))
+    lat = ("latency", "prox", "delay", 0.061, 0.059, 0.063)
+    s = sim.score(report(lat), truth)
+    assert s["result"] == "exact" and s["params"][0]["inside"]
+    assert sim.score(report(("latency", "prox", "delay", 0.05, 0.049, 0.051)), truth)["params"][0]["inside"] is False
+    assert sim.score(report(lat, ("mass_error", "abd", "scale", 1.1, 1, 1.2)), truth)["result"] == "extra"
+    assert sim.score(report(("latency", "abd", "delay", 0.06, 0.05, 0.07)), truth)["result"] == "miss"
+    assert sim.score(report(), truth)["result"] == "miss"
+    gain = sim.truth_dict(_case("servo", sim.Effect("mass", ("q",), 2.5)))
+    assert sim.score(report(("inertia_error", "q", "scale", 2, 1, 3)), gain)["result"] == "family"
+    assert sim.score(report(("inertia_error", "q", "scale", 2, 1, 3), ("latency", "q", "delay", 0.01, 0, 0.02)), gain)["result"] == "extra_family"
+    clean = sim.truth_dict(_case("finger"))
+    assert sim.score(report(), clean)["result"] == "clean"
+    assert sim.score(report(lat), clean)["result"] == "false"
+
+
+# ------------------------------------------------------------ the analysis, per case (slow)
+
+
+def _params():
+    for case in sim.CASES:
+        marks = [pytest.mark.slow, pytest.mark.timeout(3600)]
+        if case.name in MISSES:
+            marks.append(pytest.mark.xfail(strict=True, reason=MISSES[case.name]))
+        yield pytest.param(case.name, marks=marks, id=case.name)
+
+
+@pytest.mark.parametrize("name", list(_params()))
+def test_names_exactly_the_hidden_causes_with_intervals_holding_the_truth(name, tmp_path):
+    case = sim.CASE_BY_NAME[name]
+    files = sim.write_case(case, tmp_path / "data")
+    out = tmp_path / "report"
+    code = main(["gap", "analyze", "--model", files["model"], "--log", *files["logs"],
+                 "--out", str(out), "--seed", "0", "--threads", "2"])
+    assert code == 0, f"gap analyze exited {code} on {name}"
+    s = sim.score(json.loads((out / "report.json").read_text()), files["truth"])
+    assert s["result"] in ("exact", "clean"), (
+        f"hidden {sorted(case.causes) or 'nothing'}, named {s['named'] or 'nothing'}")
+    outside = [p for p in s["params"] if not p["inside"]]
+    assert not outside, f"true values outside their 95 % intervals: {outside}"
