@@ -274,7 +274,9 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
     missing = [a for a in act_names if a not in traj.actuators]
     if missing:
         raise LogError(f"{traj.name}: no goal for actuators {missing}; the log must command "
-                       "every actuator of the model")
+                       "every actuator of the model: give a model of the logged joints only "
+                       "(the project's hands: `lowcostdex model dclaw|allegro --station none "
+                       "--fingers <the logged fingers>`)")
 
 
 def estimate_velocity(time: np.ndarray, qpos: np.ndarray, window: float = 0.02,

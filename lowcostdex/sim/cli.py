@@ -14,7 +14,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("hand", choices=("dclaw", "allegro", "bench"))
     p.add_argument("--station", default=None,
                    help="dclaw: valve, foam_valve, screw, block, none; allegro: valve, none")
-    p.add_argument("--fingers", default=None, help="dclaw: comma-separated subset of ff,mf,th")
+    p.add_argument("--fingers", default=None,
+                   help="comma-separated subset of the fingers: dclaw ff,mf,th; allegro "
+                        "index,middle,ring,thumb (a model of the fingers a log moved, for "
+                        "`lowcostdex gap analyze`)")
     p.add_argument("--motor", default=None, help="servo model, e.g. XM430-W350 (dclaw, bench)")
     p.add_argument("--no-thermal", action="store_true", help="no winding-temperature state")
     p.add_argument("--out", required=True, help="MJCF file to write (a new file)")
@@ -49,9 +52,14 @@ def _write_model(args: argparse.Namespace) -> int:
     elif args.hand == "allegro":
         from lowcostdex.sim.models.allegro import build_allegro
 
-        spec = build_allegro(args.station or "valve")
+        kwargs = {"fingers": tuple(args.fingers.split(","))} if args.fingers else {}
+        spec = build_allegro(args.station or "valve", **kwargs)
     else:
+        from lowcostdex.errors import ConfigError
         from lowcostdex.sim.models.bench import BenchConfig, build_bench
+
+        if args.fingers:
+            raise ConfigError("--fingers is for dclaw and allegro; the bench has one joint")
 
         spec = build_bench(BenchConfig(motor=args.motor or "XL330-M288",
                                        thermal=not args.no_thermal))

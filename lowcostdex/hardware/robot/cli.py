@@ -5,6 +5,7 @@
     lowcostdex reset-test --port /dev/ttyUSB0 --trials 20        # the real one
     lowcostdex record-log --port /dev/ttyUSB0 --joints ff_top,ff_middle,ff_bottom --logs 6 \
         --out logs/                                              # for `lowcostdex gap analyze`
+    lowcostdex record-log --hand allegro --port can0 --out logs/  # the Allegro's index finger
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ from lowcostdex.options import (
     latency_kwargs,
     robot_port,
 )
+
+LOG_JOINTS = {"dclaw": "ff_top,ff_middle,ff_bottom", "allegro": "index_0,index_1,index_2,index_3"}
+"""``record-log``'s default joints per hand: one finger."""
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -41,9 +45,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("record-log",
                        help="record identification logs (steps, ramps, chirps) in the project's "
                             "log format, for `lowcostdex gap analyze`")
-    add_robot_port_options(p)
-    p.add_argument("--joints", default="ff_top,ff_middle,ff_bottom",
-                   help="comma-separated joints to excite (the others hold still)")
+    p.add_argument("--hand", default="dclaw", choices=tuple(LOG_JOINTS),
+                   help="the D'Claw (Dynamixel, --port a serial device) or the Allegro (CAN, "
+                        "--port a CAN channel such as can0)")
+    add_robot_port_options(p, port_help="D'Claw: serial device or pty path; Allegro: CAN "
+                                        "channel (e.g. can0); hardware backend")
+    p.add_argument("--joints", default=None,
+                   help="comma-separated joints to excite (the others hold still); default "
+                        + "; ".join(f"{h}: {j}" for h, j in LOG_JOINTS.items()))
     p.add_argument("--logs", type=int, default=6, help="number of logs (trajectories)")
     p.add_argument("--seconds", type=number(0, 3600, open_low=True), default=15.0,
                    help="length of each log [s]")
@@ -62,10 +71,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 # ------------------------------------------------------------------------------------------------
 
 
-def _hand(spec_path: str | None):
-    from lowcostdex.hands import dclaw_spec, load_spec
+def _hand(spec_path: str | None, name: str = "dclaw"):
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hands import hand_spec, load_spec
 
-    return load_spec(spec_path) if spec_path else dclaw_spec()
+    hand = load_spec(spec_path) if spec_path else hand_spec(name)
+    if hand.name != name:
+        raise ConfigError(f"--spec {spec_path} is a {hand.name} hand spec, not {name} "
+                          f"(--hand {name})")
+    return hand
 
 
 def _check_dynamixel_port(port: str) -> None:
@@ -145,22 +159,38 @@ def _record_log(args: argparse.Namespace) -> int:
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.robot.backend import default_effects
-    from lowcostdex.hardware.robot.trace import dclaw_identification_logs
+    from lowcostdex.hardware.robot.trace import (
+        allegro_identification_logs,
+        dclaw_identification_logs,
+    )
     from lowcostdex.outdir import MARKER, PREVIOUS, archive, check_out, write_marker
     from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim.effects import AppliedEffect
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
         raise ConfigError("--logs, --seconds and --rate must be positive")
-    _check_dynamixel_port(args.port)
-    hand = _hand(args.spec)
-    joints = tuple(j.strip() for j in args.joints.split(",") if j.strip())
+    emulated = args.port == "emulated"
+    if args.hand == "allegro":
+        if args.latency_ms is not None:
+            raise ConfigError("--latency-ms is a serial adapter's latency timer (D'Claw); the "
+                              "Allegro hand is on CAN")
+    else:
+        _check_dynamixel_port(args.port)
+    hand = _hand(args.spec, args.hand)
+    joints = tuple(j.strip() for j in (args.joints or LOG_JOINTS[args.hand]).split(",")
+                   if j.strip())
+    if not joints:
+        raise ConfigError("--joints names no joint")
     for j in joints:
         hand.joint(j)  # raises with the valid names
     effects = []
-    if args.port == "emulated":
-        effects = ([AppliedEffect.from_dict(e) for e in json.loads(open(args.effects).read())]
-                   if args.effects else default_effects(hand.joint_names))
+    if emulated:
+        if args.effects:
+            effects = [AppliedEffect.from_dict(e) for e in json.loads(open(args.effects).read())]
+        elif args.hand == "dclaw":
+            effects = default_effects(hand.joint_names)
+    elif args.effects:
+        raise ConfigError("--effects is for the emulated robot (a real robot has its own)")
     steps = int(round(args.seconds * args.rate))
     console = Console(stderr=True)
     out = Path(args.out)
@@ -168,19 +198,37 @@ def _record_log(args: argparse.Namespace) -> int:
         kept = archive(out, [p.name for p in out.iterdir() if p.name not in (MARKER, PREVIOUS)])
         if kept is not None:
             console.print(f"the earlier logs in {out} are kept in {kept}")
-    write_marker(out, "record-log", {"joints": list(joints), "seed": args.seed})
+    write_marker(out, "record-log", {"hand": args.hand, "joints": list(joints),
+                                     "seed": args.seed})
     with progress_tasks(transient=False, console=console) as progress:
         bar = progress.add_task("identification logs", total=args.logs * steps)
-        paths = dclaw_identification_logs(
-            hand, joints, args.out, args.logs, args.seconds, np.random.default_rng(args.seed),
-            port=None if args.port == "emulated" else args.port, effects=effects,
-            emulator_rng=np.random.default_rng(args.seed), rate=args.rate, baudrate=args.baud,
-            latency_ms=args.latency_ms,
-            on_step=lambda _: progress.advance(bar))
+        common = {"effects": effects, "emulator_rng": np.random.default_rng(args.seed),
+                  "rate": args.rate, "on_step": lambda _: progress.advance(bar)}
+        if args.hand == "allegro":
+            paths = allegro_identification_logs(
+                hand, joints, args.out, args.logs, args.seconds,
+                np.random.default_rng(args.seed), channel=None if emulated else args.port,
+                **common)
+        else:
+            paths = dclaw_identification_logs(
+                hand, joints, args.out, args.logs, args.seconds,
+                np.random.default_rng(args.seed), port=None if emulated else args.port,
+                baudrate=args.baud, latency_ms=args.latency_ms, **common)
     console.print(f"{len(paths)} logs -> {args.out}; analyse them with "
                   f"`lowcostdex gap analyze --model MODEL.xml --log {args.out}/*.csv --out DIR` "
-                  f"(MODEL.xml: `lowcostdex model dclaw --station none --out MODEL.xml`)")
+                  f"(MODEL.xml: `{model_command(args.hand, joints)}`: a model of the fingers "
+                  "the logs moved)", soft_wrap=True)  # no line breaks inside the commands
     return 0
+
+
+def model_command(hand: str, joints: tuple[str, ...]) -> str:
+    """The ``lowcostdex model`` command that writes the MJCF replaying logs of ``joints``: the
+    hand without its station, only the fingers those joints belong to (the log commands only
+    those actuators; joint names are ``<finger>_<joint>`` on both hands)."""
+    fingers = list(dict.fromkeys(j.split("_")[0] for j in joints))
+    thermal = " --no-thermal" if hand == "dclaw" else ""  # as the main job's gap stage
+    return (f"lowcostdex model {hand} --station none --fingers {','.join(fingers)}{thermal} "
+            "--out MODEL.xml")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -296,3 +296,43 @@ def dclaw_identification_logs(hand: Any, joints: Sequence[str], out_dir: str | P
     with robot:
         return identification_logs(robot, joints, out_dir, logs, seconds, rng, on_step=on_step,
                                    model=model, park=dclaw_park(hand.joint_names, joints))
+
+
+def allegro_identification_logs(hand: Any, joints: Sequence[str], out_dir: str | Path,
+                                logs: int, seconds: float, rng: np.random.Generator, *,
+                                channel: str | None = None, interface: str = "socketcan",
+                                effects: Sequence[Any] = (),
+                                emulator_rng: np.random.Generator | None = None,
+                                rate: float = 50.0,
+                                on_step: Callable[[int], None] | None = None) -> list[Path]:
+    """``identification_logs`` of ``joints`` on an Allegro hand without its station: on a real
+    one on the CAN ``channel`` (python-can ``interface``), or (``channel=None``) on an emulated
+    one (``allegro.emulator.emulated_allegro``, lock-step virtual time) carrying ``effects``
+    (``AppliedEffect``s; ``emulator_rng`` seeds its noise). The other joints hold their
+    power-up pose; poses that would touch anything are pulled in (``contact_free``); goals are
+    rate-limited from the previous goal (the Allegro's soft joints, as ``ALLEGRO_ROBOT``) with a
+    10x wider per-step bound than a policy's. ``rate`` is the control rate [Hz]."""
+    from lowcostdex.hardware.robot.allegro_backend import ALLEGRO_ROBOT
+    from lowcostdex.hardware.robot.robot import RobotConfig
+    from lowcostdex.sim.models.allegro import build_allegro
+
+    model = build_allegro("none", hand).compile()
+    config = RobotConfig(control_period=1.0 / rate, motion_scale=10.0,
+                         motion_reference=ALLEGRO_ROBOT.motion_reference)
+    emulator = None
+    if channel is None:
+        from lowcostdex.hardware.allegro.emulator import emulated_allegro
+
+        bus, emulator, _ = emulated_allegro(model, effects=list(effects), hand=hand,
+                                            rng=emulator_rng or np.random.default_rng(0))
+    else:
+        from lowcostdex.hardware.allegro.driver import AllegroBus
+
+        bus = AllegroBus(interface=interface, channel=channel, hand=hand)
+    try:
+        with Robot(hand, bus, config) as robot:
+            return identification_logs(robot, joints, out_dir, logs, seconds, rng,
+                                       on_step=on_step, model=model)
+    finally:
+        if emulator is not None:
+            emulator.close()

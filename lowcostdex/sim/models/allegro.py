@@ -58,6 +58,7 @@ it 360 deg is an unwrapped angle of 2 pi. Names: joints and actuators are the ha
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -189,8 +190,8 @@ class AllegroValve:
 
 
 def build_allegro(station: str = "valve", hand: HandSpec | None = None,
-                  pd: AllegroPD | None = None, valve: AllegroValve | None = None
-                  ) -> mujoco.MjSpec:
+                  pd: AllegroPD | None = None, valve: AllegroValve | None = None,
+                  fingers: Sequence[str] = ALLEGRO_FINGERS) -> mujoco.MjSpec:
     """Build the palm-up Allegro scene as an MjSpec (compile with ``spec.compile()``).
 
     Args:
@@ -198,6 +199,9 @@ def build_allegro(station: str = "valve", hand: HandSpec | None = None,
       hand: the hand spec (joint names and ranges); default ``allegro_spec()``.
       pd: joint PD gains, torque limits and passive joint dynamics (default ``AllegroPD()``).
       valve: valve geometry (station "valve"; default ``AllegroValve()``).
+      fingers: the fingers to build (a subset of ``ALLEGRO_FINGERS``, in any order; default all
+        four). A model of the fingers an identification log moved is what ``lowcostdex gap
+        analyze`` replays (the log commands only those actuators).
     """
     check_choice("Allegro station", station, ALLEGRO_STATIONS)
     hand = hand or allegro_spec()
@@ -205,6 +209,14 @@ def build_allegro(station: str = "valve", hand: HandSpec | None = None,
     valve = valve or AllegroValve()
     if len(hand.joints) != 16:
         raise ConfigError(f"the Allegro has 16 joints, the spec has {len(hand.joints)}")
+    if isinstance(fingers, str) or not fingers:
+        raise ConfigError(f"fingers must be a non-empty sequence of {', '.join(ALLEGRO_FINGERS)}"
+                          f"; got {fingers!r}")
+    for f in fingers:
+        check_choice("Allegro finger", f, ALLEGRO_FINGERS)
+    if len(set(fingers)) != len(fingers):
+        raise ConfigError(f"fingers lists a finger twice: {list(fingers)}")
+    built = tuple(f for f in ALLEGRO_FINGERS if f in fingers)
     spec = new_spec(f"allegro_{station}")
     spec.option.noslip_iterations = 0  # position actuators; no servo holding against friction
     add_floor(spec)
@@ -215,12 +227,12 @@ def build_allegro(station: str = "valve", hand: HandSpec | None = None,
                   size=[0.0204, 0.0565, 0.0475], pos=[-0.0093, 0, -0.0475],
                   rgba=[0.2, 0.2, 0.2, 1], group=GROUP_COLLISION)
     joints = {f: [j for j in hand.joints if j.name.startswith(f + "_")] for f in ALLEGRO_FINGERS}
-    for finger in ALLEGRO_FINGERS:
+    for finger in built:
         if finger == "thumb":
             _add_thumb(palm, joints[finger], pd)
         else:
             _add_finger(palm, finger, joints[finger], pd)
-    for finger in ALLEGRO_FINGERS:
+    for finger in built:
         limits = TORQUE_LIMITS["thumb" if finger == "thumb" else "finger"]
         for k, j in enumerate(joints[finger]):
             kp, kd = pd.gains(finger, k)
@@ -235,9 +247,10 @@ def build_allegro(station: str = "valve", hand: HandSpec | None = None,
             tau = limits[k] * pd.torque_scale
             act.forcerange = [-tau, tau]
     # The palm and the first links of the fingers overlap at the knuckles.
-    for finger in ALLEGRO_FINGERS:
+    for finger in built:
         spec.add_exclude(bodyname1="palm", bodyname2=f"{finger}_link0")
-    spec.add_exclude(bodyname1="palm", bodyname2="thumb_link1")
+    if "thumb" in built:
+        spec.add_exclude(bodyname1="palm", bodyname2="thumb_link1")
     if station == "valve":
         _add_valve(spec, valve)
     return spec
