@@ -233,3 +233,20 @@ def test_inner_selection_fits_the_larger_gain_and_chooses_on_the_smaller(logs):
         IdentifyConfig(select="test")
     with pytest.raises(ConfigError, match="restarts"):
         IdentifyConfig(restarts=0)
+
+
+def test_without_a_torque_off_log_the_back_driven_share_is_held_at_one(logs):
+    # training on the sine logs only (kp 100, 400: torque on throughout): nothing back-drives
+    # the servo with the torque off, so no family frees the back-driven share; the servo the
+    # logs were made with has a symmetric gearbox (TRUTH: backdrive 1), so the held-out drops
+    # (torque off after 1.5 s) are predicted from the torque-on fit
+    res = identify(logs, [0, 2], [1, 3, 5],
+                   IdentifyConfig(effects=tuple(TRUTH), max_rounds=20, restarts=1))
+    assert "free" not in res.family_train_mae and res.family == "held"
+    assert res.params()["gearbox_friction"]["backdrive"] == [1.0]
+    assert any("torque off" in n for n in res.notes)
+    assert res.mean([1, 3, 5]) < 2e-3
+    # with a drop among the training logs the share is fitted as before
+    both = identify(logs, [0, 1, 2], [3], IdentifyConfig(effects=tuple(TRUTH), max_rounds=20,
+                                                         select="train", restarts=1))
+    assert "free" in both.family_train_mae and both.notes == []

@@ -165,9 +165,10 @@ def _identify(args: argparse.Namespace) -> int:
     res = identify(ds, train, list(test), cfg)
     wall = time.perf_counter() - t0
     names = [Path(ds.sources[i]).name for i in range(len(ds.trajectories))]
-    print(f"identified on {len(train)} logs ({wall:.0f} s); family {res.family}"
-          + (f", chosen on an inner validation split by {res.selection['field']}"
-             if res.selection else ""))
+    print(f"identified on {len(train)} logs ({wall:.0f} s); family {res.family}")
+    print("  why: " + _why(res))
+    for note in res.notes:
+        print(f"  note: {note}")
     for e, ps in res.params().items():
         print(f"  {e}: " + ", ".join(f"{p} {v[0]:.4g}" for p, v in ps.items()))
     if res.at_bound:
@@ -183,6 +184,7 @@ def _identify(args: argparse.Namespace) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps({
             "params": res.params(), "family": res.family, "selection": res.selection,
+            "why": _why(res), "notes": res.notes,
             "at_bound": res.at_bound, "fit_seconds": res.fit_seconds, "wall_seconds": wall,
             "held_out": {names[i]: res.identified_mae[i] for i in test},
             "fitted": {names[i]: res.identified_mae[i] for i in train},
@@ -191,6 +193,22 @@ def _identify(args: argparse.Namespace) -> int:
             "ablation": res.ablation}, indent=1, default=float))
         print(f"json: {args.json}")
     return 0
+
+
+def _why(res: Any) -> str:
+    """One line on how ``identify`` chose the family it returns (``Identified``)."""
+    from lowcostdex.gap.identify import INNER_FIELDS
+
+    fam = ", ".join(f"{f} {1e3 * v:.1f}" for f, v in res.family_train_mae.items())
+    sel = res.selection
+    if sel:
+        return (f"fitted on the training logs but those at the smallest {sel['field']} "
+                f"({len(sel['fit_logs'])} fitted, {len(sel['val_logs'])} validated), chosen "
+                f"{sel['chosen']} on those held-back logs (mean MAE [mrad] per family: {fam}; "
+                "the fewest free parameters unless another family is 2 % lower)")
+    return (f"no header field ({', '.join(INNER_FIELDS)}) varies among the training logs, "
+            "so nothing validates the fit: the family was chosen on the training logs' own MAE"
+            + (f" [mrad]: {fam}" if fam else "") + "; expect a larger error on logs unlike them")
 
 
 def _generate(args: argparse.Namespace) -> int:

@@ -208,6 +208,8 @@ class Identified:
         validation logs' MAE of each family's best restart instead.
       selection: with select="inner": the header field split on, the inner fit and validation
         logs, every (family.restart)'s validation MAE [rad] and the one chosen.
+      notes: what the identification decided from the logs themselves (e.g. no training log
+        has the torque off, so the back-driven share of the gear friction was held at 1).
     """
 
     effects: list[AppliedEffect]
@@ -223,6 +225,7 @@ class Identified:
     family: str = "free"
     family_train_mae: dict[str, float] = field(default_factory=dict)
     selection: dict = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     def mean(self, logs: Sequence[int], identified: bool = True) -> float:
         """Mean per-log MAE over ``logs`` (BAM's set-level number) [rad]."""
@@ -287,11 +290,20 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     full = fitmod.Structure.build(config.effects, joints, ctx)
     full = _hold(full, config.hold) or full
     families = {"free": frozenset(config.hold)}
+    notes: list[str] = []
     if _hold(full, HELD_FIRST) is not None:
         families["held"] = HELD_FIRST | config.hold
+        if not torque_off_seen(ds, train):
+            # nothing in the training logs back-drives the servo with the torque off: the
+            # back-driven share is held at 1 in every family (a symmetric gearbox, BAM M3/M4)
+            del families["free"]
+            notes.append("no training log has the torque off: the gear friction's back-driven "
+                         "share is held at 1 (measured on STS3250 with lift_and_drop held "
+                         "out: 262 mrad with it free, 210 held)")
     motor = frozenset((f.effect, f.param) for f in full.free if f.effect in MOTOR_EFFECTS)
     if motor and len(motor) < len(full.free):
-        families["nominal_motor"] = motor | config.hold
+        families["nominal_motor"] = motor | config.hold | (
+            HELD_FIRST if "free" not in families else frozenset())
     inner = inner_split(ds, train) if config.select == "inner" else None
     fam_mae: dict[str, float] = {}
     selection: dict = {}
@@ -327,7 +339,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
             fam_mae = {f: float(np.mean(_train_mae(t, w_train, weights, ds, rep)))
                        for f, t in bests.items()}
         chosen = _choose_family(fam_mae, {f: len(t.structure.free) for f, t in bests.items()}
-                                ) if fam_mae else "free"
+                                ) if fam_mae else next(iter(bests))
         best = bests[chosen]
     if config.loss == "mae":  # on the logs the least-squares stages fitted
         prog("absolute-error polish", 0.9)
@@ -346,7 +358,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                      identified_mae=dict(zip(logs, mae[1].tolist(), strict=True)),
                      fit_seconds=fit_s, rounds=rounds, cost=best.cost,
                      at_bound=_at_bound(best), family=chosen, family_train_mae=fam_mae,
-                     selection=selection)
+                     selection=selection, notes=notes)
     if test:  # the ablation is reported on the held-out logs only: replay only those
         abl = per_log_mae(rep, whole_logs(ds, test),
                           [[e for e in effects if e.name != n] for n in config.effects])
@@ -411,6 +423,13 @@ def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
         best = {key: min(g, key=lambda t: t.cost) for key, g in groups.items()}
         rounds += max(t.rounds for g in groups.values() for t in g)
     return best, rounds
+
+
+def torque_off_seen(ds: Dataset, logs: Sequence[int]) -> bool:
+    """Whether any of ``logs`` has samples with the torque off (``torque_enable`` < 0.5)."""
+    return any("torque_enable" in ds.trajectories[i].channels
+               and bool(np.any(ds.trajectories[i].channels["torque_enable"] < 0.5))
+               for i in logs)
 
 
 def inner_split(ds: Dataset, train: Sequence[int]
