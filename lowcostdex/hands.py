@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,6 +94,12 @@ class JointSpec:
     calibration: Calibration = Calibration()
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ConfigError(f"a joint's name must be a non-empty string, got {self.name!r}")
+        if (isinstance(self.motor_id, bool) or not isinstance(self.motor_id, numbers.Integral)
+                or not 0 <= self.motor_id <= 252):
+            raise ConfigError(f"joint {self.name}: motor_id must be an integer bus id in "
+                              f"[0, 252], got {self.motor_id!r}")
         for name in ("low", "high", "max_velocity"):
             _finite(f"joint {self.name}: {name}", getattr(self, name))
         if not self.low < self.high:
@@ -122,6 +129,8 @@ class HandSpec:
     aux_joints: tuple[JointSpec, ...] = ()
 
     def __post_init__(self) -> None:
+        if not self.joints:
+            raise ConfigError(f"hand {self.name}: no joints")
         seen: dict[int, str] = {}
         names: set[str] = set()
         for j in self.all_joints:

@@ -212,10 +212,9 @@ CASES: list[Case] = [
              "column 'time' looks like minutes, not seconds: read as seconds, 'qpos:arm' changes "
              "57.5 x faster than its logged velocity 'qvel:arm'; 250 samples over 4.98 s at 50 Hz "
              "if so: multiply the time stamps by 60"),
-    csv_case("two rows swapped", csv_text(rows(servo_log(), np.r_[0:300, 301, 300, 302:800])),
-             "column 'time' must be strictly increasing: row 301 (0-based) goes back from 3.01 to 3"),
-    csv_case("a duplicated row", csv_text(rows(servo_log(), np.r_[0:300, 299, 300:800])),
-             "row 300 (0-based) repeats"),
+    # two rows swapped, a row written twice, a NaN reading: repaired and said since issue 12's
+    # second pass (tests/test_careless_cli.py checks the repaired rows against the clean log);
+    # a time stamp repeated with other values, rows far out of order: refused there
     csv_case("a gap that leaves no usable stretch",
              csv_text(rows(edited(time=lambda t: t + 30.0 * (t >= 0.3)), slice(0, 60))),
              "time stamps jump (30 s after 0.29 s (row 29)) and no stretch"),
@@ -233,9 +232,6 @@ CASES: list[Case] = [
     csv_case("current in mA", csv_text(edited(current=lambda c: c * 1000)),
              "column 'current:arm' has 80 A at row 0 (0-based); plausible: -30 to 30 A (mA? "
              "write A)"),
-    csv_case("a NaN position", csv_text(edited(qpos=lambda q: np.where(np.arange(800) == 417,
-                                                                        np.nan, q))),
-             "column 'qpos:arm' has 1 NaN/inf values (first at row 417)"),
     csv_case("an inf goal", csv_text(edited(goal=lambda g: np.where(np.arange(800) >= 790,
                                                                      np.inf, g))),
              "column 'goal:arm' has 10 NaN/inf values (first at row 790)"),

@@ -117,6 +117,10 @@ def _record_demos(args: argparse.Namespace) -> int:
 
     if args.episodes < 1 or (args.successes is not None and args.successes < 1):
         raise ConfigError("--episodes and --successes must be >= 1")
+    if args.successes is not None and args.successes > args.episodes:
+        raise ConfigError(f"--successes {args.successes} can never be reached: --episodes "
+                          f"{args.episodes} is the most episodes tried; give --episodes >= "
+                          f"{args.successes}")
     tasks = TASKS[args.hand]
     if args.task not in tasks:
         raise ConfigError(f"--task {args.task!r} is not a {args.hand} task; valid: "
@@ -140,7 +144,11 @@ def _record_demos(args: argparse.Namespace) -> int:
     else:
         kwargs = {} if emulated else {"port": args.port, "baudrate": args.baud,
                                       **latency_kwargs(args.latency_ms)}
-    if args.spec and not emulated:
+    if args.spec and emulated:  # not silently ignored: the emulated hand has its own spec
+        raise ConfigError(f"--spec {args.spec}: a hand spec (calibration) is for a real robot "
+                          "(--port DEVICE); the emulated hand is built from the built-in spec. "
+                          "Leave out --spec, or give --port")
+    if args.spec:
         kwargs["hand"] = load_spec(args.spec)
     env = gym.make(env_id, backend="emulated" if emulated else "hardware", **kwargs)
     teacher = None

@@ -462,7 +462,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     timing["total"] = time.perf_counter() - t_start
     traces = _traces(ds, test_eps, base_test, ext_pred)
     prog("done", 1.0)
-    return GapResult(cfg, ds.sources or [tr.name for tr in ds.trajectories], joints, split, eps,
+    return GapResult(cfg, ds.sources or [tr.name for tr in ds.trajectories], ds.joints, split, eps,
                      floor, baseline, extended, causes, rounds, diagnostics, gain, effects,
                      verdict, timing, traces, dict(ds.models), stop_reason,
                      timestep=timestep)

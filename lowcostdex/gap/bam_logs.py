@@ -178,5 +178,5 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
         cols[f"{ch}:{BENCH_JOINT}"] = arr[:, 0]
     traj = trajectory_from_columns(cols, name=path.name)
     traj.model = key
-    traj.meta = meta
+    traj.meta = {**traj.meta, **meta}  # keeps the notes of repairs (rows sorted, ...)
     return traj, cfg

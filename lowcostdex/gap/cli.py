@@ -103,7 +103,8 @@ def _analyze(args: argparse.Namespace) -> int:
     logs = [str(p) for p in args.log]
     ds = load_dataset(logs, model=args.model, bench=True if args.bench else None)
     for note in ds.notes:
-        console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False)
+        console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,
+                      soft_wrap=True)
     test = None
     if args.holdout:
         resolved = {str(Path(p).resolve()) for p in args.holdout}
@@ -141,6 +142,32 @@ def _holdout(logs: list[str], holdout: list[str] | None, sources: list) -> tuple
     return tuple(i for i, p in enumerate(sources) if str(Path(p).resolve()) in resolved)
 
 
+IDENTIFY_KEYS = ("params", "family", "held_out", "fitted", "nominal")
+"""Keys of the file ``gap identify --json`` writes: a file with them may be replaced."""
+
+
+def _check_json_out(path: Path) -> None:
+    """``--json FILE``: a new file in an existing folder, or a previous ``gap identify --json``
+    output (replaced); a user's other file is refused untouched."""
+    import json
+
+    from lowcostdex.outdir import OutputRefused
+
+    if path.is_dir():
+        raise OutputRefused(f"--json {path} is a folder; give a file path, e.g. "
+                            f"--json {path / 'identified.json'}")
+    if not path.parent.is_dir():
+        raise OutputRefused(f"--json {path}: the folder {path.parent} does not exist")
+    if path.exists():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, ValueError):
+            old = None
+        if not (isinstance(old, dict) and all(k in old for k in IDENTIFY_KEYS)):
+            raise OutputRefused(f"--json {path} already exists and is not a 'gap identify' "
+                                "output; it is left untouched. Give a new file name")
+
+
 def _identify(args: argparse.Namespace) -> int:
     import json
     import time
@@ -149,7 +176,10 @@ def _identify(args: argparse.Namespace) -> int:
     from lowcostdex.gap import bam_measure as bm
     from lowcostdex.gap.dataset import expand_log_paths, load_dataset
     from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure
+    from lowcostdex.outdir import write_text_atomic
 
+    if args.json:
+        _check_json_out(Path(args.json))  # before minutes of fitting
     logs = [str(p) for p in expand_log_paths(args.log)]
     if args.holdout:
         args.holdout = [str(p) for p in expand_log_paths(args.holdout)]
@@ -182,7 +212,7 @@ def _identify(args: argparse.Namespace) -> int:
             print(f"  {part} mean: identified {1e3 * res.mean(idx):.1f}, nominal "
                   f"{1e3 * res.mean(idx, identified=False):.1f}")
     if args.json:
-        Path(args.json).write_text(json.dumps({
+        write_text_atomic(args.json, json.dumps({
             "params": res.params(), "family": res.family, "selection": res.selection,
             "why": _why(res), "notes": res.notes,
             "at_bound": res.at_bound, "fit_seconds": res.fit_seconds, "wall_seconds": wall,

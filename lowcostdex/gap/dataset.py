@@ -216,7 +216,8 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     if bench:
         for p, b in zip(paths, bam, strict=True):
             if not b:
-                raise LogError(f"{p}: --bench expects BAM JSON logs")
+                raise LogError(f"{p}: not a BAM raw-log JSON; --bench and gap identify take BAM "
+                               "JSON logs (project-format CSV/NPZ logs: gap analyze --model)")
             tr, cfg = read_bam(p, timestep=timestep)
             if tr.model not in models:
                 models[tr.model] = build_bench(cfg).to_xml()
@@ -243,11 +244,36 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
                        f"{MAX_TOTAL_DURATION:g} s of logs (give fewer or shorter logs)")
     pieces, sources, notes = [], [], []
     for p, tr in zip(paths, trajs, strict=True):
+        notes += tr.meta.get("notes", [])
         cut, said = split_at_gaps(tr)
         pieces += cut
         sources += [str(p)] * len(cut)
         notes += said
-    return Dataset(models, pieces, sources, notes)
+    ds = Dataset(models, pieces, sources, notes)
+    ds.notes += _unshared_joints(ds)
+    return ds
+
+
+def _unshared_joints(ds: Dataset) -> list[str]:
+    """Notes on measured joints that actuators drive other than one joint actuator each (two
+    actuators, a tendon): they replay as modelled, but no candidate effect is placed on them."""
+    m = ds.compiled(ds.trajectories[0].model)
+    on_joint = m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
+    tendons = [int(t) for t in m.actuator_trnid[m.actuator_trntype == mujoco.mjtTrn.mjTRN_TENDON, 0]]
+    notes = []
+    for j in ds.joints:
+        jid = m.joint(j).id
+        n = int(np.sum(on_joint & (m.actuator_trnid[:, 0] == jid)))
+        via = [m.tendon(t).name for t in tendons
+               if any(m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and m.wrap_objid[w] == jid
+                      for w in range(m.tendon_adr[t], m.tendon_adr[t] + m.tendon_num[t]))]
+        if n > 1 or via:
+            how = (f"{n} actuators" if n > 1 else "") + (" and " if n > 1 and via else "") + (
+                f"tendon {', '.join(via)}" if via else "")
+            notes.append(f"joint {j!r} is driven by {how}: it replays as modelled, but no "
+                         "candidate effect is placed on it (effects act on joints with one "
+                         "joint actuator)")
+    return notes
 
 
 # ------------------------------------------------------------------------------------------------

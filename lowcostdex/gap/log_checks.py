@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from lowcostdex.gap.trajectory import (
+    GAP_FACTOR,
     LogError,
     Trajectory,
     find_gaps,
@@ -64,8 +65,11 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
     ``rate_goals``: actuators whose goal is a velocity (an integrating servo's input, rad/s;
     the goal-against-reading checks skip them); ``gears``: actuator -> its gear (the goal is
     in actuator units, gear x the joint angle; default 1)."""
+    cols = _normalized_names(cols, name)
     if "time" not in cols:
-        raise LogError(f"{name}: missing column 'time' [s]")
+        raise LogError(f"{name}: missing column 'time' [s]; its columns: "
+                       f"{_listed(cols)}; name the time stamps' column 'time' (in seconds)")
+    cols, notes, cuts = _repair_rows(cols, name)
     acts: dict[str, dict[str, np.ndarray]] = {}
     joints: dict[str, dict[str, np.ndarray]] = {}
     for key, arr in cols.items():
@@ -127,9 +131,103 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
         qpos=np.stack([joints[j]["qpos"] for j in meas], axis=1),
         actuators=tuple(goal_acts), joints=tuple(meas),
         qvel=np.stack([joints[j]["qvel"] for j in meas], axis=1) if has_qvel else None,
-        channels=channels, goal_time=goal_time)
+        channels=channels, goal_time=goal_time,
+        meta={"notes": notes, "cuts": cuts} if notes else {})
     check_signals(traj, rate_goals, gears)
     return traj
+
+
+def _listed(cols: dict, n: int = 6) -> str:
+    names = list(cols)
+    return ", ".join(repr(k) for k in names[:n]) + (f" and {len(names) - n} more"
+                                                     if len(names) > n else "")
+
+
+def _normalized_names(cols: dict[str, np.ndarray], name: str) -> dict[str, np.ndarray]:
+    """Column names as the format spells them: the kind (and 'time') in lower case, no spaces
+    around ':' ('Time', 'QPOS : arm' -> 'time', 'qpos:arm'); the joint or actuator name after
+    the ':' is kept as written (MJCF names are case-sensitive). Two columns that become one name
+    are refused."""
+    kinds = PREFIXES_ACTUATOR + PREFIXES_JOINT
+    out: dict[str, np.ndarray] = {}
+    for key, arr in cols.items():
+        kind, sep, target = (part.strip() for part in str(key).partition(":"))
+        if sep and kind.lower() in kinds:
+            new = f"{kind.lower()}:{target}"
+        elif not sep and kind.lower() in ("time", "goal_time"):
+            new = kind.lower()
+        else:
+            new = str(key).strip()
+        if new in out:
+            raise LogError(f"{name}: columns {new!r} and {key!r} name the same thing")
+        out[new] = arr
+    return out
+
+
+MAX_NAN_SHARE = 0.2  # a column empty/NaN in more of the rows is a channel that was not logged
+
+
+def _repair_rows(cols: dict[str, np.ndarray], name: str
+                 ) -> tuple[dict[str, np.ndarray], list[str], list[int]]:
+    """The repairs that are unambiguous, each said in a note: rows with an empty or NaN value
+    (a failed read) are dropped - where the goal may have changed across the dropped rows, the
+    log is cut there (``cuts``: rows a new piece starts at, see ``logs.split_at_gaps``) so no
+    replay assumes a command it does not know; rows repeated exactly (same time, same values)
+    are dropped; rows a few samples out of time order (a logger's threads or buffers) are
+    sorted. A time stamp repeated with other values, or time going back further than a
+    ``GAP_FACTOR`` x the median step (two logs in one file?), is left to ``_check_time`` to
+    refuse. Infinite values are not missing values; they stay (and are refused)."""
+    n = len(cols["time"])
+    keys = list(cols)
+    if n == 0:
+        return cols, [], []
+    data = np.stack([np.asarray(cols[k], dtype=float) for k in keys], axis=1)
+    nan = np.isnan(data)
+    notes: list[str] = []
+    for c in np.flatnonzero(nan.mean(axis=0) > MAX_NAN_SHARE):
+        raise LogError(f"{name}: column {keys[c]!r} is empty or NaN in {int(nan[:, c].sum())} "
+                       f"of {n} rows (first at row {int(np.argmax(nan[:, c]))}, 0-based); leave "
+                       "the column out if that channel was not logged")
+    cut = np.zeros(n, dtype=bool)
+    bad = nan.any(axis=1)
+    if bad.any():
+        goals = [i for i, k in enumerate(keys) if k.startswith("goal:")]
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(int), [0]])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if a == 0 or b == n:
+                continue  # at an end: nothing to bridge
+            before, run = data[a - 1, goals], data[a:b][:, goals]
+            known = ~np.isnan(run)
+            held = np.array_equal(run[known], np.broadcast_to(before, run.shape)[known]) and (
+                known.all() or np.array_equal(data[b, goals], before))
+            cut[b] = not held
+        first = int(np.argmax(bad))
+        col = keys[int(np.argmax(nan[first]))]
+        said = (f"{name}: {int(bad.sum())} row(s) with an empty or NaN value dropped (first: row "
+                f"{first}, 0-based, column {col!r}; rows are counted without them from here on)")
+        notes.append(said)
+        data, cut = data[~bad], cut[~bad]
+    t = data[:, keys.index("time")]
+    dt = np.diff(t)
+    if len(dt) and np.any(dt <= 0):
+        same = np.concatenate([[False], (dt == 0) & np.all(data[1:] == data[:-1], axis=1)])
+        if same.any():
+            notes.append(f"{name}: {int(same.sum())} repeated row(s) dropped (same time and "
+                         f"values as the row before; first: row {int(np.argmax(same))})")
+            data, cut = data[~same], cut[~same]
+            t = data[:, keys.index("time")]
+            dt = np.diff(t)
+        back = np.maximum.accumulate(t)[:-1] - t[1:]
+        step = np.diff(np.sort(t))
+        step = float(np.median(step[step > 0])) if np.any(step > 0) else 0.0
+        if np.any(back > 0) and back.max() <= GAP_FACTOR * step:
+            order = np.argsort(t, kind="stable")
+            if np.all(np.diff(t[order]) > 0):
+                notes.append(f"{name}: {int(np.sum(order != np.arange(len(t))))} row(s) out of "
+                             f"time order (at most {back.max():.3g} s back) sorted by time")
+                data, cut = data[order], cut[order]
+    out = {k: data[:, i] for i, k in enumerate(keys)}
+    return out, notes, [int(i) for i in np.flatnonzero(cut)]
 
 
 def _check_time(t: np.ndarray, name: str) -> None:
@@ -145,8 +243,13 @@ def _check_time(t: np.ndarray, name: str) -> None:
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
         what = "repeats" if dt[i] == 0 else f"goes back from {t[i]:.9g}"
+        repeats = int(np.sum(dt == 0))
+        why = ("duplicate or unsorted rows?" if repeats < 10 else
+               f"{repeats} time stamps repeat with other values: rounded too coarsely?")
+        if dt[i] < 0 and t[i] - t[i + 1] > 1.0:
+            why = "two logs in one file, or shuffled rows? sort the rows or cut the file in two"
         raise LogError(f"{name}: column 'time' must be strictly increasing: row {i + 1} "
-                       f"(0-based) {what} to {t[i + 1]:.9g} (duplicate or unsorted rows?)")
+                       f"(0-based) {what} to {t[i + 1]:.9g} ({why})")
     step = float(np.median(dt))
     if not STEP_RANGE[0] <= step <= STEP_RANGE[1]:
         raise LogError(f"{name}: column 'time' must be in seconds, but its median step is "

@@ -119,13 +119,19 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     """Rows streamed (at most MAX_SAMPLES), a UTF-8 byte-order mark (spreadsheets) ignored."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
+            raw = csv.reader(f)
+            reader = (row for row in raw  # blank lines and '#' comments skipped
+                      if (len(row) > 1 or (row and row[0].strip()))
+                      and not row[0].lstrip().startswith("#"))
             header = [h.strip() for h in next(reader, [])]
             if not header:
                 raise LogError(f"{path}: empty file (no header row)")
-            if len(header) == 1 and ";" in header[0]:
-                raise LogError(f"{path}: the header {header[0]!r} is separated by ';'; the log "
-                               "format separates columns by ',' (and uses '.' for decimals)")
+            for sep, said in ((";", "';'"), ("\t", "tabs")):
+                if len(header) == 1 and sep in header[0]:
+                    raise LogError(f"{path}: the header {header[0]!r} is separated by {said}; "
+                                   "the log format separates columns by ',' (and uses '.' for "
+                                   "decimals)")
+            trailing = len(header) > 1 and header[-1] == ""  # 'a,b,c,' (a logger's habit)
             if len(set(header)) != len(header):
                 dup = sorted({h for h in header if header.count(h) > 1})
                 raise LogError(f"{path}: duplicate columns {dup}")
@@ -134,17 +140,23 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
                 if r >= MAX_SAMPLES:
                     raise LogError(f"{path}: more than {MAX_SAMPLES} rows; at most "
                                    f"{MAX_SAMPLES} per log (split the log into shorter ones)")
-                if len(row) != len(header):
-                    raise LogError(f"{path}: row {r + 2} has {len(row)} fields, header has "
-                                   f"{len(header)}")
+                if trailing and len(row) == len(header) and not row[-1].strip():
+                    row = row[:-1]
+                elif trailing:
+                    raise LogError(f"{path}: row {raw.line_num} has a value under the "
+                                   "header's empty last column")
+                if len(row) != len(header) - trailing:
+                    raise LogError(f"{path}: row {raw.line_num} has {len(row)} fields, the "
+                                   f"header has {len(header) - trailing}")
                 try:
                     rows.append([float(cell) if cell.strip() else np.nan for cell in row])
                 except ValueError:
                     c = next(i for i, cell in enumerate(row) if not _is_float(cell))
-                    raise LogError(f"{path}: row {r + 2}, column {header[c]!r}: "
+                    raise LogError(f"{path}: row {raw.line_num}, column {header[c]!r}: "
                                    f"{row[c]!r} is not a number") from None
     except UnicodeDecodeError:
         raise LogError(f"{path}: not a text CSV file (binary data?)") from None
+    header = header[:len(header) - trailing]
     data = np.array(rows, dtype=float).reshape(len(rows), len(header))
     return {h: data[:, i] for i, h in enumerate(header)}
 
@@ -168,12 +180,17 @@ def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
       LogError: no piece is long enough (the message names the gaps).
     """
     gaps = find_gaps(traj.time)
-    if not len(gaps):
+    cuts = sorted(set(int(c) for c in traj.meta.get("cuts", ())) - {int(i) + 1 for i in gaps})
+    if not len(gaps) and not cuts:
         return [traj], []
     t = traj.time
     said = ", ".join(f"{t[i + 1] - t[i]:.3g} s after {t[i]:.6g} s (row {i})" for i in gaps[:3])
     said += f" and {len(gaps) - 3} more" if len(gaps) > 3 else ""
-    edges = [0, *(int(i) + 1 for i in gaps), len(t)]
+    if cuts:
+        said += (", and " if len(gaps) else "") + (
+            f"dropped rows where the goal may have changed before {t[cuts[0]]:.6g} s (row "
+            f"{cuts[0]})" + (f" and {len(cuts) - 1} more" if len(cuts) > 1 else ""))
+    edges = sorted({0, *(int(i) + 1 for i in gaps), *cuts, len(t)})
     pieces, dropped = [], 0
     for k, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
         if b - a >= MIN_SAMPLES and t[b - 1] - t[a] >= MIN_DURATION:
@@ -182,8 +199,12 @@ def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
             dropped += 1
     if not pieces:
         raise LogError(f"{traj.name}: time stamps jump ({said}) and no stretch between the "
-                       f"jumps has {MIN_SAMPLES} samples over {MIN_DURATION} s")
-    note = (f"{traj.name}: time jumps {said}; split into {len(pieces)} piece(s)"
+                       f"jumps has {MIN_SAMPLES} samples over {MIN_DURATION} s"
+                       if len(gaps) and not cuts else
+                       f"{traj.name}: the log is cut at {said} and no stretch between the "
+                       f"cuts has {MIN_SAMPLES} samples over {MIN_DURATION} s")
+    note = (f"{traj.name}: {'time jumps ' if len(gaps) else ''}{said}; split into "
+            f"{len(pieces)} piece(s)"
             + (f", {dropped} too short to use left out" if dropped else ""))
     return pieces, [note]
 
@@ -277,6 +298,38 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                        "every actuator of the model: give a model of the logged joints only "
                        "(the project's hands: `lowcostdex model dclaw|allegro --station none "
                        "--fingers <the logged fingers>`)")
+    for i in range(model.nu):
+        kind = _not_a_position_servo(model, i)
+        if kind:
+            raise LogError(f"{traj.name}: actuator {act_names[i]!r} is {kind}; the log's "
+                           f"'goal:{act_names[i]}' is a position goal [rad]: model the servo as "
+                           "<position kp=...> (or <general> with biastype=\"affine\" and a "
+                           "-kp position term, or <intvelocity>) and re-run")
+        if model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT:
+            j = model.joint(int(model.actuator_trnid[i, 0])).name
+            if j not in traj.joints:
+                raise LogError(f"{traj.name}: joint {j!r} is driven by actuator "
+                               f"{act_names[i]!r} but the log has no 'qpos:{j}' column: every "
+                               "replay would start it at the model's initial pose; log its "
+                               "position too")
+
+
+def _not_a_position_servo(model: mujoco.MjModel, i: int) -> str:
+    """What actuator ``i`` is when its input is not a position setpoint ('' when it is one: a
+    ``dcmotor`` servo, or an affine bias with a position term, as ``position``,
+    ``intvelocity`` and ``general`` servos write it)."""
+    if model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_DCMOTOR:
+        return ""
+    if model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE:
+        if model.actuator_biasprm[i, 1] < 0:
+            return ""
+        if model.actuator_biasprm[i, 2] < 0:
+            return "a velocity servo (its input is a velocity)"
+    if model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_MUSCLE:
+        return "a muscle"
+    gear = float(model.actuator_gear[i, 0])
+    return ("a motor: its input is a force or torque" + (f" (x gear {gear:g})" if gear != 1
+                                                          else "") + ", not a position")
 
 
 def estimate_velocity(time: np.ndarray, qpos: np.ndarray, window: float = 0.02,

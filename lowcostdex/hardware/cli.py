@@ -164,21 +164,24 @@ def _scan(args: argparse.Namespace) -> int:
 
 
 def _emulate(args: argparse.Namespace) -> int:
-    import json
     import signal
     import time
 
     import numpy as np
 
+    from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES
+
+    check_baud(args.baud)
+    if args.baud not in BAUD_CODES.values():
+        raise InputError(f"--baud {args.baud}: the emulated motors run at one of "
+                         f"{', '.join(str(b) for b in sorted(BAUD_CODES.values()))} bit/s")
+
     from lowcostdex.hardware.emulated.chain import FaultConfig
     from lowcostdex.hardware.emulated.firmware import FirmwareOptions
     from lowcostdex.hardware.emulated.pty_server import PtyServer
-    from lowcostdex.sim.effects import AppliedEffect
+    from lowcostdex.sim.effects.randomization import read_effects
 
-    effects = []
-    if args.effects:
-        with open(args.effects) as f:
-            effects = [AppliedEffect.from_dict(d) for d in json.load(f)]
+    effects = read_effects(args.effects) if args.effects else []
     kwargs = dict(faults=FaultConfig(drop=args.drop, corrupt=args.corrupt, late=args.late),
                   options=FirmwareOptions(fast_read=not args.no_fast_read), baudrate=args.baud,
                   wire_time=args.wire_time, effects=effects, rng=np.random.default_rng(args.seed))

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from lowcostdex.argtypes import SEED
 from lowcostdex.main_job.report import markdown_report, stage_summary, write_html
 from lowcostdex.main_job.setup import DEFAULT_TASK, SIZES, TASKS, Context
 from lowcostdex.main_job.stages import (
@@ -144,7 +145,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, default=Path("runs/main"), help="output folder")
     p.add_argument("--size", choices=SIZES, default="default",
                    help="budget: smoke (CI, ~1 min), default (~5 min on 2 cores), long")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--task", choices=sorted(TASKS), default=DEFAULT_TASK,
                    help="valve-target: turn the valve from 0 to a random target in 180 +- 29 "
                    "deg; valve: turn it 180 deg; valve-random: random start and target "
@@ -157,11 +158,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def _main(args: argparse.Namespace) -> int:
-    from lowcostdex.errors import check_choice
+    from lowcostdex.errors import ConfigError, check_choice
 
     stages = None
-    if args.stages:
-        stages = tuple(s.strip() for s in args.stages.split(","))
+    if args.stages is not None:  # '--stages ""' is not "every stage"
+        stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
+        if not stages:
+            raise ConfigError(f"--stages {args.stages!r} names no stage; give a comma-separated "
+                              f"subset of {', '.join(n for n, _ in STAGES)}")
         for s in stages:
             check_choice("stage", s, [n for n, _ in STAGES])
     ctx = Context(out=args.out, size=args.size, seed=args.seed, port=args.port, task=args.task)

@@ -165,7 +165,7 @@ def _record_log(args: argparse.Namespace) -> int:
     )
     from lowcostdex.outdir import MARKER, PREVIOUS, archive, check_out, write_marker
     from lowcostdex.progress import tasks as progress_tasks
-    from lowcostdex.sim.effects import AppliedEffect
+    from lowcostdex.sim.effects.randomization import read_effects
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
         raise ConfigError("--logs, --seconds and --rate must be positive")
@@ -186,7 +186,7 @@ def _record_log(args: argparse.Namespace) -> int:
     effects = []
     if emulated:
         if args.effects:
-            effects = [AppliedEffect.from_dict(e) for e in json.loads(open(args.effects).read())]
+            effects = read_effects(args.effects)
         elif args.hand == "dclaw":
             effects = default_effects(hand.joint_names)
     elif args.effects:

@@ -51,8 +51,35 @@ class AppliedEffect:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> AppliedEffect:
-        return cls(d["effect"], tuple(d["joints"]), {k: np.asarray(v, float)
-                                                     for k, v in d["params"].items()})
+        """The effect ``to_dict()`` wrote: {"effect": name, "joints": [...], "params": {name:
+        value or one value per joint}}; raises ConfigError naming what is wrong."""
+        if not isinstance(d, Mapping):
+            raise ConfigError(f"an effect is an object with effect, joints and params, not "
+                              f"{type(d).__name__} {str(d)[:40]!r}")
+        # in_mjcf, interval: what an extended model's effects list adds (gap.extension)
+        check_keys("effect key", d, ("effect", "joints", "params", "in_mjcf", "interval"))
+        for key in ("effect", "joints"):
+            if key not in d:
+                raise ConfigError(f"an effect needs {key!r} (to_dict() writes effect, joints "
+                                  "and params)")
+        joints, params = d["joints"], d.get("params", {})
+        if isinstance(joints, str) or not all(isinstance(j, str) for j in joints):
+            raise ConfigError(f"effect {d['effect']}: 'joints' must be a list of joint names, "
+                              f"got {joints!r}")
+        if not isinstance(params, Mapping):
+            raise ConfigError(f"effect {d['effect']}: 'params' must be an object, got "
+                              f"{params!r}")
+        values = {}
+        for k, v in params.items():
+            try:
+                values[k] = np.asarray(v, float)
+            except (TypeError, ValueError):
+                raise ConfigError(f"effect {d['effect']}: parameter {k!r} must be a number or "
+                                  f"a list of numbers, got {v!r}") from None
+            if not np.all(np.isfinite(values[k])):
+                raise ConfigError(f"effect {d['effect']}: parameter {k!r} must be finite, got "
+                                  f"{v!r}")
+        return cls(d["effect"], tuple(joints), values)
 
     @classmethod
     def coerce(cls, e: AppliedEffect | Mapping) -> AppliedEffect:
@@ -152,3 +179,31 @@ DEFAULT_DR_EFFECTS: tuple[str, ...] = (
     "coulomb_friction", "viscous_damping", "gain_error", "latency", "backlash", "inertia_error",
     "mass_error", "observation_noise", "action_noise",
 )
+
+
+def read_effects(path: str) -> list[AppliedEffect]:
+    """The effects in a JSON file (a list of ``AppliedEffect.to_dict()`` objects), as the
+    ``--effects FILE`` options take them; raises InputError naming the file and the entry."""
+    import json
+
+    from lowcostdex.errors import InputError
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise InputError(f"--effects {path}: no such file") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise InputError(f"--effects {path}: not a readable JSON file ({exc}); it holds a list "
+                         'of effects like [{"effect": "latency", "joints": ["ff_top"], '
+                         '"params": {"delay": 0.02}}]') from None
+    if not isinstance(data, list):
+        raise InputError(f"--effects {path}: must hold a JSON list of effects, got "
+                         f"{type(data).__name__}")
+    out = []
+    for i, d in enumerate(data):
+        try:
+            out.append(AppliedEffect.from_dict(d))
+        except ConfigError as exc:
+            raise InputError(f"--effects {path}: entry {i}: {exc}") from None
+    return out
