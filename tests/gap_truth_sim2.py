@@ -107,6 +107,8 @@ class Effect:
 class Case:
     """One analysis case: a rig, hidden effects (none: clean), and the logs a user would bring.
 
+    ``observable``: False when the hidden effects change nothing the logs can show (scored as
+    a clean case: naming anything is a false discovery);
     ``durations``: seconds per log file; ``styles``: trajectory style per file (cycled);
     ``rate``: nominal log rate [Hz]; ``jitter``: row-time jitter as a fraction of the period;
     ``stall``: seconds of a host stall mid-log in the first file (0: none); ``qvel``: log a
@@ -127,10 +129,13 @@ class Case:
     perturb: tuple[tuple[str, float], ...] = ()
     model_dt: float = 0.0
     note: str = ""
+    observable: bool = True
 
     @property
     def causes(self) -> set[str]:
-        return {CATALOGUE[e.kind] for e in self.effects}
+        """The catalogue causes a correct analysis names: none when the hidden effects cannot
+        be seen in the logs (``observable`` False: the case is scored as clean)."""
+        return {CATALOGUE[e.kind] for e in self.effects} if self.observable else set()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -456,7 +461,8 @@ def write_case(case: Case, folder: str | pathlib.Path) -> dict:
         logs.append(str(path))
     truth = {"case": case.name, "rig": case.rig, "causes": sorted(case.causes),
              "effects": [dataclasses.asdict(e) for e in case.effects],
-             "expected_params": expected_params(case)}
+             "observable": case.observable,
+             "expected_params": expected_params(case) if case.observable else []}
     (folder / "truth.json").write_text(json.dumps(truth, indent=1))
     return {"model": str(folder / "model.xml"), "logs": logs, "truth": truth}
 
@@ -510,7 +516,8 @@ CASES: tuple[Case, ...] = (
          note="damping and armature +0.5 %"),
     Case("clean_mounting_vertical", "turntable", (E("mounting_offset", 3 * DEG),), 100,
          (15, 15), ("holds", "sine"), seed=4,
-         note="a mounting offset on a vertical axis changes nothing observable"),
+         note="a mounting offset on a vertical axis changes nothing observable",
+         observable=False),
     # single effects
     Case("latency_queue_pendulum", "pendulum", (E("latency_queue", 2),), 100, (15, 15),
          ("steps", "holds"), seed=11, note="2 control periods at 100 Hz"),

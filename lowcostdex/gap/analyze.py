@@ -21,10 +21,14 @@
    is, in expectation, at least its held-out one) and on the select split replayed with every
    goal a fraction of a physics step later (``GapConfig.probes``; a chaotic replay, a light link
    swinging inside a play, rewards lucky alignments of its impacts). Otherwise the analysis
-   stops; with no accepted effect the answer is "no significant discrepancy".
-4. The chosen structure is refitted on train + select, then scored once on the untouched *test*
-   episodes: error before and after with a bootstrap interval over episodes, the noise floor and
-   the fraction of reducible error explained.
+   stops; with no accepted effect the answer is "no significant discrepancy". Each change of
+   model must also pay over consecutive blocks of select data (``significance``: paired
+   moving-block bootstrap bound above 0), in the forward steps and the backward pass.
+4. The chosen structure is refitted on train + select; an effect whose every 95 % interval
+   (misfit-aware: ``_intervals``) holds "no effect" is dropped and the rest refitted. The model
+   is then scored once on the untouched *test* episodes: error before and after with a
+   bootstrap interval over episodes, the noise floor and the fraction of reducible error
+   explained.
 
 Why one module: these stages are one loop over one analysis' state (the split, the engine's
 replays, the current structure and its select error, the stop reason); the helpers below are the
@@ -43,6 +47,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap import significance
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
 from lowcostdex.gap.diagnostics import (
     effective_n,
@@ -154,6 +159,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     t_start = time.perf_counter()
     timing: dict[str, float] = {}
     rng = np.random.default_rng(cfg.seed)
+    blk_rng = np.random.default_rng([cfg.seed, 1])  # block bootstraps (leave ``rng`` as it was)
     eps = episodes(ds, cfg.chunk)
     split = split_episodes(ds, eps, rng, cfg.test_logs)
     timestep = {"model": ds.timestep, "used": ds.timestep, "rmse": []}
@@ -311,6 +317,12 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                                 if current.effects else [], best_track[n_best].effects())
             by_name[n_best].effect_rms = size
             significant = rel >= cfg.min_gain and low > -cfg.min_gain
+            if significant:  # ... and over consecutive blocks of select data (paired)
+                by_name[n_best].select_gain_low = low = significance.paired_low(
+                    eng.predict, ds, sel_eps, current.to_effects(cur_x) if current.effects
+                    else [], best_track[n_best].effects(), cfg.interval_block, blk_rng,
+                    cfg.bootstrap)
+                significant = low > 0
             if not significant:
                 stop = "no candidate lowers the select error significantly"
                 continue
@@ -347,7 +359,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     # ---- backward pass: drop accepted effects the final model no longer needs ---------------
     if len(current.effects) > 1:
         current, cur_x = _backward(eng, ds, sel_eps, current, cur_x, cfg, floor_rms, ctx,
-                                   fit_fn, dropped := [], train_segs)
+                                   fit_fn, dropped := [], train_segs, rng=blk_rng)
         if dropped:
             stop_reason += f"; dropped by the backward pass: {', '.join(dropped)}"
             sel_cur = (mse_by_episode(ds, sel_eps, eng.predict(
@@ -365,7 +377,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             c.effect for c in rounds[0][:cfg.top_k] if c.score >= cfg.min_gain)))
         if len(big) > max(len(current.effects), 1):
             alt, alt_x = _joint_then_prune(eng, ds, sel_eps, big, current, cur_x, cfg,
-                                           floor_rms, ctx, fit_fn, train_segs)
+                                           floor_rms, ctx, fit_fn, train_segs, blk_rng)
             if alt.effects:
                 sse_alt = mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [
                     alt.to_effects(alt_x)])[0])[0]
@@ -395,7 +407,10 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     sel_cur = (sse_alt, sel_cur[1], sel_cur[2])
         timing["backward_search"] = time.perf_counter() - t0
 
-    # ---- 3. final refit on train + select, test once ---------------------------------------
+    # ---- 3. final refit on train + select, intervals, significance, test once -------------
+    # An effect whose every 95 % interval (misfit-aware: ``_intervals``) holds "no effect" is
+    # not shown by the data: it soaks up what the model gets slightly wrong. It is dropped, the
+    # rest refitted, until every kept effect is away from "no effect".
     causes: list[Cause] = []
     effects: list[AppliedEffect] = []
     final_track = None
@@ -403,20 +418,25 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         t0 = time.perf_counter()
         prog("final refit on train + select", 0.85)
         all_segs = segments(ds, train_eps + sel_eps, cfg.segment, cfg.burn_in)
-        final_track = fitmod.Track(current, current.u(cur_x), label="final")
-        # one track: converge tighter than the screening fits
         final_fn = eng.residual_fn(all_segs)
-        fitmod.lockstep_lm([final_track], final_fn, 2 * cfg.max_rounds, rtol=1e-5)
-        if fitmod.polish(final_track, final_fn, ds.timestep):
-            # one round re-evaluates residual and Jacobian at the polished point (intervals)
-            fitmod.lockstep_lm([final_track], final_fn, 1)
-        if fitmod.at_bounds(final_track.structure, final_track.u):
-            final_track, ranges, notes = fitmod.widen_and_refit(final_track, final_fn, ctx,
-                                                                2 * cfg.max_rounds)
-            ctx.widened.update(ranges)
-            for eff, line in notes:
-                widened_notes.setdefault(eff, []).append(line)
-        effects = final_track.effects()
+        while True:
+            final_track = _final_fit(current, cur_x, final_fn, cfg, ctx, widened_notes,
+                                     ds.timestep)
+            mid, half, noise, data, shift = _intervals(ds, final_track, all_segs, cfg, prog,
+                                                       timing)
+            margin = significance.null_margins(final_track.structure, mid, half, ctx)
+            weak = [n for n in final_track.structure.effects if margin[n] <= 1]
+            if not weak:
+                break
+            drop = min(weak, key=lambda n: margin[n])
+            stop_reason += f"; {drop} dropped: its 95 % interval holds no effect"
+            keep = tuple(n for n in final_track.structure.effects if n != drop)
+            current = fitmod.Structure.build(keep, joints, ctx)
+            cur_x = current.values_from(final_track.effects())
+            if not keep:
+                final_track = None
+                break
+        effects = final_track.effects() if final_track is not None else []
         timing["final_fit"] = time.perf_counter() - t0
     prog("held-out test", 0.95)
     prefixes = [effects[:k] for k in range(1, len(effects) + 1)]
@@ -432,25 +452,10 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0].sum()
         / max(sel_cur[2].sum(), 1))))
     if final_track is not None:
-        noise = fitmod.interval_halfwidths(final_track.r, final_track.jac,
-                                           effective_n(final_track.r))
-        spread = fitmod.block_halfwidths(final_track.r, final_track.jac,
-                                         _blocks(ds, all_segs, cfg.interval_block))
-        half = data = np.maximum(noise, spread)
-        shift = None
-        if cfg.interval_step:
-            # the replay's own error: the move of the fit at a finer physics step joins the
-            # interval (root sum of squares with the data's)
-            t0 = time.perf_counter()
-            prog("interval: refit at a finer physics step", 0.97)
-            fine = _Engine(ds.with_timestep(cfg.interval_step), cfg, final_track.structure.names)
-            shift = fitmod.step_shift(final_track, fine.residual_fn(all_segs), cfg.max_rounds)
-            half = np.hypot(half, shift)
-            timing["interval_step"] = time.perf_counter() - t0
         for k, e in enumerate(effects):
             c = Cause(e.name, e.joints, param_report(
                 final_track.structure, final_track.u, half, e.name,
-                {"interval_noise": noise, "interval_data": data}, shift))
+                {"interval_noise": noise, "interval_data": data}, shift, centre=mid))
             sse, sae, n = mse_by_episode(ds, test_eps, test_pred[k])
             c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
             c.heldout_mae_after = float(sae.sum() / n.sum())
@@ -498,6 +503,47 @@ def _refine_step(ds: Dataset, eps: Sequence[Window], cfg: GapConfig
     return cur, {"model": dt0, "used": cur.timestep, "rmse": tried}
 
 
+def _final_fit(current: fitmod.Structure, cur_x: np.ndarray, fn, cfg: GapConfig,
+               ctx: fitmod.Context, widened_notes: dict, dt: float) -> fitmod.Track:
+    """``current`` refitted on ``fn`` (train + select), tighter than the screening fits; a
+    fit on a bound is refitted in a widened range (noted in ``widened_notes``)."""
+    t = fitmod.Track(current, current.u(cur_x), label="final")
+    fitmod.lockstep_lm([t], fn, 2 * cfg.max_rounds, rtol=1e-5)
+    if fitmod.polish(t, fn, dt):
+        # one round re-evaluates residual and Jacobian at the polished point (intervals)
+        fitmod.lockstep_lm([t], fn, 1)
+    if fitmod.at_bounds(t.structure, t.u):
+        t, ranges, notes = fitmod.widen_and_refit(t, fn, ctx, 2 * cfg.max_rounds)
+        ctx.widened.update(ranges)
+        for eff, line in notes:
+            widened_notes.setdefault(eff, []).append(line)
+    return t
+
+
+def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapConfig,
+               prog: Progress, timing: dict) -> tuple[np.ndarray, ...]:
+    """95 % intervals of ``t``'s parameters in optimizer coordinates as (centre, half-width)
+    and their parts: (centre, half, residual noise, data, step shift or None). Data: the
+    widest of the residual-noise interval, the block spread and the autocorrelation-consistent
+    sandwich over blocks (``significance.hac_halfwidths``). The replay's discretisation: the
+    fit moves by ``shift`` at ``interval_step`` of the physics step; for a first-order
+    integrator its value at a zero step is ``k = 1 / (1 - interval_step)`` times that move away
+    (Richardson). The interval spans the fitted and the extrapolated value, each widened by
+    the data's half-width and the move (root sum of squares: the extrapolation's own error)."""
+    noise = fitmod.interval_halfwidths(t.r, t.jac, effective_n(t.r))
+    blocks = significance.residual_blocks(ds, segs, cfg.interval_block)
+    data = np.maximum.reduce([noise, fitmod.block_halfwidths(t.r, t.jac, blocks),
+                              significance.hac_halfwidths(t.r, t.jac, blocks)])
+    if not cfg.interval_step:
+        return t.u, data, noise, data, None
+    t0 = time.perf_counter()
+    prog("interval: refit at a finer physics step", 0.97)
+    fine = _Engine(ds.with_timestep(cfg.interval_step), cfg, t.structure.names)
+    shift = fitmod.step_shift(t, fine.residual_fn(segs), cfg.max_rounds)
+    timing["interval_step"] = timing.get("interval_step", 0.0) + time.perf_counter() - t0
+    mid, half = significance.step_interval(t.u, data, shift, cfg.interval_step)
+    return mid, half, noise, data, shift
+
 def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:
     """Column of each effect joint's actuator in the log's actuator list."""
     names = [model.actuator(int(a)).name for a in targets.actuators]
@@ -541,15 +587,19 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
 def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
               current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig, floor_rms: float,
               ctx: fitmod.Context, fit_fn, dropped: list[str], train_segs: Sequence[Window],
-              min_size: int = 1) -> tuple[fitmod.Structure, np.ndarray]:
+              min_size: int = 1, rng: np.random.Generator | None = None
+              ) -> tuple[fitmod.Structure, np.ndarray]:
     """Remove accepted effects that a later one made redundant, then order by importance.
 
     An effect is redundant when leaving it out of the current model (others unchanged) raises
     the select MSE by less than ``min_gain / 2`` (on the select split, on each of its goal-shift
     probes, or on the training segments) or changes the predictions by less than
     ``min_effect`` noise floors; an effect whose fit sits at a parameter bound is implausible and
-    goes first. The rest are ordered by the smallest of those rises without them.
+    goes first; so is one whose absence does not raise the select error significantly (the
+    5 % bound of the paired block bootstrap, ``significance.paired_gain_bound``, at or below 0).
+    The rest are ordered by the smallest of those rises without them.
     """
+    rng = rng if rng is not None else np.random.default_rng([cfg.seed, 1])
     while len(current.effects) > min_size:
         effs = current.to_effects(cur_x)
         full = eng.predict(sel_eps, [effs])[0]
@@ -562,6 +612,11 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
             d = np.concatenate([(a - b).ravel() for a, b in zip(pr, full, strict=True)])
             size[n] = float(np.sqrt(np.mean(d * d)))
         at_bound = {f.effect for f in current.free if bound_flags(current, current.u(cur_x), f.effect)}
+        # paired over consecutive blocks of select data: leaving it out must raise the error
+        blk = significance.block_sse(ds, sel_eps, full, cfg.interval_block)
+        low = {n: significance.paired_gain_bound(significance.block_sse(
+            ds, sel_eps, pr, cfg.interval_block), blk, rng, cfg.bootstrap)
+            for n, pr in zip(current.effects, preds, strict=True)}
         # ... also when every goal arrives a fraction of a step later, and on the training data
         for f in cfg.probes:
             sse_p = [mse_by_episode(ds, sel_eps, p)[0].sum() for p in eng.rep.run(
@@ -573,7 +628,7 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
                 for n, s in zip(current.effects, tr[1:], strict=True)}
         weak = [n for n in current.effects
                 if rise[n] < 0.5 * cfg.min_gain or size[n] < cfg.min_effect * floor_rms
-                or n in at_bound]
+                or n in at_bound or low[n] <= 0]
         if not weak:
             order = sorted(current.effects, key=lambda n: -rise[n])
             if list(order) != list(current.effects):
@@ -592,8 +647,8 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
 
 def _joint_then_prune(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window], names: tuple,
                       current: fitmod.Structure, cur_x: np.ndarray, cfg: GapConfig,
-                      floor_rms: float, ctx: fitmod.Context, fit_fn, train_segs: Sequence[Window]
-                      ) -> tuple[fitmod.Structure, np.ndarray]:
+                      floor_rms: float, ctx: fitmod.Context, fit_fn, train_segs: Sequence[Window],
+                      rng: np.random.Generator) -> tuple[fitmod.Structure, np.ndarray]:
     """Fit ``names`` jointly (from the forward model's values), then prune with ``_backward``."""
     big = fitmod.Structure.build(names, current.joints, ctx)
     base = big.values_from(current.to_effects(cur_x)) if current.effects else None
@@ -601,7 +656,7 @@ def _joint_then_prune(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window], name
     fitmod.lockstep_lm(tracks, fit_fn, 2 * cfg.max_rounds, prune=fitmod.prune_tracks)
     best = min(tracks, key=lambda t: t.cost)
     return _backward(eng, ds, sel_eps, best.structure, best.x, cfg, floor_rms, ctx, fit_fn, [],
-                     train_segs, min_size=1)
+                     train_segs, min_size=1, rng=rng)
 
 
 def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]:
@@ -623,24 +678,6 @@ def _effect_size(eng: _Engine, eps: Sequence[Window], cur: Sequence[AppliedEffec
     a, b = eng.predict(eps, [list(cur), list(new)])
     d = np.concatenate([(x - y).ravel() for x, y in zip(a, b, strict=True)])
     return float(np.sqrt(np.mean(d * d)))
-
-
-def _blocks(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[slice]:
-    """Slices of the residual vector of ``segs`` (``_Engine.residuals`` layout: each segment's
-    scored samples x logged joints) in blocks of about ``seconds`` (a short tail joins the
-    block before it)."""
-    out, pos = [], 0
-    nj = len(ds.joints)
-    for w in segs:
-        t = ds.trajectories[w.traj].time[w.score_from:w.stop]
-        k = np.searchsorted(t, t[0] + seconds * np.arange(1, int((t[-1] - t[0]) / seconds) + 1))
-        edges = [0, *[int(e) for e in k if 0 < e < len(t)], len(t)]
-        if len(edges) > 2 and t[-1] - t[edges[-2]] < 0.5 * seconds:
-            edges.pop(-2)
-        out += [slice(pos + nj * a, pos + nj * b) for a, b in zip(edges[:-1], edges[1:],
-                                                                 strict=True) if b > a]
-        pos += nj * len(t)
-    return out
 
 
 def _traces(ds: Dataset, eps: Sequence[Window], base: Sequence[np.ndarray],

@@ -193,6 +193,7 @@ class CandidateResult:
     train_rmse: float | None = None
     select_rmse: float | None = None
     select_gain: float | None = None  # relative MSE reduction on the select split
+    select_gain_low: float | None = None  # its 5 % bound (paired block bootstrap; when tested)
     effect_rms: float | None = None  # RMS change of select predictions it causes [rad]
     params: dict | None = None
     at_bound: bool = False  # fit ended at a parameter bound: not a plausible explanation
@@ -284,12 +285,14 @@ def _cand_dict(c: CandidateResult) -> dict:
 
 
 def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str,
-                 other: dict[str, np.ndarray] | None = None, shift: np.ndarray | None = None
-                 ) -> dict:
-    """Value and 95 % interval per parameter from half-widths in optimizer coordinates;
-    ``other``: more intervals to report under their keys (e.g. ``interval_noise``: residual
-    noise only); ``shift``: the fit's move at a finer physics step in optimizer coordinates,
-    reported as ``step_shift`` (the value there minus the value)."""
+                 other: dict[str, np.ndarray] | None = None, shift: np.ndarray | None = None,
+                 centre: np.ndarray | None = None) -> dict:
+    """Value and 95 % interval per parameter from half-widths in optimizer coordinates (about
+    ``centre``, None: the value); ``other``: more intervals to report under their keys, about
+    the value (e.g. ``interval_noise``: residual noise only); ``shift``: the fit's move at a
+    finer physics step in optimizer coordinates, reported as ``step_shift`` (the value there
+    minus the value)."""
+    mid = u if centre is None else centre
     out: dict[str, dict] = {}
     for i, f in enumerate(s.free):
         if f.effect != name:
@@ -297,7 +300,7 @@ def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str
         d = out.setdefault(f.param, {"value": [], "interval": [],
                                      "unit": effect(name).param(f.param).unit})
         d["value"].append(f.from_u(u[i]))
-        d["interval"].append(param_interval(f, u[i], half[i]))
+        d["interval"].append(param_interval(f, mid[i], half[i]))
         for key, h in (other or {}).items():
             d.setdefault(key, []).append(param_interval(f, u[i], h[i]))
         if shift is not None:

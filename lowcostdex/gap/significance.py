@@ -1,0 +1,225 @@
+"""Is a fitted effect real? The statistics behind the gap analysis' keep-or-drop decisions and
+the misfit-aware parts of its parameter intervals.
+
+A model that does not fit perfectly (a coarse physics step, an effect implemented a little
+differently from the truth's, an estimation error of the main effect) leaves a residual that is
+systematic and autocorrelated. A small extra effect can soak some of it up and lower the error
+on every stretch of data alike; its fitted value then sits a little away from "no effect" with an
+interval that only knows the noise. The tests here are the ones a careful analyst applies:
+
+- ``hac_halfwidths``: 95 % half-widths from a heteroskedasticity and autocorrelation consistent
+  (Newey-West) sandwich over the scores of consecutive blocks of data, the bandwidth from the
+  scores' own first-order autocorrelation (Andrews 1991, AR(1) plug-in). When the misfit is
+  correlated over longer stretches than one block, neighbouring blocks pull the parameter the
+  same way and the interval grows with that correlation.
+- ``null_margins``: per effect, how far its fitted parameters lie from "no effect" in units of
+  their interval half-widths (> 1: some 95 % interval excludes it). "No effect" is the
+  parameter's null, except a torque limit, which does nothing at or above the largest force the
+  model asks for (the nominal force range where the actuator has one).
+- ``block_sse`` and ``paired_gain_bound``: a paired moving-block bootstrap of a change of model
+  over consecutive blocks of held-out (select) data: the one-sided 95 % lower bound of the
+  relative MSE reduction. Blocks keep the residual's autocorrelation; pairing removes what both
+  models share.
+
+Angles in rad, errors in rad^2; parameters in the optimizer's coordinates (``fit.Free``: the log
+of scale factors).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap.dataset import Dataset, Window
+from lowcostdex.sim.effects import AppliedEffect, effect
+
+__all__ = ["andrews_bandwidth", "block_sse", "residual_blocks", "hac_halfwidths", "null_margins",
+           "paired_gain_bound", "paired_low", "step_interval"]
+
+
+def andrews_bandwidth(g: np.ndarray) -> float:
+    """Bartlett-kernel bandwidth (in blocks) for the columns of ``g`` (nb, p), from each
+    column's AR(1) fit (Andrews 1991, eq. 6.4 with unit weights): 1.1447 (alpha nb)^(1/3)."""
+    nb = g.shape[0]
+    if nb < 3:
+        return 0.0
+    num = den = 0.0
+    for x in g.T:
+        x = x - x.mean()
+        d = float(x[:-1] @ x[:-1])
+        if d <= 0:
+            continue
+        rho = float(np.clip(x[1:] @ x[:-1] / d, -0.97, 0.97))
+        s2 = float(np.mean((x[1:] - rho * x[:-1]) ** 2))
+        num += 4 * rho ** 2 * s2 ** 2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
+        den += s2 ** 2 / (1 - rho) ** 4
+    if den <= 0:
+        return 0.0
+    return float(min(1.1447 * (num / den * nb) ** (1 / 3), nb - 1))
+
+
+def hac_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice],
+                   bandwidth: float | None = None) -> np.ndarray:
+    """95 % half-widths of least-squares parameters from a Newey-West sandwich over blocks.
+
+    With A = J^T J and g_b = J_b^T r_b (the blocks in their time order, centred), the
+    covariance is A^-1 S A^-1 with S = sum_l w_l (G_l + G_l^T) / (1 + [l == 0]), G_l = sum_b
+    g_b g_(b-l)^T and Bartlett weights w_l = 1 - l / (L + 1), times nb / (nb - p); the quantile
+    is Student-t with nb / (L + 1) - p degrees of freedom (fewer independent blocks when they
+    are correlated; at least 1). ``bandwidth`` L in blocks (None: ``andrews_bandwidth``).
+    L = 0 is ``fit.block_halfwidths``. Null directions and fewer blocks than parameters + 1
+    give inf.
+    """
+    from scipy import special
+
+    n, p = jac.shape
+    nb = len(blocks)
+    if p == 0:
+        return np.zeros(0)
+    if nb <= p:
+        return np.full(p, np.inf)
+    lam, v = np.linalg.eigh(jac.T @ jac)
+    lam_max = float(np.max(lam))
+    null = lam / lam_max < 1e-15 if lam_max > 0 else np.ones(p, bool)
+    ainv = (v[:, ~null] / lam[~null]) @ v[:, ~null].T
+    g = np.stack([jac[b].T @ r[b] for b in blocks])
+    g = g - g.mean(axis=0)
+    L = andrews_bandwidth(g) if bandwidth is None else float(bandwidth)
+    s = g.T @ g
+    for lag in range(1, int(math.floor(L)) + 1):
+        gl = g[lag:].T @ g[:-lag]
+        s += (1 - lag / (L + 1)) * (gl + gl.T)
+    cov = ainv @ s @ ainv * nb / (nb - p)
+    dof = max(nb / (L + 1) - p, 1.0)
+    half = np.sqrt(np.maximum(np.diag(cov), 0.0)) * special.stdtrit(dof, 0.975)
+    touches_null = np.any(np.abs(v[:, null]) > 1e-8, axis=1) if null.any() else np.zeros(p, bool)
+    return np.where(touches_null, np.inf, half)
+
+
+def step_interval(u: np.ndarray, data: np.ndarray, shift: np.ndarray, fraction: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """A 95 % interval (centre, half-width) that holds the replay's discretisation bias.
+
+    ``u``: values fitted at the model's physics step h; ``shift``: how far they move when
+    refitted at ``fraction`` h; ``data``: the data's half-widths. For a first-order integrator
+    the bias is proportional to the step, so the zero-step value is u + shift / (1 - fraction)
+    (Richardson extrapolation). The interval spans the fitted and the extrapolated values,
+    each side widened by the root sum of squares of ``data`` and ``shift`` (the
+    extrapolation's own uncertainty)."""
+    ext = np.asarray(shift, float) / (1.0 - fraction)
+    return u + ext / 2, np.abs(ext) / 2 + np.hypot(data, shift)
+
+
+def null_u(f: fitmod.Free, ctx: fitmod.Context) -> tuple[float, int] | None:
+    """"No effect" of one free parameter in optimizer coordinates and the side on which
+    values are an effect (0: both, -1: only below). None: the parameter has no null of its
+    own (e.g. a Stribeck velocity)."""
+    if (f.effect, f.param) == ("torque_limit", "torque"):
+        peak = float(ctx.peak_force[f.joint])
+        return (f.to_u(peak), -1) if math.isfinite(peak) and peak > 0 else None
+    v = effect(f.effect).param(f.param).null
+    if not math.isfinite(v) or (f.log and v <= 0):
+        return None
+    # a parameter whose null is another's companion (a Stribeck velocity, a backdrive ratio)
+    # is "no effect" only with its effect's amplitude at null: judged by the amplitudes
+    if f.effect in _AMPLITUDE and f.param != _AMPLITUDE[f.effect]:
+        return None
+    return f.to_u(v), 0
+
+
+# the parameter that carries an effect's size, for effects with several parameters
+_AMPLITUDE = {"stribeck_friction": "static", "gearbox_friction": "mu"}
+
+
+def null_margins(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, ctx: fitmod.Context
+                 ) -> dict[str, float]:
+    """Per effect of ``s``: the largest distance of its parameters (any joint) from "no
+    effect" (``null_u``) in units of the 95 % half-widths ``half`` of intervals centred on
+    ``u`` (optimizer coordinates; an interval's centre, which need not be the fitted value).
+    > 1: some interval excludes "no effect". inf: no parameter can be judged (no null, or the
+    effect carries no free parameter); 0: every interval is infinite."""
+    judged: dict[str, list[float]] = {}
+    for i, f in enumerate(s.free):
+        nu = null_u(f, ctx)
+        if nu is None:
+            continue
+        u0, side = nu
+        d = (u0 - u[i]) if side < 0 else abs(u[i] - u0)
+        if not math.isfinite(half[i]):
+            m = 0.0
+        elif half[i] > 0:
+            m = d / half[i]
+        else:
+            m = math.inf if d > 0 else 0.0
+        judged.setdefault(f.effect, []).append(float(m))
+    return {n: max(judged[n]) if n in judged else math.inf
+            for n in dict.fromkeys(f.effect for f in s.free)}
+
+
+def block_sse(ds: Dataset, eps: Sequence[Window], pred: Sequence[np.ndarray], seconds: float
+              ) -> np.ndarray:
+    """Sum of squared errors per consecutive block of about ``seconds`` of each episode (a
+    short tail joins the block before it), episodes in order [rad^2]."""
+    out = []
+    for w, p in zip(eps, pred, strict=True):
+        tr = ds.trajectories[w.traj]
+        r = tr.qpos[w.start:w.stop] - p
+        e = (r * r).sum(axis=1)
+        t = tr.time[w.start:w.stop]
+        k = np.searchsorted(t, t[0] + seconds * np.arange(1, int((t[-1] - t[0]) / seconds) + 1))
+        edges = [0, *[int(x) for x in k if 0 < x < len(t)], len(t)]
+        if len(edges) > 2 and t[-1] - t[edges[-2]] < 0.5 * seconds:
+            edges.pop(-2)
+        out += [float(e[a:b].sum()) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+    return np.array(out)
+
+
+def paired_gain_bound(cur: np.ndarray, new: np.ndarray, rng: np.random.Generator,
+                      n_boot: int, level: float = 0.05, length: int | None = None) -> float:
+    """One-sided lower ``level`` bound of the relative MSE reduction 1 - sum(new) / sum(cur)
+    from a paired moving-block bootstrap over the blocks (``block_sse`` of both models on the
+    same data, in time order): runs of ``length`` consecutive blocks (None: ceil(nb^(1/3)))
+    drawn with replacement until nb blocks are drawn. Fewer than 2 blocks: -inf."""
+    cur, new = np.asarray(cur, float), np.asarray(new, float)
+    nb = len(cur)
+    if nb < 2:
+        return -math.inf
+    ell = max(1, min(nb, length if length is not None else math.ceil(nb ** (1 / 3))))
+    k = math.ceil(nb / ell)
+    starts = rng.integers(0, nb - ell + 1, size=(n_boot, k))
+    idx = (starts[:, :, None] + np.arange(ell)).reshape(n_boot, -1)[:, :nb]
+    a, b = cur[idx].sum(1), new[idx].sum(1)
+    boot = 1.0 - b / np.maximum(a, 1e-300)
+    return float(np.quantile(boot, level))
+
+
+def paired_low(predict, ds: Dataset, eps: Sequence[Window], cur: Sequence[AppliedEffect],
+               new: Sequence[AppliedEffect], seconds: float, rng: np.random.Generator,
+               n_boot: int) -> float:
+    """Lower 5 % bound of model ``new``'s relative MSE reduction over ``cur`` on ``eps``
+    (``paired_gain_bound`` over blocks of ``seconds``); ``predict(windows, columns)`` replays
+    each column of effects open loop (``analyze._Engine.predict``)."""
+    a, b = predict(eps, [list(cur), list(new)])
+    return paired_gain_bound(block_sse(ds, eps, a, seconds), block_sse(ds, eps, b, seconds),
+                             rng, n_boot)
+
+
+def residual_blocks(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[slice]:
+    """Slices of the residual vector of ``segs`` (``_Engine.residuals`` layout: each segment's
+    scored samples x logged joints) in blocks of about ``seconds`` (a short tail joins the
+    block before it)."""
+    out, pos = [], 0
+    nj = len(ds.joints)
+    for w in segs:
+        t = ds.trajectories[w.traj].time[w.score_from:w.stop]
+        k = np.searchsorted(t, t[0] + seconds * np.arange(1, int((t[-1] - t[0]) / seconds) + 1))
+        edges = [0, *[int(e) for e in k if 0 < e < len(t)], len(t)]
+        if len(edges) > 2 and t[-1] - t[edges[-2]] < 0.5 * seconds:
+            edges.pop(-2)
+        out += [slice(pos + nj * a, pos + nj * b) for a, b in zip(edges[:-1], edges[1:],
+                                                                 strict=True) if b > a]
+        pos += nj * len(t)
+    return out
