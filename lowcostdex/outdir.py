@@ -70,6 +70,7 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
     out = Path(path)
     if out.exists() and not out.is_dir():
         raise OutputRefused(f"--out {out} is a file, not a folder; give a folder path")
+    _check_writable(out)
     if not out.exists() or _is_empty(out):
         return False
     marker = read_marker(out)
@@ -93,6 +94,17 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
                 f"{key}={new_value!r} and its stages cannot build on that one. Use the same "
                 f"{key} or another folder, e.g. --out {fresh}")
     return True
+
+
+def _check_writable(out: Path) -> None:
+    """Refuse, before any work, an output that could not be written at the end: the folder
+    when it exists, else the nearest existing folder above it (where it will be made)."""
+    where = out.resolve()
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    if not os.access(where, os.W_OK | os.X_OK):
+        raise OutputRefused(f"--out {out}: no permission to write in {where}; give a folder you "
+                            "can write to")
 
 
 def _listing(path: Path, n: int = 3) -> str:

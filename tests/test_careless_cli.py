@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import functools
 import json
+import math
+import os
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -61,6 +63,8 @@ MODELS = {
                           '</tendon>'),
     "two actuators": dict(acts=SHOULDER + ELBOW + '<position name="elbow2" joint="elbow" '
                           'kp="0.5"/>'),
+    "ctrlrange": dict(acts=SHOULDER.replace('kp="2"', 'kp="2" ctrlrange="-0.5 0.5"')
+                      + ELBOW),
     "motor gear 50": dict(acts=SHOULDER + '<motor name="elbow" joint="elbow" gear="50"/>'),
     "velocity servo": dict(acts=SHOULDER + '<velocity name="elbow" joint="elbow" kv="0.1"/>'),
 }
@@ -71,7 +75,7 @@ def arm_xml(kind: str) -> str:
 
 
 @functools.cache
-def arm_log(kind: str, seconds: float, phase: float = 0.0) -> str:
+def arm_log(kind: str, seconds: float, phase: float = 0.0, scale: float = 1.0) -> str:
     """A log of the arm as plain MuJoCo runs it: goals (sines plus steps, held between rows)
     written at 100 Hz, joint angles and velocities read at each row."""
     m = mujoco.MjModel.from_xml_string(arm_xml(kind))
@@ -79,8 +83,9 @@ def arm_log(kind: str, seconds: float, phase: float = 0.0) -> str:
     n, rate = int(seconds * 100), 100.0
     t = np.arange(n) / rate
     names = [m.actuator(i).name for i in range(m.nu)]
-    goals = {a: 0.6 * np.sin(2 * np.pi * (0.3 + 0.2 * i) * t + phase)
-             + 0.2 * np.sign(np.sin(2 * np.pi * 0.5 * t + phase)) for i, a in enumerate(names)}
+    goals = {a: scale * (0.6 * np.sin(2 * np.pi * (0.3 + 0.2 * i) * t + phase)
+                         + 0.2 * np.sign(np.sin(2 * np.pi * 0.5 * t + phase)))
+             for i, a in enumerate(names)}
     q, v = np.zeros((n, 2)), np.zeros((n, 2))
     for k in range(n):
         q[k] = d.joint("shoulder").qpos[0], d.joint("elbow").qpos[0]
@@ -120,6 +125,22 @@ def arm_case(id: str, kind: str, text: str, message: str) -> Case:
 def _held_goals() -> dict[str, np.ndarray]:
     """servo_log with its goals held for 0.5 s at a time (a step sequence)."""
     return edited(goal=lambda g: np.repeat(g[::50], 50))
+
+
+def _in_degrees(text: str) -> str:
+    """The log with its goal and qpos columns in degrees (a logger that kept the servo's unit).
+    Below 4 pi (12.6 "rad", a swing of +-12 deg) the magnitude alone cannot tell; the model's
+    ctrlrange can."""
+    lines = text.splitlines()
+    head = lines[0].split(",")
+    keep = [k for k, h in enumerate(head) if not h.startswith("qvel:")]  # only angles logged
+    out = [",".join(head[k] for k in keep)]
+    for ln in lines[1:]:
+        cells = ln.split(",")
+        out.append(",".join(f"{math.degrees(float(cells[k])):.4f}"
+                            if head[k].split(":")[0] in ("goal", "qpos") else cells[k]
+                            for k in keep))
+    return "\n".join(out) + "\n"
 
 
 CASES = [
@@ -174,6 +195,10 @@ CASES = [
     arm_case("a velocity servo where the logs hold position goals", "velocity servo",
              arm_log("plain", 3.0), "actuator 'elbow' is a velocity servo (its input is a "
              "velocity)"),
+    arm_case("goals in degrees against a model without joint limits", "ctrlrange",
+             _in_degrees(arm_log("plain", 3.0, scale=0.1)),  # 0.1 x (0.6 sin(0.036 pi) + 0.2) rad at 0.06 s
+             "column 'goal:shoulder' reads 1.5339 at row 6 (0-based), outside the model's "
+             "ctrlrange [-0.5, 0.5] by more than its width (degrees? write rad"),
     arm_case("a joint in the logs the MJCF lacks", "plain",
              arm_log("plain", 3.0).replace("qpos:elbow", "qpos:wrist").replace("qvel:elbow",
                                                                             "qvel:wrist"),
@@ -421,6 +446,24 @@ def test_paths_with_spaces_and_accents(tmp_path):
     assert mujoco.MjModel.from_xml_path(str(root / "modèle du banc.xml")).nu == 1
 
 
+def test_a_log_given_twice_is_used_once(tmp_path):
+    """A folder and a file in it, and a copy under another name: each log once, said; a copy
+    in the fit and in the held-out test would score the fit on its own data."""
+    from lowcostdex.gap.cli import distinct_logs
+
+    (tmp_path / "logs").mkdir()
+    for name, cols in (("a.csv", servo_log()), ("b.csv", _held_goals())):
+        (tmp_path / "logs" / name).write_text(csv_text(cols))
+    (tmp_path / "a copy.csv").write_text(csv_text(servo_log()))
+    logs, notes = distinct_logs([str(tmp_path / "logs"), str(tmp_path / "logs" / "b.csv"),
+                                 str(tmp_path / "a copy.csv")])
+    assert logs == [str(tmp_path / "logs" / "a.csv"), str(tmp_path / "logs" / "b.csv")]
+    assert notes == [f"{tmp_path}/logs/b.csv: named twice; used once (a copy would be fitted "
+                     "and tested at once)",
+                     f"{tmp_path}/a copy.csv: the same bytes as {tmp_path}/logs/a.csv; used "
+                     "once (a copy would be fitted and tested at once)"]
+
+
 def test_identify_json_may_replace_its_own_previous_output(tmp_path):
     """The refusal above is for a user's file; a previous ``gap identify --json`` output is
     replaced (the check runs before the fit)."""
@@ -429,3 +472,20 @@ def test_identify_json_may_replace_its_own_previous_output(tmp_path):
     old = tmp_path / "identified.json"
     old.write_text(json.dumps(dict.fromkeys(IDENTIFY_KEYS, {})))
     _check_json_out(old)  # no error: replaced after the fit
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders: nothing to "
+                    "refuse (this VM and CI run as root; the check is unverified there)")
+def test_a_read_only_folder_is_refused_before_the_work(tmp_path):
+    """Was: minutes of analysis, then a PermissionError when the report was written."""
+    (tmp_path / "bench.xml").write_text(bench_model())
+    (tmp_path / "log.csv").write_text(csv_text(servo_log()))
+    (tmp_path / "ro").mkdir()
+    (tmp_path / "ro").chmod(0o555)
+    try:
+        for out in ("ro", "ro/report"):
+            run = _run(analyze()[:-1] + (out,), tmp_path, timeout=120)
+            assert run.returncode == 2, run.stderr
+            assert f"--out {out}: no permission to write in {tmp_path / 'ro'}" in run.stderr
+    finally:
+        (tmp_path / "ro").chmod(0o755)

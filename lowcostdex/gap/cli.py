@@ -87,6 +87,32 @@ def analysis_progress(console: Any) -> Iterator[Callable[[str, float], None]]:
                                              description=f"gap analysis: {stage}")
 
 
+def distinct_logs(given: list[str]) -> tuple[list[str], list[str]]:
+    """The log files ``given`` names (folders and patterns expanded), each once: a file named
+    twice (``logs/`` and ``logs/a.csv``) or a byte-identical copy under another name would sit
+    in the fit and in the held-out test at once. Returns (paths, notes on what was left out)."""
+    import hashlib
+
+    from lowcostdex.gap.dataset import expand_log_paths
+
+    out, notes, seen = [], [], {}
+    for p in expand_log_paths(given):
+        key: object = str(p.resolve())
+        try:
+            if p.is_file() and p.stat().st_size <= 64 * 2**20:
+                key = hashlib.sha256(p.read_bytes()).hexdigest()
+        except OSError:
+            pass  # unreadable: load_dataset names it
+        if key in seen:
+            what = ("named twice" if str(p.resolve()) == str(Path(seen[key]).resolve())
+                    else f"the same bytes as {seen[key]}")
+            notes.append(f"{p}: {what}; used once (a copy would be fitted and tested at once)")
+            continue
+        seen[key] = str(p)
+        out.append(str(p))
+    return out, notes
+
+
 def _analyze(args: argparse.Namespace) -> int:
     from rich.console import Console
 
@@ -100,9 +126,9 @@ def _analyze(args: argparse.Namespace) -> int:
 
     console = Console(stderr=True)
     check_out(args.out, "gap analyze")  # refuse a user's folder before minutes of work
-    logs = [str(p) for p in args.log]
+    logs, same = distinct_logs(args.log)
     ds = load_dataset(logs, model=args.model, bench=True if args.bench else None)
-    for note in ds.notes:
+    for note in same + ds.notes:
         console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,
                       soft_wrap=True)
     test = None
@@ -180,7 +206,9 @@ def _identify(args: argparse.Namespace) -> int:
 
     if args.json:
         _check_json_out(Path(args.json))  # before minutes of fitting
-    logs = [str(p) for p in expand_log_paths(args.log)]
+    logs, same = distinct_logs(args.log)
+    for note in same:
+        print(f"lowcostdex gap identify: note: {note}")
     if args.holdout:
         args.holdout = [str(p) for p in expand_log_paths(args.holdout)]
     ds = load_dataset(logs, bench=True, timestep=bm.BAM_DT)

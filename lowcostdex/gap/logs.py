@@ -299,6 +299,16 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                        "(the project's hands: `lowcostdex model dclaw|allegro --station none "
                        "--fingers <the logged fingers>`)")
     for i in range(model.nu):
+        if model.actuator_ctrllimited[i] and act_names[i] in traj.actuators:
+            lo, hi = (float(x) for x in model.actuator_ctrlrange[i])
+            g = traj.goal[:, traj.actuators.index(act_names[i])]
+            far = (g < lo - max(hi - lo, RANGE_MARGIN)) | (g > hi + max(hi - lo, RANGE_MARGIN))
+            if far.any():  # a servo saturating stays near its range; this is another unit
+                r = int(np.argmax(far))
+                raise LogError(f"{traj.name}: column 'goal:{act_names[i]}' reads {g[r]:.6g} at "
+                               f"row {r} (0-based), outside the model's ctrlrange [{lo:.4g}, "
+                               f"{hi:.4g}] by more than its width (degrees? write rad; MuJoCo "
+                               "would clamp it)")
         kind = _not_a_position_servo(model, i)
         if kind:
             raise LogError(f"{traj.name}: actuator {act_names[i]!r} is {kind}; the log's "
