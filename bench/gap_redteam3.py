@@ -126,7 +126,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip", nargs="+", default=[], help="case names to leave out")
     ap.add_argument("--rescore", nargs="+", help="previous --json outputs: re-score their "
                     "kept reports and print one table (no analysis runs)")
+    ap.add_argument("--sizes", action="store_true", help="only print each case's effect "
+                    "size: RMS / max of (logged reading - the user's model replayed in plain "
+                    "mujoco) per joint, mrad (no analysis; a few s per case)")
     args = ap.parse_args(argv)
+    if args.sizes:
+        for case in sim.CASES:
+            if args.cases and case.name not in args.cases:
+                continue
+            s = sim.effect_size(case)
+            print(f"{case.name:45s} rms " + " ".join(f"{1e3 * x:7.2f}" for x in s["rms"])
+                  + "  max " + " ".join(f"{1e3 * x:7.1f}" for x in s["max"]) + " mrad",
+                  flush=True)
+        return 0
     if args.rescore:
         rows = [rescore(r) for f in args.rescore for r in json.loads(
             pathlib.Path(f).read_text())["rows"]]

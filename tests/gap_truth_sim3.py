@@ -468,6 +468,34 @@ def write_case(case: Case, folder: pathlib.Path) -> dict:
             "truth": json.loads((folder / "truth.json").read_text())}
 
 
+def nominal_replay(case: Case, run: Run, dt: float = TRUTH_DT) -> np.ndarray:
+    """The user's nominal model (plain mujoco, at ``dt``) driven by ``run``'s goals as the log
+    says (held from ``goal_time``), started on the first goal after 1 s at rest: its joint
+    angles at the row times (rows x joints)."""
+    model = mujoco.MjModel.from_xml_string(finger_xml() if case.rig == "finger" else servo_xml())
+    model.opt.timestep = dt
+    data = mujoco.MjData(model)
+    data.qpos[:] = run.goals[0]
+    n0 = int(round(1.0 / dt))
+    steps = (np.arange(n0 + int(np.ceil((run.t[-1] + 0.05) / dt))) - n0) * dt
+    idx = np.maximum(np.searchsorted(run.t + BUS_DELAY, steps, side="right") - 1, 0)
+    out = np.empty((len(steps), model.nq))
+    for i in range(len(steps)):
+        data.ctrl[:] = run.goals[idx[i]]
+        mujoco.mj_step(model, data)
+        out[i] = data.qpos
+    return out[np.minimum(n0 + np.round(run.t / dt).astype(int), len(out) - 1)]
+
+
+def effect_size(case: Case) -> dict:
+    """How visible the hidden effects are in the case's first log: per joint RMS and max of
+    (logged reading - the user's nominal model replayed in plain mujoco), rad. A clean case
+    gives the floor (noise, ticks, the servo firmware's discretisation)."""
+    run = make_run(case, case.durations[0], 0, np.random.default_rng(case.seed))
+    err = run.qpos - nominal_replay(case, run)
+    return {"rms": np.sqrt((err ** 2).mean(0)).tolist(), "max": np.abs(err).max(0).tolist()}
+
+
 # ---------------------------------------------------------------- scoring
 
 def score(report: dict, truth: dict) -> dict:

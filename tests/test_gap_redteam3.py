@@ -214,6 +214,19 @@ def test_clean_truth_matches_the_users_model_in_plain_mujoco():
         assert np.abs(tr["q"] - tr["q"][0]).max() > 0.3
 
 
+def test_clean_controls_sit_at_the_floor_and_effects_stand_out():
+    """The logged clean cases, against the user's model replayed in plain mujoco: the finger at
+    the read-noise + tick floor (sqrt(0.5^2 + 1.53^2 / 12) = 0.67 mrad); the servo bench adds its
+    firmware's 1 kHz integer discretisation (measured 1.7 mrad RMS); a 0.1 rad reading offset
+    on one joint stands out there and only there."""
+    fin = sim.effect_size(sim.CASE_BY_NAME["fin_clean_jitter_posonly"])
+    assert max(fin["rms"]) < 0.0009
+    srv = sim.effect_size(sim.CASE_BY_NAME["srv_clean"])
+    assert srv["rms"][0] < 0.0025
+    off = sim.effect_size(sim.CASE_BY_NAME["fin_offset_read010_dist"])
+    assert off["rms"][2] == pytest.approx(0.1, abs=0.002) and max(off["rms"][:2]) < 0.0009
+
+
 def test_logs_are_in_the_project_format(tmp_path):
     case = dataclasses.replace(sim.CASE_BY_NAME["fin_gain035_abd_50hz_posonly"], durations=(2.0,))
     files = sim.write_case(case, tmp_path)
