@@ -72,6 +72,12 @@ MISSES: dict[str, str] = {
                               "0.08)",
     "clean_mounting_vertical": "false discovery: load_dependent_friction on an unobservable "
                                "offset (vertical axis)",
+    # never-run cases, measured by redteam3 (2026-11-26 12:00-, main dee30b5, load 9-17)
+    "backlash_body_turntable": "backlash exact but width 0.01537 [0.01342, 0.01733] excludes "
+                               "the truth 0.01745 (1 deg)",
+    "gain_high_arm2_50hz": "gain_error 1.846 [1.820, 1.872] shoulder (truth 1.8, outside) / "
+                           "1.797 elbow plus backlash 3.9 / 2.8 mrad and coulomb_friction 2.2 / "
+                           "2.9 mN m, which raise the held-out RMSE (3.25 -> 3.49 / 3.40 mrad)",
 }
 
 
