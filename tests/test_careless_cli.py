@@ -176,8 +176,9 @@ CASES = [
                                                                "current:arm,voltage:arm\n"),
              "column 'voltage:arm' is empty or NaN in 800 of 800 rows (first at row 0, "
              "0-based); leave the column out if that channel was not logged"),
-    log_case("an index column", csv_text({**servo_log(), "sample": np.arange(800.0)}),
-             "column 'sample' is not '<kind>:<name>'"),
+    log_case("a column of another kind", csv_text({**servo_log(), "pwm": np.zeros(800)}),
+             "column 'pwm' is not '<kind>:<name>'; kinds: time, goal, current, voltage, "
+             "temperature, torque_enable, qpos, qvel; remove the column or rename it"),
     log_case("one constant goal: the joint never moves",
              csv_text({"time": servo_log()["time"], "goal:arm": np.full(800, 0.3),
                        "qpos:arm": np.full(800, 0.3)}),
@@ -361,6 +362,20 @@ def test_a_spreadsheet_layout_reads_as_the_clean_log(tmp_path):
     assert _same(ds.trajectories[0], clean)
 
 
+def test_a_row_index_column_is_left_out(tmp_path):
+    """pandas' ``df.to_csv(path)`` writes the index as a first column named '' (0..n-1); read
+    back and written again it is 'Unnamed: 0'. It numbers the rows and carries no data."""
+    cols = servo_log()
+    clean = _load(tmp_path, csv_text(cols)).trajectories[0]
+    lines = csv_text(cols).splitlines()
+    for head, first in (("", 0), ("Unnamed: 0", 0), ("sample", 1)):
+        text = "\n".join([f"{head},{lines[0]}"] + [f"{k + first},{ln}" for k, ln in
+                                                    enumerate(lines[1:])]) + "\n"
+        ds = _load(tmp_path, text)
+        assert ds.notes == [f"log.csv: column {head!r} numbers the rows (a row index); left out"]
+        assert _same(ds.trajectories[0], clean)
+
+
 def test_rows_out_of_order_are_sorted_and_repeats_dropped(tmp_path):
     """Two rows swapped (a logger's threads) and one row written twice: sorted and dropped,
     each said; the result is the clean log row for row."""
@@ -430,6 +445,31 @@ def test_a_model_s_own_logs_analyse_to_no_discrepancy(kind, tmp_path):
     assert report["causes"] == []
     assert report["joints"] == ["shoulder", "elbow"]
     assert report["baseline"]["heldout_rmse"] < 1e-3  # [rad] the model's own logs replay on it
+
+
+CUBE_OBJ = "".join(f"v {x} {y} {z}\n" for z in (-0.01, 0.01) for x, y in
+                   ((-0.01, -0.01), (0.01, -0.01), (0.01, 0.01), (-0.01, 0.01))) + \
+    "f 1 2 3 4\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n"
+
+
+def test_a_model_with_its_meshes_in_a_folder_beside_it(tmp_path):
+    """A user's MJCF with ``meshdir="assets"`` (meshes beside the model, as robot models ship),
+    analysed from another working directory: was "ValueError: Error opening file
+    'assets/cube.obj'" (a traceback) when the data set compiled its copy of the model."""
+    from lowcostdex.gap.dataset import load_dataset
+
+    robot = tmp_path / "my robot"
+    (robot / "assets").mkdir(parents=True)
+    (robot / "assets" / "cube.obj").write_text(CUBE_OBJ)
+    xml = arm_xml("plain").replace("<option", '<compiler meshdir="assets"/><asset><mesh '
+                                   'name="cube" file="cube.obj"/></asset><option', 1)
+    xml = xml.replace('damping="0.01"/>\n  </body></body>', 'damping="0.01"/>\n  <geom type="mesh" '
+                      'mesh="cube" contype="0" conaffinity="0" mass="0"/></body></body>', 1)
+    (robot / "arm.xml").write_text(xml)
+    (robot / "log.csv").write_text(arm_log("plain", 3.0))
+    ds = load_dataset([robot / "log.csv"], model=robot / "arm.xml")  # cwd: the test's, not robot
+    assert ds.compiled("model").nmesh == 1
+    assert ds.with_timestep(0.5).compiled("model").nmesh == 1
 
 
 def test_paths_with_spaces_and_accents(tmp_path):

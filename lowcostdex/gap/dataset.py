@@ -235,6 +235,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             compiled = spec.compile()
         except Exception as exc:  # mujoco raises ValueError with the parser message
             raise LogError(f"{model}: cannot load the model: {exc}") from None
+        _absolute_asset_dirs(spec, model)
         models["model"] = spec.to_xml()
         rate, gears = rate_goal_actuators(compiled), actuator_gears(compiled)
         trajs = [read_log(p, rate, gears) for p in paths]
@@ -252,6 +253,20 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     ds = Dataset(models, pieces, sources, notes)
     ds.notes += _unshared_joints(ds)
     return ds
+
+
+def _absolute_asset_dirs(spec: mujoco.MjSpec, model: Path) -> None:
+    """Mesh and texture folders as absolute paths: the model is kept as XML text and compiled
+    again from it, where a relative ``meshdir="assets"`` (a user's model with its meshes beside
+    it) would be looked up from the working directory ("Error opening file")."""
+    base = model.resolve().parent
+    for attr in ("meshdir", "texturedir"):
+        d = getattr(spec, attr)
+        if not os.path.isabs(d):
+            setattr(spec, attr, str(base / d))
+    for hf in getattr(spec, "hfields", ()):
+        if hf.file and not os.path.isabs(hf.file):
+            hf.file = str(base / hf.file)
 
 
 def _unshared_joints(ds: Dataset) -> list[str]:

@@ -69,7 +69,9 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
     if "time" not in cols:
         raise LogError(f"{name}: missing column 'time' [s]; its columns: "
                        f"{_listed(cols)}; name the time stamps' column 'time' (in seconds)")
+    cols, dropped = _without_row_index(cols, name)
     cols, notes, cuts = _repair_rows(cols, name)
+    notes = dropped + notes
     acts: dict[str, dict[str, np.ndarray]] = {}
     joints: dict[str, dict[str, np.ndarray]] = {}
     for key, arr in cols.items():
@@ -78,7 +80,8 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
         prefix, sep, target = key.partition(":")
         if not sep or not target:
             raise LogError(f"{name}: column {key!r} is not '<kind>:<name>'; kinds: time, "
-                           + ", ".join(PREFIXES_ACTUATOR + PREFIXES_JOINT))
+                           + ", ".join(PREFIXES_ACTUATOR + PREFIXES_JOINT)
+                           + "; remove the column or rename it")
         if prefix in PREFIXES_ACTUATOR:
             acts.setdefault(target, {})[prefix] = arr
         elif prefix in PREFIXES_JOINT:
@@ -135,6 +138,25 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
         meta={"notes": notes, "cuts": cuts} if notes else {})
     check_signals(traj, rate_goals, gears)
     return traj
+
+
+def _without_row_index(cols: dict[str, np.ndarray], name: str
+                       ) -> tuple[dict[str, np.ndarray], list[str]]:
+    """Columns without a row index: a column that is not '<kind>:<name>' and numbers the rows
+    0..n-1 or 1..n (pandas' ``to_csv`` writes one, named '' or 'Unnamed: 0'; 'index', 'sample')
+    carries no data; it is left out and said."""
+    out, notes = {}, []
+    for key, arr in cols.items():
+        n = len(arr)
+        kind = key.partition(":")[0]
+        if key not in ("time", "goal_time") and kind not in PREFIXES_ACTUATOR + PREFIXES_JOINT \
+                and n:
+            a = np.sort(np.asarray(arr, dtype=float))
+            if np.array_equal(a, np.arange(n)) or np.array_equal(a, np.arange(1, n + 1)):
+                notes.append(f"{name}: column {key!r} numbers the rows (a row index); left out")
+                continue
+        out[key] = arr
+    return out, notes
 
 
 def _listed(cols: dict, n: int = 6) -> str:
