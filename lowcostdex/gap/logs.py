@@ -265,6 +265,11 @@ def write_log(path: str | Path, traj: Trajectory) -> Path:
 def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
     """Check that the log's names exist in ``model`` and that every actuator has a goal.
 
+    A goal is the actuator's ctrl: a position goal for position servos, a force/torque for a
+    ``motor``, a velocity for a ``velocity`` actuator. Position goals logged for a ``motor`` or
+    ``velocity`` actuator (they track the joint's angle) are refused: the model does not
+    describe the servo that took them.
+
     Raises:
       LogError naming the unknown or missing names and listing the model's.
     """
@@ -310,18 +315,39 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                                f"{hi:.4g}] by more than its width (degrees? write rad; MuJoCo "
                                "would clamp it)")
         kind = _not_a_position_servo(model, i)
-        if kind:
+        joint = (model.joint(int(model.actuator_trnid[i, 0])).name
+                 if model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT else None)
+        if kind == "a muscle" or (kind and joint in traj.joints and _position_like(
+                traj.goal[:, traj.actuators.index(act_names[i])],
+                traj.qpos[:, traj.joints.index(joint)])):
             raise LogError(f"{traj.name}: actuator {act_names[i]!r} is {kind}; the log's "
                            f"'goal:{act_names[i]}' is a position goal [rad]: model the servo as "
                            "<position kp=...> (or <general> with biastype=\"affine\" and a "
-                           "-kp position term, or <intvelocity>) and re-run")
-        if model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT:
-            j = model.joint(int(model.actuator_trnid[i, 0])).name
+                           "-kp position term, or <intvelocity>) and re-run (its goals track "
+                           f"'qpos:{joint}'; a log of this actuator's own input, a force/torque "
+                           "or velocity, is replayed as it is)")
+        if joint is not None:
+            j = joint
             if j not in traj.joints:
                 raise LogError(f"{traj.name}: joint {j!r} is driven by actuator "
                                f"{act_names[i]!r} but the log has no 'qpos:{j}' column: every "
                                "replay would start it at the model's initial pose; log its "
                                "position too")
+
+
+def _position_like(goal: np.ndarray, q: np.ndarray) -> bool:
+    """Whether a ``motor`` or ``velocity`` actuator's logged inputs (T,) look like position goals
+    of its joint's angles ``q`` (T,) [rad] rather than the forces/torques or velocities those
+    actuators take: correlated with the angle (> 0.8), of the angle's spread (within 2x) and
+    centred on it (within one spread). A torque log of a hanging arm correlates with its angle
+    too, but its torques [N m] match the angles' spread and centre only by coincidence."""
+    ok = np.isfinite(goal) & np.isfinite(q)
+    g, x = goal[ok], q[ok]
+    sg, sx = float(np.std(g)), float(np.std(x))
+    if len(g) < 3 or sg == 0.0 or sx == 0.0:
+        return False
+    corr = float(np.mean((g - g.mean()) * (x - x.mean())) / (sg * sx))
+    return corr > 0.8 and 0.5 < sg / sx < 2.0 and abs(g.mean() - x.mean()) < sx
 
 
 def _not_a_position_servo(model: mujoco.MjModel, i: int) -> str:
