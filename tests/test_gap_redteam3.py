@@ -264,12 +264,14 @@ def test_scoring_tells_exact_extra_family_miss_and_false_apart():
     s = sim.score(report(lat), truth)
     assert s["result"] == "exact" and s["params"][0]["inside"]
     assert sim.score(report(("latency", "prox", "delay", 0.05, 0.049, 0.051)), truth)["params"][0]["inside"] is False
-    assert sim.score(report(lat, ("mass_error", "abd", "scale", 1.1, 1, 1.2)), truth)["result"] == "extra"
+    assert sim.score(report(lat, ("mass_error", "abd", "scale", 1.1, 1.05, 1.2)), truth)["result"] == "extra"
+    idle = sim.score(report(lat, ("mass_error", "abd", "scale", 1.1, 0.95, 1.2)), truth)
+    assert idle["result"] == "exact" and idle["idle"] == ["mass_error[abd]"]
     assert sim.score(report(("latency", "abd", "delay", 0.06, 0.05, 0.07)), truth)["result"] == "miss"
     assert sim.score(report(), truth)["result"] == "miss"
     gain = sim.truth_dict(_case("servo", sim.Effect("mass", ("q",), 2.5)))
-    assert sim.score(report(("inertia_error", "q", "scale", 2, 1, 3)), gain)["result"] == "family"
-    assert sim.score(report(("inertia_error", "q", "scale", 2, 1, 3), ("latency", "q", "delay", 0.01, 0, 0.02)), gain)["result"] == "extra_family"
+    assert sim.score(report(("inertia_error", "q", "scale", 2, 1.5, 3)), gain)["result"] == "family"
+    assert sim.score(report(("inertia_error", "q", "scale", 2, 1.5, 3), ("latency", "q", "delay", 0.01, 0.005, 0.02)), gain)["result"] == "extra_family"
     clean = sim.truth_dict(_case("finger"))
     assert sim.score(report(), clean)["result"] == "clean"
     assert sim.score(report(lat), clean)["result"] == "false"
