@@ -184,6 +184,11 @@ CASES = [
                        "qpos:arm": np.full(800, 0.3)}),
              "too little motion to identify anything: peak-to-peak qpos [rad] arm 0; some "
              "joint must move at least 0.02 rad"),
+    log_case("the goal logged as the position",
+             csv_text({**servo_log(), "qpos:arm": servo_log()["goal:arm"]}),
+             "column 'qpos:arm' is at the row's new goal in 100 % of 652 goal steps, before the "
+             "goal was sent (its reading is taken first): the goal logged as the position (log "
+             "the servo's Present Position), or each row's goal one row late"),
     log_case("'Time' and 'time' both", csv_text(servo_log()).replace("time,goal:arm",
                                                                      "time,Time", 1),
              "columns 'time' and 'Time' name the same thing"),
