@@ -95,6 +95,8 @@ def table(rows: list[dict]) -> str:
                        f"{p['value']:.4g} [{p['interval'][0]:.4g}, {p['interval'][1]:.4g}]"
                        f"{'' if p['inside'] else ' OUT'}" for p in r["params"])
         named = ", ".join(r["named"]) or "-"
+        if r.get("idle"):
+            named += f" (also listed, every interval holding no effect: {', '.join(r['idle'])})"
         kinds = ", ".join(f"{k}[{','.join(j)}]" for k, j in zip(r["kinds"], r["on"], strict=True)) or "clean"
         lines.append(f"| {r['case']} | {r['rig']} | {kinds} | "
                      f"{named} | {r['result']} | {ps or '-'} | {r['wall_s']:.0f} |")

@@ -498,18 +498,37 @@ def effect_size(case: Case) -> dict:
 
 # ---------------------------------------------------------------- scoring
 
+# a parameter's "no effect" value (documented units: scale factors 1, sizes 0)
+NEUTRAL = {"scale": 1.0, "delay": 0.0, "width": 0.0, "offset": 0.0, "frictionloss": 0.0,
+           "damping": 0.0, "mu": 0.0}
+
+
+def _no_effect_here(cause: dict, k: int) -> bool:
+    """A cause listed on its k-th joint whose every parameter's 95 % interval there holds its
+    "no effect" value (a per-joint effect fitted on every joint, significant on some)."""
+    ps = cause.get("params", {})
+    return bool(ps) and all(n in NEUTRAL and p["interval"][k][0] <= NEUTRAL[n] <= p["interval"][k][1]
+                            for n, p in ps.items())
+
+
 def score(report: dict, truth: dict) -> dict:
     """Grade a report.json against ``truth`` (``truth_dict``). Pairs (effect, joint):
     exact = the hidden pairs named and nothing else; extra = the hidden pairs named plus
     others; family = each hidden pair named or a confusable neighbour on that joint and
     nothing unrelated; miss = a hidden pair neither named nor a neighbour; clean/false for
     cases without effects. Parameters whose meaning is documented are checked against
-    their 95 % interval."""
-    named = {(c["effect"], j) for c in report.get("causes", []) for j in c["joints"]}
+    their 95 % interval. A cause is named on a joint unless every parameter's interval there
+    holds its no-effect value (listed as ``idle``: fitted on every joint, not significant)."""
+    named, idle = set(), set()
+    for c in report.get("causes", []):
+        for k, j in enumerate(c["joints"]):
+            (idle if _no_effect_here(c, k) else named).add((c["effect"], j))
     hidden = {(c["effect"], j) for c in truth["causes"] for j in c["joints"]}
     names = sorted({f"{e}[{j}]" for e, j in named})
+    extra = {"idle": sorted(f"{e}[{j}]" for e, j in idle)}
     if not hidden:
-        return {"result": "clean" if not named else "false", "named": names, "params": []}
+        return {"result": "clean" if not named else "false", "named": names, "params": [],
+                **extra}
     fam = {(f, j) for e, j in hidden for f in FAMILY.get(e, set())}
     if hidden <= named:
         result = "exact" if named == hidden else "extra"
@@ -529,7 +548,7 @@ def score(report: dict, truth: dict) -> dict:
                         params.append({"effect": c["effect"], "param": pname, "joint": j,
                                        "truth": tv, "value": p["value"][k],
                                        "interval": [lo, hi], "inside": bool(lo <= tv <= hi)})
-    return {"result": result, "named": names, "params": params}
+    return {"result": result, "named": names, "params": params, **extra}
 
 
 # ---------------------------------------------------------------- cases (priority order)

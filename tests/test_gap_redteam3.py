@@ -32,7 +32,15 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import gap_truth_sim3 as sim  # noqa: E402
 
 # measured by bench/gap_redteam3.py (2026-11-26, see bench/RESULTS.md): what was named instead
-MISSES: dict[str, str] = {}
+MISSES: dict[str, str] = {
+    "fin_latency60_prox": "miss (dee30b5): viscous_damping + inertia_error (11.5x on prox) on all "
+                          "joints; the latency candidate fitted prox 60.5 ms (select gain 0.999) "
+                          "but was rejected at_bound: the clean joints' delays sit at the 2 ms "
+                          "lower bound",
+    "srv_stribeck": "family (84e2bf6): coulomb_friction 0.1035 only (breakaway 0.20 unnamed, "
+                    "held-out 28.7 -> 9.07 mrad, floor 0.63); stribeck_friction fitted static "
+                    "0.02-0.04",
+}
 
 
 def _steps(goals_at, t_end, rate=100.0):
@@ -256,12 +264,14 @@ def test_scoring_tells_exact_extra_family_miss_and_false_apart():
     s = sim.score(report(lat), truth)
     assert s["result"] == "exact" and s["params"][0]["inside"]
     assert sim.score(report(("latency", "prox", "delay", 0.05, 0.049, 0.051)), truth)["params"][0]["inside"] is False
-    assert sim.score(report(lat, ("mass_error", "abd", "scale", 1.1, 1, 1.2)), truth)["result"] == "extra"
+    assert sim.score(report(lat, ("mass_error", "abd", "scale", 1.1, 1.05, 1.2)), truth)["result"] == "extra"
+    idle = sim.score(report(lat, ("mass_error", "abd", "scale", 1.1, 0.95, 1.2)), truth)
+    assert idle["result"] == "exact" and idle["idle"] == ["mass_error[abd]"]
     assert sim.score(report(("latency", "abd", "delay", 0.06, 0.05, 0.07)), truth)["result"] == "miss"
     assert sim.score(report(), truth)["result"] == "miss"
     gain = sim.truth_dict(_case("servo", sim.Effect("mass", ("q",), 2.5)))
-    assert sim.score(report(("inertia_error", "q", "scale", 2, 1, 3)), gain)["result"] == "family"
-    assert sim.score(report(("inertia_error", "q", "scale", 2, 1, 3), ("latency", "q", "delay", 0.01, 0, 0.02)), gain)["result"] == "extra_family"
+    assert sim.score(report(("inertia_error", "q", "scale", 2, 1.5, 3)), gain)["result"] == "family"
+    assert sim.score(report(("inertia_error", "q", "scale", 2, 1.5, 3), ("latency", "q", "delay", 0.01, 0.005, 0.02)), gain)["result"] == "extra_family"
     clean = sim.truth_dict(_case("finger"))
     assert sim.score(report(), clean)["result"] == "clean"
     assert sim.score(report(lat), clean)["result"] == "false"
