@@ -238,7 +238,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                      0.1 + 0.25 * step + 0.2 * (r + 1) / cfg.max_rounds)
 
             fitmod.lockstep_lm(tracks, fit_fn, cfg.max_rounds, on_round=on_round,
-                               prune=fitmod.prune_tracks)
+                               prune=fitmod.prune_tracks, jacobian_at_end=False)
             best_track: dict[str, fitmod.Track] = {}
             for t in tracks:
                 name = t.structure.effects[-1]
@@ -249,7 +249,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             rescued = [t for t in best_track.values()
                        if fitmod.scan_limits(t, fit_fn) | fitmod.polish(t, fit_fn, ds.timestep)]
             if rescued:
-                fitmod.lockstep_lm(rescued, fit_fn, cfg.max_rounds // 2)
+                fitmod.lockstep_lm(rescued, fit_fn, cfg.max_rounds // 2, jacobian_at_end=False)
             if current.effects:
                 # joint refits (earlier effects free again) of the most promising candidates
                 joint_tracks = []
@@ -259,7 +259,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     joint_tracks.append(fitmod.Track(js, js.u(x0), label=f"{n}+joint"))
                 prog(f"round {step + 1}: joint refit of {len(joint_tracks)} candidates",
                      0.1 + 0.25 * step + 0.2)
-                fitmod.lockstep_lm(joint_tracks, fit_fn, cfg.max_rounds)
+                fitmod.lockstep_lm(joint_tracks, fit_fn, cfg.max_rounds, jacobian_at_end=False)
                 for t in joint_tracks:
                     n = t.structure.effects[-1]
                     if t.cost < best_track[n].cost:
@@ -640,7 +640,7 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
         keep = tuple(n for n in current.effects if n != drop)
         s = fitmod.Structure.build(keep, current.joints, ctx)
         t = fitmod.Track(s, s.u(s.values_from(effs)), label="backward")
-        fitmod.lockstep_lm([t], fit_fn, cfg.max_rounds)
+        fitmod.lockstep_lm([t], fit_fn, cfg.max_rounds, jacobian_at_end=False)
         current, cur_x = s, t.x
     return current, cur_x
 
@@ -653,7 +653,8 @@ def _joint_then_prune(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window], name
     big = fitmod.Structure.build(names, current.joints, ctx)
     base = big.values_from(current.to_effects(cur_x)) if current.effects else None
     tracks = [fitmod.Track(big, big.u(x0), label="big") for x0 in big.starts(base)]
-    fitmod.lockstep_lm(tracks, fit_fn, 2 * cfg.max_rounds, prune=fitmod.prune_tracks)
+    fitmod.lockstep_lm(tracks, fit_fn, 2 * cfg.max_rounds, prune=fitmod.prune_tracks,
+                       jacobian_at_end=False)
     best = min(tracks, key=lambda t: t.cost)
     return _backward(eng, ds, sel_eps, best.structure, best.x, cfg, floor_rms, ctx, fit_fn, [],
                      train_segs, min_size=1, rng=rng)

@@ -328,6 +328,7 @@ class Track:
     rejects: int = 0
     history: list[float] = field(default_factory=list)
     fd_scale: float = 1.0  # finite-difference steps x this (10 after a stall, see lockstep_lm)
+    evals: int = 0  # residual evaluations (replays of the fitted windows) spent on this track
 
     @property
     def x(self) -> np.ndarray:
@@ -340,8 +341,14 @@ class Track:
 def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int = 20,
                 rtol: float = 1e-3, on_round: Callable[[int, int], None] | None = None,
                 prune: Callable[[int, Sequence[Track]], None] | None = None,
-                max_rejects: int = 5) -> None:
-    """Fit all tracks by bounded Levenberg-Marquardt, one batched evaluation per round.
+                max_rejects: int = 5, jacobian_at_end: bool = True) -> None:
+    """Fit all tracks by bounded Levenberg-Marquardt, two batched evaluations per round.
+
+    Each round first evaluates every live track's trial point (one batched pass); only the
+    tracks that accept it and go on get their finite-difference columns there (a second pass).
+    A rejected trial keeps the previous Jacobian, so its columns would be thrown away: the
+    fits take the same steps as with the columns evaluated beside every trial, for fewer
+    replays (``Track.evals`` counts them).
 
     Args:
       tracks: tracks with ``u`` at their start; updated in place (``u``, ``cost``, ``r``,
@@ -350,12 +357,16 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
       max_rounds: rounds at most.
       rtol: stop when an accepted step lowers the cost by less than this fraction.
       on_round: progress callback (round, live tracks).
-      prune: called after each round with (round, tracks); may end tracks (``done = True``).
+      prune: called after each round's trial pass with (round, tracks); may end tracks
+        (``done = True``).
       max_rejects: a track ends after this many rejected trials in a row, unless its
         Jacobian came from the fine finite-difference steps: the replayed response has small
         steps of its own (saturation and delay switching at physics steps; seen: a 2.5x gain
         fit stalled at 2.06 because the 1e-3 secant's slope had the wrong sign, the 1e-2 one
         the right sign), so it restarts there once with steps 10x wider.
+      jacobian_at_end: also evaluate the Jacobian at a track's last accepted point when the
+        fit ends there (``jac`` for intervals); False leaves ``jac`` None then (screening
+        fits, which only use the fitted point).
     """
     for t in tracks:
         t.trial = t.u.copy()
@@ -363,18 +374,10 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
         live = [t for t in tracks if not t.done]
         if not live:
             break
-        points, owners = [], []
-        for t in live:
-            cols = _fd_points(t)
-            for u in cols:
-                points.append((t.structure, t.structure.x(u)))
-            owners.append((t, cols))
-        res = residual(points)
-        k = 0
-        for t, cols in owners:
-            r_trial = res[k]
-            fd_r = res[k + 1:k + len(cols)]
-            k += len(cols)
+        res = residual([(t.structure, t.structure.x(t.trial)) for t in live])
+        accepted, stepping = [], []
+        for t, r_trial in zip(live, res, strict=True):
+            t.evals += 1
             cost = 0.5 * float(r_trial @ r_trial)
             t.rounds += 1
             if not np.isfinite(cost):
@@ -382,14 +385,12 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
             if t.r is None or cost < t.cost:
                 improvement = ((t.cost - cost) / t.cost if np.isfinite(t.cost) and t.r is not None
                                else 1.0)
-                t.u, t.cost, t.r = cols[0].copy(), cost, r_trial
-                t.jac = np.stack([(fr - r_trial) / (c - cols[0])[i]
-                                  for i, (fr, c) in enumerate(zip(fd_r, cols[1:], strict=True))],
-                                 axis=1) if fd_r else np.zeros((len(r_trial), 0))
+                t.u, t.cost, t.r, t.jac = t.trial.copy(), cost, r_trial, None
                 t.mu = max(t.mu / 3.0, 1e-7)
                 t.rejects = 0
                 if improvement < rtol and t.rounds > 1:
                     t.done = True
+                accepted.append(t)
             else:
                 # Marquardt damping scales the step by ~1 / (1 + mu): grow mu fast
                 t.mu = max(10.0 * t.mu, 0.1)
@@ -398,16 +399,22 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
                     if t.fd_scale == 1.0 and t.jac is not None and t.jac.shape[1]:
                         # the next round re-evaluates the Jacobian here with wider steps
                         t.fd_scale, t.trial, t.r, t.rejects, t.mu = 10.0, t.u.copy(), None, 0, 1e-2
+                        t.jac = None
                         t.history.append(t.cost)
                         continue
                     t.done = True
             t.history.append(t.cost)
             if not t.done:
+                stepping.append(t)
+        if prune is not None:
+            prune(rnd, tracks)
+        last = rnd == max_rounds - 1  # no next trial: a Jacobian here only for ``jac``
+        _jacobians([t for t in accepted if jacobian_at_end or not (t.done or last)], residual)
+        for t in stepping if not last else ():
+            if not t.done:
                 t.trial = _lm_step(t)
                 if t.trial is None:
                     t.done = True
-        if prune is not None:
-            prune(rnd, tracks)
         if on_round is not None:
             on_round(rnd, len(live))
     # a track cut off right after its wide-step restart (residual cleared, see above) gets its
@@ -416,9 +423,30 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
     for t in pending:
         t.trial, t.done = t.u.copy(), False
     if pending:
-        lockstep_lm(pending, residual, 1, rtol, max_rejects=max_rejects)
+        lockstep_lm(pending, residual, 1, rtol, max_rejects=max_rejects,
+                    jacobian_at_end=jacobian_at_end)
     for t in tracks:
         t.done = True
+
+
+def _jacobians(tracks: Sequence[Track], residual: ResidualFn) -> None:
+    """Finite-difference Jacobians of ``tracks`` at their accepted points (one batched pass;
+    forward differences from the residual already evaluated there)."""
+    points, owners = [], []
+    for t in tracks:
+        t.trial = t.u.copy()
+        cols = _fd_points(t)[1:]
+        points += [(t.structure, t.structure.x(u)) for u in cols]
+        owners.append((t, cols))
+    res = residual(points) if points else []
+    k = 0
+    for t, cols in owners:
+        fd_r = res[k:k + len(cols)]
+        k += len(cols)
+        t.evals += len(cols)
+        t.jac = np.stack([(fr - t.r) / (c - t.u)[i]
+                          for i, (fr, c) in enumerate(zip(fd_r, cols, strict=True))],
+                         axis=1) if cols else np.zeros((len(t.r), 0))
 
 
 # Parameters whose response is piecewise smooth at the physics-step scale (the native actuator
@@ -630,7 +658,7 @@ def step_shift(t: Track, residual: ResidualFn, max_rounds: int, rtol: float = 1e
     step phase, the integrator) biases every fitted value alike; no resampling of the data can
     see such a bias, but the move between two steps sizes it."""
     nt = Track(t.structure, t.u.copy(), label=t.label + "+finer step")
-    lockstep_lm([nt], residual, max_rounds, rtol=rtol)
+    lockstep_lm([nt], residual, max_rounds, rtol=rtol, jacobian_at_end=False)
     return nt.u - t.u
 
 

@@ -31,11 +31,19 @@ together at the physics timestep:
   window's start is the integral of the goals that arrived before it from the log's start, where
   the servo held its measured angle against the static load (``gap.activation``);
 * predictions are the encoder readings (observation effects applied) interpolated linearly at the
-  measured sample times.
+  measured sample times;
+* a column already replayed on the same windows is answered from memory (bitwise the same
+  predictions: a simulation does not depend on the others in its batch).
+
+Why one module (over 600 lines): the grid of a window's goals, their delayed copies, the
+saturation matching, the hidden state carried into a window and the memory of replayed columns
+all belong to the one ``Replayer`` state that steps the batches; the activations it carries are
+``gap.activation``.
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -44,10 +52,11 @@ import numpy as np
 
 from lowcostdex.gap.activation import Activations, position_like
 from lowcostdex.gap.dataset import Dataset, Window
-from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
+from lowcostdex.sim.effects import CAUSES, EFFECTS, AppliedEffect, Targets
 from lowcostdex.sim.plant import BatchPlant, prepare_spec
 
 Column = Sequence[AppliedEffect]
+_MEMO_BYTES = 64 * 2 ** 20  # predictions kept for repeated columns (``Replayer.run``)
 _ORDER = {name: i for i, name in enumerate(EFFECTS)}
 
 
@@ -110,6 +119,10 @@ class Replayer:
                                      zip(ds.effect_joints, targets.actuators, strict=True)}
         self._acts = Activations(ds, self._variants, self._act_idx)
         self.steps_run = 0  # simulated sim-steps (for throughput reports)
+        # predictions already replayed: (windows, column) -> per-window predictions (``run``)
+        self._memo: OrderedDict[tuple, list[np.ndarray]] = OrderedDict()
+        self._memo_bytes = 0
+        self.memo_hits = 0
 
     # ------------------------------------------------------------------------------------------
     def grid(self, w: Window) -> _Grid:
@@ -223,6 +236,42 @@ class Replayer:
           (pred, peaks): pred[c][w] is (n_w, nj) predicted readings [rad] at the window's
           samples; peaks is (ncol, na) [N m] or None.
         """
+        if (force_peak or goal_shift or not columns
+                or not all(e.name in CAUSES for c in columns for e in c)):  # noise: rng
+            return self._run(windows, columns, force_peak, goal_shift)
+        # a column already replayed on these windows is not replayed again (a fit's restart
+        # point, a scan's best grid value, the select split's predictions of the current
+        # model): the same simulations give the same predictions
+        wkey = tuple(windows)
+        keys = [(wkey, _column_key(c)) for c in columns]
+        todo: dict[tuple, int] = {}
+        for c, key in enumerate(keys):
+            if key not in self._memo and key not in todo:
+                todo[key] = c
+        if todo:
+            fresh, _ = self._run(windows, [columns[c] for c in todo.values()])
+            for key, p in zip(todo, fresh, strict=True):
+                self._remember(key, p)
+        self.memo_hits += len(columns) - len(todo)
+        out = []
+        for key in keys:
+            self._memo.move_to_end(key)
+            out.append(list(self._memo[key]))
+        return out, None
+
+    def _remember(self, key: tuple, pred: list[np.ndarray]) -> None:
+        """Keep a column's predictions (least recently used ones go beyond ``_MEMO_BYTES``)."""
+        for p in pred:
+            p.setflags(write=False)  # shared by every later caller
+        self._memo[key] = pred
+        self._memo_bytes += sum(p.nbytes for p in pred)
+        while self._memo_bytes > _MEMO_BYTES and len(self._memo) > 1:
+            _, old = self._memo.popitem(last=False)
+            self._memo_bytes -= sum(p.nbytes for p in old)
+
+    def _run(self, windows: Sequence[Window], columns: Sequence[Column],
+             force_peak: bool = False, goal_shift: float = 0.0
+             ) -> tuple[list[list[np.ndarray]], np.ndarray | None]:
         # a column with a structural effect (backlash) runs twice: with its hidden dofs (the
         # play hinge) and without (the massless-motor play operator); the regime closer to the
         # data is kept (``_keep_closer``)
@@ -512,6 +561,14 @@ def _single_switches(u: np.ndarray, values: np.ndarray, before: np.ndarray, n_st
     old[k[i]] = np.vstack([before[None, :], v])[i]
     new[k[i]] = v[i]
     return split, old, new
+
+
+def _column_key(col: Column) -> tuple:
+    """A hashable key of a column's effects and their exact values (order kept: effects act
+    in the column's order)."""
+    return tuple((e.name, tuple(e.joints),
+                  tuple((k, np.asarray(v, float).tobytes()) for k, v in sorted(e.values.items())))
+                 for e in col)
 
 
 def _union(cols: Sequence[Column]) -> list[tuple[str, tuple[str, ...]]]:
