@@ -119,18 +119,16 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     """Rows streamed (at most MAX_SAMPLES), a UTF-8 byte-order mark (spreadsheets) ignored."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
-            raw = csv.reader(f)
+            raw = csv.reader(f, delimiter=_delimiter(f))
             reader = (row for row in raw  # blank lines and '#' comments skipped
                       if (len(row) > 1 or (row and row[0].strip()))
                       and not row[0].lstrip().startswith("#"))
             header = [h.strip() for h in next(reader, [])]
             if not header:
                 raise LogError(f"{path}: empty file (no header row)")
-            for sep, said in ((";", "';'"), ("\t", "tabs")):
-                if len(header) == 1 and sep in header[0]:
-                    raise LogError(f"{path}: the header {header[0]!r} is separated by {said}; "
-                                   "the log format separates columns by ',' (and uses '.' for "
-                                   "decimals)")
+            if len(header) == 1 and ";" in header[0]:  # ';' may come with decimal commas
+                raise LogError(f"{path}: the header {header[0]!r} is separated by ';'; the log "
+                               "format separates columns by ',' (and uses '.' for decimals)")
             trailing = len(header) > 1 and header[-1] == ""  # 'a,b,c,' (a logger's habit)
             if len(set(header)) != len(header):
                 dup = sorted({h for h in header if header.count(h) > 1})
@@ -159,6 +157,17 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     header = header[:len(header) - trailing]
     data = np.array(rows, dtype=float).reshape(len(rows), len(header))
     return {h: data[:, i] for i, h in enumerate(header)}
+
+
+def _delimiter(f) -> str:
+    """',' or, for a header separated by tabs and holding no ',' (a tab-separated export), tab;
+    ``f`` is left at its start."""
+    for line in f:
+        if line.strip() and not line.lstrip().startswith("#"):
+            f.seek(0)
+            return "\t" if "\t" in line and "," not in line else ","
+    f.seek(0)
+    return ","
 
 
 def _is_float(cell: str) -> bool:
