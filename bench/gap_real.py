@@ -442,7 +442,7 @@ def main(argv=None) -> int:
                     help="structure to identify (default: identify.servo_structure)")
     ap.add_argument("--analyze", action="store_true",
                     help="also run the automatic effect selection (gap analyze) on the split")
-    ap.add_argument("--max-rounds", type=int, default=30)
+    ap.add_argument("--max-rounds", type=int, default=IdentifyConfig.max_rounds)
     ap.add_argument("--seeds", type=int, default=0,
                     help="also identify from N jittered starts (seeds 1..N) and print the spread")
     ap.add_argument("--jitter", type=float, default=1e-3,

@@ -94,7 +94,9 @@ class IdentifyConfig:
         from scratch that loss is too flat for LM, from the least-squares optimum it only
         moves where it lowers the absolute error.
       delta: [rad] the smoothing width of the "mae" loss.
-      max_rounds: Levenberg-Marquardt rounds at most.
+      max_rounds: Levenberg-Marquardt rounds at most (the first stage; 30 before 2026-11-26
+        13:00: 15 measured -27 % CPU on STS3032, 254 vs 340-364 s, held out 22.0 vs 21.6 mrad;
+        STS3250 lift_and_drop held out 76.7 vs 209.5; bench/RESULTS.md).
       rtol: stop when an accepted step lowers the cost by less than this fraction.
       nthread: simulation threads (0: all CPUs).
       cold: the joint (second) stage also runs the catalogue starts from scratch, besides
@@ -123,7 +125,7 @@ class IdentifyConfig:
     loss: str = "mse"
     hold: frozenset = HELD_ALWAYS
     delta: float = 0.005
-    max_rounds: int = 30
+    max_rounds: int = 15
     rtol: float = 1e-4
     nthread: int = 0
     cold: bool = False
