@@ -272,8 +272,11 @@ def mx_checks(root: Path) -> dict:
         for mx in ("mx64", "mx106"):
             log = {"mass": raw["m"], "length": raw["l"], "kp": 32, "vin": 12.0, "motor": mx,
                    "trajectory": "passive_fall",
+                   # torque off throughout: the goal is never acted on; held at the first
+                   # reading (a goal equal to each reading reads as a goal logged as the
+                   # position, which the log checks refuse)
                    "entries": [{"timestamp": float(a), "position": float(b),
-                                "goal_position": float(b), "torque_enable": False}
+                                "goal_position": float(q[0]), "torque_enable": False}
                                for a, b in zip(t, q, strict=True)]}
             path = Path(tmp) / f"fall_{mx}.json"
             path.write_text(json.dumps(log))
