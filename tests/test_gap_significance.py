@@ -183,17 +183,20 @@ def test_step_interval_holds_a_first_order_discretisation_bias():
     """Exact decay x(t) = exp(-a t), a = 5 /s, fitted with forward Euler at step h: the
     Euler model x_(n+1) = (1 - a_h h) x_n reproduces the exact samples for
     a_h = (1 - exp(-a h)) / h, a first-order bias (a - a^2 h / 2 + ...). Refitted at h / 2,
-    the move is a_(h/2) - a_h; the interval from it holds the true 5 /s for every h, while the
-    old symmetric one (fitted value +- the move) does not."""
+    the move is a_(h/2) - a_h; the interval from it holds the true 5 /s for every h (the
+    Richardson value a_h + 2 (a_(h/2) - a_h) is within a second-order term of it), while the
+    fitted value +- the move does not. The interval is symmetric: a move of the same size the
+    other way (a step error that is not monotone) is held as well."""
     a = 5.0
     for h in (0.002, 0.01, 0.02, 0.04):
         a_h = (1 - math.exp(-a * h)) / h
         a_half = (1 - math.exp(-a * h / 2)) / (h / 2)
         shift = np.array([a_half - a_h])
         mid, half = sg.step_interval(np.array([a_h]), np.array([1e-6]), shift, 0.5)
+        assert mid[0] == a_h
         assert mid[0] - half[0] <= a <= mid[0] + half[0], h
+        assert mid[0] - half[0] <= a_h - 2 * shift[0]  # the mirror image too
         assert not a_h - math.hypot(1e-6, shift[0]) <= a <= a_h + math.hypot(1e-6, shift[0])
-        # the extrapolated end is within a second-order term of the truth
         assert abs(a_h + 2 * shift[0] - a) <= (a * h) ** 2 * a
     # no move: the data's interval about the fitted value
     mid, half = sg.step_interval(np.array([1.0]), np.array([0.1]), np.zeros(1), 0.5)

@@ -527,9 +527,8 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     widest of the residual-noise interval, the block spread and the autocorrelation-consistent
     sandwich over blocks (``significance.hac_halfwidths``). The replay's discretisation: the
     fit moves by ``shift`` at ``interval_step`` of the physics step; for a first-order
-    integrator its value at a zero step is ``k = 1 / (1 - interval_step)`` times that move away
-    (Richardson). The interval spans the fitted and the extrapolated value, each widened by
-    the data's half-width and the move (root sum of squares: the extrapolation's own error)."""
+    integrator its value at a zero step is ``1 / (1 - interval_step)`` times that move away
+    (Richardson), on either side (``significance.step_interval``)."""
     noise = fitmod.interval_halfwidths(t.r, t.jac, effective_n(t.r))
     blocks = significance.residual_blocks(ds, segs, cfg.interval_block)
     data = np.maximum.reduce([noise, fitmod.block_halfwidths(t.r, t.jac, blocks),

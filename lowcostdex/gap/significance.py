@@ -105,12 +105,14 @@ def step_interval(u: np.ndarray, data: np.ndarray, shift: np.ndarray, fraction: 
 
     ``u``: values fitted at the model's physics step h; ``shift``: how far they move when
     refitted at ``fraction`` h; ``data``: the data's half-widths. For a first-order integrator
-    the bias is proportional to the step, so the zero-step value is u + shift / (1 - fraction)
-    (Richardson extrapolation). The interval spans the fitted and the extrapolated values,
-    each side widened by the root sum of squares of ``data`` and ``shift`` (the
-    extrapolation's own uncertainty)."""
+    the bias is proportional to the step, so the zero-step value is ``shift / (1 - fraction)``
+    away (Richardson extrapolation). Its size is trusted, not its direction (a saturating
+    servo's step error need not be monotone in the step: the independent bench's torque limit
+    moved away from the truth at half the step): the interval is the fitted value +- that
+    distance plus the root sum of squares of ``data`` and ``shift`` (the extrapolation's own
+    uncertainty)."""
     ext = np.asarray(shift, float) / (1.0 - fraction)
-    return u + ext / 2, np.abs(ext) / 2 + np.hypot(data, shift)
+    return np.asarray(u, float), np.abs(ext) + np.hypot(data, shift)
 
 
 def null_u(f: fitmod.Free, ctx: fitmod.Context) -> tuple[float, int] | None:
