@@ -78,6 +78,10 @@ MISSES: dict[str, str] = {
     "gain_high_arm2_50hz": "gain_error 1.846 [1.820, 1.872] shoulder (truth 1.8, outside) / "
                            "1.797 elbow plus backlash 3.9 / 2.8 mrad and coulomb_friction 2.2 / "
                            "2.9 mN m, which raise the held-out RMSE (3.25 -> 3.49 / 3.40 mrad)",
+    "torque_coulomb_pendulum": "miss (3c61633): torque limit 1.2 + Coulomb 0.1 named "
+                               "load_dependent_friction mu 0.553 (held-out 306 -> 70.4 mrad); "
+                               "the torque_limit candidate fitted 1.085 with select gain 0.99, "
+                               "in range, not accepted",
 }
 
 

@@ -40,6 +40,14 @@ MISSES: dict[str, str] = {
     "srv_stribeck": "family (84e2bf6): coulomb_friction 0.1035 only (breakaway 0.20 unnamed, "
                     "held-out 28.7 -> 9.07 mrad, floor 0.63); stribeck_friction fitted static "
                     "0.02-0.04",
+    "srv_backlash_output": "miss (5d3eaa3): 0.05 rad play, loop on the output shaft, named "
+                           "gain_error 1.12 + latency 2.4 ms (held-out 11.5 -> 9.7 mrad, floor "
+                           "0.82); backlash candidate fitted 3.3 mrad",
+    "fin_backlash080_dist": "miss (5d3eaa3): 0.08 rad play behind a rotor-side encoder, 'no "
+                            "significant discrepancy' (held-out 0.83 mrad, floor 0.68)",
+    "srv_coulomb_stall_50hz": "extra (3c61633): Coulomb 1.2 N m (80 % of stall) named "
+                              "coulomb_friction 0.706 [0.493, 0.908] (truth outside) plus "
+                              "backlash 0.30 rad and viscous_damping 0.062",
 }
 
 
