@@ -703,3 +703,23 @@ def test_a_goal_shift_probe_is_the_same_replay_later():
     for bad in ((1.0,), (-0.01,)):
         with pytest.raises(ConfigError, match="probes"):
             GapConfig(probes=bad)
+
+
+def test_replayed_columns_beyond_the_memory_cap_are_still_returned(monkeypatch):
+    """A call whose new columns alone exceed the memory of replayed columns returns them all
+    (seen on a 9-joint D'Claw joint refit: a KeyError), equal to replaying each alone."""
+    from lowcostdex.gap import replay as replay_mod
+    from lowcostdex.sim.effects import AppliedEffect
+
+    ds = _tiny_dataset(n_logs=1, duration=2.0)
+    eps = episodes(ds, None)
+    cols = [[AppliedEffect("latency", ds.effect_joints, {"delay": np.full(1, d)})]
+            for d in (0.004, 0.008, 0.012)]
+    alone = [replay_mod.Replayer(ds, ["latency"])._run(eps, [c])[0][0] for c in cols]
+    monkeypatch.setattr(replay_mod, "_MEMO_BYTES", 1)
+    rep = replay_mod.Replayer(ds, ["latency"])
+    for _ in range(2):  # new columns, then the same again
+        got = rep.run(eps, cols)[0]
+        for g, a in zip(got, alone, strict=True):
+            for x, y in zip(g, a, strict=True):
+                np.testing.assert_array_equal(x, y)

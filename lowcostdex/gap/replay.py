@@ -248,15 +248,18 @@ class Replayer:
         for c, key in enumerate(keys):
             if key not in self._memo and key not in todo:
                 todo[key] = c
+        fresh: dict[tuple, list[np.ndarray]] = {}
         if todo:
-            fresh, _ = self._run(windows, [columns[c] for c in todo.values()])
-            for key, p in zip(todo, fresh, strict=True):
-                self._remember(key, p)
+            fresh = dict(zip(todo, self._run(windows, [columns[c] for c in todo.values()])[0],
+                             strict=True))
         self.memo_hits += len(columns) - len(todo)
         out = []
         for key in keys:
-            self._memo.move_to_end(key)
-            out.append(list(self._memo[key]))
+            if key not in fresh:
+                self._memo.move_to_end(key)
+            out.append(list(fresh[key] if key in fresh else self._memo[key]))
+        for key, p in fresh.items():  # after reading: remembering may forget older columns
+            self._remember(key, p)
         return out, None
 
     def _remember(self, key: tuple, pred: list[np.ndarray]) -> None:
