@@ -723,3 +723,16 @@ def test_replayed_columns_beyond_the_memory_cap_are_still_returned(monkeypatch):
         for g, a in zip(got, alone, strict=True):
             for x, y in zip(g, a, strict=True):
                 np.testing.assert_array_equal(x, y)
+
+def test_a_delay_at_its_one_step_floor_is_no_latency_not_a_fit_on_a_bound():
+    """A latency fitted on three joints of which one has it (60 ms) and two do not: the clean
+    joints' delays sit at the search floor, one physics step (2 ms) above the null 0 s. That is
+    "no latency there", not an implausible fit (redteam3's fin_latency60_prox: the candidate was
+    rejected for it). A gain error at its lower bound 0.2 (null 1) is still on a bound."""
+    ctx = _ctx(peak_force=np.full(3, 5.0), stall=np.full(3, np.inf), damping=np.full(3, 0.05))
+    s = fitmod.Structure.build(("latency",), ("a", "b", "c"), ctx)
+    assert [f.lo for f in s.free] == [0.002] * 3  # one physics step (ctx.dt)
+    u = s.u(np.array([0.06, 0.002, 0.002]))
+    assert fitmod.at_bounds(s, u) == []
+    g = fitmod.Structure.build(("gain_error",), ("a",), _ctx())
+    assert fitmod.at_bounds(g, g.u(np.array([0.2]))) == [(0, "lower")]

@@ -236,13 +236,22 @@ class Structure:
 def at_bounds(s: Structure, u: np.ndarray) -> list[tuple[int, str]]:
     """Free scalars of ``s`` whose value ``u`` (optimizer coordinates) sits on a search bound
     that is not the effect's null (a friction at 0 is absent, not at a bound): (index, "lower" or
-    "upper")."""
+    "upper").
+
+    A bound between the null and the rest of the range (a delay's lower bound of one physics
+    step above the null 0; a torque limit's upper bound, the model's peak force, below the null
+    inf) is "as little of the effect as the search can express": a joint without the effect
+    sits there, and that is not an implausible fit (a 60 ms latency on one finger joint was
+    rejected because the two clean joints' delays sat at 2 ms)."""
     lo, hi = s.u_bounds()
     out = []
     for i, f in enumerate(s.free):
         null = effect(f.effect).param(f.param).null
         for b, side in ((lo[i], "lower"), (hi[i], "upper")):
-            if abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
+            value = f.from_u(b)
+            toward_null = null <= value if side == "lower" else null >= value
+            if (abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(value, null)
+                    and not toward_null):
                 out.append((i, side))
     return out
 
