@@ -629,7 +629,8 @@ def interval_halfwidths(r: np.ndarray, jac: np.ndarray, n_eff: float) -> np.ndar
     return half * math.sqrt(n / max(n_eff, 1.0))
 
 
-def block_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice]) -> np.ndarray:
+def block_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice],
+                     bandwidth: float | Callable[[np.ndarray], float] = 0.0) -> np.ndarray:
     """95 % half-widths in optimizer coordinates from how differently stretches of data pull
     on the parameters: the block sandwich covariance A^-1 (sum_b g_b g_b^T) A^-1 with A = J^T J
     and g_b = J_b^T r_b centred over the blocks (a linearized jackknife over blocks), times
@@ -638,6 +639,11 @@ def block_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice]) ->
     The residual-noise interval (``interval_halfwidths``) only knows the noise level; when the
     model is slightly wrong, different blocks want different values and this one grows with
     their spread. Null directions and fewer blocks than parameters + 1 give inf.
+
+    ``bandwidth`` L > 0 (in blocks; or a function of the centred block scores (nb, p) giving it)
+    adds the Newey-West lags: S = sum_b g_b g_b^T + sum_(l=1..L) (1 - l / (L + 1)) (G_l +
+    G_l^T), G_l = sum_b g_b g_(b-l)^T, Student-t with max(nb / (L + 1) - p, 1) degrees of
+    freedom (``significance.hac_halfwidths``).
     """
     from scipy import special
 
@@ -653,8 +659,14 @@ def block_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice]) ->
     ainv = (v[:, ~null] / lam[~null]) @ v[:, ~null].T
     g = np.stack([jac[b].T @ r[b] for b in blocks])
     g = g - g.mean(axis=0)
-    cov = ainv @ (g.T @ g) @ ainv * nb / (nb - p)
-    half = np.sqrt(np.maximum(np.diag(cov), 0.0)) * special.stdtrit(nb - p, 0.975)
+    L = float(bandwidth(g)) if callable(bandwidth) else float(bandwidth)
+    s = g.T @ g
+    for lag in range(1, int(math.floor(L)) + 1):
+        gl = g[lag:].T @ g[:-lag]
+        s += (1 - lag / (L + 1)) * (gl + gl.T)
+    cov = ainv @ s @ ainv * nb / (nb - p)
+    dof = max(nb / (L + 1) - p, 1.0)
+    half = np.sqrt(np.maximum(np.diag(cov), 0.0)) * special.stdtrit(dof, 0.975)
     touches_null = np.any(np.abs(v[:, null]) > 1e-8, axis=1) if null.any() else np.zeros(p, bool)
     return np.where(touches_null, np.inf, half)
 

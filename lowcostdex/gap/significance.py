@@ -70,33 +70,11 @@ def hac_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice],
     g_b g_(b-l)^T and Bartlett weights w_l = 1 - l / (L + 1), times nb / (nb - p); the quantile
     is Student-t with nb / (L + 1) - p degrees of freedom (fewer independent blocks when they
     are correlated; at least 1). ``bandwidth`` L in blocks (None: ``andrews_bandwidth``).
-    L = 0 is ``fit.block_halfwidths``. Null directions and fewer blocks than parameters + 1
-    give inf.
+    L = 0 is the plain block sandwich. Null directions and fewer blocks than parameters + 1
+    give inf. Computed by ``fit.block_halfwidths``.
     """
-    from scipy import special
-
-    n, p = jac.shape
-    nb = len(blocks)
-    if p == 0:
-        return np.zeros(0)
-    if nb <= p:
-        return np.full(p, np.inf)
-    lam, v = np.linalg.eigh(jac.T @ jac)
-    lam_max = float(np.max(lam))
-    null = lam / lam_max < 1e-15 if lam_max > 0 else np.ones(p, bool)
-    ainv = (v[:, ~null] / lam[~null]) @ v[:, ~null].T
-    g = np.stack([jac[b].T @ r[b] for b in blocks])
-    g = g - g.mean(axis=0)
-    L = andrews_bandwidth(g) if bandwidth is None else float(bandwidth)
-    s = g.T @ g
-    for lag in range(1, int(math.floor(L)) + 1):
-        gl = g[lag:].T @ g[:-lag]
-        s += (1 - lag / (L + 1)) * (gl + gl.T)
-    cov = ainv @ s @ ainv * nb / (nb - p)
-    dof = max(nb / (L + 1) - p, 1.0)
-    half = np.sqrt(np.maximum(np.diag(cov), 0.0)) * special.stdtrit(dof, 0.975)
-    touches_null = np.any(np.abs(v[:, null]) > 1e-8, axis=1) if null.any() else np.zeros(p, bool)
-    return np.where(touches_null, np.inf, half)
+    return fitmod.block_halfwidths(r, jac, blocks,
+                                   andrews_bandwidth if bandwidth is None else bandwidth)
 
 
 def step_interval(u: np.ndarray, data: np.ndarray, shift: np.ndarray, fraction: float
