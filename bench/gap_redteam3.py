@@ -21,159 +21,20 @@ interval or not; wall time. Prints progress lines, a table and a summary line.
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
 import pathlib
-import shutil
-import subprocess
 import sys
-import tempfile
-import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
-import gap_truth_sim3 as sim  # noqa: E402
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import redteam_harness as harness  # noqa: E402
+
+sim = harness.truth_module("gap_truth_sim3")
 
 QUICK = ("fin_latency60_prox", "srv_stribeck", "fin_gain035_abd_50hz_posonly",
          "fin_clean_noisy", "srv_backlash_output", "fin_backlash080_dist")
 
 
-def analyze_command(files: dict, out: pathlib.Path, threads: int) -> list[str]:
-    exe = shutil.which("lowcostdex") or "lowcostdex"
-    return [exe, "gap", "analyze", "--model", files["model"], "--log", *files["logs"],
-            "--out", str(out), "--seed", "0", "--threads", str(threads)]
-
-
-def run_case(case: sim.Case, root: pathlib.Path, threads: int = 1) -> dict:
-    """Generate ``case`` under ``root/<name>/data``, analyse it into ``root/<name>/report`` and
-    score it. Returns the row of the table."""
-    data, out = root / case.name / "data", root / case.name / "report"
-    t0 = time.perf_counter()
-    files = sim.write_case(case, data)
-    gen_s = time.perf_counter() - t0
-    cmd = analyze_command(files, out, threads)
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    row = {"case": case.name, "rig": case.rig, "hidden": sorted(case.causes),
-           "kinds": [e.kind for e in case.effects], "on": [list(e.joints) for e in case.effects],
-           "values": [[e.value, *e.extra] for e in case.effects], "rate": case.rate,
-           "seconds": sum(case.durations), "qvel": case.qvel, "note": case.note,
-           "wall_s": round(wall, 1), "generate_s": round(gen_s, 1), "exit": proc.returncode,
-           "command": " ".join(cmd)}
-    if proc.returncode != 0:
-        row.update(result="crash", named=[], params=[],
-                   stderr=(proc.stderr or proc.stdout)[-2000:])
-        return row
-    report = json.loads((out / "report.json").read_text())
-    row.update(sim.score(report, files["truth"]))
-    row["verdict"] = report.get("verdict")
-    g = report.get("gain") or {}
-    row["heldout_rmse"] = [g.get("baseline_rmse"), g.get("extended_rmse")]
-    row["causes"] = [{"effect": c["effect"], "joints": c["joints"],
-                      "params": {k: v["value"] for k, v in c["params"].items()},
-                      "widened": bool(c.get("widened"))} for c in report.get("causes", [])]
-    return row
-
-
-def rescore(row: dict) -> dict:
-    """``row`` re-scored from its kept report (``--keep``) with the current scorer."""
-    if row["result"] == "crash":
-        return row
-    out = pathlib.Path(row["command"].split(" --out ")[1].split(" ")[0])
-    truth = json.loads((out.parent / "data" / "truth.json").read_text())
-    return {**row, **sim.score(json.loads((out / "report.json").read_text()), truth)}
-
-
-def table(rows: list[dict]) -> str:
-    lines = ["| case | rig | hidden | named | result | params (truth / fit [95 %]) | wall s |",
-             "|---|---|---|---|---|---|---|"]
-    order = {"crash": 0, "false": 1, "miss": 2, "extra_family": 3, "extra": 4, "family": 5,
-             "exact": 6, "clean": 7}
-    for r in sorted(rows, key=lambda r: (order[r["result"]], r["case"])):
-        ps = "; ".join(f"{p['effect'][:8]}.{p['param']}[{p['joint']}] {p['truth']:.4g} / "
-                       f"{p['value']:.4g} [{p['interval'][0]:.4g}, {p['interval'][1]:.4g}]"
-                       f"{'' if p['inside'] else ' OUT'}" for p in r["params"])
-        named = ", ".join(r["named"]) or "-"
-        if r.get("idle"):
-            named += f" (also listed, every interval holding no effect: {', '.join(r['idle'])})"
-        kinds = ", ".join(f"{k}[{','.join(j)}]" for k, j in zip(r["kinds"], r["on"], strict=True)) or "clean"
-        lines.append(f"| {r['case']} | {r['rig']} | {kinds} | "
-                     f"{named} | {r['result']} | {ps or '-'} | {r['wall_s']:.0f} |")
-    return "\n".join(lines)
-
-
-def summary(rows: list[dict]) -> str:
-    eff = [r for r in rows if r["hidden"]]
-    clean = [r for r in rows if not r["hidden"]]
-    n = {k: sum(r["result"] == k for r in rows) for k in
-         ("exact", "family", "extra", "extra_family", "miss", "false", "clean", "crash")}
-    ps = [p for r in rows for p in r["params"]]
-    inside = sum(p["inside"] for p in ps)
-    wall = sum(r["wall_s"] for r in rows)
-    return (f"redteam3: exact {n['exact']}/{len(eff)}, up to family {n['exact'] + n['family']}/"
-            f"{len(eff)}, hidden named plus more {n['extra']}, a neighbour plus more "
-            f"{n['extra_family']}, miss {n['miss']}, false discoveries {n['false']}/{len(clean)}, "
-            f"crashes {n['crash']}; parameters inside their 95 % interval {inside}/{len(ps)}; "
-            f"analysis wall time {wall:.0f} s ({wall / max(len(rows), 1):.0f} s/case)")
-
-
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
-    ap.add_argument("--cases", nargs="+", help="case names (default: all)")
-    ap.add_argument("--json", help="write the rows and summary to this file")
-    ap.add_argument("--keep", help="folder for data and reports (default: a temporary one)")
-    ap.add_argument("--threads", type=int, default=2, help="gap analyze --threads")
-    ap.add_argument("--skip", nargs="+", default=[], help="case names to leave out")
-    ap.add_argument("--rescore", nargs="+", help="previous --json outputs: re-score their "
-                    "kept reports and print one table (no analysis runs)")
-    ap.add_argument("--sizes", action="store_true", help="only print each case's effect "
-                    "size: RMS / max of (logged reading - the user's model replayed in plain "
-                    "mujoco) per joint, mrad (no analysis; a few s per case)")
-    args = ap.parse_args(argv)
-    if args.sizes:
-        for case in sim.CASES:
-            if args.cases and case.name not in args.cases:
-                continue
-            s = sim.effect_size(case)
-            print(f"{case.name:45s} rms " + " ".join(f"{1e3 * x:7.2f}" for x in s["rms"])
-                  + "  max " + " ".join(f"{1e3 * x:7.1f}" for x in s["max"]) + " mrad",
-                  flush=True)
-        return 0
-    if args.rescore:
-        rows = [rescore(r) for f in args.rescore for r in json.loads(
-            pathlib.Path(f).read_text())["rows"]]
-        print(table(rows))
-        print(summary(rows))
-        return 0
-    names = args.cases or (QUICK if args.quick else [c.name for c in sim.CASES])
-    names = [n for n in names if n not in args.skip]
-    unknown = [n for n in names if n not in sim.CASE_BY_NAME]
-    if unknown:
-        ap.error(f"unknown case(s) {unknown}; valid: {sorted(sim.CASE_BY_NAME)}")
-    root = pathlib.Path(args.keep or tempfile.mkdtemp(prefix="gap_redteam3_"))
-    root.mkdir(parents=True, exist_ok=True)
-    print(f"{len(names)} cases in {root}; load {os.getloadavg()[0]:.1f}", flush=True)
-    rows = []
-    for i, name in enumerate(names, 1):
-        r = run_case(sim.CASE_BY_NAME[name], root, args.threads)
-        rows.append(r)
-        extra = f" ({r['stderr'].strip().splitlines()[-1]})" if r["result"] == "crash" else ""
-        print(f"[{i}/{len(names)}] {name}: {r['result']}; hidden {r['hidden'] or '-'}, named "
-              f"{r['named'] or '-'}; {r['wall_s']:.0f} s{extra}", flush=True)
-        if args.json:  # written as it goes: a long run stopped halfway keeps its rows
-            pathlib.Path(args.json).write_text(json.dumps({"rows": rows}, indent=1))
-    print(table(rows))
-    line = summary(rows)
-    print(line)
-    print(f"load {os.getloadavg()[0]:.1f}")
-    if args.json:
-        pathlib.Path(args.json).write_text(json.dumps({"rows": rows, "summary": line},
-                                                      indent=1))
-    if not args.keep:
-        shutil.rmtree(root, ignore_errors=True)
-    return 0
+    return harness.main(sim, "redteam3", QUICK, __doc__, argv)
 
 
 if __name__ == "__main__":
