@@ -11,6 +11,7 @@ confusable family (``gap_truth_sim.family``), a miss; clean data: no cause, or a
     python bench/gap_independent.py --cases bench-latency finger-clean --json out.json
     python bench/gap_independent.py --wide          # also the sizes written out (WIDE_CASES)
     python bench/gap_independent.py --seeds 3 --wide --json out.json --resume  # go on after a cut
+    python bench/gap_independent.py --first-seed 1 --seeds 2  # only magnitudes no test saw
     python bench/gap_independent.py --positions-only  # logs without qvel columns (LeRobot-style)
 
 Runs go seed by seed (every case's first seed, then every case's second, ...), so a run cut
@@ -104,6 +105,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", nargs="+", default=None, help="case ids (default: all)")
     ap.add_argument("--seeds", type=int, default=1, help="seeds per case (magnitudes differ)")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="start at this seed index (1: skip the tests' own seed, i.e. only "
+                    "magnitudes the tests never saw; WIDE_CASES run only at index 0)")
     ap.add_argument("--json", default=None, help="write the raw results here")
     ap.add_argument("--wide", action="store_true",
                     help="also the sizes written out beyond the usual ranges (WIDE_CASES)")
@@ -128,9 +132,9 @@ def main() -> None:
         for r in out:
             print(_fmt(r) + "  (kept)", flush=True)
     done = {(r["case"], r["seed"]) for r in out}
-    for k in range(args.seeds):
+    for k in range(args.first_seed, args.first_seed + args.seeds):
         for cid, rig, names, seed, duration, values in cases:
-            if (values is not None and k > 0) or (cid, seed + 1000 * k) in done:
+            if (values is not None and k != 0) or (cid, seed + 1000 * k) in done:
                 continue
             r = run(cid, rig, names, seed + 1000 * k, duration, values, args.positions_only)
             out.append(r)
