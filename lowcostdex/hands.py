@@ -198,8 +198,13 @@ class HandSpec:
     @classmethod
     def from_json(cls, text: str) -> HandSpec:
         raw = json.loads(text)
+        _known_keys("the spec", raw, cls)
 
         def joint(d: dict) -> JointSpec:
+            _known_keys(f"joint {d.get('name', '?')}" if isinstance(d, dict) else "a joint", d,
+                        JointSpec)
+            _known_keys(f"joint {d.get('name', '?')}: calibration", d.get("calibration", {}),
+                        Calibration)
             return JointSpec(**{**d, "calibration": Calibration(**d.get("calibration", {}))})
 
         return cls(
@@ -222,6 +227,18 @@ class HandSpec:
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise InputError(f"{path}: not a hand spec JSON ({type(exc).__name__}: {exc})"
                              ) from None
+
+
+def _known_keys(where: str, raw: object, cls: type) -> None:
+    """ConfigError for an object that is not a JSON object or has a key ``cls`` does not know
+    (a misspelt field would otherwise be ignored or fail deep inside)."""
+    fields = [f.name for f in dataclasses.fields(cls)]
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where} must be a JSON object with keys {', '.join(fields)}; got "
+                          f"{type(raw).__name__}")
+    unknown = sorted(set(raw) - set(fields))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key {unknown[0]!r}; valid keys: {', '.join(fields)}")
 
 
 def check_model_ranges(hand: HandSpec, model) -> None:

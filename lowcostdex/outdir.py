@@ -210,3 +210,27 @@ def check_out_file(path: str | Path, *, overwrite: bool = False) -> Path:
         raise OutputRefused(f"--out {out} already exists and is left untouched; give a new file "
                             "name, or --overwrite to replace it")
     return out
+
+
+def check_json_out(path: str | Path, command: str, keys: Iterable[str],
+                   option: str = "--json") -> Path:
+    """Check that ``option FILE`` may be written: a new file in an existing folder, or the
+    command's own previous output (a JSON object holding every one of ``keys``), which is
+    replaced. A user's other file is refused untouched, before the command does its work."""
+    import json
+
+    out = Path(path)
+    if out.is_dir():
+        raise OutputRefused(f"{option} {out} is a folder; give a file path, e.g. "
+                            f"{option} {out / 'summary.json'}")
+    if not out.parent.is_dir():
+        raise OutputRefused(f"{option} {out}: the folder {out.parent} does not exist")
+    if out.exists():
+        try:
+            old = json.loads(out.read_text())
+        except (OSError, ValueError):
+            old = None
+        if not (isinstance(old, dict) and all(k in old for k in keys)):
+            raise OutputRefused(f"{option} {out} already exists and is not a '{command}' output; "
+                                "it is left untouched. Give a new file name")
+    return out

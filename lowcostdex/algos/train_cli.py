@@ -126,6 +126,7 @@ def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
 
 def ppo_config_from_args(args: argparse.Namespace) -> PPOConfig:
     """Build a PPOConfig from parsed ``lowcostdex train ppo`` arguments."""
+    check_resume(args.out, args.resume)
     d = PPOConfig()
     return PPOConfig(
         env_id=args.env, env_kwargs=_parse_env_kwargs(args.env_kwarg), seed=args.seed,
@@ -153,8 +154,33 @@ def _parse_env_kwargs(items: Sequence[str]) -> dict[str, Any]:
     return out
 
 
+def check_resume(out: str, resume: bool) -> None:
+    """``--resume`` into a folder that holds no run (a typo in ``--out``) is refused rather than
+    started from scratch as if resumed."""
+    from lowcostdex.algos.experiment import CONFIG_FILE
+
+    path = Path(out)
+    if resume and not (path / CONFIG_FILE).is_file():
+        where = "does not exist" if not path.exists() else f"holds no run (no {CONFIG_FILE})"
+        raise ConfigError(f"--resume: {path} {where}, so there is nothing to resume; check "
+                          "--out, or leave out --resume to start a new run")
+
+
+def check_demo_options(args: argparse.Namespace) -> None:
+    """Demo options that would be ignored: ``--n-demos`` without ``--demos``, ``--demos`` for
+    NPG without ``--bc-init``."""
+    if args.n_demos is not None and not args.demos:
+        raise ConfigError(f"--n-demos {args.n_demos} counts episodes of a demo file: give it with "
+                          "--demos PATH, or leave out --n-demos")
+    if args.demos and args.algo == "npg" and not args.bc_init:
+        raise ConfigError(f"--demos {args.demos}: npg uses demonstrations only with --bc-init "
+                          "(behaviour-clone them first); add --bc-init, or train dapg")
+
+
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """Build a TrainConfig from parsed ``lowcostdex train npg|dapg`` arguments."""
+    check_resume(args.out, args.resume)
+    check_demo_options(args)
     d = TrainConfig()
     env_kwargs = _parse_env_kwargs(args.env_kwarg)
     if args.port:
@@ -258,9 +284,12 @@ def _interrupted(args: argparse.Namespace, exc: KeyboardInterrupt) -> int:
         print(f"{prog}: interrupted (Ctrl-C); saved the state after iteration "
               f"{exc.iteration} ({checkpoint}). Resume with:\n"  # type: ignore[attr-defined]
               f"  {command_line(args.parser, args, resume=True)}", file=sys.stderr)
-    else:
+    else:  # a new run's start is undone (Run.abandon): no --resume then
+        from lowcostdex.algos.experiment import CONFIG_FILE
+
+        again = args.resume and (Path(args.out) / CONFIG_FILE).is_file()
         print(f"{prog}: interrupted (Ctrl-C) before the first checkpoint; nothing to resume. "
-              f"Start again with:\n  {command_line(args.parser, args, resume=args.resume)}",
+              f"Start again with:\n  {command_line(args.parser, args, resume=again)}",
               file=sys.stderr)
     return INTERRUPTED
 

@@ -62,7 +62,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="HDF5 demo file (appended to if it exists)")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the first episode")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
-    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--baud", type=int, default=None,
+                   help="bit rate [bit/s] of a real D'Claw (default 1000000)")
     add_latency_option(p)
     p.add_argument("--countdown", type=number(0, 600), default=3.0,
                    help="seconds announced before each episode on a real robot")
@@ -125,17 +126,31 @@ def _record_demos(args: argparse.Namespace) -> int:
     if args.task not in tasks:
         raise ConfigError(f"--task {args.task!r} is not a {args.hand} task; valid: "
                           f"{', '.join(tasks)}")
+    if args.labels != "servo_goal" and args.playbacks:
+        raise ConfigError(f"--playbacks {args.playbacks}: playbacks are labelled by the servo "
+                          f"response (--labels servo_goal), not with --labels {args.labels}; "
+                          "leave out --playbacks, or use --labels servo_goal")
     if args.playbacks is None:
         args.playbacks = DEFAULT_PLAYBACKS.get(args.task, 2)
     if args.labels != "servo_goal":
         args.playbacks = 0
+    emulated = args.port == "emulated"
+    for option, value in (("--baud", args.baud), ("--latency-ms", args.latency_ms)):
+        if value is not None and emulated:  # not silently ignored
+            raise ConfigError(f"{option} {value} is for a real robot's serial adapter "
+                              "(--port DEVICE); the emulated hand has none. Leave it out, or "
+                              "give --port")
+    if args.baud is None:
+        args.baud = 1_000_000
+    if args.baud <= 0:
+        raise ConfigError(f"--baud {args.baud}: the bit rate must be positive (Dynamixel "
+                          "default 1000000, factory 57600)")
     if args.hand == "dclaw":
         check_port(args.port)
     register_envs()
     env_id, solver = tasks[args.task]
     _check_demo_out(args.out, env_id)  # before the robot moves: the file is appended to
     console = Console(stderr=True)
-    emulated = args.port == "emulated"
     if args.hand == "allegro":
         if args.latency_ms is not None:
             raise ConfigError("--latency-ms is a serial adapter's latency timer (D'Claw); the "

@@ -103,10 +103,17 @@ def parse_ids(text: str) -> list[int]:
     return out
 
 
-def check_baud(baud: int) -> None:
+def check_baud(baud: int, emulated: bool = False) -> None:
+    """A positive bit rate; for the emulated motors one of the Dynamixel X rates they run at."""
     if baud <= 0:
         raise InputError(f"--baud {baud}: the bit rate must be positive (Dynamixel default "
                          "1000000, factory 57600)")
+    if emulated:
+        from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES
+
+        if baud not in BAUD_CODES.values():
+            raise InputError(f"--baud {baud}: the emulated motors run at one of "
+                             f"{', '.join(str(b) for b in sorted(BAUD_CODES.values()))} bit/s")
 
 
 def _emulated_chain(hand: str, clock: str = "virtual", **kwargs):
@@ -120,7 +127,7 @@ def _emulated_chain(hand: str, clock: str = "virtual", **kwargs):
 def _port(args: argparse.Namespace):
     from lowcostdex.hardware.dynamixel.ports import check_port
 
-    check_baud(args.baud)
+    check_baud(args.baud, emulated=args.port == "emulated")
     if args.port == "emulated":
         return _emulated_chain(args.hand, baudrate=args.baud).port()
     check_port(args.port)
@@ -169,12 +176,8 @@ def _emulate(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES
 
-    check_baud(args.baud)
-    if args.baud not in BAUD_CODES.values():
-        raise InputError(f"--baud {args.baud}: the emulated motors run at one of "
-                         f"{', '.join(str(b) for b in sorted(BAUD_CODES.values()))} bit/s")
+    check_baud(args.baud, emulated=True)
 
     from lowcostdex.hardware.emulated.chain import FaultConfig
     from lowcostdex.hardware.emulated.firmware import FirmwareOptions

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from lowcostdex.algos.local_models.gmm import GaussianMixture, NIWPrior, fit_gmm, niw_prior
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_fields
 
 Array = NDArray[np.float64]
 
@@ -47,6 +47,7 @@ class DynamicsConfig:
     initial_state_var: float = 1e-6
 
     def __post_init__(self) -> None:
+        check_fields(self)  # types, NaN and inf first (a NaN passes every comparison)
         if self.prior_strength < 0:
             raise ConfigError(f"prior_strength={self.prior_strength} must be >= 0")
         if self.regularization < 0 or self.initial_state_var <= 0:

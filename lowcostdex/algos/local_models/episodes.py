@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from lowcostdex.algos.local_models.controller import LinearGaussianController, exploration_noise
 from lowcostdex.algos.samplers import RolloutJob, control_period
+from lowcostdex.errors import ConfigError
 
 Array = NDArray[np.float64]
 @dataclass(frozen=True)
@@ -63,11 +64,32 @@ def capture_start(env: gym.Env, seed: int, hand_qpos: Array | None = None) -> Fi
     env.reset(seed=seed)
     base = env.unwrapped
     if hand_qpos is not None:
+        hand_qpos = check_hand_qpos(hand_qpos, base.task)
         qpos = base.data.qpos.copy()
-        qpos[base.task.hand_qpos] = np.asarray(hand_qpos, dtype=np.float64)
+        qpos[base.task.hand_qpos] = hand_qpos
         env.reset(seed=seed, options={"qpos": qpos, "qvel": np.zeros_like(base.data.qvel)})
     goal = {k: np.array(v, dtype=np.float64) for k, v in getattr(base, "goal", {}).items()}
     return FixedStart(base.data.qpos.copy(), base.data.qvel.copy(), goal)
+
+
+def check_hand_qpos(hand_qpos: Any, task: Any) -> Array:
+    """``hand_qpos`` (n_hand,) [rad] as an array, or ConfigError naming what is wrong: the count
+    (one angle per hand joint, action order), NaN/inf, an angle outside its joint's range (e.g.
+    degrees typed for rad)."""
+    names = list(task.hand.joint_names)
+    q = np.asarray(hand_qpos, dtype=np.float64).ravel()
+    if q.shape != (len(names),):
+        raise ConfigError(f"start_hand_qpos (--start-hand-qpos) has {q.size} values; the hand has "
+                          f"{len(names)} joints, one angle each in rad: {', '.join(names)}")
+    for k, name in enumerate(names):
+        if not np.isfinite(q[k]):
+            raise ConfigError(f"start_hand_qpos (--start-hand-qpos) {name}={q[k]} is not finite")
+        low, high = float(task.hand_low[k]), float(task.hand_high[k])
+        if not low - 1e-9 <= q[k] <= high + 1e-9:
+            raise ConfigError(f"start_hand_qpos (--start-hand-qpos) {name}={q[k]:g} rad is "
+                              f"outside the joint's range [{low:.4g}, {high:.4g}] rad"
+                              + (" (degrees? write rad)" if abs(q[k]) > 2 * np.pi else ""))
+    return q
 
 
 def offset_start(env: gym.Env, start: FixedStart, offset: float) -> FixedStart:

@@ -41,6 +41,7 @@ from lowcostdex.algos.local_models.episodes import (
     Episode,
     FixedStart,
     capture_start,
+    check_hand_qpos,
     controller_state,
     hold_action,
     run_episode,
@@ -120,9 +121,19 @@ def train(
     """
     ex.Run.check(out_dir, dataclasses.asdict(config), resume=resume,
                  mutable_keys=MUTABLE_ON_RESUME)
+    if env_factory is None:
+        from lowcostdex.algos.train import check_env_id  # imports torch: not at CLI start
+
+        check_env_id(config.env_id)
     env = (env_factory or default_env_factory(config))()  # fails before anything is written
     run: ex.Run | None = None
     try:
+        if config.init == "demos":  # the file fits this env (id, sizes, bounds) before any write
+            from lowcostdex.demonstrations.dataset import check_demos, load_demos
+
+            check_demos(load_demos(config.demos), config.demos, env, config.env_id)
+        if config.start_hand_qpos is not None:
+            check_hand_qpos(config.start_hand_qpos, env.unwrapped.task)
         run = ex.Run.open(
             out_dir, dataclasses.asdict(config), resume=resume, mutable_keys=MUTABLE_ON_RESUME
         )
@@ -386,6 +397,12 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
 
 def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
     """Build a config from parsed ``lowcostdex train tvlg`` arguments."""
+    from lowcostdex.algos.train_cli import check_resume
+
+    check_resume(args.out, args.resume)
+    if args.demos and args.init != "demos":
+        raise ConfigError(f"--demos {args.demos} is read with --init demos only (this run starts "
+                          f"from --init {args.init}); add --init demos, or leave out --demos")
     d = TVLGTrainConfig()
     env_id = args.env if "/" in args.env else f"lowcostdex/{args.env}"
     kl_step = args.kl_step

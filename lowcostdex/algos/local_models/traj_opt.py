@@ -26,7 +26,7 @@ from lowcostdex.algos.local_models.lqr import (
     kl_per_step,
     lqr_backward,
 )
-from lowcostdex.errors import ConfigError, LowcostdexError
+from lowcostdex.errors import ConfigError, LowcostdexError, check_fields
 
 # Bounds of the per-iteration change of step_mult (the improvement model's validity range).
 STEP_CHANGE_MIN = 0.1
@@ -62,6 +62,7 @@ class TrajOptConfig:
     kl_tolerance: float = 0.1
 
     def __post_init__(self) -> None:
+        check_fields(self)  # types, NaN and inf first (a NaN passes every comparison)
         if self.kl_step <= 0:
             raise ConfigError(f"kl_step={self.kl_step} must be > 0")
         if not 0 < self.min_step_mult <= self.max_step_mult:

@@ -37,7 +37,7 @@ from lowcostdex.algos.local_models.traj_opt import (
     kl_constrained_update,
     step_mult_update,
 )
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_fields
 
 Array = NDArray[np.float64]
 
@@ -59,6 +59,7 @@ class TVLGConfig:
     initial_step_mult: float = 1.0
 
     def __post_init__(self) -> None:
+        check_fields(self)  # types, NaN and inf first (a NaN passes every comparison)
         if self.initial_eta <= 0:
             raise ConfigError(f"initial_eta={self.initial_eta} must be > 0")
         t = self.traj_opt

@@ -88,6 +88,10 @@ def _check_dynamixel_port(port: str) -> None:
     check_port(port)
 
 
+RESET_TEST_KEYS = ("trials", "successes", "success_rate", "failures", "port", "seed")
+"""Keys of the file ``reset-test --json`` writes: a file with them may be replaced."""
+
+
 def _reset_test(args: argparse.Namespace) -> int:
     args.port = robot_port(args.backend, args.port)
     import numpy as np
@@ -100,12 +104,18 @@ def _reset_test(args: argparse.Namespace) -> int:
     from lowcostdex.hardware.robot.reset_robel import RobelReset
     from lowcostdex.hardware.robot.reset_trials import reset_trials
     from lowcostdex.hardware.robot.robot import Robot
+    from lowcostdex.outdir import check_json_out, write_text_atomic
     from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
     from lowcostdex.sim.models.dclaw import build_dclaw
 
     if args.trials < 1:
         raise ConfigError("--trials must be >= 1")
+    if args.json:  # before minutes of trials
+        check_json_out(args.json, "lowcostdex reset-test", RESET_TEST_KEYS)
+    if args.latency_ms is not None and args.port == "emulated":
+        raise ConfigError("--latency-ms is the serial adapter's latency timer: it needs "
+                          "--backend hardware --port DEVICE")
     _check_dynamixel_port(args.port)
     hand = _hand(args.spec)
     model = build_dclaw("valve", hand).compile()
@@ -144,9 +154,8 @@ def _reset_test(args: argparse.Namespace) -> int:
     for message in stats.failures:
         console.print(f"[red]failed:[/red] {message}")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({**summary, "failures": stats.failures, "port": args.port,
-                       "seed": args.seed}, f, indent=2)
+        write_text_atomic(args.json, json.dumps({**summary, "failures": stats.failures,
+                                                 "port": args.port, "seed": args.seed}, indent=2))
     return 0 if stats.successes == stats.trials else 1
 
 

@@ -45,8 +45,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import check_choice
-from lowcostdex.hands import DCLAW_FINGERS, HandSpec, dclaw_spec
+from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.hands import DCLAW_FINGERS, DCLAW_PARTS, HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.models.common import (
     GROUP_COLLISION,
@@ -132,6 +132,10 @@ def build_dclaw(
     for f in fingers:
         check_choice("D'Claw finger", f, DCLAW_FINGERS)
     hand = hand or dclaw_spec()
+    dclaw = tuple(f"{f}_{p}" for f in DCLAW_FINGERS for p in DCLAW_PARTS)
+    if tuple(hand.joint_names) != dclaw:
+        raise ConfigError(f"hand {hand.name}: joints {', '.join(hand.joint_names) or '(none)'} are "
+                          f"not the D'Claw's {len(dclaw)} in action order: {', '.join(dclaw)}")
     motor = servo.motor_spec(hand.motor)
     gains = gains or motor.factory_gains()
     spec = new_spec(f"dclaw_{station}")

@@ -1,0 +1,231 @@
+"""Every command beyond ``gap`` under a newcomer's careless calls (issue 12): a misspelt env id,
+demos of another env, options that would be silently ignored, ``--resume`` of a run that is
+not there, angles in degrees, NaN and absurdly large numbers, a user's files given as outputs.
+
+Each row runs the real CLI entry (``lowcostdex.cli.main``, the same error path a process
+takes) and must end with exit code 2, ONE line on stderr naming the bad input and the fix, no
+traceback, and the folder byte for byte as it was (nothing of the user's touched, nothing new).
+The expected lines are written out here; the joint names and ranges come from the D'Claw's
+published build (ROBEL: top joints +-0.48 rad, 9 joints), not from the code under test.
+``tests/test_train_faults.py`` holds the npg/dapg/ppo rows (demo files, numbers, resume);
+``tests/test_bad_inputs.py`` and ``tests/test_careless_cli.py`` the gap rows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+from pointmass import demo_info, expert_action, make_pointmass
+
+from lowcostdex.cli import USER_ERROR, main
+
+POINTMASS = "lowcostdex_test/PointMass-v0"
+TINY = ("--n-iter", "1", "--n-traj", "2", "--eval-every", "1", "--eval-episodes", "1",
+        "--hidden", "8", "--no-progress")
+
+
+@pytest.fixture(autouse=True)
+def _pointmass_registered():
+    if POINTMASS not in gym.registry:
+        gym.register(POINTMASS, entry_point="pointmass:PointMass", max_episode_steps=30)
+
+
+def pointmass_demos(path: Path) -> None:
+    """Two successful demonstrations of the point mass (another env than any D'Claw task)."""
+    from lowcostdex.demonstrations.dataset import save_demos, teacher_episodes
+
+    episodes = teacher_episodes(make_pointmass(), lambda env, obs: expert_action(obs),
+                                seeds=range(1000, 1002))
+    save_demos(path, episodes, dataclasses.replace(demo_info(), env_id=POINTMASS))
+
+
+@dataclass(frozen=True)
+class Case:
+    id: str
+    argv: tuple[str, ...]
+    message: str  # a substring of the one line; {tmp} is the test's folder
+    files: dict = field(default_factory=dict)  # name -> text, or a callable(path) writing it
+
+
+def npg(*extra: str) -> tuple[str, ...]:
+    return ("train", "npg", "--env", POINTMASS, "--out", "{tmp}/run", *TINY, *extra)
+
+
+def tvlg(*extra: str) -> tuple[str, ...]:
+    return ("train", "tvlg", "--out", "{tmp}/run", "--n-iter", "1", "--no-progress", *extra)
+
+
+DCLAW_JOINTS = ("ff_top, ff_middle, ff_bottom, mf_top, mf_middle, mf_bottom, th_top, "
+                "th_middle, th_bottom")
+
+CASES: list[Case] = [
+    # --resume where there is no run: a typo in --out must not start over as if resumed
+    Case("npg --resume of a folder that does not exist", npg("--resume"),
+         "--resume: {tmp}/run does not exist, so there is nothing to resume; check --out, or "
+         "leave out --resume to start a new run"),
+    Case("npg --resume of a folder without a run", npg("--resume"),
+         "--resume: {tmp}/run holds no run (no config.json)", files={"run/notes.txt": "mine\n"}),
+    Case("ppo --resume of a folder that does not exist",
+         ("train", "ppo", "--out", "{tmp}/run", "--resume", "--no-progress"),
+         "--resume: {tmp}/run does not exist"),
+    Case("tvlg --resume of a folder that does not exist", tvlg("--resume"),
+         "--resume: {tmp}/run does not exist"),
+    # options that would be ignored without a word
+    Case("npg --n-demos without --demos", npg("--n-demos", "3"),
+         "--n-demos 3 counts episodes of a demo file: give it with --demos PATH"),
+    Case("npg --demos without --bc-init", npg("--demos", "{tmp}/demos.h5"),
+         "npg uses demonstrations only with --bc-init (behaviour-clone them first); add "
+         "--bc-init, or train dapg", files={"demos.h5": pointmass_demos}),
+    Case("tvlg --demos without --init demos", tvlg("--demos", "{tmp}/demos.h5"),
+         "is read with --init demos only (this run starts from --init pd); add --init demos",
+         files={"demos.h5": pointmass_demos}),
+    # tvlg: the env id and the demo file checked like npg/dapg's, before anything is written
+    Case("tvlg with a misspelt env", tvlg("--env", "TurnValve"),
+         "unknown env 'lowcostdex/TurnValve'; lowcostdex envs: lowcostdex/AllegroTurnValve-v0"),
+    Case("tvlg from demos of another env", tvlg("--init", "demos", "--demos", "{tmp}/demos.h5"),
+         f"demos.h5: env_id is '{POINTMASS}': these demonstrations are of another env; this run "
+         "trains 'lowcostdex/DClawTurnValve-v0'", files={"demos.h5": pointmass_demos}),
+    # tvlg --start-hand-qpos: one angle in rad per D'Claw joint, inside its range
+    Case("tvlg start pose of 2 joints", tvlg("--start-hand-qpos", "0", "0"),
+         f"start_hand_qpos (--start-hand-qpos) has 2 values; the hand has 9 joints, one angle "
+         f"each in rad: {DCLAW_JOINTS}"),
+    Case("tvlg start pose with a NaN", tvlg("--start-hand-qpos", *["0"] * 8, "nan"),
+         "start_hand_qpos (--start-hand-qpos) th_bottom=nan is not finite"),
+    Case("tvlg start pose in degrees", tvlg("--start-hand-qpos", *["20"] * 9),
+         "ff_top=20 rad is outside the joint's range [-0.48, 0.48] rad (degrees? write rad)"),
+    # tvlg optimiser numbers: NaN passes every `<=` check, so it used to train
+    Case("tvlg --kl-step nan", tvlg("--kl-step", "nan"),
+         "TrajOptConfig.kl_step=nan must be a finite number"),
+    Case("tvlg --min-step-mult nan", tvlg("--min-step-mult", "nan"),
+         "TrajOptConfig.min_step_mult=nan must be a finite number"),
+    Case("tvlg --prior-strength inf", tvlg("--prior-strength", "inf"),
+         "DynamicsConfig.prior_strength=inf must be a finite number"),
+]
+
+
+def spec_with(edit) -> callable:
+    """A D'Claw hand spec JSON (the built-in one as ``calibrate`` writes it) after ``edit``."""
+    def write(path: Path) -> None:
+        from lowcostdex.hands import dclaw_spec
+
+        raw = json.loads(dclaw_spec().to_json())
+        edit(raw)
+        path.write_text(json.dumps(raw))
+    return write
+
+
+def reset_test(*extra: str) -> tuple[str, ...]:
+    return ("reset-test", "--trials", "1", *extra)
+
+
+NOTES = '{"todo": ["buy U2D2", "print the valve"]}'
+
+CASES += [
+    # reset-test --json: a user's file was overwritten after the trials; now checked before them
+    Case("reset-test --json over a user's file", reset_test("--json", "{tmp}/notes.json"),
+         "--json {tmp}/notes.json already exists and is not a 'lowcostdex reset-test' output; it "
+         "is left untouched", files={"notes.json": NOTES}),
+    Case("reset-test --json into a folder", reset_test("--json", "{tmp}"),
+         "--json {tmp} is a folder; give a file path"),
+    Case("reset-test --json into a missing folder", reset_test("--json", "{tmp}/no/s.json"),
+         "--json {tmp}/no/s.json: the folder {tmp}/no does not exist"),
+    Case("reset-test --latency-ms on the emulated robot", reset_test("--latency-ms", "16"),
+         "--latency-ms is the serial adapter's latency timer: it needs --backend hardware"),
+    # hand specs: a joint missing (StopIteration traceback), misspelt keys (ignored / TypeError)
+    Case("a hand spec with 8 of the 9 joints",
+         reset_test("--spec", "{tmp}/spec.json"),
+         f"hand dclaw: joints ff_top, ff_middle, ff_bottom, mf_top, mf_middle, mf_bottom, "
+         f"th_top, th_middle are not the D'Claw's 9 in action order: {DCLAW_JOINTS}",
+         files={"spec.json": spec_with(lambda d: d["joints"].pop())}),
+    Case("a hand spec with an unknown key", reset_test("--spec", "{tmp}/spec.json"),
+         "spec.json: the spec: unknown key 'colour'; valid keys: name, motor, joints, aux_joints",
+         files={"spec.json": spec_with(lambda d: d.update(colour="red"))}),
+    Case("a hand spec with a misspelt joint key", reset_test("--spec", "{tmp}/spec.json"),
+         "spec.json: joint ff_top: unknown key 'lowx'; valid keys: name, motor_id, low, high, "
+         "max_velocity, calibration",
+         files={"spec.json": spec_with(lambda d: d["joints"][0].update(lowx=-0.4))}),
+    Case("a hand spec with a misspelt calibration key", reset_test("--spec", "{tmp}/spec.json"),
+         "spec.json: joint ff_top: calibration: unknown key 'ofset'",
+         files={"spec.json": spec_with(lambda d: d["joints"][0]["calibration"].update(ofset=1))}),
+    Case("a hand spec that is a list", reset_test("--spec", "{tmp}/spec.json"),
+         "spec.json: the spec must be a JSON object with keys name, motor, joints, aux_joints; "
+         "got list", files={"spec.json": "[1, 2]"}),
+    # bit rates: the emulated motors' (traceback before), a real adapter's option on the emulator
+    Case("scan the emulated hand at a rate no motor runs at",
+         ("scan", "--port", "emulated", "--baud", "12345"),
+         "--baud 12345: the emulated motors run at one of 9600, 57600, 115200, 1000000, 2000000, "
+         "3000000, 4000000, 4500000 bit/s"),
+    Case("record-demos --baud on the emulated hand",
+         ("record-demos", "--episodes", "1", "--out", "{tmp}/d.h5", "--baud", "7"),
+         "--baud 7 is for a real robot's serial adapter (--port DEVICE); the emulated hand has "
+         "none"),
+    Case("record-demos --latency-ms on the emulated hand",
+         ("record-demos", "--episodes", "1", "--out", "{tmp}/d.h5", "--latency-ms", "16"),
+         "--latency-ms 16.0 is for a real robot's serial adapter"),
+    Case("record-demos --playbacks with next_position labels",
+         ("record-demos", "--episodes", "1", "--out", "{tmp}/d.h5", "--labels", "next_position",
+          "--playbacks", "2"),
+         "--playbacks 2: playbacks are labelled by the servo response (--labels servo_goal), not "
+         "with --labels next_position"),
+]
+
+
+def _materialize(case: Case, root: Path) -> list[str]:
+    for name, content in case.files.items():
+        path = root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if callable(content):
+            content(path)
+        else:
+            path.write_text(content)
+    return [a.replace("{tmp}", str(root)) for a in case.argv]
+
+
+def _snapshot(root: Path) -> dict:
+    return {str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None)
+            for p in sorted(root.rglob("*"))}
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
+def test_a_careless_call_is_refused_in_one_line(case, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = _materialize(case, tmp_path)
+    before = _snapshot(tmp_path)
+    code = main(argv)
+    out, err = capsys.readouterr()
+    assert code == USER_ERROR, err
+    assert "Traceback" not in err + out
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("[progress]")]
+    assert len(lines) == 1, err
+    assert ": error: " in lines[0]
+    assert case.message.replace("{tmp}", str(tmp_path)) in lines[0], lines[0]
+    assert _snapshot(tmp_path) == before
+
+
+def test_the_controls_run(tmp_path, capsys):
+    """The same calls made right run: --resume of a run that is there, npg --bc-init with the
+    demos, tvlg from a start pose inside the joint ranges, reset-test from an unedited spec
+    replacing its own previous --json (so each refusal comes from its mistake)."""
+    out = tmp_path / "run"
+    assert main(["train", "npg", "--env", POINTMASS, "--out", str(out), *TINY]) == 0
+    assert main(["train", "npg", "--env", POINTMASS, "--out", str(out), *TINY, "--n-iter", "2",
+                 "--resume"]) == 0, capsys.readouterr().err
+    pointmass_demos(tmp_path / "demos.h5")
+    assert main(["train", "npg", "--env", POINTMASS, "--out", str(tmp_path / "bc"), *TINY,
+                 "--demos", str(tmp_path / "demos.h5"), "--bc-init", "--bc-epochs", "1",
+                 "--n-demos", "1"]) == 0, capsys.readouterr().err
+    argv = [a.replace("{tmp}/run", str(tmp_path / "tvlg")) for a in tvlg(
+        "--n-rollouts", "2", "--start-hand-qpos", "0.1", *["0"] * 7, "-0.2")]
+    assert main(argv) == 0, capsys.readouterr().err
+    spec_with(lambda d: None)(tmp_path / "spec.json")
+    summary = tmp_path / "summary.json"
+    for _ in range(2):  # the second run replaces the first's summary
+        code = main(["reset-test", "--trials", "1", "--spec", str(tmp_path / "spec.json"),
+                     "--json", str(summary)])
+        assert code in (0, 1), capsys.readouterr().err  # 1: a trial failed (not an error)
+        assert json.loads(summary.read_text())["trials"] == 1
