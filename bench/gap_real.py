@@ -102,12 +102,12 @@ def load_set(name: str, root: Path):
 def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too: bool,
             max_rounds: int, seeds: int = 0, jitter: float = 1e-3, select: str = "inner",
             restarts: int = 3, loso_fields: Sequence[str] = (), json_path: str | None = None,
-            done: Sequence[dict] = (), loso_only: bool = False) -> dict:
+            done: Sequence[dict] = (), loso_only: bool = False, prior: float = 0.0) -> dict:
     spec = SETS[name]
     t0 = time.perf_counter()
     files, ds = load_set(name, root)
     structure = tuple(effects) if effects else servo_structure(ds)
-    sel = dict(select=select, restarts=restarts, max_rounds=max_rounds)
+    sel = dict(select=select, restarts=restarts, max_rounds=max_rounds, prior=prior)
     out: dict = {"set": name, "logs": len(files), "structure": list(structure), "jittered": [],
                  "reference_all": {k: float(np.mean(list(v.values())))
                                    for k, v in reference_mae(ds).items()}}
@@ -455,6 +455,9 @@ def main(argv=None) -> int:
                     "training logs (IdentifyConfig.select)")
     ap.add_argument("--restarts", type=int, default=3,
                     help="jittered fits per family with --select inner")
+    ap.add_argument("--prior", type=float, default=0.0,
+                    help="[rad] pull of every fitted parameter toward its catalogue value "
+                    "(IdentifyConfig.prior; 0: none)")
     ap.add_argument("--progress", action="store_true",
                     help="print the CPU time of each identification stage (BAM's split)")
     ap.add_argument("--json", default=None)
@@ -479,7 +482,7 @@ def main(argv=None) -> int:
         else:
             r = run_set(name, root, args.effects, args.analyze, args.max_rounds, args.seeds,
                         args.jitter, args.select, args.restarts, fields, args.json, results,
-                        args.loso_only)
+                        args.loso_only, args.prior)
             _print(r)
         results.append(r)
         if args.json:

@@ -15,6 +15,7 @@ from lowcostdex.gap.identify import (
     IdentifyConfig,
     _choose_family,
     _jitter,
+    _prior_residual,
     _prune_trailing,
     identify,
     inner_split,
@@ -172,6 +173,33 @@ def test_identify_refuses_bad_splits_and_structures(logs):
         IdentifyConfig(joint_rounds=0)
     with pytest.raises(ConfigError, match="alpha"):
         IdentifyConfig(hold=frozenset({("gearbox_friction", "no_such_param")}))
+
+
+def test_prior_residual_is_each_parameters_distance_from_its_null_over_its_range():
+    # by hand: inertia scale (null 1) searched in log over [0.1, 10] at 10 -> ln 10 / ln 100 =
+    # 0.5; gear friction mu (null 0) searched linearly over [0, 0.5] at 0.1 -> 0.2; times 0.03
+    st = fitmod.Structure(("inertia_error", "gearbox_friction"), J, [
+        fitmod.Free("inertia_error", "scale", 0, 0.1, 10.0, 1.0, True, 1e-3),
+        fitmod.Free("gearbox_friction", "mu", 0, 0.0, 0.5, 0.05, False, 1e-3)])
+    np.testing.assert_allclose(_prior_residual(st, np.array([10.0, 0.1]), 0.03),
+                               [0.015, 0.006], rtol=1e-12)
+    np.testing.assert_allclose(_prior_residual(st, np.array([1.0, 0.0]), 0.03), [0.0, 0.0])
+    with pytest.raises(ConfigError, match="prior"):
+        IdentifyConfig(prior=-0.01)
+
+
+def test_a_prior_pulls_the_fit_toward_the_catalogue_and_costs_training_error(logs):
+    # the logs' servo has 3x the catalogue's inertia (TRUTH); without a prior it is recovered,
+    # with a strong one (a full-range move costs like a 1 rad RMS error on every log) the fit
+    # stays nearer the catalogue's 1 and fits the training logs worse
+    cfg = dict(effects=tuple(TRUTH), max_rounds=20, select="train", restarts=1)
+    free = identify(logs, [0, 1, 2, 3], [], IdentifyConfig(**cfg))
+    pulled = identify(logs, [0, 1, 2, 3], [], IdentifyConfig(prior=1.0, **cfg))
+    s0 = free.params()["inertia_error"]["scale"][0]
+    s1 = pulled.params()["inertia_error"]["scale"][0]
+    assert s0 == pytest.approx(3.0, rel=0.02)
+    assert 1.0 < s1 < 2.0  # measured 1.33
+    assert pulled.mean(pulled.train) > 1e-2 > 1e3 * free.mean(free.train)
 
 
 def _headers(metas: list[dict]) -> Dataset:

@@ -118,6 +118,11 @@ class IdentifyConfig:
         the training logs.
       restarts: with select="inner", fits per family from differently jittered starts.
       restart_jitter: relative spread of the restarts after the first (at least ``jitter``).
+      prior: [rad] a pull of every free parameter toward its catalogue null (0: none): the
+        least-squares cost gains prior^2 x (fitted logs) x sum over free parameters of
+        ((u - u_null) / (u_hi - u_lo))^2 (u: the optimizer's coordinate, log for scales), i.e.
+        moving one parameter across its whole range costs as much as an RMS error of ``prior``
+        on every fitted log.
     """
 
     effects: tuple[str, ...] = SERVO_STRUCTURE
@@ -135,6 +140,7 @@ class IdentifyConfig:
     select: str = "inner"
     restarts: int = 3
     restart_jitter: float = 1e-3
+    prior: float = 0.0
 
     def __post_init__(self) -> None:
         _check_types(self)
@@ -159,6 +165,8 @@ class IdentifyConfig:
             raise ConfigError(f"unknown select {self.select!r}; valid: train, inner")
         if self.restarts < 1:
             raise ConfigError("restarts must be >= 1")
+        if not self.prior >= 0:
+            raise ConfigError("prior must be >= 0 rad")
 
 
 def _check_types(c: IdentifyConfig) -> None:
@@ -167,7 +175,7 @@ def _check_types(c: IdentifyConfig) -> None:
     for name, low in (("max_rounds", 1), ("joint_rounds", 1), ("restarts", 1), ("nthread", 0),
                       ("seed", 0)):
         check_number(name, getattr(c, name), low, integer=True)
-    for name in ("delta", "rtol", "jitter", "restart_jitter"):
+    for name in ("delta", "rtol", "jitter", "restart_jitter", "prior"):
         check_number(name, getattr(c, name))
     check_number("rtol", c.rtol, 0)
     check_bool("cold", c.cold)
@@ -283,6 +291,9 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                         d = config.delta
                         r = np.sign(r) * np.sqrt(2.0 * (np.sqrt(r * r + d * d) - d))
                     parts.append(r * k)
+                if config.prior > 0:
+                    parts.append(_prior_residual(points[len(out)][0], points[len(out)][1],
+                                                 config.prior * math.sqrt(len(windows))))
                 out.append(np.concatenate(parts))
             return out
         return residual
@@ -425,6 +436,16 @@ def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
         best = {key: min(g, key=lambda t: t.cost) for key, g in groups.items()}
         rounds += max(t.rounds for g in groups.values() for t in g)
     return best, rounds
+
+
+def _prior_residual(st: fitmod.Structure, x: np.ndarray, weight: float) -> np.ndarray:
+    """weight x (u - u_null) / (u_hi - u_lo) per free parameter (``IdentifyConfig.prior``)."""
+    out = np.empty(len(st.free))
+    for i, (f, v) in enumerate(zip(st.free, x, strict=True)):
+        lo, hi = f.u_bounds
+        null = float(np.clip(EFFECTS[f.effect].param(f.param).null, f.lo, f.hi))
+        out[i] = (f.to_u(v) - f.to_u(null)) / (hi - lo)
+    return weight * out
 
 
 def torque_off_seen(ds: Dataset, logs: Sequence[int]) -> bool:
