@@ -113,6 +113,27 @@ def test_paired_gain_bound_false_positive_rate_and_power():
     assert sg.paired_gain_bound(np.ones(1), np.zeros(1), rng, 100) == -math.inf
 
 
+def test_paired_gain_bound_of_an_effect_that_acts_in_one_block():
+    """A torque limit acts only during a fast move: 11 blocks of 0.5 s, the new model removes a
+    large error in block 4 and leaves the other 10 exactly as they were (the independent
+    bench's torque-limit case: select gain 0.9999 in one block). With runs of 3 blocks (4 runs
+    from 9 starts, 3 of which cover block 4) a resample misses it with probability
+    (6/9)^4 = 0.198 > 5 %: those resamples show no change at all, and counted as "no gain" they
+    set the bound to 0. They are ties (no evidence either way); the others all contain block 4.
+    If the other blocks get 1 % WORSE instead, the missing-block resamples are real evidence
+    against the change and the bound is negative."""
+    rng = np.random.default_rng(3)
+    cur = np.full(11, 20e-6)
+    cur[4] = 3.5
+    new = cur.copy()
+    new[4] = 90e-6
+    assert sg.paired_gain_bound(cur, new, rng, 2000) > 0.9
+    worse = 1.01 * cur
+    worse[4] = 90e-6
+    assert sg.paired_gain_bound(cur, worse, rng, 2000) < 0
+    assert sg.paired_gain_bound(cur, cur.copy(), rng, 2000) == 0.0  # all ties
+
+
 def test_paired_gain_bound_keeps_block_correlation():
     """Null differences AR(1)-correlated over blocks (rho 0.6, 80 blocks): the moving-block
     bound (default run length ceil(80^(1/3)) = 5) gives a false positive in about 13 % of

@@ -724,11 +724,7 @@ def test_replayed_columns_beyond_the_memory_cap_are_still_returned(monkeypatch):
             for x, y in zip(g, a, strict=True):
                 np.testing.assert_array_equal(x, y)
 
-@pytest.mark.xfail(strict=True, reason="wanted, not landed: treating the delay floor as the null "
-                   "named redteam3's fin_latency60_prox (60.9 ms) but turned test_gap_independent's "
-                   "bench-torque_limit and test_gap_actuator_kinds' gear-torque_limit into a 14 ms "
-                   "latency (CI 2026-11-26 on 18242fd); needs the selection between confusable "
-                   "effects first")
+
 def test_a_delay_at_its_one_step_floor_is_no_latency_not_a_fit_on_a_bound():
     """A latency fitted on three joints of which one has it (60 ms) and two do not: the clean
     joints' delays sit at the search floor, one physics step (2 ms) above the null 0 s. That is

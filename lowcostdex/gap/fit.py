@@ -238,16 +238,25 @@ def at_bounds(s: Structure, u: np.ndarray) -> list[tuple[int, str]]:
     that is not the effect's null (a friction at 0 is absent, not at a bound): (index, "lower" or
     "upper").
 
-    A delay at its floor of one physics step (above the null 0 s) counts as on a bound, although
-    on a joint without latency it means "none": treating it as the null named redteam3's 60 ms
-    one-joint latency but turned the independent bench's torque-limit case into a 14 ms latency
-    (2026-11-26; ``tests/test_gap_units.py``'s strict xfail keeps the wanted behaviour)."""
+    A bound between the null and the rest of the range (a delay's lower bound of one physics
+    step above the null 0; a torque limit's upper bound, the model's peak force, below the null
+    inf) is "as little of the effect as the search can express": a joint without the effect
+    sits there, and that is not an implausible fit (a 60 ms latency on one finger joint was
+    rejected because the two clean joints' delays sat at 2 ms). (Landed first in 18242fd and
+    reverted: with it, the independent bench's torque limit became a 14 ms latency. Not this
+    rule's fault: the forward step rejected the torque limit (select gain 0.9999, but a paired
+    block bound of 0: it acts in one select block of 11) and only the backward search named it,
+    by a pruning order that hung on which fits counted as on a bound.
+    ``significance.paired_gain_bound`` now leaves out resamples without such blocks.)"""
     lo, hi = s.u_bounds()
     out = []
     for i, f in enumerate(s.free):
         null = effect(f.effect).param(f.param).null
         for b, side in ((lo[i], "lower"), (hi[i], "upper")):
-            if abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
+            value = f.from_u(b)
+            toward_null = null <= value if side == "lower" else null >= value
+            if (abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(value, null)
+                    and not toward_null):
                 out.append((i, side))
     return out
 
