@@ -111,11 +111,16 @@ class Effect:
 
     def truth_params(self) -> dict:
         """Catalogue parameters comparable with this effect's value (documented meaning
-        only; Stribeck's and the velocity limit's parameterisation is not documented)."""
+        only; documented by gap-cands 2026-11-26: the velocity limit's ``speed`` is the no-load
+        speed of a torque-speed line; stribeck_friction's ``coulomb`` the sliding level,
+        ``static`` the breakaway above it, ``velocity`` the Stribeck speed)."""
         return {"latency": {"delay": self.value}, "backlash": {"width": self.value},
                 "offset_read": {"offset": self.value}, "offset_mount": {"offset": self.value},
                 "gain": {"scale": self.value}, "armature": {"scale": self.value},
                 "mass": {"scale": self.value}, "coulomb": {"frictionloss": self.value},
+                "vlimit": {"speed": self.value},
+                "stribeck": {"coulomb": self.value, "static": self.extra[0] - self.value,
+                             "velocity": self.extra[1]} if self.kind == "stribeck" else {},
                 }.get(self.kind, {})
 
 

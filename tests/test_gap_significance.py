@@ -164,39 +164,42 @@ def test_null_margins_from_the_catalogue_nulls_and_the_force_range():
     ctx = _ctx([0.6, 0.6])
     s = fitmod.Structure.build(("backlash", "torque_limit", "gain_error"), ("a", "b"), ctx)
     names = [(f.effect, f.param, f.joint) for f in s.free]
+    # (backlash's sensor placement is a shape parameter: judged by the width, its amplitude)
     assert names == [("backlash", "width", 0), ("backlash", "width", 1),
+                     ("backlash", "sensor", 0), ("backlash", "sensor", 1),
                      ("torque_limit", "torque", 0), ("torque_limit", "torque", 1),
                      ("gain_error", "scale", 0), ("gain_error", "scale", 1)]
-    x = np.array([0.0016, 0.0, 0.596, 0.599, 0.98, 1.0])
+    x = np.array([0.0016, 0.0, 1.0, 0.0, 0.596, 0.599, 0.98, 1.0])
     u = s.u(x)
-    tl_log = s.free[2].log and s.free[4].log
+    tl_log = s.free[4].log and s.free[6].log
     assert tl_log  # torque and gain scale are fitted in log coordinates
-    half = np.array([0.0017, 0.001, 0.02, 0.02, math.log(1.03), 0.01])
+    half = np.array([0.0017, 0.001, 0.01, 0.01, 0.02, 0.02, math.log(1.03), 0.01])
     m = sg.null_margins(s, u, half, ctx)
     assert m["backlash"] < 1 and m["torque_limit"] < 1 and m["gain_error"] < 1
-    half2 = np.array([0.0005, 0.001, 0.02, 0.02, math.log(1.01), 0.01])
-    x2 = np.array([0.0016, 0.0, 0.3, 0.599, 0.98, 1.0])
+    half2 = np.array([0.0005, 0.001, 0.01, 0.01, 0.02, 0.02, math.log(1.01), 0.01])
+    x2 = np.array([0.0016, 0.0, 1.0, 0.0, 0.3, 0.599, 0.98, 1.0])
     m2 = sg.null_margins(s, s.u(x2), half2, ctx)
     assert m2["backlash"] == pytest.approx(3.2)
     assert m2["torque_limit"] == pytest.approx(math.log(2) / 0.02)
     assert m2["gain_error"] > 1
-    inf = sg.null_margins(s, u, np.full(6, np.inf), ctx)
+    inf = sg.null_margins(s, u, np.full(8, np.inf), ctx)
     assert all(v == 0 for v in inf.values())
     # a torque limit above the largest force asked for is no effect, however narrow
-    m3 = sg.null_margins(s, s.u(np.array([0.0, 0.0, 0.7, 0.7, 1.0, 1.0])),
-                         np.full(6, 1e-6), ctx)
+    m3 = sg.null_margins(s, s.u(np.array([0.0, 0.0, 0.0, 0.0, 0.7, 0.7, 1.0, 1.0])),
+                         np.full(8, 1e-6), ctx)
     assert m3["torque_limit"] < 0
 
 
 def test_null_margins_judge_a_multi_parameter_effect_by_its_amplitude():
-    """Stribeck friction is no effect when its static amplitude is 0, whatever its velocity."""
+    """Stribeck friction is no effect when its static amplitude is 0, whatever its velocity
+    (and its sliding level: a Stribeck without a breakaway is not named Stribeck)."""
     ctx = _ctx([1.0, 1.0])
     s = fitmod.Structure.build(("stribeck_friction",), ("a",), ctx)
-    assert [f.param for f in s.free] == ["static", "velocity"]
-    x = np.array([0.01, 0.2])
-    m = sg.null_margins(s, s.u(x), np.array([0.02, 1e-9]), ctx)
+    assert [f.param for f in s.free] == ["static", "velocity", "coulomb"]
+    x = np.array([0.01, 0.2, 0.05])
+    m = sg.null_margins(s, s.u(x), np.array([0.02, 1e-9, 1e-9]), ctx)
     assert m["stribeck_friction"] < 1
-    m = sg.null_margins(s, s.u(x), np.array([0.002, 10.0]), ctx)
+    m = sg.null_margins(s, s.u(x), np.array([0.002, 10.0, 10.0]), ctx)
     assert m["stribeck_friction"] == pytest.approx(5.0)
 
 

@@ -560,6 +560,8 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
     nj = len(eng.joints)
     for name in remaining:
         for p in effect(name).params:
+            if not fitmod.acts(p, ctx):  # fitted only where it acts (``Structure.build``)
+                continue
             for j in range(nj):
                 f = fitmod.space(name, p.name, j, ctx)
                 null = p.null if math.isfinite(p.null) else f.hi
@@ -570,8 +572,10 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
                 for v in (probe, *f.extra):
                     vals = {q.name: np.full(nj, q.null) for q in effect(name).params}
                     vals[p.name][j] = v
-                    if name == "stribeck_friction" and p.name == "velocity":
-                        vals["static"][j] = fitmod.space(name, "static", j, ctx).start
+                    amp = {"stribeck_friction": ("velocity", "static"),
+                           "backlash": ("sensor", "width")}.get(name, ("", ""))
+                    if p.name == amp[0]:  # a shape parameter probed with its amplitude on
+                        vals[amp[1]][j] = fitmod.space(name, amp[1], j, ctx).start
                     cols.append(cur_eff + [AppliedEffect(name, eng.joints, vals)])
                     owner.append(name)
     res = eng.residuals(segs, cols)

@@ -11,7 +11,7 @@ An extended model is a folder:
                             force limits on the actuator, masses on the body)
 
 Effects MJCF cannot express (backlash, Stribeck and load-dependent friction, position offset,
-thermal derating, voltage sag) live only in effects.json and act through the ``Plant``. Two ways
+thermal derating, voltage sag, a velocity limit's torque-speed line on a force-limited actuator) live only in effects.json and act through the ``Plant``. Two ways
 to use it: ``ExtendedModel.plant()`` (nominal model + every effect through the Plant: the one
 source of truth; a backlash is the play hinge the analysis replayed, which adds a dof per
 joint, or with ``hidden_dofs=False`` the play operator in the nominal qpos layout, which the
@@ -52,7 +52,9 @@ def bake_mjcf(xml: str, effects: Sequence[AppliedEffect]) -> tuple[str, list[str
     """
     baked: list[str] = []
     order = {name: i for i, name in enumerate(EFFECTS)}  # the Plant applies them in this order
-    candidates = sorted((e for e in effects if e.name in MJCF_EXPRESSIBLE),
+    # a velocity limit on a torque-speed line (finite speed) is state-dependent: Plant only
+    candidates = sorted((e for e in effects if e.name in MJCF_EXPRESSIBLE
+                         and not (e.cls.live and np.any(np.isfinite(e.values["speed"])))),
                         key=lambda e: order[e.name])
     for e in candidates:
         spec = mujoco.MjSpec.from_string(xml)

@@ -115,7 +115,7 @@ def null_u(f: fitmod.Free, ctx: fitmod.Context) -> tuple[float, int] | None:
 
 
 # the parameter that carries an effect's size, for effects with several parameters
-_AMPLITUDE = {"stribeck_friction": "static", "gearbox_friction": "mu"}
+_AMPLITUDE = {"stribeck_friction": "static", "gearbox_friction": "mu", "backlash": "width"}
 
 
 def null_margins(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, ctx: fitmod.Context

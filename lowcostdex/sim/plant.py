@@ -192,7 +192,7 @@ class _PlantBase:
             self.array(name)[...] = self.nominal(name)
         mass_changed = False
         for b in self._bound:
-            if b.cls.kind == "model" or b.cls.structural:
+            if b.cls.kind == "model" or b.cls.structural or b.cls.fields:
                 b.cls.apply(self, b.targets, b.values)
                 mass_changed |= b.cls.name == "mass_error"
         if mass_changed:
@@ -203,6 +203,7 @@ class _PlantBase:
         self._static_forcelimited = np.array(self.array("actuator_forcelimited"), copy=True)
         self._apply_torque_mask()
         self._has_friction = any(b.cls.kind == "friction" for b in self._bound)
+        self._live = [b for b in self._bound if b.cls.live]
         self._has_exo = any(b.cls.kind == "exogenous" for b in self._bound)
 
     @property
@@ -258,8 +259,15 @@ class _PlantBase:
                 key_state = {k[len(b.cls.name) + 1:]: v for k, v in self._state.items()
                              if k.startswith(b.cls.name + ":")}
                 key_state["setpoint"] = self.ctrl[..., a].copy()  # what the servo holds now
+                if b.cls.structural:  # its hidden dofs' state (a play read by the servo)
+                    key_state["qpos"], key_state["qvel"] = self.qpos, self.qvel
+                    g = self.array("actuator_gainprm")[..., a, 0]
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        key_state["kv_kp"] = np.where(
+                            g > 0, -self.array("actuator_biasprm")[..., a, 2] / g, 0.0)
                 sub = b.cls.command(b.targets, b.values, ctrl[..., a], key_state, self.rng)
-                key_state.pop("setpoint")
+                for k in ("setpoint", "qpos", "qvel", "kv_kp"):
+                    key_state.pop(k, None)
                 for k, v in key_state.items():
                     self._state[f"{b.cls.name}:{k}"] = v
                 ctrl[..., a] = sub
@@ -316,15 +324,26 @@ class _PlantBase:
         """
         self.ctrl[...] = self.command(goal)
         self._exogenous(channels)
-        if self._has_friction:
+        if self._has_friction or self._live:
             fl = self.array("dof_frictionloss")
             for _ in range(nstep):
-                fl[...] = self._friction_level(self.qvel, self.actuator_force,
-                                               -self.qfrc_bias)
+                if self._has_friction:
+                    fl[...] = self._friction_level(self.qvel, self.actuator_force,
+                                                   -self.qfrc_bias)
+                if self._live:
+                    self._live_forcerange()
                 self._advance(1)
         else:
             self._advance(nstep)
         self._check_finite()
+
+    def _live_forcerange(self) -> None:
+        """Live model effects (a torque-speed line) rewrite the force range from the state:
+        from the range the model effects and torque enable set, every physics step."""
+        fr = self.array("actuator_forcerange")
+        fr[...] = np.where(self._torque_on[..., None], self._static_forcerange, 0.0)
+        for b in self._live:
+            b.cls.live_apply(self, b.targets, b.values, self.qvel, fr)
 
     def reset_effect_state(self) -> None:
         """Forget per-rollout effect state (the backlash play operator's setpoint)."""

@@ -38,6 +38,8 @@ class Param:
       doc: one-line meaning.
       limit: physical hard limits [unit]: a fit that lands on ``low`` or ``high`` may widen its
         search range up to these, never beyond (default: ``(low, high)``, no widening).
+      on: the actuators the parameter acts on: "any", "dcmotor" (dcmotor servos only) or
+        "other" (every other actuator); a fit frees it only where the model has such actuators.
     """
 
     name: str
@@ -49,6 +51,7 @@ class Param:
     start: float | None = None
     doc: str = ""
     limit: tuple[float, float] | None = None
+    on: str = "any"
 
     def __post_init__(self) -> None:
         if not self.low < self.high:
@@ -57,6 +60,7 @@ class Param:
             raise ConfigError(f"param {self.name}: dr range {self.dr} outside bounds")
         if self.limit is not None and not self.limit[0] <= self.low < self.high <= self.limit[1]:
             raise ConfigError(f"param {self.name}: hard limit {self.limit} inside the bounds")
+        check_choice(f"param {self.name} actuators", self.on, ("any", "dcmotor", "other"))
 
     @property
     def hard(self) -> tuple[float, float]:
@@ -148,6 +152,8 @@ class Effect:
     # prepare() adds degrees of freedom (only with hidden_dofs; the qpos layout changes), and
     # apply() writes their fields whatever the kind
     structural: ClassVar[bool] = False
+    # model effects whose fields depend on the state: ``live_apply`` every physics step
+    live: ClassVar[bool] = False
     fields: ClassVar[tuple[str, ...]] = ()  # model fields written by ``apply``
     doc: ClassVar[str] = ""
 
@@ -187,6 +193,12 @@ class Effect:
     @classmethod
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:
         """kind model: write model fields from their nominal values."""
+
+    @classmethod
+    def live_apply(cls, f: Fields, t: Targets, v: Values, qvel: np.ndarray,
+                   forcerange: np.ndarray) -> None:
+        """live model effects: rewrite the (..., nu, 2) actuator force range in place from the
+        dof velocities [rad/s] (..., nv), every physics step."""
 
     @classmethod
     def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,

@@ -46,8 +46,12 @@ class AppliedEffect:
         return effect(self.name)
 
     def to_dict(self) -> dict:
+        """JSON-safe: a parameter at an infinite null on every joint (a velocity limit's
+        speed on a dcmotor servo) is left out; ``from_dict`` restores it."""
+        nulls = {p.name: p.null for p in self.cls.params}
         return {"effect": self.name, "joints": list(self.joints),
-                "params": {k: v.tolist() for k, v in self.values.items()}}
+                "params": {k: v.tolist() for k, v in self.values.items()
+                           if not (np.isinf(nulls[k]) and np.all(v == nulls[k]))}}
 
     @classmethod
     def from_dict(cls, d: Mapping) -> AppliedEffect:
