@@ -40,11 +40,14 @@ MISSES: dict[str, str] = {
     "srv_stribeck": "family (84e2bf6): coulomb_friction 0.1035 only (breakaway 0.20 unnamed, "
                     "held-out 28.7 -> 9.07 mrad, floor 0.63); stribeck_friction fitted static "
                     "0.02-0.04",
-    "srv_backlash_output": "miss (5d3eaa3): 0.05 rad play, loop on the output shaft, named "
-                           "gain_error 1.12 + latency 2.4 ms (held-out 11.5 -> 9.7 mrad, floor "
-                           "0.82); backlash candidate fitted 3.3 mrad",
-    "fin_backlash080_dist": "miss (5d3eaa3): 0.08 rad play behind a rotor-side encoder, 'no "
-                            "significant discrepancy' (held-out 0.83 mrad, floor 0.68)",
+    "srv_backlash_output": "interval (gap-cands, backlash sensor): named exactly backlash, "
+                           "sensor 0.989 [0.971, 1.007] (the output shaft) but width 0.0340 "
+                           "[0.0321, 0.0359] for 0.05 (held-out 11.5 -> 7.28 mrad, floor 0.82); "
+                           "was a miss (gain_error + latency, 5d3eaa3)",
+    "fin_backlash080_dist": "not identifiable (gap-cands): the 0.08 rad play behind a rotor-side "
+                            "encoder moves the logged dist rotor angle by 0.24-0.42 mrad RMS "
+                            "(read floor 0.67; prox 0.5-0.97): 'no significant discrepancy' "
+                            "(held-out 0.83 mrad, floor 0.68, 5d3eaa3)",
     "srv_coulomb_stall_50hz": "extra (3c61633): Coulomb 1.2 N m (80 % of stall) named "
                               "coulomb_friction 0.706 [0.493, 0.908] (truth outside) plus "
                               "backlash 0.30 rad and viscous_damping 0.062",
