@@ -560,7 +560,7 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
     nj = len(eng.joints)
     for name in remaining:
         for p in effect(name).params:
-            if not fitmod.acts(p, ctx):  # fitted only where it acts (``Structure.build``)
+            if not p.acts(np.isfinite(ctx.stall)):  # fitted where it acts (Structure.build)
                 continue
             for j in range(nj):
                 f = fitmod.space(name, p.name, j, ctx)

@@ -37,8 +37,7 @@ from lowcostdex.sim.effects import AppliedEffect, effect
 # Extra starts for non-convex parameters, as fractions of (value at start) or absolute values.
 _EXTRA_STARTS: dict[tuple[str, str], tuple[float, ...]] = {
     ("latency", "delay"): (0.03, 0.06),
-    ("backlash", "width"): (0.004, 0.03),
-    ("backlash", "sensor"): (0.0, 1.0),  # the second start: a loop across a real-size play
+    ("backlash", "width"): (0.004, 0.03), ("backlash", "sensor"): (0.0, 1.0),  # read across
     ("stribeck_friction", "velocity"): (0.05,),
     ("torque_limit", "torque"): (0.25,),  # x peak force
     ("inertia_error", "scale"): (3.0,),
@@ -108,8 +107,7 @@ def hard_limits(name: str, param: str, j: int, ctx: Context) -> tuple[float, flo
         lo = max(lo, ctx.dt)
     elif (name, param) == ("viscous_damping", "damping"):
         lo = max(lo, -float(ctx.damping[j]))
-    elif (name, param) in (("coulomb_friction", "frictionloss"), ("stribeck_friction", "static"),
-                           ("stribeck_friction", "coulomb")):
+    elif name in ("coulomb_friction", "stribeck_friction") and param != "velocity":
         hi = min(hi, float(ctx.stall[j]))
     elif (name, param) == ("torque_limit", "torque"):
         hi = min(hi, float(max(ctx.peak_force[j], 2 * p.low)))
@@ -153,13 +151,6 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
     return Free(name, param, j, lo, hi, start, log, fd, extra)
 
 
-def acts(p, ctx: Context) -> bool:
-    """Whether ``Param`` ``p`` acts on some joint's actuator (``Param.on``; dcmotors have a
-    finite ``ctx.stall``): only those are fitted (a velocity limit's scale or speed)."""
-    dc = np.isfinite(np.asarray(ctx.stall, float))
-    return p.on == "any" or bool(np.any(dc if p.on == "dcmotor" else ~dc))
-
-
 @dataclass
 class Structure:
     """A candidate model: effects on the data set's effect joints with free parameters.
@@ -180,7 +171,7 @@ class Structure:
               fixed: Sequence[AppliedEffect] = ()) -> Structure:
         """Free per-joint parameters for ``effects``; ``fixed`` effects ride along unchanged."""
         free = [space(n, p.name, j, ctx) for n in effects for p in effect(n).params
-                if acts(p, ctx) for j in range(len(joints))]
+                if p.acts(np.isfinite(ctx.stall)) for j in range(len(joints))]
         return cls(tuple(effects), tuple(joints), free, tuple(fixed))
 
     @property
@@ -517,8 +508,7 @@ def polish(t: Track, residual: ResidualFn, dt: float, n: int = 9) -> bool:
     return _scan(t, residual, grids)
 
 
-_LIMITS = {("torque_limit", "torque")}
-_LOG_LIMITS = {("velocity_limit", "speed")}
+_LIMITS, _LOG_LIMITS = {("torque_limit", "torque")}, {("velocity_limit", "speed")}
 
 
 def scan_limits(t: Track, residual: ResidualFn, n: int = 25) -> bool:

@@ -62,6 +62,12 @@ class Param:
             raise ConfigError(f"param {self.name}: hard limit {self.limit} inside the bounds")
         check_choice(f"param {self.name} actuators", self.on, ("any", "dcmotor", "other"))
 
+    def acts(self, dcmotor: np.ndarray) -> bool:
+        """Whether it acts on some of these actuators ((n,) bool: which are dcmotor servos,
+        e.g. those with a finite stall torque); a fit frees only parameters that act."""
+        dc = np.asarray(dcmotor, bool)
+        return self.on == "any" or bool(np.any(dc if self.on == "dcmotor" else ~dc))
+
     @property
     def hard(self) -> tuple[float, float]:
         """Physical hard limits of the parameter (``limit``, or the fit bounds)."""
