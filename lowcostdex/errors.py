@@ -99,6 +99,20 @@ def check_sizes(name: str, value: object) -> None:
             ok = ok and isinstance(h, numbers.Integral) and not isinstance(h, bool) and h >= 1
     if not ok:
         raise ConfigError(f"{name}={value!r} must be positive integers (a tuple, e.g. (64, 64))")
+    for h in value:  # type: ignore[union-attr]
+        check_at_most(name, h, MAX_LAYER_WIDTH, "a layer that wide holds its width squared in "
+                      "weights (4096 units: 17 M per layer); typical widths are 32-512")
+
+
+MAX_LAYER_WIDTH = 4096
+"""Widest hidden layer a config accepts."""
+
+
+def check_at_most(name: str, value: float, cap: float, why: str) -> None:
+    """Raise ConfigError when ``value`` exceeds ``cap``: a size no run needs whose memory or
+    time would grow without end (``why`` says what grows), or a number far outside its use."""
+    if value > cap:
+        raise ConfigError(f"{name}={value!r} is above {cap:g}: {why}")
 
 
 def check_keys(kind: str, given: Iterable[str], valid: Iterable[str]) -> None:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pytest
 from pointmass import demo_info, expert_action, make_pointmass
 
@@ -174,13 +175,119 @@ CASES += [
          "with --labels next_position"),
 ]
 
+CASES += [
+    # model --overwrite replaced ANY file with the MJCF: a demo file, a user's notes
+    Case("model --overwrite over a demo file",
+         ("model", "dclaw", "--out", "{tmp}/demos.h5", "--overwrite"),
+         "--out {tmp}/demos.h5 is not an MJCF model (no <mujoco> root); --overwrite replaces a "
+         "model file only, and this file is left untouched", files={"demos.h5": pointmass_demos}),
+    Case("model --overwrite over a user's XML",
+         ("model", "bench", "--out", "{tmp}/notes.xml", "--overwrite"),
+         "is not an MJCF model", files={"notes.xml": "<notes><todo>tune kp</todo></notes>"}),
+    Case("model with --fingers ''", ("model", "dclaw", "--fingers", "", "--out", "{tmp}/m.xml"),
+         "--fingers is empty; name the fingers (e.g. --fingers ff), or leave it out"),
+    Case("model allegro with a servo --motor",
+         ("model", "allegro", "--motor", "XM430-W350", "--out", "{tmp}/m.xml"),
+         "--motor XM430-W350: the Allegro's joints are torque-driven on CAN (no servo model)"),
+    # a port that is not there / not a device: one line, before the output folder is made
+    Case("main on a missing port", ("main", "--out", "{tmp}/o", "--port", "/dev/ttyUSB7"),
+         "--port /dev/ttyUSB7: no such device"),
+    Case("main on a file given as the port",
+         ("main", "--out", "{tmp}/o", "--port", "{tmp}/notes.txt", "--stages", "bus"),
+         "--port {tmp}/notes.txt: cannot open it as a serial port: it is a regular file, not a "
+         "device", files={"notes.txt": "my notes\n"}),
+    Case("record-log --effects with a latency in ms",
+         ("record-log", "--port", "emulated", "--logs", "1", "--seconds", "1", "--effects",
+          "{tmp}/effects.json", "--out", "{tmp}/logs"),
+         "effect latency: parameter 'delay' = 20 [s] is outside its limits [0, 0.25] s",
+         files={"effects.json": '[{"effect": "latency", "joints": ["ff_top"], '
+                                '"params": {"delay": 20}}]'}),
+    Case("reset-test on a file given as the port",
+         ("reset-test", "--port", "{tmp}/notes.txt", "--trials", "1"),
+         "cannot open it as a serial port: it is a regular file", files={"notes.txt": "x\n"}),
+]
+
+CASES += [
+    # sizes whose memory or time grows without end: ran until killed, or a std::bad_alloc
+    # traceback (ppo), or an overflowing exp (init-log-std); NPG's delta of 1e300 trained
+    Case("npg --n-traj 1e9", npg("--n-traj", "1000000000"),
+         "n_traj=1000000000 is above 10000: more trajectories per iteration than a run needs"),
+    Case("npg --eval-episodes 1e9", npg("--eval-episodes", "1000000000"),
+         "eval_episodes=1000000000 is above 10000"),
+    Case("npg --hidden 1e8", npg("--hidden", "100000000"),
+         "hidden_sizes=100000000 is above 4096: a layer that wide holds its width squared"),
+    Case("npg --workers 1e5", npg("--workers", "100000"),
+         "n_workers=100000 is above 1024: one process each"),
+    Case("npg --init-log-std 1e9", npg("--init-log-std", "1e9"),
+         "init_log_std=1000000000.0 is above 3: an exploration std of e^3 = 20 in actions "
+         "bounded to [-1, 1]"),
+    Case("npg --step-size 1e300", npg("--step-size", "1e300"),
+         "step_size=1e+300 is above 100: a KL step of delta/2 nats per iteration leaves no trust "
+         "region"),
+    Case("ppo --num-envs 1e8", ("train", "ppo", "--out", "{tmp}/run", "--num-envs", "100000000",
+                                "--no-progress"),
+         "num_envs=100000000 is above 16384: every copy's simulator state"),
+    Case("tvlg --n-rollouts 1e9", tvlg("--n-rollouts", "1000000000"),
+         "n_rollouts=1000000000 is above 1000: episodes per iteration are held in memory"),
+    Case("record-demos --episodes 1e9",
+         ("record-demos", "--episodes", "1000000000", "--out", "{tmp}/d.h5"),
+         "--episodes 1000000000 is above 10000: each is an episode on the robot"),
+    Case("record-log --logs 1e9",
+         ("record-log", "--port", "emulated", "--logs", "1000000000", "--out", "{tmp}/logs"),
+         "--logs 1000000000 is above 10000: each log is a file"),
+    Case("reset-test --trials 1e9", reset_test()[:1] + ("--trials", "1000000000"),
+         "--trials 1000000000 is above 10000: each trial tangles and resets the robot"),
+    Case("ppo --threads 1e5", ("train", "ppo", "--out", "{tmp}/run", "--threads", "100000",
+                               "--no-progress"), "nthread=100000 is above 1024"),
+]
+
+
+
+def _log() -> str:
+    from test_bad_inputs import csv_text, servo_log
+
+    return csv_text(servo_log())
+
+
+def _bench() -> str:
+    from test_bad_inputs import bench_model
+
+    return bench_model()
+
+
+HOLDOUT = ("gap", "analyze", "--model", "bench.xml", "--log", "a.csv", "b.csv", "--out", "rep")
+CASES += [
+    # --holdout naming the copy that the duplicate rule left out ("must also be given with
+    # --log", though it was given)
+    Case("--holdout naming a byte-identical copy of another log", (*HOLDOUT, "--holdout", "b.csv"),
+         "--holdout b.csv holds the same bytes as the log a.csv, which is used once (a copy would "
+         "be fitted and tested at once): hold out a.csv itself",
+         files={"bench.xml": _bench, "a.csv": _log, "b.csv": _log}),
+    Case("--holdout naming a file not given with --log", (*HOLDOUT, "--holdout", "c.csv"),
+         "--holdout c.csv is not among the logs; every --holdout file must also be given with "
+         "--log", files={"bench.xml": _bench, "a.csv": _log, "b.csv": _log,
+                        "c.csv": lambda p: p.write_text(_log().replace("\n0.0000,", "\n0.0001,"))}),
+    Case("identify --holdout naming a byte-identical copy",
+         ("gap", "identify", "--log", "a.json", "b.json", "--holdout", "b.json"),
+         "--holdout b.json holds the same bytes as the log a.json",
+         files={"a.json": lambda p: p.write_text(_bam()), "b.json": lambda p: p.write_text(_bam())}),
+]
+
+
+def _bam() -> str:
+    from test_bad_inputs import bam_log
+
+    return json.dumps(bam_log())
+
 
 def _materialize(case: Case, root: Path) -> list[str]:
     for name, content in case.files.items():
         path = root / name
         path.parent.mkdir(parents=True, exist_ok=True)
         if callable(content):
-            content(path)
+            content = content() if content.__code__.co_argcount == 0 else content(path)
+            if isinstance(content, str):
+                path.write_text(content)
         else:
             path.write_text(content)
     return [a.replace("{tmp}", str(root)) for a in case.argv]
@@ -229,3 +336,105 @@ def test_the_controls_run(tmp_path, capsys):
                      "--json", str(summary)])
         assert code in (0, 1), capsys.readouterr().err  # 1: a trial failed (not an error)
         assert json.loads(summary.read_text())["trials"] == 1
+
+
+@pytest.mark.parametrize("written", ["XL330-M288", "xl330-m288-t", "XL330_M288", "XL330"])
+def test_a_bam_motor_written_as_its_full_model_name_reads_as_bam_s_name(written, tmp_path):
+    """Rhoban/bam's logs say "xl330" for the XL330-M288 (ROBOTIS' name, typed by hand into a log
+    header): the same log with either name loads to the same data set."""
+    from test_bad_inputs import bam_log
+
+    from lowcostdex.gap.dataset import load_dataset
+
+    datasets = []
+    for name in ("xl330", written):
+        (tmp_path / "bam.json").write_text(json.dumps(bam_log(motor=name)))
+        datasets.append(load_dataset([tmp_path / "bam.json"]))
+    a, b = (ds.trajectories[0] for ds in datasets)
+    assert np.array_equal(a.time, b.time) and np.array_equal(a.qpos, b.qpos)
+    assert datasets[0].models == datasets[1].models and datasets[1].notes == []
+
+
+def test_resuming_another_trainer_s_run_names_the_trainer(tmp_path, capsys):
+    """``--resume`` of an npg run with ppo or tvlg printed a diff of every setting the two
+    configurations do not share (hundreds of characters); now one line naming both trainers.
+    npg -> dapg keeps the settings' diff (one trainer, ``algo`` differs)."""
+    out = tmp_path / "run"
+    assert main(["train", "npg", "--env", POINTMASS, "--out", str(out), *TINY]) == 0
+    before = _snapshot(tmp_path)
+    capsys.readouterr()
+    for argv, needle in (
+            (["train", "ppo", "--out", str(out), "--no-progress", "--resume"],
+             "it is a run of 'train npg/dapg', not of 'train ppo'; resume it with the trainer "
+             "that started it"),
+            (["train", "tvlg", "--out", str(out), "--no-progress", "--resume"],
+             "it is a run of 'train npg/dapg', not of 'train tvlg'")):
+        assert main(argv) == USER_ERROR
+        err = capsys.readouterr().err
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert len(lines) == 1 and needle in lines[0] and "Traceback" not in err, err
+        assert _snapshot(tmp_path) == before
+
+
+def test_a_current_read_that_failed_costs_the_current_channel_not_the_rows(tmp_path):
+    """A current reading missing in one row of a log whose goal changes at every row: the rows
+    were dropped and the log cut in two there (the goal across the gap unknown); the current is
+    only checked, never replayed, so now the channel is left out and all 800 rows kept, equal to
+    the clean log's. A failed position read still drops its row (the replay needs it)."""
+    from test_bad_inputs import bench_model, csv_text, servo_log
+
+    from lowcostdex.gap.dataset import load_dataset
+
+    (tmp_path / "bench.xml").write_text(bench_model())
+
+    def load(cols):
+        (tmp_path / "log.csv").write_text(csv_text(cols))
+        return load_dataset([tmp_path / "log.csv"], model=tmp_path / "bench.xml")
+
+    clean = load(servo_log()).trajectories[0]
+    cols = servo_log()
+    cols["current:arm"] = np.where(np.arange(800) == 417, np.nan, cols["current:arm"])
+    ds = load(cols)
+    assert ds.notes == ["log.csv: 1 row(s) lack only 'current:arm' (first: row 417, 0-based): "
+                        "the current channel is left out and the rows kept (it is only checked, "
+                        "never replayed)"]
+    (tr,) = ds.trajectories
+    assert "current" in clean.channels and "current" not in tr.channels
+    for k in ("time", "goal", "qpos"):
+        assert np.array_equal(getattr(tr, k), getattr(clean, k))
+    cols["qpos:arm"] = np.where(np.arange(800) == 200, np.nan, cols["qpos:arm"])
+    assert [len(t) for t in load(cols).trajectories] == [200, 599]
+
+
+def test_ctrl_c_during_record_demos_keeps_the_finished_episodes_and_says_so(tmp_path, capsys,
+                                                                             monkeypatch):
+    """Ctrl-C in the second episode: exit 130, one line saying what the file holds and how to
+    add more; the file holds the first episode and reads as a demo file (it printed only
+    "interrupted (Ctrl-C)" before)."""
+    import h5py
+
+    from lowcostdex.demonstrations.kinesthetic import KinestheticRecorder
+    from lowcostdex.errors import INTERRUPTED
+
+    record, calls = KinestheticRecorder.record_episode, [0]
+
+    def interrupted(self, seed):
+        calls[0] += 1
+        if calls[0] == 2:
+            raise KeyboardInterrupt
+        return record(self, seed)
+
+    monkeypatch.setattr(KinestheticRecorder, "record_episode", interrupted)
+    out = tmp_path / "demos.h5"
+    code = main(["record-demos", "--episodes", "3", "--labels", "next_position", "--out",
+                 str(out)])
+    err = capsys.readouterr().err
+    assert code == INTERRUPTED, err
+    lines = [ln for ln in err.splitlines() if "interrupted" in ln]
+    assert len(lines) == 1 and lines[0].startswith(
+        "lowcostdex record-demos: interrupted (Ctrl-C); the 1 demonstration(s) this run "
+        "finished (") and lines[0].endswith(
+        f"0 playbacks) are in {out}; run the command again to add more (it appends)"), err
+    assert "Traceback" not in err
+    with h5py.File(out) as f:
+        assert int(f.attrs["total_episodes"]) == 1

@@ -14,6 +14,7 @@ Every config validates itself at construction and names the valid choices on err
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -21,6 +22,7 @@ from typing import Any
 from lowcostdex.algos.samplers import SAMPLERS
 from lowcostdex.errors import (
     ConfigError,
+    check_at_most,
     check_bool,
     check_choice,
     check_keys,
@@ -29,6 +31,18 @@ from lowcostdex.errors import (
 )
 
 ACTIVATIONS = ("tanh", "relu")
+MAX_EPISODES = 10_000
+"""Most trajectories per iteration / evaluation episodes a config accepts (mjrl's DAPG runs
+use 200 per iteration)."""
+MAX_WORKERS = 1024
+"""Most sampler processes / simulator threads."""
+MAX_BATCH_ENVS = 16_384
+"""Most PPO copies stepped together (the bench uses 64)."""
+MAX_LOG_STD = 3.0
+"""Largest initial log std of the policy's exploration noise."""
+MAX_STEP_SIZE = 100.0
+"""Largest NPG step size delta [nats] (mjrl uses 0.05-0.2; the step's KL is about delta/2;
+tests/test_train.py wrecks a clone on purpose with 20)."""
 
 
 @dataclass(frozen=True)
@@ -59,6 +73,9 @@ class PolicyConfig:
         check_sizes("hidden_sizes", self.hidden_sizes)
         check_number("min_log_std", self.min_log_std)
         check_number("init_log_std", self.init_log_std, low=self.min_log_std)  # >= min_log_std
+        check_at_most("init_log_std", self.init_log_std, MAX_LOG_STD, "an exploration std of "
+                      f"e^{MAX_LOG_STD:g} = {math.exp(MAX_LOG_STD):.0f} in actions bounded to "
+                      "[-1, 1] (the default is 0: std 1)")
         check_number("last_layer_scale", self.last_layer_scale, 0, low_open=True)
         check_number("min_obs_std", self.min_obs_std, 0, low_open=True)
 
@@ -138,6 +155,8 @@ class NPGConfig:
 
     def __post_init__(self) -> None:
         check_number("step_size", self.step_size, 0, low_open=True)
+        check_at_most("step_size", self.step_size, MAX_STEP_SIZE, "a KL step of delta/2 nats "
+                      "per iteration leaves no trust region (mjrl uses 0.05-0.2)")
         check_number("cg_iters", self.cg_iters, 1, integer=True)
         check_number("cg_residual_tol", self.cg_residual_tol, 0)
         check_number("damping", self.damping, 0)
@@ -343,6 +362,12 @@ class TrainConfig:
         check_number("seed", self.seed, 0, integer=True)
         check_number("eval_every", self.eval_every, 0, integer=True)
         check_number("n_demos", self.n_demos, 1, integer=True, none_ok=True)
+        for name, cap, what in (("n_traj", MAX_EPISODES, "trajectories per iteration"),
+                                ("eval_episodes", MAX_EPISODES, "evaluation episodes")):
+            check_at_most(name, getattr(self, name), cap, f"more {what} than a run needs; "
+                          "their samples are held in memory at once")
+        check_at_most("n_workers", self.n_workers, MAX_WORKERS, "one process each, each with "
+                      "its own simulator and policy")
         check_number("gamma", self.gamma, 0, 1)
         check_number("gae_lambda", self.gae_lambda, 0, 1)
         for name in ("bootstrap_truncated", "bc_init", "eval_bc", "eval_paired", "progress"):
@@ -445,6 +470,12 @@ class PPOConfig:
             check_number(name, getattr(self, name), 1, integer=True)
         for name in ("seed", "eval_every", "nthread"):
             check_number(name, getattr(self, name), 0, integer=True)
+        check_at_most("num_envs", self.num_envs, MAX_BATCH_ENVS, "every copy's simulator state "
+                      "and rollout are held in memory at once")
+        check_at_most("eval_episodes", self.eval_episodes, MAX_EPISODES, "more evaluation "
+                      "episodes than a run needs")
+        check_at_most("nthread", self.nthread, MAX_WORKERS, "more threads than any machine's "
+                      "CPUs (0: all of them)")
         check_number("gamma", self.gamma, 0, 1, low_open=True)
         check_number("gae_lambda", self.gae_lambda, 0, 1)
         for name in ("lr", "clip_coef", "max_grad_norm"):

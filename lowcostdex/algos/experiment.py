@@ -260,6 +260,11 @@ class Run:
         if not resume:
             raise ConfigError(f"{path} already holds a run (checkpoint after iteration {last}); "
                               "resume it (--resume) or choose a new directory")
+        if _trainer_of(stored) != _trainer_of(config):  # not a diff: another trainer's run
+            raise ConfigError(
+                f"cannot resume {path}: it is a run of {_trainer_of(stored)}, not of "
+                f"{_trainer_of(config)}; resume it with the trainer that started it (see "
+                f"{config_file}), or choose a new directory")
         mutable = set(mutable_keys)
         fixed_old = {k: v for k, v in stored.items() if k not in mutable}
         fixed_new = {k: v for k, v in config.items() if k not in mutable}
@@ -479,6 +484,15 @@ class Run:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _trainer_of(config: Mapping[str, Any]) -> str:
+    """Which trainer wrote a run's configuration, in words ('train ppo'); npg and dapg share
+    one (their runs differ in ``algo``, which the settings' diff names)."""
+    algo = config.get("algo")
+    name = ("tvlg" if "n_rollouts" in config else "ppo" if "num_envs" in config
+            else "npg/dapg" if isinstance(algo, str) else None)
+    return f"'train {name}'" if name else "another trainer"
 
 
 def stopped(run: Run | None, exc: BaseException, resume: bool) -> BaseException:

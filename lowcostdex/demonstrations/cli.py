@@ -39,6 +39,8 @@ TASKS: dict[str, dict[str, tuple[str, str]]] = {
         "turn-valve-random": ("lowcostdex/AllegroTurnValveRandom-v0", "AllegroValveTeacher"),
     },
 }
+MAX_EPISODES = 10_000
+"""Most episodes one record-demos run tries."""
 DEFAULT_PLAYBACKS = {"flip": 0, "flip-quaternion": 0}
 """Tasks whose noisy open-loop playbacks do not reproduce the demonstration (the block's outcome
 is too sensitive to the finger motion: 0 of 6 succeeded on the emulated D'Claw); 2 otherwise."""
@@ -118,6 +120,9 @@ def _record_demos(args: argparse.Namespace) -> int:
 
     if args.episodes < 1 or (args.successes is not None and args.successes < 1):
         raise ConfigError("--episodes and --successes must be >= 1")
+    if args.episodes > MAX_EPISODES:
+        raise ConfigError(f"--episodes {args.episodes} is above {MAX_EPISODES}: each is an "
+                          "episode on the robot, appended to --out (split a campaign into runs)")
     if args.successes is not None and args.successes > args.episodes:
         raise ConfigError(f"--successes {args.successes} can never be reached: --episodes "
                           f"{args.episodes} is the most episodes tried; give --episodes >= "
@@ -201,17 +206,18 @@ def _record_demos(args: argparse.Namespace) -> int:
                 env, args.out, env_id, teacher=teacher, on_episode=done, response=response,
                 playbacks=args.playbacks, playback_noise=args.playback_noise,
                 rng=np.random.default_rng(args.seed))
-            for k in range(args.episodes):
-                if args.successes is not None and recorder.stats.successes >= args.successes:
-                    break
-                if not emulated:
-                    seconds = recorder.steps * env.unwrapped.control_period
-                    progress.console.print(
-                        f"[bold]episode {k + 1}/{args.episodes}[/bold]: hands off, auto-reset "
-                        f"in {args.countdown:.0f} s; then the fingers go limp: move them "
-                        f"through the task for {seconds:.0f} s")
-                    robot.clock.sleep(args.countdown)
-                recorder.record_episode(args.seed + k)
+            try:
+                _record(args, recorder, robot, progress, env, emulated)
+            except KeyboardInterrupt:  # the episodes recorded are in the file; say so
+                from lowcostdex.errors import INTERRUPTED
+
+                s = recorder.stats
+                console.print(f"lowcostdex record-demos: interrupted (Ctrl-C); the {s.episodes} "
+                              f"demonstration(s) this run finished ({s.successes} successful, "
+                              f"{s.playbacks} playbacks) are in {args.out}; run the command "
+                              "again to add more (it appends)", markup=False, highlight=False,
+                              soft_wrap=True)
+                return INTERRUPTED
     finally:
         env.close()
     s = recorder.stats
@@ -220,3 +226,18 @@ def _record_demos(args: argparse.Namespace) -> int:
                   f"reset {s.reset_time:.1f} s, recording {s.record_time:.1f} s, playbacks "
                   f"{s.playback_time:.1f} s")
     return 0
+
+
+def _record(args: argparse.Namespace, recorder, robot, progress, env, emulated: bool) -> None:
+    """The episodes, each appended to the file when it ends (Ctrl-C loses the one under way)."""
+    for k in range(args.episodes):
+        if args.successes is not None and recorder.stats.successes >= args.successes:
+            break
+        if not emulated:
+            seconds = recorder.steps * env.unwrapped.control_period
+            progress.console.print(
+                f"[bold]episode {k + 1}/{args.episodes}[/bold]: hands off, auto-reset "
+                f"in {args.countdown:.0f} s; then the fingers go limp: move them "
+                f"through the task for {seconds:.0f} s")
+            robot.clock.sleep(args.countdown)
+        recorder.record_episode(args.seed + k)

@@ -28,7 +28,20 @@ BAM_MOTORS: dict[str, str] = {
     "sts3250": "STS3250",
     "sts3032": "STS3032",
 }
+BAM_MOTOR_ALIASES: dict[str, str] = {
+    "xl330m288": "xl330", "xl330m288t": "xl330", "mx64(1.0)": "mx64", "mx106(1.0)": "mx106",
+}
+"""A motor written as its full model name (ROBOTIS/Feetech spelling, any case, with or without
+'-', '_' or spaces) -> BAM's name. Only the model BAM's name stands for: XL330-M077 (another
+gear ratio) or MX-64(2.0) (Protocol 2 firmware) stay unknown."""
 _BAM_HEADER = ("mass", "length", "kp", "vin", "motor", "entries")
+
+
+def bam_motor(name: str) -> str | None:
+    """BAM's motor name for ``name`` (BAM's own, or a full model name), None if unknown."""
+    key = "".join(c for c in name.lower() if c not in " -_")
+    key = BAM_MOTOR_ALIASES.get(key, key)
+    return key if key in BAM_MOTORS else None
 _BAM_ENTRY = ("timestamp", "position", "goal_position")
 
 
@@ -125,10 +138,10 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
         raise LogError(f"{path}: BAM log lacks fields {missing}; need {list(_BAM_HEADER)}")
     if not isinstance(raw["motor"], str):
         raise LogError(f"{path}: 'motor' must be a string, got {json.dumps(raw['motor'])[:40]}")
-    motor = raw["motor"].lower()
-    if motor not in BAM_MOTORS:
+    motor = bam_motor(raw["motor"])
+    if motor is None:
         raise LogError(f"{path}: unknown BAM motor {raw['motor']!r}; valid: "
-                       + ", ".join(sorted(BAM_MOTORS)))
+                       + ", ".join(f"{k} ({v})" for k, v in sorted(BAM_MOTORS.items())))
     for k in ("mass", "length", "kp", "vin"):
         _bam_number(raw[k], f"{path}: {k!r}", positive=True)
     if raw.get("arm_mass") is not None:

@@ -57,11 +57,6 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="jittered fits per family (identify.IdentifyConfig.restarts)")
     i.add_argument("--threads", type=integer(0, 1024), default=0,
                    help="simulation threads (0: all CPUs)")
-    i.add_argument("--prior", type=number(0.0, 10.0), default=0.0, metavar="RAD",
-                   help="pull every fitted parameter toward its catalogue value: moving one "
-                        "across its whole range costs like this RMS error [rad] on every fitted "
-                        "log (identify.IdentifyConfig.prior; default 0: none; measured on "
-                        "STS3250 in bench/RESULTS.md)")
     i.add_argument("--json", default=None, metavar="FILE",
                    help="also write the identified parameters and per-log MAE here")
     i.set_defaults(func=_identify)
@@ -121,7 +116,6 @@ def distinct_logs(given: list[str]) -> tuple[list[str], list[str]]:
 def _analyze(args: argparse.Namespace) -> int:
     from rich.console import Console
 
-    from lowcostdex.errors import ConfigError
     from lowcostdex.gap.analyze import GapConfig, analyze
     from lowcostdex.gap.dataset import load_dataset
     from lowcostdex.gap.report import summary, write_report
@@ -132,17 +126,12 @@ def _analyze(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     check_out(args.out, "gap analyze")  # refuse a user's folder before minutes of work
     logs, same = distinct_logs(args.log)
+    check_holdout(logs, args.holdout)
     ds = load_dataset(logs, model=args.model, bench=True if args.bench else None)
     for note in same + ds.notes:
         console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,
                       soft_wrap=True)
-    test = None
-    if args.holdout:
-        resolved = {str(Path(p).resolve()) for p in args.holdout}
-        if not resolved <= {str(Path(p).resolve()) for p in logs}:
-            raise ConfigError("every --holdout file must also be given with --log")
-        # a log split at a gap is held out whole
-        test = tuple(i for i, p in enumerate(ds.sources) if str(Path(p).resolve()) in resolved)
+    test = _holdout(logs, args.holdout, ds.sources)  # a log split at a gap is held out whole
     cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else None
     cfg = GapConfig(candidates=cands, max_effects=args.max_effects, top_k=args.top_k,
                     min_gain=args.min_gain, seed=args.seed, test_logs=test,
@@ -160,17 +149,41 @@ def _analyze(args: argparse.Namespace) -> int:
     return 0
 
 
+def _same_bytes(a: str | Path, b: str | Path) -> bool:
+    try:
+        return Path(a).is_file() and Path(b).is_file() and \
+            Path(a).stat().st_size == Path(b).stat().st_size and \
+            Path(a).read_bytes() == Path(b).read_bytes()
+    except OSError:
+        return False
+
+
 def _holdout(logs: list[str], holdout: list[str] | None, sources: list) -> tuple[int, ...] | None:
     """Indices of the data set's trajectories from the ``holdout`` files (a log split at a
     gap is held out whole); None without ``holdout``."""
-    from lowcostdex.errors import ConfigError
-
     if not holdout:
         return None
+    check_holdout(logs, holdout)
     resolved = {str(Path(p).resolve()) for p in holdout}
-    if not resolved <= {str(Path(p).resolve()) for p in logs}:
-        raise ConfigError("every --holdout file must also be given with --log")
     return tuple(i for i, p in enumerate(sources) if str(Path(p).resolve()) in resolved)
+
+
+def check_holdout(logs: list[str], holdout: list[str] | None) -> None:
+    """ConfigError for a ``--holdout`` file that is not one of the ``logs`` used (after
+    :func:`distinct_logs`): a copy of one of them, or a file not given with ``--log``."""
+    from lowcostdex.errors import ConfigError
+
+    kept = {str(Path(p).resolve()) for p in logs}
+    for name in holdout or ():
+        if str(Path(name).resolve()) in kept:
+            continue
+        twin = next((p for p in logs if _same_bytes(name, p)), None)
+        if twin is not None:  # distinct_logs kept the other copy
+            raise ConfigError(f"--holdout {name} holds the same bytes as the log {twin}, which "
+                              "is used once (a copy would be fitted and tested at once): hold "
+                              f"out {twin} itself, or give only one of the two")
+        raise ConfigError(f"--holdout {name} is not among the logs; every --holdout file must "
+                          "also be given with --log")
 
 
 IDENTIFY_KEYS = ("params", "family", "held_out", "fitted", "nominal")
@@ -212,10 +225,11 @@ def _identify(args: argparse.Namespace) -> int:
     if args.json:
         _check_json_out(Path(args.json))  # before minutes of fitting
     logs, same = distinct_logs(args.log)
-    for note in same:
-        print(f"lowcostdex gap identify: note: {note}")
     if args.holdout:
         args.holdout = [str(p) for p in expand_log_paths(args.holdout)]
+    check_holdout(logs, args.holdout)
+    for note in same:
+        print(f"lowcostdex gap identify: note: {note}")
     ds = load_dataset(logs, bench=True, timestep=bm.BAM_DT)
     ds = bm.grid_dataset(ds)  # BAM's 5 ms grid, as bam.process
     test = _holdout(logs, args.holdout, ds.sources) or ()
@@ -223,7 +237,7 @@ def _identify(args: argparse.Namespace) -> int:
     if not train:
         raise ConfigError("every log is held out: nothing to fit")
     cfg = IdentifyConfig(effects=servo_structure(ds), restarts=args.restarts,
-                         nthread=args.threads, prior=args.prior)
+                         nthread=args.threads)
     t0 = time.perf_counter()
     res = identify(ds, train, list(test), cfg)
     wall = time.perf_counter() - t0

@@ -2,6 +2,9 @@
 magnitudes per column kind, ...), building a validated ``Trajectory`` from log-format columns
 (``trajectory_from_columns``) and the signal checks (frozen, saturated, wrapped, pinned or dead
 channels) that name the file, the column and the problem.
+
+Why one module: the repairs and checks run once, in order, on the columns as they enter, and
+share the limits at the top; split, those limits and the order would live in two places.
 """
 
 from __future__ import annotations
@@ -187,6 +190,7 @@ def _normalized_names(cols: dict[str, np.ndarray], name: str) -> dict[str, np.nd
 
 
 MAX_NAN_SHARE = 0.2  # a column empty/NaN in more of the rows is a channel that was not logged
+SPARE_CHANNELS = ("current",)  # only checked, never replayed: left out whole, not its rows
 
 
 def _repair_rows(cols: dict[str, np.ndarray], name: str
@@ -210,6 +214,17 @@ def _repair_rows(cols: dict[str, np.ndarray], name: str
         raise LogError(f"{name}: column {keys[c]!r} is empty or NaN in {int(nan[:, c].sum())} "
                        f"of {n} rows (first at row {int(np.argmax(nan[:, c]))}, 0-based); leave "
                        "the column out if that channel was not logged")
+    spare = [c for c, k in enumerate(keys) if k.split(":")[0] in SPARE_CHANNELS]
+    rest = [c for c in range(len(keys)) if c not in spare]
+    saved = nan[:, spare].any(axis=1) & ~nan[:, rest].any(axis=1)  # rows only a spare lacks
+    if saved.any():
+        kinds = sorted({keys[c].split(":")[0] for c in spare if nan[saved, c].any()})
+        gone = [k for k in keys if k.split(":")[0] in kinds]
+        notes.append(f"{name}: {int(saved.sum())} row(s) lack only {', '.join(map(repr, gone))} "
+                     f"(first: row {int(np.argmax(saved))}, 0-based): the {'/'.join(kinds)} "
+                     "channel is left out and the rows kept (it is only checked, never replayed)")
+        keep = [i for i, k in enumerate(keys) if k not in gone]
+        keys, data, nan = [keys[i] for i in keep], data[:, keep], nan[:, keep]  # fmt: skip
     cut = np.zeros(n, dtype=bool)
     bad = nan.any(axis=1)
     if bad.any():

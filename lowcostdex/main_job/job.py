@@ -168,6 +168,10 @@ def _main(args: argparse.Namespace) -> int:
                               f"subset of {', '.join(n for n, _ in STAGES)}")
         for s in stages:
             check_choice("stage", s, [n for n, _ in STAGES])
+    if args.port is not None:  # before the output folder is opened
+        from lowcostdex.hardware.dynamixel.ports import check_port
+
+        check_port(args.port)
     ctx = Context(out=args.out, size=args.size, seed=args.seed, port=args.port, task=args.task)
     report = run(ctx, stages)
     print(f"REPORT {report.resolve()}")

@@ -38,10 +38,21 @@ def _list_envs(args: argparse.Namespace) -> int:
 
 
 def _write_model(args: argparse.Namespace) -> int:
+    from lowcostdex.errors import ConfigError
     from lowcostdex.hands import dclaw_spec
     from lowcostdex.outdir import check_out_file, write_text_atomic
 
     out = check_out_file(args.out, overwrite=args.overwrite)
+    if out.exists() and not _is_mjcf(out):  # --overwrite replaces a model, nothing else
+        raise ConfigError(f"--out {out} is not an MJCF model (no <mujoco> root); --overwrite "
+                          "replaces a model file only, and this file is left untouched. Give "
+                          "a new file name")
+    if args.fingers is not None and not args.fingers.strip():
+        raise ConfigError("--fingers is empty; name the fingers (e.g. --fingers ff), or leave "
+                          "it out for the whole hand")
+    if args.motor and args.hand == "allegro":
+        raise ConfigError(f"--motor {args.motor}: the Allegro's joints are torque-driven on CAN "
+                          "(no servo model); --motor is for dclaw and bench")
     if args.hand == "dclaw":
         from lowcostdex.sim.models.dclaw import build_dclaw
 
@@ -55,7 +66,6 @@ def _write_model(args: argparse.Namespace) -> int:
         kwargs = {"fingers": tuple(args.fingers.split(","))} if args.fingers else {}
         spec = build_allegro(args.station or "valve", **kwargs)
     else:
-        from lowcostdex.errors import ConfigError
         from lowcostdex.sim.models.bench import BenchConfig, build_bench
 
         if args.fingers:
@@ -67,3 +77,13 @@ def _write_model(args: argparse.Namespace) -> int:
     write_text_atomic(out, spec.to_xml())
     print(f"wrote {out}")
     return 0
+
+
+def _is_mjcf(path) -> bool:
+    """True if ``path`` is an XML file whose root element is ``<mujoco>`` (a model)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        return ET.parse(path).getroot().tag == "mujoco"
+    except (ET.ParseError, OSError, ValueError):
+        return False

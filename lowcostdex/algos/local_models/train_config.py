@@ -14,7 +14,14 @@ from lowcostdex.algos.local_models.costs import RAMP_KINDS
 from lowcostdex.algos.local_models.dynamics import DynamicsConfig
 from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
 from lowcostdex.algos.local_models.tvlg import TVLGConfig
-from lowcostdex.errors import ConfigError, check_bool, check_choice, check_fields, check_number
+from lowcostdex.errors import (
+    ConfigError,
+    check_at_most,
+    check_bool,
+    check_choice,
+    check_fields,
+    check_number,
+)
 
 Array = NDArray[np.float64]
 BACKENDS = ("sim", "emulated", "hardware")
@@ -24,6 +31,8 @@ HAND_REFERENCES = ("start", "demo")
 COST_PRESETS = ("task", "tracking")
 TRACKING_KL_STEP = 0.5
 """KL step the CLI uses with ``--cost tracking`` (bench/RESULTS.md measured it at 0.5)."""
+MAX_ROLLOUTS = 1000
+"""Most episodes per iteration (and teacher / noisy evaluation episodes)."""
 MUTABLE_ON_RESUME = ("n_iter", "progress")
 """Config keys a resumed run may change."""
 
@@ -177,6 +186,9 @@ class TVLGTrainConfig:
             check_number(name, getattr(self, name), 1, integer=True)
         for name in ("eval_every", "eval_noisy_episodes", "seed"):
             check_number(name, getattr(self, name), 0, integer=True)
+        for name in ("n_rollouts", "teacher_episodes", "eval_noisy_episodes"):
+            check_at_most(name, getattr(self, name), MAX_ROLLOUTS, "episodes per iteration are "
+                          "held in memory at once (Kumar et al. 2016 use 5)")
         check_number("solve_rate", self.solve_rate, 0, 1, low_open=True)
         check_number("init_noise", self.init_noise, 0, low_open=True)
         check_number("smooth_noise", self.smooth_noise, 0)

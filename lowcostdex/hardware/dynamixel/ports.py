@@ -179,6 +179,9 @@ def check_port(port: str) -> None:
                          "(U2D2), check its power, or use --port emulated")
     if path.is_dir():
         raise InputError(f"--port {port} is a folder, not a serial device")
+    if path.is_file():  # serial adapters and ptys are character devices
+        raise InputError(f"--port {port}: cannot open it as a serial port: it is a regular "
+                         "file, not a device (`lowcostdex scan` lists the serial ports)")
     if not os.access(path, os.R_OK | os.W_OK):
         raise InputError(f"--port {port}: permission denied; add yourself to the 'dialout' "
                          "group (sudo usermod -aG dialout $USER, then log in again)")

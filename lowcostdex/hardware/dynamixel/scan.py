@@ -36,7 +36,12 @@ def scan(port: str | transport.DxlPort, baudrate: int = 1_000_000,
     if isinstance(port, str):
         port = transport.DxlPort(port, latency_ms=16.0)  # not time critical: be patient
     port.baudrate = baudrate
-    if not port.openPort():
+    try:
+        opened = port.openPort()
+    except OSError as exc:  # pyserial: a path that is not a serial port, a device gone
+        raise BusError(f"cannot open {port.getPortName()} as a serial port at {baudrate} bps "
+                       f"({exc})") from None
+    if not opened:
         raise BusError(f"cannot open {port.getPortName()} at {baudrate} bps")
     ph = PacketHandler(2.0)
     try:

@@ -88,6 +88,8 @@ def _check_dynamixel_port(port: str) -> None:
     check_port(port)
 
 
+MAX_RUNS = 10_000
+"""Most logs / reset trials one command records."""
 RESET_TEST_KEYS = ("trials", "successes", "success_rate", "failures", "port", "seed")
 """Keys of the file ``reset-test --json`` writes: a file with them may be replaced."""
 
@@ -111,6 +113,9 @@ def _reset_test(args: argparse.Namespace) -> int:
 
     if args.trials < 1:
         raise ConfigError("--trials must be >= 1")
+    if args.trials > MAX_RUNS:
+        raise ConfigError(f"--trials {args.trials} is above {MAX_RUNS}: each trial tangles and "
+                          "resets the robot (split a campaign into runs)")
     if args.json:  # before minutes of trials
         check_json_out(args.json, "lowcostdex reset-test", RESET_TEST_KEYS)
     if args.latency_ms is not None and args.port == "emulated":
@@ -178,6 +183,9 @@ def _record_log(args: argparse.Namespace) -> int:
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
         raise ConfigError("--logs, --seconds and --rate must be positive")
+    if args.logs > MAX_RUNS:
+        raise ConfigError(f"--logs {args.logs} is above {MAX_RUNS}: each log is a file of "
+                          "--seconds of robot time (split a campaign into runs)")
     emulated = args.port == "emulated"
     if args.hand == "allegro":
         if args.latency_ms is not None:

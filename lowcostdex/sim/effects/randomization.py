@@ -83,7 +83,15 @@ class AppliedEffect:
             if not np.all(np.isfinite(values[k])):
                 raise ConfigError(f"effect {d['effect']}: parameter {k!r} must be finite, got "
                                   f"{v!r}")
-        return cls(d["effect"], tuple(joints), values)
+        out = cls(d["effect"], tuple(joints), values)
+        for k in values:  # a value in ms or degrees would ask for a buffer or a force no servo has
+            bottom, top = out.cls.param(k).hard
+            if np.any(out.values[k] < bottom) or np.any(out.values[k] > top):
+                unit = out.cls.param(k).unit
+                raise ConfigError(f"effect {out.name}: parameter {k!r} = {params[k]!r} [{unit}] "
+                                  f"is outside its limits [{bottom:g}, {top:g}] {unit} (SI "
+                                  "units: s, rad, N m, ...)")
+        return out
 
     @classmethod
     def coerce(cls, e: AppliedEffect | Mapping) -> AppliedEffect:
