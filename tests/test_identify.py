@@ -202,6 +202,13 @@ def test_a_prior_pulls_the_fit_toward_the_catalogue_and_costs_training_error(log
     assert pulled.mean(pulled.train) > 1e-2 > 1e3 * free.mean(free.train)
 
 
+def test_gap_identify_command_takes_the_prior_and_refuses_a_negative_one(capsys):
+    from lowcostdex.cli import main
+
+    assert main(["gap", "identify", "--log", "x.json", "--prior", "-1"]) == 2
+    assert "--prior: '-1' is not a finite number in [0, 10]" in capsys.readouterr().err
+
+
 def _headers(metas: list[dict]) -> Dataset:
     t = np.arange(3) * DT
     z = np.zeros((3, 1))

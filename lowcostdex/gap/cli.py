@@ -57,6 +57,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="jittered fits per family (identify.IdentifyConfig.restarts)")
     i.add_argument("--threads", type=integer(0, 1024), default=0,
                    help="simulation threads (0: all CPUs)")
+    i.add_argument("--prior", type=number(0.0, 10.0), default=0.0, metavar="RAD",
+                   help="pull every fitted parameter toward its catalogue value: moving one "
+                        "across its whole range costs like this RMS error [rad] on every fitted "
+                        "log (identify.IdentifyConfig.prior; default 0: none; measured on "
+                        "STS3250 in bench/RESULTS.md)")
     i.add_argument("--json", default=None, metavar="FILE",
                    help="also write the identified parameters and per-log MAE here")
     i.set_defaults(func=_identify)
@@ -237,7 +242,7 @@ def _identify(args: argparse.Namespace) -> int:
     if not train:
         raise ConfigError("every log is held out: nothing to fit")
     cfg = IdentifyConfig(effects=servo_structure(ds), restarts=args.restarts,
-                         nthread=args.threads)
+                         nthread=args.threads, prior=args.prior)
     t0 = time.perf_counter()
     res = identify(ds, train, list(test), cfg)
     wall = time.perf_counter() - t0
