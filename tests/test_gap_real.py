@@ -258,7 +258,10 @@ def test_gap_identify_command_scores_a_held_out_log(tmp_path, capsys):
     assert "held out" in text
     # one setup: nothing validates the family choice, and the command says so
     assert "why: no header field" in text and "nothing validates the fit" in text
-    res = json.loads(out.read_text())
+    def strict(word):  # Infinity / NaN are not JSON (jq, JavaScript and most readers refuse)
+        raise AssertionError(f"{word} in gap identify --json output")
+
+    res = json.loads(out.read_text(), parse_constant=strict)
     assert list(res["held_out"]) == [held[0].name] and len(res["fitted"]) == 3
     # the sin_sin log's q = goal_position error from its raw samples: the identified model,
     # fitted on the other three trajectories, must beat it by half (measured 2026-11-26: 12.2 vs

@@ -243,8 +243,11 @@ class Identified:
         return float(np.mean([src[i] for i in logs])) if logs else math.nan
 
     def params(self) -> dict[str, dict[str, list[float]]]:
-        """{effect: {param: values per joint}} of the fitted effects."""
-        return {e.name: {p: v.tolist() for p, v in e.values.items()} for e in self.effects}
+        """{effect: {param: values per joint}} of the fitted effects; a parameter that does not
+        apply to the servo (every value non-finite, e.g. velocity_limit.speed, null inf, which
+        only acts on force-limited actuators) is left out, so the values are plain JSON."""
+        return {e.name: {p: v.tolist() for p, v in e.values.items()
+                         if np.any(np.isfinite(v))} for e in self.effects}
 
 
 def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
