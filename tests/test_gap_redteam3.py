@@ -37,9 +37,11 @@ MISSES: dict[str, str] = {
                           "joints; the latency candidate fitted prox 60.5 ms (select gain 0.999) "
                           "but was rejected at_bound: the clean joints' delays sit at the 2 ms "
                           "lower bound",
-    "srv_stribeck": "family (84e2bf6): coulomb_friction 0.1035 only (breakaway 0.20 unnamed, "
-                    "held-out 28.7 -> 9.07 mrad, floor 0.63); stribeck_friction fitted static "
-                    "0.02-0.04",
+    "srv_stribeck": "family (84e2bf6): coulomb_friction 0.1035 only. gap-cands measured it "
+                    "EXACT (coulomb 0.0836, static 0.1198, velocity 0.0483, truth inside; "
+                    "held-out 28.7 -> 1.85 mrad) on 9a9a2b0's catalogue WITHOUT the backlash "
+                    "sensor; not yet re-run on the landed code: run -m slow -k srv_stribeck "
+                    "and drop this mark if it XPASSes",
     "srv_backlash_output": "interval (gap-cands, backlash sensor): named exactly backlash, "
                            "sensor 0.989 [0.971, 1.007] (the output shaft) but width 0.0340 "
                            "[0.0321, 0.0359] for 0.05 (held-out 11.5 -> 7.28 mrad, floor 0.82); "
