@@ -31,6 +31,10 @@ COMMAND_MODULES: tuple[str, ...] = (
 # the exit codes live in the core (lowcostdex.errors) so that any layer can name them
 from lowcostdex.errors import INTERRUPTED, USER_ERROR  # noqa: E402
 
+PATH_OPTIONS = ("out", "json", "demos", "spec", "effects", "model", "port", "log", "holdout")
+"""Options that name a file, folder or device: an empty one is refused (``Path("")`` is the
+working directory, so ``train --out ""`` wrote a run among the user's files)."""
+
 
 class Parser(argparse.ArgumentParser):
     """ArgumentParser whose errors are one line, and whose every (sub)command takes ``--debug``."""
@@ -78,6 +82,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return USER_ERROR
     prog = command_prog(parser, args)
     debug = getattr(args, "debug", False)
+    for dest in PATH_OPTIONS:  # "" is the cwd to pathlib: an unset shell variable, not a path
+        value = getattr(args, dest, None)
+        if value == "" or (isinstance(value, list) and "" in value):
+            what = "is empty" if value == "" else "has an empty path"
+            return _report(prog, f"--{dest} {what} (an unset shell variable?); give a path",
+                           False, USER_ERROR)
     from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
     try:

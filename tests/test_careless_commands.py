@@ -76,6 +76,19 @@ CASES: list[Case] = [
          "--resume: {tmp}/run does not exist"),
     Case("tvlg --resume of a folder that does not exist", tvlg("--resume"),
          "--resume: {tmp}/run does not exist"),
+    # a report folder of another command: the run went in beside report.md
+    Case("npg --out a gap report's folder", npg(),
+         "{tmp}/run holds the output of 'lowcostdex gap analyze', not a training run; it is left "
+         "untouched", files={"run/.lowcostdex.json": '{"command": "gap analyze", "settings": {}}',
+                             "run/report.md": "# gap report\n"}),
+    # an empty path (an unset shell variable): Path("") is the working directory, so the run
+    # was written among the user's files
+    Case("npg --out ''", ("train", "npg", "--env", POINTMASS, "--out", "", *TINY),
+         "--out is empty (an unset shell variable?); give a path",
+         files={"notes.txt": "mine\n"}),
+    Case("gap analyze --log a.csv ''", ("gap", "analyze", "--log", "a.csv", "", "--out", "r"),
+         "--log has an empty path (an unset shell variable?)", files={"a.csv": lambda p: p.write_text(_log())}),
+    Case("scan --port ''", ("scan", "--port", ""), "--port is empty"),
     # options that would be ignored without a word
     Case("npg --n-demos without --demos", npg("--n-demos", "3"),
          "--n-demos 3 counts episodes of a demo file: give it with --demos PATH"),
@@ -438,3 +451,14 @@ def test_ctrl_c_during_record_demos_keeps_the_finished_episodes_and_says_so(tmp_
     assert "Traceback" not in err
     with h5py.File(out) as f:
         assert int(f.attrs["total_episodes"]) == 1
+
+
+def test_fewer_demos_than_n_demos_are_used_and_said(tmp_path, capsys):
+    """--n-demos 5 with a file of 2 successful episodes trained on the 2 without a word."""
+    pointmass_demos(tmp_path / "demos.h5")
+    code = main(["train", "dapg", "--env", POINTMASS, "--out", str(tmp_path / "run"), *TINY,
+                 "--bc-epochs", "1", "--demos", str(tmp_path / "demos.h5"), "--n-demos", "5"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert (f"lowcostdex train dapg: note: --n-demos 5, but {tmp_path / 'demos.h5'} holds 2 "
+            "successful demonstration(s): all 2 are used") in err

@@ -237,6 +237,13 @@ class Run:
             raise ConfigError(f"run directory {path} is a file; choose a directory")
         config_file = path / CONFIG_FILE
         if not config_file.exists():
+            from lowcostdex.outdir import read_marker
+
+            other = read_marker(path)
+            if other is not None:  # another command's output folder (a report, a transfer run)
+                raise ConfigError(f"{path} holds the output of 'lowcostdex "
+                                  f"{other.get('command', '?')}', not a training run; it is left "
+                                  "untouched. Give an empty or new directory")
             clash = sorted(n for n in _RUN_NAMES if (path / n).exists())
             if clash:  # a user's folder (inputs beside a run are fine, e.g. its demos)
                 raise ConfigError(f"{path} is not a training run but holds {', '.join(clash)}, "

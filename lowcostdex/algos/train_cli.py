@@ -225,6 +225,14 @@ def _run_command(args: argparse.Namespace) -> int:
     from lowcostdex.algos.train import train
 
     config = config_from_args(args)
+    if config.uses_demos and config.n_demos is not None:
+        from lowcostdex.demonstrations.dataset import load_demos
+
+        held = load_demos(config.demos).n_episodes  # a bad file: the same error train() raises
+        if held < config.n_demos:  # not silently fewer than asked
+            print(f"{args.parser.prog}: note: --n-demos {config.n_demos}, but {args.demos} "
+                  f"holds {held} successful demonstration(s): all {held} are used",
+                  file=sys.stderr)
     try:
         run = train(config, args.out, resume=args.resume)
     except KeyboardInterrupt as exc:
