@@ -89,6 +89,10 @@ CASES: list[Case] = [
     Case("gap analyze --log a.csv ''", ("gap", "analyze", "--log", "a.csv", "", "--out", "r"),
          "--log has an empty path (an unset shell variable?)", files={"a.csv": lambda p: p.write_text(_log())}),
     Case("scan --port ''", ("scan", "--port", ""), "--port is empty"),
+    Case("scan --ids ''", ("scan", "--port", "emulated", "--ids", ""),
+         "--ids is empty; name the ids (e.g. --ids 10-12,50), or leave it out"),
+    Case("record-log --joints ''", ("record-log", "--port", "emulated", "--joints", "", "--out",
+                                    "{tmp}/logs"), "--joints is empty; name the joints"),
     # options that would be ignored without a word
     Case("npg --n-demos without --demos", npg("--n-demos", "3"),
          "--n-demos 3 counts episodes of a demo file: give it with --demos PATH"),

@@ -150,6 +150,8 @@ def _scan(args: argparse.Namespace) -> int:
 
     if args.port is None:
         return _list_ports()
+    if args.ids is not None and not args.ids.strip():  # an unset variable: not "every id"
+        raise InputError("--ids is empty; name the ids (e.g. --ids 10-12,50), or leave it out")
     ids = parse_ids(args.ids) if args.ids else None
     try:
         found = scan(_port(args), args.baud, ids)
@@ -254,6 +256,8 @@ def _setup_motors(args: argparse.Namespace) -> int:
 
     check_baud(args.baud)
     hand = load_spec(args.spec) if args.spec else hand_spec(args.hand)
+    if args.ids is not None and not args.ids.strip():  # an unset variable: not "every id"
+        raise InputError("--ids is empty; name the ids (e.g. --ids 10-12,50), or leave it out")
     ids = parse_ids(args.ids) if args.ids else None
     port = pick_port(args.port)
 

@@ -194,6 +194,9 @@ def _record_log(args: argparse.Namespace) -> int:
     else:
         _check_dynamixel_port(args.port)
     hand = _hand(args.spec, args.hand)
+    if args.joints is not None and not args.joints.strip():  # an unset variable, not a default
+        raise ConfigError("--joints is empty; name the joints to excite (e.g. --joints ff_top), "
+                          "or leave it out")
     joints = tuple(j.strip() for j in (args.joints or LOG_JOINTS[args.hand]).split(",")
                    if j.strip())
     if not joints:
