@@ -33,10 +33,12 @@ import gap_truth_sim3 as sim  # noqa: E402
 
 # measured by bench/gap_redteam3.py (2026-11-26, see bench/RESULTS.md): what was named instead
 MISSES: dict[str, str] = {
-    "fin_latency60_prox": "miss (dee30b5): viscous_damping + inertia_error (11.5x on prox) on all "
-                          "joints; the latency candidate fitted prox 60.5 ms (select gain 0.999) "
-                          "but was rejected at_bound: the clean joints' delays sit at the 2 ms "
-                          "lower bound",
+    "fin_latency60_prox": "named exactly (gap-select, delay floor = no latency): latency on prox "
+                          "only, 60.51 ms, held-out 54.7 -> 1.16 mrad (floor 0.68), but its "
+                          "interval [60.43, 60.58] ms misses 60",
+    "fin_pair_latency080_abd_backlash050_prox": "miss (gap-select): latency 80.53 ms on abd "
+                                                "alone ([80.42, 80.65], misses 80); the 0.05 rad "
+                                                "play on prox not seen (backlash fits 0 there)",
     "srv_stribeck": "family (84e2bf6): coulomb_friction 0.1035 only. gap-cands measured it "
                     "EXACT (coulomb 0.0836, static 0.1198, velocity 0.0483, truth inside; "
                     "held-out 28.7 -> 1.85 mrad) on 9a9a2b0's catalogue WITHOUT the backlash "

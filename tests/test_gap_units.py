@@ -35,6 +35,7 @@ from lowcostdex.gap.logs import (
     zoh_index,
 )
 from lowcostdex.gap.replay import Replayer
+from lowcostdex.gap.results import param_report
 from lowcostdex.sim.effects import AppliedEffect, DomainRandomization
 from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig, build_bench
 from lowcostdex.sim.plant import Plant, prepare_spec
@@ -737,3 +738,23 @@ def test_a_delay_at_its_one_step_floor_is_no_latency_not_a_fit_on_a_bound():
     assert fitmod.at_bounds(s, u) == []
     g = fitmod.Structure.build(("gain_error",), ("a",), _ctx())
     assert fitmod.at_bounds(g, g.u(np.array([0.2]))) == [(0, "lower")]
+
+
+def test_a_delay_at_its_floor_is_replayed_and_reported_as_no_delay():
+    """MuJoCo's native delay cannot express less than one physics step (reference 04, trap 8),
+    so the search floor is where a joint without latency sits; it must be replayed as no delay
+    at all (a 2 ms delay left on the two clean joints of redteam3's fin_latency60_prox was
+    made up for by an inertia error 0.80 / 0.78 on them), and reported as 0 s with an interval
+    holding 0. A delay just above the floor is a delay."""
+    ctx = _ctx(peak_force=np.full(3, 5.0), stall=np.full(3, np.inf), damping=np.full(3, 0.05))
+    s = fitmod.Structure.build(("latency",), ("a", "b", "c"), ctx)
+    x = np.array([0.06, 0.002, 0.0021])
+    (eff,) = s.to_effects(x)
+    np.testing.assert_array_equal(eff.values["delay"], [0.06, 0.0, 0.0021])
+    np.testing.assert_allclose(s.values_from([eff]), x)  # 0 goes back to the floor
+    rep = param_report(s, s.u(x), np.full(3, 0.0005), "latency")["delay"]  # +-0.5 ms
+    assert rep["value"][:2] == [pytest.approx(0.06), 0.0]
+    assert rep["interval"][1] == [0.0, pytest.approx(0.0025)]
+    assert rep["interval"][2] == [pytest.approx(0.0016), pytest.approx(0.0026)]  # a delay
+    g = fitmod.Structure.build(("gain_error",), ("a",), _ctx())
+    assert g.to_effects(np.array([0.2]))[0].values["scale"][0] == 0.2  # a gain has no such floor

@@ -21,9 +21,9 @@
    is, in expectation, at least its held-out one) and on the select split replayed with every
    goal a fraction of a physics step later (``GapConfig.probes``; a chaotic replay, a light link
    swinging inside a play, rewards lucky alignments of its impacts). Otherwise the analysis
-   stops; with no accepted effect the answer is "no significant discrepancy". Each change of
-   model must also pay over consecutive blocks of select data (``significance``: paired
-   moving-block bootstrap bound above 0), in the forward steps and the backward pass.
+   stops; with no accepted effect the answer is "no significant discrepancy" (nothing is sought
+   when the nominal model is within ``explain_above`` noise floors). A change of model must pay
+   over consecutive blocks of select data too (``significance``: paired block bootstrap > 0).
 4. The chosen structure is refitted on train + select; an effect whose every 95 % interval
    (misfit-aware: ``_intervals``) holds "no effect" is dropped and the rest refitted. The model
    is then scored once on the untouched *test* episodes: error before and after with a
@@ -196,6 +196,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     cur_x = np.zeros(0)
     sel_cur = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
     floor_rms = math.sqrt(floor_mse)
+    nom = mse_by_episode(ds, train_eps + sel_eps, [base_pred[i] for i in split.train + split.select])
+    quiet = math.sqrt(nom[0].sum() / nom[2].sum()) <= cfg.explain_above * floor_rms  # no cause
     rounds: list[list[CandidateResult]] = []
     fit_fn = eng.residual_fn(train_segs)
     stop_reason = "max_effects reached"
@@ -214,8 +216,10 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         rounds.append(table)
         cur_mse = sel_cur[0].sum() / sel_cur[2].sum()
         near = (cfg.floor_margin ** 2) * floor_mse
-        if cur_mse <= near and train_rms ** 2 <= near:
-            stop_reason = "train and select errors at the noise floor"
+        if (cur_mse <= near and train_rms ** 2 <= near) or (step == 0 and quiet):
+            stop_reason = (f"the nominal model's train + select RMSE is within {cfg.explain_above:g}"
+                           " noise floors: nothing to explain" if step == 0 and quiet else
+                           "train and select errors at the noise floor")
             break
         if table[0].score < cfg.min_gain:
             stop_reason = "no candidate signature explains the residual"
@@ -370,7 +374,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     # invisible to one-at-a-time forward steps; the pruned joint model replaces the forward one
     # only when it lowers the select MSE by another ``min_gain``.
     fwd_rmse = math.sqrt(sel_cur[0].sum() / sel_cur[2].sum())
-    if cfg.search == "both" and rounds and fwd_rmse > cfg.backward_above * floor_rms:
+    if cfg.search == "both" and rounds and not quiet and fwd_rmse > cfg.backward_above * floor_rms:
         t0 = time.perf_counter()
         prog("backward search from the top candidates", 0.8)
         big = tuple(dict.fromkeys(current.effects + tuple(

@@ -85,6 +85,10 @@ class Free:
     log: bool
     fd: float
     extra: tuple[float, ...] = ()
+    floor_null: bool = False  # the lower bound is replayed as the null (a delay: 04 trap 8)
+
+    def at_floor(self, v: float) -> bool:  # the null that the lower bound stands for
+        return self.floor_null and v <= self.lo * (1 + 1e-9)
 
     def to_u(self, v: float) -> float:
         return math.log(v) if self.log else v
@@ -148,7 +152,8 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
         lo, hi = ctx.widened[(name, param, j)]
     start = float(np.clip(start, lo, hi))
     extra = tuple(float(np.clip(e, lo, hi)) for e in extra)
-    return Free(name, param, j, lo, hi, start, log, fd, extra)
+    floor_null = (name, param) == ("latency", "delay") and lo > p.null
+    return Free(name, param, j, lo, hi, start, log, fd, extra, floor_null)
 
 
 @dataclass
@@ -190,6 +195,8 @@ class Structure:
             vals: dict[str, np.ndarray] = {}
             for f, v in zip(self.free, values, strict=True):
                 if f.effect == name:
+                    if f.at_floor(v):
+                        v = effect(name).param(f.param).null
                     vals.setdefault(f.param, np.full(len(self.joints), np.nan))[f.joint] = v
             out.append(AppliedEffect(name, self.joints, vals))
         return out
@@ -239,16 +246,10 @@ def at_bounds(s: Structure, u: np.ndarray) -> list[tuple[int, str]]:
     that is not the effect's null (a friction at 0 is absent, not at a bound): (index, "lower" or
     "upper").
 
-    A bound between the null and the rest of the range (a delay's lower bound of one physics
-    step above the null 0; a torque limit's upper bound, the model's peak force, below the null
-    inf) is "as little of the effect as the search can express": a joint without the effect
-    sits there, and that is not an implausible fit (a 60 ms latency on one finger joint was
-    rejected because the two clean joints' delays sat at 2 ms). (Landed first in 18242fd and
-    reverted: with it, the independent bench's torque limit became a 14 ms latency. Not this
-    rule's fault: the forward step rejected the torque limit (select gain 0.9999, but a paired
-    block bound of 0: it acts in one select block of 11) and only the backward search named it,
-    by a pruning order that hung on which fits counted as on a bound.
-    ``significance.paired_gain_bound`` now leaves out resamples without such blocks.)"""
+    A bound between the null and the rest of the range (a delay's one-step floor above 0, a
+    torque limit's upper bound at the model's peak force) is "as little of the effect as the
+    search can express", not an implausible fit (a 60 ms latency on one finger joint was
+    rejected because the two clean joints' delays sat at 2 ms)."""
     lo, hi = s.u_bounds()
     out = []
     for i, f in enumerate(s.free):
