@@ -39,11 +39,11 @@ MISSES: dict[str, str] = {
     "fin_pair_latency080_abd_backlash050_prox": "miss (gap-select): latency 80.53 ms on abd "
                                                 "alone ([80.42, 80.65], misses 80); the 0.05 rad "
                                                 "play on prox not seen (backlash fits 0 there)",
-    "srv_stribeck": "family (84e2bf6): coulomb_friction 0.1035 only. gap-cands measured it "
-                    "EXACT (coulomb 0.0836, static 0.1198, velocity 0.0483, truth inside; "
-                    "held-out 28.7 -> 1.85 mrad) on 9a9a2b0's catalogue WITHOUT the backlash "
-                    "sensor; not yet re-run on the landed code: run -m slow -k srv_stribeck "
-                    "and drop this mark if it XPASSes",
+    "srv_stribeck": "interval (gap-cands, main ecf1ae1, 94 s): named exactly stribeck_friction "
+                    "but static 0.0497 [0.0242, 0.0751] (truth 0.12) and velocity 0.697 [0.554, "
+                    "0.877] (truth 0.05) outside; on 9a9a2b0's catalogue without the backlash "
+                    "sensor it was 0.1198 / 0.0483, all inside (another optimum); was family "
+                    "(coulomb_friction only, 84e2bf6)",
     "srv_backlash_output": "interval (gap-cands, backlash sensor): named exactly backlash, "
                            "sensor 0.989 [0.971, 1.007] (the output shaft) but width 0.0340 "
                            "[0.0321, 0.0359] for 0.05 (held-out 11.5 -> 7.28 mrad, floor 0.82); "
