@@ -43,6 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import gap_truth_sim as ts  # noqa: E402
 
 from lowcostdex.gap import GapConfig, analyze, load_dataset  # noqa: E402
+from lowcostdex.sim.effects import effect  # noqa: E402
 
 
 def run(case_id: str, rig: str, names: tuple[str, ...], seed: int, duration: float,
@@ -62,7 +63,9 @@ def run(case_id: str, rig: str, names: tuple[str, ...], seed: int, duration: flo
     cover = []
     for c in res.causes:
         if c.effect in case.hidden.values:
-            (d,) = c.params.values()  # every truth-simulator effect has one parameter
+            # every truth-simulator effect has one parameter: the catalogue effect's first
+            # (backlash also reports ``sensor``, which the truth holds at 0)
+            d = c.params[effect(c.effect).params[0].name]
             n = len(d["value"])
             for j, (v, iv, nv, dv, sh) in enumerate(zip(
                     d["value"], d["interval"], d["interval_noise"],
