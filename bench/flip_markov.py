@@ -124,25 +124,6 @@ class MarkovFlipTeacher(FlipBlockTeacher):
         x = quat_rotate(_mul(quat, _conj(goal_quat)), self.axis[None])[0]
         return math.atan2(float(x @ np.cross(UP, self.axis)), float(x @ self.axis))
 
-    def rolls_to(self, quat: np.ndarray, goal_quat: np.ndarray) -> int:
-        """90 deg rolls (in the roll direction) from ``quat`` to ``goal_quat``, 0-3."""
-        rel = _mul(goal_quat, _conj(quat))
-        angle = 2.0 * math.atan2(float(rel[1:] @ self.axis), float(rel[0]))
-        return int(round((angle % (2 * math.pi)) / (math.pi / 2))) % 4
-
-    def _roll_from(self) -> float:
-        return float(np.array([*self.config.home, 0.0]) @ self.d) + self.config.roll_from
-
-    def _ik(self, i: int, p: np.ndarray) -> np.ndarray:
-        return self.fingers[i].inverse(p, self.low[i], self.high[i])
-
-    def _corners(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
-        local = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
-        return pos + quat_rotate(quat, local * self.h)
-
-    def _finger(self, i: int) -> slice:
-        return slice(3 * i, 3 * i + 3)
-
     def _goal_quat(self, quat: np.ndarray, goal: Goal | None) -> np.ndarray:
         if goal and "quat" in goal:
             return np.asarray(goal["quat"], float)
