@@ -66,8 +66,11 @@ def _project_importorskips(source: str) -> list[str]:
 
 def test_no_test_skips_when_the_projects_own_module_fails_to_import():
     # issue 19: importorskip on a lowcostdex module turns an import error into a green skip
-    assert _project_importorskips('m = pytest.importorskip("lowcostdex.algos.ppo")\n'
-                                  'c = pytest.importorskip("can")\n') == ["lowcostdex.algos.ppo"]
+    # the sample source is assembled so that this file holds no importorskip call on a project
+    # module as text (a text search for them would flag this self-test)
+    call = "pytest." + "importorskip"
+    sample = f'm = {call}("lowcostdex.algos.ppo")\nc = {call}("can")\n'
+    assert _project_importorskips(sample) == ["lowcostdex.algos.ppo"]
     tests = Path(__file__).resolve().parent
     found = {p.name: _project_importorskips(p.read_text()) for p in sorted(tests.glob("*.py"))}
     assert {k: v for k, v in found.items() if v} == {}
