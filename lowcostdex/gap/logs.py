@@ -302,10 +302,14 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
             bad = (q < lo - RANGE_MARGIN) | (q > hi + RANGE_MARGIN)
             if bad.any():
                 i = int(np.argmax(bad))
+                why = "calibration offset or sign, or another joint's column?"
+                if np.ptp(q) > 2 * (hi - lo):  # a range in degrees read as rad would be this
+                    why = (f"the model's range is {hi - lo:.3g} rad wide while the joint moves "
+                           f"{np.ptp(q):.3g} rad: MJCF reads joint 'range' in degrees unless "
+                           "<compiler angle=\"radian\"/>")
                 raise LogError(f"{traj.name}: column 'qpos:{j}' reads {q[i]:.6g} rad at row {i} "
                                f"(0-based), outside the model's joint range [{lo:.4g}, "
-                               f"{hi:.4g}] rad by more than {RANGE_MARGIN} rad (calibration "
-                               "offset or sign, or another joint's column?)")
+                               f"{hi:.4g}] rad by more than {RANGE_MARGIN} rad ({why})")
     missing = [a for a in act_names if a not in traj.actuators]
     if missing:
         raise LogError(f"{traj.name}: no goal for actuators {missing}; the log must command "
