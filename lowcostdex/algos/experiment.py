@@ -229,7 +229,9 @@ class Run:
         Raises:
           ConfigError: a new run into a directory that already holds one (a checkpoint), or
             a ``config.json`` that is not a run configuration of this trainer; a resume whose
-            config differs in a key not listed in ``mutable_keys``.
+            config differs in a key not listed in ``mutable_keys``; a resume whose ``n_iter``
+            is below the iterations the run has done (it would train nothing and leave a
+            config.json that contradicts its checkpoints).
         """
         path = Path(path)
         config = _jsonable(config)
@@ -281,6 +283,12 @@ class Run:
                 f"cannot resume {path}: configuration differs ({'; '.join(diffs)}); "
                 f"only {sorted(mutable) or 'no keys'} may change"
             )
+        n_iter = config.get("n_iter")
+        if isinstance(n_iter, int) and n_iter < last + 1:  # resumed, it would do nothing
+            raise ConfigError(
+                f"cannot resume {path} with n_iter={n_iter} (--n-iter): the run has done "
+                f"{last + 1} iterations already (checkpoint after iteration {last}); give "
+                f"--n-iter above {last + 1} to train more. The run is left as it is")
 
     @classmethod
     def open(

@@ -156,7 +156,8 @@ def _parse_env_kwargs(items: Sequence[str]) -> dict[str, Any]:
 
 def check_resume(out: str, resume: bool) -> None:
     """``--resume`` into a folder that holds no run (a typo in ``--out``) is refused rather than
-    started from scratch as if resumed."""
+    started from scratch as if resumed. (``--n-iter`` below the iterations done is refused by
+    :meth:`lowcostdex.algos.experiment.Run.check`.)"""
     from lowcostdex.algos.experiment import CONFIG_FILE
 
     path = Path(out)
@@ -164,6 +165,25 @@ def check_resume(out: str, resume: bool) -> None:
         where = "does not exist" if not path.exists() else f"holds no run (no {CONFIG_FILE})"
         raise ConfigError(f"--resume: {path} {where}, so there is nothing to resume; check "
                           "--out, or leave out --resume to start a new run")
+
+
+def finished_note(args: argparse.Namespace) -> str | None:
+    """The note a ``--resume`` of a run that has done its ``--n-iter`` iterations gets (it
+    trains nothing; its final outputs are written again), or None. Computed before the run
+    (its newest checkpoint must load: else the resume starts from an older one and trains),
+    printed after it succeeded."""
+    from lowcostdex.algos.experiment import CHECKPOINT_DIR, _checkpoint_iteration, try_load
+
+    if not args.resume:
+        return None
+    files = [(_checkpoint_iteration(f), f) for f in (Path(args.out) / CHECKPOINT_DIR).glob(
+        "ckpt_*.pt")]
+    files = sorted((i, f) for i, f in files if i is not None)
+    if not files or files[-1][0] + 1 != args.n_iter or try_load(files[-1][1], ())[0] is None:
+        return None
+    return (f"{args.parser.prog}: note: the run in {args.out} had done its {args.n_iter} "
+            f"iterations (--n-iter {args.n_iter}): nothing was trained, its final outputs were "
+            f"written again; give --n-iter above {args.n_iter} to train more")
 
 
 def check_demo_options(args: argparse.Namespace) -> None:
@@ -233,11 +253,14 @@ def _run_command(args: argparse.Namespace) -> int:
             print(f"{args.parser.prog}: note: --n-demos {config.n_demos}, but {args.demos} "
                   f"holds {held} successful demonstration(s): all {held} are used",
                   file=sys.stderr)
+    note = finished_note(args)
     try:
         run = train(config, args.out, resume=args.resume)
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)
     _print_outcome(run)
+    if note:
+        print(note, file=sys.stderr)
     return 0
 
 
@@ -245,11 +268,14 @@ def _run_ppo(args: argparse.Namespace) -> int:
     from lowcostdex.algos.ppo import train
 
     config = ppo_config_from_args(args)
+    note = finished_note(args)
     try:
         run = train(config, args.out, resume=args.resume)
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)
     _print_outcome(run)
+    if note:
+        print(note, file=sys.stderr)
     return 0
 
 

@@ -191,6 +191,11 @@ def _normalized_names(cols: dict[str, np.ndarray], name: str) -> dict[str, np.nd
 
 MAX_NAN_SHARE = 0.2  # a column empty/NaN in more of the rows is a channel that was not logged
 SPARE_CHANNELS = ("current",)  # only checked, never replayed: left out whole, not its rows
+# read beside the position but not needed to replay a row: a failed read of one of them keeps
+# its row; short gaps are interpolated, a longer one costs the channel (qvel: then estimated
+# from the positions, as for a log without velocities)
+FILLED_CHANNELS = ("qvel", "voltage", "temperature")
+MAX_FILL_RUN = 3  # rows: the longest gap of a FILLED channel interpolated between its readings
 
 
 def _repair_rows(cols: dict[str, np.ndarray], name: str
@@ -198,7 +203,9 @@ def _repair_rows(cols: dict[str, np.ndarray], name: str
     """The repairs that are unambiguous, each said in a note: rows with an empty or NaN value
     (a failed read) are dropped - where the goal may have changed across the dropped rows, the
     log is cut there (``cuts``: rows a new piece starts at, see ``logs.split_at_gaps``) so no
-    replay assumes a command it does not know; rows repeated exactly (same time, same values)
+    replay assumes a command it does not know - unless only optional readings are missing: a
+    row that lacks only ``SPARE_CHANNELS`` (current) or ``FILLED_CHANNELS`` (qvel, voltage,
+    temperature) values is kept (``_fill_gaps``); rows repeated exactly (same time, same values)
     are dropped; rows a few samples out of time order (a logger's threads or buffers) are
     sorted. A time stamp repeated with other values, or time going back further than a
     ``GAP_FACTOR`` x the median step (two logs in one file?), is left to ``_check_time`` to
@@ -215,8 +222,9 @@ def _repair_rows(cols: dict[str, np.ndarray], name: str
                        f"of {n} rows (first at row {int(np.argmax(nan[:, c]))}, 0-based); leave "
                        "the column out if that channel was not logged")
     spare = [c for c, k in enumerate(keys) if k.split(":")[0] in SPARE_CHANNELS]
-    rest = [c for c in range(len(keys)) if c not in spare]
-    saved = nan[:, spare].any(axis=1) & ~nan[:, rest].any(axis=1)  # rows only a spare lacks
+    core = [c for c, k in enumerate(keys) if k.split(":")[0] not in SPARE_CHANNELS
+            + FILLED_CHANNELS]
+    saved = nan[:, spare].any(axis=1) & ~nan[:, core].any(axis=1)  # rows only optionals lack
     if saved.any():
         kinds = sorted({keys[c].split(":")[0] for c in spare if nan[saved, c].any()})
         gone = [k for k in keys if k.split(":")[0] in kinds]
@@ -226,7 +234,9 @@ def _repair_rows(cols: dict[str, np.ndarray], name: str
         keep = [i for i, k in enumerate(keys) if k not in gone]
         keys, data, nan = [keys[i] for i in keep], data[:, keep], nan[:, keep]  # fmt: skip
     cut = np.zeros(n, dtype=bool)
-    bad = nan.any(axis=1)
+    row = np.arange(n)  # each kept row's number in the file (0-based), for the notes
+    optional = np.array([k.split(":")[0] in FILLED_CHANNELS for k in keys], bool)
+    bad = nan[:, ~optional].any(axis=1)  # a failed position (or goal, time) read
     if bad.any():
         goals = [i for i, k in enumerate(keys) if k.startswith("goal:")]
         edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(int), [0]])))
@@ -243,7 +253,7 @@ def _repair_rows(cols: dict[str, np.ndarray], name: str
         said = (f"{name}: {int(bad.sum())} row(s) with an empty or NaN value dropped (first: row "
                 f"{first}, 0-based, column {col!r}; rows are counted without them from here on)")
         notes.append(said)
-        data, cut = data[~bad], cut[~bad]
+        data, cut, row = data[~bad], cut[~bad], row[~bad]
     t = data[:, keys.index("time")]
     dt = np.diff(t)
     if len(dt) and np.any(dt <= 0):
@@ -251,7 +261,7 @@ def _repair_rows(cols: dict[str, np.ndarray], name: str
         if same.any():
             notes.append(f"{name}: {int(same.sum())} repeated row(s) dropped (same time and "
                          f"values as the row before; first: row {int(np.argmax(same))})")
-            data, cut = data[~same], cut[~same]
+            data, cut, row = data[~same], cut[~same], row[~same]
             t = data[:, keys.index("time")]
             dt = np.diff(t)
         back = np.maximum.accumulate(t)[:-1] - t[1:]
@@ -262,9 +272,53 @@ def _repair_rows(cols: dict[str, np.ndarray], name: str
             if np.all(np.diff(t[order]) > 0):
                 notes.append(f"{name}: {int(np.sum(order != np.arange(len(t))))} row(s) out of "
                              f"time order (at most {back.max():.3g} s back) sorted by time")
-                data, cut = data[order], cut[order]
+                data, cut, row = data[order], cut[order], row[order]
+    keys, data = _fill_gaps(keys, data, row, name, notes)
     out = {k: data[:, i] for i, k in enumerate(keys)}
     return out, notes, [int(i) for i in np.flatnonzero(cut)]
+
+
+def _fill_gaps(keys: list[str], data: np.ndarray, row: np.ndarray, name: str,
+               notes: list[str]) -> tuple[list[str], np.ndarray]:
+    """Readings of ``FILLED_CHANNELS`` missing in rows whose position was read: gaps of at most
+    ``MAX_FILL_RUN`` rows are interpolated linearly in time between the readings either side
+    (held at a log's ends); a channel with a longer gap is left out whole (every joint's or
+    actuator's column of it: the Trajectory holds a channel for all of them or none). Each
+    repair is said in ``notes``; ``row``: the file's row number of each row of ``data``."""
+    t = data[:, keys.index("time")]
+    gone: list[str] = []
+    for kind in FILLED_CHANNELS:
+        cols = [c for c, k in enumerate(keys) if k.split(":")[0] == kind]
+        missing = np.isnan(data[:, cols]) if cols else np.zeros((len(t), 0), bool)
+        if not missing.any():
+            continue
+        rows = missing.any(axis=1)
+        first = f"first: row {int(row[np.argmax(rows)])}, 0-based"
+        longest = max(_longest_run(missing[:, i]) for i in range(len(cols)))
+        if longest > MAX_FILL_RUN:
+            why = ("its velocities are estimated from the positions, as for a log without "
+                   "them" if kind == "qvel" else "effects that need it cannot be fitted")
+            notes.append(f"{name}: {kind} readings are missing in {int(rows.sum())} row(s) "
+                         f"({first}), {longest} rows in a row at most: the {kind} channel is "
+                         f"left out and the rows kept ({why})")
+            gone += [keys[c] for c in cols]
+            continue
+        for i, c in enumerate(cols):
+            m = missing[:, i]
+            if m.any():
+                data[m, c] = np.interp(t[m], t[~m], data[~m, c])
+        which = ", ".join(keys[c] for i, c in enumerate(cols) if missing[:, i].any())
+        notes.append(f"{name}: {int(missing.sum())} {kind} reading(s) missing in "
+                     f"{int(rows.sum())} row(s) ({first}; {which}): interpolated between the "
+                     "readings either side, the rows kept")
+    keep = [i for i, k in enumerate(keys) if k not in gone]
+    return [keys[i] for i in keep], data[:, keep]
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    """The longest run of True in ``mask`` (0 if none)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
+    return int(np.max(edges[1::2] - edges[::2])) if len(edges) else 0
 
 
 def _check_time(t: np.ndarray, name: str) -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 from lowcostdex.argtypes import SEED, integer, number
 from lowcostdex.errors import InputError
@@ -226,6 +227,10 @@ def _calibrate(args: argparse.Namespace) -> int:
     from lowcostdex.outdir import check_out_file
 
     out = check_out_file(args.out, overwrite=True)  # a folder or a missing folder is refused
+    if args.spec and out.exists() and Path(args.spec).exists() and out.samefile(args.spec):
+        raise InputError(f"--out {args.out} is the --spec file itself: calibrating would "
+                         "replace the spec it starts from (kept nowhere else); give a new file "
+                         f"name, e.g. --out {out.with_name(out.stem + '_calibrated.json')}")
     if out.exists():  # replaced only when it is a hand spec (this command's own output)
         try:
             HandSpec.load(out)

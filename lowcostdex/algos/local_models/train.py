@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -442,7 +443,10 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
 
 
 def _run_command(args: argparse.Namespace) -> int:
+    from lowcostdex.algos.train_cli import finished_note
+
     config = config_from_args(args)
+    note = finished_note(args)
     try:
         run = train(config, args.out, resume=args.resume)
     except KeyboardInterrupt as exc:
@@ -457,4 +461,6 @@ def _run_command(args: argparse.Namespace) -> int:
             f"rollouts: {int(metrics['rollouts'][-1])}, last training success rate "
             f"{metrics[ex.SUCCESS_RATE][-1]:.2f}, eval success {metrics[ex.EVAL_SUCCESS_RATE][-1]:.0f}"
         )
+    if note:
+        print(note, file=sys.stderr)
     return 0

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.gap.log_checks import MAX_NAN_SHARE
 from lowcostdex.gap.logs import Trajectory, write_log
 from lowcostdex.hardware.bus import BusError, WatchdogTripped
 from lowcostdex.hardware.robot.robot import Robot
@@ -63,7 +64,18 @@ class TraceRecorder:
         pick = lambda attr: np.stack([getattr(s, attr)[i] for s in states])  # noqa: E731
         channels = {"current": pick("current"), "voltage": pick("voltage"),
                     "temperature": pick("temperature")}
-        channels = {k: v for k, v in channels.items() if np.all(np.isfinite(v))}
+        for key, values in list(channels.items()):
+            missed = ~np.isfinite(values)
+            if missed.all():  # not measured by this hand (the Allegro's current and voltage)
+                del channels[key]
+            elif missed.mean() > MAX_NAN_SHARE:  # a sensor that answers now and then
+                del channels[key]
+                log.warning("%s: the %s channel is left out of the log: %d of %d readings "
+                            "missed (a sensor fault?)", name, key, int(missed.sum()), missed.size)
+            elif missed.any():  # a failed read keeps its row, the reading left empty
+                log.warning("%s: %d %s reading(s) missed in %d row(s), left empty in the log "
+                            "(the gap analysis interpolates short gaps)", name,
+                            int(missed.sum()), key, int(missed.any(axis=1).sum()))
         # the goal took effect when its packet had gone out, after the read's replies
         goal_time = np.maximum(np.array([r[3] for r in self._rows]), time)
         return Trajectory(name=name, time=time - time[0], goal=goal, qpos=pick("position"),
@@ -215,7 +227,7 @@ def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path
         ``dclaw_park``: the neighbours out of the logged finger's way.
       model: the robot's MJCF model; with it, excitation poses that would touch anything are
         pulled in (``contact_free``), the parked joints at their park positions.
-      missed_retries: a log during which a reading was missed (a motor's reply lost or late:
+      missed_retries: a log during which a position reading was missed (a reply lost or late:
         its row would hold NaN, which the gap analysis refuses) is recorded again, the same
         excitation, at most this many times.
 
@@ -247,7 +259,7 @@ def identification_logs(robot: Robot, joints: Sequence[str], out_dir: str | Path
                 log.warning("identification log %d: %s; recording it again", k, exc)
                 _park(robot, park)
                 continue
-            if np.all(np.isfinite(traj.qpos)) and np.all(np.isfinite(traj.qvel)):
+            if np.all(np.isfinite(traj.qpos)):  # a missed velocity read keeps its row
                 break
         else:
             why = (f"; {len(trips)} of them stopped by the bus watchdog (the host was silent "
