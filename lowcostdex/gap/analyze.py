@@ -337,7 +337,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             probe = probe_gains(eng.rep.run, ds, sel_eps, current.to_effects(cur_x)
                                 if current.effects else [], best_track[n_best].effects(),
                                 cfg.probes)
-            if min(train_gain, *probe) < cfg.min_gain:
+            if min([train_gain, *probe]) < cfg.min_gain:  # probes may be ()
                 stop = (f"the best candidate ({n_best}, select MSE {100 * rel:.0f} % lower) "
                         f"lowers the training error by {100 * train_gain:.1f} % and the select "
                         f"error with goals a fraction of a step later by "
