@@ -102,11 +102,12 @@ GROUPS = {
                  "lowcostdex/gap/significance.py", "lowcostdex/gap/gain.py",
                  "lowcostdex/gap/results.py"),
         tests=("tests/test_gap_decisions_pure.py", "tests/test_gap_decisions_backward.py",
-               "tests/test_gap_gain.py"),
-        note="the gap decision code judged by its pure tests only (hand-computed inputs, no "
-             "replay; ~1 s a mutant): the whole population runs in minutes, not ~20 h. "
-             "Decisions written inline in analyze._analyze need a replay and "
-             "show as \"no tests\" here (the `gap` group's analyses judge them)"),
+               "tests/test_gap_decisions_loop.py", "tests/test_gap_gain.py"),
+        note="the gap decision code judged by its fast tests only: hand-computed inputs, and "
+             "analyze's loop and backward pass on a stand-in engine (no MuJoCo replay), so the "
+             "whole population is measurable here; code only a real replay reaches (the "
+             "ranking's probes, intervals, step refinement, traces) shows as survived or "
+             "\"no tests\" (the `gap` group's analyses judge it)"),
 }
 
 # mutmut 3.8.1's exit code -> status (mutmut/stats.py status_by_exit_code); anything else is
