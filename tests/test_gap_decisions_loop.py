@@ -14,6 +14,7 @@ from sqrt((a^2 + c^2) / 2) to c / sqrt(2), all by hand. Three 1 s episodes: trai
 from __future__ import annotations
 
 import importlib
+import json
 import math
 from dataclasses import dataclass
 
@@ -248,3 +249,31 @@ def test_an_effect_whose_interval_holds_no_effect_is_dropped_after_the_final_fit
     assert res.stop_reason.endswith("mounting_offset dropped: its 95 % interval holds no "
                                     "effect; position_offset dropped: its 95 % interval holds "
                                     "no effect")
+
+
+def test_the_report_payload_carries_what_was_decided(loop):
+    res = loop(0.05, 0.0, 0.01, floor=0.001,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    d = json.loads(json.dumps(res.to_dict()))  # report.json: plain JSON
+    assert (d["version"], d["verdict"], d["stop_reason"]) == (1, res.verdict, res.stop_reason)
+    assert d["metric"] == "position error [rad]: RMSE (and MAE) over held-out test episodes"
+    assert d["sources"] == ["log0", "log1", "log2"] and d["joints"] == ["j0"]
+    assert d["split"] == {role: [{"log": f"log{i}", "start": 0, "stop": N}]
+                          for role, i in (("train", 0), ("select", 1), ("test", 2))}
+    assert d["noise_floor"] == {"rmse": pytest.approx(0.001), "per_joint": {"j0": 0.001}}
+    (cause,) = d["causes"]
+    assert cause["effect"] == "position_offset" and cause["joints"] == ["j0"]
+    assert cause["params"]["offset"]["value"] == pytest.approx([0.05], abs=1e-6)
+    assert cause["heldout_rmse_after"] == pytest.approx(0.01 / math.sqrt(2), rel=1e-4)
+    assert (cause["flags"], cause["equivalent"], cause["widened"]) == ([], [], [])
+    assert d["gain"] == json.loads(json.dumps(res.gain.to_dict()))
+    first = {c["effect"]: c for c in d["candidates"][0]}
+    assert first["position_offset"]["accepted"] and first["position_offset"]["score"] == 0.9
+    assert first["mounting_offset"]["fitted"] and not first["mounting_offset"]["accepted"]
+    assert d["config"]["probes"] == [0.01, 0.02] and d["config"]["search"] == "forward"
+    assert d["timestep"] == {"model": 0.002, "used": 0.002, "rmse": []}
+    assert {"baseline", "round1", "total"} <= set(d["timing_s"])
+    assert d["baseline"]["heldout_rmse"] == pytest.approx(math.sqrt(0.0026 / 2))
+    assert d["extended"]["heldout_rmse"] == pytest.approx(0.01 / math.sqrt(2), rel=1e-4)
+    # the baseline's select RMSE: the nominal replay of the select episode, sqrt(0.0026 / 2)
+    assert d["baseline"]["select_rmse"] == pytest.approx(math.sqrt(0.0026 / 2))
