@@ -13,8 +13,12 @@ tick 1024 (top) and 2048 (middle, bottom).
 Specs are checked where they are built or loaded (ConfigError naming the joint, field and value;
 ``HandSpec.load`` adds the file): finite limits and calibration, ``max_velocity`` within what
 the motor can turn, one motor id per joint, and on Dynamixel hands every joint's limits inside
-the motor's one turn of position mode. ``check_model_ranges`` checks the limits against a
-model's joint ranges (the mechanical stops) where a spec meets its model.
+the motor's one turn of position mode; on the Allegro (CAN) its 16 joints in action order on
+joint slots 0..15, limits inside the published URDF ranges (the mechanical stops: the Allegro
+model takes its ranges from the spec, so the model cannot tell) and inside the position the
+hand reports (int16 counts of 333.3/65536 deg). ``check_model_ranges`` checks the limits against
+a model's joint ranges (the mechanical stops) where a spec meets its model; ``as_hand_spec``
+takes a spec given as an object, a JSON file or a JSON dict (an env keyword from a config).
 """
 
 from __future__ import annotations
@@ -142,11 +146,44 @@ class HandSpec:
                 raise ConfigError(f"hand {self.name}: joint name {j.name} appears twice")
             seen[j.motor_id] = j.name
             names.add(j.name)
-        if self.motor != "allegro":  # the Allegro's joints are torque-driven, no servo table
+        if self.motor == "allegro":  # the Allegro's joints are torque-driven, no servo table
+            self._check_allegro()
+        else:
             if self.motor not in MOTORS:
                 raise ConfigError(f"hand {self.name}: unknown motor model {self.motor!r}; valid "
                                   f"choices: {', '.join(MOTORS)} (or 'allegro')")
             self._check_motor_range(MOTORS[self.motor])
+
+    def _check_allegro(self) -> None:
+        """The Allegro v4's 16 joints in action order on CAN joint slots 0..15, no auxiliary
+        motors, limits inside the published URDF range of each joint and inside the position
+        the hand reports. (No servo table gives its joints' top speed: ``max_velocity`` has the
+        general bound ``MAX_JOINT_SPEED``.)"""
+        names = tuple(ALLEGRO_RANGES)
+        if self.aux_joints:
+            aux = ", ".join(j.name for j in self.aux_joints)
+            raise ConfigError(f"hand {self.name}: aux_joints {aux}: the Allegro has no motors "
+                              "beside its 16 joints on CAN; leave aux_joints empty")
+        if self.joint_names != names:
+            raise ConfigError(f"hand {self.name}: joints {', '.join(self.joint_names)} are not "
+                              f"the Allegro's {len(names)} in action order: {', '.join(names)}")
+        for j in self.joints:
+            if not 0 <= j.motor_id < len(names):
+                raise ConfigError(f"joint {j.name}: motor_id {j.motor_id} is not an Allegro joint "
+                                  f"slot (0..{len(names) - 1}: 4 x finger + joint, as the hand's "
+                                  "CAN frames carry them)")
+            lo, hi = ALLEGRO_RANGES[j.name]
+            if j.low < lo or j.high > hi:
+                raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad leave the "
+                                  f"Allegro's joint range [{lo}, {hi}] rad (published URDF: the "
+                                  "mechanical stops)")
+            c = j.calibration
+            a, b = sorted((c.to_motor(j.low), c.to_motor(j.high)))
+            if a < -ALLEGRO_POSITION_RANGE or b > ALLEGRO_POSITION_RANGE:
+                raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad are hand "
+                                  f"readings [{a:.4f}, {b:.4f}] rad, outside what the hand "
+                                  f"reports (+-{ALLEGRO_POSITION_RANGE:.4f} rad, int16 counts); "
+                                  "check the calibration offset")
 
     def _check_motor_range(self, motor) -> None:
         """Limits inside the motor's one turn of position mode; max_velocity within the joint
@@ -283,15 +320,19 @@ def dclaw_spec(motor: str = "XH430-W350") -> HandSpec:
 _ALLEGRO_FINGER_LIMITS = ((-0.47, 0.47), (-0.196, 1.61), (-0.174, 1.709), (-0.227, 1.618))
 _ALLEGRO_THUMB_LIMITS = ((0.263, 1.396), (-0.105, 1.163), (-0.189, 1.644), (-0.162, 1.719))
 ALLEGRO_FINGERS = ("index", "middle", "ring", "thumb")
+ALLEGRO_RANGES = {f"{finger}_{k}": lim for finger in ALLEGRO_FINGERS for k, lim in enumerate(
+    _ALLEGRO_THUMB_LIMITS if finger == "thumb" else _ALLEGRO_FINGER_LIMITS)}
+"""Joint name -> (low, high) [rad] of the Allegro v4 right hand in action order."""
+ALLEGRO_POSITION_UNIT = math.radians(333.3 / 65536.0)
+"""[rad] per count of a FINGER_POSE position (``deg = raw * 333.3 / 65536``, v4 C++ driver)."""
+ALLEGRO_POSITION_RANGE = 32768 * ALLEGRO_POSITION_UNIT
+"""[rad] the largest position an int16 FINGER_POSE count carries (2.909 rad)."""
 
 
 def allegro_spec() -> HandSpec:
     """The Allegro hand v4: 16 torque-driven joints (CAN), index = 4 * finger + joint."""
-    joints = []
-    for f, finger in enumerate(ALLEGRO_FINGERS):
-        limits = _ALLEGRO_THUMB_LIMITS if finger == "thumb" else _ALLEGRO_FINGER_LIMITS
-        for k, (low, high) in enumerate(limits):
-            joints.append(JointSpec(f"{finger}_{k}", 4 * f + k, low, high, max_velocity=math.pi))
+    joints = [JointSpec(name, i, low, high, max_velocity=math.pi)
+              for i, (name, (low, high)) in enumerate(ALLEGRO_RANGES.items())]
     return HandSpec("allegro", "allegro", tuple(joints))
 
 
@@ -312,6 +353,36 @@ def hand_spec(name: str) -> HandSpec:
     """The default spec of a named hand; the error lists the known hands."""
     check_choice("hand", name, HANDS)
     return HANDS[name]()
+
+
+def as_hand_spec(value: object, hand: str) -> HandSpec:
+    """A hand spec given to a backend as ``hand=``: a ``HandSpec``, the path of a spec JSON, or
+    the JSON's dict (an env keyword from a JSON config); it must be a ``hand`` spec.
+
+    Raises:
+      ConfigError / InputError: another type, a file or dict that is not a valid spec, or a
+        spec of another hand.
+    """
+    if isinstance(value, HandSpec):
+        spec = value
+    elif isinstance(value, (str, Path)):
+        try:
+            spec = HandSpec.load(value)
+        except OSError as exc:
+            raise InputError(f"hand={str(value)!r}: cannot read it ({exc.strerror})") from None
+    elif isinstance(value, dict):
+        try:
+            spec = HandSpec.from_json(json.dumps(value))
+        except ConfigError as exc:
+            raise ConfigError(f"hand=: {exc}") from None
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise ConfigError(f"hand=: not a hand spec ({type(exc).__name__}: {exc})") from None
+    else:
+        raise ConfigError(f"hand= must be a HandSpec, the path of a hand spec JSON or its dict; "
+                          f"got {type(value).__name__}")
+    if spec.name != hand:
+        raise ConfigError(f"hand=: a {spec.name!r} hand spec given for the {hand!r} hand")
+    return spec
 
 
 def load_spec(path: str):

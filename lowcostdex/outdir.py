@@ -70,7 +70,7 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
     out = Path(path)
     if out.exists() and not out.is_dir():
         raise OutputRefused(f"--out {out} is a file, not a folder; give a folder path")
-    _check_writable(out)
+    check_writable(out)
     if not out.exists() or _is_empty(out):
         return False
     marker = read_marker(out)
@@ -96,15 +96,32 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
     return True
 
 
-def _check_writable(out: Path) -> None:
+def check_writable(out: Path, option: str = "--out") -> None:
     """Refuse, before any work, an output that could not be written at the end: the folder
-    when it exists, else the nearest existing folder above it (where it will be made)."""
+    when it exists, else the nearest existing path above it (where it will be made), which
+    must be a folder (a path under a file cannot be made)."""
     where = out.resolve()
     while not where.exists() and where != where.parent:
         where = where.parent
+    if where != out.resolve() and not where.is_dir():
+        raise OutputRefused(f"{option} {out}: {where} is a file, not a folder, so nothing can "
+                            "be written under it; give a path in a folder")
     if not os.access(where, os.W_OK | os.X_OK):
-        raise OutputRefused(f"--out {out}: no permission to write in {where}; give a folder you "
-                            "can write to")
+        raise OutputRefused(f"{option} {out}: no permission to write in {where}; give a folder "
+                            "you can write to")
+
+
+def check_file_folder(out: Path, option: str = "--out") -> None:
+    """Refuse a single output file whose folder is missing, is a file, or cannot be written
+    (checked before the work, not when the file is written at the end)."""
+    if out.parent.exists() and not out.parent.is_dir():
+        raise OutputRefused(f"{option} {out}: {out.parent} is a file, not a folder; give a path "
+                            "in a folder")
+    if not out.parent.is_dir():
+        raise OutputRefused(f"{option} {out}: the folder {out.parent} does not exist")
+    if not os.access(out.parent, os.W_OK | os.X_OK):
+        raise OutputRefused(f"{option} {out}: no permission to write in {out.parent.resolve()}; "
+                            "give a folder you can write to")
 
 
 def _listing(path: Path, n: int = 3) -> str:
@@ -204,8 +221,7 @@ def check_out_file(path: str | Path, *, overwrite: bool = False) -> Path:
     out = Path(path)
     if out.is_dir():
         raise OutputRefused(f"--out {out} is a folder; give a file path")
-    if not out.parent.is_dir():
-        raise OutputRefused(f"--out {out}: the folder {out.parent} does not exist")
+    check_file_folder(out)
     if out.exists() and not overwrite:
         raise OutputRefused(f"--out {out} already exists and is left untouched; give a new file "
                             "name, or --overwrite to replace it")
@@ -223,8 +239,7 @@ def check_json_out(path: str | Path, command: str, keys: Iterable[str],
     if out.is_dir():
         raise OutputRefused(f"{option} {out} is a folder; give a file path, e.g. "
                             f"{option} {out / 'summary.json'}")
-    if not out.parent.is_dir():
-        raise OutputRefused(f"{option} {out}: the folder {out.parent} does not exist")
+    check_file_folder(out, option)
     if out.exists():
         try:
             old = json.loads(out.read_text())

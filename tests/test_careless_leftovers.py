@@ -206,3 +206,215 @@ def test_a_long_velocity_gap_costs_the_velocity_channel_not_the_rows(tmp_path):
     cols["qpos:arm"][200] = np.nan
     cols["qvel:arm"][200] = np.nan
     assert [len(t) for t in _load(tmp_path, cols).trajectories] == [200, 599]
+
+
+# ------------------------------------------------------------------------------------------------
+# an --out that cannot be written: under a file (what root meets too), a read-only folder
+
+
+def _user_folder(root: Path) -> None:
+    from test_bad_inputs import bam_log
+
+    (root / "notes.txt").write_text("my notes\n")
+    (root / "bench.xml").write_text(bench_model())
+    (root / "log.csv").write_text(csv_text(servo_log()))
+    (root / "bam.json").write_text(json.dumps(bam_log()))
+
+
+def _out_commands(out: str) -> dict[str, list[str]]:
+    """Every command that writes, its output at ``out`` + a name."""
+    return {
+        "gap analyze": ["gap", "analyze", "--model", "bench.xml", "--log", "log.csv", "--out",
+                        f"{out}/report"],
+        "gap identify --json": ["gap", "identify", "--log", "bam.json", "--json",
+                                f"{out}/id.json"],
+        "train npg": ["train", "npg", "--env", POINTMASS, "--out", f"{out}/run", "--n-iter", "1",
+                      *TINY],
+        "train tvlg": ["train", "tvlg", "--out", f"{out}/run", "--n-iter", "1", "--no-progress"],
+        "record-demos": ["record-demos", "--episodes", "1", "--out", f"{out}/demos.h5"],
+        "record-log": ["record-log", "--port", "emulated", "--logs", "1", "--seconds", "1",
+                       "--out", f"{out}/logs"],
+        "main": ["main", "--out", f"{out}/job"],
+        "transfer": ["transfer", "--out", f"{out}/transfer"],
+        "model": ["model", "dclaw", "--out", f"{out}/dclaw.xml"],
+        "calibrate": ["calibrate", "--port", "emulated", "--yes", "--out", f"{out}/spec.json"],
+        "reset-test --json": ["reset-test", "--trials", "1", "--json", f"{out}/summary.json"],
+    }
+
+
+@pytest.mark.parametrize("command", list(_out_commands("x")))
+def test_an_output_under_a_file_is_refused_before_the_work(command, tmp_path, capsys,
+                                                           monkeypatch):
+    """``--out notes.txt/report`` (a file where a folder should be): refused in one line naming
+    the file, exit 2, before any work, the folder byte for byte as it was. Before, the lines
+    read "no permission to write in notes.txt" or "the folder notes.txt does not exist" (it
+    does: as a file) or "cannot open ...: Not a directory"."""
+    monkeypatch.chdir(tmp_path)
+    _user_folder(tmp_path)
+    before = snapshot(tmp_path)
+    assert main(_out_commands("notes.txt")[command]) == USER_ERROR
+    line = one_error_line(capsys.readouterr().err)
+    assert "notes.txt is a file, not a folder" in line, line
+    assert snapshot(tmp_path) == before
+
+
+def _read_only_folder(tmp_path: Path) -> Path:
+    """A folder this process cannot write in, found by trying to create a file there: a
+    chmod 555 folder for a normal user; as root (who writes in those), a read-only mount."""
+    import os
+    import tempfile
+
+    candidates = [tmp_path / "ro"] if os.geteuid() != 0 else [Path("/proc/sys"),
+                                                             Path("/sys/fs/cgroup")]
+    if os.geteuid() != 0:
+        candidates[0].mkdir()
+        candidates[0].chmod(0o555)
+    for folder in candidates:
+        try:
+            fd, name = tempfile.mkstemp(dir=folder)
+        except OSError:
+            return folder
+        os.close(fd)
+        os.unlink(name)
+    pytest.skip(f"no read-only folder found as uid {os.geteuid()} (tried "
+                f"{', '.join(map(str, candidates))}): root writes wherever permissions forbid")
+
+
+@pytest.mark.parametrize("command", ["gap analyze", "train npg", "record-demos", "model", "main",
+                                     "reset-test --json"])
+def test_an_output_in_a_read_only_folder_is_refused_before_the_work(command, tmp_path, capsys,
+                                                                     monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _user_folder(tmp_path)
+    folder = _read_only_folder(tmp_path)
+    before = snapshot(tmp_path)
+    try:
+        assert main(_out_commands(str(folder))[command]) == USER_ERROR
+    finally:
+        if folder.is_relative_to(tmp_path):
+            folder.chmod(0o755)
+    line = one_error_line(capsys.readouterr().err)
+    assert f"no permission to write in {folder.resolve()}" in line, line
+    assert snapshot(tmp_path) == before
+
+
+# ------------------------------------------------------------------------------------------------
+# Allegro hand specs (python-can virtual bus): the D'Claw's checks
+
+
+# the Allegro v4 right hand's joint ranges [rad] (allegro_hand_description URDF), typed in here
+URDF_INDEX_1 = (-0.196, 1.61)
+# FINGER_POSE positions: int16 counts of 333.3/65536 deg (the v4 C++ driver) -> at most
+# 32768 * 333.3 / 65536 deg = 166.65 deg
+INT16_REACH = 32768 * 333.3 / 65536 * np.pi / 180
+
+
+def allegro_spec_with(edit) -> callable:
+    def write(path: Path) -> None:
+        from lowcostdex.hands import allegro_spec
+
+        raw = json.loads(allegro_spec().to_json())
+        edit(raw)
+        path.write_text(json.dumps(raw))
+    return write
+
+
+ALLEGRO_NAMES = [f"{f}_{k}" for f in ("index", "middle", "ring", "thumb") for k in range(4)]
+ALLEGRO_CASES = {
+    # limits wider than the hand: the Allegro model takes its ranges from the spec, so nothing
+    # stopped +-4 rad (the D'Claw's are refused by the motor's turn and the model)
+    "limits of +-4 rad": (lambda d: d["joints"][0].update(low=-4.0, high=4.0),
+                          "joint index_0: limits [-4.0, 4.0] rad leave the Allegro's joint range "
+                          "[-0.47, 0.47] rad (published URDF: the mechanical stops)"),
+    "a limit past the stop": (lambda d: d["joints"][1].update(high=2.5),
+                              f"joint index_1: limits [-0.196, 2.5] rad leave the Allegro's joint "
+                              f"range [{URDF_INDEX_1[0]}, {URDF_INDEX_1[1]}] rad"),
+    "an offset putting readings beyond int16": (
+        lambda d: d["joints"][0]["calibration"].update(offset=10.0),
+        f"outside what the hand reports (+-{INT16_REACH:.4f} rad, int16 counts)"),
+    "a motor id that is no CAN slot": (lambda d: d["joints"][0].update(motor_id=20),
+                                       "joint index_0: motor_id 20 is not an Allegro joint slot "
+                                       "(0..15"),
+    "two joints on one slot": (lambda d: d["joints"][1].update(motor_id=0),
+                               "joints index_0 and index_1 are both on motor id 0"),
+    "max_velocity 1e6": (lambda d: d["joints"][0].update(max_velocity=1e6),
+                         "joint index_0: max_velocity 1000000.0 rad/s is outside (0, 50.0]"),
+    "a NaN calibration offset": (lambda d: d["joints"][0]["calibration"].update(offset=float("nan")),
+                                 "calibration offset must be a finite number, got nan"),
+    "joints out of action order": (
+        lambda d: d["joints"].__setitem__(slice(0, 2), d["joints"][1::-1]),
+        f"are not the Allegro's 16 in action order: {', '.join(ALLEGRO_NAMES)}"),
+    "a valve motor as aux joint": (
+        lambda d: d.update(aux_joints=[{"name": "valve", "motor_id": 50, "low": -3, "high": 3}]),
+        "aux_joints valve: the Allegro has no motors beside its 16 joints on CAN"),
+}
+
+
+@pytest.mark.parametrize("case", list(ALLEGRO_CASES))
+def test_a_bad_allegro_spec_is_refused_by_record_log_before_anything_is_written(
+        case, tmp_path, capsys):
+    edit, message = ALLEGRO_CASES[case]
+    allegro_spec_with(edit)(tmp_path / "spec.json")
+    before = snapshot(tmp_path)
+    code = main(["record-log", "--hand", "allegro", "--port", "emulated", "--spec",
+                 str(tmp_path / "spec.json"), "--logs", "1", "--seconds", "1", "--out",
+                 str(tmp_path / "logs")])
+    assert code == USER_ERROR
+    line = one_error_line(capsys.readouterr().err)
+    assert line.startswith(f"lowcostdex record-log: error: --spec {tmp_path / 'spec.json'}: "), line
+    assert message in line, line
+    assert snapshot(tmp_path) == before
+
+
+def test_hardware_backends_take_a_spec_file_or_dict_and_refuse_a_wrong_one(tmp_path):
+    """``gym.make(..., backend="hardware", hand=...)``: a spec's path or its JSON dict (an env
+    keyword from a JSON config, ``--env-kwarg hand=spec.json``) raised AttributeError ('str'
+    object has no attribute 'aux_joints'); now read and checked like ``--spec``. The Allegro's
+    is used by the robot (checked on the emulated hand served on a virtual CAN channel); the
+    D'Claw's passes to the port (a missing one: BusError naming it)."""
+    import threading
+    import time
+
+    from lowcostdex.errors import ConfigError, InputError
+    from lowcostdex.hands import dclaw_spec
+    from lowcostdex.hardware.allegro.emulator import EmulatedAllegro
+    from lowcostdex.hardware.bus import BusError
+    from lowcostdex.sim.envs.allegro_tasks import AllegroTurnValve
+
+    narrow = tmp_path / "allegro.json"
+    allegro_spec_with(lambda d: d["joints"][0].update(low=-0.3, high=0.3))(narrow)
+    (tmp_path / "dclaw.json").write_text(dclaw_spec().to_json())
+    dclaw = "lowcostdex/DClawTurnValve-v0"
+    allegro = "lowcostdex/AllegroTurnValve-v0"
+    for hand in (str(tmp_path / "dclaw.json"), json.loads(dclaw_spec().to_json())):
+        with pytest.raises(BusError, match="/dev/ttyUSB9"):
+            gym.make(dclaw, backend="hardware", port="/dev/ttyUSB9", hand=hand)
+    for hand, error, words in (
+            (str(narrow), ConfigError, "hand=: a 'allegro' hand spec given for the 'dclaw' hand"),
+            (3, ConfigError, "hand= must be a HandSpec, the path of a hand spec JSON or its dict"),
+            (str(tmp_path / "missing.json"), InputError, "cannot read it (No such file")):
+        with pytest.raises(error) as exc:
+            gym.make(dclaw, backend="hardware", port="/dev/ttyUSB9", hand=hand)
+        assert words in str(exc.value)
+    bad = json.loads(narrow.read_text())
+    bad["joints"][1]["high"] = 2.5
+    with pytest.raises(ConfigError, match=r"hand=: joint index_1: limits \[-0.196, 2.5\] rad "
+                                          "leave the Allegro's joint range"):
+        gym.make(allegro, backend="hardware", channel="c", interface="virtual",
+                 tracker=lambda: 0.0, hand=bad)
+    channel = f"allegro-spec-{time.monotonic_ns()}"
+    emu = EmulatedAllegro(AllegroTurnValve().build_spec().compile(), channel=channel)
+    stop = threading.Event()
+    server = threading.Thread(target=emu.serve, args=(stop,), daemon=True)
+    server.start()
+    try:
+        for hand in (str(narrow), json.loads(narrow.read_text())):
+            env = gym.make(allegro, backend="hardware", interface="virtual", channel=channel,
+                           tracker=lambda: 0.0, hand=hand)
+            joint = env.unwrapped.backend.robot.hand.joint("index_0")
+            assert (joint.low, joint.high) == (-0.3, 0.3)
+            env.close()
+    finally:
+        stop.set()
+        server.join(2.0)
+        emu.close()

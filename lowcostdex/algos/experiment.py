@@ -237,6 +237,9 @@ class Run:
         config = _jsonable(config)
         if path.exists() and not path.is_dir():
             raise ConfigError(f"run directory {path} is a file; choose a directory")
+        from lowcostdex.outdir import check_writable
+
+        check_writable(path, "run directory")  # under a file, or no permission: before the work
         config_file = path / CONFIG_FILE
         if not config_file.exists():
             from lowcostdex.outdir import read_marker

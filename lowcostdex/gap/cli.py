@@ -200,13 +200,12 @@ def _check_json_out(path: Path) -> None:
     output (replaced); a user's other file is refused untouched."""
     import json
 
-    from lowcostdex.outdir import OutputRefused
+    from lowcostdex.outdir import OutputRefused, check_file_folder
 
     if path.is_dir():
         raise OutputRefused(f"--json {path} is a folder; give a file path, e.g. "
                             f"--json {path / 'identified.json'}")
-    if not path.parent.is_dir():
-        raise OutputRefused(f"--json {path}: the folder {path.parent} does not exist")
+    check_file_folder(path, "--json")
     if path.exists():
         try:
             old = json.loads(path.read_text())

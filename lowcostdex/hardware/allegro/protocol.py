@@ -33,7 +33,6 @@ Payloads (little endian):
 
 from __future__ import annotations
 
-import math
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ import can
 import numpy as np
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.hands import ALLEGRO_POSITION_UNIT
 
 # Commands (the frame id is ``cmd << 2 | device_id``).
 SYSTEM_ON = 0x40
@@ -59,7 +59,7 @@ TEMPERATURE = 0x38  # + finger
 N_FINGERS = 4
 JOINTS_PER_FINGER = 4
 N_JOINTS = N_FINGERS * JOINTS_PER_FINGER
-POSITION_UNIT = math.radians(333.3 / 65536.0)  # [rad per raw count]
+POSITION_UNIT = ALLEGRO_POSITION_UNIT  # [rad per raw count]; hand specs check limits with it
 TORQUE_TO_PWM = 1200.0  # v4 ``_tau_cov_const`` [PWM per N m]
 PWM_MAX = 1200  # global clamp at 12 V
 # Hand major version -> (torque constant [PWM per N m], global PWM clamp): the v4 ROS driver's

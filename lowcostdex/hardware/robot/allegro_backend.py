@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hands import HandSpec
+from lowcostdex.hands import HandSpec, as_hand_spec
 from lowcostdex.hardware.robot.backend import (
     EpisodeReset,
     ObjectSensor,
@@ -153,7 +153,8 @@ class AllegroHardwareBackend(RobotBackend):
         Allegro does not sense the valve.
       place_valve: (angle [rad]) -> None, puts the valve at the episode's start angle (a motorized
         valve, or a function that asks a person and returns when done); default: not placed.
-      hand: hand spec (default the task's).
+      hand: hand spec (default the task's): a ``HandSpec``, the path of its JSON or the JSON's
+        dict (``lowcostdex.hands.as_hand_spec``).
       robot_config: Robot settings (default ``ALLEGRO_ROBOT``).
       reset_config: auto-reset settings (default ``ResetConfig()``).
       bus_kwargs: more ``AllegroBus`` options (gains, device_id, ...).
@@ -177,7 +178,7 @@ class AllegroHardwareBackend(RobotBackend):
             raise ConfigError("the Allegro valve task on hardware needs tracker=... (a function "
                               "returning the valve angle [rad], unwrapped, from an encoder or "
                               "motion capture): the hand does not sense the valve")
-        hand = hand or task.hand
+        hand = task.hand if hand is None else as_hand_spec(hand, "allegro")
         bus = AllegroBus(interface=interface, channel=channel, hand=hand, **bus_kwargs)
         robot = Robot(hand, bus, task_robot_config(robot_config, task, model, ALLEGRO_ROBOT))
         super().__init__(model, task, robot,

@@ -35,7 +35,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.hands import HandSpec, check_model_ranges
+from lowcostdex.hands import HandSpec, as_hand_spec, check_model_ranges
 from lowcostdex.hardware.bus import MotorBus, WatchdogTripped
 from lowcostdex.hardware.robot.reset import ResetConfig, ResetReport
 from lowcostdex.hardware.robot.reset_dclaw import DClawReset
@@ -396,7 +396,8 @@ class HardwareBackend(RobotBackend):
       model, task, rng: as every backend.
       port: serial device path, e.g. "/dev/ttyUSB0" (a pty from ``lowcostdex emulate`` works).
       baudrate: line rate [bit/s].
-      hand: hand spec with this robot's calibration (default the task's).
+      hand: hand spec with this robot's calibration (default the task's): a ``HandSpec``, the
+        path of its JSON or the JSON's dict (``lowcostdex.hands.as_hand_spec``).
       robot_config, reset_config: as ``EmulatedBackend``.
       tracker: block pose source for the flip task (motion capture), a callable or its import
         path "package.module:function"; required for that task.
@@ -420,7 +421,7 @@ class HardwareBackend(RobotBackend):
         if task.station == "block" and tracker is None:
             raise ConfigError("the flip-block task on hardware needs tracker=... (a function "
                               "returning the block's position and quaternion)")
-        hand = robot_hand(hand or task.hand, model)
+        hand = robot_hand(task.hand if hand is None else as_hand_spec(hand, "dclaw"), model)
         bus = make_dynamixel_bus(hand, port, model, baudrate=baudrate, **bus_kwargs)
         robot = Robot(hand, bus, task_robot_config(robot_config, task, model))
         super().__init__(model, task, robot,
