@@ -107,8 +107,10 @@ def loop(monkeypatch):
 
         def rank(eng, segs, current, cur_x, remaining, ctx):
             r = eng.residuals(segs, [current.to_effects(cur_x) if current.effects else []])[0]
-            return ([CandidateResult(n, scores[n]) for n in remaining],
-                    float(np.sqrt(np.mean(r * r))))
+            k = len(current.effects)  # a list of scores: one per round
+            return ([CandidateResult(n, scores[n][min(k, len(scores[n]) - 1)]
+                                     if isinstance(scores[n], list) else scores[n])
+                     for n in remaining], float(np.sqrt(np.mean(r * r))))
 
         def intervals(ds, t, segs, cfg, prog, timing):
             h = np.array([half.get(f.effect, 1e-6) if isinstance(half, dict) else half
@@ -277,3 +279,28 @@ def test_the_report_payload_carries_what_was_decided(loop):
     assert d["extended"]["heldout_rmse"] == pytest.approx(0.01 / math.sqrt(2), rel=1e-4)
     # the baseline's select RMSE: the nominal replay of the select episode, sqrt(0.0026 / 2)
     assert d["baseline"]["select_rmse"] == pytest.approx(math.sqrt(0.0026 / 2))
+
+
+def test_the_backward_search_finds_an_effect_the_forward_steps_stopped_before(loop):
+    # round 1 accepts position_offset; in round 2 mounting_offset's score (0.01) is below
+    # min_gain and the forward steps stop. The backward search fits the round-1 top candidates
+    # together (scores >= min_gain there: both) and keeps both: the select MSE falls from
+    # (b^2 + c^2) / 2 to c^2 / 2, 1 - 0.01^2 / (0.03^2 + 0.01^2) = 90 % below the forward model's
+    scores = {"position_offset": 0.9, "mounting_offset": [0.5, 0.01]}
+    res = loop(0.05, 0.03, 0.01, floor=0.001, search="both", scores=scores)
+    assert res.stop_reason == (
+        "no candidate signature explains the residual; backward search from position_offset, "
+        "mounting_offset kept position_offset, mounting_offset (select MSE 90 % below the "
+        "forward model's)")
+    assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
+    assert [c.params["offset"]["value"][0] for c in res.causes] == pytest.approx(
+        [0.05, 0.03], abs=1e-6)
+    assert "backward_search" in res.timing
+    # forward only: the offset the forward steps missed stays missing
+    res = loop(0.05, 0.03, 0.01, floor=0.001, search="forward", scores=scores)
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    # a forward model within backward_above floors is not searched further: select RMSE after
+    # position_offset is sqrt((0.03^2 + 0.01^2) / 2) = 22.4 mrad; 30 floors of 1 mrad is more
+    res = loop(0.05, 0.03, 0.01, floor=0.001, search="both", backward_above=30.0, scores=scores)
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    assert "backward_search" not in res.timing
