@@ -1,0 +1,247 @@
+"""DAPG trained in simulation from the main job's demonstrations, judged on the emulated robot
+(issue 13 item 3).
+
+The main job's train stage runs DAPG on the emulated D'Claw (every sample through the
+dynamixel_sdk code path and the emulated servos), where 12 x 20 episodes add nothing measurable
+over the behaviour clone (bench/RESULTS.md, "The RL stage in the main job"). This script asks
+whether the same demonstrations, cloned the same way, improve when DAPG samples the plain MuJoCo
+task instead (optionally with domain randomization over the effect catalogue), which runs many
+times faster:
+
+1. ``throughput``: samples/s of the emulated robot env and of the sim env of the same task
+   (the same random Gaussian policy, ``--episodes`` episodes each, wall and process CPU time).
+2. ``train``: DAPG from ``DIR/demos.h5`` (a main-job output folder: ``lowcostdex main --stages
+   bus,demos``) on the sim backend, the main job's DAPG settings except the budget; validation in
+   sim on one fixed episode set (``eval_paired``) with the clone competing; then the clone
+   (``bc_policy.pt``), the run's policy and its final iterate on the main job's held-out
+   episodes of the emulated robot (``HELDOUT_STREAM``, the reset seeds the main job's report
+   uses) and on ``--sim-heldout`` held-out episodes in sim. Success: final |goal error| < the
+   task's tolerance (``info["success"]`` at the last step), mean action.
+
+    python bench/main_job_sim.py throughput --episodes 20
+    python bench/main_job_sim.py train --demos /tmp/mj_s0 --seed 0 --iters 30 --traj 40 \\
+        --out /tmp/sim_dapg [--randomize default|robot]
+
+Prints one JSON line per run and appends it to ``--out``/results.jsonl. Paired statistics:
+exact one-sided McNemar (binomial test on the episodes only one policy solved) and one-sided
+Wilcoxon signed-rank on the final errors; 95 % Wilson intervals.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+RANDOMIZE = ("none", "default", "robot", "truth")
+"""``--randomize``: none (the nominal sim), default (every effect of the catalogue's default
+domain randomization, ``DEFAULT_DR_EFFECTS``, at its catalogue range), robot (latency, backlash
+and Coulomb friction, the kinds of effect the main job's gap stage names, at their catalogue
+ranges), truth (the emulated robot's own effects, ``main_job.setup.robot_effects``, every
+episode: what a sim extended by a perfect gap analysis would be; an upper bound, not a recipe)."""
+
+
+def sim_kwargs(randomize: str) -> dict[str, Any]:
+    from lowcostdex.hands import dclaw_spec
+    from lowcostdex.main_job.setup import TASKS
+    from lowcostdex.sim.effects.randomization import DEFAULT_DR_EFFECTS
+
+    kw: dict[str, Any] = {**TASKS["valve-target"].env_overrides, "backend": "sim"}
+    if randomize == "default":
+        kw["randomize"] = list(DEFAULT_DR_EFFECTS)
+    elif randomize == "robot":
+        kw["randomize"] = {"effects": ["latency", "backlash", "coulomb_friction"],
+                           "joints": list(dclaw_spec().joint_names)}
+    elif randomize == "truth":
+        from lowcostdex.main_job.setup import robot_effects
+
+        joints = dclaw_spec().joint_names
+        fixed = {e.name: {p: (float(v[0]), float(v[0])) for p, v in e.values.items()}
+                 for e in robot_effects(joints)}
+        kw["randomize"] = {"effects": list(fixed), "joints": list(joints), "ranges": fixed}
+    return kw
+
+
+def robot_kwargs() -> dict[str, Any]:
+    from lowcostdex.main_job.setup import Context
+
+    return Context(out=Path(".")).env_kwargs()
+
+
+def throughput(episodes: int) -> list[dict[str, Any]]:
+    from lowcostdex.algos.configs import PolicyConfig
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+    from lowcostdex.algos.samplers import EnvFactory, SerialSampler, make_jobs
+    from lowcostdex.main_job.setup import TASKS
+
+    env_id = TASKS["valve-target"].env_id
+    out = []
+    for name, kw in (("emulated robot", robot_kwargs()), ("sim", sim_kwargs("none")),
+                     ("sim + default randomization", sim_kwargs("default"))):
+        sampler = SerialSampler(EnvFactory(env_id, kw))
+        env = sampler.env
+        policy = GaussianMLPPolicy(env.observation_space.shape[0], env.action_space.shape[0],
+                                   PolicyConfig(hidden_sizes=(32, 32), init_log_std=-1.0),
+                                   torch.Generator().manual_seed(0))
+        snap = policy.snapshot()
+        sampler.sample(snap, make_jobs(0, 0, 99, 1))  # warm up
+        t0, c0 = time.perf_counter(), time.process_time()
+        paths = sampler.sample(snap, make_jobs(0, 0, 0, episodes))
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        sampler.close()
+        steps = sum(len(p) for p in paths)
+        row = {"env": name, "episodes": episodes, "steps": steps, "wall_s": round(wall, 2),
+               "cpu_s": round(cpu, 2), "samples_per_s_wall": round(steps / wall, 1),
+               "samples_per_cpu_s": round(steps / cpu, 1),
+               "robot_s": round(sum(p.robot_seconds for p in paths), 1)}
+        print(json.dumps(row), flush=True)
+        out.append(row)
+    return out
+
+
+def heldout(env_id: str, kwargs: dict[str, Any], policies: dict[str, Path], seed: int,
+            episodes: int) -> dict[str, dict[str, Any]]:
+    """Each policy's mean action on the same ``episodes`` held-out episodes (reset seeds of
+    ``HELDOUT_STREAM`` at ``seed``, the main job's), one sampler for all (as the main job)."""
+    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, SerialSampler, make_jobs
+    from lowcostdex.algos.train import load_policy, trajectory_success
+
+    jobs = make_jobs(seed, HELDOUT_STREAM, 0, episodes, deterministic=True)
+    sampler = SerialSampler(EnvFactory(env_id, kwargs))
+    out = {}
+    try:
+        for name, path in policies.items():
+            snap = load_policy(path).snapshot()
+            paths = []
+            for job in jobs:
+                paths += sampler.sample(snap, [job])
+            out[name] = {"solved": [trajectory_success(p, "final") for p in paths],
+                         "errors": [float(p.final_goal_error) for p in paths]}
+            out[name]["successes"] = int(sum(out[name]["solved"]))
+    finally:
+        sampler.close()
+    return out
+
+
+def paired(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
+    """Paired comparison of ``after`` against ``before`` on the same episodes."""
+    from scipy.stats import binomtest, wilcoxon
+
+    from lowcostdex.stats import wilson_interval
+
+    a, b = np.array(before["solved"]), np.array(after["solved"])
+    only_after, only_before = int(np.sum(b & ~a)), int(np.sum(a & ~b))
+    n = only_after + only_before
+    p = binomtest(only_after, n, 0.5, alternative="greater").pvalue if n else 1.0
+    ea, eb = np.array(before["errors"]), np.array(after["errors"])
+    w = (float(wilcoxon(eb, ea, alternative="less").pvalue) if np.any(ea != eb) else 1.0)
+    k = len(a)
+    return {"before": int(a.sum()), "after": int(b.sum()), "n": k,
+            "before_ci": [round(x, 3) for x in wilson_interval(int(a.sum()), k)],
+            "after_ci": [round(x, 3) for x in wilson_interval(int(b.sum()), k)],
+            "only_after": only_after, "only_before": only_before,
+            "mcnemar_p": round(float(p), 4), "median_err_before": round(float(np.median(ea)), 4),
+            "median_err_after": round(float(np.median(eb)), 4), "wilcoxon_p": round(w, 4)}
+
+
+def train_in_sim(a: argparse.Namespace) -> dict[str, Any]:
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.configs import DAPGConfig, TrainConfig
+    from lowcostdex.algos.train import train
+    from lowcostdex.main_job.setup import DAPG_LAM0, TASKS
+
+    env_id = TASKS["valve-target"].env_id
+    kw = sim_kwargs(a.randomize)
+    backend = kw.pop("backend")
+    config = TrainConfig(algo="dapg", env_id=env_id, backend=backend, env_kwargs=kw,
+                         seed=a.seed, n_iter=a.iters, n_traj=a.traj, eval_every=a.eval_every,
+                         eval_episodes=a.val, demos=str(a.demos / "demos.h5"), eval_bc=True,
+                         dapg=DAPGConfig(lam0=DAPG_LAM0), eval_paired=True, progress=False)
+    if a.config:  # overrides of the TrainConfig fields (nested configs merged), for screens
+        d = dataclasses.asdict(config)
+        for k, v in a.config.items():
+            d[k] = {**d[k], **v} if isinstance(v, dict) else v
+        config = TrainConfig.from_dict(d)
+    tag = f"{a.randomize}_i{a.iters}_t{a.traj}_v{a.val}_s{a.seed}{a.tag}"
+    run_dir = a.out / tag
+    shutil.rmtree(run_dir, ignore_errors=True)
+    t0 = time.perf_counter()
+    train(config, run_dir)
+    train_s = time.perf_counter() - t0
+    m = ex.read_metrics(run_dir / ex.METRICS_FILE)
+    summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
+    final = run_dir / ex.FINAL_POLICY_FILE
+    policies = {"clone": run_dir / ex.BC_POLICY_FILE, "chosen": run_dir, "final": final}
+    t1 = time.perf_counter()
+    sim = heldout(env_id, sim_kwargs("none"), policies, a.seed, a.sim_heldout)
+    sim_s = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    robot = (heldout(env_id, robot_kwargs(), policies, a.seed, a.heldout) if a.heldout
+             else {k: {"solved": [], "errors": [], "successes": 0} for k in policies})
+    robot_s = time.perf_counter() - t1
+    best = summary.get("best") or {}
+    res = {"tag": tag, "seed": a.seed, "randomize": a.randomize, "iters": a.iters,
+           "traj": a.traj, "validation_episodes": a.val,
+           "samples": int(m["samples"][-1]), "chosen_iteration": best.get("iteration"),
+           "validation": {int(i): round(float(v), 3) for i, v in
+                          zip(m["iteration"], m["eval_success_rate"], strict=True)
+                          if math.isfinite(v)},
+           "clone_validation": json.loads((run_dir / "bc.json").read_text())
+           ["eval_success_rate"],
+           "train_success": [round(float(x), 2) for x in m["success_rate"]],
+           "sim": {"clone": sim["clone"]["successes"], "chosen_vs_clone":
+                   paired(sim["clone"], sim["chosen"]),
+                   "final_vs_clone": paired(sim["clone"], sim["final"])},
+           "robot": {"clone": robot["clone"]["successes"], "chosen_vs_clone":
+                     paired(robot["clone"], robot["chosen"]),
+                     "final_vs_clone": paired(robot["clone"], robot["final"])} if a.heldout
+           else None,
+           "config": a.config,
+           "train_wall_s": round(train_s, 1), "sim_heldout_wall_s": round(sim_s, 1),
+           "robot_heldout_wall_s": round(robot_s, 1),
+           "robot_errors": {k: v["errors"] for k, v in robot.items()},
+           "robot_solved": {k: v["solved"] for k, v in robot.items()}}
+    a.out.mkdir(parents=True, exist_ok=True)
+    with open(a.out / "results.jsonl", "a") as f:
+        f.write(json.dumps(res) + "\n")
+    print(json.dumps({k: v for k, v in res.items() if not k.startswith("robot_")}), flush=True)
+    return res
+
+
+def main() -> None:
+    torch.set_num_threads(1)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    t = sub.add_parser("throughput")
+    t.add_argument("--episodes", type=int, default=20)
+    r = sub.add_parser("train")
+    r.add_argument("--demos", type=Path, required=True, help="main-job output folder")
+    r.add_argument("--out", type=Path, required=True)
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--iters", type=int, default=30)
+    r.add_argument("--traj", type=int, default=40)
+    r.add_argument("--val", type=int, default=40, help="validation episodes (sim)")
+    r.add_argument("--eval-every", type=int, default=4)
+    r.add_argument("--randomize", choices=RANDOMIZE, default="none")
+    r.add_argument("--heldout", type=int, default=40, help="held-out episodes on the robot")
+    r.add_argument("--sim-heldout", type=int, default=100)
+    r.add_argument("--config", type=json.loads, default={},
+                   help='TrainConfig overrides as JSON, e.g. \'{"npg": {"step_size": 0.05}}\'')
+    r.add_argument("--tag", default="", help="appended to the run's folder name")
+    a = ap.parse_args()
+    if a.cmd == "throughput":
+        throughput(a.episodes)
+    else:
+        train_in_sim(a)
+
+
+if __name__ == "__main__":
+    main()
