@@ -418,3 +418,143 @@ def test_hardware_backends_take_a_spec_file_or_dict_and_refuse_a_wrong_one(tmp_p
         stop.set()
         server.join(2.0)
         emu.close()
+
+
+# ------------------------------------------------------------------------------------------------
+# the README's "When things go wrong" says what the code does
+
+
+def test_the_readme_s_when_things_go_wrong_section_states_what_the_code_does(tmp_path, capsys):
+    """Issue 12's "Done when" asks for the section (messages, resume, watchdog); each number it
+    gives a user is read from the README and compared with the code: exit codes, the message
+    form (one real refusal), the thermal thresholds of an X430 (80 deg C firmware limit), the
+    watchdog's 100 ms and 3 stops per episode, the 3-row gap interpolated in a log."""
+    import dataclasses
+    import re
+
+    from lowcostdex.errors import INTERRUPTED
+    from lowcostdex.gap.log_checks import MAX_FILL_RUN
+    from lowcostdex.hardware.dynamixel.config import DynamixelConfig
+    from lowcostdex.hardware.robot.backend import RobotBackend
+    from lowcostdex.hardware.robot.guards import ThermalConfig
+    from lowcostdex.motors import motor_spec
+
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    section = readme.split("## When things go wrong", 1)[1].split("\n## ", 1)[0]
+    for topic in ("--debug", "--resume", "Ctrl-C", "watchdog", "--out"):
+        assert topic in section, topic
+    assert "exits with code 2" in section and USER_ERROR == 2
+    assert "(exit code 130)" in section and INTERRUPTED == 130
+    code = main(["scan", "--port", str(tmp_path / "ttyUSB7")])
+    line = one_error_line(capsys.readouterr().err)
+    assert code == USER_ERROR and re.match(r"lowcostdex scan: error: \S", line), line
+    assert "`lowcostdex CMD: error: ...`" in section
+    limit, t = motor_spec("XH430-W350").thermal.limit, ThermalConfig()
+    said = re.search(r"reaches (\d+) deg C \(X430 servos; the firmware shuts down at (\d+)\), "
+                     r"relaxes a motor at\s+once at (\d+), and resumes when every motor is below "
+                     r"(\d+)", section)
+    assert said, "the thermal sentence changed"
+    assert [float(x) for x in said.groups()] == [limit - t.warn_margin, limit,
+                                                 limit - t.critical_margin, limit - t.resume_margin]
+    watchdog = next(f.default for f in dataclasses.fields(DynamixelConfig)
+                    if f.name == "watchdog_ms")
+    assert f"watchdog ({watchdog} ms by default)" in section
+    assert f"(up to {RobotBackend.MAX_WATCHDOG_STOPS} stops per episode" in section
+    assert f"gaps of up to {MAX_FILL_RUN} rows interpolated" in section
+
+
+# ------------------------------------------------------------------------------------------------
+# issue 12: "demos were recorded with all of these" (hand specs): record-demos on a real port
+
+
+def dclaw_spec_with(edit) -> callable:
+    def write(path: Path) -> None:
+        from lowcostdex.hands import dclaw_spec
+
+        raw = json.loads(dclaw_spec().to_json())
+        edit(raw)
+        path.write_text(json.dumps(raw))
+    return write
+
+
+DCLAW_SPEC_CASES = {  # the issue's four, each against the D'Claw's published numbers
+    "limits of +-4 rad": (lambda d: d["joints"][0].update(low=-4.0, high=4.0),
+                          "joint ff_top: limits [-4.0, 4.0] rad span 8.000 rad of motor 10, more "
+                          "than its one turn (6.2832 rad)"),
+    "max_velocity 1e6": (lambda d: d["joints"][0].update(max_velocity=1e6),
+                         "joint ff_top: max_velocity 1000000.0 rad/s is outside (0, 50.0]"),
+    "a NaN calibration offset": (lambda d: d["joints"][4]["calibration"].update(
+        offset=float("nan")), "calibration offset must be a finite number, got nan"),
+    "two joints on one motor id": (lambda d: d["joints"][1].update(motor_id=10),
+                                   "joints ff_top and ff_middle are both on motor id 10"),
+}
+
+
+@pytest.mark.parametrize("case", list(DCLAW_SPEC_CASES))
+def test_record_demos_on_a_robot_refuses_a_bad_hand_spec_before_the_port(case, tmp_path, capsys):
+    """The port is a pty (a serial device nothing answers on): the spec is refused before
+    anything is sent (a real robot never receives its limits), nothing written."""
+    import os
+
+    edit, message = DCLAW_SPEC_CASES[case]
+    dclaw_spec_with(edit)(tmp_path / "spec.json")
+    before = snapshot(tmp_path)
+    master, slave = os.openpty()
+    try:
+        code = main(["record-demos", "--port", os.ttyname(slave), "--spec",
+                     str(tmp_path / "spec.json"), "--episodes", "1", "--out",
+                     str(tmp_path / "demos.h5")])
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert code == USER_ERROR
+    line = one_error_line(capsys.readouterr().err)
+    assert f"--spec {tmp_path / 'spec.json'}: " in line and message in line, line
+    assert snapshot(tmp_path) == before
+
+
+# ------------------------------------------------------------------------------------------------
+# issue 12 item 4 for PPO (npg/dapg: test_train_faults.py; tvlg: test_local_models_train.py)
+
+PPO_TINY = ("--num-envs", "2", "--num-minibatches", "1", "--update-epochs", "1", "--hidden", "8",
+            "--eval-every", "1", "--eval-episodes", "1", "--threads", "1", "--no-progress")
+
+
+def test_ppo_ctrl_c_prints_its_resume_command_and_a_cut_checkpoint_is_skipped(
+        tmp_path, capsys, monkeypatch):
+    """Ctrl-C in PPO's third iteration: exit 130, "saved the state after iteration 1" and the
+    command that resumes; that command (with a larger --n-iter) finishes the run, 4 metric
+    rows. Then the newest checkpoint is cut to half its bytes (a crash while writing): a resume
+    says it skipped it and continues from the older one."""
+    import shlex
+
+    from lowcostdex.algos import ppo
+    from lowcostdex.errors import INTERRUPTED
+
+    out = tmp_path / "run"
+    rollout, calls = ppo._Agent.rollout, [0]
+
+    def interrupted(self, env, k):
+        calls[0] += 1
+        if calls[0] == 3:
+            raise KeyboardInterrupt
+        return rollout(self, env, k)
+
+    monkeypatch.setattr(ppo._Agent, "rollout", interrupted)
+    assert main(["train", "ppo", "--out", str(out), "--n-iter", "3", *PPO_TINY]) == INTERRUPTED
+    err = capsys.readouterr().err
+    assert "interrupted (Ctrl-C); saved the state after iteration 1" in err, err
+    again = shlex.split(err.strip().splitlines()[-1])
+    assert again[:3] == ["lowcostdex", "train", "ppo"] and again[-1] == "--resume", again
+    monkeypatch.setattr(ppo._Agent, "rollout", rollout)
+    assert main([*again[1:], "--n-iter", "4"]) == 0
+    assert len((out / "metrics.csv").read_text().splitlines()) == 1 + 4
+    newest = sorted((out / "checkpoints").glob("ckpt_*.pt"))[-1]
+    assert newest.name == "ckpt_000003.pt"
+    newest.write_bytes(newest.read_bytes()[: newest.stat().st_size // 2])
+    capsys.readouterr()
+    assert main([*again[1:], "--n-iter", "5"]) == 0
+    out_text = capsys.readouterr().out
+    assert "resuming" in out_text and "skipped ckpt_000003.pt (does not load: corrupt or cut " \
+        "short" in out_text, out_text
+    assert len((out / "metrics.csv").read_text().splitlines()) == 1 + 5
