@@ -558,3 +558,40 @@ def test_ppo_ctrl_c_prints_its_resume_command_and_a_cut_checkpoint_is_skipped(
     assert "resuming" in out_text and "skipped ckpt_000003.pt (does not load: corrupt or cut " \
         "short" in out_text, out_text
     assert len((out / "metrics.csv").read_text().splitlines()) == 1 + 5
+
+
+def test_ctrl_c_during_record_log_keeps_the_finished_logs_and_the_next_run_keeps_them_too(
+        tmp_path, capsys, monkeypatch):
+    """Ctrl-C in the second of 3 identification logs: exit 130, one line; the first log is on
+    disk whole (it loads as a log of the joints asked for); a new run in the same folder keeps
+    it under previous/ rather than writing over it."""
+    from lowcostdex.errors import INTERRUPTED
+    from lowcostdex.gap.logs import read_log
+    from lowcostdex.hardware.robot import trace
+
+    record, calls = trace.record, [0]
+
+    def interrupted(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == 2:
+            raise KeyboardInterrupt
+        return record(*args, **kwargs)
+
+    monkeypatch.setattr(trace, "record", interrupted)
+    out = tmp_path / "logs"
+    argv = ["record-log", "--port", "emulated", "--logs", "3", "--seconds", "1", "--out",
+            str(out)]
+    assert main(argv) == INTERRUPTED
+    err = capsys.readouterr().err
+    assert [ln for ln in err.splitlines() if "interrupted" in ln] == [
+        f"lowcostdex record-log: interrupted (Ctrl-C); the 1 finished log(s) (log_0.csv) are in "
+        f"{out}; a new run there keeps them in {out / 'previous'}/"], err
+    assert "Traceback" not in err
+    first = (out / "log_0.csv").read_bytes()
+    assert not (out / "log_1.csv").exists()
+    traj = read_log(out / "log_0.csv")
+    assert traj.joints == ("ff_top", "ff_middle", "ff_bottom") and len(traj.time) >= 20
+    monkeypatch.setattr(trace, "record", record)
+    assert main([*argv[:4], "1", *argv[5:]]) == 0
+    kept = list(out.glob("previous/*/log_0.csv"))
+    assert len(kept) == 1 and kept[0].read_bytes() == first

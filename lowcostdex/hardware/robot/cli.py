@@ -168,17 +168,11 @@ def _record_log(args: argparse.Namespace) -> int:
     args.port = robot_port(args.backend, args.port)
     from pathlib import Path
 
-    import numpy as np
     from rich.console import Console
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.robot.backend import default_effects
-    from lowcostdex.hardware.robot.trace import (
-        allegro_identification_logs,
-        dclaw_identification_logs,
-    )
     from lowcostdex.outdir import MARKER, PREVIOUS, archive, check_out, write_marker
-    from lowcostdex.progress import tasks as progress_tasks
     from lowcostdex.sim.effects.randomization import read_effects
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
@@ -220,6 +214,34 @@ def _record_log(args: argparse.Namespace) -> int:
             console.print(f"the earlier logs in {out} are kept in {kept}")
     write_marker(out, "record-log", {"hand": args.hand, "joints": list(joints),
                                      "seed": args.seed})
+    try:
+        paths = _record_logs(args, hand, joints, effects, emulated, steps, console)
+    except KeyboardInterrupt:  # the finished logs are in --out; say so
+        from lowcostdex.errors import INTERRUPTED
+
+        done = sorted(p.name for p in out.glob("log_*.csv"))
+        console.print(f"lowcostdex record-log: interrupted (Ctrl-C); the {len(done)} finished "
+                      f"log(s) ({', '.join(done) or 'none'}) are in {out}; a new run there keeps "
+                      f"them in {out / PREVIOUS}/", markup=False, highlight=False, soft_wrap=True)
+        return INTERRUPTED
+    console.print(f"{len(paths)} logs -> {args.out}; analyse them with "
+                  f"`lowcostdex gap analyze --model MODEL.xml --log {args.out}/*.csv --out DIR` "
+                  f"(MODEL.xml: `{model_command(args.hand, joints)}`: a model of the fingers "
+                  "the logs moved)", soft_wrap=True)  # no line breaks inside the commands
+    return 0
+
+
+def _record_logs(args: argparse.Namespace, hand, joints: tuple[str, ...], effects: list,
+                 emulated: bool, steps: int, console) -> list:
+    """``record-log``'s recording, with its progress bar: the paths of the logs written."""
+    import numpy as np
+
+    from lowcostdex.hardware.robot.trace import (
+        allegro_identification_logs,
+        dclaw_identification_logs,
+    )
+    from lowcostdex.progress import tasks as progress_tasks
+
     with progress_tasks(transient=False, console=console) as progress:
         bar = progress.add_task("identification logs", total=args.logs * steps)
         common = {"effects": effects, "emulator_rng": np.random.default_rng(args.seed),
@@ -234,11 +256,7 @@ def _record_log(args: argparse.Namespace) -> int:
                 hand, joints, args.out, args.logs, args.seconds,
                 np.random.default_rng(args.seed), port=None if emulated else args.port,
                 baudrate=args.baud, latency_ms=args.latency_ms, **common)
-    console.print(f"{len(paths)} logs -> {args.out}; analyse them with "
-                  f"`lowcostdex gap analyze --model MODEL.xml --log {args.out}/*.csv --out DIR` "
-                  f"(MODEL.xml: `{model_command(args.hand, joints)}`: a model of the fingers "
-                  "the logs moved)", soft_wrap=True)  # no line breaks inside the commands
-    return 0
+    return paths
 
 
 def model_command(hand: str, joints: tuple[str, ...]) -> str:
