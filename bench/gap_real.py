@@ -80,6 +80,17 @@ SETS = {
     # the reference; held out one trajectory at a time (--loso trajectory is its headline)
     "sts3250": dict(folder="rhoban-bam-feetech-sts3250", held_kp=None, bam={}),
 }
+# BAM on the leave-one-setup-out folds [rad]: {set: {(field, value): {label: mean}}}. The
+# published XL330 models on each trajectory's 4 logs (all gains) are the per-trajectory means of
+# 08-bam-reference-errors.md section 2 (re-run 2026-11-26 with bam.mae at Rhoban/bam@1b5a1ce on
+# those 4 logs: M3 52.23 / 72.49 / 38.73 / 112.79 mrad, M6 66.86 / 71.76 / 40.82 / 116.84).
+# They are not refitted per fold (and may have seen these logs, ref 08 caveat 6).
+BAM_LOSO = {
+    "rhoban-xl330": {
+        ("trajectory", t): {"BAM published M3": m3, "BAM published M6": m6}
+        for t, m3, m6 in zip(TRAJ, (0.05223, 0.07249, 0.03873, 0.11279),
+                             (0.06686, 0.07176, 0.04082, 0.11684), strict=True)},
+}
 # Header fields whose values a leave-one-setup-out run holds out in turn (--loso auto: those
 # taking two or more values in the set).
 LOSO_FIELDS = ("kp", "mass", "length", "trajectory")
@@ -118,7 +129,7 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
     if spec["held_kp"] is None and "trajectory" not in fields:
         fields.append("trajectory")  # one setup: its only held-out view
     out["loso"] = []
-    for row in loso(ds, fields, structure, sel):
+    for row in loso(ds, fields, structure, sel, BAM_LOSO.get(name, {})):
         out["loso"].append(row)
         if json_path:  # written fold by fold: a stopped run keeps what it measured
             Path(json_path).write_text(json.dumps([*done, out], indent=1, default=float))
@@ -208,10 +219,12 @@ def reference_mae(ds) -> dict[str, dict[int, float]]:
     return out
 
 
-def loso(ds, fields: Sequence[str], structure, sel: dict) -> Iterator[dict]:
+def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = None
+         ) -> Iterator[dict]:
     """Leave one setup out: for each header field in ``fields`` that takes two or more values,
     each value in turn held out (its logs scored, the rest identified with the same default
-    configuration). Yields one row per fold as it finishes."""
+    configuration). Yields one row per fold as it finishes; ``bam``: {(field, value): {label:
+    BAM's mean on that fold's held-out logs}} (``BAM_LOSO``), copied into the row."""
     n = len(ds.trajectories)
     refs = reference_mae(ds)
     for f in fields:
@@ -230,7 +243,8 @@ def loso(ds, fields: Sequence[str], structure, sel: dict) -> Iterator[dict]:
                    "chosen": r.selection.get("chosen", r.family),
                    "split": (r.selection or {}).get("field"),
                    "at_bound": r.at_bound, "cpu_s": time.process_time() - c0,
-                   "fit_s": r.fit_seconds}
+                   "fit_s": r.fit_seconds, "bam": (bam or {}).get((f, v), {}),
+                   "notes": r.notes}
             print(f"  loso {f}={v}: held out {1e3 * row['held_out']:.1f} mrad (train "
                   f"{1e3 * row['train']:.1f}; nominal {1e3 * row['nominal']:.1f}, q = goal "
                   f"{1e3 * row['q = goal']:.1f}); {row['chosen']}, inner split "
@@ -377,13 +391,14 @@ def _print_loso(r: dict) -> None:
 
 def loso_table(rows: Sequence[dict]) -> str:
     head = ["held out", "logs train/test", "ours", "train", "nominal", "q = goal", "q = q(0)",
-            "chosen (inner split)", "CPU s"]
+            "BAM (same logs)", "chosen (inner split)", "CPU s"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for x in rows:
+        bam = ", ".join(f"{k} {_fmt(v)}" for k, v in x.get("bam", {}).items()) or "-"
         lines.append("| " + " | ".join([
             f"{x['field']} {x['value']}", f"{x['n_train']}/{x['n_test']}", _fmt(x["held_out"]),
             _fmt(x["train"]), _fmt(x["nominal"]), _fmt(x["q = goal"]), _fmt(x["q = q(0)"]),
-            f"{x['chosen']} ({x['split'] or '-'})", f"{x['cpu_s']:.0f}"]) + " |")
+            bam, f"{x['chosen']} ({x['split'] or '-'})", f"{x['cpu_s']:.0f}"]) + " |")
     return "\n".join(lines)
 
 
@@ -407,11 +422,14 @@ def summary_table(results: Sequence[dict]) -> str:
         for x in r.get("loso", []):
             by.setdefault(x["field"], []).append(x)
         for f, xs in by.items():
+            labels = set.intersection(*(set(x.get("bam", {})) for x in xs))
+            bam = {k: float(np.mean([x["bam"][k] for x in xs])) for k in labels}
+            best = min(bam.items(), key=lambda kv: kv[1]) if bam else None
             lines.append("| " + " | ".join([
                 r["set"], f"each {f} in turn ({len(xs)} folds, mean)",
                 *[_fmt(float(np.mean([x[k] for x in xs])))
                   for k in ("held_out", "nominal", "q = goal", "q = q(0)")],
-                "-"]) + " |")
+                f"{_fmt(best[1])} ({best[0]}, not refitted)" if best else "-"]) + " |")
     return "\n".join(lines)
 
 

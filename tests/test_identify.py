@@ -17,8 +17,10 @@ from lowcostdex.gap.identify import (
     _jitter,
     _prior_residual,
     _prune_trailing,
+    faster_than_training,
     identify,
     inner_split,
+    peak_speed,
 )
 from lowcostdex.gap.logs import Trajectory
 from lowcostdex.sim import servo
@@ -284,4 +286,28 @@ def test_without_a_torque_off_log_the_back_driven_share_is_held_at_one(logs):
     # with a drop among the training logs the share is fitted as before
     both = identify(logs, [0, 1, 2], [3], IdentifyConfig(effects=tuple(TRUTH), max_rounds=20,
                                                          select="train", restarts=1))
-    assert "free" in both.family_train_mae and both.notes == []
+    assert "free" in both.family_train_mae
+    # no torque-off note; the one note left is the speed flag: the held-out drop at kp 400
+    # falls from higher and faster than any training log
+    assert not any("torque off" in n for n in both.notes)
+    assert len(faster_than_training(logs, [0, 1, 2], [3])) == 1
+    assert len(both.notes) == 1 and "faster than any training log" in both.notes[0]
+
+
+def test_held_out_logs_faster_than_every_training_log_are_flagged():
+    # q = A sin(w t) peaks at A w rad/s (written out): training sines at 0.5 x 2 = 1 rad/s and
+    # 0.3 x 4 = 1.2 rad/s; held out 0.5 x 8 = 4 rad/s (beyond 1.2 x 1.2: flagged) and
+    # 0.4 x 3.5 = 1.4 rad/s (within the 20 % margin: not flagged)
+    cfg = BenchConfig(motor="XL330-M288", mass=0.3, length=0.1, timestep=DT)
+    xml = build_bench(cfg).to_xml()
+    t = np.arange(0.0, 4.0, DT)
+    trs = []
+    for k, (amp, w) in enumerate(((0.5, 2.0), (0.3, 4.0), (0.5, 8.0), (0.4, 3.5))):
+        q = amp * np.sin(w * t)[:, None]
+        trs.append(Trajectory(f"sine{k}", t, q.copy(), q, J, J, model="m"))
+    ds = Dataset({"m": xml}, trs)
+    assert peak_speed(ds, [0, 1]) == pytest.approx(1.2, rel=1e-3)
+    assert peak_speed(ds, [2]) == pytest.approx(4.0, rel=1e-3)
+    fast = faster_than_training(ds, [0, 1], [2, 3])
+    assert list(fast) == [2] and fast[2] == pytest.approx(4.0, rel=1e-3)
+    assert faster_than_training(ds, [0, 1, 2], [3]) == {}

@@ -17,6 +17,11 @@ Which least-squares optimum extrapolates is not told by the training cost (on Rh
 starts that fitted the training gains best extrapolated worst), so by default the structure's
 families are fitted from several jittered starts on part of the training logs and the family
 and fit are chosen on the rest (``inner_split``: by the log headers alone).
+
+Why one module: the two least-squares stages, the families and restarts, the inner validation
+that chooses among them and the checks of what the training logs cannot tell (torque off never
+seen, held-out logs faster than any training log) are one procedure over one residual closure
+and one Replayer; split apart, each part would need the others' state passed through.
 """
 
 from __future__ import annotations
@@ -70,6 +75,12 @@ FAMILY_MARGIN = 0.02
 # tries them (``inner_split``): the firmware gain first (what a user changes, and the P law must
 # carry from one gain to another), then the bench geometry and the supply.
 INNER_FIELDS: tuple[str, ...] = ("kp", "length", "mass", "arm_mass", "vin")
+# A held-out log whose peak joint speed exceeds the fastest training log's by this factor is
+# flagged (``faster_than_training``): the fitted friction's speed dependence (viscous, Stribeck)
+# is extrapolated there. Measured 2026-11-26 on Rhoban XL330 with sin_time_square held out
+# (peak 4.8-14.9 rad/s against at most 7.4 in training): 88.1 mrad, worse than the datasheet's
+# 73.0, with the fitted viscous damping (0.025 N m s/rad) alone costing 26 mrad of it.
+SPEED_MARGIN = 1.2
 
 
 def servo_structure(ds: Dataset) -> tuple[str, ...]:
@@ -320,6 +331,11 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     if motor and len(motor) < len(full.free):
         families["nominal_motor"] = motor | config.hold | (
             HELD_FIRST if "free" not in families else frozenset())
+    fast = faster_than_training(ds, train, test)
+    if fast:
+        notes.append(f"{len(fast)} held-out log(s) move faster than any training log (peak "
+                     f"{max(fast.values()):.1f} rad/s against {peak_speed(ds, train):.1f}): "
+                     "the fitted friction's speed dependence is extrapolated there")
     inner = inner_split(ds, train) if config.select == "inner" else None
     fam_mae: dict[str, float] = {}
     selection: dict = {}
@@ -456,6 +472,26 @@ def torque_off_seen(ds: Dataset, logs: Sequence[int]) -> bool:
     return any("torque_enable" in ds.trajectories[i].channels
                and bool(np.any(ds.trajectories[i].channels["torque_enable"] < 0.5))
                for i in logs)
+
+
+def peak_speed(ds: Dataset, logs: Sequence[int]) -> float:
+    """Largest |joint speed| [rad/s] over ``logs``, differentiated from the measured positions
+    (central differences on each log's own sample times; 0 for no logs)."""
+    out = 0.0
+    for i in logs:
+        tr = ds.trajectories[i]
+        if len(tr.time) >= 2:
+            out = max(out, float(np.max(np.abs(np.gradient(tr.qpos, tr.time, axis=0)))))
+    return out
+
+
+def faster_than_training(ds: Dataset, train: Sequence[int], test: Sequence[int],
+                         margin: float = SPEED_MARGIN) -> dict[int, float]:
+    """{held-out log: its peak speed [rad/s]} for the ``test`` logs whose peak speed exceeds
+    ``margin`` times the fastest ``train`` log's (``SPEED_MARGIN``)."""
+    top = peak_speed(ds, train)
+    speeds = {int(i): peak_speed(ds, [i]) for i in test}
+    return {i: v for i, v in speeds.items() if v > margin * top}
 
 
 def inner_split(ds: Dataset, train: Sequence[int]
