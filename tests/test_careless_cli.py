@@ -17,7 +17,6 @@ from __future__ import annotations
 import functools
 import json
 import math
-import os
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -522,18 +521,20 @@ def test_identify_json_may_replace_its_own_previous_output(tmp_path):
     _check_json_out(old)  # no error: replaced after the fit
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders: nothing to "
-                    "refuse (this VM and CI run as root; the check is unverified there)")
 def test_a_read_only_folder_is_refused_before_the_work(tmp_path):
-    """Was: minutes of analysis, then a PermissionError when the report was written."""
+    """Was: minutes of analysis, then a PermissionError when the report was written. The
+    folder is one this process cannot create a file in: a chmod 555 folder, or as root (who
+    writes there) a read-only mount (``test_careless_leftovers._read_only_folder``)."""
+    from test_careless_leftovers import _read_only_folder
+
     (tmp_path / "bench.xml").write_text(bench_model())
     (tmp_path / "log.csv").write_text(csv_text(servo_log()))
-    (tmp_path / "ro").mkdir()
-    (tmp_path / "ro").chmod(0o555)
+    ro = _read_only_folder(tmp_path)
     try:
-        for out in ("ro", "ro/report"):
-            run = _run(analyze()[:-1] + (out,), tmp_path, timeout=120)
+        for out in (ro, ro / "report"):
+            run = _run(analyze()[:-1] + (str(out),), tmp_path, timeout=120)
             assert run.returncode == 2, run.stderr
-            assert f"--out {out}: no permission to write in {tmp_path / 'ro'}" in run.stderr
+            assert f"--out {out}: no permission to write in {ro.resolve()}" in run.stderr
     finally:
-        (tmp_path / "ro").chmod(0o755)
+        if ro.is_relative_to(tmp_path):
+            ro.chmod(0o755)
