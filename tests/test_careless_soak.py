@@ -44,9 +44,11 @@ def _torque_on(robot, chain) -> None:
 
 
 def _enable(robot) -> None:
+    """As the env's watchdog resume: every finger joint the thermal guard has not relaxed."""
+    names = [n for n, r in zip(HAND.joint_names, robot.thermal.relaxed[:9], strict=True) if not r]
     for _ in range(20):
         try:
-            robot.torque(True, HAND.joint_names)
+            robot.torque(True, names)
             return
         except BusError:
             FAILED_ENABLES[0] += 1
@@ -129,3 +131,30 @@ def test_soak_10k_cycles_through_thermal_relaxations_and_watchdog_trips():
           f"lost a write 4 times and were retried: {FAILED_ENABLES[0]} of "
           f"{2 * events} guard events; goals accepted {sum(audit.count[i] for i in ids)}, "
           f"invalid reads {robot.metrics.invalid_reads}, holds {robot.metrics.holds}")
+
+
+def test_a_host_stall_while_a_motor_is_thermally_relaxed_resumes_the_others():
+    """Found by the soak above: the env's watchdog resume re-enabled every hand joint, and the
+    one the thermal guard had relaxed raised UnsafeCommand, ending the run. Device side: after
+    the stall the hot motor stays limp, the other 8 finger motors take goals again."""
+    import gymnasium as gym
+
+    env = gym.make("lowcostdex/DClawTurnValve-v0", backend="emulated")
+    env.reset(seed=0)
+    backend = env.unwrapped.backend
+    chain, port = backend.chain, backend.robot.bus.port
+    action = np.full(9, 0.3, np.float32)
+    env.step(action)
+    heat(chain, "ff_top", 74.0)
+    for _ in range(3):
+        env.step(action)
+    assert not chain.motors[10].torque_on  # relaxed at once
+    port.sleep(0.15)  # the host stalls: every motor's Bus Watchdog trips
+    counts = dict(chain.goal_audit.count)
+    _, _, _, _, info = env.step(action)
+    assert info["telemetry"]["watchdog_stops"] == 1
+    assert not chain.motors[10].torque_on
+    for j in HAND.joints[1:]:
+        assert chain.motors[j.motor_id].torque_on, j.name
+        assert chain.goal_audit.count[j.motor_id] > counts[j.motor_id], j.name
+    env.close()

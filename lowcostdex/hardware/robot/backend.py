@@ -165,13 +165,17 @@ class RobotBackend(Backend):
         """The host fell silent for longer than the Bus Watchdog (a stall of the training
         process) and the motors stopped where they were. Torque on again from there (goal :=
         present, watchdog re-armed) and let the step's goal go out; the per-step motion bound
-        keeps it near where the motors stopped. Counted in telemetry (``watchdog_stops``)."""
+        keeps it near where the motors stopped. Counted in telemetry (``watchdog_stops``). A
+        motor the thermal guard relaxed stays limp until the pause (re-enabling it raised
+        UnsafeCommand and ended the run)."""
         self._episode_stops += 1
         if self._episode_stops > self.MAX_WATCHDOG_STOPS:
             raise exc
         self.watchdog_stops += 1
         log.warning("%s; resuming from there (%d this episode)", exc, self._episode_stops)
-        self.robot.torque(True, self.task.hand.joint_names)
+        names = self.task.hand.joint_names
+        relaxed = self.robot.thermal.relaxed[self.robot.index(names)]
+        self.robot.torque(True, [n for n, r in zip(names, relaxed, strict=True) if not r])
 
     def passive_step(self) -> None:
         """Wait one control period without commanding (demonstrations), then mirror."""
