@@ -33,9 +33,6 @@ import gap_truth_sim3 as sim  # noqa: E402
 
 # measured by bench/gap_redteam3.py (2026-11-26, see bench/RESULTS.md): what was named instead
 MISSES: dict[str, str] = {
-    "fin_latency60_prox": "named exactly (gap-select, delay floor = no latency): latency on prox "
-                          "only, 60.51 ms, held-out 54.7 -> 1.16 mrad (floor 0.68), but its "
-                          "interval [60.43, 60.58] ms misses 60",
     "fin_pair_latency080_abd_backlash050_prox": "miss (gap-select): latency 80.53 ms on abd "
                                                 "alone ([80.42, 80.65], misses 80); the 0.05 rad "
                                                 "play on prox not seen (backlash fits 0 there)",
@@ -59,8 +56,6 @@ MISSES: dict[str, str] = {
     "srv_dirfric_50hz": "miss (lead, main 28062a3, 74 s): position_offset -0.0161 alone (held-out "
                         "39.2 -> 31.3 mrad); was extra before this session's gap changes "
                         "(coulomb_friction + position_offset)",
-    "srv_latency080": "extra (lead, main 28062a3, 45 s): latency 80.95 ms [79.45, 82.44] (inside) "
-                      "plus gain_error 1.027; held-out 218 -> 1.19 mrad",
     "srv_gain25_posonly": "extra (lead, main 28062a3, 52 s): gain_error 2.55 [2.449, 2.655] "
                           "(inside) plus torque_limit 1.48 N m; held-out 48.9 -> 2.49 mrad",
     "fin_mount_offset020_prox": "family + extra (lead, main 28062a3, 177 s): the 0.2 rad mounting "

@@ -77,3 +77,48 @@ def test_clean_continuous_time_data_give_no_discrepancy(tmp_path):
     assert res.timestep["used"] < ts.TIMESTEP
     assert "Physics step: the model's physics step 2 ms is too coarse" in report.markdown(res)
     assert f'timestep="{res.timestep["used"]:g}"' in next(iter(res.models.values()))
+
+
+@pytest.mark.parametrize("truth_step", [FINE, ts.TIMESTEP])
+def test_a_large_cause_hides_the_step_error_until_it_is_fitted(tmp_path, truth_step):
+    """A 50 ms latency dominates the nominal replay, so the nominal test keeps the 2 ms step
+    even on continuous-time data; with the latency fitted at each step (``refine_fitted``) the
+    finer step pays on them, and does not on data that come from the model's own step."""
+    from lowcostdex.gap import GapConfig
+    from lowcostdex.gap import fit as fitmod
+    from lowcostdex.gap.analyze import _Engine, _refine_step
+    from lowcostdex.gap.dataset import segments
+    from lowcostdex.gap.diagnostics import noise_floor
+    from lowcostdex.gap.stepsize import refine_fitted
+
+    case = ts.make_case("bench", ["latency"], 401, duration=5.0, values={"latency": 0.05},
+                        truth_step=truth_step)
+    model, paths = case.write(tmp_path)
+    from lowcostdex.gap import load_dataset
+    from lowcostdex.gap.dataset import episodes
+    ds = load_dataset(paths, model=model)
+    cfg = GapConfig()
+    eps = episodes(ds)
+    kept, rec = _refine_step(ds, eps, cfg)
+    assert rec["used"] == ts.TIMESTEP, rec          # hidden behind the latency
+    segs = segments(ds, eps, cfg.segment, cfg.burn_in)
+    n = len(ds.effect_joints)
+    ctx = fitmod.Context(dt=ds.timestep, peak_force=np.full(n, np.inf), stall=np.full(n, np.inf),
+                         damping=np.zeros(n))
+    st = fitmod.Structure.build(("latency",), ds.effect_joints, ctx)
+    fn = _Engine(ds, cfg, ["latency"]).residual_fn(segs)
+    t = fitmod.Track(st, st.u(np.full(st.n, 0.04)))
+    fitmod.lockstep_lm([t], fn, cfg.max_rounds, jacobian_at_end=False)
+    fitmod.polish(t, fn, ds.timestep)
+    floor_mse = float(np.mean(noise_floor(ds.trajectories) ** 2))
+    out = refine_fitted(ds, lambda d: _Engine(d, cfg, ["latency"]).residual_fn(segs), st, t.x,
+                        ctx, cfg, floor_mse)
+    if truth_step == ts.TIMESTEP:
+        assert out is None
+        return
+    assert out is not None
+    fine, fctx, fst, fx, tried = out
+    assert fine.timestep < ts.TIMESTEP and fctx.dt == fine.timestep
+    rms = dict(tried)
+    assert rms[fine.timestep] < 0.8 * rms[ts.TIMESTEP]
+    assert np.abs(fx - 0.05).max() < np.abs(t.x - 0.05).max() + 1e-4

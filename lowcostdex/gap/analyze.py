@@ -22,7 +22,9 @@
    goal a fraction of a physics step later (``GapConfig.probes``; a chaotic replay, a light link
    swinging inside a play, rewards lucky alignments of its impacts). Otherwise the analysis
    stops; with no accepted effect the answer is "no significant discrepancy" (nothing is sought
-   when the nominal model is within ``explain_above`` noise floors). A change of model must pay
+   when the nominal model, or later the model with its accepted causes, is within
+   ``explain_above`` noise floors; after the first accepted cause the physics step is refined when
+   that model, refitted, gets much closer at a finer step: ``stepsize``). A change of model must pay
    over consecutive blocks of select data too (``significance``: paired block bootstrap > 0).
 4. The chosen structure is refitted on train + select; an effect whose every 95 % interval
    (misfit-aware: ``_intervals``) holds "no effect" is dropped and the rest refitted. The model
@@ -47,7 +49,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
-from lowcostdex.gap import significance
+from lowcostdex.gap import significance, stepsize
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
 from lowcostdex.gap.diagnostics import (
     effective_n,
@@ -75,6 +77,7 @@ from lowcostdex.gap.selection import (
     select_gain_ci,
     select_results,
 )
+from lowcostdex.gap.stepsize import refine as _refine_step
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
 from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
@@ -227,6 +230,13 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         fixed = current.to_effects(cur_x) if current.effects else []
         r_cur = eng.residuals(train_segs, [list(fixed)])[0]
         train_sse = float(r_cur @ r_cur)
+        if step and (sel_cur[0].sum() + train_sse) <= (cfg.explain_above ** 2 * floor_mse
+                                                       * (sel_cur[2].sum() + len(r_cur))):
+            stop_reason = (f"the model with {', '.join(current.effects)} is within "
+                           f"{cfg.explain_above:g} noise floors on train + select: nothing more "
+                           "to explain")
+            quiet = True  # ... and no backward search either (its switch would be as small)
+            break
         stop = ""
         for pool in fit_batches(table, cfg):
             if not pool:
@@ -358,6 +368,15 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         by_name[n_best].accepted = True
         current, cur_x = joint, joint.values_from(best_track[n_best].effects())
         sel_cur = (sse, sel_cur[1], sel_cur[2])
+        finer = stepsize.refine_fitted(ds, lambda d: _Engine(d, cfg, cands).residual_fn(
+            train_segs), current, cur_x, ctx, cfg, floor_mse) if cfg.refine_step and not step else None
+        if finer is not None:  # the step's own error, hidden by the first cause until now
+            ds, ctx, current, cur_x, timestep["fitted"] = finer
+            timestep["used"] = ds.timestep
+            eng = _Engine(ds, cfg, cands)
+            fit_fn = eng.residual_fn(train_segs)
+            base_pred = eng.rep.run(eps, [[]])[0][0]
+            sel_cur = mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [current.to_effects(cur_x)])[0])
         timing[f"round{step + 1}"] = time.perf_counter() - t0
 
     # ---- backward pass: drop accepted effects the final model no longer needs ---------------
@@ -477,36 +496,6 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                      timestep=timestep)
 
 
-def _refine_step(ds: Dataset, eps: Sequence[Window], cfg: GapConfig
-                 ) -> tuple[Dataset, dict]:
-    """The data set on the finest useful physics step (``GapConfig.refine_step``): halve the
-    step while the nominal replay of ``eps`` gets closer to the data by ``refine_gain`` of its
-    MSE above the noise floor's (what a model can explain) and ``min_gain`` of all of it. Returns (data set, the timestep
-    record of ``GapResult.timestep``)."""
-    floor_mse = float(np.mean(noise_floor(ds.trajectories) ** 2))
-    dt0 = ds.timestep
-
-    def replay(d: Dataset) -> float:
-        (pred,), _ = Replayer(d, nthread=cfg.nthread).run(eps, [[]])
-        res = np.concatenate([(d.trajectories[w.traj].qpos[w.score_from:w.stop]
-                               - p[w.score_from - w.start:]).ravel()
-                              for w, p in zip(eps, pred, strict=True)])
-        return float(np.mean(res ** 2))
-
-    cur = ds
-    mse = replay(ds)
-    tried = [(dt0, math.sqrt(mse))]
-    while cur.timestep / 2 >= cfg.min_step * (1 - 1e-9):
-        finer = ds.with_timestep(cur.timestep / 2 / dt0)
-        m2 = replay(finer)
-        tried.append((finer.timestep, math.sqrt(m2)))
-        if not (m2 - floor_mse <= (1 - cfg.refine_gain) * (mse - floor_mse)
-                and m2 <= (1 - cfg.min_gain) * mse):  # and not a wiggle at the floor
-            break
-        cur, mse = finer, m2
-    return cur, {"model": dt0, "used": cur.timestep, "rmse": tried}
-
-
 def _final_fit(current: fitmod.Structure, cur_x: np.ndarray, fn, cfg: GapConfig,
                ctx: fitmod.Context, widened_notes: dict, dt: float) -> fitmod.Track:
     """``current`` refitted on ``fn`` (train + select), tighter than the screening fits; a
@@ -542,7 +531,7 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     t0 = time.perf_counter()
     prog("interval: refit at a finer physics step", 0.97)
     fine = _Engine(ds.with_timestep(cfg.interval_step), cfg, t.structure.names)
-    shift = fitmod.step_shift(t, fine.residual_fn(segs), cfg.max_rounds)
+    shift = significance.step_shift(t, fine.residual_fn(segs), cfg.max_rounds, fine.ds.timestep)
     timing["interval_step"] = timing.get("interval_step", 0.0) + time.perf_counter() - t0
     mid, half = significance.step_interval(t.u, data, shift, cfg.interval_step)
     return mid, half, noise, data, shift
