@@ -10,6 +10,7 @@ import pytest
 from scipy.stats import mannwhitneyu
 
 from lowcostdex.cli import main
+from lowcostdex.sim.effects.randomization import DEFAULT_DR_EFFECTS
 
 # The fixed 180 deg valve: its smoke clone (4 demonstrations) turns it. The default task
 # (valve-target, random goals) needs the default size's 20: 0 of 3 with 4 (measured).
@@ -42,14 +43,24 @@ def test_demonstrations_recorded_with_resets(smoke):
     assert (out / d["file"]).stat().st_size > 0
 
 
-def test_training_ran_on_the_robot_and_bc_beats_chance(smoke):
+def test_npg_trained_on_the_robot_dapg_in_simulation_and_bc_beats_chance(smoke):
     out, r = smoke
     t = r["train"]
     for algo in ("dapg", "npg"):
-        assert t[algo]["samples"] > 0 and t[algo]["robot_hours"] > 0
+        assert t[algo]["samples"] > 0
         assert (out / t[algo]["curves"]).stat().st_size > 5000
-        assert t[algo]["robot"]["resets"] > 0
-        assert t[algo]["robot"]["max_temperature"] < 65  # below the thermal guard's pause
+    # NPG on the robot: robot time, auto-resets, the thermal guard's telemetry
+    assert t["npg"]["trained_in"] == "robot" and t["npg"]["robot_hours"] > 0
+    assert t["npg"]["robot"]["resets"] > 0
+    assert t["npg"]["robot"]["max_temperature"] < 65  # below the thermal guard's pause
+    # DAPG in simulation (Budget.dapg_sim): the trainer's own config says where it sampled,
+    # with the catalogue's default domain randomization; no robot time and no robot telemetry
+    config = json.loads((out / "train_dapg" / "config.json").read_text())
+    assert config["backend"] == "sim" and t["dapg"]["trained_in"] == "simulation"
+    assert config["env_kwargs"]["randomize"] == list(DEFAULT_DR_EFFECTS)
+    assert t["dapg"]["robot_hours"] == 0 and t["dapg"]["robot"] == {}
+    npg_config = json.loads((out / "train_npg" / "config.json").read_text())
+    assert npg_config["backend"] == "emulated"
     # Chance is measured: uniformly random actions on the same robot, on the same held-out
     # episodes (reset seeds) as the clone, DAPG and NPG. The clone beats it if its episodes
     # end nearer the goal: one-sided exact Mann-Whitney U test on the final |goal error| (scipy), p <= 0.05; with 3 episodes each

@@ -210,3 +210,37 @@ def test_the_paired_error_test_on_the_same_heldout_episodes():
     assert "no paired difference this run can show" in _what_each_stage_added(t)
     assert paired_errors({"final_goal_errors": clone}, {"final_goal_errors": clone})[2] == 1.0
     assert paired_errors({"final_goal_errors": clone}, {}) is None
+
+
+def test_dapg_randomizes_the_catalogues_default_effects():
+    # the main job's simulation for DAPG is the project's default domain randomization, not a
+    # list of its own (the setup module spells the names out so it stays importable cheaply)
+    from lowcostdex.main_job.setup import BUDGETS, DAPG_RANDOMIZE
+    from lowcostdex.sim.effects.randomization import DEFAULT_DR_EFFECTS
+
+    assert DAPG_RANDOMIZE == DEFAULT_DR_EFFECTS
+    assert all(b.dapg_sim is not None and b.dapg_sim.randomize == DEFAULT_DR_EFFECTS
+               for b in BUDGETS.values())
+
+
+def test_the_report_says_where_dapg_trained(tmp_path):
+    t = results((0, 40), (15, 40), (21, 40), (0, 40))
+    t["dapg"].update(trained_in="simulation", randomized=["latency", "coulomb_friction"],
+                     iterations=30, episodes_per_iteration=40, samples=48000, robot_hours=0.0,
+                     validation_episodes=100, final_training_success=0.3,
+                     last_validation_success=0.4)
+    t["npg"].update(trained_in="robot", samples=9600, robot_hours=0.4, validation_episodes=20,
+                    final_training_success=0.0, last_validation_success=0.0)
+    t.update(plot="learning_curves.png", seconds=300.0)
+    ctx = Context(out=tmp_path)
+    ctx.results["train"] = t
+    text = markdown_report(ctx)
+    assert "DAPG trained in simulation, NPG on the robot, both judged on the robot" in text
+    assert ("30 iterations of 40 episodes (48000 samples, no robot time), each episode under "
+            "randomly drawn servo and model effects (latency, coulomb friction)") in text
+    assert "| DAPG | simulation | 48000 | 0.0 |" in text
+    assert "| NPG | robot | 9600 | 24.0 |" in text
+    assert "100 (DAPG) / 20 (NPG)" in text
+    assert "DAPG's RL samples (48000) came from the randomized simulation" in text
+    del t["dapg"]["trained_in"]
+    assert "came from the randomized simulation" not in markdown_report(ctx)

@@ -3,10 +3,11 @@
 1. bus: an emulated D'Claw comes up on a Dynamixel bus (the real dynamixel_sdk code path): scanned
    (ids, models, firmware, temperatures, errors) and calibrated against the default map;
 2. demos: the virtual teacher records kinesthetic demonstrations, auto-reset between episodes;
-3. train: DAPG from those demonstrations, and NPG from scratch for comparison, on the robot with
-   its thermal guard and auto-resets active; success rates evaluated (final, best and the first
-   crossing of 80 % beside each other; the run's policy is its best evaluated one); on the flip
-   the DAPG policy's rollout is plotted (block orientation over time);
+3. train: DAPG from those demonstrations in simulation (MuJoCo with domain randomization over
+   the effect catalogue: ``Budget.dapg_sim``), and NPG from scratch for comparison on the robot
+   with its thermal guard and auto-resets active; the random actions, the clone, DAPG and NPG
+   judged on the same held-out episodes of the robot (the run's policy is its best validated
+   one); on the flip the DAPG policy's rollout is plotted (block orientation over time);
 4. gap: an identification recording from the robot is compared with the nominal simulation; the
    gap analysis names what differs (the emulated robot carries servo effects the nominal sim
    lacks: ``robot_effects``), extends the model and measures the held-out gain;

@@ -72,16 +72,29 @@ def markdown_report(ctx: Context) -> str:
     if "train" in R:
         t = R["train"]
         n_held = t.get("bc", {}).get("eval_episodes", "?")
-        lines += ["## 3. DAPG vs NPG on the robot", "",
-                  "Validation: deterministic episodes (the policy's mean action) every "
+        in_sim = t["dapg"].get("trained_in") == "simulation"
+        lines += ["## 3. DAPG vs NPG" + (": DAPG trained in simulation, NPG on the robot, "
+                                         "both judged on the robot" if in_sim else
+                                         " on the robot"), ""]
+        if in_sim:
+            d = t["dapg"]
+            lines += [f"DAPG trained in simulation: MuJoCo with the task's model, "
+                      f"{d['iterations']} iterations of {d['episodes_per_iteration']} "
+                      f"episodes ({d['samples']} samples, no robot time), each episode under "
+                      "randomly drawn servo and model effects ("
+                      + ", ".join(e.replace("_", " ") for e in d["randomized"])
+                      + f"); its validation ran in that simulation ({d['validation_episodes']} "
+                      "episodes). NPG trained on the robot. Every held-out episode below ran on "
+                      "the robot.", ""]
+        lines += ["Validation: deterministic episodes (the policy's mean action) every "
                   f"{ctx.budget.eval_every or 'last'} iteration(s) during training "
                   f"({_validation_words(t, ctx.budget.eval_episodes)}; the behaviour clone's evaluation "
                   "before the first RL step counts as one of DAPG's). They choose each run's "
                   "policy (`train_*/policy.pt`): the best validated one, the clone itself when "
                   "no RL iterate beat it.", "",
-                  "| | samples | robot time [min] | training success (last) | validation "
-                  "success (last) | best validation (iteration) | first validation >= 80 % at "
-                  "|", "|---|---|---|---|---|---|---|"]
+                  "| | trained in | samples | robot time [min] | training success (last) | "
+                  "validation success (last) | best validation (iteration) | first validation "
+                  ">= 80 % at |", "|---|---|---|---|---|---|---|---|"]
         for algo in ("dapg", "npg"):
             a = t[algo]
             first = a.get("first_eval_crossing_samples")
@@ -89,7 +102,8 @@ def markdown_report(ctx: Context) -> str:
             where = ("the clone" if best_it is not None and best_it < 0
                      else "-" if best_it is None else str(best_it))
             lines.append(
-                f"| {algo.upper()} | {a['samples']} | {60 * a['robot_hours']:.1f} | "
+                f"| {algo.upper()} | {a.get('trained_in', 'robot')} | {a['samples']} | "
+                f"{60 * a['robot_hours']:.1f} | "
                 f"{a['final_training_success']:.2f} | "
                 f"{a.get('last_validation_success', float('nan')):.2f} | "
                 f"{a.get('best_eval_success', float('nan')):.2f} ({where}) | "
@@ -170,7 +184,8 @@ def _rate(r: dict[str, Any]) -> str:
 COMPARISONS = (
     ("random", "bc", "the demonstrations (behaviour clone vs uniformly random actions)"),
     ("bc", "dapg", "RL fine-tuning (DAPG vs the clone it started from)"),
-    ("npg", "dapg", "demonstrations in RL (DAPG vs NPG from scratch at the same sample budget)"),
+    ("npg", "dapg", "demonstrations in RL (DAPG vs NPG from scratch, each with the samples "
+                    "and the place of training the table above gives)"),
 )
 """What the report judges: (before, after, what the step from before to after is)."""
 
@@ -200,11 +215,15 @@ def stage_verdicts(t: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _validation_words(t: dict[str, Any], n: int) -> str:
-    """How many validation episodes, and whether every validation ran the same ones."""
+    """How many validation episodes, and whether every validation ran the same ones (each
+    run's count from its ``validation_episodes``, else ``n``)."""
+    counts = {t.get(a, {}).get("validation_episodes", n) for a in ("dapg", "npg")}
+    many = (f"{counts.pop()}" if len(counts) == 1 else
+            f"{t['dapg']['validation_episodes']} (DAPG) / {t['npg']['validation_episodes']} (NPG)")
     if all(t.get(a, {}).get("validation_paired") for a in ("dapg", "npg")):
-        return (f"the same {n} episodes every time, so the candidates are compared on the "
-                "same episodes")
-    return f"{n} episodes each"
+        return (f"the same {many} episodes every time within a run, so the candidates are "
+                "compared on the same episodes")
+    return f"{many} episodes each"
 
 
 def _what_each_stage_added(t: dict[str, Any]) -> str:
@@ -225,6 +244,10 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
             parts.append(f"{what} {v['verdict']} success {change}, beyond the 95 % intervals")
     text = "; ".join(parts) + "."
     bc, dapg = t.get("bc", {}), t.get("dapg", {})
+    if dapg.get("trained_in") == "simulation":
+        text += (f" DAPG's RL samples ({dapg.get('samples')}) came from the randomized "
+                 "simulation, none from the robot; the clone and DAPG are compared on the "
+                 "robot's held-out episodes.")
     if (bc.get("eval_episodes") and bc.get("eval_successes") == bc["eval_episodes"]
             and dapg.get("eval_successes") == dapg.get("eval_episodes")):
         text += (" The clone alone already solves this task here, so the RL stage cannot show "

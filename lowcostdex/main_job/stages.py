@@ -140,22 +140,30 @@ _ROBOT_KEYS = ("resets", "reset_failures", "reset_time", "pauses", "pause_time",
 
 
 def stage_train(ctx: Context) -> dict[str, Any]:
-    """DAPG from the demonstrations and NPG from scratch, on the robot."""
+    """DAPG from the demonstrations (in simulation with domain randomization, or on the robot)
+    and NPG from scratch on the robot; all judged on the robot's held-out episodes."""
     from lowcostdex.algos import experiment as ex
     from lowcostdex.algos.configs import DAPGConfig
     from lowcostdex.algos.train import TrainConfig, train
 
     b = ctx.budget
-    kwargs = ctx.env_kwargs()
-    backend = kwargs.pop("backend")
     demos = ctx.out / ctx.results["demos"]["file"]
     out: dict[str, Any] = {}
     curves: dict[str, dict[str, Any]] = {}
-    for algo, iters in (("dapg", b.dapg_iters), ("npg", b.npg_iters)):
+    for algo in ("dapg", "npg"):
+        kwargs = ctx.env_kwargs()
+        backend = kwargs.pop("backend")
+        iters, traj, every, episodes = b.npg_iters, b.traj_per_iter, b.eval_every, b.eval_episodes
+        sim = b.dapg_sim if algo == "dapg" else None
+        if algo == "dapg":
+            iters = b.dapg_iters
+        if sim is not None:
+            backend = "sim"
+            kwargs = {**ctx.setup.env_overrides, "randomize": list(sim.randomize)}
+            iters, traj, every, episodes = sim.iters, sim.traj, sim.eval_every, sim.eval_episodes
         config = TrainConfig(algo=algo, env_id=ctx.setup.env_id, backend=backend,
                              env_kwargs=kwargs, seed=ctx.seed, n_iter=iters,
-                             n_traj=b.traj_per_iter, eval_every=b.eval_every,
-                             eval_episodes=b.eval_episodes,
+                             n_traj=traj, eval_every=every, eval_episodes=episodes,
                              demos=str(demos) if algo == "dapg" else None,
                              eval_bc=algo == "dapg", dapg=DAPGConfig(lam0=DAPG_LAM0),
                              eval_paired=True)
@@ -168,9 +176,13 @@ def stage_train(ctx: Context) -> dict[str, Any]:
         first = summary["first_eval_crossing"]
         best = summary["best"] or {}
         out[algo] = {
+            "trained_in": "simulation" if sim is not None else "robot",
+            "randomized": list(sim.randomize) if sim is not None else [],
             "iterations": iters,
+            "episodes_per_iteration": traj,
             "samples": int(metrics["samples"][-1]),
-            "robot_hours": float(metrics["robot_hours"][-1]),
+            # in simulation no robot time is spent (the run's robot_hours counts sim time)
+            "robot_hours": 0.0 if sim is not None else float(metrics["robot_hours"][-1]),
             "first_iteration_success": float(metrics["success_rate"][0]),
             "final_training_success": float(metrics["success_rate"][-1]),
             "last_validation_success": float(summary["final"].get("eval_success_rate",
@@ -180,7 +192,7 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             "best_samples": float(best.get("samples", math.nan)),
             "first_eval_crossing_samples": float(first["samples"]) if first else None,
             "evaluations": summary["evaluations"],
-            "validation_episodes": b.eval_episodes,
+            "validation_episodes": episodes,
             "validation_paired": config.eval_paired,
             "wall_seconds": round(time.perf_counter() - t0, 1),
             "curves": f"{run_dir.name}/learning_curves.png",
@@ -331,9 +343,13 @@ def _plot_training(ctx: Context, res: dict[str, Any], curves: dict[str, dict[str
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
     for algo, color in (("dapg", "tab:blue"), ("npg", "tab:orange")):
         m = curves[algo]
-        label = "DAPG (demos)" if algo == "dapg" else "NPG (scratch)"
+        in_sim = res[algo].get("trained_in") == "simulation"
+        label = ("DAPG (demos" + (", in simulation)" if in_sim else ")") if algo == "dapg"
+                 else "NPG (scratch)")
         axes[0].plot(m["samples"], m["success_rate"], "-o", color=color, label=label)
-        axes[1].plot(m["robot_hours"] * 60, m["success_rate"], "-o", color=color, label=label)
+        if not in_sim:  # a run in simulation spent no robot time
+            axes[1].plot(m["robot_hours"] * 60, m["success_rate"], "-o", color=color,
+                         label=label)
         axes[0].plot(m["samples"][-1:], m["eval_success_rate"][-1:], "*", ms=14, color=color)
     # the behaviour clone's own evaluation, before any RL sample
     axes[0].plot([0], [res["success_after_bc"]], "D", ms=8, color="tab:blue", mfc="white",

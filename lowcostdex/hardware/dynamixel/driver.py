@@ -608,12 +608,14 @@ class DynamixelBus(SdkTransactions, MotorBus):
         """Present Position [ticks] of ``ids``, with bounded retries (raises BusError); a late
         reply is refused by its Realtime Tick here too (torque-on sets the goal to this)."""
         out: dict[int, int] = {}
-        for attempt in range(self.config.retries + 1):  # retries: each missing motor alone
+        for _ in range(self.config.retries + 1):
             todo = tuple(i for i in ids if i not in out)
-            for group in [todo] if attempt == 0 and todo else [(i,) for i in todo]:
-                valid, _, raw = self._read_block(group, fast=False)
-                self._stale(group, valid, raw, self._sample_time)
-                for i in (i for i in group if valid[i]):
+            if not todo:
+                break
+            valid, _, raw = self._read_block(todo, fast=False)
+            self._stale(todo, valid, raw, self._sample_time)
+            for i in todo:
+                if valid[i]:
                     out[i] = int(np.frombuffer(raw[i], self._dtype)[Reg.PRESENT_POSITION.name][0])
                     if self.config.realtime_tick:
                         self._ticks[i] = (self._sample_time, self._tick(raw[i]))
