@@ -143,3 +143,9 @@ def test_timestep_note_only_when_the_step_was_refined():
     assert note == ("the model's physics step 2 ms is too coarse for these logs (nominal replay "
                     "RMSE on train + select: 2 ms 2.1 mrad, 1 ms 0.9 mrad); analysed at 1 ms, "
                     "which the extended model carries")
+    # seconds -> ms by 1000 exactly (9.99 ms, not 10.0)
+    note = timestep_note({"model": 0.00999, "used": 0.000999,
+                          "rmse": [(0.00999, 1.234e-3), (0.000999, 0.5e-3)]})
+    assert note == ("the model's physics step 9.99 ms is too coarse for these logs (nominal "
+                    "replay RMSE on train + select: 9.99 ms 1.23 mrad, 0.999 ms 0.5 mrad); "
+                    "analysed at 0.999 ms, which the extended model carries")

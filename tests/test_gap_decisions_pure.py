@@ -372,3 +372,32 @@ def _andrews_eq_6_4(x, rho, s2):
     bandwidth = 1.1447 (alpha(1) nb)^(1/3)."""
     alpha = (4 * rho ** 2 * s2 ** 2 / ((1 - rho) ** 6 * (1 + rho) ** 2)) / (s2 ** 2 / (1 - rho) ** 4)
     return 1.1447 * (alpha * len(x)) ** (1 / 3)
+
+
+def test_residual_blocks_keep_a_tail_of_half_a_block_and_never_lose_a_short_segment():
+    dt = 0.125
+    ds = _DS([_Traj(np.zeros((30, 1)), np.arange(30) * dt)])
+    # 12 samples, 0.375 s blocks: edges 0, 3, 6, 9; the tail 9..11 spans 0.25 s >= 0.1875 s: kept
+    assert S.residual_blocks(ds, [Window(0, 0, 12, 0)], 0.375) == [
+        slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)]
+    # 0.25 s blocks of 7 samples: edges 0, 2, 4; the tail 4..6 spans exactly half a block
+    # (0.125 s, not shorter): kept
+    assert S.residual_blocks(ds, [Window(0, 0, 7, 0)], 0.25) == [
+        slice(0, 2), slice(2, 4), slice(4, 7)]
+    # a segment shorter than half a block is one block, not none
+    assert S.residual_blocks(ds, [Window(0, 5, 7, 5)], 1.0) == [slice(0, 2)]
+    # blocks of one sample each (edges 0, 1, 2; the last, 0 s long, joins the one before)
+    assert S.residual_blocks(ds, [Window(0, 0, 3, 0)], dt) == [slice(0, 1), slice(1, 3)]
+
+
+def test_block_sse_keeps_a_tail_of_half_a_block_and_never_loses_a_short_episode():
+    dt = 0.125
+    e = np.arange(1.0, 31.0)[:, None]
+    ds = _DS([_Traj(e, np.arange(30) * dt)])
+    sq = e[:, 0] ** 2
+    out = S.block_sse(ds, [Window(0, 0, 7, 0)], [np.zeros((7, 1))], 0.25)
+    assert out.tolist() == pytest.approx([sq[0:2].sum(), sq[2:4].sum(), sq[4:7].sum()])
+    out = S.block_sse(ds, [Window(0, 5, 7, 5)], [np.zeros((2, 1))], 1.0)
+    assert out.tolist() == pytest.approx([sq[5:7].sum()])
+    out = S.block_sse(ds, [Window(0, 0, 3, 0)], [np.zeros((3, 1))], dt)
+    assert out.tolist() == pytest.approx([sq[0], sq[1] + sq[2]])
