@@ -380,10 +380,10 @@ def test_residual_blocks_keep_a_tail_of_half_a_block_and_never_lose_a_short_segm
     # 12 samples, 0.375 s blocks: edges 0, 3, 6, 9; the tail 9..11 spans 0.25 s >= 0.1875 s: kept
     assert S.residual_blocks(ds, [Window(0, 0, 12, 0)], 0.375) == [
         slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)]
-    # 0.25 s blocks of 7 samples: edges 0, 2, 4; the tail 4..6 spans exactly half a block
+    # 0.25 s blocks of 6 samples: edges 0, 2, 4; the tail 4..5 spans exactly half a block
     # (0.125 s, not shorter): kept
-    assert S.residual_blocks(ds, [Window(0, 0, 7, 0)], 0.25) == [
-        slice(0, 2), slice(2, 4), slice(4, 7)]
+    assert S.residual_blocks(ds, [Window(0, 0, 6, 0)], 0.25) == [
+        slice(0, 2), slice(2, 4), slice(4, 6)]
     # a segment shorter than half a block is one block, not none
     assert S.residual_blocks(ds, [Window(0, 5, 7, 5)], 1.0) == [slice(0, 2)]
     # blocks of one sample each (edges 0, 1, 2; the last, 0 s long, joins the one before)
@@ -395,9 +395,28 @@ def test_block_sse_keeps_a_tail_of_half_a_block_and_never_loses_a_short_episode(
     e = np.arange(1.0, 31.0)[:, None]
     ds = _DS([_Traj(e, np.arange(30) * dt)])
     sq = e[:, 0] ** 2
-    out = S.block_sse(ds, [Window(0, 0, 7, 0)], [np.zeros((7, 1))], 0.25)
-    assert out.tolist() == pytest.approx([sq[0:2].sum(), sq[2:4].sum(), sq[4:7].sum()])
+    out = S.block_sse(ds, [Window(0, 0, 6, 0)], [np.zeros((6, 1))], 0.25)
+    assert out.tolist() == pytest.approx([sq[0:2].sum(), sq[2:4].sum(), sq[4:6].sum()])
     out = S.block_sse(ds, [Window(0, 5, 7, 5)], [np.zeros((2, 1))], 1.0)
     assert out.tolist() == pytest.approx([sq[5:7].sum()])
     out = S.block_sse(ds, [Window(0, 0, 3, 0)], [np.zeros((3, 1))], dt)
     assert out.tolist() == pytest.approx([sq[0], sq[1] + sq[2]])
+
+
+def test_andrews_bandwidth_is_scale_free_and_clips_rho_at_097():
+    # eq. 6.4 is a ratio of s2^2 terms: scores a thousand times smaller (J^T r of a small
+    # residual) give the same bandwidth
+    y = np.zeros(64)
+    e = np.random.default_rng(3).normal(size=64)
+    for t in range(1, 64):
+        y[t] = 0.5 * y[t - 1] + e[t]
+    assert S.andrews_bandwidth(1e-3 * y[:, None]) == pytest.approx(S.andrews_bandwidth(y[:, None]))
+    # a ramp of 1000 blocks has a sample rho of about 0.999: clipped to 0.97, whose bandwidth
+    # 1.1447 (alpha 1000)^(1/3) = 117 blocks stays below the cap of 999
+    x = np.arange(1000.0)
+    xc = x - x.mean()
+    assert xc[1:] @ xc[:-1] / (xc[:-1] @ xc[:-1]) > 0.99
+    s2 = float(np.mean((xc[1:] - 0.97 * xc[:-1]) ** 2))
+    want = _andrews_eq_6_4(xc, 0.97, s2)
+    assert 100 < want < 130
+    assert S.andrews_bandwidth(x[:, None]) == pytest.approx(want)
