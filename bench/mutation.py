@@ -26,7 +26,10 @@ mutant with its one-line diff (from ``mutmut show``), and the constants no test 
 Time (2-core VM shared by ~7 people, load ~10, 2026-11-26): generating the safety group's 459
 mutants (and mutmut's one run of its tests) 166 s, then ~0.1-0.2 mutants/s; the gap group's
 tests run whole analyses, 0.02-0.04 mutants/s: its 2227 mutants would take 15-30 h, hence
-``--sample``. The constants add one run of the group's tests per number. mutmut must be
+``--sample``. The ``gap-pure`` group judges the same decision code (3331 mutants with
+significance.py) by tests without a MuJoCo replay (stand-in engine, hand-computed inputs):
+1.2 mutants/s measured at load ~10, so the whole population is ~40 min of an idle core
+(bench/RESULTS.md; at nice 19 under a full-suite load it gets almost no CPU). The constants add one run of the group's tests per number. mutmut must be
 installed (the dev extra pins it).
 """
 
