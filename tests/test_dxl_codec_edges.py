@@ -13,7 +13,8 @@ from __future__ import annotations
 import heapq
 
 import pytest
-from dynamixel_sdk import PacketHandler, PortHandler
+from dynamixel_sdk import PacketHandler
+from test_dxl_protocol import CapturePort
 
 from lowcostdex.hardware.dynamixel import protocol as P
 
@@ -29,41 +30,8 @@ SYNC_READ_STATUS_2 = bytes.fromhex("FF FF FD 00 02 08 00 55 00 1F 08 00 00 BA BE
 SDK_RXPACKET_MAX_LEN = 1024  # dynamixel_sdk 4.1.0 protocol2_packet_handler
 
 
-class _CaptureSerial:
-    def __init__(self):
-        self.sent = bytearray()
-        self.is_open = True
-
-    def write(self, data):
-        self.sent += bytes(data)
-        return len(data)
-
-    def read(self, n=1):
-        return b""
-
-    @property
-    def in_waiting(self):
-        return 0
-
-    def reset_input_buffer(self):
-        pass
-
-    def close(self):
-        pass
-
-
-class _CapturePort(PortHandler):
-    """Records what the SDK transmits; never answers."""
-
-    def setupPort(self, cflag_baud):  # noqa: N802
-        self.ser = _CaptureSerial()
-        self.is_open = True
-        self.tx_time_per_byte = 0.01
-        return True
-
-
 def _sdk_bytes(send) -> bytes:
-    port = _CapturePort("capture")
+    port = CapturePort("capture")
     port.openPort()
     send(port, PacketHandler(2.0))
     return bytes(port.ser.sent)

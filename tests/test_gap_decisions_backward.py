@@ -16,10 +16,10 @@ segments; the kept ones are ordered by their rise. No MuJoCo replay: a few ms pe
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from test_gap_decisions_pure import _DS, _Traj  # the same stand-in Dataset
 
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.analyze import _backward
@@ -34,19 +34,6 @@ NOISE = np.sin(2 * np.pi * 5 * T)  # what no candidate explains
 PATTERN = {"position_offset": P_A, "mounting_offset": P_B}
 CTX = fitmod.Context(dt=0.002, peak_force=np.array([1.0]), stall=np.array([np.inf]),
                      damping=np.array([0.1]))
-
-
-@dataclass
-class _Traj:
-    qpos: np.ndarray
-    time: np.ndarray
-
-
-@dataclass
-class _DS:
-    trajectories: list
-    joints: tuple = ("j0",)
-    timestep: float = 0.002
 
 
 class _Engine:
