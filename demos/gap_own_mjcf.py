@@ -119,8 +119,8 @@ def main() -> None:
     for c in report["causes"]:
         for name, p in c["params"].items():
             for joint, v, (lo, hi) in zip(c["joints"], p["value"], p["interval"], strict=True):
-                print(f"  named {c['effect']} on {joint}: {name} {v:.4g} {p['unit']} "
-                      f"(95 % {lo:.4g} .. {hi:.4g})")
+                print(f"  named {c['effect']} on {joint}: {name} {float(v):.4g} {p['unit']} "
+                      f"(95 % {float(lo):.4g} .. {float(hi):.4g})")
 
 
 if __name__ == "__main__":
