@@ -48,6 +48,11 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # [7.24, 7.74] plus inertia_error): latency 7.35 ms [6.88, 7.51] alone. (Measured with the
 # interval spanning the fitted and the Richardson value; the landed symmetric form, recomputed
 # from each report's value, data interval and step shift, holds these truths too.)
+# Re-run on main c3ff5c5 (gap-offset, 2026-11-26 session 8, bench/gap_redteam.py --threads 1,
+# load ~1): clean_mounting_vertical (was a false load_dependent_friction) names nothing, 10 s
+# (gap-select's explain_above); gain_high_arm2_50hz (was gain_error 1.846 [1.820, 1.872] plus
+# backlash and coulomb_friction that raised the held-out RMSE) is exact, 1.805 [1.796, 1.815]
+# / 1.797 [1.793, 1.801], 63 s.
 
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
@@ -70,14 +75,9 @@ MISSES: dict[str, str] = {
                                 "load_dependent_friction, mass_error, viscous_damping",
     "gain_viscous_turntable": "no gain_error: inertia_error plus viscous_damping 0.189 (truth "
                               "0.08)",
-    "clean_mounting_vertical": "false discovery: load_dependent_friction on an unobservable "
-                               "offset (vertical axis)",
     # never-run cases, measured by redteam3 (2026-11-26 12:00-, main dee30b5, load 9-17)
     "backlash_body_turntable": "backlash exact but width 0.01537 [0.01342, 0.01733] excludes "
                                "the truth 0.01745 (1 deg)",
-    "gain_high_arm2_50hz": "gain_error 1.846 [1.820, 1.872] shoulder (truth 1.8, outside) / "
-                           "1.797 elbow plus backlash 3.9 / 2.8 mrad and coulomb_friction 2.2 / "
-                           "2.9 mN m, which raise the held-out RMSE (3.25 -> 3.49 / 3.40 mrad)",
     "torque_coulomb_pendulum": "miss (3c61633): torque limit 1.2 + Coulomb 0.1 named "
                                "load_dependent_friction mu 0.553 (held-out 306 -> 70.4 mrad); "
                                "the torque_limit candidate fitted 1.085 with select gain 0.99, "
