@@ -51,7 +51,8 @@ SIGTERM (then the previous handler runs) and at interpreter exit. If the host di
 these (SIGKILL, power loss of the PC), the Bus Watchdog armed at torque-on stops the motors.
 
 Where the parts live: settings, counters, errors and warnings in ``config``; register access, sync
-reads and the late-reply defences in ``transactions``; the torque-off hooks in ``shutdown``;
+reads and the late-reply defences in ``transactions``; torque on (goal := a fresh read per
+motor) and confirmed torque off in ``torque_on``; the torque-off hooks in ``shutdown``;
 ``scan`` in ``scan``. This module keeps the bus: connect, read_state, goals, torque, faults.
 It is over 600 lines because it is one class whose methods share one state (control-table
 addresses, position limits, validity streaks, the fault cache, the torque set); the parts that
@@ -77,15 +78,13 @@ from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 from lowcostdex.errors import ConfigError
 from lowcostdex.hands import HandSpec
 from lowcostdex.hardware import bus as _bus
-from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorFault, MotorState
+from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorState
 from lowcostdex.hardware.dynamixel import transport
 from lowcostdex.hardware.dynamixel.config import (
     BusStats,
     DynamixelConfig,
     GainMismatchWarning,
-    InstructionError,
     LatencyWarning,
-    PositionOutOfLimits,
     WatchdogUnavailableWarning,
 )
 from lowcostdex.hardware.dynamixel.control_table import (
@@ -99,6 +98,7 @@ from lowcostdex.hardware.dynamixel.control_table import (
 from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names
 from lowcostdex.hardware.dynamixel.shutdown import register as _register
 from lowcostdex.hardware.dynamixel.shutdown import unregister as _unregister
+from lowcostdex.hardware.dynamixel.torque_on import disable_confirmed, enable_holding, hold_goal
 from lowcostdex.hardware.dynamixel.transactions import SdkTransactions
 from lowcostdex.motion import goal_write_time
 from lowcostdex.sim.servo import ServoGains, motor_spec
@@ -503,40 +503,18 @@ class DynamixelBus(SdkTransactions, MotorBus):
         self._require_connected()
         ids = self.ids if ids is None else tuple(ids)
         if not enabled:
-            failed = []
-            for i in ids:
-                try:
-                    self.write_register(i, Reg.TORQUE_ENABLE, 0)
-                    self._torque_ids.discard(i)
-                except BusError as exc:
-                    failed.append(f"{i}: {exc}")
+            failed = disable_confirmed(self, ids)
             if failed:
                 raise BusError("torque off failed for " + "; ".join(failed))
             return
         present = self._present_ticks(ids)
-        goals = {}
-        for i in ids:
-            k = self._index[i]
-            g = present[i] % int(self._tpr[k]) if self.config.operating_mode == 3 else present[i]
-            if not self._lo[k] <= g <= self._hi[k]:
-                raise PositionOutOfLimits(
-                    f"motor {i} is at tick {g}, outside its limits [{self._lo[k]}, {self._hi[k]}];"
-                    " move it inside (torque off) before enabling torque")
-            goals[i] = g
+        for i in ids:  # every motor inside its limits before any torque is on
+            hold_goal(self, i, present[i])
         for i in ids:
             if i not in self._no_watchdog:
                 self.write_register(i, Reg.BUS_WATCHDOG, 0)
-            self.write_register(i, Reg.GOAL_POSITION, goals[i])
-            try:
-                self.write_register(i, Reg.TORQUE_ENABLE, 1)
-            except InstructionError as exc:
-                if exc.error & ALERT:
-                    bits = self.read_register(i, Reg.HARDWARE_ERROR_STATUS)
-                    self._note_hardware_error(i, bits)
-                    raise MotorFault(i, hardware_error_names(bits),
-                                     f"motor {i} refused torque: latched hardware error "
-                                     f"({', '.join(hardware_error_names(bits))}); reboot it") from exc
-                raise
+        for i in ids:  # each goal from a read just before it (torque_on)
+            enable_holding(self, i)
             self._torque_ids.add(i)
             self.watchdog_tripped.discard(i)
         self._arm_watchdog(ids)
@@ -606,23 +584,29 @@ class DynamixelBus(SdkTransactions, MotorBus):
 
     def _present_ticks(self, ids: tuple[int, ...]) -> dict[int, int]:
         """Present Position [ticks] of ``ids``, with bounded retries (raises BusError); a late
-        reply is refused by its Realtime Tick here too (torque-on sets the goal to this)."""
+        reply is refused by its Realtime Tick here too (torque-on checks the limits on this)."""
         out: dict[int, int] = {}
-        for _ in range(self.config.retries + 1):
+        for attempt in range(self.config.retries + 1):
             todo = tuple(i for i in ids if i not in out)
             if not todo:
                 break
-            valid, _, raw = self._read_block(todo, fast=False)
-            self._stale(todo, valid, raw, self._sample_time)
-            for i in todo:
-                if valid[i]:
-                    out[i] = int(np.frombuffer(raw[i], self._dtype)[Reg.PRESENT_POSITION.name][0])
-                    if self.config.realtime_tick:
-                        self._ticks[i] = (self._sample_time, self._tick(raw[i]))
+            # retries one motor at a time: in a sync read, one lost reply voids the others
+            for group in [todo] if attempt == 0 else [(i,) for i in todo]:
+                valid, _, raw = self._read_block(group, fast=False)
+                self._stale(group, valid, raw, self._sample_time)
+                for i in group:
+                    if valid[i]:
+                        out[i] = self._position_ticks(raw[i])
+                        if self.config.realtime_tick:
+                            self._ticks[i] = (self._sample_time, self._tick(raw[i]))
         missing = [i for i in ids if i not in out]
         if missing:
             raise BusError(f"cannot read the present position of motors {missing}")
         return out
+
+    def _position_ticks(self, raw: bytes) -> int:
+        """Present Position [ticks] in a present block."""
+        return int(np.frombuffer(raw, self._dtype)[Reg.PRESENT_POSITION.name][0])
 
     # -- faults ----------------------------------------------------------------------------------
     def _note_alert(self, motor_id: int, err: int) -> None:

@@ -73,8 +73,10 @@ class SdkTransactions:
         raw = int.from_bytes(bytes(data), "little")
         return to_signed(raw, it.size) if reg in SIGNED else raw
 
-    def write_register(self, motor_id: int, reg: Reg, value: int) -> None:
-        """Write one item and check the status; raises BusError / InstructionError."""
+    def write_register(self, motor_id: int, reg: Reg, value: int, tries: int | None = None
+                       ) -> None:
+        """Write one item and check the status; raises BusError / InstructionError.
+        ``tries``: attempts (default ``config.retries`` + 1)."""
         it = self.tables[motor_id][reg] if motor_id in self.tables else load_control_table(
             self.config.models[0])[reg]
         data = list(le_bytes(value, it.size))
@@ -83,7 +85,7 @@ class SdkTransactions:
             result, err = self.ph.writeTxRx(self.port, motor_id, it.address, it.size, data)
             return (None, err), result, err
 
-        self._unicast(motor_id, f"writing {reg.value}={value}", op, 1)
+        self._unicast(motor_id, f"writing {reg.value}={value}", op, 1, tries)
 
     def _try_read(self, motor_id: int, address: int, size: int) -> int | None:
         self._begin()
@@ -94,10 +96,12 @@ class SdkTransactions:
             return None
         return int.from_bytes(bytes(data), "little")
 
-    def _unicast(self, motor_id: int, what: str, op, expected_headers: int):
+    def _unicast(self, motor_id: int, what: str, op, expected_headers: int,
+                 tries: int | None = None):
         """Run ``op`` with bounded retries; returns (payload, error byte)."""
         result = COMM_SUCCESS
-        for _ in range(self.config.retries + 1):
+        tries = self.config.retries + 1 if tries is None else tries
+        for _ in range(tries):
             self._begin()
             (payload, err), result, _ = op()
             self.stats.transactions += 1
@@ -115,7 +119,7 @@ class SdkTransactions:
             hint = (f" (the status timeouts assume a USB latency timer of "
                     f"{self.port.latency_ms:g} ms; on a pty or an adapter whose latency timer "
                     "cannot be read, pass --latency-ms 16)")
-        raise BusError(f"motor {motor_id}: {what} failed after {self.config.retries + 1} "
+        raise BusError(f"motor {motor_id}: {what} failed after {tries} "
                        f"attempts: {self.ph.getTxRxResult(result)}{hint}")
 
     # -- transactions ------------------------------------------------------------------------------
