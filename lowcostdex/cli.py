@@ -29,7 +29,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.demonstrations.cli",
 )
 # the exit codes live in the core (lowcostdex.errors) so that any layer can name them
-from lowcostdex.errors import INTERRUPTED, USER_ERROR  # noqa: E402
+from lowcostdex.errors import INTERRUPTED, USER_ERROR, Interrupted  # noqa: E402
 
 PATH_OPTIONS = ("out", "json", "demos", "spec", "effects", "model", "port", "log", "holdout")
 """Options that name a file, folder or device: an empty one is refused (``Path("")`` is the
@@ -102,8 +102,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if exc.filename is None:  # not about a path the user gave: a bug
             raise
         return _report(prog, f"cannot open {exc.filename}: {exc.strerror}", debug, USER_ERROR)
-    except KeyboardInterrupt:
-        return _report(prog, "interrupted (Ctrl-C)", debug, INTERRUPTED)
+    except KeyboardInterrupt as exc:  # an Interrupted says what is kept and how to go on
+        more = f"; {exc}" if isinstance(exc, Interrupted) and str(exc) else ""
+        return _report(prog, f"interrupted (Ctrl-C){more}", debug, INTERRUPTED)
 
 
 def _report(prog: str, message: str, debug: bool, code: int) -> int:

@@ -29,6 +29,11 @@ class InputError(ConfigError):
     the value, in one line. The CLI prints it without a traceback and exits with code 2."""
 
 
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a command that keeps what it finished: the message says what is kept and
+    the command that continues (the CLI prints ``interrupted (Ctrl-C); <message>``, exit 130)."""
+
+
 class PhysicsError(LowcostdexError, RuntimeError):
     """The simulation diverged (NaN/inf state or MuJoCo warning that invalidates the step)."""
 

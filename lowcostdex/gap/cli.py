@@ -101,7 +101,7 @@ def distinct_logs(given: list[str]) -> tuple[list[str], list[str]]:
     from lowcostdex.gap.dataset import expand_log_paths
 
     out, notes, seen = [], [], {}
-    for p in expand_log_paths(given):
+    for p in expand_log_paths(given, notes):
         key: object = str(p.resolve())
         try:
             if p.is_file() and p.stat().st_size <= 64 * 2**20:

@@ -141,12 +141,16 @@ class Dataset:
 LOG_SUFFIXES = (".csv", ".npz", ".json")
 
 
-def expand_log_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
+def expand_log_paths(paths: str | Path | Sequence[str | Path],
+                     notes: list[str] | None = None) -> list[Path]:
     """The log files meant by ``paths``: one path or a sequence of them, where each may be a
     file, a folder (its ``LOG_SUFFIXES`` files, sorted) or a glob pattern that the shell did
     not expand (``"logs/*.csv"``, sorted matches). Raises LogError when nothing is named, a
     folder holds no log or a pattern matches nothing. Hidden files (``.lowcostdex.json``, the
-    marker ``record-log`` leaves) are not logs."""
+    marker ``record-log`` leaves) are not logs, nor are the JSON files of a folder that holds
+    project-format logs (CSV/NPZ): a BAM log (JSON) cannot be analysed beside them, and such a
+    JSON is the folder's own notes (``gap generate``'s truth.json); each left out is said in
+    ``notes``."""
     entries: list = []
     if isinstance(paths, (str, os.PathLike)):
         entries = [paths]
@@ -168,6 +172,12 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path]) -> list[Path]:
                            and p.suffix.lower() in LOG_SUFFIXES)
             if not found:
                 raise LogError(f"{one}: a folder without logs ({', '.join(LOG_SUFFIXES)})")
+            if any(p.suffix.lower() != ".json" for p in found):
+                json_files = [p for p in found if p.suffix.lower() == ".json"]
+                found = [p for p in found if p.suffix.lower() != ".json"]
+                if json_files and notes is not None:
+                    notes.append(f"{one}: left out {', '.join(p.name for p in json_files)} (JSON "
+                                 "beside project-format CSV/NPZ logs: not a log of them)")
             out += found
         elif not one.exists() and any(c in str(one) for c in "*?["):
             found = sorted(Path(p) for p in glob.glob(str(one)) if Path(p).is_file())

@@ -284,6 +284,11 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
     """
     act_names = [model.actuator(i).name for i in range(model.nu)]
     jnt_names = [model.joint(i).name for i in range(model.njnt)]
+    if traj.actuators and not act_names:  # "actuators: " and nothing after it said nothing
+        j = traj.actuators[0]
+        raise LogError(f"{traj.name}: 'goal:{j}': the model has no actuators; the logged goals "
+                       f"need one per joint, e.g. <actuator><position name=\"{j}\" "
+                       f"joint=\"{j}\" kp=\"...\"/></actuator> (the servo's position gain)")
     for a in traj.actuators:
         if a not in act_names:
             raise LogError(f"{traj.name}: 'goal:{a}': no actuator {a!r} in the model; "

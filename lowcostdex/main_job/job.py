@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import shutil
 import time
 from collections.abc import Callable
@@ -11,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from lowcostdex.argtypes import SEED
+from lowcostdex.errors import Interrupted
 from lowcostdex.main_job.report import markdown_report, stage_summary, write_html
 from lowcostdex.main_job.setup import DEFAULT_TASK, SIZES, TASKS, Context
 from lowcostdex.main_job.stages import (
@@ -120,7 +122,10 @@ def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
                               f"{target.relative_to(ctx.out)}/")
         console.rule(f"[bold]{name}[/bold]: {fn.__doc__.splitlines()[0]}")
         t0 = time.perf_counter()
-        result = fn(ctx)
+        try:
+            result = fn(ctx)
+        except KeyboardInterrupt:
+            raise _interrupted(ctx, name, chosen) from None
         result["seconds"] = round(time.perf_counter() - t0, 1)
         result["finished"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
         ctx.results[name] = result
@@ -131,6 +136,21 @@ def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
     report.write_text(text)
     write_html(text, ctx.out / "report.html")
     return report
+
+
+def _interrupted(ctx: Context, name: str, chosen: tuple[str, ...]) -> Interrupted:
+    """Ctrl-C in stage ``name``: what results.json holds and the command that continues."""
+    rest = chosen[chosen.index(name):]
+    words = ["lowcostdex", "main", "--out", str(ctx.out), "--size", ctx.size, "--seed",
+             str(ctx.seed), "--task", ctx.task]
+    if ctx.port is not None:
+        words += ["--port", ctx.port]
+    done = [n for n, _ in STAGES if n in ctx.results]
+    kept = (f"{ctx.out / RESULTS} holds the finished stages ({', '.join(done)})" if done
+            else "no stage finished")
+    return Interrupted(f"stage {name} did not finish (its partial outputs go to previous/ when "
+                       f"it runs again); {kept}. Continue with: "
+                       f"{shlex.join([*words, '--stages', ','.join(rest)])}")
 
 
 def _overview() -> str:

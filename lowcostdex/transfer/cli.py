@@ -61,7 +61,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     add_latency_option(p)
     p.add_argument("--yes", action="store_true",
                    help="with --port: do not ask before the robot moves")
-    p.set_defaults(func=_transfer)
+    p.set_defaults(func=_transfer, parser=p)
 
 
 def _transfer(args: argparse.Namespace) -> int:
@@ -83,6 +83,15 @@ def _transfer(args: argparse.Namespace) -> int:
         if answer.strip().lower() not in ("y", "yes"):
             print("stopped; nothing was written")
             return 1
-    run(args.out, size, args.task, args.robot_seed, port, latency_ms=args.latency_ms,
-        start_range=args.start_range)
+    try:
+        run(args.out, size, args.task, args.robot_seed, port, latency_ms=args.latency_ms,
+            start_range=args.start_range)
+    except KeyboardInterrupt:  # finished pieces are kept: say so and how to resume
+        from lowcostdex.algos.train_cli import command_line
+        from lowcostdex.errors import Interrupted
+
+        again = command_line(args.parser, args, False)
+        raise Interrupted(f"the finished pieces are kept in {args.out} (the table is written "
+                          f"when every piece is done); the same command resumes there: {again}"
+                          ) from None
     return 0

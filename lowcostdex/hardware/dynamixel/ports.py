@@ -165,10 +165,15 @@ def check_port(port: str) -> None:
     """Refuse a serial device path that is not there or not usable, saying what to do.
 
     ``emulated`` and names that are not paths (Windows ``COM3``) pass; the bus reports those.
+    A relative path that exists is checked too (``--port notes.txt`` made ``main`` and
+    ``record-log`` write their output folders and ``setup-motors`` ask for the first motor
+    before the port failed to open).
     """
-    if port == "emulated" or os.name != "posix" or not port.startswith("/"):
+    if port == "emulated" or os.name != "posix":
         return
     path = Path(port)
+    if not port.startswith("/") and not path.exists():
+        return
     if not path.exists():
         import glob
 
