@@ -113,8 +113,11 @@ def loop(monkeypatch):
                      for n in remaining], float(np.sqrt(np.mean(r * r))))
 
         def intervals(ds, t, segs, cfg, prog, timing):
-            h = np.array([half.get(f.effect, 1e-6) if isinstance(half, dict) else half
-                          for f in t.structure.free])
+            if callable(half):  # half-widths from the fitted point: h(free, u_i)
+                h = np.array([half(f, ui) for f, ui in zip(t.structure.free, t.u, strict=True)])
+            else:
+                h = np.array([half.get(f.effect, 1e-6) if isinstance(half, dict) else half
+                              for f in t.structure.free])
             return t.u, h, h, h, None
 
         engine = type("Engine", (_Engine,), {"FLIP": flip})
@@ -251,6 +254,25 @@ def test_an_effect_whose_interval_holds_no_effect_is_dropped_after_the_final_fit
     assert res.stop_reason.endswith("mounting_offset dropped: its 95 % interval holds no "
                                     "effect; position_offset dropped: its 95 % interval holds "
                                     "no effect")
+
+
+def test_the_interval_drop_is_at_exactly_one_half_width_from_no_effect(loop):
+    """The final interval drop (``analyze``: margin <= 1) at its edge, margins by construction:
+    a half-width equal to the fitted distance from "no effect" (mounting_offset's null is 0 rad)
+    puts "no effect" exactly on the interval's end (margin 1.0): dropped, the interval holds
+    it; two thirds of that distance (margin 1.5) excludes it: kept. (mutation run of
+    2026-11-26 at c3ff5c5: `<= 1` -> `< 1` and `<= 2` survived every fast test.)"""
+    scores = {"position_offset": 0.7, "mounting_offset": 0.6}
+
+    def edge(ratio):
+        return lambda f, u: abs(u) / ratio if f.effect == "mounting_offset" else 1e-6
+
+    res = loop(0.05, 0.03, 0.01, floor=0.001, half=edge(1.0), scores=scores)
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.stop_reason.endswith("mounting_offset dropped: its 95 % interval holds no effect")
+    res = loop(0.05, 0.03, 0.01, floor=0.001, half=edge(1.5), scores=scores)
+    assert sorted(c.effect for c in res.causes) == ["mounting_offset", "position_offset"]
+    assert "dropped" not in res.stop_reason
 
 
 def test_the_report_payload_carries_what_was_decided(loop):
