@@ -52,7 +52,10 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # load ~1): clean_mounting_vertical (was a false load_dependent_friction) names nothing, 10 s
 # (gap-select's explain_above); gain_high_arm2_50hz (was gain_error 1.846 [1.820, 1.872] plus
 # backlash and coulomb_friction that raised the held-out RMSE) is exact, 1.805 [1.796, 1.815]
-# / 1.797 [1.793, 1.801], 63 s.
+# / 1.797 [1.793, 1.801], 63 s. mounting_offset_pendulum (position_offset 0.0048 alone: at the
+# model's 2 ms step the 4 deg mounting offset fits worse, train RMSE 3.38 vs 2.52 mrad; at 1 ms
+# better, 1.78 vs 2.16) is exact since the first cause is chosen again at the refined step:
+# mounting_offset 0.0729 [0.0671, 0.0786], held-out 4.79 -> 0.95 mrad, 34 s.
 
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
@@ -64,17 +67,15 @@ MISSES: dict[str, str] = {
                                       "position-only",
     "reading_offset_arm2": "position_offset exact (0.0525 / -0.0350 vs 0.0524 / -0.0349) plus "
                            "a spurious load_dependent_friction (mu 0.0043 / 0.0086)",
-    "mounting_offset_pendulum": "position_offset 0.0048 [0.0043, 0.0053] alone (family; truth a 4 "
-                                "deg = 0.0698 rad mounting offset): gap-extras' run on f542064 "
-                                "(42 s) dropped mounting_offset, whose interval held 0 (was "
-                                "-0.0246 [-0.108, 0.059] plus position_offset 0.0063)",
     # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
     "coulomb_mj_turntable": "coulomb_friction 0.0802 (truth 0.08) plus load_dependent_friction "
                             "mu 0.032 and gain_error 1.013",
     "backlash_output_pendulum": "no backlash: gain_error, inertia_error, latency, "
                                 "load_dependent_friction, mass_error, viscous_damping",
-    "gain_viscous_turntable": "no gain_error: inertia_error plus viscous_damping 0.189 (truth "
-                              "0.08)",
+    "gain_viscous_turntable": "not identifiable: inertia_error 1.589 plus viscous_damping 0.189 "
+                              "(truth gain 0.7 + 0.08); with no gravity and no force limit "
+                              "J q'' = 0.7 kp (g - q) - c q' is the same trajectory for any two "
+                              "of gain, inertia and damping (re-run c3ff5c5 and gap-offset)",
     # never-run cases, measured by redteam3 (2026-11-26 12:00-, main dee30b5, load 9-17)
     "backlash_body_turntable": "backlash exact but width 0.01537 [0.01342, 0.01733] excludes "
                                "the truth 0.01745 (1 deg)",

@@ -92,7 +92,9 @@ class GapConfig:
         test is made with that cause refitted at each finer step (``stepsize.refine_fitted``):
         a large cause hides the step's error from the nominal test. Only after the first: on
         the independent bench's offset + 5x gain (a 2 ms-world truth with event-split steps)
-        a check after the second cause moved to 1 ms and the gain to 5.12 (truth 5.0).
+        a check after the second cause moved to 1 ms and the gain to 5.12 (truth 5.0). When
+        that test refines the step, the first cause is chosen again at the finer step (the
+        coarse step's error can favour a stand-in: a mounting offset lost to a reading offset).
       min_step: the finest physics step ``refine_step`` goes to [s].
       refine_gain: the share of the MSE above the floor a halving must remove (a hidden effect
         the step interacts with also moves the nominal replay: the independent bench's 0.14 N m
@@ -362,6 +364,9 @@ def timestep_note(timestep: dict) -> str:
     fitted = ", ".join(f"{1e3 * float(dt):.3g} ms {1e3 * r:.3g} mrad"
                        for dt, r in timestep.get("fitted", []))
     fitted = f"; with the accepted causes refitted, training RMSE: {fitted}" if fitted else ""
+    if timestep.get("first_at_coarse_step"):
+        fitted += (f"; the first cause, {timestep['first_at_coarse_step']} at the model's step, "
+                   "was chosen again at the finer one")
     return (f"the model's physics step {1e3 * timestep['model']:.3g} ms is too coarse for these "
             f"logs (nominal replay RMSE on train + select: {tried}{fitted}); analysed at "
             f"{1e3 * timestep['used']:.3g} ms, which the extended model carries")
