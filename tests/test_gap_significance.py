@@ -225,3 +225,26 @@ def test_step_interval_holds_a_first_order_discretisation_bias():
     # no move: the data's interval about the fitted value
     mid, half = sg.step_interval(np.array([1.0]), np.array([0.1]), np.zeros(1), 0.5)
     assert mid[0] == 1.0 and half[0] == pytest.approx(0.1)
+
+
+def test_null_margins_at_a_zero_half_width_and_for_effects_without_a_null():
+    """A zero-width interval (a parameter the data pin exactly) is infinitely far from "no
+    effect" unless it sits on it (then 0: nothing shown). A velocity limit has no null of its
+    own (no limit = an infinite speed): it cannot be judged (margin inf, never dropped), and a
+    torque limit of a model that asks no force (peak 0) or an unbounded one (peak inf) has no
+    "no effect" point either. (gap-pure mutation run of 2026-11-26: these edges survived.)"""
+    ctx = _ctx([0.6, 0.6])
+    s = fitmod.Structure.build(("gain_error",), ("a", "b"), ctx)
+    zero = np.zeros(2)
+    assert sg.null_margins(s, s.u(np.array([1.1, 1.0])), zero, ctx) == {"gain_error": math.inf}
+    assert sg.null_margins(s, s.u(np.array([1.0, 1.0])), zero, ctx) == {"gain_error": 0.0}
+    v = fitmod.Structure.build(("velocity_limit",), ("a",), ctx)
+    assert sg.null_u(v.free[0], ctx) is None
+    assert sg.null_margins(v, v.u(np.array([2.0])), np.array([0.1]), ctx) == {
+        "velocity_limit": math.inf}
+    for peak in (0.0, math.inf):
+        t = fitmod.Structure.build(("torque_limit",), ("a",), _ctx([peak, peak]))
+        assert sg.null_u(t.free[0], _ctx([peak, peak])) is None
+    t = fitmod.Structure.build(("torque_limit",), ("a",), ctx)
+    u0, side = sg.null_u(t.free[0], ctx)
+    assert u0 == pytest.approx(math.log(0.6)) and side < 0
