@@ -504,8 +504,10 @@ def effect_size(case: Case) -> dict:
 # ---------------------------------------------------------------- scoring
 
 # a parameter's "no effect" value (documented units: scale factors 1, sizes 0)
+# "creep" 1: coulomb_friction's own null, the model's friction constraint unchanged (gap-fric,
+# session 8: its new shape parameter; without it every Coulomb joint counted as named)
 NEUTRAL = {"scale": 1.0, "delay": 0.0, "width": 0.0, "offset": 0.0, "frictionloss": 0.0,
-           "damping": 0.0, "mu": 0.0}
+           "damping": 0.0, "mu": 0.0, "creep": 1.0}
 
 
 def _no_effect_here(cause: dict, k: int) -> bool:
@@ -600,5 +602,8 @@ CASES = (
     Case("fin_armature25_abd", "finger", (_f("armature", "abd", 2.5),)),
     Case("fin_offset_read010_dist", "finger", (_f("offset_read", "dist", 0.10),)),
     Case("srv_vlimit10_latency040", "servo", (_f("vlimit", "q", 1.0), _f("latency", "q", 0.04))),
+    # gap-fric (session 8): dry friction at 60 % of a plain position actuator's forcerange
+    Case("fin_coulomb090_dist", "finger", (_f("coulomb", "dist", 0.9),),
+         note="Coulomb 0.9 N m = 60 % of the 1.5 N m forcerange, stiff (sticks)"),
 )
 CASE_BY_NAME = {c.name: c for c in CASES}

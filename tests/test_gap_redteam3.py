@@ -53,10 +53,6 @@ MISSES: dict[str, str] = {
                             "encoder moves the logged dist rotor angle by 0.24-0.42 mrad RMS "
                             "(read floor 0.67; prox 0.5-0.97): 'no significant discrepancy' "
                             "(held-out 0.83 mrad, floor 0.68, 5d3eaa3)",
-    "srv_coulomb_stall_50hz": "miss (lead, main 28062a3, 78 s): nothing named, 'discrepancy not "
-                              "explained' (held-out 326 mrad, 472x the floor; no candidate "
-                              "lowered the select error significantly); was extra on 3c61633 "
-                              "(coulomb_friction 0.706 for 1.2 N m + backlash + viscous)",
     "srv_dirfric_50hz": "miss (lead, main 28062a3, 74 s): position_offset -0.0161 alone (held-out "
                         "39.2 -> 31.3 mrad); was extra before this session's gap changes "
                         "(coulomb_friction + position_offset)",

@@ -573,7 +573,7 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
                     f.from_u(f.to_u(null) + 10 * f.fd) if f.log else null + 10 * f.fd)
                 # secants to the start and to every extra start: their span follows the shape
                 # of strongly nonlinear effects (a torque limit, a delay) better than one column
-                for v in (probe, *f.extra):
+                for v in (probe, *f.extra) if f.lo < f.hi else ():  # else held at its null
                     vals = {q.name: np.full(nj, q.null) for q in effect(name).params}
                     vals[p.name][j] = v
                     amp = {"stribeck_friction": ("velocity", "static"),

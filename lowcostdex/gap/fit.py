@@ -5,16 +5,16 @@ point) is fitted by box-bounded Levenberg-Marquardt on the simulation error of m
 segments. All tracks advance in lockstep: one batched replay per round evaluates, for every live
 track, its trial point and the finite-difference columns around it, so a round costs one pass over
 the data whatever the number of candidates and starts. (``mujoco.minimize.least_squares`` solves
-one problem at a time; here a dozen non-nested models and their multi-starts share each pass.)
-A rejected trial keeps the previous Jacobian and raises the damping.
+one problem at a time; here a dozen non-nested models and their multi-starts share each pass.) A
+rejected trial keeps the previous Jacobian and raises the damping.
 
 Parameter spaces come from the effect catalogue (``Param.low/high/start``) made model-aware: the
 latency bound starts at one physics step (the native delay is quantized below it, sysid trap 8),
-torque limits are searched below the peak force the baseline model actually uses, scale factors
-and Stribeck velocities are searched in log space, and non-convex parameters get extra starts.
-A fit that lands on a search bound may widen that bound toward the parameter's physical hard limit
-(``Param.hard``) and refit (``widen``): real-world sizes beyond the usual range are then named
-with their value, and only a fit at its hard limit is rejected.
+torque limits below and dry friction up to the peak force the baseline model uses, scale factors
+and Stribeck velocities are searched in log space, and non-convex parameters get extra starts. A
+fit that lands on a search bound may widen that bound toward the parameter's physical hard limit
+(``Param.hard``) and refit (``widen``): real-world sizes beyond the usual range are then named with
+their value, and only a fit at its hard limit is rejected.
 
 Why one module (over ~600 lines; issue 16 asks for the reason here): the lockstep Levenberg-
 Marquardt, the bounded parameter spaces it steps in and their widening share the ``Structure``/
@@ -133,7 +133,9 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
     elif (name, param) == ("viscous_damping", "damping"):
         lo = max(lo, -float(ctx.damping[j]))
     elif (name, param) == ("coulomb_friction", "frictionloss"):
-        hi = min(hi, float(ctx.stall[j]))
+        hi = min(max(hi, float(ctx.peak_force[j])), float(ctx.stall[j]), p.hard[1])  # to its force
+    elif (name, param) == ("coulomb_friction", "creep"):
+        lo = hi = p.null  # held (MuJoCo-soft) until a level at the actuator's force frees it
     elif name == "load_dependent_friction":
         hi = 0.9  # plastic gear trains reach ~0.46 (BAM's XL330 fit); friction < torque
     elif (name, param) == ("torque_limit", "torque"):
@@ -175,7 +177,7 @@ class Structure:
         """Free per-joint parameters for ``effects``; ``fixed`` effects ride along unchanged."""
         free = [space(n, p.name, j, ctx) for n in effects for p in effect(n).params
                 if p.acts(np.isfinite(ctx.stall)) for j in range(len(joints))]
-        return cls(tuple(effects), tuple(joints), free, tuple(fixed))
+        return cls(tuple(effects), tuple(joints), [f for f in free if f.lo < f.hi], tuple(fixed))
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -193,9 +195,9 @@ class Structure:
             vals: dict[str, np.ndarray] = {}
             for f, v in zip(self.free, values, strict=True):
                 if f.effect == name:
-                    if f.at_floor(v):
-                        v = effect(name).param(f.param).null
-                    vals.setdefault(f.param, np.full(len(self.joints), np.nan))[f.joint] = v
+                    null = effect(name).param(f.param).null  # also on joints where it is held
+                    v = null if f.at_floor(v) else v
+                    vals.setdefault(f.param, np.full(len(self.joints), null))[f.joint] = v
             out.append(AppliedEffect(name, self.joints, vals))
         return out
 
@@ -210,10 +212,8 @@ class Structure:
         return np.array(out)
 
     def starts(self, base: np.ndarray | None = None) -> list[np.ndarray]:
-        """Start points: ``base`` (or every free scalar's start) plus one per extra start.
-
-        Extra starts move only the scalars that have them (all joints together).
-        """
+        """Start points: ``base`` (or every free scalar's start) plus one per extra start, which
+        moves only the scalars that have it (all joints together)."""
         x0 = np.array([f.start for f in self.free]) if base is None else np.array(base, float)
         out = [x0]
         n_extra = max((len(f.extra) for f in self.free), default=0)
@@ -241,8 +241,8 @@ class Structure:
 
 def at_bounds(s: Structure, u: np.ndarray) -> list[tuple[int, str]]:
     """Free scalars of ``s`` whose value ``u`` (optimizer coordinates) sits on a search bound
-    that is not the effect's null (a friction at 0 is absent, not at a bound): (index, "lower" or
-    "upper").
+    that is not the effect's null (a friction at 0 is absent, not at a bound), or a Coulomb level
+    of half the actuator's force or more while its creep is held: (index, "lower" or "upper").
 
     A bound between the null and the rest of the range (a delay's one-step floor above 0, a
     torque limit's upper bound at the model's peak force) is "as little of the effect as the
@@ -251,8 +251,13 @@ def at_bounds(s: Structure, u: np.ndarray) -> list[tuple[int, str]]:
     lo, hi = s.u_bounds()
     out = []
     for i, f in enumerate(s.free):
-        null = effect(f.effect).param(f.param).null
-        for b, side in ((lo[i], "lower"), (hi[i], "upper")):
+        p = effect(f.effect).param(f.param)
+        if (f.param == "frictionloss" and f.from_u(u[i]) >= 0.5 * f.hi and not any(  # creep held
+                (g.param, g.joint) == ("creep", f.joint) for g in s.free)):  # and may matter
+            out.append((i, "upper"))  # hi: at least the actuator's force
+            continue
+        null = p.null  # a share's ends (Param.ends) are values, not a range too narrow
+        for b, side in (() if p.ends else ((lo[i], "lower"), (hi[i], "upper"))):
             value = f.from_u(b)
             toward_null = null <= value if side == "lower" else null >= value
             if (abs(u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(value, null)
@@ -265,11 +270,10 @@ def widen(s: Structure, u: np.ndarray, ctx: Context
           ) -> tuple[dict[tuple[str, str, int], tuple[float, float]], list[tuple[str, str]]]:
     """Wider search ranges for the scalars of ``s`` sitting on a bound at ``u``.
 
-    The bound moves out by the range's own span (in optimizer coordinates: a factor for log
-    scalars), never past the hard limit (``hard_limits``). Returns the new ranges
-    {(effect, param, joint): (low, high)} (empty when every such scalar is at its hard limit)
-    and (effect, line) per widened range for the report.
-    """
+    The bound moves out by the range's own span (optimizer coordinates), never past the hard
+    limit (``hard_limits``); a flagged Coulomb level also frees its ``creep`` (it may stick).
+    Returns the new ranges {(effect, param, joint): (low, high)} (empty when every such scalar
+    is at its hard limit) and (effect, line) per widened range for the report."""
     ranges: dict[tuple[str, str, int], tuple[float, float]] = {}
     notes: list[tuple[str, str]] = []
     for i, side in at_bounds(s, u):
@@ -278,6 +282,8 @@ def widen(s: Structure, u: np.ndarray, ctx: Context
         lo_u, hi_u = f.u_bounds
         span = hi_u - lo_u
         lo, hi = f.lo, f.hi
+        if (f.effect, f.param, side) == ("coulomb_friction", "frictionloss", "upper"):
+            ranges[(f.effect, "creep", f.joint)] = (0.0, 1.0)  # soft may not hold: may stick
         if side == "lower" and f.lo > h_lo:
             lo = max(f.from_u(lo_u - span), h_lo) if not f.log or h_lo > 0 else h_lo
         elif side == "upper" and f.hi < h_hi:
@@ -312,7 +318,7 @@ def widen_and_refit(t: Track, residual: ResidualFn, ctx: Context, max_rounds: in
         trial_ranges = {**ranges, **new}
         s = Structure.build(t.structure.effects, t.structure.joints,
                             ctx.with_ranges(trial_ranges), fixed=t.structure.fixed)
-        nt = Track(s, s.u(t.x), label=t.label + "+widened")
+        nt = Track(s, s.u(s.values_from(t.effects())), label=t.label + "+widened")
         lockstep_lm([nt], residual, max_rounds)
         if not nt.cost <= t.cost:
             break
@@ -320,8 +326,6 @@ def widen_and_refit(t: Track, residual: ResidualFn, ctx: Context, max_rounds: in
     return t, ranges, notes
 
 
-# A residual function evaluates many parameter points at once: list of (structure, x) ->
-# list of residual vectors (measured - predicted over the scored training samples).
 ResidualFn = Callable[[list[tuple[Structure, np.ndarray]]], list[np.ndarray]]
 
 
@@ -444,8 +448,7 @@ def lockstep_lm(tracks: Sequence[Track], residual: ResidualFn, max_rounds: int =
 
 
 def _jacobians(tracks: Sequence[Track], residual: ResidualFn) -> None:
-    """Finite-difference Jacobians of ``tracks`` at their accepted points (one batched pass;
-    forward differences from the residual already evaluated there)."""
+    """Forward-difference Jacobians of ``tracks`` at their accepted points (one batched pass)."""
     points, owners = [], []
     for t in tracks:
         t.trial = t.u.copy()
@@ -574,9 +577,7 @@ def _fd_points(t: Track) -> list[np.ndarray]:
 def _lm_step(t: Track) -> np.ndarray | None:
     """Next trial point: a bounded LM step, pinning dimensions at bounds (active set).
 
-    ``t.jac`` is d(residual)/du, so the Gauss-Newton step solves
-    (J^T J + mu diag(J^T J)) du = -J^T r.
-    """
+    ``t.jac`` is d(residual)/du: the step solves (J^T J + mu diag(J^T J)) du = -J^T r."""
     jac, r = t.jac, t.r
     n = jac.shape[1]
     if n == 0:
@@ -679,8 +680,7 @@ def block_halfwidths(r: np.ndarray, jac: np.ndarray, blocks: Sequence[slice],
     return np.where(touches_null, np.inf, half)
 
 
-def step_shift(t: Track, residual: ResidualFn, max_rounds: int, rtol: float = 1e-4
-               ) -> np.ndarray:
+def step_shift(t: Track, residual: ResidualFn, max_rounds: int, rtol: float = 1e-4) -> np.ndarray:
     """How far a fitted track moves (optimizer coordinates) when the same data are replayed
     at a finer physics step: a copy of it refitted on ``residual`` (the finer replay's),
     starting from its optimum. The replay's own discretisation (step-mean goals, the delay's

@@ -313,21 +313,25 @@ def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str
     minus the value)."""
     mid = u if centre is None else centre
     out: dict[str, dict] = {}
+    nj = len(s.joints)
     for i, f in enumerate(s.free):
         if f.effect != name:
             continue
-        d = out.setdefault(f.param, {"value": [], "interval": [],
+        null = effect(name).param(f.param).null
+        # a joint where the parameter is held (not free) reports its null, exactly
+        d = out.setdefault(f.param, {"value": [null] * nj, "interval": [[null, null]] * nj,
                                      "unit": effect(name).param(f.param).unit})
         v, iv = f.from_u(u[i]), param_interval(f, mid[i], half[i])
         if f.at_floor(v):  # replayed as the null (a joint without latency): its interval holds it
-            v = effect(name).param(f.param).null
+            v = null
             iv = [v, max(v, iv[1])]
-        d["value"].append(v)
-        d["interval"].append(iv)
+        d["value"][f.joint] = v
+        d["interval"][f.joint] = iv
         for key, h in (other or {}).items():
-            d.setdefault(key, []).append(param_interval(f, u[i], h[i]))
+            d.setdefault(key, [[null, null]] * nj)[f.joint] = param_interval(f, u[i], h[i])
         if shift is not None:
-            d.setdefault("step_shift", []).append(f.from_u(u[i] + shift[i]) - f.from_u(u[i]))
+            d.setdefault("step_shift", [0.0] * nj)[f.joint] = (f.from_u(u[i] + shift[i])
+                                                              - f.from_u(u[i]))
     return out
 
 

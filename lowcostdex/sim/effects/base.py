@@ -40,6 +40,8 @@ class Param:
         search range up to these, never beyond (default: ``(low, high)``, no widening).
       on: the actuators the parameter acts on: "any", "dcmotor" (dcmotor servos only) or
         "other" (every other actuator); a fit frees it only where the model has such actuators.
+      ends: both bounds are the physical ends of the parameter (a share between two limiting
+        behaviours): a fit there is a value, not a sign that the range is too narrow.
     """
 
     name: str
@@ -52,6 +54,7 @@ class Param:
     doc: str = ""
     limit: tuple[float, float] | None = None
     on: str = "any"
+    ends: bool = False
 
     def __post_init__(self) -> None:
         if not self.low < self.high:
