@@ -1,0 +1,151 @@
+"""Small stages of the gap analysis that decide what it may name and what it looks at, on
+stand-in data sets (no replay): which candidates a data set allows (``available_candidates``) and
+which training segments the ranking replays (``_subset``).
+
+Expected values are typed from the catalogue's list of causes and the rules in the docstrings,
+worked out by hand in each test; every test runs in milliseconds so the gap-pure mutation group
+(``python bench/mutation.py gap-pure``) can judge these functions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from lowcostdex.gap.analyze import _subset, available_candidates
+from lowcostdex.gap.dataset import Window
+
+# A plain MuJoCo arm with one hinge per actuator; plain MJCF typed here (not the project's models).
+_ARM = """
+<mujoco>
+  <worldbody>
+    <body name="a"><joint name="j0" type="hinge"/><geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0"/>
+      <body name="b" pos="0.1 0 0"><joint name="j1" type="hinge"/>
+        <geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0"/></body></body>
+  </worldbody>
+  <actuator>{acts}</actuator>
+</mujoco>
+"""
+_POS = '<position name="{n}" joint="{j}" kp="5"/>'
+_VEL = '<intvelocity name="{n}" joint="{j}" kp="5" actrange="-3 3"/>'
+
+
+def _model(kinds: tuple[str, str]) -> mujoco.MjModel:
+    acts = "".join(k.format(n=f"a{i}", j=f"j{i}") for i, k in enumerate(kinds))
+    return mujoco.MjModel.from_xml_string(_ARM.format(acts=acts))
+
+
+@dataclass
+class _Tr:
+    model: str
+    time: np.ndarray | None = None
+
+
+class _DS:
+    """What ``available_candidates`` reads of a Dataset: channels logged in every trajectory,
+    the commanded actuators, and the compiled model of the first trajectory."""
+
+    def __init__(self, models: dict[str, mujoco.MjModel], trajs: list[_Tr], chans: set[str],
+                 actuators=("a0", "a1")):
+        self._models, self.trajectories, self._chans = models, trajs, chans
+        self.actuators = actuators
+
+    def channels(self) -> set[str]:
+        return set(self._chans)
+
+    def compiled(self, key: str) -> mujoco.MjModel:
+        return self._models[key]
+
+
+# The catalogue's canonical causes in their order (lowcostdex/sim/effects/catalogue.py CAUSES);
+# only thermal_derating (temperature) and voltage_sag (voltage) require a measured channel.
+_ALL = ["latency", "backlash", "coulomb_friction", "stribeck_friction", "load_dependent_friction",
+        "viscous_damping", "gain_error", "torque_limit", "velocity_limit", "position_offset",
+        "inertia_error", "mass_error", "thermal_derating", "voltage_sag",
+        "gearbox_friction", "mounting_offset", "motor_strength"]
+
+
+def _ds(first: tuple[str, str], chans: set[str], second=(_POS, _POS)) -> _DS:
+    # the second trajectory's model differs on purpose: the rule reads the FIRST one's
+    return _DS({"m0": _model(first), "m1": _model(second)}, [_Tr("m0"), _Tr("m1")], chans)
+
+
+def test_position_servos_without_extra_channels_may_name_every_cause_but_the_exogenous_two():
+    """Position actuators: offsets are visible, so they stay; no temperature or voltage logged,
+    so thermal_derating and voltage_sag are left out; the catalogue's order is kept."""
+    want = [n for n in _ALL if n not in ("thermal_derating", "voltage_sag")]
+    assert available_candidates(_ds((_POS, _POS), set()), None) == want
+
+
+def test_a_logged_temperature_allows_thermal_derating_and_voltage_allows_voltage_sag():
+    got_t = available_candidates(_ds((_POS, _POS), {"temperature"}), None)
+    assert got_t == [n for n in _ALL if n != "voltage_sag"]
+    got_both = available_candidates(_ds((_POS, _POS), {"temperature", "voltage"}), None)
+    assert got_both == _ALL
+
+
+def test_velocity_goal_servos_cannot_be_given_position_or_mounting_offsets():
+    """Every commanded actuator is an intvelocity (the set of actuators EQUALS the set of rate-goal
+    actuators, the boundary of ``<=``): position_offset and mounting_offset are removed, the rest
+    as for position servos. The second trajectory's model is of position servos: the rule reads
+    the first trajectory's model."""
+    want = [n for n in _ALL if n not in ("thermal_derating", "voltage_sag", "position_offset",
+                                         "mounting_offset")]
+    assert available_candidates(_ds((_VEL, _VEL), set()), None) == want
+    # and the other way round: the first model has position servos, the second velocity ones
+    got = available_candidates(_ds((_POS, _POS), set(), second=(_VEL, _VEL)), None)
+    assert "position_offset" in got and "mounting_offset" in got
+
+
+def test_one_velocity_servo_among_position_servos_keeps_the_offsets():
+    """Only a1 integrates a velocity: {a0, a1} is not within {a1}, offsets stay."""
+    got = available_candidates(_ds((_POS, _VEL), set()), None)
+    assert got == [n for n in _ALL if n not in ("thermal_derating", "voltage_sag")]
+
+
+def test_a_requested_list_is_kept_in_its_order_and_filtered_by_channels_and_servo_kind():
+    req = ("voltage_sag", "position_offset", "latency", "mounting_offset", "thermal_derating")
+    assert available_candidates(_ds((_POS, _POS), {"voltage"}), req) == [
+        "voltage_sag", "position_offset", "latency", "mounting_offset"]
+    assert available_candidates(_ds((_POS, _POS), set()), req) == [
+        "position_offset", "latency", "mounting_offset"]
+    assert available_candidates(_ds((_VEL, _VEL), {"temperature"}), req) == [
+        "latency", "thermal_derating"]
+    assert available_candidates(_ds((_POS, _POS), set()), []) == []
+
+
+# -- _subset: the ranking's training segments -------------------------------------------------------
+
+# One trajectory sampled every 0.125 s (exact in binary); segment i spans samples [8i, 8i + 9), so
+# its duration time[stop - 1] - time[start] is exactly 1.0 s; ten segments, 10 s in all.
+_T = np.arange(8 * 10 + 1, dtype=float) * 0.125
+_SEGS = [Window(0, 8 * i, 8 * i + 9, 8 * i) for i in range(10)]
+_SDS = _DS({}, [_Tr("m0", _T)], set())
+
+
+def test_subset_spreads_the_segments_evenly_over_the_requested_seconds():
+    """3.4 s of 10 x 1 s: k = round(10 * 3.4 / 10) = 3 segments at linspace(0, 9, 3) =
+    [0, 4.5, 9] rounded (half to even) = [0, 4, 9]. (Durations measured one sample short,
+    0.875 s, would give total 8.75 and k = round(3.89) = 4; durations of time[stop-1] + time[start]
+    would total 100 s and k = 1.)"""
+    assert _subset(_SDS, _SEGS, 3.4) == [_SEGS[0], _SEGS[4], _SEGS[9]]
+
+
+def test_subset_of_a_few_seconds_keeps_at_least_the_first_segment():
+    """0.4 s: round(10 * 0.4 / 10) = round(0.4) = 0, raised to the minimum of one segment:
+    linspace(0, 9, 1) = [0]."""
+    assert _subset(_SDS, _SEGS, 0.4) == [_SEGS[0]]
+
+
+def test_subset_with_more_seconds_than_logged_keeps_every_segment_as_a_new_list():
+    for seconds in (10.0, 25.0):  # total 10 s <= seconds: all, in order
+        got = _subset(_SDS, _SEGS, seconds)
+        assert got == _SEGS and got is not _SEGS
+
+
+def test_subset_of_seven_seconds():
+    """7 s: k = round(7.0) = 7, linspace(0, 9, 7) = [0, 1.5, 3, 4.5, 6, 7.5, 9] rounded half to
+    even = [0, 2, 3, 4, 6, 8, 9]."""
+    assert _subset(_SDS, _SEGS, 7.0) == [_SEGS[i] for i in (0, 2, 3, 4, 6, 8, 9)]
