@@ -17,6 +17,7 @@ from lowcostdex.main_job.report import (
     _what_each_stage_added,
     markdown_report,
     paired_errors,
+    stage_summary,
 )
 from lowcostdex.main_job.setup import Context
 
@@ -227,9 +228,10 @@ def test_the_report_says_where_dapg_trained(tmp_path):
     t = results((0, 40), (15, 40), (21, 40), (0, 40))
     t["dapg"].update(trained_in="simulation", randomized=["latency", "coulomb_friction"],
                      iterations=30, episodes_per_iteration=40, samples=48000, robot_hours=0.0,
-                     validation_episodes=100, final_training_success=0.3,
+                     validation_samples=16000, validation_episodes=100, final_training_success=0.3,
                      last_validation_success=0.4)
-    t["npg"].update(trained_in="robot", samples=9600, robot_hours=0.4, validation_episodes=20,
+    t["npg"].update(trained_in="robot", samples=9600, validation_samples=2400, robot_hours=0.4,
+                    validation_episodes=20,
                     final_training_success=0.0, last_validation_success=0.0)
     t.update(plot="learning_curves.png", seconds=300.0)
     ctx = Context(out=tmp_path)
@@ -238,8 +240,12 @@ def test_the_report_says_where_dapg_trained(tmp_path):
     assert "DAPG trained in simulation, NPG on the robot, both judged on the robot" in text
     assert ("30 iterations of 40 episodes (48000 samples, no robot time), each episode under "
             "randomly drawn servo and model effects (latency, coulomb friction)") in text
-    assert "| DAPG | simulation | 48000 | 0.0 |" in text
-    assert "| NPG | robot | 9600 | 24.0 |" in text
+    # training samples and validation steps apart: the robot's NPG time covers both
+    assert "| DAPG | simulation | 48000 | 16000 | 0.0 |" in text
+    assert "| NPG | robot | 9600 | 2400 | 24.0 |" in text
+    line = stage_summary("train", t)
+    assert "(48000 training samples in simulation)" in line
+    assert "(9600 training samples on the robot)" in line
     assert "100 (DAPG) / 20 (NPG)" in text
     assert "DAPG's RL samples (48000) came from the randomized simulation" in text
     del t["dapg"]["trained_in"]

@@ -72,6 +72,10 @@ def test_npg_improves_return_and_writes_the_run_directory(tmp_path):
     assert m["eval_success_rate"][-1] > m["success_rate"][0]
     np.testing.assert_array_equal(m["samples"], 16 * 30 * np.arange(1, 16))
     np.testing.assert_allclose(m["robot_hours"][0], (16 + 0) * 30 * 0.1 / 3600)
+    # evaluations after iterations 3, 7, 11 and the last (14), 8 episodes of 30 steps each:
+    # counted apart from the training samples (issue 13: the report gave only the latter)
+    evals = np.cumsum([(k + 1) % 4 == 0 or k == 14 for k in range(15)])
+    np.testing.assert_array_equal(m["eval_samples"], 8 * 30 * evals)
     assert np.all(m["kl"] < 2 * 0.05)  # delta / 2 to second order
     for name in ("config.json", "metrics.csv", "learning_curves.png", "policy.pt"):
         assert (run.path / name).exists(), name
@@ -336,3 +340,13 @@ def test_the_evaluated_clone_competes_for_the_runs_policy(tmp_path, step_size):
     assert same == (best[2] == -1)
     if step_size > 1:
         assert best[2] == -1, scores
+
+
+def test_progress_names_simulated_time_apart_from_robot_time():
+    """A run in simulation spends no robot time: its progress bar says sim_h, not robot_h."""
+    from lowcostdex.algos.train import _State, _time_postfix
+
+    state = _State(policy=None, baseline=None, robot_seconds=7200.0, pause_seconds=360.0)
+    assert _time_postfix(_config(backend="sim"), state) == {"sim_h": "2.00"}
+    assert _time_postfix(_config(backend="emulated"), state) == {"robot_h": "2.00",
+                                                                  "pause_h": "0.10"}

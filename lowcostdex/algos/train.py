@@ -191,6 +191,7 @@ class _State:
     policy: GaussianMLPPolicy
     baseline: MLPBaseline
     samples: int = 0
+    eval_samples: int = 0
     robot_seconds: float = 0.0
     pause_seconds: float = 0.0
     wall_seconds: float = 0.0
@@ -203,6 +204,7 @@ class _State:
             "baseline": self.baseline.to_checkpoint(),
             "counters": {
                 "samples": self.samples,
+                "eval_samples": self.eval_samples,
                 "robot_seconds": self.robot_seconds,
                 "pause_seconds": self.pause_seconds,
                 "wall_seconds": self.wall_seconds,
@@ -259,6 +261,7 @@ def _evaluate(
     their robot time counts. Returns the paths and the ``eval_`` metrics."""
     jobs = evaluation_jobs(config, k, clone)
     paths = sampler.sample(state.policy.snapshot(), jobs)
+    state.eval_samples += sum(len(p.rewards) for p in paths)
     state.robot_seconds += sum(p.robot_seconds for p in paths)
     state.pause_seconds += sum(p.pause_seconds for p in paths)
     return paths, path_metrics(paths, config.success, prefix="eval_")
@@ -269,6 +272,7 @@ def _restore(state: _State, ckpt: ex.Checkpoint) -> None:
     state.baseline.load_checkpoint(ckpt.state["baseline"])
     counters = ckpt.state["counters"]
     state.samples = int(counters["samples"])
+    state.eval_samples = int(counters.get("eval_samples", 0))
     state.robot_seconds = float(counters["robot_seconds"])
     state.pause_seconds = float(counters["pause_seconds"])
     state.wall_seconds = float(counters.get("wall_seconds", 0.0))
@@ -311,6 +315,20 @@ def _step(config: TrainConfig, state: _State, batch: Batch, demos: Demos | None,
         )
         stats.update(demo_weight=math.nan, demo_log_lik=math.nan)
     return stats
+
+
+EVAL_SAMPLES = "eval_samples"
+"""Metrics column: env steps of the evaluation episodes so far (not in ``samples``, which counts
+the training episodes' steps only; on a robot both cost robot time)."""
+
+
+def _time_postfix(config: TrainConfig, state: _State) -> dict[str, str]:
+    """The progress bar's time fields: robot hours and thermal-pause hours on a robot backend;
+    simulated hours (episode time, no robot involved) in simulation."""
+    if config.backend == "sim":
+        return {"sim_h": f"{state.robot_seconds / 3600:.2f}"}
+    return {"robot_h": f"{state.robot_seconds / 3600:.2f}",
+            "pause_h": f"{state.pause_seconds / 3600:.2f}"}
 
 
 def _progress(config: TrainConfig, start: int) -> Any:
@@ -467,6 +485,7 @@ def _loop(
         row.update(
             {
                 ex.SAMPLES: state.samples,
+                EVAL_SAMPLES: state.eval_samples,
                 ex.ROBOT_HOURS: state.robot_seconds / 3600,
                 "thermal_pause_hours": state.pause_seconds / 3600,
                 "policy_std_mean": float(torch.exp(state.policy.log_std.detach()).mean()),
@@ -485,7 +504,7 @@ def _loop(
         bar.update(1)
         bar.set_postfix(
             samples=state.samples, success=f"{row[ex.SUCCESS_RATE]:.2f}",
-            robot_h=f"{state.robot_seconds / 3600:.2f}", pause_h=f"{state.pause_seconds / 3600:.2f}",
+            **_time_postfix(config, state),
         )  # fmt: skip
         if final or k == stop_after:
             break

@@ -22,8 +22,14 @@ def stage_summary(name: str, r: dict[str, Any]) -> str:
             return (f"{a['eval_successes']}/{a['eval_episodes']}" if "eval_successes" in a
                     else "n/a")
 
-        return (f"held-out success: DAPG {held('dapg')} ({r['dapg']['samples']} samples), NPG "
-                f"{held('npg')}, the behaviour clone alone {held('bc')}, random actions "
+        def samples(key: str) -> str:
+            a = r[key]
+            where = "in simulation" if a.get("trained_in") == "simulation" else "on the robot"
+            return f"{a['samples']} training samples {where}"
+
+        return (f"held-out success: DAPG {held('dapg')} ({samples('dapg')}), NPG "
+                f"{held('npg')} ({samples('npg')}), the behaviour clone alone {held('bc')}, "
+                "random actions "
                 f"{held('random')}")
     if name == "gap":
         named = ", ".join(c["effect"] for c in r["causes"]) or "no cause"
@@ -92,9 +98,13 @@ def markdown_report(ctx: Context) -> str:
                   "before the first RL step counts as one of DAPG's). They choose each run's "
                   "policy (`train_*/policy.pt`): the best validated one, the clone itself when "
                   "no RL iterate beat it.", "",
-                  "| | trained in | samples | robot time [min] | training success (last) | "
-                  "validation success (last) | best validation (iteration) | first validation "
-                  ">= 80 % at |", "|---|---|---|---|---|---|---|---|"]
+                  "Samples are the training episodes' env steps; the validation episodes' steps "
+                  "are counted apart (both cost robot time on the robot; robot time includes "
+                  "resets).", "",
+                  "| | trained in | training samples | validation steps | robot time [min] | "
+                  "training success (last) | validation success (last) | best validation "
+                  "(iteration) | first validation >= 80 % at |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for algo in ("dapg", "npg"):
             a = t[algo]
             first = a.get("first_eval_crossing_samples")
@@ -103,7 +113,8 @@ def markdown_report(ctx: Context) -> str:
                      else "-" if best_it is None else str(best_it))
             lines.append(
                 f"| {algo.upper()} | {a.get('trained_in', 'robot')} | {a['samples']} | "
-                f"{60 * a['robot_hours']:.1f} | "
+                f"{a.get('validation_samples') if a.get('validation_samples') is not None else '-'}"
+                f" | {60 * a['robot_hours']:.1f} | "
                 f"{a['final_training_success']:.2f} | "
                 f"{a.get('last_validation_success', float('nan')):.2f} | "
                 f"{a.get('best_eval_success', float('nan')):.2f} ({where}) | "

@@ -181,6 +181,9 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             "iterations": iters,
             "episodes_per_iteration": traj,
             "samples": int(metrics["samples"][-1]),
+            # the validation episodes' steps, not in "samples" (on the robot they cost robot time)
+            "validation_samples": (int(metrics["eval_samples"][-1]) if "eval_samples" in metrics
+                                   else None),
             # in simulation no robot time is spent (the run's robot_hours counts sim time)
             "robot_hours": 0.0 if sim is not None else float(metrics["robot_hours"][-1]),
             "first_iteration_success": float(metrics["success_rate"][0]),
