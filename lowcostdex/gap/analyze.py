@@ -206,7 +206,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     stop_reason = "max_effects reached"
     equivalents: dict[str, list[str]] = {}
     widened_notes: dict[str, list[str]] = {}  # accepted effect -> widened-range report lines
-    step, reselect = 0, cfg.refine_step  # the first cause chosen again at a refined step
+    step, reselect, warm = 0, cfg.refine_step, {}  # the first cause chosen again at a finer step
     while step < cfg.max_effects:
         remaining = [c for c in cands if c not in current.effects]
         if not remaining:
@@ -243,9 +243,10 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             if not pool:
                 break
             tracks = []
-            for c in pool:
+            for c in pool:  # (a round chosen again starts from its coarse-step fits)
                 st = fitmod.Structure.build((c.effect,), joints, ctx, fixed=fixed)
-                for k, x0 in enumerate(st.starts()):
+                for k, x0 in enumerate([st.values_from(warm[c.effect])] if c.effect in warm
+                                       else st.starts()):
                     tracks.append(fitmod.Track(st, st.u(x0), label=f"{c.effect}#{k}"))
 
             def on_round(r, live, step=step):
@@ -367,24 +368,23 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 widened_notes.setdefault(eff, []).append(line)
         joint = fitmod.Structure.build(current.effects + (n_best,), joints, ctx)
         by_name[n_best].accepted = True
-        current, cur_x = joint, joint.values_from(best_track[n_best].effects())
+        current, cur_x, warm = joint, joint.values_from(best_track[n_best].effects()), {}
         sel_cur = (sse, sel_cur[1], sel_cur[2])
         finer = stepsize.refine_fitted(ds, lambda d: _Engine(d, cfg, cands).residual_fn(
             train_segs), current, cur_x, ctx, cfg, floor_mse) if reselect and not step else None
-        timing[f"round{step + 1}"] = time.perf_counter() - t0
-        step += 1
+        timing[f"round{step + 1}"], step = time.perf_counter() - t0, step + 1
         if finer is not None:  # the step's own error, hidden by the first cause until now
             ds, ctx, _, _, timestep["fitted"] = finer
             timestep["used"] = ds.timestep
             eng = _Engine(ds, cfg, cands)
-            fit_fn = eng.residual_fn(train_segs)
-            base_pred = eng.rep.run(eps, [[]])[0][0]
+            fit_fn, base_pred = eng.residual_fn(train_segs), eng.rep.run(eps, [[]])[0][0]
             # ... and the first cause was chosen at a step now shown too coarse: choose it again
             # (a 0.2 rad mounting offset lost to a 4 mrad reading offset at 2 ms, won at 1 ms)
             timestep["first_at_coarse_step"] = current.effects[0]
             timing["round1_coarse_step"] = timing.pop("round1")
             step, reselect, current, cur_x = 0, False, fitmod.Structure((), joints), np.zeros(0)
-            rounds.pop()
+            warm = {c.effect: [AppliedEffect(c.effect, joints, {p: np.asarray(v) for p, v in
+                    c.params.items()})] for c in rounds.pop() if c.fitted and c.params}
             equivalents, widened_notes = {}, {}
             sel_cur = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
             nom = mse_by_episode(ds, train_eps + sel_eps, [base_pred[i] for i in split.train + split.select])
