@@ -9,13 +9,20 @@ worked out by hand in each test; every test runs in milliseconds so the gap-pure
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import pytest
+from test_gap_decisions_backward import CTX, NOISE, P_A, P_B, N, T, _case
+from test_gap_decisions_backward import _Engine as BwEngine
 
-from lowcostdex.gap.analyze import _subset, available_candidates
+from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap import significance
+from lowcostdex.gap.analyze import _backward, _subset, available_candidates
 from lowcostdex.gap.dataset import Window
+from lowcostdex.gap.results import GapConfig
 
 # A plain MuJoCo arm with one hinge per actuator; plain MJCF typed here (not the project's models).
 _ARM = """
@@ -149,3 +156,96 @@ def test_subset_of_seven_seconds():
     """7 s: k = round(7.0) = 7, linspace(0, 9, 7) = [0, 1.5, 3, 4.5, 6, 7.5, 9] rounded half to
     even = [0, 2, 3, 4, 6, 8, 9]."""
     assert _subset(_SDS, _SEGS, 7.0) == [_SEGS[i] for i in (0, 2, 3, 4, 6, 8, 9)]
+
+
+# -- _backward: which split's rise binds, which weak effect goes first, the size boundary, the seed --
+# The stand-in engine and patterns of test_gap_decisions_backward: each effect adds value x its
+# orthogonal pattern (P_A: position_offset, P_B: mounting_offset, NOISE: what none explains),
+# every pattern's sum of squares over an episode is 20, so an error ratio is a ratio of squared
+# amplitudes.
+
+def _bw(sel, train, x0, *, rng=None, floor_rms=1e-4, **cfg):
+    """``_backward`` with select episodes holding ``sel`` = (a, b, c) and training segments
+    holding ``train`` (two identical episodes each), from the model values ``x0`` = [a, b]."""
+    def data(a, b, c):
+        return (a * P_A + b * P_B + c * NOISE)[:, None]
+
+    ds = _DS({}, [_Tr("m", T.copy()), _Tr("m", T.copy())], set())
+    for tr, abc in zip(ds.trajectories, (sel, train), strict=True):
+        tr.qpos = data(*abc)
+    ds.joints, ds.timestep = ("j0",), 0.002
+    sel_eps, train_eps = [Window(0, 0, N, 0)] * 2, [Window(1, 0, N, 0)] * 2
+    eng = BwEngine(ds)
+    s = fitmod.Structure.build(("position_offset", "mounting_offset"), ("j0",), CTX)
+    dropped: list[str] = []
+    config = GapConfig(**{"bootstrap": 200, "probes": (0.01, 0.02), **cfg})
+    out, out_x = _backward(eng, ds, sel_eps, s, np.asarray(x0, float), config, floor_rms, CTX,
+                           lambda pts: eng.residuals(sel_eps + train_eps,
+                                                     [st.to_effects(x) for st, x in pts]),
+                           dropped, train_eps, rng=rng)
+    return out, out_x, dropped
+
+
+def test_an_effect_that_barely_helps_the_select_split_is_dropped_whatever_training_says():
+    """Select: b = 0.01 sqrt(0.02), fitted exactly: rise (b / c)^2 = 0.02 < min_gain / 2 = 0.025.
+    Training: b_t = 0.03 against the model's b: rise (b_t^2 + c^2) / ((b_t - b)^2 + c^2) - 1 =
+    0.001 / 0.000917 - 1 = 0.09. The smallest rise (select, 0.02) decides: dropped. (A select rise
+    of 1.02, or one measured in absolute errors, would have kept it.)"""
+    b = 0.01 * math.sqrt(0.02)
+    # no goal-shift probes: they replay the select episodes and would repeat its rise
+    s, x, dropped = _bw((0.05, b, 0.01), (0.05, 0.03, 0.01), [0.05, b], probes=())
+    assert dropped == ["mounting_offset"] and s.effects == ("position_offset",)
+    assert x == pytest.approx([0.05], abs=1e-6)
+
+
+def test_an_effect_that_helps_the_select_split_but_worsens_the_training_fit_is_dropped():
+    """Select: b = 0.03 fitted exactly, rise (0.03 / 0.01)^2 = 9. Training holds no B (b_t = 0):
+    with B its residual is 0.03 pB + c n, without it c n: rise 1e-4 / 1e-3 - 1 = -0.9 < 0.025,
+    dropped. (A training rise of -0.9 + 2 = 1.1 would have kept it.)"""
+    s, _, dropped = _bw((0.05, 0.03, 0.01), (0.05, 0.0, 0.01), [0.05, 0.03])
+    assert dropped == ["mounting_offset"] and s.effects == ("position_offset",)
+
+
+def test_of_two_weak_effects_inside_their_bounds_the_smaller_rise_goes_first():
+    """Rises: A (0.001 / 0.01)^2 = 0.01, B (0.0015 / 0.01)^2 = 0.0225, both < 0.025 and neither on
+    a bound: A (position_offset) goes first although its name sorts after B's; B alone is then
+    kept (min_size 1) and refitted to its value 0.0015."""
+    s, x, dropped, _ = _case(0.001, 0.0015, 0.01)
+    assert dropped == ["position_offset"] and s.effects == ("mounting_offset",)
+    assert x == pytest.approx([0.0015], abs=1e-7)
+
+
+def test_an_effect_whose_predictions_move_by_exactly_min_effect_floors_is_kept():
+    """min_effect 1.0 and a floor equal to B's change of predictions (computed here as the
+    stand-in sums its signals: RMS of (0 + a pA) - (0 + a pA + b pB) over both episodes): "less
+    than min_effect floors" is false at equality, B stays; a floor 1e-9 above drops it."""
+    a, b = 0.15, 0.03
+    full = np.zeros(len(P_A)) + a * P_A + b * P_B
+    without = np.zeros(len(P_A)) + a * P_A
+    d = np.concatenate([(without - full)[:, None].ravel()] * 2)
+    size = float(np.sqrt(np.mean(d * d)))
+    assert size == pytest.approx(b / math.sqrt(2))
+    _, _, dropped, _ = _case(a, b, 0.01, floor_rms=size, min_effect=1.0)
+    assert dropped == []
+    _, _, dropped, _ = _case(a, b, 0.01, floor_rms=size + 1e-9, min_effect=1.0)
+    assert dropped == ["mounting_offset"]
+
+
+def test_the_backward_bootstrap_draws_from_the_configured_seed_or_the_given_generator(
+        monkeypatch):
+    """A re-run must reach the same verdict: without a generator the paired block bootstrap
+    draws from default_rng([cfg.seed, 1]); a generator passed in is the one used."""
+    seen = []
+    orig = significance.paired_gain_bound
+
+    def spy(cur, new, rng, n):
+        seen.append((rng, rng.bit_generator.state))
+        return orig(cur, new, rng, n)
+
+    monkeypatch.setattr(significance, "paired_gain_bound", spy)
+    _bw((0.05, 0.03, 0.01), (0.05, 0.03, 0.01), [0.05, 0.03], seed=7)
+    assert seen[0][1] == np.random.default_rng([7, 1]).bit_generator.state
+    seen.clear()
+    mine = np.random.default_rng(123)
+    _bw((0.05, 0.03, 0.01), (0.05, 0.03, 0.01), [0.05, 0.03], rng=mine, seed=7)
+    assert seen[0][0] is mine
