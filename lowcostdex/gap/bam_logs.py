@@ -35,11 +35,24 @@ BAM_MOTOR_ALIASES: dict[str, str] = {
 '-', '_' or spaces) -> BAM's name. Only the model BAM's name stands for: XL330-M077 (another
 gear ratio) or MX-64(2.0) (Protocol 2 firmware) stay unknown."""
 _BAM_HEADER = ("mass", "length", "kp", "vin", "motor", "entries")
+_VENDORS = ("robotisdynamixel", "dynamixel", "robotis", "feetech")
+_HEADER_MEANING = {
+    "mass": "the load at the arm tip, kg",
+    "length": "the distance from pivot to load, m",
+    "kp": "the firmware position P gain register the log was recorded with",
+    "vin": "the nominal supply voltage, V",
+    "motor": "the servo model, e.g. xl330 or sts3032",
+    "entries": "the samples",
+}
 
 
 def bam_motor(name: str) -> str | None:
     """BAM's motor name for ``name`` (BAM's own, or a full model name), None if unknown."""
     key = "".join(c for c in name.lower() if c not in " -_")
+    for vendor in _VENDORS:  # "Dynamixel XL330-M288", "Feetech STS3032"
+        if key.startswith(vendor) and len(key) > len(vendor):
+            key = key[len(vendor):]
+            break
     key = BAM_MOTOR_ALIASES.get(key, key)
     return key if key in BAM_MOTORS else None
 _BAM_ENTRY = ("timestamp", "position", "goal_position")
@@ -92,6 +105,26 @@ def _bam_entries(path: Path, entries: object) -> list[dict]:
 _BAM_NUMERIC = ("speed", "load", "input_volts", "temp", "torque_enable")
 
 
+def _vin_from_entries(path: Path, entries: object) -> tuple[float, str]:
+    """The nominal supply of a log whose header lacks ``vin``: the median of the entries'
+    ``input_volts`` (0.1 V registers, values above 30, scaled), with a note saying so.
+    Raises LogError when the entries carry no usable input voltage."""
+    volts = []
+    if isinstance(entries, list):
+        for e in entries:
+            v = e.get("input_volts") if isinstance(e, dict) else None
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+                volts.append(float(v))
+    v = float(np.median(volts)) if volts else math.nan
+    if v > 30.0:
+        v *= 0.1
+    if not (v > 0):
+        raise LogError(f"{path}: BAM log lacks 'vin' ({_HEADER_MEANING['vin']}) and its entries "
+                       "carry no input_volts to take it from; add \"vin\": <volts> to the header")
+    return v, (f"{path.name}: header lacks 'vin'; the supply is taken as the median measured "
+               f"input_volts, {v:.2f} V")
+
+
 def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajectory, BenchConfig]:
     """Map a BAM raw log onto the servo bench.
 
@@ -134,8 +167,15 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
         keys = ", ".join(sorted(map(str, raw))[:8]) or "none"
         raise LogError(f"{path}: not a BAM raw log (its keys: {keys}); a BAM raw log is an "
                        f"object with {', '.join(_BAM_HEADER)} (Rhoban/bam's acquisition format)")
+    vin_note = None
+    if missing == ["vin"]:  # the supply: the measured input voltage when the entries carry it
+        raw = dict(raw)
+        raw["vin"], vin_note = _vin_from_entries(path, raw.get("entries"))
+        missing = []
     if missing:
-        raise LogError(f"{path}: BAM log lacks fields {missing}; need {list(_BAM_HEADER)}")
+        said = "; ".join(f"{k!r} ({_HEADER_MEANING[k]})" for k in missing)
+        raise LogError(f"{path}: BAM log lacks fields: {said}; a BAM raw log's header has "
+                       f"{', '.join(_BAM_HEADER)} (add the missing field(s) to the file)")
     if not isinstance(raw["motor"], str):
         raise LogError(f"{path}: 'motor' must be a string, got {json.dumps(raw['motor'])[:40]}")
     motor = bam_motor(raw["motor"])
@@ -192,4 +232,6 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
     traj = trajectory_from_columns(cols, name=path.name)
     traj.model = key
     traj.meta = {**traj.meta, **meta}  # keeps the notes of repairs (rows sorted, ...)
+    if vin_note:
+        traj.meta["notes"] = [*traj.meta.get("notes", []), vin_note]
     return traj, cfg

@@ -232,9 +232,9 @@ def _identify(args: argparse.Namespace) -> int:
     if args.holdout:
         args.holdout = [str(p) for p in expand_log_paths(args.holdout)]
     check_holdout(logs, args.holdout)
-    for note in same:
-        print(f"lowcostdex gap identify: note: {note}")
     ds = load_dataset(logs, bench=True, timestep=bm.BAM_DT)
+    for note in same + ds.notes:  # before minutes of fitting: logs cut at gaps, defaults taken
+        print(f"lowcostdex gap identify: note: {note}")
     ds = bm.grid_dataset(ds)  # BAM's 5 ms grid, as bam.process
     test = _holdout(logs, args.holdout, ds.sources) or ()
     train = [i for i in range(len(ds.trajectories)) if i not in test]

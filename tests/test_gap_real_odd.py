@@ -1,0 +1,103 @@
+"""Odd BAM logs a user brings (issue 11 item 2): a header without the supply voltage, a motor
+written with its vendor's name, a missing gain. Each gives a sensible default said in the notes or
+a message naming the field and what it means. The logs are written here, numbers typed in."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from lowcostdex.gap.bam_logs import bam_motor, read_bam
+from lowcostdex.gap.trajectory import LogError
+
+
+def _log(path, drop=(), volts=74, **header):
+    t = np.arange(400) * 0.005 + 0.002
+    entries = [{"timestamp": float(ti), "position": float(0.3 * math.sin(2 * ti)),
+                "speed": float(0.6 * math.cos(2 * ti)), "load": 0, "input_volts": volts,
+                "temp": 30, "goal_position": float(0.3 * math.sin(2 * ti)),
+                "torque_enable": True} for ti in t]
+    raw = {"mass": 0.2, "length": 0.1, "kp": 32, "vin": 7.4, "motor": "sts3032",
+           "trajectory": "sin_sin", "entries": entries, **header}
+    for k in drop:
+        del raw[k]
+    path.write_text(json.dumps(raw))
+    return path
+
+
+def test_missing_vin_is_the_median_measured_supply_and_said(tmp_path):
+    # Feetech's Present Voltage register counts 0.1 V (STS3032 memory table): 74 -> 7.4 V
+    tr, cfg = read_bam(_log(tmp_path / "a.json", drop=("vin",), volts=74))
+    assert cfg.servo_gains().supply_voltage == pytest.approx(7.4)
+    assert any("lacks 'vin'" in n and "7.40 V" in n for n in tr.meta["notes"])
+    # volts already in V (Dynamixel logs as BAM writes them)
+    tr, cfg = read_bam(_log(tmp_path / "b.json", drop=("vin",), volts=5.0, motor="xl330",
+                            kp=100))
+    assert cfg.servo_gains().supply_voltage == pytest.approx(5.0)
+
+
+def test_missing_vin_without_measured_volts_names_the_field(tmp_path):
+    p = _log(tmp_path / "a.json", drop=("vin",))
+    raw = json.loads(p.read_text())
+    for e in raw["entries"]:
+        del e["input_volts"]
+    p.write_text(json.dumps(raw))
+    with pytest.raises(LogError, match=r"lacks 'vin' \(the nominal supply voltage, V\).*"
+                                       r"add \"vin\""):
+        read_bam(p)
+
+
+def test_a_header_with_vin_is_not_second_guessed(tmp_path):
+    tr, cfg = read_bam(_log(tmp_path / "a.json", volts=62))  # header 7.4 V, measured 6.2 V
+    assert cfg.servo_gains().supply_voltage == pytest.approx(7.4)
+    assert not any("vin" in n for n in tr.meta.get("notes", []))
+
+
+@pytest.mark.parametrize("field, meaning", [
+    ("kp", "firmware position P gain"), ("mass", "load at the arm tip, kg"),
+    ("length", "distance from pivot to load, m")])
+def test_missing_header_field_says_what_it_is(tmp_path, field, meaning):
+    with pytest.raises(LogError, match=rf"lacks fields: '{field}' \(the {meaning}"):
+        read_bam(_log(tmp_path / "a.json", drop=(field,)))
+
+
+@pytest.mark.parametrize("name, bam", [
+    ("Dynamixel XL330-M288-T", "xl330"), ("ROBOTIS Dynamixel XL330-M288", "xl330"),
+    ("Feetech STS3032", "sts3032"), ("feetech_sts3250", "sts3250"), ("MX-64(1.0)", "mx64"),
+    ("Dynamixel XL330-M077", None), ("Feetech", None), ("dynamixel", None)])
+def test_vendor_prefixed_motor_names(name, bam):
+    assert bam_motor(name) == bam
+
+
+def test_vendor_prefixed_motor_reads_as_the_motor(tmp_path):
+    _, cfg = read_bam(_log(tmp_path / "a.json", motor="Feetech STS3032"))
+    assert cfg.motor == "STS3032"
+
+
+def test_gap_identify_prints_what_loading_did_before_fitting(tmp_path, monkeypatch, capsys):
+    """The user's path: `gap identify` says the supply default and the cut at a 0.5 s hole in the
+    log before the fit starts (they were dropped on BAM's 5 ms grid and never printed)."""
+    import lowcostdex.gap.identify as ident
+    from lowcostdex.cli import main
+
+    p = _log(tmp_path / "a.json", drop=("vin",))
+    raw = json.loads(p.read_text())
+    raw["entries"] = raw["entries"][:150] + raw["entries"][250:]  # 0.5 s without samples
+    p.write_text(json.dumps(raw))
+
+    class Stop(Exception):
+        pass
+
+    def stop(*a, **k):
+        raise Stop
+
+    monkeypatch.setattr(ident, "identify", stop)
+    with pytest.raises(Stop):
+        main(["gap", "identify", "--log", str(p)])
+    out = capsys.readouterr().out
+    assert "lacks 'vin'" in out and "7.40 V" in out
+    # the log is cut at its hole (rows 0.002 + 5 ms steps; row 149 at 0.747 s, next 1.252 s)
+    assert "0.505 s after 0.747 s (row 149)" in out and "split into" in out
