@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 import pytest
+import test_gap_decisions_loop as _loop_tests
 from test_gap_decisions_backward import CTX, NOISE, P_A, P_B, N, T, _case
 from test_gap_decisions_backward import _Engine as BwEngine
 
@@ -23,6 +24,8 @@ from lowcostdex.gap import significance
 from lowcostdex.gap.analyze import _backward, _subset, available_candidates
 from lowcostdex.gap.dataset import Window
 from lowcostdex.gap.results import GapConfig
+
+loop = _loop_tests.loop  # the _analyze loop's stand-in fixture
 
 # A plain MuJoCo arm with one hinge per actuator; plain MJCF typed here (not the project's models).
 _ARM = """
@@ -249,3 +252,21 @@ def test_the_backward_bootstrap_draws_from_the_configured_seed_or_the_given_gene
     mine = np.random.default_rng(123)
     _bw((0.05, 0.03, 0.01), (0.05, 0.03, 0.01), [0.05, 0.03], rng=mine, seed=7)
     assert seen[0][0] is mine
+
+
+# -- the backward search (_joint_then_prune) on the _analyze loop's stand-in ----------------------
+
+def test_the_backward_search_prunes_a_joint_fit_stuck_on_a_search_bound(loop):
+    """Data 0.45 pA + 0.35 pB + 0.01 n. Round 1 accepts position_offset (value 0.45); the
+    forward steps then stop (mounting_offset's round-2 score 0.01 < min_gain). The forward model
+    leaves sqrt((0.35^2 + 0.01^2) / 2) = 0.25 rad on the select split, far above backward_above
+    x 1 mrad, so the round-1 candidates (scores 0.9 and 0.5 >= min_gain) are fitted together:
+    mounting_offset's search range ends at 0.3 rad (fit.space), short of 0.35, so its joint fit
+    sits on that bound and the pruning drops it (an implausible fit). What is left is the
+    forward model itself: no switch, the forward verdict stands."""
+    scores = {"position_offset": 0.9, "mounting_offset": [0.5, 0.01]}
+    res = loop(0.45, 0.35, 0.01, floor=0.001, search="both", scores=scores)
+    assert "backward_search" in res.timing  # the search ran ...
+    assert [c.effect for c in res.causes] == ["position_offset"]  # ... and changed nothing
+    assert res.causes[0].params["offset"]["value"] == pytest.approx([0.45], abs=1e-6)
+    assert res.stop_reason == "no candidate signature explains the residual"
