@@ -270,3 +270,26 @@ def test_the_backward_search_prunes_a_joint_fit_stuck_on_a_search_bound(loop):
     assert [c.effect for c in res.causes] == ["position_offset"]  # ... and changed nothing
     assert res.causes[0].params["offset"]["value"] == pytest.approx([0.45], abs=1e-6)
     assert res.stop_reason == "no candidate signature explains the residual"
+
+
+def test_a_final_fit_that_lands_on_a_search_bound_is_refitted_in_a_widened_range(loop, monkeypatch):
+    """Training log: 0.29 pB + 0.01 n; select log: 0.40 pB + 0.01 n (test log as training). The
+    forward round fits mounting_offset on training alone: 0.29, inside its +-0.3 rad search range,
+    accepted. The final refit on training + select minimises 20 [(0.29 - v)^2 + (0.40 - v)^2]:
+    v = 0.345 lies beyond 0.3, so the fit stops on the bound and is refitted in the range widened
+    toward the hard limit 0.8 rad: the cause reports 0.345 and says its range was widened."""
+    per_traj = {"log0": 0.29, "log1": 0.40, "log2": 0.29}
+    real_ds = _loop_tests._DS
+
+    def ds_with_own_b(trajectories, **kw):
+        for tr in trajectories:
+            tr.qpos = (per_traj[tr.name] * P_B + 0.01 * NOISE)[:, None]
+        return real_ds(trajectories, **kw)
+
+    monkeypatch.setattr(_loop_tests, "_DS", ds_with_own_b)
+    res = loop(0.0, 0.0, 0.0, floor=0.001, scores={"mounting_offset": 0.9})
+    assert [c.effect for c in res.causes] == ["mounting_offset"]
+    assert res.rounds[0][0].accepted and res.rounds[0][0].widened == []  # forward: inside
+    assert res.causes[0].params["offset"]["value"] == pytest.approx([0.345], abs=1e-6)
+    assert res.causes[0].widened == ["offset[j0] reached its upper search bound 0.3 rad: range "
+                                     "widened to [-0.3, 0.8] rad (hard limit [-0.8, 0.8])"]
