@@ -293,3 +293,25 @@ def test_a_final_fit_that_lands_on_a_search_bound_is_refitted_in_a_widened_range
     assert res.causes[0].params["offset"]["value"] == pytest.approx([0.345], abs=1e-6)
     assert res.causes[0].widened == ["offset[j0] reached its upper search bound 0.3 rad: range "
                                      "widened to [-0.3, 0.8] rad (hard limit [-0.8, 0.8])"]
+
+
+def test_each_named_cause_reports_the_held_out_errors_of_the_model_up_to_it(loop):
+    """Data 0.05 pA + 0.03 pB + 0.01 n, both offsets named (position_offset first: rise 25 > 9).
+    After position_offset the held-out residual is 0.03 pB + 0.01 n: RMSE sqrt((0.03^2 + 0.01^2)
+    / 2) = 22.4 mrad, MAE its mean absolute value; after mounting_offset too it is 0.01 n: RMSE
+    0.01 / sqrt(2), MAE 0.01 mean |n| (both MAEs computed here from the patterns). Neither
+    cause sits on a bound nor has an equivalent: empty lists, not None."""
+    res = loop(0.05, 0.03, 0.01, floor=0.001,
+               scores={"position_offset": 0.7, "mounting_offset": 0.6})
+    a_cause, b_cause = res.causes
+    assert (a_cause.effect, b_cause.effect) == ("position_offset", "mounting_offset")
+    assert a_cause.heldout_rmse_after == pytest.approx(math.sqrt((0.03 ** 2 + 0.01 ** 2) / 2),
+                                                       rel=1e-4)
+    assert a_cause.heldout_mae_after == pytest.approx(
+        float(np.mean(np.abs(0.03 * P_B + 0.01 * NOISE))), rel=1e-4)
+    assert b_cause.heldout_rmse_after == pytest.approx(0.01 / math.sqrt(2), rel=1e-4)
+    assert b_cause.heldout_mae_after == pytest.approx(float(np.mean(np.abs(0.01 * NOISE))),
+                                                      rel=1e-4)
+    assert 0.0058 < b_cause.heldout_mae_after < 0.0066  # 0.01 x mean |sin| ~ 0.01 x 2 / pi
+    for c in res.causes:
+        assert c.equivalent == [] and c.flags == [] and c.widened == []
