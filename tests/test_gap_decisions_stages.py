@@ -315,3 +315,36 @@ def test_each_named_cause_reports_the_held_out_errors_of_the_model_up_to_it(loop
     assert 0.0058 < b_cause.heldout_mae_after < 0.0066  # 0.01 x mean |sin| ~ 0.01 x 2 / pi
     for c in res.causes:
         assert c.equivalent == [] and c.flags == [] and c.widened == []
+
+
+# -- analyze(): what a user passing the wrong things is told; defaults passed on ---------------------
+
+def test_analyze_refuses_log_paths_and_a_dict_config_with_what_to_do(monkeypatch):
+    from lowcostdex.gap import analyze as public_analyze
+    from lowcostdex.gap.dataset import Dataset
+
+    with pytest.raises(TypeError) as e:
+        public_analyze(["log_0.csv"])
+    assert str(e.value) == ("analyze takes a Dataset, not list: read the logs first, e.g. "
+                            "analyze(load_dataset(['log_0.csv', ...], model='model.xml'))")
+    ds = Dataset.__new__(Dataset)  # a Dataset (the analysis itself is replaced below)
+    with pytest.raises(TypeError) as e:
+        public_analyze(ds, {"min_gain": 0.1})
+    assert str(e.value) == "config must be a GapConfig, not dict"
+
+    seen = []
+
+    class _Result:
+        mujoco_warnings = None
+
+    def fake(ds_, cfg, prog):
+        seen.append((ds_, cfg, prog, prog("stage", 0.5)))
+        return _Result()
+
+    monkeypatch.setattr(_loop_tests.AZ, "_analyze", fake)
+    res = public_analyze(ds)  # defaults: GapConfig(), a progress callback that does nothing
+    assert seen[0][0] is ds and seen[0][1] == GapConfig() and seen[0][3] is None
+    assert res.mujoco_warnings == {}  # nothing raised by MuJoCo: an empty count, not None
+    mine, calls = GapConfig(min_gain=0.1), []
+    public_analyze(ds, mine, lambda s, f: calls.append((s, f)))
+    assert seen[1][1] is mine and calls == [("stage", 0.5)]
