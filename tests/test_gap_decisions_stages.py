@@ -348,3 +348,21 @@ def test_analyze_refuses_log_paths_and_a_dict_config_with_what_to_do(monkeypatch
     mine, calls = GapConfig(min_gain=0.1), []
     public_analyze(ds, mine, lambda s, f: calls.append((s, f)))
     assert seen[1][1] is mine and calls == [("stage", 0.5)]
+
+
+def test_the_backward_search_keeps_an_effect_only_if_its_predictions_differ_visibly(loop):
+    """Data 0.05 pA + 0.03 pB + 0.001 n; forward: position_offset only (mounting_offset's round-2
+    score 0.01 < min_gain). The joint model adds 0.03 pB, which moves the predictions by RMS
+    0.03 / sqrt(2) = 21.2 mrad. With a 30 mrad floor, min_effect 0.75 asks for 22.5 mrad: the
+    pruning drops it (and the switch check would refuse it: on this stand-in both measure the
+    same 21.2 mrad); with a 28 mrad floor (21.0 mrad) it is kept and the search switches. (explain_above and
+    backward_above lowered so that these floors leave the analysis running: baseline select RMSE
+    sqrt((0.05^2 + 0.03^2) / 2) = 41 mrad, forward 21.2 mrad.)"""
+    scores = {"position_offset": 0.9, "mounting_offset": [0.5, 0.01]}
+    kw = dict(search="both", scores=scores, explain_above=1.0, backward_above=0.5)
+    assert 0.75 * 0.028 < 0.03 / math.sqrt(2) < 0.75 * 0.030
+    res = loop(0.05, 0.03, 0.001, floor=0.030, **kw)
+    assert "backward_search" in res.timing
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    res = loop(0.05, 0.03, 0.001, floor=0.028, **kw)
+    assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
