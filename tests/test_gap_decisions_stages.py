@@ -21,7 +21,7 @@ from test_gap_decisions_backward import _Engine as BwEngine
 
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap import significance
-from lowcostdex.gap.analyze import _backward, _subset, available_candidates
+from lowcostdex.gap.analyze import _backward, _rank, _subset, available_candidates
 from lowcostdex.gap.dataset import Window
 from lowcostdex.gap.results import GapConfig
 
@@ -366,3 +366,29 @@ def test_the_backward_search_keeps_an_effect_only_if_its_predictions_differ_visi
     assert [c.effect for c in res.causes] == ["position_offset"]
     res = loop(0.05, 0.03, 0.001, floor=0.028, **kw)
     assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
+
+
+# -- _rank: the score statistic on the stand-in engine -----------------------------------------------
+
+def test_rank_scores_each_candidate_by_the_share_of_the_residual_its_signal_explains():
+    """Data 0.05 pA + 0.03 pB + 0.01 n on two episodes; patterns orthogonal with equal energy, so
+    the share of the residual's energy a candidate's sensitivity column (value x its pattern)
+    explains is its squared amplitude over the total. Nominal model: position_offset
+    0.0025 / 0.0035 = 0.714, mounting_offset 0.0009 / 0.0035 = 0.257, residual RMS
+    sqrt(0.0035 / 2). With position_offset = 0.05 in the model: mounting_offset explains
+    0.0009 / 0.001 = 0.9 of what is left, RMS sqrt(0.001 / 2)."""
+    data = (0.05 * P_A + 0.03 * P_B + 0.01 * NOISE)[:, None]
+    ds = _DS({}, [_Tr("m", T.copy())], set())
+    ds.trajectories[0].qpos, ds.joints, ds.timestep = data, ("j0",), 0.002
+    eng = BwEngine(ds)
+    eng.joints = ("j0",)
+    segs = [Window(0, 0, N, 0), Window(0, 0, N, 0)]
+    empty = fitmod.Structure.build((), ("j0",), CTX)
+    table, rms = _rank(eng, segs, empty, np.zeros(0), ["position_offset", "mounting_offset"], CTX)
+    assert [c.effect for c in table] == ["position_offset", "mounting_offset"]
+    assert [c.score for c in table] == pytest.approx([0.0025 / 0.0035, 0.0009 / 0.0035], rel=1e-9)
+    assert rms == pytest.approx(math.sqrt(0.0035 / 2), rel=1e-12)
+    cur = fitmod.Structure.build(("position_offset",), ("j0",), CTX)
+    table, rms = _rank(eng, segs, cur, np.array([0.05]), ["mounting_offset"], CTX)
+    assert [(c.effect, c.score) for c in table] == [("mounting_offset", pytest.approx(0.9))]
+    assert rms == pytest.approx(math.sqrt(0.001 / 2), rel=1e-9)
