@@ -134,6 +134,7 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
         lo = max(lo, -float(ctx.damping[j]))
     elif (name, param) == ("coulomb_friction", "frictionloss"):
         hi = min(max(hi, float(ctx.peak_force[j])), float(ctx.stall[j]), p.hard[1])  # to its force
+        extra = (0.5 * hi,)  # a near-stall level: its probe and start are far from the small start
     elif (name, param) == ("coulomb_friction", "creep"):
         lo = hi = p.null  # held (MuJoCo-soft) until a level at the actuator's force frees it
     elif name == "load_dependent_friction":
@@ -212,8 +213,7 @@ class Structure:
         return np.array(out)
 
     def starts(self, base: np.ndarray | None = None) -> list[np.ndarray]:
-        """Start points: ``base`` (or every free scalar's start) plus one per extra start, which
-        moves only the scalars that have it (all joints together)."""
+        """Start points: ``base`` (or the scalars' starts) and one per extra start (its scalars)."""
         x0 = np.array([f.start for f in self.free]) if base is None else np.array(base, float)
         out = [x0]
         n_extra = max((len(f.extra) for f in self.free), default=0)
