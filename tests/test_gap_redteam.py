@@ -82,8 +82,12 @@ MISSES: dict[str, str] = {
                               "J q'' = 0.7 kp (g - q) - c q' is the same trajectory for any two "
                               "of gain, inertia and damping (re-run c3ff5c5 and gap-offset)",
     # never-run cases, measured by redteam3 (2026-11-26 12:00-, main dee30b5, load 9-17)
-    "backlash_body_turntable": "backlash exact but width 0.01537 [0.01342, 0.01733] excludes "
-                               "the truth 0.01745 (1 deg)",
+    "backlash_body_turntable": "miss (gap-play, main 4b3a79f, 252 s; was exact name with width "
+                               "0.01537 [0.01342, 0.01733] excluding 0.01745 at dee30b5): "
+                               "'discrepancy not explained', held-out 8.44 mrad = 12 floors. "
+                               "Round 1: backlash 0.0156 had the best select gain (0.20) but "
+                               "was not accepted, gearbox_friction (0.10) was and was dropped "
+                               "at the end (interval holds no effect)",
     "torque_coulomb_pendulum": "miss (3c61633): torque limit 1.2 + Coulomb 0.1 named "
                                "load_dependent_friction mu 0.553 (held-out 306 -> 70.4 mrad); "
                                "the torque_limit candidate fitted 1.085 with select gain 0.99, "
