@@ -97,15 +97,27 @@ class _Engine:
 @pytest.fixture
 def loop(monkeypatch):
     """Run ``_analyze`` on data a pA + b pB + c n (every episode alike) with a noise floor,
-    the ranking's scores and the intervals' half-widths given."""
+    the ranking's scores and the intervals' half-widths given (``make_loop``)."""
+    return make_loop(monkeypatch)
 
-    def run(a, b, c, *, floor, scores, half=1e-6, flip=None, **cfg):
+
+def make_loop(monkeypatch):
+    """The ``loop`` fixture's runner (other test files build their fixture from it)."""
+
+    def run(a, b, c, *, floor, scores, half=1e-6, flip=None, seen=None, prog=None, **cfg):
+        """``seen``: a dict that receives each stand-in's arguments (name -> list of calls);
+        ``prog``: the progress callback (default: none)."""
+        calls = seen if seen is not None else {}
+
+        def log(name, *args):
+            calls.setdefault(name, []).append(args)
         data = (a * P_A + b * P_B + c * NOISE)[:, None]
         ds = _DS([_Traj(data.copy(), T.copy(), f"log{i}") for i in range(3)],
                  sources=("log0", "log1", "log2"), models={"m": "<mujoco/>"})
         names = list(scores)
 
         def rank(eng, segs, current, cur_x, remaining, ctx):
+            log("_rank", segs, tuple(current.effects), list(remaining), ctx)
             r = eng.residuals(segs, [current.to_effects(cur_x) if current.effects else []])[0]
             k = len(current.effects)  # a list of scores: one per round
             return ([CandidateResult(n, scores[n][min(k, len(scores[n]) - 1)]
@@ -113,6 +125,7 @@ def loop(monkeypatch):
                      for n in remaining], float(np.sqrt(np.mean(r * r))))
 
         def intervals(ds, t, segs, cfg, prog, timing):
+            log("_intervals", ds, tuple(t.structure.effects), segs, cfg, prog, timing)
             if callable(half):  # half-widths from the fitted point: h(free, u_i)
                 h = np.array([half(f, ui) for f, ui in zip(t.structure.free, t.u, strict=True)])
             else:
@@ -122,21 +135,31 @@ def loop(monkeypatch):
 
         engine = type("Engine", (_Engine,), {"FLIP": flip})
         for name, value in {
-                "episodes": lambda ds, chunk: list(EPS),
-                "split_episodes": lambda ds, eps, rng, test_logs: Split((0,), (1,), (2,)),
-                "segments": lambda ds, eps, length, burn_in: list(eps),
-                "available_candidates": lambda ds, requested: names,
-                "_Engine": engine, "Targets": _Targets,
-                "noise_floor": lambda trajectories: np.array([floor]),
-                "residual_diagnostics": lambda *args: {},
-                "_act_cols": lambda ds, targets, model: [0],
+                "episodes": lambda ds, chunk: log("episodes", ds, chunk) or list(EPS),
+                "split_episodes": lambda ds, eps, rng, test_logs: log(
+                    "split_episodes", ds, eps, rng, test_logs) or Split((0,), (1,), (2,)),
+                "segments": lambda ds, eps, length, burn_in: log(
+                    "segments", ds, eps, length, burn_in) or list(eps),
+                "available_candidates": lambda ds, requested: log(
+                    "available_candidates", ds, requested) or names,
+                "_Engine": engine, "Targets": type("Targets", (_Targets,), {
+                    "resolve": classmethod(lambda cls, model, joints: log(
+                        "Targets.resolve", model, joints) or cls())}),
+                "noise_floor": lambda trajectories: log(
+                    "noise_floor", trajectories) or np.array([floor]),
+                "residual_diagnostics": lambda *args: log("residual_diagnostics", *args) or {
+                    "lag": 0.0},
+                "_act_cols": lambda ds, targets, model: log("_act_cols", ds, targets, model)
+                or [0],
                 "_rank": rank, "_intervals": intervals,
-                "_traces": lambda *args, **kw: []}.items():
+                "_traces": lambda *args, **kw: log("_traces", *args) or [{"name": "trace"}]}.items():
             monkeypatch.setattr(AZ, name, value)
-        monkeypatch.setattr(fitmod, "stall_torque", lambda model, acts: np.array([np.inf]))
+        monkeypatch.setattr(fitmod, "stall_torque", lambda model, acts: log(
+            "stall_torque", model, acts) or np.array([np.inf]))
         config = GapConfig(**{"refine_step": False, "bootstrap": 200, "search": "forward",
                               "probes": (0.01, 0.02), **cfg})
-        return AZ._analyze(ds, config, lambda s, f: None)
+        calls["ds"] = ds
+        return AZ._analyze(ds, config, prog if prog is not None else (lambda s, f: None))
 
     return run
 

@@ -1,0 +1,176 @@
+"""What ``analyze._analyze`` hands each stage and the user: settings, progress, timing, widening.
+
+The stand-in engine of ``test_gap_decisions_loop`` (a model replays as the sum of value x
+pattern of its effects; patterns orthogonal over an episode) with every stand-in recording the
+arguments it was called with. A user's settings must reach the stage they set (the episode chunk,
+the held-out logs, the segment length and burn-in, the candidate list), the progress callback
+names each stage with a fraction done that follows the documented schedule (round k's ranking at
+0.1 + 0.25 (k - 1), its LM round r at + 0.2 r / max_rounds, the joint refit at + 0.2, the
+backward search 0.8, the final refit 0.85, the held-out test 0.95, done 1.0), and the report's
+timings are wall seconds of the stages, each within the total. No MuJoCo: milliseconds a test.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+
+import numpy as np
+import pytest
+from test_gap_decisions_backward import P_A, P_B
+from test_gap_decisions_loop import EPS, make_loop
+
+SCORES = {"position_offset": 0.7, "mounting_offset": 0.6}
+LM = re.compile(r"round (\d+): fitting (\d+) tracks \(LM round (\d+)\)")
+
+
+@pytest.fixture
+def loop(monkeypatch):
+    """``_analyze`` on the stand-in engine (``test_gap_decisions_loop.make_loop``)."""
+    return make_loop(monkeypatch)
+
+
+def _schedule(calls: list[tuple[str, float]], max_rounds: int = 20) -> list[tuple[str, float]]:
+    """The progress calls with the LM rounds' lines checked against the documented fraction
+    (0.1 + 0.25 (k - 1) + 0.2 r / max_rounds) and left out."""
+    out = []
+    for stage, frac in calls:
+        assert 0.0 <= frac <= 1.0, (stage, frac)
+        m = LM.fullmatch(stage)
+        if m:
+            k, r = int(m.group(1)), int(m.group(3))
+            assert frac == pytest.approx(0.1 + 0.25 * (k - 1) + 0.2 * r / max_rounds), stage
+            continue
+        out.append((stage, pytest.approx(frac)))
+    return out
+
+
+def test_progress_names_each_stage_with_its_scheduled_fraction(loop):
+    # two real offsets: round 1 fits both candidates (2 tracks), round 2 the one left (1 track)
+    # and its joint refit with the first; then the final refit, the held-out test
+    calls = []
+    res = loop(0.05, 0.03, 0.01, floor=0.001, scores=SCORES,
+               prog=lambda s, f: calls.append((s, f)))
+    assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
+    assert _schedule(calls) == [
+        ("baseline replay", 0.02),
+        ("round 1: ranking 2 candidates", 0.1),
+        ("round 2: ranking 1 candidates", 0.35),
+        ("round 2: joint refit of 1 candidates", 0.55),
+        ("final refit on train + select", 0.85),
+        ("held-out test", 0.95),
+        ("done", 1.0)]
+    fits = [LM.fullmatch(s).groups() for s, _ in calls if LM.fullmatch(s)]
+    assert {(k, n) for k, n, _ in fits} == {("1", "2"), ("2", "1")}  # tracks per round
+    assert all(r == "1" for k, n, r in fits[:1])  # LM rounds counted from 1
+
+
+def test_progress_of_a_backward_search(loop):
+    # the forward steps stop in round 2 (mounting_offset's score 0.01 < min_gain); the backward
+    # search (0.8) then fits both together
+    calls = []
+    loop(0.05, 0.03, 0.01, floor=0.001, search="both",
+         scores={"position_offset": 0.9, "mounting_offset": [0.5, 0.01]},
+         prog=lambda s, f: calls.append((s, f)))
+    assert _schedule(calls) == [
+        ("baseline replay", 0.02),
+        ("round 1: ranking 2 candidates", 0.1),
+        ("round 2: ranking 1 candidates", 0.35),
+        ("backward search from the top candidates", 0.8),
+        ("final refit on train + select", 0.85),
+        ("held-out test", 0.95),
+        ("done", 1.0)]
+
+
+def test_timings_are_wall_seconds_of_each_stage_within_the_total(loop):
+    t0 = time.perf_counter()
+    res = loop(0.05, 0.03, 0.01, floor=0.001, scores=SCORES)
+    wall = time.perf_counter() - t0
+    tm = res.timing
+    assert set(tm) == {"baseline", "round1", "round2", "final_fit", "total"}
+    assert all(isinstance(v, float) and v >= 0 for v in tm.values())
+    assert tm["total"] <= wall
+    # the stages run one after the other inside the total
+    assert tm["baseline"] + tm["round1"] + tm["round2"] + tm["final_fit"] <= tm["total"]
+    # the round that stops the selection is timed too; a backward search has its own entry
+    res = loop(0.05, 0.03, 0.01, floor=0.001, search="both",
+               scores={"position_offset": 0.9, "mounting_offset": [0.5, 0.01]})
+    tm = res.timing
+    assert set(tm) == {"baseline", "round1", "backward_search", "final_fit", "total"}
+    assert tm["baseline"] + tm["round1"] + tm["backward_search"] + tm["final_fit"] <= tm["total"]
+    assert all(v >= 0 for v in tm.values())
+
+
+def test_a_users_settings_reach_the_stage_they_set(loop):
+    seen, prog = {}, (lambda s, f: None)
+    res = loop(0.05, 0.03, 0.01, floor=0.001, scores=SCORES, seen=seen, prog=prog,
+               chunk=0.5, test_logs=(2,), segment=0.8, burn_in=0.05,
+               candidates=("position_offset", "mounting_offset"))
+    ds = seen["ds"]
+    assert seen["episodes"] == [(ds, 0.5)]
+    ((d, eps, rng, test_logs),) = seen["split_episodes"]
+    assert d is ds and eps == EPS and isinstance(rng, np.random.Generator) and test_logs == (2,)
+    assert seen["available_candidates"] == [(ds, ("position_offset", "mounting_offset"))]
+    # training segments from the train episode, the final refit's from train + select
+    assert seen["segments"] == [(ds, [EPS[0]], 0.8, 0.05), (ds, [EPS[0], EPS[1]], 0.8, 0.05)]
+    assert seen["noise_floor"] == [(ds.trajectories,)]
+    # the nominal replay (every pattern at 0: zeros) of all three episodes, joint column 0
+    ((trajs, eps, base, col),) = seen["residual_diagnostics"]
+    assert trajs is ds.trajectories and eps == EPS and col == 0
+    assert len(base) == 3 and all(np.array_equal(b, np.zeros((40, 1))) for b in base)
+    assert res.diagnostics == {"j0": {"lag": 0.0}}
+    # the first model's actuators, resolved for the effect joints
+    ((model, joints),) = seen["Targets.resolve"]
+    assert joints == ("j0",) and model.dof_damping.tolist() == [0.1]
+    ((d, targets, m),) = seen["_act_cols"]
+    assert d is ds and m is model and targets.actuators.tolist() == [0]
+    ((m, acts),) = seen["stall_torque"]
+    assert m is model and acts.tolist() == [0]
+    # the fit context: the log's step, the nominal replay's peak force (the stand-in's 1.0 at
+    # column 0), the stall torque, the model's damping
+    for segs, _, _, ctx in seen["_rank"]:
+        assert segs == [EPS[0]]
+        assert ctx.dt == 0.002 and ctx.peak_force.tolist() == [1.0]
+        assert ctx.stall.tolist() == [math.inf] and ctx.damping.tolist() == [0.1]
+    assert [(c, r) for _, c, r, _ in seen["_rank"]] == [
+        ((), ["position_offset", "mounting_offset"]), (("position_offset",),
+                                                       ["mounting_offset"])]
+    # the intervals of the final model on the final refit's segments, with the caller's
+    # progress callback and the report's timing dict
+    ((d, effects, segs, cfg, p, timing),) = seen["_intervals"]
+    assert d is ds and effects == ("position_offset", "mounting_offset")
+    assert segs == [EPS[0], EPS[1]] and cfg is res.config and p is prog
+    assert timing is res.timing
+    # the traces: the test episode, nominal and extended predictions
+    ((d, eps, base, ext),) = seen["_traces"]
+    assert d is ds and eps == [EPS[2]] and np.array_equal(base[0], np.zeros((40, 1)))
+    np.testing.assert_allclose(ext[0][:, 0], 0.05 * P_A + 0.03 * P_B, atol=1e-6)
+    assert res.traces == [{"name": "trace"}]
+    assert res.models == {"m": "<mujoco/>"} and res.models is not ds.models
+    assert res.sources == ("log0", "log1", "log2") and res.joints == ("j0",)
+    assert res.timestep == {"model": 0.002, "used": 0.002, "rmse": []}
+
+
+def test_a_fit_on_its_search_bound_is_widened_toward_the_hard_limit_and_reported(loop):
+    """position_offset's search range is +-0.2 rad, its hard limit +-0.8 rad (the catalogue):
+    data with a 0.3 rad offset puts the fit on +0.2, where it beats every in-range fit (the
+    mounting offset's signal is absent); the round refits it in a wider range and names it
+    at 0.3 rad, with the widening on the candidate and the cause."""
+    calls = []
+    res = loop(0.3, 0.0, 0.01, floor=0.001,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2},
+               prog=lambda s, f: calls.append((s, f)))
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    cause = res.causes[0]
+    assert cause.params["offset"]["value"] == pytest.approx([0.3], abs=1e-6)
+    assert cause.widened and all("offset" in line for line in cause.widened)
+    first = {c.effect: c for c in res.rounds[0]}
+    assert first["position_offset"].widened == cause.widened
+    assert first["position_offset"].accepted and not first["position_offset"].at_bound
+    assert first["mounting_offset"].widened == []
+    # select MSE (a^2 + c^2) / 2 -> c^2 / 2 once widened
+    assert first["position_offset"].select_gain == pytest.approx(1 - 1e-4 / (0.09 + 1e-4),
+                                                                 rel=1e-4)
+    assert ("round 1: position_offset on a bound, refit in a wider range",
+            pytest.approx(0.32)) in calls
