@@ -101,3 +101,38 @@ def test_gap_identify_prints_what_loading_did_before_fitting(tmp_path, monkeypat
     assert "lacks 'vin'" in out and "7.40 V" in out
     # the log is cut at its hole (rows 0.002 + 5 ms steps; row 149 at 0.747 s, next 1.252 s)
     assert "0.505 s after 0.747 s (row 149)" in out and "split into" in out
+
+
+def test_a_piece_after_a_time_hole_starts_its_grid_at_its_own_first_sample(tmp_path):
+    """A log cut at a time hole keeps its clock; BAM's grid from t = 0 extrapolated the second
+    piece's first two samples back over 1.25 s (a Rhoban chirp holed at 2.7 s started at 7.7 rad
+    and -136 rad/s). The piece's grid now starts at its first sample, which it reproduces; a
+    whole log still starts at 0 as BAM's does (first sample 2 ms in)."""
+    from lowcostdex.gap import bam_measure as bm
+    from lowcostdex.gap.dataset import load_dataset
+
+    p = _log(tmp_path / "a.json")
+    raw = json.loads(p.read_text())
+    raw["entries"] = raw["entries"][:150] + raw["entries"][250:]  # 0.5 s without samples
+    p.write_text(json.dumps(raw))
+    ds = bm.grid_dataset(load_dataset([p], timestep=bm.BAM_DT))
+    first, second = ds.trajectories
+    assert first.time[0] == 0.0  # the whole log's start: BAM's grid
+    # row 250 of the written log: t = 1.252 s, position 0.3 sin(2.504), speed 0.6 cos(2.504)
+    assert second.time[0] == pytest.approx(1.252)
+    assert second.qpos[0, 0] == pytest.approx(0.3 * math.sin(2.504), abs=1e-9)
+    assert second.qvel[0, 0] == pytest.approx(0.6 * math.cos(2.504), abs=1e-9)
+    assert np.all(np.abs(second.qpos) <= 0.3 + 1e-9)  # nothing extrapolated beyond the arm's swing
+
+
+def test_a_log_on_wall_clock_time_is_gridded_from_its_first_sample(tmp_path):
+    p = _log(tmp_path / "a.json")
+    raw = json.loads(p.read_text())
+    for e in raw["entries"]:
+        e["timestamp"] += 1.7e9  # Unix time stamps
+    p.write_text(json.dumps(raw))
+    from lowcostdex.gap import bam_measure as bm
+    from lowcostdex.gap.dataset import load_dataset
+
+    tr = bm.grid_dataset(load_dataset([p], timestep=bm.BAM_DT)).trajectories[0]
+    assert len(tr.time) <= 400 and tr.time[0] == pytest.approx(1.7e9 + 0.002)

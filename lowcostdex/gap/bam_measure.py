@@ -41,8 +41,22 @@ def _interp(t_raw: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
     return values[frame] + (values[frame + 1] - values[frame]) * a
 
 
+def grid_start(t_raw: np.ndarray) -> float:
+    """Where the grid starts [s]: 0 (BAM's rule) when the first sample lies within two sample
+    intervals of it (a whole log: the first read comes one bus period after the recording
+    starts, 3.5 ms on Rhoban's XL330 logs, 21 ms at Pham's 35 ms); else the first sample itself.
+    A piece cut after a time hole (``logs.split_at_gaps``) keeps its log's clock, and a grid
+    from 0 extrapolated its first two samples back over the seconds before it: a Rhoban
+    sin_time_square log holed at 2.7 s started its second piece at 7.7 rad and -136 rad/s and
+    its nominal replay scored 1.04 rad (2026-11-27); a log stamped with wall-clock time
+    (1.7e9 s) would have asked for a 3e11-sample grid."""
+    lead = 2.0 * float(np.median(np.diff(t_raw)))
+    return 0.0 if t_raw[0] <= lead else float(t_raw[0])
+
+
 def resample(tr: Trajectory, dt: float = BAM_DT) -> Trajectory:
     """A trajectory on BAM's grid (module doc, step 1); goals and channels resampled alike.
+    The grid starts at 0 (or at the first sample, ``grid_start``).
 
     Raises:
       LogError when the log has fewer than two samples or ends before ``dt``.
@@ -50,7 +64,7 @@ def resample(tr: Trajectory, dt: float = BAM_DT) -> Trajectory:
     t_raw = np.asarray(tr.time, float)
     if len(t_raw) < 2 or t_raw[-1] <= dt:
         raise LogError(f"{tr.name}: too short for BAM's {dt * 1e3:g} ms grid")
-    t = np.arange(0.0, t_raw[-1], dt)
+    t = np.arange(grid_start(t_raw), t_raw[-1], dt)
     qvel = None if tr.qvel is None else _interp(t_raw, tr.qvel, t)
     channels = {k: _interp(t_raw, np.asarray(v, float), t) for k, v in tr.channels.items()}
     if "torque_enable" in channels:
