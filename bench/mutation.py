@@ -107,7 +107,8 @@ GROUPS = {
         tests=("tests/test_gap_decisions_pure.py", "tests/test_gap_decisions_backward.py",
                "tests/test_gap_decisions_loop.py", "tests/test_gap_decisions_config.py",
                "tests/test_gap_gain.py", "tests/test_gap_significance.py",
-               "tests/test_gap_decisions_stages.py", "tests/test_gap_decisions_wiring.py"),
+               "tests/test_gap_decisions_stages.py", "tests/test_gap_decisions_wiring.py",
+               "tests/test_gap_decisions_intervals.py"),
         note="the gap decision code judged by its fast tests only: hand-computed inputs, and "
              "analyze's loop and backward pass on a stand-in engine (no MuJoCo replay), so the "
              "whole population is measurable here; code only a real replay reaches (the "
