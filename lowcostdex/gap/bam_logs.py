@@ -104,6 +104,46 @@ def _bam_entries(path: Path, entries: object) -> list[dict]:
 
 _BAM_NUMERIC = ("speed", "load", "input_volts", "temp", "torque_enable")
 
+# Header plausibility (issue 12): ranges from the vendors and from statics, not from what the fit
+# accepts. kp is a register: XL330 Position P Gain (address 84) 0-16383 (ROBOTIS e-Manual XL330
+# control table); MX-64/106 Protocol 1.0 P Gain (address 28) and the Feetech STS P coefficient
+# (address 21) are one byte, 0-254.
+_KP_MAX = {"xl330": 16383, "mx64": 254, "mx106": 254, "sts3250": 254, "sts3032": 254}
+_MAX_LENGTH = 2.0  # [m] a pendulum arm on a hobby servo (BAM's benches: 0.05-0.12 m)
+_VIN_RANGE = (0.5, 2.0)  # x the motor's nominal supply (Rhoban ran 5 V XL330s at 7.4 V)
+_MAX_LOAD = 3.0  # x the stall torque at the log's supply: a load it can neither lift nor hold
+_G = 9.81  # [m/s^2]
+
+
+def _check_header_ranges(path: Path, raw: dict, motor: str) -> None:
+    """Refuse a header whose numbers no BAM bench has: a length beyond ``_MAX_LENGTH``, a supply
+    outside ``_VIN_RANGE`` of the motor's nominal one, kp beyond the register, a load whose
+    gravity torque (mass at ``length``, ``arm_mass`` at half of it) exceeds ``_MAX_LOAD`` x the
+    motor's stall torque at that supply. Raises LogError naming the file, field, value and the
+    valid range."""
+    mspec = servo.motor_spec(BAM_MOTORS[motor])
+    length, mass, vin = float(raw["length"]), float(raw["mass"]), float(raw["vin"])
+    arm_mass = float(raw.get("arm_mass") or 0.0)
+    if length > _MAX_LENGTH:
+        raise LogError(f"{path}: 'length' {raw['length']!r} m is not a pendulum arm on a servo; "
+                       f"plausible: up to {_MAX_LENGTH:g} m (mm or cm? write m)")
+    lo, hi = (f * mspec.voltage for f in _VIN_RANGE)
+    if not lo <= vin <= hi:
+        raise LogError(f"{path}: 'vin' {raw['vin']!r} V is no supply for the {mspec.name} "
+                       f"(nominal {mspec.voltage:g} V); plausible: {lo:g} to {hi:g} V"
+                       + (" (0.1 V units? write V)" if vin > hi else ""))
+    if float(raw["kp"]) > _KP_MAX[motor]:
+        raise LogError(f"{path}: 'kp' {raw['kp']!r} is beyond the {mspec.name}'s P gain register; "
+                       f"valid: 1 to {_KP_MAX[motor]}")
+    stall = mspec.stall_torque * vin / mspec.voltage  # [N m] stall torque scales with the supply
+    load = (mass + arm_mass / 2) * _G * length
+    if load > _MAX_LOAD * stall:
+        max_mass = _MAX_LOAD * stall / (_G * length) - arm_mass / 2
+        raise LogError(f"{path}: 'mass' {raw['mass']!r} kg at 'length' {length:g} m weighs "
+                       f"{load:.3g} N m on the {mspec.name}, whose stall torque at {vin:g} V is "
+                       f"{stall:.3g} N m; plausible: up to {_MAX_LOAD:g} x that, a mass up to "
+                       f"{max(max_mass, 0.0):.3g} kg at this length (grams? write kg)")
+
 
 def _vin_from_entries(path: Path, entries: object) -> tuple[float, str]:
     """The nominal supply of a log whose header lacks ``vin``: the median of the entries'
@@ -187,6 +227,7 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
     if raw.get("arm_mass") is not None:
         if _bam_number(raw["arm_mass"], f"{path}: 'arm_mass'") < 0:
             raise LogError(f"{path}: 'arm_mass' {raw['arm_mass']!r} must be >= 0")
+    _check_header_ranges(path, raw, motor)
     entries = _bam_entries(path, raw["entries"])
 
     def col(key: str, default: float | None = None) -> np.ndarray:

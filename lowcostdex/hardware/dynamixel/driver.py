@@ -98,7 +98,13 @@ from lowcostdex.hardware.dynamixel.control_table import (
 from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names
 from lowcostdex.hardware.dynamixel.shutdown import register as _register
 from lowcostdex.hardware.dynamixel.shutdown import unregister as _unregister
-from lowcostdex.hardware.dynamixel.torque_on import disable_confirmed, enable_holding, hold_goal
+from lowcostdex.hardware.dynamixel.torque_on import (
+    arm_watchdog,
+    disable_confirmed,
+    enable_holding,
+    hold_goal,
+    torque_on_attempts,
+)
 from lowcostdex.hardware.dynamixel.transactions import SdkTransactions
 from lowcostdex.motion import goal_write_time
 from lowcostdex.sim.servo import ServoGains, motor_spec
@@ -507,36 +513,18 @@ class DynamixelBus(SdkTransactions, MotorBus):
             if failed:
                 raise BusError("torque off failed for " + "; ".join(failed))
             return
-        present = self._present_ticks(ids)
+        tries = torque_on_attempts(self)  # a lossy bus is ridden out here, not by the caller
+        present = self._present_ticks(ids, attempts=tries)
         for i in ids:  # every motor inside its limits before any torque is on
             hold_goal(self, i, present[i])
         for i in ids:
             if i not in self._no_watchdog:
-                self.write_register(i, Reg.BUS_WATCHDOG, 0)
+                self.write_register(i, Reg.BUS_WATCHDOG, 0, tries=tries)
         for i in ids:  # each goal from a read just before it (torque_on)
             enable_holding(self, i)
             self._torque_ids.add(i)
             self.watchdog_tripped.discard(i)
-        self._arm_watchdog(ids)
-
-    def _arm_watchdog(self, ids: tuple[int, ...]) -> None:
-        """Arm every motor's Bus Watchdog with one broadcast SYNC_WRITE, so all timers start
-        together (one by one, the first motors would wait through the others' transactions),
-        then confirm with one sync read, falling back to unicast writes."""
-        wd = self.config.watchdog_ms // 20
-        ids = self._watchdog_ids(ids)
-        if not wd or not ids:
-            return
-        addr = self._addr[Reg.BUS_WATCHDOG]
-        for _ in range(self.config.retries + 1):
-            self._begin()
-            params = [b for i in ids for b in (i, wd)]
-            self.ph.syncWriteTxOnly(self.port, addr, 1, params, len(params))
-            valid, _, raw = self._sync_read(ids, addr, 1, fast=False)
-            if all(valid[i] and raw[i][0] == wd for i in ids):
-                return
-        for i in ids:
-            self.write_register(i, Reg.BUS_WATCHDOG, wd)
+        arm_watchdog(self, ids)
 
     def reboot(self, motor_id: int) -> None:
         """REBOOT a motor (clears latched hardware errors; torque is off afterwards) and wait
@@ -582,11 +570,17 @@ class DynamixelBus(SdkTransactions, MotorBus):
         """One (fast) sync read of the present block of ``ids``: validity, error byte, data."""
         return self._sync_read(ids, self._block_addr, self._block_len, fast)
 
-    def _present_ticks(self, ids: tuple[int, ...]) -> dict[int, int]:
-        """Present Position [ticks] of ``ids``, with bounded retries (raises BusError); a late
-        reply is refused by its Realtime Tick here too (torque-on checks the limits on this)."""
+    def _present_ticks(self, ids: tuple[int, ...], attempts: int | None = None
+                       ) -> dict[int, int]:
+        """Present Position [ticks] of ``ids``, with bounded retries (``attempts``, default
+        ``config.retries`` + 1; raises BusError, at once when no motor answered the first
+        ``config.retries`` + 1); a late reply is refused by its Realtime Tick here too (torque-on
+        checks the limits on this)."""
         out: dict[int, int] = {}
-        for attempt in range(self.config.retries + 1):
+        attempts = self.config.retries + 1 if attempts is None else attempts
+        for attempt in range(attempts):
+            if not out and attempt == self.config.retries + 1:
+                break  # not one reply: the bus is gone, not lossy
             todo = tuple(i for i in ids if i not in out)
             if not todo:
                 break
@@ -601,7 +595,9 @@ class DynamixelBus(SdkTransactions, MotorBus):
                             self._ticks[i] = (self._sample_time, self._tick(raw[i]))
         missing = [i for i in ids if i not in out]
         if missing:
-            raise BusError(f"cannot read the present position of motors {missing}")
+            said = ("no motor answered: is the hand powered and its cable plugged in?"
+                    if not out else f"no valid reply in {attempts} attempts")
+            raise BusError(f"cannot read the present position of motors {missing} ({said})")
         return out
 
     def _position_ticks(self, raw: bytes) -> int:

@@ -34,9 +34,20 @@ from lowcostdex.hardware.dynamixel.protocol import ALERT, hardware_error_names
 DynamixelBus = Any  # ``driver.DynamixelBus`` (imported there, so not imported here)
 
 ATTEMPTS_PER_RETRY = 4
-"""Fresh read -> goal -> torque attempts per motor: this times (``retries`` + 1) (16 by default;
-at 30 % lost or corrupt status packets one attempt succeeds with 0.7^3 = 0.34, all 16 fail
-with 0.66^16 = 0.1 %)."""
+"""Tries of each single transaction of a torque change: this times (``retries`` + 1) (16 by
+default; at 30 % lost or corrupt status packets all 16 fail with 0.3^16 = 4e-9)."""
+SEQUENCES_PER_RETRY = 16
+"""Fresh read -> goal -> torque attempts per motor: this times (``retries`` + 1) (64 by default;
+at 30 % lost or corrupt status packets one attempt succeeds with 0.7^3 = 0.34, all 64 fail
+with 0.66^64 = 3e-12; with 16 attempts, 1 re-enable of 9 motors in 80 failed)."""
+
+
+def torque_on_attempts(bus: DynamixelBus) -> int:
+    """Attempts of each transaction of a torque change (``ATTEMPTS_PER_RETRY`` x
+    (``retries`` + 1)): a run that learns for hours turns torque on after every pause and
+    watchdog stop, and with 4 tries the set-up reads and writes of 9 motors failed in 1 of 6
+    re-enables at 30 % lost or corrupt status packets (each caller had to retry)."""
+    return ATTEMPTS_PER_RETRY * (bus.config.retries + 1)
 
 
 def disable_confirmed(bus: DynamixelBus, ids: tuple[int, ...]) -> list[str]:
@@ -51,16 +62,19 @@ def disable_confirmed(bus: DynamixelBus, ids: tuple[int, ...]) -> list[str]:
             failed[i] = exc
     if not failed:
         return []
-    params = [b for i in failed for b in (i, 0)]
-    bus._begin()
-    bus.ph.syncWriteTxOnly(bus.port, bus._addr[Reg.TORQUE_ENABLE], 1, params, len(params))
-    for i in list(failed):
-        try:
-            if bus.read_register(i, Reg.TORQUE_ENABLE) == 0:
-                bus._torque_ids.discard(i)
-                del failed[i]
-        except BusError as exc:
-            failed[i] = exc
+    for _ in range(ATTEMPTS_PER_RETRY):
+        params = [b for i in failed for b in (i, 0)]
+        bus._begin()
+        bus.ph.syncWriteTxOnly(bus.port, bus._addr[Reg.TORQUE_ENABLE], 1, params, len(params))
+        for i in list(failed):
+            try:
+                if bus.read_register(i, Reg.TORQUE_ENABLE) == 0:
+                    bus._torque_ids.discard(i)
+                    del failed[i]
+            except BusError as exc:
+                failed[i] = exc
+        if not failed:
+            break
     return [f"{i}: {exc}" for i, exc in failed.items()]
 
 
@@ -81,7 +95,7 @@ def enable_holding(bus: DynamixelBus, motor_id: int) -> None:
     docstring). Raises MotorFault when the motor refuses because of a latched hardware error,
     PositionOutOfLimits when it sits outside its limits, BusError when every attempt lost a
     reply."""
-    attempts = ATTEMPTS_PER_RETRY * (bus.config.retries + 1)
+    attempts = SEQUENCES_PER_RETRY * (bus.config.retries + 1)
     for _ in range(attempts):
         valid, _, raw = bus._read_block((motor_id,), fast=False)
         bus._stale((motor_id,), valid, raw, bus._sample_time)
@@ -107,3 +121,39 @@ def enable_holding(bus: DynamixelBus, motor_id: int) -> None:
         return
     raise BusError(f"motor {motor_id}: torque on failed in {attempts} attempts (fresh read, "
                    "Goal Position := present, Torque Enable): a reply was lost in each")
+
+
+def arm_watchdog(bus: DynamixelBus, ids: tuple[int, ...]) -> None:
+    """Arm the Bus Watchdog (``config.watchdog_ms``) of every motor in ``ids`` that has one.
+
+    A broadcast SYNC_WRITE (no status) arms them all together, then each motor not yet confirmed
+    is read back; the SYNC_WRITE is sent again before every read, so no timer runs out while the
+    others are confirmed. (Unicast write retries after a failed sync read let the first motors'
+    100 ms run out on a bus losing 30 % of its statuses: the next write raised "data range
+    error"; one SYNC_WRITE per round of 9 reads did too, once, after 100 ms of timeouts.)
+    Raises BusError naming the motors not confirmed after ``torque_on_attempts`` reads each."""
+    wd = bus.config.watchdog_ms // 20
+    ids = bus._watchdog_ids(ids)
+    if not wd or not ids:
+        return
+    addr = bus._addr[Reg.BUS_WATCHDOG]
+    params = [b for i in ids for b in (i, wd)]
+    reads = torque_on_attempts(bus)
+
+    def sync_write() -> None:
+        bus._begin()
+        bus.ph.syncWriteTxOnly(bus.port, addr, 1, params, len(params))
+
+    sync_write()
+    valid, _, raw = bus._sync_read(ids, addr, 1, fast=False)
+    todo = [i for i in ids if not (valid[i] and raw[i][0] == wd)]
+    for _ in range(reads - 1):
+        for i in list(todo):
+            sync_write()
+            if bus._try_read(i, addr, 1) == wd:
+                todo.remove(i)
+        if not todo:
+            return
+    if todo:
+        raise BusError(f"motors {todo}: Bus Watchdog ({wd * 20} ms) not confirmed armed in "
+                       f"{reads} reads (SYNC_WRITE, read back): a reply was lost in each")
