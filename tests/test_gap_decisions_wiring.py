@@ -12,14 +12,15 @@ timings are wall seconds of the stages, each within the total. No MuJoCo: millis
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import time
 
 import numpy as np
 import pytest
-from test_gap_decisions_backward import P_A, P_B
-from test_gap_decisions_loop import EPS, make_loop
+from test_gap_decisions_backward import NOISE, P_A, P_B
+from test_gap_decisions_loop import AZ, EPS, make_loop
 
 SCORES = {"position_offset": 0.7, "mounting_offset": 0.6}
 LM = re.compile(r"round (\d+): fitting (\d+) tracks \(LM round (\d+)\)")
@@ -174,3 +175,79 @@ def test_a_fit_on_its_search_bound_is_widened_toward_the_hard_limit_and_reported
                                                                  rel=1e-4)
     assert ("round 1: position_offset on a bound, refit in a wider range",
             pytest.approx(0.32)) in calls
+
+
+def test_a_cause_reports_the_intervals_it_was_judged_by(loop):
+    """The named offset (0.05 rad) reports the final intervals' parts as the user reads them:
+    value, the 95 % interval about the (step-extrapolated) centre 0.051 rad +- 4 mrad, the
+    residual-noise (+-1 mrad) and data (+-2 mrad) intervals about the value, and the fit's move
+    at the finer step (+0.5 mrad)."""
+    def parts(t):
+        u = t.u.copy()
+        return (u + 0.001, np.full_like(u, 0.004), np.full_like(u, 0.001),
+                np.full_like(u, 0.002), np.full_like(u, 0.0005))
+
+    res = loop(0.05, 0.0, 0.01, floor=0.001, parts=parts,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    (cause,) = res.causes
+    p = cause.params["offset"]
+    assert p["value"] == pytest.approx([0.05], abs=1e-6)
+    assert p["interval"] == [pytest.approx([0.047, 0.055], abs=1e-6)]
+    assert p["interval_noise"] == [pytest.approx([0.049, 0.051], abs=1e-6)]
+    assert p["interval_data"] == [pytest.approx([0.048, 0.052], abs=1e-6)]
+    assert p["step_shift"] == pytest.approx([0.0005], abs=1e-9)
+    assert p["unit"] == "rad" and cause.flags == [] and cause.equivalent == []
+
+
+def test_a_finer_physics_step_found_after_the_first_cause_chooses_it_again(loop, monkeypatch):
+    """refine_step: the nominal step check (``stepsize.refine``) gets the train + select episodes;
+    after round 1 accepts position_offset, ``stepsize.refine_fitted`` (a stand-in: the step halves
+    to 1 ms) gets that model at its fitted 0.05 rad with the training residual 0.03 pB + 0.01 n,
+    the noise floor's MSE (1 mrad^2); the analysis then continues on the 1 ms data set with a
+    1 ms fit context, the first round chosen again (its coarse-step time kept apart), and the
+    report records the steps."""
+    refined, fitted = [], []
+
+    def refine(ds, eps, cfg):
+        refined.append((ds, eps, cfg))
+        return ds, {"model": 0.002, "used": 0.002, "rmse": [0.0123]}
+
+    def refine_fitted(ds, make_fn, s, x, ctx, cfg, floor_mse):
+        fine = dataclasses.replace(ds, timestep=0.001)
+        fitted.append((ds, tuple(s.effects), x.copy(), ctx, cfg, floor_mse,
+                       make_fn(fine)([(s, x)])[0]))
+        return fine, dataclasses.replace(ctx, dt=0.001), s, x, [(0.002, 0.02), (0.001, 0.01)]
+
+    monkeypatch.setattr(AZ, "_refine_step", refine)
+    monkeypatch.setattr(AZ.stepsize, "refine_fitted", refine_fitted)
+    seen = {}
+    res = loop(0.05, 0.03, 0.01, floor=0.001, scores=SCORES, seen=seen, refine_step=True)
+    ds = seen["ds"]
+    ((d, eps, cfg),) = refined
+    assert d is ds and eps == [EPS[0], EPS[1]] and cfg is res.config
+    ((d, effects, x, ctx, cfg, floor_mse, r),) = fitted  # once: the first cause only
+    assert d is ds and effects == ("position_offset",) and cfg is res.config
+    assert x == pytest.approx([0.05], abs=1e-6) and ctx.dt == 0.002
+    assert floor_mse == pytest.approx(1e-6)
+    np.testing.assert_allclose(r, 0.03 * P_B + 0.01 * NOISE, atol=1e-6)
+    assert res.timestep == {"model": 0.002, "used": 0.001, "rmse": [0.0123],
+                            "fitted": [(0.002, 0.02), (0.001, 0.01)],
+                            "first_at_coarse_step": "position_offset"}
+    assert set(res.timing) == {"baseline", "round1_coarse_step", "round1", "round2",
+                               "final_fit", "total"}
+    # the coarse round is replaced by the round chosen again: two rounds, both causes
+    assert [[c.effect for c in r] for r in res.rounds] == [
+        ["position_offset", "mounting_offset"], ["mounting_offset"]]
+    assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
+    assert [c.params["offset"]["value"][0] for c in res.causes] == pytest.approx(
+        [0.05, 0.03], abs=1e-6)
+    # rounds, intervals and traces after the refinement run on the 1 ms data set
+    assert [c.dt for _, _, _, c in seen["_rank"]] == [0.002, 0.001, 0.001]
+    ((d, *_),) = seen["_intervals"]
+    assert d.timestep == 0.001 and seen["_traces"][0][0].timestep == 0.001
+    # no finer step: nothing changes
+    monkeypatch.setattr(AZ.stepsize, "refine_fitted", lambda *a: fitted.append(a))
+    res = loop(0.05, 0.03, 0.01, floor=0.001, scores=SCORES, refine_step=True)
+    assert len(fitted) == 2 and res.timestep == {"model": 0.002, "used": 0.002,
+                                                 "rmse": [0.0123]}
+    assert "round1_coarse_step" not in res.timing and len(res.rounds) == 2
