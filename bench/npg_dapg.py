@@ -35,7 +35,8 @@ not reach it in its budget), and PPO / NPG wall-clock to the target. On the flip
 and quaternion variants (observation and reward) are compared with 95 % t-intervals over seeds.
 
 Demonstrations: the scripted teachers (``ValveTurnTeacher``, ``AllegroValveTeacher``,
-``FlipBlockTeacher``) run in simulation with uniform executed-action noise and clean labels
+``PlannedFlipTeacher``: ``FlipBlockTeacher`` with its settings chosen by prediction, since
+2026-11-27) run in simulation with uniform executed-action noise and clean labels
 (``lowcostdex.demonstrations.dataset.teacher_episodes``), written as the demo dataset in ``<out>/<task>/``.
 Sampling uses the vector sampler (``mujoco.batch``; trajectories identical to the serial
 sampler's), so wall-clock is what NPG/DAPG take with batched simulation on this machine.
@@ -78,14 +79,15 @@ class Task:
 
 TASKS = {
     "valve": Task("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher", 25, 0.1),
-    "flip-keypoints": Task("lowcostdex/DClawFlipBlock-v0", "FlipBlockTeacher", 10, 0.05),
-    "flip-quaternion": Task("lowcostdex/DClawFlipBlockQuaternion-v0", "FlipBlockTeacher", 10,
+    "flip-keypoints": Task("lowcostdex/DClawFlipBlock-v0", "PlannedFlipTeacher", 10, 0.05),
+    "flip-quaternion": Task("lowcostdex/DClawFlipBlockQuaternion-v0", "PlannedFlipTeacher", 10,
                             0.05),
     "allegro-valve": Task("lowcostdex/AllegroTurnValve-v0", "AllegroValveTeacher", 25, 0.1),
 }
 ALIASES = {"flip": ["flip-keypoints", "flip-quaternion"]}
 ALGOS = ("npg", "dapg", "ppo")
-TEACHER_MODULES = ("lowcostdex.teachers.valve", "lowcostdex.teachers.flip")
+TEACHER_MODULES = ("lowcostdex.teachers.valve", "lowcostdex.teachers.flip",
+                   "lowcostdex.teachers.flip_plan")
 
 
 class ScriptedTeacher:

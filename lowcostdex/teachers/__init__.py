@@ -9,6 +9,7 @@ from __future__ import annotations
 from lowcostdex.errors import ConfigError
 from lowcostdex.teachers.allegro import AllegroTeacherConfig, AllegroValveTeacher
 from lowcostdex.teachers.flip import FlipBlockTeacher, FlipTeacherConfig
+from lowcostdex.teachers.flip_plan import FlipPlanConfig, PlannedFlipTeacher
 from lowcostdex.teachers.valve import (
     ScrewTrackTeacher,
     ValveTeacherConfig,
@@ -16,7 +17,8 @@ from lowcostdex.teachers.valve import (
 )
 
 TEACHERS = {cls.__name__: cls for cls in
-            (ValveTurnTeacher, ScrewTrackTeacher, FlipBlockTeacher, AllegroValveTeacher)}
+            (ValveTurnTeacher, ScrewTrackTeacher, FlipBlockTeacher, PlannedFlipTeacher,
+             AllegroValveTeacher)}
 """Teacher classes by name (the names the task tables use)."""
 
 
@@ -29,5 +31,6 @@ def teacher_class(name: str) -> type:
 
 
 __all__ = ["TEACHERS", "AllegroTeacherConfig", "AllegroValveTeacher", "FlipBlockTeacher",
-           "FlipTeacherConfig", "ScrewTrackTeacher", "ValveTeacherConfig", "ValveTurnTeacher",
+           "FlipPlanConfig", "FlipTeacherConfig", "PlannedFlipTeacher", "ScrewTrackTeacher",
+           "ValveTeacherConfig", "ValveTurnTeacher",
            "teacher_class"]

@@ -1,0 +1,72 @@
+"""The planned flip teacher (``lowcostdex.teachers.flip_plan``): from the starts a robot's reset
+leaves, it flips the block where the scripted teacher alone does not; the truth is the env's own
+success check (orientation within ``FlipConfig.success_angle`` of the goal at the episode's
+end), not the teacher's prediction."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.sim.envs import goal_to_action
+from lowcostdex.sim.registry import register_envs
+from lowcostdex.teachers import TEACHERS
+from lowcostdex.teachers.flip import FlipBlockTeacher
+from lowcostdex.teachers.flip_plan import FlipPlanConfig, PlannedFlipTeacher
+
+ENV = "lowcostdex/DClawFlipBlock-v0"
+SEEDS = range(50_000, 50_020)  # the benchmark's held-out starts (bench/npg_dapg.py)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _register():
+    register_envs()
+
+
+def episode(env, seed, teacher):
+    """One noise-free episode driven by ``teacher``: the env's success and orientation error at
+    its end."""
+    u = env.unwrapped
+    env.reset(seed=seed)
+    teacher.reset(u)
+    done, info = False, {}
+    while not done:
+        goals = teacher(u.backend.observed_qpos(), u.goal)
+        a = goal_to_action(goals, u.task.hand_low, u.task.hand_high)
+        _, _, term, trunc, info = env.step(a.astype(np.float32))
+        done = term or trunc
+    return bool(info["success"]), float(info["goal_error"])
+
+
+def test_planned_teacher_flips_from_the_resets_starts():
+    env = gym.make(ENV)
+    planned, scripted = PlannedFlipTeacher(), FlipBlockTeacher()
+    wins, script_wins, agreed = 0, 0, 0
+    for seed in SEEDS:
+        ok, _ = episode(env, seed, planned)
+        wins += ok
+        script_wins += episode(env, seed, scripted)[0]
+        # the prediction it chose by is what the env then did (noise-free, same model)
+        agreed += planned.predicted[planned.choice][0] == ok
+    env.close()
+    # measured 2026-11-27: planned 20 of 20, scripted alone 15 of 20 (seeds 50000-50039:
+    # 39 and 27 of 40); the bar of issue 15 item 1 is 85 %
+    assert wins >= 18, wins
+    assert wins > script_wins, (wins, script_wins)
+    assert agreed == len(SEEDS)
+
+
+def test_planned_teacher_is_registered_and_checks_its_config():
+    assert TEACHERS["PlannedFlipTeacher"] is PlannedFlipTeacher
+    with pytest.raises(ConfigError, match="non-empty"):
+        FlipPlanConfig(variants=())
+    with pytest.raises(ConfigError, match="horizon"):
+        FlipPlanConfig(horizon=0)
+    with pytest.raises(ConfigError, match="FlipPlanConfig"):
+        PlannedFlipTeacher(config={"horizon": 10})
+    with pytest.raises(ConfigError, match="reset"):
+        PlannedFlipTeacher()(np.zeros(16), None)
+    with pytest.raises(ConfigError, match="flip-block"):
+        PlannedFlipTeacher().reset(gym.make("lowcostdex/DClawTurnValve-v0"))
