@@ -217,3 +217,48 @@ def test_torque_on_over_a_bus_that_is_gone_says_so_at_once():
     assert robot.bus.stats.transactions - reads <= 1 + 3 * 9
     assert not any(chain.motors[j.motor_id].torque_on for j in HAND.joints)
     assert time.process_time() - start < 30.0
+
+
+# ------------------------------------------------------------------------------------------------
+# train --out a folder of the user's: the run is written beside their files, and says so
+
+
+@pytest.mark.parametrize("algo", ["npg", "ppo"])
+def test_a_run_written_beside_a_users_files_says_where_and_leaves_them(algo, tmp_path, capsys):
+    """A folder holding notes and photos (no file a run writes): the run goes beside them (the
+    issue allows "refuse or write beside"), the user's files are byte for byte as they were, and
+    the command says so after the run's own lines, naming them."""
+    import sys
+
+    import gymnasium as gym
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    env = "lowcostdex_test/PointMass-v0"
+    if env not in gym.registry:
+        gym.register(env, entry_point="pointmass:PointMass", max_episode_steps=30)
+    out = tmp_path / "thesis"
+    (out / "photos").mkdir(parents=True)
+    (out / "notes.txt").write_text("servo 3 squeaks\n")
+    (out / "photos" / "rig.jpg").write_bytes(bytes(range(256)))
+    before = _snapshot(out)
+    tiny = (["--env", env, "--n-iter", "1", "--n-traj", "2", "--eval-episodes", "1", "--hidden",
+             "8"] if algo == "npg" else  # ppo on the valve
+            ["--n-iter", "1", "--num-envs", "2", "--num-minibatches", "1", "--update-epochs",
+             "1", "--hidden", "8", "--eval-every", "1", "--eval-episodes", "1", "--threads", "1"])
+    code = main(["train", algo, "--out", str(out), "--no-progress", *tiny])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert f"run: {out}" in captured.out
+    assert (f"lowcostdex train {algo}: note: {out} held notes.txt, photos/ before this run; the "
+            "run is written beside them, and they are left untouched") in captured.err
+    after = _snapshot(out)
+    assert {k: v for k, v in after.items() if k in before} == before
+    assert "config.json" in after and len(after) > len(before)
+    # resumed, or started in an empty folder: no such note
+    for argv in ([*tiny, "--resume"] if algo == "npg" else None, tiny):
+        if argv is None:
+            continue
+        target = out if "--resume" in argv else tmp_path / "fresh"
+        extra = ["--n-iter", "2"] if "--resume" in argv else []
+        assert main(["train", algo, "--out", str(target), "--no-progress", *argv, *extra]) == 0
+        assert "held" not in capsys.readouterr().err

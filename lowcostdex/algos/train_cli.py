@@ -186,6 +186,24 @@ def finished_note(args: argparse.Namespace) -> str | None:
             f"written again; give --n-iter above {args.n_iter} to train more")
 
 
+def beside_note(args: argparse.Namespace) -> str | None:
+    """The note a new run gets when ``--out`` already holds files of the user's (not a run, not
+    a file a run writes: those are refused by ``Run.check``): the run is written beside them,
+    and the note names them, so nobody looks for their notes under the run's files. Computed
+    before the run, printed after it succeeded; None when there are none or on ``--resume``."""
+    from lowcostdex.algos.experiment import CONFIG_FILE
+
+    path = Path(args.out)
+    if args.resume or not path.is_dir() or (path / CONFIG_FILE).exists():
+        return None
+    names = sorted(p.name + ("/" if p.is_dir() else "") for p in path.iterdir())
+    if not names:
+        return None
+    said = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    return (f"{args.parser.prog}: note: {path} held {said} before this run; the run is written "
+            "beside them, and they are left untouched")
+
+
 def check_demo_options(args: argparse.Namespace) -> None:
     """Demo options that would be ignored: ``--n-demos`` without ``--demos``, ``--demos`` for
     NPG without ``--bc-init``."""
@@ -253,14 +271,15 @@ def _run_command(args: argparse.Namespace) -> int:
             print(f"{args.parser.prog}: note: --n-demos {config.n_demos}, but {args.demos} "
                   f"holds {held} successful demonstration(s): all {held} are used",
                   file=sys.stderr)
-    note = finished_note(args)
+    notes = (finished_note(args), beside_note(args))
     try:
         run = train(config, args.out, resume=args.resume)
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)
     _print_outcome(run)
-    if note:
-        print(note, file=sys.stderr)
+    for note in notes:
+        if note:
+            print(note, file=sys.stderr)
     return 0
 
 
@@ -268,14 +287,15 @@ def _run_ppo(args: argparse.Namespace) -> int:
     from lowcostdex.algos.ppo import train
 
     config = ppo_config_from_args(args)
-    note = finished_note(args)
+    notes = (finished_note(args), beside_note(args))
     try:
         run = train(config, args.out, resume=args.resume)
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)
     _print_outcome(run)
-    if note:
-        print(note, file=sys.stderr)
+    for note in notes:
+        if note:
+            print(note, file=sys.stderr)
     return 0
 
 

@@ -443,10 +443,11 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    from lowcostdex.algos.train_cli import finished_note
+    from lowcostdex.algos.train_cli import beside_note, finished_note
 
     config = config_from_args(args)
     note = finished_note(args)
+    beside = beside_note(args)
     try:
         run = train(config, args.out, resume=args.resume)
     except KeyboardInterrupt as exc:
@@ -461,6 +462,7 @@ def _run_command(args: argparse.Namespace) -> int:
             f"rollouts: {int(metrics['rollouts'][-1])}, last training success rate "
             f"{metrics[ex.SUCCESS_RATE][-1]:.2f}, eval success {metrics[ex.EVAL_SUCCESS_RATE][-1]:.0f}"
         )
-    if note:
-        print(note, file=sys.stderr)
+    for said in (note, beside):
+        if said:
+            print(said, file=sys.stderr)
     return 0
