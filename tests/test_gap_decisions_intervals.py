@@ -210,3 +210,39 @@ def test_traces_are_the_first_test_episodes_from_their_own_start():
                            "joints", "actuators"}
     assert [o["name"] for o in AZ._traces(ds, eps, base, ext, n=3)] == ["log0", "log2", "log1"]
     assert len(AZ._traces(ds, eps[:1], base[:1], ext[:1])) == 1
+
+
+def test_the_final_fit_polishes_a_delay_stuck_on_a_flat_step_and_refreshes_its_residual():
+    """``_final_fit``: the data lag by 34 ms; the screening left the delay at 31.4 ms, which the
+    2 ms replay rounds down to 30 ms. LM's finite difference (0.5 ms) stays within the step: no
+    slope, no move. The scan over +-1 step (29.4 .. 33.4 ms in 0.5 ms) finds 32.4 ms (replayed
+    as 32 ms, the closest to 34 the scan reaches) and one more LM round re-evaluates the
+    residual and Jacobian there, as the intervals need (without it the track has none)."""
+    ds = _data(np.sin(2 * np.pi * (T - 0.034)) + 0.01 * NOISE)
+    fn = _Engine(ds, None, ("latency",)).residual_fn(EPS)
+    s = fitmod.Structure.build(("latency",), ds.joints, CTX)
+    notes = {}
+    t = AZ._final_fit(s, np.array([0.0314]), fn, GapConfig(), CTX, notes, 0.002)
+    assert t.x == pytest.approx([0.0324], abs=1e-9)
+    r = fn([(s, t.x)])[0]
+    assert t.r is not None and t.jac is not None and t.jac.shape == (80, 1)
+    np.testing.assert_allclose(t.r, r)
+    assert t.cost == pytest.approx(0.5 * float(r @ r))
+    assert notes == {} and t.label == "final"
+
+
+def test_a_joint_fit_keeps_its_best_start():
+    """``_joint_then_prune`` fits the effects together from every start and keeps the lowest
+    cost: a delay's starts are 10, 30 and 60 ms (the catalogue's start and extra starts); on
+    data lagging 30 ms with a 2 ms replay only the 30 ms start reaches it (the others sit on
+    flat steps of their own)."""
+    ds = _data(np.sin(2 * np.pi * (T - 0.030)) + 0.01 * NOISE)
+    fn = _Engine(ds, None, ("latency",)).residual_fn(EPS)
+    empty = fitmod.Structure((), ds.joints)
+    s, x = AZ._joint_then_prune(None, ds, EPS[1:], ("latency",), empty, np.zeros(0),
+                                GapConfig(), 0.001, CTX, fn, EPS[:1],
+                                np.random.default_rng(0))
+    assert s.effects == ("latency",)
+    assert x == pytest.approx([0.03], abs=1e-9)
+    starts = [x0[0] for x0 in fitmod.Structure.build(("latency",), ds.joints, CTX).starts()]
+    assert starts == pytest.approx([0.01, 0.03, 0.06])
