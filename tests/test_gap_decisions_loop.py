@@ -105,16 +105,18 @@ def make_loop(monkeypatch):
     """The ``loop`` fixture's runner (other test files build their fixture from it)."""
 
     def run(a, b, c, *, floor, scores, half=1e-6, flip=None, seen=None, prog=None, parts=None,
-            **cfg):
+            cs=None, **cfg):
         """``seen``: a dict that receives each stand-in's arguments (name -> list of calls);
         ``prog``: the progress callback (default: none); ``parts``: the intervals' whole answer
-        (centre, half, noise, data, shift) from the final track (default: from ``half``)."""
+        (centre, half, noise, data, shift) from the final track (default: from ``half``);
+        ``cs``: c per log (train, select, test) instead of one for all."""
         calls = seen if seen is not None else {}
 
         def log(name, *args):
             calls.setdefault(name, []).append(args)
-        data = (a * P_A + b * P_B + c * NOISE)[:, None]
-        ds = _DS([_Traj(data.copy(), T.copy(), f"log{i}") for i in range(3)],
+        cs = cs if cs is not None else (c, c, c)
+        ds = _DS([_Traj((a * P_A + b * P_B + cs[i] * NOISE)[:, None], T.copy(), f"log{i}")
+                  for i in range(3)],
                  sources=("log0", "log1", "log2"), models={"m": "<mujoco/>"})
         names = list(scores)
 

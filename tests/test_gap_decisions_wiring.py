@@ -251,3 +251,100 @@ def test_a_finer_physics_step_found_after_the_first_cause_chooses_it_again(loop,
     assert len(fitted) == 2 and res.timestep == {"model": 0.002, "used": 0.002,
                                                  "rmse": [0.0123]}
     assert "round1_coarse_step" not in res.timing and len(res.rounds) == 2
+
+
+def test_each_fitted_candidate_reports_its_train_and_select_error(loop):
+    """Round 1 on data 0.05 pA + 0.01 n: position_offset fits 0.05 rad and leaves c n, RMS
+    c / sqrt(2) on train and select; mounting_offset (signal absent) fits 0 and leaves the whole
+    RMS sqrt((a^2 + c^2) / 2)."""
+    res = loop(0.05, 0.0, 0.01, floor=0.001,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    first = {c.effect: c for c in res.rounds[0]}
+    left, whole = 0.01 / math.sqrt(2), math.sqrt((0.05 ** 2 + 0.01 ** 2) / 2)
+    assert first["position_offset"].train_rmse == pytest.approx(left, rel=1e-4)
+    assert first["position_offset"].select_rmse == pytest.approx(left, rel=1e-4)
+    assert first["mounting_offset"].train_rmse == pytest.approx(whole, rel=1e-4)
+    assert first["mounting_offset"].select_rmse == pytest.approx(whole, rel=1e-4)
+    assert first["position_offset"].params == {"offset": [pytest.approx(0.05, abs=1e-6)]}
+    assert first["mounting_offset"].params == {"offset": [pytest.approx(0.0, abs=1e-6)]}
+
+
+def test_the_selection_stops_at_max_effects(loop):
+    res = loop(0.05, 0.03, 0.01, floor=0.001, scores=SCORES, max_effects=1)
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.stop_reason == "max_effects reached" and len(res.rounds) == 1
+
+
+def test_the_selection_stops_when_errors_reach_the_noise_floor(loop):
+    # after position_offset the select and train MSE are c^2 / 2 = 0.5e-6 rad^2, within
+    # (1.2 floors)^2 = 1.44e-6: nothing left to find
+    res = loop(0.05, 0.0, 0.001, floor=0.001,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.stop_reason == "train and select errors at the noise floor"
+    assert len(res.rounds) == 2 and not res.rounds[1][0].fitted
+    # both must be there: train 3 mrad (MSE 4.5e-6) with select 1 mrad is not at the floor
+    # (it is within 3 floors on train + select: (0.5 + 4.5) / 2 e-6 <= 9e-6)
+    res = loop(0.05, 0.0, None, cs=(0.003, 0.001, 0.001), floor=0.001,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    assert res.stop_reason.endswith("within 3 noise floors on train + select: nothing more to "
+                                    "explain")
+    # the margin is squared: c = 1.789 mrad leaves 1.6e-6 rad^2, above 1.2^2 = 1.44 floors^2
+    # (not at the floor) and below 1.2^3 = 1.73
+    res = loop(0.05, 0.0, math.sqrt(2 * 1.6e-6), floor=0.001,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    assert res.stop_reason.endswith("within 3 noise floors on train + select: nothing more to "
+                                    "explain")
+    # with floor_margin and explain_above 0.5 (0.25e-6) the round is fitted and rejected
+    res = loop(0.05, 0.0, 0.001, floor=0.001, floor_margin=0.5, explain_above=0.5,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    assert res.stop_reason == "no candidate lowers the select error significantly"
+    assert res.rounds[1][0].fitted
+
+
+def test_a_model_within_explain_above_floors_is_not_extended_or_searched_further(loop):
+    # after position_offset the train + select MSE is c^2 / 2 = 4.5e-6 rad^2 (c = 3 mrad):
+    # above (1.2 floors)^2 = 1.44e-6, within 3^2 floors^2 = 9e-6: nothing more to explain,
+    # and no backward search either
+    res = loop(0.05, 0.0, 0.003, floor=0.001, search="both",
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.stop_reason == ("the model with position_offset is within 3 noise floors on "
+                               "train + select: nothing more to explain")
+    assert "backward_search" not in res.timing and not res.rounds[1][0].fitted
+    # explain_above 2 (4e-6): explained further (mounting_offset is fitted, and gains nothing)
+    res = loop(0.05, 0.0, 0.003, floor=0.001, explain_above=2.0,
+               scores={"position_offset": 0.9, "mounting_offset": 0.2})
+    assert res.rounds[1][0].fitted
+    assert res.stop_reason == "no candidate lowers the select error significantly"
+
+
+def test_a_fit_at_its_hard_limit_is_not_named(loop):
+    """A 1 rad offset is beyond position_offset's hard limit (0.8 rad): the fit is widened to
+    the limit and still sits on it, so it names nothing."""
+    res = loop(1.0, 0.0, 0.01, floor=0.001, scores={"position_offset": 0.9})
+    assert res.causes == []
+    assert res.stop_reason == ("every fitted candidate ended at a parameter bound (at its hard "
+                               "limit, or not the best fit)")
+    (cand,) = res.rounds[0]
+    assert cand.at_bound and cand.fitted and not cand.accepted
+    assert cand.params["offset"] == [pytest.approx(0.8)]
+    assert cand.widened
+
+
+def test_candidates_the_select_split_cannot_tell_apart_are_named_once_as_equivalents(
+        loop, monkeypatch):
+    """mounting_offset replays exactly as position_offset here (same pattern): both fit the
+    offset and gain alike; the earlier in the canonical list (position_offset) is named, even
+    ranked second, and mounting_offset is reported as its equivalent."""
+    import test_gap_decisions_loop as L
+
+    monkeypatch.setitem(L.PATTERN, "mounting_offset", P_A)
+    res = loop(0.05, 0.0, 0.01, floor=0.001,
+               scores={"position_offset": 0.6, "mounting_offset": 0.7})
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.causes[0].equivalent == ["mounting_offset"]
+    first = {c.effect: c for c in res.rounds[0]}
+    assert first["position_offset"].accepted and not first["mounting_offset"].accepted
+    assert first["mounting_offset"].select_gain == pytest.approx(
+        first["position_offset"].select_gain)
