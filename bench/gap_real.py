@@ -90,6 +90,12 @@ BAM_LOSO = {
         ("trajectory", t): {"BAM published M3": m3, "BAM published M6": m6}
         for t, m3, m6 in zip(TRAJ, (0.05223, 0.07249, 0.03873, 0.11279),
                              (0.06686, 0.07176, 0.04082, 0.11684), strict=True)},
+    # 08-bam-reference-errors.md section 2's Pham rows (per-trajectory means over the 3 gains;
+    # identified on Rhoban's own data: out of sample for this set)
+    "pham-xl330": {
+        ("trajectory", t): {"BAM published M3": m3, "BAM published M1": m1}
+        for t, m3, m1 in zip(TRAJ, (0.017, 0.014, 0.041, 0.015), (0.027, 0.015, 0.038, 0.024),
+                             strict=True)},
 }
 # Header fields whose values a leave-one-setup-out run holds out in turn (--loso auto: those
 # taking two or more values in the set).
@@ -468,9 +474,10 @@ def main(argv=None) -> int:
                     help="also identify from N jittered starts (seeds 1..N) and print the spread")
     ap.add_argument("--jitter", type=float, default=1e-3,
                     help="relative spread of the jittered starts (IdentifyConfig.jitter)")
-    ap.add_argument("--select", default="inner", choices=("inner", "train"),
-                    help="family and fit chosen on an inner validation (default) or on the "
-                    "training logs (IdentifyConfig.select)")
+    ap.add_argument("--select", default="inner", choices=("inner", "train", "types"),
+                    help="family and fit chosen on an inner validation (default), on the "
+                    "training logs, or by leaving each training trajectory type out in turn "
+                    "(IdentifyConfig.select)")
     ap.add_argument("--restarts", type=int, default=3,
                     help="jittered fits per family with --select inner")
     ap.add_argument("--prior", type=float, default=0.0,

@@ -311,3 +311,61 @@ def test_held_out_logs_faster_than_every_training_log_are_flagged():
     fast = faster_than_training(ds, [0, 1], [2, 3])
     assert list(fast) == [2] and fast[2] == pytest.approx(4.0, rel=1e-3)
     assert faster_than_training(ds, [0, 1, 2], [3]) == {}
+
+
+def test_a_fit_on_a_search_bound_is_said_with_its_value_range_and_meaning():
+    # Pham XL330 (2026-11-26): the mounting offset fitted at +0.3 rad, the catalogue range's
+    # upper end; a user must see that the logs pull it further, not read it as measured
+    from lowcostdex.gap.identify import bound_notes
+
+    ctx = fitmod.Context(dt=DT, peak_force=np.array([0.5]), stall=np.array([0.5]),
+                         damping=np.array([0.0]))
+    st = fitmod.Structure.build(("mounting_offset", "viscous_damping"), J, ctx)
+    names = [(f.effect, f.param) for f in st.free]
+    x = np.zeros(len(names))
+    x[names.index(("mounting_offset", "offset"))] = 0.3
+    t = fitmod.Track(st, st.u(x))
+    (line,) = bound_notes(t)
+    assert line.startswith(f"mounting_offset.offset on {BENCH_JOINT} fitted 0.3 rad, at its "
+                           "upper search bound (range -0.3 to 0.3 rad)")
+    assert "not a measurement" in line
+    # inside the range, and a damping at its null (0: absent, not a bound): nothing said
+    x[names.index(("mounting_offset", "offset"))] = 0.1
+    assert bound_notes(fitmod.Track(st, st.u(x))) == []
+
+
+def test_type_folds_leave_each_trajectory_type_out_by_the_headers():
+    from lowcostdex.gap.identify import type_folds
+
+    kinds = ["sin", "drop", "sin", "chirp", "drop", "sin"]
+    trs = [Trajectory(f"l{i}", np.arange(3) * DT, np.zeros((3, 1)), np.zeros((3, 1)), J, J,
+                      model="m", meta={"trajectory": k}) for i, k in enumerate(kinds)]
+    xml = build_bench(BenchConfig(motor="XL330-M288", mass=0.3, length=0.1, timestep=DT)).to_xml()
+    ds = Dataset({"m": xml}, trs)
+    assert type_folds(ds, [0, 1, 2, 3, 4]) == [("chirp", (0, 1, 2, 4), (3,)),
+                                               ("drop", (0, 2, 3), (1, 4)),
+                                               ("sin", (1, 3, 4), (0, 2))]
+    assert type_folds(ds, [0, 2, 5]) is None  # one type: nothing to leave out
+    trs[1].meta.pop("trajectory")
+    assert type_folds(ds, [0, 1, 3]) is None  # a log without the header
+
+
+def test_type_selection_scores_each_family_on_the_type_left_out_then_fits_all(logs):
+    # training logs of two types (sine and drop at kp 100, 400): each family is fitted on one
+    # type and scored on the other; the servo the logs were made with has a symmetric gearbox,
+    # so the held family (back-driven share at 1, fewer parameters) predicts the left-out type
+    # as well as the free one and is chosen; the kp 200 logs are predicted from the final fit
+    res = identify(logs, [0, 1, 2, 3], [4, 5],
+                   IdentifyConfig(effects=tuple(TRUTH), max_rounds=20, select="types"))
+    sel = res.selection
+    assert sel["field"] == "trajectory" and sel["folds"] == ["drop", "sin"]
+    assert set(sel["val_mae"]) == {"free.drop", "free.sin", "held.drop", "held.sin"}
+    assert res.family == sel["chosen"] == "held"
+    assert res.family_train_mae["held"] == pytest.approx(
+        np.mean([sel["val_mae"]["held.drop"], sel["val_mae"]["held.sin"]]))
+    assert res.params()["inertia_error"]["scale"][0] == pytest.approx(3.0, rel=0.02)
+    assert res.mean(res.test) < 2e-3
+    # one type among the training logs: the inner split by gain instead
+    one = identify(logs, [0, 2], [4], IdentifyConfig(effects=tuple(TRUTH), max_rounds=20,
+                                                     select="types", restarts=1))
+    assert one.selection["field"] == "kp"

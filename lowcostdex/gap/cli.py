@@ -62,6 +62,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "across its whole range costs like this RMS error [rad] on every fitted "
                         "log (identify.IdentifyConfig.prior; default 0: none; measured on "
                         "STS3250 in bench/RESULTS.md)")
+    i.add_argument("--select", choices=("inner", "train", "types"), default="inner",
+                   help="how the family is chosen: fitted on the training logs but those at "
+                        "the smallest gain (or length, ...) and chosen on those (inner, the "
+                        "default), on the training logs themselves (train), or by leaving each "
+                        "training trajectory type out in turn (types) (identify.IdentifyConfig"
+                        ".select)")
     i.add_argument("--json", default=None, metavar="FILE",
                    help="also write the identified parameters and per-log MAE here")
     i.set_defaults(func=_identify)
@@ -241,7 +247,7 @@ def _identify(args: argparse.Namespace) -> int:
     if not train:
         raise ConfigError("every log is held out: nothing to fit")
     cfg = IdentifyConfig(effects=servo_structure(ds), restarts=args.restarts,
-                         nthread=args.threads, prior=args.prior)
+                         nthread=args.threads, prior=args.prior, select=args.select)
     t0 = time.perf_counter()
     res = identify(ds, train, list(test), cfg)
     wall = time.perf_counter() - t0
@@ -282,6 +288,12 @@ def _why(res: Any) -> str:
 
     fam = ", ".join(f"{f} {1e3 * v:.1f}" for f, v in res.family_train_mae.items())
     sel = res.selection
+    if sel and "folds" in sel:
+        return (f"each training trajectory type ({', '.join(sel['folds'])}) left out in turn, "
+                f"every family fitted on the others and scored on it; chosen {sel['chosen']} "
+                f"(mean MAE over the left-out types [mrad] per family: {fam}; the fewest free "
+                "parameters unless another family is 2 % lower), then fitted on all training "
+                "logs")
     if sel:
         return (f"fitted on the training logs but those at the smallest {sel['field']} "
                 f"({len(sel['fit_logs'])} fitted, {len(sel['val_logs'])} validated), chosen "

@@ -126,7 +126,11 @@ class IdentifyConfig:
         training logs' MAE, ``_choose_family``) or "inner" (fitted on part of the training logs
         and chosen on the rest, ``inner_split``; then ``joint_rounds`` LM steps from the chosen
         fit on all training logs). "inner" falls back to "train" when the headers cannot split
-        the training logs.
+        the training logs. "types": leave one trajectory type out (``type_folds``): every
+        family fitted (one start) on the training logs of the other types and scored on the
+        type left out; the family with the fewest parameters that no other beats by 2 % on
+        the mean over folds is chosen, then fitted on all training logs; falls back to "inner"
+        when the training logs hold fewer than two trajectory types.
       restarts: with select="inner", fits per family from differently jittered starts.
       restart_jitter: relative spread of the restarts after the first (at least ``jitter``).
       prior: [rad] a pull of every free parameter toward its catalogue null (0: none): the
@@ -172,8 +176,8 @@ class IdentifyConfig:
             raise ConfigError("max_rounds and joint_rounds must be >= 1")
         if not (0.0 <= self.jitter < 1.0 and 0.0 <= self.restart_jitter < 1.0):
             raise ConfigError("jitter and restart_jitter must be in [0, 1) (relative spreads)")
-        if self.select not in ("train", "inner"):
-            raise ConfigError(f"unknown select {self.select!r}; valid: train, inner")
+        if self.select not in ("train", "inner", "types"):
+            raise ConfigError(f"unknown select {self.select!r}; valid: train, inner, types")
         if self.restarts < 1:
             raise ConfigError("restarts must be >= 1")
         if not self.prior >= 0:
@@ -336,10 +340,40 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         notes.append(f"{len(fast)} held-out log(s) move faster than any training log (peak "
                      f"{max(fast.values()):.1f} rad/s against {peak_speed(ds, train):.1f}): "
                      "the fitted friction's speed dependence is extrapolated there")
-    inner = inner_split(ds, train) if config.select == "inner" else None
+    folds = type_folds(ds, train) if config.select == "types" else None
+    inner = inner_split(ds, train) if config.select == "inner" or (
+        config.select == "types" and folds is None) else None
     fam_mae: dict[str, float] = {}
     selection: dict = {}
-    if inner is not None:
+    if folds is not None:
+        # leave one trajectory type out: a family that only helps the types it was fitted on
+        # loses on the type left out
+        per_fold: dict[str, list[float]] = {f: [] for f in families}
+        rounds = 0
+        for k, (kind, fit_logs, val_logs) in enumerate(folds):
+            prog(f"type fold {k + 1}/{len(folds)}: {kind} left out", 0.7 * k / len(folds))
+            w_fit = whole_logs(ds, fit_logs)
+            wts = [1.0 / math.sqrt(ds.trajectories[w.traj].qpos.size) for w in w_fit]
+            cands, r = _fit_families(make_residual(w_fit, wts), joints, ctx, config, families,
+                                     1, lambda s, f: None)
+            rounds += r
+            keys = list(cands)
+            vm = per_log_mae(rep, whole_logs(ds, val_logs), [cands[c].effects() for c in keys])
+            for i, (f, _) in enumerate(keys):
+                per_fold[f].append(float(np.mean(vm[i])))
+        fam_mae = {f: float(np.mean(v)) for f, v in per_fold.items()}
+        n_free = {f: len((_hold(full, h) or full).free) for f, h in families.items()}
+        chosen = _choose_family(fam_mae, n_free)
+        selection = {"field": "trajectory", "folds": [k for k, _, _ in folds],
+                     "val_mae": {f"{f}.{kind}": v for f, vs in per_fold.items()
+                                 for (kind, _, _), v in zip(folds, vs, strict=True)},
+                     "chosen": chosen}
+        prog(f"fitting {chosen} on all training logs", 0.75)
+        cands, r = _fit_families(residual, joints, ctx, config, {chosen: families[chosen]}, 1,
+                                 prog)
+        rounds += r
+        best = cands[(chosen, 0)]
+    elif inner is not None:
         # start-robust selection: every family from ``restarts`` jittered starts, fitted on
         # the inner fit logs; the family and the fit chosen on the inner validation logs
         # (held out of that fit), and that fit is the identified model
@@ -390,7 +424,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                      identified_mae=dict(zip(logs, mae[1].tolist(), strict=True)),
                      fit_seconds=fit_s, rounds=rounds, cost=best.cost,
                      at_bound=_at_bound(best), family=chosen, family_train_mae=fam_mae,
-                     selection=selection, notes=notes)
+                     selection=selection, notes=notes + bound_notes(best))
     if test:  # the ablation is reported on the held-out logs only: replay only those
         abl = per_log_mae(rep, whole_logs(ds, test),
                           [[e for e in effects if e.name != n] for n in config.effects])
@@ -494,6 +528,19 @@ def faster_than_training(ds: Dataset, train: Sequence[int], test: Sequence[int],
     return {i: v for i, v in speeds.items() if v > margin * top}
 
 
+def type_folds(ds: Dataset, train: Sequence[int]
+               ) -> list[tuple[str, tuple[int, ...], tuple[int, ...]]] | None:
+    """Leave-one-trajectory-type-out folds of the training logs by their ``trajectory`` header:
+    [(type left out, logs fitted, logs validated)], or None when a log lacks the header or
+    fewer than two types are present."""
+    kinds = [ds.trajectories[i].meta.get("trajectory") for i in train]
+    if any(k is None for k in kinds) or len(set(kinds)) < 2:
+        return None
+    return [(str(k), tuple(i for i, x in zip(train, kinds, strict=True) if x != k),
+             tuple(i for i, x in zip(train, kinds, strict=True) if x == k))
+            for k in sorted(set(kinds), key=str)]
+
+
 def inner_split(ds: Dataset, train: Sequence[int]
                 ) -> tuple[str, tuple[int, ...], tuple[int, ...]] | None:
     """Split the training logs for an inner validation by their headers alone.
@@ -588,14 +635,49 @@ def _hold(st: fitmod.Structure, params: frozenset) -> fitmod.Structure | None:
     return fitmod.Structure(st.effects, st.joints, free, st.fixed)
 
 
-def _at_bound(t: fitmod.Track) -> list[str]:
+def _bound_hits(t: fitmod.Track) -> list[tuple[int, str]]:
+    """(free index, "lower" / "upper") of the fitted values on a search bound that is not the
+    parameter's null (a friction at 0 is absent, not at a bound), nor the Stribeck velocity of
+    a breakaway share within 0.1 % of its range from its null (it shapes next to nothing)."""
     lo, hi = t.structure.u_bounds()
+    x = t.structure.x(t.u)
     out = []
     for i, f in enumerate(t.structure.free):
         null = EFFECTS[f.effect].param(f.param).null
-        for b in (lo[i], hi[i]):
+        if f.param == "velocity" and any(
+                (g.effect, g.param, g.joint) == (f.effect, "static", f.joint)
+                and abs(x[k] - EFFECTS[g.effect].param("static").null) <= 1e-3 * (g.hi - g.lo)
+                for k, g in enumerate(t.structure.free)):
+            continue
+        for b, side in ((lo[i], "lower"), (hi[i], "upper")):
             if abs(t.u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
-                out.append(f"{f.effect}.{f.param}")
+                out.append((i, side))
+    return out
+
+
+def _at_bound(t: fitmod.Track) -> list[str]:
+    return [f"{t.structure.free[i].effect}.{t.structure.free[i].param}"
+            for i, _ in _bound_hits(t)]
+
+
+def bound_notes(t: fitmod.Track) -> list[str]:
+    """One line per fitted value on a search bound (``_bound_hits``): the value, which bound,
+    the range, and what it means for the user: the logs pull it further, so it is not a
+    measurement of that parameter (measured 2026-11-26: Pham XL330's mounting offset at +0.3 rad
+    with the armature x6.9, Rhoban XL330's voltage weight at 1.5). The ranges are not widened:
+    a bench mounted more than 0.3 rad (17 degrees) off its hanging zero, or a supply term beyond
+    1.5x the measured sag, is not a servo property but a sign of an effect the structure lacks."""
+    out = []
+    for i, side in _bound_hits(t):
+        f = t.structure.free[i]
+        unit = EFFECTS[f.effect].param(f.param).unit
+        unit = "" if unit == "1" else f" {unit}"
+        joint = t.structure.joints[f.joint]
+        out.append(f"{f.effect}.{f.param} on {joint} fitted {f.from_u(t.u[i]):.4g}{unit}, at its "
+                   f"{side} search bound (range {f.lo:.4g} to {f.hi:.4g}{unit}): the logs pull it "
+                   "further, so the value is not a measurement of it; it may stand in for an "
+                   "effect the structure lacks (compare the held-out error with and without it, "
+                   "``ablation``)")
     return out
 
 
