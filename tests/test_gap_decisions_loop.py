@@ -74,7 +74,8 @@ class _Engine:
         out = np.zeros(N)
         for e in effects:
             sign = -1.0 if shift and e.name == self.FLIP else 1.0
-            out = out + sign * float(e.values["offset"][0]) * PATTERN[e.name]
+            value = next(iter(e.values.values()))[0]  # an offset, or another 1-joint value
+            out = out + sign * float(value) * PATTERN[e.name]
         return out[:, None]
 
     def run(self, windows, columns, goal_shift=0.0, force_peak=False):

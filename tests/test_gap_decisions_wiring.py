@@ -348,3 +348,37 @@ def test_candidates_the_select_split_cannot_tell_apart_are_named_once_as_equival
     assert first["position_offset"].accepted and not first["mounting_offset"].accepted
     assert first["mounting_offset"].select_gain == pytest.approx(
         first["position_offset"].select_gain)
+
+
+def test_an_effect_a_later_pair_makes_redundant_is_dropped_by_the_backward_pass(
+        loop, monkeypatch):
+    """Three linear effects: position_offset replays p1 + p2 + p3, viscous_damping p2 and
+    mounting_offset p1 (p1, p2, p3, n orthogonal sinusoids of 1, 3, 7, 5 cycles, equal energy).
+    On data 0.05 (p1 + p2) + 0.001 n, position_offset alone explains the most (2/3 of the
+    signal's energy against 1/2 for either other) and is accepted first; viscous_damping
+    (earlier in the canonical list than its tie mounting_offset) then mounting_offset follow,
+    and with both the first is fitted to 0: leaving it out raises no error, so the backward
+    pass drops it."""
+    import test_gap_decisions_loop as L
+
+    p3 = np.sin(2 * np.pi * 7 * L.T)
+    monkeypatch.setitem(L.PATTERN, "position_offset", P_A + P_B + p3)
+    monkeypatch.setitem(L.PATTERN, "viscous_damping", P_B)
+    monkeypatch.setitem(L.PATTERN, "mounting_offset", P_A)
+    scores = {"position_offset": [0.67, 0.6, 0.6], "viscous_damping": [0.5, 0.4, 0.4],
+              "mounting_offset": [0.5, 0.4, 0.4]}
+    res = loop(0.05, 0.05, 0.001, floor=0.001, scores=scores)
+    assert [c.effect for r in res.rounds for c in r if c.accepted] == [
+        "position_offset", "viscous_damping", "mounting_offset"]
+    assert res.stop_reason == ("max_effects reached; dropped by the backward pass: "
+                               "position_offset")
+    assert sorted(c.effect for c in res.causes) == ["mounting_offset", "viscous_damping"]
+    assert all(c.params[next(iter(c.params))]["value"] == [pytest.approx(0.05, abs=1e-6)]
+               for c in res.causes)
+    # the held-out error of the model without it: the 1 mrad pattern no effect explains
+    assert res.gain.extended_rmse == pytest.approx(0.001 / math.sqrt(2), rel=1e-3)
+    # the model after the drop fits to c / sqrt(2) = 0.7 mrad on select, within
+    # backward_above 1.5 floors: no backward search follows
+    res = loop(0.05, 0.05, 0.001, floor=0.001, scores=scores, search="both")
+    assert "backward_search" not in res.timing
+    assert sorted(c.effect for c in res.causes) == ["mounting_offset", "viscous_damping"]
