@@ -74,8 +74,13 @@ class _Engine:
         out = np.zeros(N)
         for e in effects:
             sign = -1.0 if shift and e.name == self.FLIP else 1.0
-            value = next(iter(e.values.values()))[0]  # an offset, or another 1-joint value
-            out = out + sign * float(value) * PATTERN[e.name]
+            value = float(next(iter(e.values.values()))[0])  # an offset, or another value
+            if e.name == "latency":  # the 1-cycle sine delayed by the delay rounded down to
+                # the physics step (a step phase: flat within a step)
+                value = math.floor(value / self.ds.timestep + 1e-9) * self.ds.timestep
+                out = out + np.sin(2 * np.pi * (T - value)) - np.sin(2 * np.pi * T)
+                continue
+            out = out + sign * value * PATTERN[e.name]
         return out[:, None]
 
     def run(self, windows, columns, goal_shift=0.0, force_peak=False):
@@ -106,17 +111,19 @@ def make_loop(monkeypatch):
     """The ``loop`` fixture's runner (other test files build their fixture from it)."""
 
     def run(a, b, c, *, floor, scores, half=1e-6, flip=None, seen=None, prog=None, parts=None,
-            cs=None, **cfg):
+            cs=None, extra=None, **cfg):
         """``seen``: a dict that receives each stand-in's arguments (name -> list of calls);
         ``prog``: the progress callback (default: none); ``parts``: the intervals' whole answer
         (centre, half, noise, data, shift) from the final track (default: from ``half``);
-        ``cs``: c per log (train, select, test) instead of one for all."""
+        ``cs``: c per log (train, select, test) instead of one for all; ``extra``: a signal
+        added to every log."""
         calls = seen if seen is not None else {}
 
         def log(name, *args):
             calls.setdefault(name, []).append(args)
         cs = cs if cs is not None else (c, c, c)
-        ds = _DS([_Traj((a * P_A + b * P_B + cs[i] * NOISE)[:, None], T.copy(), f"log{i}")
+        more = extra if extra is not None else 0.0
+        ds = _DS([_Traj((a * P_A + b * P_B + cs[i] * NOISE + more)[:, None], T.copy(), f"log{i}")
                   for i in range(3)],
                  sources=("log0", "log1", "log2"), models={"m": "<mujoco/>"})
         names = list(scores)

@@ -382,3 +382,23 @@ def test_an_effect_a_later_pair_makes_redundant_is_dropped_by_the_backward_pass(
     res = loop(0.05, 0.05, 0.001, floor=0.001, scores=scores, search="both")
     assert "backward_search" not in res.timing
     assert sorted(c.effect for c in res.causes) == ["mounting_offset", "viscous_damping"]
+
+
+def test_a_delay_stuck_on_a_flat_step_is_polished_in_its_round_and_in_the_final_fit(loop):
+    """The stand-in replays a delay as the 1-cycle sine delayed by the delay rounded down to the
+    2 ms step. Data lag 34.5 ms. Round 1 fits the three starts (10, 30, 60 ms); LM's 0.5 ms
+    finite difference sees no slope within a step, so each stays put; the best (30 ms) is
+    scanned over +-2 ms and moves to 32 ms, refitted (rescued) and judged there: its training
+    RMS is that of two unit sines 2.5 ms apart, 2 sin(pi 0.0025) / sqrt(2), with the 1 mrad
+    pattern beside it. The final fit scans again from 32 ms and reaches 34 ms, the step
+    below the truth."""
+    T_ = np.arange(40) * 0.025
+    lag = np.sin(2 * np.pi * (T_ - 0.0345)) - np.sin(2 * np.pi * T_)
+    res = loop(0.0, 0.0, 0.001, floor=0.001, scores={"latency": 0.9}, extra=lag)
+    (cand,) = res.rounds[0]
+    assert cand.accepted and cand.params == {"delay": [pytest.approx(0.032, abs=1e-9)]}
+    rms = 2 * math.sin(math.pi * 0.0025) / math.sqrt(2)
+    assert cand.train_rmse == pytest.approx(math.sqrt(rms ** 2 + 0.001 ** 2 / 2), rel=1e-6)
+    (cause,) = res.causes
+    assert cause.effect == "latency"
+    assert cause.params["delay"]["value"] == [pytest.approx(0.034, abs=1e-9)]
