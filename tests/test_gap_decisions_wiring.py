@@ -402,3 +402,28 @@ def test_a_delay_stuck_on_a_flat_step_is_polished_in_its_round_and_in_the_final_
     (cause,) = res.causes
     assert cause.effect == "latency"
     assert cause.params["delay"]["value"] == [pytest.approx(0.034, abs=1e-9)]
+
+
+def test_the_backward_search_must_pay_on_training_data_and_on_the_probes(loop):
+    """The backward search of ``test_gap_decisions_loop`` (position_offset then the missed
+    mounting_offset, 90 % lower select MSE) is refused (a) when the pair lowers the training
+    error by less than min_gain: train noise c = 0.2 rad makes it b^2 / (b^2 + c^2) =
+    0.0009 / 0.0409 = 2.2 %; (b) when a fraction of a step later its gain is gone (the stand-in
+    flips mounting_offset's signal on a goal shift: the select error rises). (Here the search's
+    own pruning, ``_backward``'s rules on the training segments and the probes, already drops
+    mounting_offset; the checks after it in ``_analyze`` are a second line that no stand-in
+    case has reached.)"""
+    scores = {"position_offset": 0.9, "mounting_offset": [0.5, 0.01]}
+    res = loop(0.05, 0.03, None, cs=(0.2, 0.01, 0.01), floor=0.001, search="both",
+               scores=scores)
+    assert "backward_search" in res.timing
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.stop_reason == "no candidate signature explains the residual"
+    res = loop(0.05, 0.03, 0.01, floor=0.001, search="both", flip="mounting_offset",
+               scores=scores)
+    assert "backward_search" in res.timing
+    assert [c.effect for c in res.causes] == ["position_offset"]
+    assert res.stop_reason == "no candidate signature explains the residual"
+    # neither: kept (as in test_gap_decisions_loop)
+    res = loop(0.05, 0.03, 0.01, floor=0.001, search="both", scores=scores)
+    assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
