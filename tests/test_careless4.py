@@ -262,3 +262,115 @@ def test_a_run_written_beside_a_users_files_says_where_and_leaves_them(algo, tmp
         extra = ["--n-iter", "2"] if "--resume" in argv else []
         assert main(["train", algo, "--out", str(target), "--no-progress", *argv, *extra]) == 0
         assert "held" not in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------
+# runaway inputs: a log may not ask for memory its size on disk does not explain
+
+
+def _bench_xml(tmp_path: Path) -> Path:
+    from lowcostdex.sim.models.bench import BenchConfig, build_bench
+
+    path = tmp_path / "bench.xml"
+    path.write_text(build_bench(BenchConfig()).to_xml())
+    return path
+
+
+def test_an_npz_of_compressed_zeros_is_refused_from_its_headers_before_it_is_inflated(tmp_path):
+    """An NPZ is a zip: 2,000,001 float64 zeros a column (16 MB) take 16 kB on disk, and a 31 MB
+    file asked for 7 GB (MemoryError traceback, found by this audit). The shapes are read from
+    the arrays' headers: refused naming the column and its length, with less than 2 MB
+    allocated (tracemalloc sees numpy's buffers)."""
+    import tracemalloc
+
+    from lowcostdex.gap.logs import read_columns
+    from lowcostdex.gap.trajectory import LogError
+
+    n = 2_000_001  # one more than the per-log cap, MAX_SAMPLES
+    path = tmp_path / "log.npz"
+    np.savez_compressed(path, time=np.zeros(n), **{"goal:arm": np.zeros(n), "qpos:arm": np.zeros(n)})
+    assert path.stat().st_size < 200_000
+    tracemalloc.start()
+    try:
+        with pytest.raises(LogError, match=r"log.npz: column 'time' has 2000001 samples; at most "
+                                           r"2000000 per log"):
+            read_columns(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2e6, peak
+
+
+@pytest.mark.parametrize("name,text,message", [
+    ("one 200 kB field", "time,goal:arm,qpos:arm\n" + "x" * 200_000 + "\n",
+     "not a CSV log (line 2: field larger than field limit (131072))"),
+    ("5000 columns", ",".join(f"c{i}" for i in range(5000)) + "\n" + ",".join("0" * 5000) + "\n",
+     "the header has 5000 columns; a log has at most 1024"),
+    ("a 2-D array in an NPZ", None, "column 'qpos:arm' must be 1-D, got shape (10, 10)"),
+], ids=["one 200 kB field", "5000 columns", "a 2-D array in an NPZ"])
+def test_a_log_no_logger_writes_is_one_line(name, text, message, tmp_path, capsys, monkeypatch):
+    """A long line (a minified JSON saved as .csv) was a csv.Error traceback."""
+    monkeypatch.chdir(tmp_path)
+    _bench_xml(tmp_path)
+    log = tmp_path / ("log.csv" if text is not None else "log.npz")
+    if text is None:
+        np.savez(log, time=np.arange(10.0), **{"goal:arm": np.zeros(10),
+                                                 "qpos:arm": np.zeros((10, 10))})
+    else:
+        log.write_text(text)
+    before = _snapshot(tmp_path)
+    code = main(["gap", "analyze", "--model", "bench.xml", "--log", log.name, "--out", "r"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and f"{log.name}: {message}" in lines[0], err
+    assert _snapshot(tmp_path) == before
+
+
+def test_a_demo_field_of_unwritten_chunks_is_refused_before_it_is_read(tmp_path, capsys):
+    """HDF5 leaves a chunked field that was never written off the disk (it reads as zeros): a
+    demo file of 60 kB whose actions are 100,000,001 x 1 asked for 800 MB before anything
+    checked it. Refused from the field's shape, naming it, with little allocated."""
+    import sys
+    import tracemalloc
+
+    import gymnasium as gym
+    import h5py
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from pointmass import demo_info, expert_action, make_pointmass
+
+    from lowcostdex.demonstrations.dataset import save_demos, teacher_episodes
+
+    env = "lowcostdex_test/PointMass-v0"
+    if env not in gym.registry:
+        gym.register(env, entry_point="pointmass:PointMass", max_episode_steps=30)
+    episodes = teacher_episodes(make_pointmass(), lambda e, obs: expert_action(obs),
+                                seeds=range(1000, 1002))
+    import dataclasses
+
+    demos = save_demos(tmp_path / "demos.h5", episodes,
+                       dataclasses.replace(demo_info(), env_id=env))
+    with h5py.File(demos, "a") as f:
+        del f["episode_1/actions"]
+        f.create_dataset("episode_1/actions", shape=(10**8 + 1, 1), chunks=(2**16, 1),
+                         compression="gzip", dtype="f8")
+    assert demos.stat().st_size < 200_000
+    from lowcostdex.demonstrations.file import read_episodes
+    from lowcostdex.errors import InputError
+
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError, match="episode_1/actions has shape"):
+            read_episodes(demos)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    code = main(["train", "dapg", "--env", env, "--out", str(tmp_path / "run"), "--demos",
+                 str(demos), "--n-iter", "1", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    assert (f"{demos}: episode_1/actions has shape (100000001, 1), 100000001 values; a demo "
+            "field holds at most 1e+08") in err
+    assert peak < 100e6, peak
+    assert not (tmp_path / "run").exists()

@@ -321,16 +321,28 @@ def _first_line(exc: BaseException) -> str:
     return text[0][:160] if text else type(exc).__name__
 
 
+MAX_FIELD_VALUES = 10**8
+"""Numbers per dataset of a demo file (800 MB as float64; an hour-long episode at 50 Hz with 100
+observations holds 1.8e7): a gzip-compressed field of zeros takes almost nothing on disk, and
+reading it first would fill the memory."""
+
+
 def _read(group: h5py.Group, key: str, path: Path, kind: type | None = None) -> Any:
     """``group[key]`` (a dataset's array, or an attribute with ``kind`` given), or an
     InputError naming the file and the field."""
     where = f"{group.name.strip('/')}/{key}".strip("/")
     try:
         if kind is None:
-            return group[key][()]
+            data = group[key]
+            if isinstance(data, h5py.Dataset) and data.size > MAX_FIELD_VALUES:
+                raise InputError(f"{path}: {where} has shape {data.shape}, {data.size} values; "
+                                 f"a demo field holds at most {MAX_FIELD_VALUES:.0e}")
+            return data[()]
         return kind(group.attrs[key])
     except KeyError:
         raise InputError(f"{path}: {where} is missing") from None
+    except InputError:
+        raise
     except (OSError, RuntimeError) as exc:  # h5py: data cut short or corrupt
         raise InputError(f"{path}: {where} cannot be read (cut short or corrupt?): "
                          f"{_first_line(exc)}") from None

@@ -94,6 +94,7 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
     if path.is_dir():
         raise LogError(f"{path}: is a folder, not a log file")
     if suffix == ".npz":
+        _check_npz_shapes(path)
         try:
             with np.load(path, allow_pickle=False) as z:
                 cols = {k: np.asarray(z[k], dtype=float) for k in z.files}
@@ -115,6 +116,43 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
     return cols
 
 
+MAX_COLUMNS = 1024
+"""Columns per log: a 16-joint hand logs about 113 (7 channels a joint and the time); bounds the
+memory a log may ask for, with ``MAX_SAMPLES``."""
+
+
+def _check_npz_shapes(path: Path) -> None:
+    """Refuse an NPZ whose arrays are not columns of at most ``MAX_SAMPLES`` numbers, or that
+    holds more than ``MAX_COLUMNS`` of them, from the arrays' headers alone: loading first let a
+    31 MB file of compressed zeros ask for 7 GB (and end in a MemoryError traceback)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            members = [m for m in zf.infolist() if m.filename.endswith(".npy")]
+            if len(members) > MAX_COLUMNS:
+                raise LogError(f"{path}: {len(members)} arrays; a log has at most {MAX_COLUMNS} "
+                               "columns")
+            for m in members:
+                with zf.open(m) as f:
+                    version = np.lib.format.read_magic(f)
+                    read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                            else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read(f)
+                name = m.filename[:-4]
+                if len(shape) != 1:
+                    raise LogError(f"{path}: column {name!r} must be 1-D, got shape {shape}")
+                if shape[0] > MAX_SAMPLES:
+                    raise LogError(f"{path}: column {name!r} has {shape[0]} samples; at most "
+                                   f"{MAX_SAMPLES} per log (split the log into shorter ones)")
+                if dtype.kind not in "biuf":
+                    raise LogError(f"{path}: column {name!r} holds {dtype} values, not numbers")
+    except LogError:
+        raise
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise LogError(f"{path}: not a readable NPZ log ({exc})") from None
+
+
 def _read_csv(path: Path) -> dict[str, np.ndarray]:
     """Rows streamed (at most MAX_SAMPLES), a UTF-8 byte-order mark (spreadsheets) ignored."""
     try:
@@ -126,6 +164,9 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
             header = [h.strip() for h in next(reader, [])]
             if not header:
                 raise LogError(f"{path}: empty file (no header row)")
+            if len(header) > MAX_COLUMNS:
+                raise LogError(f"{path}: the header has {len(header)} columns; a log has at "
+                               f"most {MAX_COLUMNS}")
             if len(header) == 1 and ";" in header[0]:  # ';' may come with decimal commas
                 raise LogError(f"{path}: the header {header[0]!r} is separated by ';'; the log "
                                "format separates columns by ',' (and uses '.' for decimals)")
@@ -154,6 +195,8 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
                                    f"{row[c]!r} is not a number") from None
     except UnicodeDecodeError:
         raise LogError(f"{path}: not a text CSV file (binary data?)") from None
+    except csv.Error as exc:  # a field over the csv module's 128 kB: not a log's number
+        raise LogError(f"{path}: not a CSV log (line {raw.line_num}: {exc})") from None
     header = header[:len(header) - trailing]
     data = np.array(rows, dtype=float).reshape(len(rows), len(header))
     return {h: data[:, i] for i, h in enumerate(header)}
