@@ -138,3 +138,20 @@ def test_blocks_of_an_episode_that_starts_inside_its_log_and_of_two_joints():
     # the predictions are subtracted: a prediction equal to the data leaves nothing
     assert block_sse(ds, [Window(0, 0, 40, 0)], [np.ones((40, 1))], 3.0).tolist() == [
         0.0, 0.0, 0.0]
+
+
+def test_gains_of_errors_far_below_one_square_radian():
+    """Real select errors are small (here 0.01 - 0.02 rad^2 per episode or block): a model
+    that halves every one of them gains 50 % in every resample, so the bootstrap bounds are
+    50 % too (nothing of the scale of the numbers may enter)."""
+    from lowcostdex.gap.selection import select_gain_ci
+    from lowcostdex.gap.significance import paired_gain_bound
+
+    rng = np.random.default_rng(0)
+    rel, low = select_gain_ci(np.full(3, 0.02), np.full(3, 0.01), rng, 200)
+    assert (rel, low) == (pytest.approx(0.5), pytest.approx(0.5))
+    assert paired_gain_bound(np.full(8, 0.01), np.full(8, 0.005), rng, 200) == pytest.approx(0.5)
+    assert paired_gain_bound(np.full(8, 0.01), np.full(8, 0.005), rng, 200,
+                             length=1) == pytest.approx(0.5)
+    # one block: no bound
+    assert paired_gain_bound(np.array([0.01]), np.array([0.005]), rng, 200) == -math.inf
