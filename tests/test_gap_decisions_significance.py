@@ -155,3 +155,36 @@ def test_gains_of_errors_far_below_one_square_radian():
                              length=1) == pytest.approx(0.5)
     # one block: no bound
     assert paired_gain_bound(np.array([0.01]), np.array([0.005]), rng, 200) == -math.inf
+
+
+def _andrews(g):
+    """Andrews (1991) eq. 6.4, Bartlett kernel, unit weights, written out: each column's AR(1)
+    fit (rho, innovation variance s2) on the demeaned column, alpha(1) = sum 4 rho^2 s2^2 /
+    ((1 - rho)^6 (1 + rho)^2) / sum s2^2 / (1 - rho)^4, bandwidth 1.1447 (alpha nb)^(1/3)."""
+    num = den = 0.0
+    for col in g.T:
+        x = col - col.mean()
+        rho = float(np.dot(x[1:], x[:-1]) / np.dot(x[:-1], x[:-1]))
+        s2 = float(np.mean([(x[i + 1] - rho * x[i]) ** 2 for i in range(len(x) - 1)]))
+        num += 4 * rho ** 2 * s2 ** 2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
+        den += s2 ** 2 / (1 - rho) ** 4
+    return 1.1447 * (num / den * len(g)) ** (1 / 3)
+
+
+def test_the_hac_bandwidth_is_andrews_plug_in_over_the_score_columns():
+    from lowcostdex.gap.significance import andrews_bandwidth
+
+    # two score columns of different scale and persistence over 12 blocks
+    a = np.array([1.0, 1.4, 1.1, 0.3, -0.2, -0.9, -1.2, -0.4, 0.2, 0.9, 0.5, -0.1])
+    b = 10 * np.array([0.5, -0.3, 0.4, -0.6, 0.2, 0.1, -0.4, 0.3, -0.1, 0.2, -0.5, 0.4])
+    g = np.stack([a, b], axis=1)
+    want = _andrews(g)
+    assert 0 < want < 11
+    assert andrews_bandwidth(g) == pytest.approx(want, rel=1e-12)
+    # a constant column carries no autocorrelation and is skipped, not the end of the sum
+    g3 = np.stack([np.full(12, 2.0), a, b], axis=1)
+    assert andrews_bandwidth(g3) == pytest.approx(want, rel=1e-12)
+    # three blocks are enough for an estimate; two are not
+    assert andrews_bandwidth(g[:3]) == pytest.approx(min(_andrews(g[:3]), 2.0), rel=1e-12)
+    assert andrews_bandwidth(g[:3]) > 0
+    assert andrews_bandwidth(g[:2]) == 0.0
