@@ -160,3 +160,15 @@ def test_an_effect_whose_gain_is_gone_a_fraction_of_a_step_later_is_dropped():
 def test_a_single_effect_is_never_judged():
     s, x, dropped, _ = _case(0.05, 0.0, 0.01, order=("position_offset",), x=[0.05])
     assert dropped == [] and s.effects == ("position_offset",) and x.tolist() == [0.05]
+
+
+def test_the_probes_judge_by_squared_error_like_the_select_split():
+    """b = 3 mrad under c = 10 mrad: leaving B out raises the squared error by (b / c)^2 = 0.09
+    on the select split, the training segments and each probe, above min_gain / 2 = 0.08 with
+    min_gain 0.16: kept. By absolute error the rise would be only 7.6 % (sum |c n + b pB| /
+    sum |c n| - 1 over the 40 samples), below 0.08: a probe that compared absolute errors
+    would drop it."""
+    sae = float(np.abs(0.01 * NOISE + 0.003 * P_B).sum() / np.abs(0.01 * NOISE).sum() - 1)
+    assert 0.07 < sae < 0.08 < 0.09
+    s, _, dropped, _ = _case(0.05, 0.003, 0.01, min_gain=0.16)
+    assert dropped == [] and s.effects == ("position_offset", "mounting_offset")
