@@ -31,7 +31,8 @@ CYCLES = 10_000
 EVENT_EVERY = 1000  # a hot motor at cycle 1000 k + 250, a silent host at 1000 k + 750
 
 
-FAILED_ENABLES = [0]  # torque re-enables that raised BusError (a write lost 4 times): retried
+FAILED_ENABLES = [0]  # torque re-enables that raised BusError: must stay 0 (8-15 of 20 before
+# 030057e, when the set-up writes had 4 tries and each caller retried)
 HOLDS_PAST_LIMIT: list[float] = []  # torque-on goals past a limit: |goal - true position| [rad]
 TORQUE_ON: list[tuple[float, float]] = []  # every torque-on goal: (|goal - true|, age) [rad, s]
 
@@ -141,11 +142,13 @@ def test_soak_10k_cycles_through_thermal_relaxations_and_watchdog_trips(seed):
         assert audit.high[j.motor_id] > j.high - TICK and audit.low[j.motor_id] < j.low + TICK
     assert robot.metrics.invalid_reads > 0.02 * 10 * CYCLES
     assert sum(audit.count[i] for i in ids) > 0.8 * 9 * CYCLES
+    # torque on rides out the lossy bus itself (bounded retries in the driver): no caller retry
+    assert FAILED_ENABLES[0] == 0
     print(f"torque-on goals {len(TORQUE_ON)} (longest sample to arrival "
           f"{1e3 * max(age for _, age in TORQUE_ON):.2f} ms); "
           f"torque-on holds past a policy limit: {len(HOLDS_PAST_LIMIT)} (largest distance from "
           f"the true position {max(HOLDS_PAST_LIMIT, default=0.0):.2e} rad); re-enables that "
-          f"lost a write 4 times and were retried: {FAILED_ENABLES[0]} of "
+          f"raised BusError: {FAILED_ENABLES[0]} of "
           f"{2 * events} guard events; goals accepted {sum(audit.count[i] for i in ids)}, "
           f"invalid reads {robot.metrics.invalid_reads}, holds {robot.metrics.holds}")
 
