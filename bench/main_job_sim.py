@@ -216,6 +216,53 @@ def train_in_sim(a: argparse.Namespace) -> dict[str, Any]:
     return res
 
 
+def clones(a: argparse.Namespace) -> dict[str, Any]:
+    """``--candidates`` clones (``main_job.clones``) from ``DIR/demos.h5``, each judged on its
+    validation in the randomized sim (``--val`` episodes of ``BC_EVAL_STREAM``, as the main job
+    chooses) and on the main job's ``--heldout`` held-out episodes of the emulated robot: does
+    the sim validation predict the robot?"""
+    from scipy.stats import spearmanr
+
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.configs import DAPGConfig, TrainConfig
+    from lowcostdex.main_job.clones import choose_clone
+    from lowcostdex.main_job.setup import DAPG_LAM0, TASKS
+
+    env_id = TASKS["valve-target"].env_id
+    kw = sim_kwargs(a.randomize)
+    backend = kw.pop("backend")
+    config = TrainConfig(algo="dapg", env_id=env_id, backend=backend, env_kwargs=kw,
+                         seed=a.seed, n_iter=1, n_traj=1, eval_episodes=1,
+                         demos=str(a.demos / "demos.h5"), eval_bc=True,
+                         dapg=DAPGConfig(lam0=DAPG_LAM0), eval_paired=True, progress=False)
+    keep: dict[int, Any] = {}
+    chosen = choose_clone(config, a.candidates, a.val, keep)
+    folder = a.out / f"clones_s{a.seed}"
+    folder.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for s, policy in keep.items():
+        files[str(s)] = folder / f"clone_{s}.pt"
+        ex.save_state(files[str(s)], {"policy": policy.to_checkpoint()})
+    t1, c1 = time.perf_counter(), time.process_time()
+    robot = heldout(env_id, robot_kwargs(), files, a.seed, a.heldout)
+    rows = [{**c, "robot_successes": robot[str(c["bc_seed"])]["successes"],
+             "robot_median_error": round(float(np.median(robot[str(c["bc_seed"])]["errors"])), 4)}
+            for c in chosen["candidates"]]
+    rho = spearmanr([r["successes"] for r in rows], [r["robot_successes"] for r in rows])
+    res = {"seed": a.seed, "randomize": a.randomize, "val": a.val, "heldout": a.heldout,
+           "chosen": chosen["bc_seed"], "rows": rows,
+           "chosen_robot": robot[str(chosen["bc_seed"])]["successes"],
+           "first_robot": robot[str(a.seed)]["successes"],
+           "spearman_val_robot": round(float(rho.statistic), 3),
+           "choose_wall_s": chosen["seconds"], "choose_cpu_s": chosen["cpu_seconds"],
+           "robot_wall_s": round(time.perf_counter() - t1, 1),
+           "robot_cpu_s": round(time.process_time() - c1, 1)}
+    with open(a.out / "clones.jsonl", "a") as f:
+        f.write(json.dumps(res) + "\n")
+    print(json.dumps(res), flush=True)
+    return res
+
+
 def main() -> None:
     torch.set_num_threads(1)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -236,8 +283,18 @@ def main() -> None:
     r.add_argument("--config", type=json.loads, default={},
                    help='TrainConfig overrides as JSON, e.g. \'{"npg": {"step_size": 0.05}}\'')
     r.add_argument("--tag", default="", help="appended to the run's folder name")
+    c = sub.add_parser("clones")
+    c.add_argument("--demos", type=Path, required=True, help="main-job output folder")
+    c.add_argument("--out", type=Path, required=True)
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--candidates", type=int, default=6)
+    c.add_argument("--val", type=int, default=100, help="validation episodes (sim)")
+    c.add_argument("--randomize", choices=RANDOMIZE, default="default")
+    c.add_argument("--heldout", type=int, default=40, help="held-out episodes on the robot")
     a = ap.parse_args()
-    if a.cmd == "throughput":
+    if a.cmd == "clones":
+        clones(a)
+    elif a.cmd == "throughput":
         throughput(a.episodes)
     else:
         train_in_sim(a)

@@ -180,3 +180,59 @@ def test_robot_health_figure_reads_at_a_glance(smoke):
 
     _, r = smoke
     assert figure_problems(robot_health_figure(r)) == []
+
+
+def test_dapg_starts_from_the_clone_that_validated_best(smoke):
+    """Budget smoke fits 2 clones (``SimTraining.clones``) and judges each on 3 episodes of
+    the randomized simulation. The truth of the chosen clone's score is a rollout written
+    here: its saved clone (``train_dapg/bc_policy.pt``) in a fresh env, reset with the clone
+    episodes' seeds, mean action clipped to [-1, 1], success = final |goal error| < 0.1 rad
+    (ROBEL's valve tolerance, typed in)."""
+    import gymnasium as gym
+
+    import lowcostdex  # noqa: F401
+    from lowcostdex.algos.samplers import BC_EVAL_STREAM, make_jobs
+    from lowcostdex.algos.train import load_policy
+
+    out, r = smoke
+    c = r["train"]["clones"]
+    rows = c["candidates"]
+    assert len(rows) == 2 and len({x["bc_seed"] for x in rows}) == 2
+    assert rows[0]["bc_seed"] == 0                       # the run's seed's clone is a candidate
+    best = max(x["successes"] for x in rows)
+    chosen = next(x for x in rows if x["bc_seed"] == c["bc_seed"])
+    assert chosen["successes"] == best
+    config = json.loads((out / "train_dapg" / "config.json").read_text())
+    assert config["bc_seed"] == c["bc_seed"] == r["train"]["bc"]["bc_seed"]
+    env = gym.make(config["env_id"], backend="sim", **config["env_kwargs"])
+    policy = load_policy(out / "train_dapg" / "bc_policy.pt").snapshot()
+    solved, errors = 0, []
+    try:
+        for job in make_jobs(config["seed"], BC_EVAL_STREAM, 0, chosen["episodes"], True):
+            obs, _ = env.reset(seed=job.env_seed())
+            done = False
+            while not done:
+                action = np.clip(policy.mean(obs), -1, 1).astype(np.float32)
+                obs, _, term, trunc, info = env.step(action)
+                done = term or trunc
+            errors.append(abs(info["goal_error"]))
+            solved += abs(info["goal_error"]) < 0.1
+    finally:
+        env.close()
+    assert solved == chosen["successes"], (errors, chosen)
+    assert np.median(errors) == pytest.approx(chosen["median_final_error"], rel=1e-6)
+    assert "best of 2 clones" in (out / "report.md").read_text()
+
+
+def test_learning_curves_figure_reads_at_a_glance(smoke):
+    """The train stage's figure (learning_curves.png), rebuilt from the runs' metrics files."""
+    from figcheck import figure_problems
+
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.main_job import Context
+    from lowcostdex.main_job.stages import training_figure
+
+    out, r = smoke
+    curves = {a: ex.read_metrics(out / f"train_{a}" / ex.METRICS_FILE) for a in ("dapg", "npg")}
+    ctx = Context(out=out, size="smoke", task="valve")
+    assert figure_problems(training_figure(ctx, r["train"], curves)) == []

@@ -277,6 +277,11 @@ class TrainConfig:
         run's policy as iteration -1 (``BestPolicy``): RL's iterates replace it only by beating
         it in their evaluations. Every run with demonstrations saves the clone
         (``bc_policy.pt``).
+      bc_seed: the behaviour clone's seed (its network initialisation and minibatch order);
+        None: ``seed``. From the same demonstrations the clone's seed alone moved the main
+        job's clone from 1 to 16 of 40 held-out robot episodes at the same BC loss
+        (bench/RESULTS.md, "Main job leftovers"), so a caller may fit several clones and start
+        from the one that validates best (``lowcostdex.main_job``).
       eval_paired: every evaluation runs the same episodes (reset seeds of the evaluation
         stream's iteration 0), the clone's too with ``eval_bc``, so the run's policy is chosen
         by paired comparisons: two candidates differ by their policies, not by which episodes
@@ -330,6 +335,7 @@ class TrainConfig:
     bc_init: bool = False
     eval_bc: bool = False
     eval_paired: bool = False
+    bc_seed: int | None = None
     policy: PolicyConfig = field(
         default_factory=lambda: PolicyConfig(hidden_sizes=(32, 32), init_log_std=-1.0)
     )
@@ -362,6 +368,7 @@ class TrainConfig:
         check_number("seed", self.seed, 0, integer=True)
         check_number("eval_every", self.eval_every, 0, integer=True)
         check_number("n_demos", self.n_demos, 1, integer=True, none_ok=True)
+        check_number("bc_seed", self.bc_seed, 0, integer=True, none_ok=True)
         for name, cap, what in (("n_traj", MAX_EPISODES, "trajectories per iteration"),
                                 ("eval_episodes", MAX_EPISODES, "evaluation episodes")):
             check_at_most(name, getattr(self, name), cap, f"more {what} than a run needs; "

@@ -223,8 +223,10 @@ def _init_state(config: TrainConfig, probe: Any, demos: Demos | None
     obs_dim = int(np.prod(probe.observation_space.shape))
     act_dim = int(np.prod(probe.action_space.shape))
     horizon = probe.spec.max_episode_steps if probe.spec and probe.spec.max_episode_steps else 1000
+    # a clone's network and minibatch order come from its own seed (``bc_seed``)
+    clone_seed = config.seed if demos is None or config.bc_seed is None else config.bc_seed
     policy = GaussianMLPPolicy(
-        obs_dim, act_dim, config.policy, seed_generator(config.seed, _POLICY_INIT)
+        obs_dim, act_dim, config.policy, seed_generator(clone_seed, _POLICY_INIT)
     )
     baseline = MLPBaseline(
         obs_dim, horizon, config.baseline, seed_generator(config.seed, _BASELINE_INIT)
@@ -236,11 +238,21 @@ def _init_state(config: TrainConfig, probe: Any, demos: Demos | None
                 f"the env {obs_dim}/{act_dim}"
             )
         stats = behavior_clone(
-            policy, demos.observations, demos.actions, config.bc, seed_generator(config.seed, _BC)
+            policy, demos.observations, demos.actions, config.bc, seed_generator(clone_seed, _BC)
         )
         bc = {**stats, "n_episodes": demos.n_episodes, "n_pairs": len(demos.actions)}
         return _State(policy, baseline), bc
     return _State(policy, baseline), None
+
+
+def clone_policy(config: TrainConfig, env: Any, demos: Demos) -> tuple[GaussianMLPPolicy,
+                                                                         dict[str, Any]]:
+    """The behaviour clone a run with ``config`` starts from (seed ``config.bc_seed``, else
+    ``config.seed``) and its statistics, fitted to ``demos`` for ``env``'s spaces; the run
+    itself fits the same clone."""
+    state, bc = _init_state(config, env, demos)
+    assert bc is not None
+    return state.policy, bc
 
 
 def evaluation_jobs(config: TrainConfig, k: int, clone: bool = False) -> list[RolloutJob]:

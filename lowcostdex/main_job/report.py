@@ -92,6 +92,8 @@ def markdown_report(ctx: Context) -> str:
                       + f"); its validation ran in that simulation ({d['validation_episodes']} "
                       "episodes). NPG trained on the robot. Every held-out episode below ran on "
                       "the robot.", ""]
+            if "clones" in t:
+                lines += [_clones_words(t["clones"]), ""]
         lines += ["Validation: deterministic episodes (the policy's mean action) every "
                   f"{ctx.budget.eval_every or 'last'} iteration(s) during training "
                   f"({_validation_words(t, ctx.budget.eval_episodes)}; the behaviour clone's evaluation "
@@ -173,6 +175,23 @@ def markdown_report(ctx: Context) -> str:
         lines += ["## 5. Robot health", "", f"![robot health]({R['report']['plot']})", ""]
     lines += ["Stage timings [s]: " + ", ".join(f"{k} {v['seconds']}" for k, v in R.items()), ""]
     return "\n".join(lines)
+
+
+def _clones_words(c: dict[str, Any]) -> str:
+    """How DAPG's clone was chosen among several (``results["train"]["clones"]``)."""
+    rows = c["candidates"]
+    n = rows[0]["episodes"] if rows else 0
+    chosen = next((r for r in rows if r["bc_seed"] == c["bc_seed"]), None)
+    scores = ", ".join(f"{r['successes']}" for r in rows)
+    return (f"The behaviour clone DAPG started from is the best of {len(rows)} clones fitted to "
+            "the same demonstrations (each its own network initialisation and minibatch "
+            f"order), judged on the same {n} episodes of the randomized simulation (their own "
+            f"episode set, not DAPG's validation nor the held-out episodes): successes {scores} "
+            f"of {n}; chosen: {chosen['successes'] if chosen else '?'} of {n} (BC seed "
+            f"{c['bc_seed']}), ties broken by the median final |goal error|. This took "
+            f"{c['seconds']} s ({c['cpu_seconds']} s of CPU) and no robot time. The clone "
+            "row below is this chosen clone (not measured on the robot before the held-out "
+            "episodes).")
 
 
 def _overrides(ctx: Context) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -167,6 +168,12 @@ def stage_train(ctx: Context) -> dict[str, Any]:
                              demos=str(demos) if algo == "dapg" else None,
                              eval_bc=algo == "dapg", dapg=DAPGConfig(lam0=DAPG_LAM0),
                              eval_paired=True)
+        if sim is not None and sim.clones > 1:
+            # several clones, DAPG from the one that validates best in its simulation
+            from lowcostdex.main_job.clones import choose_clone
+
+            out["clones"] = choose_clone(config, sim.clones, sim.eval_episodes)
+            config = dataclasses.replace(config, bc_seed=out["clones"]["bc_seed"])
         run_dir = ctx.out / f"train_{algo}"
         t0 = time.perf_counter()
         run = train(config, run_dir)
@@ -208,6 +215,7 @@ def stage_train(ctx: Context) -> dict[str, Any]:
     out["success_after_bc"] = float(bc["eval_success_rate"])
     out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs") if k in bc}
     out["bc"]["validation_success"] = float(bc["eval_success_rate"])
+    out["bc"]["bc_seed"] = out["clones"]["bc_seed"] if "clones" in out else ctx.seed
     heldout = _heldout(ctx, b.heldout_episodes)
     out["random"] = heldout.pop("random")
     for name, r in heldout.items():
@@ -341,6 +349,17 @@ def _flip_rollout(ctx: Context) -> dict[str, Any]:
 
 
 def _plot_training(ctx: Context, res: dict[str, Any], curves: dict[str, dict[str, Any]]) -> str:
+    """``training_figure`` saved as learning_curves.png; returns its name."""
+    plt = _pyplot()
+    fig = training_figure(ctx, res, curves)
+    name = "learning_curves.png"
+    fig.savefig(ctx.out / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
+def training_figure(ctx: Context, res: dict[str, Any], curves: dict[str, dict[str, Any]]
+                    ) -> Any:
     """Success against samples and robot time, from each run's metrics (``curves[algo]``)."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
@@ -368,10 +387,7 @@ def _plot_training(ctx: Context, res: dict[str, Any], curves: dict[str, dict[str
     fig.suptitle(f"{ctx.setup.title} on the emulated D'Claw" if ctx.emulated else
                  f"{ctx.setup.title} on the D'Claw")
     fig.tight_layout(rect=(0, 0.14, 1, 1))
-    name = "learning_curves.png"
-    fig.savefig(ctx.out / name, dpi=110)
-    plt.close(fig)
-    return name
+    return fig
 
 
 # ------------------------------------------------------------------------------------------------
