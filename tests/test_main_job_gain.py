@@ -44,7 +44,9 @@ def test_dapg_beats_the_clone_it_started_from_on_the_same_heldout_episodes(tmp_p
     t = json.loads((out / "results.json").read_text())["train"]
     bc = np.array(t["bc"]["final_goal_errors"])
     dapg = np.array(t["dapg"]["final_goal_errors"])
-    assert len(bc) == len(dapg) == t["dapg"]["eval_episodes"] == 40
+    # 100 held-out episodes (Budget.heldout_episodes; was 40, on which a real gain of 5 of 40
+    # does not reach p 0.05: bench/RESULTS.md, "Best of six clones")
+    assert len(bc) == len(dapg) == t["dapg"]["eval_episodes"] == 100
     # the counts the report states are these episodes' successes
     assert t["bc"]["eval_successes"] == int(np.sum(bc < SUCCESS_TOL))
     assert t["dapg"]["eval_successes"] == int(np.sum(dapg < SUCCESS_TOL))
