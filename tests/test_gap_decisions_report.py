@@ -154,3 +154,75 @@ def test_the_report_json_keys_a_reader_looks_up():
     assert d["mujoco_warnings"] == {"nan": 2}
     assert d["config"]["probes"] == [0.01]
     assert d["causes"][0]["heldout_mae_after"] == 0.0015
+
+
+MJCF2 = """<mujoco><option timestep="0.002"/><worldbody>
+<body><joint name="j0" type="hinge"/><geom type="capsule" size="0.01 0.05" mass="0.1"/></body>
+<body pos="0.2 0 0"><joint name="j1" type="hinge"/><geom type="capsule" size="0.01 0.05"
+ mass="0.1"/></body></worldbody>
+<actuator><position name="a0" joint="j0" kp="2"/><position name="a1" joint="j1" kp="2"/>
+</actuator></mujoco>"""
+
+
+def _dataset2():
+    """Two joints, the log's actuator columns in the other order than the model's."""
+    t = np.arange(40) * 0.01
+    q = np.stack([np.arange(40.0), 100 + np.arange(40.0)], axis=1)
+    return Dataset({"model": MJCF2}, [Trajectory("log0.csv", t, q.copy(), q.copy(),
+                                                 ("a1", "a0"), ("j0", "j1"))], ["log0.csv"])
+
+
+class _Replayer:
+    """Stands in for the MuJoCo replay: column k predicts k everywhere."""
+
+    made: list = []
+
+    def __init__(self, ds, candidates, nthread=0):
+        _Replayer.made.append((ds, list(candidates), nthread))
+        self.asked = []
+
+    def run(self, windows, columns, **kw):
+        self.asked.append((list(windows), columns, kw))
+        preds = [[np.full((w.stop - w.start, 2), float(k)) for w in windows]
+                 for k in range(len(columns))]
+        return preds, [np.zeros(2) for _ in columns]
+
+
+def test_the_engine_scores_each_window_from_its_scored_sample(monkeypatch):
+    """``_Engine``: the replay made for the candidates with the configured threads; residuals
+    measured - predicted from each window's ``score_from`` on, windows one after the other,
+    one vector per column; a residual function replays each (structure, values) point."""
+    monkeypatch.setattr(AZ, "Replayer", _Replayer)
+    _Replayer.made = []
+    ds = _dataset2()
+    eng = AZ._Engine(ds, GapConfig(nthread=3), ("position_offset",))
+    assert _Replayer.made == [(ds, ["position_offset"], 3)] and eng.joints == ("j0", "j1")
+    assert eng.ds is ds and eng.cfg.nthread == 3
+    wins = [Window(0, 10, 20, 15), Window(0, 30, 40, 30)]
+    q = ds.trajectories[0].qpos
+    r0, r1 = eng.residuals(wins, [[], []])
+    want = np.concatenate([q[15:20].ravel(), q[30:40].ravel()])
+    np.testing.assert_array_equal(r0, want)
+    np.testing.assert_array_equal(r1, want - 1.0)
+    assert len(r0) == 2 * (5 + 10)
+    p = eng.predict(wins, [[]])
+    assert len(p) == 1 and [x.shape for x in p[0]] == [(10, 2), (10, 2)]
+    s = fitmod.Structure.build(("position_offset",), ("j0", "j1"), fitmod.Context(
+        dt=0.002, peak_force=np.ones(2), stall=np.full(2, math.inf), damping=np.zeros(2)))
+    (r,) = eng.residual_fn(wins[:1])([(s, np.array([0.01, -0.02]))])
+    np.testing.assert_array_equal(r, q[15:20].ravel())
+    (col,) = eng.rep.asked[-1][1]
+    assert col[0].name == "position_offset"
+    assert col[0].values["offset"].tolist() == pytest.approx([0.01, -0.02])
+
+
+def test_each_effect_joints_actuator_is_found_in_the_logs_columns():
+    ds = _dataset2()
+    m = ds.compiled("model")
+
+    class T:
+        actuators = np.array([0, 1])  # a0, a1 in the model
+
+    assert AZ._act_cols(ds, T, m) == [1, 0]  # the log lists a1 first
+    T.actuators = np.array([1])
+    assert AZ._act_cols(ds, T, m) == [0]
