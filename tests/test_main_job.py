@@ -236,3 +236,17 @@ def test_learning_curves_figure_reads_at_a_glance(smoke):
     curves = {a: ex.read_metrics(out / f"train_{a}" / ex.METRICS_FILE) for a in ("dapg", "npg")}
     ctx = Context(out=out, size="smoke", task="valve")
     assert figure_problems(training_figure(ctx, r["train"], curves)) == []
+
+
+def test_progress_lines_when_the_output_is_not_a_terminal(tmp_path, capsys, monkeypatch):
+    """Issue 13 item 4 for the main job itself: with stderr not a terminal (pytest's capture,
+    like CI or nohup) its long steps print ``[progress]`` lines with the elapsed time, the
+    estimate of what remains and the end."""
+    monkeypatch.setenv("LOWCOSTDEX_PROGRESS_INTERVAL", "0.2")
+    out = tmp_path / "main"
+    assert main(["main", "--size", "smoke", "--out", str(out), "--stages", "bus,demos",
+                 *TASK]) == 0
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("[progress]")]
+    demos = [x for x in lines if "successful demonstrations" in x]
+    assert demos and all("elapsed" in x for x in demos), lines
+    assert any("left" in x for x in demos) and demos[-1].endswith("done"), demos
