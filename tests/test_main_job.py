@@ -250,3 +250,16 @@ def test_progress_lines_when_the_output_is_not_a_terminal(tmp_path, capsys, monk
     demos = [x for x in lines if "successful demonstrations" in x]
     assert demos and all("elapsed" in x for x in demos), lines
     assert any("left" in x for x in demos) and demos[-1].endswith("done"), demos
+
+
+def test_backend_and_port_as_every_robot_command_spells_them(tmp_path, capsys):
+    """Issue 13 item 6: ``lowcostdex main`` takes ``--backend emulated|hardware`` with
+    ``--port`` like record-log, record-demos and reset-test; a combination that cannot run is
+    refused before the output folder is made."""
+    out = tmp_path / "main"
+    assert main(["main", "--size", "smoke", "--out", str(out), "--backend", "hardware"]) != 0
+    assert "needs --port" in capsys.readouterr().err
+    assert main(["main", "--size", "smoke", "--out", str(out), "--backend", "emulated",
+                 "--port", "/dev/ttyUSB0"]) != 0
+    assert "/dev/ttyUSB0" in capsys.readouterr().err
+    assert not out.exists()

@@ -22,6 +22,7 @@ from lowcostdex.main_job.stages import (
     stage_report,
     stage_train,
 )
+from lowcostdex.options import add_robot_port_options, robot_port
 
 STAGES: tuple[tuple[str, Callable[[Context], dict[str, Any]]], ...] = (
     ("bus", stage_bus),
@@ -170,8 +171,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="valve-target: turn the valve from 0 to a random target in 180 +- 29 "
                    "deg; valve: turn it 180 deg; valve-random: random start and target "
                    "angles; flip: flip the block 180 deg")
-    p.add_argument("--port", default=None,
-                   help="serial port of a real D'Claw, e.g. /dev/ttyUSB0 (default: emulated)")
+    add_robot_port_options(p, port_help="serial port of a real D'Claw, e.g. /dev/ttyUSB0 "
+                                        "(default: the emulated D'Claw)")
     p.add_argument("--stages", default=None,
                    help=f"comma-separated subset of: {', '.join(n for n, _ in STAGES)}")
     p.set_defaults(func=_main)
@@ -188,11 +189,14 @@ def _main(args: argparse.Namespace) -> int:
                               f"subset of {', '.join(n for n, _ in STAGES)}")
         for s in stages:
             check_choice("stage", s, [n for n, _ in STAGES])
-    if args.port is not None:  # before the output folder is opened
+    # --backend/--port as every robot command spells them, resolved before --out is opened
+    port = robot_port(args.backend, args.port)
+    device = None if port == "emulated" else port
+    if device is not None:
         from lowcostdex.hardware.dynamixel.ports import check_port
 
-        check_port(args.port)
-    ctx = Context(out=args.out, size=args.size, seed=args.seed, port=args.port, task=args.task)
+        check_port(device)
+    ctx = Context(out=args.out, size=args.size, seed=args.seed, port=device, task=args.task)
     report = run(ctx, stages)
     print(f"REPORT {report.resolve()}")
     return 0
