@@ -14,6 +14,7 @@ changes its actions (``rolls`` is for reports only). It is not the package's tea
 fewer blocks than ``FlipBlockTeacher`` (bench/RESULTS.md, "A Markov flip teacher").
 
     python bench/flip_markov.py --teacher-episodes 40 --clone-episodes 40
+    python bench/flip_markov.py --teachers PlannedFlipTeacher     # the planned teacher (2026-11-27)
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ from lowcostdex.teachers.flip import (
     _conj,
     _mul,
 )
+from lowcostdex.teachers.flip_plan import PlannedFlipTeacher
 
 ENV = "lowcostdex/DClawFlipBlock-v0"
 TRAINER_BC = next(f for f in dataclasses.fields(TrainConfig) if f.name == "bc").default_factory()
@@ -399,12 +401,13 @@ def main() -> None:
     p.add_argument("--clone-episodes", type=int, default=40)
     p.add_argument("--demos", type=int, default=10)
     p.add_argument("--teachers", nargs="+", default=["FlipBlockTeacher", "MarkovFlipTeacher"],
-                   choices=["FlipBlockTeacher", "MarkovFlipTeacher"])
+                   choices=["FlipBlockTeacher", "MarkovFlipTeacher", "PlannedFlipTeacher"])
     p.add_argument("--dagger", type=int, default=0, help="DAgger rounds (0: none)")
     p.add_argument("--dagger-episodes", type=int, default=10, help="clone episodes per round")
     args = p.parse_args()
     env = gym.make(ENV)
-    makers = {"FlipBlockTeacher": FlipBlockTeacher, "MarkovFlipTeacher": MarkovFlipTeacher}
+    makers = {"FlipBlockTeacher": FlipBlockTeacher, "MarkovFlipTeacher": MarkovFlipTeacher,
+              "PlannedFlipTeacher": PlannedFlipTeacher}
     for name, make in ((n, makers[n]) for n in args.teachers):
         t0 = time.process_time()
         line = f"{name}:"
