@@ -238,6 +238,22 @@ def test_bench_bam_numbers_on_the_trajectory_folds_are_bams_per_trajectory_error
         assert mae == pytest.approx(bench, abs=5e-5), traj
 
 
+@pytest.mark.skipif(not PHAM.is_dir(), reason=f"measured data not found at {ROOT}")
+def test_bench_bam_numbers_on_the_pham_trajectory_folds_are_bams_published_m3():
+    # 08-bam-reference-errors.md section 2, breakdown table: published M3 on Pham XL330 per
+    # trajectory (all gains) 0.017 / 0.014 / 0.041 / 0.015 rad, rounded to 1 mrad there: the
+    # bench's typed values, and BAM's rollout written out here on each fold's 3 logs
+    gr = _bench_module()
+    ds = load_dataset(sorted(PHAM.glob("*.json")))
+    grid = [bm.resample(tr) for tr in ds.trajectories]
+    for traj, want in zip(gr.TRAJ, (0.017, 0.014, 0.041, 0.015), strict=True):
+        bench = gr.BAM_LOSO["pham-xl330"][("trajectory", traj)]["BAM published M3"]
+        assert bench == want, traj
+        mae = np.mean([np.mean(np.abs(bam_reference_rollout(tr, BAM_M3) - tr.qpos[:, 0]))
+                       for tr in grid if tr.meta["trajectory"] == traj])
+        assert mae == pytest.approx(want, abs=6e-4), traj
+
+
 MX = ROOT / "rhoban-bam-mx-atomic"
 
 

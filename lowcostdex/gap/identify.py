@@ -18,10 +18,9 @@ starts that fitted the training gains best extrapolated worst), so by default th
 families are fitted from several jittered starts on part of the training logs and the family
 and fit are chosen on the rest (``inner_split``: by the log headers alone).
 
-Why one module: the two least-squares stages, the families and restarts, the inner validation
-that chooses among them and the checks of what the training logs cannot tell (torque off never
-seen, held-out logs faster than any training log) are one procedure over one residual closure
-and one Replayer; split apart, each part would need the others' state passed through.
+Why one module: the least-squares stages, the families and restarts, the validation that
+chooses among them and the checks of what the training logs cannot tell (torque off never seen:
+``rest_friction``; faster held-out logs) are one procedure over one residual and Replayer.
 """
 
 from __future__ import annotations
@@ -38,6 +37,7 @@ from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
 from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.replay import Replayer
+from lowcostdex.gap.rest_friction import held_at_rest
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
 
 # The servo's own parameters, as BAM models a voltage-controlled servo on a pendulum bench:
@@ -126,11 +126,9 @@ class IdentifyConfig:
         training logs' MAE, ``_choose_family``) or "inner" (fitted on part of the training logs
         and chosen on the rest, ``inner_split``; then ``joint_rounds`` LM steps from the chosen
         fit on all training logs). "inner" falls back to "train" when the headers cannot split
-        the training logs. "types": leave one trajectory type out (``type_folds``): every
-        family fitted (one start) on the training logs of the other types and scored on the
-        type left out; the family with the fewest parameters that no other beats by 2 % on
-        the mean over folds is chosen, then fitted on all training logs; falls back to "inner"
-        when the training logs hold fewer than two trajectory types.
+        the training logs. "types": each trajectory type left out in turn (``type_folds``),
+        every family fitted (one start) on the others and scored on it; the family chosen on
+        the mean is fitted on all training logs ("inner" when fewer than two types).
       restarts: with select="inner", fits per family from differently jittered starts.
       restart_jitter: relative spread of the restarts after the first (at least ``jitter``).
       prior: [rad] a pull of every free parameter toward its catalogue null (0: none): the
@@ -340,14 +338,17 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         notes.append(f"{len(fast)} held-out log(s) move faster than any training log (peak "
                      f"{max(fast.values()):.1f} rad/s against {peak_speed(ds, train):.1f}): "
                      "the fitted friction's speed dependence is extrapolated there")
+    stall = float(np.max(ctx.stall))
+
+    def rest(logs):  # gap.rest_friction: the torque never off in ``logs``
+        return not torque_off_seen(ds, logs) and "stribeck_friction" not in config.effects
     folds = type_folds(ds, train) if config.select == "types" else None
     inner = inner_split(ds, train) if config.select == "inner" or (
         config.select == "types" and folds is None) else None
     fam_mae: dict[str, float] = {}
     selection: dict = {}
     if folds is not None:
-        # leave one trajectory type out: a family that only helps the types it was fitted on
-        # loses on the type left out
+        # a family that only helps the types it was fitted on loses on the type left out
         per_fold: dict[str, list[float]] = {f: [] for f in families}
         rounds = 0
         for k, (kind, fit_logs, val_logs) in enumerate(folds):
@@ -358,19 +359,21 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                                      1, lambda s, f: None)
             rounds += r
             keys = list(cands)
-            vm = per_log_mae(rep, whole_logs(ds, val_logs), [cands[c].effects() for c in keys])
+            frep, cols = rep, [cands[c].effects() for c in keys]
+            if rest(fit_logs):  # the fold's fit as the final one would be
+                frep, cols, _ = held_at_rest(ds, config.effects, config.nthread, fit_logs, cols,
+                                             stall, FAMILY_MARGIN)
+            vm = per_log_mae(frep, whole_logs(ds, val_logs), cols)
             for i, (f, _) in enumerate(keys):
                 per_fold[f].append(float(np.mean(vm[i])))
         fam_mae = {f: float(np.mean(v)) for f, v in per_fold.items()}
         n_free = {f: len((_hold(full, h) or full).free) for f, h in families.items()}
         chosen = _choose_family(fam_mae, n_free)
-        selection = {"field": "trajectory", "folds": [k for k, _, _ in folds],
-                     "val_mae": {f"{f}.{kind}": v for f, vs in per_fold.items()
-                                 for (kind, _, _), v in zip(folds, vs, strict=True)},
-                     "chosen": chosen}
-        prog(f"fitting {chosen} on all training logs", 0.75)
+        selection = {"field": "trajectory", "folds": [k for k, _, _ in folds], "chosen": chosen,
+                     "val_mae": {f"{f}.{k}": v for f, vs in per_fold.items()
+                                 for (k, _, _), v in zip(folds, vs, strict=True)}}
         cands, r = _fit_families(residual, joints, ctx, config, {chosen: families[chosen]}, 1,
-                                 prog)
+                                 prog)  # on all training logs
         rounds += r
         best = cands[(chosen, 0)]
     elif inner is not None:
@@ -394,8 +397,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         selection = {"field": field_, "fit_logs": list(fit_logs), "val_logs": list(val_logs),
                      "val_mae": {f"{f}.{j}": v for (f, j), v in val.items()},
                      "chosen": f"{chosen}.{per_fam[chosen][1]}"}
-        # the chosen fit itself: a few LM steps from it on all training logs measured worse
-        # held out (Rhoban XL330 46.4 -> 58.9 mrad, STS3032 21.6 -> 22.6, 2026-11-26)
+        # the chosen fit itself (LM steps from it on all training logs: worse held out)
         best = cands[per_fam[chosen]]
     else:
         cands, rounds = _fit_families(residual, joints, ctx, config, families, 1, prog)
@@ -414,8 +416,13 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                            config.max_rounds, rtol=config.rtol)
         best = polished
         rounds += polished.rounds
-    fit_s = time.perf_counter() - t0
     effects = best.effects()
+    if rest(train):
+        rep, (effects,), (level,) = held_at_rest(ds, config.effects, config.nthread, train,
+                                                 [effects], stall, FAMILY_MARGIN)
+        notes.append(f"no training log has the torque off: a breakaway at rest of {level:.3g} N m"
+                     " (the largest costing the training logs <= 2 %; gap.rest_friction)")
+    fit_s = time.perf_counter() - t0
     prog("scoring", 0.95)
     logs = train + test
     mae = per_log_mae(rep, whole_logs(ds, logs), [[], effects])
@@ -644,10 +651,9 @@ def _bound_hits(t: fitmod.Track) -> list[tuple[int, str]]:
     out = []
     for i, f in enumerate(t.structure.free):
         null = EFFECTS[f.effect].param(f.param).null
-        if f.param == "velocity" and any(
-                (g.effect, g.param, g.joint) == (f.effect, "static", f.joint)
-                and abs(x[k] - EFFECTS[g.effect].param("static").null) <= 1e-3 * (g.hi - g.lo)
-                for k, g in enumerate(t.structure.free)):
+        if f.param == "velocity" and any((g.effect, g.param, g.joint) == (
+                f.effect, "static", f.joint) and x[k] <= 1e-3 * (g.hi - g.lo)
+                for k, g in enumerate(t.structure.free)):  # static's null is 0
             continue
         for b, side in ((lo[i], "lower"), (hi[i], "upper")):
             if abs(t.u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
@@ -661,12 +667,10 @@ def _at_bound(t: fitmod.Track) -> list[str]:
 
 
 def bound_notes(t: fitmod.Track) -> list[str]:
-    """One line per fitted value on a search bound (``_bound_hits``): the value, which bound,
-    the range, and what it means for the user: the logs pull it further, so it is not a
-    measurement of that parameter (measured 2026-11-26: Pham XL330's mounting offset at +0.3 rad
-    with the armature x6.9, Rhoban XL330's voltage weight at 1.5). The ranges are not widened:
-    a bench mounted more than 0.3 rad (17 degrees) off its hanging zero, or a supply term beyond
-    1.5x the measured sag, is not a servo property but a sign of an effect the structure lacks."""
+    """One line per fitted value on a search bound (``_bound_hits``): value, bound, range, and
+    that it is no measurement (Pham XL330's mounting offset at +0.3 rad, Rhoban's voltage weight
+    at 1.5, 2026-11-26). Not widened: a bench 17 degrees off its hanging zero or a supply term
+    beyond 1.5x the measured sag is a sign of an effect the structure lacks."""
     out = []
     for i, side in _bound_hits(t):
         f = t.structure.free[i]
@@ -676,8 +680,7 @@ def bound_notes(t: fitmod.Track) -> list[str]:
         out.append(f"{f.effect}.{f.param} on {joint} fitted {f.from_u(t.u[i]):.4g}{unit}, at its "
                    f"{side} search bound (range {f.lo:.4g} to {f.hi:.4g}{unit}): the logs pull it "
                    "further, so the value is not a measurement of it; it may stand in for an "
-                   "effect the structure lacks (compare the held-out error with and without it, "
-                   "``ablation``)")
+                   "effect the structure lacks (see the held-out ablation)")
     return out
 
 

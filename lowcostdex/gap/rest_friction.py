@@ -1,0 +1,78 @@
+"""The friction that holds a servo at rest when no training log shows the torque off.
+
+With the torque on, the position loop hides how much friction a resting gear train has: on
+Pham's XL330 bench (an unloaded arm, 4 mN m of gravity at the horizontal) a breakaway of 4 mN m
+at rest on top of the fitted sliding level moves the training logs' mean MAE by 0.1 mrad (9.6 ->
+9.7), so least squares leaves it wherever its path ends (0). With the torque off the same level
+decides everything: the real arm stays where the torque went off, the fitted model without it
+falls (held out 452.8 mrad), with it stays (3.4; BAM's published M3 17). Measured 2026-11-27.
+
+So when the torque is never off in the training logs, ``rest_breakaway`` scans a breakaway
+acting at rest only (``stribeck_friction`` static level, Stribeck velocity at its catalogue
+floor) from small to large and keeps the largest level that costs the training logs no more than
+``FAMILY_MARGIN`` (2 %) of their mean MAE: of the models the training logs cannot tell
+apart, the one whose gears stick as much as those logs allow. A gear train sticks at rest (its
+breakaway exceeds its sliding friction); a model with no breakaway at all is not the neutral
+choice but the extreme one. A loaded arm whose gravity exceeds what the torque-on logs allow
+still falls: there the torque-on holds against gravity bound the level.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
+from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.replay import Replayer
+from lowcostdex.sim.effects import EFFECTS, AppliedEffect
+
+# Breakaway levels scanned [N m]: from 1 mN m doubling to the servo's stall torque.
+FIRST_LEVEL = 1e-3
+
+
+def rest_breakaway(rep: Replayer, ds: Dataset, train: Sequence[int],
+                   effects: list[AppliedEffect], stall: float, margin: float
+                   ) -> tuple[list[AppliedEffect], float, list[float]]:
+    """``effects`` plus the largest rest breakaway the training logs allow (module doc).
+
+    Args:
+      rep: a Replayer with room for ``stribeck_friction``.
+      ds, train: the data set and the training logs.
+      effects: the fitted model (without ``stribeck_friction``).
+      stall: [N m] the servo's stall torque: the scan's last level.
+      margin: relative rise of the training logs' mean per-log MAE allowed.
+    Returns:
+      (effects with the breakaway, or ``effects`` unchanged when even the first level costs
+      more; the level [N m] (0: none); the training MAE [rad] at 0 and at each level scanned).
+    """
+    levels = []
+    lv = FIRST_LEVEL
+    while lv <= stall:
+        levels.append(lv)
+        lv *= 2.0
+    vel = EFFECTS["stribeck_friction"].param("velocity").low
+    joints = ds.effect_joints
+    cols = [effects] + [effects + [AppliedEffect("stribeck_friction", joints,
+                                                 {"static": np.asarray(x), "velocity":
+                                                  np.asarray(vel)})] for x in levels]
+    mae = per_log_mae(rep, whole_logs(ds, train), cols).mean(axis=1)
+    # the largest level below the first one that costs more than the margin (a friction that
+    # holds the arm still at a far larger level can score well again by accident)
+    best = 0
+    for k in range(1, len(cols)):
+        if mae[k] > (1.0 + margin) * mae[0]:
+            break
+        best = k
+    return (cols[best], levels[best - 1] if best else 0.0, mae.tolist())
+
+
+def held_at_rest(ds: Dataset, effect_names: Sequence[str], nthread: int, logs: Sequence[int],
+                 columns: Sequence[list[AppliedEffect]], stall: float, margin: float
+                 ) -> tuple[Replayer, list[list[AppliedEffect]], list[float]]:
+    """``rest_breakaway`` for each fitted model in ``columns`` on the fitted ``logs``, with a
+    Replayer that has room for it (returned, to score the models with)."""
+    rep = Replayer(ds, (*effect_names, "stribeck_friction"), nthread=nthread)
+    out = [rest_breakaway(rep, ds, logs, list(c), stall, margin) for c in columns]
+    return rep, [o[0] for o in out], [o[1] for o in out]

@@ -1,0 +1,74 @@
+"""The breakaway at rest an identification adds when no training log has the torque off
+(``lowcostdex.gap.rest_friction``): a light arm whose gears hold it when the torque goes off is
+predicted to stay; a loaded arm that falls still falls (tests/test_identify.py's torque-off
+test). The logs come from a plain bench with a joint frictionloss (MuJoCo's dry friction: static
+level = sliding level), which the fitted structure below cannot express."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.identify import IdentifyConfig, identify
+from lowcostdex.gap.logs import Trajectory
+from lowcostdex.sim import servo
+from lowcostdex.sim.effects import AppliedEffect
+from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig, build_bench
+from lowcostdex.sim.plant import Plant
+
+DT = 0.005
+J = (BENCH_JOINT,)
+MASS, LENGTH = 0.01, 0.1  # gravity at the horizontal: 0.01 x 9.81 x 0.1 = 9.8 mN m
+FRICTION = 0.03  # [N m] joint dry friction, three times the gravity torque: the arm stays
+
+
+def _log(kp: int, kind: str) -> tuple[Trajectory, str]:
+    cfg = BenchConfig(motor="XL330-M288", mass=MASS, length=LENGTH, timestep=DT,
+                      gains=servo.ServoGains(position_p=kp, supply_voltage=5.0))
+    xml = build_bench(cfg).to_xml()
+    model = build_bench(cfg).compile()
+    model.dof_frictionloss[:] = FRICTION
+    plant = Plant(model, [AppliedEffect("inertia_error", J, {"scale": 2.0})])
+    t = np.arange(0.0, 3.0, DT)
+    if kind == "sin":
+        goal = 0.5 * np.pi * np.sin(2.0 * t) * np.minimum(t, 1.0)
+        on = np.ones_like(t)
+    else:  # a cubic lift to -pi/2 ending at rest at 1.5 s (BAM's lift_and_drop), torque off
+        s = np.clip(t / 1.5, 0, 1)
+        goal = -0.5 * np.pi * (3 * s ** 2 - 2 * s ** 3)
+        on = (t < 1.5).astype(float)
+    plant.reset(qpos=np.array([0.0]), qvel=np.array([0.0]), ctrl=np.array([0.0]))
+    q, v = np.empty_like(t), np.empty_like(t)
+    for k in range(len(t)):
+        q[k] = plant.measured_qpos()[0]
+        v[k] = plant.qvel[0]
+        plant.set_torque_enabled([0], bool(on[k]))
+        plant.step(np.array([goal[k]]), 1)
+    tr = Trajectory(f"{kind}_kp{kp}", t, goal[:, None], q[:, None], J, J, qvel=v[:, None],
+                    channels={"torque_enable": on[:, None]}, model=f"kp{kp}",
+                    meta={"kp": kp, "trajectory": kind})
+    return tr, xml
+
+
+def test_a_light_arm_held_by_its_gears_is_predicted_to_stay_when_the_torque_goes_off():
+    trs, models = [], {}
+    for kp in (100, 400):
+        for kind in ("sin", "drop"):
+            tr, xml = _log(kp, kind)
+            trs.append(tr)
+            models[tr.model] = xml
+    ds = Dataset(models, trs)
+    drops = [1, 3]
+    # the truth arm stays within 20 mrad of where the torque went off
+    for i in drops:
+        q = ds.trajectories[i].qpos[:, 0]
+        assert np.ptp(q[ds.trajectories[i].time >= 1.6]) < 0.02
+    res = identify(ds, [0, 2], drops, IdentifyConfig(effects=("inertia_error", "viscous_damping"),
+                                                     max_rounds=20, select="train"))
+    level = res.params()["stribeck_friction"]["static"][0]
+    assert level > MASS * 9.81 * LENGTH  # holds the arm against gravity
+    assert any("breakaway at rest" in n for n in res.notes)
+    # the nominal model (no friction) lets the arm fall and swing; the identified one holds it
+    nominal = res.mean(drops, identified=False)
+    assert nominal > 0.3
+    assert res.mean(drops) < 0.1 * nominal
