@@ -72,22 +72,33 @@ MISSES: dict[str, str] = {
     # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
     "coulomb_mj_turntable": "coulomb_friction 0.0802 (truth 0.08) plus load_dependent_friction "
                             "mu 0.032 and gain_error 1.013",
-    "backlash_output_pendulum": "miss (gap-play, main 4b3a79f, 82 s): viscous_damping 0.065, "
-                                "gain_error 0.59, mass_error 0.59 (max_effects reached; was six "
-                                "others); held-out 69.3 -> 16.2 mrad (floor 0.70). backlash was "
-                                "not among round 1's six fitted (ranked out); in round 2 it fit "
-                                "0.0203 for 0.0436 with select gain 0.10 (gain_error 0.50)",
+    "backlash_output_pendulum": "miss (gap-play2, re-run on main 9b54389, 42 s CPU): "
+                                "viscous_damping 0.065, gain_error 0.59, mass_error 0.59 "
+                                "(max_effects), held-out 69.3 -> 16.2 mrad (floor 0.70). "
+                                "backlash scores 0.23 in round 1 (11th; probed at width 0.01) "
+                                "and is never fitted; replayed at the true 0.0436 with "
+                                "sensor 1 it lowers the select error only 6 % (80/64/1.5/59 "
+                                "-> 79/63/17.6/51 mrad): the truth's own output-feedback loop "
+                                "(D on the output velocity with the joint damping beside it) "
+                                "is not the catalogue's play",
     "gain_viscous_turntable": "not identifiable: inertia_error 1.589 plus viscous_damping 0.189 "
                               "(truth gain 0.7 + 0.08); with no gravity and no force limit "
                               "J q'' = 0.7 kp (g - q) - c q' is the same trajectory for any two "
                               "of gain, inertia and damping (re-run c3ff5c5 and gap-offset)",
     # never-run cases, measured by redteam3 (2026-11-26 12:00-, main dee30b5, load 9-17)
-    "backlash_body_turntable": "miss (gap-play, main 4b3a79f, 252 s; was exact name with width "
-                               "0.01537 [0.01342, 0.01733] excluding 0.01745 at dee30b5): "
-                               "'discrepancy not explained', held-out 8.44 mrad = 12 floors. "
-                               "Round 1: backlash 0.0156 had the best select gain (0.20) but "
-                               "was not accepted, gearbox_friction (0.10) was and was dropped "
-                               "at the end (interval holds no effect)",
+    "backlash_body_turntable": "miss (gap-play2, re-run on main 9b54389, 159 s CPU; exact "
+                               "name at dee30b5): 'discrepancy not explained', held-out 8.44 "
+                               "mrad = 12 floors. Traced: the forward round refuses backlash "
+                               "(select gain 0.20, episode-bootstrap 5 % bound -0.48 < -0.05) "
+                               "at dee30b5 too, which named it through the backward search; "
+                               "since a89d29d _backward drops an effect whose paired block "
+                               "bound is <= 0 (-0.56) and gearbox_friction (0.10) is accepted "
+                               "then dropped. Even the TRUE play (0.01745) is worse on 4 of 14 "
+                               "episodes open loop (e.g. 5.7 -> 8.9 mrad): an unloaded link "
+                               "is started mid-play with the motor at the link angle "
+                               "(Plant.rest_play); the motor at the servo's setpoint improves "
+                               "2 of the 4 (8.9 -> 3.9, 10.3 -> 7.7 mrad; not landed), the "
+                               "others drift at a velocity below the log's 0.024 rad/s step",
     "torque_coulomb_pendulum": "miss (3c61633): torque limit 1.2 + Coulomb 0.1 named "
                                "load_dependent_friction mu 0.553 (held-out 306 -> 70.4 mrad); "
                                "the torque_limit candidate fitted 1.085 with select gain 0.99, "

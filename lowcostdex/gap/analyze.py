@@ -82,13 +82,10 @@ from lowcostdex.gap.stepsize import refine as _refine_step
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
 from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
-__all__ = [
-    "UNEXPLAINED", "CandidateResult", "Cause", "GapConfig", "GapResult", "analyze",
-    "available_candidates",
-]
+__all__ = ["UNEXPLAINED", "CandidateResult", "Cause", "GapConfig", "GapResult", "analyze",
+           "available_candidates"]
 
 Progress = Callable[[str, float], None]
-# ------------------------------------------------------------------------------------------------
 
 
 def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[str]:
@@ -529,22 +526,25 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     """95 % intervals of ``t``'s parameters in optimizer coordinates as (centre, half-width)
     and their parts: (centre, half, residual noise, data, step shift or None). Data: the
     widest of the residual-noise interval, the block spread and the autocorrelation-consistent
-    sandwich over blocks (``significance.hac_halfwidths``). The replay's discretisation: the
-    fit moves by ``shift`` at ``interval_step`` of the physics step; for a first-order
-    integrator its value at a zero step is ``1 / (1 - interval_step)`` times that move away
-    (Richardson), on either side (``significance.step_interval``)."""
+    sandwich over blocks (``significance.hac_halfwidths``); a play's width also where its cost's
+    profile stays as low (``significance.profile_interval``). The replay's discretisation: the
+    fit moves by ``shift`` at ``interval_step`` of the physics step; for a first-order integrator
+    its value at a zero step is 1 / (1 - ``interval_step``) times that move away (Richardson),
+    on either side (``significance.step_interval``)."""
     noise = fitmod.interval_halfwidths(t.r, t.jac, effective_n(t.r))
     blocks = significance.residual_blocks(ds, segs, cfg.interval_block)
     data = np.maximum.reduce([noise, fitmod.block_halfwidths(t.r, t.jac, blocks),
                               significance.hac_halfwidths(t.r, t.jac, blocks)])
+    u, data = significance.profile_interval(t, lambda: _Engine(ds, cfg, t.structure.names)
+                                            .residual_fn(segs), data, cfg.max_rounds)
     if not cfg.interval_step:
-        return t.u, data, noise, data, None
+        return u, data, noise, data, None
     t0 = time.perf_counter()
     prog("interval: refit at a finer physics step", 0.97)
     fine = _Engine(ds.with_timestep(cfg.interval_step), cfg, t.structure.names)
     shift = significance.step_shift(t, fine.residual_fn(segs), cfg.max_rounds, fine.ds.timestep)
     timing["interval_step"] = timing.get("interval_step", 0.0) + time.perf_counter() - t0
-    mid, half = significance.step_interval(t.u, data, shift, cfg.interval_step)
+    mid, half = significance.step_interval(u, data, shift, cfg.interval_step)
     return mid, half, noise, data, shift
 
 def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:

@@ -28,7 +28,8 @@ of scale factors).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -41,7 +42,8 @@ from lowcostdex.sim.effects import AppliedEffect, effect
 TIE = 1e-4
 
 __all__ = ["andrews_bandwidth", "block_sse", "residual_blocks", "hac_halfwidths", "null_margins",
-           "paired_gain_bound", "paired_low", "step_interval", "step_shift"]
+           "paired_gain_bound", "paired_low", "profile_interval", "step_interval",
+           "step_shift"]
 
 
 def andrews_bandwidth(g: np.ndarray) -> float:
@@ -234,3 +236,98 @@ def residual_blocks(ds: Dataset, segs: Sequence[Window], seconds: float) -> list
                                                                  strict=True) if b > a]
         pos += nj * len(t)
     return out
+
+
+# parameters whose cost is not smooth at the scale of their interval (a play's contacts come
+# and go with its width: the finite-difference Jacobian measures one side of a kink), so their
+# intervals also follow the profile of the cost (``profile_interval``)
+PROFILED = frozenset({("backlash", "width")})
+
+
+@dataclass
+class _Pinned(fitmod.Structure):
+    """``Structure`` with one more scalar held at a value: (effect, param, joint, value)."""
+
+    pin: tuple[str, str, int, float] = ("", "", 0, 0.0)
+
+    def to_effects(self, values: np.ndarray) -> list[AppliedEffect]:
+        name, param, j, v = self.pin
+        out = super().to_effects(values)
+        for k, e in enumerate(out):
+            if e.name == name and k >= len(self.fixed):
+                vals = {p: a.copy() for p, a in e.values.items()}
+                vals[param][j] = v
+                out[k] = AppliedEffect(name, e.joints, vals)
+        return out
+
+
+def profile_interval(t: fitmod.Track, residual: Callable[[], fitmod.ResidualFn],
+                     half: np.ndarray, max_rounds: int,
+                     steps: Sequence[float] = (0.5, 1.0, 2.0, 4.0, 8.0)
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """95 % intervals (centre, half-width; optimizer coordinates) of ``t``'s ``PROFILED``
+    scalars that also hold the range where the cost's profile stays low; the others as given.
+
+    ``residual()`` makes the batched residual function of ``t``'s data (called only when some
+    scalar is profiled). For each such scalar i the others are refitted (``max_rounds`` of LM
+    from ``t``'s values) with it held at ``u_i +- s half_i`` for ``s`` in ``steps`` (within its
+    search range). For a
+    model linear in its parameters this profile is C(u_i) = C_min + (u_i - u^_i)^2 / (2
+    [(J^T J)^-1]_ii), so the linearised interval ``half`` is where it rises by Delta = half_i^2
+    / (2 [(J^T J)^-1]_ii): the same statistics (noise, block spread, autocorrelation: whatever
+    sized ``half``), measured on the cost itself. The profile interval runs to the farthest
+    grid value whose rise is at most Delta (interpolated in sqrt(rise) toward the next one);
+    the result is the hull of it and u^_i +- half_i, never narrower than the linearised one.
+    ``t`` needs ``r`` and ``jac`` at its optimum (``lockstep_lm`` with ``jacobian_at_end``)."""
+    s = t.structure
+    idx = [i for i, f in enumerate(s.free) if (f.effect, f.param) in PROFILED
+           and math.isfinite(half[i]) and half[i] > 0]
+    if not idx or t.jac is None or t.r is None:
+        return t.u, half  # as given (the same arrays)
+    u, half = np.asarray(t.u, float), np.array(half, float)
+    centre = u.copy()
+    residual = residual()
+    ainv = np.linalg.pinv(t.jac.T @ t.jac)
+    grid: list[tuple[int, float, fitmod.Track]] = []
+    for i in idx:
+        f = s.free[i]
+        lo, hi = f.u_bounds
+        others = [g for k, g in enumerate(s.free) if k != i]
+        seen = {float(u[i])}
+        for d in sorted({*steps, *(-x for x in steps)}):
+            ui = float(np.clip(u[i] + d * half[i], lo, hi))
+            if ui in seen:
+                continue
+            seen.add(ui)
+            ps = _Pinned(s.effects, s.joints, others, s.fixed, (f.effect, f.param, f.joint,
+                                                                 f.from_u(ui)))
+            grid.append((i, ui, fitmod.Track(ps, np.delete(u, i), label=f"profile {d:+g}")))
+    free = [g[2] for g in grid if g[2].structure.n]
+    if free:
+        fitmod.lockstep_lm(free, residual, max_rounds, jacobian_at_end=False)
+    still = [g[2] for g in grid if not g[2].structure.n]
+    for tr, r in zip(still, residual([(x.structure, x.x) for x in still]) if still else [],
+                     strict=True):
+        tr.cost = 0.5 * float(r @ r)
+    for i in idx:
+        pts = [(ui, tr.cost) for k, ui, tr in grid if k == i and math.isfinite(tr.cost)]
+        c_min = min([t.cost, *(c for _, c in pts)])
+        delta = 0.5 * half[i] ** 2 / max(float(ainv[i, i]), 1e-300)
+        lo_e, hi_e = u[i] - half[i], u[i] + half[i]
+        for side in (-1.0, 1.0):
+            line = sorted(((side * (ui - u[i]), c - c_min) for ui, c in pts
+                           if side * (ui - u[i]) > 0), key=lambda p: p[0])
+            line = [(0.0, t.cost - c_min), *line]
+            inside = [k for k, (_, rise) in enumerate(line) if rise <= delta]
+            if not inside:
+                continue
+            k = inside[-1]
+            edge = line[k][0]
+            if k + 1 < len(line):  # toward the first value past it, linear in sqrt(rise)
+                (d0, c0), (d1, c1) = line[k], line[k + 1]
+                a, b = math.sqrt(max(c0, 0.0)), math.sqrt(max(c1, 0.0))
+                edge = d0 + (d1 - d0) * (math.sqrt(delta) - a) / max(b - a, 1e-300)
+            lo_e, hi_e = (min(lo_e, u[i] - edge), hi_e) if side < 0 else (lo_e,
+                                                                          max(hi_e, u[i] + edge))
+        centre[i], half[i] = 0.5 * (lo_e + hi_e), 0.5 * (hi_e - lo_e)
+    return centre, half
