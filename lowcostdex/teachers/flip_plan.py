@@ -18,9 +18,11 @@ What it is worth is what its model is worth: it plans once, at the start, from a
 prediction. Measured (bench/RESULTS.md): noise-free simulation, where the prediction is exact,
 79 of 80 held-out starts against the script's 52; with +-0.05 executed-action noise (the
 demonstrations' noise) 34 of 80 against 38: no better than the script, whose failures it cannot
-foresee then; on the emulated D'Claw (the virtual teacher moving limp fingers) 7 of 10 against 6
-of 10. Its behaviour clone is no better than the script's either (0 of 40). Re-planning after each roll from the measured state (velocities unknown) did worse
-noise-free (64 of 80), so it does not.
+foresee then; even +-0.01 (seeds 0-39: 29 against 28 of 40) takes its whole advantage, so it is
+a planner for an exact model, not a robust teacher; on the emulated D'Claw (the virtual teacher
+moving limp fingers) 7 of 10 against 6 of 10. Its behaviour clone is no better than the
+script's either (0 of 40). Re-planning after each roll from the measured state (velocities
+unknown) did worse noise-free (64 of 80), so it does not.
 """
 
 from __future__ import annotations
