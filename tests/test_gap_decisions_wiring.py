@@ -427,3 +427,13 @@ def test_the_backward_search_must_pay_on_training_data_and_on_the_probes(loop):
     # neither: kept (as in test_gap_decisions_loop)
     res = loop(0.05, 0.03, 0.01, floor=0.001, search="both", scores=scores)
     assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
+
+
+def test_a_second_effect_is_sized_by_how_much_it_changes_the_first_ones_predictions(loop):
+    """Round 2 on data 0.05 pA + 0.03 pB + 0.01 n: adding mounting_offset (0.03 rad) to the
+    model with position_offset moves the predictions by 0.03 pB: RMS 0.03 / sqrt(2) = 21.2
+    mrad, whatever the first effect predicts."""
+    res = loop(0.05, 0.03, 0.01, floor=0.001, scores=SCORES)
+    (second,) = res.rounds[1]
+    assert second.accepted
+    assert second.effect_rms == pytest.approx(0.03 / math.sqrt(2), rel=1e-4)
