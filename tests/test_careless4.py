@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -374,3 +375,54 @@ def test_a_demo_field_of_unwritten_chunks_is_refused_before_it_is_read(tmp_path,
             "field holds at most 1e+08") in err
     assert peak < 100e6, peak
     assert not (tmp_path / "run").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# a logged velocity in another unit: within the plausible range at a slow joint
+
+
+def _slow_sweep(seconds: float = 10.0, rate: float = 50.0) -> dict[str, np.ndarray]:
+    """0.5 rad at 0.2 Hz (at most 0.63 rad/s: 36 deg/s, 6 rpm), read by a 4096-tick encoder,
+    its velocity the sine's derivative in 0.229 rpm counts (0.0240 rad/s) - physics written
+    out here."""
+    t = np.arange(int(seconds * rate)) / rate
+    q = 0.5 * np.sin(2 * np.pi * 0.2 * t)
+    v = 0.5 * 2 * np.pi * 0.2 * np.cos(2 * np.pi * 0.2 * t)
+    count = 0.229 * 2 * np.pi / 60  # [rad/s] Dynamixel X Present Velocity unit (e-Manual)
+    return {"time": t, "goal:arm": q + 0.05 * v,
+            "qpos:arm": np.round(q / (2 * np.pi / 4096)) * (2 * np.pi / 4096),
+            "qvel:arm": np.round(v / count) * count}
+
+
+@pytest.mark.parametrize("unit,factor,said", [
+    ("deg/s", 180 / math.pi, "deg/s (x57.3)"),
+    ("rpm", 60 / (2 * math.pi), "rpm (x9.55)"),
+    ("raw counts", 1 / (0.229 * 2 * math.pi / 60), "0.229 rpm counts (Dynamixel X) (x41.7)"),
+])  # steps/s (x652) exceed the plausible 100 rad/s here: refused by the range check
+def test_a_velocity_in_another_unit_is_named_not_analysed(unit, factor, said, tmp_path, capsys,
+                                                         monkeypatch):
+    """Velocities logged in deg/s stay below the 100 rad/s plausible bound at a slow joint (36
+    here); analysed as rad/s they turned the gap analysis' verdict on this sweep from 'gain
+    error, 97 % lower' to 'discrepancy not explained' (found by this audit). The velocity's
+    integral against the positions' distance names the unit; the sweep in rad/s is the
+    control (analysed)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_bad_inputs import csv_text
+
+    from lowcostdex.gap.logs import trajectory_from_columns
+    from lowcostdex.gap.trajectory import LogError
+
+    cols = _slow_sweep()
+    trajectory_from_columns(cols)  # the control
+    cols["qvel:arm"] = cols["qvel:arm"] * factor
+    with pytest.raises(LogError, match=re.escape(said)):
+        trajectory_from_columns(cols)
+    monkeypatch.chdir(tmp_path)
+    _bench_xml(tmp_path)
+    (tmp_path / "log.csv").write_text(csv_text(cols))
+    code = main(["gap", "analyze", "--model", "bench.xml", "--log", "log.csv", "--out", "r"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and not (tmp_path / "r").exists()
+    assert "log.csv: column 'qvel:arm' integrates to" in err and f"{said}? write rad/s" in err
