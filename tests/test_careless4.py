@@ -426,3 +426,19 @@ def test_a_velocity_in_another_unit_is_named_not_analysed(unit, factor, said, tm
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err and not (tmp_path / "r").exists()
     assert "log.csv: column 'qvel:arm' integrates to" in err and f"{said}? write rad/s" in err
+
+
+def test_a_ppo_learning_rate_no_run_uses_is_refused_before_the_run(tmp_path, capsys):
+    """`train ppo --lr 1e9` is finite and positive, and its first update made the policy's
+    actions NaN: a 'ValueError: actions have NaN/inf entries' traceback from the vector env
+    (found by this audit's sweep of every numeric option). Refused in one line, nothing
+    written."""
+    out = tmp_path / "run"
+    code = main(["train", "ppo", "--out", str(out), "--lr", "1e9", "--n-iter", "1",
+                 "--num-envs", "2", "--num-minibatches", "1", "--update-epochs", "1", "--hidden",
+                 "8", "--threads", "1", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "lr=1000000000.0 is above 1: Adam moves every weight" in lines[0]
+    assert not out.exists()

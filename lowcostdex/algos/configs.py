@@ -487,6 +487,8 @@ class PPOConfig:
         check_number("gae_lambda", self.gae_lambda, 0, 1)
         for name in ("lr", "clip_coef", "max_grad_norm"):
             check_number(name, getattr(self, name), 0, low_open=True)
+        check_at_most("lr", self.lr, 1.0, "Adam moves every weight by about lr per update; at "
+                      "1e9 the first update made the policy's actions NaN")
         check_number("ent_coef", self.ent_coef, 0)
         check_number("vf_coef", self.vf_coef, 0)
         check_number("target_kl", self.target_kl, 0, low_open=True, none_ok=True)
