@@ -4,7 +4,8 @@
    (ids, models, firmware, temperatures, errors) and calibrated against the default map;
 2. demos: the virtual teacher records kinesthetic demonstrations, auto-reset between episodes;
 3. train: DAPG from those demonstrations in simulation (MuJoCo with domain randomization over
-   the effect catalogue: ``Budget.dapg_sim``), and NPG from scratch for comparison on the robot
+   the effect catalogue: ``Budget.dapg_sim``), starting from the best of several behaviour
+   clones on that simulation's validation episodes (``main_job.clones``), and NPG from scratch for comparison on the robot
    with its thermal guard and auto-resets active; the random actions, the clone, DAPG and NPG
    judged on the same held-out episodes of the robot (the run's policy is its best validated
    one); on the flip the DAPG policy's rollout is plotted (block orientation over time);
@@ -16,8 +17,8 @@
 ``--port /dev/ttyUSB0`` runs the same stages on a real D'Claw (kinesthetic demos then need a
 person); ``--task`` picks the task (``valve-target``, the default: turn the valve from 0 to a random target
 180 +- 29 deg away; ``valve``: turn it 180 deg; ``valve-random``: random start and target;
-``flip``: flip the block 180 deg about a horizontal axis); ``--size`` picks the budget: ``smoke`` (CI, about a minute), ``default`` (about 5 minutes
-on a 2-core laptop) or ``long``.
+``flip``: flip the block 180 deg about a horizontal axis); ``--size`` picks the budget: ``smoke`` (CI, about a minute), ``default`` (about 8-10 minutes
+on an idle 2-core machine, 100 held-out robot episodes per policy) or ``long``.
 """
 
 from lowcostdex.main_job.job import (
