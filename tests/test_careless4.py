@@ -442,3 +442,18 @@ def test_a_ppo_learning_rate_no_run_uses_is_refused_before_the_run(tmp_path, cap
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and "lr=1000000000.0 is above 1: Adam moves every weight" in lines[0]
     assert not out.exists()
+
+
+def test_a_tvlg_noise_smoothing_wider_than_any_episode_is_refused_before_the_run(tmp_path,
+                                                                                 capsys):
+    """`train tvlg --smooth-noise 1e9` (steps) asked numpy for a 60 GB Gaussian kernel: a
+    MemoryError traceback (found by this audit's sweep). Refused in one line, nothing written."""
+    out = tmp_path / "run"
+    code = main(["train", "tvlg", "--out", str(out), "--smooth-noise", "1e9", "--n-iter", "1",
+                 "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1
+    assert "smooth_noise=1000000000.0 is above 1000: steps of smoothing" in lines[0]
+    assert not out.exists()

@@ -192,6 +192,9 @@ class TVLGTrainConfig:
         check_number("solve_rate", self.solve_rate, 0, 1, low_open=True)
         check_number("init_noise", self.init_noise, 0, low_open=True)
         check_number("smooth_noise", self.smooth_noise, 0)
+        check_at_most("smooth_noise", self.smooth_noise, 1000.0, "steps of smoothing wider than "
+                      "any episode; its Gaussian kernel (8 x smooth_noise + 1 taps) is held in "
+                      "memory (1e9 asked for 60 GB)")
         check_number("pd_gain", self.pd_gain, 0)
         if self.cost.hand_reference == "demo" and self.init not in ("teacher", "demos"):
             raise ConfigError(
