@@ -437,3 +437,13 @@ def test_a_second_effect_is_sized_by_how_much_it_changes_the_first_ones_predicti
     (second,) = res.rounds[1]
     assert second.accepted
     assert second.effect_rms == pytest.approx(0.03 / math.sqrt(2), rel=1e-4)
+
+
+def test_of_two_effects_whose_intervals_hold_no_effect_the_closer_one_goes_first(loop):
+    # 1 rad half-widths: position_offset (0.03 rad, margin 0.03) is nearer "no effect" than
+    # mounting_offset (0.05 rad, margin 0.05) and is dropped first, although its name sorts later
+    res = loop(0.03, 0.05, 0.01, floor=0.001, half=1.0, scores=SCORES)
+    assert res.causes == []
+    assert res.stop_reason.endswith("position_offset dropped: its 95 % interval holds no "
+                                    "effect; mounting_offset dropped: its 95 % interval holds "
+                                    "no effect")
