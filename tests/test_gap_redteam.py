@@ -59,10 +59,11 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
-    "backlash_body_pendulum": "interval (gap-play, main 4b3a79f, 381 s): backlash alone now "
-                              "(the spurious viscous_damping is gone: refined to 0.25 ms) but "
-                              "width 0.02710 [0.02650, 0.02770] excludes 0.02618 (1.5 deg), "
-                              "1.5 half-widths off; held-out 12.21 -> 0.78 mrad (floor 0.71)",
+    "backlash_body_pendulum": "interval (gap-play2, main 1e94ac9 with the profile interval, "
+                              "227 s CPU): backlash alone, width 0.02710 [0.02650, 0.02772] "
+                              "excludes 0.02618 (1.5 deg); the profile widened the data "
+                              "interval 0.3 %: a fit bias (sensor 0.035 for a body play), "
+                              "held-out 12.21 -> 0.78 mrad (floor 0.71)",
     "latency_17ms_arm2_50hz_posonly": "latency (23.1 / 18.3 ms vs 17 ms, intervals exclude 17 "
                                       "ms) plus gain_error (1.08 / 0.96) and mass_error "
                                       "(1.38 / 0.91) on a general-actuator arm, 50 Hz, "
