@@ -447,3 +447,12 @@ def test_of_two_effects_whose_intervals_hold_no_effect_the_closer_one_goes_first
     assert res.stop_reason.endswith("position_offset dropped: its 95 % interval holds no "
                                     "effect; mounting_offset dropped: its 95 % interval holds "
                                     "no effect")
+
+
+def test_the_backward_search_takes_round_one_candidates_scoring_exactly_min_gain(loop):
+    # mounting_offset scores exactly min_gain (0.05) in round 1: it is one of the top candidates
+    # the backward search fits together, and it is kept (select MSE 90 % below the forward one)
+    scores = {"position_offset": 0.9, "mounting_offset": [0.05, 0.01]}
+    res = loop(0.05, 0.03, 0.01, floor=0.001, search="both", scores=scores)
+    assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
+    assert "backward search from position_offset, mounting_offset kept" in res.stop_reason
