@@ -147,7 +147,12 @@ def make_loop(monkeypatch):
                               for f in t.structure.free])
             return t.u, h, h, h, None
 
-        engine = type("Engine", (_Engine,), {"FLIP": flip})
+        class engine(_Engine):
+            FLIP = flip
+
+            def __init__(self, ds, cfg, candidates):
+                log("_Engine", ds, cfg, list(candidates))
+                super().__init__(ds, cfg, candidates)
         for name, value in {
                 "episodes": lambda ds, chunk: log("episodes", ds, chunk) or list(EPS),
                 "split_episodes": lambda ds, eps, rng, test_logs: log(

@@ -241,6 +241,12 @@ def test_a_finer_physics_step_found_after_the_first_cause_chooses_it_again(loop,
     assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
     assert [c.params["offset"]["value"][0] for c in res.causes] == pytest.approx(
         [0.05, 0.03], abs=1e-6)
+    # engines: the analysis', the one refine_fitted asked for on the 1 ms data, the analysis'
+    # again on it; each with the caller's settings and the candidates
+    assert [(d.timestep, c is res.config, n) for d, c, n in seen["_Engine"]] == [
+        (0.002, True, ["position_offset", "mounting_offset"]),
+        (0.001, True, ["position_offset", "mounting_offset"]),
+        (0.001, True, ["position_offset", "mounting_offset"])]
     # rounds, intervals and traces after the refinement run on the 1 ms data set
     assert [c.dt for _, _, _, c in seen["_rank"]] == [0.002, 0.001, 0.001]
     ((d, *_),) = seen["_intervals"]
