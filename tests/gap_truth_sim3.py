@@ -507,13 +507,21 @@ def effect_size(case: Case) -> dict:
 # "creep" 1: coulomb_friction's own null, the model's friction constraint unchanged (gap-fric,
 # session 8: its new shape parameter; without it every Coulomb joint counted as named)
 NEUTRAL = {"scale": 1.0, "delay": 0.0, "width": 0.0, "offset": 0.0, "frictionloss": 0.0,
-           "damping": 0.0, "mu": 0.0, "creep": 1.0}
+           "damping": 0.0, "mu": 0.0, "creep": 1.0, "asymmetry": 0.0, "static": 0.0,
+           "coulomb": 0.0}
+
+
+# shape parameters with no "no effect" value of their own: a Stribeck velocity shapes a level
+# coulomb + static exp(-(v / velocity)^2) that is zero whatever it is once coulomb = static = 0
+SHAPE = {"stribeck_friction": {"velocity"}}
 
 
 def _no_effect_here(cause: dict, k: int) -> bool:
     """A cause listed on its k-th joint whose every parameter's 95 % interval there holds its
-    "no effect" value (a per-joint effect fitted on every joint, significant on some)."""
-    ps = cause.get("params", {})
+    "no effect" value (a per-joint effect fitted on every joint, significant on some); shape
+    parameters (``SHAPE``) do not count when every other one holds its null."""
+    shape = SHAPE.get(cause.get("effect"), set())
+    ps = {n: p for n, p in cause.get("params", {}).items() if n not in shape}
     return bool(ps) and all(n in NEUTRAL and p["interval"][k][0] <= NEUTRAL[n] <= p["interval"][k][1]
                             for n, p in ps.items())
 

@@ -48,6 +48,12 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # [7.24, 7.74] plus inertia_error): latency 7.35 ms [6.88, 7.51] alone. (Measured with the
 # interval spanning the fitted and the Richardson value; the landed symmetric form, recomputed
 # from each report's value, data interval and step shift, holds these truths too.)
+# coulomb_mj_turntable was coulomb_friction 0.0802 plus load_dependent_friction mu 0.032 and
+# gain_error 1.013, reading_offset_arm2 position_offset plus a spurious load_dependent_friction
+# (mu 0.0043 / 0.0086); re-run on main 9b54389 (gap-fric2, session 9, bench/gap_redteam.py
+# --threads 1): coulomb_friction 0.0809 [0.0790, 0.0828] alone, held-out 17.57 -> 0.95 mrad,
+# 225 s; position_offset 0.05237 [0.05231, 0.05242] / -0.03489 [-0.03496, -0.03481] alone,
+# held-out 44.66 -> 0.80 mrad, 1414 s wall at load 17.
 # Re-run on main c3ff5c5 (gap-offset, 2026-11-26 session 8, bench/gap_redteam.py --threads 1,
 # load ~1): clean_mounting_vertical (was a false load_dependent_friction) names nothing, 10 s
 # (gap-select's explain_above); gain_high_arm2_50hz (was gain_error 1.846 [1.820, 1.872] plus
@@ -68,11 +74,7 @@ MISSES: dict[str, str] = {
                                       "ms) plus gain_error (1.08 / 0.96) and mass_error "
                                       "(1.38 / 0.91) on a general-actuator arm, 50 Hz, "
                                       "position-only",
-    "reading_offset_arm2": "position_offset exact (0.0525 / -0.0350 vs 0.0524 / -0.0349) plus "
-                           "a spurious load_dependent_friction (mu 0.0043 / 0.0086)",
     # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
-    "coulomb_mj_turntable": "coulomb_friction 0.0802 (truth 0.08) plus load_dependent_friction "
-                            "mu 0.032 and gain_error 1.013",
     "backlash_output_pendulum": "miss (gap-play2, re-run on main 9b54389, 42 s CPU): "
                                 "viscous_damping 0.065, gain_error 0.59, mass_error 0.59 "
                                 "(max_effects), held-out 69.3 -> 16.2 mrad (floor 0.70). "
@@ -100,10 +102,13 @@ MISSES: dict[str, str] = {
                                "(Plant.rest_play); the motor at the servo's setpoint improves "
                                "2 of the 4 (8.9 -> 3.9, 10.3 -> 7.7 mrad; not landed), the "
                                "others drift at a velocity below the log's 0.024 rad/s step",
-    "torque_coulomb_pendulum": "miss (3c61633): torque limit 1.2 + Coulomb 0.1 named "
-                               "load_dependent_friction mu 0.553 (held-out 306 -> 70.4 mrad); "
-                               "the torque_limit candidate fitted 1.085 with select gain 0.99, "
-                               "in range, not accepted",
+    "torque_coulomb_pendulum": "miss (gap-fric2, main 9b54389, 169 s): torque limit 1.2 + "
+                               "Coulomb 0.1 named torque_limit 1.086 [1.042, 1.133] alone (held-"
+                               "out 305.8 -> 8.65 mrad); round 2 took the Coulomb as "
+                               "stribeck_friction static 0, coulomb 0.104 (a stiff Coulomb: "
+                               "select gain 0.99 vs the MuJoCo-soft coulomb_friction's 0.25), "
+                               "dropped at the end ('its 95 % interval holds no effect'); was "
+                               "load_dependent_friction mu 0.553 (3c61633)",
 }
 
 

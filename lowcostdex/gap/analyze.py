@@ -59,6 +59,7 @@ from lowcostdex.gap.diagnostics import (
     score_fraction,
 )
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
+from lowcostdex.gap.gates import free_asymmetry
 from lowcostdex.gap.logs import rate_goal_actuators
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import (
@@ -277,15 +278,14 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     n = t.structure.effects[-1]
                     if t.cost < best_track[n].cost:
                         best_track[n] = t
+            widened = free_asymmetry(best_track, fit_fn, ctx, cfg)  # held terms data need
             names = list(best_track)
             results = select_results(eng.predict, ds, sel_eps, best_track, names, sel_cur,
                                      rng, cfg)
-            # a fit on a search bound that would beat every in-range fit: real sizes can lie beyond
-            # the usual range, so widen toward the hard limit and refit (reported with the cause)
+            # a fit on a bound beating every in-range fit (real sizes lie beyond): widen, refit
             top_in = max((results[n][0] for n in names
                           if not bound_flags(best_track[n].structure, best_track[n].u, n)),
                          default=-math.inf)
-            widened: dict[str, tuple[dict, list]] = {}
             for n in names:
                 t = best_track[n]
                 if results[n][0] > top_in and bound_flags(t.structure, t.u, n):

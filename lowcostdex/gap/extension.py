@@ -52,9 +52,11 @@ def bake_mjcf(xml: str, effects: Sequence[AppliedEffect]) -> tuple[str, list[str
     """
     baked: list[str] = []
     order = {name: i for i, name in enumerate(EFFECTS)}  # the Plant applies them in this order
-    # a velocity limit on a torque-speed line (finite speed) is state-dependent: Plant only
+    # a velocity limit on a torque-speed line (finite speed) and a direction-dependent Coulomb
+    # level are state-dependent: Plant only
     candidates = sorted((e for e in effects if e.name in MJCF_EXPRESSIBLE
-                         and not (e.cls.live and np.any(np.isfinite(e.values["speed"])))),
+                         and not (e.cls.live and np.any(np.isfinite(e.values["speed"])))
+                         and not e.cls.substep(e.values)),
                         key=lambda e: order[e.name])
     for e in candidates:
         spec = mujoco.MjSpec.from_string(xml)

@@ -135,8 +135,8 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
     elif (name, param) == ("coulomb_friction", "frictionloss"):
         hi = min(max(hi, float(ctx.peak_force[j])), float(ctx.stall[j]), p.hard[1])  # to its force
         extra = (0.5 * hi,)  # a near-stall level: its probe and start are far from the small start
-    elif (name, param) == ("coulomb_friction", "creep"):
-        lo = hi = p.null  # held (MuJoCo-soft) until a level at the actuator's force frees it
+    elif name == "coulomb_friction" and param in ("creep", "asymmetry"):
+        lo = hi = p.null  # held (soft, symmetric) unless widened: a level at the force, creep
     elif name == "load_dependent_friction":
         hi = 0.9  # plastic gear trains reach ~0.46 (BAM's XL330 fit); friction < torque
     elif (name, param) == ("torque_limit", "torque"):

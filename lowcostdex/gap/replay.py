@@ -283,7 +283,7 @@ class Replayer:
         columns = list(columns) + [columns[c] for c in dual]
         groups: dict[tuple[str, bool, bool], list[tuple[int, int]]] = {}
         for c, col in enumerate(columns):
-            fric = any(e.cls.kind == "friction" for e in col)
+            fric = any(e.cls.substep(e.values) for e in col)
             structural = c < n_col and any(e.cls.structural for e in col)
             for wi, w in enumerate(windows):
                 key = (self.ds.trajectories[w.traj].model, structural, fric)

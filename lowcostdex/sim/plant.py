@@ -202,7 +202,8 @@ class _PlantBase:
         self._static_forcerange = np.array(self.array("actuator_forcerange"), copy=True)
         self._static_forcelimited = np.array(self.array("actuator_forcelimited"), copy=True)
         self._apply_torque_mask()
-        self._has_friction = any(b.cls.kind == "friction" for b in self._bound)
+        self._friction = [b for b in self._bound if b.cls.substep(b.values)]
+        self._has_friction = bool(self._friction)
         self._live = [b for b in self._bound if b.cls.live]
         self._has_exo = any(b.cls.kind == "exogenous" for b in self._bound)
 
@@ -291,11 +292,10 @@ class _PlantBase:
     def _friction_level(self, qvel: np.ndarray, force: np.ndarray,
                         external: np.ndarray | None = None) -> np.ndarray:
         level = np.array(self._static_friction, copy=True)
-        for b in self._bound:
-            if b.cls.kind == "friction":
-                d = b.targets.dofs
-                level[..., d] = level[..., d] + b.cls.friction(b.targets, b.values, qvel, force,
-                                                               external)
+        for b in self._friction:
+            d = b.targets.dofs
+            level[..., d] = level[..., d] + b.cls.friction(b.targets, b.values, qvel, force,
+                                                           external)
         return level
 
     def measured_qpos(self, qpos: np.ndarray | None = None) -> np.ndarray:

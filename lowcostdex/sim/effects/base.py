@@ -210,6 +210,13 @@ class Effect:
         dof velocities [rad/s] (..., nv), every physics step."""
 
     @classmethod
+    def substep(cls, v: Values) -> bool:
+        """Whether ``friction`` sets a state-dependent level every physics step for these
+        values (kind friction: always; a model effect may add one, e.g. a direction-dependent
+        Coulomb level)."""
+        return cls.kind == "friction"
+
+    @classmethod
     def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
                  external: np.ndarray | None = None) -> np.ndarray:
         """kind friction: extra dry friction [N m] per target, from dof velocities [rad/s]
