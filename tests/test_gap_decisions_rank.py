@@ -121,9 +121,10 @@ def test_each_free_parameter_is_probed_on_each_joint_at_its_start_and_extra_star
     _same(_probes(eng, "torque_limit"),
           [_col(tl, "torque", 0, v) for v in (0.5, 0.25)]
           + [_col(tl, "torque", 1, v) for v in (1.0, 0.5)])
-    # creep is held at its null (range 1..1): only the friction level is probed, from its
-    # start 0.02 N m and a near-stall extra (half the range top: min(max(1.0, peak), stall))
-    cf = {"frictionloss": [0.0, 0.0], "creep": [1.0, 1.0]}
+    # creep and asymmetry are held at their nulls (ranges 1..1, 0..0): only the friction level
+    # is probed, from its start 0.02 N m and a near-stall extra (half the range top:
+    # min(max(1.0, peak), stall))
+    cf = {"frictionloss": [0.0, 0.0], "creep": [1.0, 1.0], "asymmetry": [0.0, 0.0]}
     _same(_probes(eng, "coulomb_friction"),
           [_col(cf, "frictionloss", 0, v) for v in (0.02, 0.5)]
           + [_col(cf, "frictionloss", 1, v) for v in (0.02, 0.75)])
