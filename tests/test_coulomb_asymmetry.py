@@ -168,6 +168,9 @@ def test_the_fit_frees_the_asymmetry_only_when_the_data_need_it(f_pos, f_neg, fr
         best[name] = t
     sym = best["coulomb_friction"]
     assert sym.x[0] == pytest.approx(0.5 * (f_pos + f_neg), rel=0.05)
+    # a better-fitting candidate ranked above it (the Coulomb fit is still among the 3 best)
+    s = fitmod.Structure.build(("position_offset",), ("q",), ctx)
+    best["position_offset"] = fitmod.Track(s, s.u(np.array([0.01])), cost=0.0, r=np.zeros(80))
     out = free_asymmetry(best, res, ctx, GapConfig())
     if not freed:
         assert out == {} and best["coulomb_friction"] is sym

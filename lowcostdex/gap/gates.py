@@ -32,8 +32,8 @@ def free_asymmetry(best: dict[str, fitmod.Track], residual: fitmod.ResidualFn,
     Returns {name: (ranges that free it, [(effect, report line)])} for ``analyze``'s widened
     ranges (kept in the context once the cause is accepted), empty when nothing was freed."""
     t = best.get(ASYMMETRY[0])
-    if t is None or t.r is None or t not in sorted(best.values(), key=lambda x: x.cost)[:cfg.joint_k]:
-        return {}
+    if t is None or t.r is None or sum(x.cost < t.cost for x in best.values()) >= cfg.joint_k:
+        return {}  # (not ``t in list``: a Track compares its arrays)
     s = t.structure
     held = {f.joint for f in s.free if (f.effect, f.param) == ASYMMETRY}
     ranges = {(*ASYMMETRY, f.joint): effect(ASYMMETRY[0]).param(ASYMMETRY[1]).hard
