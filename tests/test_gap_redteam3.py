@@ -35,6 +35,10 @@ import gap_truth_sim3 as sim  # noqa: E402
 # 9b54389); with coulomb_friction's asymmetry freed when the data need it (gap-fric2, session 9,
 # lowcostdex.gap.gates): coulomb_friction 0.1052 [0.0939, 0.1164] asymmetry 0.490 [0.394, 0.587]
 # (truth 0.15 / 0.05 N m: 0.1, 0.5) alone, held-out 39.2 -> 4.70 mrad, 107 s CPU.
+# srv_stribeck was 'interval' (static 0.0497 [0.0242, 0.0751] and velocity 0.697 for 0.12 / 0.05,
+# ecf1ae1); re-run on main c5443ac (gap-fric2, bench/gap_redteam3.py --threads 1, 60 s wall):
+# stribeck_friction coulomb 0.0852 [0.0691, 0.1013], static 0.1054 [0.0576, 0.1533], velocity
+# 0.0447 [0.0392, 0.0509] (truth 0.08 / 0.12 / 0.05) alone, held-out 28.7 -> 1.77 mrad.
 # measured by bench/gap_redteam3.py (2026-11-26, see bench/RESULTS.md): what was named instead.
 # fin_mount_offset020_prox was a miss (position_offset on prox and dist: at the model's 2 ms step
 # the mounting offset fits worse); since the first cause is chosen again at the refined step
@@ -49,11 +53,6 @@ MISSES: dict[str, str] = {
                                                 "(1.26 mrad train + select at 1 ms = 1.8 "
                                                 "floors; prox held-out 1.47 mrad = 2.2 of its "
                                                 "0.66 floor); held-out 49.1 -> 1.05 mrad",
-    "srv_stribeck": "interval (gap-cands, main ecf1ae1, 94 s): named exactly stribeck_friction "
-                    "but static 0.0497 [0.0242, 0.0751] (truth 0.12) and velocity 0.697 [0.554, "
-                    "0.877] (truth 0.05) outside; on 9a9a2b0's catalogue without the backlash "
-                    "sensor it was 0.1198 / 0.0483, all inside (another optimum); was family "
-                    "(coulomb_friction only, 84e2bf6)",
     "srv_backlash_output": "interval (gap-play, main 3483c63, 224 s): named exactly backlash, "
                            "sensor 1.009 [0.985, 1.033] (the output shaft) but width 0.0332 "
                            "[0.0281, 0.0382] for 0.05 (held-out 11.53 -> 7.75 mrad, floor 0.82: "
