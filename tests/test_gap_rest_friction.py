@@ -6,6 +6,9 @@ level = sliding level), which the fitted structure below cannot express."""
 
 from __future__ import annotations
 
+import pathlib
+import sys
+
 import numpy as np
 
 from lowcostdex.gap.dataset import Dataset
@@ -15,6 +18,9 @@ from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig, build_bench
 from lowcostdex.sim.plant import Plant
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import bench_servo_logs  # noqa: E402
 
 DT = 0.005
 J = (BENCH_JOINT,)
@@ -37,16 +43,7 @@ def _log(kp: int, kind: str) -> tuple[Trajectory, str]:
         s = np.clip(t / 1.5, 0, 1)
         goal = -0.5 * np.pi * (3 * s ** 2 - 2 * s ** 3)
         on = (t < 1.5).astype(float)
-    plant.reset(qpos=np.array([0.0]), qvel=np.array([0.0]), ctrl=np.array([0.0]))
-    q, v = np.empty_like(t), np.empty_like(t)
-    for k in range(len(t)):
-        q[k] = plant.measured_qpos()[0]
-        v[k] = plant.qvel[0]
-        plant.set_torque_enabled([0], bool(on[k]))
-        plant.step(np.array([goal[k]]), 1)
-    tr = Trajectory(f"{kind}_kp{kp}", t, goal[:, None], q[:, None], J, J, qvel=v[:, None],
-                    channels={"torque_enable": on[:, None]}, model=f"kp{kp}",
-                    meta={"kp": kp, "trajectory": kind})
+    tr = bench_servo_logs.record(plant, t, goal, on, kind, kp)
     return tr, xml
 
 

@@ -5,6 +5,9 @@ out bench physics in tests/test_effects_servo.py; real logs in tests/test_gap_re
 
 from __future__ import annotations
 
+import pathlib
+import sys
+
 import numpy as np
 import pytest
 
@@ -28,6 +31,9 @@ from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig, build_bench
 from lowcostdex.sim.plant import Plant
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import bench_servo_logs  # noqa: E402
+
 DT = 0.005
 J = (BENCH_JOINT,)
 TRUTH = {"inertia_error": {"scale": 3.0}, "gearbox_friction": {"mu": 0.15},
@@ -47,16 +53,7 @@ def _log(kp: int, kind: str) -> tuple[Trajectory, str]:
     else:  # lift and drop: up in 1.5 s, then the torque goes off
         goal = -0.5 * np.pi * np.clip(t / 1.5, 0, 1) ** 2
         on = (t < 1.5).astype(float)
-    plant.reset(qpos=np.array([0.0]), qvel=np.array([0.0]), ctrl=np.array([0.0]))
-    q, v = np.empty_like(t), np.empty_like(t)
-    for k in range(len(t)):
-        q[k] = plant.measured_qpos()[0]
-        v[k] = plant.qvel[0]
-        plant.set_torque_enabled([0], bool(on[k]))
-        plant.step(np.array([goal[k]]), 1)
-    tr = Trajectory(f"{kind}_kp{kp}", t, goal[:, None], q[:, None], J, J, qvel=v[:, None],
-                    channels={"torque_enable": on[:, None]}, model=f"kp{kp}",
-                    meta={"kp": kp, "trajectory": kind})
+    tr = bench_servo_logs.record(plant, t, goal, on, kind, kp)
     return tr, xml
 
 
