@@ -12,7 +12,8 @@ tail (under half a block) joined to the block before it. Times here are multiple
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import pathlib
+import sys
 
 import numpy as np
 import pytest
@@ -20,6 +21,9 @@ import pytest
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Window
 from lowcostdex.gap.significance import block_sse, null_margins, null_u, residual_blocks
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from test_gap_decisions_pure import _DS, _Traj  # noqa: E402  (the stand-in Dataset, one home)
 
 
 def _ctx(peak):
@@ -84,21 +88,9 @@ def test_margins_in_half_widths_from_no_effect():
     assert null_margins(s, u, half, _ctx(math.inf))["torque_limit"] == math.inf
 
 
-@dataclass
-class _Tr:
-    qpos: np.ndarray
-    time: np.ndarray
-
-
-@dataclass
-class _DS:
-    trajectories: list
-    joints: tuple = ("j0",)
-
-
 def _ds(nj=1, start=0.0):
     t = start + 0.25 * np.arange(40)  # 10 s at 4 Hz
-    return _DS([_Tr(np.tile(np.arange(1.0, nj + 1.0), (40, 1)), t)],
+    return _DS([_Traj(np.tile(np.arange(1.0, nj + 1.0), (40, 1)), t)],
                tuple(f"j{i}" for i in range(nj)))
 
 
