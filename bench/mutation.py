@@ -70,7 +70,7 @@ GROUPS = {
         tests=("tests/test_robot_guards.py", "tests/test_robot_faults.py",
                "tests/test_robot_dynamixel.py", "tests/test_dxl_thermal.py",
                "tests/test_dxl_soak.py", "tests/test_dxl_driver.py", "tests/test_dxl_protocol.py",
-               "tests/test_motion.py",
+               "tests/test_motion.py", "tests/test_safety_constants.py",
                "tests/test_backend_emulated.py::"
                "test_sim_and_emulated_robot_apply_the_same_narrowed_motion_bound"),
         # the fault soaks (22-33 s each at idle, all parametrizations) would make every
@@ -109,7 +109,8 @@ GROUPS = {
                "tests/test_gap_gain.py", "tests/test_gap_significance.py",
                "tests/test_gap_decisions_stages.py", "tests/test_gap_decisions_wiring.py",
                "tests/test_gap_decisions_intervals.py", "tests/test_gap_decisions_rank.py",
-               "tests/test_gap_decisions_significance.py", "tests/test_gap_decisions_report.py"),
+               "tests/test_gap_decisions_significance.py", "tests/test_gap_decisions_report.py",
+               "tests/test_gap_decisions_defaults.py"),
         note="the gap decision code judged by its fast tests only: hand-computed inputs, and "
              "analyze's loop and backward pass on a stand-in engine (no MuJoCo replay), so the "
              "whole population is measurable here; code only a real replay reaches (the "

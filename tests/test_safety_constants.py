@@ -1,0 +1,122 @@
+"""Safety constants no other test pinned (``bench/mutate_constants.py`` +1 survivors at 5d44167).
+
+- ``ThermalConfig.max_pause`` 3600 s: README ("a pause longer than an hour stops the run with a
+  message") and docs/hardware.md ("``max_pause`` (1 h) raises ``ThermalTimeout``").
+- ``ThermalConfig.poll_interval`` 1 s: the pause reads the temperatures once a second; the
+  stuck-sensor model (``ThermalGuard._check_stuck``) integrates by explicit Euler between reads,
+  written for reads 0.1-1 s apart against a winding time constant of ~100 s.
+- ``safety.UNIT_MARGIN`` 2 pi rad: "a goal more than a full turn outside its joint's range is not a
+  goal in rad" (one turn = 2 pi rad); on the D'Claw (joint limits typed below) a 30 deg goal given
+  in degrees is refused, while a goal a little under a turn beyond the limit is clipped.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lowcostdex.hardware.robot.guards import ThermalConfig, ThermalGuard
+from lowcostdex.hardware.robot.robot import Robot, ThermalTimeout
+from lowcostdex.hardware.robot.safety import UnsafeCommand, check_units, clip_goal
+
+
+class _Clock:
+    def __init__(self):
+        self.t, self.slept = 1000.0, []
+
+    def now(self):
+        return self.t
+
+    def sleep(self, s):
+        self.slept.append(s)
+        self.t += s
+
+
+class _State:
+    def __init__(self, temps):
+        self.temperature = np.array(temps, float)
+        self.temperature_fault = np.zeros(len(temps), bool)
+
+
+class _Bus:
+    def __init__(self):
+        self.torque = []
+
+    def set_torque(self, on):
+        self.torque.append(on)
+
+
+class _Hand:
+    """What ``Robot.pause_if_hot`` uses of a robot: a bus, a clock, reads, the thermal guard
+    (real, default ThermalConfig: limit 80 deg C, resume below 50)."""
+
+    def __init__(self, temps):
+        self.temps = list(temps)  # one reading per read(); the last one repeats
+        self.reads = 0
+        self.clock, self.bus = _Clock(), _Bus()
+        self.joint_names = ("a", "b")
+        self.thermal = ThermalGuard(ThermalConfig(), limit=80.0, names=self.joint_names)
+        self.thermal.pause_pending = True
+        self._torque = np.array([True, True])
+        self.metrics = type("M", (), {"pauses": []})()
+        self.rate = type("R", (), {"restart": lambda self: None})()
+        self.enabled = []
+
+    def read(self):
+        t = self.temps[min(self.reads, len(self.temps) - 1)]
+        self.reads += 1
+        return _State(t)
+
+    def torque(self, on, names):
+        self.enabled.append((on, list(names)))
+
+
+def test_a_pause_that_never_cools_stops_the_run_after_one_hour_of_one_second_reads():
+    hand = _Hand([[66.0, 40.0]])  # a broken fan: 66 deg C forever
+    with pytest.raises(ThermalTimeout, match=r"after 3600 s pause \(resume below 50.0"):
+        Robot.pause_if_hot(hand)
+    assert hand.bus.torque == [False]  # the hand went limp first (pause_mode torque_off)
+    assert set(hand.clock.slept) == {1.0}  # read once a second
+    # timed out at the first read more than an hour after the start
+    assert hand.clock.t - 1000.0 == pytest.approx(3601.0)
+    assert len(hand.clock.slept) == 3601
+
+
+def test_a_pause_ends_at_the_first_one_second_read_below_resume():
+    # 60 s of 55 deg C, then 49: the pause lasts 61 reads' worth of seconds, then torque back on
+    hand = _Hand([[66.0, 40.0]] + [[55.0, 40.0]] * 60 + [[49.0, 40.0]])
+    record = Robot.pause_if_hot(hand)
+    assert record.duration == pytest.approx(61.0) and record.end_max == 49.0
+    assert record.hottest == "a" and record.peak == 66.0
+    assert hand.enabled == [(True, ["a", "b"])] and not hand.thermal.pause_pending
+
+
+# D'Claw joint ranges [rad] of ROBEL's MJCF (/work/shared/reference/01-hardware.md 1.9): top
+# (abduction) -0.45..1.35, middle and bottom +-2
+LOW, HIGH = np.array([-0.45, -2.0, -2.0]), np.array([1.35, 2.0, 2.0])
+NAMES = ("top", "middle", "bottom")
+
+
+def test_a_goal_a_full_turn_beyond_a_limit_is_refused_as_not_rad_and_less_is_clipped():
+    turn = 2 * math.pi  # one turn [rad]
+    for joint in range(3):
+        under = np.zeros(3)
+        under[joint] = HIGH[joint] + turn - 0.01
+        check_units(under, LOW, HIGH, NAMES)  # within a turn: a (wild) goal in rad
+        r = clip_goal(under, LOW, HIGH, np.zeros(3), np.full(3, 10.0))
+        assert r.goal[joint] == HIGH[joint]  # ... clipped to the limit
+        over = np.zeros(3)
+        over[joint] = HIGH[joint] + turn + 0.01
+        with pytest.raises(UnsafeCommand, match=f"{NAMES[joint]}=.*degrees or ticks"):
+            check_units(over, LOW, HIGH, NAMES)
+        below = np.zeros(3)
+        below[joint] = LOW[joint] - turn - 0.01
+        with pytest.raises(UnsafeCommand, match="far outside the joint limits"):
+            check_units(below, LOW, HIGH, NAMES)
+        below[joint] = LOW[joint] - turn + 0.01
+        check_units(below, LOW, HIGH, NAMES)
+    # 30 deg typed as degrees on the top joint (limit 1.35 rad): 30 > 1.35 + 2 pi = 7.63
+    with pytest.raises(UnsafeCommand):
+        check_units(np.array([30.0, 0.0, 0.0]), LOW, HIGH, NAMES)
