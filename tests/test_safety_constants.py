@@ -1,7 +1,7 @@
 """Safety constants no other test pinned (``bench/mutate_constants.py`` +1 survivors at 5d44167).
 
-- ``ThermalConfig.max_pause`` 3600 s: README ("a pause longer than an hour stops the run with a
-  message") and docs/hardware.md ("``max_pause`` (1 h) raises ``ThermalTimeout``").
+- ``ThermalConfig.max_pause`` 3600 s: docs/troubleshooting.md ("a pause longer than an hour stops
+  the run with a message") and docs/hardware.md ("``max_pause`` (1 h) raises ``ThermalTimeout``").
 - ``ThermalConfig.poll_interval`` 1 s: the pause reads the temperatures once a second; the
   stuck-sensor model (``ThermalGuard._check_stuck``) integrates by explicit Euler between reads,
   written for reads 0.1-1 s apart against a winding time constant of ~100 s.
