@@ -84,7 +84,8 @@ GROUPS = {
         modules=("lowcostdex/hardware/allegro/protocol.py",
                  "lowcostdex/hardware/dynamixel/protocol.py"),
         tests=("tests/test_allegro_can.py", "tests/test_hardware_acceptance_allegro.py",
-               "tests/test_dxl_protocol.py", "tests/test_dxl_codec_edges.py"),
+               "tests/test_dxl_protocol.py", "tests/test_dxl_codec_edges.py",
+               "tests/test_codec_constants.py"),
         # real time: fails mutmut's clean run on a loaded machine (bench/RESULTS.md)
         deselect=("tests/test_allegro_can.py::"
                   "test_threaded_driver_against_a_real_time_emulated_hand",),
