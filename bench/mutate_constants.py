@@ -66,6 +66,11 @@ def module_literals(source: str) -> list[Literal]:
     return out
 
 
+def chosen(literals: list[Literal], only=()) -> list[Literal]:
+    """The literals whose name starts with one of ``only`` (all when it is empty)."""
+    return [lit for lit in literals if not only or lit.name.startswith(tuple(only))]
+
+
 def apply(source: str, lit: Literal) -> str:
     lines = source.splitlines(keepends=True)
     text = lines[lit.line - 1]
@@ -77,10 +82,11 @@ def apply(source: str, lit: Literal) -> str:
 
 
 def measure(root: Path, module: str, tests: list[str], *, rev: str = "HEAD",
-            deselect: list[str] = (), verbose: bool = True
+            deselect: list[str] = (), verbose: bool = True, only: list[str] = ()
             ) -> tuple[list[Literal], list[Literal], float]:
     """Mutate each numeric constant of ``module`` by +1 in a ``git archive`` copy of ``rev`` and
-    run ``tests`` (``-m "not slow" -x``) once per change.
+    run ``tests`` (``-m "not slow" -x``) once per change; ``only``: just the constants whose name
+    starts with one of these (``NPGConfig.``, ``UNIT_MARGIN``).
 
     Returns (all literals, the ones no test noticed, seconds)."""
     work = Path(tempfile.mkdtemp(prefix="mutate_constants_"))
@@ -90,7 +96,7 @@ def measure(root: Path, module: str, tests: list[str], *, rev: str = "HEAD",
         subprocess.run(["tar", "-x", "-C", str(work)], input=archive, check=True)
         target = work / module
         original = target.read_text()
-        literals = module_literals(original)
+        literals = chosen(module_literals(original), only)
         cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
                "-m", "not slow", *tests]
         for test_id in deselect:
@@ -118,6 +124,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rev", default="HEAD", help="commit to measure (default HEAD)")
     ap.add_argument("--deselect", action="append", default=[],
                     help="test id to leave out (e.g. a real-time test that fails under load)")
+    ap.add_argument("--only", action="append", default=[], metavar="PREFIX",
+                    help="mutate only the constants whose name starts with this (repeatable), "
+                         "e.g. NPGConfig. of lowcostdex/algos/configs.py")
     ap.add_argument("--markdown", action="store_true", help="print the survivors as Markdown")
     args = ap.parse_args(argv)
     root = Path(subprocess.check_output(["git", "rev-parse", "--show-toplevel"], text=True)
@@ -125,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     commit = subprocess.check_output(["git", "-C", str(root), "rev-parse", "--short", args.rev],
                                      text=True).strip()
     literals, survivors, seconds = measure(root, args.module, args.tests, rev=commit,
-                                           deselect=args.deselect)
+                                           deselect=args.deselect, only=args.only)
     n = len(literals)
     print(f"\n{args.module} @ {commit}: {n - len(survivors)}/{n} constant mutants killed "
           f"({100 * (n - len(survivors)) / max(n, 1):.1f} %), {seconds:.0f} s")

@@ -214,3 +214,7 @@ def test_constants_include_a_dataclass_default_and_are_applied_in_place():
         ("LIMIT", 80.0, 1), ("Config.warn_margin", 15.0, 3), ("OTHER", 2, 7)]
     assert mc.apply(src, lits[1]).splitlines()[2] == "    warn_margin: float = 16.0"
     assert mc.apply(src, lits[2]).splitlines()[6] == "OTHER = -3"
+    # --only: the constants of one class (or name) only; nothing given: all
+    assert [lit.name for lit in mc.chosen(lits, ["Config."])] == ["Config.warn_margin"]
+    assert [lit.name for lit in mc.chosen(lits, ["OTHER", "LIMIT"])] == ["LIMIT", "OTHER"]
+    assert mc.chosen(lits) == lits and mc.chosen(lits, ["Nothing"]) == []
