@@ -180,3 +180,38 @@ def test_the_hac_bandwidth_is_andrews_plug_in_over_the_score_columns():
     assert andrews_bandwidth(g[:3]) == pytest.approx(min(_andrews(g[:3]), 2.0), rel=1e-12)
     assert andrews_bandwidth(g[:3]) > 0
     assert andrews_bandwidth(g[:2]) == 0.0
+
+
+class _Recording:
+    """A generator that records what ``paired_gain_bound`` asks of it (numpy's draws)."""
+
+    def __init__(self, seed):
+        self.rng, self.calls = np.random.default_rng(seed), []
+
+    def integers(self, low, high=None, size=None):
+        self.calls.append((low, high, size))
+        self.starts = self.rng.integers(low, high, size=size)
+        return self.starts
+
+
+@pytest.mark.parametrize("nb,ell", [(64, 4), (27, 3), (28, 4), (2, 2), (8, 2)])
+def test_the_paired_block_bootstrap_is_kunsch_moving_blocks_of_cube_root_length(nb, ell):
+    """Kunsch (1989)'s moving-block bootstrap with the block length of order n^(1/3) (Hall,
+    Horowitz & Jing 1995, for variance-type estimates): runs of ceil(nb^(1/3)) consecutive
+    blocks, each start uniform over 0..nb - ell, ceil(nb / ell) runs cut to nb blocks; the
+    bound is the 5 % quantile of 1 - sum(new) / sum(cur) over the resamples, written out
+    here. 64 blocks: runs of 4 (not 16 = 64^(2/3), not 3 = ceil(64^(1/4)))."""
+    from lowcostdex.gap.significance import paired_gain_bound
+    rng = np.random.default_rng(nb)
+    cur = rng.uniform(1.0, 2.0, nb)
+    new = cur * rng.uniform(0.6, 1.1, nb)
+    rec = _Recording(5)
+    got = paired_gain_bound(cur, new, rec, 300)
+    k = math.ceil(nb / ell)
+    assert rec.calls == [(0, nb - ell + 1, (300, k))]
+    boot = []
+    for row in rec.starts:
+        idx = [s + j for s in row for j in range(ell)][:nb]
+        boot.append(1.0 - new[idx].sum() / cur[idx].sum())
+    boot = np.array(boot)
+    assert got == pytest.approx(float(np.quantile(boot[np.abs(boot) > 1e-4], 0.05)), abs=1e-12)
