@@ -92,7 +92,7 @@ GROUPS = {
         note="Allegro CAN frames and the Dynamixel Protocol 2.0 packets the emulator speaks"),
     "algos": Group(
         modules=("lowcostdex/algos/npg.py", "lowcostdex/algos/dapg.py"),
-        tests=("tests/test_npg.py", "tests/test_dapg.py"),
+        tests=("tests/test_npg.py", "tests/test_dapg.py", "tests/test_algos_constants.py"),
         note="NPG and DAPG updates"),
     "gap": Group(
         modules=("lowcostdex/gap/analyze.py", "lowcostdex/gap/selection.py",
