@@ -120,3 +120,50 @@ def test_a_goal_a_full_turn_beyond_a_limit_is_refused_as_not_rad_and_less_is_cli
     # 30 deg typed as degrees on the top joint (limit 1.35 rad): 30 > 1.35 + 2 pi = 7.63
     with pytest.raises(UnsafeCommand):
         check_units(np.array([30.0, 0.0, 0.0]), LOW, HIGH, NAMES)
+
+
+# ---- RobotConfig: what a user reads in its docstring, on the emulated D'Claw --------------------
+# (no outside number exists for these two: they are the project's documented choices; pinned
+# here at the behaviour the docstring states, one step either side)
+
+def _dclaw():
+    from lowcostdex.hands import dclaw_spec
+    from lowcostdex.hardware.emulated.chain import emulated_dclaw
+    from lowcostdex.hardware.robot.backend import make_dynamixel_bus
+    from lowcostdex.hardware.robot.robot import RobotConfig
+
+    hand = dclaw_spec()
+    chain = emulated_dclaw("valve", hand=hand, rng=np.random.default_rng(0))
+    robot = Robot(hand, make_dynamixel_bus(hand, chain.port(), chain.plant.model,
+                                           handle_signals=False), RobotConfig())
+    robot.connect()
+    return hand, chain, robot
+
+
+def test_a_dead_motor_stops_the_default_robot_at_its_sixth_missed_read():
+    # RobotConfig.max_invalid_reads 5: "consecutive reads a motor may miss before read raises"
+    from lowcostdex.hardware.bus import BusError
+
+    hand, chain, robot = _dclaw()
+    chain.kill(hand.joints[4].motor_id)
+    for _ in range(5):
+        robot.read()
+    with pytest.raises(BusError, match=f"{hand.joints[4].name} for 6 consecutive reads"):
+        robot.read()
+
+
+def test_a_persistent_hardware_error_gets_two_reboots_then_stops_the_run():
+    # RobotConfig.max_reboots 2: "reboots per motor per session when recovering from hardware
+    # errors"; the emulated firmware clears the error at a reboot, so it is latched again
+    from lowcostdex.hardware.dynamixel.protocol import HardwareError
+    from lowcostdex.hardware.robot.robot import MotorFault
+
+    hand, chain, robot = _dclaw()
+    j = hand.joints[1]
+    for _ in range(2):
+        chain.inject_hardware_error(j.motor_id, HardwareError.OVERLOAD)
+        assert robot.recover_faults() == [j.name]
+    chain.inject_hardware_error(j.motor_id, HardwareError.OVERLOAD)
+    with pytest.raises(MotorFault, match="persists after 2 reboots"):
+        robot.recover_faults()
+    assert robot.metrics.reboots == 2
