@@ -129,12 +129,15 @@ def test_identified_servo_beats_bam_on_held_out_gains():
 
     # BAM on the same held-out logs, 08-bam-reference-errors.md: Rhoban XL330 held out kp 200
     # and 800 after fitting kp 100 and 400, BAM's refit M6 0.0599 rad (section 3); Pham XL330 at
-    # kp 400, BAM's best published model M3 0.022 rad (section 2, per-kp column)
-    for folder, held, bam in ((RHOBAN, (200, 800), 0.0599), (PHAM, (400,), 0.022)):
+    # kp 400, BAM's best published model M3 0.022 rad (section 2, per-kp column). Issue 11's
+    # targets on the same splits: Rhoban < 0.050 rad, Pham < 0.022 (an analysis-only Coulomb start
+    # taken by identify moved Rhoban 0.0455 -> 0.0542, still under M6: bench/RESULTS.md gap-real3)
+    for folder, held, bam, target in ((RHOBAN, (200, 800), 0.0599, 0.050),
+                                      (PHAM, (400,), 0.022, 0.022)):
         ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
         train, test = _split(ds, held)
         res = identify(ds, train, test, IdentifyConfig(effects=servo_structure(ds)))
-        assert res.mean(test) < bam, (folder.name, res.mean(test), res.params())
+        assert res.mean(test) < min(bam, target), (folder.name, res.mean(test), res.params())
         assert res.mean(test) < 0.3 * res.mean(test, identified=False)
         if folder == RHOBAN:
             # on the heavy bench the load-carrying gear friction is what the model leans on

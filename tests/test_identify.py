@@ -366,3 +366,21 @@ def test_type_selection_scores_each_family_on_the_type_left_out_then_fits_all(lo
     one = identify(logs, [0, 2], [4], IdentifyConfig(effects=tuple(TRUTH), max_rounds=20,
                                                      select="types", restarts=1))
     assert one.selection["field"] == "kp"
+
+
+def test_identify_starts_leave_out_the_analysis_only_coulomb_start():
+    from lowcostdex.gap.identify_starts import starts
+
+    # the analysis's extra start at half the actuator's force (fit.space) is not identify's:
+    # on Rhoban XL330's BAM split it moved the held-out error 45.5 -> 54.2 mrad (RESULTS,
+    # gap-real3); another scalar's extra start and identify's own overrides stay
+    free = [fitmod.Free("coulomb_friction", "frictionloss", 0, 0.0, 0.6, 0.02, False, 1e-3,
+                        (0.3,)),
+            fitmod.Free("inertia_error", "scale", 0, 0.2, 5.0, 1.0, True, 1e-3, (3.0,)),
+            fitmod.Free("gearbox_friction", "static", 0, 0.0, 1.0, 0.0, False, 1e-3)]
+    st = fitmod.Structure(("coulomb_friction", "inertia_error", "gearbox_friction"), ("j",),
+                          free)
+    assert [list(x) for x in st.starts()] == [[0.02, 1.0, 0.0], [0.3, 3.0, 0.0]]  # fit's own
+    got = starts(st, ({("gearbox_friction", "static"): 0.3},))
+    assert [list(x) for x in got] == [[0.02, 1.0, 0.0], [0.02, 3.0, 0.0], [0.02, 1.0, 0.3]]
+    assert [list(x) for x in starts(st, (), base=np.array([0.1, 2.0, 0.2]))] == [[0.1, 2.0, 0.2]]

@@ -36,6 +36,7 @@ from lowcostdex.errors import ConfigError, check_bool, check_number
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
 from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.identify_starts import starts as own_starts
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.rest_friction import held_at_rest
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
@@ -468,13 +469,13 @@ def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
             for j in range(copies):
                 st = fitmod.Structure.build(names, joints, ctx)
                 st = _hold(st, hold) or st
-                starts = _starts(st, config.starts)
+                starts = own_starts(st, config.starts)
                 if spread[j] > 0 and not best:
                     starts = [_jitter(st, x, spread[j], rngs[j]) for x in starts]
                 if (fam, j) in best:
                     # the previous optimum, and it with each extra start's overrides applied
                     base = st.values_from(best[(fam, j)].effects())
-                    starts = _starts(st, config.starts, base=base) + (starts if config.cold
+                    starts = own_starts(st, config.starts, base=base) + (starts if config.cold
                                                                        else [])
                 groups[(fam, j)] = [fitmod.Track(st, st.u(x0),
                                                  label=f"{fam}.{j}.stage{k + 1}.start{i}")
@@ -607,23 +608,6 @@ def _train_mae(t: fitmod.Track, windows, weights, ds: Dataset, rep: Replayer) ->
         out.append(float(np.mean(np.abs(t.r[k:k + n]))) / wt)
         k += n
     return np.asarray(out)
-
-
-def _starts(st: fitmod.Structure, extra: Sequence[dict], base: np.ndarray | None = None
-            ) -> list[np.ndarray]:
-    """The structure's catalogue starts (or ``base`` alone) plus one per ``extra`` override
-    (applied to the first start)."""
-    starts = st.starts() if base is None else [np.asarray(base, float)]
-    for over in extra:
-        x = starts[0].copy()
-        hit = False
-        for i, f in enumerate(st.free):
-            if (f.effect, f.param) in over:
-                x[i] = float(np.clip(over[(f.effect, f.param)], f.lo, f.hi))
-                hit = True
-        if hit:
-            starts.append(x)
-    return starts
 
 
 def _jitter(st: fitmod.Structure, x: np.ndarray, rel: float, rng: np.random.Generator
