@@ -35,7 +35,8 @@ not reach it in its budget), and PPO / NPG wall-clock to the target. On the flip
 and quaternion variants (observation and reward) are compared with 95 % t-intervals over seeds.
 
 Demonstrations: the scripted teachers (``ValveTurnTeacher``, ``AllegroValveTeacher``,
-``FlipBlockTeacher``; ``PlannedFlipTeacher`` for the 2026-11-27 runs at 0586db6) run in simulation with uniform executed-action noise and clean labels
+``PinchFlipTeacher``; ``FlipBlockTeacher`` before 2026-11-27 session 10, ``PlannedFlipTeacher``
+for the 2026-11-27 runs at 0586db6) run in simulation with uniform executed-action noise and clean labels
 (``lowcostdex.demonstrations.dataset.teacher_episodes``), written as the demo dataset in ``<out>/<task>/``.
 Sampling uses the vector sampler (``mujoco.batch``; trajectories identical to the serial
 sampler's), so wall-clock is what NPG/DAPG take with batched simulation on this machine.
@@ -78,18 +79,18 @@ class Task:
 
 TASKS = {
     "valve": Task("lowcostdex/DClawTurnValve-v0", "ValveTurnTeacher", 25, 0.1),
-    # FlipBlockTeacher: PlannedFlipTeacher's demos (2026-11-27, 0586db6) gave DAPG no gain, and
-    # under the demos' executed-action noise it flips no more often (bench/RESULTS.md, "The flip
-    # teacher, planned")
-    "flip-keypoints": Task("lowcostdex/DClawFlipBlock-v0", "FlipBlockTeacher", 10, 0.05),
-    "flip-quaternion": Task("lowcostdex/DClawFlipBlockQuaternion-v0", "FlipBlockTeacher", 10,
+    # PinchFlipTeacher (2026-11-27, session 10): under the demos' executed-action noise it flips
+    # 54 of 80 starts against FlipBlockTeacher's 38 (bench/RESULTS.md, "The pinched flip
+    # teacher"); PlannedFlipTeacher's demos (0586db6) gave DAPG no gain
+    "flip-keypoints": Task("lowcostdex/DClawFlipBlock-v0", "PinchFlipTeacher", 10, 0.05),
+    "flip-quaternion": Task("lowcostdex/DClawFlipBlockQuaternion-v0", "PinchFlipTeacher", 10,
                             0.05),
     "allegro-valve": Task("lowcostdex/AllegroTurnValve-v0", "AllegroValveTeacher", 25, 0.1),
 }
 ALIASES = {"flip": ["flip-keypoints", "flip-quaternion"]}
 ALGOS = ("npg", "dapg", "ppo")
 TEACHER_MODULES = ("lowcostdex.teachers.valve", "lowcostdex.teachers.flip",
-                   "lowcostdex.teachers.flip_plan")
+                   "lowcostdex.teachers.flip_plan", "lowcostdex.teachers.flip_pinch")
 
 
 class ScriptedTeacher:

@@ -318,7 +318,7 @@ phase: one finger pushes at a time for part of the turn, and under the soft hand
 turned the valve ~5-8 deg per step (three fingers ~22): the demonstrations ended 9 deg short
 (0/6), with this hand 6/6 (emulated D'Claw, default effects; bench/RESULTS.md)."""
 
-FIRM_SOLVERS = ("FlipBlockTeacher", "ValveTurnTeacher", "ScrewTrackTeacher")
+FIRM_SOLVERS = ("FlipBlockTeacher", "PinchFlipTeacher", "ValveTurnTeacher", "ScrewTrackTeacher")
 """Scripted solvers moved by ``FIRM_HAND``; any other (the Allegro's) by the default hand."""
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 from lowcostdex.errors import ConfigError
 from lowcostdex.teachers.allegro import AllegroTeacherConfig, AllegroValveTeacher
 from lowcostdex.teachers.flip import FlipBlockTeacher, FlipTeacherConfig
+from lowcostdex.teachers.flip_pinch import PinchFlipConfig, PinchFlipTeacher
 from lowcostdex.teachers.flip_plan import FlipPlanConfig, PlannedFlipTeacher
 from lowcostdex.teachers.valve import (
     ScrewTrackTeacher,
@@ -18,7 +19,7 @@ from lowcostdex.teachers.valve import (
 
 TEACHERS = {cls.__name__: cls for cls in
             (ValveTurnTeacher, ScrewTrackTeacher, FlipBlockTeacher, PlannedFlipTeacher,
-             AllegroValveTeacher)}
+             PinchFlipTeacher, AllegroValveTeacher)}
 """Teacher classes by name (the names the task tables use)."""
 
 
@@ -31,6 +32,7 @@ def teacher_class(name: str) -> type:
 
 
 __all__ = ["TEACHERS", "AllegroTeacherConfig", "AllegroValveTeacher", "FlipBlockTeacher",
-           "FlipPlanConfig", "FlipTeacherConfig", "PlannedFlipTeacher", "ScrewTrackTeacher",
+           "FlipPlanConfig", "FlipTeacherConfig", "PinchFlipConfig", "PinchFlipTeacher",
+           "PlannedFlipTeacher", "ScrewTrackTeacher",
            "ValveTeacherConfig", "ValveTurnTeacher",
            "teacher_class"]
