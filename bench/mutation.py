@@ -111,7 +111,8 @@ GROUPS = {
                "tests/test_gap_decisions_stages.py", "tests/test_gap_decisions_wiring.py",
                "tests/test_gap_decisions_intervals.py", "tests/test_gap_decisions_rank.py",
                "tests/test_gap_decisions_significance.py", "tests/test_gap_decisions_report.py",
-               "tests/test_gap_decisions_defaults.py", "tests/test_gap_profile.py"),
+               "tests/test_gap_decisions_defaults.py", "tests/test_gap_profile.py",
+               "tests/test_gap_profile_widens.py"),
         note="the gap decision code judged by its fast tests only: hand-computed inputs, and "
              "analyze's loop and backward pass on a stand-in engine (no MuJoCo replay), so the "
              "whole population is measurable here; code only a real replay reaches (the "
