@@ -23,7 +23,7 @@ from lowcostdex.gap import significance as sig
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_fit_just_above_the_kink_gets_the_gentle_sides_profile(seed):
     rng = np.random.default_rng(100 + seed)
-    *_, g = _kinked(np.zeros(N))  # the kinked response g(w)
+    _, a, g = _kinked(np.zeros(N))  # the kinked response g(w) and its pattern a
     y = g(0.0305) * a + rng.normal(0, 0.01, N)  # the truth 0.5 mrad above the kink
     residual, a, g = _kinked(y)
     s = _structure(False)
