@@ -45,11 +45,14 @@ def check_fresh(bus, state, sent):
         got = []
         for name, unit, addr, size in FIELDS:
             value = getattr(state, name)[k] / (unit or units[name])
-            got.append((addr - bus._block_addr, size, round(value)))
+            got.append((addr, size, round(value)))
         assert spec[i] is not None
         candidates = sent.get(i, [])
-        assert any(all(int.from_bytes(raw[off:off + size], "little", signed=name != "voltage")
-                       == v for (off, size, v), (name, *_) in zip(got, FIELDS, strict=True))
+        # each reply in its own layout: a block ending at Present Temperature (146), 21 bytes
+        # from 126 or 27 from 120 (the driver reads the longer one after a lost reply)
+        assert any(all(int.from_bytes(raw[addr - (147 - len(raw)):][:size], "little",
+                                      signed=name != "voltage") == v
+                       for (addr, size, v), (name, *_) in zip(got, FIELDS, strict=True))
                    for raw in candidates), f"motor {i}: a valid value nobody sent in this read"
 
 
@@ -159,25 +162,32 @@ def test_a_late_reply_in_the_slot_of_a_lost_one_is_not_taken_for_the_torque_on_p
     (``set_torque``). Every reply of one read of motors 10-12 comes 17 ms late (past its
     timeout and the 10 ms settle wait, so past the next read's flush: measured, 15-19 ms land in
     the next read) and every fresh reply of the next is lost: the late replies land in its
-    slots, one per motor, and the packet count cannot tell. Their Realtime
-    Tick has not advanced with the host's clock: refused, no position, torque stays off. The
-    control, without the tick: they pass as the present position."""
+    slots, one per motor, and the packet count cannot tell. Refused either way, no position,
+    torque stays off: with ``realtime_tick`` (the 27-byte block from the start) by their
+    Realtime Tick, which has not advanced with the host's clock; without it (the default) by
+    their length: the lost read switched the driver to the 27-byte block, and a late reply to a
+    21-byte request is 6 bytes short. (Before the switch existed, the default took the late
+    replies as the present positions.)"""
     from lowcostdex.hardware.bus import BusError
     from lowcostdex.hardware.dynamixel.config import DynamixelConfig
 
-    chain = emulated_dclaw(station="none", rng=np.random.default_rng(3))
+    chain = emulated_dclaw(station="none", rng=np.random.default_rng(3), record_replies=True)
     ids = (10, 11, 12)
     bus = DynamixelBus(chain.port(), DynamixelConfig(
         ids=ids, models=("XH430-W350",) * 3, handle_signals=False, fast_read="off",
         read_retries=0, retries=0, max_invalid_reads=None, realtime_tick=realtime_tick))
     with bus:
         assert bus.read_state().valid.all()  # each motor's tick and the host's time, noted
+        assert bus._block_len == (27 if realtime_tick else 21)  # e-Manual: 120..146, 126..146
         chain.faults = FaultConfig(late=1.0, late_delay=(0.017, 0.017))
         assert not bus.read_state().valid.any()
+        assert bus._block_len == 27  # one lost reply: the tick block from now on
         chain.faults = FaultConfig(drop=1.0)
+        contaminated = bus.stats.contaminated
+        with pytest.raises(BusError, match="cannot read the present position"):
+            bus._present_ticks(ids)
+        assert not any(m.torque_on for m in chain.motors.values())
         if realtime_tick:
-            with pytest.raises(BusError, match="cannot read the present position"):
-                bus._present_ticks(ids)
-            assert bus.stats.stale == 3 and not any(m.torque_on for m in chain.motors.values())
-        else:
-            assert set(bus._present_ticks(ids)) == set(ids)  # the late replies, taken as present
+            assert bus.stats.stale == 3  # each late reply read, and refused by its tick
+        else:  # the first late reply (32 bytes for a 38-byte slot) voids the read
+            assert bus.stats.stale == 0 and bus.stats.contaminated == contaminated + 1

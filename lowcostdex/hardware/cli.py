@@ -17,8 +17,9 @@ import sys
 from pathlib import Path
 
 from lowcostdex.argtypes import SEED, integer, number
-from lowcostdex.errors import InputError
+from lowcostdex.errors import ConfigError, InputError
 from lowcostdex.hands import load_spec
+from lowcostdex.options import add_latency_option, latency_kwargs
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -65,6 +66,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--samples", type=integer(1, 100_000), default=20,
                    help="reads averaged per joint")
     p.add_argument("--yes", action="store_true", help="do not wait for Enter")
+    add_latency_option(p)
     p.set_defaults(func=_calibrate)
 
     p = sub.add_parser("setup-motors",
@@ -220,8 +222,24 @@ def _emulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _dynamixel_hand(args: argparse.Namespace, command: str):
+    """The hand of ``--spec`` (or ``--hand``), refused when its motors are not Dynamixels (the
+    Allegro's spec: its joints are on a CAN bus, which these commands do not talk to)."""
+    from lowcostdex.hands import hand_spec
+    from lowcostdex.hardware.dynamixel.control_table import load_control_table
+
+    hand = load_spec(args.spec) if args.spec else hand_spec(args.hand)
+    try:
+        load_control_table(hand.motor)
+    except ConfigError:
+        raise InputError(f"--spec {args.spec} is the {hand.name} hand spec, whose motors "
+                         f"('{hand.motor}') are not Dynamixel servos: {command} works on "
+                         "Dynamixel hands (the D'Claw); give a D'Claw spec") from None
+    return hand
+
+
 def _calibrate(args: argparse.Namespace) -> int:
-    from lowcostdex.hands import HandSpec, hand_spec
+    from lowcostdex.hands import HandSpec
     from lowcostdex.hardware.dynamixel.driver import DynamixelBus
     from lowcostdex.hardware.robot.calibration import calibrate_offsets, format_report
     from lowcostdex.outdir import check_out_file
@@ -237,8 +255,12 @@ def _calibrate(args: argparse.Namespace) -> int:
         except Exception:  # not a hand spec: the user's file, not ours to replace
             raise InputError(f"--out {out} exists and is not a hand spec; it is left untouched "
                              "(give a new file name)") from None
-    hand = load_spec(args.spec) if args.spec else hand_spec(args.hand)
-    bus = DynamixelBus.from_hand(hand, _port(args), baudrate=args.baud, position_limits=None)
+    hand = _dynamixel_hand(args, "calibrate")
+    if args.latency_ms is not None and args.port == "emulated":
+        raise InputError("--latency-ms is the serial adapter's latency timer: it needs --port "
+                         "DEVICE (a serial device or a pty), not emulated")
+    bus = DynamixelBus.from_hand(hand, _port(args), baudrate=args.baud, position_limits=None,
+                                 **latency_kwargs(args.latency_ms))
     with bus:
         bus.set_torque(False)
         if not args.yes:
@@ -254,13 +276,12 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _setup_motors(args: argparse.Namespace) -> int:
-    from lowcostdex.hands import hand_spec
     from lowcostdex.hardware.dynamixel.ports import pick_port
     from lowcostdex.hardware.dynamixel.scan import scan
     from lowcostdex.hardware.dynamixel.setup_motors import check_hand, setup_motors
 
     check_baud(args.baud)
-    hand = load_spec(args.spec) if args.spec else hand_spec(args.hand)
+    hand = _dynamixel_hand(args, "setup-motors")
     if args.ids is not None and not args.ids.strip():  # an unset variable: not "every id"
         raise InputError("--ids is empty; name the ids (e.g. --ids 10-12,50), or leave it out")
     ids = parse_ids(args.ids) if args.ids else None

@@ -61,13 +61,13 @@ class DynamixelConfig:
       read_retries: extra sync reads of the motors missing from a read.
       retries: extra attempts of a failed unicast read/write/ping.
       settle_ms: wait after a failed transaction before the next one [ms].
-      realtime_tick: read Realtime Tick (address 120) with the block and refuse a reply whose
-        tick did not advance with the host's clock: a reply later than the status timeout and
-        ``settle_ms`` that lands in the slot of a lost one (Protocol 2.0 has no sequence
-        number). Off by default: the block grows 21 -> 27 bytes (fast read of 10 motors at
-        1 Mbit/s 2.58 -> 3.18 ms), which the simulation's motion bound
-        (``motion.PRESENT_BLOCK_BYTES``) and several timing-measured tests assume (see
-        bench/RESULTS.md).
+      realtime_tick: read Realtime Tick (address 120) with the block from the start. Without it
+        the driver reads the 21-byte block until the first reply of a block read is lost, then
+        switches to the 27-byte block with Realtime Tick for good (a late reply to an earlier
+        request is refused by its length or its tick; Protocol 2.0 has no sequence number), so
+        a clean bus keeps the timing the simulation's motion bound assumes
+        (``motion.PRESENT_BLOCK_BYTES``; fast read of 10 motors at 1 Mbit/s 2.58 ms, 3.18 ms
+        with the tick).
       max_invalid_reads: consecutive invalid reads of one motor before BusError; None = never.
       torque_off_on_close: turn torque off in ``disconnect``.
       handle_signals: turn torque off on SIGINT/SIGTERM (main thread only) and at exit.

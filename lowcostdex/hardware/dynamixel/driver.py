@@ -29,19 +29,22 @@ v38)"): the firmware version is read at connect, the watchdog is never written t
 and a ``WatchdogUnavailableWarning`` names them (they keep their last goal if the host dies).
 
 Per control step: ``read_state`` is one sync read (fast sync read when the firmware answers it)
-of the 21-byte block Present Current .. Present Temperature; ``write_goal_positions`` is one sync
+of the 21-byte block Present Current .. Present Temperature (27 bytes from Realtime Tick after the
+first lost reply); ``write_goal_positions`` is one sync
 write, clipped to the position limits first.
 
 Errors: every status error byte is decoded. The alert bit means a latched hardware error, not a
 failed instruction: the data is used and Hardware Error Status (70) is read and reported by name
 (``MotorState.hardware_error``, ``bus.faults``). A missing or corrupt reply makes that motor
 invalid in this read (NaN, ``valid`` False) - never the previous value. Protocol 2.0 status
-packets carry no sequence number, so a *late* reply to an earlier request looks fresh; two
+packets carry no sequence number, so a *late* reply to an earlier request looks fresh; three
 defences: after any failed transaction the driver waits ``settle_ms`` (default 10 ms) before the
-next one, so late bytes arrive and are flushed by the SDK's ``clearPort``; and a transaction that
-consumed more status packets than it asked for, or left bytes waiting, is discarded whole. A reply
-later than the status timeout plus ``settle_ms`` that lands in the slot of a reply that is itself
-missing cannot be told apart. Missing motors are retried once (``read_retries``), motors that timed
+next one, so late bytes arrive and are flushed by the SDK's ``clearPort``; a transaction that
+consumed other status packets than it asked for (more, or of another length), or left bytes
+waiting, is discarded whole; and from the first lost reply of a block read on, the block is read
+with the motor's Realtime Tick in front (27 bytes instead of 21), so a reply later than the
+timeout plus ``settle_ms`` that lands in the slot of a lost one is refused by its length or its
+tick (``transactions``). Missing motors are retried once (``read_retries``), motors that timed
 out last (so a dead motor does not take the replies after it along). After ``max_invalid_reads``
 consecutive invalid reads of a motor, ``read_state`` raises ``BusError``. Unicast reads/writes retry
 ``retries`` times, then raise. ``reboot`` clears a latched error.
@@ -88,7 +91,6 @@ from lowcostdex.hardware.dynamixel.config import (
     WatchdogUnavailableWarning,
 )
 from lowcostdex.hardware.dynamixel.control_table import (
-    SIGNED,
     ControlTable,
     Reg,
     check_same_layout,
@@ -105,20 +107,13 @@ from lowcostdex.hardware.dynamixel.torque_on import (
     hold_goal,
     torque_on_attempts,
 )
-from lowcostdex.hardware.dynamixel.transactions import SdkTransactions
+from lowcostdex.hardware.dynamixel.transactions import BLOCK, TICK_BLOCK, SdkTransactions
 from lowcostdex.motion import goal_write_time
 from lowcostdex.sim.servo import ServoGains, motor_spec
 
 log = logging.getLogger(__name__)
 
 TWO_PI = 2.0 * math.pi
-BLOCK = (Reg.PRESENT_CURRENT, Reg.PRESENT_VELOCITY, Reg.PRESENT_POSITION, Reg.VELOCITY_TRAJECTORY,
-         Reg.POSITION_TRAJECTORY, Reg.PRESENT_INPUT_VOLTAGE, Reg.PRESENT_TEMPERATURE)
-"""The contiguous block read every control step (addresses 126..146 on X-series)."""
-TICK_BLOCK = (Reg.REALTIME_TICK, *BLOCK)
-"""The block with ``DynamixelConfig.realtime_tick`` (120..146: Moving, Moving Status and Present
-PWM in between are read and not used): Realtime Tick, the motor's ms clock (0..32767), tells a
-fresh reply from a late one to an earlier request (``SdkTransactions._stale``)."""
 _LAYOUT = BLOCK + (Reg.GOAL_POSITION, Reg.TORQUE_ENABLE, Reg.BUS_WATCHDOG,
                    Reg.HARDWARE_ERROR_STATUS, Reg.MIN_POSITION_LIMIT, Reg.MAX_POSITION_LIMIT)
 _FAULT_POLL = 0.5  # [s] re-read Hardware Error Status at most this often while an alert persists
@@ -151,14 +146,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
         check_same_layout(self.tables, _LAYOUT)
         t = self.tables[self.ids[0]]
         self._addr = {r: t[r].address for r in _LAYOUT}
-        block = TICK_BLOCK if config.realtime_tick else BLOCK
-        self._block_addr = t[block[0]].address
-        self._block_len = t[block[-1]].end - self._block_addr
-        self._dtype = np.dtype({
-            "names": [r.name for r in block],
-            "formats": [("<i" if r in SIGNED else "<u") + str(t[r].size) for r in block],
-            "offsets": [t[r].address - self._block_addr for r in block],
-            "itemsize": self._block_len})
+        self._set_block(TICK_BLOCK if config.realtime_tick else BLOCK)
         specs = [motor_spec(m) for m in config.models]
         self._tpr = np.array([s.ticks_per_rev for s in specs], float)
         self._current_unit = np.array([s.current_unit for s in specs])
@@ -168,7 +156,10 @@ class DynamixelBus(SdkTransactions, MotorBus):
         self._hi = np.full(len(self.ids), 4095, np.int64)
         self._streak = np.zeros(len(self.ids), int)
         self._silent: set[int] = set()  # ids that timed out in their last read: read them last
-        self._ticks: dict[int, tuple[float, int]] = {}  # id -> (sample time, Realtime Tick)
+        # id -> (sample time, Realtime Tick, trusted) of its last reply (transactions._stale)
+        self._ticks: dict[int, tuple[float, int, bool]] = {}
+        self._unanswered: set[int] = set()  # ids a tick read got no accepted reply from since
+        self._untrusted = 0  # replies kept as untrusted tick references so far
         self._hw_cache: dict[int, tuple[int, float]] = {}
         self.faults: dict[int, tuple[str, ...]] = {}
         self.firmware: dict[int, int] = {}
@@ -392,27 +383,26 @@ class DynamixelBus(SdkTransactions, MotorBus):
         valid, err, raw = self._read_block(order, fast=self.fast_read)
         sampled = self._sample_time
         times = dict.fromkeys(order, sampled)  # a motor read in a retry was sampled then
-        self._stale(order, valid, raw, sampled)
-        attempts = 0
+        attempts, confirm = 0, True
         while attempts < self.config.read_retries:
             missing = [i for i in order if not valid[i]]
             if not missing:
                 break
             self.stats.retries += 1
-            silent = len(self._silent)
+            silent, untrusted = len(self._silent), self._untrusted
             fresh = sorted(missing, key=lambda i: i in self._silent)
             v2, e2, r2 = self._read_block(tuple(fresh), fast=False)
-            self._stale(tuple(fresh), v2, r2, self._sample_time)
             for i in fresh:
                 if v2[i]:
                     valid[i], err[i], raw[i] = True, e2[i], r2[i]
                     times[i] = self._sample_time
             # a retry that found a new silent motor is free (it is read last next time);
-            # bounded, since that can happen at most once per motor
-            attempts += len(self._silent) == silent
-        for i in order if self.config.realtime_tick else ():
-            if valid[i]:
-                self._ticks[i] = (times[i], self._tick(raw[i]))
+            # bounded, since that can happen at most once per motor; so is one retry that kept
+            # replies as new tick references (transactions._stale): the next confirms them
+            free = len(self._silent) != silent
+            if not free and confirm and self._untrusted != untrusted:
+                free, confirm = True, False
+            attempts += not free
         state = self._decode(valid, err, raw, sampled)
         state.sample_time = np.fromiter((times[i] for i in self.ids), float, len(self.ids))
         return state
@@ -565,11 +555,6 @@ class DynamixelBus(SdkTransactions, MotorBus):
             log.warning("bus watchdog stopped motors %s after %.0f ms of silence",
                         sorted(self.watchdog_tripped), 1000 * self._silence)
 
-    def _read_block(self, ids: tuple[int, ...], fast: bool
-                    ) -> tuple[dict[int, bool], dict[int, int], dict[int, bytes]]:
-        """One (fast) sync read of the present block of ``ids``: validity, error byte, data."""
-        return self._sync_read(ids, self._block_addr, self._block_len, fast)
-
     def _present_ticks(self, ids: tuple[int, ...], attempts: int | None = None
                        ) -> dict[int, int]:
         """Present Position [ticks] of ``ids``, with bounded retries (``attempts``, default
@@ -587,12 +572,9 @@ class DynamixelBus(SdkTransactions, MotorBus):
             # retries one motor at a time: in a sync read, one lost reply voids the others
             for group in [todo] if attempt == 0 else [(i,) for i in todo]:
                 valid, _, raw = self._read_block(group, fast=False)
-                self._stale(group, valid, raw, self._sample_time)
                 for i in group:
                     if valid[i]:
                         out[i] = self._position_ticks(raw[i])
-                        if self.config.realtime_tick:
-                            self._ticks[i] = (self._sample_time, self._tick(raw[i]))
         missing = [i for i in ids if i not in out]
         if missing:
             said = ("no motor answered: is the hand powered and its cable plugged in?"
@@ -660,6 +642,10 @@ class DynamixelBus(SdkTransactions, MotorBus):
         """Broadcast torque off (one packet reaches every motor), then confirm each motor."""
         self.emergency_torque_off()
         for i in self.ids:
+            if self.port.gone:  # one line, not one per motor: the watchdog stops them
+                log.warning("torque off not sent: the port stopped working (the motors' Bus "
+                            "Watchdog stops them)")
+                return
             try:
                 self.write_register(i, Reg.TORQUE_ENABLE, 0)
             except BusError as exc:
@@ -667,7 +653,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
 
     def emergency_torque_off(self) -> None:
         """One SYNC_WRITE of Torque Enable = 0 to every motor; no status, safe in a handler."""
-        if not self.port.is_open:
+        if not self.port.is_open or self.port.gone:
             return
         self.port.is_using = False
         addr = self._addr[Reg.TORQUE_ENABLE]

@@ -98,11 +98,8 @@ def enable_holding(bus: DynamixelBus, motor_id: int) -> None:
     attempts = SEQUENCES_PER_RETRY * (bus.config.retries + 1)
     for _ in range(attempts):
         valid, _, raw = bus._read_block((motor_id,), fast=False)
-        bus._stale((motor_id,), valid, raw, bus._sample_time)
         if not valid[motor_id]:
             continue
-        if bus.config.realtime_tick:
-            bus._ticks[motor_id] = (bus._sample_time, bus._tick(raw[motor_id]))
         goal = hold_goal(bus, motor_id, bus._position_ticks(raw[motor_id]))
         try:
             bus.write_register(motor_id, Reg.GOAL_POSITION, goal, tries=1)

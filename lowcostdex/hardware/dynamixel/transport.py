@@ -22,12 +22,14 @@ from __future__ import annotations
 
 import heapq
 import os
+import termios
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from dynamixel_sdk import PortHandler
 
+from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.dynamixel.protocol import wire_time
 
 if TYPE_CHECKING:
@@ -35,6 +37,13 @@ if TYPE_CHECKING:
 
 SYSFS_USB_SERIAL = Path("/sys/bus/usb-serial/devices")
 _POLL = 1e-4  # [s] virtual time one empty poll costs when nothing is pending
+PORT_GONE = (OSError, termios.error)
+"""What pyserial and termios raise when a port stops working under a read, write or flush
+(``serial.SerialException`` is an ``OSError``)."""
+
+
+class PortGone(BusError):
+    """The port stopped working under the driver (unplugged, its server stopped)."""
 
 
 class DxlPort(PortHandler):
@@ -49,16 +58,40 @@ class DxlPort(PortHandler):
         super().__init__(port_name)
         self.latency_ms = latency_ms
         self.rx_trace = bytearray()
+        self.gone = False  # the port failed under a read, write or flush (``PortGone``)
 
     def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_ms + 2.0
 
     def readPort(self, length):  # noqa: N802 (SDK name)
-        data = self.ser.read(length)
+        try:
+            data = self.ser.read(length)
+        except PORT_GONE as exc:
+            raise self._gone(exc) from None
         if data:
             self.rx_trace += data
         return data
+
+    def writePort(self, packet):  # noqa: N802 (SDK name)
+        try:
+            return super().writePort(packet)
+        except PORT_GONE as exc:
+            raise self._gone(exc) from None
+
+    def clearPort(self):  # noqa: N802 (SDK name)
+        try:
+            super().clearPort()
+        except PORT_GONE as exc:
+            raise self._gone(exc) from None
+
+    def _gone(self, exc: BaseException) -> PortGone:
+        """The error of a port that failed under the driver (a USB adapter unplugged, a pty
+        whose server stopped): one line, no pyserial/termios traceback."""
+        self.gone = True
+        return PortGone(f"{self.getPortName()} stopped working ({exc}): was the adapter "
+                        "unplugged or the emulator stopped? Nothing more was sent; plug it in "
+                        "and run the command again")
 
     def deadline(self) -> float:
         """Bus time [s] at which the current SDK timeout expires."""
