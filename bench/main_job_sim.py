@@ -18,9 +18,18 @@ times faster:
    uses) and on ``--sim-heldout`` held-out episodes in sim. Success: final |goal error| < the
    task's tolerance (``info["success"]`` at the last step), mean action.
 
+3. ``candidates``: the main job's DAPG stage as it trains (best of six clones, 30 x 40 in the
+   randomized sim), every evaluated iterate kept; each final candidate (the clone, iterations 9,
+   19, 29) on ``--robot-val`` robot validation episodes (their own seed stream,
+   ``ROBOT_VALIDATION_STREAM``) and on the 100 held-out ones. ``evaluate``: the same on a
+   finished run folder, the robot-validated choice and the clone first.
+
     python bench/main_job_sim.py throughput --episodes 20
     python bench/main_job_sim.py train --demos /tmp/mj_s0 --seed 0 --iters 30 --traj 40 \\
         --out /tmp/sim_dapg [--randomize default|robot]
+    python bench/main_job_sim.py candidates --demos /tmp/mj_s0 --seed 0 --robot-val 40 \\
+        --out /tmp/cand
+    python bench/main_job_sim.py evaluate --run /tmp/cand/cand_s1_i30 --seed 1 --robot-val 20
 
 Prints one JSON line per run and appends it to ``--out``/results.jsonl. Paired statistics:
 exact one-sided McNemar (binomial test on the episodes only one policy solved) and one-sided
@@ -76,6 +85,57 @@ def robot_kwargs() -> dict[str, Any]:
     return Context(out=Path(".")).env_kwargs()
 
 
+ROBOT_VALIDATION_STREAM = 4
+"""Seed stream of the robot validation episodes (``samplers`` uses 0-3: training, validation,
+the clone's validation, held-out)."""
+
+
+def candidate_files(run_dir: Path) -> dict[int, Path]:
+    """The clone (iteration -1) and each evaluated iterate whose checkpoint is still in
+    ``run_dir/checkpoints`` (``metrics.csv``'s rows with a validation), by iteration."""
+    from lowcostdex.algos import experiment as ex
+
+    metrics = ex.read_metrics(run_dir / ex.METRICS_FILE)
+    out = {-1: run_dir / ex.BC_POLICY_FILE}
+    for it, val in zip(metrics[ex.ITERATION], metrics[ex.EVAL_SUCCESS_RATE], strict=True):
+        f = run_dir / ex.CHECKPOINT_DIR / f"ckpt_{int(it):06d}.pt"
+        if math.isfinite(float(val)) and f.is_file():
+            out[int(it)] = f
+    return out
+
+
+def choose_finalist(files: dict[int, Path], sampler: Any, seed: int,
+                    episodes: int) -> dict[str, Any]:
+    """Each candidate (``files``: iteration -> policy file) on the same ``episodes``
+    deterministic robot validation episodes (``ROBOT_VALIDATION_STREAM`` at ``seed``, mean
+    action); the chosen one by ``main_job.clones.rank_key`` (most successes, then the smallest
+    median final |goal error|; the earlier iterate, the clone first, on a full tie)."""
+    from lowcostdex.algos.samplers import make_jobs
+    from lowcostdex.algos.train import load_policy, trajectory_success
+    from lowcostdex.main_job.clones import rank_key
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    jobs = make_jobs(seed, ROBOT_VALIDATION_STREAM, 0, episodes, deterministic=True)
+    rows, robot_seconds = [], 0.0
+    for it in sorted(files):
+        snap = load_policy(files[it]).snapshot()
+        paths = []
+        for job in jobs:
+            paths += sampler.sample(snap, [job])
+        robot_seconds += sum(p.robot_seconds for p in paths)
+        errors = [float(p.final_goal_error) for p in paths]
+        rows.append({"iteration": it, "episodes": len(paths),
+                     "successes": int(sum(trajectory_success(p, "final") for p in paths)),
+                     "median_final_error": float(np.median(errors)),
+                     "solved": [bool(trajectory_success(p, "final")) for p in paths],
+                     "errors": errors})
+    best = min(rows, key=rank_key)
+    return {"iteration": best["iteration"], "candidates": rows,
+            "robot_seconds": round(robot_seconds, 1),
+            "seconds": round(time.perf_counter() - t0, 1),
+            "cpu_seconds": round(time.process_time() - c0, 1)}
+
+
 def throughput(episodes: int) -> list[dict[str, Any]]:
     from lowcostdex.algos.configs import PolicyConfig
     from lowcostdex.algos.policy import GaussianMLPPolicy
@@ -108,13 +168,14 @@ def throughput(episodes: int) -> list[dict[str, Any]]:
 
 
 def heldout(env_id: str, kwargs: dict[str, Any], policies: dict[str, Path], seed: int,
-            episodes: int) -> dict[str, dict[str, Any]]:
+            episodes: int, stream: int | None = None) -> dict[str, dict[str, Any]]:
     """Each policy's mean action on the same ``episodes`` held-out episodes (reset seeds of
     ``HELDOUT_STREAM`` at ``seed``, the main job's), one sampler for all (as the main job)."""
     from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, SerialSampler, make_jobs
     from lowcostdex.algos.train import load_policy, trajectory_success
 
-    jobs = make_jobs(seed, HELDOUT_STREAM, 0, episodes, deterministic=True)
+    jobs = make_jobs(seed, HELDOUT_STREAM if stream is None else stream, 0, episodes,
+                     deterministic=True)
     sampler = SerialSampler(EnvFactory(env_id, kwargs))
     out = {}
     try:
@@ -263,6 +324,110 @@ def clones(a: argparse.Namespace) -> dict[str, Any]:
     return res
 
 
+def candidates(a: argparse.Namespace) -> dict[str, Any]:
+    """The main job's DAPG stage as it trains (best of ``CLONES`` clones on the randomized-sim
+    validation, then DAPG ``SimTraining`` in the randomized sim), each evaluated iterate kept
+    (``checkpoint_every = eval_every``); then the clone and every evaluated iterate on
+    ``--robot-val`` robot validation episodes (``ROBOT_VAL_STREAM``) and on the main job's
+    ``--heldout`` held-out robot episodes (``HELDOUT_STREAM``): which choice among the final
+    candidates, made on a few robot episodes, finds the iterate that beats the clone on the
+    held-out ones?"""
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.configs import DAPGConfig, TrainConfig
+    from lowcostdex.algos.samplers import HELDOUT_STREAM
+    from lowcostdex.algos.train import train
+    from lowcostdex.main_job.clones import choose_clone
+    from lowcostdex.main_job.setup import BUDGETS, DAPG_LAM0, TASKS
+
+    sim = BUDGETS["default"].dapg_sim
+    assert sim is not None
+    setup = TASKS["valve-target"]
+    iters = a.iters or sim.iters
+    kwargs = {**setup.env_overrides, "randomize": list(sim.randomize)}
+    config = TrainConfig(algo="dapg", env_id=setup.env_id, backend="sim", env_kwargs=kwargs,
+                         seed=a.seed, n_iter=iters, n_traj=sim.traj,
+                         eval_every=sim.eval_every, eval_episodes=sim.eval_episodes,
+                         demos=str(a.demos / "demos.h5"), eval_bc=True,
+                         dapg=DAPGConfig(lam0=DAPG_LAM0), eval_paired=True, progress=False,
+                         checkpoint_every=sim.eval_every)
+    c0, t0 = time.process_time(), time.perf_counter()
+    chosen = choose_clone(config, sim.clones, sim.eval_episodes)
+    config = dataclasses.replace(config, bc_seed=chosen["bc_seed"])
+    run_dir = a.out / f"cand_s{a.seed}_i{iters}"
+    shutil.rmtree(run_dir, ignore_errors=True)
+    train(config, run_dir)
+    train_cpu, train_wall = time.process_time() - c0, time.perf_counter() - t0
+    m = ex.read_metrics(run_dir / ex.METRICS_FILE)
+    val = {int(i): float(v) for i, v in zip(m["iteration"], m["eval_success_rate"],
+                                             strict=True) if math.isfinite(v)}
+    policies = {"clone": run_dir / ex.BC_POLICY_FILE}
+    for k in sorted(val):
+        f = run_dir / "checkpoints" / f"ckpt_{k:06d}.pt"
+        if f.is_file():
+            policies[f"it{k}"] = f
+    summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
+    c1 = time.process_time()
+    rv = heldout(setup.env_id, robot_kwargs(), policies, a.seed, a.robot_val,
+                 stream=a.val_stream)
+    val_cpu = time.process_time() - c1
+    ho = heldout(setup.env_id, robot_kwargs(), policies, a.seed, a.heldout, stream=HELDOUT_STREAM)
+    res = {"seed": a.seed, "iters": iters, "bc_seed": chosen["bc_seed"],
+           "clone_sim_val": json.loads((run_dir / "bc.json").read_text())["eval_success_rate"],
+           "sim_val": val, "chosen_iteration": (summary.get("best") or {}).get("iteration"),
+           "robot_val": {k: v["successes"] for k, v in rv.items()},
+           "robot_val_median_err": {k: round(float(np.median(v["errors"])), 4)
+                                    for k, v in rv.items()},
+           "heldout": {k: v["successes"] for k, v in ho.items()},
+           "vs_clone": {k: paired(ho["clone"], v) for k, v in ho.items() if k != "clone"},
+           "train_cpu_s": round(train_cpu, 1), "train_wall_s": round(train_wall, 1),
+           "robot_val_cpu_s": round(val_cpu, 1),
+           "robot_val_solved": {k: v["solved"] for k, v in rv.items()},
+           "robot_val_errors": {k: v["errors"] for k, v in rv.items()},
+           "heldout_solved": {k: v["solved"] for k, v in ho.items()},
+           "heldout_errors": {k: v["errors"] for k, v in ho.items()}}
+    a.out.mkdir(parents=True, exist_ok=True)
+    with open(a.out / "candidates.jsonl", "a") as f:
+        f.write(json.dumps(res) + "\n")
+    print(json.dumps({k: v for k, v in res.items() if not k.endswith(("_solved", "_errors"))}),
+          flush=True)
+    return res
+
+
+def evaluate(a: argparse.Namespace) -> None:
+    """A finished ``candidates`` run folder (``--run``): the clone and the evaluated iterates
+    on ``--robot-val`` robot validation episodes, the chosen one (``choose_finalist``)
+    and the clone on the ``--heldout`` held-out episodes first (printed), then the others."""
+    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, SerialSampler
+    from lowcostdex.main_job.setup import TASKS
+
+    setup = TASKS["valve-target"]
+    files = candidate_files(a.run)
+    sampler = SerialSampler(EnvFactory(setup.env_id, robot_kwargs()))
+    c0 = time.process_time()
+    try:
+        f = choose_finalist(files, sampler, a.seed, a.robot_val)
+    finally:
+        sampler.close()
+    val_cpu = time.process_time() - c0
+    name = {it: "clone" if it < 0 else f"it{it}" for it in files}
+    res: dict[str, Any] = {"seed": a.seed, "run": str(a.run), "finalists": f,
+                           "robot_val_cpu_s": round(val_cpu, 1)}
+    order = [-1, f["iteration"]] + [it for it in sorted(files) if it not in (-1, f["iteration"])]
+    ho: dict[str, Any] = {}
+    for it in dict.fromkeys(order):
+        ho.update(heldout(setup.env_id, robot_kwargs(), {name[it]: files[it]}, a.seed,
+                          a.heldout, stream=HELDOUT_STREAM))
+        if it != -1:
+            res[f"{name[it]}_vs_clone"] = paired(ho["clone"], ho[name[it]])
+            print(json.dumps({"seed": a.seed, "chosen": name[f["iteration"]], name[it]:
+                              res[f"{name[it]}_vs_clone"]}), flush=True)
+    res["heldout_solved"] = {k: v["solved"] for k, v in ho.items()}
+    res["heldout_errors"] = {k: v["errors"] for k, v in ho.items()}
+    with open(a.run.parent / "evaluate.jsonl", "a") as fh:
+        fh.write(json.dumps(res) + "\n")
+    print(json.dumps({k: v for k, v in res.items() if not k.startswith("heldout_")}), flush=True)
+
+
 def main() -> None:
     torch.set_num_threads(1)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -291,8 +456,25 @@ def main() -> None:
     c.add_argument("--val", type=int, default=100, help="validation episodes (sim)")
     c.add_argument("--randomize", choices=RANDOMIZE, default="default")
     c.add_argument("--heldout", type=int, default=40, help="held-out episodes on the robot")
+    d = sub.add_parser("candidates")
+    d.add_argument("--demos", type=Path, required=True, help="main-job output folder")
+    d.add_argument("--out", type=Path, required=True)
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--iters", type=int, default=0, help="0: the main job's")
+    d.add_argument("--robot-val", type=int, default=40, help="robot validation episodes")
+    d.add_argument("--val-stream", type=int, default=4, help="their seed stream")
+    d.add_argument("--heldout", type=int, default=100, help="held-out episodes on the robot")
+    e = sub.add_parser("evaluate")
+    e.add_argument("--run", type=Path, required=True, help="a candidates run folder")
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--robot-val", type=int, default=20, help="robot validation episodes")
+    e.add_argument("--heldout", type=int, default=100, help="held-out episodes on the robot")
     a = ap.parse_args()
-    if a.cmd == "clones":
+    if a.cmd == "evaluate":
+        evaluate(a)
+    elif a.cmd == "candidates":
+        candidates(a)
+    elif a.cmd == "clones":
         clones(a)
     elif a.cmd == "throughput":
         throughput(a.episodes)
