@@ -167,3 +167,20 @@ def test_a_persistent_hardware_error_gets_two_reboots_then_stops_the_run():
     with pytest.raises(MotorFault, match="persists after 2 reboots"):
         robot.recover_faults()
     assert robot.metrics.reboots == 2
+
+
+def test_the_unit_and_number_refusals_read_in_full():
+    # what a user reads when a goal is not numbers, or is far outside the limits (message-
+    # dropping / case / separator mutants of check_finite and check_units survived the safety
+    # group's tests at 0ea062b)
+    from lowcostdex.hardware.robot.safety import check_finite
+
+    with pytest.raises(UnsafeCommand) as e:
+        check_finite(["a", 0.0, 0.0], NAMES)
+    assert str(e.value) == ("goal ['a', 0.0, 0.0] is not 3 numbers [rad] for joints top, middle, "
+                            "bottom; nothing sent")
+    with pytest.raises(UnsafeCommand) as e:
+        check_units(np.array([30.0, 0.0, -9.0]), LOW, HIGH, NAMES)
+    assert str(e.value) == ("goal far outside the joint limits: top=30 (limits -0.45..1.35), "
+                            "bottom=-9 (limits -2..2); goals are in rad (degrees or ticks?); "
+                            "nothing sent")
