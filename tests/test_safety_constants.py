@@ -184,3 +184,36 @@ def test_the_unit_and_number_refusals_read_in_full():
     assert str(e.value) == ("goal far outside the joint limits: top=30 (limits -0.45..1.35), "
                             "bottom=-9 (limits -2..2); goals are in rad (degrees or ticks?); "
                             "nothing sent")
+
+
+def test_a_goal_referenced_bound_lets_the_goal_lead_a_blocked_joint_by_four_steps():
+    # RobotConfig.max_lead 4 [motion-bound steps] ("the goal's lead over the present position is
+    # then bounded by max_lead steps"): a middle joint blocked 0.02 rad behind where it stands,
+    # its goal 1.5 rad past the obstacle. While the current guard relaxes it (its step 0.02 rad
+    # for 20 steps) the goal leads by 4 x 0.02; then by 4 full motion-bound steps, no further
+    from lowcostdex.hands import dclaw_spec
+    from lowcostdex.hardware.emulated.chain import emulated_dclaw
+    from lowcostdex.hardware.robot.backend import make_dynamixel_bus
+    from lowcostdex.hardware.robot.robot import RobotConfig
+
+    hand = dclaw_spec()
+    chain = emulated_dclaw("valve", hand=hand, rng=np.random.default_rng(0))
+    robot = Robot(hand, make_dynamixel_bus(hand, chain.port(), chain.plant.model,
+                                           handle_signals=False),
+                  RobotConfig(motion_reference="goal"))
+    robot.connect()
+    robot.torque(True, hand.joint_names)
+    robot.read()
+    m = chain.plant.model
+    k = robot.index(["ff_middle"])[0]
+    p0 = robot.present[k]
+    m.jnt_range[m.joint("ff_middle").id] = [p0 - 0.02, 2.0]  # the obstacle
+    goal = robot.present[:9].copy()
+    goal[k] = p0 - 1.5
+    leads = []
+    for _ in range(40):
+        robot.step(goal)
+        leads.append(float(robot.present[k] - robot.last_sent[k]))
+    step = float(robot.max_step[k])  # its motion bound per 0.1 s step (0.209 rad)
+    assert max(leads) == pytest.approx(4 * step, abs=0.005)
+    assert min(x for x in leads[5:]) == pytest.approx(4 * 0.02, abs=0.005)
