@@ -31,8 +31,8 @@ TASKS: dict[str, dict[str, tuple[str, str]]] = {
         "turn-foam-valve": ("lowcostdex/DClawTurnFoamValve-v0", "ValveTurnTeacher"),
         "screw": ("lowcostdex/DClawScrew-v0", "ScrewTrackTeacher"),
         "screw-random": ("lowcostdex/DClawScrewRandom-v0", "ScrewTrackTeacher"),
-        "flip": ("lowcostdex/DClawFlipBlock-v0", "FlipBlockTeacher"),
-        "flip-quaternion": ("lowcostdex/DClawFlipBlockQuaternion-v0", "FlipBlockTeacher"),
+        "flip": ("lowcostdex/DClawFlipBlock-v0", "PinchFlipTeacher"),
+        "flip-quaternion": ("lowcostdex/DClawFlipBlockQuaternion-v0", "PinchFlipTeacher"),
     },
     "allegro": {
         "turn-valve": ("lowcostdex/AllegroTurnValve-v0", "AllegroValveTeacher"),
