@@ -232,3 +232,32 @@ def test_the_cable_pulled_mid_calibrate_is_one_line_and_writes_nothing(tmp_path,
     assert lines[-1].startswith(f"lowcostdex calibrate: error: {server.path} stopped working")
     assert "unplugged" in lines[-1]
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", [
+    ["record-log", "--logs", "1", "--seconds", "0.2", "--out", "logs"],
+    ["reset-test", "--trials", "1"],
+    ["record-demos", "--episodes", "1", "--out", "demos.h5"]])
+def test_the_other_hand_s_spec_on_a_robot_port_is_named_before_the_port_is_used(
+        command, tmp_path, capsys, monkeypatch):
+    """The Allegro's spec given to a D'Claw command on a serial port (a pty nothing answers
+    on): one line naming the spec and the hand it is, exit 2, nothing written, before the port
+    is used (nothing answers on it: a message about motors would mean it was)."""
+    import os
+
+    from lowcostdex.cli import USER_ERROR, main
+    from lowcostdex.hands import allegro_spec
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "allegro.json").write_text(allegro_spec().to_json())
+    master, slave = os.openpty()
+    try:
+        code = main([*command, "--port", os.ttyname(slave), "--spec", "allegro.json"])
+    finally:
+        os.close(master)
+        os.close(slave)
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == USER_ERROR and "Traceback" not in err and len(lines) == 1, err
+    assert "allegro.json" in lines[0] and "allegro" in lines[0].split("allegro.json", 1)[1], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["allegro.json"]

@@ -170,6 +170,9 @@ def _record_demos(args: argparse.Namespace) -> int:
                           "Leave out --spec, or give --port")
     if args.spec:
         kwargs["hand"] = load_spec(args.spec)
+        if kwargs["hand"].name != args.hand:
+            raise ConfigError(f"--spec {args.spec} is the {kwargs['hand'].name} hand spec, not "
+                              f"{args.hand}'s (--hand {args.hand})")
     env = gym.make(env_id, backend="emulated" if emulated else "hardware", **kwargs)
     teacher = None
     if emulated:

@@ -77,7 +77,7 @@ def _hand(spec_path: str | None, name: str = "dclaw"):
 
     hand = load_spec(spec_path) if spec_path else hand_spec(name)
     if hand.name != name:
-        raise ConfigError(f"--spec {spec_path} is a {hand.name} hand spec, not {name} "
+        raise ConfigError(f"--spec {spec_path} is the {hand.name} hand spec, not {name}'s "
                           f"(--hand {name})")
     return hand
 
