@@ -128,3 +128,68 @@ def test_kinked_widths_are_covered_about_as_often_as_claimed():
         c, h = sig.profile_interval(t, lambda residual=residual: residual, half, 20)
         held += abs(0.03 - c[0]) <= h[0]
     assert held >= 54
+
+
+def test_the_others_are_refitted_where_they_enter_nonlinearly():
+    """y = g(w) a + exp(c) b (a kinked width and a scale factor in log form, the others' shape
+    in the optimizer): the interval is the hull of the linearised one and the profile computed
+    here by brute force (for each width on a fine grid, c refitted in closed form: the
+    least-squares amplitude of b, then its log)."""
+    rng = np.random.default_rng(1)
+    b = np.cos(3 * X) + 1.5
+    a = 1.0 + 0.5 * X
+
+    def g(w):
+        d = w - 0.03
+        return d if d >= 0 else 0.1 * d
+
+    y = g(0.03) * a + 0.8 * b + rng.normal(0, 0.002, N)
+    free = [fitmod.Free("backlash", "width", 0, 0.0, 0.1, 0.01, False, 2e-4),
+            fitmod.Free("viscous_damping", "damping", 0, 0.05, 5.0, 1.0, True, 1e-4)]
+    s = fitmod.Structure(("backlash", "viscous_damping"), ("j",), free)
+
+    def residual(points):
+        return [y - g(w) * a - c * b for w, c in (_values(st, x) for st, x in points)]
+
+    t = _fit(residual, s, [0.036, 1.0])
+    assert t.jac is not None
+    half = fitmod.interval_halfwidths(t.r, t.jac, N)
+    centre, h = sig.profile_interval(t, lambda: residual, half)
+    grid = np.linspace(0.0, 0.1, 20001)
+    gw = np.array([g(w) for w in grid])
+    amp = np.clip(((y[None, :] - gw[:, None] * a) @ b) / (b @ b), 0.05, 5.0)  # c's range
+    cost = 0.5 * np.sum((y[None, :] - gw[:, None] * a - amp[:, None] * b) ** 2, axis=1)
+    ainv = np.linalg.inv(t.jac.T @ t.jac)
+    delta = 0.5 * half[0] ** 2 / ainv[0, 0]
+    ok = grid[cost - min(cost.min(), t.cost) <= delta]
+    assert ok.min() <= t.x[0] <= ok.max()  # the fit sits inside its own profile set
+    lo_x, hi_x = min(ok.min(), t.x[0] - half[0]), max(ok.max(), t.x[0] + half[0])
+    assert hi_x - lo_x > 1.5 * 2 * half[0]  # the kink makes this case: the profile is wider
+    tol = 0.1 * (hi_x - lo_x)
+    assert centre[0] - h[0] == pytest.approx(lo_x, abs=tol)
+    assert centre[0] + h[0] == pytest.approx(hi_x, abs=tol)
+    assert h[1] == half[1]
+
+
+def test_each_side_stops_at_the_first_value_past_the_threshold():
+    """A quadratic cost (y = 2 w + noise, no other scalar): the profile rises past Delta between
+    one and two half-widths on both sides, so only the first step, +-1.25 half-widths, is
+    replayed (one pass of two points), none further out; the interval is the linearised one
+    (interpolated in sqrt(rise), exact for a quadratic)."""
+    rng = np.random.default_rng(4)
+    y = 2 * 0.03 + rng.normal(0, 0.01, N)
+    calls = []
+
+    def residual(points):
+        calls.append([round(float(_values(st, x)[0]), 9) for st, x in points])
+        return [y - 2 * _values(st, x)[0] for st, x in points]
+
+    s = _structure(False)
+    t = _fit(residual, s, [0.02])
+    half = fitmod.interval_halfwidths(t.r, t.jac, N)
+    calls.clear()
+    centre, h = sig.profile_interval(t, lambda: residual, half)
+    w, dw = float(t.x[0]), float(half[0])  # the width's coordinates are the width itself
+    assert len(calls) == 1
+    assert sorted(calls[0]) == pytest.approx([w - 1.25 * dw, w + 1.25 * dw], abs=1e-9)
+    assert h[0] == pytest.approx(half[0], rel=1e-9) and centre[0] == pytest.approx(t.u[0])

@@ -536,7 +536,7 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     data = np.maximum.reduce([noise, fitmod.block_halfwidths(t.r, t.jac, blocks),
                               significance.hac_halfwidths(t.r, t.jac, blocks)])
     u, data = significance.profile_interval(t, lambda: _Engine(ds, cfg, t.structure.names)
-                                            .residual_fn(segs), data, cfg.max_rounds)
+                                            .residual_fn(segs), data)
     if not cfg.interval_step:
         return u, data, noise, data, None
     t0 = time.perf_counter()

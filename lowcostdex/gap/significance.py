@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -244,41 +243,68 @@ def residual_blocks(ds: Dataset, segs: Sequence[Window], seconds: float) -> list
 PROFILED = frozenset({("backlash", "width")})
 
 
-@dataclass
-class _Pinned(fitmod.Structure):
-    """``Structure`` with one more scalar held at a value: (effect, param, joint, value)."""
-
-    pin: tuple[str, str, int, float] = ("", "", 0, 0.0)
-
-    def to_effects(self, values: np.ndarray) -> list[AppliedEffect]:
-        name, param, j, v = self.pin
-        out = super().to_effects(values)
-        for k, e in enumerate(out):
-            if e.name == name and k >= len(self.fixed):
-                vals = {p: a.copy() for p, a in e.values.items()}
-                vals[param][j] = v
-                out[k] = AppliedEffect(name, e.joints, vals)
-        return out
+def _profile_costs(t: fitmod.Track, residual: fitmod.ResidualFn,
+                   pins: Sequence[tuple[int, float]], rounds: int) -> list[float]:
+    """Cost of ``t``'s model with scalar i held at u_i (``pins``: (i, u_i), optimizer
+    coordinates) and the other scalars refitted by up to ``rounds`` Gauss-Newton (chord) steps
+    with the columns of ``t.jac`` at the optimum, from ``t.u``, within their ranges: the lowest
+    cost met (every point evaluated is feasible, so an upper bound of the profile). A model
+    linear in the others is refitted exactly by the first step, whatever the held scalar does
+    (a kink included). One batched replay per round for every pin still improving."""
+    s, lo, hi = t.structure, *t.structure.u_bounds()
+    pts = []
+    for i, ui in pins:
+        v = np.array(t.u, float)
+        v[i] = ui
+        cols = np.delete(np.arange(len(v)), i)
+        jo = t.jac[:, cols]
+        pts.append((v, cols, np.linalg.pinv(jo, rcond=3e-8) if jo.shape[1] else None))
+    best, live = [math.inf] * len(pts), list(range(len(pts)))
+    for rnd in range(rounds + 1):
+        if not live:
+            break
+        res = residual([(s, s.x(pts[k][0])) for k in live])
+        nxt = []
+        for k, r in zip(live, res, strict=True):
+            c = 0.5 * float(r @ r)
+            if not c < best[k]:  # no further progress (or not finite)
+                continue
+            best[k] = c
+            v, cols, pinv = pts[k]
+            if pinv is None or rnd == rounds:
+                continue
+            w = v.copy()
+            w[cols] = np.clip(v[cols] - pinv @ r, lo[cols], hi[cols])
+            if not np.allclose(w, v, rtol=0.0, atol=1e-12):
+                pts[k] = (w, cols, pinv)
+                nxt.append(k)
+        live = nxt
+    return best
 
 
 def profile_interval(t: fitmod.Track, residual: Callable[[], fitmod.ResidualFn],
-                     half: np.ndarray, max_rounds: int,
-                     steps: Sequence[float] = (0.5, 1.0, 2.0, 4.0, 8.0)
+                     half: np.ndarray, rounds: int = 2,
+                     steps: Sequence[float] = (1.25, 2.0, 4.0, 8.0)
                      ) -> tuple[np.ndarray, np.ndarray]:
     """95 % intervals (centre, half-width; optimizer coordinates) of ``t``'s ``PROFILED``
     scalars that also hold the range where the cost's profile stays low; the others as given.
 
     ``residual()`` makes the batched residual function of ``t``'s data (called only when some
-    scalar is profiled). For each such scalar i the others are refitted (``max_rounds`` of LM
-    from ``t``'s values) with it held at ``u_i +- s half_i`` for ``s`` in ``steps`` (within its
-    search range). For a
-    model linear in its parameters this profile is C(u_i) = C_min + (u_i - u^_i)^2 / (2
-    [(J^T J)^-1]_ii), so the linearised interval ``half`` is where it rises by Delta = half_i^2
-    / (2 [(J^T J)^-1]_ii): the same statistics (noise, block spread, autocorrelation: whatever
-    sized ``half``), measured on the cost itself. The profile interval runs to the farthest
-    grid value whose rise is at most Delta (interpolated in sqrt(rise) toward the next one);
-    the result is the hull of it and u^_i +- half_i, never narrower than the linearised one.
-    ``t`` needs ``r`` and ``jac`` at its optimum (``lockstep_lm`` with ``jacobian_at_end``)."""
+    scalar is profiled). Each such scalar i is held at ``u_i +- s half_i`` for ``s`` in
+    ``steps`` (within its search range), the others refitted (``_profile_costs``: ``rounds``
+    Gauss-Newton steps with the optimum's Jacobian). For a model linear in its parameters the
+    profile is C(u_i) = C_min + (u_i - u^_i)^2 / (2 [(J^T J)^-1]_ii), so the linearised
+    interval ``half`` is where it rises by Delta = half_i^2 / (2 [(J^T J)^-1]_ii): the same
+    statistics (noise, block spread, autocorrelation: whatever sized ``half``), measured on the
+    cost itself. Each side goes outward one step at a time and stops at the first value whose
+    rise exceeds Delta (a profile that comes back down past it is not looked for). The profile
+    interval runs to the farthest value whose rise is at most Delta (interpolated in
+    sqrt(rise) toward the next one); the result is the hull of it and u^_i +- half_i, never
+    narrower than the linearised one. ``t`` needs ``r`` and ``jac`` at its optimum
+    (``lockstep_lm`` with ``jacobian_at_end``).
+
+    Cost (issue 11, the main job's logs): one or two batched replays per step and side, where
+    20 rounds of LM per grid value on 10 values doubled the whole analysis (327 -> 685 s)."""
     s = t.structure
     idx = [i for i, f in enumerate(s.free) if (f.effect, f.param) in PROFILED
            and math.isfinite(half[i]) and half[i] > 0]
@@ -288,37 +314,31 @@ def profile_interval(t: fitmod.Track, residual: Callable[[], fitmod.ResidualFn],
     centre = u.copy()
     residual = residual()
     ainv = np.linalg.pinv(t.jac.T @ t.jac)
-    grid: list[tuple[int, float, fitmod.Track]] = []
+    delta = {i: 0.5 * half[i] ** 2 / max(float(ainv[i, i]), 1e-300) for i in idx}
+    lo, hi = s.u_bounds()
+    lines = {(i, side): [(0.0, t.cost)] for i in idx for side in (-1.0, 1.0)}
+    c_min = {i: t.cost for i in idx}
+    going = set(lines)
+    for d in steps:
+        pins = []
+        for i, side in sorted(going):
+            ui = float(np.clip(u[i] + side * d * half[i], lo[i], hi[i]))
+            if side * (ui - u[i]) > lines[(i, side)][-1][0]:
+                pins.append(((i, side), ui))
+            else:  # the search range ends here
+                going.discard((i, side))
+        for (key, ui), c in zip(pins, _profile_costs(t, residual, [(k[0], ui) for k, ui in pins],
+                                                     rounds), strict=True):
+            i, side = key
+            lines[key].append((side * (ui - u[i]), c))
+            c_min[i] = min(c_min[i], c)
+            if not c - c_min[i] <= delta[i]:  # past Delta (or not finite): this side ends
+                going.discard(key)
     for i in idx:
-        f = s.free[i]
-        lo, hi = f.u_bounds
-        others = [g for k, g in enumerate(s.free) if k != i]
-        seen = {float(u[i])}
-        for d in sorted({*steps, *(-x for x in steps)}):
-            ui = float(np.clip(u[i] + d * half[i], lo, hi))
-            if ui in seen:
-                continue
-            seen.add(ui)
-            ps = _Pinned(s.effects, s.joints, others, s.fixed, (f.effect, f.param, f.joint,
-                                                                 f.from_u(ui)))
-            grid.append((i, ui, fitmod.Track(ps, np.delete(u, i), label=f"profile {d:+g}")))
-    free = [g[2] for g in grid if g[2].structure.n]
-    if free:
-        fitmod.lockstep_lm(free, residual, max_rounds, jacobian_at_end=False)
-    still = [g[2] for g in grid if not g[2].structure.n]
-    for tr, r in zip(still, residual([(x.structure, x.x) for x in still]) if still else [],
-                     strict=True):
-        tr.cost = 0.5 * float(r @ r)
-    for i in idx:
-        pts = [(ui, tr.cost) for k, ui, tr in grid if k == i and math.isfinite(tr.cost)]
-        c_min = min([t.cost, *(c for _, c in pts)])
-        delta = 0.5 * half[i] ** 2 / max(float(ainv[i, i]), 1e-300)
         lo_e, hi_e = u[i] - half[i], u[i] + half[i]
         for side in (-1.0, 1.0):
-            line = sorted(((side * (ui - u[i]), c - c_min) for ui, c in pts
-                           if side * (ui - u[i]) > 0), key=lambda p: p[0])
-            line = [(0.0, t.cost - c_min), *line]
-            inside = [k for k, (_, rise) in enumerate(line) if rise <= delta]
+            line = [(x, c - c_min[i]) for x, c in lines[(i, side)] if math.isfinite(c)]
+            inside = [k for k, (_, rise) in enumerate(line) if rise <= delta[i]]
             if not inside:
                 continue
             k = inside[-1]
@@ -326,7 +346,7 @@ def profile_interval(t: fitmod.Track, residual: Callable[[], fitmod.ResidualFn],
             if k + 1 < len(line):  # toward the first value past it, linear in sqrt(rise)
                 (d0, c0), (d1, c1) = line[k], line[k + 1]
                 a, b = math.sqrt(max(c0, 0.0)), math.sqrt(max(c1, 0.0))
-                edge = d0 + (d1 - d0) * (math.sqrt(delta) - a) / max(b - a, 1e-300)
+                edge = d0 + (d1 - d0) * (math.sqrt(delta[i]) - a) / max(b - a, 1e-300)
             lo_e, hi_e = (min(lo_e, u[i] - edge), hi_e) if side < 0 else (lo_e,
                                                                           max(hi_e, u[i] + edge))
         centre[i], half[i] = 0.5 * (lo_e + hi_e), 0.5 * (hi_e - lo_e)

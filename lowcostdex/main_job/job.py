@@ -165,7 +165,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                        description=_overview())
     p.add_argument("--out", type=Path, default=Path("runs/main"), help="output folder")
     p.add_argument("--size", choices=SIZES, default="default",
-                   help="budget: smoke (CI, ~1 min), default (~15 min on a 2-core machine with "
+                   help="budget: smoke (CI, ~1 min), default (~10 min on a 2-core machine with "
                         "one other job; more under load), long")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--task", choices=sorted(TASKS), default=DEFAULT_TASK,
