@@ -260,7 +260,8 @@ def train_in_sim(a: argparse.Namespace) -> dict[str, Any]:
            "train_success": [round(float(x), 2) for x in m["success_rate"]],
            "sim": {"clone": sim["clone"]["successes"], "chosen_vs_clone":
                    paired(sim["clone"], sim["chosen"]),
-                   "final_vs_clone": paired(sim["clone"], sim["final"])},
+                   "final_vs_clone": paired(sim["clone"], sim["final"])} if a.sim_heldout
+           else None,
            "robot": {"clone": robot["clone"]["successes"], "chosen_vs_clone":
                      paired(robot["clone"], robot["chosen"]),
                      "final_vs_clone": paired(robot["clone"], robot["final"])} if a.heldout
