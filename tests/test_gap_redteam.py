@@ -63,6 +63,11 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # better, 1.78 vs 2.16) is exact since the first cause is chosen again at the refined step:
 # mounting_offset 0.0729 [0.0671, 0.0786], held-out 4.79 -> 0.95 mrad, 34 s.
 
+# torque_coulomb_pendulum (was torque_limit 1.086 [1.042, 1.133] alone: the sticking Coulomb
+# taken as a static-0 Stribeck, then dropped) is exact since gap-fric3 (session 10,
+# gates.drop_weak: the Stribeck refitted as its nested Coulomb): torque_limit 1.205 [1.195,
+# 1.215], coulomb_friction 0.1057 [0.0951, 0.1163]; held-out 305.8 -> 1.78 mrad, 89 s wall.
+
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
     "backlash_body_pendulum": "interval (gap-play2, main 1e94ac9 with the profile interval, "
@@ -84,10 +89,14 @@ MISSES: dict[str, str] = {
                                 "-> 79/63/17.6/51 mrad): the truth's own output-feedback loop "
                                 "(D on the output velocity with the joint damping beside it) "
                                 "is not the catalogue's play",
-    "gain_viscous_turntable": "not identifiable: inertia_error 1.589 plus viscous_damping 0.189 "
-                              "(truth gain 0.7 + 0.08); with no gravity and no force limit "
-                              "J q'' = 0.7 kp (g - q) - c q' is the same trajectory for any two "
-                              "of gain, inertia and damping (re-run c3ff5c5 and gap-offset)",
+    "gain_viscous_turntable": "interval (gap-fric3, session 10, 435 s wall / 41 s CPU): named "
+                              "exactly since gates.swap_equivalent (was inertia_error 1.589 + "
+                              "viscous 0.189: with no gravity and no force limit J q'' = 0.7 kp "
+                              "(g - q) - c q' is the same trajectory for any two of gain, "
+                              "inertia and damping; select SSE 8.573e-4 vs 8.575e-4, the pair "
+                              "reported, gain named by catalogue order): viscous 0.0807 "
+                              "[0.0789, 0.0825] holds 0.08 but gain 0.6989 [0.6981, 0.6998] "
+                              "misses 0.7 by 0.0002 (a 0.16 % bias); held-out 302.9 -> 0.98 mrad",
     # never-run cases, measured by redteam3 (2026-11-26 12:00-, main dee30b5, load 9-17)
     "backlash_body_turntable": "miss (gap-play2, re-run on main 9b54389, 159 s CPU; exact "
                                "name at dee30b5): 'discrepancy not explained', held-out 8.44 "
@@ -102,13 +111,6 @@ MISSES: dict[str, str] = {
                                "(Plant.rest_play); the motor at the servo's setpoint improves "
                                "2 of the 4 (8.9 -> 3.9, 10.3 -> 7.7 mrad; not landed), the "
                                "others drift at a velocity below the log's 0.024 rad/s step",
-    "torque_coulomb_pendulum": "miss (gap-fric2, main 9b54389, 169 s): torque limit 1.2 + "
-                               "Coulomb 0.1 named torque_limit 1.086 [1.042, 1.133] alone (held-"
-                               "out 305.8 -> 8.65 mrad); round 2 took the Coulomb as "
-                               "stribeck_friction static 0, coulomb 0.104 (a stiff Coulomb: "
-                               "select gain 0.99 vs the MuJoCo-soft coulomb_friction's 0.25), "
-                               "dropped at the end ('its 95 % interval holds no effect'); was "
-                               "load_dependent_friction mu 0.553 (3c61633)",
 }
 
 

@@ -59,7 +59,7 @@ from lowcostdex.gap.diagnostics import (
     score_fraction,
 )
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
-from lowcostdex.gap.gates import free_asymmetry
+from lowcostdex.gap.gates import drop_weak, free_asymmetry, swap_equivalent
 from lowcostdex.gap.logs import rate_goal_actuators
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import (
@@ -438,6 +438,9 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     sel_cur = (sse_alt, sel_cur[1], sel_cur[2])
         timing["backward_search"] = time.perf_counter() - t0
 
+    current, cur_x, why = swap_equivalent(current, cur_x, fit_fn, lambda ms: [mse_by_episode(
+        ds, sel_eps, p)[0].sum() for p in eng.predict(sel_eps, ms)], cfg, ctx, equivalents)
+    stop_reason += why  # (an effect another stands in for exactly: named by catalogue order)
     # ---- 3. final refit on train + select, intervals, significance, test once -------------
     # An effect whose every 95 % interval (misfit-aware: ``_intervals``) holds "no effect" is
     # not shown by the data: it soaks up what the model gets slightly wrong. It is dropped, the
@@ -459,12 +462,9 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             weak = [n for n in final_track.structure.effects if margin[n] <= 1]
             if not weak:
                 break
-            drop = min(weak, key=lambda n: margin[n])
-            stop_reason += f"; {drop} dropped: its 95 % interval holds no effect"
-            keep = tuple(n for n in final_track.structure.effects if n != drop)
-            current = fitmod.Structure.build(keep, joints, ctx)
-            cur_x = current.values_from(final_track.effects())
-            if not keep:
+            current, cur_x, why = drop_weak(final_track, min(weak, key=margin.get), mid, half, ctx)
+            stop_reason += why
+            if not current.effects:
                 final_track = None
                 break
         effects = final_track.effects() if final_track is not None else []
