@@ -42,6 +42,18 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
 
 
+@pytest.fixture
+def one_torch_thread():
+    """Small networks: one thread is fastest and immune to a busy machine (the caller's thread
+    count is restored). Files use it with ``pytestmark = pytest.mark.usefixtures(...)``."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def pytest_addoption(parser):
     group = parser.getgroup("lowcostdex hardware")
     group.addoption("--dxl-port", default=None,

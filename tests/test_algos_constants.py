@@ -19,13 +19,7 @@ from lowcostdex.algos import npg
 from lowcostdex.algos.dapg import DAPGConfig, dapg_update
 from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _setup(seed=0, n=200, m=50):

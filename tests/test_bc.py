@@ -10,14 +10,7 @@ from lowcostdex.algos.bc import BCConfig, behavior_clone
 from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
 from lowcostdex.errors import ConfigError
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """Small networks: one thread is fastest and immune to a busy machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _linear_demos(n=2000, seed=0):

@@ -12,6 +12,9 @@ in the project's Plant, and must be exactly the old symmetric Coulomb at a = 0.
 
 from __future__ import annotations
 
+import pathlib
+import sys
+
 import mujoco
 import numpy as np
 import pytest
@@ -20,36 +23,15 @@ from lowcostdex.gap.extension import bake_mjcf
 from lowcostdex.sim.effects import AppliedEffect, effect
 from lowcostdex.sim.plant import Plant
 
-INERTIA = 0.01            # kg m^2 (armature)
-F_POS, F_NEG = 0.15, 0.05  # N m, the redteam3 case's levels
-DT = 0.001                # s
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from rotor_bench import DT, INERTIA, XML, run  # noqa: E402  (a plain-MJCF rotor)
 
-XML = f"""<mujoco model="rotor">
-<compiler angle="radian"/>
-<option timestep="{DT}" integrator="implicitfast" gravity="0 0 0"/>
-<worldbody><body name="rotor">
-<joint name="q" type="hinge" axis="0 0 1" armature="{INERTIA}"/>
-<geom type="sphere" size="0.001" mass="1e-6" contype="0" conaffinity="0"/>
-</body></worldbody>
-<actuator><motor name="q" joint="q" ctrlrange="-1 1" ctrllimited="true"/></actuator>
-</mujoco>
-"""
+F_POS, F_NEG = 0.15, 0.05  # N m, the redteam3 case's levels
 
 
 def _effect(asymmetry: float, creep: float = 0.0) -> AppliedEffect:
     return AppliedEffect("coulomb_friction", ("q",), {
         "frictionloss": 0.5 * (F_POS + F_NEG), "asymmetry": asymmetry, "creep": creep})
-
-
-def _run(eff: AppliedEffect, torque: float, w0: float, seconds: float) -> np.ndarray:
-    """Angle and speed every step from rest at 0 (or spinning at w0) under a constant torque."""
-    plant = Plant(mujoco.MjModel.from_xml_string(XML), [eff])
-    plant.reset(qpos=np.zeros(1), qvel=np.array([w0]), ctrl=np.array([torque]))
-    out = []
-    for _ in range(int(round(seconds / DT))):
-        plant.step(np.array([torque]), 1)
-        out.append((plant.qpos[0], plant.qvel[0]))
-    return np.array(out)
 
 
 A = (F_POS - F_NEG) / (F_POS + F_NEG)   # 0.5
@@ -59,7 +41,7 @@ A = (F_POS - F_NEG) / (F_POS + F_NEG)   # 0.5
 def test_spin_down_time_is_inertia_speed_over_the_level_of_that_direction(w0, level):
     """Stop time I |w0| / F: 0.133 s turning positive (F+ 0.15), 0.4 s negative (F- 0.05),
     within 3 %; and it then stays stopped (no torque: nothing pushes it)."""
-    out = _run(_effect(A), 0.0, w0, 0.6)
+    out = run(_effect(A), 0.0, w0, 0.6)
     moving = np.flatnonzero(np.abs(out[:, 1]) > 1e-3)
     t_stop = (moving[-1] + 1) * DT
     assert t_stop == pytest.approx(INERTIA * abs(w0) / level, rel=0.03), t_stop
@@ -69,9 +51,9 @@ def test_spin_down_time_is_inertia_speed_over_the_level_of_that_direction(w0, le
 def test_a_push_between_the_two_levels_holds_one_way_and_turns_the_other():
     """0.1 N m from rest: below F+ (holds, < 1 mrad in 1 s), above F- (accelerates at
     (0.1 - 0.05) / I = 5 rad/s^2: 2.5 rad in 1 s, within 5 %)."""
-    hold = _run(_effect(A), 0.1, 0.0, 1.0)
+    hold = run(_effect(A), 0.1, 0.0, 1.0)
     assert np.abs(hold[:, 0]).max() < 1e-3, np.abs(hold[:, 0]).max()
-    turn = _run(_effect(A), -0.1, 0.0, 1.0)
+    turn = run(_effect(A), -0.1, 0.0, 1.0)
     assert turn[-1, 0] == pytest.approx(-0.5 * (0.1 - F_NEG) / INERTIA * 1.0 ** 2, rel=0.05)
 
 
@@ -79,11 +61,11 @@ def test_negative_asymmetry_mirrors_and_null_is_the_symmetric_coulomb():
     """a -> -a swaps the directions; a = 0 is the old symmetric model exactly, with no per-step
     level (the plant does not take the slow substep path) and bakes into MJCF, while a
     direction-dependent level cannot be written there and stays out of the baked model."""
-    pos = _run(_effect(A), 0.0, 2.0, 0.3)
-    neg = _run(_effect(-A), 0.0, -2.0, 0.3)
+    pos = run(_effect(A), 0.0, 2.0, 0.3)
+    neg = run(_effect(-A), 0.0, -2.0, 0.3)
     np.testing.assert_allclose(neg, -pos, atol=1e-9)
     sym = AppliedEffect("coulomb_friction", ("q",), {"frictionloss": 0.1, "creep": 0.0})
-    np.testing.assert_array_equal(_run(_effect(0.0), 0.05, 1.0, 0.3), _run(sym, 0.05, 1.0, 0.3))
+    np.testing.assert_array_equal(run(_effect(0.0), 0.05, 1.0, 0.3), run(sym, 0.05, 1.0, 0.3))
     assert not Plant(mujoco.MjModel.from_xml_string(XML), [_effect(0.0)])._has_friction
     assert Plant(mujoco.MjModel.from_xml_string(XML), [_effect(A)])._has_friction
     _, baked = bake_mjcf(XML, [_effect(0.0)])

@@ -11,14 +11,7 @@ from lowcostdex.algos.dapg import DAPGConfig, dapg_update, demo_weight
 from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig
 from lowcostdex.errors import ConfigError
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """Small networks: one thread is fastest and immune to a busy machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _setup(seed=0, n=300, m=100):

@@ -13,29 +13,20 @@ part is checked on hand-written intervals.
 
 from __future__ import annotations
 
-import mujoco
+import pathlib
+import sys
+
 import numpy as np
 import pytest
 
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.gates import drop_weak
 from lowcostdex.sim.effects import AppliedEffect
-from lowcostdex.sim.plant import Plant
 
-INERTIA = 0.01  # kg m^2 (armature)
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from rotor_bench import DT, INERTIA, run  # noqa: E402  (a plain-MJCF rotor)
+
 LEVEL = 0.1     # N m, the redteam case's Coulomb
-DT = 0.001      # s
-
-XML = f"""<mujoco model="rotor">
-<compiler angle="radian"/>
-<option timestep="{DT}" integrator="implicitfast" gravity="0 0 0"/>
-<worldbody><body name="rotor">
-<joint name="q" type="hinge" axis="0 0 1" armature="{INERTIA}"/>
-<geom type="sphere" size="0.001" mass="1e-6" contype="0" conaffinity="0"/>
-</body></worldbody>
-<actuator><motor name="q" joint="q" ctrlrange="-1 1" ctrllimited="true"/></actuator>
-</mujoco>
-"""
 
 STRIBECK0 = AppliedEffect("stribeck_friction", ("q",), {
     "static": 0.0, "velocity": 0.2, "coulomb": LEVEL})
@@ -43,26 +34,16 @@ STIFF_COULOMB = AppliedEffect("coulomb_friction", ("q",), {
     "frictionloss": LEVEL, "creep": 0.0, "asymmetry": 0.0})
 
 
-def _run(eff: AppliedEffect, torque: float, w0: float, seconds: float) -> np.ndarray:
-    plant = Plant(mujoco.MjModel.from_xml_string(XML), [eff])
-    plant.reset(qpos=np.zeros(1), qvel=np.array([w0]), ctrl=np.array([torque]))
-    out = []
-    for _ in range(int(round(seconds / DT))):
-        plant.step(np.array([torque]), 1)
-        out.append((plant.qpos[0], plant.qvel[0]))
-    return np.array(out)
-
-
 @pytest.mark.parametrize("eff", [STRIBECK0, STIFF_COULOMB], ids=["stribeck0", "coulomb_stiff"])
 def test_a_stribeck_without_breakaway_is_a_stiff_coulomb(eff):
     """Spin-down from 2 rad/s stops after I w0 / F = 0.2 s and turns I w0^2 / (2 F) = 0.2 rad;
     a 0.07 N m push (below 0.1) from rest leaves the rotor within 1 mrad over 2 s."""
     w0 = 2.0
-    traj = _run(eff, 0.0, w0, 0.4)
+    traj = run(eff, 0.0, w0, 0.4)
     stop = np.argmax(np.abs(traj[:, 1]) < 1e-3) * DT
     assert stop == pytest.approx(INERTIA * w0 / LEVEL, rel=0.03)
     assert traj[-1, 0] == pytest.approx(INERTIA * w0 ** 2 / (2 * LEVEL), rel=0.03)
-    held = _run(eff, 0.07, 0.0, 2.0)
+    held = run(eff, 0.07, 0.0, 2.0)
     assert np.max(np.abs(held[:, 0])) < 1e-3
 
 

@@ -12,14 +12,7 @@ from lowcostdex.algos.policy import GaussianMLPPolicy, PolicyConfig, gaussian_lo
 from lowcostdex.algos.returns import discounted_returns, gae, whiten
 from lowcostdex.errors import ConfigError
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """Small networks: one thread is fastest and immune to a busy machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _policy(seed=0, obs_dim=3, act_dim=2, hidden=(5,), init_log_std=-0.3):

@@ -11,14 +11,7 @@ from lowcostdex.algos.experiment import load_state, save_state
 from lowcostdex.algos.policy import GaussianMLPPolicy, ObsNormalizer, PolicyConfig, gaussian_kl
 from lowcostdex.errors import ConfigError
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """Small networks: one thread is fastest and immune to a busy machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _gen(seed):
