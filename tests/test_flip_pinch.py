@@ -5,16 +5,21 @@ teacher. The truth is the env's own success check (orientation within
 
 from __future__ import annotations
 
+import pathlib
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.registry import register_envs
 from lowcostdex.teachers import TEACHERS, teacher_class
 from lowcostdex.teachers.flip import FlipBlockTeacher, FlipTeacherConfig
 from lowcostdex.teachers.flip_pinch import PinchFlipConfig, PinchFlipTeacher
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from flip_episode import run_teacher  # noqa: E402
 
 ENV = "lowcostdex/DClawFlipBlock-v0"
 SEEDS = range(50_000, 50_020)  # the benchmark's held-out starts (bench/npg_dapg.py)
@@ -29,17 +34,7 @@ def _register():
 def episode(env, seed, teacher, noise, rng):
     """One episode driven by ``teacher`` with uniform executed-action noise drawn from ``rng``:
     the env's success flag at its end."""
-    u = env.unwrapped
-    env.reset(seed=seed)
-    teacher.reset(u)
-    done, info = False, {}
-    while not done:
-        goals = teacher(u.backend.observed_qpos(), u.goal)
-        a = goal_to_action(goals, u.task.hand_low, u.task.hand_high)
-        a = np.clip(a + rng.uniform(-noise, noise, a.shape), -1.0, 1.0)
-        _, _, term, trunc, info = env.step(a.astype(np.float32))
-        done = term or trunc
-    return bool(info["success"])
+    return bool(run_teacher(env, seed, teacher, noise, rng)["success"])
 
 
 def test_pinched_teacher_flips_under_execution_noise_more_often_than_the_script():

@@ -5,16 +5,21 @@ end), not the teacher's prediction."""
 
 from __future__ import annotations
 
+import pathlib
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
 
 from lowcostdex.errors import ConfigError
-from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.registry import register_envs
 from lowcostdex.teachers import TEACHERS
 from lowcostdex.teachers.flip import FlipBlockTeacher
 from lowcostdex.teachers.flip_plan import FlipPlanConfig, PlannedFlipTeacher
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from flip_episode import run_teacher  # noqa: E402
 
 ENV = "lowcostdex/DClawFlipBlock-v0"
 SEEDS = range(50_000, 50_020)  # the benchmark's held-out starts (bench/npg_dapg.py)
@@ -28,15 +33,7 @@ def _register():
 def episode(env, seed, teacher):
     """One noise-free episode driven by ``teacher``: the env's success and orientation error at
     its end."""
-    u = env.unwrapped
-    env.reset(seed=seed)
-    teacher.reset(u)
-    done, info = False, {}
-    while not done:
-        goals = teacher(u.backend.observed_qpos(), u.goal)
-        a = goal_to_action(goals, u.task.hand_low, u.task.hand_high)
-        _, _, term, trunc, info = env.step(a.astype(np.float32))
-        done = term or trunc
+    info = run_teacher(env, seed, teacher)
     return bool(info["success"]), float(info["goal_error"])
 
 
