@@ -75,10 +75,6 @@ MISSES: dict[str, str] = {
                               "excludes 0.02618 (1.5 deg); the profile widened the data "
                               "interval 0.3 %: a fit bias (sensor 0.035 for a body play), "
                               "held-out 12.21 -> 0.78 mrad (floor 0.71)",
-    "latency_17ms_arm2_50hz_posonly": "latency (23.1 / 18.3 ms vs 17 ms, intervals exclude 17 "
-                                      "ms) plus gain_error (1.08 / 0.96) and mass_error "
-                                      "(1.38 / 0.91) on a general-actuator arm, 50 Hz, "
-                                      "position-only",
     # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
     "backlash_output_pendulum": "miss (gap-play2, re-run on main 9b54389, 42 s CPU): "
                                 "viscous_damping 0.065, gain_error 0.59, mass_error 0.59 "
