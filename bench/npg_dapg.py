@@ -418,7 +418,8 @@ def table(name: str, results: dict[str, list[dict[str, float]]],
              "| load start/end | stopped by |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for algo, runs in results.items():
-        for seed, r in enumerate(runs):
+        for r in runs:
+            seed = int(r["seed"])
             n, dist = r.get("eval_episodes", math.nan), r.get("eval_distinct", math.nan)
             lines.append(
                 f"| {algo.upper()} | {seed} | {_k(r['train_samples'])} | {_k(r['eval_samples'])}"
@@ -481,6 +482,8 @@ def main() -> None:
                    choices=sorted(TASKS) + sorted(ALIASES))
     p.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
     p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="seeds first-seed .. first-seed + seeds - 1 (one more seed of a table)")
     p.add_argument("--max-samples", type=int, default=400_000,
                    help="budget of every run on the valve tasks (and of DAPG on the flip)")
     p.add_argument("--scratch-budget-factor", type=float, default=5.0,
@@ -516,7 +519,7 @@ def main() -> None:
         f"({datetime.date.today()}, {platform.node()}, {platform.processor() or platform.machine()}, "
         f"{os.cpu_count()} CPUs)", "",
         f"`python bench/npg_dapg.py --tasks {' '.join(args.tasks)} --algos {' '.join(args.algos)}"
-        f" --seeds {args.seeds} --eval-episodes {args.eval_episodes} --held-out {args.held_out}"
+        f" --seeds {args.seeds} --first-seed {args.first_seed} --eval-episodes {args.eval_episodes} --held-out {args.held_out}"
         f" --teacher-episodes {args.teacher_episodes}`. Trainer defaults: NPG/DAPG {args.n_traj or d.n_traj} "
         f"trajectories/iteration, delta {d.npg.step_size}, policy {d.policy.hidden_sizes} "
         f"init log-std {d.policy.init_log_std}, BC {d.bc.epochs} epochs (noise {d.bc.log_std}), "
@@ -553,13 +556,13 @@ def main() -> None:
             budgets[algo] = budget
             demos = record_demos(task, out_root / name, n_demos) if algo == "dapg" else None
             results[algo] = []
-            for seed in range(args.seeds):
+            for seed in range(args.first_seed, args.first_seed + args.seeds):
                 run_dir = out_root / name / f"{algo}_{seed}"
                 if algo == "ppo":
                     r = run_ppo(task, seed, budget, run_dir, args)
                 else:
                     r = run_train(task, algo, seed, budget, demos, run_dir, args)
-                results[algo].append(r)
+                results[algo].append({**r, "seed": seed})
                 print(name, algo, seed, json.dumps(r), flush=True)
         all_results[name] = results
         n_traj = {a: (dp.num_envs if a == "ppo" else args.n_traj or d.n_traj) for a in results}

@@ -194,7 +194,7 @@ def test_every_task_table_names_a_teacher_that_exists():
 
     names = {solver for tasks in TASKS.values() for _, solver in tasks.values()}
     names |= {setup.teacher for setup in JOB_TASKS.values()}
-    assert "ValveTurnTeacher" in names and "FlipBlockTeacher" in names
+    assert "ValveTurnTeacher" in names and "PinchFlipTeacher" in names  # both tables: flip -> pinch
     for name in names:
         assert teacher_class(name).__name__ == name
     with pytest.raises(ConfigError, match="valid: .*FlipBlockTeacher.*ValveTurnTeacher"):

@@ -38,7 +38,8 @@ DEPENDS: dict[str, tuple[str, ...]] = {"train": ("demos",)}
 OUTPUTS: dict[str, tuple[str, ...]] = {
     "bus": ("hand.json",),
     "demos": ("demos.h5",),
-    "train": ("train_dapg", "train_npg", "learning_curves.png", "flip_rollout.png"),
+    "train": ("train_dapg", "train_npg", "learning_curves.png", "flip_rollout.png",
+              "flip_rollout.npz"),
     "gap": ("gap",),
     "report": ("robot_health.png",),
 }

@@ -54,7 +54,7 @@ TASKS = {
     "valve-random": TaskSetup("lowcostdex/DClawTurnValveRandom-v0", "ValveTurnTeacher",
                               "valve", "turned the valve to its random target",
                               "Valve turning (random start and target)", 2, 1),
-    "flip": TaskSetup("lowcostdex/DClawFlipBlock-v0", "FlipBlockTeacher", "block",
+    "flip": TaskSetup("lowcostdex/DClawFlipBlock-v0", "PinchFlipTeacher", "block",
                       "flipped the block", "Block flipping", 0, 3),
 }
 ENV_ID = TASKS["valve"].env_id

@@ -114,7 +114,8 @@ def stage_demos(ctx: Context) -> dict[str, Any]:
             robot = env.unwrapped.backend.robot.metrics.as_dict()
     finally:
         env.close()
-    return {"file": path.name, "episodes": stats.episodes, "successful": stats.successes,
+    return {"file": path.name, "teacher": setup.teacher if ctx.emulated else None,
+            "episodes": stats.episodes, "successful": stats.successes,
             "steps": stats.steps, "playbacks": stats.playbacks,
             "successful_playbacks": stats.playback_successes,
             "servo_response": {"alpha": [round(a, 3) for a in response.alpha],
@@ -293,9 +294,14 @@ def _random_actions(env: Any, jobs: list[Any], rng: Any) -> dict[str, Any]:
     return out
 
 
+ROLLOUT_DATA = "flip_rollout.npz"
+"""The flip rollout's recorded episodes (``flip_rollout_figure`` rebuilds the figure from it)."""
+
+
 def _flip_rollout(ctx: Context) -> dict[str, Any]:
     """One deterministic episode of the DAPG run's policy on the robot, the block's orientation
-    recorded at every step; plotted beside the first successful demonstration."""
+    recorded at every step; plotted beside the first successful demonstration. The joint
+    positions of both (qpos, one row per control step) go to ``ROLLOUT_DATA``."""
     import gymnasium as gym
     import numpy as np
 
@@ -321,10 +327,37 @@ def _flip_rollout(ctx: Context) -> dict[str, Any]:
              if e.length and e.success[-1]]
     curves = {"DAPG policy (mean action)": (np.array(qpos), goal)}
     if demos:
-        curves["a demonstration"] = (demos[0].qpos, demos[0].goal)
+        curves["a demonstration"] = (np.asarray(demos[0].qpos), demos[0].goal)
+    np.savez(ctx.out / ROLLOUT_DATA, period=period,
+             **{f"qpos_{i}": q for i, (q, _) in enumerate(curves.values())})
+    plt = _pyplot()
+    fig = flip_rollout_figure(task, period, curves, ctx.emulated)
+    name = "flip_rollout.png"
+    fig.savefig(ctx.out / name, dpi=110)
+    plt.close(fig)
+    err = float(task.orientation_error(np.array(qpos[-1]), goal))
+    return {"plot": name, "data": ROLLOUT_DATA,
+            "final_orientation_error_deg": round(math.degrees(err), 1),
+            "success": bool(err < task.config.success_angle), "steps": len(qpos) - 1}
+
+
+def flip_rollout_figure(task: Any, period: float, curves: dict[str, tuple[Any, Any]],
+                        emulated: bool = True) -> Any:
+    """The flip's rollout figure: the block's tilt (its top face from up) and its orientation
+    error to the goal [deg] against time [s], one line per episode.
+
+    Args:
+      task: the flip task (``tilt``, ``orientation_error``, ``config.success_angle``).
+      period: control period [s] (one qpos row per control step).
+      curves: label -> (qpos (T, nq), goal).
+      emulated: whether the episodes ran on the emulated D'Claw (the title says so).
+    """
+    import numpy as np
+
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for (label, (q, g)), color in zip(curves.items(), ("tab:blue", "tab:gray"), strict=False):
+        q = np.asarray(q)
         t = np.arange(len(q)) * period
         axes[0].plot(t, np.degrees(task.tilt(q)), color=color, label=label)
         axes[1].plot(t, np.degrees(task.orientation_error(q, g)), color=color, label=label)
@@ -335,17 +368,12 @@ def _flip_rollout(ctx: Context) -> dict[str, Any]:
     for ax in axes:
         ax.set_xlabel("time [s]")
         ax.grid(alpha=0.3)
-    fig.suptitle("The flip, rolled out on the emulated D'Claw" if ctx.emulated else
+    fig.suptitle("The flip, rolled out on the emulated D'Claw" if emulated else
                  "The flip, rolled out on the D'Claw")
     fig.tight_layout(rect=(0, 0.12, 1, 1))
     fig.legend(*axes[1].get_legend_handles_labels(), loc="lower center", ncol=3,
                fontsize="small", frameon=False)
-    name = "flip_rollout.png"
-    fig.savefig(ctx.out / name, dpi=110)
-    plt.close(fig)
-    err = float(task.orientation_error(np.array(qpos[-1]), goal))
-    return {"plot": name, "final_orientation_error_deg": round(math.degrees(err), 1),
-            "success": bool(err < task.config.success_angle), "steps": len(qpos) - 1}
+    return fig
 
 
 def _plot_training(ctx: Context, res: dict[str, Any], curves: dict[str, dict[str, Any]]) -> str:
