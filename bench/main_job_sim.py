@@ -85,6 +85,38 @@ def robot_kwargs() -> dict[str, Any]:
     return Context(out=Path(".")).env_kwargs()
 
 
+SIM_CHOICES = ("main", "gap", "gap+dr")
+"""``candidates --sim``: main (the main job's randomized sim, ``DAPG_RANDOMIZE`` at the
+catalogue's ranges), gap (the gap stage's identified effects only, each parameter drawn from its
+fitted range: ``gap.extension.dr_ranges``, the 95 % interval widened to +-10 % of the value, on
+every hand joint; a parameter the analysis held, whose interval is unbounded, stays at its
+value), gap+dr (the main job's randomization with the identified effects' ranges replaced by
+those fitted ranges)."""
+
+
+def gap_randomization(report: Path, sim: str) -> dict[str, Any]:
+    """The DomainRandomization dict of ``--sim gap|gap+dr`` from a gap report folder (its
+    ``extended/effects.json``)."""
+    from lowcostdex.gap.extension import load_extended
+    from lowcostdex.hands import dclaw_spec
+    from lowcostdex.main_job.setup import DAPG_RANDOMIZE
+    from lowcostdex.sim.effects import DomainRandomization
+
+    ext = load_extended(report)
+    raw = json.loads((Path(report) / "extended" / "effects.json").read_text()
+                     if (Path(report) / "extended").is_dir()
+                     else (Path(report) / "effects.json").read_text())
+    ranges = {k: dict(v) for k, v in ext.ranges.items()}
+    for e in raw["effects"]:
+        for p, iv in (e.get("interval") or {}).items():
+            if any(not math.isfinite(float(x)) for pair in iv for x in pair):
+                v = np.asarray(e["params"][p], float)  # held by the analysis: its value
+                ranges[e["effect"]][p] = (float(v.min()), float(v.max()))
+    joints = tuple(dclaw_spec().joint_names)
+    effects = tuple(ranges) if sim == "gap" else DAPG_RANDOMIZE
+    return DomainRandomization(effects, joints, ranges).to_dict()
+
+
 ROBOT_VALIDATION_STREAM = 4
 """Seed stream of the robot validation episodes (``samplers`` uses 0-3: training, validation,
 the clone's validation, held-out)."""
@@ -104,24 +136,24 @@ def candidate_files(run_dir: Path) -> dict[int, Path]:
     return out
 
 
-def choose_finalist(files: dict[int, Path], sampler: Any, seed: int,
+def choose_finalist(files: dict[int, Path], make_env: Any, seed: int,
                     episodes: int) -> dict[str, Any]:
     """Each candidate (``files``: iteration -> policy file) on the same ``episodes``
     deterministic robot validation episodes (``ROBOT_VALIDATION_STREAM`` at ``seed``, mean
-    action); the chosen one by ``main_job.clones.rank_key`` (most successes, then the smallest
-    median final |goal error|; the earlier iterate, the clone first, on a full tie)."""
+    action), each on a freshly started robot from ``make_env`` (``main_job.heldout``); the
+    chosen one by ``main_job.clones.rank_key`` (most successes, then the smallest median final
+    |goal error|; the earlier iterate, the clone first, on a full tie)."""
     from lowcostdex.algos.samplers import make_jobs
     from lowcostdex.algos.train import load_policy, trajectory_success
     from lowcostdex.main_job.clones import rank_key
+    from lowcostdex.main_job.heldout import evaluate as evaluate_on_robot
 
     t0, c0 = time.perf_counter(), time.process_time()
     jobs = make_jobs(seed, ROBOT_VALIDATION_STREAM, 0, episodes, deterministic=True)
+    runs = evaluate_on_robot(make_env, {it: load_policy(files[it]).snapshot()
+                                        for it in sorted(files)}, jobs, fresh=True)
     rows, robot_seconds = [], 0.0
-    for it in sorted(files):
-        snap = load_policy(files[it]).snapshot()
-        paths = []
-        for job in jobs:
-            paths += sampler.sample(snap, [job])
+    for it, paths in runs.items():
         robot_seconds += sum(p.robot_seconds for p in paths)
         errors = [float(p.final_goal_error) for p in paths]
         rows.append({"iteration": it, "episodes": len(paths),
@@ -170,25 +202,21 @@ def throughput(episodes: int) -> list[dict[str, Any]]:
 def heldout(env_id: str, kwargs: dict[str, Any], policies: dict[str, Path], seed: int,
             episodes: int, stream: int | None = None) -> dict[str, dict[str, Any]]:
     """Each policy's mean action on the same ``episodes`` held-out episodes (reset seeds of
-    ``HELDOUT_STREAM`` at ``seed``, the main job's), one sampler for all (as the main job)."""
-    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, SerialSampler, make_jobs
+    ``HELDOUT_STREAM`` at ``seed``, the main job's), each on a freshly started robot (as the
+    main job: ``main_job.heldout``, so a policy's results do not depend on the order)."""
+    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, make_jobs
     from lowcostdex.algos.train import load_policy, trajectory_success
+    from lowcostdex.main_job.heldout import evaluate
 
     jobs = make_jobs(seed, HELDOUT_STREAM if stream is None else stream, 0, episodes,
                      deterministic=True)
-    sampler = SerialSampler(EnvFactory(env_id, kwargs))
+    snaps = {name: load_policy(path).snapshot() for name, path in policies.items()}
+    runs = evaluate(EnvFactory(env_id, kwargs), snaps, jobs, fresh=True)
     out = {}
-    try:
-        for name, path in policies.items():
-            snap = load_policy(path).snapshot()
-            paths = []
-            for job in jobs:
-                paths += sampler.sample(snap, [job])
-            out[name] = {"solved": [trajectory_success(p, "final") for p in paths],
-                         "errors": [float(p.final_goal_error) for p in paths]}
-            out[name]["successes"] = int(sum(out[name]["solved"]))
-    finally:
-        sampler.close()
+    for name, paths in runs.items():
+        out[name] = {"solved": [trajectory_success(p, "final") for p in paths],
+                     "errors": [float(p.final_goal_error) for p in paths]}
+        out[name]["successes"] = int(sum(out[name]["solved"]))
     return out
 
 
@@ -344,7 +372,10 @@ def candidates(a: argparse.Namespace) -> dict[str, Any]:
     assert sim is not None
     setup = TASKS["valve-target"]
     iters = a.iters or sim.iters
-    kwargs = {**setup.env_overrides, "randomize": list(sim.randomize)}
+    randomize: Any = list(sim.randomize)
+    if a.sim != "main":
+        randomize = gap_randomization(a.gap, a.sim)
+    kwargs = {**setup.env_overrides, "randomize": randomize}
     config = TrainConfig(algo="dapg", env_id=setup.env_id, backend="sim", env_kwargs=kwargs,
                          seed=a.seed, n_iter=iters, n_traj=sim.traj,
                          eval_every=sim.eval_every, eval_episodes=sim.eval_episodes,
@@ -354,7 +385,8 @@ def candidates(a: argparse.Namespace) -> dict[str, Any]:
     c0, t0 = time.process_time(), time.perf_counter()
     chosen = choose_clone(config, sim.clones, sim.eval_episodes)
     config = dataclasses.replace(config, bc_seed=chosen["bc_seed"])
-    run_dir = a.out / f"cand_s{a.seed}_i{iters}"
+    run_dir = a.out / f"cand_s{a.seed}_i{iters}" if a.sim == "main" else (
+        a.out / f"cand_{a.sim}_s{a.seed}_i{iters}")
     shutil.rmtree(run_dir, ignore_errors=True)
     train(config, run_dir)
     train_cpu, train_wall = time.process_time() - c0, time.perf_counter() - t0
@@ -368,11 +400,17 @@ def candidates(a: argparse.Namespace) -> dict[str, Any]:
             policies[f"it{k}"] = f
     summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
     c1 = time.process_time()
-    rv = heldout(setup.env_id, robot_kwargs(), policies, a.seed, a.robot_val,
-                 stream=a.val_stream)
+    rv = (heldout(setup.env_id, robot_kwargs(), policies, a.seed, a.robot_val,
+                  stream=a.val_stream) if a.robot_val else {})
     val_cpu = time.process_time() - c1
     ho = heldout(setup.env_id, robot_kwargs(), policies, a.seed, a.heldout, stream=HELDOUT_STREAM)
-    res = {"seed": a.seed, "iters": iters, "bc_seed": chosen["bc_seed"],
+    best_it = (summary.get("best") or {}).get("iteration")
+    chosen_name = "clone" if best_it is None or best_it < 0 else f"it{best_it}"
+    res = {"seed": a.seed, "sim": a.sim, "gap": str(a.gap) if a.sim != "main" else None,
+           "iters": iters, "bc_seed": chosen["bc_seed"],
+           "main_job_choice": chosen_name,
+           "main_job_vs_clone": (paired(ho["clone"], ho[chosen_name])
+                                 if chosen_name in ho else None),
            "clone_sim_val": json.loads((run_dir / "bc.json").read_text())["eval_success_rate"],
            "sim_val": val, "chosen_iteration": (summary.get("best") or {}).get("iteration"),
            "robot_val": {k: v["successes"] for k, v in rv.items()},
@@ -398,17 +436,13 @@ def evaluate(a: argparse.Namespace) -> None:
     """A finished ``candidates`` run folder (``--run``): the clone and the evaluated iterates
     on ``--robot-val`` robot validation episodes, the chosen one (``choose_finalist``)
     and the clone on the ``--heldout`` held-out episodes first (printed), then the others."""
-    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, SerialSampler
+    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory
     from lowcostdex.main_job.setup import TASKS
 
     setup = TASKS["valve-target"]
     files = candidate_files(a.run)
-    sampler = SerialSampler(EnvFactory(setup.env_id, robot_kwargs()))
     c0 = time.process_time()
-    try:
-        f = choose_finalist(files, sampler, a.seed, a.robot_val)
-    finally:
-        sampler.close()
+    f = choose_finalist(files, EnvFactory(setup.env_id, robot_kwargs()), a.seed, a.robot_val)
     val_cpu = time.process_time() - c0
     name = {it: "clone" if it < 0 else f"it{it}" for it in files}
     res: dict[str, Any] = {"seed": a.seed, "run": str(a.run), "finalists": f,
@@ -465,6 +499,9 @@ def main() -> None:
     d.add_argument("--robot-val", type=int, default=40, help="robot validation episodes")
     d.add_argument("--val-stream", type=int, default=4, help="their seed stream")
     d.add_argument("--heldout", type=int, default=100, help="held-out episodes on the robot")
+    d.add_argument("--sim", choices=SIM_CHOICES, default="main",
+                   help="the sim DAPG trains in (SIM_CHOICES)")
+    d.add_argument("--gap", type=Path, help="gap report folder (--sim gap, gap+dr)")
     e = sub.add_parser("evaluate")
     e.add_argument("--run", type=Path, required=True, help="a candidates run folder")
     e.add_argument("--seed", type=int, default=0)

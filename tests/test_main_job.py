@@ -126,6 +126,11 @@ def test_report_measures_the_random_baseline_and_gives_counts(smoke):
     assert f"uniformly random actions (measured) | {rnd['eval_successes'] / 3:.2f} " \
            f"({rnd['eval_successes']}/3; 95 % CI" in text
     assert "What each stage added." in text
+    # each policy on a freshly started emulated robot: its episodes do not depend on the order
+    # (tests/test_main_job_heldout.py), and the report says so
+    assert {t[k]["heldout_robot"] for k in ("random", "bc", "dapg", "npg")} == {
+        "a freshly started emulated robot"}
+    assert "ran on a freshly started emulated robot" in text
 
 
 def _files(root):

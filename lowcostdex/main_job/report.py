@@ -123,7 +123,7 @@ def markdown_report(ctx: Context) -> str:
                 f"{'not reached' if first is None else f'{first:.0f} samples'} |")
         lines += ["", f"Held-out: each policy on the same {n_held} episodes (reset seeds "
                       "disjoint from training and validation), mean action, success at the "
-                      "last step, with a 95 % Wilson interval.", "",
+                      "last step, with a 95 % Wilson interval. " + _order_words(t), "",
                   "| policy | held-out success |", "|---|---|",
                   f"| uniformly random actions (measured) | {_rate(t.get('random', {}))} |",
                   f"| behaviour clone alone, before any RL | {_rate(t.get('bc', {}))} |",
@@ -300,6 +300,22 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
         text += (" No DAPG iterate beat the clone on the validation episodes, so DAPG's policy "
                  "is the clone itself: at this budget RL did not improve on it.")
     return text
+
+
+def _order_words(t: dict[str, Any]) -> str:
+    """How the held-out episodes' robot state was controlled between policies
+    (``main_job.heldout``)."""
+    if t.get("bc", {}).get("heldout_robot") == "a freshly started emulated robot":
+        return ("Each policy ran on a freshly started emulated robot (the same pose, motors "
+                "at ambient), so its episodes do not depend on the policies evaluated before "
+                "it: a robot carries its auto-reset's residue and its motors' warmth from one "
+                "episode into the next.")
+    if "heldout_robot" in t.get("bc", {}):
+        return ("The policies ran one after another on the one robot (random, clone, DAPG, "
+                "NPG), which carries its auto-reset's residue and its motors' warmth from one "
+                "episode into the next: on the emulated robot that order moved a policy's "
+                "count by about one episode in 100.")
+    return ""
 
 
 def paired_test(before: dict[str, Any], after: dict[str, Any]) -> tuple[int, int, float] | None:

@@ -233,64 +233,45 @@ def _heldout(ctx: Context, episodes: int) -> dict[str, dict[str, Any]]:
     policies (each its best on the validation evaluations) on the same ``episodes`` held-out
     episodes of the robot: reset seeds of ``HELDOUT_STREAM``, disjoint from the training episodes
     and from the evaluations that chose each run's policy, so the comparison is paired and not
-    biased by that choice. Policies act with their mean action; success at the final step as in
-    training's evaluation; each episode's final ``|goal_error|`` is kept
+    biased by that choice. On the emulated robot each policy runs on a freshly started robot
+    (``main_job.heldout``: a robot carries its reset's residue and its motors' warmth from one
+    episode into the next, so what ran before would change a policy's episodes); on a real
+    robot they run one after another. Policies act with their mean action; success at the
+    final step as in training's evaluation; each episode's final ``|goal_error|`` is kept
     (``final_goal_errors``). The random actions are seeded."""
     import numpy as np
 
     from lowcostdex.algos import experiment as ex
-    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, SerialSampler, make_jobs
+    from lowcostdex.algos.samplers import HELDOUT_STREAM, EnvFactory, make_jobs
     from lowcostdex.algos.train import load_policy, trajectory_success
+    from lowcostdex.main_job.heldout import evaluate, uniform_actions
 
     jobs = make_jobs(ctx.seed, HELDOUT_STREAM, 0, episodes, deterministic=True)
-    policies = {"bc": ctx.out / "train_dapg" / ex.BC_POLICY_FILE,
-                "dapg": ctx.out / "train_dapg", "npg": ctx.out / "train_npg"}
-    sampler = SerialSampler(EnvFactory(ctx.setup.env_id, ctx.env_kwargs()))
+    files = {"bc": ctx.out / "train_dapg" / ex.BC_POLICY_FILE,
+             "dapg": ctx.out / "train_dapg", "npg": ctx.out / "train_npg"}
+    policies: dict[str, Any] = {"random": uniform_actions(np.random.default_rng(ctx.seed
+                                                                                + 3_000_000))}
+    policies.update({name: load_policy(path).snapshot() for name, path in files.items()})
     out: dict[str, dict[str, Any]] = {}
     progress = _progress()
-    try:
-        with progress:
-            task = progress.add_task(f"held-out episodes: random actions, clone, DAPG, NPG "
-                                     f"({episodes} each)", total=4 * episodes)
-            t0 = time.perf_counter()
-            out["random"] = _random_actions(sampler.env, jobs,
-                                            np.random.default_rng(ctx.seed + 3_000_000))
-            out["random"]["wall_seconds"] = round(time.perf_counter() - t0, 1)
-            progress.advance(task, episodes)
-            for name, path in policies.items():
-                snap = load_policy(path).snapshot()
-                paths = []
-                for job in jobs:
-                    paths += sampler.sample(snap, [job])
-                    progress.advance(task)
-                solved = [trajectory_success(p, "final") for p in paths]
-                out[name] = {"eval_episodes": episodes, "eval_successes": int(sum(solved)),
-                             "eval_success": sum(solved) / episodes, "solved": solved,
-                             "final_goal_errors": [float(p.final_goal_error) for p in paths]}
-    finally:
-        sampler.close()
-    return out
-
-
-def _random_actions(env: Any, jobs: list[Any], rng: Any) -> dict[str, Any]:
-    """Uniformly random actions (``rng``) on ``env``, one episode per job (reset with its
-    seed); success at the final step, each episode's final ``|goal_error|``."""
-    successes, steps, errors = 0, 0, []
-    space = env.action_space
-    for job in jobs:
-        env.reset(seed=job.env_seed())
-        done, info = False, {}
-        while not done:
-            action = rng.uniform(space.low, space.high).astype(space.dtype)
-            _, _, term, trunc, info = env.step(action)
-            done, steps = term or trunc, steps + 1
-        successes += bool(info.get("success", False))
-        errors.append(abs(float(info.get("goal_error", math.nan))))
-    n = len(jobs)
-    out = {"eval_episodes": n, "eval_successes": successes,
-           "eval_success": successes / n if n else math.nan, "steps": steps}
-    if all(math.isfinite(e) for e in errors):
-        out["final_goal_errors"] = errors
+    with progress:
+        task = progress.add_task(f"held-out episodes: random actions, clone, DAPG, NPG "
+                                 f"({episodes} each)", total=4 * episodes)
+        runs = evaluate(EnvFactory(ctx.setup.env_id, ctx.env_kwargs()), policies, jobs,
+                        fresh=ctx.emulated, on_episode=lambda _: progress.advance(task))
+    for name, paths in runs.items():
+        solved = [trajectory_success(p, "final") for p in paths]
+        errors = [float(p.final_goal_error) for p in paths]
+        out[name] = {"eval_episodes": episodes, "eval_successes": int(sum(solved)),
+                     "eval_success": sum(solved) / episodes if episodes else math.nan}
+        if name == "random":
+            out[name]["steps"] = sum(len(p) for p in paths)
+            if all(math.isfinite(e) for e in errors):
+                out[name]["final_goal_errors"] = errors
+        else:
+            out[name].update(solved=solved, final_goal_errors=errors)
+        out[name]["heldout_robot"] = ("a freshly started emulated robot" if ctx.emulated
+                                      else "the robot, after the policies before it")
     return out
 
 
