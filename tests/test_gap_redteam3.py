@@ -76,12 +76,13 @@ MISSES: dict[str, str] = {
                           "fits 2.498 (0.86 mrad over the 3 logs) where the continuous "
                           "actuator fits 2.62 (2.72 mrad); the replay has no servo update "
                           "period (test_a_gain_error_under_the_servos_1khz_firmware...)",
-    "fin_stribeck_prox": "interval (gap-cands, main 122e4e2, held-out case run once; "
-                         "re-scored by gap-fric2): stribeck_friction on the two clean joints "
-                         "had static and coulomb intervals holding 0, which the scorer now "
-                         "calls idle (its velocity has no null: SHAPE), so the name is exact; "
-                         "prox velocity 0.010 at its lower bound (truth 0.05); held-out 10.8 "
-                         "-> 2.18 mrad",
+    "fin_stribeck_prox": "interval (re-run by gap-fric4, session 11, main 69aace3, 1069 s "
+                         "CPU): named exactly stribeck_friction[prox] (abd and dist listed "
+                         "idle), analysed at 0.5 ms; its velocity no longer at the 0.01 "
+                         "bound (was 0.010) but 0.118 [0.081, 0.174] for 0.05 and static "
+                         "0.037 [0.022, 0.052] for 0.07 (breakaway 0.12 - Coulomb 0.05): a "
+                         "lower, wider breakaway; Coulomb 0.054 [0.012, 0.097] holds 0.05; "
+                         "held-out 10.41 -> 2.58 mrad (was 10.8 -> 2.18)",
 }
 
 
