@@ -3,7 +3,7 @@
     lowcostdex gap analyze --model MODEL.xml --log a.csv b.csv --out report/
     lowcostdex gap analyze --bench --log ../shared/data/measured/rhoban-bam-xl330/*.json --out r/
     lowcostdex gap identify --log ../shared/data/measured/rhoban-bam-xl330/ \
-        --holdout held/*.json --json identified.json
+        --holdout held/*.json --out identified/
     lowcostdex gap generate --rig bench --effect latency --seed 1 --out demo/
 """
 
@@ -70,6 +70,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         ".select)")
     i.add_argument("--json", default=None, metavar="FILE",
                    help="also write the identified parameters and per-log MAE here")
+    i.add_argument("--out", default=None, metavar="DIR",
+                   help="output folder (new or empty, or a previous identify output, kept in "
+                        "previous/): identified.json (as --json) and mae.png, the per-log "
+                        "error of the identified and the nominal model")
     i.set_defaults(func=_identify)
 
     g = gsub.add_parser("generate", help="write synthetic logs with hidden effects (demo/tests)")
@@ -125,10 +129,11 @@ def distinct_logs(given: list[str]) -> tuple[list[str], list[str]]:
 
 
 def _analyze(args: argparse.Namespace) -> int:
+    import numpy as np
     from rich.console import Console
 
     from lowcostdex.gap.analyze import GapConfig, analyze
-    from lowcostdex.gap.dataset import load_dataset
+    from lowcostdex.gap.dataset import episodes, load_dataset, split_episodes
     from lowcostdex.gap.report import summary, write_report
     from lowcostdex.gap.results import timestep_note
     from lowcostdex.outdir import check_out
@@ -147,6 +152,8 @@ def _analyze(args: argparse.Namespace) -> int:
     cfg = GapConfig(candidates=cands, max_effects=args.max_effects, top_k=args.top_k,
                     min_gain=args.min_gain, seed=args.seed, test_logs=test,
                     nthread=args.threads)
+    # too little data is refused in one line before the progress bar starts (a dry split)
+    split_episodes(ds, episodes(ds, cfg.chunk), np.random.default_rng(cfg.seed), test)
     with analysis_progress(console) as progress:
         result = analyze(ds, cfg, progress)
     out = write_report(result, args.out)
@@ -232,8 +239,12 @@ def _identify(args: argparse.Namespace) -> int:
     from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure
     from lowcostdex.outdir import write_text_atomic
 
+    from lowcostdex.outdir import check_out, staged_output
+
     if args.json:
         _check_json_out(Path(args.json))  # before minutes of fitting
+    if args.out:
+        check_out(args.out, "gap identify")
     logs, same = distinct_logs(args.log)
     if args.holdout:
         args.holdout = [str(p) for p in expand_log_paths(args.holdout)]
@@ -268,8 +279,8 @@ def _identify(args: argparse.Namespace) -> int:
         if idx:
             print(f"  {part} mean: identified {1e3 * res.mean(idx):.1f}, nominal "
                   f"{1e3 * res.mean(idx, identified=False):.1f}")
-    if args.json:
-        write_text_atomic(args.json, json.dumps({
+    if args.json or args.out:
+        text = json.dumps({
             "params": res.params(), "family": res.family, "selection": res.selection,
             "why": _why(res), "notes": res.notes,
             "at_bound": res.at_bound, "fit_seconds": res.fit_seconds, "wall_seconds": wall,
@@ -277,9 +288,45 @@ def _identify(args: argparse.Namespace) -> int:
             "fitted": {names[i]: res.identified_mae[i] for i in train},
             "nominal": {names[i]: res.nominal_mae[i] for i in range(len(names))},
             "held_out_mean": res.mean(list(test)) if test else None,
-            "ablation": res.ablation}, indent=1, default=float))
+            "ablation": res.ablation}, indent=1, default=float)
+    if args.json:
+        write_text_atomic(args.json, text)
         print(f"json: {args.json}")
+    if args.out:
+        import matplotlib.pyplot as plt
+
+        with staged_output(args.out, "gap identify") as tmp:
+            (tmp / "identified.json").write_text(text)
+            fig = mae_figure(names, res.identified_mae, res.nominal_mae, list(test), res.family)
+            fig.savefig(tmp / "mae.png", dpi=110)
+            plt.close(fig)
+        print(f"out: {Path(args.out) / 'identified.json'} and {Path(args.out) / 'mae.png'}")
     return 0
+
+
+def mae_figure(names: list[str], identified: Any, nominal: Any, test: list[int],
+               family: str) -> Any:
+    """Bars of each log's MAE [mrad] (BAM's measure), identified beside nominal, held-out logs
+    first and marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    order = list(test) + [i for i in range(len(names)) if i not in test]
+    x = np.arange(len(order))
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.35 * len(order) + 2), 4.5))
+    ax.bar(x - 0.2, [1e3 * nominal[i] for i in order], 0.4, label="nominal model")
+    ax.bar(x + 0.2, [1e3 * identified[i] for i in order], 0.4, label=f"identified (family {family})")
+    ax.set_xticks(x, [("held out: " if i in test else "") + names[i] for i in order],
+                  rotation=90, fontsize=7)
+    ax.set_xlabel("log")
+    ax.set_ylabel("MAE, open loop [mrad]")
+    ax.set_title("gap identify: per-log error (BAM's measure, 5 ms grid)")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    return fig
 
 
 def _why(res: Any) -> str:

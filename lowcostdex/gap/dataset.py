@@ -451,7 +451,9 @@ def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
         return Split(tuple(sorted(roles["train"])), tuple(sorted(roles["select"])),
                      tuple(sorted(int(i) for i in test)))
     if n < 3:
-        raise LogError(f"too little data: {n} episode(s); need at least 3 (longer or more logs) "
+        raise LogError(f"too little data: {n} episode(s) from "
+                       f"{len(set(ds.sources)) or len(ds.trajectories)} log(s), "
+                       f"{ds.duration():.3g} s in all; need at least 3 (longer or more logs) "
                        "to fit, select and test on different data")
     sel, tst = fractions
     roles = _deal(_strata(ds, eps, idx, rng),

@@ -22,7 +22,9 @@ class Gain:
       baseline_mae / extended_mae: pooled MAE [rad].
       absolute: baseline_rmse - extended_rmse [rad].
       relative: absolute / baseline_rmse.
-      ci95: 95 % percentile-bootstrap interval of ``absolute`` over test episodes [rad].
+      ci95: 95 % percentile-bootstrap interval of ``absolute`` over test episodes [rad]
+        (degenerate with one test episode: resampling one episode gives it back; ``to_dict``
+        writes null and the report says why).
       relative_ci95: the same for ``relative``.
       noise_floor: RMS of read noise and quantization [rad].
       reducible_explained: (MSE_b - MSE_e) / (MSE_b - floor^2), None when nothing is reducible.
@@ -45,8 +47,10 @@ class Gain:
         return {
             "baseline_rmse": self.baseline_rmse, "extended_rmse": self.extended_rmse,
             "baseline_mae": self.baseline_mae, "extended_mae": self.extended_mae,
-            "absolute": self.absolute, "relative": self.relative, "ci95": list(self.ci95),
-            "relative_ci95": list(self.relative_ci95), "noise_floor": self.noise_floor,
+            "absolute": self.absolute, "relative": self.relative,
+            "ci95": list(self.ci95) if self.episodes > 1 else None,
+            "relative_ci95": list(self.relative_ci95) if self.episodes > 1 else None,
+            "noise_floor": self.noise_floor,
             "reducible_explained": self.reducible_explained, "episodes": self.episodes,
         }
 

@@ -236,11 +236,14 @@ def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
     if not len(gaps) and not cuts:
         return [traj], []
     t = traj.time
-    said = ", ".join(f"{t[i + 1] - t[i]:.3g} s after {t[i]:.6g} s (row {i})" for i in gaps[:3])
+    # wall-clock stamps (time.time(): 1.7e9 s) print as 1.7327e+09 s: say those from the start
+    at = (lambda i: f"{t[i] - t[0]:.6g} s into the log") if abs(t[0]) >= 1e4 else (
+        lambda i: f"{t[i]:.6g} s")
+    said = ", ".join(f"{t[i + 1] - t[i]:.3g} s after {at(i)} (row {i})" for i in gaps[:3])
     said += f" and {len(gaps) - 3} more" if len(gaps) > 3 else ""
     if cuts:
         said += (", and " if len(gaps) else "") + (
-            f"dropped rows where the goal may have changed before {t[cuts[0]]:.6g} s (row "
+            f"dropped rows where the goal may have changed before {at(cuts[0])} (row "
             f"{cuts[0]})" + (f" and {len(cuts) - 1} more" if len(cuts) > 1 else ""))
     edges = sorted({0, *(int(i) + 1 for i in gaps), *cuts, len(t)})
     pieces, dropped = [], 0

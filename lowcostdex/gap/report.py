@@ -75,7 +75,7 @@ def summary(result: GapResult) -> str:
              f"held-out RMSE: baseline {_mrad(g.baseline_rmse)} mrad -> extended "
              f"{_mrad(g.extended_rmse)} mrad (noise floor {_mrad(g.noise_floor)} mrad; "
              f"{g.episodes} test episodes)",
-             f"gain: {_mrad(g.absolute)} mrad, 95 % CI [{_mrad(g.ci95[0])}, {_mrad(g.ci95[1])}]"
+             f"gain: {_mrad(g.absolute)} mrad, {_gain_interval(g)}"
              + (f", {100 * g.reducible_explained:.0f} % of the reducible error explained"
                 if g.reducible_explained is not None else "")]
     for c in result.causes:
@@ -86,6 +86,15 @@ def summary(result: GapResult) -> str:
                      + (f" (equivalent: {', '.join(c.equivalent)})" if c.equivalent else ""))
         lines += [f"    range widened: {w}" for w in c.widened]
     return "\n".join(lines)
+
+
+def _gain_interval(g) -> str:
+    """The gain's 95 % interval, or why there is none (one test episode: a bootstrap over
+    episodes resamples that one episode and gives a zero-width interval)."""
+    if g.episodes > 1:
+        return f"95 % CI [{_mrad(g.ci95[0])}, {_mrad(g.ci95[1])}]"
+    return ("no interval: 1 test episode (a bootstrap over one episode says nothing); give "
+            "more or longer logs, or --holdout logs")
 
 
 def _fmt(v) -> str:
@@ -107,8 +116,9 @@ def markdown(result: GapResult) -> str:
            f"| nominal model | {_mrad(g.baseline_rmse)} | {_mrad(g.baseline_mae)} |",
            f"| extended model | {_mrad(g.extended_rmse)} | {_mrad(g.extended_mae)} |",
            f"| noise floor (read noise + quantization) | {_mrad(g.noise_floor)} | |", "",
-           f"Gain: {_mrad(g.absolute)} mrad RMSE ({100 * g.relative:.1f} %), 95 % bootstrap CI over"
-           f" test episodes [{_mrad(g.ci95[0])}, {_mrad(g.ci95[1])}] mrad."]
+           f"Gain: {_mrad(g.absolute)} mrad RMSE ({100 * g.relative:.1f} %), "
+           + (f"95 % bootstrap CI over test episodes [{_mrad(g.ci95[0])}, {_mrad(g.ci95[1])}] "
+              "mrad." if g.episodes > 1 else _gain_interval(g) + ".")]
     if g.reducible_explained is not None:
         out.append(f"Fraction of the reducible error explained: "
                    f"{100 * g.reducible_explained:.1f} %.")

@@ -1,0 +1,86 @@
+"""A user's own LEAP-hand-like finger (tests/gap_user_leap.py: plain MuJoCo, 4 hinges on
+``position`` actuators kp 3, a frictionloss guess) analysed as the user would:
+``lowcostdex gap analyze --model leap_finger.xml --log logs/ --out out/``.
+
+The robot's logs come from the same MJCF with kp halved on every servo and the if_mcp reading
+off by 0.04 rad, written in tests/gap_user_leap.py (nothing from the analyzer), logged at 50 Hz
+on wall-clock time stamps, 4096 ticks, 0.5 mrad noise, without a velocity column.
+Measured at 69aace3 (2026-11-27, 2-core VM, load 7): gain_error 0.497-0.498 on the four joints
+(95 % intervals hold 0.5), position_offset 0.0398 [0.0396, 0.0401] on if_mcp and intervals
+holding 0 elsewhere; held-out RMSE 46.6 -> 1.49 mrad (noise floor 1.88); 184 s CPU with
+--threads 1 (18 min wall under load).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(pathlib.Path(__file__).parent))
+import gap_user_leap as leap  # noqa: E402
+
+from lowcostdex.cli import main  # noqa: E402
+
+
+def test_the_robot_is_written_without_the_analyzer():
+    tree = ast.parse(pathlib.Path(leap.__file__).read_text())
+    names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    names |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert not any(str(m).startswith("lowcostdex") for m in names), names
+
+
+def test_the_users_folder_loads_as_written(tmp_path):
+    """Wall-clock time stamps, 50 Hz with jitter, no qvel: read without a refusal or a note."""
+    from lowcostdex.gap import load_dataset
+
+    leap.write_user_folder(tmp_path, seed=0, n_logs=2, seconds=3.0)
+    ds = load_dataset(tmp_path / "logs", model=str(tmp_path / "leap_finger.xml"))
+    assert ds.notes == [] and len(ds.trajectories) == 2
+    assert ds.joints == leap.JOINTS
+    tr = ds.trajectories[0]
+    assert tr.time[0] == pytest.approx(leap.EPOCH)
+    # if_mcp's first reading: the joint at rest at 0 plus the 0.04 rad calibration offset
+    assert tr.qpos[0, 1] == pytest.approx(leap.OFFSET, abs=4 * leap.NOISE + 2 * np.pi / 4096)
+
+
+def test_the_hidden_effects_are_far_above_the_read_noise():
+    """The truth matters: the robot's readings (kp x 0.5, +0.04 rad on if_mcp) differ from the
+    user's model on the same goals by many noise floors (both simulated in plain MuJoCo here)."""
+    rng = np.random.default_rng(3)
+    g = leap.goals("steps", 250, rng)
+    _, robot = leap.record(g, np.random.default_rng(4))
+    _, nominal = leap.record(g, np.random.default_rng(4), gain=1.0, offset=0.0)
+    rms = np.sqrt(np.mean((robot - nominal) ** 2, axis=0))
+    assert np.all(rms > 5 * leap.FLOOR), rms
+    assert np.median(robot[:, 1] - nominal[:, 1]) == pytest.approx(leap.OFFSET, abs=0.03)
+
+
+@pytest.mark.slow
+def test_gap_analyze_names_the_halved_gain_and_the_offset(tmp_path, capsys):
+    """About 3 min of CPU (184 s with --threads 1 at 69aace3)."""
+    leap.write_user_folder(tmp_path / "user", seed=0)
+    out = tmp_path / "user" / "out"
+    assert main(["gap", "analyze", "--model", str(tmp_path / "user" / "leap_finger.xml"),
+                 "--log", str(tmp_path / "user" / "logs"), "--out", str(out),
+                 "--threads", "1"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    named = {c["effect"]: c for c in rep["causes"]}
+    assert set(named) == {"gain_error", "position_offset"}, rep["verdict"]
+    gain = named["gain_error"]["params"]["scale"]
+    assert len(gain["value"]) == 4  # one factor per servo, each the robot's 0.5
+    for v, (lo, hi) in zip(gain["value"], gain["interval"], strict=True):
+        assert lo <= leap.GAIN <= hi and v == pytest.approx(leap.GAIN, abs=0.01)
+    off = named["position_offset"]
+    truth = {j: (leap.OFFSET if j == "if_mcp" else 0.0) for j in leap.JOINTS}
+    for j, v, (lo, hi) in zip(off["joints"], off["params"]["offset"]["value"],
+                              off["params"]["offset"]["interval"], strict=True):
+        assert v == pytest.approx(truth[j], abs=0.002), j
+        assert lo - 1e-4 <= truth[j] <= hi + 1e-4, (j, lo, hi)
+    g = rep["gain"]
+    assert g["baseline_rmse"] > 10 * leap.FLOOR
+    assert g["extended_rmse"] < 1.5 * leap.FLOOR
