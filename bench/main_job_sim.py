@@ -96,25 +96,28 @@ those fitted ranges)."""
 
 def gap_randomization(report: Path, sim: str) -> dict[str, Any]:
     """The DomainRandomization dict of ``--sim gap|gap+dr`` from a gap report folder (its
-    ``extended/effects.json``)."""
+    ``extended/``): every effect the analysis identified, on every hand joint (the gap stage
+    identifies one finger; the others have the same servos), each parameter drawn from its
+    fitted range (``gap.extension.dr_ranges``: the 95 % interval widened to at least +-10 % of
+    the value); a parameter the analysis held at a value (an unbounded interval) stays at that
+    value. gap+dr: the main job's effects (``DAPG_RANDOMIZE``) with those ranges."""
     from lowcostdex.gap.extension import load_extended
     from lowcostdex.hands import dclaw_spec
     from lowcostdex.main_job.setup import DAPG_RANDOMIZE
     from lowcostdex.sim.effects import DomainRandomization
 
-    ext = load_extended(report)
-    raw = json.loads((Path(report) / "extended" / "effects.json").read_text()
-                     if (Path(report) / "extended").is_dir()
-                     else (Path(report) / "effects.json").read_text())
+    extended = Path(report) / "extended"
+    ext = load_extended(extended)
+    if not ext.ranges:
+        raise SystemExit(f"{report}: the gap analysis identified no effect")
     ranges = {k: dict(v) for k, v in ext.ranges.items()}
-    for e in raw["effects"]:
+    for e in json.loads((extended / "effects.json").read_text())["effects"]:
         for p, iv in (e.get("interval") or {}).items():
-            if any(not math.isfinite(float(x)) for pair in iv for x in pair):
-                v = np.asarray(e["params"][p], float)  # held by the analysis: its value
+            if not np.all(np.isfinite(np.asarray(iv, float))):
+                v = np.asarray(e["params"][p], float)
                 ranges[e["effect"]][p] = (float(v.min()), float(v.max()))
-    joints = tuple(dclaw_spec().joint_names)
     effects = tuple(ranges) if sim == "gap" else DAPG_RANDOMIZE
-    return DomainRandomization(effects, joints, ranges).to_dict()
+    return DomainRandomization(effects, tuple(dclaw_spec().joint_names), ranges).to_dict()
 
 
 ROBOT_VALIDATION_STREAM = 4

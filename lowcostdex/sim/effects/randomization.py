@@ -180,7 +180,11 @@ class DomainRandomization:
         for name in self.effects:
             cls = effect(name)
             vals = cls.sample(rng, (n,))
-            for p, (lo, hi) in self.ranges.get(name, {}).items():
+            given = self.ranges.get(name, {})
+            # in the effect's parameter order, not the mapping's: a config written with sorted
+            # keys (json sort_keys) and read back draws the same values
+            for p in [q.name for q in cls.params if q.name in given]:
+                lo, hi = given[p]
                 vals[p] = rng.uniform(lo, hi, size=n)
             out.append(AppliedEffect(name, self.joints, vals))
         return out
