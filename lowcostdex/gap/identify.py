@@ -414,7 +414,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         prog("absolute-error polish", 0.9)
         polished = fitmod.Track(best.structure, best.u.copy(), label="mae")
         fitmod.lockstep_lm([polished], lambda pts: residual(pts, absolute=True),
-                           config.max_rounds, rtol=config.rtol)
+                           config.max_rounds, rtol=config.rtol, jacobian_at_end=False)
         best = polished
         rounds += polished.rounds
     effects = best.effects()
@@ -489,7 +489,7 @@ def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
         # the joint stage after a first one: a few steps from its optimum (``joint_rounds``)
         n_rounds = min(config.max_rounds, config.joint_rounds) if k else config.max_rounds
         fitmod.lockstep_lm([t for g in groups.values() for t in g], residual, n_rounds,
-                           rtol=config.rtol,
+                           rtol=config.rtol, jacobian_at_end=False,
                            on_round=lambda r, live, frac=frac, n=n_rounds: prog(
                                f"stage {frac[0] + 1}/{frac[1]}: LM round {r + 1} ({live} live)",
                                0.8 * (frac[0] + min(1.0, (r + 1) / n)) / frac[1]),
