@@ -42,7 +42,13 @@ SUCCESS_TOL = 0.1
     "iterates 9/19/29 on the 100 held-out: 44, 43, 41 vs the clone's 37, McNemar p 0.13, "
     "0.073, 0.30): no final candidate of this run passes; choosing among them on robot "
     "validation episodes (20 or 40) picks iteration 19 (p 0.073): bench/RESULTS.md, 'DAPG's "
-    "final candidates judged on the robot'"))
+    "final candidates judged on the robot'. 2026-11-27 session 11 (bench/main_job_sim.py "
+    "candidates --sim gap, each policy on a fresh robot): DAPG trained in the gap-extended "
+    "simulation passed on seeds 0 and 2 with session 10's gap report (37 -> 53, p 0.0001; "
+    "30 -> 42, p 0.0085; seed 1 50 -> 56, p 0.14), but with today's gap stage on the same logs "
+    "(the same fitted values, one more held parameter, so other randomization draws) on seed 2 "
+    "only (37 -> 35, p 0.81; 50 -> 47; 30 -> 47, p 8e-6): not adopted; bench/RESULTS.md, "
+    "'Paired evaluations that do not depend on order; DAPG in the gap-extended simulation'"))
 def test_dapg_beats_the_clone_it_started_from_on_the_same_heldout_episodes(tmp_path):
     out = tmp_path / "main"
     if main(["main", "--out", str(out), "--stages", "bus,demos,train", "--seed", "0"]) != 0:
