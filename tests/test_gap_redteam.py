@@ -63,6 +63,12 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # better, 1.78 vs 2.16) is exact since the first cause is chosen again at the refined step:
 # mounting_offset 0.0729 [0.0671, 0.0786], held-out 4.79 -> 0.95 mrad, 34 s.
 
+# backlash_body_pendulum was 'interval' (width 0.02710 [0.02649, 0.02771] for 0.02618, sensor
+# 0.035: the truth's goals act from its next 0.25 ms physics step, a 0.125 ms mean lag the sensor
+# and width soaked up); since gates.hold_sensor (gap-play4, session 11: the sensor held at 0,
+# freeing it lowered the training cost 6.1 % as replayed, 0.1 % with goals half a step later):
+# backlash width 0.02629 [0.02610, 0.02648] alone, held-out 12.21 -> 0.77 mrad, 253 s CPU.
+
 # torque_coulomb_pendulum (was torque_limit 1.086 [1.042, 1.133] alone: the sticking Coulomb
 # taken as a static-0 Stribeck, then dropped) is exact since gap-fric3 (session 10,
 # gates.drop_weak: the Stribeck refitted as its nested Coulomb): torque_limit 1.205 [1.195,
@@ -70,11 +76,6 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
-    "backlash_body_pendulum": "interval (gap-play2, main 1e94ac9 with the profile interval, "
-                              "227 s CPU): backlash alone, width 0.02710 [0.02650, 0.02772] "
-                              "excludes 0.02618 (1.5 deg); the profile widened the data "
-                              "interval 0.3 %: a fit bias (sensor 0.035 for a body play), "
-                              "held-out 12.21 -> 0.78 mrad (floor 0.71)",
     # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
     "backlash_output_pendulum": "miss (gap-play2, re-run on main 9b54389, 42 s CPU): "
                                 "viscous_damping 0.065, gain_error 0.59, mass_error 0.59 "

@@ -59,7 +59,7 @@ from lowcostdex.gap.diagnostics import (
     score_fraction,
 )
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
-from lowcostdex.gap.gates import drop_weak, free_asymmetry, swap_equivalent
+from lowcostdex.gap.gates import drop_weak, free_asymmetry, hold_sensor, swap_equivalent
 from lowcostdex.gap.logs import rate_goal_actuators
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import (
@@ -115,9 +115,9 @@ class _Engine:
                 ) -> list[list[np.ndarray]]:
         return self.rep.run(windows, columns)[0]
 
-    def residuals(self, windows: Sequence[Window], columns) -> list[np.ndarray]:
-        """Scored residual vectors (measured - predicted), one per column."""
-        pred = self.predict(windows, columns)
+    def residuals(self, windows: Sequence[Window], columns, goal_shift: float = 0.0) -> list:
+        """Scored residual vectors (measured - predicted), one per column (goals shifted [s])."""
+        pred = self.rep.run(windows, columns, goal_shift=goal_shift)[0]
         out = []
         for col in pred:
             parts = []
@@ -128,10 +128,10 @@ class _Engine:
             out.append(np.concatenate(parts))
         return out
 
-    def residual_fn(self, windows: Sequence[Window]) -> fitmod.ResidualFn:
+    def residual_fn(self, windows: Sequence[Window], goal_shift: float = 0.0) -> fitmod.ResidualFn:
         def fn(points):
             cols = [s.to_effects(x) for s, x in points]
-            return self.residuals(windows, cols)
+            return self.residuals(windows, cols, goal_shift)
         return fn
 
 
@@ -454,8 +454,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         all_segs = segments(ds, train_eps + sel_eps, cfg.segment, cfg.burn_in)
         final_fn = eng.residual_fn(all_segs)
         while True:
-            final_track = _final_fit(current, cur_x, final_fn, cfg, ctx, widened_notes,
-                                     ds.timestep)
+            final_track = _final_fit(current, cur_x, final_fn, cfg, ctx, widened_notes, ds.timestep,
+                                     lambda: eng.residual_fn(all_segs, ds.timestep / 2))
             mid, half, noise, data, shift = _intervals(ds, final_track, all_segs, cfg, prog,
                                                        timing)
             margin = significance.null_margins(final_track.structure, mid, half, ctx)
@@ -505,14 +505,14 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
 
 
 def _final_fit(current: fitmod.Structure, cur_x: np.ndarray, fn, cfg: GapConfig,
-               ctx: fitmod.Context, widened_notes: dict, dt: float) -> fitmod.Track:
-    """``current`` refitted on ``fn`` (train + select), tighter than the screening fits; a
-    fit on a bound is refitted in a widened range (noted in ``widened_notes``)."""
+               ctx: fitmod.Context, widened_notes: dict, dt: float, late=None) -> fitmod.Track:
+    """``current`` refitted on ``fn`` (train + select), tighter than the screening fits (a play's
+    sensor standing in for a lag held at 0; a fit on a bound refitted wider: ``widened_notes``)."""
     t = fitmod.Track(current, current.u(cur_x), label="final")
     fitmod.lockstep_lm([t], fn, 2 * cfg.max_rounds, rtol=1e-5)
+    t = hold_sensor(t, fn, ctx, cfg, widened_notes, late)
     if fitmod.polish(t, fn, dt):
-        # one round re-evaluates residual and Jacobian at the polished point (intervals)
-        fitmod.lockstep_lm([t], fn, 1)
+        fitmod.lockstep_lm([t], fn, 1)  # residual and Jacobian at the polished point (intervals)
     if fitmod.at_bounds(t.structure, t.u):
         t, ranges, notes = fitmod.widen_and_refit(t, fn, ctx, 2 * cfg.max_rounds)
         ctx.widened.update(ranges)

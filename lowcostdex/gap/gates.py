@@ -12,6 +12,15 @@ A parameter free everywhere is fitted where the data cannot tell it (session 8: 
   effect must pass (``free_asymmetry``). A P servo (stiffness kp) stops at goal - s F (1 + a s) /
   kp, the symmetric level's stops shifted by -F a / kp: held symmetric, a direction-dependent
   level is named an offset (redteam3 srv_dirfric_50hz, 0.15 / 0.05 N m: position_offset alone).
+- ``backlash.sensor`` (where the servo's loop reads across the play: 0 an encoder on the motor
+  side or a horn's play beyond the servo, 1 on the output shaft) fitted below 0.5 is held at 0 in
+  the final fit when it lowers the training cost by ``min_gain`` as replayed but not with every
+  goal half a physics step later (``hold_sensor``): it then stands in for a lag, not a play, and
+  moves the width with it (redteam sim2 backlash_body_pendulum: the truth's goals act from its
+  next 0.25 ms physics step, a 0.125 ms mean lag; replayed noiseless with that lag the true play,
+  motor side, fits best, 0.23 mrad RMS; without it width 0.0270 / sensor 0.035 beat it, 0.32 vs
+  0.37 mrad. On its training segments freeing the sensor lowered the cost 6.1 %, 0.13 % with
+  goals 0.125 ms later, and the width interval [0.02649, 0.02771] excluded the true 0.02618).
 
 An effect the final refit finds no evidence for is dropped (``drop_weak``) unless a nested
 effect it contains is shown: a ``stribeck_friction`` whose breakaway (static) interval holds 0
@@ -39,6 +48,7 @@ from lowcostdex.gap.results import GapConfig
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, effect
 
 ASYMMETRY = ("coulomb_friction", "asymmetry")
+SENSOR = ("backlash", "sensor")
 STRIBECK, COULOMB = "stribeck_friction", "coulomb_friction"
 EXCHANGEABLE = {"inertia_error": "gain_error", "mass_error": "gain_error"}  # 1 / scale each
 
@@ -72,6 +82,42 @@ def free_asymmetry(best: dict[str, fitmod.Track], residual: fitmod.ResidualFn,
               f"{100 * (1 - nt.cost / t.cost):.0f} % lower than a symmetric level")
              for *_, j in ranges]
     return {ASYMMETRY[0]: (ranges, lines)}
+
+
+def hold_sensor(t: fitmod.Track, residual: fitmod.ResidualFn, ctx: fitmod.Context,
+                cfg: GapConfig, notes: dict[str, list[str]],
+                late: Callable[[], fitmod.ResidualFn] | None = None, rtol: float = 1e-5
+                ) -> fitmod.Track:
+    """``t`` (a fitted track), or ``t`` refitted with every backlash sensor it fitted below 0.5
+    held at 0 (the motor side) when the sensors stand in for a lag: freeing them lowers the
+    training cost by ``cfg.min_gain`` on ``residual`` but not on ``late()`` (the same data with
+    every goal acting half a physics step later: a servo applies a goal at its next control tick,
+    a lag no replay resolves and below the latency's one-step floor). A sensor the data cannot
+    tell (less than ``min_gain``) stays free: the width's interval then spans where the loop may
+    read. A hold is kept for later refits (``ctx.widened``) and noted in ``notes``."""
+    s = t.structure
+    low = {f.joint: float(x) for f, x in zip(s.free, t.x, strict=True)
+           if (f.effect, f.param) == SENSOR and x < 0.5}
+    if not low or t.r is None or late is None:
+        return t
+    ranges = {(*SENSOR, j): (0.0, 0.0) for j in low}
+    ns = fitmod.Structure.build(s.effects, s.joints, ctx.with_ranges(ranges), fixed=s.fixed)
+    nt = fitmod.Track(ns, ns.u(ns.values_from(t.effects())), label=t.label + " sensor held")
+    fitmod.lockstep_lm([nt], residual, 2 * cfg.max_rounds, rtol=rtol)
+    if nt.r is None or not t.cost <= (1 - cfg.min_gain) * nt.cost:
+        return t
+    pair = [fitmod.Track(s, t.u.copy(), label="late"), fitmod.Track(ns, nt.u.copy())]
+    fitmod.lockstep_lm(pair, late(), cfg.max_rounds, rtol=rtol, jacobian_at_end=False)
+    gains = [1 - t.cost / nt.cost, 1 - pair[0].cost / max(pair[1].cost, 1e-300)]
+    if gains[1] >= cfg.min_gain:
+        return t
+    ctx.widened.update(ranges)
+    notes.setdefault(SENSOR[0], []).extend(
+        f"sensor[{s.joints[j]}] held at 0 (motor side): freed ({v:.3g}) it lowers the training "
+        f"error {100 * gains[0]:.1f} % as replayed but {100 * gains[1]:.1f} % with goals half a "
+        f"physics step later (< {100 * cfg.min_gain:.0f} %): it stood in for a lag"
+        for j, v in low.items())
+    return nt
 
 
 def drop_weak(t: fitmod.Track, drop: str, mid: np.ndarray, half: np.ndarray,
