@@ -84,3 +84,30 @@ def test_gap_analyze_names_the_halved_gain_and_the_offset(tmp_path, capsys):
     g = rep["gain"]
     assert g["baseline_rmse"] > 10 * leap.FLOOR
     assert g["extended_rmse"] < 1.5 * leap.FLOOR
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "measured at 66df08b (405 s CPU): named coulomb_friction 0.063-0.069 N m added (truth 0.06, "
+    "intervals hold it), latency 29.5/23.1/25.2/25.1 ms (truth 30; 3 of 4 intervals miss it, "
+    "[0.0181, 0.0281] on if_mcp) AND a spurious inertia_error x1.1-2.5; held-out 63.7 -> 8.53 "
+    "mrad against a 2.01 mrad floor. Not traced: the late goals are partly explained as heavier "
+    "links"))
+def test_gap_analyze_names_triple_friction_and_30ms_latency(tmp_path):
+    """The second draw: frictionloss 3x the user's guess (0.09 for 0.03 N m) and every goal 30 ms
+    late, nothing else (kp and the readings right). About 7 min of CPU."""
+    leap.write_user_folder(tmp_path / "user", seed=1, gain=1.0, offset=0.0,
+                           friction=3 * leap.FRICTION_GUESS, latency=0.030)
+    out = tmp_path / "user" / "out"
+    assert main(["gap", "analyze", "--model", str(tmp_path / "user" / "leap_finger.xml"),
+                 "--log", str(tmp_path / "user" / "logs"), "--out", str(out),
+                 "--threads", "1"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    named = {c["effect"]: c for c in rep["causes"]}
+    assert set(named) == {"coulomb_friction", "latency"}, rep["verdict"]
+    truth = {("coulomb_friction", "frictionloss"): 2 * leap.FRICTION_GUESS,  # added to the guess
+             ("latency", "delay"): 0.030}
+    for (eff, par), value in truth.items():
+        for lo, hi in named[eff]["params"][par]["interval"]:
+            assert lo <= value <= hi, (eff, lo, hi)
+    assert rep["gain"]["extended_rmse"] < 1.5 * leap.FLOOR
