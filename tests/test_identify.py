@@ -386,11 +386,6 @@ def test_identify_starts_leave_out_the_analysis_only_coulomb_start():
     assert [list(x) for x in starts(st, (), base=np.array([0.1, 2.0, 0.2]))] == [[0.1, 2.0, 0.2]]
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known, not fixed (gap-real4, 2026-11-27): Replayer._setup resets a reused plant before "
-    "setting the first step's torque mask (moving that before plant.reset fixes it), but the "
-    "fix moves Rhoban XL330's BAM split 45.5 -> 56.0 mrad (the fit lands in another start's "
-    "basin: held.0 -> held.2), over issue 11's 50; bench/RESULTS.md gap-real4"))
 def test_a_replay_does_not_depend_on_what_the_replayer_ran_before(logs):
     """The same model on the same log window replays the same whatever the Replayer ran before
     (it reuses its batched plants). A log that ended with the torque off left its plant's torque

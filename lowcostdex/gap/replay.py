@@ -376,18 +376,7 @@ class Replayer:
             before[s, :g.n_steps], after[s, :g.n_steps] = g_before, g_after
         played = set() if key[1] else _init_backlash(ctrl, act, self._act_of_joint[model_key],
                                                       sims, windows, columns, ds)
-        plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
-                                                                 windows, played),
-                    act=self._acts.setpoints(model_key, sims, windows, delays,
-                                        plant.array("actuator_gainprm")))
-        shifted = np.flatnonzero(np.any(delays > 0, axis=1))
-        if len(shifted):  # their goals arrive late on the grid: no native (interpolated) delay
-            plant.array("actuator_delay")[np.ix_(shifted, act)] = 0.0
         trs = ds.trajectories
-        # channels per simulation on the grid: (nsim, K, na), gathered once
-        chans = {ch: np.stack([trs[t].channels[ch][gi] for t, gi in
-                               zip(traj_of, rows, strict=True)])
-                 for ch in plant.required_channels}
         has_te = any("torque_enable" in tr.channels for tr in trs)
         te = None
         if has_te:
@@ -395,6 +384,21 @@ class Replayer:
                            if "torque_enable" in trs[t].channels
                            else np.ones((len(gi), len(act)), bool)
                            for t, gi in zip(traj_of, rows, strict=True)])
+            # the first step's torque state before the reset's forward pass (the actuator
+            # forces the first step's friction reads): a plant reused from an earlier replay
+            # still holds the torque state its last step had there
+            self._set_torque(dict(plant=plant, act=act, te=te, n_steps=n_steps, torque=None), 0)
+        plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
+                                                                 windows, played),
+                    act=self._acts.setpoints(model_key, sims, windows, delays,
+                                        plant.array("actuator_gainprm")))
+        shifted = np.flatnonzero(np.any(delays > 0, axis=1))
+        if len(shifted):  # their goals arrive late on the grid: no native (interpolated) delay
+            plant.array("actuator_delay")[np.ix_(shifted, act)] = 0.0
+        # channels per simulation on the grid: (nsim, K, na), gathered once
+        chans = {ch: np.stack([trs[t].channels[ch][gi] for t, gi in
+                               zip(traj_of, rows, strict=True)])
+                 for ch in plant.required_channels}
         run = dict(plant=plant, sims=sims, n_steps=n_steps, act=act, jq=jq, goals=goals,
                    split=split, before=before, after=after,
                    servos=self._position_servos(model_key),
