@@ -60,16 +60,22 @@ def test_the_hidden_effects_are_far_above_the_read_noise():
     assert np.median(robot[:, 1] - nominal[:, 1]) == pytest.approx(leap.OFFSET, abs=0.03)
 
 
-@pytest.mark.slow
-def test_gap_analyze_names_the_halved_gain_and_the_offset(tmp_path, capsys):
-    """About 3 min of CPU (184 s with --threads 1 at 69aace3)."""
-    leap.write_user_folder(tmp_path / "user", seed=0)
+def _analyze_user_folder(tmp_path, **truth):
+    """Write the user's folder (``leap.write_user_folder`` with ``truth``), run ``gap analyze``
+    on it as the user would, and return the report and its causes by effect name."""
+    leap.write_user_folder(tmp_path / "user", **truth)
     out = tmp_path / "user" / "out"
     assert main(["gap", "analyze", "--model", str(tmp_path / "user" / "leap_finger.xml"),
                  "--log", str(tmp_path / "user" / "logs"), "--out", str(out),
                  "--threads", "1"]) == 0
     rep = json.loads((out / "report.json").read_text())
-    named = {c["effect"]: c for c in rep["causes"]}
+    return rep, {c["effect"]: c for c in rep["causes"]}
+
+
+@pytest.mark.slow
+def test_gap_analyze_names_the_halved_gain_and_the_offset(tmp_path, capsys):
+    """About 3 min of CPU (184 s with --threads 1 at 69aace3)."""
+    rep, named = _analyze_user_folder(tmp_path, seed=0)
     assert set(named) == {"gain_error", "position_offset"}, rep["verdict"]
     gain = named["gain_error"]["params"]["scale"]
     assert len(gain["value"]) == 4  # one factor per servo, each the robot's 0.5
@@ -96,14 +102,8 @@ def test_gap_analyze_names_the_halved_gain_and_the_offset(tmp_path, capsys):
 def test_gap_analyze_names_triple_friction_and_30ms_latency(tmp_path):
     """The second draw: frictionloss 3x the user's guess (0.09 for 0.03 N m) and every goal 30 ms
     late, nothing else (kp and the readings right). About 7 min of CPU."""
-    leap.write_user_folder(tmp_path / "user", seed=1, gain=1.0, offset=0.0,
-                           friction=3 * leap.FRICTION_GUESS, latency=0.030)
-    out = tmp_path / "user" / "out"
-    assert main(["gap", "analyze", "--model", str(tmp_path / "user" / "leap_finger.xml"),
-                 "--log", str(tmp_path / "user" / "logs"), "--out", str(out),
-                 "--threads", "1"]) == 0
-    rep = json.loads((out / "report.json").read_text())
-    named = {c["effect"]: c for c in rep["causes"]}
+    rep, named = _analyze_user_folder(tmp_path, seed=1, gain=1.0, offset=0.0,
+                                      friction=3 * leap.FRICTION_GUESS, latency=0.030)
     assert set(named) == {"coulomb_friction", "latency"}, rep["verdict"]
     truth = {("coulomb_friction", "frictionloss"): 2 * leap.FRICTION_GUESS,  # added to the guess
              ("latency", "delay"): 0.030}
