@@ -36,8 +36,12 @@ def _has_reason(call: ast.Call, positional: bool) -> bool:
 def skips_without_reason(source: str) -> list[str]:
     """``name (line)`` of each skip in ``source`` that gives no reason."""
     out = []
-    calls = {id(n.func) for n in ast.walk(ast.parse(source)) if isinstance(n, ast.Call)}
-    for node in ast.walk(ast.parse(source)):
+    # One tree: ids taken from a first parse that is then freed can be reused by the nodes of a
+    # second parse, so a bare ``@pytest.mark.skip`` was missed depending on the allocator (the
+    # clean-clone CI of 2026-11-27 failed on exactly that).
+    tree = ast.parse(source)
+    calls = {id(n.func) for n in ast.walk(tree) if isinstance(n, ast.Call)}
+    for node in ast.walk(tree):
         if isinstance(node, ast.Call):
             name = _dotted(node.func)
             if name in ("pytest.skip", "skip"):
