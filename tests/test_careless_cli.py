@@ -255,6 +255,9 @@ CASES = [
     Case("main with an empty stage list", ("main", "--stages", "", "--out", "run"),
          "--stages '' names no stage; give a comma-separated subset of bus, demos, train, gap, "
          "report"),
+    Case("main's report alone on a folder no stage ran in", ("main", "--stages", "report",
+                                                              "--out", "run"),
+         "stage 'report' has nothing to report: no stage ran now or finished earlier in run"),
     Case("emulate at a negative bit rate", ("emulate", "bench", "--baud", "-1", "--quiet"),
          "--baud -1: the bit rate must be positive"),
     Case("emulate at a bit rate no motor runs at", ("emulate", "bench", "--baud", "250000",
