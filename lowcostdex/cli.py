@@ -59,14 +59,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def command_prog(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str:
-    """The full name of the command ``args`` runs, e.g. ``"lowcostdex gap analyze"``."""
+def command_parser(parser: argparse.ArgumentParser,
+                   args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The (sub)parser of the command ``args`` runs."""
     while True:
         subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
         name = getattr(args, subs[0].dest, None) if subs else None
         if name is None or name not in subs[0].choices:
-            return parser.prog
+            return parser
         parser = subs[0].choices[name]
+
+
+def command_prog(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str:
+    """The full name of the command ``args`` runs, e.g. ``"lowcostdex gap analyze"``."""
+    return command_parser(parser, args).prog
+
+
+def unrecognized(parser: argparse.ArgumentParser, extra: Sequence[str]) -> str:
+    """The error for arguments ``parser`` does not take, with the closest options it does."""
+    import difflib
+
+    known = sorted({o for a in parser._actions for o in a.option_strings if o.startswith("--")})
+    hints = []
+    for arg in extra:
+        if arg.startswith("--"):
+            close = difflib.get_close_matches(arg.split("=", 1)[0], known, n=3, cutoff=0.6)
+            if close:
+                hints.append(f"{arg.split('=', 1)[0]}: did you mean {' or '.join(close)}?")
+    more = f"; {'; '.join(hints)}" if hints else ""
+    return f"unrecognized arguments: {' '.join(extra)}{more}"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -74,7 +95,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # named by the subcommand that was given them, not by `lowcostdex`
+            sub = command_parser(parser, args)
+            sub.error(unrecognized(sub, extra))
     except SystemExit as exc:  # --help (0) or a bad argument (2, its line already printed)
         return exc.code if isinstance(exc.code, int) else USER_ERROR
     if getattr(args, "func", None) is None:

@@ -258,6 +258,13 @@ CASES = [
     Case("main's report alone on a folder no stage ran in", ("main", "--stages", "report",
                                                               "--out", "run"),
          "stage 'report' has nothing to report: no stage ran now or finished earlier in run"),
+    Case("main with a misspelled option", ("main", "--sizes", "smoke", "--out", "run"),
+         "lowcostdex main: error: unrecognized arguments: --sizes smoke; --sizes: did you mean "
+         "--size"),
+    Case("train npg with an option it does not take", ("train", "npg", "--env",
+                                                       "lowcostdex/DClawTurnValve-v0", "--out",
+                                                       "run", "--epochs", "3"),
+         "lowcostdex train npg: error: unrecognized arguments: --epochs 3"),
     Case("emulate at a negative bit rate", ("emulate", "bench", "--baud", "-1", "--quiet"),
          "--baud -1: the bit rate must be positive"),
     Case("emulate at a bit rate no motor runs at", ("emulate", "bench", "--baud", "250000",
