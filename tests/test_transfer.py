@@ -464,3 +464,100 @@ def test_start_range_is_a_setting_of_the_folder_and_refused_where_starts_already
     with pytest.raises(ConfigError, match="valve-random already starts"):
         run(tmp_path / "t", size, "valve-random", start_range=0.05, tell=lambda s: None)
     assert not (tmp_path / "t").exists()
+
+
+def test_made_for_limits_the_per_robot_policies_and_every_policy_meets_every_robot(tmp_path):
+    """``--made-for B``: identification and the per-robot policies (identified,
+    identified_randomized, on_robot) for robot B only; nominal and randomized policies as
+    always; every policy still evaluated on robots A, B and C."""
+    from lowcostdex.transfer.loop import jobs, make_robots, piece_files, size_with
+
+    robots = make_robots(3)
+    size = size_with("smoke", robots=3, algos=("dapg",))
+    assert [(c, r and r.name) for c, r in jobs(size.conditions, robots, ("B",))] == [
+        ("nominal", None), ("randomized", None), ("identified", "B"),
+        ("identified_randomized", "B"), ("on_robot", "B")]
+    assert len(jobs(size.conditions, robots)) == 2 + 3 * 3
+    names = sorted(str(p.relative_to(tmp_path)) for p in piece_files(tmp_path, size, robots,
+                                                                      ("B",)))
+    assert [n for n in names if n.startswith("identify")] == ["identify/B/ff/finger.json"]
+    runs = sorted({n.split("/")[2].split(".")[0] for n in names if n.startswith("runs")})
+    assert runs == ["identified_B_seed0", "identified_randomized_B_seed0", "nominal_seed0",
+                    "on_robot_B_seed0", "randomized_seed0"]
+    for stem in runs:  # on every robot; in its training sim unless trained on the robot
+        cells = [n for n in names if n.startswith(f"runs/dapg/{stem}.")]
+        expected = {f"runs/dapg/{stem}.on_{x}.json" for x in "ABC"}
+        if not stem.startswith("on_robot"):
+            expected.add(f"runs/dapg/{stem}.sim.json")
+        assert set(cells) == expected, stem
+    # with --start-range each simulated policy has one more cell: its training starts
+    wide = piece_files(tmp_path, size, robots, ("B",), starts=True)
+    extra = sorted(str(p.relative_to(tmp_path)) for p in set(wide) - set(
+        piece_files(tmp_path, size, robots, ("B",))))
+    assert extra == [f"runs/dapg/{s}.sim_starts.json" for s in runs if "on_robot" not in s]
+
+
+def test_an_unknown_made_for_robot_is_refused_before_anything_is_written(tmp_path, capsys):
+    from lowcostdex.cli import main
+
+    out = tmp_path / "t"
+    assert main(["transfer", "--out", str(out), "--size", "smoke", "--made-for", "B,D"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown robot 'D'" in err and "'A', 'B'" in err
+    assert main(["transfer", "--out", str(out), "--size", "smoke", "--made-for", ","]) == 2
+    assert "at least one robot" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_the_table_shows_the_training_starts_column_only_when_evaluated():
+    from lowcostdex.transfer.loop import summarize, table_markdown
+
+    rows = [_row("nominal", "A", 3), _row("nominal", "B", 5)]
+    plain = table_markdown(summarize(rows, ["A", "B"]), ["A", "B"])
+    assert "training starts" not in plain and "| in training sim (on_robot" in plain
+    for r in rows:  # the one nominal policy: 7 of 20 episodes from its training starts
+        r.update(sim_starts_success=7, sim_starts_episodes=20)
+    rows += [_row("identified", x, 1, made_for=x) for x in "AB"]
+    for r, k in zip(rows[2:], (4, 11), strict=True):  # two policies: 4/20 and 11/20
+        r.update(sim_starts_success=k, sim_starts_episodes=20)
+    s = summarize(rows, ["A", "B"])
+    assert s["nominal"]["sim_starts"] == (7, 20) and s["identified"]["sim_starts"] == (15, 40)
+    lines = table_markdown(s, ["A", "B"]).splitlines()
+    head = [c.strip() for c in lines[0].strip("|").split("|")]
+    col = head.index("in training sim from its training starts")
+    assert head[col - 1].startswith("in training sim from the task's start")
+    nominal = [c.strip() for c in lines[2].strip("|").split("|")]
+    identified = [c.strip() for c in lines[3].strip("|").split("|")]
+    assert nominal[col].startswith("0.35 [") and identified[col].startswith("0.38 [")
+    assert len(nominal) == len(head)
+
+
+def test_start_range_runs_evaluate_each_sim_policy_from_its_training_starts(tmp_path):
+    """A start-range run on 2 robots, policies for robot B only: the nominal policy's extra
+    cell starts its episodes at different valve angles (different final errors; from the
+    task's fixed start every episode is the same), the on_robot policy has none (its training
+    environment is the robot), and no policy is made for robot A."""
+    import json
+
+    from lowcostdex.transfer.loop import run, size_with
+
+    size = size_with("smoke", algos=("npg",), conditions=("nominal", "on_robot"))
+    out = tmp_path / "t"
+    result = run(out, size, start_range=0.3, made_for=("B",), tell=lambda s: None)
+    runs = out / "runs" / "npg"
+    assert (runs / "on_robot_B_seed0").is_dir() and not (runs / "on_robot_A_seed0").exists()
+    fixed = json.loads((runs / "nominal_seed0.sim.json").read_text())
+    starts = json.loads((runs / "nominal_seed0.sim_starts.json").read_text())
+    assert starts["episodes"] == size.episodes == 2
+    assert len(set(fixed["final_error"])) == 1 and len(set(starts["final_error"])) == 2
+    assert not (runs / "on_robot_B_seed0.sim_starts.json").exists()
+    rows = result["rows"]
+    assert sorted((r["condition"], r["policy_robot"] or "", r["robot"]) for r in rows) == [
+        ("nominal", "", "A"), ("nominal", "", "B"), ("on_robot", "B", "A"),
+        ("on_robot", "B", "B")]
+    for r in rows:
+        if r["condition"] == "nominal":
+            assert r["sim_starts_success"] == starts["successes"]
+        else:
+            assert r["sim_starts_success"] is None
+    assert "in training sim from its training starts" in (out / "table.md").read_text()

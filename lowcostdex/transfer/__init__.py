@@ -7,6 +7,8 @@ project's domain randomization, the identified model, the identified model with 
 randomization, the robot itself), evaluate every policy on every robot and write the table.
 
 - ``loop``: the stages, resumable piece by piece inside one ``--out`` folder;
+- ``conditions``: one finger's identification, and each simulated condition's model;
+- ``config``, ``robots``, ``tables``: sizes and tasks, the robots, the tables and figure;
 - ``cli``: the command.
 
 An application on top of the library: no library module imports it (an import-linter contract).

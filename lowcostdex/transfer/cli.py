@@ -58,6 +58,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "(evaluation keeps the task's starts; a fixed-start policy can fail "
                         "when the valve starts 0.002 rad past goal - 180 deg); a setting of "
                         "the folder (default 0: the task's own starts)")
+    p.add_argument("--made-for", default=None,
+                   help="comma-separated hidden robots (A, B, ...) that the per-robot "
+                        "conditions (identified, identified_randomized, on_robot) make "
+                        "policies for (default: every robot; on_robot takes hours per robot); "
+                        "every policy is still evaluated on every robot, and a later run on "
+                        "the folder adds the others")
     add_latency_option(p)
     p.add_argument("--yes", action="store_true",
                    help="with --port: do not ask before the robot moves")
@@ -84,8 +90,10 @@ def _transfer(args: argparse.Namespace) -> int:
             print("stopped; nothing was written")
             return 1
     try:
+        made_for = None if args.made_for is None else tuple(
+            s.strip() for s in args.made_for.split(",") if s.strip())  # run() checks them
         run(args.out, size, args.task, args.robot_seed, port, latency_ms=args.latency_ms,
-            start_range=args.start_range)
+            start_range=args.start_range, made_for=made_for)
     except KeyboardInterrupt:  # finished pieces are kept: say so and how to resume
         from lowcostdex.algos.train_cli import command_line
         from lowcostdex.errors import Interrupted

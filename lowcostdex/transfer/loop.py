@@ -50,6 +50,11 @@ from typing import Any
 
 import numpy as np
 
+from lowcostdex.transfer.conditions import (
+    condition_randomize,
+    identified_effects,
+    identify_finger,
+)
 from lowcostdex.transfer.config import (
     ALGOS,
     COMMAND,
@@ -142,32 +147,40 @@ class Progress:
         self.out(text)
 
 
-def jobs(conditions: tuple[str, ...], robots: list[Any]) -> list[tuple[str, Any]]:
+def jobs(conditions: tuple[str, ...], robots: list[Any],
+         made_for: tuple[str, ...] | None = None) -> list[tuple[str, Any]]:
     """The policies of one algorithm and seed, in run order: (condition, the robot it is made
-    for, or None)."""
+    for, or None); ``made_for``: the robots (names) the per-robot conditions make policies for
+    (None: every robot)."""
     first = [(c, None) for c in conditions if c not in PER_ROBOT]
-    return first + [(c, r) for c in conditions if c in PER_ROBOT for r in robots]
+    return first + [(c, r) for c in conditions if c in PER_ROBOT for r in robots
+                    if made_for is None or r.name in made_for]
 
 
 def run_tag(condition: str, made_for: Any) -> str:
     return condition if made_for is None else f"{condition}_{made_for.name}"
 
 
-def piece_files(out: Path, size: Size, robots: list[Any]) -> list[Path]:
+def piece_files(out: Path, size: Size, robots: list[Any],
+                made_for: tuple[str, ...] | None = None, starts: bool = False) -> list[Path]:
     """The file that marks each piece of the run done (identified fingers, trainings,
-    evaluation cells): the progress total, and the pieces a resume will find done."""
+    evaluation cells): the progress total, and the pieces a resume will find done.
+    ``starts``: the policies train from wider starts than the task's (``--start-range``), and
+    each simulated one is also evaluated in its training sim from those starts."""
     files = []
     if {"identified", "identified_randomized"} & set(size.conditions):
         files += [out / "identify" / r.name / f / "finger.json" for r in robots
-                  for f in size.fingers]
+                  if made_for is None or r.name in made_for for f in size.fingers]
     for algo in size.algos:
         for seed in range(size.seeds):
-            for condition, made_for in jobs(size.conditions, robots):
-                stem = out / "runs" / algo / f"{run_tag(condition, made_for)}_seed{seed}"
+            for condition, policy_robot in jobs(size.conditions, robots, made_for):
+                stem = out / "runs" / algo / f"{run_tag(condition, policy_robot)}_seed{seed}"
                 files.append(stem / "summary.json")
                 files += [stem.parent / f"{stem.name}.on_{t.name}.json" for t in robots]
                 if condition != "on_robot":  # its training environment is the robot
                     files.append(stem.parent / f"{stem.name}.sim.json")
+                    if starts:
+                        files.append(stem.parent / f"{stem.name}.sim_starts.json")
     return files
 
 
@@ -215,45 +228,6 @@ def record_demos(out: Path, task: Task, size: Size, seed: int) -> dict[str, Any]
 # 2. identification: record on the robot, `gap analyze` each finger
 
 
-def identify_finger(robot: Any, finger: str, folder: Path, size: Size, seed: int
-                    ) -> dict[str, Any]:
-    """Identification logs of one finger on the robot (without its valve, the other fingers
-    parked), then the gap analysis on the nominal one-finger model."""
-    from lowcostdex.gap import GapConfig, analyze, load_dataset, write_report
-    from lowcostdex.hands import dclaw_spec
-    from lowcostdex.hardware.robot.trace import dclaw_identification_logs
-    from lowcostdex.outdir import archive
-    from lowcostdex.sim.models.dclaw import build_dclaw
-
-    nominal = folder / f"nominal_{finger}.xml"
-    if folder.exists():  # cut short: redone whole, the old pieces kept
-        archive(folder, ["logs", "report", nominal.name])
-    folder.mkdir(parents=True, exist_ok=True)
-    hand = dclaw_spec(robot.motor)
-    joints = tuple(j for j in hand.joint_names if j.startswith(finger + "_"))
-    t0 = time.perf_counter()
-    paths = dclaw_identification_logs(hand, joints, folder / "logs", size.id_logs,
-                                      size.id_seconds, np.random.default_rng(seed),
-                                      port=robot.identification_port(seed),
-                                      latency_ms=robot.latency_ms)
-    t1 = time.perf_counter()
-    nominal.write_text(build_dclaw("none", hand, thermal=False, fingers=(finger,)).to_xml())
-    dataset = load_dataset([str(p) for p in paths], model=str(nominal))
-    result = analyze(dataset, GapConfig(seed=seed, **dict(size.gap)))
-    write_report(result, folder / "report")
-    report = read_json(folder / "report" / "report.json")
-    causes = [{"effect": c["effect"], "joints": c["joints"],
-               "params": {p: {"value": v["value"], "interval": v.get("interval")}
-                          for p, v in c["params"].items()}} for c in report["causes"]]
-    return {"finger": finger, "joints": list(joints), "verdict": report["verdict"],
-            "causes": causes, "robot_seconds": size.id_logs * size.id_seconds,
-            "baseline_rmse_mrad": 1e3 * report["gain"]["baseline_rmse"],
-            "extended_rmse_mrad": 1e3 * report["gain"]["extended_rmse"],
-            "noise_floor_mrad": 1e3 * report["noise_floor"]["rmse"],
-            "record_wall_seconds": round(t1 - t0, 1),
-            "analysis_wall_seconds": round(time.perf_counter() - t1, 1)}
-
-
 def identify(robot: Any, out: Path, size: Size, seed: int, progress: Progress,
              tell: Say) -> dict[str, Any]:
     fingers = {}
@@ -269,68 +243,6 @@ def identify(robot: Any, out: Path, size: Size, seed: int, progress: Progress,
              f"{f['extended_rmse_mrad']:.2f} mrad)")
         progress.step(f"identified {robot.name}/{finger}", done)
     return {"robot": robot.name, "fingers": fingers, "truth": robot.to_dict()}
-
-
-def identified_effects(ident: dict[str, Any], joints: tuple[str, ...]
-                       ) -> dict[str, dict[str, tuple[list[float], list[float], list[float]]]]:
-    """The analysis' causes of every finger as one per-joint table: effect -> parameter ->
-    (value, interval low, interval high) per hand joint; joints where the effect was not named
-    hold its null value (its interval collapsed on it)."""
-    from lowcostdex.sim.effects import effect
-
-    table: dict[str, dict[str, tuple[list[float], list[float], list[float]]]] = {}
-    for finger in ident["fingers"].values():
-        for cause in finger["causes"]:
-            cls = effect(cause["effect"])
-            entry = table.setdefault(cls.name, {
-                p.name: ([p.null] * len(joints), [p.null] * len(joints), [p.null] * len(joints))
-                for p in cls.params})
-            for p, v in cause["params"].items():
-                values = np.broadcast_to(np.asarray(v["value"], float), (len(cause["joints"]),))
-                interval = v.get("interval")
-                for i, j in enumerate(cause["joints"]):
-                    k = joints.index(j)
-                    entry[p][0][k] = float(values[i])
-                    lo, hi = (interval[i] if interval is not None and len(interval) > i
-                              else (values[i], values[i]))
-                    entry[p][1][k], entry[p][2][k] = float(lo), float(hi)
-    return table
-
-
-def condition_randomize(condition: str, ident: dict[str, Any] | None,
-                        joints: tuple[str, ...]) -> Any:
-    """The ``randomize`` env kwarg of a simulated training condition (JSON-serializable)."""
-    from lowcostdex.sim.effects import DEFAULT_DR_EFFECTS, DomainRandomization, effect
-
-    if condition == "nominal":
-        return None
-    if condition == "randomized":
-        return list(DEFAULT_DR_EFFECTS)
-    if condition not in ("identified", "identified_randomized"):
-        raise ValueError(f"{condition!r} is not a simulated condition")
-    assert ident is not None
-    table = identified_effects(ident, joints)
-    if not table:
-        return None  # nothing named: the nominal model
-    ranges: dict[str, dict[str, tuple[list[float], list[float]]]] = {}
-    for name, params in table.items():
-        ranges[name] = {}
-        for p, (value, lo, hi) in params.items():
-            if condition == "identified":
-                ranges[name][p] = (value, value)
-                continue
-            param = effect(name).param(p)
-            v, lo_, hi_ = (np.asarray(x, float) for x in (value, lo, hi))
-            lo_ = np.where(np.isfinite(lo_), lo_, v)
-            hi_ = np.where(np.isfinite(hi_), hi_, v)
-            pad = NARROW_PAD * np.abs(v)
-            named = v != param.null  # joints without the effect keep it off
-            low = np.where(named, np.minimum(lo_, v - pad), v)
-            high = np.where(named, np.maximum(hi_, v + pad), v)
-            low = np.clip(low, param.low, param.high)
-            high = np.clip(high, param.low, param.high)
-            ranges[name][p] = (low.tolist(), np.maximum(high, low).tolist())
-    return DomainRandomization(tuple(table), joints, ranges).to_dict()
 
 
 # ------------------------------------------------------------------------------------------------
@@ -427,12 +339,17 @@ def open_out(out: Path, size: Size, task_name: str, robot_seed: int, port: str |
 
 def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int = 0,
         port: str | None = None, tell: Say = say, latency_ms: float | None = None,
-        start_range: float = 0.0) -> dict[str, Any]:
+        start_range: float = 0.0, made_for: tuple[str, ...] | None = None) -> dict[str, Any]:
     """The whole loop into ``out`` (resumable); returns the summaries, rows and figure.
     ``latency_ms``: with ``port``, see ``PortRobot`` (not a setting: a resume may change it).
     ``start_range`` [rad]: every condition trains from valve starts and goals each within
     +-start_range of the task's (``Task.training``; the fixed-start policies sit on a knife
-    edge: the start 0.002 rad past goal - pi) and is evaluated on the task's own starts.
+    edge: the start 0.002 rad past goal - pi) and is evaluated on the task's own starts, on
+    the robots and in its training sim, and also in its training sim from its training starts
+    (did it learn what it trained on?).
+    ``made_for``: names of the robots the per-robot conditions (identified,
+    identified_randomized, on_robot) make policies for (None: all; not a setting: a later
+    run on the folder adds the others); every policy is still evaluated on every robot.
 
     Raises:
       OutputRefused: ``out`` holds files this command did not write, or a run with another
@@ -451,6 +368,11 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     task = TASKS[task_name]
     train_task = task.training(start_range)
     robots = make_robots(size.robots, robot_seed, port, latency_ms)
+    if made_for is not None:
+        if not made_for:
+            raise ConfigError("made_for: give at least one robot (None: every robot)")
+        for name in made_for:
+            check_choice("robot", name, [r.name for r in robots])
     open_out(out, size, task_name, robot_seed, port, start_range)
     seeds = list(range(size.seeds))
     t_start = time.perf_counter()
@@ -458,9 +380,10 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     names = [r.name for r in robots]
     wall: dict[str, float] = {}
 
-    n_id = len(robots) * len(size.fingers) if {"identified", "identified_randomized"} & set(
+    id_robots = [r for r in robots if made_for is None or r.name in made_for]
+    n_id = len(id_robots) * len(size.fingers) if {"identified", "identified_randomized"} & set(
         size.conditions) else 0
-    pieces = piece_files(out, size, robots)
+    pieces = piece_files(out, size, robots, made_for, train_task != task)
     progress = Progress(len(pieces), tell, found=sum(p.exists() for p in pieces))
     tell(f"transfer: {task.label()}, robots {', '.join(names)}, seeds {seeds}, algos "
          f"{list(size.algos)}, conditions {list(size.conditions)}; {size.samples} samples per "
@@ -477,6 +400,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     idents: dict[str, dict[str, Any]] = {}
     if n_id:
         for k, robot in enumerate(robots):
+            if robot not in id_robots:
+                continue
             tell(f"identification of robot {robot.name}: {size.id_logs} x {size.id_seconds:g} s "
                  f"per finger {list(size.fingers)}")
             idents[robot.name] = identify(robot, out, size, 1000 + robot_seed + k, progress,
@@ -492,22 +417,22 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     t_train = t_eval = 0.0
     for algo in size.algos:
         for seed in seeds:
-            for condition, made_for in jobs(size.conditions, robots):
-                tag = run_tag(condition, made_for)
+            for condition, policy_robot in jobs(size.conditions, robots, made_for):
+                tag = run_tag(condition, policy_robot)
                 run_dir = out / "runs" / algo / f"{tag}_seed{seed}"
                 on_robot = condition == "on_robot"
                 randomize = None if on_robot else condition_randomize(
-                    condition, idents.get(made_for.name) if made_for else None, joints)
-                where = f" for robot {made_for.name}" if made_for else ""
+                    condition, idents.get(policy_robot.name) if policy_robot else None, joints)
+                where = f" for robot {policy_robot.name}" if policy_robot else ""
                 t0 = time.perf_counter()
                 done = (run_dir / "summary.json").exists()
                 if not done:
                     tell(f"{algo} seed {seed}: train {condition}{where}")
                 trained = train_policy(run_dir, algo, train_task, randomize,
                                        out / demos["file"] if demos else None, size, seed,
-                                       robot=made_for if on_robot else None,
-                                       robot_seed=(robot_seed + names.index(made_for.name)
-                                                   if made_for else None))
+                                       robot=policy_robot if on_robot else None,
+                                       robot_seed=(robot_seed + names.index(policy_robot.name)
+                                                   if policy_robot else None))
                 t_train += time.perf_counter() - t0
                 progress.step(f"trained {algo} {condition}{where} seed {seed} "
                               f"({trained['wall_seconds']:.0f} s)", done)
@@ -522,7 +447,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                     progress.step(f"{algo} {tag} seed {seed} on robot {target.name}: "
                                   f"{c['successes']}/{c['episodes']}", done)
                 if on_robot:  # its training environment is the robot
-                    sim = cells[made_for.name]
+                    sim = cells[policy_robot.name]
                 else:
                     path = run_dir.parent / f"{tag}_seed{seed}.sim.json"
                     done = path.exists()
@@ -530,15 +455,28 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                         d, task, {} if r is None else {"randomize": r}, size.episodes))
                     progress.step(f"{algo} {tag} seed {seed} in its training sim: "
                                   f"{sim['successes']}/{sim['episodes']}", done)
+                starts = None  # its training sim from its training starts (--start-range)
+                if train_task != task and not on_robot:
+                    path = run_dir.parent / f"{tag}_seed{seed}.sim_starts.json"
+                    done = path.exists()
+                    starts = cached(path, lambda d=run_dir, r=randomize: evaluate(
+                        d, train_task, {} if r is None else {"randomize": r}, size.episodes))
+                    progress.step(f"{algo} {tag} seed {seed} in its training sim from its "
+                                  f"training starts: {starts['successes']}/"
+                                  f"{starts['episodes']}", done)
                 for target in robots:
                     cell = cells[target.name]
                     rows.append({"algo": algo, "condition": condition, "robot": target.name,
                                  "seed": seed, "success": cell["successes"],
                                  "episodes": cell["episodes"],
-                                 "policy_robot": made_for.name if made_for else None,
+                                 "policy_robot": policy_robot.name if policy_robot else None,
                                  "final_error": cell["final_error"],
                                  "sim_success": sim["successes"], "sim_episodes": sim["episodes"],
                                  "sim_final_error": sim["final_error"],
+                                 "sim_starts_success": None if starts is None
+                                 else starts["successes"],
+                                 "sim_starts_episodes": None if starts is None
+                                 else starts["episodes"],
                                  "policy": f"{algo}/{tag}",
                                  "samples": trained["samples"],
                                  "train_wall_seconds": round(trained["wall_seconds"], 1),

@@ -47,9 +47,14 @@ def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[s
         sim_k = sum(r["sim_success"] for r in sims)
         sim_n = sum(r["sim_episodes"] for r in sims)
         identical = all(len(set(r["sim_final_error"])) == 1 for r in sims)
+        # in the training sim from the training starts (--start-range; None: not evaluated)
+        starts = [r for r in sims if r.get("sim_starts_episodes")]
         errors = [e for r in rs for e in r["final_error"]]
         out[cond] = {"per_robot": per_robot, "robots": (robot_k, robot_n), "sim": (sim_k, sim_n),
                      "sim_identical": identical, "policies": len(sims),
+                     "sim_starts": (sum(r["sim_starts_success"] for r in starts),
+                                    sum(r["sim_starts_episodes"] for r in starts))
+                     if starts else None,
                      "drop": sim_k / sim_n - robot_k / robot_n,
                      "median_final_error": float(np.median(errors)) if errors else math.nan,
                      "train_wall_seconds": float(np.mean([r["train_wall_seconds"]
@@ -58,9 +63,15 @@ def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[s
 
 
 def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str:
+    """One line per condition. With ``--start-range`` a column says how the policies do in
+    their training sim from the starts they trained on (the task's starts are a point in
+    them: a policy may succeed there and on no other start)."""
+    starts = any(s.get("sim_starts") for s in summary.values())
     head = ["condition", *[f"robot {r}" for r in robots], "mean on robots",
-            "in training sim (on_robot: the robot)", "sim-to-robot drop",
-            "median final error [rad]", "training wall [s]"]
+            "in training sim" + (" from the task's start" if starts else "")
+            + " (on_robot: the robot)",
+            *(["in training sim from its training starts"] if starts else []),
+            "sim-to-robot drop", "median final error [rad]", "training wall [s]"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for cond, s in summary.items():
         cells = [_cell(*s["per_robot"][r]) for r in robots]
@@ -68,7 +79,8 @@ def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str
         if s["sim_identical"]:  # a deterministic policy from a fixed start in a fixed sim
             k, n = s["sim"]
             sim = f"{k / n:.2f} (one deterministic episode per policy, x{s['policies']})"
-        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]), sim,
+        extra = [_cell(*s["sim_starts"]) if s.get("sim_starts") else "-"] if starts else []
+        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]), sim, *extra,
                                         f"{s['drop']:+.2f}", f"{s['median_final_error']:.2f}",
                                         f"{s['train_wall_seconds']:.0f}"]) + " |")
     return "\n".join(lines)
@@ -136,6 +148,10 @@ def plot(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str], pat
                    yerr=[rate - ci[:, 0], ci[:, 1] - rate], capsize=3)
             ax.plot(x[-1:], [s["sim"][0] / s["sim"][1]], marker="_", markersize=14, color="k",
                     linestyle="None", label="success in the training env" if i == 0 else None)
+            if s.get("sim_starts"):  # --start-range: from the starts it trained on
+                k, n = s["sim_starts"]
+                ax.plot(x[-1:], [k / n], marker="x", markersize=7, color="k", linestyle="None",
+                        label="... from its training starts" if i == 0 else None)
         ax.set_xticks(np.arange(len(columns)))
         ax.set_xticklabels([f"robot {r}" for r in robots] + ["mean over robots"])
         ax.set_xlabel("robot (policies on the robot they were made for)")
