@@ -539,6 +539,8 @@ def test_start_range_runs_evaluate_each_sim_policy_from_its_training_starts(tmp_
     environment is the robot), and no policy is made for robot A."""
     import json
 
+    from figcheck import figure_problems
+
     from lowcostdex.transfer.loop import run, size_with
 
     size = size_with("smoke", algos=("npg",), conditions=("nominal", "on_robot"))
@@ -560,4 +562,10 @@ def test_start_range_runs_evaluate_each_sim_policy_from_its_training_starts(tmp_
             assert r["sim_starts_success"] == starts["successes"]
         else:
             assert r["sim_starts_success"] is None
-    assert "in training sim from its training starts" in (out / "table.md").read_text()
+    table = (out / "table.md").read_text()
+    assert "in training sim from its training starts" in table
+    # on_robot has a policy for robot B only: its mean and drop say so, the plot has no mean bar
+    line = next(x for x in table.splitlines() if x.startswith("| on_robot |"))
+    assert line.count("(B only)") == 2
+    assert "only)" not in next(x for x in table.splitlines() if x.startswith("| nominal |"))
+    assert figure_problems(result["figure"]) == []

@@ -30,7 +30,8 @@ def own_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[str, Any]]:
     """Per condition (rows of one algo): pooled successes per robot (over seeds), on robots, in
-    training sims; only each policy on the robot it was made for."""
+    training sims; only each policy on the robot it was made for. ``covered``: the robots
+    with a policy of the condition (``--made-for`` leaves the others out of its mean)."""
     out: dict[str, dict[str, Any]] = {}
     for cond in CONDITIONS:
         rs = [r for r in own_rows(rows) if r["condition"] == cond]
@@ -51,6 +52,7 @@ def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[s
         starts = [r for r in sims if r.get("sim_starts_episodes")]
         errors = [e for r in rs for e in r["final_error"]]
         out[cond] = {"per_robot": per_robot, "robots": (robot_k, robot_n), "sim": (sim_k, sim_n),
+                     "covered": [name for name in robots if per_robot[name][1]],
                      "sim_identical": identical, "policies": len(sims),
                      "sim_starts": (sum(r["sim_starts_success"] for r in starts),
                                     sum(r["sim_starts_episodes"] for r in starts))
@@ -80,8 +82,11 @@ def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str
             k, n = s["sim"]
             sim = f"{k / n:.2f} (one deterministic episode per policy, x{s['policies']})"
         extra = [_cell(*s["sim_starts"]) if s.get("sim_starts") else "-"] if starts else []
-        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]), sim, *extra,
-                                        f"{s['drop']:+.2f}", f"{s['median_final_error']:.2f}",
+        covered = s.get("covered", robots)
+        only = "" if len(covered) == len(robots) else f" ({', '.join(covered)} only)"
+        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]) + only, sim, *extra,
+                                        f"{s['drop']:+.2f}{only}",
+                                        f"{s['median_final_error']:.2f}",
                                         f"{s['train_wall_seconds']:.0f}"]) + " |")
     return "\n".join(lines)
 
@@ -139,7 +144,9 @@ def plot(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str], pat
     for ax, (algo, summary) in zip(axes[0], summaries.items(), strict=True):
         width = 0.8 / max(1, len(summary))
         for i, (cond, s) in enumerate(summary.items()):
-            cells = [s["per_robot"][r] for r in robots] + [s["robots"]]
+            # no mean bar for a condition with policies for some robots only (--made-for)
+            whole = len(s.get("covered", robots)) == len(robots)
+            cells = [s["per_robot"][r] for r in robots] + [s["robots"] if whole else (0, 0)]
             rate = np.array([k / n if n else np.nan for k, n in cells])
             ci = np.array([wilson_interval(k, n) if n else (np.nan, np.nan) for k, n in cells])
             x = np.arange(len(columns)) + (i - (len(summary) - 1) / 2) * width
