@@ -82,8 +82,10 @@ def test_robot_commands_refuse_hardware_without_a_port(command, tmp_path, capsys
 
 @pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="Linux pty")
 def test_latency_ms_reaches_the_driver_of_a_robot_on_a_serial_port(tmp_path, monkeypatch):
-    """``record-log --port PTY --latency-ms 16``: a pty has no USB latency timer in sysfs, so the
-    driver's status timeouts use the value given (2 x 16 + 2 ms, the SDK's default budget).
+    """``record-log --port PTY --latency-ms 100``: a pty has no USB latency timer in sysfs, so the
+    driver's status timeouts use the value given (2 x 100 + 2 ms, the SDK's default budget).
+    100 ms, not a USB adapter's 16: the pty server is a thread of this process, and at a load of
+    11 on 2 cores it missed a 34 ms budget once (session 12); the check is that the value arrives.
     Checked on the driver that talked to an emulated D'Claw served on a real pty. (Without the
     option the driver's 1 ms budget, ~4 ms per reply, missed replies of this pty server on the
     2-core VM: "reading Position I Gain failed after 4 attempts".)"""
@@ -105,13 +107,13 @@ def test_latency_ms_reaches_the_driver_of_a_robot_on_a_serial_port(tmp_path, mon
     try:
         out = tmp_path / "logs"
         assert main(["record-log", "--port", server.path, "--logs", "1", "--seconds", "0.2",
-                     "--out", str(out), "--latency-ms", "16"]) == 0
+                     "--out", str(out), "--latency-ms", "100"]) == 0
         assert (out / "log_0.csv").exists()
         port = buses[-1].port
-        assert port.getPortName() == server.path and port.latency_ms == 16.0
+        assert port.getPortName() == server.path and port.latency_ms == 100.0
         # the SDK's status timeout for an 11-byte packet at 1 Mbit/s: 10 us per byte [ms]
         port.setPacketTimeout(11)
-        assert port.packet_timeout == pytest.approx(0.11 + 2 * 16 + 2.0)
+        assert port.packet_timeout == pytest.approx(0.11 + 2 * 100 + 2.0)
     finally:
         server.stop()
 
