@@ -116,6 +116,7 @@ def test_randomized_dynamics_differ_between_episodes():
                                                     "coulomb_friction", "mass_error")}),
     ("lowcostdex/DClawScrewRandom-v0", {}),
     ("lowcostdex/DClawFlipBlock-v0", {}),
+    ("lowcostdex/DClawFlipBlockQuaternion-v0", {}),  # PPO's batched flip, quaternion variant
 ])
 def test_vector_env_equals_a_loop_of_single_envs(env_id, kwargs):
     n = 3
