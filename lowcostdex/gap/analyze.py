@@ -372,7 +372,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         timing[f"round{step + 1}"], step = time.perf_counter() - t0, step + 1
         if finer is not None:  # the step's own error, hidden by the first cause until now
             ds, ctx, _, _, timestep["fitted"] = finer
-            timestep["used"] = ds.timestep
+            timestep["used"], timestep["servo_period"] = ds.timestep, ds.servo_period
             eng = _Engine(ds, cfg, cands)
             fit_fn, base_pred = eng.residual_fn(train_segs), eng.rep.run(eps, [[]])[0][0]
             # ... and the first cause was chosen at a step now shown too coarse: choose it again

@@ -78,7 +78,8 @@ def resample(tr: Trajectory, dt: float = BAM_DT) -> Trajectory:
 def grid_dataset(ds: Dataset, dt: float = BAM_DT) -> Dataset:
     """The data set with every trajectory resampled onto BAM's grid (same nominal models)."""
     return Dataset(dict(ds.models), [resample(tr, dt) for tr in ds.trajectories],
-                   list(ds.sources), list(ds.notes))  # the notes: repairs, gaps cut, defaults
+                   list(ds.sources), list(ds.notes),  # the notes: repairs, gaps cut, defaults
+                   ds.servo_period)
 
 
 def whole_logs(ds: Dataset, logs: Sequence[int] | None = None) -> list[Window]:

@@ -43,6 +43,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--seed", type=SEED, default=0)
     a.add_argument("--threads", type=integer(0, 1024), default=0,
                    help="simulation threads (0: all CPUs)")
+    a.add_argument("--servo-period", type=number(0.0, 0.1), default=0.0, metavar="S",
+                   help="the servos' firmware update period [s] (0.001: a 1 kHz position loop, "
+                        "Dynamixel/Feetech): the position law is sampled and its force held "
+                        "between updates; 0 (default): continuous")
     a.set_defaults(func=_analyze)
 
     i = gsub.add_parser("identify", help="fit the servo's own parameters (motor constants, "
@@ -143,7 +147,8 @@ def _analyze(args: argparse.Namespace) -> int:
     check_out(args.out, "gap analyze")  # refuse a user's folder before minutes of work
     logs, same = distinct_logs(args.log)
     check_holdout(logs, args.holdout)
-    ds = load_dataset(logs, model=args.model, bench=True if args.bench else None)
+    ds = load_dataset(logs, model=args.model, bench=True if args.bench else None,
+                      servo_period=args.servo_period)
     for note in same + ds.notes:
         console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,
                       soft_wrap=True)

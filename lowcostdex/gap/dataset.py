@@ -32,6 +32,7 @@ from lowcostdex.gap.logs import (
     split_at_gaps,
 )
 from lowcostdex.sim.models.bench import build_bench
+from lowcostdex.sim.servo import MAX_SERVO_PERIOD
 
 MAX_TOTAL_DURATION = 4 * 3600.0
 """Most seconds of logs one analysis takes (its run time grows with them)."""
@@ -59,14 +60,20 @@ class Dataset:
       trajectories: measured trajectories; ``trajectory.model`` names its model.
       sources: input file of each trajectory.
       notes: what loading did to the logs that a user should know (e.g. a log split at a gap).
+      servo_period: the servos' update period [s] replays use (``sim.servo.ServoClock``: the
+        position law sampled and its force held between firmware cycles); 0: continuous.
     """
 
     models: dict[str, str]
     trajectories: list[Trajectory]
     sources: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    servo_period: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.servo_period) and 0.0 <= self.servo_period <= MAX_SERVO_PERIOD):
+            raise ConfigError(f"servo period must be in [0, {MAX_SERVO_PERIOD}] s, got "
+                              f"{self.servo_period}")
         if not self.trajectories:
             raise LogError("no trajectories given")
         for tr in self.trajectories:
@@ -135,7 +142,8 @@ class Dataset:
             spec = mujoco.MjSpec.from_string(xml)
             spec.option.timestep = float(self.compiled(key).opt.timestep) * factor
             models[key] = spec.to_xml()
-        return Dataset(models, self.trajectories, list(self.sources), list(self.notes))
+        return Dataset(models, self.trajectories, list(self.sources), list(self.notes),
+                       self.servo_period)
 
 
 LOG_SUFFIXES = (".csv", ".npz", ".json")
@@ -194,7 +202,8 @@ MAX_BENCH_TIMESTEP = 0.05
 
 
 def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | None = None,
-                 bench: bool | None = None, timestep: float | None = None) -> Dataset:
+                 bench: bool | None = None, timestep: float | None = None,
+                 servo_period: float = 0.0) -> Dataset:
     """Read logs and their model(s).
 
     Args:
@@ -203,6 +212,8 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
       model: MJCF file for project-format logs (required for them).
       bench: True: the logs are BAM JSON mapped onto the bench; None: auto-detect.
       timestep: physics step for BAM benches [s] (default: the bench's).
+      servo_period: the servos' firmware update period [s] (``Dataset.servo_period``; 0:
+        the actuator law continuous).
     Logs whose time stamps jump (logging paused) are split there (``split_at_gaps``; said in
     ``Dataset.notes``); the total duration is bounded by ``MAX_TOTAL_DURATION``.
 
@@ -260,7 +271,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         pieces += cut
         sources += [str(p)] * len(cut)
         notes += said
-    ds = Dataset(models, pieces, sources, notes)
+    ds = Dataset(models, pieces, sources, notes, servo_period)
     ds.notes += _unshared_joints(ds)
     return ds
 

@@ -25,6 +25,9 @@ together at the physics timestep:
   servo's setpoint before the window is the operator's state after the goals that preceded
   it, exact: the operator acts on commands only). Columns without backlash run on a model
   without the hidden dofs, so the nominal column stays the nominal model exactly;
+* a servo update period (``Dataset.servo_period``) samples each position servo's law every
+  period and holds its force between (``sim.servo.ServoClock``; no saturation matching then:
+  the firmware reads one goal per update);
 * measured channels (voltage, temperature, torque enable) are held like commands;
 * actuators of any gear (force matching in actuator units, peak forces reported at the joint)
   and servos that integrate a velocity goal (``intvelocity``): their setpoint (activation) at a
@@ -192,8 +195,8 @@ class Replayer:
         goal: they act on it later, from another state).
         """
         cols, acts, qadr, dadr, gear = run["servos"]
-        if not len(cols):
-            return
+        if not len(cols) or run["plant"].servo_clock.every:
+            return  # a servo with an update period samples one goal at its update
         split = run["split"][:, k][:, cols]  # (nsim, n servos)
         sims = np.flatnonzero(np.any(np.isfinite(split), axis=1))
         if not len(sims):
@@ -342,7 +345,8 @@ class Replayer:
                 self._plants.clear()
             # small batches step faster on one thread than on a (loaded) pool
             nthread = 1 if nsim < 128 else self.nthread
-            plant = BatchPlant(model, nsim, per_sim, nthread=nthread)
+            plant = BatchPlant(model, nsim, per_sim, nthread=nthread,
+                               servo_period=self.ds.servo_period)
             self._plants[pkey] = plant
         else:
             plant.set_effects(per_sim)

@@ -360,9 +360,15 @@ def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str) -> str:
 
 
 def timestep_note(timestep: dict) -> str:
-    """One line on a refined physics step ('' when the model's step was kept)."""
+    """One line on a refined physics step ('' when the model's step was kept) and the servos'
+    update period replayed."""
+    period = float(timestep.get("servo_period", 0.0)) if timestep else 0.0
+    held = (f"the servos' position law sampled every {1e3 * period:.3g} ms and its force held "
+            "between updates") if period else ""
     if not timestep or timestep.get("used") == timestep.get("model"):
-        return ""
+        return held
+    if held:
+        held = f"; {held} (a step of at most half the period)"
     tried = ", ".join(f"{1e3 * float(dt):.3g} ms {1e3 * r:.3g} mrad"
                       for dt, r in timestep["rmse"])
     fitted = ", ".join(f"{1e3 * float(dt):.3g} ms {1e3 * r:.3g} mrad"
@@ -373,4 +379,4 @@ def timestep_note(timestep: dict) -> str:
                    "was chosen again at the finer one")
     return (f"the model's physics step {1e3 * timestep['model']:.3g} ms is too coarse for these "
             f"logs (nominal replay RMSE on train + select: {tried}{fitted}); analysed at "
-            f"{1e3 * timestep['used']:.3g} ms, which the extended model carries")
+            f"{1e3 * timestep['used']:.3g} ms, which the extended model carries{held}")

@@ -28,7 +28,7 @@ from lowcostdex.gap.diagnostics import noise_floor
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import GapConfig
 
-__all__ = ["finer_enough", "refine", "refine_fitted"]
+__all__ = ["finer_enough", "on_servo_period", "refine", "refine_fitted"]
 
 
 def finer_enough(mse: float, finer: float, floor_mse: float, cfg: GapConfig) -> bool:
@@ -39,11 +39,23 @@ def finer_enough(mse: float, finer: float, floor_mse: float, cfg: GapConfig) -> 
             and finer <= (1 - cfg.min_gain) * mse)
 
 
+def on_servo_period(ds: Dataset) -> Dataset:
+    """The data set on a step of at most half its servo update period (halving the model's):
+    a force held for the period then spans two steps or more (at a step as long as the period
+    the hold is one explicit force per step)."""
+    f = 1.0
+    while ds.servo_period and ds.timestep * f > ds.servo_period / 2 * (1 + 1e-9):
+        f /= 2
+    return ds if f == 1.0 else ds.with_timestep(f)
+
+
 def refine(ds: Dataset, eps: Sequence[Window], cfg: GapConfig) -> tuple[Dataset, dict]:
     """The data set on the finest useful physics step (``GapConfig.refine_step``): halve the
     step while the nominal replay of ``eps`` gets closer to the data (``finer_enough``), down
     to ``min_step``. Returns (data set, the timestep record of ``GapResult.timestep``)."""
     floor_mse = float(np.mean(noise_floor(ds.trajectories) ** 2))
+    dt_model = ds.timestep
+    ds = on_servo_period(ds)
     dt0 = ds.timestep
 
     def replay(d: Dataset) -> float:
@@ -63,7 +75,8 @@ def refine(ds: Dataset, eps: Sequence[Window], cfg: GapConfig) -> tuple[Dataset,
         if not finer_enough(mse, m2, floor_mse, cfg):
             break
         cur, mse = finer, m2
-    return cur, {"model": dt0, "used": cur.timestep, "rmse": tried}
+    return cur, {"model": dt_model, "used": cur.timestep, "rmse": tried,
+                 "servo_period": ds.servo_period}
 
 
 def refine_fitted(ds: Dataset, residual_fn, s: fitmod.Structure, x: np.ndarray,

@@ -13,6 +13,10 @@ Order inside one control step (``step``):
   2. exogenous effects rescale the servo gains from measured channels (temperature, voltage);
   3. physics advances ``nstep`` substeps: natively (``mj_step(nstep)``) unless a friction effect
      needs its state-dependent level written every substep.
+A servo update period (``servo_period``, default 0: the law acts continuously) samples the law
+of each fixed-gain affine actuator (``position``, a ``general`` written so) every period and
+holds its force until the next update, as a servo's firmware loop does (Dynamixel and Feetech
+servos run theirs at ~1 kHz): ``servo.ServoClock``.
 Observation effects (offset, noise, quantization) apply in ``measured_qpos``; calibration effects
 (the servo's encoder frame shifted from the joint's) map the goal in step 1 and the reading there.
 In a model prepared with hidden dofs (``prepare_spec(..., hidden_dofs=True)``) backlash is physics:
@@ -92,6 +96,19 @@ class _PlantBase:
         has_int = servo.dcmotor_act_layout(self.model)[:, servo.ACT_INTEGRATOR] >= 0
         self._off_gains = np.zeros((self.model.nu, len(_CONTROLLER_GAINS)))
         self._off_gains[has_int, 1] = servo.KI_MIN
+        self.servo_clock = servo.ServoClock(self.model)  # the servos' update period
+
+    # -- servo update period ----------------------------------------------------------------------
+    @property
+    def servo_period(self) -> float:
+        """The servos' update period [s] as stepped (0: the actuator law acts continuously)."""
+        return self.servo_clock.every * float(self.model.opt.timestep)
+
+    def set_servo_period(self, period: float) -> None:
+        """Sample the law of each fixed-gain affine actuator every ``period`` [s] and hold its
+        force until the next update (``servo.ServoClock``; 0: continuous, the default)."""
+        self.servo_clock.set_period(period, float(self.model.opt.timestep))
+        self._apply_torque_mask()
 
     # -- Fields protocol ------------------------------------------------------------------------
     @property
@@ -230,6 +247,11 @@ class _PlantBase:
     def _apply_torque_mask(self) -> None:
         if self._static_forcerange is None:
             return
+        self._range_in_force()
+        self.servo_clock.release()  # a held force is recomputed at the next step
+
+    def _range_in_force(self) -> None:
+        """Force ranges from the model effects and torque enable (no held force)."""
         fr, fl = self.array("actuator_forcerange"), self.array("actuator_forcelimited")
         fr[...] = np.where(self._torque_on[..., None], self._static_forcerange, 0.0)
         fl[...] = np.where(self._torque_on, self._static_forcelimited, 1)
@@ -324,15 +346,27 @@ class _PlantBase:
         """
         self.ctrl[...] = self.command(goal)
         self._exogenous(channels)
-        if self._has_friction or self._live:
+        clock = self.servo_clock
+        if self._has_friction or self._live or clock.every:
             fl = self.array("dof_frictionloss")
-            for _ in range(nstep):
+            k = 0
+            while k < nstep:
                 if self._has_friction:
                     fl[...] = self._friction_level(self.qvel, self.actuator_force,
                                                    -self.qfrc_bias)
                 if self._live:
                     self._live_forcerange()
-                self._advance(1)
+                if clock.every and clock.phase == 0:
+                    if not self._live:
+                        self._range_in_force()
+                    clock.hold(self)
+                elif clock.every and self._live:
+                    clock.keep(self)
+                n = 1 if (self._has_friction or self._live or not clock.every) else min(
+                    nstep - k, clock.every - clock.phase)
+                self._advance(n)
+                k += n
+                clock.tick(n)
         else:
             self._advance(nstep)
         self._check_finite()
@@ -394,16 +428,18 @@ class Plant(_PlantBase):
       model: a compiled model (its actuators drive the joints); it is copied, never mutated.
       effects: effects to apply.
       rng: generator for noise effects (seeded by the caller).
+      servo_period: the servos' update period [s] (``set_servo_period``; 0: continuous).
     """
 
     def __init__(self, model: mujoco.MjModel, effects: Sequence[AppliedEffect] = (),
-                 rng: np.random.Generator | None = None):
+                 rng: np.random.Generator | None = None, servo_period: float = 0.0):
         self._base_model = model
         self.model = _copy_model(model)
         self.data = mujoco.MjData(self.model)
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._init_effects()
         self.set_effects(effects)
+        self.set_servo_period(servo_period)
         mujoco.mj_forward(self.model, self.data)
 
     @property
@@ -474,6 +510,7 @@ class Plant(_PlantBase):
         d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl
         self.reset_effect_state()
         _fill_ctrl_history(m, d, ctrl_history)
+        self.servo_clock.phase = 0  # a servo updates at the first step
         mujoco.mj_forward(m, d)
         self.rest_play()
 
@@ -487,11 +524,13 @@ class BatchPlant(_PlantBase):
       effects: one list (shared) or one list per simulation.
       nthread: batch threads (0: all CPUs).
       rng: generator for noise effects.
+      servo_period: the servos' update period [s] (``set_servo_period``; 0: continuous).
     """
 
     def __init__(self, model: mujoco.MjModel, nsim: int,
                  effects: Sequence[AppliedEffect] | Sequence[Sequence[AppliedEffect]] = (),
-                 nthread: int = 0, rng: np.random.Generator | None = None):
+                 nthread: int = 0, rng: np.random.Generator | None = None,
+                 servo_period: float = 0.0):
         if nsim < 1:
             raise ConfigError("nsim must be >= 1")
         self._base_model = model
@@ -504,6 +543,7 @@ class BatchPlant(_PlantBase):
                                                        "actuator_force", "qfrc_bias", "history")}
         self._init_effects()
         self.set_effects(effects)
+        self.set_servo_period(servo_period)
         self.batch.forward()
 
     @property
@@ -590,6 +630,7 @@ class BatchPlant(_PlantBase):
                 self._views["history"][i] = d.history
         for value in self._state.values():
             value[rows] = np.nan  # per-rollout effect state restarts in these simulations
+        self.servo_clock.phase = 0  # servos update at the first step (all simulations: one clock)
         self.batch.forward(ids=rows)
         self.rest_play(rows)
 

@@ -31,6 +31,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from lowcostdex.errors import ConfigError
+
 from lowcostdex.motors import MOTORS as MOTORS  # the motor data lives in lowcostdex.motors
 from lowcostdex.motors import TWO_PI as TWO_PI
 from lowcostdex.motors import MotorSpec as MotorSpec
@@ -144,6 +146,82 @@ def motor_current(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         cur = np.where(k > 0, data.actuator_force / np.where(k > 0, k, 1.0), 0.0)
     return cur
+
+
+MAX_SERVO_PERIOD = 0.1  # s; a servo's position loop runs at >= 10 Hz (Dynamixel, Feetech ~1 kHz)
+
+
+class ServoClock:
+    """A servo's update period: its position law sampled every period, its force held between.
+
+    A Dynamixel or Feetech servo runs its firmware position loop at ~1 kHz and holds the PWM
+    (so the torque) until the next cycle; a continuous actuator law is a stiffer servo (a gain
+    fitted to a 1 kHz firmware's logs with the law continuous lands ~5 % high, gap-fric4's trace
+    in tests/test_gap_redteam3.py). It applies to fixed-gain affine actuators on a joint with no
+    activation (``position``, a ``general`` written so): at an update the force is
+
+        f = gain * ctrl + bias0 + bias1 * length + bias2 * velocity
+
+    (ctrl clamped to its range; length and velocity gear times the joint's) clipped by the force
+    range in force then (torque enable, a torque-speed line), and held by pinning the actuator's
+    force range to [f, f]: MuJoCo's implicit integrators drop the velocity derivative of a
+    clamped force, so the held force is exactly a ``motor`` at ctrl f (checked in
+    tests/test_servo_period.py). The period is rounded to a whole number of physics steps (one
+    under half a step is the continuous law). Actuators with a native delay, ``dcmotor``s and
+    filtered ``position``s keep the continuous law. Fields are read through the plant's
+    protocol (``array``, ``qpos``, ``qvel``, ``ctrl``; arrays with a leading sim axis or not).
+    """
+
+    def __init__(self, model: mujoco.MjModel):
+        m = model
+        self.holdable = ((m.actuator_gaintype == mujoco.mjtGain.mjGAIN_FIXED)
+                         & (m.actuator_biastype == mujoco.mjtBias.mjBIAS_AFFINE)
+                         & (m.actuator_dyntype == mujoco.mjtDyn.mjDYN_NONE)
+                         & (m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT))
+        jid = m.actuator_trnid[:, 0]
+        self.qadr = np.where(self.holdable, m.jnt_qposadr[jid], 0)
+        self.dadr = np.where(self.holdable, m.jnt_dofadr[jid], 0)
+        self.every = 0  # physics steps per update (0: continuous)
+        self.phase = 0  # physics steps since the last update
+        self.held: np.ndarray | None = None  # (..., nu) actuators whose force is held now
+        self.force: np.ndarray | None = None
+
+    def set_period(self, period: float, timestep: float) -> None:
+        if not (np.isfinite(period) and 0.0 <= period <= MAX_SERVO_PERIOD):
+            raise ConfigError(f"servo period must be in [0, {MAX_SERVO_PERIOD}] s, got {period}")
+        self.every = int(round(period / timestep))
+        self.release()
+
+    def release(self) -> None:
+        """Forget the held forces (the caller restored the ranges); update at the next step."""
+        self.held, self.force, self.phase = None, None, 0
+
+    def tick(self, n: int) -> None:
+        if self.every:
+            self.phase = (self.phase + n) % self.every
+
+    def hold(self, plant) -> None:
+        """An update: each holdable actuator's force from its law now, pinned."""
+        fr, fl = plant.array("actuator_forcerange"), plant.array("actuator_forcelimited")
+        gain, bias = plant.array("actuator_gainprm"), plant.array("actuator_biasprm")
+        cr = plant.array("actuator_ctrlrange")
+        ctrl = np.where(plant.array("actuator_ctrllimited") > 0,
+                        np.clip(plant.ctrl, cr[..., 0], cr[..., 1]), plant.ctrl)
+        gear = plant.array("actuator_gear")[..., 0]
+        f = (gain[..., 0] * ctrl + bias[..., 0] + bias[..., 1] * gear * plant.qpos[..., self.qadr]
+             + bias[..., 2] * gear * plant.qvel[..., self.dadr])
+        f = np.where(fl > 0, np.clip(f, fr[..., 0], fr[..., 1]), f)
+        self.held = self.holdable & (plant.array("actuator_delay") <= 0)
+        self.force = f
+        self.keep(plant)
+
+    def keep(self, plant) -> None:
+        """Between updates: pin the held forces again (after a rewrite of the ranges)."""
+        if self.held is None:
+            return
+        fr, fl = plant.array("actuator_forcerange"), plant.array("actuator_forcelimited")
+        fr[...] = np.where(self.held[..., None], self.force[..., None], fr)
+        fl[...] = np.where(self.held, 1, fl)
 
 
 ACT_CURRENT, ACT_INTEGRATOR, ACT_THERMAL, ACT_LUGRE, ACT_SLEW = range(5)
