@@ -45,6 +45,7 @@ class _DS:
     timestep: float = 0.002
     sources: tuple = ()
     models: dict | None = None
+    servo_period: float = 0.0  # as gap.dataset.Dataset's (the servos' update period)
 
 
 class _Model:

@@ -231,7 +231,7 @@ def test_a_finer_physics_step_found_after_the_first_cause_chooses_it_again(loop,
     assert floor_mse == pytest.approx(1e-6)
     np.testing.assert_allclose(r, 0.03 * P_B + 0.01 * NOISE, atol=1e-6)
     assert res.timestep == {"model": 0.002, "used": 0.001, "rmse": [0.0123],
-                            "fitted": [(0.002, 0.02), (0.001, 0.01)],
+                            "fitted": [(0.002, 0.02), (0.001, 0.01)], "servo_period": 0.0,
                             "first_at_coarse_step": "position_offset"}
     assert set(res.timing) == {"baseline", "round1_coarse_step", "round1", "round2",
                                "final_fit", "total"}
