@@ -77,6 +77,8 @@ def main() -> None:
     p.add_argument("--robot", required=True, help="hidden robot name (A, B, ...)")
     p.add_argument("--episodes", type=int, default=5)
     p.add_argument("--only", action="store_true", help="'only X' variants (skip 'all but X')")
+    p.add_argument("--pairs", action="store_true",
+                   help="also every pair of catalogue effects (and no 'all but X' variants)")
     p.add_argument("--json", default=None, help="write the results here")
     args = p.parse_args()
     out = Path(args.out)
@@ -98,7 +100,13 @@ def main() -> None:
 
         variants.update({f"only effect {e.name}": ([e], FirmwareImperfection({}, {}, {}),
                                                    ModelPerturbation()) for e in robot.effects})
-    if not args.only:
+        if args.pairs:
+            from itertools import combinations
+
+            variants.update({f"only effects {a.name} + {b.name}": (
+                [a, b], FirmwareImperfection({}, {}, {}), ModelPerturbation())
+                for a, b in combinations(robot.effects, 2)})
+    if not (args.only or args.pairs):
         variants.update({f"all but {k}": all_but(robot, k) for k in parts(robot)})
     results = {}
     t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF).ru_utime
