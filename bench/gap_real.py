@@ -12,9 +12,9 @@ to the repository; exits cleanly when it is absent. For each set:
   is identified on the training gains with ``identify.identify`` (whole logs, open loop; three
   families: all free, the back-driven share held at 1, the motor constants nominal and the
   voltage term off; each from 3 jittered starts, fitted on the training logs but those at the
-  smallest value of the first header field that varies among them (kp, else length, mass, ...),
-  and the family and fit chosen on those held-back logs: the one with the fewest parameters
-  unless another pays 2 %);
+  smallest value of the first header field that varies among them (kp, else length, mass, ...);
+  per family the start with the lowest cost kept, the family chosen by the fitted logs' MAE:
+  the one with the fewest parameters unless another pays 2 %, ``identify_select``);
 * the held-out gains are scored with BAM's measure (mean over logs of each log's position MAE,
   open loop from the first grid state, torque-off parts included), per trajectory and per kp,
   beside BAM's numbers on the same split, typed in from ../shared/reference/08-bam-reference-
@@ -354,14 +354,15 @@ def _print(r: dict) -> None:
         f"{e} " + " ".join(f"{p}={v[0]:.4g}" for p, v in ps.items())
         for e, ps in r["params"].items()))
     if r["family_train_mae"]:
-        print(f"family: {r['family']} (train logs: " + ", ".join(
+        print(f"family: {r['family']} (chosen by: " + ", ".join(
             f"{k} {1e3 * v:.1f}" for k, v in r["family_train_mae"].items()) + " mrad)")
     sel = r["selection"]
     if sel:
-        print(f"inner validation: fit {len(sel['fit_logs'])} training logs, validate on "
+        print(f"inner split: fit {len(sel['fit_logs'])} training logs, held back "
               f"{len(sel['val_logs'])} (split by {sel['field']}); chosen {sel['chosen']}; "
-              "validation MAE [mrad]: " + ", ".join(f"{k} {1e3 * v:.1f}" for k, v in
-                                                    sel["val_mae"].items()))
+              "MAE on the fitted / held-back logs [mrad]: " + ", ".join(
+                  f"{k} {1e3 * v:.1f} / {1e3 * sel['val_mae'][k]:.1f}"
+                  for k, v in sel.get("fit_mae", sel["val_mae"]).items()))
     if r["at_bound"]:
         print("at a search bound:", ", ".join(r["at_bound"]))
     print("held-out MAE without each effect (others kept) [mrad]:",

@@ -130,16 +130,15 @@ def test_identified_servo_beats_bam_on_held_out_gains():
     # BAM on the same held-out logs, 08-bam-reference-errors.md: Rhoban XL330 held out kp 200
     # and 800 after fitting kp 100 and 400, BAM's refit M6 0.0599 rad (section 3); Pham XL330 at
     # kp 400, BAM's best published model M3 0.022 rad (section 2, per-kp column). Issue 11's
-    # targets on the same splits: Rhoban < 0.050 rad, Pham < 0.022 (an analysis-only Coulomb start
-    # taken by identify moved Rhoban 0.0455 -> 0.0542, still under M6: bench/RESULTS.md gap-real3)
+    # targets on the same splits: Rhoban < 0.050 rad, Pham < 0.022 (Rhoban 0.0425 since the
+    # restart kept by cost and the family by the fitted logs, gap.identify_select; 0.056 before,
+    # a near tie on 4 held-back logs: bench/RESULTS.md gap-real5)
     for folder, held, bam, target in ((RHOBAN, (200, 800), 0.0599, 0.050),
                                       (PHAM, (400,), 0.022, 0.022)):
         ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
         train, test = _split(ds, held)
         res = identify(ds, train, test, IdentifyConfig(effects=servo_structure(ds)))
-        # Rhoban's issue target (50) is its own strict xfail below: met only by a replay bug
-        want = bam if folder == RHOBAN else min(bam, target)
-        assert res.mean(test) < want, (folder.name, res.mean(test), res.params())
+        assert res.mean(test) < min(bam, target), (folder.name, res.mean(test), res.params())
         assert res.mean(test) < 0.3 * res.mean(test, identified=False)
         if folder == RHOBAN:
             # on the heavy bench the load-carrying gear friction is what the model leans on
@@ -147,21 +146,23 @@ def test_identified_servo_beats_bam_on_held_out_gains():
             assert max(res.ablation, key=res.ablation.get) == "gearbox_friction"
 
 
-@pytest.mark.slow  # the Rhoban identify of the test above again (minutes of CPU)
+@pytest.mark.slow  # three Rhoban identifies (about 1.5 min of CPU)
 @pytest.mark.skipif(not RHOBAN.is_dir(), reason=f"measured data not found at {ROOT}")
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 11's Rhoban target < 50 mrad NOT met (lead, 2026-11-27 session 11): 45.5 was reached "
-    "only through a replay bug (a reused plant's first step read the torque mask of its previous "
-    "replay, gap-real4); with the fix identify lands in another start's basin: 56.0 (kp 200 42.1, "
-    "kp 800 69.9), still under BAM's refit M6 59.9"))
-def test_identified_servo_meets_issue_target_on_rhoban_held_out_gains():
+def test_rhoban_identification_does_not_hinge_on_where_its_fits_start():
     from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure
 
-    # issue 11 item 3: Rhoban XL330, fit kp 100 and 400, hold out kp 200 and 800: < 0.050 rad
+    # a user runs the identification once: its answer must not be a draw of its starts. Every
+    # start jittered by x (1 + 0.001 N(0, 1)) (seeds 1, 2; 0: the catalogue's starts): on main
+    # 57537c7 five seeds gave 41.5-56.0 mrad held out (held.1, held.2, free.0 chosen), since
+    # gap.identify_select 42.5 on all five (bench/RESULTS.md gap-real5)
     ds = bm.grid_dataset(load_dataset(sorted(RHOBAN.glob("*.json")), timestep=bm.BAM_DT))
     train, test = _split(ds, (200, 800))
-    res = identify(ds, train, test, IdentifyConfig(effects=servo_structure(ds)))
-    assert res.mean(test) < 0.050, res.mean(test)
+    runs = [identify(ds, train, test, IdentifyConfig(effects=servo_structure(ds), seed=seed,
+                                                     jitter=1e-3 if seed else 0.0))
+            for seed in (0, 1, 2)]
+    held = [r.mean(test) for r in runs]
+    assert max(held) - min(held) < 0.001, held  # one basin: within a mrad
+    assert {r.family for r in runs} == {"free"}, [r.selection["chosen"] for r in runs]
 
 
 STS3032 = ROOT / "qua-robotics-bam-sts3032"

@@ -348,9 +348,10 @@ def _why(res: Any) -> str:
                 "logs")
     if sel:
         return (f"fitted on the training logs but those at the smallest {sel['field']} "
-                f"({len(sel['fit_logs'])} fitted, {len(sel['val_logs'])} validated), chosen "
-                f"{sel['chosen']} on those held-back logs (mean MAE [mrad] per family: {fam}; "
-                "the fewest free parameters unless another family is 2 % lower)")
+                f"({len(sel['fit_logs'])} fitted, {len(sel['val_logs'])} held back); per family "
+                f"the restart with the lowest cost, chosen {sel['chosen']} on the fitted logs "
+                f"(mean MAE [mrad] per family: {fam}; the fewest free parameters unless another "
+                "family is 2 % lower)")
     return (f"no header field ({', '.join(INNER_FIELDS)}) varies among the training logs, "
             "so nothing validates the fit: the family was chosen on the training logs' own MAE"
             + (f" [mrad]: {fam}" if fam else "") + "; expect a larger error on logs unlike them")

@@ -13,13 +13,14 @@ squared error is minimised by the project's bounded lockstep Levenberg-Marquardt
 (``fit.lockstep_lm``, all starts in one batched pass per round). Held-out logs are scored with
 BAM's per-log MAE; ``ablation`` reports what each effect buys on them.
 
-Which least-squares optimum extrapolates is not told by the training cost (on Rhoban XL330 the
-starts that fitted the training gains best extrapolated worst), so by default the structure's
-families are fitted from several jittered starts on part of the training logs and the family
-and fit are chosen on the rest (``inner_split``: by the log headers alone).
+By default the structure's families are fitted from several jittered starts on the training
+logs but those at the smallest value of a header field (``inner_split``: the lowest gain, whose
+logs moved the fits away from what the other gains need); per family the restart with the lowest
+cost is kept and the families are compared on the fitted logs (``identify_select``); the held-back
+logs are scored and reported.
 
-Why one module: the least-squares stages, the families and restarts, the validation that
-chooses among them and the checks of what the training logs cannot tell (torque off never seen:
+Why one module: the least-squares stages, the families and restarts, the inner split and
+the checks of what the training logs cannot tell (torque off never seen:
 ``rest_friction``; faster held-out logs) are one procedure over one residual and Replayer.
 """
 
@@ -36,6 +37,8 @@ from lowcostdex.errors import ConfigError, check_bool, check_number
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
 from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.identify_select import FAMILY_MARGIN, choose
+from lowcostdex.gap.identify_select import choose_family as _choose_family
 from lowcostdex.gap.identify_starts import starts as own_starts
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.rest_friction import held_at_rest
@@ -69,9 +72,6 @@ MOTOR_EFFECTS = STAGE_TWO | {"voltage_sag"}
 # Parameters held at their null in every fit unless ``IdentifyConfig.hold`` says otherwise: the
 # Stribeck curvature (2, Gaussian).
 HELD_ALWAYS = frozenset({("gearbox_friction", "alpha")})
-# A family with more free parameters must lower the training logs' mean per-log MAE by this
-# fraction and by 0.1 mrad (a tenth of an encoder tick) to be chosen over one with fewer.
-FAMILY_MARGIN = 0.02
 # Header fields that tell the training logs' setups apart, in the order the inner validation
 # tries them (``inner_split``): the firmware gain first (what a user changes, and the P law must
 # carry from one gain to another), then the bench geometry and the supply.
@@ -124,9 +124,9 @@ class IdentifyConfig:
         (``bench/gap_real.py --seeds``).
       seed: seed of the jitter's random generator.
       select: how the family (and, with ``restarts`` > 1, the fit) is chosen: "train" (the
-        training logs' MAE, ``_choose_family``) or "inner" (fitted on part of the training logs
-        and chosen on the rest, ``inner_split``; then ``joint_rounds`` LM steps from the chosen
-        fit on all training logs). "inner" falls back to "train" when the headers cannot split
+        training logs' MAE, ``_choose_family``) or "inner" (fitted on the training logs but the
+        held-back ones of ``inner_split``, the restart and the family chosen on the fitted
+        logs by ``identify_select``, the held-back logs scored; that fit is the model). "inner" falls back to "train" when the headers cannot split
         the training logs. "types": each trajectory type left out in turn (``type_folds``),
         every family fitted (one start) on the others and scored on it; the family chosen on
         the mean is fitted on all training logs ("inner" when fewer than two types).
@@ -228,10 +228,11 @@ class Identified:
         is too narrow or the parameter stands in for something the structure lacks.
       family: the family kept ("free", "held": HELD_FIRST at their null, "nominal_motor": the
         MOTOR_EFFECTS at their null); family_train_mae: each family's training-log mean per-log
-        MAE [rad] (empty when only one family was fitted); with select="inner" the inner
-        validation logs' MAE of each family's best restart instead.
+        MAE [rad] (empty when only one family was fitted); with select="inner" the inner fit
+        logs' MAE of each family's lowest-cost restart (what it was chosen by).
       selection: with select="inner": the header field split on, the inner fit and validation
-        logs, every (family.restart)'s validation MAE [rad] and the one chosen.
+        logs, every (family.restart)'s least-squares cost ("cost") and MAE on the fitted and
+        on the validation logs [rad] ("fit_mae", "val_mae"), and the one chosen.
       notes: what the identification decided from the logs themselves (e.g. no training log
         has the torque off, so the back-driven share of the gear friction was held at 1).
     """
@@ -378,9 +379,9 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         rounds += r
         best = cands[(chosen, 0)]
     elif inner is not None:
-        # start-robust selection: every family from ``restarts`` jittered starts, fitted on
-        # the inner fit logs; the family and the fit chosen on the inner validation logs
-        # (held out of that fit), and that fit is the identified model
+        # every family from ``restarts`` jittered starts, fitted on the inner fit logs; the
+        # restart and the family chosen on those logs (gap.identify_select), the held-back
+        # logs scored (selection["val_mae"]); that fit is the identified model
         field_, fit_logs, val_logs = inner
         w_fit = whole_logs(ds, fit_logs)
         wts = [1.0 / math.sqrt(ds.trajectories[w.traj].qpos.size) for w in w_fit]
@@ -388,15 +389,17 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         cands, rounds = _fit_families(residual, joints, ctx, config, families,
                                       config.restarts, prog)
         keys = list(cands)
-        prog("choosing the family and the fit on the inner validation logs", 0.8)
+        prog("choosing the family and the fit (gap.identify_select)", 0.8)
+        fm = {k: float(np.mean(_train_mae(cands[k], w_fit, wts, ds, rep))) for k in keys}
+        chosen, per_fam = choose({k: cands[k].cost for k in keys}, fm,
+                                 {k: len(cands[k].structure.free) for k in keys})
+        fam_mae = {f: fm[k] for f, k in per_fam.items()}
         vm = per_log_mae(rep, whole_logs(ds, val_logs), [cands[k].effects() for k in keys])
-        val = {k: float(np.mean(vm[i])) for i, k in enumerate(keys)}
-        per_fam = {f: min((k for k in keys if k[0] == f), key=val.get) for f in families}
-        fam_mae = {f: val[k] for f, k in per_fam.items()}
-        chosen = _choose_family(fam_mae, {f: len(cands[k].structure.free)
-                                          for f, k in per_fam.items()})
         selection = {"field": field_, "fit_logs": list(fit_logs), "val_logs": list(val_logs),
-                     "val_mae": {f"{f}.{j}": v for (f, j), v in val.items()},
+                     "cost": {f"{f}.{j}": float(cands[(f, j)].cost) for f, j in keys},
+                     "fit_mae": {f"{f}.{j}": v for (f, j), v in fm.items()},
+                     "val_mae": {f"{f}.{j}": float(np.mean(vm[i]))
+                                 for i, (f, j) in enumerate(keys)},
                      "chosen": f"{chosen}.{per_fam[chosen][1]}"}
         # the chosen fit itself (LM steps from it on all training logs: worse held out)
         best = cands[per_fam[chosen]]
@@ -569,15 +572,6 @@ def inner_split(ds: Dataset, train: Sequence[int]
         return (key, tuple(i for i, v in zip(train, vals, strict=True) if v != low),
                 tuple(i for i, v in zip(train, vals, strict=True) if v == low))
     return None
-
-
-def _choose_family(train_mae: dict[str, float], n_free: dict[str, int],
-                   margin: float = FAMILY_MARGIN) -> str:
-    """The family with the fewest free parameters among those no other family beats on the
-    training logs by ``margin`` (and 0.1 mrad); ties by the lower training MAE [rad]."""
-    best = min(train_mae.values())
-    ok = [f for f, v in train_mae.items() if not best < (1.0 - margin) * v - 1e-4]
-    return min(ok, key=lambda f: (n_free[f], train_mae[f]))
 
 
 def _prune_trailing(rnd: int, tracks: Sequence[fitmod.Track], after: int = 4,

@@ -1,0 +1,58 @@
+"""Which of ``identify``'s fits is the identified model: the restart and the family.
+
+``identify`` (select="inner") fits every family (``identify``: all free, the back-driven share
+held, the motor constants nominal) from ``restarts`` jittered starts on the training logs but
+those at the smallest value of a header field (``inner_split``), and must return one of them.
+
+Restarts are an optimizer's device: they differ only in where the least-squares path started,
+so the restart kept for a family is the one with the lowest cost on the logs it was fitted on
+(``lowest_cost``; more restarts can then only find a better optimum of the same objective).
+The families are compared on the same fitted logs by BAM's per-log MAE, the fewest free
+parameters unless another family is ``FAMILY_MARGIN`` (2 %) lower (``choose_family``). The
+held-back logs are scored and reported (``Identified.selection``), not chosen on.
+
+Until 2026-11-27 every (family, restart) was chosen on the held-back logs' MAE (4 logs on Rhoban
+XL330): a choice among 9 fits whose validation MAEs lay within a few % of each other, which ranked
+their held-out error worse than the fitted logs' MAE does (Spearman over the fits, validation /
+fitted-log MAE: Rhoban 0.17 / 0.52, Pham 0.54 / 0.98, STS3032 0.71 / 0.96), and the identified
+model then hung on a start: Rhoban's BAM split 41.5-56.0 mrad over five jitter seeds, STS3032
+21.9-34.7 over subsets of its restarts. Measured 2026-11-27, bench/RESULTS.md (gap-real5).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+# A family with more free parameters must lower the fitted logs' mean per-log MAE by this
+# fraction and by 0.1 mrad (a tenth of an encoder tick) to be chosen over one with fewer.
+FAMILY_MARGIN = 0.02
+
+Key = tuple[str, int]  # (family, restart)
+
+
+def choose_family(mae: Mapping[str, float], n_free: Mapping[str, int],
+                  margin: float = FAMILY_MARGIN) -> str:
+    """The family with the fewest free parameters among those no other family beats by
+    ``margin`` (and 0.1 mrad) on ``mae`` [rad]; ties by the lower MAE."""
+    best = min(mae.values())
+    ok = [f for f, v in mae.items() if not best < (1.0 - margin) * v - 1e-4]
+    return min(ok, key=lambda f: (n_free[f], mae[f]))
+
+
+def lowest_cost(cost: Mapping[Key, float]) -> dict[str, Key]:
+    """{family: its restart with the lowest least-squares cost}; ties to the lower restart."""
+    out: dict[str, Key] = {}
+    for key in sorted(cost, key=lambda k: (cost[k], k[1])):
+        out.setdefault(key[0], key)
+    return out
+
+
+def choose(cost: Mapping[Key, float], fit_mae: Mapping[Key, float],
+           n_free: Mapping[Key, int], margin: float = FAMILY_MARGIN
+           ) -> tuple[str, dict[str, Key]]:
+    """(chosen family, {family: its kept restart}) from every fit's least-squares cost and
+    mean per-log MAE [rad] on the logs it was fitted on (module doc)."""
+    kept = lowest_cost(cost)
+    fam = choose_family({f: fit_mae[k] for f, k in kept.items()},
+                        {f: n_free[k] for f, k in kept.items()}, margin)
+    return fam, kept
