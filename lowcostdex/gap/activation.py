@@ -114,7 +114,7 @@ class Activations:
                 w = windows[wi]
                 tr = self.ds.trajectories[w.traj]
                 kp = float(gains[s, a, 0])
-                start = gear * tr.qpos[0, tr.joints.index(name)] + self._static_load(
+                start = gear * tr.qpos[0, tr.joints.index(name)] + self.static_load(
                     w.traj, name) / (kp * gear)
                 x = tr.time[w.start] - delays[s, col]  # goals that arrived before the window
                 u = tr.goal_times
@@ -167,7 +167,7 @@ class Activations:
                         col[wi] = col[wi].copy()
                         col[wi][:, js] += shift
 
-    def _static_load(self, traj: int, joint: str) -> float:
+    def static_load(self, traj: int, joint: str) -> float:
         """Gravity (and other configuration-dependent) torque on ``joint`` at the trajectory's
         first measured position, at rest, in the nominal model [N m]."""
         cache = self.__dict__.setdefault("_loads", {})
