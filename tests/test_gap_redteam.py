@@ -95,19 +95,17 @@ MISSES: dict[str, str] = {
                               "[0.0789, 0.0825] holds 0.08 but gain 0.6989 [0.6981, 0.6998] "
                               "misses 0.7 by 0.0002 (a 0.16 % bias); held-out 302.9 -> 0.98 mrad",
     # never-run cases, measured by redteam3 (2026-11-26 12:00-, main dee30b5, load 9-17)
-    "backlash_body_turntable": "miss (gap-play2, re-run on main 9b54389, 159 s CPU; exact "
-                               "name at dee30b5): 'discrepancy not explained', held-out 8.44 "
-                               "mrad = 12 floors. Traced: the forward round refuses backlash "
-                               "(select gain 0.20, episode-bootstrap 5 % bound -0.48 < -0.05) "
-                               "at dee30b5 too, which named it through the backward search; "
-                               "since a89d29d _backward drops an effect whose paired block "
-                               "bound is <= 0 (-0.56) and gearbox_friction (0.10) is accepted "
-                               "then dropped. Even the TRUE play (0.01745) is worse on 4 of 14 "
-                               "episodes open loop (e.g. 5.7 -> 8.9 mrad): an unloaded link "
-                               "is started mid-play with the motor at the link angle "
-                               "(Plant.rest_play); the motor at the servo's setpoint improves "
-                               "2 of the 4 (8.9 -> 3.9, 10.3 -> 7.7 mrad; not landed), the "
-                               "others drift at a velocity below the log's 0.024 rad/s step",
+    "backlash_body_turntable": "interval (gap-play5, session 12, 216 s CPU): named exactly "
+                               "backlash, width 0.01793 [0.01754, 0.01832] for 0.01745 (2.7 % "
+                               "high, 0.09 mrad short), held-out 8.44 -> 2.29 mrad. Was a miss: "
+                               "the unloaded disk drifts through its play after each step below "
+                               "the log's 0.024 rad/s velocity step, a window started mid-play "
+                               "missed it (the true play was worse than nominal on 4 of 14 "
+                               "episodes); windows now start from a replay of the second before "
+                               "them (gap.play_state). The width's bias is the 1 ms physics step "
+                               "(training segments: best width 0.0179 at 1 ms, the truth "
+                               "0.01745 at 0.25 ms); the half-step refit does not move a width "
+                               "(replays at 0.5 ms are jagged in it)",
 }
 
 

@@ -20,11 +20,13 @@ together at the physics timestep:
   initial position;
 * backlash is replayed in both of its regimes and the one closer to the data is kept: a play
   hinge between the servo's motor side and its link (a model prepared with hidden dofs; the link
-  starts at the measured angle, leaning on the stop its static load pushes it to,
-  ``Plant.reset``) and the massless-motor play operator on the goal (no hidden dofs; the
-  servo's setpoint before the window is the operator's state after the goals that preceded
-  it, exact: the operator acts on commands only). Columns without backlash run on a model
-  without the hidden dofs, so the nominal column stays the nominal model exactly;
+  starts at the measured angle, at a log's start leaning on the stop its static load pushes it
+  to, ``Plant.reset``; inside a log, with the play angle and rate that a replay of the second
+  before the window ends with, ``gap.play_state``) and the massless-motor play operator on the
+  goal (no hidden dofs; the servo's setpoint before the window is the operator's state after
+  the goals that preceded it, exact: the operator acts on commands only). Columns without
+  backlash run on a model without the hidden dofs, so the nominal column stays the nominal model
+  exactly;
 * a servo update period (``Dataset.servo_period``) samples each position servo's law every
   period and holds its force between (``sim.servo.ServoClock``; no saturation matching then:
   the firmware reads one goal per update);
@@ -53,6 +55,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from lowcostdex.gap import play_state
 from lowcostdex.gap.activation import Activations, position_like
 from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.sim.effects import CAUSES, EFFECTS, AppliedEffect, Targets
@@ -126,6 +129,7 @@ class Replayer:
         self._memo: OrderedDict[tuple, list[np.ndarray]] = OrderedDict()
         self._memo_bytes = 0
         self.memo_hits = 0
+        self.preroll = play_state.PREROLL  # s replayed before a window for its play state
 
     # ------------------------------------------------------------------------------------------
     def grid(self, w: Window) -> _Grid:
@@ -314,7 +318,8 @@ class Replayer:
                 groups.setdefault(key, []).append((c, wi))
         pred: list[list[np.ndarray | None]] = [[None] * len(windows) for _ in columns]
         peaks = np.zeros((len(columns), len(self.ds.actuators))) if force_peak else None
-        runs = [self._setup(key, sims, windows, columns, goal_shift)
+        carried = play_state.carry(self, windows, columns, groups, goal_shift, self.preroll)
+        runs = [self._setup(key, sims, windows, columns, goal_shift, carried)
                 for key, sims in groups.items()]
         n_max = max(r["n_steps"] for r in runs)
         for k in range(n_max + 1):
@@ -353,7 +358,7 @@ class Replayer:
 
     def _setup(self, key: tuple[str, bool, bool], sims: list[tuple[int, int]],
                windows: Sequence[Window], columns: Sequence[Column],
-               goal_shift: float = 0.0) -> dict:
+               goal_shift: float = 0.0, carried: dict | None = None) -> dict:
         model_key = key[:2]  # (model, structural variant)
         model = self._variants[model_key]
         union = _union([columns[c] for c, _ in sims])
@@ -417,6 +422,10 @@ class Replayer:
                                                                  windows, played),
                     act=self._acts.setpoints(model_key, sims, windows, delays,
                                         plant.array("actuator_gainprm")))
+        have = [s for s, cw in enumerate(sims) if carried and cw in carried]
+        if have:  # play states carried from the log before each window (``play_state``)
+            arrs = [np.array([carried[sims[s]][i] for s in have]) for i in range(3)]
+            play_state.place(plant, ds.effect_joints, *arrs, sims=np.array(have))
         shifted = np.flatnonzero(np.any(delays > 0, axis=1))
         if len(shifted):  # their goals arrive late on the grid: no native (interpolated) delay
             plant.array("actuator_delay")[np.ix_(shifted, act)] = 0.0

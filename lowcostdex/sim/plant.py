@@ -420,6 +420,10 @@ class _PlantBase:
                 qpos[jq] = link - play
         self._forward(sims)
 
+    def forward(self, sims: np.ndarray | None = None) -> None:
+        """Recompute derived quantities after an edit of the state (``sims``: BatchPlant rows)."""
+        self._forward(sims)
+
 
 class Plant(_PlantBase):
     """One simulation of a servo-driven model with effects.
