@@ -94,18 +94,6 @@ MISSES: dict[str, str] = {
                               "reported, gain named by catalogue order): viscous 0.0807 "
                               "[0.0789, 0.0825] holds 0.08 but gain 0.6989 [0.6981, 0.6998] "
                               "misses 0.7 by 0.0002 (a 0.16 % bias); held-out 302.9 -> 0.98 mrad",
-    # never-run cases, measured by redteam3 (2026-11-26 12:00-, main dee30b5, load 9-17)
-    "backlash_body_turntable": "interval (gap-play5, session 12, 216 s CPU): named exactly "
-                               "backlash, width 0.01793 [0.01754, 0.01832] for 0.01745 (2.7 % "
-                               "high, 0.09 mrad short), held-out 8.44 -> 2.29 mrad. Was a miss: "
-                               "the unloaded disk drifts through its play after each step below "
-                               "the log's 0.024 rad/s velocity step, a window started mid-play "
-                               "missed it (the true play was worse than nominal on 4 of 14 "
-                               "episodes); windows now start from a replay of the second before "
-                               "them (gap.play_state). The width's bias is the 1 ms physics step "
-                               "(training segments: best width 0.0179 at 1 ms, the truth "
-                               "0.01745 at 0.25 ms); the half-step refit does not move a width "
-                               "(replays at 0.5 ms are jagged in it)",
 }
 
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Dataset, Window
+from lowcostdex.gap.diagnostics import effective_n
 from lowcostdex.sim.effects import AppliedEffect, effect
 
 # a change of a model's error by at most this fraction is no change (``paired_gain_bound``): far
@@ -102,18 +103,63 @@ def step_shift(t: fitmod.Track, residual: fitmod.ResidualFn, max_rounds: int, dt
                ) -> np.ndarray:
     """``fit.step_shift`` (how far ``t`` moves when refitted on the finer replay ``residual``,
     optimizer coordinates) with its delays first scanned over +-1 finer physics step ``dt``
-    [s] (``fit.polish``). Levenberg-Marquardt alone did not move a delay at all (shift exactly
-    0 on redteam3 fin_latency60_prox), although the least-squares optimum moves from 60.55 ms
-    at a 2 ms step to 60.20 at 1 ms and 60.00 at 0.5 ms (truth 60 ms, 2026-11-26): the
-    interval [60.43, 60.58] ms then ignored the integrator's bias."""
-    if not any(f.effect == "latency" for f in t.structure.free):
+    [s] (``fit.polish``) and its plays' widths over +-1 and 2 of their residual-noise
+    half-widths (``_scan_widths``). Levenberg-Marquardt alone did not move a delay at all
+    (shift exactly 0 on redteam3 fin_latency60_prox), although the least-squares optimum moves
+    from 60.55 ms at a 2 ms step to 60.20 at 1 ms and 60.00 at 0.5 ms (truth 60 ms,
+    2026-11-26): the interval [60.43, 60.58] ms then ignored the integrator's bias. Nor a play's
+    width (its cost is kinked, ``profile_interval``): sim2 backlash_body_turntable's width was
+    0.01793 [0.01754, 0.01832] at 1 ms with a shift of exactly 0, for a truth of 0.01745, the
+    best width on its training segments at the truth's own 0.25 ms step (0.0179 at 1 ms)."""
+    free = t.structure.free
+    if not any(f.effect == "latency" or (f.effect, f.param) == ("backlash", "width")
+               for f in free):
         return fitmod.step_shift(t, residual, max_rounds)
     nt = fitmod.Track(t.structure, t.u.copy(), label=t.label + "+finer step scan")
-    r = residual([(nt.structure, nt.x)])[0]
-    nt.r, nt.cost = r, 0.5 * float(r @ r)
-    if not fitmod.polish(nt, residual, dt):
+    moved = False
+    for scan in (lambda: _scan_widths(nt, residual, t), lambda: fitmod.polish(nt, residual, dt)):
+        if nt.r is None:  # at the start, or restarted by the width scan
+            r = residual([(nt.structure, nt.x)])[0]
+            nt.r, nt.cost = r, 0.5 * float(r @ r)
+        moved = scan() or moved
+    if not moved:
         return fitmod.step_shift(t, residual, max_rounds)
     return fitmod.step_shift(nt, residual, max_rounds) + (nt.u - t.u)
+
+
+def _scan_widths(nt: fitmod.Track, residual: fitmod.ResidualFn, t: fitmod.Track) -> bool:
+    """Move ``nt`` to the lowest-cost value of each play width over ``t``'s width +- 1 and 2
+    4 of its residual-noise 95 % half-widths (others fixed, one batched evaluation); returns
+    whether it moved (then ``fit.restart``-ed there)."""
+    idx = [i for i, f in enumerate(nt.structure.free) if (f.effect, f.param) == ("backlash", "width")]
+    if not idx or t.jac is None or t.r is None:
+        return False
+    half = fitmod.interval_halfwidths(t.r, t.jac, effective_n(t.r))
+    lo, hi = nt.structure.u_bounds()
+    points, where = [], []
+    for i in idx:
+        if not np.isfinite(half[i]) or half[i] <= 0:
+            continue
+        for k in (-2.0, -1.0, 1.0, 2.0):
+            u = nt.u.copy()
+            u[i] = float(np.clip(u[i] + k * half[i], lo[i], hi[i]))
+            points.append((nt.structure, nt.structure.x(u)))
+            where.append((i, u[i]))
+    if not points:
+        return False
+    costs = [0.5 * float(r @ r) for r in residual(points)]
+    u = nt.u.copy()
+    for i in idx:
+        best = [(c, v) for c, (j, v) in zip(costs, where, strict=True) if j == i]
+        if best and min(best)[0] < nt.cost:
+            u[i] = min(best)[1]
+    if np.array_equal(u, nt.u):
+        return False
+    r = residual([(nt.structure, nt.structure.x(u))])[0]
+    if not 0.5 * float(r @ r) < nt.cost:
+        return False
+    fitmod.restart(nt, nt.structure.x(u))
+    return True
 
 
 def null_u(f: fitmod.Free, ctx: fitmod.Context) -> tuple[float, int] | None:
