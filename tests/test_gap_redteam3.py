@@ -44,6 +44,10 @@ import gap_truth_sim3 as sim  # noqa: E402
 # the mounting offset fits worse); since the first cause is chosen again at the refined step
 # (gap-offset, session 8): mounting_offset prox 0.1986 [0.191, 0.206] alone, held-out 2.69 ->
 # 0.79 mrad (was 1.12 with the position offset).
+# srv_gain25_posonly was 'extra' (gain 2.594 [2.573, 2.616] for 2.5 plus mass_error 1.045: the
+# truth's 1 kHz firmware replayed as a continuous position law); with the servo update period
+# tried on the first cause (gap-servo5, session 12, stepsize.refine_fitted): gain_error 2.538
+# [2.416, 2.667] alone at 0.5 ms with a 1 ms period, held-out 49.9 -> 0.95 mrad, 39 s CPU.
 MISSES: dict[str, str] = {
     "fin_pair_latency080_abd_backlash050_prox": "miss (gap-play, main 3483c63, 379 s): latency "
                                                 "80.22 ms on abd alone, its interval [79.74, "
@@ -65,17 +69,6 @@ MISSES: dict[str, str] = {
                             "the play adds 0.18-0.39 mrad RMS on dist but 0.56-0.97 mrad on "
                             "prox (0.8-1.4 floors, max 6 ticks) in quadrature over the 3 logs: "
                             "a systematic signal 3600 rows could resolve; held-out 0.83 mrad",
-    "srv_gain25_posonly": "extra (gap-offset, session 8): round 1 now fits the gain (2.63 at "
-                          "0.5 ms; was stuck at 1.33) but mass_error 1.045 follows (select MSE "
-                          "74 % lower) and gain 2.594 [2.573, 2.616] excludes 2.5: the truth's "
-                          "1 kHz integer firmware replays like a ~4 % stiffer continuous "
-                          "position actuator (gain 2.5 / 2.6 at 0.25 ms: 4.7 / 2.8 mrad train "
-                          "RMSE; a 0.5-1.5 ms latency does not help); held-out 49.9 -> 1.07 mrad. "
-                          "Traced (gap-fric4, session 11): the firmware's 1 ms update period, "
-                          "not its integer ticks: the same P-D law in floats held for 1 ms "
-                          "fits 2.498 (0.86 mrad over the 3 logs) where the continuous "
-                          "actuator fits 2.62 (2.72 mrad); the replay has no servo update "
-                          "period (test_a_gain_error_under_the_servos_1khz_firmware...)",
     "fin_stribeck_prox": "interval (re-run by gap-fric4, session 11, main 69aace3, 1069 s "
                          "CPU): named exactly stribeck_friction[prox] (abd and dist listed "
                          "idle), analysed at 0.5 ms; its velocity no longer at the 0.01 "

@@ -111,3 +111,28 @@ def test_a_bad_period_is_refused(bad):
     model = mujoco.MjModel.from_xml_string(_xml(POSITION, 0.00025))
     with pytest.raises(ConfigError, match="servo period"):
         Plant(model, servo_period=bad)
+
+
+def test_the_gap_replay_holds_the_law_for_a_data_set_with_a_servo_period():
+    """A log of the firmware truth (motor + P-D law every 1 ms, above) replayed by the gap
+    analysis on the user's ``position`` model: with ``Dataset.servo_period`` 1 ms the replay
+    is the truth; continuous, it is off by far more than an encoder tick."""
+    from lowcostdex.gap.bam_measure import whole_logs
+    from lowcostdex.gap.dataset import Dataset
+    from lowcostdex.gap.replay import Replayer
+    from lowcostdex.gap.trajectory import Trajectory
+
+    dt, goals = 0.00025, _goals(150)
+    truth = _firmware_truth(dt, 0.001, goals, 40)
+    # row k: goal k written at t_k = 10 ms k, reading at t_k (before the goal acts)
+    t = np.arange(len(goals)) * 0.01
+    q = np.concatenate([[0.0], truth[:-1]])
+    tr = Trajectory(name="fw", time=t, goal=goals[:, None], qpos=q[:, None], actuators=("servo",),
+                    joints=("q",), qvel=np.zeros((len(t), 1)))
+    err = {}
+    for period in (0.0, 0.001):
+        ds = Dataset({"model": _xml(POSITION, dt)}, [tr], servo_period=period)
+        ((pred,),), _ = Replayer(ds, nthread=1).run(whole_logs(ds), [[]])
+        err[period] = float(np.max(np.abs(pred[:, 0] - q)))
+    assert err[0.001] < 1e-9, err
+    assert err[0.0] > 2 * np.pi / 4096, err

@@ -17,6 +17,7 @@ from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Split, Window
 from lowcostdex.gap.gain import Gain
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, effect
+from lowcostdex.sim.servo import MAX_SERVO_PERIOD
 
 # Without accepted causes, a held-out error above this many noise floors is reported as an
 # unexplained discrepancy rather than "no significant discrepancy".
@@ -99,6 +100,9 @@ class GapConfig:
       refine_gain: the share of the MSE above the floor a halving must remove (a hidden effect
         the step interacts with also moves the nominal replay: the independent bench's 0.14 N m
         Coulomb friction, simulated at 2 ms, came 8.7 % closer at 1 ms).
+      servo_periods: servo update periods [s] tried with the first accepted cause refitted
+        (``stepsize.refine_fitted``; a Dynamixel's or Feetech's position loop runs at ~1 kHz);
+        one is kept when it pays as a finer step must. Empty: the law stays continuous.
       seed: seed of the split and the bootstrap.
       nthread: simulation threads (0: all CPUs).
     """
@@ -128,6 +132,7 @@ class GapConfig:
     refine_step: bool = True
     min_step: float = 2.5e-4
     refine_gain: float = 0.2
+    servo_periods: tuple[float, ...] = (0.001,)
     seed: int = 0
     nthread: int = 0
 
@@ -161,6 +166,10 @@ class GapConfig:
             raise ConfigError(f"refine_gain must be in (0, 1), got {self.refine_gain}")
         if not self.min_step > 0:
             raise ConfigError(f"min_step must be > 0 s, got {self.min_step}")
+        if not all(isinstance(p, (int, float)) and 0 < p <= MAX_SERVO_PERIOD
+                   for p in self.servo_periods):
+            raise ConfigError(f"servo_periods must be in (0, {MAX_SERVO_PERIOD}] s, got "
+                              f"{self.servo_periods}")
         if not 0 <= self.interval_step < 1:
             raise ConfigError("interval_step must be in [0, 1) (a fraction of the physics "
                               f"step; 0: off), got {self.interval_step}")
