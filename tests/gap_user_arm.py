@@ -25,6 +25,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from user_rig_goals import goal_signal
 
 JOINTS = ("shoulder", "elbow")
 KP = 12.0  # [N m/rad]
@@ -87,24 +88,8 @@ def goals(style: str, n: int, rng: np.random.Generator) -> np.ndarray:
     (0.2-2 Hz sweeps) or 'ramps' (slow triangles)."""
     lo = np.array([GOAL_RANGE[j][0] for j in JOINTS])
     hi = np.array([GOAL_RANGE[j][1] for j in JOINTS])
-    if style == "steps":
-        g = np.zeros((n, 2))
-        k = 0
-        while k < n:
-            m = int(rng.uniform(0.4, 1.5) * RATE)
-            g[k:k + m] = rng.uniform(lo, hi)
-            k += m
-        return g
-    s = np.arange(n) / RATE
-    mid, amp = (lo + hi) / 2, (hi - lo) / 2
-    if style == "chirp":
-        f = 0.2 + 1.8 * s / s[-1]
-        phase = 2 * np.pi * np.cumsum(f) / RATE
-        return mid + 0.7 * amp * np.sin(phase[:, None] * np.array([1.0, 1.3])
-                                           + rng.uniform(0, 2 * np.pi, 2))
-    period = rng.uniform(2.0, 4.0, 2)
-    tri = 2 * np.abs((s[:, None] / period + rng.uniform(0, 1, 2)) % 1.0 - 0.5)
-    return lo + (hi - lo) * (0.1 + 0.8 * tri)
+    return goal_signal(style, n, rng, lo, hi, RATE, hold=(0.4, 1.5), f_max=2.0, amp=0.7,
+                       phase_mult=np.array([1.0, 1.3]))
 
 
 def record(g: np.ndarray, rng: np.random.Generator, gain: float = GAIN

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from user_rig_goals import goal_signal
 
 JOINTS = ("if_abd", "if_mcp", "if_pip", "if_dip")
 KP = 3.0  # [N m/rad] the user's position gain
@@ -107,24 +108,8 @@ def goals(style: str, n: int, rng: np.random.Generator) -> np.ndarray:
     (0.2-2.5 Hz sweeps around mid-range) or 'ramps' (slow triangles)."""
     lo = np.array([GOAL_RANGE[j][0] for j in JOINTS])
     hi = np.array([GOAL_RANGE[j][1] for j in JOINTS])
-    if style == "steps":
-        g = np.zeros((n, 4))
-        k = 0
-        while k < n:
-            m = int(rng.uniform(0.3, 1.2) * RATE)
-            g[k:k + m] = rng.uniform(lo, hi)
-            k += m
-        return g
-    s = np.arange(n) / RATE
-    mid, amp = (lo + hi) / 2, (hi - lo) / 2
-    if style == "chirp":
-        f = 0.2 + 2.3 * s / s[-1]
-        phase = 2 * np.pi * np.cumsum(f) / RATE
-        return mid + 0.8 * amp * np.sin(phase[:, None] * np.array([0.7, 1.0, 1.2, 1.4])
-                                           + rng.uniform(0, 2 * np.pi, 4))
-    period = rng.uniform(2.0, 4.0, 4)
-    tri = 2 * np.abs((s[:, None] / period + rng.uniform(0, 1, 4)) % 1.0 - 0.5)
-    return lo + (hi - lo) * (0.1 + 0.8 * tri)
+    return goal_signal(style, n, rng, lo, hi, RATE, hold=(0.3, 1.2), f_max=2.5, amp=0.8,
+                       phase_mult=np.array([0.7, 1.0, 1.2, 1.4]))
 
 
 def record(g: np.ndarray, rng: np.random.Generator, gain: float = GAIN,
