@@ -29,7 +29,11 @@ def test_identify_writes_its_json_and_figure_into_out(tmp_path, capsys):
     argv = ["gap", "identify", "--log", a, b, "--holdout", b, "--restarts", "1", "--threads",
             "1", "--out", str(out)]
     assert main(argv + ["--json", str(tmp_path / "also.json")]) == 0
-    printed = capsys.readouterr().out
+    printed, err = capsys.readouterr()
+    # not a terminal here: progress as plain lines on stderr (the fit of 72 logs is minutes of
+    # silence otherwise); the first line at the start, the last at the end
+    lines = [x for x in err.splitlines() if x.startswith("[progress] gap identify")]
+    assert lines and "done" in lines[-1], err
     res = json.loads((out / "identified.json").read_text())
     assert res == json.loads((tmp_path / "also.json").read_text())
     assert list(res["held_out"]) == ["b.json"] and list(res["fitted"]) == ["a.json"]

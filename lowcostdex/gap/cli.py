@@ -96,14 +96,16 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 @contextmanager
-def analysis_progress(console: Any) -> Iterator[Callable[[str, float], None]]:
-    """A transient progress bar for ``analyze``; yields its ``progress(stage, fraction)``."""
+def analysis_progress(console: Any, label: str = "gap analysis"
+                      ) -> Iterator[Callable[[str, float], None]]:
+    """A transient progress bar for ``analyze`` and ``identify`` (a line every ~10 s when not a
+    terminal); yields its ``progress(stage, fraction)``."""
     from lowcostdex.progress import tasks
 
     with tasks(console=console) as bar:
-        task = bar.add_task("gap analysis", total=100)
+        task = bar.add_task(label, total=100)
         yield lambda stage, frac: bar.update(task, completed=round(100 * frac),
-                                             description=f"gap analysis: {stage}")
+                                             description=f"{label}: {stage}")
 
 
 def distinct_logs(given: list[str]) -> tuple[list[str], list[str]]:
@@ -264,8 +266,11 @@ def _identify(args: argparse.Namespace) -> int:
         raise ConfigError("every log is held out: nothing to fit")
     cfg = IdentifyConfig(effects=servo_structure(ds), restarts=args.restarts,
                          nthread=args.threads, prior=args.prior, select=args.select)
+    from rich.console import Console
+
     t0 = time.perf_counter()
-    res = identify(ds, train, list(test), cfg)
+    with analysis_progress(Console(stderr=True), "gap identify") as progress:
+        res = identify(ds, train, list(test), cfg, progress=progress)
     wall = time.perf_counter() - t0
     names = [Path(ds.sources[i]).name for i in range(len(ds.trajectories))]
     print(f"identified on {len(train)} logs ({wall:.0f} s); family {res.family}")
