@@ -3,6 +3,9 @@
 
 from __future__ import annotations
 
+import ast
+from pathlib import Path
+
 import numpy as np
 
 
@@ -34,3 +37,18 @@ def goal_signal(style: str, n: int, rng: np.random.Generator, lo: np.ndarray, hi
     period = rng.uniform(2.0, 4.0, k_joints)
     tri = 2 * np.abs((s[:, None] / period + rng.uniform(0, 1, k_joints)) % 1.0 - 0.5)
     return lo + (hi - lo) * (0.1 + 0.8 * tri)
+
+
+def project_imports(path: str | Path) -> set[str]:
+    """The lowcostdex modules the file at ``path`` imports, followed through the test-side
+    modules beside it that it imports (a user rig's truth must come from outside the project)."""
+    path = Path(path)
+    tree = ast.parse(path.read_text())
+    names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    names |= {str(n.module) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    found = {m for m in names if m.startswith("lowcostdex")}
+    for m in names:
+        beside = path.parent / f"{m}.py"
+        if beside.is_file() and beside != path:
+            found |= project_imports(beside)
+    return found
