@@ -34,7 +34,7 @@ PREROLL = 1.0  # s of log replayed before a window to set its play state
 
 def carry(rep, windows: Sequence[Window], columns: Sequence, groups: dict,
           goal_shift: float = 0.0, preroll: float = PREROLL
-          ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+          ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Play angle and rate [rad, rad/s] per ``ds.effect_joints`` at each window's start.
 
     Args:
@@ -50,7 +50,7 @@ def carry(rep, windows: Sequence[Window], columns: Sequence, groups: dict,
       is the pre-roll's within the measured velocity's resolution (``_velocity_step``) of the
       measured one.
     """
-    out: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    out: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     if preroll <= 0:
         return out
     ds = rep.ds
