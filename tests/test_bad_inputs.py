@@ -187,6 +187,18 @@ CASES: list[Case] = [
                                           "{tmp}/logs"), "--port /dev/ttyACM3: no such device"),
     Case("transfer on a missing port", ("transfer", "--out", "{tmp}/t", "--port", "/dev/ttyUSB7",
                                         "--yes"), "--port /dev/ttyUSB7: no such device"),
+    # the robot backends' one rule (lowcostdex.options.robot_selection) in the train commands too:
+    # before, `train npg --backend hardware` failed inside the backend with a constructor keyword
+    # ("HardwareBackend needs the task and port=...") and a port given to the sim was passed on
+    Case("train npg on the robot without a port", ("train", "npg", "--backend", "hardware",
+                                                   "--out", "{tmp}/r"),
+         "--backend hardware needs --port"),
+    Case("train tvlg on the robot without a port", ("train", "tvlg", "--backend", "hardware",
+                                                    "--out", "{tmp}/r"),
+         "--backend hardware needs --port"),
+    Case("train npg in the sim with a port", ("train", "npg", "--backend", "sim", "--port",
+                                              "/dev/ttyUSB0", "--out", "{tmp}/r"),
+         "--port /dev/ttyUSB0 is for --backend hardware"),
     Case("transfer with a latency of nan ms", ("transfer", "--out", "{tmp}/t", "--port",
                                                "/dev/ttyUSB7", "--latency-ms", "nan"),
          "argument --latency-ms: 'nan' is not a finite number in [0.5, 1000]"),

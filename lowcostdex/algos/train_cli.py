@@ -25,7 +25,7 @@ from lowcostdex.algos.configs import (
 )
 from lowcostdex.algos.samplers import SAMPLERS
 from lowcostdex.errors import ConfigError
-from lowcostdex.options import add_latency_option, latency_kwargs
+from lowcostdex.options import add_latency_option, latency_kwargs, robot_selection
 
 
 def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
@@ -221,8 +221,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     check_demo_options(args)
     d = TrainConfig()
     env_kwargs = _parse_env_kwargs(args.env_kwarg)
-    if args.port:
-        env_kwargs["port"] = args.port
+    backend, robot_kwargs = robot_selection(args.backend, args.port)
+    env_kwargs.update(robot_kwargs)
     if args.latency_ms is not None:
         if not args.port:
             raise ConfigError("--latency-ms is the serial adapter's latency timer: it needs "
@@ -231,7 +231,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     return TrainConfig(
         algo=args.algo,
         env_id=args.env,
-        backend=args.backend,
+        backend=backend,
         env_kwargs=env_kwargs,
         seed=args.seed,
         n_iter=args.n_iter,

@@ -71,6 +71,7 @@ from lowcostdex.algos.local_models.tvlg import (
 )
 from lowcostdex.algos.samplers import EVAL_STREAM, TRAIN_STREAM, EnvFactory, RolloutJob
 from lowcostdex.errors import ConfigError
+from lowcostdex.options import robot_selection
 
 Array = NDArray[np.float64]
 _UPDATE = 13  # seed purpose of the update generator (the GMM's EM)
@@ -404,6 +405,7 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
     if args.demos and args.init != "demos":
         raise ConfigError(f"--demos {args.demos} is read with --init demos only (this run starts "
                           f"from --init {args.init}); add --init demos, or leave out --demos")
+    backend, robot_kwargs = robot_selection(args.backend, args.port)
     d = TVLGTrainConfig()
     env_id = args.env if "/" in args.env else f"lowcostdex/{args.env}"
     kl_step = args.kl_step
@@ -416,8 +418,8 @@ def config_from_args(args: argparse.Namespace) -> TVLGTrainConfig:
     }
     return TVLGTrainConfig(
         env_id=env_id,
-        backend=args.backend,
-        env_kwargs={"port": args.port} if args.port else {},
+        backend=backend,
+        env_kwargs=robot_kwargs,
         seed=args.seed,
         n_iter=args.n_iter,
         n_rollouts=args.n_rollouts,
