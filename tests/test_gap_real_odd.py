@@ -136,3 +136,42 @@ def test_a_log_on_wall_clock_time_is_gridded_from_its_first_sample(tmp_path):
 
     tr = bm.grid_dataset(load_dataset([p], timestep=bm.BAM_DT)).trajectories[0]
     assert len(tr.time) <= 400 and tr.time[0] == pytest.approx(1.7e9 + 0.002)
+
+
+# BAM's acquisition as it is today (Rhoban/bam @1b5a1ce, 2026-07-24): bam/dynamixel/record.py
+# writes the header key "arm-mass" (hyphen) and bam/logs.py reads it as arm_mass; bam/actuators.py
+# knows the motors mx64, mx106, xl320, xl330, xl330i, erob80_100, erob80_50, sts3215, unitree_go1.
+
+def test_the_dynamixel_recorder_s_hyphenated_arm_mass_is_the_arm_s_mass(tmp_path):
+    """Read as 0 kg before: the arm's own weight (here 0.05 kg at half of 0.1 m: 0.0245 N m of
+    gravity torque) silently left out of the model of every log BAM's Dynamixel recorder wrote."""
+    _, cfg = read_bam(_log(tmp_path / "a.json", motor="xl330", kp=200, vin=5.0, volts=5.0,
+                           **{"arm-mass": 0.05}))
+    assert cfg.arm_mass == pytest.approx(0.05)
+    _, same = read_bam(_log(tmp_path / "b.json", motor="xl330", kp=200, vin=5.0, volts=5.0,
+                            arm_mass=0.05))
+    assert same == cfg
+    # as BAM's loader: arm_mass wins when a file has both
+    _, both = read_bam(_log(tmp_path / "c.json", motor="xl330", kp=200, vin=5.0, volts=5.0,
+                            arm_mass=0.02, **{"arm-mass": 0.05}))
+    assert both.arm_mass == pytest.approx(0.02)
+
+
+def test_an_sts3215_log_reads_as_lerobot_s_servo(tmp_path):
+    """The SO-100/SO-101 arms' servo, BAM's "sts3215" (bam/feetech/all_record.py records kp 4, 8,
+    16, 32 at 7.4 V); its P coefficient is one byte (Feetech STS memory table, address 21)."""
+    _, cfg = read_bam(_log(tmp_path / "a.json", motor="sts3215", kp=8))
+    assert cfg.motor == "STS3215" and cfg.servo_gains().position_p == 8
+    assert bam_motor("Feetech STS3215") == "sts3215"
+    with pytest.raises(LogError, match=r"'kp' 300 is beyond the STS3215's P gain register; "
+                                       r"valid: 1 to 254"):
+        read_bam(_log(tmp_path / "b.json", motor="sts3215", kp=300))
+
+
+@pytest.mark.parametrize("motor, said", [
+    ("xl330i", "current-based position control"), ("xl320", "1024 ticks over 300 deg"),
+    ("erob80_100", "BAM's own PD controller"), ("unitree_go1", "Unitree Go1")])
+def test_bam_motors_not_modelled_here_are_refused_by_name(tmp_path, motor, said):
+    with pytest.raises(LogError, match=rf"BAM motor '{motor}' is .*{said}.*can be analysed "
+                                       r"here: .*sts3215 \(STS3215\)"):
+        read_bam(_log(tmp_path / "a.json", motor=motor))

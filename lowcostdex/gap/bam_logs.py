@@ -27,7 +27,18 @@ BAM_MOTORS: dict[str, str] = {
     "mx106": "MX-106(1.0)",
     "sts3250": "STS3250",
     "sts3032": "STS3032",
+    "sts3215": "STS3215",  # LeRobot's SO-100/SO-101 servo; BAM's feetech recorder names it so
 }
+BAM_UNMODELLED: dict[str, str] = {
+    "xl330i": "the XL330 in current-based position control (BAM's XL330CurrentActuator): its "
+              "firmware closes a current loop this project's servo law does not model",
+    "xl320": "the XL320 (1024 ticks over 300 deg, its own firmware): no motor table here",
+    "erob80_100": "an eRob joint under BAM's own PD controller, not a hobby servo's firmware",
+    "erob80_50": "an eRob joint under BAM's own PD controller, not a hobby servo's firmware",
+    "unitree_go1": "a Unitree Go1 joint motor, not a hobby servo's firmware",
+}
+"""Motors BAM's acquisition knows (Rhoban/bam bam/actuators.py) that this project does not map
+onto its servo bench: refused by name and reason rather than as an unknown motor."""
 BAM_MOTOR_ALIASES: dict[str, str] = {
     "xl330m288": "xl330", "xl330m288t": "xl330", "mx64(1.0)": "mx64", "mx106(1.0)": "mx106",
 }
@@ -108,7 +119,8 @@ _BAM_NUMERIC = ("speed", "load", "input_volts", "temp", "torque_enable")
 # accepts. kp is a register: XL330 Position P Gain (address 84) 0-16383 (ROBOTIS e-Manual XL330
 # control table); MX-64/106 Protocol 1.0 P Gain (address 28) and the Feetech STS P coefficient
 # (address 21) are one byte, 0-254.
-_KP_MAX = {"xl330": 16383, "mx64": 254, "mx106": 254, "sts3250": 254, "sts3032": 254}
+_KP_MAX = {"xl330": 16383, "mx64": 254, "mx106": 254, "sts3250": 254, "sts3032": 254,
+           "sts3215": 254}
 _MAX_LENGTH = 2.0  # [m] a pendulum arm on a hobby servo (BAM's benches: 0.05-0.12 m)
 _VIN_RANGE = (0.5, 2.0)  # x the motor's nominal supply (Rhoban ran 5 V XL330s at 7.4 V)
 _MAX_LOAD = 3.0  # x the stall torque at the log's supply: a load it can neither lift nor hold
@@ -168,10 +180,11 @@ def _vin_from_entries(path: Path, entries: object) -> tuple[float, str]:
 def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajectory, BenchConfig]:
     """Map a BAM raw log onto the servo bench.
 
-    The bench gets the log's ``mass``, ``length``, ``arm_mass`` (0 when absent, as BAM's loader
-    does), firmware ``kp`` (device units) and nominal supply ``vin``; the motor's duty ceiling is
-    the PWM limit. Channels: ``speed`` -> qvel, ``input_volts`` -> voltage (raw 0.1 V registers,
-    recognised by values above 30, are scaled), ``temp`` -> temperature (dropped when all zero),
+    The bench gets the log's ``mass``, ``length``, ``arm_mass`` (or ``arm-mass``, as BAM's
+    Dynamixel recorder writes it; 0 when absent, as BAM's loader does), firmware ``kp`` (device
+    units) and nominal supply ``vin``; the motor's duty ceiling is the PWM limit. Channels:
+    ``speed`` -> qvel, ``input_volts`` -> voltage (raw 0.1 V registers, recognised by values
+    above 30, are scaled), ``temp`` -> temperature (dropped when all zero),
     ``torque_enable``. The Rhoban XL330 ``load`` (raw PWM) is not used.
 
     Returns:
@@ -207,6 +220,10 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
         keys = ", ".join(sorted(map(str, raw))[:8]) or "none"
         raise LogError(f"{path}: not a BAM raw log (its keys: {keys}); a BAM raw log is an "
                        f"object with {', '.join(_BAM_HEADER)} (Rhoban/bam's acquisition format)")
+    if "arm_mass" not in raw and "arm-mass" in raw:
+        # BAM's Dynamixel recorder (bam/dynamixel/record.py) writes the arm's mass as "arm-mass";
+        # BAM's loader (bam/logs.py) reads it as arm_mass, and so does this one
+        raw = {**raw, "arm_mass": raw["arm-mass"]}
     vin_note = None
     if missing == ["vin"]:  # the supply: the measured input voltage when the entries carry it
         raw = dict(raw)
@@ -219,6 +236,11 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
     if not isinstance(raw["motor"], str):
         raise LogError(f"{path}: 'motor' must be a string, got {json.dumps(raw['motor'])[:40]}")
     motor = bam_motor(raw["motor"])
+    unmodelled = "".join(c for c in raw["motor"].lower() if c not in " -")
+    if motor is None and unmodelled in BAM_UNMODELLED:
+        raise LogError(f"{path}: BAM motor {raw['motor']!r} is {BAM_UNMODELLED[unmodelled]}; "
+                       "logs of these motors can be analysed here: "
+                       + ", ".join(f"{k} ({v})" for k, v in sorted(BAM_MOTORS.items())))
     if motor is None:
         raise LogError(f"{path}: unknown BAM motor {raw['motor']!r}; valid: "
                        + ", ".join(f"{k} ({v})" for k, v in sorted(BAM_MOTORS.items())))
