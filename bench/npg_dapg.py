@@ -142,13 +142,19 @@ OUTCOME_FILE = "outcome.json"
 
 
 def _until(target: float, extra: int, max_wall: float | None = None,
-           stopped: dict[str, str] | None = None):
+           stopped: dict[str, str] | None = None, cpu: dict[float, float] | None = None):
     """Stop ``extra`` iterations after training success first reaches ``target``, or once
-    ``max_wall`` wall-clock seconds have passed since this call; ``stopped["why"]`` says which."""
+    ``max_wall`` wall-clock seconds have passed since this call; ``stopped["why"]`` says which.
+    ``cpu`` gets, per iteration, samples -> CPU seconds of this process since this call (after
+    the iteration's update, before its evaluation): the CPU to a crossing, which the shared
+    machine's load does not inflate as it does the wall-clock."""
     reached: list[int] = []
     t0 = time.perf_counter()
+    cpu0 = _usage()[1]
 
     def until(row: dict[str, float]) -> bool:
+        if cpu is not None:
+            cpu[float(row[ex.SAMPLES])] = _usage()[1] - cpu0
         if not reached and row[ex.SUCCESS_RATE] >= target:
             reached.append(int(row[ex.ITERATION]))
         if bool(reached) and row[ex.ITERATION] >= reached[0] + extra:
@@ -173,16 +179,20 @@ def _usage() -> tuple[float, float]:
 
 def _timed(run, out: Path, settings: dict, target: float, n_held_out: int = 0
            ) -> dict[str, float]:
-    """Run ``run(stopped)`` in ``out`` (emptied first) and write its outcome with the wall/CPU
-    seconds and loads beside the settings it ran with."""
+    """Run ``run(stopped, cpu)`` in ``out`` (emptied first) and write its outcome with the
+    wall/CPU seconds (the whole run's and to each first crossing) and loads beside the settings
+    it ran with."""
     if out.exists():
         shutil.rmtree(out)
     stopped = {"why": "budget"}
+    cpu: dict[float, float] = {}
     load0 = os.getloadavg()[0]
     w0, c0 = _usage()
-    run(stopped)
+    run(stopped, cpu)
     w1, c1 = _usage()
     r = outcome(out, target)
+    r.update({"train_cpu": cpu.get(r["train_samples"], math.nan),
+              "eval_cpu": cpu.get(r["eval_samples"], math.nan)})
     r.update({"run_wall": w1 - w0, "run_cpu": c1 - c0, "load_start": load0,
               "load_end": os.getloadavg()[0], "stopped": stopped["why"],
               "eval_distinct": distinct_episodes(out)})
@@ -311,8 +321,8 @@ def run_train(task: Task, algo: str, seed: int, budget: float, demos: Path | Non
     settings = _settings(cfg, args)
     if args.reuse and (r := reused(out, settings, args.held_out)) is not None:
         return r
-    return _timed(lambda stopped: train(cfg, out, until=_until(
-        args.target, args.extra_iters, args.max_wall, stopped)), out, settings, args.target,
+    return _timed(lambda stopped, cpu: train(cfg, out, until=_until(
+        args.target, args.extra_iters, args.max_wall, stopped, cpu)), out, settings, args.target,
         args.held_out)
 
 
@@ -329,8 +339,8 @@ def run_ppo(task: Task, seed: int, budget: float, out: Path,
     settings = _settings(cfg, args)
     if args.reuse and (r := reused(out, settings, args.held_out)) is not None:
         return r
-    return _timed(lambda stopped: train(cfg, out, until=_until(
-        args.target, args.extra_iters, args.max_wall, stopped)), out, settings, args.target,
+    return _timed(lambda stopped, cpu: train(cfg, out, until=_until(
+        args.target, args.extra_iters, args.max_wall, stopped, cpu)), out, settings, args.target,
         args.held_out)
 
 
@@ -412,8 +422,8 @@ def _train_rate(r: dict[str, float], n_traj: int) -> str:
 def table(name: str, results: dict[str, list[dict[str, float]]],
           budgets: dict[str, float], n_traj: dict[str, int]) -> list[str]:
     lines = [f"### {name}", "",
-             "| algorithm | seed | samples to 80 % train | to 80 % eval | wall s to 80 % train "
-             "/ eval | final train [95 % Wilson] | final eval [95 % Wilson] | best eval [95 % Wilson] "
+             "| algorithm | seed | samples to 80 % train | to 80 % eval | wall s (CPU s) to 80 % "
+             "train / eval | final train [95 % Wilson] | final eval [95 % Wilson] | best eval [95 % Wilson] "
              "(samples) | holds | held-out final / best [95 % Wilson] | ran: samples, wall s, CPU s "
              "| load start/end | stopped by |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -423,7 +433,8 @@ def table(name: str, results: dict[str, list[dict[str, float]]],
             n, dist = r.get("eval_episodes", math.nan), r.get("eval_distinct", math.nan)
             lines.append(
                 f"| {algo.upper()} | {seed} | {_k(r['train_samples'])} | {_k(r['eval_samples'])}"
-                f" | {_s(r['train_wall'])} / {_s(r['eval_wall'])} | "
+                f" | {_s(r['train_wall'])} ({_s(r.get('train_cpu', math.nan))}) / {_s(r['eval_wall'])}"
+                f" ({_s(r.get('eval_cpu', math.nan))}) | "
                 f"{_train_rate(r, n_traj[algo])} | "
                 f"{_rate(r['final_eval'], n, dist)} | {_rate(r['best_eval'], n, dist)} "
                 f"({_k(r['best_samples'])}) | {_f2(r['holds'])} | {_held_out(r)} | "
@@ -440,8 +451,9 @@ def table(name: str, results: dict[str, list[dict[str, float]]],
                      "that of one episode. The training success is over 3 x the trajectories "
                      "per iteration independent stochastic episodes (last three iterations).")
         lines.append("")
-    med = {a: {k: _median([r[k] for r in runs]) for k in ("train_samples", "eval_samples",
-                                                           "train_wall", "eval_wall")}
+    med = {a: {k: _median([r.get(k, math.nan) for r in runs]) for k in ("train_samples", "eval_samples",
+                                                           "train_wall", "eval_wall",
+                                                           "train_cpu")}
            for a, runs in results.items()}
     if "npg" in med and "dapg" in med:
         lines.append(f"NPG / DAPG samples to 80 % (medians): training "
@@ -451,6 +463,8 @@ def table(name: str, results: dict[str, list[dict[str, float]]],
         lines.append(f"PPO / NPG wall-clock to 80 % training success (medians): "
                      f"{_ratio(med['ppo']['train_wall'], med['npg']['train_wall'])} "
                      f"({_s(med['ppo']['train_wall'])} s vs {_s(med['npg']['train_wall'])} s); "
+                     f"CPU {_ratio(med['ppo']['train_cpu'], med['npg']['train_cpu'])} "
+                     f"({_s(med['ppo']['train_cpu'])} s vs {_s(med['npg']['train_cpu'])} s); "
                      f"samples {_ratio(med['ppo']['train_samples'], med['npg']['train_samples'])}.")
     return lines + [""]
 
