@@ -175,3 +175,29 @@ def test_bam_motors_not_modelled_here_are_refused_by_name(tmp_path, motor, said)
     with pytest.raises(LogError, match=rf"BAM motor '{motor}' is .*{said}.*can be analysed "
                                        r"here: .*sts3215 \(STS3215\)"):
         read_bam(_log(tmp_path / "a.json", motor=motor))
+
+
+@pytest.mark.parametrize("command", [["gap", "identify"], ["gap", "analyze", "--out", "rep"]])
+def test_logs_of_two_servo_models_are_not_fitted_as_one_servo(tmp_path, monkeypatch, capsys,
+                                                            command):
+    """An XL330 log and an STS3032 log in one call were fitted as one servo (one gear friction,
+    one armature for both; BAM fits one actuator at a time). Refused, naming each motor."""
+    from lowcostdex.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    _log(tmp_path / "sts.json")
+    _log(tmp_path / "xl.json", motor="xl330", kp=200, vin=5.0, volts=5.0)
+    code = main([*command, "--log", "sts.json", "xl.json"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert ("these logs are of 2 servo models: STS3032 (sts.json), XL330-M288 (xl.json)"
+            in err), err
+    assert not (tmp_path / "rep").exists()
+
+
+def test_one_servo_model_under_two_spellings_is_one_motor(tmp_path):
+    from lowcostdex.gap.bam_logs import check_one_motor
+
+    a, _ = read_bam(_log(tmp_path / "a.json", motor="sts3032", kp=32))
+    b, _ = read_bam(_log(tmp_path / "b.json", motor="Feetech STS3032", kp=8, mass=0.1))
+    check_one_motor([a, b])  # gains and masses differ, the servo is the same: no error

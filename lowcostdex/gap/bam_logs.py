@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -298,3 +299,23 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
     if vin_note:
         traj.meta["notes"] = [*traj.meta.get("notes", []), vin_note]
     return traj, cfg
+
+
+def check_one_motor(trajectories: Sequence[Trajectory]) -> None:
+    """Refuse BAM logs of more than one servo model in one identification: its parameters
+    (gear friction, armature, ...) are one servo's, as BAM fits one actuator at a time. Masses,
+    lengths, gains and supplies may differ. Logs that are not BAM's are not checked.
+
+    Raises:
+      ConfigError naming each motor with one of its logs.
+    """
+    seen: dict[str, str] = {}
+    for tr in trajectories:
+        name = tr.meta.get("motor") if tr.meta.get("source") == "bam" else None
+        bam = bam_motor(name) if isinstance(name, str) else None
+        if bam is not None:
+            seen.setdefault(BAM_MOTORS[bam], tr.name)
+    if len(seen) > 1:
+        said = ", ".join(f"{m} ({log})" for m, log in seen.items())
+        raise ConfigError(f"these logs are of {len(seen)} servo models: {said}; identification "
+                          "fits one servo's parameters: run it once per motor")

@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError, check_number
+from lowcostdex.gap.bam_logs import check_one_motor
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
@@ -243,6 +244,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             if tr.model not in models:
                 models[tr.model] = build_bench(cfg).to_xml()
             trajs.append(tr)
+        check_one_motor(trajs)  # one servo model per analysis, as BAM fits one actuator
     else:
         if model is None:
             raise LogError("project-format logs need --model MODEL.xml")

@@ -35,6 +35,7 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError, check_bool, check_number
 from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap.bam_logs import check_one_motor
 from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
 from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.identify_select import FAMILY_MARGIN, choose
@@ -284,6 +285,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         raise ConfigError("identification needs at least one training log")
     if set(train) & set(test):
         raise ConfigError("training and held-out logs overlap")
+    check_one_motor([ds.trajectories[i] for i in (*train, *test)])
     prog = progress or (lambda s, f: None)
     rep = Replayer(ds, config.effects, nthread=config.nthread)
     joints = ds.effect_joints
