@@ -12,7 +12,9 @@ arguments are the command's:
 
 ``--made-for B`` makes the per-robot policies (identified, identified_randomized, on_robot) for
 robot B only (on_robot takes hours per robot); a later run on the folder adds the others. Why a
-policy fails on a hidden robot: ``bench/transfer_diagnose.py`` (one part of the robot at a time).
+policy fails on a hidden robot: ``bench/transfer_diagnose.py`` (one part of the robot at a time);
+why identified + narrow DR ends off where identified does not: ``bench/transfer_narrow.py`` (its
+ranges, each policy in each training sim, retrained with narrower ranges).
 
 Record measured tables in bench/RESULTS.md ("Transfer table") with date, machine, load and the
 command line.
