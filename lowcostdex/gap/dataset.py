@@ -12,7 +12,7 @@ from __future__ import annotations
 import glob
 import os
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -30,6 +30,7 @@ from lowcostdex.gap.logs import (
     rate_goal_actuators,
     read_bam,
     read_log,
+    rest_at_start,
     split_at_gaps,
 )
 from lowcostdex.sim.models.bench import build_bench
@@ -86,6 +87,8 @@ class Dataset:
             check_against_model(tr, self.compiled(tr.model))
             if tr.qvel is None:
                 tr.qvel = estimate_velocity(tr.time, tr.qpos, goal=tr.goal)
+                tr.qvel[0, rest_at_start(tr.time, tr.qpos,
+                                         _first_step(tr, self.compiled(tr.model)))] = 0.0
         names = {(tr.joints, tr.actuators) for tr in self.trajectories}
         if len(names) > 1:
             raise LogError("all logs must measure the same joints and command the same actuators;"
@@ -262,6 +265,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         models["model"] = spec.to_xml()
         rate, gears = rate_goal_actuators(compiled), actuator_gears(compiled)
         trajs = [read_log(p, rate, gears) for p in paths]
+        trajs = [_in_order(tr, trajs[0]) for tr in trajs]
     total = sum(tr.duration for tr in trajs)
     if total > MAX_TOTAL_DURATION:
         raise LogError(f"{len(trajs)} logs of {total:.6g} s in all; one analysis takes at most "
@@ -276,6 +280,46 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     ds = Dataset(models, pieces, sources, notes, servo_period)
     ds.notes += _unshared_joints(ds)
     return ds
+
+
+def _in_order(tr: Trajectory, first: Trajectory) -> Trajectory:
+    """``tr`` with its joint and actuator columns in ``first``'s order when it logs the same
+    ones in another order (a user's logger writing its columns in dict or file order), else
+    ``tr`` unchanged (logs of different joints are refused by ``Dataset``)."""
+    if ((tr.joints, tr.actuators) == (first.joints, first.actuators)
+            or sorted(tr.joints) != sorted(first.joints)
+            or sorted(tr.actuators) != sorted(first.actuators)):
+        return tr
+    jo = [tr.joints.index(j) for j in first.joints]
+    ao = [tr.actuators.index(a) for a in first.actuators]
+    return replace(tr, joints=first.joints, actuators=first.actuators, qpos=tr.qpos[:, jo],
+                   qvel=None if tr.qvel is None else tr.qvel[:, jo], goal=tr.goal[:, ao],
+                   channels={k: v[:, ao] for k, v in tr.channels.items()})
+
+
+def _first_step(tr: Trajectory, m: mujoco.MjModel) -> np.ndarray:
+    """(nj,) the log's first goal minus its first reading per joint [rad] where a fixed-gain
+    position servo (``position``, or ``general`` with bias 0/-kp) drives the joint and that
+    goal acts from the first row; NaN elsewhere (a piece cut from inside a log, a goal that
+    arrives later, another actuator kind)."""
+    step = np.full(len(tr.joints), np.nan)
+    if tr.meta.get("mid_log") or (tr.goal_time is not None and tr.goal_time[0] > tr.time[0]):
+        return step
+    for col, name in enumerate(tr.actuators):
+        a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+        kp = float(m.actuator_gainprm[a, 0]) if a >= 0 else 0.0
+        if not (kp > 0 and m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
+                and m.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+                and m.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE
+                and m.actuator_biasprm[a, 0] == 0 and m.actuator_biasprm[a, 1] == -kp
+                and m.actuator_dyntype[a] == mujoco.mjtDyn.mjDYN_NONE
+                and m.actuator_gear[a, 0] != 0):
+            continue
+        joint = m.joint(int(m.actuator_trnid[a, 0])).name
+        if joint in tr.joints:
+            j = tr.joints.index(joint)
+            step[j] = tr.goal[0, col] / m.actuator_gear[a, 0] - tr.qpos[0, j]
+    return step
 
 
 def _absolute_asset_dirs(spec: mujoco.MjSpec, model: Path) -> None:

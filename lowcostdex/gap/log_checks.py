@@ -103,7 +103,9 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
         raise LogError(f"{name}: no 'qpos:<joint>' column (measured position [rad])")
     for j, d in joints.items():
         if "qpos" not in d:
-            raise LogError(f"{name}: 'qvel:{j}' without 'qpos:{j}'")
+            raise LogError(f"{name}: 'qvel:{j}' without 'qpos:{j}' (positions logged for: "
+                           f"{', '.join(meas)}); name a joint's 'qpos:' and 'qvel:' columns "
+                           "after the same joint of the model")
     for key, arr in cols.items():
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -336,14 +338,20 @@ def _check_time(t: np.ndarray, name: str) -> None:
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
-        what = "repeats" if dt[i] == 0 else f"goes back from {t[i]:.9g}"
+        # wall-clock stamps (time.time(): 1.7e9 s) print alike at 9 digits: say them from the
+        # log's first stamp
+        at = (lambda x: f"{x - t[0]:+.6g} s from the first row") if abs(t[0]) >= 1e4 else (
+            lambda x: f"{x:.9g}")
+        what = "repeats" if dt[i] == 0 else f"goes back from {at(t[i])}"
         repeats = int(np.sum(dt == 0))
         why = ("duplicate or unsorted rows?" if repeats < 10 else
                f"{repeats} time stamps repeat with other values: rounded too coarsely?")
+        if len(dt) > 1 and np.all(dt < 0):
+            why = "the rows are in reverse time order: sort them by time"
         if dt[i] < 0 and t[i] - t[i + 1] > 1.0:
             why = "two logs in one file, or shuffled rows? sort the rows or cut the file in two"
         raise LogError(f"{name}: column 'time' must be strictly increasing: row {i + 1} "
-                       f"(0-based) {what} to {t[i + 1]:.9g} ({why})")
+                       f"(0-based) {what} to {at(t[i + 1])} ({why})")
     step = float(np.median(dt))
     if not STEP_RANGE[0] <= step <= STEP_RANGE[1]:
         raise LogError(f"{name}: column 'time' must be in seconds, but its median step is "

@@ -28,6 +28,7 @@ on entry and their limits) and ``bam_logs`` (BAM JSON).
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -76,7 +77,7 @@ __all__ = [
     "PREFIXES_JOINT", "RANGE_MARGIN", "SATURATED_SHARE", "STEP_RANGE", "Trajectory",
     "WRAP_TOLERANCE", "check_against_model", "check_signals", "estimate_velocity", "find_gaps",
     "actuator_gears", "is_bam", "quantization_step", "rate_goal_actuators", "read_bam", "read_columns", "read_log",
-    "split_at_gaps",
+    "rest_at_start", "split_at_gaps",
     "trajectory_from_columns", "write_log", "zoh", "zoh_index",
 ]
 
@@ -249,7 +250,10 @@ def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
     pieces, dropped = [], 0
     for k, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
         if b - a >= MIN_SAMPLES and t[b - 1] - t[a] >= MIN_DURATION:
-            pieces.append(traj.slice(a, b, name=f"{traj.name}#{k + 1}"))
+            piece = traj.slice(a, b, name=f"{traj.name}#{k + 1}")
+            if a > 0:  # its first row is inside the log: not a start from rest
+                piece = replace(piece, meta={**traj.meta, "mid_log": True})
+            pieces.append(piece)
         else:
             dropped += 1
     if not pieces:
@@ -362,6 +366,16 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                                f"(0-based), outside the model's joint range [{lo:.4g}, "
                                f"{hi:.4g}] rad by more than {RANGE_MARGIN} rad ({why})")
     missing = [a for a in act_names if a not in traj.actuators]
+    for a in missing:  # a second actuator on a logged servo's joint: say which and the fix
+        i = act_names.index(a)
+        beside = [b for b in traj.actuators if b in act_names and _same_joint(model, i,
+                                                                              act_names.index(b))]
+        if beside:
+            raise LogError(f"{traj.name}: actuator {a!r} drives the joint of the logged actuator "
+                           f"{beside[0]!r} but has no 'goal:{a}' column: one servo per joint "
+                           "is analysed; fold it into that servo (a damper: kv on the "
+                           "<position>, or biasprm[2] on the <general>) or remove it, or log "
+                           "its command")
     if missing:
         raise LogError(f"{traj.name}: no goal for actuators {missing}; the log must command "
                        "every actuator of the model: give a model of the logged joints only "
@@ -397,6 +411,13 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                                f"{act_names[i]!r} but the log has no 'qpos:{j}' column: every "
                                "replay would start it at the model's initial pose; log its "
                                "position too")
+
+
+def _same_joint(model: mujoco.MjModel, a: int, b: int) -> bool:
+    """Whether actuators ``a`` and ``b`` both drive one joint."""
+    return bool(model.actuator_trntype[a] == model.actuator_trntype[b]
+                == mujoco.mjtTrn.mjTRN_JOINT
+                and model.actuator_trnid[a, 0] == model.actuator_trnid[b, 0])
 
 
 def _position_like(goal: np.ndarray, q: np.ndarray) -> bool:
@@ -477,6 +498,41 @@ def estimate_velocity(time: np.ndarray, qpos: np.ndarray, window: float = 0.02,
             dt = tt - tt.mean()
             v[i] = (dt @ (qq - qq.mean(axis=0))) / (dt @ dt)
     return v
+
+
+def rest_at_start(time: np.ndarray, qpos: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """(n,) joints to take at rest at a log's first row when the log has no velocity.
+
+    A log that opens with a goal step (the first goal, written right after the first read, far
+    from the first reading) shows in its first rows the response to that step, not the motion
+    before the log: the line fit of ``estimate_velocity`` then starts the replay already moving
+    at the step's mean speed over the first row. A LEAP-like finger logged at 50 Hz from rest
+    got -0.6 to 2.4 rad/s at its first rows; the true model's open-loop replay was 5-12 mrad
+    off over the first 0.4 s and 1.36 mrad over whole logs, 0.81 from rest (reading floor
+    0.67). A joint is taken at rest when its first row moves toward the first goal without
+    reaching it and the motion is not steady (the second row's speed differs from the first's
+    by more than 10 % and the readings' resolution): a joint already moving at constant speed
+    when its log began keeps its line fit (the data cannot tell the rest).
+
+    Args:
+      time: (T,) [s]; qpos: (T, n) [rad]; step: (n,) first goal minus first reading per joint,
+        in joint units [rad] (NaN: no position goal on that joint).
+    """
+    t = np.asarray(time, float)
+    q = np.asarray(qpos, float)
+    step = np.asarray(step, float)
+    out = np.zeros(q.shape[1], bool)
+    if len(t) < 3 or not (t[1] > t[0] and t[2] > t[1]):
+        return out
+    dq = np.abs(np.diff(q, axis=0))
+    res = np.array([min(float(np.min(c[c > 0], initial=np.inf)), 2 * np.pi / 4096)
+                    for c in dq.T])  # a reading's resolution: its smallest step, <= a tick
+    h01, h12 = t[1] - t[0], t[2] - t[1]
+    v01, v12 = (q[1] - q[0]) / h01, (q[2] - q[1]) / h12
+    steady = np.abs(v12 - v01) <= 0.1 * np.abs(v01) + res * (1 / h01 + 1 / h12)
+    with np.errstate(invalid="ignore"):
+        toward = (v01 * step > 0) & (np.abs(step) > np.abs(q[1] - q[0]))
+    return toward & ~steady
 
 
 def _linear_slope(time: np.ndarray, qpos: np.ndarray, window: float) -> np.ndarray:
