@@ -148,6 +148,11 @@ REFUSED = {
                                               '  </actuator>'),
         ["'elbow_ff' drives the joint of the logged actuator 'elbow'", "remove it",
          "log its command"]),
+    "positions logged under the servos' names, the joints named otherwise": (
+        lambda h, r: [h] + r, ('joint="elbow"', 'joint="elbow_joint"'),
+        ["run_0.csv", "'qpos:elbow': no joint 'elbow' in the model", "shoulder, elbow_joint",
+         "'elbow' is the actuator driving joint 'elbow_joint': name the column "
+         "'qpos:elbow_joint'"]),
     "positions in degrees": (
         lambda h, r: [h] + [",".join(c[:3] + [f"{np.degrees(float(x)):.3f}" for x in c[3:5]]
                                      + c[5:]) for c in (x.split(",") for x in r)], None,
@@ -167,7 +172,9 @@ def test_a_careless_input_is_refused_with_the_fix(case, user, tmp_path, capsys,
     xml = arm.user_model()
     if xml_edit:
         xml = xml.replace(*xml_edit)
-        assert re.search(r"_(damp|ff)\"", xml)
+        assert re.search(r"_(damp|ff|joint)\"", xml)
+        if "elbow_joint" in xml:  # the joint itself renamed too, the servo keeps its name
+            xml = xml.replace('<joint name="elbow"', '<joint name="elbow_joint"')
     args = _folder(tmp_path, user, run_0="\n".join(edit(header, rows)) + "\n", xml=xml)
     _refused(args, tmp_path, capsys, words)
 

@@ -345,8 +345,14 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                            f"actuators: {', '.join(act_names)}")
     for j in traj.joints:
         if j not in jnt_names:
+            hint = ""
+            if j in act_names and model.actuator_trntype[act_names.index(j)] == \
+                    mujoco.mjtTrn.mjTRN_JOINT:  # named after the servo, not its joint
+                driven = model.joint(int(model.actuator_trnid[act_names.index(j), 0])).name
+                hint = (f" ({j!r} is the actuator driving joint {driven!r}: name the column "
+                        f"'qpos:{driven}')")
             raise LogError(f"{traj.name}: 'qpos:{j}': no joint {j!r} in the model; "
-                           f"joints: {', '.join(jnt_names)}")
+                           f"joints: {', '.join(jnt_names)}{hint}")
         jid = model.joint(j).id
         jt = model.jnt_type[jid]
         if int(jt) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
