@@ -8,7 +8,8 @@ on wall-clock time stamps, 4096 ticks, 0.5 mrad noise, without a velocity column
 Measured at 69aace3 (2026-11-27, 2-core VM, load 7): gain_error 0.497-0.498 on the four joints
 (95 % intervals hold 0.5), position_offset 0.0398 [0.0396, 0.0401] on if_mcp and intervals
 holding 0 elsewhere; held-out RMSE 46.6 -> 1.49 mrad (noise floor 1.88); 184 s CPU with
---threads 1 (18 min wall under load).
+--threads 1 (18 min wall under load). Session 13 (each log's first row at rest, 3bbce57): the
+same names, held-out 47.2 -> 0.737 mrad, 167 s CPU (17.5 min wall at load 11).
 """
 
 from __future__ import annotations
@@ -123,17 +124,14 @@ def test_gap_analyze_names_the_halved_gain_and_the_offset(halved_gain):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "measured (lead, 2026-11-27 session 11, main 33b968e): the extended model's held-out RMSE is "
-    "1.49 mrad, 2.2 reading floors (0.668 mrad: 0.5 mrad noise and 4096 ticks), not < 1.5; the "
-    "analysis's own floor estimate says 1.88 mrad. The residual above the reading floor is not "
-    "traced (the rows' 50 Hz jitter? the replay grid?). Landed by gap-user (66df08b) with this "
-    "bound inside the naming test, which then failed whole; split out here, the bound unchanged. "
-    "Session 12 (gap-user2): the analysis's floor estimate of 1.88 mrad was the epoch-stamp "
-    "velocity bug (f796a62: now 0.63); the analyzer's replay of the TRUE model (kp x0.5, 0.04 "
-    "rad on if_mcp) on seed 0's logs is 1.36 mrad at 2 ms and 1.28 at 0.5 ms: the residual is "
-    "the replay's, not the fit's; still untraced"))
 def test_the_extended_model_replays_the_user_logs_to_the_reading_floor(halved_gain):
+    """Measured 2026-11-27 (session 13, after the rest start of 3bbce57): held-out 47.2 ->
+    0.737 mrad (reading floor 0.668), gain 0.4977-0.4979 (intervals hold 0.5), offset 0.03989
+    [0.03967, 0.04010] on if_mcp; 167 s CPU. Was a strict xfail (sessions 11-12: 1.49 mrad): the
+    logs have no velocity column and open with a goal step, and the line fit through each log's
+    first rows gave the finger, at rest, the step's response speed (-0.6 to 2.4 rad/s): the
+    TRUE model replayed at 1.36 mrad, 5-12 mrad over each log's first 0.4 s; from rest 0.83
+    (tests/test_gap_user_start.py)."""
     rep, _ = halved_gain
     assert rep["gain"]["extended_rmse"] < 1.5 * leap.FLOOR
 
