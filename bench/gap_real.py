@@ -10,11 +10,12 @@ to the repository; exits cleanly when it is absent. For each set:
 * the servo structure (``identify.servo_structure``: motor constants, armature, Coulomb, viscous,
   gear friction with breakaway and back-driven share, mounting offset, measured supply voltage)
   is identified on the training gains with ``identify.identify`` (whole logs, open loop; three
-  families: all free, the back-driven share held at 1, the motor constants nominal and the
-  voltage term off; each from 3 jittered starts, fitted on the training logs but those at the
-  smallest value of the first header field that varies among them (kp, else length, mass, ...);
-  per family the start with the lowest cost kept, the family chosen by the fitted logs' MAE:
-  the one with the fewest parameters unless another pays 2 %, ``identify_select``);
+  families: all free, the back-driven share held at 1 (--symmetric: in every family), the motor
+  constants nominal and the voltage term off; each from 3 jittered starts, fitted on the
+  training logs but those at the smallest value of the first header field that varies among
+  them (kp, else length, mass, ...); per family the start with the lowest cost kept, the family
+  chosen by the fitted logs' MAE: the one with the fewest parameters unless another pays 2 %,
+  ``identify_select``);
 * the held-out gains are scored with BAM's measure (mean over logs of each log's position MAE,
   open loop from the first grid state, torque-off parts included), per trajectory and per kp,
   beside BAM's numbers on the same split, typed in from ../shared/reference/08-bam-reference-
@@ -119,12 +120,14 @@ def load_set(name: str, root: Path):
 def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too: bool,
             max_rounds: int, seeds: int = 0, jitter: float = 1e-3, select: str = "inner",
             restarts: int = 3, loso_fields: Sequence[str] = (), json_path: str | None = None,
-            done: Sequence[dict] = (), loso_only: bool = False, prior: float = 0.0) -> dict:
+            done: Sequence[dict] = (), loso_only: bool = False, prior: float = 0.0,
+            directional: bool = True) -> dict:
     spec = SETS[name]
     t0 = time.perf_counter()
     files, ds = load_set(name, root)
     structure = tuple(effects) if effects else servo_structure(ds)
-    sel = dict(select=select, restarts=restarts, max_rounds=max_rounds, prior=prior)
+    sel = dict(select=select, restarts=restarts, max_rounds=max_rounds, prior=prior,
+               directional=directional)
     out: dict = {"set": name, "logs": len(files), "structure": list(structure), "jittered": [],
                  "reference_all": {k: float(np.mean(list(v.values())))
                                    for k, v in reference_mae(ds).items()}}
@@ -484,6 +487,9 @@ def main(argv=None) -> int:
     ap.add_argument("--prior", type=float, default=0.0,
                     help="[rad] pull of every fitted parameter toward its catalogue value "
                     "(IdentifyConfig.prior; 0: none)")
+    ap.add_argument("--symmetric", action="store_true",
+                    help="hold the gear friction's back-driven share at 1 in every family "
+                    "(IdentifyConfig.directional=False: BAM M3/M4's gearbox)")
     ap.add_argument("--progress", action="store_true",
                     help="print the CPU time of each identification stage (BAM's split)")
     ap.add_argument("--json", default=None)
@@ -508,7 +514,7 @@ def main(argv=None) -> int:
         else:
             r = run_set(name, root, args.effects, args.analyze, args.max_rounds, args.seeds,
                         args.jitter, args.select, args.restarts, fields, args.json, results,
-                        args.loso_only, args.prior)
+                        args.loso_only, args.prior, not args.symmetric)
             _print(r)
         results.append(r)
         if args.json:

@@ -335,6 +335,22 @@ def test_without_a_torque_off_log_the_back_driven_share_is_held_at_one(logs):
     assert len(both.notes) == 1 and "faster than any training log" in both.notes[0]
 
 
+def test_a_symmetric_gearbox_keeps_the_back_driven_share_at_one_even_with_a_drop_in_training(
+        logs):
+    # directional=False: a gearbox whose friction grows with the load it carries in both
+    # directions (BAM M3/M4): no family frees the share, whatever the training logs show (a
+    # drop at kp 100 here), and the drop at kp 400 held out is predicted from it
+    res = identify(logs, [0, 1, 2], [3], IdentifyConfig(effects=tuple(TRUTH), max_rounds=20,
+                                                        select="train", restarts=1,
+                                                        directional=False))
+    assert "free" not in res.family_train_mae and res.family == "held"
+    assert res.params()["gearbox_friction"]["backdrive"] == [1.0]
+    assert not any("torque off" in n for n in res.notes)
+    assert res.mean([3]) < 2e-3
+    with pytest.raises(ConfigError, match="directional"):
+        IdentifyConfig(directional="yes")
+
+
 def test_held_out_logs_faster_than_every_training_log_are_flagged():
     # q = A sin(w t) peaks at A w rad/s (written out): training sines at 0.5 x 2 = 1 rad/s and
     # 0.3 x 4 = 1.2 rad/s; held out 0.5 x 8 = 4 rad/s (beyond 1.2 x 1.2: flagged) and

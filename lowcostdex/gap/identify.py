@@ -61,8 +61,12 @@ STAGE_TWO = frozenset({"velocity_limit", "motor_strength", "gain_error", "torque
 # breakaway", where the default start sits.
 BREAKAWAY_START = {("gearbox_friction", "static"): 0.3, ("gearbox_friction", "velocity"): 0.3}
 # Parameters also fitted held at their null, as a second family: the gear friction's
-# back-driven share (1: a symmetric gearbox, BAM M3/M4; free: directional, BAM M5). Freeing it
-# moves the fit into other basins, so both families are fitted and the training logs decide.
+# back-driven share (1: a gearbox whose friction grows with the load it carries in both
+# directions, BAM M3/M4; free: directional, BAM M5). Freeing it moves the fit into other basins,
+# so both families are fitted and the training logs decide (``IdentifyConfig.directional``
+# False: the held family only). Free, the fits put it at its 0.05 floor on Rhoban XL330 and
+# STS3032: held at 1, Rhoban's held-out error falls (BAM split 42.5 -> 41.5, trajectory folds
+# mean 62.7 -> 55.8) but STS3032's rises (24.3 -> 34.9): bench/RESULTS.md gap-gear6.
 HELD_FIRST = frozenset({("gearbox_friction", "backdrive")})
 # A third family holds the motor's constants and firmware gain (the STAGE_TWO effects) at their
 # catalogue values and the measured-voltage term off: a servo whose datasheet (or earlier fit)
@@ -133,6 +137,9 @@ class IdentifyConfig:
         the mean is fitted on all training logs ("inner" when fewer than two types).
       restarts: with select="inner", fits per family from differently jittered starts.
       restart_jitter: relative spread of the restarts after the first (at least ``jitter``).
+      directional: also fit the gear friction's back-driven share (``HELD_FIRST``) as a
+        family of its own (BAM M5's directional gearbox); False: held at 1 in every family
+        (BAM M3/M4's gearbox, friction load-dependent both ways).
       prior: [rad] a pull of every free parameter toward its catalogue null (0: none): the
         least-squares cost gains prior^2 x (fitted logs) x sum over free parameters of
         ((u - u_null) / (u_hi - u_lo))^2 (u: the optimizer's coordinate, log for scales), i.e.
@@ -156,6 +163,7 @@ class IdentifyConfig:
     restarts: int = 3
     restart_jitter: float = 1e-3
     prior: float = 0.0
+    directional: bool = True
 
     def __post_init__(self) -> None:
         _check_types(self)
@@ -194,6 +202,7 @@ def _check_types(c: IdentifyConfig) -> None:
         check_number(name, getattr(c, name))
     check_number("rtol", c.rtol, 0)
     check_bool("cold", c.cold)
+    check_bool("directional", c.directional)
     if isinstance(c.effects, str) or not isinstance(c.effects, (tuple, list)):
         raise ConfigError(f"effects={c.effects!r} must be a tuple of effect names, e.g. "
                           "servo_structure(ds)")
@@ -326,7 +335,9 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     notes: list[str] = []
     if _hold(full, HELD_FIRST) is not None:
         families["held"] = HELD_FIRST | config.hold
-        if not torque_off_seen(ds, train):
+        if not config.directional:
+            del families["free"]  # the share held at 1: HELD_FIRST's comment
+        elif not torque_off_seen(ds, train):
             # nothing in the training logs back-drives the servo with the torque off: the
             # back-driven share is held at 1 in every family (a symmetric gearbox, BAM M3/M4)
             del families["free"]
