@@ -156,11 +156,11 @@ REFUSED = {
     "positions in degrees": (
         lambda h, r: [h] + [",".join(c[:3] + [f"{np.degrees(float(x)):.3f}" for x in c[3:5]]
                                      + c[5:]) for c in (x.split(",") for x in r)], None,
-        ["run_0.csv", "'qpos:shoulder'", "degrees? write rad"]),
+        ["run_0.csv", "'qpos:shoulder'", "degrees? write rad", "or pass --units deg"]),
     "velocities in deg/s": (
         lambda h, r: [h] + [",".join(c[:5] + [f"{np.degrees(float(x)):.3f}" for x in c[5:]])
                             for c in (x.split(",") for x in r)], None,
-        ["run_0.csv", "'qvel:", "deg/s or rpm? write rad/s"]),
+        ["run_0.csv", "'qvel:", "deg/s or rpm? write rad/s", "or pass --units deg"]),
 }
 
 
@@ -206,3 +206,41 @@ def test_a_tendon_driven_elbow_is_read_with_a_note(user, tmp_path, capsys, stop_
     ds, err = _load(_folder(tmp_path, user, xml=xml), capsys)
     assert ds.effect_joints == ("shoulder",)
     assert "joint 'elbow' is driven by tendon elbow_t" in err and "replays as modelled" in err
+
+
+def _in_degrees(user, name):
+    """The rig's log with goal, qpos (deg) and qvel (deg/s) columns in degrees, 6 decimals."""
+    header, rows = _table(user, name)
+    angle = [c != "time" for c in header.split(",")]
+    return "\n".join([header] + [",".join(f"{np.degrees(float(x)):.6f}" if a else x
+                                            for x, a in zip(r.split(","), angle, strict=True))
+                                   for r in rows]) + "\n"
+
+
+def test_logs_in_degrees_read_with_units_deg_as_the_rig_wrote_them(user, tmp_path, capsys,
+                                                                   stop_after_loading):
+    """All three logs in degrees (as LeRobot records angles) with ``--units deg``: the data set
+    the rig's rad logs give, to the 6 printed decimals of a degree (1e-6 deg = 1.7e-8 rad)."""
+    texts = [_in_degrees(user, f"run_{i}.csv") for i in range(3)]
+    args = _folder(tmp_path, user, *texts[:2])
+    (tmp_path / "logs" / "run_2.csv").write_text(texts[2])
+    ds, err = _load(args + ["--units", "deg"], capsys)
+    (tmp_path / "clean").mkdir()
+    clean = _clean(user, capsys, tmp_path)
+    assert ds.joints == clean.joints
+    for a, b in zip(ds.trajectories, clean.trajectories, strict=True):
+        np.testing.assert_array_equal(a.time, b.time)
+        for f in ("goal", "qpos", "qvel"):
+            np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=0, atol=2e-8,
+                                       err_msg=f)
+
+
+def test_units_deg_is_refused_for_a_model_with_a_slide_joint(user, tmp_path, capsys):
+    """A slide joint's position is a length: degrees cannot be meant for it."""
+    xml = arm.user_model().replace('<joint name="elbow" range="-0.5 2.2"/>',
+                                   '<joint name="elbow" range="-0.5 2.2"/>\n          '
+                                   '<joint name="slider" type="slide" axis="1 0 0"/>')
+    assert "slider" in xml
+    args = _folder(tmp_path, user, xml=xml) + ["--units", "deg"]
+    _refused(args, tmp_path, capsys, ["--units deg", "slide joints (slider)",
+                                      "log angles in rad"])

@@ -47,6 +47,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="the servos' firmware update period [s] (0.001: a 1 kHz position loop, "
                         "Dynamixel/Feetech): the position law is sampled and its force held "
                         "between updates; 0 (default): continuous")
+    a.add_argument("--units", choices=("rad", "deg"), default="rad",
+                   help="the logs' angles: goal and qpos in rad, qvel in rad/s (default), or "
+                        "deg and deg/s (as LeRobot records them); time stays in seconds")
     a.set_defaults(func=_analyze)
 
     i = gsub.add_parser("identify", help="fit the servo's own parameters (motor constants, "
@@ -140,6 +143,7 @@ def _analyze(args: argparse.Namespace) -> int:
 
     from lowcostdex.gap.analyze import GapConfig, analyze
     from lowcostdex.gap.dataset import episodes, load_dataset, split_episodes
+    from lowcostdex.gap.logs import LogError
     from lowcostdex.gap.report import summary, write_report
     from lowcostdex.gap.results import timestep_note
     from lowcostdex.outdir import check_out
@@ -149,8 +153,13 @@ def _analyze(args: argparse.Namespace) -> int:
     check_out(args.out, "gap analyze")  # refuse a user's folder before minutes of work
     logs, same = distinct_logs(args.log)
     check_holdout(logs, args.holdout)
-    ds = load_dataset(logs, model=args.model, bench=True if args.bench else None,
-                      servo_period=args.servo_period)
+    try:
+        ds = load_dataset(logs, model=args.model, bench=True if args.bench else None,
+                          servo_period=args.servo_period, angle_unit=args.units)
+    except LogError as exc:  # a log in degrees: say the option beside the unit's hint
+        if args.units == "rad" and ("degrees?" in str(exc) or "deg/s or rpm?" in str(exc)):
+            raise LogError(f"{exc}; or pass --units deg") from None
+        raise
     for note in same + ds.notes:
         console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,
                       soft_wrap=True)

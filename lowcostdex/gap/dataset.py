@@ -36,6 +36,9 @@ from lowcostdex.gap.logs import (
 from lowcostdex.sim.models.bench import build_bench
 from lowcostdex.sim.servo import MAX_SERVO_PERIOD
 
+ANGLE_UNITS = {"rad": 1.0, "deg": np.pi / 180.0}
+"""Units ``load_dataset`` reads project-format logs' angles in: rad per unit."""
+
 MAX_TOTAL_DURATION = 4 * 3600.0
 """Most seconds of logs one analysis takes (its run time grows with them)."""
 
@@ -207,7 +210,7 @@ MAX_BENCH_TIMESTEP = 0.05
 
 def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | None = None,
                  bench: bool | None = None, timestep: float | None = None,
-                 servo_period: float = 0.0) -> Dataset:
+                 servo_period: float = 0.0, angle_unit: str = "rad") -> Dataset:
     """Read logs and their model(s).
 
     Args:
@@ -218,12 +221,16 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
       timestep: physics step for BAM benches [s] (default: the bench's).
       servo_period: the servos' firmware update period [s] (``Dataset.servo_period``; 0:
         the actuator law continuous).
+      angle_unit: "rad" or "deg": the unit of project-format logs' goal and qpos columns (and
+        of qvel per second); degrees are turned into rad on reading (hinge joints only).
     Logs whose time stamps jump (logging paused) are split there (``split_at_gaps``; said in
     ``Dataset.notes``); the total duration is bounded by ``MAX_TOTAL_DURATION``.
 
     Raises:
       LogError with the file and problem.
     """
+    if angle_unit not in ANGLE_UNITS:
+        raise ConfigError(f"angle unit {angle_unit!r}; valid: {', '.join(ANGLE_UNITS)}")
     paths = expand_log_paths(paths)
     for p in paths:
         if not p.exists():
@@ -231,6 +238,9 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     if timestep is not None:  # a physics step: 1 (meant as ms) would run a 1 s Euler step
         check_number("timestep [s]", timestep, 0, MAX_BENCH_TIMESTEP, low_open=True)
     bam = [is_bam(p) for p in paths]
+    if angle_unit != "rad" and any(bam):
+        raise LogError("BAM raw logs are in rad by their format; --units deg is for "
+                       "project-format logs (CSV/NPZ)")
     if bench is None:
         bench = all(bam)
         if any(bam) and not all(bam):
@@ -264,7 +274,14 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         _absolute_asset_dirs(spec, model)
         models["model"] = spec.to_xml()
         rate, gears = rate_goal_actuators(compiled), actuator_gears(compiled)
-        trajs = [read_log(p, rate, gears) for p in paths]
+        scale = ANGLE_UNITS[angle_unit]
+        if scale != 1.0:
+            slides = [compiled.joint(j).name for j in range(compiled.njnt)
+                      if compiled.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE]
+            if slides:
+                raise LogError(f"--units deg: the model has slide joints ({', '.join(slides)}) "
+                               "whose positions are lengths: log angles in rad instead")
+        trajs = [read_log(p, rate, gears, angle_scale=scale) for p in paths]
         trajs = [_in_order(tr, trajs[0]) for tr in trajs]
     total = sum(tr.duration for tr in trajs)
     if total > MAX_TOTAL_DURATION:
