@@ -223,7 +223,7 @@ CASES = [
     Case("BAM motor of another gear ratio",
          ("gap", "analyze", "--log", "bam.json", "--out", "report"),
          "unknown BAM motor 'XL330-M077'; valid: mx106 (MX-106(1.0)), mx64 (MX-64(1.0)), "
-         "sts3032 (STS3032), sts3250 (STS3250), xl330 (XL330-M288)",
+         "sts3032 (STS3032), sts3215 (STS3215), sts3250 (STS3250), xl330 (XL330-M288)",
          {"bam.json": json.dumps(bam_log(motor="XL330-M077"))}),
     # other commands
     Case("record-log --effects that is not JSON",
