@@ -24,12 +24,21 @@ times faster:
    ``ROBOT_VALIDATION_STREAM``) and on the 100 held-out ones. ``evaluate``: the same on a
    finished run folder, the robot-validated choice and the clone first.
 
+4. ``streams``: the main job's DAPG stage ``--runs`` times from the same chosen clone, each run
+   its own seed (randomization draws, training episodes; ``main_job.streams.stream_seeds``),
+   every iterate from ``--avg-from`` on kept; on the held-out robot episodes the clone, each
+   run's policy and the averages over the runs (weights of the last iterates: ``soupK``; their
+   mean action: ``ensK``; weights of the iterates from ``--avg-from`` on: ``swa0``,
+   ``swa_soupK``). ``--config`` overrides TrainConfig fields (e.g. ``{"n_traj": 120}``).
+
     python bench/main_job_sim.py throughput --episodes 20
     python bench/main_job_sim.py train --demos /tmp/mj_s0 --seed 0 --iters 30 --traj 40 \\
         --out /tmp/sim_dapg [--randomize default|robot]
     python bench/main_job_sim.py candidates --demos /tmp/mj_s0 --seed 0 --robot-val 40 \\
         --out /tmp/cand
     python bench/main_job_sim.py evaluate --run /tmp/cand/cand_s1_i30 --seed 1 --robot-val 20
+    python bench/main_job_sim.py streams --demos /tmp/mj_s0 --seed 0 --runs 3 --out /tmp/st \\
+        --only clone run0 soup3 ens3 swa_soup3
 
 Prints one JSON line per run and appends it to ``--out``/results.jsonl. Paired statistics:
 exact one-sided McNemar (binomial test on the episodes only one policy solved) and one-sided
@@ -466,6 +475,141 @@ def evaluate(a: argparse.Namespace) -> None:
     print(json.dumps({k: v for k, v in res.items() if not k.startswith("heldout_")}), flush=True)
 
 
+class Ensemble:
+    """The mean of several policies' mean actions (a rollout policy: ``act(obs, noise)``; the
+    noise is ignored: held-out episodes act deterministically)."""
+
+    def __init__(self, snaps: list[Any]):
+        self.snaps = snaps
+
+    @property
+    def act_dim(self) -> int:
+        return int(self.snaps[0].act_dim)
+
+    def act(self, obs: np.ndarray, noise: np.ndarray | None = None) -> np.ndarray:
+        return np.mean([s.act(obs, None) for s in self.snaps], axis=0)
+
+
+def average_policy(files: list[Path]) -> Any:
+    """``main_job.streams.average_weights`` of the policies in ``files``."""
+    from lowcostdex.algos.train import load_policy
+    from lowcostdex.main_job.streams import average_weights
+
+    return average_weights([load_policy(f) for f in files])
+
+
+def streams(a: argparse.Namespace) -> dict[str, Any]:
+    """The main job's DAPG stage (best of ``CLONES`` clones, ``SimTraining`` in the randomized
+    sim) run ``--runs`` times from the same chosen clone with other seeds (other randomization
+    draws, training episodes, baseline fits), every iterate from ``--avg-from`` on kept; then on
+    the ``--heldout`` held-out robot episodes (each policy on a freshly started robot): the
+    clone, each run's validation-chosen policy (run 0 is the main job's), and averages over
+    the randomization stream: the weight average of the runs' last iterates (``soupK``), the
+    mean action of the runs' last iterates (``ensK``), the weight average of run 0's iterates
+    from ``--avg-from`` on (``swa0``) and of every run's (``swa_soupK``). Also each average on
+    the sim validation episodes (100, ``EVAL_STREAM`` at the run's seed, the clone competing)."""
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.algos.configs import DAPGConfig, TrainConfig
+    from lowcostdex.algos.samplers import EVAL_STREAM, HELDOUT_STREAM, EnvFactory, make_jobs
+    from lowcostdex.algos.train import load_policy, train, trajectory_success
+    from lowcostdex.main_job.clones import choose_clone
+    from lowcostdex.main_job.heldout import evaluate as evaluate_on
+    from lowcostdex.main_job.setup import BUDGETS, DAPG_LAM0, TASKS
+    from lowcostdex.main_job.streams import stream_seeds
+
+    sim = BUDGETS["default"].dapg_sim
+    assert sim is not None
+    setup = TASKS["valve-target"]
+    kwargs = {**setup.env_overrides, "randomize": list(sim.randomize)}
+    config = TrainConfig(algo="dapg", env_id=setup.env_id, backend="sim", env_kwargs=kwargs,
+                         seed=a.seed, n_iter=sim.iters, n_traj=sim.traj,
+                         eval_every=sim.eval_every, eval_episodes=sim.eval_episodes,
+                         demos=str(a.demos / "demos.h5"), eval_bc=True,
+                         dapg=DAPGConfig(lam0=DAPG_LAM0), eval_paired=True, progress=False,
+                         checkpoint_every=1)
+    if a.config:
+        d = dataclasses.asdict(config)
+        for k, v in a.config.items():
+            d[k] = {**d[k], **v} if isinstance(v, dict) else v
+        config = TrainConfig.from_dict(d)
+    c0, t0 = time.process_time(), time.perf_counter()
+    chosen = choose_clone(config, sim.clones, sim.eval_episodes)
+    folder = a.out / f"streams_s{a.seed}{a.tag}"
+    shutil.rmtree(folder, ignore_errors=True)
+    runs, train_cpu = [], []
+    for k, s in enumerate(stream_seeds(a.seed, a.runs)):
+        cfg = dataclasses.replace(config, seed=s, bc_seed=chosen["bc_seed"])
+        run_dir = folder / f"run{k}"
+        keep = run_dir.parent / f"iterates{k}"
+        keep.mkdir(parents=True, exist_ok=True)
+
+        def until(row: dict[str, Any], run_dir: Path = run_dir, keep: Path = keep) -> bool:
+            prev = int(row[ex.ITERATION]) - 1  # its checkpoint is on disk (keep_last 3)
+            f = run_dir / ex.CHECKPOINT_DIR / f"ckpt_{prev:06d}.pt"
+            if prev >= a.avg_from and f.is_file():
+                shutil.copy(f, keep / f.name)
+            return False
+
+        c1 = time.process_time()
+        train(cfg, run_dir, until=until)
+        last = cfg.n_iter - 1
+        shutil.copy(run_dir / ex.CHECKPOINT_DIR / f"ckpt_{last:06d}.pt", keep)
+        train_cpu.append(round(time.process_time() - c1, 1))
+        summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
+        m = ex.read_metrics(run_dir / ex.METRICS_FILE)
+        runs.append({"seed": s, "dir": run_dir, "keep": keep,
+                     "chosen": (summary.get("best") or {}).get("iteration"),
+                     "sim_val": {int(i): round(float(v), 3) for i, v in
+                                 zip(m["iteration"], m["eval_success_rate"], strict=True)
+                                 if math.isfinite(v)}})
+    total_train_cpu, total_train_wall = time.process_time() - c0, time.perf_counter() - t0
+    lasts = [r["keep"] / f"ckpt_{config.n_iter - 1:06d}.pt" for r in runs]
+    snaps: dict[str, Any] = {"clone": load_policy(runs[0]["dir"] / ex.BC_POLICY_FILE).snapshot()}
+    for k, r in enumerate(runs):
+        snaps[f"run{k}"] = load_policy(r["dir"]).snapshot()
+    n = len(runs)
+    snaps[f"soup{n}"] = average_policy(lasts).snapshot()
+    if n > 3:
+        snaps["soup3"] = average_policy(lasts[:3]).snapshot()
+    snaps[f"ens{n}"] = Ensemble([load_policy(f).snapshot() for f in lasts])
+    snaps["swa0"] = average_policy(sorted(runs[0]["keep"].glob("ckpt_*.pt"))).snapshot()
+    snaps[f"swa_soup{n}"] = average_policy(sorted(f for r in runs
+                                                  for f in r["keep"].glob("ckpt_*.pt"))).snapshot()
+    # sim validation of the averages (the main job's validation episodes of run 0)
+    c1 = time.process_time()
+    sim_jobs = make_jobs(a.seed, EVAL_STREAM, 0, sim.eval_episodes, deterministic=True)
+    sim_names = ["clone", f"soup{n}", f"ens{n}", "swa0", f"swa_soup{n}"]
+    sv = evaluate_on(EnvFactory(setup.env_id, {**kwargs, "backend": "sim"}),
+                     {k: snaps[k] for k in sim_names}, sim_jobs, fresh=True)
+    sim_val = {k: int(sum(trajectory_success(p, "final") for p in v)) for k, v in sv.items()}
+    sim_cpu = time.process_time() - c1
+    c1 = time.process_time()
+    jobs = make_jobs(a.seed, HELDOUT_STREAM, 0, a.heldout, deterministic=True)
+    judged = {k: v for k, v in snaps.items() if not a.only or k in a.only}
+    ho_runs = evaluate_on(EnvFactory(setup.env_id, robot_kwargs()), judged, jobs, fresh=True)
+    ho = {}
+    for k, paths in ho_runs.items():
+        ho[k] = {"solved": [bool(trajectory_success(p, "final")) for p in paths],
+                 "errors": [float(p.final_goal_error) for p in paths]}
+        ho[k]["successes"] = int(sum(ho[k]["solved"]))
+    res = {"seed": a.seed, "runs": n, "avg_from": a.avg_from, "bc_seed": chosen["bc_seed"],
+           "config": a.config, "tag": a.tag,
+           "run_seeds": [r["seed"] for r in runs], "run_chosen": [r["chosen"] for r in runs],
+           "run_sim_val": [r["sim_val"] for r in runs], "sim_val_averages": sim_val,
+           "heldout": {k: v["successes"] for k, v in ho.items()},
+           "vs_clone": {k: paired(ho["clone"], v) for k, v in ho.items() if k != "clone"},
+           "train_cpu_s": train_cpu, "all_train_cpu_s": round(total_train_cpu, 1),
+           "all_train_wall_s": round(total_train_wall, 1), "sim_val_cpu_s": round(sim_cpu, 1),
+           "heldout_cpu_s": round(time.process_time() - c1, 1),
+           "heldout_solved": {k: v["solved"] for k, v in ho.items()},
+           "heldout_errors": {k: v["errors"] for k, v in ho.items()}}
+    a.out.mkdir(parents=True, exist_ok=True)
+    with open(a.out / "streams.jsonl", "a") as f:
+        f.write(json.dumps(res) + "\n")
+    print(json.dumps({k: v for k, v in res.items() if not k.startswith("heldout_")}), flush=True)
+    return res
+
+
 def main() -> None:
     torch.set_num_threads(1)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -510,8 +654,21 @@ def main() -> None:
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--robot-val", type=int, default=20, help="robot validation episodes")
     e.add_argument("--heldout", type=int, default=100, help="held-out episodes on the robot")
+    st = sub.add_parser("streams")
+    st.add_argument("--demos", type=Path, required=True, help="main-job output folder")
+    st.add_argument("--out", type=Path, required=True)
+    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--runs", type=int, default=4, help="DAPG runs from the same clone")
+    st.add_argument("--avg-from", type=int, default=15, help="first iterate averaged (swa)")
+    st.add_argument("--heldout", type=int, default=100, help="held-out episodes on the robot")
+    st.add_argument("--config", type=json.loads, default={}, help="TrainConfig overrides")
+    st.add_argument("--tag", default="")
+    st.add_argument("--only", nargs="*", default=[],
+                    help="policies judged on the robot (default all), e.g. clone soup3")
     a = ap.parse_args()
-    if a.cmd == "evaluate":
+    if a.cmd == "streams":
+        streams(a)
+    elif a.cmd == "evaluate":
         evaluate(a)
     elif a.cmd == "candidates":
         candidates(a)

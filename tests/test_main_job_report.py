@@ -250,3 +250,23 @@ def test_the_report_says_where_dapg_trained(tmp_path):
     assert "DAPG's RL samples (48000) came from the randomized simulation" in text
     del t["dapg"]["trained_in"]
     assert "came from the randomized simulation" not in markdown_report(ctx)
+
+
+def test_a_policy_averaged_over_runs_is_named_and_not_called_the_clone():
+    # several DAPG runs averaged (main_job.streams): the first run's validation chose the
+    # clone, but DAPG's policy is the average, so the report must not call it the clone
+    from lowcostdex.main_job.report import _streams_words
+
+    t = results((0, 100), (40, 100), (46, 100), (0, 100))
+    t["dapg"]["best_iteration"] = -1
+    t["streams"] = {"runs": [{"dir": "train_dapg"}, {"dir": "train_dapg_run1"},
+                             {"dir": "train_dapg_run2"}],
+                    "average": {"file": "train_dapg/averaged_policy.pt", "eval_successes": 44,
+                                "eval_episodes": 100, "eval_success": 0.44},
+                    "chosen": "average"}
+    assert "clone itself" not in _what_each_stage_added(t)
+    words = _streams_words(t["streams"])
+    assert "DAPG ran 3 times" in words and "solved 44 of 100" in words
+    assert "`train_dapg_run2/`" in words and "It is DAPG's policy below." in words
+    t["streams"]["chosen"] = "clone"
+    assert "DAPG's policy below is the clone" in _streams_words(t["streams"])

@@ -94,6 +94,8 @@ def markdown_report(ctx: Context) -> str:
                       "the robot.", ""]
             if "clones" in t:
                 lines += [_clones_words(t["clones"]), ""]
+            if "streams" in t:
+                lines += [_streams_words(t["streams"]), ""]
         lines += ["Validation: deterministic episodes (the policy's mean action) every "
                   f"{ctx.budget.eval_every or 'last'} iteration(s) during training "
                   f"({_validation_words(t, ctx.budget.eval_episodes)}; the behaviour clone's evaluation "
@@ -192,6 +194,22 @@ def _clones_words(c: dict[str, Any]) -> str:
             f"{c['seconds']} s ({c['cpu_seconds']} s of CPU) and no robot time. The clone "
             "row below is this chosen clone (not measured on the robot before the held-out "
             "episodes).")
+
+
+def _streams_words(st: dict[str, Any]) -> str:
+    """How DAPG's policy came from several runs (``results["train"]["streams"]``)."""
+    runs, avg = st["runs"], st["average"]
+    n = avg["eval_episodes"]
+    told = ("It is DAPG's policy below." if st.get("chosen") == "average" else
+            "It validated below the clone, so DAPG's policy below is the clone.")
+    return (f"DAPG ran {len(runs)} times from that clone, each run with its own seed (its own "
+            "randomization draws and training episodes; run directories "
+            + ", ".join(f"`{r['dir']}/`" for r in runs) + "), and its policy is the average "
+            "of the runs' last iterates' weights (`" + avg["file"] + "`): one run's gain on "
+            "the robot moves with its randomization draws, the average keeps what the draws "
+            f"share. The average solved {avg['eval_successes']} of {n} of the first run's "
+            f"validation episodes. {told} The training table's DAPG row is the first run; "
+            "the held-out table's is DAPG's policy.")
 
 
 def _overrides(ctx: Context) -> str:
@@ -296,7 +314,7 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
                  f"that DAPG ends nearer the goal, p = {pvalue:.3g}"
                  + ("): DAPG ended nearer the goal than the clone." if pvalue <= 0.05 else
                     "): no paired difference this run can show."))
-    if dapg.get("best_iteration") == -1:
+    if dapg.get("best_iteration") == -1 and "streams" not in t:
         text += (" No DAPG iterate beat the clone on the validation episodes, so DAPG's policy "
                  "is the clone itself: at this budget RL did not improve on it.")
     return text

@@ -177,8 +177,14 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             config = dataclasses.replace(config, bc_seed=out["clones"]["bc_seed"])
         run_dir = ctx.out / f"train_{algo}"
         t0 = time.perf_counter()
-        run = train(config, run_dir)
-        metrics = run.read_metrics()
+        if sim is not None and sim.runs > 1:
+            # several runs from the same clone, their last iterates' weights averaged
+            from lowcostdex.main_job.streams import train_streams
+
+            out["streams"] = train_streams(config, run_dir, sim.runs)
+            metrics = ex.read_metrics(run_dir / ex.METRICS_FILE)
+        else:
+            metrics = train(config, run_dir).read_metrics()
         summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
         curves[algo] = metrics
         first = summary["first_eval_crossing"]
@@ -205,6 +211,7 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             "evaluations": summary["evaluations"],
             "validation_episodes": episodes,
             "validation_paired": config.eval_paired,
+            "policy": "the run's best validated policy",
             "wall_seconds": round(time.perf_counter() - t0, 1),
             "curves": f"{run_dir.name}/learning_curves.png",
             "robot": {k: float(metrics[f"robot_{k}"][-1]) for k in
@@ -213,22 +220,30 @@ def stage_train(ctx: Context) -> dict[str, Any]:
         }
     # the behaviour clone's own deterministic evaluation before DAPG's first iteration
     bc = json.loads((ctx.out / "train_dapg" / "bc.json").read_text())
+    if "streams" in out:
+        avg = out["streams"]["average"]
+        # the average unless it validated below the clone (on the same episodes)
+        chosen = avg["eval_successes"] >= round(bc["eval_success_rate"] * bc["eval_episodes"])
+        out["streams"]["chosen"] = "average" if chosen else "clone"
+        out["dapg"]["policy"] = (f"the average of {len(out['streams']['runs'])} runs' last "
+                                 "iterates" if chosen else "the clone (the average of the "
+                                 "runs validated below it)")
     out["success_after_bc"] = float(bc["eval_success_rate"])
     out["bc"] = {k: bc[k] for k in ("n_episodes", "n_pairs") if k in bc}
     out["bc"]["validation_success"] = float(bc["eval_success_rate"])
     out["bc"]["bc_seed"] = out["clones"]["bc_seed"] if "clones" in out else ctx.seed
-    heldout = _heldout(ctx, b.heldout_episodes)
+    heldout = _heldout(ctx, b.heldout_episodes, dapg_policy_file(out, ctx.out))
     out["random"] = heldout.pop("random")
     for name, r in heldout.items():
         out[name].update(r)
     out["demos_finished"] = ctx.results["demos"].get("finished")
     out["plot"] = _plot_training(ctx, out, curves)
     if ctx.task == "flip":
-        out["rollout"] = _flip_rollout(ctx)
+        out["rollout"] = _flip_rollout(ctx, dapg_policy_file(out, ctx.out))
     return out
 
 
-def _heldout(ctx: Context, episodes: int) -> dict[str, dict[str, Any]]:
+def _heldout(ctx: Context, episodes: int, dapg_file: Any) -> dict[str, dict[str, Any]]:
     """Uniformly random actions, the behaviour clone (before any RL step), DAPG's and NPG's run
     policies (each its best on the validation evaluations) on the same ``episodes`` held-out
     episodes of the robot: reset seeds of ``HELDOUT_STREAM``, disjoint from the training episodes
@@ -248,7 +263,7 @@ def _heldout(ctx: Context, episodes: int) -> dict[str, dict[str, Any]]:
 
     jobs = make_jobs(ctx.seed, HELDOUT_STREAM, 0, episodes, deterministic=True)
     files = {"bc": ctx.out / "train_dapg" / ex.BC_POLICY_FILE,
-             "dapg": ctx.out / "train_dapg", "npg": ctx.out / "train_npg"}
+             "dapg": dapg_file, "npg": ctx.out / "train_npg"}
     policies: dict[str, Any] = {"random": uniform_actions(np.random.default_rng(ctx.seed
                                                                                 + 3_000_000))}
     policies.update({name: load_policy(path).snapshot() for name, path in files.items()})
@@ -275,12 +290,27 @@ def _heldout(ctx: Context, episodes: int) -> dict[str, dict[str, Any]]:
     return out
 
 
+def dapg_policy_file(train: dict[str, Any], out: Any) -> Any:
+    """DAPG's policy as the train stage (its results ``train``, output folder ``out``) chose
+    it: the runs' average (``main_job.streams``), the clone when the average validated below
+    it, or the single run's best validated policy (its run directory)."""
+    from lowcostdex.algos import experiment as ex
+    from lowcostdex.main_job.streams import AVERAGE_FILE
+
+    chosen = train.get("streams", {}).get("chosen")
+    if chosen == "average":
+        return out / "train_dapg" / AVERAGE_FILE
+    if chosen == "clone":
+        return out / "train_dapg" / ex.BC_POLICY_FILE
+    return out / "train_dapg"
+
+
 ROLLOUT_DATA = "flip_rollout.npz"
 """The flip rollout's recorded episodes (``flip_rollout_figure`` rebuilds the figure from it)."""
 
 
-def _flip_rollout(ctx: Context) -> dict[str, Any]:
-    """One deterministic episode of the DAPG run's policy on the robot, the block's orientation
+def _flip_rollout(ctx: Context, dapg_file: Any) -> dict[str, Any]:
+    """One deterministic episode of DAPG's policy (``dapg_file``) on the robot, the block's orientation
     recorded at every step; plotted beside the first successful demonstration. The joint
     positions of both (qpos, one row per control step) go to ``ROLLOUT_DATA``."""
     import gymnasium as gym
@@ -290,7 +320,7 @@ def _flip_rollout(ctx: Context) -> dict[str, Any]:
     from lowcostdex.algos.train import load_policy
     from lowcostdex.demonstrations.file import read_episodes
 
-    snap = load_policy(ctx.out / "train_dapg").snapshot()
+    snap = load_policy(dapg_file).snapshot()
     env = gym.make(ctx.setup.env_id, **ctx.env_kwargs())
     u = env.unwrapped
     try:
