@@ -94,7 +94,7 @@ def _cubic(keys: list[tuple[float, float]], t: float) -> float:
     zero derivative): smoothstep between consecutive keys, held outside."""
     if t <= keys[0][0]:
         return keys[0][1]
-    for (t0, x0), (t1, x1) in zip(keys, keys[1:]):
+    for (t0, x0), (t1, x1) in zip(keys[:-1], keys[1:], strict=True):
         if t <= t1:
             s = (t - t0) / (t1 - t0)
             return x0 + (x1 - x0) * (3 * s * s - 2 * s ** 3)
