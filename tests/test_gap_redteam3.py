@@ -48,6 +48,11 @@ import gap_truth_sim3 as sim  # noqa: E402
 # truth's 1 kHz firmware replayed as a continuous position law); with the servo update period
 # tried on the first cause (gap-servo5, session 12, stepsize.refine_fitted): gain_error 2.538
 # [2.416, 2.667] alone at 0.5 ms with a 1 ms period, held-out 49.9 -> 0.95 mrad, 39 s CPU.
+# srv_backlash_output was 'interval' (width 0.0332 [0.0281, 0.0382] at 3483c63, 0.0382 [0.0358,
+# 0.0406] on ebac3a1, truth 0.05: its cost is jagged in the width, the loop on the output shaft
+# hunting in the play, and the fit stopped in the dip nearest its search path's start); with
+# the width scanned over its range (gap.width_scan, gap-play6, session 13): exact, width
+# 0.04895 [0.04531, 0.05594], held-out 11.53 -> 4.57 mrad, 280 s CPU.
 MISSES: dict[str, str] = {
     "fin_pair_latency080_abd_backlash050_prox": "miss (gap-play, main 3483c63, 379 s): latency "
                                                 "80.22 ms on abd alone, its interval [79.74, "
@@ -57,11 +62,6 @@ MISSES: dict[str, str] = {
                                                 "(1.26 mrad train + select at 1 ms = 1.8 "
                                                 "floors; prox held-out 1.47 mrad = 2.2 of its "
                                                 "0.66 floor); held-out 49.1 -> 1.05 mrad",
-    "srv_backlash_output": "interval (gap-play, main 3483c63, 224 s): named exactly backlash, "
-                           "sensor 1.009 [0.985, 1.033] (the output shaft) but width 0.0332 "
-                           "[0.0281, 0.0382] for 0.05 (held-out 11.53 -> 7.75 mrad, floor 0.82: "
-                           "9 floors left; analysed at the model's 2 ms, 1 ms was only 5 % "
-                           "closer); was 0.0340 [0.0321, 0.0359] (gap-cands), a miss before",
     "fin_backlash080_dist": "miss by design, not below the read floor (gap-play, main 3483c63, "
                             "68 s): 'no significant discrepancy', the nominal train + select "
                             "RMSE 0.83 mrad at 0.5 ms is within explain_above (3 floors of "

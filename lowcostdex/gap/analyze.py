@@ -50,7 +50,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
-from lowcostdex.gap import significance, stepsize
+from lowcostdex.gap import significance, stepsize, width_scan
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
 from lowcostdex.gap.diagnostics import (
     effective_n,
@@ -506,11 +506,11 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
 
 def _final_fit(current: fitmod.Structure, cur_x: np.ndarray, fn, cfg: GapConfig,
                ctx: fitmod.Context, widened_notes: dict, dt: float, late=None) -> fitmod.Track:
-    """``current`` refitted on ``fn`` (train + select), tighter than the screening fits (a play's
-    sensor standing in for a lag held at 0; a fit on a bound refitted wider: ``widened_notes``)."""
-    t = fitmod.Track(current, current.u(cur_x), label="final")
-    fitmod.lockstep_lm([t], fn, 2 * cfg.max_rounds, rtol=1e-5)
-    t = hold_sensor(t, fn, ctx, cfg, widened_notes, late)
+    """``current`` refitted on ``fn`` (train + select), tighter than the screening fits (a lag's
+    play sensor held at 0; a jagged width in its valley, ``width_scan``; a bound widened)."""
+    t, n = fitmod.Track(current, current.u(cur_x), label="final"), 2 * cfg.max_rounds
+    fitmod.lockstep_lm([t], fn, n, rtol=1e-5)
+    t = width_scan.restart(hold_sensor(t, fn, ctx, cfg, widened_notes, late), fn, n)
     if fitmod.polish(t, fn, dt):
         fitmod.lockstep_lm([t], fn, 1)  # residual and Jacobian at the polished point (intervals)
     if fitmod.at_bounds(t.structure, t.u):
@@ -536,7 +536,7 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     data = np.maximum.reduce([noise, fitmod.block_halfwidths(t.r, t.jac, blocks),
                               significance.hac_halfwidths(t.r, t.jac, blocks)])
     u, data = significance.profile_interval(t, lambda: _Engine(ds, cfg, t.structure.names)
-                                            .residual_fn(segs), data)
+                                            .residual_fn(segs), data, scan=True)
     if not cfg.interval_step:
         return u, data, noise, data, None
     t0 = time.perf_counter()

@@ -33,6 +33,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap import width_scan
 from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.gap.diagnostics import effective_n
 from lowcostdex.sim.effects import AppliedEffect, effect
@@ -330,7 +331,7 @@ def _profile_costs(t: fitmod.Track, residual: fitmod.ResidualFn,
 
 def profile_interval(t: fitmod.Track, residual: Callable[[], fitmod.ResidualFn],
                      half: np.ndarray, rounds: int = 2,
-                     steps: Sequence[float] = (1.25, 2.0, 4.0, 8.0)
+                     steps: Sequence[float] = (1.25, 2.0, 4.0, 8.0), scan: bool = False
                      ) -> tuple[np.ndarray, np.ndarray]:
     """95 % intervals (centre, half-width; optimizer coordinates) of ``t``'s ``PROFILED``
     scalars that also hold the range where the cost's profile stays low; the others as given.
@@ -346,8 +347,10 @@ def profile_interval(t: fitmod.Track, residual: Callable[[], fitmod.ResidualFn],
     rise exceeds Delta (a profile that comes back down past it is not looked for). The profile
     interval runs to the farthest value whose rise is at most Delta (interpolated in
     sqrt(rise) toward the next one); the result is the hull of it and u^_i +- half_i, never
-    narrower than the linearised one. ``t`` needs ``r`` and ``jac`` at its optimum
-    (``lockstep_lm`` with ``jacobian_at_end``).
+    narrower than the linearised one. With ``scan``, a width whose cost is jagged (a loop
+    closed across the play hunting inside it) also holds the valley of its smoothed cost over
+    its whole search range (``width_scan``; one more batched replay). ``t`` needs ``r`` and
+    ``jac`` at its optimum (``lockstep_lm`` with ``jacobian_at_end``).
 
     Cost (issue 11, the main job's logs): one or two batched replays per step and side, where
     20 rounds of LM per grid value on 10 values doubled the whole analysis (327 -> 685 s)."""
@@ -380,8 +383,12 @@ def profile_interval(t: fitmod.Track, residual: Callable[[], fitmod.ResidualFn],
             c_min[i] = min(c_min[i], c)
             if not c - c_min[i] <= delta[i]:  # past Delta (or not finite): this side ends
                 going.discard(key)
+    valleys = {sc.index: sc.valley(delta[sc.index]) for sc in width_scan.scan(t, residual)
+               if sc.index in delta} if scan else {}
     for i in idx:
         lo_e, hi_e = u[i] - half[i], u[i] + half[i]
+        if i in valleys and np.all(np.isfinite(valleys[i])):  # a jagged cost's whole valley
+            lo_e, hi_e = min(lo_e, valleys[i][0]), max(hi_e, valleys[i][1])
         for side in (-1.0, 1.0):
             line = [(x, c - c_min[i]) for x, c in lines[(i, side)] if math.isfinite(c)]
             inside = [k for k, (_, rise) in enumerate(line) if rise <= delta[i]]
