@@ -261,6 +261,9 @@ def test_the_table_counts_each_policy_on_its_own_robot_and_the_cross_table_the_o
     assert s["identified"]["sim"] == (20, 20)  # two policies, each evaluated once in its sim
     assert s["identified"]["drop"] == pytest.approx(1.0 - 0.8)
     assert s["nominal"]["robots"] == (8, 20) and s["nominal"]["sim"] == (10, 10)
+    # policy-robot pairs working on at least half their episodes: 9/10 and 7/10 both; the
+    # nominal policy 3/10 on A does not, 5/10 on B does (exactly half)
+    assert s["identified"]["pairs"] == (2, 2) and s["nominal"]["pairs"] == (1, 2)
     text = cross_markdown(rows, ["A", "B"])
     lines = text.splitlines()
     assert lines[2].startswith("| nominal | - | 0.30 ") and "| 0.50 " in lines[2]
@@ -529,6 +532,8 @@ def test_the_table_shows_the_training_starts_column_only_when_evaluated():
     nominal = [c.strip() for c in lines[2].strip("|").split("|")]
     identified = [c.strip() for c in lines[3].strip("|").split("|")]
     assert nominal[col].startswith("0.35 [") and identified[col].startswith("0.38 [")
+    pairs = head.index("policy-robot pairs that work (>= half the episodes)")
+    assert nominal[pairs] == "1 of 2" and identified[pairs] == "0 of 2"  # 3, 5; 1, 1 of 10
     assert len(nominal) == len(head)
 
 

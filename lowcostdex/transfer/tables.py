@@ -51,8 +51,11 @@ def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[s
         # in the training sim from the training starts (--start-range; None: not evaluated)
         starts = [r for r in sims if r.get("sim_starts_episodes")]
         errors = [e for r in rs for e in r["final_error"]]
+        # the independent units: a deterministic policy on a robot repeats nearly one episode
+        works = sum(2 * r["success"] >= r["episodes"] > 0 for r in rs)
         out[cond] = {"per_robot": per_robot, "robots": (robot_k, robot_n), "sim": (sim_k, sim_n),
                      "covered": [name for name in robots if per_robot[name][1]],
+                     "pairs": (works, len(rs)),
                      "sim_identical": identical, "policies": len(sims),
                      "sim_starts": (sum(r["sim_starts_success"] for r in starts),
                                     sum(r["sim_starts_episodes"] for r in starts))
@@ -70,6 +73,7 @@ def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str
     them: a policy may succeed there and on no other start)."""
     starts = any(s.get("sim_starts") for s in summary.values())
     head = ["condition", *[f"robot {r}" for r in robots], "mean on robots",
+            "policy-robot pairs that work (>= half the episodes)",
             "in training sim" + (" from the task's start" if starts else "")
             + " (on_robot: the robot)",
             *(["in training sim from its training starts"] if starts else []),
@@ -84,7 +88,9 @@ def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str
         extra = [_cell(*s["sim_starts"]) if s.get("sim_starts") else "-"] if starts else []
         covered = s.get("covered", robots)
         only = "" if len(covered) == len(robots) else f" ({', '.join(covered)} only)"
-        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]) + only, sim, *extra,
+        pairs = "{} of {}".format(*s["pairs"]) if "pairs" in s else "-"
+        lines.append("| " + " | ".join([cond, *cells, _cell(*s["robots"]) + only, pairs, sim,
+                                        *extra,
                                         f"{s['drop']:+.2f}{only}",
                                         f"{s['median_final_error']:.2f}",
                                         f"{s['train_wall_seconds']:.0f}"]) + " |")
