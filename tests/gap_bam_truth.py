@@ -65,6 +65,7 @@ class BamMotor:
     max_goal_speed: float = math.inf  # [rad/s] firmware slew of the goal (STS)
     arm_mass_key: str | None = "arm-mass"  # None: the recorder writes no arm mass
     position_units: str = "mx"  # "mx" or "feetech"
+    m6: tuple[float, ...] | None = None  # M6's directional terms (see ``Pendulum.step``)
 
 
 MOTORS = {
@@ -77,6 +78,16 @@ MOTORS = {
                      load_friction_base=1.9611119490261663e-10,
                      load_friction_stribeck=0.23428996680337053,
                      dtheta_stribeck=1.5205782308422509, alpha=1.3344007931759223),
+    # bam/params/mx64/m6.json (M6: directional + quadratic); m6 = (load_friction_motor,
+    # load_friction_external, load_friction_motor_stribeck, load_friction_external_stribeck,
+    # load_friction_motor_quad, load_friction_external_quad)
+    "mx64-m6": BamMotor("mx64", 15.0, 0.158, 0.9625, kt=1.6016832750318712, R=2.3164043271967447,
+                        armature=0.012265893049213158, friction_base=6.217919698787649e-07,
+                        friction_viscous=0.02533701181690149,
+                        friction_stribeck=0.12269525980968875,
+                        dtheta_stribeck=2.575277366960116, alpha=0.8409018066017007,
+                        m6=(0.3114720375111298, 2.0462014258729542e-08, 0.18774381222411038,
+                            0.014065853481003015, 0.006908512882777861, 0.009999980627672081)),
     # bam/params/feetech_sts3215_7_4V/m1.json (M1: Coulomb + viscous), vin 7.4 V
     "sts3215": BamMotor("sts3215", 7.4, 0.166, 0.97, kt=1.21164135295077, R=2.6761663274455603,
                         armature=0.02840336348682085, friction_base=0.05239296084748866,
@@ -143,10 +154,18 @@ class Pendulum:
         ext = -(self.b.mass + self.b.arm_mass / 2) * G * self.b.length * math.sin(self.q
                                                                               + m.q_offset)
         stribeck = math.exp(-abs(self.dq / m.dtheta_stribeck) ** m.alpha)
-        gear = abs(ext - motor)
-        budget = (m.friction_base + m.friction_stribeck * stribeck
-                  + gear * (m.load_friction_base + m.load_friction_stribeck * stribeck)
-                  + m.friction_viscous * abs(self.dq))
+        budget = m.friction_base + m.friction_stribeck * stribeck + m.friction_viscous * abs(
+            self.dq)
+        if m.m6 is None:  # M1-M4: the gearbox carries |tau_ext - tau_motor|
+            gear = abs(ext - motor)
+            budget += gear * (m.load_friction_base + m.load_friction_stribeck * stribeck)
+        else:  # M6: motor and load torques weighted apart, quadratic when they oppose
+            lm, le, lms, les, lmq, leq = m.m6
+            budget += abs(ext * le - motor * lm) + stribeck * abs(ext * les - motor * lms)
+            if math.copysign(1, ext) != math.copysign(1, motor) and ext != 0 and motor != 0:
+                quad = leq * ext ** 2 if abs(ext) < abs(motor) else (
+                    lmq * motor ** 2 if abs(ext) > abs(motor) else 0.0)
+                budget += stribeck * quad
         tau = motor + ext
         stop = self.inertia / dt * self.dq + tau
         tau -= math.copysign(min(abs(stop), budget), stop)
@@ -227,14 +246,14 @@ def write_set(motor: str, folder: str | Path, seed: int = 0, kps=KPS,
     logged position against the true one [rad], the quantisation)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    benches = benches or (MX64_BENCHES if motor == "mx64" else STS3215_BENCHES)
+    benches = benches or (MX64_BENCHES if motor.startswith("mx64") else STS3215_BENCHES)
     rng = np.random.default_rng(seed)
     floors = {}
     for b in benches:
         for kp in kps:
             for tr in trajectories:
                 log, q = record(motor, b, kp, tr, rng)
-                name = f"{motor}_m{b.mass:g}_kp{kp:g}_{tr}.json"
+                name = f"{MOTORS[motor].name}_m{b.mass:g}_kp{kp:g}_{tr}.json"
                 (folder / name).write_text(json.dumps(log))
                 pos = np.array([e["position"] for e in log["entries"]])
                 floors[name] = float(np.mean(np.abs(pos - q)))

@@ -52,7 +52,7 @@ def test_a_held_servo_settles_where_its_p_law_balances_gravity():
     assert err > 0.03  # the sag is real (about 0.09 rad), not lost in the friction
 
 
-@pytest.mark.parametrize("motor", ["mx64", "sts3215"])
+@pytest.mark.parametrize("motor", ["mx64", "mx64-m6", "sts3215"])
 def test_truth_logs_load_and_the_nominal_model_replays_them(tmp_path, motor):
     from lowcostdex.gap import bam_measure as bm
     from lowcostdex.gap.bam_logs import read_bam
