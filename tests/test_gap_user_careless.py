@@ -16,6 +16,7 @@ import pytest
 
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 import gap_user_arm as arm  # noqa: E402
+from cli_refusal import assert_refused  # noqa: E402
 
 from lowcostdex.cli import main  # noqa: E402
 
@@ -60,16 +61,7 @@ def _load(args, capsys):
 
 
 def _refused(args, tmp_path, capsys, words):
-    before = sorted(p.name for p in tmp_path.rglob("*"))
-    code = main(args)
-    out, err = capsys.readouterr()
-    assert code == 2, err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("lowcostdex gap analyze: error: "), err
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-    assert "Traceback" not in out + err
-    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+    assert_refused(args, tmp_path, capsys, words)
 
 
 def _table(user, name="run_0.csv"):

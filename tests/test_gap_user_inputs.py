@@ -15,6 +15,7 @@ import pytest
 
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 import gap_user_leap as leap  # noqa: E402
+from cli_refusal import assert_refused  # noqa: E402
 
 from lowcostdex.cli import main  # noqa: E402
 
@@ -127,17 +128,9 @@ def _refused(case, edit, model_edit, words, user, tmp_path, capsys):
     if model_edit:
         xml = re.sub(*model_edit, xml)
     (tmp_path / "m.xml").write_text(xml)
-    before = sorted(p.name for p in tmp_path.rglob("*"))
-    code = main(["gap", "analyze", "--model", str(tmp_path / "m.xml"), "--log",
-                 str(tmp_path / "logs"), "--out", str(tmp_path / "out")])
-    out, err = capsys.readouterr()
-    assert code == 2, err
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("lowcostdex gap analyze: error: "), err
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-    assert "Traceback" not in out + err
-    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+    assert_refused(["gap", "analyze", "--model", str(tmp_path / "m.xml"), "--log",
+                    str(tmp_path / "logs"), "--out", str(tmp_path / "out")], tmp_path, capsys,
+                   words)
 
 
 def _load(tmp_path, files, user, capsys):
