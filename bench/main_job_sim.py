@@ -67,6 +67,15 @@ ranges), truth (the emulated robot's own effects, ``main_job.setup.robot_effects
 episode: what a sim extended by a perfect gap analysis would be; an upper bound, not a recipe)."""
 
 
+
+def _record(path: Path, res: dict, hide=lambda key: False) -> None:
+    """Append ``res`` as one JSON line to ``path`` (its folder made if missing) and print it
+    without the keys ``hide`` names (the per-episode lists)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        f.write(json.dumps(res) + "\n")
+    print(json.dumps({k: v for k, v in res.items() if not hide(k)}), flush=True)
+
 def sim_kwargs(randomize: str) -> dict[str, Any]:
     from lowcostdex.hands import dclaw_spec
     from lowcostdex.main_job.setup import TASKS
@@ -311,10 +320,7 @@ def train_in_sim(a: argparse.Namespace) -> dict[str, Any]:
            "robot_heldout_wall_s": round(robot_s, 1),
            "robot_errors": {k: v["errors"] for k, v in robot.items()},
            "robot_solved": {k: v["solved"] for k, v in robot.items()}}
-    a.out.mkdir(parents=True, exist_ok=True)
-    with open(a.out / "results.jsonl", "a") as f:
-        f.write(json.dumps(res) + "\n")
-    print(json.dumps({k: v for k, v in res.items() if not k.startswith("robot_")}), flush=True)
+    _record(a.out / "results.jsonl", res, lambda k: k.startswith("robot_"))
     return res
 
 
@@ -359,9 +365,7 @@ def clones(a: argparse.Namespace) -> dict[str, Any]:
            "choose_wall_s": chosen["seconds"], "choose_cpu_s": chosen["cpu_seconds"],
            "robot_wall_s": round(time.perf_counter() - t1, 1),
            "robot_cpu_s": round(time.process_time() - c1, 1)}
-    with open(a.out / "clones.jsonl", "a") as f:
-        f.write(json.dumps(res) + "\n")
-    print(json.dumps(res), flush=True)
+    _record(a.out / "clones.jsonl", res)
     return res
 
 
@@ -436,11 +440,7 @@ def candidates(a: argparse.Namespace) -> dict[str, Any]:
            "robot_val_errors": {k: v["errors"] for k, v in rv.items()},
            "heldout_solved": {k: v["solved"] for k, v in ho.items()},
            "heldout_errors": {k: v["errors"] for k, v in ho.items()}}
-    a.out.mkdir(parents=True, exist_ok=True)
-    with open(a.out / "candidates.jsonl", "a") as f:
-        f.write(json.dumps(res) + "\n")
-    print(json.dumps({k: v for k, v in res.items() if not k.endswith(("_solved", "_errors"))}),
-          flush=True)
+    _record(a.out / "candidates.jsonl", res, lambda k: k.endswith(("_solved", "_errors")))
     return res
 
 
@@ -470,9 +470,7 @@ def evaluate(a: argparse.Namespace) -> None:
                               res[f"{name[it]}_vs_clone"]}), flush=True)
     res["heldout_solved"] = {k: v["solved"] for k, v in ho.items()}
     res["heldout_errors"] = {k: v["errors"] for k, v in ho.items()}
-    with open(a.run.parent / "evaluate.jsonl", "a") as fh:
-        fh.write(json.dumps(res) + "\n")
-    print(json.dumps({k: v for k, v in res.items() if not k.startswith("heldout_")}), flush=True)
+    _record(a.run.parent / "evaluate.jsonl", res, lambda k: k.startswith("heldout_"))
 
 
 class Ensemble:
@@ -603,10 +601,7 @@ def streams(a: argparse.Namespace) -> dict[str, Any]:
            "heldout_cpu_s": round(time.process_time() - c1, 1),
            "heldout_solved": {k: v["solved"] for k, v in ho.items()},
            "heldout_errors": {k: v["errors"] for k, v in ho.items()}}
-    a.out.mkdir(parents=True, exist_ok=True)
-    with open(a.out / "streams.jsonl", "a") as f:
-        f.write(json.dumps(res) + "\n")
-    print(json.dumps({k: v for k, v in res.items() if not k.startswith("heldout_")}), flush=True)
+    _record(a.out / "streams.jsonl", res, lambda k: k.startswith("heldout_"))
     return res
 
 
