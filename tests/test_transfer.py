@@ -273,6 +273,52 @@ def test_the_table_counts_each_policy_on_its_own_robot_and_the_cross_table_the_o
     assert "identified: own robot 0.80 " in text and "other robots 0.15 " in text
 
 
+def test_the_final_error_and_the_looser_tolerance_do_not_flip_where_success_does():
+    """Two conditions whose policies end 0.099 and 0.101 rad from the goal (a 0.1 rad task
+    tolerance): success 1.00 vs 0.00, final error 0.099 vs 0.101, both 1.00 at 0.12 rad. A
+    third over 3 seeds of 10 episodes, its final errors 0.080, 0.081, ..., 0.109 rad: the
+    median is (0.094 + 0.095) / 2, the 95 % interval the 10th and 21st of the 30 sorted values
+    (P(Bin(30, 1/2) <= 9) = 0.0214, P(B <= 10) = 0.0494), each seed's median the mean of its
+    5th and 6th values; 20 of 30 under 0.1 rad, 30 under 0.12 rad."""
+    from lowcostdex.transfer.loop import cells_json, errors_markdown, summarize
+
+    rows = [dict(_row("nominal", "A", 10), final_error=[0.099] * 10),
+            dict(_row("randomized", "A", 0), final_error=[0.101] * 10)]
+    for seed in range(3):
+        errors = [round(0.080 + 0.010 * seed + 0.001 * i, 4) for i in range(10)]
+        rows.append(dict(_row("identified", "A", sum(e < 0.1 for e in errors), made_for="A",
+                              seed=seed), final_error=errors))
+    s = summarize(rows, ["A"])
+    assert s["nominal"]["per_robot"]["A"] == (10, 10)
+    assert s["randomized"]["per_robot"]["A"] == (0, 10)
+    near, far = s["nominal"]["errors"]["A"], s["randomized"]["errors"]["A"]
+    assert near["median"] == pytest.approx(0.099) and far["median"] == pytest.approx(0.101)
+    assert near["loose"] == (10, 10) and far["loose"] == (10, 10)
+    ident = s["identified"]["errors"]["A"]
+    assert ident["median"] == pytest.approx(0.0945)
+    assert ident["low"] == pytest.approx(0.089) and ident["high"] == pytest.approx(0.100)
+    assert ident["coverage"] == pytest.approx(1 - 2 * 0.021387, abs=1e-5)
+    assert ident["per_seed"] == pytest.approx([0.0845, 0.0945, 0.1045])
+    assert ident["seeds"] == [0, 1, 2]
+    assert s["identified"]["per_robot"]["A"] == (20, 30) and ident["loose"] == (30, 30)
+    lines = errors_markdown(s, ["A"]).splitlines()
+    head = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert head == ["condition", "final error on robot A [rad]", "robot A < 0.12 rad",
+                    "mean on robots < 0.12 rad"]
+    cells = {x[0]: x for x in ([c.strip() for c in line.strip("|").split("|")]
+                               for line in lines[2:])}
+    assert cells["nominal"][1].startswith("0.099 [0.099, 0.099]")
+    assert cells["randomized"][1].startswith("0.101 [0.101, 0.101]")
+    assert "[0.089, 0.100]; per seed " in cells["identified"][1]
+    assert all(cells[c][2].startswith("1.00 [") for c in cells)
+    # transfer.json's cells carry the same numbers
+    by = {c["condition"]: c for c in cells_json({"npg": s}, ["A"])}
+    assert by["identified"]["success"] == 20 and by["identified"]["success_loose"] == 30
+    assert by["identified"]["final_error_interval"] == pytest.approx([0.089, 0.100])
+    assert by["randomized"]["success"] == 0 and by["randomized"]["success_loose"] == 10
+    assert by["nominal"]["loose_tolerance"] == 0.12 and by["nominal"]["algo"] == "npg"
+
+
 def test_time_left_counts_only_the_pieces_still_to_run():
     """A resume: 6 pieces, 3 of them found done (the 2nd, 4th and 6th); the others take 10 s
     each. After the first, 2 pieces of 10 s are left (20 s), not 5 pieces."""
@@ -336,6 +382,8 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
                 assert r["seed"] == 0 and r["episodes"] == size.episodes
                 assert 0 <= r["success"] <= r["episodes"]
                 assert len(r["final_error"]) == size.episodes
+                # a looser tolerance never counts fewer successes
+                assert r["success"] <= r["success_loose"] <= r["episodes"]
                 assert r["samples"] == size.n_iter * size.n_traj * 40
     # the identified sim carries what the analysis fitted on that robot, per joint
     ident = json.loads((out / "identified.json").read_text())
@@ -354,9 +402,17 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
         on_robot = json.loads((out / "runs" / "npg" / f"on_robot_{robot.name}_seed0" /
                                "config.json").read_text())
         assert on_robot["backend"] == "emulated" and on_robot["sampler"] == "serial"
+    cells = data["cells"]  # one per algo, condition and robot (own-robot policies)
+    assert {(c["algo"], c["condition"], c["robot"]) for c in cells} == {
+        (a, c, x) for a in ("dapg", "npg") for c in CONDITIONS for x in robots}
+    for c in cells:
+        assert c["final_error_interval"][0] <= c["final_error_median"] <= \
+            c["final_error_interval"][1]
+        assert c["success"] <= c["success_loose"] <= c["episodes"] == size.episodes
     table = (out / "table.md").read_text()
     for cond in CONDITIONS:
         assert f"| {cond} |" in table
+    assert "final valve error and success at 0.12 rad" in table
     assert "on every robot (bold: its own robot)" in table
     assert (out / "transfer.png").stat().st_size > 0
 

@@ -17,6 +17,10 @@ ALGOS = ("dapg", "npg")
 FINGERS = ("ff", "mf", "th")
 EVAL_SEED = 20261125  # seeds of the evaluation episodes (same in every cell)
 NARROW_PAD = 0.1  # identified_randomized: ranges at least +-10 % of each identified value
+# [rad] success counted again at a looser tolerance than the valve task's 0.1 rad
+# (``TurnConfig.success_tol``): policies trained in robot A's identified model end 0.068-0.109
+# rad from the goal on A (bench/RESULTS.md, transfer6), so 0.1 splits them by 0.01 rad
+LOOSE_TOL = 0.12
 STEPS = 40  # steps per episode of the valve tasks (the sample count of an episode)
 OUTPUTS = ("table.md", "transfer.json", "transfer.png", "identified.json")
 

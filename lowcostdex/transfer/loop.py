@@ -27,8 +27,10 @@ on_robot) is also evaluated on the other robots: the cross table says whether ro
 helps on robot B.
 
 Everything lands in one output folder (``lowcostdex.outdir`` rules: a folder holding files the
-command did not write is refused untouched): ``transfer.json`` (``{"info", "rows"}``, one row per
-algorithm, condition, policy, robot and seed), ``table.md``, ``transfer.png``,
+command did not write is refused untouched): ``transfer.json`` (``{"info", "rows", "cells"}``: one
+row per algorithm, condition, policy, robot and seed; one cell per algorithm, condition and robot
+with success at the task's tolerance and at ``LOOSE_TOL`` and the final error's median, its
+interval and each seed's median), ``table.md``, ``transfer.png``,
 ``identified.json`` (what the analysis named per robot and finger, beside the truth when the
 robot is a hidden one), the demonstrations, identification logs and reports, the training runs
 and every evaluation cell. Finished pieces are kept: running again on the same folder resumes
@@ -61,6 +63,7 @@ from lowcostdex.transfer.config import (
     CONDITIONS,
     EVAL_SEED,
     FINGERS,
+    LOOSE_TOL,
     NARROW_PAD,
     OUTPUTS,
     PER_ROBOT,
@@ -74,7 +77,10 @@ from lowcostdex.transfer.config import (
 )
 from lowcostdex.transfer.robots import HiddenRobotEnv, HiddenRobotTarget, PortRobot, make_robots
 from lowcostdex.transfer.tables import (
+    cells_json,
     cross_markdown,
+    errors_markdown,
+    loose_successes,
     named_vs_truth,
     own_rows,
     plot,
@@ -83,12 +89,12 @@ from lowcostdex.transfer.tables import (
 )
 
 __all__ = [
-    "ALGOS", "COMMAND", "CONDITIONS", "EVAL_SEED", "FINGERS", "NARROW_PAD", "OUTPUTS", "PER_ROBOT",
-    "SIZES", "STEPS", "TASKS", "HiddenRobotEnv", "HiddenRobotTarget", "PortRobot", "Progress",
-    "Size", "Task", "condition_randomize", "cross_markdown", "evaluate", "identified_effects",
-    "identify", "identify_finger", "make_robots", "named_vs_truth", "own_rows", "parse_list",
-    "plot", "record_demos", "run", "settings", "size_with", "summarize", "table_markdown",
-    "train_policy",
+    "ALGOS", "COMMAND", "CONDITIONS", "EVAL_SEED", "FINGERS", "LOOSE_TOL", "NARROW_PAD", "OUTPUTS",
+    "PER_ROBOT", "SIZES", "STEPS", "TASKS", "HiddenRobotEnv", "HiddenRobotTarget", "PortRobot",
+    "Progress", "Size", "Task", "cells_json", "condition_randomize", "cross_markdown",
+    "errors_markdown", "evaluate", "identified_effects", "identify", "identify_finger",
+    "make_robots", "named_vs_truth", "own_rows", "parse_list", "plot", "record_demos", "run",
+    "settings", "size_with", "summarize", "table_markdown", "train_policy",
 ]
 
 # ------------------------------------------------------------------------------------------------
@@ -471,6 +477,9 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                                  "episodes": cell["episodes"],
                                  "policy_robot": policy_robot.name if policy_robot else None,
                                  "final_error": cell["final_error"],
+                                 "final_error_median": float(np.median(cell["final_error"])),
+                                 "success_loose": loose_successes(cell["final_error"]),
+                                 "loose_tolerance": LOOSE_TOL,
                                  "sim_success": sim["successes"], "sim_episodes": sim["episodes"],
                                  "sim_final_error": sim["final_error"],
                                  "sim_starts_success": None if starts is None
@@ -507,11 +516,16 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
             "training_task": train_task.label(),
             "wall_seconds": {k: round(v, 1) for k, v in wall.items()},
             "cpu_seconds_this_invocation": round(cpu, 1)}
-    write_json(out / "transfer.json", {"info": info, "rows": rows})
+    write_json(out / "transfer.json", {"info": info, "rows": rows,
+                                       "cells": cells_json(summaries, names)})
     parts = [f"# Transfer table: {title}", ""]
     for algo, summary in summaries.items():
         parts += [f"## {algo.upper()}: each policy on the robot it was made for", "",
-                  table_markdown(summary, names), ""]
+                  table_markdown(summary, names), "",
+                  f"### {algo.upper()}: final valve error and success at {LOOSE_TOL:g} rad "
+                  "(measures that do not flip at the tolerance; intervals over the pooled "
+                  "episodes, the seeds are the independent units)", "",
+                  errors_markdown(summary, names), ""]
         cross = cross_markdown([r for r in rows if r["algo"] == algo], names)
         if cross and len(robots) > 1:
             parts += [f"### {algo.upper()}: policies made for one robot on every robot "

@@ -1,5 +1,11 @@
-"""The transfer loop's results: per-condition summaries with 95 % Wilson intervals, the Markdown
-tables (own robot, cross-robot), the figure and what the analysis named beside the truth.
+"""The transfer loop's results: per-condition summaries with 95 % Wilson intervals, the final
+valve error (median with a distribution-free interval, per seed) and success at a looser
+tolerance beside them, the Markdown tables (own robot, final error, cross-robot), the per-cell
+records of ``transfer.json``, the figure and what the analysis named beside the truth.
+
+Success at the task's tolerance flips when a policy's final error sits at the tolerance (a
+policy ending 0.099 rad and one ending 0.101 rad count 50/50 and 0/50); the median final error
+moves by 0.002 rad for them, and success at ``LOOSE_TOL`` says whether they all end near.
 """
 
 from __future__ import annotations
@@ -10,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.transfer.config import CONDITIONS, PER_ROBOT
+from lowcostdex.transfer.config import CONDITIONS, LOOSE_TOL, PER_ROBOT
 
 
 def _cell(successes: int, n: int) -> str:
@@ -20,6 +26,31 @@ def _cell(successes: int, n: int) -> str:
         return "-"
     lo, hi = wilson_interval(successes, n)
     return f"{successes / n:.2f} [{lo:.2f}, {hi:.2f}]"
+
+
+def loose_successes(errors: list[float], tol: float = LOOSE_TOL) -> int:
+    """Episodes whose final error [rad] is below ``tol``."""
+    return int(sum(float(e) < tol for e in errors))
+
+
+def error_cell(rs: list[dict[str, Any]], tol: float = LOOSE_TOL) -> dict[str, Any] | None:
+    """The final valve errors [rad] of some rows pooled: median with its 95 % interval from
+    order statistics (``lowcostdex.stats.median_interval``, over the pooled episodes: like the
+    Wilson intervals of the success rates, it assumes independent episodes, which the episodes
+    of one deterministic policy are not), the median of each seed's episodes (seeds are the
+    independent units) and the successes at ``tol``; None without episodes."""
+    from lowcostdex.stats import median_interval
+
+    errors = [float(e) for r in rs for e in r["final_error"]]
+    if not errors:
+        return None
+    median, low, high, coverage = median_interval(errors)
+    seeds = sorted({r["seed"] for r in rs})
+    per_seed = [float(np.median([e for r in rs if r["seed"] == k for e in r["final_error"]]))
+                for k in seeds]
+    return {"median": median, "low": low, "high": high, "coverage": coverage,
+            "per_seed": per_seed, "seeds": seeds, "loose": (loose_successes(errors, tol),
+                                                            len(errors))}
 
 
 def own_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -53,7 +84,9 @@ def summarize(rows: list[dict[str, Any]], robots: list[str]) -> dict[str, dict[s
         errors = [e for r in rs for e in r["final_error"]]
         # the independent units: a deterministic policy on a robot repeats nearly one episode
         works = sum(2 * r["success"] >= r["episodes"] > 0 for r in rs)
+        errs = {name: error_cell([r for r in rs if r["robot"] == name]) for name in robots}
         out[cond] = {"per_robot": per_robot, "robots": (robot_k, robot_n), "sim": (sim_k, sim_n),
+                     "errors": errs, "errors_robots": error_cell(rs),
                      "covered": [name for name in robots if per_robot[name][1]],
                      "pairs": (works, len(rs)),
                      "sim_identical": identical, "policies": len(sims),
@@ -97,6 +130,54 @@ def table_markdown(summary: dict[str, dict[str, Any]], robots: list[str]) -> str
     return "\n".join(lines)
 
 
+def _error_text(c: dict[str, Any] | None) -> str:
+    if c is None:
+        return "-"
+    seeds = ", ".join(f"{m:.3f}" for m in c["per_seed"])
+    return f"{c['median']:.3f} [{c['low']:.3f}, {c['high']:.3f}]; per seed {seeds}"
+
+
+def errors_markdown(summary: dict[str, dict[str, Any]], robots: list[str],
+                    tol: float = LOOSE_TOL) -> str:
+    """One line per condition: the final valve error on each robot (median [95 % interval
+    over the pooled episodes]; the median of each seed's episodes) and the success rate at
+    ``tol`` per robot and pooled: measures that do not flip when policies end near the task's
+    tolerance."""
+    head = ["condition", *[f"final error on robot {r} [rad]" for r in robots],
+            *[f"robot {r} < {tol:g} rad" for r in robots], f"mean on robots < {tol:g} rad"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for cond, s in summary.items():
+        errs = s["errors"]
+        loose = [errs[r]["loose"] if errs[r] else (0, 0) for r in robots]
+        pooled = (sum(k for k, _ in loose), sum(n for _, n in loose))
+        lines.append("| " + " | ".join([cond, *[_error_text(errs[r]) for r in robots],
+                                        *[_cell(*c) for c in loose], _cell(*pooled)]) + " |")
+    return "\n".join(lines)
+
+
+def cells_json(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str],
+               tol: float = LOOSE_TOL) -> list[dict[str, Any]]:
+    """``transfer.json``'s ``cells``: per algorithm, condition and robot (policies on the robot
+    they were made for, seeds pooled) the success at the task's tolerance and at ``tol`` and
+    the final error's median with its interval and per-seed medians [rad]."""
+    out = []
+    for algo, summary in summaries.items():
+        for cond, s in summary.items():
+            for name in robots:
+                c = s["errors"][name]
+                if c is None:
+                    continue
+                k, n = s["per_robot"][name]
+                out.append({"algo": algo, "condition": cond, "robot": name, "success": k,
+                            "episodes": n, "loose_tolerance": tol, "success_loose": c["loose"][0],
+                            "final_error_median": round(c["median"], 5),
+                            "final_error_interval": [round(c["low"], 5), round(c["high"], 5)],
+                            "interval_coverage": round(c["coverage"], 4),
+                            "final_error_median_per_seed": [round(m, 5) for m in c["per_seed"]],
+                            "seeds": c["seeds"]})
+    return out
+
+
 def cross_markdown(rows: list[dict[str, Any]], robots: list[str]) -> str:
     """Per-robot policies (rows: made for robot X) on every robot (columns), pooled over seeds,
     beside the nominal policy on the same robot: does robot A's model help on robot B?"""
@@ -135,6 +216,8 @@ def cross_markdown(rows: list[dict[str, Any]], robots: list[str]) -> str:
 
 def plot(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str], path: Path,
          title: str) -> Any:
+    """Per algorithm, success rates (top) and final valve errors (bottom: median with its
+    interval, each seed's median, the task's tolerance and ``LOOSE_TOL``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -143,7 +226,7 @@ def plot(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str], pat
     from lowcostdex.stats import wilson_interval
 
     columns = [*robots, "mean"]
-    fig, axes = plt.subplots(1, len(summaries), figsize=(7 * len(summaries) + 2.5, 4.5),
+    fig, axes = plt.subplots(2, len(summaries), figsize=(7 * len(summaries) + 2.5, 8.5),
                              squeeze=False)
     colors = {"nominal": "#888888", "randomized": "#4c72b0", "identified": "#dd8452",
               "identified_randomized": "#55a868", "on_robot": "#c44e52"}
@@ -172,9 +255,44 @@ def plot(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str], pat
         ax.set_ylim(0, 1.05)
         ax.set_title(f"{algo.upper()}: {title}", fontsize=9)
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
+    for ax, (algo, summary) in zip(axes[1], summaries.items(), strict=True):
+        _plot_errors(ax, algo, summary, robots, colors)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     return fig
+
+
+def _plot_errors(ax: Any, algo: str, summary: dict[str, dict[str, Any]], robots: list[str],
+                 colors: dict[str, str]) -> None:
+    from lowcostdex.sim.envs.dclaw_tasks import TurnConfig
+
+    floor = 1e-4  # [rad] a log axis: errors below it (rounded to 0) are drawn at it
+    width = 0.8 / max(1, len(summary))
+    for i, (cond, s) in enumerate(summary.items()):
+        for j, name in enumerate(robots):
+            c = s["errors"][name]
+            if c is None:
+                continue
+            x = j + (i - (len(summary) - 1) / 2) * width
+            m, lo, hi = (max(floor, v) for v in (c["median"], c["low"], c["high"]))
+            ax.errorbar([x], [m], yerr=[[m - lo], [hi - m]], color=colors[cond], marker="o",
+                        markersize=6, capsize=3, linestyle="None",
+                        label=f"{cond}: median [95 % interval]" if j == 0 else None)
+            ax.plot([x] * len(c["per_seed"]), [max(floor, v) for v in c["per_seed"]],
+                    marker=".", markersize=4, color="k", linestyle="None",
+                    label="median of one seed" if i == 0 and j == 0 else None)
+    tol = TurnConfig().success_tol
+    ax.axhline(tol, color="k", linewidth=0.8, label=f"task tolerance {tol:g} rad")
+    ax.axhline(LOOSE_TOL, color="k", linewidth=0.8, linestyle="--",
+               label=f"looser tolerance {LOOSE_TOL:g} rad")
+    ax.set_yscale("log")
+    ax.set_xticks(np.arange(len(robots)))
+    ax.set_xticklabels([f"robot {r}" for r in robots])
+    ax.set_xlim(-0.6, len(robots) - 0.4)
+    ax.set_xlabel("robot (policies on the robot they were made for)")
+    ax.set_ylabel("final valve error [rad], log scale")
+    ax.set_title(f"{algo.upper()}: final valve error on the robot", fontsize=9)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
 
 
 def named_vs_truth(idents: dict[str, dict[str, Any]]) -> list[str]:
