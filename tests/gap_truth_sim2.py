@@ -26,7 +26,8 @@ Hidden effects (``Effect.kind``; sizes are real-world servo sizes):
   position actuator drives and which carries the armature, damping and friction) and the link;
   the log reads the link. ``backlash_output``: the same play, but the servo's P-D loop (written
   here, a ``motor`` actuator) feeds back the OUTPUT position, as a Dynamixel does (encoder on the
-  output shaft), so the motor side hunts inside the play.
+  output shaft), so the motor side hunts inside the play; the joint's nominal damping is that
+  loop's D on the output velocity (taken off the motor joint: damping once).
 - ``coulomb_mj``: MuJoCo ``frictionloss`` on the joint. ``coulomb_own``: a smooth Coulomb torque
   ``-F tanh(qdot / v0)`` applied by this module.
 - ``viscous_mj``: extra joint ``damping``. ``viscous_own``: ``-b qdot`` applied by this module.
@@ -335,6 +336,13 @@ def truth_xml(case: Case) -> tuple[str, bool]:
     for e in case.effects:
         if e.kind == "mass":
             masses = {k: v * e.value for k, v in MASSES[case.rig].items()}
+    for j in _per_joint(case, "backlash_output"):
+        # the servo's own loop puts the nominal joint damping on the OUTPUT velocity (its D term,
+        # ``simulate``): it is taken off the motor joint, which keeps only what a hidden effect
+        # adds (``viscous_mj``) or a perturbation changes. Until 2026-11-27 (session 14) the motor
+        # joint kept its nominal damping too, an unnamed extra D term of the same size: that
+        # physics is now the case ``backlash_output_damped_pendulum`` (play + viscous_mj).
+        jp[j]["damping"] = jp[j].get("damping", NOMINAL[j]["damping"]) - NOMINAL[j]["damping"]
     plays = {**_per_joint(case, "backlash_body"), **_per_joint(case, "backlash_output")}
     own = bool(_per_joint(case, "backlash_output"))
     return rig_xml(case.rig, jp, masses, plays, own, timestep=TRUTH_DT), own
@@ -372,7 +380,13 @@ def simulate(case: Case, t_rows: np.ndarray, g_rows: np.ndarray,
     nominal = [NOMINAL[j] for j in info.joints]
     kp = np.array([p["kp"] * _per_joint(case, "gain").get(j, 1.0)
                    for p, j in zip(nominal, info.joints, strict=True)])
-    kv = np.array([p["kv"] + p["damping"] for p in nominal])  # own loop: joint damping on output
+    # own loop (backlash_output): P-D on the output (kp, kv; clipped at the force range, as a
+    # position actuator's force) plus the nominal joint damping on the OUTPUT velocity, taken
+    # off the motor joint (``truth_xml``) and, like a joint's damping, outside the force range:
+    # damping once, where the encoder reads (with no play this is the nominal rig; until
+    # session 14 the damping sat inside the clip and on the motor joint as well)
+    kv = np.array([p["kv"] for p in nominal])
+    damp_out = np.array([p["damping"] for p in nominal])
     fmax = np.array([_per_joint(case, "torque_limit").get(j, p["force"] or np.inf)
                      for p, j in zip(nominal, info.joints, strict=True)])
 
@@ -413,7 +427,7 @@ def simulate(case: Case, t_rows: np.ndarray, g_rows: np.ndarray,
         if own:
             qd_out = data.qvel[out_dof] + data.qvel[drive_dof]
             tau = kp * (cur - mount_off - q) - kv * qd_out
-            data.ctrl[:] = np.clip(tau, -fmax, fmax)
+            data.ctrl[:] = np.clip(tau, -fmax, fmax) - damp_out * qd_out
         else:
             data.ctrl[:] = cur - mount_off
         if coul.any() or damping_own.any():
@@ -529,6 +543,12 @@ CASES: tuple[Case, ...] = (
          (20, 20), ("sine", "steps"), seed=14),
     Case("backlash_output_pendulum", "pendulum", (E("backlash_output", 2.5 * DEG),), 100,
          (20, 20), ("steps", "holds"), seed=15, note="encoder on the output shaft"),
+    Case("backlash_output_damped_pendulum", "pendulum",
+         (E("backlash_output", 2.5 * DEG), E("viscous_mj", 0.25)), 100, (20, 20),
+         ("steps", "holds"), seed=15,
+         note="backlash_output_pendulum's extra damping before session 14, named: the motor "
+              "joint keeps 0.25 N m s/rad beside the loop's 0.25 on the output (damping "
+              "twice; the loop's D now outside the force range, as in the fixed case)"),
     Case("backlash_body_turntable", "turntable", (E("backlash_body", 1.0 * DEG),), 200,
          (15, 15), ("holds", "sine"), seed=16),
     Case("coulomb_mj_turntable", "turntable", (E("coulomb_mj", 0.08),), 100, (15, 15),
