@@ -66,6 +66,11 @@ class MotorSpec:
       backlash: manufacturer backlash [rad] (documentation / DR prior).
       max_duty: firmware duty ceiling as a fraction of full scale (BAM's ``max_pwm``); the
         default PWM Limit of a bench or hand built for this motor is ``max_duty * pwm_max``.
+      goal_speed: [rad/s] the rate at which the firmware moves its internal goal toward a
+        written goal when no speed is written (0: the goal acts at once). Dynamixel: 0 (Profile
+        Velocity 0 = no profile). Feetech STS: the Running Speed register (46) boots at the
+        factory maximum and 0 there also means the maximum (STS3215: ``STS_GOAL_SPEED``; 0
+        where the servo's logs move faster than any goal they hold).
     """
 
     name: str
@@ -88,6 +93,7 @@ class MotorSpec:
     thermal: ThermalSpec = ThermalSpec()
     backlash: float = math.radians(0.25)
     max_duty: float = 1.0
+    goal_speed: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("voltage", "stall_torque", "no_load_speed", "gear_ratio"):
@@ -95,6 +101,8 @@ class MotorSpec:
                 raise ConfigError(f"MotorSpec {self.name}: {name} must be > 0")
         if not 0 < self.max_duty <= 1:
             raise ConfigError(f"MotorSpec {self.name}: max_duty must be in (0, 1]")
+        if not (math.isfinite(self.goal_speed) and self.goal_speed >= 0):
+            raise ConfigError(f"MotorSpec {self.name}: goal_speed must be >= 0 rad/s (0: none)")
         tpr = self.ticks_per_rad
         if math.isnan(self.error_gain):
             object.__setattr__(self, "error_gain", tpr / (128.0 * self.pwm_max))
@@ -135,6 +143,19 @@ class MotorSpec:
 
 KGF_CM = 9.80665e-2
 """N m per kgf cm (Feetech rates torque in kg cm)."""
+
+STS_GOAL_SPEED = 3400 * TWO_PI / 4096
+"""[rad/s] the Feetech STS firmware's goal slew at its factory Running Speed: 3400 steps/s (5.22
+rad/s). Feetech's STS memory table (ftservo/ftservo-wiki docs/en/reference/parameter/
+memory-sts.md @9522ce19): Running Speed (address 46) "initial value: factory default maximum
+speed ... 0 means the maximum speed", Acceleration (41) 0 = the maximum acceleration; the goal
+position (42) is approached at that speed (the firmware's current goal is readable at 67).
+3400 steps/s is the STS3215's maximum as BAM models it (Rhoban/bam bam/feetech/actuator.py
+``default_max_velocity``; 08-bam-reference-errors.md section 4); ``goal_slew`` fits a factor on
+it. Not the STS3032's or STS3250's: their measured logs (BAM's recorders, Running Speed never
+written) track the goal at up to 11.9 rad/s (STS3032, kp 32, sin_time_square, above 5.5 rad/s
+for 0.2 s at a time) and 8.6 rad/s (STS3250), and BAM's STS3032 fits put the clamp at 16.8-29.7
+rad/s, above every goal speed in those logs (14 rad/s): no slew is modelled for them."""
 
 _X430_THERMAL = ThermalSpec(resistance=12.0, capacitance=8.0)
 
@@ -207,7 +228,7 @@ MOTORS: dict[str, MotorSpec] = {
         # armature BAM's published sts3215 7.4 V M1 fit (0.0284) [a fit, not a datasheet value].
         MotorSpec("STS3215", 777, 6.0, 19.5 * KGF_CM, (math.pi / 3) / 0.238, 345.0, 0.0284,
                   current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32, default_d=32,
-                  error_gain=0.166, d_error_gain=0.0, max_duty=0.97,
+                  error_gain=0.166, d_error_gain=0.0, max_duty=0.97, goal_speed=STS_GOAL_SPEED,
                   thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
         # STS3250: Model Number 2825 (lerobot's table, read from the motor); 50 kg cm (4.9 N m)
         # stall, 0.133 s/60 deg at 12 V (vendor sheet as quoted by robonine.com). No error_gain
@@ -242,7 +263,10 @@ class ServoGains:
     Attributes:
       position_p / position_i / position_d: Position P/I/D Gain registers (84/82/80).
       pwm_limit: PWM Limit register (36), 0..885.
-      profile_velocity: Profile Velocity register (112) [0.229 rpm]; 0 = unlimited.
+      profile_velocity: the goal speed register in the motor's velocity unit: Dynamixel
+        Profile Velocity (112) [0.229 rpm]; Feetech Running Speed (46) [step/s]; 0 = the
+        motor's own (``MotorSpec.goal_speed``: unlimited on Dynamixel, the factory maximum on
+        Feetech).
       supply_voltage: supply [V]; None = the motor's nominal voltage.
     """
 

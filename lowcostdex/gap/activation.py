@@ -14,6 +14,10 @@ into every window, multiple shooting included):
 
 Without this the activation started each window at 0 (an ``intvelocity`` bench replayed at
 694 mrad, a ``timeconst`` one at 24 mrad; both 0.6 now, floor 0.535).
+* a dcmotor servo whose firmware slews its goal (``slewmax``: a Feetech STS at its Running
+  Speed, a Dynamixel Profile Velocity): at a window's start the slewed goal is where the goals
+  before it, followed at the slew rate from the first goal (the servo at rest holding it), left
+  it (``slewed``).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.gap.dataset import Dataset, Window
+from lowcostdex.sim import servo
 
 Key = tuple[str, bool]  # (model key, structural variant)
 
@@ -77,22 +82,63 @@ class Activations:
             cache[k] = out
         return cache[k]
 
+    def slews(self, key: Key) -> list[tuple[int, int, int]]:
+        """Logged dcmotor servos whose goal is slewed: (column in the log's actuator list, model
+        actuator id, address of the slewed goal in act)."""
+        cache = self.__dict__.setdefault("_slew_servos", {})
+        if key not in cache:
+            ids, adr = servo.goal_slew_states(self.variants[key])
+            where = dict(zip(ids.tolist(), adr.tolist(), strict=True))
+            cache[key] = [(col, int(a), where[int(a)]) for col, a in enumerate(self.act_idx[key])
+                          if int(a) in where]
+        return cache[key]
+
+    def slewed(self, traj: int, col: int, rate: float, x: float) -> float:
+        """The firmware's slewed goal [rad] at time ``x`` [s] (goal arrival time): from the
+        first goal, moving toward each goal in force at ``rate`` [rad/s] at most."""
+        tr = self.ds.trajectories[traj]
+        g, u = tr.goal[:, col], tr.goal_times
+        i = int(np.searchsorted(u, x, side="right")) - 1
+        if i < 0:
+            return float(g[0])
+        cache = self.__dict__.setdefault("_slew_states", {})
+        k = (traj, col, rate)
+        if k not in cache:  # the slewed goal when each goal arrives
+            step = rate * np.diff(u)
+            out = np.empty(len(g))
+            out[0] = g[0]
+            for j in range(1, len(g)):
+                out[j] = out[j - 1] + min(max(g[j - 1] - out[j - 1], -step[j - 1]), step[j - 1])
+            cache[k] = out
+        state, d = cache[k][i], rate * (x - u[i])
+        return float(state + min(max(g[i] - state, -d), d))
+
     def setpoints(self, key: Key, sims: list[tuple[int, int]],
-                   windows: Sequence[Window], delays: np.ndarray, gains: np.ndarray
-                   ) -> np.ndarray | None:
+                   windows: Sequence[Window], delays: np.ndarray, gains: np.ndarray,
+                   dynprm: np.ndarray | None = None) -> np.ndarray | None:
         """(nsim, na) activations at each window's start: an integrating servo's setpoint is
         the integral of its velocity goals (arriving ``delays`` late) since the log's start,
         where it held the measured angle against the static load (kp (s - gear q) gear = the
         gravity torque of the nominal model, as a servo at rest; kp from ``gains``, the
-        simulations' (nsim, nu, 10) actuator_gainprm), clipped to its activation range.
-        None when the model has no integrating servo among the logged actuators."""
+        simulations' (nsim, nu, 10) actuator_gainprm), clipped to its activation range; a
+        slewed goal is ``slewed`` at the simulation's slew rate (``dynprm``, the simulations'
+        (nsim, nu, 10) actuator_dynprm; the model's when None). None when the model has none
+        of these servos among the logged actuators."""
         ints = self.integrators(key)
         filters = self._with_dynamics(key, (mujoco.mjtDyn.mjDYN_FILTER,
                                             mujoco.mjtDyn.mjDYN_FILTEREXACT))
-        if not ints and not filters:
+        slews = self.slews(key)
+        if not ints and not filters and not slews:
             return None
         m = self.variants[key]
         out = np.zeros((len(sims), m.na))
+        for col, a, adr in slews:
+            for s, (_, wi) in enumerate(sims):
+                w = windows[wi]
+                rate = float((m.actuator_dynprm if dynprm is None else dynprm[s])[
+                    a, servo.DYN_SLEWMAX])
+                x = self.ds.trajectories[w.traj].time[w.start] - delays[s, col]
+                out[s, adr] = self.slewed(w.traj, col, rate, x)
         for col, a, adr in filters:  # the filtered goal (a timeconst): from the goals before
             tau = float(m.actuator_dynprm[a, 0])
             for s, (_, wi) in enumerate(sims):

@@ -44,6 +44,7 @@ from lowcostdex.gap.identify_starts import starts as own_starts
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.rest_friction import held_at_rest
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
+from lowcostdex.sim.servo import goal_slew_states
 
 # The servo's own parameters, as BAM models a voltage-controlled servo on a pendulum bench:
 # back-EMF constant and torque per volt (velocity_limit, motor_strength: kt and R), reflected
@@ -55,8 +56,10 @@ SERVO_STRUCTURE: tuple[str, ...] = (
     "velocity_limit", "motor_strength", "inertia_error", "coulomb_friction", "viscous_damping",
     "gearbox_friction", "mounting_offset")
 # Fitted in a second stage, from the first stage's optimum: the motor's constants and firmware
-# gain (they trade off against friction and inertia; alone first, the joint fit strays).
-STAGE_TWO = frozenset({"velocity_limit", "motor_strength", "gain_error", "torque_limit"})
+# gain and goal slew (they trade off against friction and inertia; alone first, the joint fit
+# strays).
+STAGE_TWO = frozenset({"velocity_limit", "motor_strength", "gain_error", "torque_limit",
+                       "goal_slew"})
 # A second start with a large breakaway share: stick-slip makes the cost flat around "no
 # breakaway", where the default start sits.
 BREAKAWAY_START = {("gearbox_friction", "static"): 0.3, ("gearbox_friction", "velocity"): 0.3}
@@ -90,8 +93,11 @@ SPEED_MARGIN = 1.2
 
 
 def servo_structure(ds: Dataset) -> tuple[str, ...]:
-    """``SERVO_STRUCTURE``, plus ``voltage_sag`` when every log measures the supply voltage."""
-    return SERVO_STRUCTURE + (("voltage_sag",) if "voltage" in ds.channels() else ())
+    """``SERVO_STRUCTURE``, plus ``voltage_sag`` when every log measures the supply voltage and
+    ``goal_slew`` when the logs' servos slew their goal (a Feetech STS: ``MotorSpec.goal_speed``)."""
+    slewed = any(len(goal_slew_states(ds.compiled(k))[0]) for k in ds.models)
+    return (SERVO_STRUCTURE + (("voltage_sag",) if "voltage" in ds.channels() else ())
+            + (("goal_slew",) if slewed else ()))
 
 Progress = Callable[[str, float], None]
 
@@ -636,15 +642,17 @@ def _hold(st: fitmod.Structure, params: frozenset) -> fitmod.Structure | None:
 def _bound_hits(t: fitmod.Track) -> list[tuple[int, str]]:
     """(free index, "lower" / "upper") of the fitted values on a search bound that is not the
     parameter's null (a friction at 0 is absent, not at a bound), nor the Stribeck velocity of
-    a breakaway share within 0.1 % of its range from its null (it shapes next to nothing)."""
+    a breakaway share, or the back-driven share of a gear friction, whose levels are within 0.1 %
+    of their ranges from their nulls of 0 (they shape next to nothing)."""
     lo, hi = t.structure.u_bounds()
     x = t.structure.x(t.u)
     out = []
     for i, f in enumerate(t.structure.free):
         null = EFFECTS[f.effect].param(f.param).null
-        if f.param == "velocity" and any((g.effect, g.param, g.joint) == (
-                f.effect, "static", f.joint) and x[k] <= 1e-3 * (g.hi - g.lo)
-                for k, g in enumerate(t.structure.free)):  # static's null is 0
+        absent = {g.param: x[k] <= 1e-3 * (g.hi - g.lo) for k, g in enumerate(t.structure.free)
+                  if (g.effect, g.joint) == (f.effect, f.joint)}
+        if (f.param == "velocity" and absent.get("static")) or (
+                f.param == "backdrive" and absent.get("mu") and absent.get("static")):
             continue
         for b, side in ((lo[i], "lower"), (hi[i], "upper")):
             if abs(t.u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):

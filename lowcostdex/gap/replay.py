@@ -421,7 +421,9 @@ class Replayer:
         plant.reset(qpos, qvel, ctrl, ctrl_history=self._history(model, ctrl, act, sims,
                                                                  windows, played),
                     act=self._acts.setpoints(model_key, sims, windows, delays,
-                                        plant.array("actuator_gainprm")))
+                                             plant.array("actuator_gainprm"),
+                                             plant.array("actuator_dynprm")
+                                             if self._acts.slews(model_key) else None))
         have = [s for s, cw in enumerate(sims) if carried and cw in carried]
         if have:  # play states carried from the log before each window (``play_state``)
             arrs = [np.array([carried[sims[s]][i] for s in have]) for i in range(3)]

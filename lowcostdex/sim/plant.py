@@ -97,6 +97,8 @@ class _PlantBase:
         self._off_gains = np.zeros((self.model.nu, len(_CONTROLLER_GAINS)))
         self._off_gains[has_int, 1] = servo.KI_MIN
         self.servo_clock = servo.ServoClock(self.model)  # the servos' update period
+        # servos whose firmware slews its goal: a reset puts the slewed goal at the held ctrl
+        self._slew_act, self._slew_adr = servo.goal_slew_states(self.model)
 
     # -- servo update period ----------------------------------------------------------------------
     @property
@@ -509,9 +511,11 @@ class Plant(_PlantBase):
             d.qpos[:] = qpos
         if qvel is not None:
             d.qvel[:] = qvel
+        d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl
         if act is not None:
             d.act[:] = act
-        d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl
+        else:  # a servo at rest: its firmware's slewed goal is the goal it holds
+            d.act[self._slew_adr] = d.ctrl[self._slew_act]
         self.reset_effect_state()
         _fill_ctrl_history(m, d, ctrl_history)
         self.servo_clock.phase = 0  # a servo updates at the first step
@@ -609,7 +613,8 @@ class BatchPlant(_PlantBase):
 
         ``ctrl_history`` (len(sims), k, nu) fills the delay buffers with past ctrl, oldest
         first (see ``Plant.reset``); by default they hold ``ctrl``. ``act`` (len(sims), na):
-        actuator activations (an integrating servo's setpoint; default 0). Backlash plays rest
+        actuator activations (an integrating servo's setpoint; default 0, a slewed goal at
+        ``ctrl``). Backlash plays rest
         where the static load pushes them (``rest_play``).
         """
         rows = np.arange(self.nsim) if sims is None else np.asarray(sims, dtype=int)
@@ -621,14 +626,16 @@ class BatchPlant(_PlantBase):
                 d.qpos[:] = qpos[k]
             if qvel is not None:
                 d.qvel[:] = qvel[k]
+            d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl[k]
             if act is not None:
                 d.act[:] = act[k]
-            d.ctrl[:] = actuated_positions(m, d.qpos) if ctrl is None else ctrl[k]
+            else:  # a servo at rest: its firmware's slewed goal is the goal it holds
+                d.act[self._slew_adr] = d.ctrl[self._slew_act]
             _fill_ctrl_history(m, d, None if ctrl_history is None else ctrl_history[k])
             self.qpos[i] = d.qpos
             self.qvel[i] = d.qvel
             self.ctrl[i] = d.ctrl
-            if act is not None:
+            if act is not None or len(self._slew_adr):
                 self.act[i] = d.act
             if m.nhistory:
                 self._views["history"][i] = d.history

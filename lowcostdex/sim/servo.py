@@ -17,6 +17,10 @@ which is why the servo is exact, native (``mj_step(nstep=40)`` with no Python pe
 batchable: every gain lives in ``actuator_gainprm`` and ``mujoco.batch`` can expand it per sim.
 The thermal sub-model (winding temperature state, R rising 0.39 %/K) and LuGre friction are the
 dcmotor's own. Torque off (free-wheeling H-bridge) is ``forcerange = [0, 0]``.
+A firmware that moves its internal goal toward a written goal at a bounded speed (Dynamixel's
+Profile Velocity; a Feetech STS always, at its Running Speed: ``MotorSpec.goal_speed``) is the
+dcmotor's ``slewmax``: the slewed goal is its first activation, which a reset puts at the goal the
+servo holds (``goal_slew_states``), and the P law acts on it, the torque on or off.
 
 Motor specs are data (``MOTORS``), not code: a D'Claw may carry XH430 or XM430 servos.
 
@@ -87,7 +91,11 @@ def dcmotor_params(motor: MotorSpec, gains: ServoGains = ServoGains()) -> Dcmoto
     ki = vs * motor.i_error_gain * gains.position_i * to_torque
     kd = k * k / r + vs * motor.d_error_gain * gains.position_d * to_torque
     vmax = vs * gains.pwm_limit / motor.pwm_max
-    slew = gains.profile_velocity * motor.velocity_unit
+    # the firmware's goal slew: the speed written, else the motor's own (Feetech: its factory
+    # maximum; Dynamixel: none). A dcmotor compiled with slewmax > 0 carries the slewed goal as
+    # its first activation (``dcmotor_act_layout``; ``reset_goal_slew`` at a reset).
+    slew = (gains.profile_velocity * motor.velocity_unit if gains.profile_velocity > 0
+            else motor.goal_speed)
     return DcmotorParams(r, k, kp, ki, kd, vmax, slew, motor.armature, motor.thermal, vs)
 
 
@@ -252,6 +260,14 @@ def dcmotor_act_layout(model: mujoco.MjModel) -> np.ndarray:
         out[sel, col] = k[sel]
         k += has
     return out
+
+
+def goal_slew_states(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """The dcmotor servos whose goal is slewed (compiled with slewmax > 0) and the activation
+    address of each one's slewed goal [rad]: (actuator ids, act addresses)."""
+    col = dcmotor_act_layout(model)[:, ACT_SLEW]
+    ids = np.flatnonzero(col >= 0)
+    return ids, col[ids]
 
 
 def winding_temperature(model: mujoco.MjModel, data: mujoco.MjData,

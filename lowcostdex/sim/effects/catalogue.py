@@ -248,6 +248,31 @@ class VelocityLimit(Effect):
         forcerange[..., a, 1] = np.where(lim, new_hi, hi)
 
 
+class GoalSlew(Effect):
+    name = "goal_slew"
+    kind = "model"
+    doc = ("the firmware moves its internal goal toward a written goal at a speed off by a "
+           "factor: a dcmotor servo compiled with a goal slew (``MotorSpec.goal_speed``, a "
+           "Feetech STS at its Running Speed; a Dynamixel Profile Velocity), its slewmax x "
+           "`scale`; no effect on a servo without one (the slewed goal is a compiled state)")
+    # BAM's STS3215 model fits its target-velocity clamp between 0.1 and 10 x 3400 steps/s
+    # (Rhoban/bam bam/feetech/actuator.py max_velocity); its STS3032 fits put it at 3.2-5.7 x
+    # (08-bam-reference-errors.md section 4). The hard limit lets a fit at 10 x widen to 50 x
+    # (261 rad/s: no slew a 6 s log can tell).
+    params = (Param("scale", 1.0, 0.1, 10.0, "1", (0.8, 1.25), limit=(0.02, 50.0),
+                    on="dcmotor", doc="slew speed / the servo's nominal one"),)
+    fields = ("actuator_dynprm",)
+
+    @classmethod
+    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
+        dyn, nom = f.array("actuator_dynprm"), f.nominal("actuator_dynprm")
+        a = t.actuators
+        s = np.broadcast_to(np.asarray(v["scale"], float), dyn.shape[:-2] + (len(a),))
+        slewed = _dcmotor(f, t) & (nom[a, servo.DYN_SLEWMAX] > 0)
+        dyn[..., a, servo.DYN_SLEWMAX] = np.where(slewed, nom[a, servo.DYN_SLEWMAX] * s,
+                                                  dyn[..., a, servo.DYN_SLEWMAX])
+
+
 class MotorStrength(Effect):
     name = "motor_strength"
     kind = "model"
@@ -612,7 +637,8 @@ EFFECTS: dict[str, type[Effect]] = {
     for e in (
         Latency, Backlash, CoulombFriction, StribeckFriction, LoadDependentFriction,
         GearboxFriction,
-        ViscousDamping, GainError, TorqueLimit, VelocityLimit, MotorStrength, PositionOffset,
+        ViscousDamping, GainError, TorqueLimit, VelocityLimit, GoalSlew, MotorStrength,
+        PositionOffset,
         MountingOffset, InertiaError, MassError, ThermalDerating, VoltageSag, ObservationNoise,
         ActionNoise, Quantization,
     )
