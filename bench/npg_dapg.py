@@ -299,10 +299,65 @@ def outcome(run_dir: Path, target: float) -> dict[str, float]:
     }
 
 
+PROBE_STEPS = 10
+"""Steps of the fixed action sequence ``env_fingerprint`` runs from reset seed 0."""
+
+
+def env_fingerprint(env_id: str, env_kwargs: dict | None = None) -> str:
+    """12 hex digits that change when the task a run learns changes: a SHA-256 of the compiled
+    MuJoCo model (``mj_saveModel``: geometry, masses, gains, contact settings), the per-step
+    motion bound, the episode length and a probe: observations, rewards and success flags of
+    ``PROBE_STEPS`` fixed actions from reset seed 0 (the start, the goal, the reward and the
+    observation; rounded to 1e-6).
+
+    Why: on 2026-11-26 (9edd932) the valve's spokes moved to ROBEL's phase, and NPG/PPO on the
+    fixed-start valve went from 176-232k to 330-390k samples to 80 % training success; nothing in
+    the bench's records said the task had changed, and the rise stayed untraced for a day
+    (bench/RESULTS.md, flip7's section). Runs with different fingerprints learned different
+    tasks: ``--reuse`` does not mix them, and the table names the fingerprint."""
+    import hashlib
+
+    import mujoco
+
+    env = gym.make(env_id, **(env_kwargs or {}))
+    try:
+        u = env.unwrapped
+        model = np.empty(mujoco.mj_sizeModel(u.model), dtype=np.uint8)
+        mujoco.mj_saveModel(u.model, None, model)
+        h = hashlib.sha256(model.tobytes())
+        h.update(np.asarray(getattr(u, "max_step", np.zeros(0)), float).round(9).tobytes())
+        h.update(str(env.spec.max_episode_steps if env.spec else None).encode())
+        obs, _ = env.reset(seed=0)
+        n = env.action_space.shape[0]
+        probe = [np.asarray(obs, float)]
+        for t in range(PROBE_STEPS):
+            action = 0.8 * np.sin(0.7 * t + np.arange(n))  # every joint moves, none alike
+            obs, reward, terminated, truncated, info = env.step(action)
+            probe += [np.asarray(obs, float), [float(reward), float(bool(info.get("success")))]]
+            if terminated or truncated:
+                break
+        h.update(np.round(np.concatenate([np.ravel(p) for p in probe]), 6).tobytes())
+    finally:
+        env.close()
+    return h.hexdigest()[:12]
+
+
+_FINGERPRINTS: dict[str, str] = {}
+
+
+def _env_fingerprint(env_id: str, env_kwargs: dict) -> str:
+    key = json.dumps([env_id, env_kwargs], sort_keys=True)
+    if key not in _FINGERPRINTS:
+        _FINGERPRINTS[key] = env_fingerprint(env_id, env_kwargs)
+    return _FINGERPRINTS[key]
+
+
 def _settings(cfg, args: argparse.Namespace) -> dict:
-    """What makes two runs the same run (for ``--reuse``)."""
+    """What makes two runs the same run (for ``--reuse``): the trainer's config, the stop rule
+    and the task's ``env_fingerprint``."""
     return {"config": json.loads(json.dumps(dataclasses.asdict(cfg))), "target": args.target,
-            "extra_iters": args.extra_iters, "max_wall": args.max_wall}
+            "extra_iters": args.extra_iters, "max_wall": args.max_wall,
+            "env": _env_fingerprint(cfg.env_id, dict(cfg.env_kwargs))}
 
 
 def run_train(task: Task, algo: str, seed: int, budget: float, demos: Path | None,
@@ -580,8 +635,8 @@ def main() -> None:
                 print(name, algo, seed, json.dumps(r), flush=True)
         all_results[name] = results
         n_traj = {a: (dp.num_envs if a == "ppo" else args.n_traj or d.n_traj) for a in results}
-        report += table(f"{name} (`{task.env_id}`, {n_demos} demos for DAPG)", results, budgets,
-                        n_traj)
+        report += table(f"{name} (`{task.env_id}`, env {_env_fingerprint(task.env_id, {})}, "
+                        f"{n_demos} demos for DAPG)", results, budgets, n_traj)
     if "flip-keypoints" in all_results and "flip-quaternion" in all_results:
         report += representation_table(all_results)
     text = "\n".join(report)
