@@ -10,7 +10,9 @@ import pathlib
 import sys
 
 import numpy as np
+import pytest
 
+from lowcostdex.gap import rest_friction
 from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.identify import IdentifyConfig, identify
 from lowcostdex.gap.logs import Trajectory
@@ -69,3 +71,26 @@ def test_a_light_arm_held_by_its_gears_is_predicted_to_stay_when_the_torque_goes
     nominal = res.mean(drops, identified=False)
     assert nominal > 0.3
     assert res.mean(drops) < 0.1 * nominal
+
+
+def test_the_gear_s_own_breakaway_at_rest_is_its_share_of_the_largest_gravity_torque():
+    # a heavy arm (0.5 kg at 0.1 m) swung by a sine; gravity on a pendulum hanging at q = 0,
+    # written out: m g l |sin q|, largest where the logs swing furthest from hanging
+    mass, length = 0.5, 0.1
+    cfg = BenchConfig(motor="XL330-M288", mass=mass, length=length, timestep=DT,
+                      gains=servo.ServoGains(position_p=400, supply_voltage=5.0))
+    plant = Plant(build_bench(cfg).compile(), [])
+    t = np.arange(0.0, 2.0, DT)
+    goal = 1.2 * np.sin(2.0 * t) * np.minimum(t, 1.0)
+    tr = bench_servo_logs.record(plant, t, goal, np.ones_like(t), "sin", 400)
+    ds = Dataset({tr.model: build_bench(cfg).to_xml()}, [tr])
+    tau = mass * 9.81 * length * np.max(np.abs(np.sin(tr.qpos[:, 0])))
+    assert tau > 0.25  # the arm swung past 0.5 rad: the check below is not about a hanging arm
+    assert rest_friction.gravity_torque(ds, [0]) == pytest.approx([tau], rel=1e-3)
+    gear = AppliedEffect("gearbox_friction", J, {"mu": 0.1, "static": 0.4, "velocity": 0.3,
+                                                 "backdrive": 0.5, "alpha": 2.0})
+    # torque off at rest the gears carry backdrive x the load; mu is the sliding share (not a
+    # breakaway) and the joint's other friction is not the gear's
+    assert rest_friction.gear_breakaway(ds, [0], [gear]) == pytest.approx([0.2 * tau], rel=1e-3)
+    others = [AppliedEffect("coulomb_friction", J, {"frictionloss": 0.3})]
+    assert rest_friction.gear_breakaway(ds, [0], others) == pytest.approx([0.0])

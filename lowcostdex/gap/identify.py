@@ -444,7 +444,8 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         rep, (effects,), (level,) = held_at_rest(ds, config.effects, config.nthread, train,
                                                  [effects], stall, FAMILY_MARGIN)
         notes.append(f"no training log has the torque off: a breakaway at rest of {level:.3g} N m"
-                     " (the largest costing the training logs <= 2 %; gap.rest_friction)")
+                     " beyond the gear friction's own (the largest costing the training logs"
+                     " <= 2 %; gap.rest_friction)")
     fit_s = time.perf_counter() - t0
     prog("scoring", 0.95)
     logs = train + test
