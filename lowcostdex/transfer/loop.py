@@ -477,7 +477,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                                  "episodes": cell["episodes"],
                                  "policy_robot": policy_robot.name if policy_robot else None,
                                  "final_error": cell["final_error"],
-                                 "final_error_median": float(np.median(cell["final_error"])),
+                                 "final_error_median": round(
+                                     float(np.median(cell["final_error"])), 5),
                                  "success_loose": loose_successes(cell["final_error"]),
                                  "loose_tolerance": LOOSE_TOL,
                                  "sim_success": sim["successes"], "sim_episodes": sim["episodes"],
