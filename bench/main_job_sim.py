@@ -283,8 +283,14 @@ def train_in_sim(a: argparse.Namespace) -> dict[str, Any]:
     tag = f"{a.randomize}_i{a.iters}_t{a.traj}_v{a.val}_s{a.seed}{a.tag}"
     run_dir = a.out / tag
     shutil.rmtree(run_dir, ignore_errors=True)
+    factory = None
+    if a.ramp:  # the training reward with main_job.shaping's goal ramp (weight, radius)
+        from lowcostdex.algos.train import default_env_factory
+        from lowcostdex.main_job.shaping import GoalRamp, ShapedEnvFactory
+
+        factory = ShapedEnvFactory(default_env_factory(config), GoalRamp(*a.ramp))
     t0 = time.perf_counter()
-    train(config, run_dir)
+    train(config, run_dir, env_factory=factory)
     train_s = time.perf_counter() - t0
     m = ex.read_metrics(run_dir / ex.METRICS_FILE)
     summary = ex.read_json(run_dir / ex.SUMMARY_FILE)
@@ -315,7 +321,7 @@ def train_in_sim(a: argparse.Namespace) -> dict[str, Any]:
                      paired(robot["clone"], robot["chosen"]),
                      "final_vs_clone": paired(robot["clone"], robot["final"])} if a.heldout
            else None,
-           "config": a.config,
+           "config": a.config, "ramp": a.ramp,
            "train_wall_s": round(train_s, 1), "sim_heldout_wall_s": round(sim_s, 1),
            "robot_heldout_wall_s": round(robot_s, 1),
            "robot_errors": {k: v["errors"] for k, v in robot.items()},
@@ -397,7 +403,7 @@ def candidates(a: argparse.Namespace) -> dict[str, Any]:
                          eval_every=sim.eval_every, eval_episodes=sim.eval_episodes,
                          demos=str(a.demos / "demos.h5"), eval_bc=True,
                          dapg=DAPGConfig(lam0=DAPG_LAM0), eval_paired=True, progress=False,
-                         checkpoint_every=sim.eval_every)
+                         checkpoint_every=sim.eval_every, eval_dense_from=sim.dense_from)
     c0, t0 = time.process_time(), time.perf_counter()
     chosen = choose_clone(config, sim.clones, sim.eval_episodes)
     config = dataclasses.replace(config, bc_seed=chosen["bc_seed"])
@@ -524,7 +530,7 @@ def streams(a: argparse.Namespace) -> dict[str, Any]:
                          eval_every=sim.eval_every, eval_episodes=sim.eval_episodes,
                          demos=str(a.demos / "demos.h5"), eval_bc=True,
                          dapg=DAPGConfig(lam0=DAPG_LAM0), eval_paired=True, progress=False,
-                         checkpoint_every=1)
+                         checkpoint_every=1, eval_dense_from=sim.dense_from)
     if a.config:
         d = dataclasses.asdict(config)
         for k, v in a.config.items():
@@ -625,6 +631,8 @@ def main() -> None:
     r.add_argument("--config", type=json.loads, default={},
                    help='TrainConfig overrides as JSON, e.g. \'{"npg": {"step_size": 0.05}}\'')
     r.add_argument("--tag", default="", help="appended to the run's folder name")
+    r.add_argument("--ramp", type=float, nargs=2, metavar=("WEIGHT", "RADIUS"),
+                   help="add main_job.shaping.GoalRamp to the training reward")
     c = sub.add_parser("clones")
     c.add_argument("--demos", type=Path, required=True, help="main-job output folder")
     c.add_argument("--out", type=Path, required=True)

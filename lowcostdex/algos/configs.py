@@ -265,6 +265,11 @@ class TrainConfig:
       success: trajectory success from ``info["success"]``: at the final step or at any step.
       eval_every: evaluation period [iterations]; 0 evaluates only after the last iteration.
       eval_episodes: deterministic evaluation episodes per evaluation.
+      eval_dense_from: from this iteration index on, evaluate after every iteration (besides
+        every ``eval_every``); None: only every ``eval_every``. The run's policy is the best
+        evaluated one, so late iterates, which differ by several successes in 100 episodes from
+        one iteration to the next, all compete (bench/RESULTS.md, "The main job's DAPG
+        validated at every late iterate").
       checkpoint_every: checkpoint period [iterations] (the last iteration always saves).
       demos: demonstration dataset (:mod:`lowcostdex.demonstrations.file`; its successful episodes are
         used), required for DAPG; for NPG, ``bc_init`` uses it.
@@ -329,6 +334,7 @@ class TrainConfig:
     success: str = "final"
     eval_every: int = 5
     eval_episodes: int = 10
+    eval_dense_from: int | None = None
     checkpoint_every: int = 1
     demos: str | None = None
     n_demos: int | None = None
@@ -367,6 +373,7 @@ class TrainConfig:
             check_number(name, getattr(self, name), 1, integer=True)
         check_number("seed", self.seed, 0, integer=True)
         check_number("eval_every", self.eval_every, 0, integer=True)
+        check_number("eval_dense_from", self.eval_dense_from, 0, integer=True, none_ok=True)
         check_number("n_demos", self.n_demos, 1, integer=True, none_ok=True)
         check_number("bc_seed", self.bc_seed, 0, integer=True, none_ok=True)
         for name, cap, what in (("n_traj", MAX_EPISODES, "trajectories per iteration"),

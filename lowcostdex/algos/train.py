@@ -481,7 +481,8 @@ def _loop(
         row.update(path_metrics(paths, config.success))
         row.update({ex.SAMPLES: state.samples, ex.ROBOT_HOURS: state.robot_seconds / 3600})
         final = k == last or (until is not None and until(dict(row)))
-        evaluate = final or (config.eval_every > 0 and (k + 1) % config.eval_every == 0)
+        evaluate = (final or (config.eval_every > 0 and (k + 1) % config.eval_every == 0)
+                    or (config.eval_dense_from is not None and k >= config.eval_dense_from))
         row.update({ex.EVAL_SUCCESS_RATE: math.nan, ex.EVAL_RETURN_MEAN: math.nan})
         if evaluate:
             eval_paths, metrics = _evaluate(config, sampler, state, k)

@@ -101,7 +101,7 @@ def markdown_report(ctx: Context) -> str:
                   f"({_validation_words(t, ctx.budget.eval_episodes)}; the behaviour clone's evaluation "
                   "before the first RL step counts as one of DAPG's). They choose each run's "
                   "policy (`train_*/policy.pt`): the best validated one, the clone itself when "
-                  "no RL iterate beat it.", "",
+                  "no RL iterate beat it." + _dense_words(t.get("dapg", {})), "",
                   "Samples are the training episodes' env steps; the validation episodes' steps "
                   "are counted apart (both cost robot time on the robot; robot time includes "
                   "resets).", "",
@@ -194,6 +194,16 @@ def _clones_words(c: dict[str, Any]) -> str:
             f"{c['seconds']} s ({c['cpu_seconds']} s of CPU) and no robot time. The clone "
             "row below is this chosen clone (not measured on the robot before the held-out "
             "episodes).")
+
+
+def _dense_words(dapg: dict[str, Any]) -> str:
+    """DAPG's validation schedule when it validated every late iterate."""
+    dense, every = dapg.get("validation_dense_from"), dapg.get("validation_every")
+    if dense is None:
+        return ""
+    return (f" DAPG's validation ran every {every} iterations and after every iteration from "
+            f"iteration {dense} on (counted from 0): late iterates differ from one iteration "
+            "to the next by several successes in 100 episodes, so each of them competes.")
 
 
 def _streams_words(st: dict[str, Any]) -> str:

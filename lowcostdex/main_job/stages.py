@@ -168,7 +168,8 @@ def stage_train(ctx: Context) -> dict[str, Any]:
                              n_traj=traj, eval_every=every, eval_episodes=episodes,
                              demos=str(demos) if algo == "dapg" else None,
                              eval_bc=algo == "dapg", dapg=DAPGConfig(lam0=DAPG_LAM0),
-                             eval_paired=True)
+                             eval_paired=True,
+                             eval_dense_from=sim.dense_from if sim is not None else None)
         if sim is not None and sim.clones > 1:
             # several clones, DAPG from the one that validates best in its simulation
             from lowcostdex.main_job.clones import choose_clone
@@ -210,6 +211,8 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             "first_eval_crossing_samples": float(first["samples"]) if first else None,
             "evaluations": summary["evaluations"],
             "validation_episodes": episodes,
+            "validation_every": every,
+            "validation_dense_from": config.eval_dense_from,
             "validation_paired": config.eval_paired,
             "policy": "the run's best validated policy",
             "wall_seconds": round(time.perf_counter() - t0, 1),
