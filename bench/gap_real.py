@@ -8,7 +8,8 @@ to the repository; exits cleanly when it is absent. For each set:
   ``bam.process`` does) and mapped onto the servo bench (header mass, length, arm mass, kp, vin),
   physics at BAM's 5 ms step;
 * the servo structure (``identify.servo_structure``: motor constants, armature, Coulomb, viscous,
-  gear friction with breakaway and back-driven share, mounting offset, measured supply voltage)
+  gear friction with breakaway and back-driven share, mounting offset, a resistance ahead of the
+  H-bridge (the drive falling with the duty), measured supply voltage)
   is identified on the training gains with ``identify.identify`` (whole logs, open loop; three
   families: all free, the back-driven share held at 1 (--symmetric: in every family), the motor
   constants nominal and the voltage term off; each from 3 jittered starts, fitted on the

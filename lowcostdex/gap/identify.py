@@ -49,19 +49,19 @@ from lowcostdex.sim.servo import goal_slew_states
 # The servo's own parameters, as BAM models a voltage-controlled servo on a pendulum bench:
 # back-EMF constant and torque per volt (velocity_limit, motor_strength: kt and R), reflected
 # rotor inertia (armature), Coulomb and viscous friction, gear friction carried by the load
-# (sliding and breakaway; acts back-driven), the bench's mounting offset (q_offset). The
+# (sliding and breakaway; acts back-driven), the bench's mounting offset (q_offset), and (not
+# BAM's) the drive's fall with the duty (supply_resistance; Rhoban XL330: gap-stall7). The
 # firmware's duty per position error (``MotorSpec.error_gain``) is a measured constant (BAM's
 # oscilloscope values) and is not fitted: add "gain_error" to fit it (BAM's error_gain_ratio).
 SERVO_STRUCTURE: tuple[str, ...] = (
     "velocity_limit", "motor_strength", "inertia_error", "coulomb_friction", "viscous_damping",
-    "gearbox_friction", "mounting_offset")
+    "gearbox_friction", "mounting_offset", "supply_resistance")
 # Fitted in a second stage, from the first stage's optimum: the motor's constants and firmware
-# gain and goal slew (they trade off against friction and inertia; alone first, the joint fit
-# strays).
+# gain, goal slew and supply resistance (they trade off against friction and inertia; alone
+# first, the joint fit strays).
 STAGE_TWO = frozenset({"velocity_limit", "motor_strength", "gain_error", "torque_limit",
-                       "goal_slew"})
-# A second start with a large breakaway share: stick-slip makes the cost flat around "no
-# breakaway", where the default start sits.
+                       "goal_slew", "supply_resistance"})
+# A second start with a large breakaway share (stick-slip: the cost is flat at no breakaway).
 BREAKAWAY_START = {("gearbox_friction", "static"): 0.3, ("gearbox_friction", "velocity"): 0.3}
 # Parameters also fitted held at their null, as a second family: the gear friction's
 # back-driven share (1: a gearbox whose friction grows with the load it carries in both

@@ -378,6 +378,9 @@ class _PlantBase:
         from the range the model effects and torque enable set, every physics step."""
         fr = self.array("actuator_forcerange")
         fr[...] = np.where(self._torque_on[..., None], self._static_forcerange, 0.0)
+        # the flags too: a live effect may limit an actuator that the model leaves unlimited
+        self.array("actuator_forcelimited")[...] = np.where(self._torque_on,
+                                                            self._static_forcelimited, 1)
         for b in self._live:
             b.cls.live_apply(self, b.targets, b.values, self.qvel, fr)
 
@@ -473,6 +476,10 @@ class Plant(_PlantBase):
     @property
     def actuator_force(self) -> np.ndarray:
         return self.data.actuator_force
+
+    @property
+    def act(self) -> np.ndarray:
+        return self.data.act
 
     @property
     def qfrc_bias(self) -> np.ndarray:

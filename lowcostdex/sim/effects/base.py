@@ -245,3 +245,8 @@ class Effect:
                   gain: np.ndarray) -> None:
         """kind exogenous: rescale the (..., n_targets, mjNGAIN) gain copy in place."""
         raise NotImplementedError
+
+
+def dcmotor_targets(f: Fields, t: Targets) -> np.ndarray:
+    """(n_targets,) whether each target's actuator is a dcmotor servo."""
+    return f.nominal("actuator_gaintype")[t.actuators] == int(mujoco.mjtGain.mjGAIN_DCMOTOR)

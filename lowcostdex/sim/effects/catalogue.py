@@ -27,6 +27,10 @@ from lowcostdex.sim.effects.base import (
     Values,
     play_joint_name,
 )
+from lowcostdex.sim.effects.base import (
+    dcmotor_targets as _dcmotor,
+)
+from lowcostdex.sim.effects.supply import SupplyResistance
 
 # ------------------------------------------------------------------------------------------------
 # model-field effects
@@ -159,9 +163,6 @@ class GainError(Effect):
             bias[..., a[vel], 2] = bias[..., a[vel], 2] * sf[..., vel]
 
 
-def _dcmotor(f: Fields, t: Targets) -> np.ndarray:
-    """(n_targets,) whether each target's actuator is a dcmotor servo."""
-    return f.nominal("actuator_gaintype")[t.actuators] == int(mujoco.mjtGain.mjGAIN_DCMOTOR)
 
 
 class TorqueLimit(Effect):
@@ -638,8 +639,8 @@ EFFECTS: dict[str, type[Effect]] = {
         Latency, Backlash, CoulombFriction, StribeckFriction, LoadDependentFriction,
         GearboxFriction,
         ViscousDamping, GainError, TorqueLimit, VelocityLimit, GoalSlew, MotorStrength,
-        PositionOffset,
-        MountingOffset, InertiaError, MassError, ThermalDerating, VoltageSag, ObservationNoise,
+        PositionOffset, MountingOffset, InertiaError, MassError, ThermalDerating, VoltageSag,
+        SupplyResistance, ObservationNoise,
         ActionNoise, Quantization,
     )
 }
