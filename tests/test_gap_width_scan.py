@@ -109,3 +109,107 @@ def test_a_smooth_or_kinked_cost_has_no_valley():
         sm, jag = width_scan.smooth(cost)
         sc = width_scan.Scan(0, w, cost, sm, jag)
         assert np.isnan(sc.valley(1e-6)[0])
+
+
+def _counted(fn):
+    seen = []
+
+    def wrapped(points):
+        seen.append(len(points))
+        return fn(points)
+
+    return wrapped, seen
+
+
+def test_a_smooth_width_is_screened_on_the_coarse_grid_only():
+    # the full scan (81 widths, 1.25 mrad apart) only where the 17-point screen (every 5th)
+    # sees jaggedness near the threshold: a smooth cost costs 17 replays, not 81
+    fn = _residual(4, 0.0)
+    t = _fit(fn, 0.037)
+    d = width_scan.delta(t, _half(t), 0)
+    counted, seen = _counted(fn)
+    (sc,) = width_scan.scan(t, counted, {0: d})
+    assert seen == [17]
+    assert np.allclose(sc.grid, np.linspace(0.0, 0.1, 81)[::5])
+    assert np.isnan(sc.valley(d)[0])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_jagged_width_gets_the_whole_grid_with_the_screen_reused(seed):
+    fn = _residual(seed, 0.008)
+    t = _fit(fn, 0.037)
+    d = width_scan.delta(t, _half(t), 0)
+    counted, seen = _counted(fn)
+    (sc,) = width_scan.scan(t, counted, {0: d})
+    assert seen == [17, 64]  # the screen's 17 widths are not replayed again
+    grid = np.linspace(0.0, 0.1, 81)
+    assert np.array_equal(sc.grid, grid)
+    s = t.structure
+    direct = [0.5 * float(r @ r) for r in fn([(s, s.x(np.array([w]))) for w in grid])]
+    assert np.allclose(sc.cost, direct, rtol=1e-12, atol=0.0)
+    assert np.isfinite(sc.valley(d)[0])
+
+
+@pytest.mark.parametrize("ratio, most", [(1.0, 2), (1.5, 0)])
+def test_the_screen_passes_white_jitter_at_the_threshold_to_the_whole_grid(ratio, most):
+    # white jitter whose smoothed-cost uncertainty (1.96 sqrt(2/5) sigma) is ``ratio`` x the
+    # threshold: at 1 the full scan's own verdict is a coin toss; the 17-point screen's
+    # estimate of sigma is noisy (13 windows; its 1st percentile ~0.28 sigma), hence its margin
+    # SCREEN: over 200 seeded draws at most ``most`` are screened out
+    w = np.linspace(0.0, 0.1, 81)
+    sigma = 1e-4
+    d = 1.96 * np.sqrt(2.0 / width_scan.K) * sigma / ratio
+    rng = np.random.default_rng(11)
+    out = 0
+    for _ in range(200):
+        cost = (w - 0.05) ** 2 + rng.normal(0.0, sigma, len(w))
+        _, jag = width_scan.smooth(cost[::width_scan.COARSE])
+        out += not 1.96 * np.sqrt(2.0 / width_scan.K) * jag > d / width_scan.SCREEN
+    assert out <= most
+
+
+def _steep(seed: int):
+    # a steep bowl (the main job's D'Claw widths: the cost rises ~1e-3 per 1.25 mrad grid step
+    # off its minimum) with a faint ripple: jagged by the allowance, its valley one grid width
+    y = np.random.default_rng(seed).normal(0.0, 0.01, N)
+    y -= y.mean()
+    phase = np.linspace(0.0, 2.0, N)
+
+    def fn(points):
+        return [y + 60.0 * (_width(s, x) - 0.0506) + 2e-5 * np.sin(2 * np.pi * _width(s, x)
+                                                                    / 0.0015 + phase)
+                for s, x in points]
+
+    return fn
+
+
+def test_a_fit_within_a_grid_step_of_a_one_width_valley_is_not_refitted():
+    fn = _steep(3)
+    t = _fit(fn, 0.037)
+    assert _width(t.structure, t.x) == pytest.approx(0.0506, abs=2e-4)  # between grid widths
+    half = _half(t)
+    d = width_scan.delta(t, half, 0)
+    (sc,) = width_scan.scan(t, fn, {0: d})
+    lo, hi = sc.valley(d)
+    assert lo == hi == pytest.approx(0.05, abs=1e-12)  # jagged, but the valley is one width
+    width_scan._LAST.clear()
+    counted, seen = _counted(fn)
+    assert width_scan.restart(t, counted, 60) is t
+    assert seen == [17, 64]  # the scan only: no Levenberg-Marquardt from 0.05
+
+
+def test_the_interval_reuses_the_restart_scan_of_the_same_fit():
+    fn = _steep(3)
+    t = _fit(fn, 0.037)
+    half = _half(t)
+    width_scan._LAST.clear()
+    fresh = sig.profile_interval(t, lambda: fn, half, scan=True)
+    counted, seen = _counted(fn)
+    assert width_scan.restart(t, counted, 60) is t
+    n = len(seen)
+    again = sig.profile_interval(t, lambda: counted, half, scan=True)
+    assert 17 not in seen[n:] and 64 not in seen[n:]  # no second scan
+    assert np.array_equal(fresh[0], again[0]) and np.array_equal(fresh[1], again[1])
+    t.u = t.u + 1e-4  # moved (a polish): scanned again
+    sig.profile_interval(t, lambda: counted, half, scan=True)
+    assert 17 in seen

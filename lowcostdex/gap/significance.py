@@ -383,8 +383,8 @@ def profile_interval(t: fitmod.Track, residual: Callable[[], fitmod.ResidualFn],
             c_min[i] = min(c_min[i], c)
             if not c - c_min[i] <= delta[i]:  # past Delta (or not finite): this side ends
                 going.discard(key)
-    valleys = {sc.index: sc.valley(delta[sc.index]) for sc in width_scan.scan(t, residual)
-               if sc.index in delta} if scan else {}
+    valleys = {sc.index: sc.valley(delta[sc.index])
+               for sc in width_scan.scan(t, residual, delta)} if scan else {}
     for i in idx:
         lo_e, hi_e = u[i] - half[i], u[i] + half[i]
         if i in valleys and np.all(np.isfinite(valleys[i])):  # a jagged cost's whole valley
