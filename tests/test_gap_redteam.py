@@ -74,6 +74,11 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # gates.drop_weak: the Stribeck refitted as its nested Coulomb): torque_limit 1.205 [1.195,
 # 1.215], coulomb_friction 0.1057 [0.0951, 0.1163]; held-out 305.8 -> 1.78 mrad, 89 s wall.
 
+# gain_viscous_turntable (gap-fric3, session 10: named exactly since gates.swap_equivalent, but
+# gain 0.6989 [0.6981, 0.6998] missed 0.7: the truth acts on a goal at its next 0.25 ms step, a
+# lag the 1 ms replay cannot resolve) holds both since stepsize.goal_timing (gap-truth7, session
+# 14, 130 s wall): gain 0.6989 [0.6981, 0.7316], viscous 0.0807 [0.0789, 0.0915].
+
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
     # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
@@ -91,21 +96,14 @@ MISSES: dict[str, str] = {
                                 "episode at 2 ms; with the joint damping read across the play "
                                 "as well, 9-12 mrad); on a scratch truth with the damping on "
                                 "the motor side the same replay gives 1.5-2.3 mrad",
-    "backlash_output_damped_pendulum": "interval (gap-truth7, session 14, 362 s wall; both 315 s CPU): named "
-                                       "exactly, viscous 0.2501 [0.2435, 0.2506] holds 0.25, "
+    "backlash_output_damped_pendulum": "interval (gap-truth7, session 14, 362 s wall; the "
+                                       "two cases 315 s CPU): named exactly, viscous 0.2501 "
+                                       "[0.2435, 0.2506] holds 0.25, "
                                        "held-out 155.4 -> 1.92 mrad (floor 0.70), but the "
                                        "play's width 0.0224 [0.0178, 0.0252] misses 0.0436: "
                                        "half the damping reads the output, which the "
                                        "catalogue's play does not model (as "
                                        "backlash_output_pendulum)",
-    "gain_viscous_turntable": "interval (gap-fric3, session 10, 435 s wall / 41 s CPU): named "
-                              "exactly since gates.swap_equivalent (was inertia_error 1.589 + "
-                              "viscous 0.189: with no gravity and no force limit J q'' = 0.7 kp "
-                              "(g - q) - c q' is the same trajectory for any two of gain, "
-                              "inertia and damping; select SSE 8.573e-4 vs 8.575e-4, the pair "
-                              "reported, gain named by catalogue order): viscous 0.0807 "
-                              "[0.0789, 0.0825] holds 0.08 but gain 0.6989 [0.6981, 0.6998] "
-                              "misses 0.7 by 0.0002 (a 0.16 % bias); held-out 302.9 -> 0.98 mrad",
 }
 
 

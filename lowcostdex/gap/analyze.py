@@ -79,7 +79,6 @@ from lowcostdex.gap.selection import (
     select_gain_ci,
     select_results,
 )
-from lowcostdex.gap.stepsize import refine as _refine_step
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
 from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
@@ -166,7 +165,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     split = split_episodes(ds, eps, rng, cfg.test_logs)
     timestep = {"model": ds.timestep, "used": ds.timestep, "rmse": []}
     if cfg.refine_step:
-        ds, timestep = _refine_step(ds, [eps[i] for i in split.train + split.select], cfg)
+        ds, timestep = stepsize.refine(ds, [eps[i] for i in split.train + split.select], cfg)
     cands = available_candidates(ds, cfg.candidates)
     eng = _Engine(ds, cfg, cands)
     joints = eng.joints
@@ -530,22 +529,23 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     profile stays as low (``significance.profile_interval``). The replay's discretisation: the
     fit moves by ``shift`` at ``interval_step`` of the physics step; for a first-order integrator
     its value at a zero step is 1 / (1 - ``interval_step``) times that move away (Richardson),
-    on either side (``significance.step_interval``)."""
+    on either side (``significance.step_interval``); goals up to a step late: ``goal_timing``."""
     noise = fitmod.interval_halfwidths(t.r, t.jac, effective_n(t.r))
     blocks = significance.residual_blocks(ds, segs, cfg.interval_block)
     data = np.maximum.reduce([noise, fitmod.block_halfwidths(t.r, t.jac, blocks),
                               significance.hac_halfwidths(t.r, t.jac, blocks)])
     u, data = significance.profile_interval(t, lambda: _Engine(ds, cfg, t.structure.names)
                                             .residual_fn(segs), data, scan=True)
+    late = _Engine(ds, cfg, t.structure.names).residual_fn(segs, ds.timestep / 2)  # goal timing
     if not cfg.interval_step:
-        return u, data, noise, data, None
+        return (*stepsize.goal_timing(t, late, u, data), noise, data, None)
     t0 = time.perf_counter()
     prog("interval: refit at a finer physics step", 0.97)
     fine = _Engine(ds.with_timestep(cfg.interval_step), cfg, t.structure.names)
     shift = significance.step_shift(t, fine.residual_fn(segs), cfg.max_rounds, fine.ds.timestep)
     timing["interval_step"] = timing.get("interval_step", 0.0) + time.perf_counter() - t0
-    mid, half = significance.step_interval(u, data, shift, cfg.interval_step)
-    return mid, half, noise, data, shift
+    return (*stepsize.goal_timing(t, late, *significance.step_interval(
+        u, data, shift, cfg.interval_step)), noise, data, shift)
 
 def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:
     """Column of each effect joint's actuator in the log's actuator list."""

@@ -11,6 +11,13 @@ MSE 56 % lower: it made up for the coarse step), and the fitted delay moves 80.4
 79.92 ms with the step (fin_latency60_prox: 60.55 -> 60.20 -> 60.00 ms, truth 60). With this
 test both analyse at 0.5 ms and name the latency alone: 79.92 [79.62, 80.23] ms and 59.99 [59.72,
 60.27] ms (held-out 216 -> 1.11 mrad, floor 0.82; 54.0 -> 0.66 mrad, floor 0.68).
+
+A goal's instant is known to the physics step only (``goal_timing``): the replay applies each
+goal at its logged time (step means), a servo at its next control tick, up to a tick later; no
+replay at step h tells a lag below h (the latency's floor). Measured on the second truth
+simulator's gain_viscous_turntable (goals act at the truth's next 0.25 ms step): the fitted gain
+moves 0.0043 (0.6 %) per 0.125 ms of goal timing, 3.4 %/ms, while its data interval (+-0.0009)
+held the timing to +-0.03 ms and missed the truth 0.7 by 0.0002 (0.6989 [0.6981, 0.6998]).
 Errors in rad^2 (mean squares), steps in s.
 """
 
@@ -30,7 +37,8 @@ from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import GapConfig
 from lowcostdex.sim.servo import ServoClock
 
-__all__ = ["finer_enough", "on_servo_period", "refine", "refine_fitted"]
+__all__ = ["finer_enough", "goal_timing", "on_servo_period", "refine", "refine_fitted",
+           "timing_move"]
 
 
 def finer_enough(mse: float, finer: float, floor_mse: float, cfg: GapConfig) -> bool:
@@ -140,3 +148,27 @@ def _holds(ds: Dataset) -> bool:
     m = ds.compiled(ds.trajectories[0].model)
     acts = [m.actuator(a).id for a in ds.actuators]
     return bool(np.any(ServoClock(m).holdable[acts]))
+
+
+def timing_move(t: fitmod.Track, late: fitmod.ResidualFn, fraction: float = 0.5) -> np.ndarray:
+    """How far the fitted track ``t`` moves (optimizer coordinates) when every goal acts one
+    physics step later, linearised: ``late`` is the residual function of ``t``'s data with every
+    goal ``fraction`` of a step later; the Gauss-Newton move -J^+ (r_late - r) (J, r: ``t``'s
+    Jacobian and residual at its optimum, where J^T r = 0), divided by ``fraction``. One replay,
+    no refit. Zeros when ``t`` has no Jacobian."""
+    if t.jac is None or t.r is None or not t.structure.free:
+        return np.zeros(len(t.u))
+    dr = late([(t.structure, t.x)])[0] - t.r
+    du = -np.linalg.lstsq(t.jac, dr, rcond=None)[0]
+    return np.where(np.isfinite(du), du, 0.0) / fraction
+
+
+def goal_timing(t: fitmod.Track, late: fitmod.ResidualFn, mid: np.ndarray, half: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """A 95 % interval (centre ``mid``, half-width ``half``, optimizer coordinates) widened to
+    hold every goal lag in [0, one physics step]: the fit moves by ``timing_move`` m over that
+    range (linear in the lag), so the interval is the hull of the old one and the old one moved
+    by m: centre + m / 2, half-width + |m| / 2. A servo acts on a goal at its next control tick
+    (never before the host wrote it), so the lag is one-sided; ``late`` as in ``timing_move``."""
+    move = timing_move(t, late)
+    return np.asarray(mid, float) + move / 2, np.asarray(half, float) + np.abs(move) / 2
