@@ -104,3 +104,14 @@ def test_no_jacobian_no_move():
     s = _gain_structure()
     t = fitmod.Track(s, np.array([0.0]))
     assert stepsize.timing_move(t, _residual(H / 2)).tolist() == [0.0]
+
+
+def test_a_diverged_late_replay_moves_nothing():
+    t = _fit(_gain_structure(), 0.0, 0.0)
+
+    def diverged(points):
+        return [np.full(len(T), np.nan) for _ in points]
+
+    assert stepsize.timing_move(t, diverged).tolist() == [0.0]
+    mid, half = stepsize.goal_timing(t, diverged, t.u, np.array([0.01]))
+    assert mid.tolist() == t.u.tolist() and half.tolist() == [0.01]

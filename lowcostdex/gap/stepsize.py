@@ -155,10 +155,13 @@ def timing_move(t: fitmod.Track, late: fitmod.ResidualFn, fraction: float = 0.5)
     physics step later, linearised: ``late`` is the residual function of ``t``'s data with every
     goal ``fraction`` of a step later; the Gauss-Newton move -J^+ (r_late - r) (J, r: ``t``'s
     Jacobian and residual at its optimum, where J^T r = 0), divided by ``fraction``. One replay,
-    no refit. Zeros when ``t`` has no Jacobian."""
+    no refit. Zeros when ``t`` has no Jacobian or a non-finite residual or Jacobian."""
+    zero = np.zeros(len(t.u))
     if t.jac is None or t.r is None or not t.structure.free:
-        return np.zeros(len(t.u))
+        return zero
     dr = late([(t.structure, t.x)])[0] - t.r
+    if not (np.all(np.isfinite(dr)) and np.all(np.isfinite(t.jac))):
+        return zero
     du = -np.linalg.lstsq(t.jac, dr, rcond=None)[0]
     return np.where(np.isfinite(du), du, 0.0) / fraction
 
