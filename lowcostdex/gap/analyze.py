@@ -79,6 +79,7 @@ from lowcostdex.gap.selection import (
     select_gain_ci,
     select_results,
 )
+from lowcostdex.gap.stepsize import refine as _refine_step
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
 from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
@@ -165,7 +166,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     split = split_episodes(ds, eps, rng, cfg.test_logs)
     timestep = {"model": ds.timestep, "used": ds.timestep, "rmse": []}
     if cfg.refine_step:
-        ds, timestep = stepsize.refine(ds, [eps[i] for i in split.train + split.select], cfg)
+        ds, timestep = _refine_step(ds, [eps[i] for i in split.train + split.select], cfg)
     cands = available_candidates(ds, cfg.candidates)
     eng = _Engine(ds, cfg, cands)
     joints = eng.joints
@@ -525,11 +526,10 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     """95 % intervals of ``t``'s parameters in optimizer coordinates as (centre, half-width)
     and their parts: (centre, half, residual noise, data, step shift or None). Data: the
     widest of the residual-noise interval, the block spread and the autocorrelation-consistent
-    sandwich over blocks (``significance.hac_halfwidths``); a play's width also where its cost's
-    profile stays as low (``significance.profile_interval``). The replay's discretisation: the
-    fit moves by ``shift`` at ``interval_step`` of the physics step; for a first-order integrator
-    its value at a zero step is 1 / (1 - ``interval_step``) times that move away (Richardson),
-    on either side (``significance.step_interval``); goals up to a step late: ``goal_timing``."""
+    sandwich over blocks; a play's width also where its cost's profile stays as low. The
+    replay's discretisation: the fit moves by ``shift`` at ``interval_step`` of the step; at a
+    zero step a first-order integrator's value is 1 / (1 - ``interval_step``) times that move
+    away (Richardson), on either side; goals up to a step late (``stepsize.goal_timing``)."""
     noise = fitmod.interval_halfwidths(t.r, t.jac, effective_n(t.r))
     blocks = significance.residual_blocks(ds, segs, cfg.interval_block)
     data = np.maximum.reduce([noise, fitmod.block_halfwidths(t.r, t.jac, blocks),
