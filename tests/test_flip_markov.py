@@ -4,7 +4,6 @@ running one does; the package's ``FlipBlockTeacher`` does not), and it flips the
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import sys
 from pathlib import Path
@@ -17,6 +16,9 @@ from lowcostdex.sim.envs import goal_to_action
 from lowcostdex.sim.registry import register_envs
 from lowcostdex.teachers.flip import FlipBlockTeacher
 
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_script import script_module  # noqa: E402
+
 ENV = "lowcostdex/DClawFlipBlock-v0"
 SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "flip_markov.py"
 
@@ -24,12 +26,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "flip_markov.py"
 @pytest.fixture(scope="module")
 def bench():
     register_envs()
-    spec = importlib.util.spec_from_file_location("flip_markov", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["flip_markov"] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop("flip_markov", None)
+    yield from script_module(SCRIPT, "flip_markov")
 
 
 def fresh_vs_running(make, seed: int, steps: int) -> list[bool]:

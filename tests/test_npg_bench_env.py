@@ -10,7 +10,6 @@ samples to 80 % training success on seed 1 instead of 188k (today's code with th
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import math
 import sys
@@ -24,18 +23,16 @@ import lowcostdex.sim.envs.hand_env as hand_env
 import lowcostdex.sim.models.dclaw as dclaw
 from lowcostdex.algos.configs import TrainConfig
 
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_script import script_module  # noqa: E402
+
 SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "npg_dapg.py"
 VALVE = "lowcostdex/DClawTurnValve-v0"
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("npg_dapg_bench_env", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["npg_dapg_bench_env"] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop("npg_dapg_bench_env", None)
+    yield from script_module(SCRIPT, "npg_dapg_bench_env")
 
 
 def test_the_same_task_built_twice_has_one_fingerprint(bench):

@@ -5,7 +5,6 @@ and the table prints them beside the wall-clock."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import sys
 import time
@@ -13,17 +12,15 @@ from pathlib import Path
 
 import pytest
 
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_script import script_module  # noqa: E402
+
 SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "npg_dapg.py"
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("npg_dapg_bench", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["npg_dapg_bench"] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop("npg_dapg_bench", None)
+    yield from script_module(SCRIPT, "npg_dapg_bench")
 
 
 def burn(cpu_seconds: float) -> float:
