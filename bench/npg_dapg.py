@@ -360,6 +360,21 @@ def _settings(cfg, args: argparse.Namespace) -> dict:
             "env": _env_fingerprint(cfg.env_id, dict(cfg.env_kwargs))}
 
 
+def ppo_overrides(items: list[str] | None) -> dict:
+    """``--ppo-set KEY=VALUE`` pairs as ``PPOConfig`` keyword arguments (VALUE in JSON: 1e-3,
+    64, false, null); unknown keys are an error listing the valid ones."""
+    fields = {f.name for f in dataclasses.fields(PPOConfig)}
+    fixed = {"env_id", "seed", "n_iter", "eval_every", "eval_episodes", "progress"}
+    out: dict = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or key not in fields - fixed:
+            raise SystemExit(f"--ppo-set {item!r}: expected KEY=VALUE with KEY one of "
+                             f"{sorted(fields - fixed)}")
+        out[key] = json.loads(value)
+    return out
+
+
 def run_train(task: Task, algo: str, seed: int, budget: float, demos: Path | None,
               out: Path, args: argparse.Namespace) -> dict[str, float]:
     from lowcostdex.algos.train import train
@@ -386,11 +401,12 @@ def run_ppo(task: Task, seed: int, budget: float, out: Path,
     from lowcostdex.algos.ppo import train
 
     horizon = gym.spec(task.env_id).max_episode_steps
-    d = PPOConfig()
+    overrides = ppo_overrides(args.ppo_set)
+    num_envs = overrides.get("num_envs", PPOConfig().num_envs)
     cfg = PPOConfig(env_id=task.env_id, seed=seed,
-                    n_iter=max(1, int(budget // (d.num_envs * horizon))),
+                    n_iter=max(1, int(budget // (num_envs * horizon))),
                     eval_every=args.eval_every, eval_episodes=args.eval_episodes,
-                    progress=False)
+                    progress=False, **overrides)
     settings = _settings(cfg, args)
     if args.reuse and (r := reused(out, settings, args.held_out)) is not None:
         return r
@@ -572,6 +588,9 @@ def main() -> None:
     p.add_argument("--out", default="bench_runs/npg_dapg")
     p.add_argument("--max-wall", type=float, default=None,
                    help="stop each run after this many wall-clock seconds (default: no limit)")
+    p.add_argument("--ppo-set", nargs="+", metavar="KEY=VALUE", default=None,
+                   help="PPOConfig fields other than the defaults, e.g. lr=1e-3 num_envs=64 "
+                        "(the sample budget still sets n_iter)")
     p.add_argument("--reuse", action="store_true",
                    help="reuse finished runs (their outcome.json) made with the same settings")
     p.add_argument("--quick", action="store_true", help="tiny budget: checks the script runs")
@@ -582,18 +601,20 @@ def main() -> None:
         args.seeds, args.max_samples, args.n_traj, args.extra_iters = 1, 2 * 4 * 80, 4, 0
 
     out_root = Path(args.out)
-    d, dp = TrainConfig(), PPOConfig()
+    d, dp = TrainConfig(), PPOConfig(**ppo_overrides(args.ppo_set))
     report = [
         f"## NPG, DAPG and PPO: samples and wall-clock to {args.target:.0%} success "
         f"({datetime.date.today()}, {platform.node()}, {platform.processor() or platform.machine()}, "
         f"{os.cpu_count()} CPUs)", "",
         f"`python bench/npg_dapg.py --tasks {' '.join(args.tasks)} --algos {' '.join(args.algos)}"
         f" --seeds {args.seeds} --first-seed {args.first_seed} --eval-episodes {args.eval_episodes} --held-out {args.held_out}"
-        f" --teacher-episodes {args.teacher_episodes}`. Trainer defaults: NPG/DAPG {args.n_traj or d.n_traj} "
+        f" --teacher-episodes {args.teacher_episodes}"
+        f"{' --ppo-set ' + ' '.join(args.ppo_set) if args.ppo_set else ''}`. Trainer defaults: NPG/DAPG {args.n_traj or d.n_traj} "
         f"trajectories/iteration, delta {d.npg.step_size}, policy {d.policy.hidden_sizes} "
         f"init log-std {d.policy.init_log_std}, BC {d.bc.epochs} epochs (noise {d.bc.log_std}), "
         f"DAPG lam0 {d.dapg.lam0}; PPO {dp.num_envs} envs, lr {dp.lr}, {dp.update_epochs} "
-        f"epochs x {dp.num_minibatches} minibatches, clip {dp.clip_coef}, policy "
+        f"epochs x {dp.num_minibatches} minibatches, clip {dp.clip_coef}, anneal "
+        f"{dp.anneal_lr}, policy "
         f"{dp.policy.hidden_sizes} init log-std {dp.policy.init_log_std}. {args.sampler} sampler; "
         f"evaluation every {args.eval_every} iterations (mean action). A run stops "
         f"{args.extra_iters} iterations after its first training crossing or at its budget.", ""]
@@ -634,7 +655,8 @@ def main() -> None:
                 results[algo].append({**r, "seed": seed})
                 print(name, algo, seed, json.dumps(r), flush=True)
         all_results[name] = results
-        n_traj = {a: (dp.num_envs if a == "ppo" else args.n_traj or d.n_traj) for a in results}
+        n_traj = {a: (ppo_overrides(args.ppo_set).get("num_envs", dp.num_envs) if a == "ppo"
+                      else args.n_traj or d.n_traj) for a in results}
         report += table(f"{name} (`{task.env_id}`, env {_env_fingerprint(task.env_id, {})}, "
                         f"{n_demos} demos for DAPG)", results, budgets, n_traj)
     if "flip-keypoints" in all_results and "flip-quaternion" in all_results:
