@@ -171,7 +171,7 @@ def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: in
             "identified (train logs)": {"mean": res.mean(train)},
             **{f"reference {k}": _summary(ds, v, test) for k, v in refs.items()},
         },
-        "ablation": res.ablation,
+        "ablation": res.ablation, "verdict": res.verdict,
         "bam": {k: {"mean": v[0], "trajectory": v[1], "kp": v[2]} for k, v in
                 spec["bam"].items()},
         "jittered": [],
@@ -254,11 +254,12 @@ def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = Non
                    "split": (r.selection or {}).get("field"),
                    "at_bound": r.at_bound, "cpu_s": time.process_time() - c0,
                    "fit_s": r.fit_seconds, "bam": (bam or {}).get((f, v), {}),
-                   "notes": r.notes}
+                   "notes": r.notes, "verdict": r.verdict}
             print(f"  loso {f}={v}: held out {1e3 * row['held_out']:.1f} mrad (train "
                   f"{1e3 * row['train']:.1f}; nominal {1e3 * row['nominal']:.1f}, q = goal "
                   f"{1e3 * row['q = goal']:.1f}); {row['chosen']}, inner split "
-                  f"{row['split']}, {row['cpu_s']:.0f} s CPU", flush=True)
+                  f"{row['split']}, {row['cpu_s']:.0f} s CPU\n    verdict: "
+                  f"{r.verdict['text']}", flush=True)
             yield row
 
 
@@ -369,6 +370,7 @@ def _print(r: dict) -> None:
                   for k, v in sel.get("fit_mae", sel["val_mae"]).items()))
     if r["at_bound"]:
         print("at a search bound:", ", ".join(r["at_bound"]))
+    print("verdict:", r["verdict"]["text"])
     print("held-out MAE without each effect (others kept) [mrad]:",
           ", ".join(f"{k} {1e3 * v:.1f}" for k, v in r["ablation"].items()))
     _print_jittered(r)

@@ -298,6 +298,8 @@ def _identify(args: argparse.Namespace) -> int:
         if idx:
             print(f"  {part} mean: identified {1e3 * res.mean(idx):.1f}, nominal "
                   f"{1e3 * res.mean(idx, identified=False):.1f}")
+    if test:
+        print(f"verdict: {res.verdict['text']}")
     if args.json or args.out:
         text = json.dumps({
             "params": res.params(), "family": res.family, "selection": res.selection,
@@ -307,6 +309,7 @@ def _identify(args: argparse.Namespace) -> int:
             "fitted": {names[i]: res.identified_mae[i] for i in train},
             "nominal": {names[i]: res.nominal_mae[i] for i in range(len(names))},
             "held_out_mean": res.mean(list(test)) if test else None,
+            "verdict": res.verdict,
             "ablation": res.ablation}, indent=1, default=float)
     if args.json:
         write_text_atomic(args.json, text)

@@ -19,9 +19,8 @@ logs moved the fits away from what the other gains need); per family the restart
 cost is kept and the families are compared on the fitted logs (``identify_select``); the held-back
 logs are scored and reported.
 
-Why one module: the least-squares stages, the families and restarts, the inner split and
-the checks of what the training logs cannot tell (torque off never seen:
-``rest_friction``; faster held-out logs) are one procedure over one residual and Replayer.
+Why one module: the stages, families, restarts, inner split and the checks of what the
+training logs cannot tell are one procedure over one residual and Replayer.
 """
 
 from __future__ import annotations
@@ -41,6 +40,7 @@ from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.identify_select import FAMILY_MARGIN, choose
 from lowcostdex.gap.identify_select import choose_family as _choose_family
 from lowcostdex.gap.identify_starts import starts as own_starts
+from lowcostdex.gap.identify_verdict import verdict
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.rest_friction import held_at_rest
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
@@ -84,11 +84,9 @@ HELD_ALWAYS = frozenset({("gearbox_friction", "alpha")})
 # tries them (``inner_split``): the firmware gain first (what a user changes, and the P law must
 # carry from one gain to another), then the bench geometry and the supply.
 INNER_FIELDS: tuple[str, ...] = ("kp", "length", "mass", "arm_mass", "vin")
-# A held-out log whose peak joint speed exceeds the fastest training log's by this factor is
-# flagged (``faster_than_training``): the fitted friction's speed dependence (viscous, Stribeck)
-# is extrapolated there. Measured 2026-11-26 on Rhoban XL330 with sin_time_square held out
-# (peak 4.8-14.9 rad/s against at most 7.4 in training): 88.1 mrad, worse than the datasheet's
-# 73.0, with the fitted viscous damping (0.025 N m s/rad) alone costing 26 mrad of it.
+# A held-out log whose peak speed exceeds the fastest training log's by this factor is flagged
+# (``faster_than_training``: the friction's speed law extrapolated). Rhoban XL330, sin_time_square
+# held out (4.8-14.9 rad/s vs <= 7.4 trained), 2026-11-26: 88.1 mrad vs the datasheet's 73.0.
 SPEED_MARGIN = 1.2
 
 
@@ -251,6 +249,8 @@ class Identified:
         on the validation logs [rad] ("fit_mae", "val_mae"), and the one chosen.
       notes: what the identification decided from the logs themselves (e.g. no training log
         has the torque off, so the back-driven share of the gear friction was held at 1).
+      verdict: the identified model against the nominal one on the held-out logs
+        (``identify_verdict.verdict``: "no reliable gain" or the gain).
     """
 
     effects: list[AppliedEffect]
@@ -267,6 +267,7 @@ class Identified:
     family_train_mae: dict[str, float] = field(default_factory=dict)
     selection: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    verdict: dict = field(default_factory=dict)
 
     def mean(self, logs: Sequence[int], identified: bool = True) -> float:
         """Mean per-log MAE over ``logs`` (BAM's set-level number) [rad]."""
@@ -456,6 +457,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                      fit_seconds=fit_s, rounds=rounds, cost=best.cost,
                      at_bound=_at_bound(best), family=chosen, family_train_mae=fam_mae,
                      selection=selection, notes=notes + bound_notes(best))
+    out.verdict = verdict(out.nominal_mae, out.identified_mae, test)
     if test:  # the ablation is reported on the held-out logs only: replay only those
         abl = per_log_mae(rep, whole_logs(ds, test),
                           [[e for e in effects if e.name != n] for n in config.effects])
@@ -598,10 +600,8 @@ def _prune_trailing(rnd: int, tracks: Sequence[fitmod.Track], after: int = 4,
                     margin: float = 0.02) -> None:
     """From round ``after`` on, end the starts of one family that trail its best by ``margin``.
 
-    (Not ``fit.prune_tracks``: its second rule, "ends structures whose cost fell by less than a
-    tenth of the largest fall", ended the warm-started joint fit after 4 rounds because cold
-    starts fall further from their far higher costs; measured on STS3032: the best stage-2
-    track cut at 4 rounds, cost still falling.)"""
+    (Not ``fit.prune_tracks``: its "cost fell by less than a tenth of the largest fall" rule cut
+    STS3032's best warm stage-2 track at 4 rounds, its cost still falling.)"""
     if rnd + 1 < after or not tracks:
         return
     best = min(t.cost for t in tracks)
