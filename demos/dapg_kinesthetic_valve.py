@@ -29,29 +29,43 @@ from pathlib import Path
 
 from lowcostdex.algos import experiment
 from lowcostdex.algos.configs import BCConfig
-from lowcostdex.algos.train import TrainConfig, train
+from lowcostdex.algos.train import TrainConfig, check_env_id, train
 from lowcostdex.cli import main as lowcostdex
+from lowcostdex.cli import run_script
 from lowcostdex.demonstrations.file import read_episodes
 from lowcostdex.options import add_robot_options, add_run_options, robot_selection
 
 
+def demos_option(text: str) -> int | Path:
+    """``--demos``: how many demonstrations to record (an integer >= 1), or your own demo file."""
+    if text.strip().lstrip("+-").isdigit():
+        count = int(text)
+        if count < 1:
+            raise argparse.ArgumentTypeError(f"{text!r}: record at least 1 demonstration")
+        return count
+    return Path(text)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--demos", type=int, default=25, help="demonstrations to record")
+    parser.add_argument("--demos", type=demos_option, default=25,
+                        help="demonstrations to record (default %(default)s), or the path of "
+                             "your own demonstration file (HDF5, lowcostdex record-demos)")
     add_robot_options(parser, default_backend="emulated", env="lowcostdex/DClawTurnValve-v0")
     add_run_options(parser, out="runs/dapg_kinesthetic_valve", n_iter=10, n_traj=20)
     args = parser.parse_args()
     backend, env_kwargs = robot_selection(args.backend, args.port)
 
     out = Path(args.out)
-    demos = out / "valve_demos.h5"
-    if not demos.exists():
-        code = lowcostdex(["record-demos", "--port", args.port or "emulated", "--task", "turn-valve",
-                           "--episodes", str(args.demos), "--out", str(demos)])  # fmt: skip
-        if code:
-            raise SystemExit(code)
+    if out.exists() and not out.is_dir():
+        parser.error(f"--out {out} is a file; give a folder")
+    mine = isinstance(args.demos, Path)
+    demos = args.demos if mine else out / "valve_demos.h5"
+    if mine and not demos.is_file():
+        parser.error(f"--demos {demos}: no such file (give a demonstration file, or a number "
+                     "of demonstrations to record)")
 
-    config = TrainConfig(
+    config = TrainConfig(  # checked before minutes of recording
         algo="dapg",
         env_id=args.env,
         backend=backend,
@@ -64,6 +78,14 @@ def main() -> None:
         eval_bc=True,
         bc=BCConfig(epochs=100, log_std="residual"),  # the main job's: ~1000 pairs
     )
+    check_env_id(config.env_id)
+    if not demos.exists():
+        out.mkdir(parents=True, exist_ok=True)
+        code = lowcostdex(["record-demos", "--port", args.port or "emulated", "--task", "turn-valve",
+                           "--episodes", str(args.demos), "--out", str(demos)])  # fmt: skip
+        if code:
+            raise SystemExit(code)
+
     run_dir = out / f"dapg_{args.backend}"
     run = train(config, run_dir, resume=(run_dir / "config.json").exists())
     m = run.read_metrics()
@@ -87,4 +109,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)  # a user's mistake is one line and exit code 2, not a traceback

@@ -26,7 +26,9 @@ import pathlib
 import mujoco
 import numpy as np
 
+from lowcostdex.argtypes import SEED
 from lowcostdex.cli import main as cli_main
+from lowcostdex.cli import run_script
 
 MODEL = """<mujoco model="user_finger">
   <compiler angle="radian"/>
@@ -90,9 +92,11 @@ def record(t: np.ndarray, g: np.ndarray, rng: np.random.Generator) -> np.ndarray
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="runs/gap_own_mjcf", help="folder to write (new or empty)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=SEED, default=0)
     args = parser.parse_args()
     out = pathlib.Path(args.out)
+    if out.exists() and not out.is_dir():
+        parser.error(f"--out {out} is a file; give a new folder")
     if out.exists() and any(out.iterdir()):
         parser.error(f"--out {out} is not empty; give a new folder")
     rng = np.random.default_rng(args.seed)
@@ -124,4 +128,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)  # a user's mistake is one line and exit code 2, not a traceback

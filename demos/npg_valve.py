@@ -22,6 +22,7 @@ import argparse
 
 from lowcostdex.algos import experiment
 from lowcostdex.algos.train import TrainConfig, train
+from lowcostdex.cli import run_script
 from lowcostdex.options import add_robot_options, add_run_options, robot_selection
 
 
@@ -56,4 +57,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)  # a user's mistake is one line and exit code 2, not a traceback

@@ -52,6 +52,9 @@ from lowcostdex.algos.local_models.train_config import (
 from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
 from lowcostdex.algos.local_models.tvlg import TVLGConfig
 from lowcostdex.algos.samplers import EVAL_STREAM, RolloutJob
+from lowcostdex.argtypes import SEED, integer, number
+from lowcostdex.cli import run_script
+from lowcostdex.options import robot_selection
 
 DEMOS = {"short": (-0.3, 0.05), "exact": (0.0, 0.1)}
 """name -> (valve offset of the recording [rad], exploration noise of the run)."""
@@ -81,18 +84,19 @@ def main() -> None:
     parser.add_argument("--port", default=None, help="serial port (hardware backend)")
     parser.add_argument("--demo", choices=tuple(DEMOS), default="short")
     parser.add_argument("--demos", default=None, help="your demonstration file instead")
-    parser.add_argument("--noise", type=float, default=None, help="exploration noise std")
-    parser.add_argument("--n-iter", type=int, default=8)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--noise", type=number(0, open_low=True), default=None, help="exploration noise std")
+    parser.add_argument("--n-iter", type=integer(1), default=8)
+    parser.add_argument("--seed", type=SEED, default=0)
     parser.add_argument("--resume", action="store_true")
     args = parser.parse_args()
+    backend, env_kwargs = robot_selection(args.backend, args.port)  # before anything is written
 
     out = Path(args.out)
     offset, noise = DEMOS[args.demo]
     demos = Path(args.demos).resolve() if args.demos else out.resolve() / f"demo_{args.demo}.h5"
     base = TVLGTrainConfig(
-        backend=args.backend,
-        env_kwargs={"port": args.port} if args.port else {},
+        backend=backend,
+        env_kwargs=env_kwargs,
         seed=args.seed,
         n_iter=args.n_iter,
         init="demos",
@@ -141,4 +145,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_script(main)  # a user's mistake is one line and exit code 2, not a traceback

@@ -16,7 +16,9 @@ import argparse
 import importlib
 import sys
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import NoReturn
 
 COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.sim.cli",
@@ -91,8 +93,6 @@ def unrecognized(parser: argparse.ArgumentParser, extra: Sequence[str]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from lowcostdex.errors import LowcostdexError
-
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)
@@ -112,11 +112,22 @@ def main(argv: Sequence[str] | None = None) -> int:
             what = "is empty" if value == "" else "has an empty path"
             return _report(prog, f"--{dest} {what} (an unset shell variable?); give a path",
                            False, USER_ERROR)
+    return guarded(prog, lambda: args.func(args), debug)
+
+
+def guarded(prog: str, call: Callable[[], object], debug: bool = False) -> int:
+    """Run ``call()`` under the one error path; its exit code (``None`` is 0).
+
+    A ``LowcostdexError`` or a path that cannot be opened prints ``{prog}: error: ...`` (exit 2),
+    Ctrl-C prints one line (exit 130); ``debug`` adds the traceback. Any other exception is a bug
+    and propagates. A ``SystemExit`` (argparse's own one-line errors) passes through.
+    """
+    from lowcostdex.errors import LowcostdexError
     from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
     try:
         with collect_mujoco_warnings() as warned:  # recorded, not printed or MUJOCO_LOG.TXT
-            code = int(args.func(args) or 0)
+            code = int(call() or 0)
         if warned.messages:
             print(f"{prog}: note: {warned.summary()}", file=sys.stderr)
         return code
@@ -129,6 +140,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as exc:  # an Interrupted says what is kept and how to go on
         more = f"; {exc}" if isinstance(exc, Interrupted) and str(exc) else ""
         return _report(prog, f"interrupted (Ctrl-C){more}", debug, INTERRUPTED)
+
+
+def run_script(script_main: Callable[[], object]) -> NoReturn:
+    """The entry point of a script in ``demos/``: ``script_main()`` under the CLI's error path.
+
+    A user's mistake (a bad option value, a missing file, a port that is not there) is one line
+    ``<script>: error: ...`` and exit code 2, Ctrl-C one line and 130, as for ``lowcostdex``
+    commands; ``--debug`` anywhere on the line is taken out before the script parses its options
+    and shows the traceback.
+    """
+    argv = sys.argv[1:]
+    debug = "--debug" in argv
+    if debug:
+        sys.argv = [sys.argv[0], *(a for a in argv if a != "--debug")]
+    prog = Path(sys.argv[0]).name
+    sys.exit(guarded(prog, script_main, debug))
 
 
 def _report(prog: str, message: str, debug: bool, code: int) -> int:
