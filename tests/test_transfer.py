@@ -319,6 +319,57 @@ def test_the_final_error_and_the_looser_tolerance_do_not_flip_where_success_does
     assert by["nominal"]["loose_tolerance"] == 0.12 and by["nominal"]["algo"] == "npg"
 
 
+def test_the_cost_table_puts_identification_plus_sim_training_beside_training_on_the_robot():
+    """Numbers typed here: robot A identified from 3 fingers x 30 s of logs (recording 40 s
+    each, analyses 100 / 200 / 300 s wall, 50 / 60 / 70 s CPU): 90 s of robot time, 120 + 600 s
+    wall, 180 s CPU; its identified policies trained 60 and 80 s (seeds 0, 1): 70 s each, the
+    first policy 720 + 70 = 790 s from nothing. On robot B: 2.5 and 3.5 h of robot time, 1200
+    and 1400 s. The nominal policy has a row on each robot and is one policy."""
+    from lowcostdex.transfer.loop import cost_markdown
+
+    def row(cond, robot, made_for, seed, wall, **more):
+        return dict(_row(cond, robot, 5, made_for=made_for, seed=seed), samples=48000,
+                    train_wall_seconds=wall, **more)
+
+    rows = [row("nominal", "A", None, 0, 30.0, train_cpu_seconds=20.0),
+            row("nominal", "B", None, 0, 30.0, train_cpu_seconds=20.0),
+            row("identified", "A", "A", 0, 60.0), row("identified", "B", "A", 0, 60.0),
+            row("identified", "A", "A", 1, 80.0),
+            row("identified", "B", "B", 0, 50.0),  # B not identified in this run
+            row("on_robot", "B", "B", 0, 1200.0, robot_hours=2.5, train_cpu_seconds=600.0),
+            row("on_robot", "B", "B", 1, 1400.0, robot_hours=3.5, train_cpu_seconds=700.0),
+            row("on_robot", "A", "B", 0, 1200.0, robot_hours=2.5, train_cpu_seconds=600.0)]
+    fingers = {f: {"robot_seconds": 30.0, "record_wall_seconds": 40.0,
+                   "analysis_wall_seconds": wall, "analysis_cpu_seconds": cpu}
+               for f, wall, cpu in (("ff", 100.0, 50.0), ("mf", 200.0, 60.0), ("th", 300.0, 70.0))}
+    lines = cost_markdown(rows, {"A": {"fingers": fingers}}).splitlines()
+    head = [c.strip() for c in lines[0].strip("|").split("|")]
+    cells = {(x[0], x[1]): dict(zip(head, x, strict=True))
+             for x in ([c.strip() for c in line.strip("|").split("|")] for line in lines[2:])}
+    assert set(cells) == {("nominal", "-"), ("identified", "A"), ("identified", "B"),
+                          ("on_robot", "B")}
+    nominal, ident, on_robot = (cells["nominal", "-"], cells["identified", "A"],
+                                cells["on_robot", "B"])
+    assert nominal["policies"] == "1" and nominal["robot time per policy [h]"] == "0"
+    assert nominal["training CPU per policy [s]"] == "20"
+    assert nominal["wall to the first policy [s]"] == "30"
+    assert ident["policies"] == "2" and ident["samples per policy"] == "48000"
+    assert ident["identification per robot: robot time [s]"] == "90"
+    assert ident["robot time per policy [h]"] == "0.025 (identification)"
+    assert ident["identification wall: recording + analysis [s]"] == "120 + 600"
+    assert ident["analysis CPU [s]"] == "180"
+    assert ident["training wall per policy [s]"] == "70"
+    assert ident["training CPU per policy [s]"] == "-"  # not recorded in these rows
+    assert ident["wall to the first policy [s]"] == "790"
+    # B's identification is not in this run: its cost is unknown, not zero
+    assert cells["identified", "B"]["wall to the first policy [s]"] == "-"
+    assert cells["identified", "B"]["robot time per policy [h]"] == "-"
+    assert on_robot["policies"] == "2" and on_robot["robot time per policy [h]"] == "3.00"
+    assert on_robot["training wall per policy [s]"] == "1300"
+    assert on_robot["training CPU per policy [s]"] == "650"
+    assert on_robot["wall to the first policy [s]"] == "1300"
+
+
 def test_time_left_counts_only_the_pieces_still_to_run():
     """A resume: 6 pieces, 3 of them found done (the 2nd, 4th and 6th); the others take 10 s
     each. After the first, 2 pieces of 10 s are left (20 s), not 5 pieces."""
@@ -385,6 +436,7 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
                 # a looser tolerance never counts fewer successes
                 assert r["success"] <= r["success_loose"] <= r["episodes"]
                 assert r["samples"] == size.n_iter * size.n_traj * 40
+                assert r["train_cpu_seconds"] > 0  # this process's CPU, beside the wall
     # the identified sim carries what the analysis fitted on that robot, per joint
     ident = json.loads((out / "identified.json").read_text())
     for robot in hidden_robots(size.robots):
@@ -414,6 +466,15 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
         assert f"| {cond} |" in table
     assert "final valve error and success at 0.12 rad" in table
     assert "on every robot (bold: its own robot)" in table
+    cost = table.split("what a policy cost")[1].split("###")[0]
+    for robot in robots:  # (e)'s robot hours beside (c)'s identification and sim training
+        on_robot_line = next(x for x in cost.splitlines()
+                             if x.startswith(f"| on_robot | {robot} |"))
+        assert float(on_robot_line.split("|")[5]) > 0
+        ident_line = next(x for x in cost.splitlines()
+                          if x.startswith(f"| identified | {robot} |"))
+        assert "(identification)" in ident_line
+        assert all(f["analysis_cpu_seconds"] > 0 for f in ident[robot]["fingers"].values())
     assert (out / "transfer.png").stat().st_size > 0
 
     # a second run finds every piece done, reports the same rows, keeps the old table files

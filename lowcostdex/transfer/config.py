@@ -22,6 +22,7 @@ NARROW_PAD = 0.1  # identified_randomized: ranges at least +-10 % of each identi
 # rad from the goal on A (bench/RESULTS.md, transfer6), so 0.1 splits them by 0.01 rad
 LOOSE_TOL = 0.12
 STEPS = 40  # steps per episode of the valve tasks (the sample count of an episode)
+CPU_FILE = "transfer_cpu.json"  # in a run folder: the CPU seconds its training took here
 OUTPUTS = ("table.md", "transfer.json", "transfer.png", "identified.json")
 
 

@@ -61,6 +61,7 @@ from lowcostdex.transfer.config import (
     ALGOS,
     COMMAND,
     CONDITIONS,
+    CPU_FILE,
     EVAL_SEED,
     FINGERS,
     LOOSE_TOL,
@@ -78,6 +79,7 @@ from lowcostdex.transfer.config import (
 from lowcostdex.transfer.robots import HiddenRobotEnv, HiddenRobotTarget, PortRobot, make_robots
 from lowcostdex.transfer.tables import (
     cells_json,
+    cost_markdown,
     cross_markdown,
     errors_markdown,
     loose_successes,
@@ -286,7 +288,10 @@ def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Pa
             factory = HiddenRobotEnv(task.env_id, task.kwargs, robot_seed, robot.name)
         if algo == "dapg" and size.bc_epochs is not None:
             config = replace(config, bc=replace(config.bc, epochs=size.bc_epochs))
+        c0 = time.process_time()  # CPU of this process (resumed: only the part run last)
         train(config, run_dir, resume=resume, env_factory=factory)
+        write_json(run_dir / CPU_FILE, {"cpu_seconds": round(time.process_time() - c0, 1),
+                                        "resumed": resume})
     metrics = ex.read_metrics(run_dir / ex.METRICS_FILE)
     s = read_json(summary)
     out = {"samples": int(metrics[ex.SAMPLES][-1]),
@@ -295,6 +300,8 @@ def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Pa
            "final_training_success": float(metrics[ex.SUCCESS_RATE][-1])}
     if ex.ROBOT_HOURS in metrics:
         out["robot_hours"] = float(metrics[ex.ROBOT_HOURS][-1])
+    if (run_dir / CPU_FILE).exists():  # runs made before it was written have none
+        out["cpu_seconds"] = float(read_json(run_dir / CPU_FILE)["cpu_seconds"])
     return out
 
 
@@ -491,6 +498,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                                  "samples": trained["samples"],
                                  "train_wall_seconds": round(trained["wall_seconds"], 1),
                                  "robot_hours": trained.get("robot_hours"),
+                                 "train_cpu_seconds": trained.get("cpu_seconds"),
                                  "eval_wall_seconds": cell["wall_seconds"]})
                 t_eval += time.perf_counter() - t0
     wall["training"], wall["evaluation"] = t_train, t_eval
@@ -531,6 +539,9 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
         if cross and len(robots) > 1:
             parts += [f"### {algo.upper()}: policies made for one robot on every robot "
                       "(bold: its own robot)", "", cross, ""]
+        parts += [f"### {algo.upper()}: what a policy cost (samples, robot time, wall and CPU "
+                  "at this run's load)", "",
+                  cost_markdown([r for r in rows if r["algo"] == algo], idents), ""]
     if idents:
         parts += ["## Identification (catalogue effects only; a hidden robot's MJCF "
                   "perturbations and firmware imperfection have no catalogue name)", "",

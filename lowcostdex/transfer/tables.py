@@ -178,6 +178,76 @@ def cells_json(summaries: dict[str, dict[str, dict[str, Any]]], robots: list[str
     return out
 
 
+def _mean(values: list[Any], fmt: str) -> str:
+    """The mean of ``values`` formatted, or "-" when any is missing (runs made before it was
+    recorded)."""
+    if not values or any(v is None for v in values):
+        return "-"
+    return format(float(np.mean([float(v) for v in values])), fmt)
+
+
+def identification_cost(ident: dict[str, Any]) -> dict[str, float | None]:
+    """One robot's identification summed over its fingers: robot time [s] (the logs), wall of
+    recording and of the analysis [s], CPU of the analysis [s] (None where not recorded)."""
+    fingers = list(ident["fingers"].values())
+    cpu = [f.get("analysis_cpu_seconds") for f in fingers]
+    return {"robot_seconds": float(sum(f["robot_seconds"] for f in fingers)),
+            "record_wall_seconds": float(sum(f["record_wall_seconds"] for f in fingers)),
+            "analysis_wall_seconds": float(sum(f["analysis_wall_seconds"] for f in fingers)),
+            "analysis_cpu_seconds": None if None in cpu else float(sum(cpu))}
+
+
+def cost_markdown(rows: list[dict[str, Any]], idents: dict[str, dict[str, Any]]) -> str:
+    """What a policy of each condition cost, per robot it was made for (rows of one algo; each
+    policy once, seeds averaged): samples, robot time [h] (on_robot: its training on the robot;
+    identified conditions: the identification logs, recorded once per robot and shared by both
+    identified conditions and every seed), identification wall (recording + analysis) and
+    analysis CPU per robot, training wall and CPU per policy, and the wall from nothing to the
+    first policy (identification + training). Wall times grow with a shared machine's load;
+    "-": not recorded (runs made before it was, or no identification in this run)."""
+    head = ["condition", "made for", "policies", "samples per policy",
+            "robot time per policy [h]", "identification per robot: robot time [s]",
+            "identification wall: recording + analysis [s]", "analysis CPU [s]",
+            "training wall per policy [s]", "training CPU per policy [s]",
+            "wall to the first policy [s]"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for cond in CONDITIONS:
+        rs = [r for r in own_rows(rows) if r["condition"] == cond]
+        for made_for in sorted({r["policy_robot"] for r in rs}, key=lambda x: x or ""):
+            policies = list({(r["policy"], r["seed"]): r for r in rs
+                             if r["policy_robot"] == made_for}.values())
+            ident = (identification_cost(idents[made_for])
+                     if cond in ("identified", "identified_randomized") and made_for in idents
+                     else None)
+            train_wall = float(np.mean([p["train_wall_seconds"] for p in policies]))
+            if cond == "on_robot":
+                robot_h = _mean([p.get("robot_hours") for p in policies], ".2f")
+            elif ident is not None:
+                robot_h = f"{ident['robot_seconds'] / 3600:.3f} (identification)"
+            elif cond in ("identified", "identified_randomized"):
+                robot_h = "-"
+            else:
+                robot_h = "0"
+            if ident is None:
+                id_cells = ["-", "-", "-"]
+                first = train_wall if cond not in ("identified", "identified_randomized") \
+                    else None
+            else:
+                wall = ident["record_wall_seconds"] + ident["analysis_wall_seconds"]
+                cpu = ident["analysis_cpu_seconds"]
+                id_cells = [f"{ident['robot_seconds']:.0f}",
+                            f"{ident['record_wall_seconds']:.0f} + "
+                            f"{ident['analysis_wall_seconds']:.0f}",
+                            "-" if cpu is None else f"{cpu:.0f}"]
+                first = wall + train_wall
+            lines.append("| " + " | ".join([
+                cond, made_for or "-", str(len(policies)),
+                _mean([p.get("samples") for p in policies], ".0f"), robot_h, *id_cells,
+                f"{train_wall:.0f}", _mean([p.get("train_cpu_seconds") for p in policies], ".0f"),
+                "-" if first is None else f"{first:.0f}"]) + " |")
+    return "\n".join(lines)
+
+
 def cross_markdown(rows: list[dict[str, Any]], robots: list[str]) -> str:
     """Per-robot policies (rows: made for robot X) on every robot (columns), pooled over seeds,
     beside the nominal policy on the same robot: does robot A's model help on robot B?"""
