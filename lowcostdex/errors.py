@@ -67,12 +67,13 @@ def check_number(name: str, value: object, low: float = -math.inf, high: float =
       name: the setting, e.g. "damping".
       value: the user's value (NaN and +-inf are refused whatever the bounds).
       low, high: the bounds; ``low_open``/``high_open`` exclude them.
-      integer: also require an integral value.
+      integer: also require an integer type (int or a numpy integer: 2.0 is refused).
       none_ok: None is valid too.
     """
     if value is None and none_ok:
         return
-    ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    ok = isinstance(value, numbers.Integral if integer else numbers.Real) and not isinstance(
+        value, bool)  # 2.0 is no count: range(2.0) fails minutes later, in the run
     if ok:
         x = float(value)  # type: ignore[arg-type]
         ok = (math.isfinite(x) and (x > low if low_open else x >= low)

@@ -87,6 +87,7 @@ from lowcostdex.algos.metrics import (  # noqa: F401
 from lowcostdex.algos.run_files import (  # noqa: F401
     atomic_write_bytes,
     atomic_write_text,
+    json_scalar,
     load_state,
     read_json,
     save_state,
@@ -184,8 +185,9 @@ def try_load(file: Path, required: tuple[str, ...]) -> tuple[dict[str, Any] | No
 
 
 def _jsonable(config: Mapping[str, Any]) -> dict[str, Any]:
-    """Round-trip through JSON so tuples compare equal to the lists read back."""
-    return json.loads(json.dumps(dict(config)))
+    """Round-trip through JSON so tuples compare equal to the lists read back (and a numpy
+    scalar to the number it holds)."""
+    return json.loads(json.dumps(dict(config), default=json_scalar))
 
 
 class Run:

@@ -37,9 +37,19 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def json_scalar(value: Any) -> Any:
+    """``json.dumps``'s ``default``: a numpy scalar (``seed=np.int64(3)`` from ``np.arange``,
+    ``gamma=np.float32(0.99)``) is written as the Python number it holds; anything else is
+    refused as ``json`` refuses it."""
+    if isinstance(value, np.generic) and isinstance(value.item(), (bool, int, float, str)):
+        return value.item()
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
+
+
 def write_json(path: str | os.PathLike[str], obj: Any) -> None:
-    """Atomically write ``obj`` as indented JSON (non-finite floats are written as NaN/Infinity)."""
-    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+    """Atomically write ``obj`` as indented JSON (non-finite floats are written as NaN/Infinity;
+    numpy scalars as the numbers they hold)."""
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=json_scalar) + "\n")
 
 
 def read_json(path: str | os.PathLike[str]) -> Any:
