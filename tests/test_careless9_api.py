@@ -24,6 +24,7 @@ from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
 from lowcostdex.algos.train import train
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap import GapConfig
+from lowcostdex.hardware.bus import BusError
 from lowcostdex.sim.vector import make_vec
 
 POINTMASS = "lowcostdex_test/PointMass-v0"
@@ -82,3 +83,113 @@ def test_a_float_iteration_count_writes_no_run_folder(tmp_path):
 def test_counts_as_numpy_integers_still_work(tmp_path):
     config = _tiny(n_iter=np.int64(1), seed=np.int32(0))
     assert train(config, tmp_path / "run").read_metrics()["iteration"].tolist() == [0]
+
+
+# ------------------------------------------------------------------------------------------------
+# the batched env, the Allegro's keywords, rendering, the CAN channel
+
+VALVE = "lowcostdex/DClawTurnValve-v0"
+
+
+def test_a_vector_env_stepped_before_reset_says_so():
+    """Before session 15: KeyError 'angle' from inside the task's reward (no goal yet)."""
+    vec = make_vec(VALVE, num_envs=2)
+    with pytest.raises(gym.error.ResetNeeded, match=r"before reset\(\).*vec.reset\(seed=...\)"):
+        vec.step(np.zeros((2, 9)))
+    vec.reset(seed=0)
+    assert vec.step(np.zeros((2, 9)))[0].shape == (2, 30)
+
+
+@pytest.mark.parametrize("seed, message", [
+    (-1, "reset seed=-1 must be an integer in [0, inf)"),      # was numpy's ValueError
+    (1.5, "reset seed=1.5 must be an integer"),                # was SeedSequence's TypeError
+    ([0], "got 1 seeds for 2 copies: give one seed per copy"),  # was IndexError
+    ([0, 1, 2], "got 3 seeds for 2 copies"),                   # was silently cut to 2
+])
+def test_a_vector_env_reset_with_bad_seeds_names_them(seed, message):
+    with pytest.raises(ConfigError) as exc:
+        make_vec(VALVE, num_envs=2).reset(seed=seed)
+    assert message in str(exc.value)
+
+
+def test_a_motor_for_the_allegro_is_refused_without_listing_motor_as_valid():
+    """The list of valid keywords named 'motor' while refusing it (the Allegro's motors are its
+    own; ``motor=`` picks a D'Claw servo)."""
+    with pytest.raises(ConfigError) as exc:
+        gym.make("lowcostdex/AllegroTurnValve-v0", motor="XM430-W350")
+    text = str(exc.value)
+    assert "unknown keyword argument 'motor'" in text
+    valid = text.split("valid: ")[1].split(", ")
+    assert "motor" not in valid and "init_range" in valid
+    # the D'Claw still lists and takes it
+    assert gym.make(VALVE, motor="XM430-W350").unwrapped.task.hand.motor == "XM430-W350"
+
+
+def test_rendering_without_an_opengl_context_names_mujoco_gl(monkeypatch):
+    """A headless machine: MuJoCo's FatalError ('an OpenGL platform library has not been loaded')
+    becomes one error naming the fix (MUJOCO_GL=egl or osmesa). The failure is made here by a
+    renderer that cannot be created, as on a machine without a display."""
+    import mujoco
+
+    def no_context(*args, **kwargs):
+        raise mujoco.FatalError("an OpenGL platform library has not been loaded into this "
+                                "process")
+
+    monkeypatch.setattr(mujoco, "Renderer", no_context)
+    env = gym.make(VALVE, render_mode="rgb_array")
+    env.reset(seed=0)
+    with pytest.raises(ConfigError, match="MUJOCO_GL=egl .*MUJOCO_GL=osmesa"):
+        env.render()
+
+
+NO_CHANNEL = "lcdxnope9"  # no machine has this network interface
+
+
+def test_an_allegro_on_a_can_channel_that_is_not_there_is_one_bus_error():
+    """python-can raised a bare OSError ('[Errno 97] Address family not supported by protocol' on
+    a kernel without SocketCAN, 'No such device' without the interface), naming neither the
+    channel nor the fix."""
+    from lowcostdex.hardware.allegro.driver import AllegroBus
+    from lowcostdex.hardware.bus import BusError
+
+    with pytest.raises(BusError, match=f"CAN channel '{NO_CHANNEL}'"):
+        AllegroBus(channel=NO_CHANNEL).connect()
+
+
+def test_record_log_on_a_missing_can_channel_is_one_line_and_writes_nothing(tmp_path, capsys):
+    from lowcostdex.cli import main
+
+    out = tmp_path / "allegro_logs"
+    code = main(["record-log", "--hand", "allegro", "--port", NO_CHANNEL, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    assert err.strip().startswith(f"lowcostdex record-log: error: CAN channel '{NO_CHANNEL}'")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("env_id, fix", [
+    (VALVE, "make a new env with gym.make, or connect() the Robot again"),
+    ("lowcostdex/AllegroTurnValve-v0", "make a new env with gym.make"),
+])
+def test_an_emulated_robot_env_used_after_close_says_it_was_closed(env_id, fix):
+    """Before session 15: 'bus is not connected (call connect() or use it as a context
+    manager)', advice a gym user cannot follow (the env has no connect)."""
+    env = gym.make(env_id, backend="emulated")
+    env.reset(seed=0)
+    env.close()
+    n = env.action_space.shape[0]
+    for call in (lambda: env.step(np.zeros(n)), lambda: env.reset(seed=1)):
+        with pytest.raises(BusError) as exc:
+            call()
+        assert "was closed (by Robot.close() or env.close())" in str(exc.value)
+        assert fix in str(exc.value)
+
+
+def test_a_dclaw_robot_closed_then_connected_again_reads():
+    env = gym.make(VALVE, backend="emulated")
+    env.reset(seed=0)
+    robot = env.unwrapped.backend.robot
+    robot.close()
+    robot.connect()  # what the message offers
+    assert np.all(np.isfinite(robot.read().position))
+    env.close()

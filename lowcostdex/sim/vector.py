@@ -75,6 +75,7 @@ class HandVectorEnv(gym.vector.VectorEnv):
         self._steps = np.zeros(num_envs, dtype=int)
         self._last_action = np.zeros((num_envs, self.single_action_space.shape[0]))
         self._needs_reset = np.zeros(num_envs, dtype=bool)
+        self._was_reset = False  # step() before the first reset() has no goal to reward
         self._aux = np.setdiff1d(np.arange(self.plant.model.nu), task.hand_act)
 
     # ------------------------------------------------------------------------------------------
@@ -123,13 +124,23 @@ class HandVectorEnv(gym.vector.VectorEnv):
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
         """Reset every copy; copy ``i`` is seeded with ``seed + i`` (or ``seed[i]``)."""
         if seed is not None:
-            seeds = list(seed) if isinstance(seed, (list, tuple)) else [seed + i for i in
-                                                                        range(self.num_envs)]
+            many = isinstance(seed, (list, tuple, np.ndarray))
+            if many and len(seed) != self.num_envs:
+                raise ConfigError(f"reset(seed=...) got {len(seed)} seeds for {self.num_envs} "
+                                  "copies: give one seed per copy, or one int (copy i gets "
+                                  "seed + i)")
+            for s in (seed if many else [seed]):
+                check_number("reset seed", s, 0, integer=True)
+            seeds = list(seed) if many else [seed + i for i in range(self.num_envs)]
             self._rngs = [np.random.default_rng(s) for s in seeds]
         self._reset_rows(np.arange(self.num_envs))
+        self._was_reset = True
         return self._obs(), self._infos(self._last_action)
 
     def step(self, actions: np.ndarray):
+        if not self._was_reset:  # as gymnasium's single envs refuse it (OrderEnforcing)
+            raise gym.error.ResetNeeded("cannot call step() before reset() on a vector env: "
+                                        "call vec.reset(seed=...) first")
         raw = np.asarray(actions)
         if raw.dtype.kind not in "iuf" or raw.shape != self.action_space.shape:
             raise ValueError(f"actions of shape {raw.shape} and dtype {raw.dtype}; this vector "

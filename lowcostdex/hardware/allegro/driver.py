@@ -120,6 +120,37 @@ def pd_torque(goal: np.ndarray, q: np.ndarray, qdot: np.ndarray, kp: np.ndarray,
     return np.clip(kp * (goal - q) - kd * qdot, -max_torque, max_torque)
 
 
+
+def check_can_channel(channel: str, interface: str = "socketcan") -> None:
+    """Raise BusError unless ``channel`` can be a SocketCAN interface on this machine: Linux
+    lists the network interfaces (CAN ones too) in /sys/class/net. Other interfaces (pcan,
+    kvaser, ...) are left to python-can. Nothing is opened."""
+    import os
+    import sys
+
+    if interface != "socketcan":
+        return
+    if not sys.platform.startswith("linux"):
+        raise BusError(f"CAN channel {channel!r}: SocketCAN needs Linux; on this system give "
+                       "the adapter's python-can interface (e.g. interface='pcan')")
+    if not os.path.exists(os.path.join("/sys/class/net", str(channel))):
+        raise BusError(f"CAN channel {channel!r}: no such network interface on this machine "
+                       "(`ip link` lists them); plug in the CAN adapter and bring it up: "
+                       f"sudo ip link set {channel} up type can bitrate 1000000")
+
+
+def open_can_bus(interface: str, channel: str) -> can.BusABC:
+    """``can.Bus`` at the Allegro's 1 Mbit/s; a channel that cannot be opened is a BusError
+    naming it and the fix (python-can raises a bare OSError, e.g. errno 97 on a kernel without
+    SocketCAN)."""
+    check_can_channel(channel, interface)
+    try:
+        return can.Bus(interface=interface, channel=channel, bitrate=1_000_000)
+    except (OSError, can.CanError) as exc:
+        raise BusError(f"cannot open CAN channel {channel!r} ({interface}): {exc}; is the "
+                       f"interface up? sudo ip link set {channel} up type can bitrate 1000000"
+                       ) from exc
+
 class AllegroBus(MotorBus):
     """The Allegro v4 on a CAN bus.
 
@@ -206,8 +237,7 @@ class AllegroBus(MotorBus):
         if self._connected:
             return
         if self._bus is None:
-            self._bus = can.Bus(interface=self._interface, channel=self._channel,
-                                bitrate=1_000_000)
+            self._bus = open_can_bus(self._interface, self._channel)
         self._drain()
         self._send(proto.message(proto.SYSTEM_OFF, device_id=self.device_id))
         self._send(proto.message(proto.HAND_INFO, device_id=self.device_id, remote=True))
@@ -260,6 +290,7 @@ class AllegroBus(MotorBus):
             self._bus.shutdown()
             self._bus = None
         self._connected = False
+        self._closed = True
 
     # -- MotorBus -------------------------------------------------------------------------------
     def read_state(self) -> MotorState:
@@ -463,4 +494,8 @@ class AllegroBus(MotorBus):
 
     def _check_connected(self) -> None:
         if not self._connected:
+            if getattr(self, "_closed", False):  # used after close: the env's or the Robot's
+                raise BusError("the Allegro's CAN bus was closed (by Robot.close() or "
+                               "env.close()); make a new env with gym.make (or a new "
+                               "AllegroBus)")
             raise BusError("AllegroBus is not connected; call connect() or use `with`")

@@ -230,6 +230,7 @@ class DynamixelBus(SdkTransactions, MotorBus):
                 self._torque_off_best_effort()
         finally:
             self._connected = False
+            self._closed = True
             _unregister(self)
             self._close_port()
 
@@ -635,6 +636,10 @@ class DynamixelBus(SdkTransactions, MotorBus):
 
     def _require_connected(self) -> None:
         if not self._connected:
+            if getattr(self, "_closed", False):  # used after close: the env's or the Robot's
+                raise BusError(f"the bus on {self.port.getPortName()} was closed (by "
+                               "Robot.close() or env.close()); make a new env with gym.make, "
+                               "or connect() the Robot again")
             raise BusError("bus is not connected (call connect() or use it as a context manager)")
 
     # -- torque-off paths ----------------------------------------------------------------------------

@@ -185,6 +185,10 @@ def _record_log(args: argparse.Namespace) -> int:
         if args.latency_ms is not None:
             raise ConfigError("--latency-ms is a serial adapter's latency timer (D'Claw); the "
                               "Allegro hand is on CAN")
+        if not emulated:  # before anything is written
+            from lowcostdex.hardware.allegro.driver import check_can_channel
+
+            check_can_channel(args.port)
     else:
         _check_dynamixel_port(args.port)
     hand = _hand(args.spec, args.hand)

@@ -125,7 +125,8 @@ def _keywords(cls: type, task: Task) -> list[str]:
     config = getattr(task, "config", None)
     if dataclasses.is_dataclass(config):
         names += [f.name for f in dataclasses.fields(config)]
-    return names + ["motor", "randomize", "render_mode"]
+    motor = [] if task.hand.name == "allegro" else ["motor"]  # the Allegro's motors are fixed
+    return names + motor + ["randomize", "render_mode"]
 
 
 class HandEnv(gym.Env):
@@ -289,7 +290,16 @@ class HandEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.model, 480, 640)
+            try:
+                self._renderer = mujoco.Renderer(self.model, 480, 640)
+            except Exception as exc:  # mujoco.FatalError / GLFW: no OpenGL context
+                import os
+
+                raise ConfigError(
+                    f"render_mode='rgb_array' needs an OpenGL context, which MuJoCo could not "
+                    f"create (MUJOCO_GL={os.environ.get('MUJOCO_GL', 'unset')}: {exc}); on a "
+                    "machine without a display set MUJOCO_GL=egl (GPU) or MUJOCO_GL=osmesa "
+                    "(CPU) before importing mujoco") from exc
         self._renderer.update_scene(self.data, camera="front")
         return self._renderer.render()
 
