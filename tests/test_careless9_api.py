@@ -193,3 +193,25 @@ def test_a_dclaw_robot_closed_then_connected_again_reads():
     robot.connect()  # what the message offers
     assert np.all(np.isfinite(robot.read().position))
     env.close()
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"n_iters": 5}, "unknown TVLGTrainConfig setting 'n_iters'; valid: env_id"),
+    ({"algo": {"traj_opt": {"kl_stepp": 1.0}}}, "unknown TrajOptConfig setting 'kl_stepp'"),
+    ({"cost": {"object_wieght": 1.0}}, "unknown TaskCostConfig setting 'object_wieght'"),
+    ({"algo": {"dyn": {}}}, "unknown TVLGConfig setting 'dyn'; valid: dynamics"),
+    ([1, 2], "TVLGTrainConfig settings must be a dict"),
+])
+def test_a_misspelt_tvlg_setting_in_a_json_config_is_named_with_the_valid_ones(settings, message):
+    """TrainConfig.from_dict named a misspelt key; TVLGTrainConfig.from_dict raised the
+    constructor's TypeError ('__init__() got an unexpected keyword argument')."""
+    with pytest.raises(ConfigError) as exc:
+        TVLGTrainConfig.from_dict(settings)
+    assert message in str(exc.value)
+
+
+def test_a_tvlg_config_still_round_trips_through_its_dict():
+    import dataclasses
+
+    config = TVLGTrainConfig(n_iter=3, seed=2)
+    assert TVLGTrainConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config

@@ -20,6 +20,7 @@ from lowcostdex.errors import (
     check_bool,
     check_choice,
     check_fields,
+    check_keys,
     check_number,
 )
 
@@ -204,15 +205,26 @@ class TVLGTrainConfig:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> TVLGTrainConfig:
-        """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json)."""
-        d = dict(d)
+        """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json). A misspelt key, at any
+        level, is refused listing the valid ones (not a TypeError from a constructor)."""
+        d = _known(cls, d)
         if d.get("start_hand_qpos") is not None:
             d["start_hand_qpos"] = tuple(d["start_hand_qpos"])
         if isinstance(d.get("cost"), Mapping):
-            d["cost"] = TaskCostConfig(**d["cost"])
+            d["cost"] = TaskCostConfig(**_known(TaskCostConfig, d["cost"]))
         if isinstance(d.get("algo"), Mapping):
-            a = dict(d["algo"])
-            a["dynamics"] = DynamicsConfig(**a.get("dynamics", {}))
-            a["traj_opt"] = TrajOptConfig(**a.get("traj_opt", {}))
+            a = _known(TVLGConfig, d["algo"])
+            a["dynamics"] = DynamicsConfig(**_known(DynamicsConfig, a.get("dynamics", {})))
+            a["traj_opt"] = TrajOptConfig(**_known(TrajOptConfig, a.get("traj_opt", {})))
             d["algo"] = TVLGConfig(**a)
         return cls(**d)
+
+
+def _known(cls: type, d: Any) -> dict[str, Any]:
+    """A copy of the mapping ``d`` whose keys are all fields of the dataclass ``cls``."""
+    import dataclasses
+
+    if not isinstance(d, Mapping):
+        raise ConfigError(f"{cls.__name__} settings must be a dict, got {d!r:.80}")
+    check_keys(f"{cls.__name__} setting", d, [f.name for f in dataclasses.fields(cls)])
+    return dict(d)
