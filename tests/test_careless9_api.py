@@ -215,3 +215,54 @@ def test_a_tvlg_config_still_round_trips_through_its_dict():
 
     config = TVLGTrainConfig(n_iter=3, seed=2)
     assert TVLGTrainConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config
+
+
+# ------------------------------------------------------------------------------------------------
+# gym.make's robot keywords, as a JSON run config (TrainConfig.env_kwargs) or a hurried user
+# writes them
+
+ALLEGRO = "lowcostdex/AllegroTurnValve-v0"
+
+
+@pytest.mark.parametrize("env_id, kwargs, message", [
+    # was TypeError "replace() should be called on dataclass instances"
+    (VALVE, dict(robot_config={"motion_scal": 0.5}),
+     "unknown RobotConfig setting 'motion_scal'; valid: control_period, motion_scale"),
+    (VALVE, dict(robot_config=0.1), "robot_config=0.1 must be a RobotConfig (or a dict"),
+    (VALVE, dict(reset_config={"retries": 1}), "unknown ResetConfig setting 'retries'"),
+    # was "an effect is an object with ..., not str 'l'": the name's letters read as effects
+    (VALVE, dict(effects="latency"), "effects='latency' must be a list of effects"),
+    (VALVE, dict(effects={"effect": "latency"}), "must be a list of effects"),
+    (ALLEGRO, dict(effects="latency"), "effects='latency' must be a list of effects"),
+    # was numpy's "could not broadcast input array from shape (9,) into shape (10,)"
+    (VALVE, dict(start_qpos=[0.0, -1.0, 1.0] * 3),
+     "start_qpos has shape (9,); this model's qpos is (10,): ff_top, ff_middle"),
+    (VALVE, dict(start_qpos=[0.0, -60.0, 60.0] * 3 + [0.0]),
+     "start_qpos: joint ff_middle at -60 rad is outside its range"),
+    (VALVE, dict(start_qpos=[np.nan] * 10), "start_qpos has NaN/inf entries"),
+    (ALLEGRO, dict(start_qpos=[0.0] * 16), "start_qpos has shape (16,); this model's qpos is "
+                                           "(17,)"),
+])
+def test_an_emulated_robot_keyword_of_the_wrong_form_is_named(env_id, kwargs, message):
+    with pytest.raises(ConfigError) as exc:
+        gym.make(env_id, backend="emulated", **kwargs)
+    assert message in str(exc.value)
+
+
+def test_randomize_given_a_number_is_named():
+    """Was TypeError "'int' object is not iterable" from inside gym.make."""
+    with pytest.raises(ConfigError, match=r"randomize=5 must be effect names"):
+        gym.make(VALVE, randomize=5)
+
+
+def test_robot_keywords_as_json_dicts_build_the_settings():
+    """A JSON run config can only hold dicts: they build the settings they name."""
+    env = gym.make(VALVE, backend="emulated",
+                   robot_config={"motion_scale": 0.5, "thermal": {"warn_margin": 10.0}},
+                   start_qpos=[0.0, -1.0, 1.0] * 3 + [0.0])
+    try:
+        config = env.unwrapped.backend.robot.config
+        assert config.motion_scale == 0.5 and config.thermal.warn_margin == 10.0
+        assert env.reset(seed=0)[0].shape == (30,)
+    finally:
+        env.close()

@@ -36,6 +36,9 @@ from lowcostdex.hardware.robot.backend import (
     EpisodeReset,
     ObjectSensor,
     RobotBackend,
+    as_effects,
+    as_settings,
+    check_start_qpos,
     resolve_callable,
     task_robot_config,
 )
@@ -104,7 +107,10 @@ class EmulatedAllegroBackend(RobotBackend):
         from lowcostdex.hardware.allegro.emulator import emulated_allegro
 
         _check_task(task, "EmulatedAllegroBackend")
-        self.effects = [AppliedEffect.coerce(e) for e in effects]
+        self.effects = as_effects(effects)
+        start_qpos = check_start_qpos(start_qpos, model)
+        if reset_config is not None:
+            reset_config = as_settings(ResetConfig, reset_config, "reset_config")
         bus, self.emulator, self.clock = emulated_allegro(
             model, effects=self.effects, rng=rng if rng is not None else np.random.default_rng(0),
             hand=task.hand, **bus_kwargs)

@@ -27,14 +27,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_keys
 from lowcostdex.hands import HandSpec, as_hand_spec, check_model_ranges
 from lowcostdex.hardware.bus import MotorBus, WatchdogTripped
 from lowcostdex.hardware.robot.reset import ResetConfig, ResetReport
@@ -324,7 +324,10 @@ class EmulatedBackend(RobotBackend):
         if effects is None:
             effects = default_effects(task.hand.joint_names)
         # JSON configs (training runs) carry effects as AppliedEffect.to_dict() mappings
-        effects = [AppliedEffect.coerce(e) for e in effects]
+        effects = as_effects(effects)
+        reset_config = as_settings(ResetConfig, reset_config, "reset_config")
+        flip_config = as_settings(FlipResetConfig, flip_config, "flip_config")
+        start_qpos = check_start_qpos(start_qpos, model)
         self.chain = emulated_dclaw(task.station, hand=hand, effects=list(effects), rng=rng,
                                     qpos=start_qpos, faults=faults or FaultConfig(),
                                     **chain_kwargs)
@@ -425,6 +428,8 @@ class HardwareBackend(RobotBackend):
         if task.station == "block" and tracker is None:
             raise ConfigError("the flip-block task on hardware needs tracker=... (a function "
                               "returning the block's position and quaternion)")
+        reset_config = as_settings(ResetConfig, reset_config, "reset_config")
+        flip_config = as_settings(FlipResetConfig, flip_config, "flip_config")
         hand = robot_hand(task.hand if hand is None else as_hand_spec(hand, "dclaw"), model)
         bus = make_dynamixel_bus(hand, port, model, baudrate=baudrate, **bus_kwargs)
         robot = Robot(hand, bus, task_robot_config(robot_config, task, model))
@@ -437,7 +442,62 @@ def task_robot_config(config: RobotConfig | None, task: Any, model: mujoco.MjMod
                   default: RobotConfig | None = None) -> RobotConfig:
     """``config`` (or ``default``, or ``RobotConfig()``) with the task's control period."""
     period = task.timing.frame_skip * model.opt.timestep
+    config = None if config is None else as_settings(RobotConfig, config, "robot_config")
     return dataclasses.replace(config or default or RobotConfig(), control_period=period)
+
+
+def as_settings(cls: type, value: Any, name: str) -> Any:
+    """``value`` as a ``cls`` settings dataclass (``RobotConfig``, ``ResetConfig``, ...): itself,
+    or built from a mapping of its fields (a JSON run config's ``env_kwargs``; nested settings
+    as mappings too). A misspelt key is refused listing the valid ones; any other type is
+    refused naming ``name`` (``dataclasses.replace`` raised a TypeError on a dict)."""
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        check_keys(f"{cls.__name__} setting", value, [f.name for f in dataclasses.fields(cls)])
+        defaults = cls()
+        return cls(**{k: as_settings(type(getattr(defaults, k)), v, f"{name}.{k}")
+                      if dataclasses.is_dataclass(getattr(defaults, k)) else v
+                      for k, v in value.items()})
+    raise ConfigError(f"{name}={value!r:.80} must be a {cls.__name__} (or a dict of its "
+                      "settings)")
+
+
+def as_effects(effects: Any) -> list[AppliedEffect]:
+    """An emulated robot's ``effects``: a list of ``AppliedEffect``s or their ``to_dict()``
+    mappings. One effect, an effect's name or a mapping is refused naming the form (iterating
+    them read a name's letters or a dict's keys as effects)."""
+    if isinstance(effects, (str, bytes, Mapping, AppliedEffect)) or not isinstance(
+            effects, Iterable):
+        raise ConfigError(f"effects={effects!r:.80} must be a list of effects: AppliedEffect "
+                          "objects or dicts with effect, joints and params (as in a gap "
+                          "report's extended/effects.json); () for none")
+    return [AppliedEffect.coerce(e) for e in effects]
+
+
+def check_start_qpos(start_qpos: Any, model: mujoco.MjModel) -> np.ndarray | None:
+    """An emulated robot's power-up pose: (nq,) finite numbers [rad, m], inside each limited
+    hinge joint's range (a pose in degrees is named), or None."""
+    if start_qpos is None:
+        return None
+    try:
+        q = np.asarray(start_qpos, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"start_qpos={start_qpos!r:.80} must be numbers") from None
+    joints = [model.joint(j).name for j in range(model.njnt)]
+    if q.shape != (model.nq,):
+        raise ConfigError(f"start_qpos has shape {q.shape}; this model's qpos is ({model.nq},): "
+                          f"{', '.join(joints)} (every joint, the object's too)")
+    if not np.all(np.isfinite(q)):
+        raise ConfigError("start_qpos has NaN/inf entries")
+    for j in range(model.njnt):
+        if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE or not model.jnt_limited[j]:
+            continue
+        x, (lo, hi) = q[model.jnt_qposadr[j]], model.jnt_range[j]
+        if not lo - 0.2 <= x <= hi + 0.2:
+            raise ConfigError(f"start_qpos: joint {joints[j]} at {x:g} rad is outside its range "
+                              f"[{lo:.3g}, {hi:.3g}] rad (degrees? give radians)")
+    return q
 
 
 def motor_limits(hand: HandSpec, model: mujoco.MjModel | None = None,

@@ -323,6 +323,9 @@ def make_hand_env(task: Task, backend: str = "sim",
         dr = DomainRandomization.from_dict(randomize)
     elif isinstance(randomize, str):  # one effect's name, not its letters
         dr = DomainRandomization((randomize,), task.hand.joint_names)
+    elif randomize is not None and not isinstance(randomize, (list, tuple)):
+        raise ConfigError(f"randomize={randomize!r:.80} must be effect names (e.g. ['latency', "
+                          "'backlash']), a DomainRandomization or its to_dict() mapping")
     elif randomize:
         dr = DomainRandomization(tuple(randomize), task.hand.joint_names)
     return HandEnv(task, backend=backend, randomization=dr, **kwargs)
