@@ -567,7 +567,8 @@ def frozen_crossing(traj: Trajectory, j: int, gear: float = 1.0) -> tuple[float,
     if "torque_enable" in traj.channels:
         on = np.all(traj.channels["torque_enable"] > 0.5, axis=1)
     moving = np.flatnonzero(np.diff(q) != 0)
-    change = np.union1d(moving, find_gaps(t)) + 1
+    resumed = find_gaps(t) + 1  # first rows after a hole in the time stamps
+    change = np.union1d(moving + 1, resumed)
     starts = np.concatenate([[0], change])
     stops = np.concatenate([change, [len(q)]])
     # goal and reading differ by a constant where the encoder's zero is off (a mounting offset
@@ -579,7 +580,9 @@ def frozen_crossing(traj: Trajectory, j: int, gear: float = 1.0) -> tuple[float,
     for a, b in zip(starts, stops, strict=True):
         if b - a < 5 or not on[a:b].all():
             continue
-        err = goal[max(a - 1, 0):b - 1] - q[a] - bias  # a row's goal is written after its read
+        # a row's goal is written after its read: row a - 1's acts at row a, unless a hole
+        first = a if (a == 0 or a in resumed) else a - 1  # (its goal is from before the hole)
+        err = goal[first:b - 1] - q[a] - bias
         crossing = min(float(err.max()), float(-err.min()))
         if crossing > worst[0]:
             worst = (crossing, int(a), int(b))
@@ -590,7 +593,8 @@ def _check_frozen(traj: Trajectory, j: int, gear: float = 1.0) -> None:
     crossing, a, b = frozen_crossing(traj, j, gear)
     if crossing > FROZEN_CROSS:
         t, q, joint = traj.time, traj.qpos[:, j], traj.joints[j]
-        acting = traj.goal[max(a - 1, 0):b - 1, traj.actuators.index(joint)]
+        resumed = a == 0 or a in find_gaps(t) + 1
+        acting = traj.goal[a if resumed else a - 1:b - 1, traj.actuators.index(joint)]
         raise LogError(
             f"{traj.name}: column 'qpos:{joint}' is frozen at {q[a]:.6g} rad for "
             f"{t[b - 1] - t[a]:.3g} s (from {t[a]:.6g} s) while 'goal:{joint}' moves over "
