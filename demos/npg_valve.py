@@ -22,6 +22,7 @@ import argparse
 
 from lowcostdex.algos import experiment
 from lowcostdex.algos.train import TrainConfig, train
+from lowcostdex.algos.train_cli import check_resume
 from lowcostdex.cli import run_script
 from lowcostdex.options import add_robot_options, add_run_options, robot_selection
 
@@ -33,6 +34,7 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true")
     args = parser.parse_args()
     backend, env_kwargs = robot_selection(args.backend, args.port)
+    check_resume(args.out, args.resume)  # --resume of a folder with no run: a typo in --out
 
     config = TrainConfig(
         algo="npg",

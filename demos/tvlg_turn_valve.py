@@ -52,6 +52,7 @@ from lowcostdex.algos.local_models.train_config import (
 from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
 from lowcostdex.algos.local_models.tvlg import TVLGConfig
 from lowcostdex.algos.samplers import EVAL_STREAM, RolloutJob
+from lowcostdex.algos.train_cli import check_resume
 from lowcostdex.argtypes import SEED, integer, number
 from lowcostdex.cli import run_script
 from lowcostdex.options import robot_selection
@@ -90,6 +91,7 @@ def main() -> None:
     parser.add_argument("--resume", action="store_true")
     args = parser.parse_args()
     backend, env_kwargs = robot_selection(args.backend, args.port)  # before anything is written
+    check_resume(args.out, args.resume)  # --resume of a folder with no run: a typo in --out
 
     out = Path(args.out)
     offset, noise = DEMOS[args.demo]

@@ -43,6 +43,11 @@ CASES = [
     ("tvlg_turn_valve.py", ["--backend", "hardware"], "--backend hardware needs --port"),
     ("tvlg_turn_valve.py", ["--demos", "{tmp}/none.h5"], "demonstration file"),
     ("gap_own_mjcf.py", ["--seed", "-1"], "argument --seed: '-1' is not an integer >= 0"),
+    # --resume where no run is (a typo in --out): refused, as `lowcostdex train --resume` does;
+    # the demos started a new run from scratch as if resumed
+    ("npg_valve.py", ["--resume"], "--resume: {out} does not exist, so there is nothing to "
+                                   "resume"),
+    ("tvlg_turn_valve.py", ["--resume"], "--resume: {out} does not exist"),
 ]
 
 
@@ -65,7 +70,7 @@ def test_a_careless_demo_call_is_one_line_and_writes_nothing(script, args, messa
     assert "Traceback" not in err
     last = err.strip().splitlines()[-1]
     assert last.startswith(f"{script}: error: "), err
-    assert message.format(tmp=tmp_path) in last, last
+    assert message.format(tmp=tmp_path, out=out) in last, last
     assert not out.exists(), sorted(p.name for p in out.iterdir())
 
 
