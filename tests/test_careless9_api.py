@@ -266,3 +266,50 @@ def test_robot_keywords_as_json_dicts_build_the_settings():
         assert env.reset(seed=0)[0].shape == (30,)
     finally:
         env.close()
+
+
+# ------------------------------------------------------------------------------------------------
+# a run of one trainer loaded with another's loader
+
+
+def _npg_run_dir(path: Path) -> Path:
+    """A folder holding what `train npg` writes first: its config.json."""
+    import dataclasses
+
+    path.mkdir()
+    (path / "config.json").write_text(json.dumps(dataclasses.asdict(TrainConfig(algo="npg"))))
+    return path
+
+
+def _tvlg_run_dir(path: Path) -> Path:
+    """A folder as `train tvlg` leaves it: config.json and controller.npz."""
+    import dataclasses
+
+    path.mkdir()
+    (path / "config.json").write_text(json.dumps(dataclasses.asdict(TVLGTrainConfig())))
+    np.savez(path / "controller.npz", **{"controller/K": np.zeros((2, 2, 2))})
+    return path
+
+
+def test_a_tvlg_run_given_to_load_policy_names_load_controller(tmp_path):
+    """Was 'no policy here (a run directory holds policy.pt)' for the folder and 'does not load:
+    corrupt or cut short (RuntimeError)' for its controller.npz, which is not corrupt."""
+    from lowcostdex.algos.train import load_policy
+    from lowcostdex.errors import InputError
+
+    run = _tvlg_run_dir(tmp_path / "tvlg")
+    for given in (run, run / "controller.npz"):
+        with pytest.raises(InputError, match=r"is a TVLG run's controller .*load_controller"):
+            load_policy(given)
+
+
+def test_an_npg_run_given_to_load_controller_names_load_policy(tmp_path):
+    """Was a TypeError (then 'unknown TVLGTrainConfig setting') from reading npg's config as a
+    TVLG one."""
+    from lowcostdex.algos.local_models.train import load_controller
+    from lowcostdex.errors import InputError
+
+    run = _npg_run_dir(tmp_path / "npg")
+    with pytest.raises(InputError, match=r"is a run of 'train npg/dapg', not of 'train tvlg': "
+                                         r"load its policy with .*load_policy"):
+        load_controller(run)

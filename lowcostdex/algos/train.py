@@ -533,6 +533,11 @@ def load_policy(path: str | Path) -> GaussianMLPPolicy:
     see :class:`~lowcostdex.algos.experiment.BestPolicy`) or of a checkpoint file."""
     path = Path(path)
     file = path / "policy.pt" if path.is_dir() else path
+    controller = path / "controller.npz" if path.is_dir() else path
+    if controller.is_file() and (controller.suffix == ".npz" or not file.is_file()):
+        raise InputError(f"{controller} is a TVLG run's controller (time-varying linear, not a "
+                         "neural policy): load it with lowcostdex.algos.local_models.train."
+                         f"load_controller({str(controller.parent)!r})")
     if not file.is_file():
         raise FileNotFoundError(errno.ENOENT, "no policy here (a run directory holds policy.pt)"
                                 if path.is_dir() else "no such policy file", str(file))

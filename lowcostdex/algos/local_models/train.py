@@ -70,7 +70,7 @@ from lowcostdex.algos.local_models.tvlg import (
     tvlg_iteration,
 )
 from lowcostdex.algos.samplers import EVAL_STREAM, TRAIN_STREAM, EnvFactory, RolloutJob
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, InputError
 from lowcostdex.options import robot_selection
 
 Array = NDArray[np.float64]
@@ -314,7 +314,12 @@ def load_controller(
 ) -> tuple[LinearGaussianController, FixedStart, TVLGTrainConfig]:
     """The final controller of a run directory, its start state and the run's config."""
     run_dir = Path(run_dir)
-    config = TVLGTrainConfig.from_dict(ex.read_json(run_dir / ex.CONFIG_FILE))
+    stored = ex.read_json(run_dir / ex.CONFIG_FILE)
+    if not isinstance(stored, dict) or "n_rollouts" not in stored:  # no TVLG run's config
+        trainer = ex._trainer_of(stored) if isinstance(stored, dict) else "another program"
+        raise InputError(f"{run_dir} is a run of {trainer}, not of 'train tvlg': load its "
+                         f"policy with lowcostdex.algos.train.load_policy({str(run_dir)!r})")
+    config = TVLGTrainConfig.from_dict(stored)
     with np.load(run_dir / CONTROLLER_FILE, allow_pickle=False) as data:
         arrays = dict(data)
     ctl = LinearGaussianController.from_arrays(
