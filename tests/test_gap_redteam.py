@@ -79,31 +79,20 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # lag the 1 ms replay cannot resolve) holds both since stepsize.goal_timing (gap-truth7, session
 # 14, 130 s wall): gain 0.6989 [0.6981, 0.7316], viscous 0.0807 [0.0789, 0.0915].
 
+# backlash_output_pendulum was 'extra' (width 0.0181 [0.0146, 0.0219] for 0.0436 plus
+# inertia_error 0.909 and coulomb_friction 0.016) and backlash_output_damped_pendulum 'interval'
+# (width 0.0224 [0.0178, 0.0252]): the catalogue's play kept the joint's damping on the rotor's
+# rate while this servo's D reads the output, outside its force range; replayed at the true width
+# the play was worse than the nominal (12.6-15.4 vs 6.4-7.7 mrad per episode at 2 ms). With the
+# nominal joint damping read across the play with ``sensor`` (gap-bl9, session 15: 1.7-2.1 mrad
+# at 2 ms, 0.8-1.0 at 0.25 ms): both exact, width 0.04541 [0.0421, 0.04564], held-out 5.73 ->
+# 0.90 mrad (floor 0.71); damped: width 0.04409 [0.03466, 0.04631], viscous 0.2500 [0.2431,
+# 0.2508], held-out 155.4 -> 1.55 mrad (floor 0.70); the two cases 562 s CPU, 36 min wall at
+# load 8-13.
+
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
     # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
-    # session 14 (gap-truth7): the truth fixed to put the joint's damping once, on the output
-    # (its loop's D, outside the force range); until then the motor joint kept it too (an
-    # unnamed extra 0.25 N m s/rad) and the loop's D sat inside the clip: that case missed
-    # (viscous_damping 0.065, gain_error 0.59, mass_error 0.59; held-out 69.3 -> 16.2 mrad).
-    "backlash_output_pendulum": "extra (gap-truth7, session 14, 720 s wall at load 7-13): "
-                                "backlash width 0.0181 [0.0146, 0.0219] (truth 0.0436) plus "
-                                "inertia_error 0.909 and coulomb_friction 0.016; held-out "
-                                "6.84 -> 2.96 mrad (floor 0.71). The catalogue's play keeps the "
-                                "joint's damping on the motor side while this servo reads its "
-                                "D on the output: replayed at the true width with sensor 1 it "
-                                "is worse than the nominal (12.6-15.4 vs 6.4-7.7 mrad per "
-                                "episode at 2 ms; with the joint damping read across the play "
-                                "as well, 9-12 mrad); on a scratch truth with the damping on "
-                                "the motor side the same replay gives 1.5-2.3 mrad",
-    "backlash_output_damped_pendulum": "interval (gap-truth7, session 14, 362 s wall; the "
-                                       "two cases 315 s CPU): named exactly, viscous 0.2501 "
-                                       "[0.2435, 0.2506] holds 0.25, "
-                                       "held-out 155.4 -> 1.92 mrad (floor 0.70), but the "
-                                       "play's width 0.0224 [0.0178, 0.0252] misses 0.0436: "
-                                       "half the damping reads the output, which the "
-                                       "catalogue's play does not model (as "
-                                       "backlash_output_pendulum)",
     "queue_mass_arm2_posonly": "miss (held-out set: run on 122e4e2, 2026-11-26, and again by "
                                "gap-check8 on 60147ce, session 14, 317 s CPU, same result): "
                                "torque_limit + latency + backlash named, the link mass x1.5 "

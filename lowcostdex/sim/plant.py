@@ -290,8 +290,12 @@ class _PlantBase:
                     with np.errstate(divide="ignore", invalid="ignore"):
                         key_state["kv_kp"] = np.where(
                             g > 0, -self.array("actuator_biasprm")[..., a, 2] / g, 0.0)
+                    key_state["damping"] = self.nominal("dof_damping")[b.targets.dofs]
                 sub = b.cls.command(b.targets, b.values, ctrl[..., a], key_state, self.rng)
-                for k in ("setpoint", "qpos", "qvel", "kv_kp"):
+                if (tq := key_state.pop("torque", None)) is not None:  # outside the force range
+                    h = b.targets.has_play
+                    self.qfrc_applied[..., b.targets.dofs[h]] = tq[..., h]
+                for k in ("setpoint", "qpos", "qvel", "kv_kp", "damping"):
                     key_state.pop(k, None)
                 for k, v in key_state.items():
                     self._state[f"{b.cls.name}:{k}"] = v
@@ -485,6 +489,8 @@ class Plant(_PlantBase):
     def qfrc_bias(self) -> np.ndarray:
         return self.data.qfrc_bias
 
+    qfrc_applied = property(lambda self: self.data.qfrc_applied)  # an (nv,) view
+
     @property
     def time(self) -> float:
         return float(self.data.time)
@@ -555,7 +561,8 @@ class BatchPlant(_PlantBase):
         self.nsim = nsim
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._views = {n: self.batch.bind(n) for n in ("qpos", "qvel", "ctrl", "act", "time",
-                                                       "actuator_force", "qfrc_bias", "history")}
+                                                       "actuator_force", "qfrc_bias", "history",
+                                                       "qfrc_applied")}
         self._init_effects()
         self.set_effects(effects)
         self.set_servo_period(servo_period)
@@ -590,6 +597,8 @@ class BatchPlant(_PlantBase):
     @property
     def qfrc_bias(self) -> np.ndarray:
         return self._views["qfrc_bias"]
+
+    qfrc_applied = property(lambda self: self._views["qfrc_applied"])  # (nsim, nv)
 
     @property
     def act(self) -> np.ndarray:
