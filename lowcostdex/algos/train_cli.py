@@ -99,6 +99,9 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
 def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
     d = PPOConfig()
     p.add_argument("--env", default=d.env_id, help="gymnasium id (sim; default %(default)s)")
+    p.add_argument("--backend", choices=BACKENDS, default="sim",
+                   help="sim only: PPO steps many simulated copies together (the other trainers "
+                        "take emulated and hardware)")
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--resume", action="store_true",
@@ -126,6 +129,10 @@ def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
 
 def ppo_config_from_args(args: argparse.Namespace) -> PPOConfig:
     """Build a PPOConfig from parsed ``lowcostdex train ppo`` arguments."""
+    if getattr(args, "backend", "sim") != "sim":  # one --backend vocabulary across `train`
+        raise ConfigError(f"train ppo runs on the batched simulator only (--backend sim); on "
+                          f"the {args.backend} robot train npg or dapg (`lowcostdex train npg "
+                          f"--backend {args.backend} ...`)")
     check_resume(args.out, args.resume)
     d = PPOConfig()
     return PPOConfig(

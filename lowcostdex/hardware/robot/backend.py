@@ -420,6 +420,9 @@ class HardwareBackend(RobotBackend):
                  reorient: Reorient | None = None, **bus_kwargs: Any):
         if task is None or port is None:
             raise ConfigError("HardwareBackend needs the task and port=... (e.g. /dev/ttyUSB0)")
+        if port == "emulated":  # the CLI's spelling of the emulated robot, given to gym.make
+            raise ConfigError("port='emulated' names no serial port: for the emulated D'Claw use "
+                              "backend='emulated' (no port); for a real one port='/dev/ttyUSB0'")
         if task.hand.name != "dclaw":
             raise ConfigError(f"HardwareBackend drives a D'Claw on Dynamixels, not the "
                               f"{task.hand.name}; gym.make(..., backend='hardware') picks the "

@@ -1,0 +1,38 @@
+"""Careless command lines (issue 13 item 6, one option vocabulary), session 15."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import pytest
+
+import lowcostdex  # noqa: F401  (registers the ids)
+from lowcostdex.cli import main
+from lowcostdex.errors import ConfigError
+
+
+@pytest.mark.parametrize("backend", ["emulated", "hardware"])
+def test_train_ppo_on_a_robot_backend_says_which_trainers_take_it(backend, tmp_path, capsys):
+    """`train npg|dapg|tvlg` take --backend; `train ppo` said 'unrecognized arguments'."""
+    out = tmp_path / "run"
+    code = main(["train", "ppo", "--backend", backend, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    assert err.strip() == (f"lowcostdex train ppo: error: train ppo runs on the batched simulator "
+                           f"only (--backend sim); on the {backend} robot train npg or dapg "
+                           f"(`lowcostdex train npg --backend {backend} ...`)")
+    assert not out.exists()
+
+
+def test_train_ppo_takes_backend_sim(tmp_path, capsys):
+    # the option is taken; the run stops at the next check (--n-iter 0), before any work
+    code = main(["train", "ppo", "--backend", "sim", "--n-iter", "0", "--out", str(tmp_path / "r")])
+    assert code == 2
+    assert "n_iter=0 must be an integer" in capsys.readouterr().err
+
+
+def test_gym_make_hardware_with_the_port_emulated_names_the_emulated_backend():
+    """The CLI's `--port emulated` given to gym.make's hardware backend tried to open a serial
+    port named 'emulated'."""
+    with pytest.raises(ConfigError, match="port='emulated' names no serial port: for the "
+                                          "emulated D'Claw use backend='emulated'"):
+        gym.make("lowcostdex/DClawTurnValve-v0", backend="hardware", port="emulated")
