@@ -23,8 +23,9 @@ tip mass. Per actuator kind (``KINDS``) the nominal numbers are a servo of that 
   goal = clip(KP_M (target - reading) - KD_M (reading - last reading) / row interval, +-1).
 - ``position``: ``<position kp kv forcerange>`` kp 5, kv 0.1, +-2 N m.
 - ``general``: ``<general gainprm="kp" biasprm="0 -kp -kv" forcerange>`` kp 4, kv 0.08.
-- ``dcmotor``: MuJoCo's own ``<dcmotor input="pos" nominal="12 1.5 6" controller="kp 0 kd">``
-  (kp 4, kd 0.1; back-EMF and the 12 V clamp are MuJoCo's).
+- ``dcmotor``: MuJoCo's own ``<dcmotor input="pos" nominal="12 1.5 6" controller="kp 0 kd 0 0
+  12">`` (kp 4, kd 0.1; back-EMF and the drive clamped at Vmax 12 V are MuJoCo's: without a
+  Vmax its controller is not clamped at all, a 6 N m push from a 1.5 N m motor).
 
 Hidden effects, written here from their physics (``Effect.kind``):
 
@@ -167,7 +168,7 @@ def model_xml(kind: str, case: Case | None = None, timestep: float = MODEL_DT) -
     elif kind == "dcmotor":
         act = (f'<dcmotor name="{ACTUATOR}" joint="{JOINT}" input="pos" '
                f'nominal="{p["volts"]:.9g} {f:.9g} {p["no_load"]:.9g}" '
-               f'controller="{p["kp"] * gain:.9g} 0 {p["kv"]:.9g}"/>')
+               f'controller="{p["kp"] * gain:.9g} 0 {p["kv"]:.9g} 0 0 {p["volts"]:.9g}"/>')
     else:
         kp = p["kp"] * gain
         act = (f'<general name="{ACTUATOR}" joint="{JOINT}" gaintype="fixed" biastype="affine" '

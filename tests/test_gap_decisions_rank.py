@@ -164,3 +164,17 @@ def test_a_parameter_that_does_not_act_on_these_actuators_is_not_probed():
           _ctx([1.0, 1.5]))
     _same(_probes(eng, "velocity_limit"),
           [_col(vl, "scale", j, math.exp(0.01)) for j in (0, 1)])
+
+
+def test_a_candidate_with_every_parameter_held_scores_zero_instead_of_failing():
+    # a user's own MuJoCo dcmotor written without a drive limit (controller Vmax 0: unclamped)
+    # has a stall torque K Vmax / R of 0, so coulomb_friction's level is held at 0 (its range
+    # tops at the stall) with its creep and asymmetry: no column to replay. Until session 15
+    # ranking then stopped the analysis (ValueError: need at least one array to stack; redteam
+    # sim4 gain05_dcmotor before its truth got a Vmax); it now scores 0, the others as before
+    eng = _Recorder()
+    table, _ = _rank(eng, SEGS, fitmod.Structure((), JOINTS), np.zeros(0),
+                     ["coulomb_friction", "position_offset"], _ctx([0.0, 0.0]))
+    assert [c.effect for c in table] == ["coulomb_friction", "position_offset"]
+    assert table[0].score == 0.0 and table[1].score > 0
+    assert _probes(eng, "coulomb_friction") == []

@@ -256,20 +256,23 @@ def test_the_backward_bootstrap_draws_from_the_configured_seed_or_the_given_gene
 
 # -- the backward search (_joint_then_prune) on the _analyze loop's stand-in ----------------------
 
-def test_the_backward_search_prunes_a_joint_fit_stuck_on_a_search_bound(loop):
+def test_the_backward_search_widens_a_joint_fit_stuck_on_a_search_bound(loop):
     """Data 0.45 pA + 0.35 pB + 0.01 n. Round 1 accepts position_offset (value 0.45); the
     forward steps then stop (mounting_offset's round-2 score 0.01 < min_gain). The forward model
     leaves sqrt((0.35^2 + 0.01^2) / 2) = 0.25 rad on the select split, far above backward_above
     x 1 mrad, so the round-1 candidates (scores 0.9 and 0.5 >= min_gain) are fitted together:
     mounting_offset's search range ends at 0.3 rad (fit.space), short of 0.35, so its joint fit
-    sits on that bound and the pruning drops it (an implausible fit). What is left is the
-    forward model itself: no switch, the forward verdict stands."""
+    sits on that bound. Until session 15 the pruning dropped it there as an implausible fit and
+    the forward model stood (0.25 rad left); issue 11 item 2: a fit at a range's edge is a reason
+    to widen it, never to drop the effect. The pruning refits it in the range widened toward its
+    0.8 rad hard limit (gates.widen_at_bounds): both offsets, at their true values."""
     scores = {"position_offset": 0.9, "mounting_offset": [0.5, 0.01]}
     res = loop(0.45, 0.35, 0.01, floor=0.001, search="both", scores=scores)
-    assert "backward_search" in res.timing  # the search ran ...
-    assert [c.effect for c in res.causes] == ["position_offset"]  # ... and changed nothing
+    assert "backward_search" in res.timing  # the search ran and switched
+    assert [c.effect for c in res.causes] == ["position_offset", "mounting_offset"]
     assert res.causes[0].params["offset"]["value"] == pytest.approx([0.45], abs=1e-6)
-    assert res.stop_reason == "no candidate signature explains the residual"
+    assert res.causes[1].params["offset"]["value"] == pytest.approx([0.35], abs=1e-6)
+    assert "backward search from position_offset, mounting_offset kept" in res.stop_reason
 
 
 def test_a_final_fit_that_lands_on_a_search_bound_is_refitted_in_a_widened_range(loop, monkeypatch):

@@ -33,16 +33,12 @@ import gap_truth_sim4 as sim  # noqa: E402
 FAST = ("clean_velocity",)
 
 # what the analysis named instead, per case it misses (bench/gap_redteam4.py --threads 1)
-MISSES: dict[str, str] = {
-    "latency050_offsetm020_position": "miss (gap-judge9, main 8283b8a, 209 s wall, 49 s CPU): "
-                                      "latency 48.4 ms [33.9, 61.8] named, the -0.2 rad "
-                                      "reading offset not: chosen first (offset -0.192, select "
-                                      "MSE -75.7 %), latency second (select RMSE 0.83 mrad), "
-                                      "then 'dropped by the backward pass: position_offset' "
-                                      "(its search range is +-0.2 rad: the joint refit sits on "
-                                      "the bound, which _backward drops as implausible instead "
-                                      "of widening); held-out 259 -> 200 mrad",
-}
+MISSES: dict[str, str] = {}
+# latency050_offsetm020_position was a miss on 8283b8a (latency 48.4 ms alone, held-out 259 ->
+# 200 mrad: the -0.2 rad offset, chosen first, sat on its +-0.2 search bound once the latency
+# was fitted beside it and the backward pass dropped it as implausible); since
+# gates.widen_at_bounds (gap-judge9, session 15; 54 s CPU) exact: offset -0.2000 [-0.20017,
+# -0.19984], latency 50.3 ms [48.7, 50.9], held-out 1.0 mrad.
 
 
 def _params():

@@ -50,7 +50,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
-from lowcostdex.gap import significance, stepsize, width_scan
+from lowcostdex.gap import gates, significance, stepsize, width_scan
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
 from lowcostdex.gap.diagnostics import (
     effective_n,
@@ -309,8 +309,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 c.params = {p: v.tolist() for e in t.effects() if e.name == n
                             for p, v in e.values.items()}
             # candidates the select split cannot tell apart from the best (within ``tie`` of its
-            # MSE) are equivalent explanations: the earliest in the canonical list is named, the
-            # others are reported with it
+            # MSE) are equivalent: the earliest in the canonical list is named, the rest reported
             # a fit that ends at a (non-null) bound is not a plausible explanation (04-sysid.md
             # 4.3 (b)): it compensates for something else; such candidates are not named
             plausible = {n: r for n, r in results.items()
@@ -397,9 +396,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 sel_eps, [current.to_effects(cur_x)])[0])[0], sel_cur[1], sel_cur[2])
 
     # ---- backward search: the top-ranked candidates fitted together, then pruned ------------
-    # Effects that only help in combination (a friction model needs the right inertia) are
-    # invisible to one-at-a-time forward steps; the pruned joint model replaces the forward one
-    # only when it lowers the select MSE by another ``min_gain``.
+    # Effects only helping together (a friction model needs the right inertia) are invisible to
+    # forward steps; the pruned joint model replaces the forward one if it gains ``min_gain``.
     fwd_rmse = math.sqrt(sel_cur[0].sum() / sel_cur[2].sum())
     if cfg.search == "both" and rounds and not quiet and fwd_rmse > cfg.backward_above * floor_rms:
         t0 = time.perf_counter()
@@ -414,8 +412,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     alt.to_effects(alt_x)])[0])[0]
                 base_sse = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0]
                 rel_base, _ = select_gain_ci(base_sse, sse_alt, rng, cfg.bootstrap)
-                # the switch must be visible: the two models' predictions differ by more than
-                # the noise floor (effects that cancel each other cannot sneak in)
+                # the switch must be visible: predictions differ by more than the noise floor
                 switch = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x),
                                       alt.to_effects(alt_x))
                 better = (sse_alt.sum() < (1 - cfg.min_gain) * sel_cur[0].sum()
@@ -586,8 +583,8 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
     r0 = res[0]
     table = []
     for name in remaining:
-        g = np.stack([res[i + 1] - r0 for i, o in enumerate(owner) if o == name], axis=1)
-        table.append(CandidateResult(name, score_fraction(r0, g)))
+        g = [res[i + 1] - r0 for i, o in enumerate(owner) if o == name]  # none: all held null
+        table.append(CandidateResult(name, score_fraction(r0, np.stack(g, 1)) if g else 0.0))
     return table, float(np.sqrt(np.mean(r0 * r0)))
 
 
@@ -601,13 +598,16 @@ def _backward(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window],
     An effect is redundant when leaving it out of the current model (others unchanged) raises
     the select MSE by less than ``min_gain / 2`` (on the select split, on each of its goal-shift
     probes, or on the training segments) or changes the predictions by less than
-    ``min_effect`` noise floors; an effect whose fit sits at a parameter bound is implausible and
-    goes first; so is one whose absence does not raise the select error significantly (the
-    5 % bound of the paired block bootstrap, ``significance.paired_gain_bound``, at or below 0).
-    The rest are ordered by the smallest of those rises without them.
-    """
-    rng = rng if rng is not None else np.random.default_rng([cfg.seed, 1])
+    ``min_effect`` noise floors; an effect whose fit sits at a parameter bound after widening
+    (``gates.widen_at_bounds``) is implausible and goes first; so is one whose absence does not
+    raise the select error significantly (the 5 % bound of the paired block bootstrap,
+    ``significance.paired_gain_bound``, at or below 0). The rest are ordered by the smallest of
+    those rises without them."""
+    rng, tried = rng if rng is not None else np.random.default_rng([cfg.seed, 1]), set()
     while len(current.effects) > min_size:
+        current, cur_x, edge = gates.widen_at_bounds(current, cur_x, fit_fn, ctx, cfg.max_rounds,
+                                                     tried)
+        tried |= edge
         effs = current.to_effects(cur_x)
         full = eng.predict(sel_eps, [effs])[0]
         sse_full = mse_by_episode(ds, sel_eps, full)[0].sum()
