@@ -36,3 +36,27 @@ def test_gym_make_hardware_with_the_port_emulated_names_the_emulated_backend():
     with pytest.raises(ConfigError, match="port='emulated' names no serial port: for the "
                                           "emulated D'Claw use backend='emulated'"):
         gym.make("lowcostdex/DClawTurnValve-v0", backend="hardware", port="emulated")
+
+
+def test_a_gap_report_s_effects_json_is_taken_by_the_effects_options(tmp_path, capsys):
+    """README: the extended model's effects.json is what the emulator loads. `emulate --effects`
+    and `record-log --effects` refused it ('must hold a JSON list of effects, got dict'): they
+    read a bare list only. The file here is written by the gap analysis's own writer."""
+    from lowcostdex.gap.extension import save_extended
+    from lowcostdex.sim.effects import AppliedEffect
+    from lowcostdex.sim.effects.randomization import read_effects
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    named = [AppliedEffect.from_dict({"effect": "latency", "joints": ["ff_top", "ff_middle"],
+                                      "params": {"delay": [0.01, 0.02]}}),
+             AppliedEffect.from_dict({"effect": "coulomb_friction", "joints": ["ff_top"],
+                                      "params": {"frictionloss": [0.05]}})]
+    folder = save_extended(tmp_path / "report" / "extended",
+                           {"model": build_dclaw("none").to_xml()}, named)
+    path = folder / "effects.json"
+    assert [e.to_dict() for e in read_effects(str(path))] == [e.to_dict() for e in named]
+    out = tmp_path / "logs"
+    code = main(["record-log", "--effects", str(path), "--logs", "1", "--seconds", "0.5",
+                 "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    assert (out / "log_0.csv").is_file()

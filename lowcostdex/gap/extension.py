@@ -32,9 +32,10 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, DomainRandomization, Targets, effect
+from lowcostdex.sim.effects.randomization import EXTENDED_MODEL_FORMAT
 from lowcostdex.sim.plant import Plant, prepare_spec
 
-FORMAT = "lowcostdex.extended_model"
+FORMAT = EXTENDED_MODEL_FORMAT
 # Model-field effects MuJoCo's spec can hold (copy_back writes them; latency is an actuator delay).
 MJCF_EXPRESSIBLE = ("latency", "coulomb_friction", "viscous_damping", "gain_error",
                     "torque_limit", "velocity_limit", "inertia_error", "mass_error")

@@ -197,9 +197,14 @@ DEFAULT_DR_EFFECTS: tuple[str, ...] = (
 )
 
 
+EXTENDED_MODEL_FORMAT = "lowcostdex.extended_model"
+"""The ``format`` of a gap report's ``extended/effects.json`` (``lowcostdex.gap.extension``)."""
+
+
 def read_effects(path: str) -> list[AppliedEffect]:
-    """The effects in a JSON file (a list of ``AppliedEffect.to_dict()`` objects), as the
-    ``--effects FILE`` options take them; raises InputError naming the file and the entry."""
+    """The effects in a JSON file (a list of ``AppliedEffect.to_dict()`` objects, or the
+    ``effects`` of a gap report's ``extended/effects.json``), as the ``--effects FILE`` options
+    take them; raises InputError naming the file and the entry."""
     import json
 
     from lowcostdex.errors import InputError
@@ -213,9 +218,12 @@ def read_effects(path: str) -> list[AppliedEffect]:
         raise InputError(f"--effects {path}: not a readable JSON file ({exc}); it holds a list "
                          'of effects like [{"effect": "latency", "joints": ["ff_top"], '
                          '"params": {"delay": 0.02}}]') from None
+    if (isinstance(data, dict) and data.get("format") == EXTENDED_MODEL_FORMAT
+            and isinstance(data.get("effects"), list)):
+        data = data["effects"]  # a gap report's extended/effects.json: the effects it named
     if not isinstance(data, list):
-        raise InputError(f"--effects {path}: must hold a JSON list of effects, got "
-                         f"{type(data).__name__}")
+        raise InputError(f"--effects {path}: must hold a JSON list of effects (or be a gap "
+                         f"report's extended/effects.json), got {type(data).__name__}")
     out = []
     for i, d in enumerate(data):
         try:
