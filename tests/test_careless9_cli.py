@@ -60,3 +60,9 @@ def test_a_gap_report_s_effects_json_is_taken_by_the_effects_options(tmp_path, c
                  "--out", str(out)])
     assert code == 0, capsys.readouterr().err
     assert (out / "log_0.csv").is_file()
+    # and gym.make's effects= takes the file's path (was "must be a list of effects")
+    env = gym.make("lowcostdex/DClawTurnValve-v0", backend="emulated", effects=str(path))
+    try:
+        assert [e.to_dict() for e in env.unwrapped.backend.effects] == [e.to_dict() for e in named]
+    finally:
+        env.close()

@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -468,8 +469,13 @@ def as_settings(cls: type, value: Any, name: str) -> Any:
 
 def as_effects(effects: Any) -> list[AppliedEffect]:
     """An emulated robot's ``effects``: a list of ``AppliedEffect``s or their ``to_dict()``
-    mappings. One effect, an effect's name or a mapping is refused naming the form (iterating
-    them read a name's letters or a dict's keys as effects)."""
+    mappings, or the path of a JSON file of them (``read_effects``: a list, or a gap report's
+    extended/effects.json). One effect, an effect's name or a mapping is refused naming the form
+    (iterating them read a name's letters or a dict's keys as effects)."""
+    if isinstance(effects, (str, os.PathLike)) and str(effects).endswith(".json"):
+        from lowcostdex.sim.effects.randomization import read_effects
+
+        return read_effects(str(effects))
     if isinstance(effects, (str, bytes, Mapping, AppliedEffect)) or not isinstance(
             effects, Iterable):
         raise ConfigError(f"effects={effects!r:.80} must be a list of effects: AppliedEffect "
