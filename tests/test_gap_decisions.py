@@ -79,8 +79,11 @@ def offset_case(root):
 
 
 def _gain(baseline: float, extended: float, floor: float) -> Gain:
+    # a 95 % interval about the gain, clear of zero when the gain is (the verdict reads it)
+    ci = (0.5 * (baseline - extended), 1.5 * (baseline - extended))
     return Gain(baseline, extended, baseline, extended, baseline - extended,
-                (baseline - extended) / baseline, (0.0, 0.0), (0.0, 0.0), floor, None, 3)
+                (baseline - extended) / baseline, ci, (ci[0] / baseline, ci[1] / baseline),
+                floor, None, 3)
 
 
 def test_verdict_words_follow_the_numbers():
@@ -313,8 +316,10 @@ def test_gain_numbers_at_the_edges():
     g = _gain(0.01, 0.004, 0.001)
     assert g.to_dict() == {
         "baseline_rmse": 0.01, "extended_rmse": 0.004, "baseline_mae": 0.01,
-        "extended_mae": 0.004, "absolute": 0.006, "relative": 0.6, "ci95": [0.0, 0.0],
-        "relative_ci95": [0.0, 0.0], "noise_floor": 0.001, "reducible_explained": None,
+        "extended_mae": 0.004, "absolute": 0.006, "relative": 0.6,
+        "ci95": [pytest.approx(0.003), pytest.approx(0.009)],  # _gain's: 0.5 and 1.5 x the gain
+        "relative_ci95": [pytest.approx(0.3), pytest.approx(0.9)], "noise_floor": 0.001,
+        "reducible_explained": None,
         "episodes": 3}
 
 

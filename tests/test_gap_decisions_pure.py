@@ -45,7 +45,10 @@ class _DS:
 
 def _gain(rb: float, re: float, floor: float) -> Gain:
     rel = (rb - re) / rb
-    return Gain(rb, re, rb, re, rb - re, rel, (0.0, 0.0), (0.0, 0.0), floor, None, 2)
+    # a 95 % interval about the gain, clear of zero when the gain is (the verdict reads it: a
+    # gain whose interval reaches zero is "no reliable gain")
+    ci = (0.5 * (rb - re), 1.5 * (rb - re))
+    return Gain(rb, re, rb, re, rb - re, rel, ci, (ci[0] / rb, ci[1] / rb), floor, None, 2)
 
 
 # -- verdicts -------------------------------------------------------------------------------------
@@ -70,6 +73,29 @@ def test_named_causes_with_the_held_out_error_before_and_after():
     # 4 mrad -> 1 mrad: 75 % lower
     assert verdict_text(causes, _gain(4e-3, 1e-3, 1e-3), "x") == (
         "latency, coulomb_friction: held-out RMSE 0.004 -> 0.001 rad (75 % lower)")
+
+
+def test_a_gain_worse_on_most_episodes_or_with_an_interval_through_zero_is_no_reliable_gain():
+    # issue 11 item 5: Pham XL330's analysis read "79 % lower" while the extended model was worse
+    # on 3 of its 4 test episodes and the gain's interval crossed zero
+    causes = [Cause("gain_error", ("j0",), {})]
+    g = Gain(0.01, 0.0021, 0.01, 0.0021, 0.0079, 0.79, (-0.001, 0.02), (-0.1, 0.9), 1e-3, None,
+             4)
+    text = verdict_text(causes, g, "x", worse=3)
+    assert text.startswith("gain_error: no reliable gain (held-out RMSE 0.01 -> 0.0021 rad; ")
+    assert "worse than the nominal model on 3 of 4 test episodes" in text
+    assert "interval [-1, 20] mrad includes zero" in text and "not recommended" in text
+    assert "% lower" not in text
+    # better on 3 of 4 and an interval above zero: the gain stands
+    ok = Gain(0.01, 0.0021, 0.01, 0.0021, 0.0079, 0.79, (0.002, 0.02), (0.2, 0.9), 1e-3, None, 4)
+    assert verdict_text(causes, ok, "x", worse=1).endswith("(79 % lower)")
+    # worse on 2 of 4 is not "most"; 3 of 4 is, whatever the interval says
+    assert "no reliable gain" not in verdict_text(causes, ok, "x", worse=2)
+    assert "on 3 of 4 test episodes" in verdict_text(causes, ok, "x", worse=3)
+    # one test episode has no interval: its sign decides
+    one = Gain(0.01, 0.012, 0.01, 0.012, -0.002, -0.2, (-0.002, -0.002), (-0.2, -0.2), 1e-3,
+               None, 1)
+    assert "no lower than the nominal" in verdict_text(causes, one, "x", worse=0)
 
 
 # -- the held-out gain ----------------------------------------------------------------------------

@@ -491,7 +491,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             c.equivalent = equivalents.get(e.name, [])
             c.widened = widened_notes.get(e.name, [])
             causes.append(c)
-    verdict = verdict_text(causes, gain, stop_reason)
+    verdict = verdict_text(causes, gain, stop_reason, int(np.sum(e_sse > b_sse)))
     timing["total"] = time.perf_counter() - t_start
     traces = _traces(ds, test_eps, base_test, ext_pred)
     prog("done", 1.0)

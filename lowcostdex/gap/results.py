@@ -356,7 +356,11 @@ def bound_flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
             for i, side in fitmod.at_bounds(s, u) if s.free[i].effect == name]
 
 
-def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str) -> str:
+def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str, worse: int = 0) -> str:
+    """The one-line verdict. ``worse``: the test episodes on which the extended model's error
+    is above the nominal one's. With causes, "no reliable gain" (the extended model not
+    recommended) when it is worse on most test episodes or the gain's 95 % interval over them
+    reaches zero (issue 11 item 5: Pham XL330 read "79 % lower" while worse on 3 of 4)."""
     if not causes:
         if gain.baseline_rmse > UNEXPLAINED * gain.noise_floor:
             return (f"discrepancy not explained by the candidate effects (held-out RMSE "
@@ -364,8 +368,19 @@ def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str) -> str:
                     f"the noise floor; the selection stopped: {stop_reason})")
         return "no significant discrepancy"
     names = ", ".join(c.effect for c in causes)
-    return (f"{names}: held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad "
-            f"({100 * gain.relative:.0f} % lower)")
+    nums = f"held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad"
+    why = []
+    if 2 * worse > gain.episodes:
+        why.append(f"worse than the nominal model on {worse} of {gain.episodes} test episodes")
+    if gain.episodes > 1 and gain.ci95[0] <= 0:
+        why.append(f"the gain's 95 % interval [{1e3 * gain.ci95[0]:.3g}, "
+                   f"{1e3 * gain.ci95[1]:.3g}] mrad includes zero")
+    if gain.absolute <= 0 and not why:
+        why.append("no lower than the nominal model's")
+    if why:
+        return (f"{names}: no reliable gain ({nums}; {'; '.join(why)}): the extended model is "
+                "not recommended")
+    return f"{names}: {nums} ({100 * gain.relative:.0f} % lower)"
 
 
 def timestep_note(timestep: dict) -> str:
