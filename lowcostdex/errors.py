@@ -29,6 +29,36 @@ class InputError(ConfigError):
     the value, in one line. The CLI prints it without a traceback and exits with code 2."""
 
 
+class KeywordError(ConfigError, TypeError):
+    """A settings class called with a keyword it does not have (a typo): a ConfigError naming the
+    closest settings, and a TypeError as Python's own refusal of the keyword is."""
+
+
+def keyword_hints(cls: type) -> type:
+    """Class decorator for a settings dataclass (put it above ``@dataclass``): a keyword that is
+    not one of its fields raises :class:`KeywordError` naming the closest ones (``n_iters`` ->
+    "did you mean n_iter?") and listing the valid ones, instead of Python's bare TypeError."""
+    import dataclasses
+    import difflib
+    import functools
+
+    init = cls.__init__
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+
+    @functools.wraps(init)
+    def __init__(self, *args, **kwargs):  # noqa: N807
+        unknown = [k for k in kwargs if k not in names]
+        if unknown:
+            close = difflib.get_close_matches(unknown[0], names, n=2, cutoff=0.6)
+            hint = f"; did you mean {' or '.join(close)}?" if close else ""
+            raise KeywordError(f"{cls.__name__} has no setting {unknown[0]!r}{hint} (valid: "
+                               f"{', '.join(names)})")
+        init(self, *args, **kwargs)
+
+    cls.__init__ = __init__
+    return cls
+
+
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C stopped a command that keeps what it finished: the message says what is kept and
     the command that continues (the CLI prints ``interrupted (Ctrl-C); <message>``, exit 130)."""

@@ -313,3 +313,42 @@ def test_an_npg_run_given_to_load_controller_names_load_policy(tmp_path):
     with pytest.raises(InputError, match=r"is a run of 'train npg/dapg', not of 'train tvlg': "
                                          r"load its policy with .*load_policy"):
         load_controller(run)
+
+
+# ------------------------------------------------------------------------------------------------
+# a misspelt keyword on a settings class
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: TrainConfig(algo="npg", n_iters=5), "TrainConfig has no setting 'n_iters'; did you "
+                                                 "mean n_iter"),
+    (lambda: NPGConfig(stepsize=0.05), "NPGConfig has no setting 'stepsize'; did you mean "
+                                       "step_size?"),
+    (lambda: BCConfig(epoch=5), "BCConfig has no setting 'epoch'; did you mean epochs"),
+    (lambda: GapConfig(seeds=1), "GapConfig has no setting 'seeds'; did you mean seed?"),
+    (lambda: TVLGTrainConfig(n_rollout=5), "TVLGTrainConfig has no setting 'n_rollout'; did you "
+                                           "mean n_rollouts"),
+    (lambda: __import__("lowcostdex.hardware.robot.robot", fromlist=["RobotConfig"]).RobotConfig(
+        controlperiod=0.1), "RobotConfig has no setting 'controlperiod'; did you mean "
+                            "control_period?"),
+    (lambda: TrainConfig(algo="npg", colour="red"), "TrainConfig has no setting 'colour' (valid: "
+                                                    "algo, env_id"),
+], ids=["TrainConfig", "NPGConfig", "BCConfig", "GapConfig", "TVLGTrainConfig", "RobotConfig",
+        "no-close-match"])
+def test_a_misspelt_setting_names_the_closest_ones(make, message):
+    """Python said "__init__() got an unexpected keyword argument 'n_iters'", without the valid
+    names. The error is still a TypeError (as Python's) and a ConfigError (the CLI's one line)."""
+    with pytest.raises(ConfigError) as exc:
+        make()
+    assert isinstance(exc.value, TypeError)
+    assert message in str(exc.value)
+
+
+def test_settings_classes_still_build_copy_and_pickle():
+    import dataclasses
+    import pickle
+
+    config = TrainConfig(algo="dapg", demos="d.h5", n_iter=3, npg=NPGConfig(step_size=0.05))
+    assert dataclasses.replace(config, n_iter=4).n_iter == 4
+    assert pickle.loads(pickle.dumps(config)) == config
+    assert TrainConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config

@@ -28,6 +28,7 @@ from lowcostdex.errors import (
     check_keys,
     check_number,
     check_sizes,
+    keyword_hints,
 )
 
 ACTIVATIONS = ("tanh", "relu")
@@ -45,6 +46,7 @@ MAX_STEP_SIZE = 100.0
 tests/test_train.py wrecks a clone on purpose with 20)."""
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class PolicyConfig:
     """Architecture and initialisation of :class:`~lowcostdex.algos.policy.GaussianMLPPolicy`.
@@ -88,6 +90,7 @@ class PolicyConfig:
         return cls(**d)
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class BaselineConfig:
     """Value-function architecture and fit (:class:`~lowcostdex.algos.baseline.MLPBaseline`).
@@ -124,6 +127,7 @@ class BaselineConfig:
         return cls(**d)
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class NPGConfig:
     """Natural-gradient step settings (:mod:`lowcostdex.algos.npg`; mjrl defaults unless noted).
@@ -171,6 +175,7 @@ class NPGConfig:
 DEMO_WEIGHTS = ("paper", "mjrl")
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class DAPGConfig:
     """DAPG settings (:mod:`lowcostdex.algos.dapg`).
@@ -198,6 +203,7 @@ BC_LOSSES = ("mse", "mle")
 BC_LOG_STD = ("demo_spread", "residual", "keep")
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class BCConfig:
     """Behaviour-cloning settings (:mod:`lowcostdex.algos.bc`; hand_dapg: 5 epochs, batch 32,
@@ -244,6 +250,7 @@ OBS_NORMS = ("running", "frozen")
 SUCCESS_MODES = ("final", "any")
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class TrainConfig:
     """One NPG or DAPG run (:func:`lowcostdex.algos.train.train`).
@@ -415,6 +422,7 @@ class TrainConfig:
         return self.algo == "dapg" or self.bc_init
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class PPOConfig:
     """One PPO run (:func:`lowcostdex.algos.ppo.train`) on the batched simulator.

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice, check_number
+from lowcostdex.errors import ConfigError, check_choice, check_number, keyword_hints
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Split, Window
 from lowcostdex.gap.gain import Gain
@@ -24,6 +24,7 @@ from lowcostdex.sim.servo import MAX_SERVO_PERIOD
 UNEXPLAINED = 2.0
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class GapConfig:
     """Settings of one analysis.

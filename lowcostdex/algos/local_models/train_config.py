@@ -22,6 +22,7 @@ from lowcostdex.errors import (
     check_fields,
     check_keys,
     check_number,
+    keyword_hints,
 )
 
 Array = NDArray[np.float64]
@@ -38,6 +39,7 @@ MUTABLE_ON_RESUME = ("n_iter", "progress")
 """Config keys a resumed run may change."""
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class TaskCostConfig:
     """Quadratic cost of a goal-angle task (valve turning, screw), in state units.
@@ -114,6 +116,7 @@ class TaskCostConfig:
         return getattr(cls, name)()
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class TVLGTrainConfig:
     """One learned-local-model run on a fixed start state.

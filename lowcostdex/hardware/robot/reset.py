@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, LowcostdexError, check_fields
+from lowcostdex.errors import ConfigError, LowcostdexError, check_fields, keyword_hints
 from lowcostdex.hardware.robot.robot import Robot
 from lowcostdex.sim.envs.task import wrap_angle
 
@@ -47,6 +47,7 @@ class ResetFailed(LowcostdexError, RuntimeError):
                          f"{listed or 'no joint data'}{'; ' + detail if detail else ''}")
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class ResetConfig:
     """Reset tolerances, bounds and poses.

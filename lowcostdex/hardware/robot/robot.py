@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number
+from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number, keyword_hints
 from lowcostdex.hands import HandSpec, JointSpec
 from lowcostdex.hardware.bus import BusError, MotorBus, MotorFault, MotorState
 from lowcostdex.hardware.dynamixel.protocol import hardware_error_names
@@ -63,6 +63,7 @@ class ThermalTimeout(BusError):
     """The motors did not cool below the resume threshold within ``max_pause``."""
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class RobotConfig:
     """Robot settings.
