@@ -333,8 +333,14 @@ def test_an_npg_run_given_to_load_controller_names_load_policy(tmp_path):
                             "control_period?"),
     (lambda: TrainConfig(algo="npg", colour="red"), "TrainConfig has no setting 'colour' (valid: "
                                                     "algo, env_id"),
+    (lambda: __import__("lowcostdex.hardware.robot.guards", fromlist=["x"]).ThermalConfig(
+        warn_marg=10.0), "ThermalConfig has no setting 'warn_marg'; did you mean warn_margin?"),
+    (lambda: __import__("lowcostdex.sim.envs.dclaw_tasks", fromlist=["x"]).TurnConfig(
+        goal_ofset=1.0), "TurnConfig has no setting 'goal_ofset'; did you mean goal_offset"),
+    (lambda: __import__("lowcostdex.algos.local_models.mdgps", fromlist=["x"]).MDGPSConfig(
+        iteration=3), "MDGPSConfig has no setting 'iteration'; did you mean iterations?"),
 ], ids=["TrainConfig", "NPGConfig", "BCConfig", "GapConfig", "TVLGTrainConfig", "RobotConfig",
-        "no-close-match"])
+        "no-close-match", "ThermalConfig", "TurnConfig", "MDGPSConfig"])
 def test_a_misspelt_setting_names_the_closest_ones(make, message):
     """Python said "__init__() got an unexpected keyword argument 'n_iters'", without the valid
     names. The error is still a TypeError (as Python's) and a ConfigError (the CLI's one line)."""

@@ -17,11 +17,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from lowcostdex.algos.local_models.gmm import GaussianMixture, NIWPrior, fit_gmm, niw_prior
-from lowcostdex.errors import ConfigError, check_fields
+from lowcostdex.errors import ConfigError, check_fields, keyword_hints
 
 Array = NDArray[np.float64]
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class DynamicsConfig:
     """How the per-step dynamics and the GMM prior are fitted.

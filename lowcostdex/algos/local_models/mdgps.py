@@ -56,13 +56,14 @@ from lowcostdex.algos.local_models.traj_opt import (
 )
 from lowcostdex.algos.local_models.tvlg import laplace_cost
 from lowcostdex.algos.policy import GaussianMLPPolicy
-from lowcostdex.errors import ConfigError, check_choice, check_fields
+from lowcostdex.errors import ConfigError, check_choice, check_fields, keyword_hints
 
 Array = NDArray[np.float64]
 POLICY_LOSSES = ("precision", "mse")
 _UPDATE = 17  # seed purpose of the update generator (GMM EM of dynamics and linearisation)
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class MDGPSConfig:
     """Settings of MDGPS.

@@ -26,7 +26,7 @@ from lowcostdex.algos.local_models.lqr import (
     kl_per_step,
     lqr_backward,
 )
-from lowcostdex.errors import ConfigError, LowcostdexError, check_fields
+from lowcostdex.errors import ConfigError, LowcostdexError, check_fields, keyword_hints
 
 # Bounds of the per-iteration change of step_mult (the improvement model's validity range).
 STEP_CHANGE_MIN = 0.1
@@ -37,6 +37,7 @@ class TrajOptError(LowcostdexError, ArithmeticError):
     """The KL-constrained LQR could not produce a controller (NaN model or eta overflow)."""
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class TrajOptConfig:
     """KL trust region and dual search.

@@ -37,11 +37,12 @@ from lowcostdex.algos.local_models.traj_opt import (
     kl_constrained_update,
     step_mult_update,
 )
-from lowcostdex.errors import ConfigError, check_fields
+from lowcostdex.errors import ConfigError, check_fields, keyword_hints
 
 Array = NDArray[np.float64]
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class TVLGConfig:
     """Settings of the learned-local-model optimiser.

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number
+from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number, keyword_hints
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.bus import WatchdogTripped as WatchdogTripped  # its home is hardware.bus
 from lowcostdex.hardware.dynamixel.control_table import load_control_table
@@ -41,6 +41,7 @@ class PositionOutOfLimits(BusError):
     """Torque-on refused: the motor sits outside its position limits (moved by hand?)."""
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class DynamixelConfig:
     """Driver settings.

@@ -37,11 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice, check_fields
+from lowcostdex.errors import ConfigError, check_choice, check_fields, keyword_hints
 
 PAUSE_MODES = ("torque_off", "hold")
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class ThermalConfig:
     """Thermal guard thresholds, as margins below the firmware shutdown temperature.
@@ -82,6 +83,7 @@ class ThermalConfig:
             raise ConfigError("ThermalConfig: poll_interval and max_pause must be > 0")
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class CurrentConfig:
     """Current (overload) guard.

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, keyword_hints
 from lowcostdex.hardware.robot.reset import ResetConfig, ResetFailed, ResetReport, StageResult, move
 from lowcostdex.hardware.robot.reset_dclaw import DClawReset
 from lowcostdex.hardware.robot.robot import Robot
@@ -25,6 +25,7 @@ Reorient = Callable[[Robot, Tracker, np.ndarray], None]
 (e.g. the learned flip policy run once more: two 180 deg flips about one axis are the identity)."""
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class FlipResetConfig:
     """Flip-block reset: the three-finger squeeze and its verification.

@@ -20,6 +20,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from lowcostdex.errors import keyword_hints
 from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.sim.envs.hand_env import HandEnv, make_hand_env
 from lowcostdex.sim.envs.task import VALVE_BOUNDS, Goal, Task, TaskSpec, check_settings
@@ -34,6 +35,7 @@ def _norm(x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(np.square(x), axis=-1))
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class AllegroTurnConfig:
     """Valve-turning goal distribution for the Allegro.

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, keyword_hints
 from lowcostdex.hands import HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.envs.task import (
@@ -58,6 +58,7 @@ class DClawTask(Task):
         return {"pose": -1.0 * _norm(q - RESET_POSE), "velocity": -1.0 * _norm(fast)}
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class TurnConfig:
     """Valve-turning goal distribution.
@@ -155,6 +156,7 @@ class TurnValve(ValveTask):
         return qpos, np.zeros(self.model.nv), {"angle": np.asarray(goal, float)}
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class ScrewConfig:
     """Screw tracking: the goal angle moves at ``speed`` rad/s from the initial angle.
@@ -201,6 +203,7 @@ class Screw(ValveTask):
         return {**goal, "angle": goal["start"] + goal["speed"] * period * step}
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class FlipConfig:
     """Block flipping.
