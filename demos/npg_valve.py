@@ -59,4 +59,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    run_script(main)  # a user's mistake is one line and exit code 2, not a traceback
+    run_script(main, on_interrupt="the same command with --resume continues it")

@@ -31,7 +31,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.demonstrations.cli",
 )
 # the exit codes live in the core (lowcostdex.errors) so that any layer can name them
-from lowcostdex.errors import INTERRUPTED, USER_ERROR, Interrupted  # noqa: E402
+from lowcostdex.errors import INTERRUPTED, USER_ERROR  # noqa: E402
 
 PATH_OPTIONS = ("out", "json", "demos", "spec", "effects", "model", "port", "log", "holdout")
 """Options that name a file, folder or device: an empty one is refused (``Path("")`` is the
@@ -115,11 +115,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     return guarded(prog, lambda: args.func(args), debug)
 
 
-def guarded(prog: str, call: Callable[[], object], debug: bool = False) -> int:
+def guarded(prog: str, call: Callable[[], object], debug: bool = False,
+            on_interrupt: str | None = None) -> int:
     """Run ``call()`` under the one error path; its exit code (``None`` is 0).
 
     A ``LowcostdexError`` or a path that cannot be opened prints ``{prog}: error: ...`` (exit 2),
-    Ctrl-C prints one line (exit 130); ``debug`` adds the traceback. Any other exception is a bug
+    Ctrl-C prints one line (exit 130; ``on_interrupt`` is added to it: how to go on);
+    ``debug`` adds the traceback. Any other exception is a bug
     and propagates. A ``SystemExit`` (argparse's own one-line errors) passes through.
     """
     from lowcostdex.errors import LowcostdexError
@@ -138,11 +140,13 @@ def guarded(prog: str, call: Callable[[], object], debug: bool = False) -> int:
             raise
         return _report(prog, f"cannot open {exc.filename}: {exc.strerror}", debug, USER_ERROR)
     except KeyboardInterrupt as exc:  # an Interrupted says what is kept and how to go on
-        more = f"; {exc}" if isinstance(exc, Interrupted) and str(exc) else ""
+        more = f"; {exc}" if str(exc) else ""  # a trainer's names its run and checkpoint
+        if on_interrupt:
+            more += f"; {on_interrupt}"
         return _report(prog, f"interrupted (Ctrl-C){more}", debug, INTERRUPTED)
 
 
-def run_script(script_main: Callable[[], object]) -> NoReturn:
+def run_script(script_main: Callable[[], object], on_interrupt: str | None = None) -> NoReturn:
     """The entry point of a script in ``demos/``: ``script_main()`` under the CLI's error path.
 
     A user's mistake (a bad option value, a missing file, a port that is not there) is one line
@@ -155,7 +159,7 @@ def run_script(script_main: Callable[[], object]) -> NoReturn:
     if debug:
         sys.argv = [sys.argv[0], *(a for a in argv if a != "--debug")]
     prog = Path(sys.argv[0]).name
-    sys.exit(guarded(prog, script_main, debug))
+    sys.exit(guarded(prog, script_main, debug, on_interrupt))
 
 
 def _report(prog: str, message: str, debug: bool, code: int) -> int:

@@ -107,3 +107,34 @@ def test_the_dapg_demo_records_into_an_out_folder_it_makes(tmp_path, monkeypatch
     code = _run("dapg_kinesthetic_valve.py", ["--demos", "4", "--out", str(out)], monkeypatch)
     assert code == 3
     assert asked == [("record-demos", True, "4")]
+
+
+@pytest.mark.parametrize("script, how", [
+    ("npg_valve.py", "the same command with --resume continues it"),
+    ("dapg_kinesthetic_valve.py", "the same command continues it (it resumes the run in --out)"),
+])
+def test_ctrl_c_in_a_demo_says_what_is_kept_and_how_to_go_on(script, how, tmp_path, capsys,
+                                                            monkeypatch):
+    """Ctrl-C during training: one line with the run's checkpoint (the trainer's message) and
+    how to continue, exit 130. Before: a KeyboardInterrupt traceback."""
+    import lowcostdex.algos.train as train_module
+    from lowcostdex.algos.experiment import Interrupted
+
+    out = tmp_path / "out"
+    ckpt = out / "checkpoints" / "ckpt_000003.pt"
+
+    def ctrl_c(config, run_dir, *args, **kwargs):  # the trainer, stopped after iteration 3
+        raise Interrupted(Path(run_dir), 3, ckpt)
+
+    monkeypatch.setattr(train_module, "train", ctrl_c)
+    argv = ["--out", str(out)]
+    if script.startswith("dapg"):  # a demo file of the user's: no recording first
+        demos = tmp_path / "mine.h5"
+        demos.write_bytes(b"")
+        argv += ["--demos", str(demos)]
+    code = _run(script, argv, monkeypatch)
+    err = capsys.readouterr().err
+    assert code == 130 and "Traceback" not in err
+    line = err.strip().splitlines()[-1]
+    assert line.startswith(f"{script}: error: interrupted (Ctrl-C); training in ")
+    assert f"interrupted; checkpoint after iteration 3: {ckpt}; {how}" in line
