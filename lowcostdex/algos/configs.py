@@ -437,6 +437,11 @@ class PPOConfig:
       num_envs: copies stepped together (episodes per iteration).
       gamma, gae_lambda: discount and GAE lambda.
       lr: Adam learning rate (eps 1e-5); ``anneal_lr`` decays it linearly to 0 over n_iter.
+        1e-3, not cleanrl's 3e-4 (tuned for 1M-step locomotion with 64-sample minibatches): on
+        the D'Claw valve (40-step episodes, 160-sample minibatches), seeds 0-2, 1e-3 reached 80 %
+        training success in 141-166k samples where 3e-4 took 333-387k (seeds 1-2) and NPG
+        332-384k; 3e-3 was slower (clip fraction 0.8), as were 64 envs at 1e-3
+        (bench/RESULTS.md, flip8's section, session 15).
       update_epochs: passes over each iteration's samples.
       num_minibatches: minibatches per pass.
       clip_coef: the ratio clip epsilon (also clips the value change when ``clip_vloss``).
@@ -464,7 +469,7 @@ class PPOConfig:
     num_envs: int = 32
     gamma: float = 0.99
     gae_lambda: float = 0.95
-    lr: float = 3e-4
+    lr: float = 1e-3
     anneal_lr: bool = True
     update_epochs: int = 10
     num_minibatches: int = 8

@@ -16,6 +16,8 @@ discounted return); differences, each for this project:
   observation normaliser is the running one, so ``policy.pt`` loads with
   :func:`lowcostdex.algos.train.load_policy` and runs wherever NPG/DAPG policies run (robots, the
   main job, evaluations); the critic reads the same normalised observations;
+- the learning rate is 1e-3, not 3e-4: on the valve's 40-step episodes it reaches 80 % training
+  success in less than half the samples (:class:`~lowcostdex.algos.configs.PPOConfig`);
 - the initial exploration noise is a config value (-1.0 log-std by default, as for NPG: see
   :class:`~lowcostdex.algos.configs.TrainConfig`), not cleanrl's std 1;
 - the run directory, metrics, best-policy tracking and summary are the other trainers'
