@@ -339,8 +339,10 @@ def test_an_npg_run_given_to_load_controller_names_load_policy(tmp_path):
         goal_ofset=1.0), "TurnConfig has no setting 'goal_ofset'; did you mean goal_offset"),
     (lambda: __import__("lowcostdex.algos.local_models.mdgps", fromlist=["x"]).MDGPSConfig(
         iteration=3), "MDGPSConfig has no setting 'iteration'; did you mean iterations?"),
+    (lambda: __import__("lowcostdex.teachers", fromlist=["x"]).ValveTeacherConfig(gian=1.0),
+     "ValveTeacherConfig has no setting 'gian'"),
 ], ids=["TrainConfig", "NPGConfig", "BCConfig", "GapConfig", "TVLGTrainConfig", "RobotConfig",
-        "no-close-match", "ThermalConfig", "TurnConfig", "MDGPSConfig"])
+        "no-close-match", "ThermalConfig", "TurnConfig", "MDGPSConfig", "ValveTeacherConfig"])
 def test_a_misspelt_setting_names_the_closest_ones(make, message):
     """Python said "__init__() got an unexpected keyword argument 'n_iters'", without the valid
     names. The error is still a TypeError (as Python's) and a ConfigError (the CLI's one line)."""

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, keyword_hints
 from lowcostdex.sim.envs.task import Goal, wrap_angle
 from lowcostdex.sim.kinematics import AllegroFingerGeometry
 from lowcostdex.teachers.binding import bound_task, check_call
@@ -28,6 +28,7 @@ from lowcostdex.teachers.valve import (
 ALLEGRO_PUSHERS = ("index", "middle", "ring")
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class AllegroTeacherConfig:
     """Strokes of the Allegro valve teacher (lengths [m], angles [rad]).

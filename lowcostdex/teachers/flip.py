@@ -39,7 +39,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, keyword_hints
 from lowcostdex.hands import DCLAW_FINGERS
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE, quat_rotate
 from lowcostdex.sim.envs.task import Goal
@@ -61,6 +61,7 @@ def _mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class FlipTeacherConfig:
     """Motions of the flip teacher (lengths [m], angles [rad]).

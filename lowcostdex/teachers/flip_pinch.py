@@ -40,13 +40,14 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, keyword_hints
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
 from lowcostdex.sim.envs.task import Goal
 from lowcostdex.teachers.binding import check_call
 from lowcostdex.teachers.flip import UP, FlipBlockTeacher, FlipTeacherConfig
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class PinchFlipConfig:
     """Settings of the pinched flip teacher (lengths [m], angles [rad]).

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, keyword_hints
 from lowcostdex.sim.envs.hand_env import HandEnv, goal_to_action
 from lowcostdex.sim.envs.task import Goal
 from lowcostdex.teachers.binding import bound_task, check_call
@@ -52,6 +52,7 @@ DEFAULT_VARIANTS: tuple[FlipTeacherConfig, ...] = tuple(
 (seeds 0-39, noise-free), tried in this order."""
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class FlipPlanConfig:
     """Settings of the planned flip teacher.

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, keyword_hints
 from lowcostdex.hands import DCLAW_FINGERS
 from lowcostdex.sim.envs.task import Goal, wrap_angle
 from lowcostdex.sim.kinematics import FingerGeometry
@@ -42,6 +42,7 @@ RETURN, PUSH, RISE, LOWER, WAIT = "return", "push", "rise", "lower", "wait"
 # Valve turning
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class ValveTeacherConfig:
     """Strokes of the valve-turning teacher (lengths [m], angles [rad]).
