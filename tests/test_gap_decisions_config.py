@@ -30,6 +30,7 @@ OK_AND_BAD = [
     ("max_rounds", 1, 0, "max_rounds"),
     ("bootstrap", 1, 0, "bootstrap"),
     ("joint_k", 0, -1, "joint_k"),
+    ("exchange_k", 0, -1, "exchange_k"),
     ("seed", 0, -1, "seed"),
     ("nthread", 0, -1, "nthread"),
     ("rank_tie", 0.0, -0.01, "rank_tie"),

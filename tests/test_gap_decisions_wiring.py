@@ -69,7 +69,8 @@ def test_progress_names_each_stage_with_its_scheduled_fraction(loop):
 
 def test_progress_of_a_backward_search(loop):
     # the forward steps stop in round 2 (mounting_offset's score 0.01 < min_gain); the backward
-    # search (0.8) then fits both together
+    # search (0.8) then fits both together; with two causes kept above backward_above noise
+    # floors, each is tried against the others in its place (the exchange step, 0.82)
     calls = []
     loop(0.05, 0.03, 0.01, floor=0.001, search="both",
          scores={"position_offset": 0.9, "mounting_offset": [0.5, 0.01]},
@@ -79,6 +80,7 @@ def test_progress_of_a_backward_search(loop):
         ("round 1: ranking 2 candidates", 0.1),
         ("round 2: ranking 1 candidates", 0.35),
         ("backward search from the top candidates", 0.8),
+        ("exchange: each accepted cause against what the model without it needs", 0.82),
         ("final refit on train + select", 0.85),
         ("held-out test", 0.95),
         ("done", 1.0)]
@@ -94,12 +96,14 @@ def test_timings_are_wall_seconds_of_each_stage_within_the_total(loop):
     assert tm["total"] <= wall
     # the stages run one after the other inside the total
     assert tm["baseline"] + tm["round1"] + tm["round2"] + tm["final_fit"] <= tm["total"]
-    # the round that stops the selection is timed too; a backward search has its own entry
+    # the round that stops the selection is timed too; a backward search has its own entry, and
+    # so has the exchange step after it (two causes above backward_above noise floors)
     res = loop(0.05, 0.03, 0.01, floor=0.001, search="both",
                scores={"position_offset": 0.9, "mounting_offset": [0.5, 0.01]})
     tm = res.timing
-    assert set(tm) == {"baseline", "round1", "backward_search", "final_fit", "total"}
-    assert tm["baseline"] + tm["round1"] + tm["backward_search"] + tm["final_fit"] <= tm["total"]
+    assert set(tm) == {"baseline", "round1", "backward_search", "exchange", "final_fit", "total"}
+    assert (tm["baseline"] + tm["round1"] + tm["backward_search"] + tm["exchange"]
+            + tm["final_fit"] <= tm["total"])
     assert all(v >= 0 for v in tm.values())
 
 

@@ -58,6 +58,7 @@ from lowcostdex.gap.diagnostics import (
     residual_diagnostics,
     score_fraction,
 )
+from lowcostdex.gap.exchange import effect_size, replace_standins, switch_pays
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
 from lowcostdex.gap.gates import drop_weak, free_asymmetry, hold_sensor, swap_equivalent
 from lowcostdex.gap.logs import rate_goal_actuators
@@ -76,7 +77,6 @@ from lowcostdex.gap.selection import (
     fit_batches,
     mse_by_episode,
     probe_gains,
-    select_gain_ci,
     select_results,
 )
 from lowcostdex.gap.stepsize import refine as _refine_step
@@ -325,8 +325,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     if (1 - plausible[n][0]) <= (1 - top_gain) * (1 + cfg.tie) + 1e-12]
             n_best = min(tied, key=lambda n: CAUSES.index(n))
             rel, low, sse = results[n_best]
-            size = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x)
-                                if current.effects else [], best_track[n_best].effects())
+            size = effect_size(eng.predict, train_eps + sel_eps, current.to_effects(cur_x)
+                               if current.effects else [], best_track[n_best].effects())
             by_name[n_best].effect_rms = size
             significant = rel >= cfg.min_gain and low > -cfg.min_gain
             if significant:  # ... and over consecutive blocks of select data (paired)
@@ -407,33 +407,36 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         if len(big) > max(len(current.effects), 1):
             alt, alt_x = _joint_then_prune(eng, ds, sel_eps, big, current, cur_x, cfg,
                                            floor_rms, ctx, fit_fn, train_segs, blk_rng)
-            if alt.effects:
-                sse_alt = mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [
-                    alt.to_effects(alt_x)])[0])[0]
-                base_sse = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0]
-                rel_base, _ = select_gain_ci(base_sse, sse_alt, rng, cfg.bootstrap)
-                # the switch must be visible: predictions differ by more than the noise floor
-                switch = _effect_size(eng, train_eps + sel_eps, current.to_effects(cur_x),
-                                      alt.to_effects(alt_x))
-                better = (sse_alt.sum() < (1 - cfg.min_gain) * sel_cur[0].sum()
-                          and rel_base >= cfg.min_gain and switch >= cfg.min_effect * floor_rms)
-                if better:  # ... on the data it was fitted to too
-                    ra, rc = eng.residuals(train_segs, [alt.to_effects(alt_x),
-                                                        current.to_effects(cur_x)])
-                    tg = 1 - float(ra @ ra) / max(float(rc @ rc), 1e-300)
-                    better = tg >= cfg.min_gain
-                if better:  # ... and it pays on the probes too
-                    probe = probe_gains(eng.rep.run, ds, sel_eps, current.to_effects(cur_x),
-                                        alt.to_effects(alt_x), cfg.probes)
-                    better = min(probe, default=math.inf) >= cfg.min_gain
-                if better:
-                    stop_reason += (f"; backward search from {', '.join(big)} kept "
-                                    f"{', '.join(alt.effects)} (select MSE "
-                                    f"{100 * (1 - sse_alt.sum() / sel_cur[0].sum()):.0f} % below "
-                                    "the forward model's)")
-                    current, cur_x = alt, alt_x
-                    sel_cur = (sse_alt, sel_cur[1], sel_cur[2])
+            base_sse = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0]
+            better, sse_alt = switch_pays(
+                eng, ds, sel_eps, train_eps + sel_eps, train_segs, current.to_effects(cur_x),
+                alt.to_effects(alt_x), sel_cur[0].sum(), base_sse, cfg, floor_rms, rng
+            ) if alt.effects else (False, None)
+            if better:
+                stop_reason += (f"; backward search from {', '.join(big)} kept "
+                                f"{', '.join(alt.effects)} (select MSE "
+                                f"{100 * (1 - sse_alt.sum() / sel_cur[0].sum()):.0f} % below "
+                                "the forward model's)")
+                current, cur_x = alt, alt_x
+                sel_cur = (sse_alt, sel_cur[1], sel_cur[2])
         timing["backward_search"] = time.perf_counter() - t0
+
+    # ---- exchange: an accepted stand-in replaced by what the model without it needs ------
+    if (cfg.search == "both" and cfg.exchange_k and rounds and not quiet and len(current.effects) > 1
+            and math.sqrt(sel_cur[0].sum() / sel_cur[2].sum()) > cfg.backward_above * floor_rms):
+        t0, rsegs = time.perf_counter(), _subset(ds, train_segs, cfg.rank_seconds)
+        prog("exchange: each accepted cause against what the model without it needs", 0.82)
+        current, cur_x, sse, why = replace_standins(
+            eng, ds, sel_eps, train_eps + sel_eps, train_segs, current, cur_x, cands,
+            lambda st, x, names: _rank(eng, rsegs, st, x, names, ctx)[0], fit_fn, sel_cur[0],
+            mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])[0], cfg, ctx,
+            floor_rms, np.random.default_rng([cfg.seed, 2]))
+        if why:  # ... and what the exchange left redundant pruned
+            sel_cur, stop_reason = (sse, sel_cur[1], sel_cur[2]), stop_reason + why
+            current, cur_x = _backward(eng, ds, sel_eps, current, cur_x, cfg, floor_rms, ctx,
+                                       fit_fn, dropped := [], train_segs, rng=blk_rng)
+            stop_reason += f"; then dropped: {', '.join(dropped)}" if dropped else ""
+        timing["exchange"] = time.perf_counter() - t0
 
     current, cur_x, why = swap_equivalent(current, cur_x, fit_fn, lambda ms: [mse_by_episode(
         ds, sel_eps, p)[0].sum() for p in eng.predict(sel_eps, ms)], cfg, ctx, equivalents)
@@ -677,15 +680,6 @@ def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]
     k = max(1, int(round(len(segs) * seconds / total)))
     idx = np.unique(np.linspace(0, len(segs) - 1, k).round().astype(int))
     return [segs[i] for i in idx]
-
-
-def _effect_size(eng: _Engine, eps: Sequence[Window], cur: Sequence[AppliedEffect],
-                 new: Sequence[AppliedEffect]) -> float:
-    """RMS difference between two models' open-loop predictions on ``eps`` [rad]: how visible
-    a change of model is (train and select episodes: visibility is not a held-out claim)."""
-    a, b = eng.predict(eps, [list(cur), list(new)])
-    d = np.concatenate([(x - y).ravel() for x, y in zip(a, b, strict=True)])
-    return float(np.sqrt(np.mean(d * d)))
 
 
 def _traces(ds: Dataset, eps: Sequence[Window], base: Sequence[np.ndarray],

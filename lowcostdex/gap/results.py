@@ -68,6 +68,11 @@ class GapConfig:
         together and prune them backward, keeping that model when it is clearly better.
       backward_above: run that backward search only when the forward model's select RMSE is
         above this many noise floors (otherwise there is nothing left to explain).
+      exchange_k: after the forward selection and backward search, each accepted cause of a
+        model still above ``backward_above`` noise floors is tried against the ``exchange_k``
+        best-ranked candidates in its place and against nothing in its place, every parameter
+        refitted (``gap.exchange``: a first-round stand-in, a torque limit for a heavier arm,
+        is replaced when the change pays as the backward search's switch must). 0: off.
       joint_k: from the second round on, the best ``joint_k`` screened candidates (fitted with
         the accepted effects held) are refitted jointly with them.
       segment: multiple-shooting segment length for fitting [s].
@@ -119,6 +124,7 @@ class GapConfig:
     probes: tuple[float, ...] = (0.01, 0.02, 0.03)
     rank_seconds: float = 12.0
     joint_k: int = 3
+    exchange_k: int = 3
     tie: float = 0.002
     search: str = "both"
     backward_above: float = 1.5
@@ -176,7 +182,7 @@ class GapConfig:
                               f"step; 0: off), got {self.interval_step}")
 
 
-_INTEGERS = {"top_k": 1, "max_effects": 1, "max_rounds": 1, "bootstrap": 1, "joint_k": 0,
+_INTEGERS = {"top_k": 1, "max_effects": 1, "max_rounds": 1, "bootstrap": 1, "joint_k": 0, "exchange_k": 0,
              "seed": 0, "nthread": 0}
 _REALS = {"rank_tie": 0.0, "min_gain": 0.0, "floor_margin": 0.0, "min_effect": 0.0,
           "explain_above": 0.0,
