@@ -273,6 +273,8 @@ def test_the_backward_search_widens_a_joint_fit_stuck_on_a_search_bound(loop):
     assert res.causes[0].params["offset"]["value"] == pytest.approx([0.45], abs=1e-6)
     assert res.causes[1].params["offset"]["value"] == pytest.approx([0.35], abs=1e-6)
     assert "backward search from position_offset, mounting_offset kept" in res.stop_reason
+    assert res.causes[1].widened == ["offset[j0] reached a search bound in the backward pass: "
+                                     "range widened to [-0.3, 0.8]"]  # said, not silent
 
 
 def test_a_final_fit_that_lands_on_a_search_bound_is_refitted_in_a_widened_range(loop, monkeypatch):

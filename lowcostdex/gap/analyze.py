@@ -492,7 +492,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             c.heldout_mae_after = float(sae.sum() / n.sum())
             c.flags = bound_flags(final_track.structure, final_track.u, e.name)
             c.equivalent = equivalents.get(e.name, [])
-            c.widened = widened_notes.get(e.name, [])
+            c.widened = widened_notes.get(e.name) or gates.widened_lines(ctx, e.name, joints)
             causes.append(c)
     verdict = verdict_text(causes, gain, stop_reason, int(np.sum(e_sse > b_sse)))
     timing["total"] = time.perf_counter() - t_start

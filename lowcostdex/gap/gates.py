@@ -224,3 +224,11 @@ def widen_at_bounds(s: fitmod.Structure, x: np.ndarray, residual: fitmod.Residua
         return s, x, names
     ctx.widened.update(ranges)
     return t.structure, t.x, names
+
+
+def widened_lines(ctx: fitmod.Context, name: str, joints: Sequence[str]) -> list[str]:
+    """Report lines for the ranges of effect ``name`` that ``ctx`` holds widened without a line
+    of their own (widened in the backward pass, ``widen_at_bounds``)."""
+    return [f"{param}[{joints[j]}] reached a search bound in the backward pass: range widened to "
+            f"[{lo:.4g}, {hi:.4g}]" for (n, param, j), (lo, hi) in sorted(ctx.widened.items())
+            if n == name]
