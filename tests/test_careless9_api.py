@@ -360,3 +360,18 @@ def test_settings_classes_still_build_copy_and_pickle():
     assert dataclasses.replace(config, n_iter=4).n_iter == 4
     assert pickle.loads(pickle.dumps(config)) == config
     assert TrainConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config
+
+
+@pytest.mark.parametrize("given", [{"algo": "npg"}, "config.json", None])
+def test_train_given_something_else_than_a_config_names_the_form(given, tmp_path):
+    """Was TypeError 'asdict() should be called on dataclass instances' from dataclasses."""
+    with pytest.raises(ConfigError, match=r"train\(\) takes a TrainConfig, not .*from_dict"):
+        train(given, tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+
+
+def test_tvlg_train_given_a_dict_names_the_form(tmp_path):
+    from lowcostdex.algos.local_models.train import train as train_tvlg
+
+    with pytest.raises(ConfigError, match=r"takes a TVLGTrainConfig, not dict"):
+        train_tvlg({"n_iter": 1}, tmp_path / "run")

@@ -372,6 +372,10 @@ def train(
         returns True that iteration becomes the last one (evaluated, checkpointed), e.g. to
         stop a benchmark run some iterations after it reached a success rate.
     """
+    if not isinstance(config, TrainConfig):  # asdict() raised a TypeError about dataclasses
+        raise ConfigError(f"train() takes a TrainConfig, not {type(config).__name__}: "
+                          "TrainConfig(algo='npg', ...), or TrainConfig.from_dict(d) for a dict "
+                          "(a JSON config)")
     ex.Run.check(out_dir, dataclasses.asdict(config), resume=resume,
                  mutable_keys=MUTABLE_ON_RESUME)
     if env_factory is None:

@@ -121,6 +121,9 @@ def train(
       env_factory: overrides the env built from ``config.env_id``/``backend``.
       stop_after: stop after this iteration index as if killed (tests of resume).
     """
+    if not isinstance(config, TVLGTrainConfig):
+        raise ConfigError(f"train() takes a TVLGTrainConfig, not {type(config).__name__}: "
+                          "TVLGTrainConfig(...), or TVLGTrainConfig.from_dict(d) for a dict")
     ex.Run.check(out_dir, dataclasses.asdict(config), resume=resume,
                  mutable_keys=MUTABLE_ON_RESUME)
     if env_factory is None:
