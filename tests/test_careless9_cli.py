@@ -66,3 +66,10 @@ def test_a_gap_report_s_effects_json_is_taken_by_the_effects_options(tmp_path, c
         assert [e.to_dict() for e in env.unwrapped.backend.effects] == [e.to_dict() for e in named]
     finally:
         env.close()
+
+
+def test_gym_make_a_dclaw_on_hardware_with_a_can_channel_names_the_port():
+    """The Allegro's keyword on a D'Claw said 'needs the task and port=...'."""
+    with pytest.raises(ConfigError, match="channel='can0' is the Allegro's CAN channel; a "
+                                          "D'Claw is on a serial port"):
+        gym.make("lowcostdex/DClawTurnValve-v0", backend="hardware", channel="can0")

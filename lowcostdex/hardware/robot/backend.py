@@ -419,6 +419,9 @@ class HardwareBackend(RobotBackend):
                  reset_config: ResetConfig = ResetConfig(), tracker: Tracker | None = None,
                  flip_config: FlipResetConfig = FlipResetConfig(),
                  reorient: Reorient | None = None, **bus_kwargs: Any):
+        if port is None and "channel" in bus_kwargs:
+            raise ConfigError(f"channel={bus_kwargs['channel']!r} is the Allegro's CAN channel; "
+                              "a D'Claw is on a serial port: port='/dev/ttyUSB0'")
         if task is None or port is None:
             raise ConfigError("HardwareBackend needs the task and port=... (e.g. /dev/ttyUSB0)")
         if port == "emulated":  # the CLI's spelling of the emulated robot, given to gym.make
