@@ -60,6 +60,13 @@ def test_npg_trained_on_the_robot_dapg_in_simulation_and_bc_beats_chance(smoke):
     assert config["backend"] == "sim" and t["dapg"]["trained_in"] == "simulation"
     assert config["env_kwargs"]["randomize"] == list(DEFAULT_DR_EFFECTS)
     assert t["dapg"]["robot_hours"] == 0 and t["dapg"]["robot"] == {}
+    # the gap stage ran first: DAPG's iterates (and the clone) were validated in the simulation
+    # it identified, the effects it named held at their values, not in the randomized one
+    assert t["dapg"]["validated_in"]["sim"] == "gap-identified"
+    named = {c["effect"] for c in r["gap"]["causes"]}
+    assert named and set(config["eval_env_kwargs"]["randomize"]["effects"]) == named
+    assert "ran in another simulation: the gap stage's identified model" in (
+        out / "report.md").read_text()
     npg_config = json.loads((out / "train_npg" / "config.json").read_text())
     assert npg_config["backend"] == "emulated"
     # Chance is measured: uniformly random actions on the same robot, on the same held-out

@@ -277,6 +277,11 @@ class TrainConfig:
         evaluated one, so late iterates, which differ by several successes in 100 episodes from
         one iteration to the next, all compete (bench/RESULTS.md, "The main job's DAPG
         validated at every late iterate").
+      eval_env_kwargs: the evaluations' own ``gym.make`` keyword arguments (instead of
+        ``env_kwargs``; ``backend`` "sim" only): the policy is chosen in another simulation
+        than the one it trains in, e.g. one with the robot's identified effects
+        (``lowcostdex.main_job.gapsim``); the clone's evaluation (``eval_bc``) runs there too.
+        None: the training env.
       checkpoint_every: checkpoint period [iterations] (the last iteration always saves).
       demos: demonstration dataset (:mod:`lowcostdex.demonstrations.file`; its successful episodes are
         used), required for DAPG; for NPG, ``bc_init`` uses it.
@@ -342,6 +347,7 @@ class TrainConfig:
     eval_every: int = 5
     eval_episodes: int = 10
     eval_dense_from: int | None = None
+    eval_env_kwargs: dict[str, Any] | None = None
     checkpoint_every: int = 1
     demos: str | None = None
     n_demos: int | None = None
@@ -394,6 +400,11 @@ class TrainConfig:
         for name in ("bootstrap_truncated", "bc_init", "eval_bc", "eval_paired", "progress"):
             check_bool(name, getattr(self, name))
         _check_env(self.env_id, self.env_kwargs)
+        if self.eval_env_kwargs is not None:
+            _check_env(self.env_id, self.eval_env_kwargs)
+            if self.backend != "sim" or "backend" in self.eval_env_kwargs:
+                raise ConfigError(f"eval_env_kwargs: evaluations in their own env need backend "
+                                  f"'sim' (not {self.backend!r}) and take no 'backend' key")
         if self.demos is not None and not isinstance(self.demos, (str, os.PathLike)):
             raise ConfigError(f"demos={self.demos!r:.80} must be the path of a demonstration "
                               "file (.h5) or None")

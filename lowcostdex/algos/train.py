@@ -182,6 +182,13 @@ def default_env_factory(config: TrainConfig) -> EnvFactory:
     return EnvFactory(config.env_id, {"backend": config.backend, **config.env_kwargs})
 
 
+def evaluation_env_factory(config: TrainConfig) -> EnvFactory | None:
+    """The evaluations' own env (``config.eval_env_kwargs``), or None: the training env's."""
+    if config.eval_env_kwargs is None:
+        return None
+    return EnvFactory(config.env_id, {"backend": config.backend, **config.eval_env_kwargs})
+
+
 # ----------------------------------------------------------------------------------------------
 # The training loop
 
@@ -385,11 +392,15 @@ def train(
     run: ex.Run | None = None
     probe: SerialSampler | None = None
     sampler: Sampler | None = None
+    evaluator: Sampler | None = None  # the evaluations' own env (``eval_env_kwargs``)
     threads = torch.get_num_threads()
     try:
         # everything is validated before the run directory is written
         probe = SerialSampler(env_factory) if config.sampler != "serial" else None
         sampler = make_sampler(config, env_factory)
+        eval_factory = evaluation_env_factory(config)
+        if eval_factory is not None:
+            evaluator = SerialSampler(eval_factory)
         env = probe.env if probe is not None else sampler.env  # type: ignore[attr-defined]
         if demos is not None:
             check_demos(demos, config.demos, env, config.env_id)  # type: ignore[arg-type]
@@ -407,7 +418,7 @@ def train(
             clone = {"policy": state.policy.to_checkpoint()}
             ex.save_state(run.path / ex.BC_POLICY_FILE, clone)
             if config.eval_bc:  # the clone alone, before any RL sample
-                paths, metrics = _evaluate(config, sampler, state, 0, clone=True)
+                paths, metrics = _evaluate(config, evaluator or sampler, state, 0, clone=True)
                 bc.update(metrics, eval_episodes=len(paths))
                 errors = [p.final_goal_error for p in paths]
                 if all(np.isfinite(errors)):  # per episode, for a test against a baseline
@@ -420,7 +431,7 @@ def train(
         if ckpt is not None:
             _restore(state, ckpt)
             start = ckpt.iteration + 1
-        _loop(config, run, sampler, state, demos, start, stop_after, until)
+        _loop(config, run, sampler, state, demos, start, stop_after, until, evaluator)
     except BaseException as exc:
         stopped = ex.stopped(run, exc, resume)
         if stopped is exc:
@@ -428,7 +439,7 @@ def train(
         raise stopped from None
     finally:
         torch.set_num_threads(threads)
-        for s in (probe, sampler):
+        for s in (probe, sampler, evaluator):
             if s is not None:
                 s.close()
         if run is not None:
@@ -457,6 +468,7 @@ def _loop(
     start: int,
     stop_after: int | None,
     until: Callable[[Mapping[str, float]], bool] | None,
+    evaluator: Sampler | None = None,
 ) -> None:
     bar = _progress(config, start)
     last = config.n_iter - 1
@@ -489,7 +501,7 @@ def _loop(
                     or (config.eval_dense_from is not None and k >= config.eval_dense_from))
         row.update({ex.EVAL_SUCCESS_RATE: math.nan, ex.EVAL_RETURN_MEAN: math.nan})
         if evaluate:
-            eval_paths, metrics = _evaluate(config, sampler, state, k)
+            eval_paths, metrics = _evaluate(config, evaluator or sampler, state, k)
             row.update(metrics)
             latest = eval_paths[-1]
             state.best.consider(k, {**row, ex.SAMPLES: state.samples},

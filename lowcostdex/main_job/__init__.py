@@ -3,15 +3,17 @@
 1. bus: an emulated D'Claw comes up on a Dynamixel bus (the real dynamixel_sdk code path): scanned
    (ids, models, firmware, temperatures, errors) and calibrated against the default map;
 2. demos: the virtual teacher records kinesthetic demonstrations, auto-reset between episodes;
-3. train: DAPG from those demonstrations in simulation (MuJoCo with domain randomization over
+3. gap: an identification recording from the robot is compared with the nominal simulation; the
+   gap analysis names what differs (the emulated robot carries servo effects the nominal sim
+   lacks: ``robot_effects``), extends the model and measures the held-out gain;
+4. train: DAPG from those demonstrations in simulation (MuJoCo with domain randomization over
    the effect catalogue: ``Budget.dapg_sim``), starting from the best of several behaviour
-   clones on that simulation's validation episodes (``main_job.clones``), and NPG from scratch for comparison on the robot
+   clones on that simulation's validation episodes (``main_job.clones``), its iterates
+   validated in the simulation the gap stage identified (``main_job.gapsim``; in the training
+   simulation when the gap stage has not run), and NPG from scratch for comparison on the robot
    with its thermal guard and auto-resets active; the random actions, the clone, DAPG and NPG
    judged on the same held-out episodes of the robot (the run's policy is its best validated
    one); on the flip the DAPG policy's rollout is plotted (block orientation over time);
-4. gap: an identification recording from the robot is compared with the nominal simulation; the
-   gap analysis names what differs (the emulated robot carries servo effects the nominal sim
-   lacks: ``robot_effects``), extends the model and measures the held-out gain;
 5. report: ``report.md`` (and ``report.html``) with the PNG plots, in one output folder.
 
 ``--port /dev/ttyUSB0`` runs the same stages on a real D'Claw (kinesthetic demos then need a

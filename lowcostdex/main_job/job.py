@@ -27,8 +27,10 @@ from lowcostdex.options import add_robot_port_options, robot_port
 STAGES: tuple[tuple[str, Callable[[Context], dict[str, Any]]], ...] = (
     ("bus", stage_bus),
     ("demos", stage_demos),
-    ("train", stage_train),
+    # the gap stage before train: DAPG's iterates are validated in the simulation it
+    # identified (``gapsim.validation_sim``); train without it validates in its own sim
     ("gap", stage_gap),
+    ("train", stage_train),
     ("report", stage_report),
 )
 
@@ -90,7 +92,7 @@ def open_job(ctx: Context, stages: tuple[str, ...]) -> None:
         raise ConfigError(
             f"stage 'report' has nothing to report: no stage ran now or finished earlier in "
             f"{ctx.out}; run `lowcostdex main --out {ctx.out}` (all stages) or a subset of "
-            "--stages bus,demos,train,gap first (plus the same --task/--size/--seed)")
+            "--stages bus,demos,gap,train first (plus the same --task/--size/--seed)")
 
 
 def _write_results(ctx: Context) -> None:

@@ -89,9 +89,8 @@ def markdown_report(ctx: Context) -> str:
                       f"episodes ({d['samples']} samples, no robot time), each episode under "
                       "randomly drawn servo and model effects ("
                       + ", ".join(e.replace("_", " ") for e in d["randomized"])
-                      + f"); its validation ran in that simulation ({d['validation_episodes']} "
-                      "episodes). NPG trained on the robot. Every held-out episode below ran on "
-                      "the robot.", ""]
+                      + f"). {_validated_in_words(d)} NPG trained on the robot. Every "
+                      "held-out episode below ran on the robot.", ""]
             if "clones" in t:
                 lines += [_clones_words(t["clones"]), ""]
             if "streams" in t:
@@ -194,6 +193,20 @@ def _clones_words(c: dict[str, Any]) -> str:
             f"{c['seconds']} s ({c['cpu_seconds']} s of CPU) and no robot time. The clone "
             "row below is this chosen clone (not measured on the robot before the held-out "
             "episodes).")
+
+
+def _validated_in_words(dapg: dict[str, Any]) -> str:
+    """Which simulation validated DAPG's iterates and the clone, so chose DAPG's policy
+    (``results["train"]["dapg"]["validated_in"]``, ``gapsim.validation_sim``)."""
+    n = dapg.get("validation_episodes")
+    v = dapg.get("validated_in")
+    if not v or v.get("sim") != "gap-identified":
+        why = f" ({v['why']})" if v else ""
+        return (f"Its validation ({n} episodes), which chose DAPG's policy among its iterates "
+                f"and the clone, ran in that randomized simulation{why}.")
+    return (f"Its validation ({n} episodes), which chose DAPG's policy among its iterates and "
+            f"the clone, ran in another simulation: {v['why']}. The gap stage measured these "
+            "effects on the robot before training.")
 
 
 def _dense_words(dapg: dict[str, Any]) -> str:

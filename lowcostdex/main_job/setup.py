@@ -100,8 +100,9 @@ class SimTraining:
 
     Attributes:
       iters, traj: iterations and episodes per iteration.
-      eval_every, eval_episodes: validation in the same randomized simulation (one fixed
-        episode set, the clone competing).
+      eval_every, eval_episodes: validation (one fixed episode set, the clone competing) in
+        the simulation the gap stage identified when it ran before train
+        (``main_job.gapsim.validation_sim``), else in the same randomized simulation.
       dense_from: from this iteration index on, every iterate is validated too
         (``TrainConfig.eval_dense_from``); None: every ``eval_every`` only. See ``DENSE_FROM``.
       randomize: effect names (``DAPG_RANDOMIZE``).

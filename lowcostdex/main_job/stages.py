@@ -147,6 +147,7 @@ def stage_train(ctx: Context) -> dict[str, Any]:
     from lowcostdex.algos import experiment as ex
     from lowcostdex.algos.configs import DAPGConfig
     from lowcostdex.algos.train import TrainConfig, train
+    from lowcostdex.main_job.gapsim import validation_sim
 
     b = ctx.budget
     demos = ctx.out / ctx.results["demos"]["file"]
@@ -163,13 +164,15 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             backend = "sim"
             kwargs = {**ctx.setup.env_overrides, "randomize": list(sim.randomize)}
             iters, traj, every, episodes = sim.iters, sim.traj, sim.eval_every, sim.eval_episodes
+        validation = validation_sim(ctx) if sim is not None else None  # where it chooses
         config = TrainConfig(algo=algo, env_id=ctx.setup.env_id, backend=backend,
                              env_kwargs=kwargs, seed=ctx.seed, n_iter=iters,
                              n_traj=traj, eval_every=every, eval_episodes=episodes,
                              demos=str(demos) if algo == "dapg" else None,
                              eval_bc=algo == "dapg", dapg=DAPGConfig(lam0=DAPG_LAM0),
                              eval_paired=True,
-                             eval_dense_from=sim.dense_from if sim is not None else None)
+                             eval_dense_from=sim.dense_from if sim is not None else None,
+                             eval_env_kwargs=(validation or {}).get("env_kwargs"))
         if sim is not None and sim.clones > 1:
             # several clones, DAPG from the one that validates best in its simulation
             from lowcostdex.main_job.clones import choose_clone
@@ -214,6 +217,9 @@ def stage_train(ctx: Context) -> dict[str, Any]:
             "validation_every": every,
             "validation_dense_from": config.eval_dense_from,
             "validation_paired": config.eval_paired,
+            # which simulation chose the iterate (None: the run validated where it trained)
+            "validated_in": ({k: v for k, v in validation.items() if k != "env_kwargs"}
+                             if validation is not None else None),
             "policy": "the run's best validated policy",
             "wall_seconds": round(time.perf_counter() - t0, 1),
             "curves": f"{run_dir.name}/learning_curves.png",

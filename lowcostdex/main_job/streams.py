@@ -82,6 +82,7 @@ def train_streams(config: Any, first_dir: Path, runs: int,
     from lowcostdex.algos.samplers import SerialSampler
     from lowcostdex.algos.train import (
         default_env_factory,
+        evaluation_env_factory,
         evaluation_jobs,
         load_policy,
         train,
@@ -103,7 +104,8 @@ def train_streams(config: Any, first_dir: Path, runs: int,
         lasts.append(load_policy(run_dir / ex.FINAL_POLICY_FILE))
     avg = average_weights(lasts)
     ex.save_state(first_dir / AVERAGE_FILE, {"policy": avg.to_checkpoint()})
-    sampler = SerialSampler(env_factory or default_env_factory(config))
+    sampler = SerialSampler(evaluation_env_factory(config) or env_factory
+                            or default_env_factory(config))
     try:
         paths = sampler.sample(avg.snapshot(), evaluation_jobs(config, 0))
     finally:
