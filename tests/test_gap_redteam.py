@@ -90,15 +90,15 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # 0.2508], held-out 155.4 -> 1.55 mrad (floor 0.70); the two cases 562 s CPU, 36 min wall at
 # load 8-13.
 
+# queue_mass_arm2_posonly (a 30 ms goal queue + every link x1.5, position-only logs) was torque_limit +
+# latency + backlash (held-out 173.4 -> 30.3 mrad): round 1 took the torque limit for the heavier arm and
+# a play stood in for its sag; the mass, ranked 10th at the nominal model, never won a round. Exact
+# since gap.exchange (gap-mass9, session 15, 634 s CPU): mass_error 1.488 [1.281, 1.727] / 1.5005
+# [1.448, 1.555], latency 33.4 [27.2, 37.7] / 30.3 [26.3, 32.2] ms, held-out 173.4 -> 7.75 mrad.
+
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
     # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
-    "queue_mass_arm2_posonly": "miss (held-out set: run on 122e4e2, 2026-11-26, and again by "
-                               "gap-check8 on 60147ce, session 14, 317 s CPU, same result): "
-                               "torque_limit + latency + backlash named, the link mass x1.5 "
-                               "is not; both delays hold 30 ms (26.08 [18.28, 32.10], 31.21 "
-                               "[24.43, 36.02] ms); held-out 173.4 -> 30.3 mrad. It had no "
-                               "entry here, so its slow test failed unannounced",
 }
 
 
