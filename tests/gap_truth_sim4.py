@@ -39,6 +39,8 @@ Hidden effects, written here from their physics (``Effect.kind``):
 - ``viscous``: a torque -``value`` qdot applied to the joint by this module.
 - ``coulomb``: dry friction of ``value`` N m (MuJoCo's frictionloss, made stiff: it sticks).
 - ``inertia``: the joint armature times ``value``. ``mass``: rod and tip masses times ``value``.
+- ``torque_limit`` (``motor``): the motor delivers at most ``value`` N m whatever it is commanded
+  (a current limit below the host's command range).
 
 Logs (the project's CSV format): rows at 100 Hz (or 50 Hz) with jitter, goals held from their
 row, reads quantised to 4096 ticks per turn with read noise, ``qvel`` in Dynamixel units (0.229
@@ -89,12 +91,13 @@ NOMINAL = {
                     kp=4.0, kv=0.1, force=1.5, volts=12.0, no_load=6.0),
 }
 GOAL_RANGE = (-1.0, 1.0)             # rad, targets of the excitation
-EFFECTS = ("latency", "reading_offset", "gain", "viscous", "coulomb", "inertia", "mass")
+EFFECTS = ("latency", "reading_offset", "gain", "viscous", "coulomb", "inertia", "mass",
+           "torque_limit")
 CATALOGUE = {"latency": "latency", "reading_offset": "position_offset", "gain": "gain_error",
              "viscous": "viscous_damping", "coulomb": "coulomb_friction",
-             "inertia": "inertia_error", "mass": "mass_error"}
+             "inertia": "inertia_error", "mass": "mass_error", "torque_limit": "torque_limit"}
 PARAM = {"latency": "delay", "reading_offset": "offset", "gain": "scale", "viscous": "damping",
-         "coulomb": "frictionloss", "inertia": "scale", "mass": "scale"}
+         "coulomb": "frictionloss", "inertia": "scale", "mass": "scale", "torque_limit": "torque"}
 JOINT, ACTUATOR = "hinge", "servo"
 
 
@@ -160,8 +163,10 @@ def model_xml(kind: str, case: Case | None = None, timestep: float = MODEL_DT) -
     if kind == "velocity":
         act = f'<velocity name="{ACTUATOR}" joint="{JOINT}" kv="{p["kv"] * gain:.9g}" {lim}/>'
     elif kind == "motor":
+        cap = case.size("torque_limit", 0.0) if case else 0.0
+        cap = f' forcelimited="true" forcerange="{-cap:.9g} {cap:.9g}"' if cap else ""
         act = (f'<motor name="{ACTUATOR}" joint="{JOINT}" gear="{gain:.9g}" ctrllimited="true" '
-               f'ctrlrange="{-f:.9g} {f:.9g}"/>')
+               f'ctrlrange="{-f:.9g} {f:.9g}"{cap}/>')
     elif kind == "position":
         act = (f'<position name="{ACTUATOR}" joint="{JOINT}" kp="{p["kp"] * gain:.9g}" '
                f'kv="{p["kv"]:.9g}" {lim}/>')
@@ -325,6 +330,11 @@ CASES: tuple[Case, ...] = (
          note="dry friction at 60 % of the 1 N m torque command range"),
     Case("gain03_general", "general", (E("gain", 0.3),), styles=("steps", "chirp"), seed=53,
          note="the gain range's lower edge"),
+    Case("mass30_general", "general", (E("mass", 3.0),), seed=54,
+         note="the mass range's upper edge (the catalogue's search bound)"),
+    Case("torque_limit06_motor_posonly", "motor", (E("torque_limit", 0.6),), qvel=False, seed=55,
+         note="60 % of the host's +-1 N m commands delivered at most"),
+    Case("gain05_motor", "motor", (E("gain", 0.5),), seed=56, note="half the torque per command"),
 )
 CASE_BY_NAME = {c.name: c for c in CASES}
 

@@ -5,7 +5,8 @@ coverage audit (issue 11 items 1, 2, 4; gap-judge9, session 15; table in bench/R
 would: a ``velocity`` actuator driven by a host position loop (the log's goal is the velocity
 command), a ``motor`` driven by a host PD (the goal is the torque it wrote), a ``position``
 actuator with kp AND kv, a ``general`` servo; hidden effects at the issue's range edges (gain 3x
-with kv kept, armature 3x, link mass 0.3x, a velocity loop's kv 0.4x) and a pair on one joint
+with kv kept, armature 3x, link mass 0.3x and 3x, a velocity loop's kv 0.4x, a motor's torque
+constant 0.5x and a torque cap at 60 % of its commands, Coulomb at 60 %) and a pair on one joint
 (latency 50 ms + reading offset -0.2 rad). Each case is analysed as the CLI does and scored by
 ``gap_truth_sim2.score`` (the same contract as ``tests/test_gap_redteam.py``): the named causes
 exactly the hidden ones (nothing on a clean case), every documented parameter inside its 95 %
@@ -33,7 +34,15 @@ import gap_truth_sim4 as sim  # noqa: E402
 FAST = ("clean_velocity",)
 
 # what the analysis named instead, per case it misses (bench/gap_redteam4.py --threads 1)
-MISSES: dict[str, str] = {}
+MISSES: dict[str, str] = {
+    "gain05_dcmotor": "extra (gap-judge9, c354756, 434 s wall, 61 s CPU): gain_error 0.708 "
+                      "[0.681, 0.744] (truth 0.5) plus mass_error 1.409; held-out 39.2 -> 3.18 "
+                      "mrad (floor ~0.6). The truth halves the dcmotor controller's kp and keeps "
+                      "its kd (a P gain lowered, as gain_error means on a position actuator: kp "
+                      "scaled, kv kept); the catalogue's gain_error on a dcmotor scales P, I and "
+                      "D together (minus the back-EMF term), another physical thing, so a softer "
+                      "P with the same D is fitted as a milder gain plus a heavier link",
+}
 # latency050_offsetm020_position was a miss on 8283b8a (latency 48.4 ms alone, held-out 259 ->
 # 200 mrad: the -0.2 rad offset, chosen first, sat on its +-0.2 search bound once the latency
 # was fitted beside it and the backward pass dropped it as implausible); since
