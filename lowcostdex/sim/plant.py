@@ -290,7 +290,9 @@ class _PlantBase:
                     with np.errstate(divide="ignore", invalid="ignore"):
                         key_state["kv_kp"] = np.where(
                             g > 0, -self.array("actuator_biasprm")[..., a, 2] / g, 0.0)
-                    key_state["damping"] = self.nominal("dof_damping")[b.targets.dofs]
+                    d = self.nominal("dof_damping")[b.targets.dofs]  # the D of a servo without kv
+                    key_state["damping"] = np.where((key_state["kv_kp"] == 0)
+                                                    & ~self._is_dcmotor[a], d, 0.0)
                 sub = b.cls.command(b.targets, b.values, ctrl[..., a], key_state, self.rng)
                 if (tq := key_state.pop("torque", None)) is not None:  # outside the force range
                     h = b.targets.has_play

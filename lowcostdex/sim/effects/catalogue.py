@@ -428,8 +428,9 @@ class Backlash(Effect):
                     doc="where the servo's position loop reads across the play hinge: 0 the "
                         "motor side (a rotor-side encoder; a horn's play beyond the servo), 1 "
                         "the output shaft (the loop closed across the play, Dynamixel's "
-                        "output encoder behind its gearbox; its D term, the actuator's kv and "
-                        "the joint's nominal damping, reads there too); the log reads the link"))
+                        "output encoder behind its gearbox; its D term, the actuator's kv or, "
+                        "with kp only, the joint's nominal damping, reads there too); the log "
+                        "reads the link"))
     LOCK = 1e12  # [kg m^2] armature of a closed (null) play hinge
 
     @staticmethod
@@ -493,17 +494,20 @@ class Backlash(Effect):
         the play angle (``state["qpos"]``, the plant's positions) and, for its ``kv`` (inside
         the force range, as the actuator's), less s x kv / kp x the play rate.
 
-        The nominal joint damping (``state["damping"]``, N m s/rad) reads where the loop reads
-        as well: a model's joint damping beside a position servo is that servo's D term (a
-        ``position`` actuator with kp only has no other), and a servo with its encoder on the
-        output shaft damps the output's rate, not the rotor's. The motor joint keeps its
+        The nominal joint damping of a servo with no D of its own (``state["damping"]``, N m
+        s/rad: a position-like actuator with kp only; 0 where it has a kv, whose joint damping
+        is then a rotor loss, or is a dcmotor) reads where the loop reads as well: it is that
+        servo's D term, and a servo with its encoder on the output shaft damps the output's
+        rate, not the rotor's. The motor joint keeps its
         damping on its own rate (implicit); ``state["torque"]`` gets the rest, -s x damping x
         the play rate on the motor dof, outside the force range as a joint's damping is (the
         plant adds it as an applied force). Damping a hidden effect adds (``viscous_damping``)
         stays on the motor side: a gearbox loss. Measured on the second truth simulator's
         ``backlash_output_pendulum`` (width 2.5 deg, loop and D on the output): replayed at
         the true width with the D on the rotor, 14.5 / 9.7 mrad RMS per log at 0.25 ms; inside
-        the force range 12.1 / 6.8; read on the output outside it, 0.75 / 0.74 (the noise)."""
+        the force range 12.1 / 6.8; read on the output outside it, 0.75 / 0.74 (the noise). On the third truth simulator's ``srv_backlash_output`` (firmware D in kv,
+        joint damping 0.01 on the rotor) reading that damping on the output too replayed worse
+        at the true width (5.73 vs 4.52 mrad mean per episode at 0.5 ms): hence kp only."""
         half = 0.5 * np.asarray(v["width"])
         prev = state.get("play")
         prev = state["setpoint"] if prev is None else np.where(np.isnan(prev), state["setpoint"],
