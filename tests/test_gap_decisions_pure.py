@@ -92,6 +92,16 @@ def test_a_gain_worse_on_most_episodes_or_with_an_interval_through_zero_is_no_re
     # worse on 2 of 4 is not "most"; 3 of 4 is, whatever the interval says
     assert "no reliable gain" not in verdict_text(causes, ok, "x", worse=2)
     assert "on 3 of 4 test episodes" in verdict_text(causes, ok, "x", worse=3)
+    # an effect acting in some test episodes only (sim4's torque_limit06_motor_posonly, session
+    # 15: 126.4 -> 1.35 mrad, interval [0, 206] mrad): the episodes it leaves unchanged resample
+    # to a gain of exactly 0 - a tie, not a loss; the gain stands
+    tie = Gain(0.126, 0.00135, 0.1, 0.001, 0.12465, 0.989, (0.0, 0.206), (0.0, 0.99), 7e-4,
+               None, 3)
+    assert verdict_text(causes, tie, "x", worse=0).endswith("(99 % lower)")
+    # ... but any resampled loss below zero, however small, is "no reliable gain"
+    below = Gain(0.126, 0.00135, 0.1, 0.001, 0.12465, 0.989, (-1e-9, 0.206), (-1e-8, 0.99),
+                 7e-4, None, 3)
+    assert "includes zero" in verdict_text(causes, below, "x", worse=1)
     # one test episode has no interval: its sign decides
     one = Gain(0.01, 0.012, 0.01, 0.012, -0.002, -0.2, (-0.002, -0.002), (-0.2, -0.2), 1e-3,
                None, 1)

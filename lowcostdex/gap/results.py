@@ -367,7 +367,10 @@ def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str, worse: i
     """The one-line verdict. ``worse``: the test episodes on which the extended model's error
     is above the nominal one's. With causes, "no reliable gain" (the extended model not
     recommended) when it is worse on most test episodes or the gain's 95 % interval over them
-    reaches zero (issue 11 item 5: Pham XL330 read "79 % lower" while worse on 3 of 4)."""
+    reaches below zero (issue 11 item 5: Pham XL330 read "79 % lower" while worse on 3 of 4).
+    A lower bound of exactly zero is a tie, not a loss: an effect that acts in some test
+    episodes only (a torque limit the arm reaches in one log of three) leaves the others'
+    predictions unchanged, and resampling those alone gives a gain of 0, never below."""
     if not causes:
         if gain.baseline_rmse > UNEXPLAINED * gain.noise_floor:
             return (f"discrepancy not explained by the candidate effects (held-out RMSE "
@@ -379,7 +382,7 @@ def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str, worse: i
     why = []
     if 2 * worse > gain.episodes:
         why.append(f"worse than the nominal model on {worse} of {gain.episodes} test episodes")
-    if gain.episodes > 1 and gain.ci95[0] <= 0:
+    if gain.episodes > 1 and gain.ci95[0] < 0:
         why.append(f"the gain's 95 % interval [{1e3 * gain.ci95[0]:.3g}, "
                    f"{1e3 * gain.ci95[1]:.3g}] mrad includes zero")
     if gain.absolute <= 0 and not why:
