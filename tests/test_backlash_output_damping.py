@@ -42,7 +42,7 @@ def _replay(tmp_path, effects, fac=0.5, widths=(WIDTH,), sensor=1.0):
                       + extra for w in widths]
     pred = Replayer(ds, ["backlash", "viscous_damping"], nthread=1).run(eps, cols)[0]
     q = ds.trajectories[0].qpos
-    return [np.array([np.sqrt(np.mean((q[w.start:w.stop] - p) ** 2)) for w, p in zip(eps, col)])
+    return [np.array([np.sqrt(np.mean((q[w.start:w.stop] - p) ** 2)) for w, p in zip(eps, col, strict=True)])
             for col in pred]
 
 

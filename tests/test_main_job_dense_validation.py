@@ -17,7 +17,7 @@ from lowcostdex.algos.npg import NPGConfig
 from lowcostdex.algos.policy import PolicyConfig
 from lowcostdex.algos.train import TrainConfig, train
 from lowcostdex.errors import ConfigError
-from lowcostdex.main_job.setup import BUDGETS, SimTraining
+from lowcostdex.main_job.setup import BUDGETS
 
 
 def _config(**kw):

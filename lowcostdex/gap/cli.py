@@ -253,9 +253,7 @@ def _identify(args: argparse.Namespace) -> int:
     from lowcostdex.gap import bam_measure as bm
     from lowcostdex.gap.dataset import expand_log_paths, load_dataset
     from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure
-    from lowcostdex.outdir import write_text_atomic
-
-    from lowcostdex.outdir import check_out, staged_output
+    from lowcostdex.outdir import check_out, staged_output, write_text_atomic
 
     if args.json:
         _check_json_out(Path(args.json))  # before minutes of fitting

@@ -36,7 +36,6 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
-
 from lowcostdex.motors import MOTORS as MOTORS  # the motor data lives in lowcostdex.motors
 from lowcostdex.motors import TWO_PI as TWO_PI
 from lowcostdex.motors import MotorSpec as MotorSpec
