@@ -310,7 +310,7 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
         change = f"from {v['rate_before']:.2f} to {v['rate_after']:.2f}"
         if v["verdict"] == "no difference":
             parts.append(f"{what} changed success {change}, within the overlap of the 95 % "
-                         "intervals: no difference this run can show")
+                         "intervals: no difference the intervals alone can show")
         else:
             parts.append(f"{what} {v['verdict']} success {change}, beyond the 95 % intervals")
     text = "; ".join(parts) + "."
@@ -328,7 +328,9 @@ def _what_each_stage_added(t: dict[str, Any]) -> str:
         only_after, only_before, pvalue = paired
         text += (f" Paired on the same {len(bc['solved'])} held-out episodes: DAPG alone solved "
                  f"{only_after}, the clone alone {only_before} (exact one-sided McNemar test "
-                 f"that DAPG solves more, p = {pvalue:.3g}).")
+                 f"that DAPG solves more, p = {pvalue:.3g}"
+                 + ("): on the same episodes DAPG solved more than the clone." if pvalue <= 0.05
+                    else "): no paired difference this run can show."))
     errors = paired_errors(bc, dapg)
     if errors is not None:
         med_before, med_after, pvalue = errors
