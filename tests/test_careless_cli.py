@@ -253,7 +253,7 @@ CASES = [
     Case("main with a negative seed", ("main", "--seed", "-1", "--out", "run"),
          "argument --seed: '-1' is not an integer >= 0"),
     Case("main with an empty stage list", ("main", "--stages", "", "--out", "run"),
-         "--stages '' names no stage; give a comma-separated subset of bus, demos, train, gap, "
+         "--stages '' names no stage; give a comma-separated subset of bus, demos, gap, train, "
          "report"),
     Case("main's report alone on a folder no stage ran in", ("main", "--stages", "report",
                                                               "--out", "run"),

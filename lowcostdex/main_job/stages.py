@@ -1,4 +1,4 @@
-"""The main job's stages: bus, demos, train, gap, report (each returns its results)."""
+"""The main job's stages: bus, demos, gap, train, report (each returns its results)."""
 
 from __future__ import annotations
 
