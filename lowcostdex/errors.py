@@ -64,6 +64,10 @@ class Interrupted(KeyboardInterrupt):
     the command that continues (the CLI prints ``interrupted (Ctrl-C); <message>``, exit 130)."""
 
 
+class ClosedError(LowcostdexError, RuntimeError):
+    """A simulation used after its ``close()``: the message says how to make a new one."""
+
+
 class PhysicsError(LowcostdexError, RuntimeError):
     """The simulation diverged (NaN/inf state or MuJoCo warning that invalidates the step)."""
 
@@ -79,7 +83,22 @@ def check_choice(kind: str, value: object, choices: Iterable[object]) -> None:
     options = list(choices)
     if value not in options:
         listed = ", ".join(repr(c) for c in options)
-        raise ConfigError(f"unknown {kind} {value!r}; valid choices: {listed}")
+        raise ConfigError(f"unknown {kind} {value!r}; valid choices: {listed}"
+                          + did_you_mean(value, options))
+
+
+def did_you_mean(value: object, choices: Iterable[object]) -> str:
+    """``"; did you mean 'latency'?"`` naming the choices closest to a mistyped string (``""``
+    when none is close, or ``value`` is no string): a typo is named, not only listed."""
+    import difflib
+
+    if not isinstance(value, str):
+        return ""
+    names = {str(c): c for c in choices if isinstance(c, str)}
+    close = difflib.get_close_matches(value, list(names), n=2, cutoff=0.6)
+    if not close and value.lower() in {n.lower() for n in names}:  # "NPG" for "npg"
+        close = [n for n in names if n.lower() == value.lower()]
+    return f"; did you mean {' or '.join(repr(names[c]) for c in close)}?" if close else ""
 
 
 def check_range(name: str, value: float, low: float, high: float) -> None:
@@ -156,7 +175,8 @@ def check_keys(kind: str, given: Iterable[str], valid: Iterable[str]) -> None:
     options = list(valid)
     unknown = [k for k in given if k not in options]
     if unknown:
-        raise ConfigError(f"unknown {kind} {unknown[0]!r}; valid: {', '.join(options)}")
+        raise ConfigError(f"unknown {kind} {unknown[0]!r}; valid: {', '.join(options)}"
+                          + did_you_mean(unknown[0], options))
 
 
 def check_fields(config: object) -> None:

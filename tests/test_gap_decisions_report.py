@@ -84,7 +84,7 @@ def test_analyze_refuses_what_is_not_a_dataset_or_config_and_fills_in_defaults(m
      "'load_dependent_friction', 'viscous_damping', 'gain_error', 'torque_limit', "
      "'velocity_limit', 'position_offset', 'inertia_error', 'mass_error', "
      "'thermal_derating', 'voltage_sag', 'gearbox_friction', 'mounting_offset', "
-     "'motor_strength'"),
+     "'motor_strength'; did you mean 'latency'?"),
     (dict(candidates="latency"), "candidates='latency' must be a tuple of effect names, e.g. "
      "('latency',), or None; valid names: latency, backlash, coulomb_friction, "
      "stribeck_friction, load_dependent_friction, viscous_damping, gain_error, torque_limit, "

@@ -51,7 +51,7 @@ from lowcostdex.demonstrations.file import (
     DemoWriter,
     Episode,
 )
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, keyword_hints
 from lowcostdex.motion import motion_bound
 from lowcostdex.sim.envs.hand_env import goal_to_action
 
@@ -275,6 +275,7 @@ def episode_from_states(task: Any, qpos: np.ndarray, qvel: np.ndarray, goal: dic
 # virtual teacher (emulated robot only)
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class VirtualTeacherConfig:
     """The virtual person's hand on the emulated fingers.

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_bool, check_number
+from lowcostdex.errors import ConfigError, check_bool, check_number, keyword_hints
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.bam_logs import check_one_motor
 from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
@@ -100,6 +100,7 @@ def servo_structure(ds: Dataset) -> tuple[str, ...]:
 Progress = Callable[[str, float], None]
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class IdentifyConfig:
     """Settings of one identification.

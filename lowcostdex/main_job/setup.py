@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from lowcostdex.errors import ConfigError, keyword_hints
+
 
 @dataclass(frozen=True)
 class TaskSetup:
@@ -83,6 +85,7 @@ catalogue's default domain randomization, ``sim.effects.randomization.DEFAULT_DR
 its catalogue range, each episode; tests/test_main_job_report.py checks they are the same)."""
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class SimTraining:
     """DAPG's budget when it trains in simulation (MuJoCo, the task's model, with domain
@@ -131,8 +134,14 @@ class SimTraining:
     dense_from: int | None = None
 
     def __post_init__(self) -> None:
-        from lowcostdex.errors import check_number
+        from lowcostdex.errors import check_choice, check_number
+        from lowcostdex.sim.effects import EFFECTS
 
+        if isinstance(self.randomize, str) or not isinstance(self.randomize, (tuple, list)):
+            raise ConfigError(f"SimTraining.randomize={self.randomize!r} must be a tuple of "
+                              "effect names, e.g. ('latency', 'backlash')")
+        for name in self.randomize:
+            check_choice("effect in SimTraining.randomize", name, EFFECTS)
         for name in ("iters", "traj", "eval_episodes", "clones", "runs"):
             check_number(f"SimTraining.{name}", getattr(self, name), 1, integer=True)
         check_number("SimTraining.eval_every", self.eval_every, 0, integer=True)
@@ -170,6 +179,7 @@ episodes, ~1 min of CPU on the emulated robot; on a real D'Claw ~7 s of robot ti
 reset (144 s per 20 episodes measured on the emulated robot: 29 min more)."""
 
 
+@keyword_hints
 @dataclass
 class Budget:
     """How much each stage does.

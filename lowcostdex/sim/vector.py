@@ -20,7 +20,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 import lowcostdex  # noqa: F401  (registers ids)
-from lowcostdex.errors import ConfigError, check_number
+from lowcostdex.errors import ClosedError, ConfigError, check_number
 from lowcostdex.sim.effects import DomainRandomization
 from lowcostdex.sim.envs.hand_env import HandEnv, action_to_goal
 from lowcostdex.sim.envs.task import Goal, Task
@@ -76,6 +76,7 @@ class HandVectorEnv(gym.vector.VectorEnv):
         self._last_action = np.zeros((num_envs, self.single_action_space.shape[0]))
         self._needs_reset = np.zeros(num_envs, dtype=bool)
         self._was_reset = False  # step() before the first reset() has no goal to reward
+        self._closed = False
         self._aux = np.setdiff1d(np.arange(self.plant.model.nu), task.hand_act)
 
     # ------------------------------------------------------------------------------------------
@@ -123,6 +124,7 @@ class HandVectorEnv(gym.vector.VectorEnv):
 
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
         """Reset every copy; copy ``i`` is seeded with ``seed + i`` (or ``seed[i]``)."""
+        self._check_open("reset")
         if seed is not None:
             many = isinstance(seed, (list, tuple, np.ndarray))
             if many and len(seed) != self.num_envs:
@@ -137,7 +139,13 @@ class HandVectorEnv(gym.vector.VectorEnv):
         self._was_reset = True
         return self._obs(), self._infos(self._last_action)
 
+    def _check_open(self, call: str) -> None:
+        if self._closed:  # before: a closed vector env kept stepping
+            raise ClosedError(f"{call}() on a vector env that was closed (by vec.close()); "
+                              "make a new one with make_vec")
+
     def step(self, actions: np.ndarray):
+        self._check_open("step")
         if not self._was_reset:  # as gymnasium's single envs refuse it (OrderEnforcing)
             raise gym.error.ResetNeeded("cannot call step() before reset() on a vector env: "
                                         "call vec.reset(seed=...) first")
@@ -198,6 +206,7 @@ class HandVectorEnv(gym.vector.VectorEnv):
 
     def close(self, **kwargs: Any) -> None:
         self._template.close()
+        self._closed = True
 
 
 def make_vec(env_id: str, num_envs: int, nthread: int = 0, **kwargs: Any) -> HandVectorEnv:

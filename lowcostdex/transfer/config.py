@@ -10,6 +10,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from lowcostdex.errors import keyword_hints
+
 COMMAND = "transfer"
 CONDITIONS = ("nominal", "randomized", "identified", "identified_randomized", "on_robot")
 PER_ROBOT = ("identified", "identified_randomized", "on_robot")  # one policy per robot
@@ -66,6 +68,7 @@ TASKS = {
 }
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class Size:
     """How much each stage does.

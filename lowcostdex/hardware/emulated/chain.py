@@ -76,7 +76,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, keyword_hints
 from lowcostdex.hands import HandSpec, bench_spec, dclaw_spec
 from lowcostdex.hardware.dynamixel.control_table import Reg
 from lowcostdex.hardware.dynamixel.protocol import (
@@ -111,6 +111,7 @@ _READS = frozenset((Instruction.READ, Instruction.SYNC_READ, Instruction.BULK_RE
                     Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ))
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class FaultConfig:
     """Per-status-packet fault probabilities.

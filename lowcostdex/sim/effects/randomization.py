@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice, check_keys
+from lowcostdex.errors import ConfigError, check_choice, check_keys, keyword_hints
 from lowcostdex.sim.effects.catalogue import Effect, effect
 
 
@@ -102,6 +102,7 @@ class AppliedEffect:
 SampleFn = Callable[[np.random.Generator], list[AppliedEffect]]
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class DomainRandomization:
     """Which effects to randomize on which joints; samples AppliedEffects from ``Param.dr``.

@@ -17,7 +17,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import check_choice
+from lowcostdex.errors import ClosedError, check_choice
 from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.plant import Plant
 
@@ -68,14 +68,26 @@ class SimBackend(Backend):
         self.plant = Plant(model, rng=rng)
         self.model = self.plant.model
         self.data = self.plant.data
+        self.closed = False
         if task is not None and len(task.passive_act):
             self.plant.set_torque_enabled(task.passive_act, False)
 
+    def _check_open(self, call: str) -> None:
+        # as the robot backends refuse a closed bus (before: a closed sim env kept stepping)
+        if self.closed:
+            raise ClosedError(f"{call}() on a simulation that was closed (by env.close()); "
+                              "make a new env with gym.make")
+
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        self._check_open("reset")
         self.plant.reset(qpos, qvel)
 
     def apply(self, goal: np.ndarray, nstep: int) -> None:
+        self._check_open("step")
         self.plant.step(goal, nstep)
+
+    def close(self) -> None:
+        self.closed = True
 
     def set_effects(self, effects: Sequence[AppliedEffect]) -> None:
         self.plant.set_effects(effects)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import mujoco
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, keyword_hints
 from lowcostdex.sim import servo
 from lowcostdex.sim.models.common import TIMESTEP, new_spec, visual_only
 
@@ -28,6 +28,7 @@ BENCH_JOINT = "arm"
 _MIN_INERTIA = 1e-9  # [kg m^2] a point load has none about its own centre; MuJoCo needs > 0
 
 
+@keyword_hints
 @dataclass(frozen=True)
 class BenchConfig:
     """A servo bench setup.

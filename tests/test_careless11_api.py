@@ -1,0 +1,165 @@
+"""Careless calls on the Python API (issue 13), session 16. Each test fails on the code before it.
+
+- A simulated env (or a batched one) stepped after ``close()`` kept stepping as if nothing had
+  happened, where the emulated robots refuse a closed bus: now the sim backend and the vector
+  env raise ``ClosedError`` naming the fix.
+- A typo in a keyword of IdentifyConfig, SimTraining, Budget, DomainRandomization, the transfer
+  Size, BenchConfig or VirtualTeacherConfig gave Python's bare "unexpected keyword argument";
+  now the closest setting is named ("did you mean max_rounds?") and the valid ones listed.
+- A mistyped choice (an effect name, an algorithm, a parameter) listed the valid choices only,
+  twenty of them for an effect; now the closest one is named too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import lowcostdex  # noqa: F401  (registers the envs)
+from lowcostdex.errors import ClosedError, ConfigError, KeywordError, check_choice
+from lowcostdex.sim.vector import make_vec
+
+VALVE = "lowcostdex/DClawTurnValve-v0"
+
+
+@pytest.mark.parametrize("env_id", [VALVE, "lowcostdex/DClawTurnValveRandomDynamics-v0",
+                                    "lowcostdex/AllegroTurnValve-v0"])
+def test_a_sim_env_stepped_after_close_says_it_was_closed(env_id):
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    env.close()
+    n = env.action_space.shape[0]
+    for call, name in ((lambda: env.step(np.zeros(n)), "step"),
+                       (lambda: env.reset(seed=1), "reset")):
+        with pytest.raises(ClosedError) as exc:
+            call()
+        assert str(exc.value) == (f"{name}() on a simulation that was closed (by env.close()); "
+                                  "make a new env with gym.make")
+    env.close()  # closing twice is harmless
+
+
+def test_a_vector_env_stepped_after_close_says_it_was_closed():
+    vec = make_vec(VALVE, num_envs=2)
+    vec.reset(seed=0)
+    vec.close()
+    with pytest.raises(ClosedError, match=r"^step\(\) on a vector env that was closed \(by "
+                                          r"vec.close\(\)\); make a new one with make_vec$"):
+        vec.step(np.zeros((2, 9)))
+    with pytest.raises(ClosedError, match=r"^reset\(\) on a vector env that was closed"):
+        vec.reset(seed=0)
+
+
+def test_a_new_env_after_a_closed_one_still_works():
+    env = gym.make(VALVE)
+    env.reset(seed=0)
+    env.close()
+    env = gym.make(VALVE)
+    env.reset(seed=0)
+    assert np.all(np.isfinite(env.step(np.zeros(9))[0]))
+    env.close()
+
+
+def _identify(**kw):
+    from lowcostdex.gap.identify import IdentifyConfig
+
+    return IdentifyConfig(**kw)
+
+
+def _sim_training(**kw):
+    from lowcostdex.main_job.setup import SimTraining
+
+    return SimTraining(**{"iters": 1, "traj": 2, "eval_every": 0, "eval_episodes": 1, **kw})
+
+
+def _budget(**kw):
+    from lowcostdex.main_job.setup import BUDGETS, Budget
+
+    return Budget(**{**dataclasses.asdict(BUDGETS["smoke"]), "dapg_sim": None, **kw})
+
+
+def _dr(**kw):
+    from lowcostdex.sim.effects.randomization import DomainRandomization
+
+    return DomainRandomization(**{"effects": ("latency",), **kw})
+
+
+def _size(**kw):
+    from lowcostdex.transfer.config import SIZES, Size
+
+    return Size(**{**dataclasses.asdict(SIZES["smoke"]), **kw})
+
+
+def _bench(**kw):
+    from lowcostdex.sim.models.bench import BenchConfig
+
+    return BenchConfig(**kw)
+
+
+def _teacher(**kw):
+    from lowcostdex.demonstrations.kinesthetic import VirtualTeacherConfig
+
+    return VirtualTeacherConfig(**kw)
+
+
+@pytest.mark.parametrize("make, typo, hint", [
+    (_identify, {"max_round": 3}, "IdentifyConfig has no setting 'max_round'; did you mean "
+                                  "max_rounds? (valid: effects, starts, "),
+    (_sim_training, {"n_iters": 3}, "SimTraining has no setting 'n_iters'; did you mean iters? "
+                                    "(valid: iters, traj, "),
+    (_budget, {"demo": 3}, "Budget has no setting 'demo'; did you mean demos? (valid: demos, "),
+    (_dr, {"joint": ("a",)}, "DomainRandomization has no setting 'joint'; did you mean joints? "
+                             "(valid: effects, joints, ranges)"),
+    (_size, {"n_iters": 3}, "Size has no setting 'n_iters'; did you mean n_iter or n_traj? "),
+    (_bench, {"motr": "XM430-W350"}, "BenchConfig has no setting 'motr'; did you mean motor? "),
+    (_teacher, {"k_p": 1.0}, "VirtualTeacherConfig has no setting 'k_p'; did you mean kp? "),
+], ids=["IdentifyConfig", "SimTraining", "Budget", "DomainRandomization", "transfer.Size",
+        "BenchConfig", "VirtualTeacherConfig"])
+def test_a_typo_in_a_setting_names_the_closest_one(make, typo, hint):
+    with pytest.raises(KeywordError) as exc:
+        make(**typo)
+    assert str(exc.value).startswith(hint)
+
+
+def test_a_mistyped_effect_in_sim_training_is_refused_at_construction():
+    """Before: SimTraining(randomize=('latncy',)) was accepted and failed in the train stage,
+    after the demos and the gap stage had run; a bare string was taken letter by letter."""
+    with pytest.raises(ConfigError) as exc:
+        _sim_training(randomize=("latncy",))
+    text = str(exc.value)
+    assert text.startswith("unknown effect in SimTraining.randomize 'latncy'; valid choices: ")
+    assert text.endswith("; did you mean 'latency'?")
+    with pytest.raises(ConfigError, match=r"randomize='latency' must be a tuple of effect names"):
+        _sim_training(randomize="latency")
+
+
+@pytest.mark.parametrize("value, choices, end", [
+    ("latncy", ("latency", "backlash"), "; did you mean 'latency'?"),
+    ("NPG", ("npg", "dapg", "bc"), "; did you mean 'npg'?"),
+    ("emulatd", ("sim", "emulated", "hardware"), "; did you mean 'emulated'?"),
+])
+def test_a_mistyped_choice_names_the_closest(value, choices, end):
+    with pytest.raises(ConfigError) as exc:
+        check_choice("thing", value, choices)
+    assert str(exc.value) == (f"unknown thing {value!r}; valid choices: "
+                              f"{', '.join(repr(c) for c in choices)}{end}")
+
+
+def test_a_far_off_choice_only_lists_the_valid_ones():
+    with pytest.raises(ConfigError) as exc:
+        check_choice("thing", "zzz", ("latency", "backlash"))
+    assert str(exc.value) == "unknown thing 'zzz'; valid choices: 'latency', 'backlash'"
+    with pytest.raises(ConfigError) as exc:
+        check_choice("thing", 3, ("latency", "backlash"))
+    assert "did you mean" not in str(exc.value)
+
+
+def test_a_mistyped_effect_for_the_randomization_names_the_closest():
+    with pytest.raises(ConfigError) as exc:
+        _dr(effects=("latncy",), joints=("a",))
+    assert str(exc.value).endswith("; did you mean 'latency'?")
+    with pytest.raises(ConfigError) as exc:
+        gym.make(VALVE, randomize=["backlsh"])
+    assert str(exc.value).endswith("; did you mean 'backlash'?")
