@@ -691,3 +691,54 @@ def test_start_range_runs_evaluate_each_sim_policy_from_its_training_starts(tmp_
     assert line.count("(B only)") == 2
     assert "only)" not in next(x for x in table.splitlines() if x.startswith("| nominal |"))
     assert figure_problems(result["figure"]) == []
+
+
+def test_first_seed_trains_only_the_later_seeds_and_keeps_whole_lower_ones(tmp_path, capsys,
+                                                                           monkeypatch):
+    """``--seeds 3 --first-seed 2``: seed 2 alone is trained; seed 0, held whole by the folder,
+    joins the table without running again, seed 1 (absent) does not; a seed held in part stays
+    out; a first seed past the last is refused before anything is written; the
+    demonstrations are seed 0's whatever the first seed (every DAPG policy learns from them)."""
+    import json
+    from dataclasses import replace
+
+    from lowcostdex.cli import main
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.transfer import loop
+
+    size = loop.size_with("smoke", robots=1, algos=("npg",), conditions=("nominal",))
+    out = tmp_path / "t"
+    loop.run(out, size, tell=lambda s: None)  # seed 0
+    runs = out / "runs" / "npg"
+    seed0 = sorted(p.name for p in runs.iterdir())
+    stamps = {p.name: p.stat().st_mtime_ns for p in runs.iterdir()}
+    result = loop.run(out, replace(size, seeds=3), first_seed=2, tell=lambda s: None)
+    assert sorted(p.name for p in runs.iterdir()) == sorted(
+        seed0 + [n.replace("seed0", "seed2") for n in seed0])
+    assert all(p.stat().st_mtime_ns == stamps[p.name] for p in runs.iterdir()
+               if "seed0" in p.name)  # not run again
+    assert sorted({r["seed"] for r in result["rows"]}) == [0, 2]
+    assert json.loads((out / "transfer.json").read_text())["info"]["seeds"] == [0, 2]
+    (runs / "nominal_seed0.sim.json").unlink()  # seed 0 now held in part: out of the table
+    result = loop.run(out, replace(size, seeds=3), first_seed=2, tell=lambda s: None)
+    assert {r["seed"] for r in result["rows"]} == {2}
+    assert not (runs / "nominal_seed0.sim.json").exists()
+    before = sorted(out.rglob("*"))
+    with pytest.raises(ConfigError, match=r"first_seed must be in \[0, 2\].*--seeds 4"):
+        loop.run(out, replace(size, seeds=3), first_seed=3, tell=lambda s: None)
+    assert sorted(out.rglob("*")) == before
+    assert main(["transfer", "--out", str(tmp_path / "u"), "--size", "smoke",
+                 "--first-seed", "2"]) == 2
+    assert "--seeds 3" in capsys.readouterr().err and not (tmp_path / "u").exists()
+
+    class Recorded(Exception):
+        pass
+
+    def record(out, task, size, seed):
+        raise Recorded(seed)
+
+    monkeypatch.setattr(loop, "record_demos", record)
+    with pytest.raises(Recorded) as got:  # a new DAPG folder, seed 2 alone
+        loop.run(tmp_path / "d", replace(size, algos=("dapg",), seeds=3), first_seed=2,
+                 tell=lambda s: None)
+    assert got.value.args == (0,)

@@ -47,6 +47,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robot-seed", type=SEED, default=0, help="the hidden robots' seed")
     p.add_argument("--seeds", type=integer(1, 100), default=None,
                    help="training seeds 0..N-1 (default by size; more seeds resume a run)")
+    p.add_argument("--first-seed", type=integer(0, 99), default=0,
+                   help="train seeds K..N-1 of --seeds N only, e.g. --seeds 3 --first-seed 2 "
+                        "for seed 2 alone (default 0); a lower seed is in the table only "
+                        "when the folder holds it whole; the demonstrations stay seed 0's")
     p.add_argument("--algos", default=None,
                    help="comma-separated learners: dapg, npg (default by size: both)")
     p.add_argument("--conditions", default=None,
@@ -93,7 +97,7 @@ def _transfer(args: argparse.Namespace) -> int:
         made_for = None if args.made_for is None else tuple(
             s.strip() for s in args.made_for.split(",") if s.strip())  # run() checks them
         run(args.out, size, args.task, args.robot_seed, port, latency_ms=args.latency_ms,
-            start_range=args.start_range, made_for=made_for)
+            start_range=args.start_range, made_for=made_for, first_seed=args.first_seed)
     except KeyboardInterrupt:  # finished pieces are kept: say so and how to resume
         from lowcostdex.algos.train_cli import command_line
         from lowcostdex.errors import Interrupted

@@ -170,17 +170,20 @@ def run_tag(condition: str, made_for: Any) -> str:
 
 
 def piece_files(out: Path, size: Size, robots: list[Any],
-                made_for: tuple[str, ...] | None = None, starts: bool = False) -> list[Path]:
+                made_for: tuple[str, ...] | None = None, starts: bool = False,
+                seeds: Any = None, identification: bool = True) -> list[Path]:
     """The file that marks each piece of the run done (identified fingers, trainings,
     evaluation cells): the progress total, and the pieces a resume will find done.
     ``starts``: the policies train from wider starts than the task's (``--start-range``), and
-    each simulated one is also evaluated in its training sim from those starts."""
+    each simulated one is also evaluated in its training sim from those starts. ``seeds``:
+    the training seeds (None: 0 .. size.seeds - 1); ``identification``: False leaves the
+    identified fingers out (the pieces of the seeds alone)."""
     files = []
-    if {"identified", "identified_randomized"} & set(size.conditions):
+    if identification and {"identified", "identified_randomized"} & set(size.conditions):
         files += [out / "identify" / r.name / f / "finger.json" for r in robots
                   if made_for is None or r.name in made_for for f in size.fingers]
     for algo in size.algos:
-        for seed in range(size.seeds):
+        for seed in range(size.seeds) if seeds is None else seeds:
             for condition, policy_robot in jobs(size.conditions, robots, made_for):
                 stem = out / "runs" / algo / f"{run_tag(condition, policy_robot)}_seed{seed}"
                 files.append(stem / "summary.json")
@@ -352,7 +355,8 @@ def open_out(out: Path, size: Size, task_name: str, robot_seed: int, port: str |
 
 def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int = 0,
         port: str | None = None, tell: Say = say, latency_ms: float | None = None,
-        start_range: float = 0.0, made_for: tuple[str, ...] | None = None) -> dict[str, Any]:
+        start_range: float = 0.0, made_for: tuple[str, ...] | None = None,
+        first_seed: int = 0) -> dict[str, Any]:
     """The whole loop into ``out`` (resumable); returns the summaries, rows and figure.
     ``latency_ms``: with ``port``, see ``PortRobot`` (not a setting: a resume may change it).
     ``start_range`` [rad]: every condition trains from valve starts and goals each within
@@ -363,6 +367,10 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     ``made_for``: names of the robots the per-robot conditions (identified,
     identified_randomized, on_robot) make policies for (None: all; not a setting: a later
     run on the folder adds the others); every policy is still evaluated on every robot.
+    ``first_seed``: train seeds first_seed .. size.seeds - 1 only (not a setting: one seed
+    of a table without re-running the others); a lower seed enters the table only when the
+    folder holds all its pieces. The demonstrations are recorded with seed 0 whatever it is
+    (every DAPG policy of a folder learns from the same ones).
 
     Raises:
       OutputRefused: ``out`` holds files this command did not write, or a run with another
@@ -386,8 +394,16 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
             raise ConfigError("made_for: give at least one robot (None: every robot)")
         for name in made_for:
             check_choice("robot", name, [r.name for r in robots])
+    if not (isinstance(first_seed, int) and 0 <= first_seed < size.seeds):
+        raise ConfigError(f"first_seed must be in [0, {size.seeds - 1}] (the seeds are 0 .. "
+                          f"{size.seeds - 1}), got {first_seed}: for seed {first_seed} alone "
+                          f"give seeds {first_seed + 1} (--seeds {first_seed + 1})")
+    starts_wider = train_task != task
+    # lower seeds the folder already holds whole join the table; nothing of them runs again
+    held = [k for k in range(first_seed) if all(p.exists() for p in piece_files(
+        out, size, robots, made_for, starts_wider, seeds=[k], identification=False))]
     open_out(out, size, task_name, robot_seed, port, start_range)
-    seeds = list(range(size.seeds))
+    seeds = held + list(range(first_seed, size.seeds))
     t_start = time.perf_counter()
     joints = dclaw_spec().joint_names
     names = [r.name for r in robots]
@@ -396,7 +412,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     id_robots = [r for r in robots if made_for is None or r.name in made_for]
     n_id = len(id_robots) * len(size.fingers) if {"identified", "identified_randomized"} & set(
         size.conditions) else 0
-    pieces = piece_files(out, size, robots, made_for, train_task != task)
+    pieces = piece_files(out, size, robots, made_for, starts_wider, seeds=seeds)
     progress = Progress(len(pieces), tell, found=sum(p.exists() for p in pieces))
     tell(f"transfer: {task.label()}, robots {', '.join(names)}, seeds {seeds}, algos "
          f"{list(size.algos)}, conditions {list(size.conditions)}; {size.samples} samples per "
@@ -406,7 +422,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     if "dapg" in size.algos:
         t0 = time.perf_counter()
         tell(f"demonstrations: {size.demos} by the virtual teacher on a nominal emulated D'Claw")
-        demos = cached(out / "demos.json", lambda: record_demos(out, task, size, seeds[0]))
+        demos = cached(out / "demos.json", lambda: record_demos(out, task, size, 0))
         wall["demos"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
