@@ -94,11 +94,13 @@ def did_you_mean(value: object, choices: Iterable[object]) -> str:
 
     if not isinstance(value, str):
         return ""
-    names = {str(c): c for c in choices if isinstance(c, str)}
-    close = difflib.get_close_matches(value, list(names), n=2, cutoff=0.6)
-    if not close and value.lower() in {n.lower() for n in names}:  # "NPG" for "npg"
-        close = [n for n in names if n.lower() == value.lower()]
-    return f"; did you mean {' or '.join(repr(names[c]) for c in close)}?" if close else ""
+    lower: dict[str, str] = {}  # matched case-blind: "xm430-w350" for "XM430-W350"
+    for c in choices:
+        if isinstance(c, str):
+            lower.setdefault(c.lower(), c)
+    close = ([value.lower()] if value.lower() in lower
+             else difflib.get_close_matches(value.lower(), list(lower), n=2, cutoff=0.6))
+    return f"; did you mean {' or '.join(repr(lower[c]) for c in close)}?" if close else ""
 
 
 def check_range(name: str, value: float, low: float, high: float) -> None:

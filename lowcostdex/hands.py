@@ -30,7 +30,7 @@ import numbers
 from dataclasses import dataclass
 from pathlib import Path
 
-from lowcostdex.errors import ConfigError, InputError, LowcostdexError, check_choice
+from lowcostdex.errors import ConfigError, InputError, LowcostdexError, check_choice, did_you_mean
 from lowcostdex.motors import MOTORS, motor_spec
 
 MAX_JOINT_SPEED = 50.0
@@ -151,7 +151,8 @@ class HandSpec:
         else:
             if self.motor not in MOTORS:
                 raise ConfigError(f"hand {self.name}: unknown motor model {self.motor!r}; valid "
-                                  f"choices: {', '.join(MOTORS)} (or 'allegro')")
+                                  f"choices: {', '.join(MOTORS)} (or 'allegro')"
+                                  + did_you_mean(self.motor, MOTORS))
             self._check_motor_range(MOTORS[self.motor])
 
     def _check_allegro(self) -> None:

@@ -63,7 +63,7 @@ from lowcostdex.algos.samplers import (
     make_jobs,
 )
 from lowcostdex.demonstrations.dataset import Demos, check_demos, load_demos
-from lowcostdex.errors import ConfigError, InputError, LowcostdexError
+from lowcostdex.errors import ConfigError, InputError, LowcostdexError, did_you_mean
 
 ROBOT_COUNTERS = (
     "resets",
@@ -178,15 +178,21 @@ def make_sampler(config: TrainConfig, env_factory: EnvFactoryFn) -> Sampler:
     return VectorSampler(config.env_id, config.n_workers, dict(config.env_kwargs))
 
 
+def _backend_kwargs(config: TrainConfig) -> dict[str, Any]:
+    # "sim" is every env's own default: a gymnasium env without a backend (Pendulum-v1) gets
+    # none (before: TypeError "unexpected keyword argument 'backend'" from gym.make)
+    return {} if config.backend == "sim" else {"backend": config.backend}
+
+
 def default_env_factory(config: TrainConfig) -> EnvFactory:
-    return EnvFactory(config.env_id, {"backend": config.backend, **config.env_kwargs})
+    return EnvFactory(config.env_id, {**_backend_kwargs(config), **config.env_kwargs})
 
 
 def evaluation_env_factory(config: TrainConfig) -> EnvFactory | None:
     """The evaluations' own env (``config.eval_env_kwargs``), or None: the training env's."""
     if config.eval_env_kwargs is None:
         return None
-    return EnvFactory(config.env_id, {"backend": config.backend, **config.eval_env_kwargs})
+    return EnvFactory(config.env_id, {**_backend_kwargs(config), **config.eval_env_kwargs})
 
 
 # ----------------------------------------------------------------------------------------------
@@ -387,6 +393,10 @@ def train(
                  mutable_keys=MUTABLE_ON_RESUME)
     if env_factory is None:
         check_env_id(config.env_id)
+        if config.backend != "sim" and not config.env_id.startswith("lowcostdex/"):
+            raise ConfigError(f"backend {config.backend!r} drives a lowcostdex robot; "
+                              f"{config.env_id} is not a lowcostdex env (lowcostdex/...): "
+                              "train it with backend 'sim'")
         env_factory = default_env_factory(config)
     demos = load_demos(config.demos).first(config.n_demos) if config.uses_demos else None
     run: ex.Run | None = None
@@ -402,6 +412,7 @@ def train(
         if eval_factory is not None:
             evaluator = SerialSampler(eval_factory)
         env = probe.env if probe is not None else sampler.env  # type: ignore[attr-defined]
+        check_env_spaces(env, config)
         if demos is not None:
             check_demos(demos, config.demos, env, config.env_id)  # type: ignore[arg-type]
         run = ex.Run.open(
@@ -455,8 +466,20 @@ def check_env_id(env_id: str) -> None:
     import lowcostdex.sim  # noqa: F401  (registers the lowcostdex/... ids)
 
     if env_id not in gym.registry:
-        ours = ", ".join(sorted(k for k in gym.registry if k.startswith("lowcostdex/")))
-        raise ConfigError(f"unknown env {env_id!r}; lowcostdex envs: {ours}")
+        ours = sorted(k for k in gym.registry if k.startswith("lowcostdex/"))
+        hint = did_you_mean(env_id, ours) or did_you_mean(f"lowcostdex/{env_id}", ours)
+        raise ConfigError(f"unknown env {env_id!r}; lowcostdex envs: {', '.join(ours)}{hint}")
+
+
+def check_env_spaces(env: Any, config: TrainConfig) -> None:
+    """Raise ConfigError unless ``env`` has the Box observations and actions the Gaussian
+    policy needs (before: an AssertionError from inside the first rollout, CartPole-v1)."""
+    import gymnasium as gym
+
+    for what, space in (("actions", env.action_space), ("observations", env.observation_space)):
+        if not isinstance(space, gym.spaces.Box):
+            raise ConfigError(f"{config.algo} trains envs with continuous {what} (a Box space); "
+                              f"{config.env_id} has {space}")
 
 
 def _loop(

@@ -141,6 +141,7 @@ def _analyze(args: argparse.Namespace) -> int:
     import numpy as np
     from rich.console import Console
 
+    from lowcostdex.errors import ConfigError
     from lowcostdex.gap.analyze import GapConfig, analyze
     from lowcostdex.gap.dataset import episodes, load_dataset, split_episodes
     from lowcostdex.gap.logs import LogError
@@ -151,6 +152,10 @@ def _analyze(args: argparse.Namespace) -> int:
 
     console = Console(stderr=True)
     check_out(args.out, "gap analyze")  # refuse a user's folder before minutes of work
+    if args.candidates is not None and not args.candidates.strip(", "):
+        # before: "" meant every effect, as if the option were absent
+        raise ConfigError("--candidates is empty; name the effects (e.g. --candidates "
+                          "latency,backlash), or leave it out for every effect the logs support")
     logs, same = distinct_logs(args.log)
     check_holdout(logs, args.holdout)
     try:
@@ -164,7 +169,8 @@ def _analyze(args: argparse.Namespace) -> int:
         console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,
                       soft_wrap=True)
     test = _holdout(logs, args.holdout, ds.sources)  # a log split at a gap is held out whole
-    cands = tuple(c.strip() for c in args.candidates.split(",")) if args.candidates else None
+    cands = (tuple(c.strip() for c in args.candidates.split(",") if c.strip())
+             if args.candidates else None)  # "latency," (a trailing comma) is latency
     cfg = GapConfig(candidates=cands, max_effects=args.max_effects, top_k=args.top_k,
                     min_gain=args.min_gain, seed=args.seed, test_logs=test,
                     nthread=args.threads)

@@ -316,6 +316,10 @@ def generate(rig: str, hidden: Sequence[str] | None, rng: np.random.Generator, *
         high = np.array([hand.joint(j).high for j in joints])
     model = spec.compile()
     names = list(hidden or [])
+    twice = sorted({n for n in names if n != "random" and names.count(n) > 1})
+    if twice:  # before: both drawn and compounded, truth.json listing the effect twice
+        raise ConfigError(f"hidden effect {twice[0]!r} given twice; each effect is hidden once "
+                          "(on every joint of the rig)")
     names = [str(rng.choice(list(HIDDEN))) if n == "random" else n for n in names]
     for n in names:
         check_choice("hidden effect", n, CAUSES)

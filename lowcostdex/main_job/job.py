@@ -172,7 +172,7 @@ def _overview() -> str:
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("main", help="run the main job end to end (emulated D'Claw by default)",
                        description=_overview())
-    p.add_argument("--out", type=Path, default=Path("runs/main"), help="output folder")
+    p.add_argument("--out", default="runs/main", help="output folder")
     p.add_argument("--size", choices=SIZES, default="default",
                    help="budget: smoke (CI, ~1 min), default (~10 min on a 2-core machine with "
                         "one other job; more under load), long")
@@ -206,7 +206,7 @@ def _main(args: argparse.Namespace) -> int:
         from lowcostdex.hardware.dynamixel.ports import check_port
 
         check_port(device)
-    ctx = Context(out=args.out, size=args.size, seed=args.seed, port=device, task=args.task)
+    ctx = Context(out=Path(args.out), size=args.size, seed=args.seed, port=device, task=args.task)
     report = run(ctx, stages)
     print(f"REPORT {report.resolve()}")
     return 0

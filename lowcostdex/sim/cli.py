@@ -70,6 +70,9 @@ def _write_model(args: argparse.Namespace) -> int:
 
         if args.fingers:
             raise ConfigError("--fingers is for dclaw and allegro; the bench has one joint")
+        if args.station is not None:  # before: ignored, a bench model written without a word
+            raise ConfigError(f"--station {args.station}: the bench has no station (one servo "
+                              "and its arm); --station is for dclaw and allegro")
 
         spec = build_bench(BenchConfig(motor=args.motor or "XL330-M288",
                                        thermal=not args.no_thermal))

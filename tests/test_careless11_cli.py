@@ -1,0 +1,129 @@
+"""Careless command lines, session 16 (issue 13). Each test fails on the code before it.
+
+- ``lowcostdex main --out "$OUT"`` with OUT unset meant the current folder (``type=Path``
+  made "" into "."), where every other command says the option is empty.
+- ``model bench --station valve`` wrote a bench model without a word about the station.
+- ``gap analyze --candidates ""`` considered every effect, as if the option were absent.
+- ``gap generate --effect gain_error --effect gain_error`` hid the effect twice, compounded,
+  and truth.json listed it twice.
+- ``train npg --env Pendulum-v1`` (any gymnasium env without a ``backend`` keyword) died in
+  gym.make with a TypeError traceback; ``--env CartPole-v1`` (discrete actions) with an
+  AssertionError traceback from inside the first rollout, after the run folder was written.
+- ``train npg --env DClawTurnValve-v0`` (no ``lowcostdex/``) listed the envs without naming the
+  one meant; a motor typed ``XM430`` or in lower case the same.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from lowcostdex.cli import main
+
+
+def _run(argv, capsys) -> tuple[int, str]:
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return code, err.strip()
+
+
+def test_main_with_an_empty_out_says_it_is_empty(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "thesis.tex").write_text("mine")
+    code, err = _run(["main", "--out", "", "--size", "smoke"], capsys)
+    assert code == 2
+    assert err == "lowcostdex main: error: --out is empty (an unset shell variable?); give a path"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["thesis.tex"]
+
+
+def test_a_station_for_the_bench_is_refused(tmp_path, capsys):
+    out = tmp_path / "bench.xml"
+    code, err = _run(["model", "bench", "--station", "valve", "--out", str(out)], capsys)
+    assert code == 2
+    assert err == ("lowcostdex model: error: --station valve: the bench has no station (one "
+                   "servo and its arm); --station is for dclaw and allegro")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["", ",", " , "])
+def test_empty_candidates_are_refused_before_the_logs_are_read(value, tmp_path, capsys):
+    out = tmp_path / "report"
+    code, err = _run(["gap", "analyze", "--log", str(tmp_path / "absent.csv"), "--model",
+                      str(tmp_path / "absent.xml"), "--candidates", value, "--out", str(out)],
+                     capsys)
+    assert code == 2
+    assert err == ("lowcostdex gap analyze: error: --candidates is empty; name the effects "
+                   "(e.g. --candidates latency,backlash), or leave it out for every effect the "
+                   "logs support")
+    assert not out.exists()
+
+
+def test_an_effect_hidden_twice_is_refused(tmp_path, capsys):
+    out = tmp_path / "gen"
+    code, err = _run(["gap", "generate", "--rig", "finger", "--effect", "gain_error",
+                      "--effect", "gain_error", "--out", str(out)], capsys)
+    assert code == 2
+    assert err == ("lowcostdex gap generate: error: hidden effect 'gain_error' given twice; "
+                   "each effect is hidden once (on every joint of the rig)")
+    assert not out.exists()
+
+
+def test_two_random_effects_still_generate(tmp_path, capsys):
+    out = tmp_path / "gen"
+    code, _ = _run(["gap", "generate", "--effect", "random", "--effect", "latency", "--logs",
+                    "1", "--duration", "1", "--seed", "3", "--out", str(out)], capsys)
+    assert code == 0
+    assert len(json.loads((out / "truth.json").read_text())["hidden"]) == 2
+
+
+def test_train_npg_on_a_plain_gymnasium_env(tmp_path, capsys):
+    """Pendulum-v1 takes no ``backend`` keyword: the sim backend is every env's default."""
+    out = tmp_path / "run"
+    code, err = _run(["train", "npg", "--env", "Pendulum-v1", "--n-iter", "1", "--n-traj", "2",
+                      "--eval-every", "0", "--no-progress", "--out", str(out)], capsys)
+    assert code == 0, err
+    assert (out / "config.json").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--env", "CartPole-v1"], "npg trains envs with continuous actions (a Box space); "
+                               "CartPole-v1 has Discrete(2)"),
+    (["--env", "Pendulum-v1", "--backend", "emulated"],
+     "backend 'emulated' drives a lowcostdex robot; Pendulum-v1 is not a lowcostdex env "
+     "(lowcostdex/...): train it with backend 'sim'"),
+], ids=["discrete", "robot-backend"])
+def test_train_npg_on_an_env_it_cannot_train_says_why(argv, message, tmp_path, capsys):
+    out = tmp_path / "run"
+    code, err = _run(["train", "npg", *argv, "--n-iter", "1", "--n-traj", "2", "--out",
+                      str(out)], capsys)
+    assert code == 2
+    assert err == f"lowcostdex train npg: error: {message}"
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("env, meant", [
+    ("DClawTurnValve-v0", "'lowcostdex/DClawTurnValve-v0'"),
+    ("lowcostdex/DClawTurnVlave-v0", "'lowcostdex/DClawTurnValve-v0'"),
+])
+def test_a_mistyped_env_names_the_closest(env, meant, tmp_path, capsys):
+    code, err = _run(["train", "npg", "--env", env, "--out", str(tmp_path / "run")], capsys)
+    assert code == 2
+    assert err.startswith(f"lowcostdex train npg: error: unknown env {env!r}; lowcostdex envs: ")
+    assert f"; did you mean {meant}" in err
+
+
+@pytest.mark.parametrize("motor, meant", [("xm430-w350", "'XM430-W350'"),
+                                          ("XM430", "'XM430-W350' or 'XM430-W210'")])
+def test_a_mistyped_motor_names_the_closest(motor, meant, tmp_path, capsys):
+    code, err = _run(["model", "bench", "--motor", motor, "--out", str(tmp_path / "m.xml")],
+                     capsys)
+    assert code == 2
+    assert err.endswith(f"; did you mean {meant}?")
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hands import dclaw_spec
+
+    with pytest.raises(ConfigError) as exc:
+        dclaw_spec(motor)
+    assert str(exc.value).endswith(f"; did you mean {meant}?")
