@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -50,6 +51,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--units", choices=("rad", "deg"), default="rad",
                    help="the logs' angles: goal and qpos in rad, qvel in rad/s (default), or "
                         "deg and deg/s (as LeRobot records them); time stays in seconds")
+    a.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default="s",
+                   help="the unit of the logs' 'time' stamps (default s; ms: a logger's "
+                        "millis(), us: micros(), ns: time.monotonic_ns()); qvel stays per "
+                        "second")
     a.set_defaults(func=_analyze)
 
     i = gsub.add_parser("identify", help="fit the servo's own parameters (motor constants, "
@@ -160,10 +165,14 @@ def _analyze(args: argparse.Namespace) -> int:
     check_holdout(logs, args.holdout)
     try:
         ds = load_dataset(logs, model=args.model, bench=True if args.bench else None,
-                          servo_period=args.servo_period, angle_unit=args.units)
-    except LogError as exc:  # a log in degrees: say the option beside the unit's hint
+                          servo_period=args.servo_period, angle_unit=args.units,
+                          time_unit=args.time_unit)
+    except LogError as exc:  # a log in degrees or ms: say the option beside the unit's hint
         if args.units == "rad" and ("degrees?" in str(exc) or "deg/s or rpm?" in str(exc)):
             raise LogError(f"{exc}; or pass --units deg") from None
+        unit = re.search(r": (ms|us|ns)\? \(", str(exc))
+        if args.time_unit == "s" and unit and "column 'time'" in str(exc):
+            raise LogError(f"{exc}; or pass --time-unit {unit.group(1)}") from None
         raise
     for note in same + ds.notes:
         console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,

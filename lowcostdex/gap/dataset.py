@@ -37,6 +37,9 @@ from lowcostdex.sim.models.bench import build_bench
 from lowcostdex.sim.servo import MAX_SERVO_PERIOD
 
 ANGLE_UNITS = {"rad": 1.0, "deg": np.pi / 180.0}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+"""Seconds per unit of a project-format log's 'time' (and 'goal_time') column: a logger's
+``millis()``, ``micros()`` or ``time.monotonic_ns()`` stamps are read as they were written."""
 """Units ``load_dataset`` reads project-format logs' angles in: rad per unit."""
 
 MAX_TOTAL_DURATION = 4 * 3600.0
@@ -210,7 +213,8 @@ MAX_BENCH_TIMESTEP = 0.05
 
 def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | None = None,
                  bench: bool | None = None, timestep: float | None = None,
-                 servo_period: float = 0.0, angle_unit: str = "rad") -> Dataset:
+                 servo_period: float = 0.0, angle_unit: str = "rad",
+                 time_unit: str = "s") -> Dataset:
     """Read logs and their model(s).
 
     Args:
@@ -223,6 +227,9 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         the actuator law continuous).
       angle_unit: "rad" or "deg": the unit of project-format logs' goal and qpos columns (and
         of qvel per second); degrees are turned into rad on reading (hinge joints only).
+      time_unit: "s", "ms", "us" or "ns": the unit of project-format logs' 'time' (and
+        'goal_time') stamps (``TIME_UNITS``); integer stamps of a clock that did not start at 0
+        are fine (the first row need not be 0).
     Logs whose time stamps jump (logging paused) are split there (``split_at_gaps``; said in
     ``Dataset.notes``); the total duration is bounded by ``MAX_TOTAL_DURATION``.
 
@@ -231,6 +238,8 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     """
     if angle_unit not in ANGLE_UNITS:
         raise ConfigError(f"angle unit {angle_unit!r}; valid: {', '.join(ANGLE_UNITS)}")
+    if time_unit not in TIME_UNITS:
+        raise ConfigError(f"time unit {time_unit!r}; valid: {', '.join(TIME_UNITS)}")
     paths = expand_log_paths(paths)
     for p in paths:
         if not p.exists():
@@ -240,6 +249,9 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     bam = [is_bam(p) for p in paths]
     if angle_unit != "rad" and any(bam):
         raise LogError("BAM raw logs are in rad by their format; --units deg is for "
+                       "project-format logs (CSV/NPZ)")
+    if time_unit != "s" and any(bam):
+        raise LogError("BAM raw logs are in seconds by their format; --time-unit is for "
                        "project-format logs (CSV/NPZ)")
     if bench is None:
         bench = all(bam)
@@ -281,7 +293,8 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             if slides:
                 raise LogError(f"--units deg: the model has slide joints ({', '.join(slides)}) "
                                "whose positions are lengths: log angles in rad instead")
-        trajs = [read_log(p, rate, gears, angle_scale=scale) for p in paths]
+        trajs = [read_log(p, rate, gears, angle_scale=scale,
+                          time_scale=TIME_UNITS[time_unit]) for p in paths]
         trajs = [_in_order(tr, trajs[0]) for tr in trajs]
     total = sum(tr.duration for tr in trajs)
     if total > MAX_TOTAL_DURATION:

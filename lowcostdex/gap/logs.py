@@ -269,11 +269,14 @@ def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
 
 
 def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset(),
-             gears: dict[str, float] | None = None, angle_scale: float = 1.0) -> Trajectory:
+             gears: dict[str, float] | None = None, angle_scale: float = 1.0,
+             time_scale: float = 1.0) -> Trajectory:
     """Read one log (CSV, NPZ or BAM JSON; BAM logs carry their bench setup in ``meta``).
     ``rate_goals``: actuators whose goal is a velocity [rad/s] (integrating servos);
     ``gears``: actuator -> gear (its goal is gear x the joint angle); ``angle_scale``: rad per
-    unit of a project-format log's goal, qpos and qvel columns (pi/180: logged in degrees)."""
+    unit of a project-format log's goal, qpos and qvel columns (pi/180: logged in degrees);
+    ``time_scale``: seconds per unit of its 'time' and 'goal_time' columns (1e-3: integer
+    milliseconds); qvel stays per second."""
     path = Path(path)
     if path.suffix.lower() == ".json":
         return read_bam(path)[0]
@@ -282,6 +285,10 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
         cols = {k: (np.asarray(v, float) * angle_scale
                     if str(k).partition(":")[0].strip().lower() in ("goal", "qpos", "qvel")
                     and ":" in str(k) else v) for k, v in cols.items()}
+    if time_scale != 1.0:
+        cols = {k: (np.asarray(v, float) * time_scale
+                    if str(k).strip().lower() in ("time", "goal_time") else v)
+                for k, v in cols.items()}
     return trajectory_from_columns(cols, name=path.name, rate_goals=rate_goals, gears=gears)
 
 
