@@ -1,7 +1,8 @@
 """One runner for the red-team benchmarks (``bench/gap_redteam.py``, ``bench/gap_redteam3.py``).
 
 Each benchmark names an independently written truth simulator under ``tests/`` (a module with
-``CASES``, ``CASE_BY_NAME``, ``write_case(case, folder)`` -> {"model", "logs", "truth"} and
+``CASES``, ``CASE_BY_NAME``, ``write_case(case, folder)`` -> {"model", "logs", "truth"} (and "args": options the user passes
+for the logs' spelling, e.g. ``--units deg``) and
 ``score(report, truth)``; optionally ``effect_size(case)``). The simulators stay independent of
 each other and of the project; only this runner (the CLI call, scoring, table, queue) is shared.
 Every case goes through the CLI as a user would run it:
@@ -42,7 +43,8 @@ def truth_module(name: str) -> ModuleType:
 def analyze_command(files: dict, out: pathlib.Path, threads: int) -> list[str]:
     exe = shutil.which("lowcostdex") or "lowcostdex"
     return [exe, "gap", "analyze", "--model", files["model"], "--log", *files["logs"],
-            "--out", str(out), "--seed", "0", "--threads", str(threads)]
+            "--out", str(out), "--seed", "0", "--threads", str(threads),
+            *files.get("args", ())]  # the options a user passes for the logs' spelling
 
 
 def run_case(sim: ModuleType, case, root: pathlib.Path, threads: int = 1) -> dict:
