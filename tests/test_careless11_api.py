@@ -163,3 +163,120 @@ def test_a_mistyped_effect_for_the_randomization_names_the_closest():
     with pytest.raises(ConfigError) as exc:
         gym.make(VALVE, randomize=["backlsh"])
     assert str(exc.value).endswith("; did you mean 'backlash'?")
+
+
+# ------------------------------------------------------------------------------------------------
+# seeds and counts from numpy, the buses driven carelessly
+
+
+def test_a_numpy_seed_resets_the_env_as_the_same_int():
+    """Before: gymnasium's "Seed must be a python integer, actual type: numpy.int64" (a seed
+    sweep written ``for seed in np.arange(3)``)."""
+    env = gym.make(VALVE)
+    a = env.reset(seed=np.int64(3))[0]
+    b = env.reset(seed=3)[0]
+    env.close()
+    np.testing.assert_array_equal(a, b)
+
+
+def test_a_vector_env_s_size_reads_back_as_a_plain_int():
+    vec = make_vec(VALVE, num_envs=np.int64(2))
+    assert type(vec.num_envs) is int and vec.num_envs == 2
+    vec.close()
+
+
+def _dclaw_bus():
+    from lowcostdex.hands import dclaw_spec
+    from lowcostdex.hardware.emulated.chain import emulated_dclaw
+    from lowcostdex.hardware.robot.backend import make_dynamixel_bus, robot_hand
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    hand = dclaw_spec()
+    model = build_dclaw("none", hand).compile()
+    chain = emulated_dclaw("none", hand=hand, effects=(), rng=np.random.default_rng(0))
+    h = robot_hand(hand, model)
+    return make_dynamixel_bus(h, chain.port(), model), chain
+
+
+@pytest.mark.parametrize("word", ["no", "false", 0.0])
+def test_torque_given_a_word_is_refused_on_both_buses(word):
+    """Before: ``set_torque("no")`` (a flag read from a config file as text) turned the torque
+    ON, the string being truthy, on the Dynamixel bus and on the Allegro's."""
+    from lowcostdex.hardware.allegro.emulator import emulated_allegro
+
+    bus, chain = _dclaw_bus()
+    with bus:
+        with pytest.raises(ConfigError, match=f"^enabled={word!r} must be True or False$"):
+            bus.set_torque(word)
+        assert not any(chain.motors[i].torque_on for i in bus.ids)  # seen by the device
+    allegro, emu, _ = emulated_allegro()
+    allegro.connect()
+    try:
+        with pytest.raises(ConfigError, match=f"^enabled={word!r} must be True or False$"):
+            allegro.set_torque(word)
+        assert not allegro.torque_enabled().any()
+    finally:
+        allegro.disconnect()
+        emu.close()
+
+
+def test_torque_for_a_motor_not_on_the_bus_says_so_at_once():
+    """Before: four read attempts of the absent motor, then "no status packet"."""
+    from lowcostdex.hardware.bus import CommandError
+
+    bus, _ = _dclaw_bus()
+    with bus:
+        with pytest.raises(CommandError, match=r"^motor 99 is not on this bus \(10, 11, 12, "):
+            bus.set_torque(False, ids=[99])
+
+
+@pytest.mark.parametrize("goal, message", [
+    (np.zeros(3), "3 goals for 16 joints"),
+    (None, "0 goals for 16 joints"),
+])
+def test_the_allegro_given_the_wrong_number_of_goals_says_so(goal, message):
+    """Before: numpy's "cannot reshape array of size 3 into shape (16,)"."""
+    from lowcostdex.hardware.allegro.emulator import emulated_allegro
+    from lowcostdex.hardware.bus import CommandError
+
+    bus, emu, _ = emulated_allegro()
+    bus.connect()
+    try:
+        with pytest.raises(CommandError) as exc:
+            bus.write_goal_positions(goal)
+        assert str(exc.value).startswith(message) and str(exc.value).endswith("; nothing sent")
+    finally:
+        bus.disconnect()
+        emu.close()
+
+
+def test_an_emulated_allegro_connected_again_after_disconnect_says_make_a_new_one():
+    """Before: connect() opened the socketcan channel 'can0' and said "no such network
+    interface", on a machine where the user never named can0."""
+    from lowcostdex.hardware.allegro.emulator import emulated_allegro
+    from lowcostdex.hardware.bus import BusError
+
+    bus, emu, _ = emulated_allegro()
+    bus.connect()
+    bus.disconnect()
+    with pytest.raises(BusError, match=r"^this AllegroBus was given its CAN bus .* make a new "
+                                       r"one \(emulated_allegro\(\), or gym.make for an env\)$"):
+        bus.connect()
+    emu.close()
+
+
+def test_robot_joints_given_as_one_name_is_that_joint():
+    """Before: ``robot.send(goal, joints="ff_top")`` was read letter by letter: "unknown joint
+    'f'"."""
+    from lowcostdex.hands import dclaw_spec
+    from lowcostdex.hardware.emulated.chain import emulated_dclaw
+    from lowcostdex.hardware.robot.backend import make_dynamixel_bus, robot_hand
+    from lowcostdex.hardware.robot.robot import Robot, RobotConfig
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    hand = dclaw_spec()
+    model = build_dclaw("none", hand).compile()
+    chain = emulated_dclaw("none", hand=hand, effects=(), rng=np.random.default_rng(0))
+    h = robot_hand(hand, model)
+    robot = Robot(h, make_dynamixel_bus(h, chain.port(), model), RobotConfig(control_period=0.02))
+    assert robot.index("ff_top").tolist() == robot.index(["ff_top"]).tolist() == [0]

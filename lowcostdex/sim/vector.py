@@ -52,6 +52,7 @@ class HandVectorEnv(gym.vector.VectorEnv):
                  nthread: int = 0):
         check_number("num_envs", num_envs, 1, integer=True)
         check_number("nthread", nthread, 0, integer=True)
+        num_envs, nthread = int(num_envs), int(nthread)  # np.int64(2) read back as a plain int
         # A template env builds and binds the model exactly as the single env does.
         self._template = HandEnv(task, backend="sim", randomization=randomization)
         self.task, self.randomization = task, randomization

@@ -32,10 +32,10 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_bool
 from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.hardware.allegro import protocol as proto
-from lowcostdex.hardware.bus import BusError, MotorBus, MotorState
+from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorState
 from lowcostdex.hardware.timing import Clock, RealClock
 
 
@@ -188,6 +188,8 @@ class AllegroBus(MotorBus):
         if not 1 <= period_ms <= 100:
             raise ConfigError(f"period_ms={period_ms} outside 1..100")
         self._bus = can_bus
+        self._given = can_bus is not None  # not reopened by connect() after a shutdown
+        self._closed = False
         self._own_bus = can_bus is None if own_bus is None else own_bus
         self._interface, self._channel = interface, channel
         self.gains = gains
@@ -236,6 +238,10 @@ class AllegroBus(MotorBus):
         """
         if self._connected:
             return
+        if self._bus is None and self._closed and self._given:  # shut down at disconnect()
+            raise BusError("this AllegroBus was given its CAN bus (an emulated hand's virtual "
+                           "channel) and shut it down at disconnect(); make a new one "
+                           "(emulated_allegro(), or gym.make for an env)")
         if self._bus is None:
             self._bus = open_can_bus(self._interface, self._channel)
         self._drain()
@@ -321,14 +327,18 @@ class AllegroBus(MotorBus):
         """Set PD goals [rad] for ``ids`` (default all); takes effect at the next pose set."""
         self._check_connected()
         idx = self._index(ids)
-        pos = np.asarray(positions, float).reshape(len(idx))
+        pos = np.asarray(positions, float) if positions is not None else np.zeros(0)
+        if pos.shape != (len(idx),):  # before: numpy's "cannot reshape array of size 3"
+            raise CommandError(f"{pos.size} goals for {len(idx)} joints (ids "
+                               f"{', '.join(map(str, np.asarray(self.ids)[idx]))}); nothing sent")
         if not np.all(np.isfinite(pos)):
-            raise ValueError(f"goal positions must be finite, got {pos}")
+            raise CommandError(f"goal positions must be finite, got {pos}; nothing sent")
         with self._lock:
             self._goal[idx] = pos
 
     def set_torque(self, enabled: bool, ids: Sequence[int] | None = None) -> None:
         """PD on/off per joint; turning on first sets goal := present. Servo on while any is."""
+        check_bool("enabled", enabled)  # "no" or "false" (a config string) turned the PD on
         self._check_connected()
         idx = self._index(ids)
         with self._lock:

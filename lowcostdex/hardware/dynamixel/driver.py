@@ -78,7 +78,7 @@ from collections.abc import Sequence
 import numpy as np
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_bool
 from lowcostdex.hands import HandSpec
 from lowcostdex.hardware import bus as _bus
 from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorState
@@ -497,8 +497,12 @@ class DynamixelBus(SdkTransactions, MotorBus):
         on, Bus Watchdog armed. Raises PositionOutOfLimits (before any torque is on) when a motor
         sits outside its limits, MotorFault when a motor refuses because of a latched hardware
         error (reboot it)."""
+        check_bool("enabled", enabled)  # "no" or "false" (a config string) turned torque on
         self._require_connected()
         ids = self.ids if ids is None else tuple(ids)
+        absent = [i for i in ids if i not in self._index]
+        if absent:  # before: 4 read attempts, then "no status packet"
+            raise CommandError(f"motor {absent[0]} is not on this bus {self.ids}")
         if not enabled:
             failed = disable_confirmed(self, ids)
             if failed:

@@ -308,8 +308,10 @@ class Robot:
 
     # -- indexing -------------------------------------------------------------------------------
     def index(self, joints: Sequence[str] | None = None) -> np.ndarray:
-        """Indices into ``joint_names`` of ``joints`` (default: the action joints)."""
-        names = self.action_joints if joints is None else tuple(joints)
+        """Indices into ``joint_names`` of ``joints`` (default: the action joints; one name
+        alone is that joint, not its letters)."""
+        names = (self.action_joints if joints is None
+                 else (joints,) if isinstance(joints, str) else tuple(joints))
         for n in names:
             check_choice("joint", n, self.joint_names)
         return np.array([self.joint_names.index(n) for n in names], dtype=int)

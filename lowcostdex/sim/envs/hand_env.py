@@ -238,6 +238,8 @@ class HandEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode. ``options`` may hold ``qpos``/``qvel`` (a fixed start state) and
         ``goal`` (a dict overriding the task's goal)."""
+        if isinstance(seed, np.integer):  # a seed from np.arange: gymnasium takes int only
+            seed = int(seed)
         super().reset(seed=seed)
         options = options or {}
         qpos, qvel, goal = self.task.initial_state(self.np_random)
