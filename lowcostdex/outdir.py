@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
 import tempfile
 import time
@@ -79,12 +80,12 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
         raise OutputRefused(
             f"--out {out} already holds files that lowcostdex did not write "
             f"({_listing(out)}); they are left untouched. Give an empty or new folder, "
-            f"e.g. --out {fresh}")
+            f"e.g. --out {shlex.quote(str(fresh))}")
     if marker.get("command") != command:
         raise OutputRefused(
             f"--out {out} holds the output of 'lowcostdex {marker.get('command')}', not of "
             f"'lowcostdex {command}'; it is left untouched. Give another folder, e.g. "
-            f"--out {fresh}")
+            f"--out {shlex.quote(str(fresh))}")
     old = marker.get("settings") or {}
     for key in must_match:
         new_value = (settings or {}).get(key)
@@ -92,7 +93,7 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
             raise OutputRefused(
                 f"--out {out} holds a run with {key}={old[key]!r}; this run has "
                 f"{key}={new_value!r} and its stages cannot build on that one. Use the same "
-                f"{key} or another folder, e.g. --out {fresh}")
+                f"{key} or another folder, e.g. --out {shlex.quote(str(fresh))}")
     return True
 
 

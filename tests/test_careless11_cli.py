@@ -127,3 +127,38 @@ def test_a_mistyped_motor_names_the_closest(motor, meant, tmp_path, capsys):
     with pytest.raises(ConfigError) as exc:
         dclaw_spec(motor)
     assert str(exc.value).endswith(f"; did you mean {meant}?")
+
+
+# ------------------------------------------------------------------------------------------------
+# a folder with a space in its name: the commands a message offers paste as they are printed
+
+
+def test_the_command_main_offers_is_quoted_for_a_folder_with_a_space(tmp_path, capsys):
+    """Before: "run `lowcostdex main --out my run --stages demos,train`", which the shell
+    reads as --out my and a stray argument."""
+    out = tmp_path / "my run"
+    code, err = _run(["main", "--out", str(out), "--stages", "train", "--size", "smoke"], capsys)
+    assert code == 2
+    assert f"run `lowcostdex main --out '{out}' --stages demos,train`" in err
+
+
+def test_the_fresh_folder_offered_is_quoted(tmp_path, capsys):
+    theirs = tmp_path / "my data"
+    theirs.mkdir()
+    (theirs / "paper.tex").write_text("mine")
+    code, err = _run(["gap", "generate", "--out", str(theirs)], capsys)
+    assert code == 2
+    assert f"e.g. --out '{theirs}/generate-" in err
+    assert (theirs / "paper.tex").read_text() == "mine"
+
+
+def test_record_log_offers_a_gap_command_that_reads_its_folder(tmp_path, capfd):
+    """Before: "--log my logs/*.csv", three words to the shell."""
+    import shlex
+
+    out = tmp_path / "my logs"
+    code = main(["record-log", "--logs", "1", "--seconds", "0.5", "--out", str(out)])
+    captured = capfd.readouterr()
+    printed = " ".join((captured.out + captured.err).split())
+    assert code == 0
+    assert f"--log {shlex.quote(str(out))} --out DIR" in printed

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 from pathlib import Path
 
@@ -248,7 +249,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     if args.spec and out.exists() and Path(args.spec).exists() and out.samefile(args.spec):
         raise InputError(f"--out {args.out} is the --spec file itself: calibrating would "
                          "replace the spec it starts from (kept nowhere else); give a new file "
-                         f"name, e.g. --out {out.with_name(out.stem + '_calibrated.json')}")
+                         f"name, e.g. --out {shlex.quote(str(out.with_name(out.stem + '_calibrated.json')))}")
     if out.exists():  # replaced only when it is a hand spec (this command's own output)
         try:
             HandSpec.load(out)

@@ -85,13 +85,15 @@ def open_job(ctx: Context, stages: tuple[str, ...]) -> None:
                 raise ConfigError(
                     f"stage '{name}' needs the results of stage '{need}', which neither runs "
                     f"now nor finished earlier in {ctx.out}; run "
-                    f"`lowcostdex main --out {ctx.out} --stages {need},{name}` (plus the same "
+                    f"`lowcostdex main --out {shlex.quote(str(ctx.out))} --stages {need},{name}` "
+                    "(plus the same "
                     "--task/--size/--seed)")
     reported = [n for n, _ in STAGES if n != "report" and (n in stages or n in ctx.results)]
     if "report" in stages and not reported:
         raise ConfigError(
             f"stage 'report' has nothing to report: no stage ran now or finished earlier in "
-            f"{ctx.out}; run `lowcostdex main --out {ctx.out}` (all stages) or a subset of "
+            f"{ctx.out}; run `lowcostdex main --out {shlex.quote(str(ctx.out))}` (all stages) "
+            "or a subset of "
             "--stages bus,demos,gap,train first (plus the same --task/--size/--seed)")
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 
 from lowcostdex.argtypes import SEED, number
@@ -229,7 +230,7 @@ def _record_log(args: argparse.Namespace) -> int:
                       f"them in {out / PREVIOUS}/", markup=False, highlight=False, soft_wrap=True)
         return INTERRUPTED
     console.print(f"{len(paths)} logs -> {args.out}; analyse them with "
-                  f"`lowcostdex gap analyze --model MODEL.xml --log {args.out}/*.csv --out DIR` "
+                  f"`lowcostdex gap analyze --model MODEL.xml --log {shlex.quote(args.out)} --out DIR` "
                   f"(MODEL.xml: `{model_command(args.hand, joints)}`: a model of the fingers "
                   "the logs moved)", soft_wrap=True)  # no line breaks inside the commands
     return 0
