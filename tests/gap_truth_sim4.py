@@ -26,6 +26,8 @@ tip mass. Per actuator kind (``KINDS``) the nominal numbers are a servo of that 
 - ``dcmotor``: MuJoCo's own ``<dcmotor input="pos" nominal="12 1.5 6" controller="kp 0 kd 0 0
   12">`` (kp 4, kd 0.1; back-EMF and the drive clamped at Vmax 12 V are MuJoCo's: without a
   Vmax its controller is not clamped at all, a 6 N m push from a 1.5 N m motor).
+- ``dcmotor_unclamped``: the same dcmotor written as MuJoCo's default leaves it, Vmax 0 (no drive
+  limit: its torque kp (goal - q) - kd qdot is never clamped; a user's model with no stall).
 
 Hidden effects, written here from their physics (``Effect.kind``):
 
@@ -70,7 +72,7 @@ MODEL_DT = 0.002                     # s, the user's model step
 NOISE = 0.0005                       # rad, read noise before quantisation
 SETTLE = 1.0                         # s run (host loop included) before the first logged row
 
-KINDS = ("velocity", "motor", "position", "general", "dcmotor")
+KINDS = ("velocity", "motor", "position", "general", "dcmotor", "dcmotor_unclamped")
 # host loops of the velocity- and torque-commanded kinds
 KP_V, VMAX = 4.0, 3.0                # 1/s, rad/s
 KP_M, KD_M, UMAX = 3.0, 0.12, 1.0    # N m/rad, N m s/rad, N m
@@ -89,6 +91,9 @@ NOMINAL = {
     # output) on position input with its controller's kp and kd
     "dcmotor": dict(rod=0.04, tip=0.20, length=0.12, armature=0.003, damping=0.02,
                     kp=4.0, kv=0.1, force=1.5, volts=12.0, no_load=6.0),
+    # the same motor and controller with no drive limit (controller Vmax 0)
+    "dcmotor_unclamped": dict(rod=0.04, tip=0.20, length=0.12, armature=0.003, damping=0.02,
+                              kp=4.0, kv=0.1, force=1.5, volts=12.0, no_load=6.0, vmax=0.0),
 }
 GOAL_RANGE = (-1.0, 1.0)             # rad, targets of the excitation
 EFFECTS = ("latency", "reading_offset", "gain", "viscous", "coulomb", "inertia", "mass",
@@ -170,10 +175,11 @@ def model_xml(kind: str, case: Case | None = None, timestep: float = MODEL_DT) -
     elif kind == "position":
         act = (f'<position name="{ACTUATOR}" joint="{JOINT}" kp="{p["kp"] * gain:.9g}" '
                f'kv="{p["kv"]:.9g}" {lim}/>')
-    elif kind == "dcmotor":
+    elif kind.startswith("dcmotor"):
         act = (f'<dcmotor name="{ACTUATOR}" joint="{JOINT}" input="pos" '
                f'nominal="{p["volts"]:.9g} {f:.9g} {p["no_load"]:.9g}" '
-               f'controller="{p["kp"] * gain:.9g} 0 {p["kv"]:.9g} 0 0 {p["volts"]:.9g}"/>')
+               f'controller="{p["kp"] * gain:.9g} 0 {p["kv"]:.9g} 0 0 '
+               f'{p.get("vmax", p["volts"]):.9g}"/>')
     else:
         kp = p["kp"] * gain
         act = (f'<general name="{ACTUATOR}" joint="{JOINT}" gaintype="fixed" biastype="affine" '
@@ -335,6 +341,8 @@ CASES: tuple[Case, ...] = (
     Case("torque_limit06_motor_posonly", "motor", (E("torque_limit", 0.6),), qvel=False, seed=55,
          note="60 % of the host's +-1 N m commands delivered at most"),
     Case("gain05_motor", "motor", (E("gain", 0.5),), seed=56, note="half the torque per command"),
+    Case("coulomb020_dcmotor_unclamped", "dcmotor_unclamped", (E("coulomb", 0.2),), seed=57,
+         note="dry friction on a dcmotor with no drive limit (no stall torque to bound it)"),
 )
 CASE_BY_NAME = {c.name: c for c in CASES}
 

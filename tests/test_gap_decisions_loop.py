@@ -176,6 +176,8 @@ def make_loop(monkeypatch):
             monkeypatch.setattr(AZ, name, value)
         monkeypatch.setattr(fitmod, "stall_torque", lambda model, acts: log(
             "stall_torque", model, acts) or np.array([np.inf]))
+        monkeypatch.setattr(fitmod, "dcmotor_mask", lambda model, acts: log(
+            "dcmotor_mask", model, acts) or np.array([False]))
         config = GapConfig(**{"refine_step": False, "bootstrap": 200, "search": "forward",
                               "probes": (0.01, 0.02), **cfg})
         calls["ds"] = ds

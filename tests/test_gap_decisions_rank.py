@@ -167,11 +167,11 @@ def test_a_parameter_that_does_not_act_on_these_actuators_is_not_probed():
 
 
 def test_a_candidate_with_every_parameter_held_scores_zero_instead_of_failing():
-    # a user's own MuJoCo dcmotor written without a drive limit (controller Vmax 0: unclamped)
-    # has a stall torque K Vmax / R of 0, so coulomb_friction's level is held at 0 (its range
-    # tops at the stall) with its creep and asymmetry: no column to replay. Until session 15
-    # ranking then stopped the analysis (ValueError: need at least one array to stack; redteam
-    # sim4 gain05_dcmotor before its truth got a Vmax); it now scores 0, the others as before
+    # a stall torque of 0 holds coulomb_friction's level at 0 (its range tops at the stall)
+    # with its creep and asymmetry: no column to replay. Until session 15 ranking then stopped
+    # the analysis (ValueError: need at least one array to stack; redteam sim4 gain05_dcmotor,
+    # a user's dcmotor without a drive limit, whose stall K Vmax / R was 0 until session 16's
+    # servo.stall_torque); it now scores 0, the others as before
     eng = _Recorder()
     table, _ = _rank(eng, SEGS, fitmod.Structure((), JOINTS), np.zeros(0),
                      ["coulomb_friction", "position_offset"], _ctx([0.0, 0.0]))

@@ -132,12 +132,15 @@ def test_a_users_settings_reach_the_stage_they_set(loop):
     assert d is ds and m is model and targets.actuators.tolist() == [0]
     ((m, acts),) = seen["stall_torque"]
     assert m is model and acts.tolist() == [0]
+    ((m, acts),) = seen["dcmotor_mask"]
+    assert m is model and acts.tolist() == [0]
     # the fit context: the log's step, the nominal replay's peak force (the stand-in's 1.0 at
     # column 0), the stall torque, the model's damping
     for segs, _, _, ctx in seen["_rank"]:
         assert segs == [EPS[0]]
         assert ctx.dt == 0.002 and ctx.peak_force.tolist() == [1.0]
         assert ctx.stall.tolist() == [math.inf] and ctx.damping.tolist() == [0.1]
+        assert ctx.is_dcmotor.tolist() == [False]
     assert [(c, r) for _, c, r, _ in seen["_rank"]] == [
         ((), ["position_offset", "mounting_offset"]), (("position_offset",),
                                                        ["mounting_offset"])]

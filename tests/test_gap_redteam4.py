@@ -34,15 +34,12 @@ import gap_truth_sim4 as sim  # noqa: E402
 FAST = ("clean_velocity",)
 
 # what the analysis named instead, per case it misses (bench/gap_redteam4.py --threads 1)
-MISSES: dict[str, str] = {
-    "gain05_dcmotor": "extra (gap-judge9, c354756, 434 s wall, 61 s CPU): gain_error 0.708 "
-                      "[0.681, 0.744] (truth 0.5) plus mass_error 1.409; held-out 39.2 -> 3.18 "
-                      "mrad (floor ~0.6). The truth halves the dcmotor controller's kp and keeps "
-                      "its kd (a P gain lowered, as gain_error means on a position actuator: kp "
-                      "scaled, kv kept); the catalogue's gain_error on a dcmotor scales P, I and "
-                      "D together (minus the back-EMF term), another physical thing, so a softer "
-                      "P with the same D is fitted as a milder gain plus a heavier link",
-}
+MISSES: dict[str, str] = {}
+# gain05_dcmotor was extra on c354756 (gap-judge9; 61 s CPU): gain_error 0.708 [0.681, 0.744]
+# (truth 0.5) plus mass_error 1.409, held-out 39.2 -> 3.18 mrad: the truth halves the dcmotor
+# controller's kp and keeps its kd, the catalogue's gain_error on a dcmotor scaled P, I and D
+# together. Since gain_error scales the P term alone on every kind (gap-dc11, session 16; 111 s
+# CPU): exact, 0.5 [0.499, 0.5007], held-out 38.9 -> 0.68 mrad (floor 0.67).
 # latency050_offsetm020_position was a miss on 8283b8a (latency 48.4 ms alone, held-out 259 ->
 # 200 mrad: the -0.2 rad offset, chosen first, sat on its +-0.2 search bound once the latency
 # was fitted beside it and the backward pass dropped it as implausible); since

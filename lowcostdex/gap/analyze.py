@@ -190,7 +190,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     ctx = fitmod.Context(
         dt=ds.timestep,
         peak_force=np.asarray(peaks[0])[_act_cols(ds, targets, m0)],
-        stall=fitmod.stall_torque(m0, targets.actuators),
+        **fitmod.servo_facts(m0, targets.actuators),
         damping=m0.dof_damping[targets.dofs].copy())
 
     # ---- 2. forward selection ------------------------------------------------------------------
@@ -564,7 +564,7 @@ def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x
     nj = len(eng.joints)
     for name in remaining:
         for p in effect(name).params:
-            if not p.acts(np.isfinite(ctx.stall)):  # fitted where it acts (Structure.build)
+            if not p.acts(ctx.is_dcmotor):  # fitted where it acts (Structure.build)
                 continue
             for j in range(nj):
                 f = fitmod.space(name, p.name, j, ctx)

@@ -27,11 +27,10 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-import mujoco
 import numpy as np
 
-from lowcostdex.sim import servo
 from lowcostdex.sim.effects import AppliedEffect, effect
+from lowcostdex.sim.servo import dcmotor_mask, stall_torque
 
 # Extra starts for non-convex parameters, as fractions of (value at start) or absolute values.
 _EXTRA_STARTS: dict[tuple[str, str], tuple[float, ...]] = {
@@ -50,10 +49,11 @@ class Context:
     Attributes:
       dt: physics timestep [s].
       peak_force: (nj,) peak |actuator force| of the current model on the training data [N m].
-      stall: (nj,) stall torque of each servo at its supply [N m].
+      stall: (nj,) stall torque of each servo at its supply [N m] (inf: no drive limit).
       damping: (nj,) nominal joint damping [N m s/rad].
       widened: search ranges widened beyond the catalogue's, (effect, param, joint index) ->
         (low, high) in parameter units (``widen``).
+      dcmotor: (nj,) which servos are dcmotors (None: those with a finite stall torque).
     """
 
     dt: float
@@ -61,6 +61,11 @@ class Context:
     stall: np.ndarray
     damping: np.ndarray
     widened: dict[tuple[str, str, int], tuple[float, float]] = field(default_factory=dict)
+    dcmotor: np.ndarray | None = None
+
+    @property
+    def is_dcmotor(self) -> np.ndarray:  # (nj,) bool: where a ``Param.on`` "dcmotor" acts
+        return np.isfinite(self.stall) if self.dcmotor is None else np.asarray(self.dcmotor, bool)
 
     def with_ranges(self, ranges: dict[tuple[str, str, int], tuple[float, float]]) -> Context:
         """A copy with these widened ranges added."""
@@ -177,7 +182,7 @@ class Structure:
               fixed: Sequence[AppliedEffect] = ()) -> Structure:
         """Free per-joint parameters for ``effects``; ``fixed`` effects ride along unchanged."""
         free = [space(n, p.name, j, ctx) for n in effects for p in effect(n).params
-                if p.acts(np.isfinite(ctx.stall)) for j in range(len(joints))]
+                if p.acts(ctx.is_dcmotor) for j in range(len(joints))]
         return cls(tuple(effects), tuple(joints), [f for f in free if f.lo < f.hi], tuple(fixed))
 
     @property
@@ -691,10 +696,5 @@ def step_shift(t: Track, residual: ResidualFn, max_rounds: int, rtol: float = 1e
     return nt.u - t.u
 
 
-def stall_torque(model, actuators: np.ndarray) -> np.ndarray:
-    """Stall torque K Vmax / R of dcmotor servos [N m] (inf for other actuators)."""
-    g = model.actuator_gainprm[actuators]
-    is_dc = model.actuator_gaintype[actuators] == int(mujoco.mjtGain.mjGAIN_DCMOTOR)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        st = g[:, servo.GAIN_K] * g[:, servo.GAIN_VMAX] / g[:, servo.GAIN_R]
-    return np.where(is_dc & np.isfinite(st), st, np.inf)
+def servo_facts(model, actuators: np.ndarray) -> dict[str, np.ndarray]:  # Context's keywords
+    return {"stall": stall_torque(model, actuators), "dcmotor": dcmotor_mask(model, actuators)}

@@ -311,7 +311,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     targets = Targets.resolve(m0, joints)
     w_train = whole_logs(ds, train)
     ctx = fitmod.Context(dt=ds.timestep, peak_force=_peak_force(rep, w_train, targets, m0),
-                         stall=fitmod.stall_torque(m0, targets.actuators),
+                         **fitmod.servo_facts(m0, targets.actuators),
                          damping=m0.dof_damping[targets.dofs].copy())
     weights = [1.0 / math.sqrt(ds.trajectories[w.traj].qpos.size) for w in w_train]
 

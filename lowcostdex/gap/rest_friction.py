@@ -30,6 +30,7 @@ own breakaway at the largest gravity torque the logs put on the joint (``gear_br
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import mujoco
@@ -63,7 +64,10 @@ def rest_breakaway(rep: Replayer, ds: Dataset, train: Sequence[int],
     """
     levels = []
     lv = FIRST_LEVEL
-    while lv <= stall:
+    # a servo without a drive limit (stall inf) scans up to dry friction's hard limit
+    top = stall if math.isfinite(stall) else EFFECTS["coulomb_friction"].param(
+        "frictionloss").hard[1]
+    while lv <= top:
         levels.append(lv)
         lv *= 2.0
     vel = EFFECTS["stribeck_friction"].param("velocity").low

@@ -147,6 +147,27 @@ def servo_actuator_ids(model: mujoco.MjModel) -> np.ndarray:
     return np.flatnonzero(model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR)
 
 
+def dcmotor_mask(model: mujoco.MjModel, actuators: np.ndarray) -> np.ndarray:
+    """(n,) bool: which of these actuators are dcmotors."""
+    return model.actuator_gaintype[actuators] == int(mujoco.mjtGain.mjGAIN_DCMOTOR)
+
+
+def stall_torque(model: mujoco.MjModel, actuators: np.ndarray) -> np.ndarray:
+    """Stall torque K Vmax / R of dcmotor servos [N m] (inf for other actuators).
+
+    A dcmotor written without a drive limit (``controller`` Vmax 0, MuJoCo's default) is not
+    clamped: its torque kp (goal - q) grows with the error (12 N m from a 1.5 N m motor 3 rad
+    off its goal). It has no stall torque: the top of its force range when it has one, else
+    inf (the gap analysis then bounds dry friction by its hard limit, not at 0)."""
+    g = model.actuator_gainprm[actuators]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        st = g[:, GAIN_K] * g[:, GAIN_VMAX] / g[:, GAIN_R]
+    top = np.abs(model.actuator_forcerange[actuators]).max(axis=-1)
+    capped = (model.actuator_forcelimited[actuators] > 0) & (top > 0)
+    st = np.where(g[:, GAIN_VMAX] > 0, st, np.where(capped, top, np.inf))
+    return np.where(dcmotor_mask(model, actuators) & ~np.isnan(st), st, np.inf)
+
+
 def motor_current(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
     """Winding current of every actuator [A] (tau / K; 0 for non-dcmotor actuators)."""
     k = model.actuator_gainprm[:, GAIN_K]

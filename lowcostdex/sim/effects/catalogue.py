@@ -132,37 +132,55 @@ class ViscousDamping(Effect):
 class GainError(Effect):
     name = "gain_error"
     kind = "model"
-    doc = ("position gain off by a factor: a dcmotor servo's firmware P/I/D (torque per volt "
-           "of error), a position actuator's stiffness kp (gain and bias together), a velocity "
-           "actuator's kv, a motor's torque gain")
+    doc = ("the position loop's proportional gain off by a factor, its D and I terms kept: a "
+           "position actuator's kp (kv kept), a general servo's gain with its -kp bias, a "
+           "dcmotor's controller kp (the firmware P: ki and kd kept); on a velocity actuator "
+           "its loop gain kv (its proportional gain: the velocity loop has no other), on a "
+           "motor its torque per command")
+    # One physical thing on every kind: the torque per rad of position error (the P term)
+    # scales; what damps (kv, a firmware D, back-EMF) and what integrates (ki) does not.
+    # Why ki is kept on a dcmotor: the I gain is its own register (Dynamixel Position I Gain
+    # 82, MuJoCo's controller ki), set and wrong independently of P, and BAM's
+    # error_gain_ratio, the fit this matches on real servos, scales the P path (duty =
+    # error_gain kp (goal - q), 08-bam-reference-errors.md); a drive whose whole output per
+    # volt is off (P, I, D and the stall torque together) is ``motor_strength``, a supply
+    # off ``voltage_sag``. sim4's gain05_dcmotor (kp x0.5, kd kept): P, I and D scaled together
+    # fitted 0.708 + a mass error 1.41; P alone 0.5 (bench/RESULTS.md gap-dc11).
     params = (Param("scale", 1.0, 0.2, 4.0, "1", (0.7, 1.4), limit=(0.05, 20.0)),)
     fields = ("actuator_gainprm", "actuator_biasprm")
 
     @classmethod
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:
-        g, nom = f.array("actuator_gainprm"), f.nominal("actuator_gainprm")
+        g = f.array("actuator_gainprm")
         bias, nom_bias = f.array("actuator_biasprm"), f.nominal("actuator_biasprm")
         s = np.asarray(v["scale"], dtype=float)
         s = np.broadcast_to(s, g.shape[:-2] + (len(t.actuators),))
         dc = _dcmotor(f, t)
+        gaintype = f.nominal("actuator_gaintype")[t.actuators]
+        other = ~dc & (gaintype != int(mujoco.mjtGain.mjGAIN_FIXED))
+        if np.any(other) and np.any(s[..., other] != 1.0):
+            kinds = sorted({mujoco.mjtGain(int(k)).name.removeprefix("mjGAIN_").lower()
+                            for k in gaintype[other]})
+            raise ConfigError(
+                f"gain_error scales a proportional gain; the actuators of joints "
+                f"{[t.joints[i] for i in np.flatnonzero(other)]} have gain type "
+                f"{', '.join(kinds)}, with no proportional gain it could scale (it applies to "
+                "position, general with a fixed gain, velocity, motor and dcmotor actuators)")
         if np.any(dc):
-            a, sd = t.actuators[dc], s[..., dc]
-            backemf = nom[a, servo.GAIN_K] ** 2 / nom[a, servo.GAIN_R]
-            g[..., a, servo.GAIN_KP] = g[..., a, servo.GAIN_KP] * sd
-            g[..., a, servo.GAIN_KI] = g[..., a, servo.GAIN_KI] * sd
-            g[..., a, servo.GAIN_KD] = backemf + (g[..., a, servo.GAIN_KD] - backemf) * sd
-        if np.any(~dc):
+            a = t.actuators[dc]
+            g[..., a, servo.GAIN_KP] = g[..., a, servo.GAIN_KP] * s[..., dc]
+        if np.any(~dc & ~other):
             # fixed gain: force = gain * ctrl + b0 + b1 * length + b2 * velocity. A position
             # servo (b1 = -kp) is stiffer or softer: gain and b1 scale together so it still
-            # holds its goal; a velocity servo (b1 = 0, b2 = -kv) scales kv; a motor its gain.
-            a, sf = t.actuators[~dc], s[..., ~dc]
+            # holds its goal, b2 (-kv) kept; a velocity servo (b1 = 0, b2 = -kv) scales kv; a
+            # motor its gain.
+            fx = ~dc & ~other
+            a, sf = t.actuators[fx], s[..., fx]
             g[..., a, 0] = g[..., a, 0] * sf
             pos = nom_bias[a, 1] != 0
             vel = ~pos & (nom_bias[a, 2] != 0)
             bias[..., a[pos], 1] = bias[..., a[pos], 1] * sf[..., pos]
             bias[..., a[vel], 2] = bias[..., a[vel], 2] * sf[..., vel]
-
-
 
 
 class TorqueLimit(Effect):
