@@ -30,6 +30,7 @@ from pathlib import Path
 from lowcostdex.algos import experiment
 from lowcostdex.algos.configs import BCConfig
 from lowcostdex.algos.train import TrainConfig, check_env_id, train
+from lowcostdex.argtypes import path
 from lowcostdex.cli import main as lowcostdex
 from lowcostdex.cli import run_script
 from lowcostdex.demonstrations.file import read_episodes
@@ -43,7 +44,7 @@ def demos_option(text: str) -> int | Path:
         if count < 1:
             raise argparse.ArgumentTypeError(f"{text!r}: record at least 1 demonstration")
         return count
-    return Path(text)
+    return Path(path(text))  # "" is no file (an unset shell variable), not the current folder
 
 
 def main() -> None:

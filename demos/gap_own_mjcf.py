@@ -27,6 +27,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.argtypes import SEED
+from lowcostdex.argtypes import path as path_option
 from lowcostdex.cli import main as cli_main
 from lowcostdex.cli import run_script
 
@@ -91,7 +92,8 @@ def record(t: np.ndarray, g: np.ndarray, rng: np.random.Generator) -> np.ndarray
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="runs/gap_own_mjcf", help="folder to write (new or empty)")
+    parser.add_argument("--out", type=path_option, default="runs/gap_own_mjcf",
+                        help="folder to write (new or empty)")
     parser.add_argument("--seed", type=SEED, default=0)
     args = parser.parse_args()
     out = pathlib.Path(args.out)

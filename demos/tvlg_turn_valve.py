@@ -53,7 +53,7 @@ from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
 from lowcostdex.algos.local_models.tvlg import TVLGConfig
 from lowcostdex.algos.samplers import EVAL_STREAM, RolloutJob
 from lowcostdex.algos.train_cli import check_resume
-from lowcostdex.argtypes import SEED, integer, number
+from lowcostdex.argtypes import SEED, integer, number, path
 from lowcostdex.cli import run_script
 from lowcostdex.options import robot_selection
 
@@ -79,12 +79,13 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--out", required=True, help="run directory (must not exist, or use --resume)"
+        "--out", type=path, required=True, help="run directory (must not exist, or use --resume)"
     )
     parser.add_argument("--backend", choices=("sim", "emulated", "hardware"), default="sim")
     parser.add_argument("--port", default=None, help="serial port (hardware backend)")
     parser.add_argument("--demo", choices=tuple(DEMOS), default="short")
-    parser.add_argument("--demos", default=None, help="your demonstration file instead")
+    parser.add_argument("--demos", type=path, default=None,
+                        help="your demonstration file instead")
     parser.add_argument("--noise", type=number(0, open_low=True), default=None, help="exploration noise std")
     parser.add_argument("--n-iter", type=integer(1), default=8)
     parser.add_argument("--seed", type=SEED, default=0)

@@ -70,5 +70,14 @@ def integer(low: int | None = None, high: int | None = None) -> Callable[[str], 
     return parse
 
 
+def path(text: str) -> str:
+    """A path that is not empty: "" (``--out "$OUT"`` with OUT unset) is the current folder to
+    pathlib, where a run would be written beside the user's own files."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is an empty path (an unset shell "
+                                         "variable?); give a path")
+    return text
+
+
 SEED = integer(0)
 """A seed for ``numpy.random.default_rng`` (which refuses negative ones)."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from lowcostdex.argtypes import SEED, integer, number
+from lowcostdex.argtypes import SEED, integer, number, path
 from lowcostdex.errors import ConfigError
 
 BACKENDS = ("sim", "emulated", "hardware")
@@ -33,7 +33,8 @@ def add_run_options(parser: argparse.ArgumentParser, *, out: str, n_iter: int,
                     n_traj: int | None = None) -> None:
     """``--seed``, ``--out``, ``--n-iter`` (``--iters`` is kept as an alias) and ``--n-traj``."""
     parser.add_argument("--seed", type=SEED, default=0)
-    parser.add_argument("--out", default=out, help="output folder (default %(default)s)")
+    parser.add_argument("--out", type=path, default=out,
+                        help="output folder (default %(default)s)")
     parser.add_argument("--n-iter", "--iters", dest="n_iter", type=integer(1), default=n_iter,
                         help="training iterations (default %(default)s)")
     if n_traj is not None:

@@ -162,3 +162,42 @@ def test_record_log_offers_a_gap_command_that_reads_its_folder(tmp_path, capfd):
     printed = " ".join((captured.out + captured.err).split())
     assert code == 0
     assert f"--log {shlex.quote(str(out))} --out DIR" in printed
+
+
+# ------------------------------------------------------------------------------------------------
+# the demos: an empty --out (an unset shell variable) was the current folder
+
+DEMO_EMPTY = [
+    ("npg_valve.py", ["--out", ""], "--out"),
+    ("flip_keypoints_vs_quaternion.py", ["--out", ""], "--out"),
+    ("dapg_kinesthetic_valve.py", ["--out", ""], "--out"),
+    ("dapg_kinesthetic_valve.py", ["--demos", "", "--out", "run"], "--demos"),
+    ("gap_own_mjcf.py", ["--out", ""], "--out"),
+    ("tvlg_turn_valve.py", ["--out", ""], "--out"),
+    ("tvlg_turn_valve.py", ["--demos", "", "--out", "run"], "--demos"),
+]
+
+
+@pytest.mark.parametrize("script, argv, option", DEMO_EMPTY,
+                         ids=[f"{s.removesuffix('.py')}:{o}" for s, _, o in DEMO_EMPTY])
+def test_a_demo_given_an_empty_path_writes_nothing_in_the_current_folder(
+        script, argv, option, tmp_path, monkeypatch, capsys):
+    """Before: ``npg_valve.py --out ""`` trained into the current folder, its checkpoints and
+    config.json beside the user's own files; ``tvlg_turn_valve.py --demos ""`` recorded the
+    default demonstration instead of the user's; ``dapg --demos ""`` said '--demos .: no
+    such file'."""
+    import runpy
+    import sys
+    from pathlib import Path
+
+    demos = Path(__file__).resolve().parents[1] / "demos"
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    monkeypatch.setattr(sys, "argv", [script, *argv])
+    with pytest.raises(SystemExit) as exc:
+        runpy.run_path(str(demos / script), run_name="__main__")
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert exc.value.code == 2
+    assert err == (f"{script}: error: argument {option}: '' is an empty path (an unset shell "
+                   "variable?); give a path")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
