@@ -147,3 +147,21 @@ def test_a_dcmotor_without_a_drive_limit_has_no_stall_torque_and_dry_friction_is
         # a dcmotor-only parameter still acts on it (the velocity limit's no-load speed scale)
         vl = fitmod.Structure.build(("velocity_limit",), ("j",), ctx).free
         assert [f.param for f in vl] == ["scale"]
+
+
+def test_the_generator_draws_a_torque_limit_from_the_one_stall_torque():
+    """``gap generate`` hides a torque limit at a share (0.2 at level 0, +-5 %) of the servo's
+    stall torque: the XM430-W350's datasheet 4.1 N m at 12 V on the bench. It read a second copy
+    of the formula, K Vmax / R of any actuator's gains: 0 on a position actuator (a torque limit
+    of 0 N m); now a joint with no stall torque is refused."""
+    from lowcostdex.gap.generate import bench_config, draw_hidden
+    from lowcostdex.sim.models.bench import BENCH_JOINT, build_bench
+
+    model = build_bench(bench_config("XM430-W350")).compile()
+    stall = servo.motor_spec("XM430-W350").stall_torque
+    assert stall == pytest.approx(4.1)
+    e = draw_hidden("torque_limit", (BENCH_JOINT,), np.random.default_rng(0), model, level=0.0)
+    assert 0.95 * 0.2 * stall <= e.values["torque"][0] <= 1.05 * 0.2 * stall
+    pos = mujoco.MjModel.from_xml_string(_RIG.format(act=_KINDS["position"](1.0)))
+    with pytest.raises(ConfigError, match=r"stall torque; the actuators of \['j'\] have none"):
+        draw_hidden("torque_limit", ("j",), np.random.default_rng(0), pos, level=0.0)

@@ -129,9 +129,13 @@ def draw_hidden(name: str, joints: Sequence[str], rng: np.random.Generator,
 def _stall_torque(model: mujoco.MjModel, joints: Sequence[str]) -> np.ndarray:
     from lowcostdex.sim.effects import Targets
 
-    a = Targets.resolve(model, tuple(joints)).actuators
-    g = model.actuator_gainprm[a]
-    return g[:, servo.GAIN_K] * g[:, servo.GAIN_VMAX] / g[:, servo.GAIN_R]
+    st = servo.stall_torque(model, Targets.resolve(model, tuple(joints)).actuators)
+    if not np.all(np.isfinite(st)):  # a position actuator's was K Vmax / R of its gains: 0
+        bad = [j for j, s in zip(joints, st, strict=True) if not np.isfinite(s)]
+        raise ConfigError(f"torque_limit is drawn as a share of the servo's stall torque; the "
+                          f"actuators of {bad} have none (not a dcmotor, or one without a drive "
+                          "limit and force range)")
+    return st
 
 
 def excitation(rng: np.random.Generator, duration: float, dt: float, low: np.ndarray,
