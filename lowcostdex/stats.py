@@ -1,8 +1,10 @@
-"""Small statistics for reporting rates measured from a finite number of episodes."""
+"""Small statistics for reporting rates measured from a finite number of episodes, and paired tests
+of two policies on the same episodes (McNemar on success, Wilcoxon on final errors)."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
@@ -76,3 +78,42 @@ def median_interval(values: list[float] | tuple[float, ...], level: float = 0.95
         tail, k = nxt, k + 1
     coverage = 1.0 - 2.0 * tail
     return median, xs[k - 1], xs[n - k], coverage
+
+
+def paired_test(before: dict[str, Any], after: dict[str, Any]) -> tuple[int, int, float] | None:
+    """Exact one-sided McNemar test on two policies' per-episode successes (``"solved"``) on
+    the same held-out episodes: (episodes only ``after`` solved, only ``before`` solved, p that
+    ``after`` solves more), a binomial test at 1/2 on the discordant episodes (p = 1 when there
+    are none); None when either has no per-episode record or the records differ in length."""
+    from scipy.stats import binomtest
+
+    a, b = before.get("solved"), after.get("solved")
+    if not a or not b or len(a) != len(b):
+        return None
+    only_after = sum(1 for x, y in zip(a, b, strict=True) if y and not x)
+    only_before = sum(1 for x, y in zip(a, b, strict=True) if x and not y)
+    n = only_after + only_before
+    pvalue = binomtest(only_after, n, 0.5, alternative="greater").pvalue if n else 1.0
+    return only_after, only_before, float(pvalue)
+
+
+def paired_errors(before: dict[str, Any], after: dict[str, Any]
+                  ) -> tuple[float, float, float] | None:
+    """Two policies' final |goal error| (``"final_goal_errors"``) on the same held-out episodes:
+    (median before, median after, p of the one-sided Wilcoxon signed-rank test that ``after``'s
+    errors are smaller; zero differences dropped, p = 1 when all are zero); None when either
+    has no per-episode record or the records differ in length."""
+    import numpy as np
+    from scipy.stats import wilcoxon
+
+    a, b = before.get("final_goal_errors"), after.get("final_goal_errors")
+    if not a or not b or len(a) != len(b):
+        return None
+    a, b = np.abs(np.asarray(a, float)), np.abs(np.asarray(b, float))
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return None
+    if np.all(a == b):
+        pvalue = 1.0
+    else:
+        pvalue = float(wilcoxon(b, a, alternative="less", zero_method="wilcox").pvalue)
+    return float(np.median(a)), float(np.median(b)), pvalue

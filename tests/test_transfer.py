@@ -742,3 +742,39 @@ def test_first_seed_trains_only_the_later_seeds_and_keeps_whole_lower_ones(tmp_p
         loop.run(tmp_path / "d", replace(size, algos=("dapg",), seeds=3), first_seed=2,
                  tell=lambda s: None)
     assert got.value.args == (0,)
+
+
+def test_each_condition_is_paired_with_nominal_on_the_same_episodes():
+    """Six episodes on robot A per seed. Nominal ends 0.20, 0.15, 0.12, 0.11, 0.09, 0.05 rad
+    (2 solved), identified 0.08 ... 0.03 (6 solved): 4 episodes only identified solved, none
+    only nominal, exact McNemar p = (1/2)^4 = 0.0625; every one of the 6 differences is
+    negative, exact Wilcoxon p = (1/2)^6 = 0.016; nearer in 2 of 2 seeds, sign test p =
+    (1/2)^2. Randomized (seed 0, a cell recorded without per-episode successes) ends farther
+    every episode: no McNemar, Wilcoxon p = 1, nearer in 0 of 1 seed (p = 1). A policy made
+    for B on robot A is not paired (own robot only)."""
+    from lowcostdex.transfer.loop import paired_markdown
+
+    nominal = [0.20, 0.15, 0.12, 0.11, 0.09, 0.05]
+    ident = [0.08, 0.07, 0.06, 0.05, 0.04, 0.03]
+    far = [0.30, 0.31, 0.32, 0.33, 0.34, 0.35]
+
+    def row(cond, errors, seed, made_for=None, solved=True):
+        return dict(_row(cond, "A", sum(e < 0.1 for e in errors), n=6, made_for=made_for,
+                         seed=seed), final_error=errors,
+                    solved=[e < 0.1 for e in errors] if solved else None)
+
+    rows = [row("nominal", nominal, 0), row("nominal", nominal, 1),
+            row("identified", ident, 0, "A"), row("identified", ident, 1, "A"),
+            row("randomized", far, 0, solved=False), row("identified_randomized", far, 0, "B")]
+    lines = paired_markdown(rows, ["A", "B"]).splitlines()
+    cells = [[c.strip() for c in x.strip("|").split("|")] for x in lines if x.startswith("| A")]
+    assert cells == [
+        ["A", "0", "randomized", "2 -> 0 of 6", "-", "-", "0.115 -> 0.325", "1"],
+        ["A", "0", "identified", "2 -> 6 of 6", "4 / 0", "0.062", "0.115 -> 0.055", "0.016"],
+        ["A", "1", "identified", "2 -> 6 of 6", "4 / 0", "0.062", "0.115 -> 0.055", "0.016"]]
+    assert [x for x in lines if x.startswith("- ")] == [
+        "- robot A, randomized: nearer the goal than nominal (median final error) in 0 of 1 "
+        "seed(s), sign test p = 1",
+        "- robot A, identified: nearer the goal than nominal (median final error) in 2 of 2 "
+        "seed(s), sign test p = 0.25"]
+    assert paired_markdown([r for r in rows if r["condition"] != "nominal"], ["A"]) == ""

@@ -85,6 +85,7 @@ from lowcostdex.transfer.tables import (
     loose_successes,
     named_vs_truth,
     own_rows,
+    paired_markdown,
     plot,
     summarize,
     table_markdown,
@@ -95,7 +96,8 @@ __all__ = [
     "PER_ROBOT", "SIZES", "STEPS", "TASKS", "HiddenRobotEnv", "HiddenRobotTarget", "PortRobot",
     "Progress", "Size", "Task", "cells_json", "condition_randomize", "cross_markdown",
     "errors_markdown", "evaluate", "identified_effects", "identify", "identify_finger",
-    "make_robots", "named_vs_truth", "own_rows", "parse_list", "plot", "record_demos", "run",
+    "make_robots", "named_vs_truth", "own_rows", "paired_markdown", "parse_list", "plot",
+    "record_demos", "run",
     "settings", "size_with", "summarize", "table_markdown", "train_policy",
 ]
 
@@ -326,6 +328,7 @@ def evaluate(run_dir: Path, task: Task, env_kwargs: dict[str, Any], episodes: in
     finally:
         env.close()
     return {"successes": int(sum(bool(p.successes[-1]) for p in paths)), "episodes": episodes,
+            "solved": [bool(p.successes[-1]) for p in paths],
             "final_error": [round(float(p.final_goal_error), 4) for p in paths],
             "wall_seconds": round(time.perf_counter() - t0, 1)}
 
@@ -500,6 +503,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                                  "episodes": cell["episodes"],
                                  "policy_robot": policy_robot.name if policy_robot else None,
                                  "final_error": cell["final_error"],
+                                 "solved": cell.get("solved"),  # cells made before: None
                                  "final_error_median": round(
                                      float(np.median(cell["final_error"])), 5),
                                  "success_loose": loose_successes(cell["final_error"]),
@@ -551,6 +555,11 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                   "(measures that do not flip at the tolerance; intervals over the pooled "
                   "episodes, the seeds are the independent units)", "",
                   errors_markdown(summary, names), ""]
+        paired = paired_markdown([r for r in rows if r["algo"] == algo], names)
+        if paired:
+            parts += [f"### {algo.upper()}: each condition against nominal on the same "
+                      "episodes (paired; per seed, then the seeds as the units)", "",
+                      paired, ""]
         cross = cross_markdown([r for r in rows if r["algo"] == algo], names)
         if cross and len(robots) > 1:
             parts += [f"### {algo.upper()}: policies made for one robot on every robot "

@@ -1,6 +1,7 @@
 """The transfer loop's results: per-condition summaries with 95 % Wilson intervals, the final
 valve error (median with a distribution-free interval, per seed) and success at a looser
-tolerance beside them, the Markdown tables (own robot, final error, cross-robot), the per-cell
+tolerance beside them, the Markdown tables (own robot, final error, paired against nominal on the
+same episodes, cross-robot), the per-cell
 records of ``transfer.json``, the figure and what the analysis named beside the truth.
 
 Success at the task's tolerance flips when a policy's final error sits at the tolerance (a
@@ -152,6 +153,65 @@ def errors_markdown(summary: dict[str, dict[str, Any]], robots: list[str],
         pooled = (sum(k for k, _ in loose), sum(n for _, n in loose))
         lines.append("| " + " | ".join([cond, *[_error_text(errs[r]) for r in robots],
                                         *[_cell(*c) for c in loose], _cell(*pooled)]) + " |")
+    return "\n".join(lines)
+
+
+def _p(p: float) -> str:
+    return f"{p:.2g}"  # two significant digits: 0.062, 0.0047, 1
+
+
+def paired_markdown(rows: list[dict[str, Any]], robots: list[str], baseline: str = "nominal"
+                    ) -> str:
+    """Each condition against ``baseline`` on the same evaluation episodes (every cell plays
+    the episode seeds ``EVAL_SEED``): per robot and seed, each policy on the robot it was made
+    for (rows of one algo). Episodes only the condition solved / only the baseline solved with
+    the exact one-sided McNemar p that the condition solves more (``stats.paired_test``; "-"
+    for cells recorded without per-episode successes), the final error's medians with the
+    one-sided Wilcoxon signed-rank p that the condition ends nearer the goal
+    (``stats.paired_errors``); then per robot and condition the seeds as the units: in how many
+    seeds the condition's median final error is below the baseline's, with the one-sided sign
+    test p (Binomial(n, 1/2)). A loss reads as more episodes "only baseline" and p near 1.
+    Empty when no baseline policy shares a robot and seed with another condition."""
+    from scipy.stats import binomtest
+
+    from lowcostdex.stats import paired_errors, paired_test
+
+    own = own_rows(rows)
+    base = {(r["robot"], r["seed"]): r for r in own if r["condition"] == baseline}
+    head = ["robot", "seed", "condition", f"successes ({baseline} -> condition)",
+            f"episodes only the condition / only {baseline} solved", "McNemar p (one-sided)",
+            f"median final error [rad] ({baseline} -> condition)", "Wilcoxon p (one-sided)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    units: dict[tuple[str, str], list[bool]] = {}
+    for name in robots:
+        for cond in CONDITIONS:
+            if cond == baseline:
+                continue
+            for r in sorted((r for r in own if r["condition"] == cond and r["robot"] == name),
+                            key=lambda r: r["seed"]):
+                b = base.get((name, r["seed"]))
+                if b is None or len(b["final_error"]) != len(r["final_error"]):
+                    continue
+                before = {"solved": b.get("solved"), "final_goal_errors": b["final_error"]}
+                after = {"solved": r.get("solved"), "final_goal_errors": r["final_error"]}
+                mc, wx = paired_test(before, after), paired_errors(before, after)
+                units.setdefault((name, cond), []).append(
+                    float(np.median(r["final_error"])) < float(np.median(b["final_error"])))
+                lines.append("| " + " | ".join([
+                    name, str(r["seed"]), cond,
+                    f"{b['success']} -> {r['success']} of {r['episodes']}",
+                    "-" if mc is None else f"{mc[0]} / {mc[1]}",
+                    "-" if mc is None else _p(mc[2]),
+                    "-" if wx is None else f"{wx[0]:.3f} -> {wx[1]:.3f}",
+                    "-" if wx is None else _p(wx[2])]) + " |")
+    if not units:
+        return ""
+    lines.append("")
+    for (name, cond), nearer in units.items():
+        k, n = sum(nearer), len(nearer)
+        p = binomtest(k, n, 0.5, alternative="greater").pvalue
+        lines.append(f"- robot {name}, {cond}: nearer the goal than {baseline} (median final "
+                     f"error) in {k} of {n} seed(s), sign test p = {_p(float(p))}")
     return "\n".join(lines)
 
 
