@@ -26,7 +26,20 @@ def add_robot_options(parser: argparse.ArgumentParser, *, default_backend: str =
     parser.add_argument("--port", default=None,
                         help="serial port of a real robot, e.g. /dev/ttyUSB0 (hardware backend)")
     if env is not None:
-        parser.add_argument("--env", default=env, help="gymnasium id (default %(default)s)")
+        parser.add_argument("--env", type=env_id, default=env,
+                            help="gymnasium id (default %(default)s)")
+
+
+def env_id(name: str) -> str:
+    """``--env``: a gymnasium id; ``DClawTurnValve-v0`` is read as ``lowcostdex/DClawTurnValve-v0``
+    when only that one is registered (as ``train tvlg`` always read it; before, ``train npg``
+    refused it). Unknown ids are left for ``check_env_id`` to name."""
+    import gymnasium as gym
+
+    import lowcostdex  # noqa: F401  (registers the lowcostdex/... ids)
+
+    ours = f"lowcostdex/{name}"
+    return ours if name not in gym.registry and "/" not in name and ours in gym.registry else name
 
 
 def add_run_options(parser: argparse.ArgumentParser, *, out: str, n_iter: int,

@@ -104,7 +104,7 @@ def test_train_npg_on_an_env_it_cannot_train_says_why(argv, message, tmp_path, c
 
 
 @pytest.mark.parametrize("env, meant", [
-    ("DClawTurnValve-v0", "'lowcostdex/DClawTurnValve-v0'"),
+    ("DClawTurnVlave-v0", "'lowcostdex/DClawTurnValve-v0'"),
     ("lowcostdex/DClawTurnVlave-v0", "'lowcostdex/DClawTurnValve-v0'"),
 ])
 def test_a_mistyped_env_names_the_closest(env, meant, tmp_path, capsys):
@@ -201,3 +201,30 @@ def test_a_demo_given_an_empty_path_writes_nothing_in_the_current_folder(
     assert err == (f"{script}: error: argument {option}: '' is an empty path (an unset shell "
                    "variable?); give a path")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_an_env_id_without_its_prefix_is_the_lowcostdex_one():
+    """``train npg --env DClawTurnValve-v0`` was refused ("unknown env") where ``train tvlg``
+    took it; one vocabulary now (a gymnasium id of its own, Pendulum-v1, stays itself)."""
+    from lowcostdex.options import env_id
+
+    assert env_id("DClawTurnValve-v0") == "lowcostdex/DClawTurnValve-v0"
+    assert env_id("lowcostdex/DClawTurnValve-v0") == "lowcostdex/DClawTurnValve-v0"
+    assert env_id("Pendulum-v1") == "Pendulum-v1"
+    assert env_id("DClawTurnVlave-v0") == "DClawTurnVlave-v0"  # named by check_env_id
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--algos", "", "--algos is empty; name at least one algo (dapg, npg), or leave it out for "
+                    "the default"),
+    ("--conditions", ",", "--conditions is empty; name at least one condition (nominal, "
+                          "randomized, identified, identified_randomized, on_robot), or leave it "
+                          "out for the default"),
+])
+def test_transfer_with_an_empty_list_names_the_option(option, value, message, tmp_path, capsys):
+    """Before: "size: give at least one algo and one condition", no option named."""
+    out = tmp_path / "t"
+    code, err = _run(["transfer", "--out", str(out), option, value], capsys)
+    assert code == 2
+    assert err == f"lowcostdex transfer: error: {message}"
+    assert not out.exists()

@@ -25,7 +25,7 @@ from lowcostdex.algos.configs import (
 )
 from lowcostdex.algos.samplers import SAMPLERS
 from lowcostdex.errors import ConfigError
-from lowcostdex.options import add_latency_option, latency_kwargs, robot_selection
+from lowcostdex.options import add_latency_option, env_id, latency_kwargs, robot_selection
 
 
 def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
@@ -46,7 +46,8 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
 
 def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
     d = TrainConfig()
-    p.add_argument("--env", default=d.env_id, help="gymnasium id (default %(default)s)")
+    p.add_argument("--env", type=env_id, default=d.env_id,
+                   help="gymnasium id (default %(default)s; the lowcostdex/ prefix may be left out)")
     p.add_argument("--backend", choices=BACKENDS, default=d.backend)
     p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
     add_latency_option(p)
@@ -98,7 +99,8 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
 
 def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
     d = PPOConfig()
-    p.add_argument("--env", default=d.env_id, help="gymnasium id (sim; default %(default)s)")
+    p.add_argument("--env", type=env_id, default=d.env_id,
+                   help="gymnasium id (sim; default %(default)s)")
     p.add_argument("--backend", choices=BACKENDS, default="sim",
                    help="sim only: PPO steps many simulated copies together (the other trainers "
                         "take emulated and hardware)")

@@ -167,11 +167,14 @@ def size_with(name: str, **overrides: Any) -> Size:
 
 def parse_list(text: str | None, valid: Sequence[str], what: str) -> tuple[str, ...] | None:
     """``"a,b"`` -> ``("a", "b")`` checked against ``valid``; None stays None."""
-    from lowcostdex.errors import check_choice
+    from lowcostdex.errors import ConfigError, check_choice
 
     if text is None:
         return None
     items = tuple(s.strip() for s in text.split(",") if s.strip())
+    if not items:  # before: "size: give at least one algo and one condition", no option named
+        raise ConfigError(f"--{what}s is empty; name at least one {what} ({', '.join(valid)}), "
+                          "or leave it out for the default")
     for s in items:
         check_choice(what, s, tuple(valid))
     return items
