@@ -280,3 +280,17 @@ def test_robot_joints_given_as_one_name_is_that_joint():
     h = robot_hand(hand, model)
     robot = Robot(h, make_dynamixel_bus(h, chain.port(), model), RobotConfig(control_period=0.02))
     assert robot.index("ff_top").tolist() == robot.index(["ff_top"]).tolist() == [0]
+
+
+@pytest.mark.parametrize("out", ["", "  ", None])
+def test_train_given_no_run_directory_writes_nothing(out, tmp_path, monkeypatch):
+    """Before: ``train(config, "")`` (``os.environ.get("OUT", "")``) trained into the current
+    folder, its checkpoints beside the user's files; ``None`` gave os.fspath's TypeError."""
+    from lowcostdex.algos.configs import TrainConfig
+    from lowcostdex.algos.train import train
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(ConfigError, match=r"^run directory .* is no folder path; give one"):
+        train(TrainConfig(algo="npg", n_iter=1, n_traj=2, progress=False), out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]

@@ -235,6 +235,11 @@ class Run:
             is below the iterations the run has done (it would train nothing and leave a
             config.json that contradicts its checkpoints).
         """
+        if not isinstance(path, (str, os.PathLike)) or not str(path).strip():
+            # before: None gave os.fspath's TypeError, and "" (an unset variable) was the
+            # current folder, where the run was written beside the user's files
+            raise ConfigError(f"run directory {path!r} is no folder path; give one, e.g. "
+                              "'runs/npg'")
         path = Path(path)
         config = _jsonable(config)
         if path.exists() and not path.is_dir():
