@@ -71,7 +71,9 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
     p.add_argument("--damping", type=float, default=d.npg.damping, help="Fisher damping")
     p.add_argument("--gamma", type=float, default=d.gamma)
     p.add_argument("--gae-lambda", type=float, default=d.gae_lambda)
-    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes))
+    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes),
+                   help="widths of the policy's hidden layers (default %(default)s; "
+                        "--hidden alone: none, a linear policy)")
     p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std)
     p.add_argument("--eval-every", type=int, default=d.eval_every)
     p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
@@ -118,7 +120,9 @@ def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--num-minibatches", type=int, default=d.num_minibatches)
     p.add_argument("--clip-coef", type=float, default=d.clip_coef)
     p.add_argument("--ent-coef", type=float, default=d.ent_coef)
-    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes))
+    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes),
+                   help="widths of the policy's hidden layers (default %(default)s; "
+                        "--hidden alone: none, a linear policy)")
     p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std)
     p.add_argument("--eval-every", type=int, default=d.eval_every)
     p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
