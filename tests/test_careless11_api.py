@@ -294,3 +294,18 @@ def test_train_given_no_run_directory_writes_nothing(out, tmp_path, monkeypatch)
     with pytest.raises(ConfigError, match=r"^run directory .* is no folder path; give one"):
         train(TrainConfig(algo="npg", n_iter=1, n_traj=2, progress=False), out)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_an_npz_log_without_arrays_says_so(tmp_path):
+    """Before: "missing column 'time' [s]; its columns: ; name the time stamps' column"."""
+    from lowcostdex.gap.dataset import load_dataset
+    from lowcostdex.gap.logs import LogError
+    from lowcostdex.sim.models.bench import BenchConfig, build_bench
+
+    np.savez(tmp_path / "empty.npz")
+    model = tmp_path / "bench.xml"
+    model.write_text(build_bench(BenchConfig(motor="XL330-M288")).to_xml())
+    with pytest.raises(LogError) as exc:
+        load_dataset([tmp_path / "empty.npz"], model=model)
+    assert str(exc.value) == ("empty.npz: no columns at all (an empty NPZ?); a log holds 'time' "
+                              "[s], 'goal:<actuator>' and 'qpos:<joint>' columns")

@@ -69,6 +69,9 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
     the goal-against-reading checks skip them); ``gears``: actuator -> its gear (the goal is
     in actuator units, gear x the joint angle; default 1)."""
     cols = _normalized_names(cols, name)
+    if not cols:  # before: "missing column 'time' [s]; its columns: ; ..."
+        raise LogError(f"{name}: no columns at all (an empty NPZ?); a log holds 'time' [s], "
+                       "'goal:<actuator>' and 'qpos:<joint>' columns")
     if "time" not in cols:
         raise LogError(f"{name}: missing column 'time' [s]; its columns: "
                        f"{_listed(cols)}; name the time stamps' column 'time' (in seconds)")
