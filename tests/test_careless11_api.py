@@ -309,3 +309,11 @@ def test_an_npz_log_without_arrays_says_so(tmp_path):
         load_dataset([tmp_path / "empty.npz"], model=model)
     assert str(exc.value) == ("empty.npz: no columns at all (an empty NPZ?); a log holds 'time' "
                               "[s], 'goal:<actuator>' and 'qpos:<joint>' columns")
+
+
+def test_a_vector_env_of_a_billion_copies_is_refused_before_allocating():
+    """Before: ``make_vec(..., num_envs=10**9)`` (a typo for 10**3) ended in MuJoCo's
+    "std::bad_alloc" after trying to allocate terabytes."""
+    with pytest.raises(ConfigError, match=r"^num_envs=1000000000 is above 100000: each copy "
+                                          r"holds ~7 KB of MuJoCo state"):
+        make_vec(VALVE, num_envs=10**9)

@@ -20,7 +20,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 import lowcostdex  # noqa: F401  (registers ids)
-from lowcostdex.errors import ClosedError, ConfigError, check_number
+from lowcostdex.errors import ClosedError, ConfigError, check_at_most, check_number
 from lowcostdex.sim.effects import DomainRandomization
 from lowcostdex.sim.envs.hand_env import HandEnv, action_to_goal
 from lowcostdex.sim.envs.task import Goal, Task
@@ -34,6 +34,10 @@ def _stack_goals(goals: list[Goal]) -> Goal:
     for v in stacked.values():
         v.flags.writeable = False
     return stacked
+
+
+MAX_ENVS = 100_000
+"""Most copies a vector env takes (~0.7 GB of MuJoCo state for the valve task)."""
 
 
 class HandVectorEnv(gym.vector.VectorEnv):
@@ -52,6 +56,9 @@ class HandVectorEnv(gym.vector.VectorEnv):
                  nthread: int = 0):
         check_number("num_envs", num_envs, 1, integer=True)
         check_number("nthread", nthread, 0, integer=True)
+        check_at_most("num_envs", num_envs, MAX_ENVS, "each copy holds ~7 KB of MuJoCo state "
+                      "(the valve task, measured), so 1e9 copies ended in 'std::bad_alloc'; "
+                      "PPO runs 16-4096")
         num_envs, nthread = int(num_envs), int(nthread)  # np.int64(2) read back as a plain int
         # A template env builds and binds the model exactly as the single env does.
         self._template = HandEnv(task, backend="sim", randomization=randomization)
