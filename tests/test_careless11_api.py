@@ -317,3 +317,19 @@ def test_a_vector_env_of_a_billion_copies_is_refused_before_allocating():
     with pytest.raises(ConfigError, match=r"^num_envs=1000000000 is above 100000: each copy "
                                           r"holds ~7 KB of MuJoCo state"):
         make_vec(VALVE, num_envs=10**9)
+
+
+def test_a_model_that_is_no_model_file_says_what_to_give(tmp_path):
+    """Before: MuJoCo's "could not find decoder for resource 'notes.txt'" alone."""
+    from lowcostdex.gap.dataset import load_dataset
+    from lowcostdex.gap.logs import LogError
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes")
+    log = tmp_path / "log.csv"
+    log.write_text("time,goal:arm,qpos:arm\n" + "".join(f"{0.01 * k},0,0\n" for k in range(50)))
+    with pytest.raises(LogError) as exc:
+        load_dataset([log], model=notes)
+    assert str(exc.value).startswith(f"{notes}: cannot load the model: ")
+    assert str(exc.value).endswith("; give the rig's MJCF model (.xml; `lowcostdex model` writes "
+                                   "the project's)")

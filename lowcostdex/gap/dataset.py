@@ -282,7 +282,9 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             spec = mujoco.MjSpec.from_file(str(model))
             compiled = spec.compile()
         except Exception as exc:  # mujoco raises ValueError with the parser message
-            raise LogError(f"{model}: cannot load the model: {exc}") from None
+            hint = ("; give the rig's MJCF model (.xml; `lowcostdex model` writes the project's)"
+                    if model.suffix.lower() not in (".xml", ".urdf", ".mjb") else "")
+            raise LogError(f"{model}: cannot load the model: {exc}{hint}") from None
         _absolute_asset_dirs(spec, model)
         models["model"] = spec.to_xml()
         rate, gears = rate_goal_actuators(compiled), actuator_gears(compiled)
