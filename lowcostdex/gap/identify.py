@@ -4,8 +4,7 @@ Where ``analyze`` *selects* unmodelled effects one at a time on top of a trusted
 identification fits a fixed structure (the servo's own parameters: motor constants, rotor
 inertia, friction, mounting offset, firmware gain) jointly, the way BAM (Rhoban/bam ``bam.fit``)
 identifies an actuator model. On real servos the nominal (datasheet) model is rarely trustworthy
-in all of these at once, and a greedy one-at-a-time selection cannot move six wrong parameters
-together.
+in all of these at once, and greedy one-at-a-time selection cannot move six wrong ones together.
 
 The objective is BAM's: every training log is replayed whole, open loop from its first state
 (``bam_measure``), each log weighted equally (residuals scaled by 1 / sqrt(samples)), and the
