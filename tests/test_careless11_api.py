@@ -307,8 +307,8 @@ def test_an_npz_log_without_arrays_says_so(tmp_path):
     model.write_text(build_bench(BenchConfig(motor="XL330-M288")).to_xml())
     with pytest.raises(LogError) as exc:
         load_dataset([tmp_path / "empty.npz"], model=model)
-    assert str(exc.value) == ("empty.npz: no columns at all (an empty NPZ?); a log holds 'time' "
-                              "[s], 'goal:<actuator>' and 'qpos:<joint>' columns")
+    assert str(exc.value) == ("empty.npz: missing column 'time' [s]; its columns: none (an empty "
+                              "NPZ?); name the time stamps' column 'time' (in seconds)")
 
 
 def test_a_vector_env_of_a_billion_copies_is_refused_before_allocating():
