@@ -27,7 +27,8 @@
    that model, refitted, gets much closer at a finer step, and the first cause is then chosen
    again at that step: ``stepsize``). A change of model must pay
    over consecutive blocks of select data too (``significance``: paired block bootstrap > 0).
-4. The chosen structure is refitted on train + select; an effect whose every 95 % interval
+4. An effect the others, refitted, do as well without is dropped (``exchange.prune_refitted``).
+   The chosen structure is refitted on train + select; an effect whose every 95 % interval
    (misfit-aware: ``_intervals``) holds "no effect" is dropped and the rest refitted. The model
    is then scored once on the untouched *test* episodes: error before and after with a
    bootstrap interval over episodes, the noise floor and the fraction of reducible error
@@ -58,7 +59,7 @@ from lowcostdex.gap.diagnostics import (
     residual_diagnostics,
     score_fraction,
 )
-from lowcostdex.gap.exchange import effect_size, replace_standins, switch_pays
+from lowcostdex.gap.exchange import effect_size, prune_refitted, replace_standins, switch_pays
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
 from lowcostdex.gap.gates import drop_weak, free_asymmetry, hold_sensor, swap_equivalent
 from lowcostdex.gap.logs import rate_goal_actuators
@@ -438,6 +439,10 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             stop_reason += f"; then dropped: {', '.join(dropped)}" if dropped else ""
         timing["exchange"] = time.perf_counter() - t0
 
+    if len(current.effects) > 1:  # ... and an effect the others, refitted, do without
+        current, cur_x, why = prune_refitted(eng, ds, sel_eps, train_segs, current, cur_x,
+                                             fit_fn, cfg, ctx)
+        stop_reason += why
     current, cur_x, why = swap_equivalent(current, cur_x, fit_fn, lambda ms: [mse_by_episode(
         ds, sel_eps, p)[0].sum() for p in eng.predict(sel_eps, ms)], cfg, ctx, equivalents)
     stop_reason += why  # (an effect another stands in for exactly: named by catalogue order)

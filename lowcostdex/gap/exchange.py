@@ -12,6 +12,14 @@ latency round 3, 24 mrad on the select split. The mass ranked 10th at the nomina
 it moved by 5 %. Latency + mass refitted from the named model's values: 9.2 mrad, masses 1.52 /
 1.50.
 
+``prune_refitted`` is the same step with nothing in an effect's place, judged by whether the
+effect is needed rather than whether a change pays: the backward pass (``analyze._backward``)
+judges an effect with the others left at the values they took beside it, so an effect the
+others were fitted around looks needed (leaving it out alone leaves them wrong). On
+``queue_mass_arm2_posonly`` after the exchange: latency + mass + a backlash of 14 / 9 mrad, each
+rise far above ``min_gain / 2`` with the others unchanged, while latency + mass refitted without
+the play replays as well (held-out 8.32 mrad without it, 8.37 with it).
+
 ``replace_standins`` is an exchange step (the replacement algorithm of subset selection): for
 each accepted effect, the model without it is ranked (``analyze._rank``), and the model with
 the best ``GapConfig.exchange_k`` candidates in its place, or with nothing in its place, is
@@ -34,7 +42,7 @@ from lowcostdex.gap.results import CandidateResult, GapConfig, bound_flags
 from lowcostdex.gap.selection import mse_by_episode, probe_gains, select_gain_ci
 from lowcostdex.sim.effects import AppliedEffect
 
-__all__ = ["effect_size", "replace_standins", "switch_pays"]
+__all__ = ["effect_size", "prune_refitted", "replace_standins", "switch_pays"]
 
 Rank = Callable[[fitmod.Structure, np.ndarray, Sequence[str]], list[CandidateResult]]
 
@@ -127,3 +135,46 @@ def replace_standins(eng, ds: Dataset, sel_eps: Sequence[Window], vis_eps: Seque
                  f"(select MSE {100 * (1 - sse_new.sum() / sse_cur.sum()):.0f} % lower)")
         current, cur_x, sse_cur = t.structure, t.x, sse_new
     return current, cur_x, sse_cur, line
+
+
+def prune_refitted(eng, ds: Dataset, sel_eps: Sequence[Window], train_segs: Sequence[Window],
+                   current: fitmod.Structure, cur_x: np.ndarray, fit_fn: fitmod.ResidualFn,
+                   cfg: GapConfig, ctx: fitmod.Context) -> tuple[fitmod.Structure, np.ndarray, str]:
+    """Drop the effects of ``current`` (values ``cur_x``) that the others, refitted, do without.
+
+    For each effect of a model of two or more: the model without it, every other parameter
+    refitted on ``fit_fn`` (the training segments) from the model's values. Its rise is the
+    relative rise of the squared error over the model's, the smallest of the select split, each
+    goal-shift probe (``GapConfig.probes``) and the training segments, as ``analyze._backward``
+    judges an effect, but with the others refitted. The effect with the smallest rise goes when
+    that rise is below ``min_gain / 2`` and its reduced refit is plausible (no fit on a
+    parameter bound); repeated while one goes. Returns (structure, values, report line: empty
+    when nothing was dropped)."""
+    line = ""
+    while len(current.effects) > 1:
+        effs = current.to_effects(cur_x)
+        tracks = []
+        for out in current.effects:
+            s = fitmod.Structure.build(tuple(n for n in current.effects if n != out),
+                                       current.joints, ctx)
+            tracks.append(fitmod.Track(s, s.u(s.values_from(effs)), label=f"without {out}"))
+        fitmod.lockstep_lm(tracks, fit_fn, cfg.max_rounds, jacobian_at_end=False)
+        cols = [effs, *(t.effects() for t in tracks)]
+        sel = [mse_by_episode(ds, sel_eps, p)[0].sum() for p in eng.predict(sel_eps, cols)]
+        rise = [s / max(sel[0], 1e-300) - 1 for s in sel[1:]]
+        for f in cfg.probes:
+            sp = [mse_by_episode(ds, sel_eps, p)[0].sum()
+                  for p in eng.rep.run(sel_eps, cols, goal_shift=f * ds.timestep)[0]]
+            rise = [min(r, s / max(sp[0], 1e-300) - 1) for r, s in zip(rise, sp[1:], strict=True)]
+        tr = [float(r @ r) for r in eng.residuals(train_segs, cols)]
+        rise = [min(r, s / max(tr[0], 1e-300) - 1) for r, s in zip(rise, tr[1:], strict=True)]
+        ok = [k for k, t in enumerate(tracks) if rise[k] < 0.5 * cfg.min_gain and not any(
+            bound_flags(t.structure, t.u, n) for n in t.structure.effects)]
+        if not ok:
+            break
+        k = min(ok, key=lambda i: rise[i])
+        out = current.effects[k]
+        line += (f"; {out} dropped: the others refitted without it raise the error by "
+                 f"{100 * rise[k]:.1f} % (< {50 * cfg.min_gain:g} %)")
+        current, cur_x = tracks[k].structure, tracks[k].x
+    return current, cur_x, line
