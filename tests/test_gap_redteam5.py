@@ -32,7 +32,15 @@ import gap_truth_sim5 as sim  # noqa: E402
 FAST: tuple[str, ...] = ()
 
 # what the analysis named instead, per case it misses (bench/gap_redteam5.py --threads 1)
-MISSES: dict[str, str] = {}
+MISSES: dict[str, str] = {
+    "backlash2deg_pendulum_500hz_us": "miss (gap-judge11, 5329124, 1717 s wall, 451 s CPU): "
+        "backlash was chosen in round 1 (width 0.0299 for 0.0349 rad, sensor 1.00: the output "
+        "shaft; select 3.72 -> 1.21 mrad, 89.5 % of the select MSE), then dropped by the "
+        "backward pass ('its 95 % interval holds no effect'): named nothing, held-out 6.75 mrad "
+        "unchanged (floor 0.64). The 2 deg play is hidden at rest (gravity holds the link on "
+        "one side and the PD reads the output) and shows only at reversals, so the width's "
+        "interval reaches no play",
+}
 
 
 def _params():
