@@ -98,23 +98,8 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
-    # 10:20-10:37 batch (load fell to ~4): one line each, details in bench/RESULTS.md
-    "queue_mass_arm2_posonly": "extra (lead, session 15, on main 3389d4d = gap-mass9's exchange "
-                               "step + gap-judge9's widen-at-bound + gap-bl9's backlash damping; "
-                               "630 s CPU): mass_error 1.474 [1.289, 1.681] / 1.51 [1.452, 1.572] "
-                               "and latency 33.3 / 30.3 ms named and inside, held-out 173.4 -> "
-                               "8.37 mrad, but a backlash is kept beside them (shoulder 0.0137 "
-                               "[0.0056, 0.0221], elbow 0.0088 [0.0002, 0.0143] rad; held-out "
-                               "8.32 without it). gap-mass9's exact run (backlash dropped in the "
-                               "final fit, its interval holding 0) was on its pre-rebase code. "
-                               "Traced (gap-mass11, session 16): the backward pass judges the play "
-                               "with mass and latency left at the values they took beside it "
-                               "(+4.7 % without it); refitted without it they do as well (+0.34 "
-                               "%). exchange.prune_refitted drops it: replayed from that run's "
-                               "pre-final state, mass 1.491 / 1.500 and latency 33.4 / 30.3 ms "
-                               "alone, intervals holding the truth, held-out 7.63 mrad; not yet "
-                               "re-run whole through the CLI on rebased main (to do; then this "
-                               "mark goes)",
+    # queue_mass_arm2_posonly passed on main 3783eb4 (lead, session 16, 795 s CPU; gap-mass11's
+    # prune_refitted): mass 1.491 / 1.500, latency 33.4 / 30.3 ms, inside; held-out 173.4 -> 7.63 mrad
 }
 
 
