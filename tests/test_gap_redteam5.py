@@ -16,7 +16,6 @@ fail (XPASS) when fixed and must then lose their mark.
 from __future__ import annotations
 
 import ast
-import json
 import pathlib
 import sys
 
@@ -28,6 +27,7 @@ from lowcostdex.cli import main
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 import gap_truth_sim5 as sim  # noqa: E402
+import redteam_check  # noqa: E402
 
 FAST: tuple[str, ...] = ()
 
@@ -53,16 +53,7 @@ def _params():
 
 @pytest.mark.parametrize("name", list(_params()))
 def test_names_exactly_the_hidden_causes_with_intervals_holding_the_truth(name, tmp_path):
-    files = sim.write_case(sim.CASE_BY_NAME[name], tmp_path / "data")
-    out = tmp_path / "report"
-    code = main(["gap", "analyze", "--model", files["model"], "--log", *files["logs"],
-                 "--out", str(out), "--seed", "0", "--threads", "1", *files["args"]])
-    assert code == 0, f"gap analyze exited {code} on {name}"
-    s = sim.score(json.loads((out / "report.json").read_text()), files["truth"])
-    assert s["result"] in ("exact", "clean"), (
-        f"hidden {s['hidden'] or 'nothing'}, named {s['named'] or 'nothing'}")
-    outside = [p for p in s["params"] if not p["inside"]]
-    assert not outside, f"true values outside their 95 % intervals: {outside}"
+    redteam_check.assert_named_exactly(sim, name, tmp_path)
 
 
 def test_truth_simulator_imports_nothing_from_the_project():
