@@ -538,3 +538,17 @@ def test_configs_still_take_their_documented_forms():
     assert TrainConfig.from_dict({"policy": {"hidden_sizes": [16]}}).policy.hidden_sizes == (16,)
     assert PolicyConfig(hidden_sizes=()).hidden_sizes == ()  # a linear policy
     assert NPGConfig(normalize_advantages=np.bool_(False)).normalize_advantages is np.False_
+
+
+def test_layer_widths_read_back_from_json_are_tuples_again():
+    """A config saved with dataclasses.asdict and read back from JSON holds lists; from_dict must
+    give back the same frozen config (tuples), for every config that has layer widths."""
+    import dataclasses
+    import json
+
+    from lowcostdex.algos.configs import BaselineConfig, PPOConfig
+
+    for config in (PolicyConfig(hidden_sizes=(8, 4)), BaselineConfig(hidden_sizes=(16,)),
+                   PPOConfig(critic_hidden=(32, 8), policy=PolicyConfig(hidden_sizes=(5,)))):
+        back = type(config).from_dict(json.loads(json.dumps(dataclasses.asdict(config))))
+        assert back == config

@@ -84,10 +84,7 @@ class PolicyConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PolicyConfig:
         """Inverse of ``dataclasses.asdict`` (accepts lists read back from JSON)."""
-        d = _known(cls, d)
-        if isinstance(d.get("hidden_sizes"), list):
-            d["hidden_sizes"] = tuple(d["hidden_sizes"])
-        return cls(**d)
+        return cls(**_known(cls, d, tuples=("hidden_sizes",)))
 
 
 @keyword_hints
@@ -121,10 +118,7 @@ class BaselineConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> BaselineConfig:
-        d = _known(cls, d)
-        if isinstance(d.get("hidden_sizes"), list):
-            d["hidden_sizes"] = tuple(d["hidden_sizes"])
-        return cls(**d)
+        return cls(**_known(cls, d, tuples=("hidden_sizes",)))
 
 
 @keyword_hints
@@ -532,22 +526,25 @@ class PPOConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> PPOConfig:
         """Inverse of ``dataclasses.asdict`` (e.g. a run's config.json)."""
-        d = _known(cls, d)
+        d = _known(cls, d, tuples=("critic_hidden",))
         if isinstance(d.get("policy"), dict):
             d["policy"] = PolicyConfig.from_dict(d["policy"])
-        if isinstance(d.get("critic_hidden"), list):
-            d["critic_hidden"] = tuple(d["critic_hidden"])
         return cls(**d)
 
 
-def _known(cls: type, d: Any) -> dict[str, Any]:
+def _known(cls: type, d: Any, tuples: tuple[str, ...] = ()) -> dict[str, Any]:
     """A copy of ``d`` (a config read from JSON) after checking that it is a dict whose keys are
     fields of ``cls``: an unknown (misspelt) key is refused, listing the valid ones, instead of
-    a TypeError from the constructor."""
+    a TypeError from the constructor. The fields named in ``tuples`` (layer widths) come back
+    from JSON as lists and are turned into tuples again."""
     if not isinstance(d, dict):
         raise ConfigError(f"{cls.__name__} settings must be a dict, got {d!r:.80}")
     check_keys(f"{cls.__name__} setting", d, [f.name for f in fields(cls)])
-    return dict(d)
+    d = dict(d)
+    for name in tuples:
+        if isinstance(d.get(name), list):
+            d[name] = tuple(d[name])
+    return d
 
 
 def _check_env(env_id: object, env_kwargs: object) -> None:

@@ -284,6 +284,12 @@ def _run_command(args: argparse.Namespace) -> int:
             print(f"{args.parser.prog}: note: --n-demos {config.n_demos}, but {args.demos} "
                   f"holds {held} successful demonstration(s): all {held} are used",
                   file=sys.stderr)
+    return _train_and_report(args, train, config)
+
+
+def _train_and_report(args: argparse.Namespace, train: Any, config: Any) -> int:
+    """Run ``train(config, args.out, resume=args.resume)``; print its outcome and the notes on a
+    finished or neighbouring run folder; Ctrl-C names the checkpoint to resume from."""
     notes = (finished_note(args), beside_note(args))
     try:
         run = train(config, args.out, resume=args.resume)
@@ -300,16 +306,7 @@ def _run_ppo(args: argparse.Namespace) -> int:
     from lowcostdex.algos.ppo import train
 
     config = ppo_config_from_args(args)
-    notes = (finished_note(args), beside_note(args))
-    try:
-        run = train(config, args.out, resume=args.resume)
-    except KeyboardInterrupt as exc:
-        return _interrupted(args, exc)
-    _print_outcome(run)
-    for note in notes:
-        if note:
-            print(note, file=sys.stderr)
-    return 0
+    return _train_and_report(args, train, config)
 
 
 def command_line(parser: argparse.ArgumentParser, args: argparse.Namespace,
