@@ -5,11 +5,36 @@ the truth simulators themselves stay free of project code."""
 
 from __future__ import annotations
 
+import ast
 import json
 import pathlib
 from types import ModuleType
 
+import pytest
+
 from lowcostdex.cli import main
+
+
+def case_params(sim: ModuleType, fast: set[str] | frozenset[str], misses: dict[str, str]) -> list:
+    """One pytest param per case of ``sim.CASES``: ``slow`` unless in ``fast``, a strict xfail
+    (its reason) for each case in ``misses``."""
+    out = []
+    for case in sim.CASES:
+        marks = [] if case.name in fast else [pytest.mark.slow]
+        if case.name in misses:
+            marks.append(pytest.mark.xfail(strict=True, reason=misses[case.name]))
+        out.append(pytest.param(case.name, marks=marks, id=case.name))
+    return out
+
+
+def imported_top_modules(path: pathlib.Path) -> set[str]:
+    """The top-level module names a Python file imports (a truth simulator must import no
+    project code)."""
+    tree = ast.parse(path.read_text())
+    names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import)
+             for a in n.names}
+    return names | {n.module.split(".")[0] for n in ast.walk(tree)
+                    if isinstance(n, ast.ImportFrom) and n.module}
 
 
 def assert_named_exactly(sim: ModuleType, name: str, root: pathlib.Path) -> None:

@@ -16,7 +16,6 @@ on the commit named there); they fail (XPASS) when fixed and must then lose thei
 
 from __future__ import annotations
 
-import ast
 import pathlib
 import sys
 
@@ -45,25 +44,13 @@ MISSES: dict[str, str] = {}
 # -0.19984], latency 50.3 ms [48.7, 50.9], held-out 1.0 mrad.
 
 
-def _params():
-    for case in sim.CASES:
-        marks = [] if case.name in FAST else [pytest.mark.slow]
-        if case.name in MISSES:
-            marks.append(pytest.mark.xfail(strict=True, reason=MISSES[case.name]))
-        yield pytest.param(case.name, marks=marks, id=case.name)
-
-
-@pytest.mark.parametrize("name", list(_params()))
+@pytest.mark.parametrize("name", redteam_check.case_params(sim, FAST, MISSES))
 def test_names_exactly_the_hidden_causes_with_intervals_holding_the_truth(name, tmp_path):
     redteam_check.assert_named_exactly(sim, name, tmp_path)
 
 
 def test_truth_simulator_imports_nothing_from_the_project():
-    tree = ast.parse((HERE / "gap_truth_sim4.py").read_text())
-    names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import)
-             for a in n.names}
-    names |= {n.module.split(".")[0] for n in ast.walk(tree)
-              if isinstance(n, ast.ImportFrom) and n.module}
+    names = redteam_check.imported_top_modules(HERE / "gap_truth_sim4.py")
     assert names <= {"__future__", "dataclasses", "json", "math", "pathlib", "tempfile",
                      "mujoco", "numpy", "gap_truth_sim2"}, names
 

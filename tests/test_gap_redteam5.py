@@ -15,7 +15,6 @@ fail (XPASS) when fixed and must then lose their mark.
 
 from __future__ import annotations
 
-import ast
 import pathlib
 import sys
 
@@ -43,25 +42,13 @@ MISSES: dict[str, str] = {
 }
 
 
-def _params():
-    for case in sim.CASES:
-        marks = [] if case.name in FAST else [pytest.mark.slow]
-        if case.name in MISSES:
-            marks.append(pytest.mark.xfail(strict=True, reason=MISSES[case.name]))
-        yield pytest.param(case.name, marks=marks, id=case.name)
-
-
-@pytest.mark.parametrize("name", list(_params()))
+@pytest.mark.parametrize("name", redteam_check.case_params(sim, FAST, MISSES))
 def test_names_exactly_the_hidden_causes_with_intervals_holding_the_truth(name, tmp_path):
     redteam_check.assert_named_exactly(sim, name, tmp_path)
 
 
 def test_truth_simulator_imports_nothing_from_the_project():
-    tree = ast.parse((HERE / "gap_truth_sim5.py").read_text())
-    names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import)
-             for a in n.names}
-    names |= {n.module.split(".")[0] for n in ast.walk(tree)
-              if isinstance(n, ast.ImportFrom) and n.module}
+    names = redteam_check.imported_top_modules(HERE / "gap_truth_sim5.py")
     assert names <= {"__future__", "dataclasses", "json", "math", "pathlib", "mujoco", "numpy",
                      "gap_truth_sim2"}, names
 
