@@ -88,7 +88,13 @@ __all__ = [
 
 def read_columns(path: Path) -> dict[str, np.ndarray]:
     """Read a CSV or NPZ log into {column: float array}."""
+    return _read_columns(path)[0]
+
+
+def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
+    """``read_columns`` and its notes (a CSV's text columns left out)."""
     path = Path(path)
+    notes: list[str] = []
     if not path.exists():
         raise LogError(f"{path}: no such file")
     suffix = path.suffix.lower()
@@ -102,7 +108,7 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
         except (OSError, ValueError, TypeError, EOFError) as exc:  # not a zip, object arrays
             raise LogError(f"{path}: not a readable NPZ log ({exc})") from None
     elif suffix == ".csv":
-        cols = _read_csv(path)
+        cols, notes = _read_csv(path)
     else:
         raise LogError(f"{path}: unknown log type {suffix!r}; valid: .csv, .npz, .json (BAM)")
     for k, v in cols.items():
@@ -114,7 +120,7 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
     if lengths and max(lengths) > MAX_SAMPLES:
         raise LogError(f"{path}: {max(lengths)} samples; at most {MAX_SAMPLES} per log "
                        "(split the log into shorter ones)")
-    return cols
+    return cols, notes
 
 
 MAX_COLUMNS = 1024
@@ -154,8 +160,11 @@ def _check_npz_shapes(path: Path) -> None:
         raise LogError(f"{path}: not a readable NPZ log ({exc})") from None
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
-    """Rows streamed (at most MAX_SAMPLES), a UTF-8 byte-order mark (spreadsheets) ignored."""
+def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
+    """Rows streamed (at most MAX_SAMPLES), a UTF-8 byte-order mark (spreadsheets) ignored.
+    A column holding text that is not a log channel (a user's 'mode' or 'note') is left out
+    with a note; text in a channel ('time', 'goal:...', 'qpos:...') is refused, naming the row."""
+    text: dict[int, tuple[int, str]] = {}  # column -> its first text cell (line, cell)
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
             raw = csv.reader(f, delimiter=_delimiter(f))
@@ -191,16 +200,30 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
                 try:
                     rows.append([float(cell) if cell.strip() else np.nan for cell in row])
                 except ValueError:
-                    c = next(i for i, cell in enumerate(row) if not _is_float(cell))
-                    raise LogError(f"{path}: row {raw.line_num}, column {header[c]!r}: "
-                                   f"{row[c]!r} is not a number") from None
+                    for c, cell in enumerate(row):
+                        if not _is_float(cell):
+                            text.setdefault(c, (raw.line_num, cell))
+                    rows.append([float(cell) if cell.strip() and c not in text else np.nan
+                                 for c, cell in enumerate(row)])
     except UnicodeDecodeError:
         raise LogError(f"{path}: not a text CSV file (binary data?)") from None
     except csv.Error as exc:  # a field over the csv module's 128 kB: not a log's number
         raise LogError(f"{path}: not a CSV log (line {raw.line_num}: {exc})") from None
     header = header[:len(header) - trailing]
     data = np.array(rows, dtype=float).reshape(len(rows), len(header))
-    return {h: data[:, i] for i, h in enumerate(header)}
+    notes = []
+    for c, (line, cell) in sorted(text.items()):
+        if _is_channel(header[c]):
+            raise LogError(f"{path}: row {line}, column {header[c]!r}: {cell!r} is not a number")
+        notes.append(f"{path.name}: column {header[c]!r} holds text ({cell!r} in row {line}), "
+                     "not a log channel; left out")
+    return {h: data[:, i] for i, h in enumerate(header) if i not in text}, notes
+
+
+def _is_channel(column: str) -> bool:
+    """'time', 'goal_time' or '<kind>:<name>' of a known kind (any case, spaces around ':')."""
+    kind, sep, _ = (part.strip().lower() for part in column.partition(":"))
+    return kind in PREFIXES_ACTUATOR + PREFIXES_JOINT if sep else kind in ("time", "goal_time")
 
 
 def _delimiter(f) -> str:
@@ -280,7 +303,7 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
     path = Path(path)
     if path.suffix.lower() == ".json":
         return read_bam(path)[0]
-    cols = read_columns(path)
+    cols, notes = _read_columns(path)
     if angle_scale != 1.0:
         cols = {k: (np.asarray(v, float) * angle_scale
                     if str(k).partition(":")[0].strip().lower() in ("goal", "qpos", "qvel")
@@ -289,7 +312,10 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
         cols = {k: (np.asarray(v, float) * time_scale
                     if str(k).strip().lower() in ("time", "goal_time") else v)
                 for k, v in cols.items()}
-    return trajectory_from_columns(cols, name=path.name, rate_goals=rate_goals, gears=gears)
+    traj = trajectory_from_columns(cols, name=path.name, rate_goals=rate_goals, gears=gears)
+    if notes:
+        traj.meta["notes"] = [*notes, *traj.meta.get("notes", [])]
+    return traj
 
 
 def rate_goal_actuators(model: mujoco.MjModel) -> frozenset[str]:

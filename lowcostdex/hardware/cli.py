@@ -64,6 +64,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
     p.add_argument("--baud", type=int, default=1_000_000)
     p.add_argument("--out", required=True, help="where to write the calibrated hand spec JSON")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an earlier calibration at --out (a hand spec, nothing else)")
     p.add_argument("--samples", type=integer(1, 100_000), default=20,
                    help="reads averaged per joint")
     p.add_argument("--yes", action="store_true", help="do not wait for Enter")
@@ -250,12 +252,16 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise InputError(f"--out {args.out} is the --spec file itself: calibrating would "
                          "replace the spec it starts from (kept nowhere else); give a new file "
                          f"name, e.g. --out {shlex.quote(str(out.with_name(out.stem + '_calibrated.json')))}")
-    if out.exists():  # replaced only when it is a hand spec (this command's own output)
+    if out.exists():  # replaced only with --overwrite, and only a hand spec
         try:
             HandSpec.load(out)
         except Exception:  # not a hand spec: the user's file, not ours to replace
             raise InputError(f"--out {out} exists and is not a hand spec; it is left untouched "
                              "(give a new file name)") from None
+        if not args.overwrite:  # an earlier calibration: measured offsets, kept nowhere else
+            raise InputError(f"--out {out} already holds a hand spec (an earlier calibration?) "
+                             "and is left untouched; give a new file name, or --overwrite to "
+                             "replace it")
     hand = _dynamixel_hand(args, "calibrate")
     if args.latency_ms is not None and args.port == "emulated":
         raise InputError("--latency-ms is the serial adapter's latency timer: it needs --port "

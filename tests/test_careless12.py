@@ -1,0 +1,127 @@
+"""Careless calls, session 17 (issue 13). Each test fails on the code before its fix.
+
+- ``calibrate --out dclaw.json`` run a second time (a typo in the name, a pasted command)
+  replaced the earlier calibration - measured offsets, kept nowhere else - without a word,
+  where ``model --out`` asks for ``--overwrite``.
+- a CSV log with a text column of the user's own (a 'mode' or 'note' written beside the
+  channels) was refused whole: "row 2, column 'note': 'start' is not a number".
+
+The truths: the file bytes before and after, and the log read against the same log written
+without the user's columns.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lowcostdex.cli import main
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_bad_inputs import bench_model, csv_text, servo_log  # noqa: E402
+
+
+def _run(argv, capsys) -> tuple[int, str]:
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return code, err.strip()
+
+
+# ------------------------------------------------------------------------------------------------
+# calibrate --out over an earlier calibration
+
+
+CAL = ["calibrate", "--port", "emulated", "--yes", "--samples", "2"]
+
+
+def test_calibrate_keeps_an_earlier_calibration_without_overwrite(tmp_path, capsys):
+    out = tmp_path / "dclaw.json"
+    assert main([*CAL, "--out", str(out)]) == 0
+    capsys.readouterr()
+    earlier = out.read_bytes()
+    code, err = _run([*CAL, "--out", str(out)], capsys)
+    assert code == 2
+    assert err == (f"lowcostdex calibrate: error: --out {out} already holds a hand spec (an "
+                   "earlier calibration?) and is left untouched; give a new file name, or "
+                   "--overwrite to replace it")
+    assert out.read_bytes() == earlier
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dclaw.json"]  # no temporary left
+
+
+def test_calibrate_with_overwrite_replaces_a_hand_spec_only(tmp_path, capsys):
+    from lowcostdex.hands import HandSpec, dclaw_spec
+
+    out = tmp_path / "dclaw.json"
+    out.write_text(dclaw_spec().to_json())
+    assert main([*CAL, "--out", str(out), "--overwrite"]) == 0
+    assert capsys.readouterr().out.strip().endswith(f"wrote {out}")
+    assert HandSpec.load(out).name == "dclaw"
+    notes = tmp_path / "notes.json"
+    notes.write_text('{"todo": [1, 2]}')
+    code, err = _run([*CAL, "--out", str(notes), "--overwrite"], capsys)
+    assert code == 2 and "is not a hand spec; it is left untouched" in err
+    assert notes.read_text() == '{"todo": [1, 2]}'
+
+
+# ------------------------------------------------------------------------------------------------
+# a CSV log with text columns of the user's own
+
+
+def _with_text_columns(text: str) -> str:
+    """``text`` with a 'mode' and a 'note' column: words in some rows, empty in others."""
+    lines = text.splitlines()
+    out = [lines[0] + ",mode,note"]
+    for i, line in enumerate(lines[1:]):
+        out.append(line + (",hold," if i % 50 else ",step,pushed by hand then let go"))
+    return "\n".join(out) + "\n"
+
+
+def test_a_text_column_of_the_users_own_is_left_out_with_a_note(tmp_path):
+    from lowcostdex.gap.logs import read_log
+
+    clean = tmp_path / "clean.csv"
+    clean.write_text(csv_text(servo_log()))
+    noted = tmp_path / "run.csv"
+    noted.write_text(_with_text_columns(clean.read_text()))
+    a, b = read_log(clean), read_log(noted)
+    for name in ("time", "goal", "qpos"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    np.testing.assert_array_equal(a.channels["current"], b.channels["current"])
+    assert b.meta["notes"] == [
+        "run.csv: column 'mode' holds text ('step' in row 2), not a log channel; left out",
+        "run.csv: column 'note' holds text ('pushed by hand then let go' in row 2), not a log "
+        "channel; left out"]
+
+
+def test_the_dataset_reads_it_and_says_so(tmp_path):
+    from lowcostdex.gap.dataset import load_dataset
+
+    (tmp_path / "bench.xml").write_text(bench_model())
+    (tmp_path / "run.csv").write_text(_with_text_columns(csv_text(servo_log())))
+    ds = load_dataset([tmp_path / "run.csv"], tmp_path / "bench.xml")
+    assert any("column 'note' holds text" in n for n in ds.notes)
+
+
+@pytest.mark.parametrize("column", ["time", "goal:arm", "QPOS : arm", "current:arm"])
+def test_text_in_a_channel_is_still_refused_naming_the_row(column, tmp_path):
+    """A word in a channel is a broken row, not a user's note: refused as before."""
+    from lowcostdex.gap.logs import LogError, read_log
+
+    cols = servo_log()
+    text = csv_text(cols)
+    lines = text.splitlines()
+    header = lines[0].split(",")
+    c = header.index(column.replace(" ", "").lower() if ":" in column else column)
+    header[c] = column
+    row = lines[11].split(",")
+    row[c] = "ERR"
+    lines[0], lines[11] = ",".join(header), ",".join(row)
+    path = tmp_path / "run.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(LogError) as err:
+        read_log(path)
+    assert str(err.value) == f"{path}: row 12, column {column!r}: 'ERR' is not a number"
