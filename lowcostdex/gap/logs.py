@@ -22,7 +22,7 @@ kp, vin, motor); see ``read_bam``.
 
 This module reads and writes the files and cuts logs at gaps; it re-exports the parts that live
 beside it: ``trajectory`` (the ``Trajectory`` type, ZOH resampling), ``log_checks`` (the checks
-on entry and their limits) and ``bam_logs`` (BAM JSON).
+on entry and their limits), ``log_csv`` (reading a CSV log) and ``bam_logs`` (BAM JSON).
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ from lowcostdex.gap.log_checks import (
     check_signals,
     trajectory_from_columns,
 )
+from lowcostdex.gap.log_csv import MAX_COLUMNS, read_csv
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     GAP_MIN,
@@ -108,7 +109,7 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
         except (OSError, ValueError, TypeError, EOFError) as exc:  # not a zip, object arrays
             raise LogError(f"{path}: not a readable NPZ log ({exc})") from None
     elif suffix == ".csv":
-        cols, notes = _read_csv(path)
+        cols, notes = read_csv(path, MAX_SAMPLES)
     else:
         raise LogError(f"{path}: unknown log type {suffix!r}; valid: .csv, .npz, .json (BAM)")
     for k, v in cols.items():
@@ -121,11 +122,6 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
         raise LogError(f"{path}: {max(lengths)} samples; at most {MAX_SAMPLES} per log "
                        "(split the log into shorter ones)")
     return cols, notes
-
-
-MAX_COLUMNS = 1024
-"""Columns per log: a 16-joint hand logs about 113 (7 channels a joint and the time); bounds the
-memory a log may ask for, with ``MAX_SAMPLES``."""
 
 
 def _check_npz_shapes(path: Path) -> None:
@@ -158,91 +154,6 @@ def _check_npz_shapes(path: Path) -> None:
         raise
     except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
         raise LogError(f"{path}: not a readable NPZ log ({exc})") from None
-
-
-def _read_csv(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
-    """Rows streamed (at most MAX_SAMPLES), a UTF-8 byte-order mark (spreadsheets) ignored.
-    A column holding text that is not a log channel (a user's 'mode' or 'note') is left out
-    with a note; text in a channel ('time', 'goal:...', 'qpos:...') is refused, naming the row."""
-    text: dict[int, tuple[int, str]] = {}  # column -> its first text cell (line, cell)
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            raw = csv.reader(f, delimiter=_delimiter(f))
-            reader = (row for row in raw  # blank lines and '#' comments skipped
-                      if (len(row) > 1 or (row and row[0].strip()))
-                      and not row[0].lstrip().startswith("#"))
-            header = [h.strip() for h in next(reader, [])]
-            if not header:
-                raise LogError(f"{path}: empty file (no header row)")
-            if len(header) > MAX_COLUMNS:
-                raise LogError(f"{path}: the header has {len(header)} columns; a log has at "
-                               f"most {MAX_COLUMNS}")
-            if len(header) == 1 and ";" in header[0]:  # ';' may come with decimal commas
-                raise LogError(f"{path}: the header {header[0]!r} is separated by ';'; the log "
-                               "format separates columns by ',' (and uses '.' for decimals)")
-            trailing = len(header) > 1 and header[-1] == ""  # 'a,b,c,' (a logger's habit)
-            if len(set(header)) != len(header):
-                dup = sorted({h for h in header if header.count(h) > 1})
-                raise LogError(f"{path}: duplicate columns {dup}")
-            rows = []
-            for r, row in enumerate(reader):
-                if r >= MAX_SAMPLES:
-                    raise LogError(f"{path}: more than {MAX_SAMPLES} rows; at most "
-                                   f"{MAX_SAMPLES} per log (split the log into shorter ones)")
-                if trailing and len(row) == len(header) and not row[-1].strip():
-                    row = row[:-1]
-                elif trailing:
-                    raise LogError(f"{path}: row {raw.line_num} has a value under the "
-                                   "header's empty last column")
-                if len(row) != len(header) - trailing:
-                    raise LogError(f"{path}: row {raw.line_num} has {len(row)} fields, the "
-                                   f"header has {len(header) - trailing}")
-                try:
-                    rows.append([float(cell) if cell.strip() else np.nan for cell in row])
-                except ValueError:
-                    for c, cell in enumerate(row):
-                        if not _is_float(cell):
-                            text.setdefault(c, (raw.line_num, cell))
-                    rows.append([float(cell) if cell.strip() and c not in text else np.nan
-                                 for c, cell in enumerate(row)])
-    except UnicodeDecodeError:
-        raise LogError(f"{path}: not a text CSV file (binary data?)") from None
-    except csv.Error as exc:  # a field over the csv module's 128 kB: not a log's number
-        raise LogError(f"{path}: not a CSV log (line {raw.line_num}: {exc})") from None
-    header = header[:len(header) - trailing]
-    data = np.array(rows, dtype=float).reshape(len(rows), len(header))
-    notes = []
-    for c, (line, cell) in sorted(text.items()):
-        if _is_channel(header[c]):
-            raise LogError(f"{path}: row {line}, column {header[c]!r}: {cell!r} is not a number")
-        notes.append(f"{path.name}: column {header[c]!r} holds text ({cell!r} in row {line}), "
-                     "not a log channel; left out")
-    return {h: data[:, i] for i, h in enumerate(header) if i not in text}, notes
-
-
-def _is_channel(column: str) -> bool:
-    """'time', 'goal_time' or '<kind>:<name>' of a known kind (any case, spaces around ':')."""
-    kind, sep, _ = (part.strip().lower() for part in column.partition(":"))
-    return kind in PREFIXES_ACTUATOR + PREFIXES_JOINT if sep else kind in ("time", "goal_time")
-
-
-def _delimiter(f) -> str:
-    """',' or, for a header separated by tabs and holding no ',' (a tab-separated export), tab;
-    ``f`` is left at its start."""
-    for line in f:
-        if line.strip() and not line.lstrip().startswith("#"):
-            f.seek(0)
-            return "\t" if "\t" in line and "," not in line else ","
-    f.seek(0)
-    return ","
-
-
-def _is_float(cell: str) -> bool:
-    try:
-        float(cell) if cell.strip() else None
-    except ValueError:
-        return False
-    return True
 
 
 def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
