@@ -35,10 +35,24 @@ def _inside(x: float, low, high, open_low: bool, open_high: bool) -> bool:
     return not (high is not None and (x > high or (open_high and x == high)))
 
 
+UNIT_SLIPS = {  # unit -> (one of the unit users mistake it for, in this unit; the words)
+    "s": (1e-3, "in seconds: {t} ms is {v:g}"),
+    "ms": (1e3, "in milliseconds: {t} s is {v:g}"),
+    "rad": (math.pi / 180, "in radians: {t} deg is {v:.4g}"),
+    "fraction": (1e-2, "a fraction: {t} % is {v:g}"),
+}
+"""What a value outside an option's range most often is: the other unit (``--servo-period 1``
+meant 1 ms, ``--latency-ms 0.016`` 16 ms, ``--start-range 30`` 30 deg, ``--min-gain 5`` 5 %)."""
+
+
 def number(low: float | None = None, high: float | None = None, *, open_low: bool = False,
-           open_high: bool = False) -> Callable[[str], float]:
-    """A finite float in the interval (bounds closed unless ``open_low``/``open_high``)."""
+           open_high: bool = False, unit: str | None = None) -> Callable[[str], float]:
+    """A finite float in the interval (bounds closed unless ``open_low``/``open_high``).
+    ``unit`` (a key of ``UNIT_SLIPS``): a value outside whose conversion from the unit users
+    mistake it for lies inside is refused with that conversion named."""
     where = _interval(low, high, open_low, open_high)
+    if unit is not None and unit not in UNIT_SLIPS:
+        raise ValueError(f"unit {unit!r}; valid: {', '.join(UNIT_SLIPS)}")
 
     def parse(text: str) -> float:
         try:
@@ -46,7 +60,12 @@ def number(low: float | None = None, high: float | None = None, *, open_low: boo
         except ValueError:
             x = math.nan
         if not math.isfinite(x) or not _inside(x, low, high, open_low, open_high):
-            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number{where}")
+            hint = ""
+            if unit is not None and math.isfinite(x):
+                scale, words = UNIT_SLIPS[unit]
+                if _inside(x * scale, low, high, open_low, open_high):
+                    hint = "; " + words.format(t=text, v=x * scale)
+            raise argparse.ArgumentTypeError(f"{text!r} is not a finite number{where}{hint}")
         return x
 
     parse.__name__ = "number"

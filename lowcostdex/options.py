@@ -93,7 +93,7 @@ def add_latency_option(parser: argparse.ArgumentParser) -> None:
     """``--latency-ms``: the USB latency timer [ms] the Dynamixel driver's status timeouts assume
     when it cannot read the adapter's from sysfs (a pty, a non-FTDI adapter). One name and one
     range for every command that talks to a D'Claw over a serial port."""
-    parser.add_argument("--latency-ms", type=number(0.5, 1000), default=None,
+    parser.add_argument("--latency-ms", type=number(0.5, 1000, unit="ms"), default=None,
                         help="with --port: the USB latency timer the driver's timeouts assume "
                              "when it cannot read it from sysfs [ms] (a pty served by "
                              "`lowcostdex emulate`: 16; default: the driver's 1 ms)")

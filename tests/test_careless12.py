@@ -125,3 +125,40 @@ def test_text_in_a_channel_is_still_refused_naming_the_row(column, tmp_path):
     with pytest.raises(LogError) as err:
         read_log(path)
     assert str(err.value) == f"{path}: row 12, column {column!r}: 'ERR' is not a number"
+
+
+# ------------------------------------------------------------------------------------------------
+# a number in the other unit: the option's range said, not the unit it is in
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["gap", "analyze", "--log", "x.csv", "--out", "r", "--servo-period", "1"],
+     "argument --servo-period: '1' is not a finite number in [0, 0.1]; in seconds: 1 ms is "
+     "0.001"),
+    (["gap", "analyze", "--log", "x.csv", "--out", "r", "--min-gain", "5"],
+     "argument --min-gain: '5' is not a finite number in (0, 1); a fraction: 5 % is 0.05"),
+    (["emulate", "--drop", "5"],
+     "argument --drop: '5' is not a finite number in [0, 1]; a fraction: 5 % is 0.05"),
+    (["transfer", "--out", "t", "--start-range", "30"],
+     "argument --start-range: '30' is not a finite number in [0, 3.14159]; in radians: 30 deg "
+     "is 0.5236"),
+    (["calibrate", "--port", "/dev/ttyUSB0", "--out", "c.json", "--latency-ms", "0.016"],
+     "argument --latency-ms: '0.016' is not a finite number in [0.5, 1000]; in milliseconds: "
+     "0.016 s is 16"),
+])
+def test_a_number_in_the_other_unit_is_refused_naming_the_conversion(argv, line, tmp_path,
+                                                                     monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, err = _run(argv, capsys)
+    assert code == 2
+    assert line in err and len(err.splitlines()) == 1, err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv", [["gap", "analyze", "--log", "x.csv", "--out", "r",
+                                   "--servo-period", "500"],
+                                  ["emulate", "--drop", "150"]])
+def test_no_conversion_is_offered_where_none_fits(argv, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    code, err = _run(argv, capsys)
+    assert code == 2 and " is " in err and ";" not in err.split("is not a finite number")[1]

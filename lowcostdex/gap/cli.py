@@ -39,12 +39,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated effects to consider (default: all with logged channels)")
     a.add_argument("--max-effects", type=integer(1, 20), default=3)
     a.add_argument("--top-k", type=integer(1, 50), default=6, help="candidates fitted per round")
-    a.add_argument("--min-gain", type=number(0, 1, open_low=True, open_high=True), default=0.05,
+    a.add_argument("--min-gain", type=number(0, 1, open_low=True, open_high=True, unit="fraction"),
+                   default=0.05,
                    help="smallest relative select-MSE reduction to accept an effect")
     a.add_argument("--seed", type=SEED, default=0)
     a.add_argument("--threads", type=integer(0, 1024), default=0,
                    help="simulation threads (0: all CPUs)")
-    a.add_argument("--servo-period", type=number(0.0, 0.1), default=0.0, metavar="S",
+    a.add_argument("--servo-period", type=number(0.0, 0.1, unit="s"), default=0.0,
+                   metavar="S",
                    help="the servos' firmware update period [s] (0.001: a 1 kHz position loop, "
                         "Dynamixel/Feetech): the position law is sampled and its force held "
                         "between updates; 0 (default): continuous")

@@ -45,11 +45,12 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="physics on wall time, or on bus time (advances with the bytes only)")
     p.add_argument("--wire-time", action="store_true",
                    help="delay replies by their wire time (bytes x 10 / baud + return delay)")
-    p.add_argument("--drop", type=number(0, 1), default=0.0,
+    p.add_argument("--drop", type=number(0, 1, unit="fraction"), default=0.0,
                    help="status packet drop probability")
-    p.add_argument("--corrupt", type=number(0, 1), default=0.0,
+    p.add_argument("--corrupt", type=number(0, 1, unit="fraction"), default=0.0,
                    help="status packet corruption prob.")
-    p.add_argument("--late", type=number(0, 1), default=0.0, help="late status packet probability")
+    p.add_argument("--late", type=number(0, 1, unit="fraction"), default=0.0,
+                   help="late status packet probability")
     p.add_argument("--no-fast-read", action="store_true", help="firmware without Fast Sync Read")
     p.add_argument("--effects", default=None,
                    help="JSON file: a list of AppliedEffect dicts the emulated robot carries")

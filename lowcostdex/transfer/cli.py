@@ -56,7 +56,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--conditions", default=None,
                    help="comma-separated: nominal, randomized, identified, "
                         "identified_randomized, on_robot (default: all)")
-    p.add_argument("--start-range", type=number(0, 3.14159), default=0.0,
+    p.add_argument("--start-range", type=number(0, 3.14159, unit="rad"), default=0.0,
                    help="train every condition from valve starts within +-this [rad] of the "
                         "task's and goals within +-this of their offset from the start "
                         "(evaluation keeps the task's starts; a fixed-start policy can fail "
