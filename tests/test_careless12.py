@@ -162,3 +162,41 @@ def test_no_conversion_is_offered_where_none_fits(argv, tmp_path, monkeypatch, c
     monkeypatch.chdir(tmp_path)
     code, err = _run(argv, capsys)
     assert code == 2 and " is " in err and ";" not in err.split("is not a finite number")[1]
+
+
+# ------------------------------------------------------------------------------------------------
+# gap analyze --holdout read as --log is (a folder, a quoted pattern), as gap identify reads it
+
+
+def _three_logs(tmp_path: Path) -> None:
+    (tmp_path / "bench.xml").write_text(bench_model())
+    (tmp_path / "logs").mkdir()
+    for i in range(3):
+        (tmp_path / "logs" / f"run{i}.csv").write_text(csv_text(servo_log(seconds=4.0 + i)))
+
+
+@pytest.mark.parametrize("holdout", ["logs/*.csv", "logs"])
+def test_a_holdout_pattern_or_folder_is_read_as_the_logs_are(holdout, tmp_path, monkeypatch,
+                                                             capsys):
+    """Every log held out: refused for holding out all (the pattern was read), not "--holdout
+    logs/*.csv is not among the logs" (before); nothing is written."""
+    monkeypatch.chdir(tmp_path)
+    _three_logs(tmp_path)
+    code, err = _run(["gap", "analyze", "--model", "bench.xml", "--log", "logs/*.csv",
+                      "--holdout", holdout, "--out", "report"], capsys)
+    assert code == 2
+    assert err.splitlines()[-1] == (
+        "lowcostdex gap analyze: error: the held-out logs must leave at least 2 episodes for "
+        "fitting and selection, and hold out at least one")
+    assert not (tmp_path / "report").exists()
+
+
+def test_a_missing_holdout_file_is_said_to_be_missing(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    _three_logs(tmp_path)
+    code, err = _run(["gap", "analyze", "--model", "bench.xml", "--log", "logs", "--holdout",
+                      "logs/run3.csv", "--out", "report"], capsys)
+    assert code == 2
+    assert err == ("lowcostdex gap analyze: error: --holdout logs/run3.csv: no such file; every "
+                   "--holdout file must also be given with --log")
+    assert not (tmp_path / "report").exists()

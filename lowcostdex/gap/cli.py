@@ -150,7 +150,7 @@ def _analyze(args: argparse.Namespace) -> int:
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.gap.analyze import GapConfig, analyze
-    from lowcostdex.gap.dataset import episodes, load_dataset, split_episodes
+    from lowcostdex.gap.dataset import episodes, expand_log_paths, load_dataset, split_episodes
     from lowcostdex.gap.logs import LogError
     from lowcostdex.gap.report import summary, write_report
     from lowcostdex.gap.results import timestep_note
@@ -164,6 +164,8 @@ def _analyze(args: argparse.Namespace) -> int:
         raise ConfigError("--candidates is empty; name the effects (e.g. --candidates "
                           "latency,backlash), or leave it out for every effect the logs support")
     logs, same = distinct_logs(args.log)
+    if args.holdout:  # a folder or a quoted pattern, read as --log reads them (as identify)
+        args.holdout = [str(p) for p in expand_log_paths(args.holdout)]
     check_holdout(logs, args.holdout)
     try:
         ds = load_dataset(logs, model=args.model, bench=True if args.bench else None,
@@ -233,6 +235,9 @@ def check_holdout(logs: list[str], holdout: list[str] | None) -> None:
             raise ConfigError(f"--holdout {name} holds the same bytes as the log {twin}, which "
                               "is used once (a copy would be fitted and tested at once): hold "
                               f"out {twin} itself, or give only one of the two")
+        if not Path(name).exists():
+            raise ConfigError(f"--holdout {name}: no such file; every --holdout file must also "
+                              "be given with --log")
         raise ConfigError(f"--holdout {name} is not among the logs; every --holdout file must "
                           "also be given with --log")
 
