@@ -200,3 +200,49 @@ def test_a_missing_holdout_file_is_said_to_be_missing(tmp_path, monkeypatch, cap
     assert err == ("lowcostdex gap analyze: error: --holdout logs/run3.csv: no such file; every "
                    "--holdout file must also be given with --log")
     assert not (tmp_path / "report").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# time stamps written as dates and times (pandas' to_csv of a DatetimeIndex, ISO 8601 loggers)
+
+
+def _dated(seconds: float, t0: str, sep: str, zone: str) -> str:
+    from datetime import datetime, timedelta
+
+    start = datetime.fromisoformat(t0)
+    return (start + timedelta(seconds=float(seconds))).isoformat(sep=sep,
+                                                                 timespec="microseconds") + zone
+
+
+@pytest.mark.parametrize("sep, zone", [(" ", ""), ("T", "Z"), ("T", "+01:00")])
+def test_dates_and_times_in_the_time_column_are_read_as_seconds(sep, zone, tmp_path):
+    """Before: "row 2, column 'time': '2026-11-28 01:02:03.000000' is not a number"."""
+    from lowcostdex.gap.logs import read_log
+
+    cols = servo_log()
+    (tmp_path / "clean.csv").write_text(csv_text(cols))
+    (tmp_path / "dated.csv").write_text(
+        csv_text(cols, time=lambda t: _dated(t, "2026-11-28 23:59:58", sep, zone)))
+    a, b = read_log(tmp_path / "clean.csv"), read_log(tmp_path / "dated.csv")
+    # the same instants: written to 1 us, read back as POSIX seconds (float64: ~2e-7 s there)
+    np.testing.assert_allclose(b.time - b.time[0], a.time, rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(a.goal, b.goal)
+    np.testing.assert_array_equal(a.qpos, b.qpos)
+    first = _dated(0.0, "2026-11-28 23:59:58", sep, zone)
+    assert b.meta["notes"][0] == (f"dated.csv: column 'time' holds dates and times ({first!r} "
+                                  "in row 2); read as seconds")
+
+
+def test_dates_under_another_name_say_to_name_the_column_time(tmp_path):
+    from lowcostdex.gap.logs import LogError, read_log
+
+    text = csv_text(servo_log(), time=lambda t: _dated(t, "2026-11-28 01:02:03", " ", ""))
+    path = tmp_path / "run.csv"
+    path.write_text(text.replace("time,", "timestamp,", 1))
+    with pytest.raises(LogError) as err:
+        read_log(path)
+    assert str(err.value) == (
+        "run.csv: missing column 'time' [s]; its columns: 'goal:arm', 'qpos:arm', "
+        "'current:arm'; name the time stamps' column 'time' (in seconds) (dates and times there "
+        "are read as seconds); column 'timestamp' holds text ('2026-11-28 01:02:03.000000' in "
+        "row 2), not a log channel; left out")

@@ -25,6 +25,7 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
     A column holding text that is not a log channel (a user's 'mode' or 'note') is left out
     with a note; text in a channel ('time', 'goal:...', 'qpos:...') is refused, naming the row."""
     text: dict[int, tuple[int, str]] = {}  # column -> its first text cell (line, cell)
+    stamps: dict[int, list[str]] = {}  # 'time' / 'goal_time' column -> its cells (dates?)
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
             raw = csv.reader(f, delimiter=_delimiter(f))
@@ -44,6 +45,7 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
             if len(set(header)) != len(header):
                 dup = sorted({h for h in header if header.count(h) > 1})
                 raise LogError(f"{path}: duplicate columns {dup}")
+            stamps = {c: [] for c, h in enumerate(header) if h.lower() in ("time", "goal_time")}
             rows = []
             for r, row in enumerate(reader):
                 if r >= max_rows:
@@ -57,6 +59,8 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
                 if len(row) != len(header) - trailing:
                     raise LogError(f"{path}: row {raw.line_num} has {len(row)} fields, the "
                                    f"header has {len(header) - trailing}")
+                for c, cells in stamps.items():
+                    cells.append(row[c])
                 try:
                     rows.append([float(cell) if cell.strip() else np.nan for cell in row])
                 except ValueError:
@@ -73,11 +77,35 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
     data = np.array(rows, dtype=float).reshape(len(rows), len(header))
     notes = []
     for c, (line, cell) in sorted(text.items()):
+        seconds = _dates(stamps[c]) if c in stamps else None
+        if seconds is not None:  # pandas' to_csv of a DatetimeIndex, a logger's ISO stamps
+            data[:, c] = seconds
+            notes.append(f"{path.name}: column {header[c]!r} holds dates and times ({cell!r} "
+                         f"in row {line}); read as seconds")
+            continue
         if _is_channel(header[c]):
             raise LogError(f"{path}: row {line}, column {header[c]!r}: {cell!r} is not a number")
         notes.append(f"{path.name}: column {header[c]!r} holds text ({cell!r} in row {line}), "
                      "not a log channel; left out")
-    return {h: data[:, i] for i, h in enumerate(header) if i not in text}, notes
+    kept = [i for i in range(len(header)) if i not in text or i in stamps]
+    return {header[i]: data[:, i] for i in kept}, notes
+
+
+def _dates(cells: list[str]) -> np.ndarray | None:
+    """ISO 8601 dates and times ('2026-11-28 01:02:03.125', 'T', a zone or 'Z') as POSIX
+    seconds (no zone: read as UTC; only differences matter), empty cells NaN; None unless every
+    other cell is one."""
+    from datetime import datetime, timezone
+
+    out = np.full(len(cells), np.nan)
+    for i, cell in enumerate(cells):
+        if cell.strip():
+            try:
+                t = datetime.fromisoformat(cell.strip())
+            except ValueError:
+                return None
+            out[i] = (t if t.tzinfo else t.replace(tzinfo=timezone.utc)).timestamp()
+    return out
 
 
 def _is_channel(column: str) -> bool:

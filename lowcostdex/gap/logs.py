@@ -223,7 +223,14 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
         cols = {k: (np.asarray(v, float) * time_scale
                     if str(k).strip().lower() in ("time", "goal_time") else v)
                 for k, v in cols.items()}
-    traj = trajectory_from_columns(cols, name=path.name, rate_goals=rate_goals, gears=gears)
+    try:
+        traj = trajectory_from_columns(cols, name=path.name, rate_goals=rate_goals, gears=gears)
+    except LogError as exc:  # the time stamps may be the text column left out: say so
+        text = [n.split(": ", 1)[1] for n in notes if n.endswith("not a log channel; left out")]
+        if text and "missing column 'time'" in str(exc):
+            raise LogError(f"{exc} (dates and times there are read as seconds); "
+                           + "; ".join(text)) from None
+        raise
     if notes:
         traj.meta["notes"] = [*notes, *traj.meta.get("notes", [])]
     return traj
