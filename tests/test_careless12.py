@@ -246,3 +246,21 @@ def test_dates_under_another_name_say_to_name_the_column_time(tmp_path):
         "'current:arm'; name the time stamps' column 'time' (in seconds) (dates and times there "
         "are read as seconds); column 'timestamp' holds text ('2026-11-28 01:02:03.000000' in "
         "row 2), not a log channel; left out")
+
+
+def test_an_npz_array_of_text_of_the_users_own_is_left_out_too(tmp_path):
+    """As the CSV's text column: before, "column 'mode' holds <U4 values, not numbers"."""
+    from lowcostdex.gap.logs import LogError, read_log
+
+    cols = servo_log()
+    n = len(cols["time"])
+    np.savez(tmp_path / "clean.npz", **cols)
+    np.savez(tmp_path / "run.npz", **cols, mode=np.array(["hold"] * n), note=np.array([b"x"] * n))
+    a, b = read_log(tmp_path / "clean.npz"), read_log(tmp_path / "run.npz")
+    np.testing.assert_array_equal(a.qpos, b.qpos)
+    np.testing.assert_array_equal(a.goal, b.goal)
+    assert b.meta["notes"] == ["run.npz: array 'mode' holds text, not a log channel; left out",
+                               "run.npz: array 'note' holds text, not a log channel; left out"]
+    np.savez(tmp_path / "bad.npz", **{**cols, "qpos:arm": np.array(["0.1"] * n)})
+    with pytest.raises(LogError, match=r"column 'qpos:arm' holds <U3 values, not numbers"):
+        read_log(tmp_path / "bad.npz")

@@ -83,7 +83,7 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
             notes.append(f"{path.name}: column {header[c]!r} holds dates and times ({cell!r} "
                          f"in row {line}); read as seconds")
             continue
-        if _is_channel(header[c]):
+        if is_channel(header[c]):
             raise LogError(f"{path}: row {line}, column {header[c]!r}: {cell!r} is not a number")
         notes.append(f"{path.name}: column {header[c]!r} holds text ({cell!r} in row {line}), "
                      "not a log channel; left out")
@@ -108,7 +108,7 @@ def _dates(cells: list[str]) -> np.ndarray | None:
     return out
 
 
-def _is_channel(column: str) -> bool:
+def is_channel(column: str) -> bool:
     """'time', 'goal_time' or '<kind>:<name>' of a known kind (any case, spaces around ':')."""
     kind, sep, _ = (part.strip().lower() for part in column.partition(":"))
     return kind in PREFIXES_ACTUATOR + PREFIXES_JOINT if sep else kind in ("time", "goal_time")

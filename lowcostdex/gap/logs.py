@@ -59,7 +59,7 @@ from lowcostdex.gap.log_checks import (
     check_signals,
     trajectory_from_columns,
 )
-from lowcostdex.gap.log_csv import MAX_COLUMNS, read_csv
+from lowcostdex.gap.log_csv import MAX_COLUMNS, is_channel, read_csv
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     GAP_MIN,
@@ -102,10 +102,12 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     if path.is_dir():
         raise LogError(f"{path}: is a folder, not a log file")
     if suffix == ".npz":
-        _check_npz_shapes(path)
+        text = _check_npz_shapes(path)
+        notes = [f"{path.name}: array {k!r} holds text, not a log channel; left out"
+                 for k in text]
         try:
             with np.load(path, allow_pickle=False) as z:
-                cols = {k: np.asarray(z[k], dtype=float) for k in z.files}
+                cols = {k: np.asarray(z[k], dtype=float) for k in z.files if k not in text}
         except (OSError, ValueError, TypeError, EOFError) as exc:  # not a zip, object arrays
             raise LogError(f"{path}: not a readable NPZ log ({exc})") from None
     elif suffix == ".csv":
@@ -124,15 +126,17 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     return cols, notes
 
 
-def _check_npz_shapes(path: Path) -> None:
+def _check_npz_shapes(path: Path) -> dict[str, np.dtype]:
     """Refuse an NPZ whose arrays are not columns of at most ``MAX_SAMPLES`` numbers, or that
     holds more than ``MAX_COLUMNS`` of them, from the arrays' headers alone: loading first let a
-    31 MB file of compressed zeros ask for 7 GB (and end in a MemoryError traceback)."""
+    31 MB file of compressed zeros ask for 7 GB (and end in a MemoryError traceback).
+    Returns the arrays of text that are not channels (a user's notes: left out)."""
     import zipfile
 
     try:
         with zipfile.ZipFile(path) as zf:
             members = [m for m in zf.infolist() if m.filename.endswith(".npy")]
+            text: dict[str, np.dtype] = {}
             if len(members) > MAX_COLUMNS:
                 raise LogError(f"{path}: {len(members)} arrays; a log has at most {MAX_COLUMNS} "
                                "columns")
@@ -148,8 +152,11 @@ def _check_npz_shapes(path: Path) -> None:
                 if shape[0] > MAX_SAMPLES:
                     raise LogError(f"{path}: column {name!r} has {shape[0]} samples; at most "
                                    f"{MAX_SAMPLES} per log (split the log into shorter ones)")
-                if dtype.kind not in "biuf":
+                if dtype.kind in "US" and not is_channel(name):  # a user's note: left out
+                    text[name] = dtype
+                elif dtype.kind not in "biuf":
                     raise LogError(f"{path}: column {name!r} holds {dtype} values, not numbers")
+        return text
     except LogError:
         raise
     except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
