@@ -45,10 +45,11 @@ def carry(rep, windows: Sequence[Window], columns: Sequence, groups: dict,
       goal_shift: as in ``Replayer.run``.
       preroll: seconds replayed before each window (0: none).
     Returns:
-      {(column, window index): (play, rate, link rate)} for the structural simulations of
-      windows that start inside their log (NaN for joints without a play hinge); the link rate
-      is the pre-roll's within the measured velocity's resolution (``_velocity_step``) of the
-      measured one.
+      {(column, window index): (play, rate, reading rate)} for the structural simulations of
+      windows that start inside their log (NaN for joints without a play hinge); the reading
+      rate (the link's, or the motor side's when the log reads there: ``Backlash.read``) is the
+      pre-roll's within the measured velocity's resolution (``_velocity_step``) of the measured
+      one.
     """
     out: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     if preroll <= 0:
@@ -80,11 +81,12 @@ def carry(rep, windows: Sequence[Window], columns: Sequence, groups: dict,
     for key, psims in todo.items():
         run = rep._setup(key, psims, pre, columns, goal_shift)
         plant = run["plant"]
+        share = shares(columns, [c for c, _ in psims], joints)
         k_end = np.array([int(round(rep.grid(pre[p]).frac[-1])) for _, p in psims])
         for k in range(int(k_end.max()) + 1):
             at = np.flatnonzero(k_end == k)
             if len(at):
-                q, v, vl = read(plant, joints)
+                q, v, vl = read(plant, joints, share)
                 for s in at:
                     c, wi = owners[key][s]
                     w = windows[wi]
@@ -124,22 +126,40 @@ def _addresses(model, joints: Sequence[str]) -> np.ndarray:
     return out
 
 
-def read(plant, joints: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def shares(columns: Sequence, cs: Sequence[int], joints: Sequence[str]) -> np.ndarray:
+    """(len(cs), len(joints)) the share of each joint's play the log reads (``Backlash`` read:
+    1 the link, 0 the motor side) in columns ``cs``; 1 where a column has no backlash."""
+    out = np.ones((len(cs), len(joints)))
+    for s, c in enumerate(cs):
+        for e in columns[c]:
+            if e.name == "backlash":
+                for j, r in zip(e.joints, e.values["read"], strict=True):
+                    if j in joints:
+                        out[s, list(joints).index(j)] = r
+    return out
+
+
+def read(plant, joints: Sequence[str], share: np.ndarray | None = None
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Angle [rad] and rate [rad/s] of each joint's backlash play (link - motor side) in a
-    ``Plant``/``BatchPlant``, and its link's velocity [rad/s]: (..., len(joints)) each (leading
+    ``Plant``/``BatchPlant``, and the velocity its reading moves at [rad/s] (motor side +
+    ``share`` x play rate; default share 1: the link's): (..., len(joints)) each (leading
     axis: a BatchPlant's simulations); NaN for joints without a play hinge."""
     _, jd, pq, pd, _ = _addresses(plant.model, joints)
     has = pq >= 0
     q = np.where(has, plant.qpos[..., np.where(has, pq, 0)], np.nan)
     v = np.where(has, plant.qvel[..., np.where(has, pd, 0)], np.nan)
-    return q, v, v + np.where(has, plant.qvel[..., np.where(has, jd, 0)], np.nan)
+    r = 1.0 if share is None else share
+    return q, v, r * v + np.where(has, plant.qvel[..., np.where(has, jd, 0)], np.nan)
 
 
 def place(plant, joints: Sequence[str], play: np.ndarray, rate: np.ndarray,
-          link_rate: np.ndarray | None = None, sims: np.ndarray | None = None) -> None:
+          link_rate: np.ndarray | None = None, sims: np.ndarray | None = None,
+          share: np.ndarray | None = None) -> None:
     """Put a plant's backlash plays at ``play`` [rad] (clipped into each play's range) moving at
-    ``rate`` [rad/s], keeping every link's angle (joint + play) and its velocity (or setting
-    it to ``link_rate``): the motor side moves, not what the encoder reads.
+    ``rate`` [rad/s], keeping every reading (joint + share x play: the link's angle, or the
+    motor side's where ``share`` is 0) and its velocity (or setting it to ``link_rate``, the
+    reading's): what the encoder reads stays, the hidden sides move.
 
     Args:
       plant: a ``Plant`` or ``BatchPlant`` (state forward-computed afterwards).
@@ -148,6 +168,8 @@ def place(plant, joints: Sequence[str], play: np.ndarray, rate: np.ndarray,
       play, rate, link_rate: (len(sims), len(joints)) for a BatchPlant, (len(joints),) for a
         Plant.
       sims: BatchPlant simulations to change (default all).
+      share: (len(sims), len(joints)) or (len(joints),) the play's share in the reading
+        (``shares``; default 1, the link).
     """
     batch = plant.qpos.ndim == 2
     rows = ((np.arange(len(plant.qpos)) if sims is None else np.asarray(sims, int)) if batch
@@ -156,13 +178,14 @@ def place(plant, joints: Sequence[str], play: np.ndarray, rate: np.ndarray,
     rng_ = plant.array("jnt_range") if batch else plant.array("jnt_range")[None]
     play, rate = np.atleast_2d(np.asarray(play, float)), np.atleast_2d(np.asarray(rate, float))
     vl = np.full(play.shape, np.nan) if link_rate is None else np.atleast_2d(link_rate)
+    sh = np.broadcast_to(1.0 if share is None else np.atleast_2d(share), play.shape)
     jq, jd, pq, pd, pid = _addresses(plant.model, joints)
     for i in np.flatnonzero(pq >= 0):
         ok = np.isfinite(play[:, i]) & np.isfinite(rate[:, i])
-        s, r = rows[ok], rate[ok, i]
-        link = qpos[s, jq[i]] + qpos[s, pq[i]]
-        vlink = np.where(np.isfinite(vl[ok, i]), vl[ok, i], qvel[s, jd[i]] + qvel[s, pd[i]])
+        s, r, k = rows[ok], rate[ok, i], sh[ok, i]
+        seen = qpos[s, jq[i]] + k * qpos[s, pq[i]]
+        vseen = np.where(np.isfinite(vl[ok, i]), vl[ok, i], qvel[s, jd[i]] + k * qvel[s, pd[i]])
         new = np.clip(play[ok, i], rng_[s, pid[i], 0], rng_[s, pid[i], 1])
-        qpos[s, pq[i]], qpos[s, jq[i]] = new, link - new
-        qvel[s, pd[i]], qvel[s, jd[i]] = r, vlink - r
+        qpos[s, pq[i]], qpos[s, jq[i]] = new, seen - k * new
+        qvel[s, pd[i]], qvel[s, jd[i]] = r, vseen - k * r
     plant.forward(rows if batch else None)

@@ -427,7 +427,9 @@ class Replayer:
         have = [s for s, cw in enumerate(sims) if carried and cw in carried]
         if have:  # play states carried from the log before each window (``play_state``)
             arrs = [np.array([carried[sims[s]][i] for s in have]) for i in range(3)]
-            play_state.place(plant, ds.effect_joints, *arrs, sims=np.array(have))
+            play_state.place(plant, ds.effect_joints, *arrs, sims=np.array(have),
+                             share=play_state.shares(columns, [sims[s][0] for s in have],
+                                                     ds.effect_joints))
         shifted = np.flatnonzero(np.any(delays > 0, axis=1))
         if len(shifted):  # their goals arrive late on the grid: no native (interpolated) delay
             plant.array("actuator_delay")[np.ix_(shifted, act)] = 0.0

@@ -20,8 +20,8 @@ servos run theirs at ~1 kHz): ``servo.ServoClock``.
 Observation effects (offset, noise, quantization) apply in ``measured_qpos``; calibration effects
 (the servo's encoder frame shifted from the joint's) map the goal in step 1 and the reading there.
 In a model prepared with hidden dofs (``prepare_spec(..., hidden_dofs=True)``) backlash is physics:
-a play hinge between the servo's joint (motor side) and its link; ``measured_qpos`` reads the link
-(joint + play), and ``reset`` puts the play where the static load pushes it (``rest_play``).
+a play hinge between the servo's joint (motor side) and its link; ``measured_qpos`` reads joint +
+read x play (the link; the motor side at ``read`` 0), ``reset`` rests the play (``rest_play``).
 
 Why one module (over ~600 lines; issue 16 asks for the reason here): ``Plant`` and ``BatchPlant``
 share every step through the leading sim axis, so the effect hooks are called from one place for
@@ -333,9 +333,10 @@ class _PlantBase:
         q = np.array(self.qpos if qpos is None else qpos, dtype=float, copy=True)
         for b in self._bound:
             t = b.targets
-            if b.cls.name == "backlash" and np.any(t.has_play):  # the link: motor + play
+            if b.cls.name == "backlash" and np.any(t.has_play):  # motor + read x play
                 h = t.has_play
-                q[..., t.qpos[h]] = q[..., t.qpos[h]] + q[..., t.play_qpos[h]]
+                v = {"read": np.asarray(b.values["read"], float)[..., h]}
+                q[..., t.qpos[h]] = b.cls.reading(v, q[..., t.qpos[h]], q[..., t.play_qpos[h]])
         for b in self._bound:
             if b.cls.kind in ("observation", "calibration"):
                 ad = b.targets.qpos
@@ -395,13 +396,14 @@ class _PlantBase:
         self._state.clear()
 
     def rest_play(self, sims: np.ndarray | None = None) -> None:
-        """Put each backlash play where the static load pushes it, keeping the link angles.
+        """Put each backlash play where the static load pushes it, keeping the readings.
 
-        For a state set from measurements (``reset``; a replay's start): the link angle is what
-        was read (joint + play, as ``measured_qpos``); its play is unknown. A link at rest leans on the
-        stop its external load (gravity, ``-qfrc_bias`` on the play hinge) pushes it to, and
-        the motor side sits half the play away; an unloaded link (load below 1e-9 N m) is put
-        in the middle. The joint angle becomes link - play, velocities are kept.
+        For a state set from measurements (``reset``; a replay's start): the reading (joint +
+        read x play, as ``measured_qpos``: the link, or the motor side) is what was measured;
+        its play is unknown. A link at rest leans on the stop its external load (gravity,
+        ``-qfrc_bias`` on the play hinge) pushes it to (``Backlash.rest``); an unloaded link
+        (load below 1e-9 N m) is put in the middle. The joint angle becomes reading - read x
+        play, velocities are kept.
 
         Args:
           sims: simulations to change (BatchPlant; default all); their state must be forward-
@@ -415,20 +417,18 @@ class _PlantBase:
         for b in plays:
             h = b.targets.has_play
             jq, pq, pd = b.targets.qpos[h], b.targets.play_qpos[h], b.targets.play_dofs[h]
-            half = 0.5 * np.asarray(b.values["width"], float)
-            half = np.broadcast_to(half, self._lead + (len(h),))[..., h]
-            if self._lead:
-                half = half[rows]
-            load = -bias[rows][..., pd]
-            play = np.where(np.abs(load) > 1e-9, np.sign(load), 0.0) * half
-            link = qpos[rows][..., jq] + qpos[rows][..., pq]
+            v = {k: np.broadcast_to(np.asarray(x, float), self._lead + (len(h),))[..., h]
+                 for k, x in b.values.items()}
+            v = {k: x[rows] for k, x in v.items()} if self._lead else v
+            joint, play = b.cls.rest(v, qpos[rows][..., jq], qpos[rows][..., pq],
+                                     -bias[rows][..., pd])
             if self._lead:
                 r = np.arange(self._lead[0])[rows]
                 qpos[np.ix_(r, pq)] = play
-                qpos[np.ix_(r, jq)] = link - play
+                qpos[np.ix_(r, jq)] = joint
             else:
                 qpos[pq] = play
-                qpos[jq] = link - play
+                qpos[jq] = joint
         self._forward(sims)
 
     def forward(self, sims: np.ndarray | None = None) -> None:

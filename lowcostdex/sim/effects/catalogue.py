@@ -18,6 +18,7 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError, check_choice
 from lowcostdex.sim import servo
+from lowcostdex.sim.effects.backlash import Backlash
 from lowcostdex.sim.effects.base import (
     DEFAULT_REFERENCE_TEMPERATURE,
     Effect,
@@ -25,7 +26,6 @@ from lowcostdex.sim.effects.base import (
     Param,
     Targets,
     Values,
-    play_joint_name,
 )
 from lowcostdex.sim.effects.base import (
     dcmotor_targets as _dcmotor,
@@ -430,121 +430,6 @@ class GearboxFriction(Effect):
 
 # ------------------------------------------------------------------------------------------------
 # command and observation effects
-
-
-class Backlash(Effect):
-    name = "backlash"
-    kind = "command"
-    structural = True
-    doc = ("gear/horn play of total `width` between the servo and the link it drives: a play "
-           "hinge in a model prepared with hidden dofs (the servo moves the motor side: rotor "
-           "inertia, friction, its own sensor; the link swings inside the play until it meets "
-           "a stop); else the massless-motor limit, a play operator on the goal")
-    params = (Param("width", 0.0, 0.0, 0.1, "rad", (0.0, 0.017), start=0.01,
-                    limit=(0.0, 0.3)),
-              Param("sensor", 0.0, 0.0, 1.25, "1", (0.0, 0.0), limit=(0.0, 1.5),
-                    doc="where the servo's position loop reads across the play hinge: 0 the "
-                        "motor side (a rotor-side encoder; a horn's play beyond the servo), 1 "
-                        "the output shaft (the loop closed across the play, Dynamixel's "
-                        "output encoder behind its gearbox; its D term, the actuator's kv or, "
-                        "with kp only, the joint's nominal damping, reads there too); the log "
-                        "reads the link"))
-    LOCK = 1e12  # [kg m^2] armature of a closed (null) play hinge
-
-    @staticmethod
-    def play_joint(joint: str) -> str:
-        """Name of the play hinge ``prepare`` adds for ``joint``."""
-        return play_joint_name(joint)
-
-    @classmethod
-    def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
-        """Add a play hinge to each joint's body: same anchor and axis, limited to the play.
-
-        Only with ``prepare_spec(..., hidden_dofs=True)``: it changes the qpos layout. The two
-        hinges of one body compose (same axis: their angles add), so the body (the link and
-        everything it carries) sits at ``q + q_play`` while the servo's joint ``q`` keeps the
-        actuator, the rotor's armature, damping and friction: the motor side. The play hinge
-        has no inertia, damping or friction of its own; its limit (range +-width/2, set by
-        ``apply``; locked at the null) is a stiff contact (time constant 2 physics steps,
-        critical damping, MuJoCo's stiffest recommended). Joint ``q`` is the motor angle; the
-        link angle, what ``Plant.measured_qpos`` reads, is ``q + q_play``.
-        """
-        tc = 2.0 * spec.option.timestep
-        for jn in joints:
-            if spec.joint(cls.play_joint(jn)) is not None:
-                continue
-            j = spec.joint(jn)
-            if j is None or j.type != mujoco.mjtJoint.mjJNT_HINGE:
-                raise ConfigError(f"backlash: {jn!r} must be a hinge joint of the model")
-            # the compiled range is set per simulation by apply(); compile needs lo < hi
-            j.parent.add_joint(name=cls.play_joint(jn), type=mujoco.mjtJoint.mjJNT_HINGE,
-                               pos=j.pos, axis=j.axis, limited=mujoco.mjtLimited.mjLIMITED_TRUE,
-                               range=[-1e-9, 1e-9], solref_limit=[tc, 1.0])
-
-    @classmethod
-    def written_fields(cls, t: Targets) -> tuple[str, ...]:
-        return ("jnt_range", "dof_armature") if np.any(t.has_play) else ()
-
-    @classmethod
-    def apply(cls, f: Fields, t: Targets, v: Values) -> None:
-        """Play hinges: range +-width/2; a null play is locked (armature ``LOCK``: it cannot
-        move, the model is the nominal one to ~1e-12 rad, not the contact's ~1e-4 rad of
-        compliance)."""
-        has = t.has_play
-        if not np.any(has):
-            return
-        rng_ = f.array("jnt_range")
-        half = 0.5 * np.asarray(v["width"], dtype=float)
-        half = np.broadcast_to(half, rng_.shape[:-2] + (len(t.joints),))[..., has]
-        play, dofs = t.play[has], t.play_dofs[has]
-        rng_[..., play, 0] = -half
-        rng_[..., play, 1] = half
-        arm = f.array("dof_armature")
-        arm[..., dofs] = np.where(half > 0, f.nominal("dof_armature")[dofs], cls.LOCK)
-
-    @classmethod
-    def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
-                rng: np.random.Generator) -> np.ndarray:
-        """Joints without a play hinge: the massless-motor limit, a play operator between goal
-        and setpoint (the setpoint moves only once the goal is half the play away). Joints
-        with one: a loop read across the play (``sensor`` s > 0) is the servo's own law on
-        motor + s x play; a position servo is linear in its goal, so it is the goal less s x
-        the play angle (``state["qpos"]``, the plant's positions) and, for its ``kv`` (inside
-        the force range, as the actuator's), less s x kv / kp x the play rate.
-
-        The nominal joint damping of a servo with no D of its own (``state["damping"]``, N m
-        s/rad: a position-like actuator with kp only; 0 where it has a kv, whose joint damping
-        is then a rotor loss, or is a dcmotor) reads where the loop reads as well: it is that
-        servo's D term, and a servo with its encoder on the output shaft damps the output's
-        rate, not the rotor's. The motor joint keeps its
-        damping on its own rate (implicit); ``state["torque"]`` gets the rest, -s x damping x
-        the play rate on the motor dof, outside the force range as a joint's damping is (the
-        plant adds it as an applied force). Damping a hidden effect adds (``viscous_damping``)
-        stays on the motor side: a gearbox loss. Measured on the second truth simulator's
-        ``backlash_output_pendulum`` (width 2.5 deg, loop and D on the output): replayed at
-        the true width with the D on the rotor, 14.5 / 9.7 mrad RMS per log at 0.25 ms; inside
-        the force range 12.1 / 6.8; read on the output outside it, 0.75 / 0.74 (the noise). On the third truth simulator's ``srv_backlash_output`` (firmware D in kv,
-        joint damping 0.01 on the rotor) reading that damping on the output too replayed worse
-        at the true width (5.73 vs 4.52 mrad mean per episode at 0.5 ms): hence kp only."""
-        half = 0.5 * np.asarray(v["width"])
-        prev = state.get("play")
-        prev = state["setpoint"] if prev is None else np.where(np.isnan(prev), state["setpoint"],
-                                                                prev)
-        has = t.has_play
-        inside = goal
-        if np.any(has) and "qpos" in state:
-            s = np.asarray(v["sensor"], float)
-            p = np.where(has, state["qpos"][..., np.where(has, t.play_qpos, 0)], 0.0)
-            if "qvel" in state:  # the damping terms read across the play too
-                rate = np.nan_to_num(np.where(
-                    has, state["qvel"][..., np.where(has, t.play_dofs, 0)], 0.0))
-                p = p + state["kv_kp"] * rate  # the actuator's kv: kv / kp x rate in the goal
-                if "damping" in state:
-                    state["torque"] = -s * state["damping"] * rate
-            inside = goal - s * np.nan_to_num(p)
-        out = np.where(has, inside, np.clip(prev, goal - half, goal + half))
-        state["play"] = np.where(has, goal, out)
-        return out
 
 
 class ActionNoise(Effect):
