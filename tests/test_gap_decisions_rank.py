@@ -106,7 +106,8 @@ def test_each_free_parameter_is_probed_on_each_joint_at_its_start_and_extra_star
     lat = {"delay": [0.0, 0.0]}
     _same(_probes(eng, "latency"), [_col(lat, "delay", j, v) for j in (0, 1)
                                     for v in (0.01, 0.03, 0.06)])
-    bl = {"width": [0.0, 0.0], "sensor": [0.0, 0.0]}
+    # the reading side is held at its null (the link; ``gap.play_side`` fits the motor side)
+    bl = {"width": [0.0, 0.0], "sensor": [0.0, 0.0], "read": [1.0, 1.0]}
     _same(_probes(eng, "backlash"),
           [_col(bl, "width", j, v) for j in (0, 1) for v in (0.01, 0.004, 0.03)]
           + [_col(bl, "sensor", j, v, width=(j, 0.01)) for j in (0, 1)

@@ -51,7 +51,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
-from lowcostdex.gap import gates, significance, stepsize, width_scan
+from lowcostdex.gap import gates, play_side, significance, stepsize, width_scan
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
 from lowcostdex.gap.diagnostics import (
     effective_n,
@@ -243,10 +243,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 break
             tracks = []
             for c in pool:  # (a round chosen again starts from its coarse-step fits)
-                st = fitmod.Structure.build((c.effect,), joints, ctx, fixed=fixed)
-                for k, x0 in enumerate([st.values_from(warm[c.effect])] if c.effect in warm
-                                       else st.starts()):
-                    tracks.append(fitmod.Track(st, st.u(x0), label=f"{c.effect}#{k}"))
+                tracks += play_side.tracks(c.effect, joints, ctx, fixed, warm.get(c.effect))
 
             def on_round(r, live, step=step):
                 prog(f"round {step + 1}: fitting {live} tracks (LM round {r + 1})",
@@ -269,7 +266,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 # joint refits (earlier effects free again) of the most promising candidates
                 joint_tracks = []
                 for n in sorted(best_track, key=lambda n: best_track[n].cost)[:cfg.joint_k]:
-                    js = fitmod.Structure.build(current.effects + (n,), joints, ctx)
+                    js = fitmod.Structure.build(current.effects + (n,), joints,
+                                                ctx.with_ranges(best_track[n].structure.held_ranges))
                     x0 = js.values_from(best_track[n].effects())
                     joint_tracks.append(fitmod.Track(js, js.u(x0), label=f"{n}+joint"))
                 prog(f"round {step + 1}: joint refit of {len(joint_tracks)} candidates",
@@ -298,6 +296,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             if widened:
                 results.update(select_results(eng.predict, ds, sel_eps, best_track,
                                               list(widened), sel_cur, rng, cfg))
+            play_side.keep(best_track, widened)  # a play read on the motor side stays there
             by_name = {c.effect: c for c in table}
             for n in names:
                 rel, low, sse = results[n]

@@ -16,150 +16,23 @@ fit that lands on a search bound may widen that bound toward the parameter's phy
 (``Param.hard``) and refit (``widen``): real-world sizes beyond the usual range are then named with
 their value, and only a fit at its hard limit is rejected.
 
-Why one module (over ~600 lines; issue 16 asks for the reason here): the lockstep Levenberg-
-Marquardt, the bounded parameter spaces it steps in and their widening share the ``Structure``/
-``Track`` state of one algorithm; the loop that calls it is ``analyze``, its results ``results``.
+Why one module (over ~500 lines; issue 16 asks for the reason here): the lockstep Levenberg-
+Marquardt and the widening of the bounded parameter spaces it steps in share the ``Structure``/
+``Track`` state of one algorithm; the loop that calls it is ``analyze``, its results ``results``;
+the spaces themselves (``Context``, ``Free``, ``space``) are ``gap.spaces``.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from lowcostdex.gap.spaces import Context, Free, hard_limits, space  # noqa: F401 (fit.space ...)
 from lowcostdex.sim.effects import AppliedEffect, effect
 from lowcostdex.sim.servo import dcmotor_mask, stall_torque
-
-# Extra starts for non-convex parameters, as fractions of (value at start) or absolute values.
-_EXTRA_STARTS: dict[tuple[str, str], tuple[float, ...]] = {
-    ("latency", "delay"): (0.03, 0.06),
-    ("backlash", "width"): (0.004, 0.03), ("backlash", "sensor"): (0.0, 1.0),  # read across
-    ("stribeck_friction", "velocity"): (0.05,), ("torque_limit", "torque"): (0.25,),  # x peak
-    ("inertia_error", "scale"): (3.0,), ("velocity_limit", "speed"): (1.0, 6.0),
-    ("gain_error", "scale"): (0.5, 2.0),  # a 2.5x gain from 1.0 crept to 1.33 (LM, 2 ms step)
-}
-
-
-@dataclass(frozen=True)
-class Context:
-    """What parameter spaces need to know about the model and data.
-
-    Attributes:
-      dt: physics timestep [s].
-      peak_force: (nj,) peak |actuator force| of the current model on the training data [N m].
-      stall: (nj,) stall torque of each servo at its supply [N m] (inf: no drive limit).
-      damping: (nj,) nominal joint damping [N m s/rad].
-      widened: search ranges widened beyond the catalogue's, (effect, param, joint index) ->
-        (low, high) in parameter units (``widen``).
-      dcmotor: (nj,) which servos are dcmotors (None: those with a finite stall torque).
-    """
-
-    dt: float
-    peak_force: np.ndarray
-    stall: np.ndarray
-    damping: np.ndarray
-    widened: dict[tuple[str, str, int], tuple[float, float]] = field(default_factory=dict)
-    dcmotor: np.ndarray | None = None
-
-    @property
-    def is_dcmotor(self) -> np.ndarray:  # (nj,) bool: where a ``Param.on`` "dcmotor" acts
-        return np.isfinite(self.stall) if self.dcmotor is None else np.asarray(self.dcmotor, bool)
-
-    def with_ranges(self, ranges: dict[tuple[str, str, int], tuple[float, float]]) -> Context:
-        """A copy with these widened ranges added."""
-        return replace(self, widened={**self.widened, **ranges})
-
-
-@dataclass(frozen=True)
-class Free:
-    """One free scalar: parameter ``param`` of effect ``effect`` on joint index ``joint``.
-
-    Optimizer coordinate u = log(value) when ``log`` else value; bounds/fd in u.
-    """
-
-    effect: str
-    param: str
-    joint: int
-    lo: float
-    hi: float
-    start: float
-    log: bool
-    fd: float
-    extra: tuple[float, ...] = ()
-    floor_null: bool = False  # the lower bound is replayed as the null (a delay: 04 trap 8)
-
-    def at_floor(self, v: float) -> bool:  # the null that the lower bound stands for
-        return self.floor_null and v <= self.lo * (1 + 1e-9)
-
-    def to_u(self, v: float) -> float:
-        return math.log(v) if self.log else v
-
-    def from_u(self, u: float) -> float:
-        return math.exp(u) if self.log else u
-
-    @property
-    def u_bounds(self) -> tuple[float, float]:
-        return self.to_u(self.lo), self.to_u(self.hi)
-
-
-def hard_limits(name: str, param: str, j: int, ctx: Context) -> tuple[float, float]:
-    """Physical hard limits of one effect parameter on joint ``j``: the catalogue's
-    ``Param.hard`` made model-aware (dry friction below the servo's stall torque, a torque limit
-    below the peak force the model uses, total damping not negative, a delay of a step or more)."""
-    p = effect(name).param(param)
-    lo, hi = p.hard
-    if (name, param) == ("latency", "delay"):
-        lo = max(lo, ctx.dt)
-    elif (name, param) == ("viscous_damping", "damping"):
-        lo = max(lo, -float(ctx.damping[j]))
-    elif name in ("coulomb_friction", "stribeck_friction") and param != "velocity":
-        hi = min(hi, float(ctx.stall[j]))
-    elif (name, param) == ("torque_limit", "torque"):
-        hi = min(hi, float(max(ctx.peak_force[j], 2 * p.low)))
-    return lo, hi
-
-
-def space(name: str, param: str, j: int, ctx: Context) -> Free:
-    """The bounded search space of one effect parameter on joint ``j`` (a range widened by
-    ``widen`` replaces the catalogue's)."""
-    p = effect(name).param(param)
-    lo, hi, start = p.low, p.high, p.initial
-    log = lo > 0 and hi / lo >= 8.0
-    fd = 1e-3 * (hi - lo)
-    extra = _EXTRA_STARTS.get((name, param), ())
-    if (name, param) == ("latency", "delay"):
-        lo = max(lo, ctx.dt)
-        start = max(start, 2 * ctx.dt)
-        fd = 0.25 * ctx.dt
-    elif (name, param) == ("backlash", "width"):
-        fd = 2e-4
-    elif (name, param) == ("viscous_damping", "damping"):
-        lo = max(lo, -float(ctx.damping[j]))
-    elif (name, param) == ("coulomb_friction", "frictionloss"):
-        hi = min(max(hi, float(ctx.peak_force[j])), float(ctx.stall[j]), p.hard[1])  # to its force
-        extra = (0.5 * hi,)  # a near-stall level: its probe and start are far from the small start
-    elif name == "coulomb_friction" and param in ("creep", "asymmetry"):
-        lo = hi = p.null  # held (soft, symmetric) unless widened: a level at the force, creep
-    elif name == "load_dependent_friction":
-        hi = 0.9  # plastic gear trains reach ~0.46 (BAM's XL330 fit); friction < torque
-    elif (name, param) == ("torque_limit", "torque"):
-        peak = float(max(ctx.peak_force[j], 2 * lo))
-        hi = min(hi, peak)
-        start = 0.5 * peak
-        extra = tuple(f * peak for f in extra)
-        log = True
-    elif param == "offset":
-        fd = 1e-4
-    if log:
-        fd = 1e-3
-    if (name, param, j) in ctx.widened:
-        lo, hi = ctx.widened[(name, param, j)]
-    start = float(np.clip(start, lo, hi))
-    extra = tuple(float(np.clip(e, lo, hi)) for e in extra)
-    floor_null = (name, param) == ("latency", "delay") and lo > p.null
-    return Free(name, param, j, lo, hi, start, log, fd, extra, floor_null)
 
 
 @dataclass
@@ -170,12 +43,16 @@ class Structure:
       effects: canonical effect names, in order of selection.
       joints: joints every effect acts on.
       free: the free scalars (effect, param, joint).
+      held: scalars the context holds at one value (a range of one value in ``Context.widened``,
+        e.g. a backlash read on the motor side: ``gap.play_side``), (effect, param, joint) ->
+        value; ``to_effects`` writes them, ``held_ranges`` rebuilds them.
     """
 
     effects: tuple[str, ...]
     joints: tuple[str, ...]
     free: list[Free] = field(default_factory=list)
     fixed: tuple[AppliedEffect, ...] = ()
+    held: dict[tuple[str, str, int], float] = field(default_factory=dict)
 
     @classmethod
     def build(cls, effects: Sequence[str], joints: Sequence[str], ctx: Context,
@@ -183,7 +60,14 @@ class Structure:
         """Free per-joint parameters for ``effects``; ``fixed`` effects ride along unchanged."""
         free = [space(n, p.name, j, ctx) for n in effects for p in effect(n).params
                 if p.acts(ctx.is_dcmotor) for j in range(len(joints))]
-        return cls(tuple(effects), tuple(joints), [f for f in free if f.lo < f.hi], tuple(fixed))
+        held = {k: lo for k, (lo, hi) in ctx.widened.items() if lo == hi and k[0] in effects}
+        return cls(tuple(effects), tuple(joints), [f for f in free if f.lo < f.hi], tuple(fixed),
+                   held)
+
+    @property
+    def held_ranges(self) -> dict[tuple[str, str, int], tuple[float, float]]:
+        """The context ranges that hold ``held`` (for a rebuild: ``Context.with_ranges``)."""
+        return {k: (v, v) for k, v in self.held.items()}
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -204,6 +88,9 @@ class Structure:
                     null = effect(name).param(f.param).null  # also on joints where it is held
                     v = null if f.at_floor(v) else v
                     vals.setdefault(f.param, np.full(len(self.joints), null))[f.joint] = v
+            for (n, param, j), v in self.held.items():
+                if n == name:
+                    vals.setdefault(param, np.full(len(self.joints), effect(n).param(param).null))[j] = v
             out.append(AppliedEffect(name, self.joints, vals))
         return out
 
@@ -321,8 +208,8 @@ def widen_and_refit(t: Track, residual: ResidualFn, ctx: Context, max_rounds: in
         if not new:
             break
         trial_ranges = {**ranges, **new}
-        s = Structure.build(t.structure.effects, t.structure.joints,
-                            ctx.with_ranges(trial_ranges), fixed=t.structure.fixed)
+        s = Structure.build(t.structure.effects, t.structure.joints, ctx.with_ranges(
+            {**t.structure.held_ranges, **trial_ranges}), fixed=t.structure.fixed)
         nt = Track(s, s.u(s.values_from(t.effects())), label=t.label + "+widened")
         lockstep_lm([nt], residual, max_rounds)
         if not nt.cost <= t.cost:
