@@ -252,15 +252,24 @@ def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = Non
                    **{k: float(np.mean([m[i] for i in test])) for k, m in refs.items()},
                    "chosen": r.selection.get("chosen", r.family),
                    "split": (r.selection or {}).get("field"),
+                   "stage": (r.selection or {}).get("stage"),
                    "at_bound": r.at_bound, "cpu_s": time.process_time() - c0,
                    "fit_s": r.fit_seconds, "bam": (bam or {}).get((f, v), {}),
                    "notes": r.notes, "verdict": r.verdict}
             print(f"  loso {f}={v}: held out {1e3 * row['held_out']:.1f} mrad (train "
                   f"{1e3 * row['train']:.1f}; nominal {1e3 * row['nominal']:.1f}, q = goal "
                   f"{1e3 * row['q = goal']:.1f}); {row['chosen']}, inner split "
-                  f"{row['split']}, {row['cpu_s']:.0f} s CPU\n    verdict: "
+                  f"{row['split']}, stage {_stage(row['stage'])}, {row['cpu_s']:.0f} s CPU"
+                  "\n    verdict: "
                   f"{r.verdict['text']}", flush=True)
             yield row
+
+
+def _stage(st: dict | None) -> str:
+    """The stage kept and each stage's held-back MAE [mrad] (``identify``'s stage choice)."""
+    if not st:
+        return "-"
+    return f"{st['chosen']} (held back " + " / ".join(f"{1e3 * v:.1f}" for v in st["val_mae"]) + ")"
 
 
 def mx_checks(root: Path) -> dict:
@@ -364,7 +373,8 @@ def _print(r: dict) -> None:
     sel = r["selection"]
     if sel:
         print(f"inner split: fit {len(sel['fit_logs'])} training logs, held back "
-              f"{len(sel['val_logs'])} (split by {sel['field']}); chosen {sel['chosen']}; "
+              f"{len(sel['val_logs'])} (split by {sel['field']}); chosen {sel['chosen']}, "
+              f"stage {_stage(sel.get('stage'))}; "
               "MAE on the fitted / held-back logs [mrad]: " + ", ".join(
                   f"{k} {1e3 * v:.1f} / {1e3 * sel['val_mae'][k]:.1f}"
                   for k, v in sel.get("fit_mae", sel["val_mae"]).items()))

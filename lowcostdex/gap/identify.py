@@ -45,7 +45,7 @@ from lowcostdex.gap.identify_logs import (  # noqa: F401 (re-exported)
     torque_off_seen,
     type_folds,
 )
-from lowcostdex.gap.identify_select import FAMILY_MARGIN, choose
+from lowcostdex.gap.identify_select import FAMILY_MARGIN, choose, choose_stage
 from lowcostdex.gap.identify_select import choose_family as _choose_family
 from lowcostdex.gap.identify_starts import starts as own_starts
 from lowcostdex.gap.identify_verdict import verdict
@@ -407,8 +407,9 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         w_fit = whole_logs(ds, fit_logs)
         wts = [1.0 / math.sqrt(ds.trajectories[w.traj].qpos.size) for w in w_fit]
         residual = make_residual(w_fit, wts)
+        stages: dict = {}
         cands, rounds = _fit_families(residual, joints, ctx, config, families,
-                                      config.restarts, prog)
+                                      config.restarts, prog, stages)
         keys = list(cands)
         prog("choosing the family and the fit (gap.identify_select)", 0.8)
         fm = {k: float(np.mean(_train_mae(cands[k], w_fit, wts, ds, rep))) for k in keys}
@@ -422,8 +423,17 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                      "val_mae": {f"{f}.{j}": float(np.mean(vm[i]))
                                  for i, (f, j) in enumerate(keys)},
                      "chosen": f"{chosen}.{per_fam[chosen][1]}"}
-        # the chosen fit itself (LM steps from it on all training logs: worse held out)
-        best = cands[per_fam[chosen]]
+        # the chosen fit itself (LM steps from it on all training logs: worse held out), the
+        # stage kept on the held-back logs (a lower fitting cost is not a better model)
+        k_best = per_fam[chosen]
+        tracks = stages[k_best]
+        vals = [float(np.mean(vm[keys.index(k_best)]))] if len(tracks) > 1 else []
+        if vals:
+            vals = [float(np.mean(v)) for v in per_log_mae(
+                rep, whole_logs(ds, val_logs), [t.effects() for t in tracks[:-1]])] + vals
+        kept = choose_stage(vals, [len(t.structure.free) for t in tracks])
+        best = tracks[kept]
+        selection["stage"] = {"val_mae": vals, "chosen": kept + 1}
     else:
         cands, rounds = _fit_families(residual, joints, ctx, config, families, 1, prog)
         bests = {f: t for (f, _), t in cands.items()}
@@ -468,11 +478,13 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
 
 
 def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
-                  families: dict[str, frozenset], copies: int, prog: Progress
+                  families: dict[str, frozenset], copies: int, prog: Progress,
+                  stages_out: dict | None = None
                   ) -> tuple[dict[tuple[str, int], fitmod.Track], int]:
     """Both least-squares stages for every family, ``copies`` times from differently jittered
     first-stage starts, in the same batched passes but pruned apart (each (family, copy) its
-    own group). Returns {(family, copy): its best stage-2 track} and the LM rounds run.
+    own group). Returns {(family, copy): its best stage-2 track} and the LM rounds run;
+    ``stages_out`` (given) gets {(family, copy): [its best track of each stage]}.
 
     Stage 1: the motor constants held at their nominal values; stage 2: everything, for
     ``joint_rounds`` steps from the stage-1 optimum (and it with each extra start's overrides;
@@ -521,6 +533,9 @@ def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
                                0.8 * (frac[0] + min(1.0, (r + 1) / n)) / frac[1]),
                            prune=prune)
         best = {key: min(g, key=lambda t: t.cost) for key, g in groups.items()}
+        if stages_out is not None:
+            for key, t in best.items():
+                stages_out.setdefault(key, []).append(t)
         rounds += max(t.rounds for g in groups.values() for t in g)
     return best, rounds
 

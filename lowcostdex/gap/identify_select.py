@@ -21,7 +21,7 @@ model then hung on a start: Rhoban's BAM split 41.5-56.0 mrad over five jitter s
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 # A family with more free parameters must lower the fitted logs' mean per-log MAE by this
 # fraction and by 0.1 mrad (a tenth of an encoder tick) to be chosen over one with fewer.
@@ -56,3 +56,18 @@ def choose(cost: Mapping[Key, float], fit_mae: Mapping[Key, float],
     fam = choose_family({f: fit_mae[k] for f, k in kept.items()},
                         {f: n_free[k] for f, k in kept.items()}, margin)
     return fam, kept
+
+
+def choose_stage(val_mae: Sequence[float], n_free: Sequence[int],
+                 margin: float = FAMILY_MARGIN) -> int:
+    """Which stage of the chosen fit is the model (0: the first): the one with the fewest free
+    parameters unless a later stage lowers the held-back logs' mean per-log MAE [rad] by
+    ``margin`` and 0.1 mrad (``choose_family``'s rule); the last stage when ``val_mae`` is
+    empty (one stage, or no held-back logs). Each stage starts from the one before, so its
+    fitting cost is lower; whether it is a better servo model only logs it was not fitted on
+    can tell (module doc)."""
+    if len(val_mae) < 2:
+        return len(n_free) - 1
+    pick = choose_family({str(k): v for k, v in enumerate(val_mae)},
+                         {str(k): n for k, n in enumerate(n_free)}, margin)
+    return int(pick)
