@@ -48,6 +48,7 @@ from lowcostdex.gap.identify_logs import (  # noqa: F401 (re-exported)
 from lowcostdex.gap.identify_select import FAMILY_MARGIN, choose, choose_stage
 from lowcostdex.gap.identify_select import choose_family as _choose_family
 from lowcostdex.gap.identify_starts import starts as own_starts
+from lowcostdex.gap.identify_starts import widened
 from lowcostdex.gap.identify_verdict import verdict
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.rest_friction import held_at_rest
@@ -431,9 +432,11 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         if vals:
             vals = [float(np.mean(v)) for v in per_log_mae(
                 rep, whole_logs(ds, val_logs), [t.effects() for t in tracks[:-1]])] + vals
-        kept = choose_stage(vals, [len(t.structure.free) for t in tracks])
-        best = tracks[kept]
-        selection["stage"] = {"val_mae": vals, "chosen": kept + 1}
+        n_free = [len(t.structure.free) for t in tracks]
+        kept = choose_stage(vals, n_free)
+        best = tracks[-1] if kept == len(tracks) - 1 else widened(tracks[kept],
+                                                                    tracks[-1].structure)
+        selection["stage"] = {"val_mae": vals, "n_free": n_free, "chosen": kept + 1}
     else:
         cands, rounds = _fit_families(residual, joints, ctx, config, families, 1, prog)
         bests = {f: t for (f, _), t in cands.items()}

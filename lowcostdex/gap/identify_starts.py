@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
+from lowcostdex.sim.effects import EFFECTS
 
 # (effect, param) whose analysis-only extra starts identify leaves out
 ANALYSIS_ONLY = frozenset({("coulomb_friction", "frictionloss")})
@@ -45,3 +46,16 @@ def starts(st: fitmod.Structure, extra: Sequence[dict], base: np.ndarray | None 
         if hit:
             out.append(x)
     return out
+
+
+def widened(t: fitmod.Track, st: fitmod.Structure) -> fitmod.Track:
+    """An earlier stage's fit ``t`` as a track of the later stage's structure ``st``: its fitted
+    values, the scalars it did not fit at their nulls (within their bounds: the same model, its
+    cost and residual kept), so that the identified model always names ``st``'s effects."""
+    names = {e.name for e in t.effects()}
+    x = st.values_from(t.effects())
+    for i, f in enumerate(st.free):
+        if f.effect not in names:
+            x[i] = float(np.clip(EFFECTS[f.effect].param(f.param).null, f.lo, f.hi))
+    return fitmod.Track(st, st.u(x), label=t.label, cost=t.cost, r=t.r, rounds=t.rounds,
+                        history=list(t.history))
