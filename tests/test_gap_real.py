@@ -404,3 +404,21 @@ def test_a_fit_worse_than_the_nominal_model_on_its_held_out_log_says_no_reliable
     worse = res.mean(test) >= res.mean(test, identified=False)
     assert res.verdict["reliable"] is (not worse), (res.verdict, res.mean(test))
     assert res.verdict["text"].startswith("no reliable gain") is worse
+
+
+@pytest.mark.skipif(not RHOBAN.is_dir(), reason=f"measured data not found at {ROOT}")
+def test_rhoban_xl330_torque_off_swings_give_bams_published_armature_not_the_catalogues():
+    from lowcostdex.gap.torque_off import swing_fit
+
+    ds = bm.grid_dataset(load_dataset(sorted(RHOBAN.glob("*.json")), timestep=bm.BAM_DT))
+    lift = [i for i, tr in enumerate(ds.trajectories)
+            if tr.meta.get("trajectory") == "lift_and_drop"]
+    fit = swing_fit(ds, lift)
+    assert len(fit.logs) == 4  # kp 100, 200, 400, 800: 0.49 kg at 0.10 m, let go
+    # BAM's six published XL330 fits (Rhoban/bam@1b5a1ce bam/params/xl330, m1-m6): armature
+    # 0.00181-0.00192 kg m^2; the catalogue's XL330-M288 says 0.0003 (6x low). Measured
+    # 2026-11-28 (gap-real12): 0.00189, Coulomb 0.0053 N m, viscous 0.0095 N m s/rad
+    assert 0.00181 * 0.95 <= fit.armature <= 0.00192 * 1.05
+    assert fit.catalogue_armature == pytest.approx(0.0003)
+    assert max(fit.mae) < 0.04  # [rad] per swing: the written-out pendulum explains them
+

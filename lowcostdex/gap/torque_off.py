@@ -1,0 +1,156 @@
+"""What a servo's torque-off swings say on their own: its reflected rotor inertia and friction.
+
+With the torque off (``torque_enable`` < 0.5, BAM's lift_and_drop logs) a pendulum bench is a
+plain pendulum back-driving the gearbox: no motor law, no firmware gain, no supply. Its swing's
+period gives the rotor's inertia reflected through the gears (the armature) beside the link's
+own, and its decay the friction of the back-driven gearbox. ``swing_fit`` fits every torque-off
+swing of the given logs at once, the pendulum written out here (link inertia about the joint and
+gravity torque read from each log's compiled nominal model, one hinge):
+
+    (I_link + armature) qdd = tau_g(q) - coulomb tanh(qd / 0.01) - viscous qd
+                              [- load |tau_g(q)| tanh(qd / 0.01)]
+
+semi-implicit Euler at 1 ms from each swing's first state (50 ms after the release: the drive's
+current decays), least squares on the measured positions, each swing weighted equally.
+
+Measured 2026-11-28 on Rhoban XL330's four lift_and_drop logs (0.49 kg at 0.10 m): armature
+0.0018-0.0020 kg m^2 per swing (BAM's six published XL330 fits: 0.00181-0.00192; the project's
+catalogue XL330-M288: 0.0003), Coulomb ~0.01 N m, viscous ~0.0075 N m s/rad, and the load share
+of the friction small (0.01-0.07 per N m of gravity torque): bench/RESULTS.md (gap-real12).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from scipy.optimize import least_squares
+
+from lowcostdex.gap.dataset import Dataset
+
+SETTLE = 0.05  # [s] after the release before a swing is fitted
+STEP = 0.001  # [s] integration step
+VSMOOTH = 0.01  # [rad/s] the friction's sign smoothed over this speed
+
+
+@dataclass(frozen=True)
+class Swing:
+    """One torque-off swing: measured positions [rad] every ``dt`` from its first state, the
+    link's inertia about the joint without the armature [kg m^2], gravity torque
+    tau_g(q) = gs sin q + gc cos q [N m], the nominal model's armature [kg m^2], and its log."""
+
+    q: np.ndarray
+    v0: float
+    dt: float
+    inertia: float
+    gs: float
+    gc: float
+    armature: float
+    log: int
+
+
+@dataclass(frozen=True)
+class SwingFit:
+    """``swing_fit``'s result: armature [kg m^2], Coulomb [N m], viscous [N m s/rad], load
+    share [1] (0 unless fitted), each swing's position MAE [rad], the catalogue armature (the
+    nominal models'), the logs used."""
+
+    armature: float
+    coulomb: float
+    viscous: float
+    load: float
+    mae: tuple[float, ...]
+    catalogue_armature: float
+    logs: tuple[int, ...]
+
+
+def swings(ds: Dataset, logs: Sequence[int], settle: float = SETTLE) -> list[Swing]:
+    """The first torque-off run of each of ``logs`` (from ``settle`` s after the release, 40
+    samples at least) on a one-joint model."""
+    out = []
+    for i in logs:
+        tr = ds.trajectories[i]
+        on = tr.channels.get("torque_enable")
+        if on is None or tr.qpos.shape[1] != 1:
+            continue
+        off = np.flatnonzero(np.asarray(on).ravel() < 0.5)
+        if not len(off):
+            continue
+        end = off[0] + int(np.argmax(np.diff(np.r_[off, -2]) != 1)) + 1  # first run's end
+        k0 = int(np.searchsorted(tr.time, tr.time[off[0]] + settle))
+        if end - k0 < 40:
+            continue
+        m = ds.compiled(tr.model)
+        d = mujoco.MjData(m)
+        dof = int(m.jnt_dofadr[m.joint(tr.joints[0]).id])
+        tau = []
+        for q in (0.5 * np.pi, 0.0):
+            d.qpos[:] = 0.0
+            d.qpos[m.jnt_qposadr[m.joint(tr.joints[0]).id]] = q
+            d.qvel[:] = 0.0
+            mujoco.mj_forward(m, d)
+            tau.append(-float(d.qfrc_bias[dof]))
+        e, r = np.zeros(m.nv), np.zeros(m.nv)
+        e[dof] = 1.0
+        mujoco.mj_mulM(m, d, r, e)
+        dt = float(np.median(np.diff(tr.time[k0:end])))
+        q = tr.qpos[k0:end, 0]
+        v0 = float(np.polyfit(tr.time[k0:k0 + 5] - tr.time[k0], q[:5], 2)[1])
+        out.append(Swing(q.copy(), v0, dt, float(r[dof] - m.dof_armature[dof]), tau[0], tau[1],
+                         float(m.dof_armature[dof]), int(i)))
+    return out
+
+
+def simulate(p: np.ndarray, sw: Swing) -> np.ndarray:
+    """Positions of swing ``sw`` under parameters p[k] = (armature, coulomb, viscous[, load]),
+    one row per k (all k integrated together)."""
+    p = np.atleast_2d(p)
+    a, c, b = p[:, 0], p[:, 1], p[:, 2]
+    mu = p[:, 3] if p.shape[1] > 3 else np.zeros(len(p))
+    sub = max(1, int(round(sw.dt / STEP)))
+    h = sw.dt / sub
+    q = np.full(len(p), sw.q[0])
+    v = np.full(len(p), sw.v0)
+    inv = 1.0 / (sw.inertia + a)
+    out = np.empty((len(p), len(sw.q)))
+    for k in range(len(sw.q)):
+        out[:, k] = q
+        for _ in range(sub):
+            tg = sw.gs * np.sin(q) + sw.gc * np.cos(q)
+            s = np.tanh(v / VSMOOTH)
+            v = v + h * (tg - (c + mu * np.abs(tg)) * s - b * v) * inv
+            q = q + h * v
+    return out
+
+
+def swing_fit(ds: Dataset, logs: Sequence[int], load: bool = False) -> SwingFit | None:
+    """Armature, Coulomb and viscous friction (and with ``load`` a friction share per N m of
+    gravity torque) fitted to the torque-off swings of ``logs`` (module doc); None when none
+    of them has a torque-off run long enough."""
+    sws = swings(ds, logs)
+    if not sws:
+        return None
+    cat = float(np.median([s.armature for s in sws]))
+    p0 = np.array([cat, 0.005, 0.005] + ([0.05] if load else []))
+    lo = np.zeros(len(p0))
+    hi = np.array([0.05, 0.5, 0.5] + ([0.5] if load else []))
+    step = np.array([1e-5, 1e-4, 1e-4, 1e-3])[:len(p0)]
+    wts = [1.0 / np.sqrt(len(s.q)) for s in sws]
+
+    def batch(ps: np.ndarray) -> np.ndarray:
+        return np.concatenate([(simulate(ps, s) - s.q) * w for s, w in zip(sws, wts,
+                                                                            strict=True)], 1)
+
+    def jac(p: np.ndarray) -> np.ndarray:  # forward differences, all columns in one pass
+        ps = np.vstack([p, p + np.diag(step)])
+        r = batch(ps)
+        return ((r[1:] - r[0]) / step[:, None]).T
+
+    sol = least_squares(lambda p: batch(p[None])[0], p0, jac=jac, bounds=(lo, hi),
+                        x_scale=np.array([1e-3, 1e-2, 1e-2, 0.1])[:len(p0)], max_nfev=100)
+    x = sol.x
+    mae = tuple(float(np.mean(np.abs(simulate(x, s)[0] - s.q))) for s in sws)
+    return SwingFit(float(x[0]), float(x[1]), float(x[2]), float(x[3]) if load else 0.0, mae,
+                    cat, tuple(s.log for s in sws))
