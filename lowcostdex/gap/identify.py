@@ -16,7 +16,8 @@ By default the structure's families are fitted from several jittered starts on t
 logs but those at the smallest value of a header field (``inner_split``: the lowest gain, whose
 logs moved the fits away from what the other gains need); per family the restart with the lowest
 cost is kept and the families are compared on the fitted logs (``identify_select``); the held-back
-logs are scored and reported.
+logs are scored and reported, and choose whether the chosen fit's first stage or its joint stage
+is the model (``identify_select.choose_stage``).
 
 Why one module: the stages, families, restarts, inner split and the checks of what the
 training logs cannot tell are one procedure over one residual and Replayer.
