@@ -388,10 +388,21 @@ def _why(res: Any) -> str:
                 f"({len(sel['fit_logs'])} fitted, {len(sel['val_logs'])} held back); per family "
                 f"the restart with the lowest cost, chosen {sel['chosen']} on the fitted logs "
                 f"(mean MAE [mrad] per family: {fam}; the fewest free parameters unless another "
-                "family is 2 % lower)")
+                "family is 2 % lower)" + _stage_why(sel.get("stage")))
     return (f"no header field ({', '.join(INNER_FIELDS)}) varies among the training logs, "
             "so nothing validates the fit: the family was chosen on the training logs' own MAE"
             + (f" [mrad]: {fam}" if fam else "") + "; expect a larger error on logs unlike them")
+
+
+def _stage_why(st: dict | None) -> str:
+    """How the held-back logs chose the chosen fit's stage (``identify_select.choose_stage``)."""
+    if not st or len(st.get("val_mae", ())) < 2:
+        return ""
+    names = ["the first stage (motor constants at their catalogue values)", "the joint fit"]
+    vals = " / ".join(f"{1e3 * v:.1f}" for v in st["val_mae"])
+    return (f"; kept {names[min(st['chosen'], 2) - 1]} on the held-back logs (MAE first / joint "
+            f"stage {vals} mrad; the one of fewer free parameters unless the other is 2 % "
+            "lower)")
 
 
 def _generate(args: argparse.Namespace) -> int:
