@@ -16,8 +16,8 @@ By default the structure's families are fitted from several jittered starts on t
 logs but those at the smallest value of a header field (``inner_split``: the lowest gain, whose
 logs moved the fits away from what the other gains need); per family the restart with the lowest
 cost is kept and the families are compared on the fitted logs (``identify_select``); the held-back
-logs are scored and reported, and choose whether the chosen fit's first stage or its joint stage
-is the model (``identify_select.choose_stage``).
+logs are scored and reported (``IdentifyConfig.stage_choice``: they also choose whether the chosen
+fit's first stage or its joint stage is the model; off by default, measured worse).
 
 Why one module: the stages, families, restarts, inner split and the checks of what the
 training logs cannot tell are one procedure over one residual and Replayer.
@@ -152,6 +152,12 @@ class IdentifyConfig:
         ((u - u_null) / (u_hi - u_lo))^2 (u: the optimizer's coordinate, log for scales), i.e.
         moving one parameter across its whole range costs as much as an RMS error of ``prior``
         on every fitted log.
+      stage_choice: with select="inner", the chosen fit's first stage (its motor constants at
+        their catalogue values) is the model instead of its joint fit unless the joint is 2 %
+        lower on the held-back logs (``identify_select.choose_stage``). Off: measured
+        2026-11-28 on every real-log set, it kept the first stage on Rhoban's up_and_down fold
+        (held back 40.5 vs 41.8 mrad; held out 57.7 vs the joint's 46.0) and Pham's BAM split
+        (16.0 vs 16.2; 8.4 vs 7.6), and changed nothing else (bench/RESULTS.md gap-real12).
     """
 
     effects: tuple[str, ...] = SERVO_STRUCTURE
@@ -171,6 +177,7 @@ class IdentifyConfig:
     restart_jitter: float = 1e-3
     prior: float = 0.0
     directional: bool = True
+    stage_choice: bool = False
 
     def __post_init__(self) -> None:
         _check_types(self)
@@ -210,6 +217,7 @@ def _check_types(c: IdentifyConfig) -> None:
     check_number("rtol", c.rtol, 0)
     check_bool("cold", c.cold)
     check_bool("directional", c.directional)
+    check_bool("stage_choice", c.stage_choice)
     if isinstance(c.effects, str) or not isinstance(c.effects, (tuple, list)):
         raise ConfigError(f"effects={c.effects!r} must be a tuple of effect names, e.g. "
                           "servo_structure(ds)")
@@ -425,10 +433,10 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                      "val_mae": {f"{f}.{j}": float(np.mean(vm[i]))
                                  for i, (f, j) in enumerate(keys)},
                      "chosen": f"{chosen}.{per_fam[chosen][1]}"}
-        # the chosen fit itself (LM steps from it on all training logs: worse held out), the
-        # stage kept on the held-back logs (a lower fitting cost is not a better model)
+        # the chosen fit itself (LM steps from it on all training logs: worse held out); with
+        # stage_choice, its stage kept on the held-back logs
         k_best = per_fam[chosen]
-        tracks = stages[k_best]
+        tracks = stages[k_best] if config.stage_choice else [cands[k_best]]
         vals = [float(np.mean(vm[keys.index(k_best)]))] if len(tracks) > 1 else []
         if vals:
             vals = [float(np.mean(v)) for v in per_log_mae(
@@ -437,7 +445,8 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         kept = choose_stage(vals, n_free)
         best = tracks[-1] if kept == len(tracks) - 1 else widened(tracks[kept],
                                                                     tracks[-1].structure)
-        selection["stage"] = {"val_mae": vals, "n_free": n_free, "chosen": kept + 1}
+        if vals:
+            selection["stage"] = {"val_mae": vals, "n_free": n_free, "chosen": kept + 1}
     else:
         cands, rounds = _fit_families(residual, joints, ctx, config, families, 1, prog)
         bests = {f: t for (f, _), t in cands.items()}

@@ -9,13 +9,16 @@ so the restart kept for a family is the one with the lowest cost on the logs it 
 (``lowest_cost``; more restarts can then only find a better optimum of the same objective).
 The families are compared on the same fitted logs by BAM's per-log MAE, the fewest free
 parameters unless another family is ``FAMILY_MARGIN`` (2 %) lower (``choose_family``). The
-held-back logs are scored and reported (``Identified.selection``); they choose one thing only:
-which stage of the chosen fit is the model (``choose_stage``): the first stage's optimum (the
-motor constants at their catalogue values) or the joint fit from it, whose fitting cost is
-lower by construction and which may have bought it by fitting the training gains' quirks
-(gap-arm11, session 16: a joint stage that fitted STS3250's lift fold better, 22.3 -> 15.7
-mrad, held out 41.9 -> 100.0). The same rule as the families': the fewer free parameters
-unless the other is 2 % and 0.1 mrad lower, on the held-back logs.
+held-back logs are scored and reported (``Identified.selection``). With
+``IdentifyConfig.stage_choice`` they choose one thing: which stage of the chosen fit is the model
+(``choose_stage``): the first stage's optimum (the motor constants at their catalogue values) or
+the joint fit from it, whose fitting cost is lower by construction and which may have bought it
+by fitting the training gains' quirks (gap-arm11, session 16: a joint stage that fitted STS3250's
+lift fold better, 22.3 -> 15.7 mrad, held out 41.9 -> 100.0). The same rule as the families':
+the fewer free parameters unless the other is 2 % and 0.1 mrad lower, on the held-back logs.
+Off by default: on the real-log sets it kept the first stage on two splits, worse held out on
+both (Rhoban up_and_down fold 46.0 -> 57.7 mrad, Pham BAM split 7.6 -> 8.4), better on none
+(2026-11-28, bench/RESULTS.md gap-real12): the lowest gain's logs do not tell which extrapolates.
 
 Until 2026-11-27 every (family, restart) was chosen on the held-back logs' MAE (4 logs on Rhoban
 XL330): a choice among 9 fits whose validation MAEs lay within a few % of each other, which ranked
