@@ -32,13 +32,12 @@ FAST: tuple[str, ...] = ()
 
 # what the analysis named instead, per case it misses (bench/gap_redteam5.py --threads 1)
 MISSES: dict[str, str] = {
-    "backlash2deg_pendulum_500hz_us": "miss (gap-judge11, 5329124, 1717 s wall, 451 s CPU): "
-        "backlash was chosen in round 1 (width 0.0299 for 0.0349 rad, sensor 1.00: the output "
-        "shaft; select 3.72 -> 1.21 mrad, 89.5 % of the select MSE), then dropped by the "
-        "backward pass ('its 95 % interval holds no effect'): named nothing, held-out 6.75 mrad "
-        "unchanged (floor 0.64). The 2 deg play is hidden at rest (gravity holds the link on "
-        "one side and the PD reads the output) and shows only at reversals, so the width's "
-        "interval reaches no play",
+    "backlash2deg_pendulum_500hz_us": "miss on 5329124 and 7e2206f (backlash chosen in round 1, "
+        "width 0.0299 for 0.0349 rad, then dropped: the width scan's valley took its interval "
+        "to [-0.003, 0.040]); EXACT with gap-drop12's gates.profile_shown on fd3c341 (6fe97ab + "
+        "the fix, 398 s CPU: kept, its removal costs 78.5 x the data's threshold; held-out "
+        "6.75 -> 1.89 mrad), but not yet run on main with gap-rotor12's d19aebf / c7ca151 "
+        "(backlash.read, play lock 1e8, both reading sides): strict xfail kept until then",
 }
 
 

@@ -464,6 +464,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                                                        timing)
             margin = significance.null_margins(final_track.structure, mid, half, ctx)
             weak = [n for n in final_track.structure.effects if margin[n] <= 1]
+            weak, why = gates.profile_shown(weak, final_track, final_fn, ds, all_segs, cfg, ctx)
+            stop_reason += why
             if not weak:
                 break
             current, cur_x, why = drop_weak(final_track, min(weak, key=margin.get), mid, half, ctx)
@@ -535,9 +537,8 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     zero step a first-order integrator's value is 1 / (1 - ``interval_step``) times that move
     away (Richardson), on either side; goals up to a step late (``stepsize.goal_timing``)."""
     noise = fitmod.interval_halfwidths(t.r, t.jac, effective_n(t.r))
-    blocks = significance.residual_blocks(ds, segs, cfg.interval_block)
-    data = np.maximum.reduce([noise, fitmod.block_halfwidths(t.r, t.jac, blocks),
-                              significance.hac_halfwidths(t.r, t.jac, blocks)])
+    data = significance.data_halfwidths(t, significance.residual_blocks(ds, segs,
+                                                                         cfg.interval_block))
     u, data = significance.profile_interval(t, lambda: _Engine(ds, cfg, t.structure.names)
                                             .residual_fn(segs), data, scan=True)
     late = _Engine(ds, cfg, t.structure.names).residual_fn(segs, ds.timestep / 2)  # goal timing

@@ -22,6 +22,12 @@ A parameter free everywhere is fitted where the data cannot tell it (session 8: 
   0.37 mrad. On its training segments freeing the sensor lowered the cost 6.1 %, 0.13 % with
   goals 0.125 ms later, and the width interval [0.02649, 0.02771] excluded the true 0.02618).
 
+An effect whose interval reaches "no effect" while its cost profiled there rises past the data's
+threshold is kept (``profile_shown``): a play's width is not linear (a gravity-loaded link leans
+on one stop and shows the play only at reversals; read on the output shaft its cost is jagged),
+and its profile and valley intervals reached 0 on sim5 backlash2deg_pendulum_500hz_us although
+the play's removal raised the train + select cost from 0.0186 to 0.0666 rad^2.
+
 An effect the final refit finds no evidence for is dropped (``drop_weak``) unless a nested
 effect it contains is shown: a ``stribeck_friction`` whose breakaway (static) interval holds 0
 but whose sliding level's excludes 0 is a stiff Coulomb, refitted as ``coulomb_friction`` with
@@ -50,6 +56,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap import significance
+from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.gap.results import GapConfig
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, effect
 
@@ -124,6 +132,27 @@ def hold_sensor(t: fitmod.Track, residual: fitmod.ResidualFn, ctx: fitmod.Contex
         f"physics step later (< {100 * cfg.min_gain:.0f} %): it stood in for a lag"
         for j, v in low.items())
     return nt
+
+
+def profile_shown(weak: Sequence[str], t: fitmod.Track, residual: fitmod.ResidualFn,
+                  ds: Dataset, segs: Sequence[Window], cfg: GapConfig, ctx: fitmod.Context
+                  ) -> tuple[list[str], str]:
+    """``weak`` (effects of the final track ``t`` whose 95 % intervals hold "no effect") less
+    those whose cost, profiled at "no effect", rises past the data's threshold
+    (``significance.null_profile_rise`` > 1 on ``residual``, the data of segments ``segs``):
+    an interval that reaches the null through a linearisation or a smoothed valley does not
+    outweigh the cost measured there. Returns (still weak, report line for those kept)."""
+    if not any(f.effect in weak and (f.effect, f.param) in significance.PROFILED
+               for f in t.structure.free):
+        return list(weak), ""
+    data = significance.data_halfwidths(t, significance.residual_blocks(ds, segs,
+                                                                         cfg.interval_block))
+    rise = significance.null_profile_rise(t, residual, data, ctx, weak)
+    shown = [n for n in weak if rise.get(n, 0.0) > 1]
+    why = "".join(f"; {n} kept although its 95 % interval reaches no effect: without it the "
+                  f"cost rises {rise[n]:.3g} x the data's threshold (its profile at no effect)"
+                  for n in shown)
+    return [n for n in weak if n not in shown], why
 
 
 def drop_weak(t: fitmod.Track, drop: str, mid: np.ndarray, half: np.ndarray,
