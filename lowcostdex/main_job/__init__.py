@@ -19,8 +19,9 @@
 ``--port /dev/ttyUSB0`` runs the same stages on a real D'Claw (kinesthetic demos then need a
 person); ``--task`` picks the task (``valve-target``, the default: turn the valve from 0 to a random target
 180 +- 29 deg away; ``valve``: turn it 180 deg; ``valve-random``: random start and target;
-``flip``: flip the block 180 deg about a horizontal axis); ``--size`` picks the budget: ``smoke`` (CI, about a minute), ``default`` (about 8-10 minutes
-on an idle 2-core machine, 100 held-out robot episodes per policy) or ``long``.
+``flip``: flip the block 180 deg about a horizontal axis); ``--size`` picks the budget: ``smoke`` (a check of every stage: about 4 minutes
+of CPU, most of it the gap stage), ``default`` (about 25 minutes of CPU, 100 held-out robot
+episodes per policy) or ``long``.
 """
 
 from lowcostdex.main_job.job import (

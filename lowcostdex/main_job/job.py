@@ -176,8 +176,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                        description=_overview())
     p.add_argument("--out", default="runs/main", help="output folder")
     p.add_argument("--size", choices=SIZES, default="default",
-                   help="budget: smoke (CI, ~1 min), default (~10 min on a 2-core machine with "
-                        "one other job; more under load), long")
+                   help="budget: smoke (every stage checked, ~4 min of CPU), default (~25 min "
+                        "of CPU on one core; more wall under load), long")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--task", choices=sorted(TASKS), default=DEFAULT_TASK,
                    help="valve-target: turn the valve from 0 to a random target in 180 +- 29 "
