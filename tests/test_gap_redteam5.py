@@ -30,15 +30,13 @@ import redteam_check  # noqa: E402
 
 FAST: tuple[str, ...] = ()
 
-# what the analysis named instead, per case it misses (bench/gap_redteam5.py --threads 1)
-MISSES: dict[str, str] = {
-    "backlash2deg_pendulum_500hz_us": "miss on 5329124 and 7e2206f (backlash chosen in round 1, "
-        "width 0.0299 for 0.0349 rad, then dropped: the width scan's valley took its interval "
-        "to [-0.003, 0.040]); EXACT with gap-drop12's gates.profile_shown on fd3c341 (6fe97ab + "
-        "the fix, 398 s CPU: kept, its removal costs 78.5 x the data's threshold; held-out "
-        "6.75 -> 1.89 mrad), but not yet run on main with gap-rotor12's d19aebf / c7ca151 "
-        "(backlash.read, play lock 1e8, both reading sides): strict xfail kept until then",
-}
+# what the analysis named instead, per case it misses (bench/gap_redteam5.py --threads 1).
+# backlash2deg_pendulum_500hz_us was a miss on 5329124 and 7e2206f (backlash chosen in round 1,
+# width 0.0299 for 0.0349 rad, then dropped: the width scan's valley took its interval to
+# [-0.003, 0.040]); since gap-drop12's gates.profile_shown (b163bbd) exact on main 8d3a53b (lead,
+# session 17, 367 s CPU: kept, its removal costs 78.5 x the data's threshold; held-out
+# 6.75 -> 1.89 mrad).
+MISSES: dict[str, str] = {}
 
 
 @pytest.mark.parametrize("name", redteam_check.case_params(sim, FAST, MISSES))
