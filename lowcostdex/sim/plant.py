@@ -40,32 +40,13 @@ from mujoco import batch as mjbatch
 from lowcostdex.errors import ConfigError, PhysicsError
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
+from lowcostdex.sim.effects.prepare import compile_with_effects as compile_with_effects
+from lowcostdex.sim.effects.prepare import prepare_spec as prepare_spec
 
 _ORDER = {name: i for i, name in enumerate(EFFECTS)}
 _CONTROLLER_GAINS = [servo.GAIN_KP, servo.GAIN_KI, servo.GAIN_KD]
-
-
-def prepare_spec(spec: mujoco.MjSpec, effects: Sequence[AppliedEffect],
-                 hidden_dofs: bool = False) -> mujoco.MjSpec:
-    """Make structural room for ``effects`` (e.g. actuator history buffers for latency).
-
-    ``hidden_dofs``: also add the degrees of freedom of structural effects (backlash's play
-    hinge between a servo and its link). They change the qpos layout, so models that share
-    their state with a task's model (the emulated robot, env backends) leave them out (backlash
-    is then the massless-motor play operator); the gap analysis's replays use them.
-    """
-    for e in effects:
-        if hidden_dofs or not e.cls.structural:
-            e.cls.prepare(spec, e.joints)
-    return spec
-
-
-def compile_with_effects(spec: mujoco.MjSpec, effect_names_joints: Sequence[tuple[str, Sequence[str]]]
-                         ) -> mujoco.MjModel:
-    """Compile ``spec`` with room for effects given as (name, joints) pairs."""
-    for name, joints in effect_names_joints:
-        EFFECTS[name].prepare(spec, tuple(joints))
-    return spec.compile()
+# the model constants mj_setConst derives (invweight0, acc0, subtree masses, ...)
+_CONST_OUT = tuple(n for n in mujoco.MjModel._setconst_outputs if n in mjbatch.MODEL_FIELDS)
 
 
 class _Bound:
@@ -91,6 +72,7 @@ class _PlantBase:
         self._static_forcerange: np.ndarray | None = None
         self._static_forcelimited: np.ndarray | None = None
         self._runtime_fields: set[str] = set()
+        self._const_moved = False  # constants set from moved masses (``_set_const``)
         self._is_dcmotor = self.model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR
         # dcmotors compiled with an integrator state need ki > 0 at every step
         has_int = servo.dcmotor_act_layout(self.model)[:, servo.ACT_INTEGRATOR] >= 0
@@ -203,19 +185,22 @@ class _PlantBase:
 
     def _apply_model_effects(self) -> None:
         touched = {"actuator_gainprm", "dof_frictionloss", "actuator_forcerange",
-                   "actuator_forcelimited"}
+                   "actuator_forcelimited", "actuator_delay"}  # (a replay zeroes the delay)
         for b in self._bound:
             touched.update(b.cls.written_fields(b.targets))
         touched |= self._runtime_fields
         for name in touched:
             self.array(name)[...] = self.nominal(name)
-        mass_changed = False
         for b in self._bound:
             if b.cls.kind == "model" or b.cls.structural or b.cls.fields:
                 b.cls.apply(self, b.targets, b.values)
-                mass_changed |= b.cls.name == "mass_error"
-        if mass_changed:
-            self._set_const()
+        # constants (mj_setConst's) follow a simulation's own masses: set where its mass_error
+        # moved them, the compiled model's elsewhere (they were set in every simulation of a batch
+        # holding one mass_error, from its armature too: a replay depended on its batch companions,
+        # 2.8e-5 rad on an inertia_error column, and a reused plant kept earlier constants)
+        moved = [np.any(np.asarray(b.values["scale"], float) != 1.0, axis=-1)
+                 for b in self._bound if b.cls.name == "mass_error"]
+        self._set_const(np.broadcast_to(np.any(moved, axis=0), self._lead) if moved else None)
         self._static_gain = np.array(self.array("actuator_gainprm"), copy=True)
         self._static_friction = np.array(self.array("dof_frictionloss"), copy=True)
         self._static_forcerange = np.array(self.array("actuator_forcerange"), copy=True)
@@ -464,8 +449,13 @@ class Plant(_PlantBase):
     def array(self, name: str) -> np.ndarray:
         return getattr(self.model, name)
 
-    def _set_const(self) -> None:
-        mujoco.mj_setConst(self.model, self.data)
+    def _set_const(self, moved: np.ndarray | None) -> None:
+        if self._const_moved:
+            for name in _CONST_OUT:
+                getattr(self.model, name)[...] = self.nominal(name)
+        self._const_moved = bool(moved is not None and moved)
+        if self._const_moved:
+            mujoco.mj_setConst(self.model, self.data)
 
     @property
     def qpos(self) -> np.ndarray:
@@ -577,8 +567,16 @@ class BatchPlant(_PlantBase):
     def array(self, name: str) -> np.ndarray:
         return self.batch.expand(name)
 
-    def _set_const(self) -> None:
-        self.batch.set_const()
+    def _set_const(self, moved: np.ndarray | None) -> None:
+        """Constants of the simulations ``moved`` (nsim,) recomputed, the rest the model's."""
+        if self._const_moved:
+            for name in _CONST_OUT:
+                if self.batch.expanded(name) is not None:
+                    self.batch.expand(name)[...] = self.nominal(name)
+        rows = np.flatnonzero(moved) if moved is not None else np.zeros(0, int)
+        self._const_moved = len(rows) > 0
+        if self._const_moved:
+            self.batch.set_const(ids=rows)
 
     @property
     def qpos(self) -> np.ndarray:
@@ -691,10 +689,3 @@ def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
     import copy
 
     return copy.copy(model)
-
-
-def servo_supply_voltage(model: mujoco.MjModel) -> np.ndarray:
-    """Nominal supply voltage of each actuator [V] (0 for non-servo actuators)."""
-    if model.nuser_actuator < 1:
-        return np.zeros(model.nu)
-    return model.actuator_user[:, servo.USER_SUPPLY_VOLTAGE].copy()

@@ -52,6 +52,13 @@ BIAS_LUGRE_COULOMB, BIAS_LUGRE_STATIC, BIAS_LUGRE_STRIBECK = 3, 4, 5
 DCMOTOR_INPUT_POS = 1  # MjsActuator.ctrlspec bit for input="pos" (vel 2, ff 4, voltage 8)
 
 
+def servo_supply_voltage(model: mujoco.MjModel) -> np.ndarray:
+    """Nominal supply voltage of each actuator [V] (0 for non-servo actuators)."""
+    if model.nuser_actuator < 1:
+        return np.zeros(model.nu)
+    return model.actuator_user[:, USER_SUPPLY_VOLTAGE].copy()
+
+
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,8 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.sim import servo
-from lowcostdex.sim.plant import Plant, servo_supply_voltage
+from lowcostdex.sim.plant import Plant
+from lowcostdex.sim.servo import servo_supply_voltage
 
 
 @dataclass
