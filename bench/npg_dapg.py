@@ -13,6 +13,9 @@ Each finished run writes ``outcome.json`` in its run folder; ``--reuse`` reads i
 training again when the run's settings match, so a long table is built one seed (one process)
 at a time and survives an interrupted session. ``--max-wall`` stops a run after that many
 wall-clock seconds (how far it got within e.g. the issue's 30 min is then what it reports).
+``--resume`` continues a run stopped that way (or killed) from its last checkpoint with the same
+command (the trainers' resume: same config, sample count and per-iteration seeds, so it goes on
+as the uninterrupted run would); its outcome adds the earlier sessions' wall and CPU seconds.
 
 Every run uses the trainers' defaults (``TrainConfig`` for NPG/DAPG, ``PPOConfig`` for PPO): what a
 user gets from ``lowcostdex train npg|dapg|ppo`` without options. A run goes until its training
@@ -142,15 +145,17 @@ OUTCOME_FILE = "outcome.json"
 
 
 def _until(target: float, extra: int, max_wall: float | None = None,
-           stopped: dict[str, str] | None = None, cpu: dict[float, float] | None = None):
+           stopped: dict[str, str] | None = None, cpu: dict[float, float] | None = None,
+           reached_at: int | None = None, cpu_before: float = 0.0):
     """Stop ``extra`` iterations after training success first reaches ``target``, or once
     ``max_wall`` wall-clock seconds have passed since this call; ``stopped["why"]`` says which.
     ``cpu`` gets, per iteration, samples -> CPU seconds of this process since this call (after
-    the iteration's update, before its evaluation): the CPU to a crossing, which the shared
-    machine's load does not inflate as it does the wall-clock."""
-    reached: list[int] = []
+    the iteration's update, before its evaluation) plus ``cpu_before`` (a resumed run's earlier
+    sessions): the CPU to a crossing, which the shared machine's load does not inflate as it
+    does the wall-clock. ``reached_at``: the iteration a resumed run first reached ``target``."""
+    reached: list[int] = [] if reached_at is None else [reached_at]
     t0 = time.perf_counter()
-    cpu0 = _usage()[1]
+    cpu0 = _usage()[1] - cpu_before
 
     def until(row: dict[str, float]) -> bool:
         if cpu is not None:
@@ -177,25 +182,60 @@ def _usage() -> tuple[float, float]:
     return time.perf_counter(), cpu
 
 
-def _timed(run, out: Path, settings: dict, target: float, n_held_out: int = 0
-           ) -> dict[str, float]:
-    """Run ``run(stopped, cpu)`` in ``out`` (emptied first) and write its outcome with the
-    wall/CPU seconds (the whole run's and to each first crossing) and loads beside the settings
-    it ran with."""
-    if out.exists():
+def resumable(out: Path) -> dict | None:
+    """What a resume of the run in ``out`` starts from: ``{"iteration", "run_wall", "run_cpu",
+    "sessions", "reached_at"}`` (the earlier sessions' seconds from its ``outcome.json``, 0 when
+    it was killed before writing one; ``reached_at`` the iteration training success first
+    reached the target, from its metrics), or None when ``out`` has no checkpoint. A run that
+    finished (stopped by its budget or target) is refused."""
+    latest = out / ex.CHECKPOINT_DIR / ex.LATEST_FILE
+    if not latest.exists():
+        return None
+    prior = {"run_wall": 0.0, "run_cpu": 0.0, "sessions": 0}
+    if (out / OUTCOME_FILE).exists():
+        o = json.loads((out / OUTCOME_FILE).read_text())["outcome"]
+        if o["stopped"] != "wall limit":
+            raise SystemExit(f"--resume: the run in {out} finished (stopped by {o['stopped']}); "
+                             "--reuse reads its outcome, or remove the folder to run it again")
+        prior = {"run_wall": float(o["run_wall"]), "run_cpu": float(o["run_cpu"]),
+                 "sessions": int(o.get("sessions", 1))}
+    return {"iteration": int(ex.read_json(latest)["iteration"]), **prior}
+
+
+def _first_reached(out: Path, target: float) -> int | None:
+    """The iteration whose training success first reached ``target`` in ``out``'s metrics."""
+    m = ex.read_metrics(out / ex.METRICS_FILE)
+    hit = np.flatnonzero(np.nan_to_num(m[ex.SUCCESS_RATE], nan=-1.0) >= target)
+    return int(m[ex.ITERATION][hit[0]]) if hit.size else None
+
+
+def _timed(run, out: Path, settings: dict, target: float, n_held_out: int = 0,
+           resume: bool = False) -> dict[str, float]:
+    """Run ``run(stopped, cpu, prior)`` in ``out`` (emptied first, unless ``resume`` and it
+    holds a checkpoint: then ``prior`` is :func:`resumable`'s answer, else None) and write its
+    outcome with the wall/CPU seconds (the whole run's, all sessions, and to each first
+    crossing) and loads beside the settings it ran with."""
+    prior = resumable(out) if resume else None
+    if prior is not None:
+        prior["reached_at"] = _first_reached(out, target)
+    elif out.exists():
         shutil.rmtree(out)
     stopped = {"why": "budget"}
     cpu: dict[float, float] = {}
     load0 = os.getloadavg()[0]
     w0, c0 = _usage()
-    run(stopped, cpu)
+    run(stopped, cpu, prior)
     w1, c1 = _usage()
     r = outcome(out, target)
     r.update({"train_cpu": cpu.get(r["train_samples"], math.nan),
               "eval_cpu": cpu.get(r["eval_samples"], math.nan)})
-    r.update({"run_wall": w1 - w0, "run_cpu": c1 - c0, "load_start": load0,
+    before = prior or {"run_wall": 0.0, "run_cpu": 0.0, "sessions": 0}
+    r.update({"run_wall": before["run_wall"] + w1 - w0, "run_cpu": before["run_cpu"] + c1 - c0,
+              "sessions": before["sessions"] + 1, "load_start": load0,
               "load_end": os.getloadavg()[0], "stopped": stopped["why"],
               "eval_distinct": distinct_episodes(out)})
+    if prior is not None:
+        r["resumed_from"] = float(prior["iteration"])
     if n_held_out:
         r.update(held_out(out, n_held_out))
     (out / OUTCOME_FILE).write_text(json.dumps({"settings": settings, "outcome": r}, indent=1))
@@ -391,9 +431,11 @@ def run_train(task: Task, algo: str, seed: int, budget: float, demos: Path | Non
     settings = _settings(cfg, args)
     if args.reuse and (r := reused(out, settings, args.held_out)) is not None:
         return r
-    return _timed(lambda stopped, cpu: train(cfg, out, until=_until(
-        args.target, args.extra_iters, args.max_wall, stopped, cpu)), out, settings, args.target,
-        args.held_out)
+    return _timed(lambda stopped, cpu, prior: train(
+        cfg, out, resume=prior is not None, until=_until(
+            args.target, args.extra_iters, args.max_wall, stopped, cpu,
+            *((prior["reached_at"], prior["run_cpu"]) if prior else ()))),
+        out, settings, args.target, args.held_out, args.resume)
 
 
 def run_ppo(task: Task, seed: int, budget: float, out: Path,
@@ -410,9 +452,11 @@ def run_ppo(task: Task, seed: int, budget: float, out: Path,
     settings = _settings(cfg, args)
     if args.reuse and (r := reused(out, settings, args.held_out)) is not None:
         return r
-    return _timed(lambda stopped, cpu: train(cfg, out, until=_until(
-        args.target, args.extra_iters, args.max_wall, stopped, cpu)), out, settings, args.target,
-        args.held_out)
+    return _timed(lambda stopped, cpu, prior: train(
+        cfg, out, resume=prior is not None, until=_until(
+            args.target, args.extra_iters, args.max_wall, stopped, cpu,
+            *((prior["reached_at"], prior["run_cpu"]) if prior else ()))),
+        out, settings, args.target, args.held_out, args.resume)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -593,6 +637,9 @@ def main() -> None:
                         "(the sample budget still sets n_iter)")
     p.add_argument("--reuse", action="store_true",
                    help="reuse finished runs (their outcome.json) made with the same settings")
+    p.add_argument("--resume", action="store_true",
+                   help="continue each run that has a checkpoint (e.g. one stopped by --max-wall) "
+                        "instead of starting it again; with --reuse a finished run is reused")
     p.add_argument("--quick", action="store_true", help="tiny budget: checks the script runs")
     p.add_argument("--record", action="store_true", help="append the results to bench/RESULTS.md")
     args = p.parse_args()
