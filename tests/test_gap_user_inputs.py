@@ -96,8 +96,6 @@ REFUSED = {
     "same time twice, other values": (
         lambda h, r: [h] + r[:100] + [r[101].split(",")[0] + "," + r[100].split(",", 1)[1]]
         + r[101:], None, ["run_0.csv", "'time' must be strictly increasing", "row 101"]),
-    "semicolons": (lambda h, r: [h.replace(",", ";")] + [x.replace(",", ";") for x in r], None,
-                   ["run_0.csv", "separated by ';'"]),
     "motor actuators": (lambda h, r: [h] + r, (r"<position ([^>]*) kp=\"3\" [^>]*/>",
                                                r'<motor \1 ctrlrange="-0.5 0.5"/>'),
                         ["run_0.csv", "is a motor", "model the servo as <position kp=...>"]),
@@ -169,6 +167,24 @@ def test_repairable_rows_load_with_a_note(user, tmp_path, capsys, stop_after_loa
     assert "NaN value dropped" in err and "repeated row(s) dropped" in err
     assert "out of time order" in err and "Traceback" not in err
     np.testing.assert_array_equal(np.diff(ds.trajectories[0].time) > 0, True)
+
+
+def test_semicolons_load_as_the_plain_log_with_a_note(user, tmp_path, capsys,
+                                                      stop_after_loading):
+    """A spreadsheet's ';' separators (and decimal commas) were refused before session 18."""
+    header, rows = _table(user)
+    text = "\n".join([header.replace(",", ";")] + [x.replace(",", ";").replace(".", ",")
+                                                   for x in rows]) + "\n"
+    ds, err = _load(tmp_path, {"run_0.csv": text}, user, capsys)
+    (tmp_path / "plain").mkdir()
+    plain, _ = _load(tmp_path / "plain", {"run_0.csv": "\n".join([header] + rows) + "\n"},
+                     user, capsys)
+    assert "run_0.csv: columns separated by ';' (a spreadsheet's export), decimal commas read " \
+        "as points" in err
+    for a, b in zip(ds.trajectories, plain.trajectories, strict=True):
+        np.testing.assert_array_equal(a.qpos, b.qpos)
+        np.testing.assert_array_equal(a.goal, b.goal)
+        np.testing.assert_array_equal(a.time, b.time)
 
 
 def test_one_test_episode_gets_no_zero_width_gain_interval():

@@ -13,12 +13,18 @@ import math
 
 import numpy as np
 
+from lowcostdex.gap.log_still import (  # noqa: F401 (the limits are read from here too)
+    PINNED_RUN,
+    PINNED_SPEED,
+    PINNED_TRAVEL,
+    check_pinned,
+    check_stuck,
+)
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     LogError,
     Trajectory,
     find_gaps,
-    quantization_step,
 )
 
 PREFIXES_ACTUATOR = ("goal", "current", "voltage", "temperature", "torque_enable")
@@ -35,9 +41,6 @@ FROZEN_CROSS = 0.2  # [rad] a reading that repeats while the goal passes it by t
 RANGE_MARGIN = 0.2  # [rad] measured positions beyond a limited joint's model range by more
 CLIP_PILE = 5.0  # ... and this many times as often as at any value between the extremes
 SATURATED_SHARE = 0.2  # a channel at exactly its extreme value in this share of the samples
-PINNED_RUN = 5  # samples: a position reading repeated this long at its extreme may be a clip
-PINNED_TRAVEL = 0.05  # [rad] how far the logged qvel moves a motor whose reading stands still
-PINNED_SPEED = 0.2  # [rad/s] ... at a median speed of at least this (many velocity counts)
 WRAP_TOLERANCE = 0.25  # [rad] a one-sample jump this close to one turn (2 pi) is a register wrap
 MIN_SUPPLY = 3.0  # [V] below every servo's operating range (XL330 3.7 V, SG90 4.8 V)
 # plausible magnitudes per column kind (SI units); beyond them the unit is wrong or the data broken
@@ -485,6 +488,9 @@ def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = froz
       through a 3 s stall) or the value is an edge
       of the encoder's one-turn window (tick 0, N - 1, -N/2, N/2 - 1 of N per turn) - a joint
       held by a hard stop reads still, so without either sign a pinned reading is left alone;
+    * a stuck read (``log_still.check_stuck``): a reading repeated exactly for PINNED_RUN
+      samples while the joint's own logged qvel moves the motor PINNED_TRAVEL from it
+      (a failed read logged as the last value);
     * a dead voltage or temperature channel: below MIN_SUPPLY volts (a servo cannot drive its
       joint on it) or exactly 0 deg C throughout, while the motor moves its joint with torque on:
       an unread register logged as 0, or a broken sensor (a steady reading is not one: supply and
@@ -504,7 +510,9 @@ def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = froz
     for j, joint in enumerate(traj.joints):  # a clip or wrap first: they also look frozen
         _check_wrapped(traj, j)
         if joint in ids and joint not in rate_goals:
-            _check_pinned(traj, j, traj.goal[:, ids[joint]] / gear.get(joint, 1.0), on)
+            check_pinned(traj, j, traj.goal[:, ids[joint]] / gear.get(joint, 1.0), on,
+                         FROZEN_CROSS)
+        check_stuck(traj, j)
     for j, joint in enumerate(traj.joints):
         if joint in ids and joint not in rate_goals:
             _check_goal_copied(traj, j, traj.goal[:, ids[joint]] / gear.get(joint, 1.0))
@@ -630,47 +638,6 @@ def _check_wrapped(traj: Trajectory, j: int) -> None:
                        f"(one turn) from row {i} to {i + 1} (0-based, at {t[i + 1]:.6g} s), "
                        f"{int(wrap.sum())} time(s): a position register wrapping at its range; "
                        "unwrap the positions (numpy.unwrap) or log a multi-turn position")
-
-
-def _check_pinned(traj: Trajectory, j: int, goal: np.ndarray, on: np.ndarray) -> None:
-    q, t = traj.qpos[:, j], traj.time
-    grid = quantization_step(q[:, None])
-    per_turn = round(2 * math.pi / grid) if grid else 0
-    for side, extreme in ((1.0, float(q.max())), (-1.0, float(q.min()))):
-        at = (q == extreme) & on
-        # goals that acted on each row: a row's goal is written after it was read
-        acting = np.concatenate([goal[:1], goal[:-1]])
-        beyond = side * (acting - extreme) > FROZEN_CROSS
-        # stretches of the reading at its extreme
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], at.astype(int), [0]])))
-        for a, b in zip(edges[::2], edges[1::2], strict=True):
-            if b - a < PINNED_RUN or not beyond[a:b].any():
-                continue
-            sign = ""
-            travel = 0.0
-            if traj.qvel is not None:
-                v = traj.qvel[a:b, j]
-                if np.median(np.abs(v)) > PINNED_SPEED:  # beyond the reading and back
-                    travel = float(np.max(np.cumsum(side * v[:-1] * np.diff(t[a:b])), initial=0))
-            if travel > PINNED_TRAVEL:
-                sign = (f"while 'qvel:{traj.joints[j]}' takes the motor {travel:.3g} rad "
-                        "beyond it and back")
-            elif per_turn:
-                tick = extreme / grid
-                edge = [e for e in (0, per_turn - 1, -per_turn // 2, per_turn // 2 - 1)
-                        if abs(tick - e) < 0.01]
-                if edge:
-                    sign = (f"tick {edge[0]} of {per_turn} per turn, an edge of the encoder's "
-                            "one-turn window")
-            if sign:
-                far = float(np.max(side * (acting[a:b] - extreme)))
-                raise LogError(
-                    f"{traj.name}: column 'qpos:{traj.joints[j]}' is pinned at its "
-                    f"{'largest' if side > 0 else 'smallest'} value {extreme:.6g} rad for "
-                    f"{t[b - 1] - t[a]:.3g} s (from {t[a]:.6g} s) while 'goal:{traj.joints[j]}' "
-                    f"is up to {far:.3g} rad beyond it, {sign}: a position clipped at its "
-                    "register's range; log a reading whose range holds the motion (a multi-turn "
-                    "or wider register, the limits moved)")
 
 
 def _check_dead_channels(traj: Trajectory, k: int, on: np.ndarray) -> None:

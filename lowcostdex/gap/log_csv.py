@@ -1,8 +1,9 @@
 """Reading a CSV log of the project's format (``lowcostdex.gap.logs`` describes the columns)
 into {column: float array}: the layouts spreadsheets and loggers write (a byte-order mark, blank
-lines, '#' comments, tabs, a trailing ',' on every row), refused with the fix named when it
-cannot be read (';' separators, rows of another length, a word in a channel); a column of text
-that is not a channel (a user's 'mode' or 'note') is left out with a note.
+lines, '#' comments, tabs, a trailing ',' on every row, ';' separators with decimal commas,
+UTF-16 "Unicode text", an ANSI export's 8-bit text), refused with the fix named when it cannot
+be read (rows of another length, a word in a channel); a column of text that is not a channel
+(a user's 'mode' or 'note') is left out with a note.
 """
 
 from __future__ import annotations
@@ -21,14 +22,29 @@ memory a log may ask for, with ``log_checks.MAX_SAMPLES``."""
 
 
 def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str]]:
-    """Rows streamed (at most ``max_rows``), a UTF-8 byte-order mark (spreadsheets) ignored.
+    """Rows streamed (at most ``max_rows``), a UTF-8 byte-order mark (spreadsheets) ignored,
+    UTF-16 read by its byte-order mark, text in another 8-bit encoding (a spreadsheet's ANSI
+    export: a 'ü' in a note) read as Latin-1 with a note (the numbers are ASCII either way).
     A column holding text that is not a log channel (a user's 'mode' or 'note') is left out
     with a note; text in a channel ('time', 'goal:...', 'qpos:...') is refused, naming the row."""
+    try:
+        return _read_csv(path, max_rows, _encoding(path))
+    except UnicodeDecodeError:
+        line = _not_text(path)
+        cols, notes = _read_csv(path, max_rows, "latin-1")
+        return cols, [f"{path.name}: line {line} is not UTF-8 text (a spreadsheet's ANSI "
+                      "export?); read as Latin-1", *notes]
+
+
+def _read_csv(path: Path, max_rows: int, encoding: str
+              ) -> tuple[dict[str, np.ndarray], list[str]]:
     text: dict[int, tuple[int, str]] = {}  # column -> its first text cell (line, cell)
     stamps: dict[int, list[str]] = {}  # 'time' / 'goal_time' column -> its cells (dates?)
+    commas = False  # a decimal comma seen in a ';'-separated file
     try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            raw = csv.reader(f, delimiter=_delimiter(f))
+        with open(path, newline="", encoding=encoding) as f:
+            sep = _delimiter(f)
+            raw = csv.reader(f, delimiter=sep)
             reader = (row for row in raw  # blank lines and '#' comments skipped
                       if (len(row) > 1 or (row and row[0].strip()))
                       and not row[0].lstrip().startswith("#"))
@@ -38,9 +54,6 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
             if len(header) > MAX_COLUMNS:
                 raise LogError(f"{path}: the header has {len(header)} columns; a log has at "
                                f"most {MAX_COLUMNS}")
-            if len(header) == 1 and ";" in header[0]:  # ';' may come with decimal commas
-                raise LogError(f"{path}: the header {header[0]!r} is separated by ';'; the log "
-                               "format separates columns by ',' (and uses '.' for decimals)")
             trailing = len(header) > 1 and header[-1] == ""  # 'a,b,c,' (a logger's habit)
             if len(set(header)) != len(header):
                 dup = sorted({h for h in header if header.count(h) > 1})
@@ -59,6 +72,9 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
                 if len(row) != len(header) - trailing:
                     raise LogError(f"{path}: row {raw.line_num} has {len(row)} fields, the "
                                    f"header has {len(header) - trailing}")
+                if sep == ";":  # a spreadsheet's export where ',' is the decimal mark
+                    commas = commas or any("," in cell for cell in row)
+                    row = [cell.replace(",", ".") for cell in row]
                 for c, cells in stamps.items():
                     cells.append(row[c])
                 try:
@@ -69,13 +85,12 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
                             text.setdefault(c, (raw.line_num, cell))
                     rows.append([float(cell) if cell.strip() and c not in text else np.nan
                                  for c, cell in enumerate(row)])
-    except UnicodeDecodeError:
-        raise LogError(f"{path}: not a text CSV file (binary data?)") from None
     except csv.Error as exc:  # a field over the csv module's 128 kB: not a log's number
         raise LogError(f"{path}: not a CSV log (line {raw.line_num}: {exc})") from None
     header = header[:len(header) - trailing]
     data = np.array(rows, dtype=float).reshape(len(rows), len(header))
-    notes = []
+    notes = [f"{path.name}: columns separated by ';' (a spreadsheet's export)"
+             + (", decimal commas read as points" if commas else "")] if sep == ";" else []
     for c, (line, cell) in sorted(text.items()):
         seconds = _dates(stamps[c]) if c in stamps else None
         if seconds is not None:  # pandas' to_csv of a DatetimeIndex, a logger's ISO stamps
@@ -89,6 +104,30 @@ def read_csv(path: Path, max_rows: int) -> tuple[dict[str, np.ndarray], list[str
                      "not a log channel; left out")
     kept = [i for i in range(len(header)) if i not in text or i in stamps]
     return {header[i]: data[:, i] for i in kept}, notes
+
+
+def _encoding(path: Path) -> str:
+    """UTF-16 where the file opens with its byte-order mark (a spreadsheet's "Unicode text"
+    export: UTF-16, tab-separated), else UTF-8 (a byte-order mark of its own skipped)."""
+    with open(path, "rb") as f:
+        head = f.read(2)
+    return "utf-16" if head in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig"
+
+
+def _not_text(path: Path) -> int:
+    """The first line of ``path`` that is not UTF-8 (1-based); LogError for binary data (NUL
+    or other control bytes), which no encoding makes a log."""
+    with open(path, "rb") as f:
+        head = f.read(65536)
+        if b"\0" in head or sum(b < 9 or 13 < b < 32 for b in head) > len(head) // 100:
+            raise LogError(f"{path}: not a text CSV file (binary data?)")
+        f.seek(0)
+        for number, line in enumerate(f, 1):
+            try:
+                line.decode("utf-8-sig" if number == 1 else "utf-8")
+            except UnicodeDecodeError:
+                return number
+    return 0
 
 
 def _dates(cells: list[str]) -> np.ndarray | None:
@@ -115,12 +154,14 @@ def is_channel(column: str) -> bool:
 
 
 def _delimiter(f) -> str:
-    """',' or, for a header separated by tabs and holding no ',' (a tab-separated export), tab;
-    ``f`` is left at its start."""
+    """',' or, for a header holding no ',', tab (a tab-separated export) or ';' (a spreadsheet's
+    export where ',' is the decimal mark); ``f`` is left at its start."""
     for line in f:
         if line.strip() and not line.lstrip().startswith("#"):
             f.seek(0)
-            return "\t" if "\t" in line and "," not in line else ","
+            if "," in line:
+                return ","
+            return "\t" if "\t" in line else ";" if ";" in line else ","
     f.seek(0)
     return ","
 

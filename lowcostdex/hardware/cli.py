@@ -272,8 +272,9 @@ def _calibrate(args: argparse.Namespace) -> int:
     with bus:
         bus.set_torque(False)
         if not args.yes:
-            input(f"Torque is off. Put the {hand.name} in its zero pose (every joint at 0 rad) "
-                  "and press Enter... ")
+            _wait_for_enter(f"Torque is off. Put the {hand.name} in its zero pose (every joint at "
+                            "0 rad) and press Enter... ", "calibrate",
+                            "; with the hand in its zero pose, pass --yes to read it at once")
         new = calibrate_offsets(bus, hand, samples=args.samples)
     tmp = out.with_name(f".{out.name}.tmp")
     new.save(tmp)
@@ -317,8 +318,9 @@ def _setup_motors(args: argparse.Namespace) -> int:
     return 0
 
 
-def _wait_for_enter(text: str) -> None:
+def _wait_for_enter(text: str, command: str = "setup-motors", fix: str = "") -> None:
     try:
         input(text)
-    except EOFError:
-        raise InputError("setup-motors needs a person at the keyboard (stdin is closed)") from None
+    except EOFError:  # run from a script, a pipe or nohup: nobody to press Enter
+        raise InputError(f"{command} needs a person at the keyboard (stdin is closed){fix}"
+                         ) from None

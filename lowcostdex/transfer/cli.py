@@ -75,6 +75,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 def _transfer(args: argparse.Namespace) -> int:
+    from lowcostdex.errors import InputError
     from lowcostdex.options import robot_port
     from lowcostdex.transfer.loop import ALGOS, CONDITIONS, parse_list, run, size_with
 
@@ -88,8 +89,12 @@ def _transfer(args: argparse.Namespace) -> int:
                      algos=parse_list(args.algos, ALGOS, "algo"),
                      conditions=parse_list(args.conditions, CONDITIONS, "condition"))
     if port is not None and not args.yes:
-        answer = input(f"The robot on {port} will move (identification: valve off; training "
-                       "and evaluation: valve on). Continue? [y/N] ")
+        try:
+            answer = input(f"The robot on {port} will move (identification: valve off; "
+                           "training and evaluation: valve on). Continue? [y/N] ")
+        except EOFError:  # run from a script, a pipe or nohup: nobody to answer
+            raise InputError(f"the robot on {port} will move and nobody can confirm it (stdin "
+                             "is closed); pass --yes to run without asking") from None
         if answer.strip().lower() not in ("y", "yes"):
             print("stopped; nothing was written")
             return 1
