@@ -260,3 +260,36 @@ def test_the_measured_logs_are_not_dropouts():
         read_log(path)
         read += 1
     assert read >= 100
+
+
+# ------------------------------------------------------------------------------------------------
+# logs of different joints in one call
+
+TWO_JOINTS = """<mujoco><compiler angle="radian"/><option timestep="0.002"/><worldbody>
+<body name="a"><joint name="j1" axis="0 1 0" range="-2 2" damping="0.1"/>
+<geom type="capsule" fromto="0 0 0 0.1 0 0" size="0.01" mass="0.05"/>
+<body name="b" pos="0.1 0 0"><joint name="j2" axis="0 1 0" range="-2 2" damping="0.1"/>
+<geom type="capsule" fromto="0 0 0 0.1 0 0" size="0.01" mass="0.05"/></body></body>
+</worldbody><actuator><position name="j1" joint="j1" kp="3"/><position name="j2" joint="j2" kp="3"/>
+</actuator></mujoco>"""
+
+
+def test_logs_of_different_joints_name_each_set_and_the_fix(tmp_path):
+    """Before: "one.csv: no goal for actuators ['j2']; ... give a model of the logged joints
+    only", advice the other log (of both joints) then breaks."""
+    from lowcostdex.gap.dataset import load_dataset
+    from lowcostdex.gap.logs import LogError
+
+    cols = servo_log()
+    both = {"time": cols["time"], "goal:j1": cols["goal:arm"], "goal:j2": cols["goal:arm"] / 2,
+            "qpos:j1": cols["qpos:arm"], "qpos:j2": cols["qpos:arm"] / 2}
+    one = {k: v for k, v in both.items() if not k.endswith("j2")}
+    (tmp_path / "two.xml").write_text(TWO_JOINTS)
+    (tmp_path / "both.csv").write_text(csv_text(both))
+    (tmp_path / "one.csv").write_text(csv_text(one))
+    with pytest.raises(LogError) as e:
+        load_dataset([tmp_path / "both.csv", tmp_path / "one.csv"], tmp_path / "two.xml")
+    assert str(e.value) == (
+        "the logs are of different joints: both.csv logs j1, j2; one.csv logs j1; one analysis "
+        "takes logs of the same joints and actuators: analyse each set on its own (with a model "
+        "of its joints), or log every joint in every log")

@@ -89,16 +89,14 @@ class Dataset:
                 raise ConfigError(f"trajectory {tr.name}: unknown model {tr.model!r}; "
                                   f"models: {sorted(self.models)}")
         self._compiled: dict[str, mujoco.MjModel] = {}
-        for tr in self.trajectories:
+        _check_same_names(self.trajectories, self.compiled)  # else: the model's advice
+        for tr in self.trajectories:                          # would fit one log's set only
             check_against_model(tr, self.compiled(tr.model))
             if tr.qvel is None:
                 tr.qvel = estimate_velocity(tr.time, tr.qpos, goal=tr.goal)
                 tr.qvel[0, rest_at_start(tr.time, tr.qpos,
                                          _first_step(tr, self.compiled(tr.model)))] = 0.0
-        names = {(tr.joints, tr.actuators) for tr in self.trajectories}
-        if len(names) > 1:
-            raise LogError("all logs must measure the same joints and command the same actuators;"
-                           f" got {sorted(names)}")
+        _check_same_names(self.trajectories)
 
     def compiled(self, key: str) -> mujoco.MjModel:
         """The nominal model ``key`` compiled (cached)."""
@@ -312,6 +310,31 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     ds = Dataset(models, pieces, sources, notes, servo_period)
     ds.notes += _unshared_joints(ds)
     return ds
+
+
+def _check_same_names(trajs: Sequence[Trajectory], compiled=None) -> None:
+    """One analysis takes logs of one set of joints and actuators (logs in another column order
+    were put in the first's by ``_in_order``); logs of other sets are refused naming a log of
+    each set (a log's pieces carry '#k' after its name) and the fix. With ``compiled`` (key ->
+    model), only logs commanding different actuators that all exist in the model are refused
+    here, before the model checks (whose advice, 'a model of the logged joints only', would fit
+    one set and break the other); every other difference is left to those checks."""
+    sets: dict[tuple, str] = {}
+    for tr in trajs:
+        sets.setdefault((tr.joints, tr.actuators), tr.name.split("#")[0])
+    if len(sets) < 2:
+        return
+    if compiled is not None:
+        m = compiled(trajs[0].model)
+        names = {m.actuator(i).name for i in range(m.nu)}
+        if len({a for _, a in sets}) < 2 or not all(set(a) <= names for _, a in sets):
+            return
+    said = "; ".join(f"{log} logs {', '.join(j)}" if j == a else
+                     f"{log} measures {', '.join(j)} and commands {', '.join(a)}"
+                     for (j, a), log in sets.items())
+    raise LogError(f"the logs are of different joints: {said}; one analysis takes logs of the "
+                   "same joints and actuators: analyse each set on its own (with a model of its "
+                   "joints), or log every joint in every log")
 
 
 def _in_order(tr: Trajectory, first: Trajectory) -> Trajectory:
