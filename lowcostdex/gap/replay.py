@@ -222,6 +222,10 @@ class Replayer:
         cols, acts, qadr, dadr, gear = run["servos"]
         if not len(cols) or run["plant"].servo_clock.every:
             return  # a servo with an update period samples one goal at its update
+        if "switches" not in run:  # (steps where some simulation's servo sees a goal switch)
+            run["switches"] = np.any(np.isfinite(run["split"][:, :, cols]), axis=(0, 2))
+        if not run["switches"][k]:
+            return
         split = run["split"][:, k][:, cols]  # (nsim, n servos)
         sims = np.flatnonzero(np.any(np.isfinite(split), axis=1))
         if not len(sims):

@@ -210,6 +210,10 @@ class _PlantBase:
         self._has_friction = bool(self._friction)
         self._live = [b for b in self._bound if b.cls.live]
         self._has_exo = any(b.cls.kind == "exogenous" for b in self._bound)
+        self._commands = [b for b in self._bound if b.cls.kind in ("command", "calibration")]
+        self._observed = [b for b in self._bound if b.cls.kind in ("observation", "calibration")]
+        self._plays = [(b, b.targets.has_play) for b in self._bound
+                       if b.cls.name == "backlash" and np.any(b.targets.has_play)]
 
     @property
     def required_channels(self) -> tuple[str, ...]:
@@ -263,30 +267,28 @@ class _PlantBase:
     def command(self, goal: np.ndarray) -> np.ndarray:
         """Apply command effects to a full goal vector (..., nu) [rad]; returns ctrl."""
         ctrl = np.array(goal, dtype=float, copy=True)
-        for b in self._bound:
-            if b.cls.kind in ("command", "calibration"):
-                a = b.targets.actuators
-                key_state = {k[len(b.cls.name) + 1:]: v for k, v in self._state.items()
-                             if k.startswith(b.cls.name + ":")}
-                key_state["setpoint"] = self.ctrl[..., a].copy()  # what the servo holds now
-                if b.cls.structural:  # its hidden dofs' state (a play read by the servo)
-                    key_state["qpos"], key_state["qvel"] = self.qpos, self.qvel
-                    g = self.array("actuator_gainprm")[..., a, 0]
-                    with np.errstate(divide="ignore", invalid="ignore"):
-                        key_state["kv_kp"] = np.where(
-                            g > 0, -self.array("actuator_biasprm")[..., a, 2] / g, 0.0)
-                    d = self.nominal("dof_damping")[b.targets.dofs]  # the D of a servo without kv
-                    key_state["damping"] = np.where((key_state["kv_kp"] == 0)
-                                                    & ~self._is_dcmotor[a], d, 0.0)
-                sub = b.cls.command(b.targets, b.values, ctrl[..., a], key_state, self.rng)
-                if (tq := key_state.pop("torque", None)) is not None:  # outside the force range
-                    h = b.targets.has_play
-                    self.qfrc_applied[..., b.targets.dofs[h]] = tq[..., h]
-                for k in ("setpoint", "qpos", "qvel", "kv_kp", "damping"):
-                    key_state.pop(k, None)
-                for k, v in key_state.items():
-                    self._state[f"{b.cls.name}:{k}"] = v
-                ctrl[..., a] = sub
+        for b in self._commands:
+            a = b.targets.actuators
+            key_state = {k[len(b.cls.name) + 1:]: v for k, v in self._state.items()
+                         if k.startswith(b.cls.name + ":")}
+            key_state["setpoint"] = self.ctrl[..., a].copy()  # what the servo holds now
+            if b.cls.structural:  # its hidden dofs' state (a play read by the servo)
+                key_state["qpos"], key_state["qvel"] = self.qpos, self.qvel
+                g = self.array("actuator_gainprm")[..., a, 0]
+                key_state["kv_kp"] = np.divide(-self.array("actuator_biasprm")[..., a, 2], g,
+                                               out=np.zeros(g.shape), where=g > 0)
+                d = self.nominal("dof_damping")[b.targets.dofs]  # the D of a servo without kv
+                key_state["damping"] = np.where((key_state["kv_kp"] == 0)
+                                                & ~self._is_dcmotor[a], d, 0.0)
+            sub = b.cls.command(b.targets, b.values, ctrl[..., a], key_state, self.rng)
+            if (tq := key_state.pop("torque", None)) is not None:  # outside the force range
+                h = b.targets.has_play
+                self.qfrc_applied[..., b.targets.dofs[h]] = tq[..., h]
+            for k in ("setpoint", "qpos", "qvel", "kv_kp", "damping"):
+                key_state.pop(k, None)
+            for k, v in key_state.items():
+                self._state[f"{b.cls.name}:{k}"] = v
+            ctrl[..., a] = sub
         return ctrl
 
     def _exogenous(self, channels: Mapping[str, np.ndarray] | None) -> None:
@@ -316,16 +318,13 @@ class _PlantBase:
     def measured_qpos(self, qpos: np.ndarray | None = None) -> np.ndarray:
         """qpos as the encoders report it: observation effects applied (..., nq)."""
         q = np.array(self.qpos if qpos is None else qpos, dtype=float, copy=True)
-        for b in self._bound:
+        for b, h in self._plays:  # motor + read x play
             t = b.targets
-            if b.cls.name == "backlash" and np.any(t.has_play):  # motor + read x play
-                h = t.has_play
-                v = {"read": np.asarray(b.values["read"], float)[..., h]}
-                q[..., t.qpos[h]] = b.cls.reading(v, q[..., t.qpos[h]], q[..., t.play_qpos[h]])
-        for b in self._bound:
-            if b.cls.kind in ("observation", "calibration"):
-                ad = b.targets.qpos
-                q[..., ad] = b.cls.observe(b.targets, b.values, q[..., ad], self.rng)
+            v = {"read": np.asarray(b.values["read"], float)[..., h]}
+            q[..., t.qpos[h]] = b.cls.reading(v, q[..., t.qpos[h]], q[..., t.play_qpos[h]])
+        for b in self._observed:
+            ad = b.targets.qpos
+            q[..., ad] = b.cls.observe(b.targets, b.values, q[..., ad], self.rng)
         return q
 
     def step(self, goal: np.ndarray, nstep: int,
@@ -618,6 +617,8 @@ class BatchPlant(_PlantBase):
             self.batch.forward(ids=np.asarray(sims, dtype=int))
 
     def _check_finite(self) -> None:
+        if np.isfinite(self.qpos).all() and np.isfinite(self.qvel).all():
+            return
         bad = ~(np.all(np.isfinite(self.qpos), axis=1) & np.all(np.isfinite(self.qvel), axis=1))
         if np.any(bad):
             raise PhysicsError(f"simulations {np.flatnonzero(bad).tolist()} diverged")
