@@ -10,6 +10,8 @@ table's evaluation).
 
     python bench/transfer_diagnose.py --out bench_runs/transfer --policy dapg/nominal_seed0 \\
         --robot C --episodes 5
+    python bench/transfer_diagnose.py --out bench_runs/transfer --policy dapg/nominal_seed0 \\
+        --robot C --episodes 50 --variants "the whole robot,only base tilt,all but base tilt"
 
 Prints one line per variant: successes, median and range of the final valve error [rad]
 (``--json FILE``: the episodes too; not inside the transfer folder, which refuses files it
@@ -79,6 +81,10 @@ def main() -> None:
     p.add_argument("--only", action="store_true", help="'only X' variants (skip 'all but X')")
     p.add_argument("--pairs", action="store_true",
                    help="also every pair of catalogue effects (and no 'all but X' variants)")
+    p.add_argument("--variants", default=None,
+                   help="comma-separated variant names to run (default: all of them), e.g. "
+                        "'the whole robot,only base tilt,all but base tilt': with --episodes "
+                        "50 the table's own 50 episodes, paired with its cells")
     p.add_argument("--json", default=None, help="write the results here")
     args = p.parse_args()
     out = Path(args.out)
@@ -108,6 +114,16 @@ def main() -> None:
                 for a, b in combinations(robot.effects, 2)})
     if not (args.only or args.pairs):
         variants.update({f"all but {k}": all_but(robot, k) for k in parts(robot)})
+    if args.variants is not None:
+        from lowcostdex.errors import check_choice
+
+        every = {**variants, **{f"all but {k}": all_but(robot, k) for k in parts(robot)}}
+        chosen = [v.strip() for v in args.variants.split(",") if v.strip()]
+        if not chosen:
+            p.error("--variants: give at least one variant name")
+        for name in chosen:
+            check_choice("variant", name, every)
+        variants = {name: every[name] for name in chosen}
     results = {}
     t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF).ru_utime
     for name, (effects, fw, model) in variants.items():
