@@ -115,14 +115,17 @@ def main() -> None:
     if not (args.only or args.pairs):
         variants.update({f"all but {k}": all_but(robot, k) for k in parts(robot)})
     if args.variants is not None:
-        from lowcostdex.errors import check_choice
+        from lowcostdex.errors import ConfigError, check_choice
 
         every = {**variants, **{f"all but {k}": all_but(robot, k) for k in parts(robot)}}
         chosen = [v.strip() for v in args.variants.split(",") if v.strip()]
         if not chosen:
             p.error("--variants: give at least one variant name")
         for name in chosen:
-            check_choice("variant", name, every)
+            try:
+                check_choice("variant", name, every)
+            except ConfigError as e:
+                p.error(f"--variants: {e}")
         variants = {name: every[name] for name in chosen}
     results = {}
     t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF).ru_utime
