@@ -150,3 +150,13 @@ def test_timestep_note_only_when_the_step_was_refined():
     assert note == ("the model's physics step 9.99 ms is too coarse for these logs (nominal "
                     "replay RMSE on train + select: 9.99 ms 1.23 mrad, 0.999 ms 0.5 mrad); "
                     "analysed at 0.999 ms, which the extended model carries")
+
+
+def test_a_plays_width_interval_does_not_reach_below_no_play():
+    # sim5 backlash2deg_pendulum_500hz_us reported 0.0299 [-0.0028, 0.040]: the symmetric
+    # widening for goal timing took the interval's low end past 0; no play is narrower than none
+    f = fitmod.Free("backlash", "width", 0, 0.0, 0.1, 0.01, False, 2e-4)
+    assert param_interval(f, 0.01858, 0.02142) == pytest.approx([0.0, 0.04])
+    assert param_interval(f, 0.03, 0.01) == pytest.approx([0.02, 0.04])
+    g = fitmod.Free("position_offset", "offset", 0, -0.2, 0.2, 0.0, False, 1e-4)
+    assert param_interval(g, 0.01, 0.02) == pytest.approx([-0.01, 0.03])  # others as before

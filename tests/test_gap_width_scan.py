@@ -218,3 +218,36 @@ def test_the_interval_reuses_the_restart_scan_of_the_same_fit():
     t.u = t.u + 1e-4  # moved (a polish): scanned again
     sig.profile_interval(t, lambda: counted, half, scan=True)
     assert 17 in seen
+
+
+def _banded(amp_near: float, amp_far: float) -> tuple[np.ndarray, np.ndarray]:
+    """A bowl with its minimum at 0.035 (0.02 + 20 (w - 0.035)^2) and a jitter (+-amp
+    alternating along the 81-width grid) whose size depends on the width: none below 0.0125 (a
+    play too narrow to hunt in), ``amp_near`` within 0.01 of the minimum, ``amp_far`` beyond: as
+    sim5 backlash2deg_pendulum_500hz_us's cost is (smooth from 0.066 at no play down to ~0.045
+    at 0.0125, jagged above; widths far from the play jitter most)."""
+    w = np.linspace(0.0, 0.1, 81)
+    amp = np.where(w < 0.0125, 0.0, np.where(abs(w - 0.035) <= 0.01, amp_near, amp_far))
+    return w, 0.02 + 20.0 * (w - 0.035) ** 2 + (-1.0) ** np.arange(len(w)) * amp
+
+
+def test_the_valley_judges_each_width_with_the_jaggedness_where_it_lies():
+    w, cost = _banded(0.001, 0.02)
+    sm, jag = width_scan.smooth(cost)
+    sc = width_scan.Scan(0, w, cost, sm, jag)
+    loc = width_scan.local_jaggedness(cost, jag)
+    assert loc[0] < 1e-3 * jag  # smooth at the smallest widths ...
+    assert sc.allowance() > 20.0 * 0.035 ** 2  # ... though one spread admits no play at all
+    lo_g, hi_g = sc.valley(1e-3, local=False)
+    assert lo_g == 0.0  # the defect: a valley reaching no play
+    lo, hi = sc.valley(1e-3)
+    assert 0.01 < lo <= 0.035 <= hi  # the minimum held, no play excluded
+    assert lo_g <= lo and hi <= hi_g  # never wider than the one-spread valley
+
+
+def test_a_uniform_jaggedness_gives_the_one_spread_valley():
+    w, cost = _banded(0.02, 0.02)
+    cost = np.where(w < 0.0125, cost + (-1.0) ** np.arange(len(w)) * 0.02, cost)
+    sm, jag = width_scan.smooth(cost)
+    sc = width_scan.Scan(0, w, cost, sm, jag)
+    assert sc.valley(1e-3) == sc.valley(1e-3, local=False)

@@ -352,9 +352,14 @@ def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str
 
 
 def param_interval(f: fitmod.Free, u: float, half: float) -> list[float]:
+    """[lo, hi] of the value u +- half (optimizer coordinates); a log scalar within its range;
+    a play's width not below 0 (no play is narrower than none: the symmetric widenings for goal
+    timing and the physics step took sim5 backlash2deg_pendulum_500hz_us's to [-0.0028, 0.040])."""
     lo_u, hi_u = u - half, u + half
     lo_v = f.from_u(lo_u) if math.isfinite(lo_u) else -math.inf
     hi_v = f.from_u(hi_u) if math.isfinite(hi_u) else math.inf
+    if (f.effect, f.param) == ("backlash", "width"):
+        lo_v = max(lo_v, 0.0)
     return [max(lo_v, f.lo) if f.log else lo_v, min(hi_v, f.hi) if f.log else hi_v]
 
 

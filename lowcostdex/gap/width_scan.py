@@ -25,7 +25,19 @@ The statistics here treat the jaggedness as what it is, noise of the cost along 
   sqrt(2 / K) x the jaggedness for a difference of two means of K, exceeds ``delta``, the
   profile's threshold from the data's noise): the widths whose smoothed cost is within ``delta``
   + that uncertainty of its lowest smoothed value. Smooth and kinked costs keep the profile
-  interval as it was.
+  interval as it was. The interval's valley judges each width with the jaggedness where it
+  lies (``local``: the robust spread over +-``LOCAL`` grid widths), the difference of two
+  means of K with their own spreads: 1.96 sqrt((s_k^2 + s_min^2) / K). A play hunts only
+  where the width lets it: the cost is jagged near the play's size and smooth far below it,
+  and one spread for the whole range let a smooth, high cost at small widths into the valley
+  (sim5 backlash2deg_pendulum_500hz_us, width 0.0299 for 0.0349: smoothed cost 0.065 at 0
+  against 0.044 at its lowest, global allowance 0.030, valley [0, 0.040] although the play's
+  removal costs 78.5 x the data's threshold; local spreads 0.0005 near 0 and 0.0012 at the
+  lowest smoothed cost: valley [0.0125, 0.0388]). A local spread is capped at the whole
+  range's, so the valley is never wider than before: where the cost's jitter grows with the
+  cost (far above the play's size) an uncapped local spread let high costs in. The restart
+  keeps the global spread (a wider valley there only offers more restarts, each kept only if
+  it lowers the cost).
 - ``restart``: the fit restarted at the lowest scanned width inside the valley when the fit
   lies outside the valley or a scanned width is lower, and kept if it ends lower (by more than
   ``TIE``) than the fit it was: a smooth cost's fit is kept as it was.
@@ -47,6 +59,7 @@ POINTS = 81   # scanned widths per play (1.25 mrad apart on the catalogue's 0-0.
 COARSE = 5    # the screen scans every 5th of them (17: 6.25 mrad apart)
 SCREEN = 4.0  # the full scan runs when the screen's allowance exceeds delta / SCREEN
 K = 5         # neighbours in the moving mean (+-2 grid points)
+LOCAL = 5     # the valley's local jaggedness: the spread over +-5 grid widths (11 windows)
 WIDTH = ("backlash", "width")
 TIE = 1e-4    # a cost lower by at most this fraction is no lower (``significance.TIE``)
 
@@ -65,16 +78,23 @@ class Scan:
         """95 % uncertainty of a difference of two smoothed costs from the jaggedness."""
         return 1.96 * math.sqrt(2.0 / K) * self.jagged
 
-    def valley(self, delta: float) -> tuple[float, float]:
-        """(lo, hi) of the widths whose smoothed cost is within ``delta`` + ``allowance`` of
+    def valley(self, delta: float, local: bool = True) -> tuple[float, float]:
+        """(lo, hi) of the widths whose smoothed cost is within ``delta`` + the allowance of
         its minimum (the hull: a valley with a bump is one); (nan, nan) when the cost is not
         jagged at the scale of ``delta`` (its allowance is at most ``delta``: the profile
-        interval's own steps see it)."""
+        interval's own steps see it). The allowance of width k: with ``local``, 1.96
+        sqrt((s_k^2 + s_m^2) / K) from the local spreads s (``local_jaggedness``, each at most
+        ``jagged``) at k and at the lowest smoothed cost m; else ``allowance`` (one spread for
+        the whole range)."""
         ok = np.isfinite(self.smooth)
         if not np.any(ok) or not self.allowance() > delta:
             return math.nan, math.nan
-        bar = float(np.min(self.smooth[ok])) + delta + self.allowance()
-        inside = self.grid[ok & (self.smooth <= bar)]
+        m = int(np.flatnonzero(ok)[np.argmin(self.smooth[ok])])
+        allow = self.allowance()
+        if local:  # never above the whole range's spread: never wider than that valley
+            s = np.minimum(local_jaggedness(self.cost, self.jagged), self.jagged)
+            allow = 1.96 * np.sqrt((s ** 2 + s[m] ** 2) / K)
+        inside = self.grid[ok & (self.smooth <= self.smooth[m] + delta + allow)]
         return float(inside.min()), float(inside.max())
 
 
@@ -106,6 +126,27 @@ def smooth(cost: np.ndarray, k: int = K) -> tuple[np.ndarray, float]:
     dev = np.asarray(dev)
     mad = float(np.median(np.abs(dev - np.median(dev))))
     return out, 1.4826 * mad / math.sqrt(_SG_VAR)
+
+
+def local_jaggedness(cost: np.ndarray, fallback: float, m: int = LOCAL) -> np.ndarray:
+    """Per grid width, ``smooth``'s jaggedness from the windows centred within +-``m`` grid
+    widths of it only (the robust spread of the cost about a local quadratic, as white jitter
+    would have it); ``fallback`` (the whole range's) where fewer than 3 such windows are
+    finite. A cost jagged in one band and smooth elsewhere gets its spread where it has it."""
+    c = np.asarray(cost, float)
+    h = K // 2
+    dev = np.full(len(c), np.nan)
+    for i in range(h, len(c) - h):
+        w = c[i - h:i + h + 1]
+        if np.all(np.isfinite(w)):
+            dev[i] = w[h] - float(_SG @ w)
+    out = np.full(len(c), float(fallback))
+    for i in range(len(c)):
+        d = dev[max(0, i - m):i + m + 1]
+        d = d[np.isfinite(d)]
+        if len(d) >= 3:
+            out[i] = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(_SG_VAR)
+    return out
 
 
 def scan(t: fitmod.Track, residual: fitmod.ResidualFn, deltas: dict[int, float],
@@ -202,7 +243,7 @@ def restart(t: fitmod.Track, residual: fitmod.ResidualFn, max_rounds: int, rtol:
         return t
     u = np.array(t.u, float)
     for sc in scans:
-        lo, hi = sc.valley(delta(t, half, sc.index))
+        lo, hi = sc.valley(delta(t, half, sc.index), local=False)
         if not math.isfinite(lo):
             continue
         inside = (sc.grid >= lo) & (sc.grid <= hi) & np.isfinite(sc.cost)
