@@ -159,14 +159,20 @@ class Backlash(Effect):
             s = np.asarray(v["sensor"], float)
             p = np.where(has, state["qpos"][..., np.where(has, t.play_qpos, 0)], 0.0)
             if "qvel" in state:  # the damping terms read across the play too
-                rate = np.nan_to_num(np.where(
+                rate = _finite(np.where(
                     has, state["qvel"][..., np.where(has, t.play_dofs, 0)], 0.0))
                 p = p + state["kv_kp"] * rate  # the actuator's kv: kv / kp x rate in the goal
                 if "damping" in state:
                     state["torque"] = -s * state["damping"] * rate
-            inside = goal - s * np.nan_to_num(p)
+            inside = goal - s * _finite(p)
         op = np.clip(prev, goal - half, goal + half)
         # read on the motor side, the massless motor is where the servo puts it: the goal
         out = np.where(has, inside, goal + v["read"] * (op - goal))
         state["play"] = np.where(has, goal, op)
         return out
+
+
+def _finite(x: np.ndarray) -> np.ndarray:
+    """``np.nan_to_num(x)``, skipped when every value is finite (as every step of a replay but a
+    start from a log with missing velocities: the per-step call cost ~7 % of a small replay)."""
+    return x if np.isfinite(x).all() else np.nan_to_num(x)
