@@ -1,0 +1,116 @@
+"""The gap analysis judged on a sixth independently written truth simulator: an Allegro-class
+4-joint finger driven by host-PD torques at 333 Hz or by position servos, effects no earlier set
+has (read delay, supply-voltage sag, thermal derating) and effects outside any catalogue (issue
+11 item 4; gap-sim6, session 18; table in bench/RESULTS.md, "gap-sim6").
+
+``tests/gap_truth_sim6.py`` (mujoco + numpy only) writes the cases; each is analysed as the CLI
+does and scored by ``gap_truth_sim6.score``: a catalogue effect named exactly (nothing on a clean
+case), every documented parameter inside its 95 % interval; for an effect outside the catalogue
+nothing named, or what is named lowering the held-out error with its interval above 0. Misses
+are strict xfails whose reason is the measured result (bench/gap_redteam6.py on the commit
+named there); they fail (XPASS) when fixed and must then lose their mark.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+
+HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import gap_truth_sim6 as sim  # noqa: E402
+import redteam_check  # noqa: E402
+
+FAST: frozenset[str] = frozenset()
+
+# what the analysis named instead, per case it misses (bench/gap_redteam6.py --threads 1)
+MISSES: dict[str, str] = {}
+
+
+@pytest.mark.parametrize("name", redteam_check.case_params(sim, FAST, MISSES))
+def test_names_exactly_the_hidden_causes_with_intervals_holding_the_truth(name, tmp_path):
+    redteam_check.assert_named_exactly(sim, name, tmp_path)
+
+
+def test_truth_simulator_imports_nothing_from_the_project():
+    names = redteam_check.imported_top_modules(HERE / "gap_truth_sim6.py")
+    assert names <= {"__future__", "dataclasses", "json", "math", "pathlib", "tempfile",
+                     "mujoco", "numpy"}, names
+
+
+def test_clean_logs_replay_at_the_read_floor_and_every_effect_shows():
+    """The user's nominal model replayed open loop in plain mujoco at the truth's 0.25 ms step
+    (so that goals switch at the rows' instants): the clean cases stay at the read floor (0.4
+    mrad noise + 4096 ticks: ~0.6 mrad RMS; measured 0.66-0.87), every hidden effect moves some
+    joint's logs well above it (measured: the smallest, the encoder's 5 mrad sinusoid, 4.4 mrad;
+    the series-elastic mcp 5.2)."""
+    for case in sim.CASES:
+        rms = sim.effect_size(case, 4.0)["rms"]
+        if case.effects:
+            assert max(rms) > 0.003, (case.name, rms)
+        else:
+            assert max(rms) < 0.0012, (case.name, rms)
+
+
+def _log(case: sim.Case, seconds: float, tmp_path) -> list[dict[str, np.ndarray]]:
+    files = sim.write_case(dataclasses.replace(case, durations=(seconds,) * len(case.durations)),
+                           tmp_path)
+    out = []
+    for path in files["logs"]:
+        head = pathlib.Path(path).read_text().splitlines()[0].split(",")
+        a = np.genfromtxt(path, delimiter=",", skip_header=1)
+        out.append({h: a[:, k] for k, h in enumerate(head)})
+    return out
+
+
+def test_the_logs_carry_what_a_user_logs(tmp_path):
+    """Project CSV columns only; rows at 333 Hz (torque) or 100 Hz (position) within one 0.25
+    ms step of jitter; readings on the 4096-tick grid; torque goals inside +-0.7 N m; voltage
+    in 0.1 V and temperatures in whole degrees where logged."""
+    for name, period in (("clean_torque_333hz", 0.003), ("clean_position_100hz", 0.01)):
+        (log, *_) = _log(sim.CASE_BY_NAME[name], 2.0, tmp_path / name)
+        dt = np.diff(log["time"])
+        assert np.all(np.abs(dt - period) <= sim.TRUTH_DT + 1e-9), (name, dt.min(), dt.max())
+        for j in sim.JOINTS:
+            ticks = log[f"qpos:{j}"] / sim.TICK
+            np.testing.assert_allclose(ticks, np.round(ticks), atol=1e-4)
+        g = np.column_stack([log[f"goal:{a}"] for a in sim.ACTS])
+        if name.startswith("clean_torque"):
+            assert np.abs(g).max() <= sim.TAU_MAX + 1e-9
+        assert sorted(log) == sorted(["time", *(f"goal:{a}" for a in sim.ACTS),
+                                      *(f"qpos:{j}" for j in sim.JOINTS)])
+
+
+def test_the_supply_sags_with_the_torque_all_four_motors_draw(tmp_path):
+    """voltage_sag: 12.0 V when the torques are small, falling with the sum of the four
+    commanded torques (0.5 ohm x 1.5 A per 0.7 N m per motor, written out: the sag is at most
+    0.5 x 4 x 1.5 = 3 V and tracks 0.5 x 1.5 / 0.7 x sum |torque|)."""
+    (log, *_) = _log(sim.CASE_BY_NAME["voltage_sag_torque"], 4.0, tmp_path)
+    v = log[f"voltage:{sim.ACTS[0]}"]
+    load = sum(np.abs(log[f"goal:{a}"]) for a in sim.ACTS)
+    want = 12.0 - 0.5 * 1.5 / 0.7 * load * v / 12.0
+    assert v.min() < 11.5 and v.max() <= 12.0
+    assert np.corrcoef(v, want)[0, 1] > 0.8
+    assert np.median(np.abs(v - want)) < 0.25
+
+
+def test_thermal_logs_are_taken_warm_and_the_read_delay_shifts_the_reading(tmp_path):
+    """thermal: the three logs start at 35, 55, 75 deg C; read_delay: the torque rig's logged
+    reading is the clean rig's reading (same seed, same targets) delayed: the lag that best
+    aligns them is the 9 ms, not 0."""
+    logs = _log(sim.CASE_BY_NAME["thermal_position"], 1.0, tmp_path / "th")
+    assert [round(x[f"temperature:{sim.ACTS[1]}"][0]) for x in logs] == [35, 55, 75]
+    case = sim.CASE_BY_NAME["read_delay_9ms_torque"]
+    t = sim.row_times(3.0, 1000.0, np.random.default_rng(0))
+    tgt = {j: 0.3 + 0.3 * np.sin(2 * math.pi * 1.0 * t) for j in sim.JOINTS}
+    for c, want in ((case, 9), (dataclasses.replace(case, effects=()), 0)):
+        out = sim.simulate(dataclasses.replace(c, kind="position", rate=1000.0), t, tgt,
+                           np.random.default_rng(1), true_angles=True)
+        q, true = out["qpos:mcp"][100:], out["true:mcp"][100:]
+        err = [np.mean((q[k:] - true[:len(true) - k]) ** 2) for k in range(20)]
+        assert int(np.argmin(err)) == want, (c.name, err)
