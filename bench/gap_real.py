@@ -122,13 +122,14 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
             max_rounds: int, seeds: int = 0, jitter: float = 1e-3, select: str = "inner",
             restarts: int = 3, loso_fields: Sequence[str] = (), json_path: str | None = None,
             done: Sequence[dict] = (), loso_only: bool = False, prior: float = 0.0,
-            directional: bool = True, stage_choice: bool = False) -> dict:
+            directional: bool = True, stage_choice: bool = False, swing_seed: bool = False
+            ) -> dict:
     spec = SETS[name]
     t0 = time.perf_counter()
     files, ds = load_set(name, root)
     structure = tuple(effects) if effects else servo_structure(ds)
     sel = dict(select=select, restarts=restarts, max_rounds=max_rounds, prior=prior,
-               directional=directional, stage_choice=stage_choice)
+               directional=directional, stage_choice=stage_choice, swing_seed=swing_seed)
     out: dict = {"set": name, "logs": len(files), "structure": list(structure), "jittered": [],
                  "reference_all": {k: float(np.mean(list(v.values())))
                                    for k, v in reference_mae(ds).items()}}
@@ -506,6 +507,9 @@ def main(argv=None) -> int:
     ap.add_argument("--stage-choice", action="store_true",
                     help="keep the chosen fit's first stage unless its joint fit is 2 %% lower "
                     "on the held-back logs (IdentifyConfig.stage_choice; measured worse)")
+    ap.add_argument("--swing-seed", action="store_true",
+                    help="start the armature where the training logs' torque-off swings put it "
+                    "(IdentifyConfig.swing_seed; measured worse on 2 of 4 splits)")
     ap.add_argument("--progress", action="store_true",
                     help="print the CPU time of each identification stage (BAM's split)")
     ap.add_argument("--json", default=None)
@@ -530,7 +534,8 @@ def main(argv=None) -> int:
         else:
             r = run_set(name, root, args.effects, args.analyze, args.max_rounds, args.seeds,
                         args.jitter, args.select, args.restarts, fields, args.json, results,
-                        args.loso_only, args.prior, not args.symmetric, args.stage_choice)
+                        args.loso_only, args.prior, not args.symmetric, args.stage_choice,
+                        args.swing_seed)
             _print(r)
         results.append(r)
         if args.json:

@@ -422,3 +422,22 @@ def test_rhoban_xl330_torque_off_swings_give_bams_published_armature_not_the_cat
     assert fit.catalogue_armature == pytest.approx(0.0003)
     assert max(fit.mae) < 0.04  # [rad] per swing: the written-out pendulum explains them
 
+
+
+@pytest.mark.skipif(not (RHOBAN.is_dir() and PHAM.is_dir()),
+                    reason=f"measured data not found at {ROOT}")
+def test_the_armature_seed_reads_bams_armature_off_rhobans_swings_and_nothing_off_phams():
+    from lowcostdex.gap.torque_off import armature_seed
+
+    def lift_logs(folder):
+        ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
+        return ds, [i for i, tr in enumerate(ds.trajectories)
+                    if tr.meta.get("trajectory") == "lift_and_drop"]
+
+    # Rhoban's 0.49 kg arm swings with the torque off: the seed is BAM's six published XL330
+    # armatures (0.00181-0.00192 kg m^2, Rhoban/bam@1b5a1ce bam/params/xl330), 6x the catalogue
+    seed = armature_seed(*lift_logs(RHOBAN))
+    assert seed is not None and 0.00181 * 0.95 <= seed.armature <= 0.00192 * 1.05
+    # Pham's 4 g arm stays where the torque went off (friction holds 4 mN m of gravity): its
+    # 2 mrad "swings" say nothing of the armature, so no seed
+    assert armature_seed(*lift_logs(PHAM)) is None

@@ -61,3 +61,41 @@ def test_swing_fit_recovers_the_armature_and_friction_of_a_pendulum_written_out(
     held = Trajectory("hold", trs[0].time, trs[0].goal, trs[0].qpos, J, J,
                       channels={"torque_enable": np.ones(len(trs[0].time))}, model="m0.3")
     assert swing_fit(Dataset(models, [held]), [0]) is None
+
+
+def _bench_swings(armature: float, q0s=(-1.4, 1.2)) -> Dataset:
+    models, trs = {}, []
+    for mass, q0 in zip((0.3, 0.5), q0s, strict=True):
+        cfg = BenchConfig(motor="XL330-M288", mass=mass, length=0.1, timestep=DT,
+                          gains=servo.ServoGains(position_p=400, supply_voltage=5.0))
+        models[f"m{mass}"] = build_bench(cfg).to_xml()
+        trs.append(_drop(q0, armature, 0.01, 0.007, mass, 0.1))
+    return Dataset(models, trs)
+
+
+def test_the_armature_seed_is_the_swings_armature_only_where_it_differs_from_the_catalogue():
+    from lowcostdex.gap.torque_off import SEED_FACTOR, armature_seed
+
+    # the swings of a pendulum whose armature is 0.0019 (the catalogue XL330-M288 says 0.0003)
+    seed = armature_seed(_bench_swings(0.0019), [0, 1])
+    assert seed is not None and seed.armature == pytest.approx(0.0019, rel=0.03)
+    # the catalogue's own armature (and one within SEED_FACTOR of it): no seed, the start stays
+    assert armature_seed(_bench_swings(0.0003), [0, 1]) is None
+    assert armature_seed(_bench_swings(0.0003 * SEED_FACTOR * 0.8), [0, 1]) is None
+    # arms that hardly move with the torque off (Pham's unloaded XL330: 2 mrad) say nothing
+    assert armature_seed(_bench_swings(0.0019, q0s=(-0.05, 0.05)), [0, 1]) is None
+
+
+def test_seeded_starts_put_the_named_scalars_at_their_values_within_bounds():
+    from lowcostdex.gap import fit as fitmod
+    from lowcostdex.gap.identify_starts import seeded
+
+    ctx = fitmod.Context(dt=DT, peak_force=np.array([0.5]), stall=np.array([0.5]),
+                         damping=np.array([0.0]))
+    st = fitmod.Structure.build(("inertia_error", "coulomb_friction"), J, ctx)
+    x0 = np.array([f.start for f in st.free])
+    names = [(f.effect, f.param) for f in st.free]
+    i = names.index(("inertia_error", "scale"))
+    x = seeded(st, x0, {("inertia_error", "scale"): 6.3})
+    assert x[i] == 6.3 and np.array_equal(np.delete(x, i), np.delete(x0, i))
+    assert seeded(st, x0, {("inertia_error", "scale"): 1e6})[i] == st.free[i].hi

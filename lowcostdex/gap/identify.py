@@ -48,11 +48,13 @@ from lowcostdex.gap.identify_logs import (  # noqa: F401 (re-exported)
 )
 from lowcostdex.gap.identify_select import FAMILY_MARGIN, choose, choose_stage
 from lowcostdex.gap.identify_select import choose_family as _choose_family
+from lowcostdex.gap.identify_starts import jittered as _jitter
+from lowcostdex.gap.identify_starts import seeded, widened
 from lowcostdex.gap.identify_starts import starts as own_starts
-from lowcostdex.gap.identify_starts import widened
 from lowcostdex.gap.identify_verdict import verdict
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.rest_friction import held_at_rest
+from lowcostdex.gap.torque_off import armature_seed
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
 from lowcostdex.sim.servo import goal_slew_states
 
@@ -158,6 +160,12 @@ class IdentifyConfig:
         2026-11-28 on every real-log set, it kept the first stage on Rhoban's up_and_down fold
         (held back 40.5 vs 41.8 mrad; held out 57.7 vs the joint's 46.0) and Pham's BAM split
         (16.0 vs 16.2; 8.4 vs 7.6), and changed nothing else (bench/RESULTS.md gap-real12).
+      swing_seed: when training logs swing with the torque off and their swings put the
+        armature 1.5x or more from the catalogue's (``torque_off.armature_seed``), the first
+        stage starts the armature's scale there (else at 1). Off: measured 2026-11-28 it lost
+        on Rhoban's BAM split (held out 31.1 -> 32.6 mrad, armature 0.002 from the swings)
+        and STS3250's sin_time_square fold (57.0 -> 81.4), won on STS3250's up_and_down
+        (2.4 -> 1.6), equal on sin_sin (13.3) (bench/RESULTS.md gap-real13).
     """
 
     effects: tuple[str, ...] = SERVO_STRUCTURE
@@ -178,6 +186,7 @@ class IdentifyConfig:
     prior: float = 0.0
     directional: bool = True
     stage_choice: bool = False
+    swing_seed: bool = False
 
     def __post_init__(self) -> None:
         _check_types(self)
@@ -218,6 +227,7 @@ def _check_types(c: IdentifyConfig) -> None:
     check_bool("cold", c.cold)
     check_bool("directional", c.directional)
     check_bool("stage_choice", c.stage_choice)
+    check_bool("swing_seed", c.swing_seed)
     if isinstance(c.effects, str) or not isinstance(c.effects, (tuple, list)):
         raise ConfigError(f"effects={c.effects!r} must be a tuple of effect names, e.g. "
                           "servo_structure(ds)")
@@ -357,7 +367,9 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
             del families["free"]  # the share held at 1: HELD_FIRST's comment
         elif not torque_off_seen(ds, train):
             # nothing in the training logs back-drives the servo with the torque off: the
-            # back-driven share is held at 1 in every family (a symmetric gearbox, BAM M3/M4)
+            # back-driven share is held at 1 in every family (a symmetric gearbox, BAM M3/M4;
+            # the XL330's 0.05, what its torque-off logs fit, measured worse: Rhoban
+            # lift_and_drop fold 64.0 -> 176.1 mrad, bench/RESULTS.md gap-real13)
             del families["free"]
             notes.append("no training log has the torque off: the gear friction's back-driven "
                          "share is held at 1 (measured on STS3250 with lift_and_drop held "
@@ -366,6 +378,14 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     if motor and len(motor) < len(full.free):
         families["nominal_motor"] = motor | config.hold | (
             HELD_FIRST if "free" not in families else frozenset())
+    seed: dict[tuple[str, str], float] = {}
+    sf = armature_seed(ds, train) if config.swing_seed and "inertia_error" in config.effects \
+        and torque_off_seen(ds, train) else None
+    if sf is not None:
+        seed[("inertia_error", "scale")] = sf.armature / sf.catalogue_armature
+        notes.append(f"the training logs' torque-off swings say armature {sf.armature:.3g} kg m^2 "
+                     f"(catalogue {sf.catalogue_armature:.3g}): its fit starts there "
+                     "(gap.torque_off)")
     fast = faster_than_training(ds, train, test)
     if fast:
         notes.append(f"{len(fast)} held-out log(s) move faster than any training log (peak "
@@ -389,7 +409,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
             w_fit = whole_logs(ds, fit_logs)
             wts = [1.0 / math.sqrt(ds.trajectories[w.traj].qpos.size) for w in w_fit]
             cands, r = _fit_families(make_residual(w_fit, wts), joints, ctx, config, families,
-                                     1, lambda s, f: None)
+                                     1, lambda s, f: None, seed=seed)
             rounds += r
             keys = list(cands)
             frep, cols = rep, [cands[c].effects() for c in keys]
@@ -406,7 +426,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                      "val_mae": {f"{f}.{k}": v for f, vs in per_fold.items()
                                  for (k, _, _), v in zip(folds, vs, strict=True)}}
         cands, r = _fit_families(residual, joints, ctx, config, {chosen: families[chosen]}, 1,
-                                 prog)  # on all training logs
+                                 prog, seed=seed)  # on all training logs
         rounds += r
         best = cands[(chosen, 0)]
     elif inner is not None:
@@ -419,7 +439,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         residual = make_residual(w_fit, wts)
         stages: dict = {}
         cands, rounds = _fit_families(residual, joints, ctx, config, families,
-                                      config.restarts, prog, stages)
+                                      config.restarts, prog, stages, seed=seed)
         keys = list(cands)
         prog("choosing the family and the fit (gap.identify_select)", 0.8)
         fm = {k: float(np.mean(_train_mae(cands[k], w_fit, wts, ds, rep))) for k in keys}
@@ -448,7 +468,8 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         if vals:
             selection["stage"] = {"val_mae": vals, "n_free": n_free, "chosen": kept + 1}
     else:
-        cands, rounds = _fit_families(residual, joints, ctx, config, families, 1, prog)
+        cands, rounds = _fit_families(residual, joints, ctx, config, families, 1, prog,
+                                      seed=seed)
         bests = {f: t for (f, _), t in cands.items()}
         if len(bests) > 1:
             prog("choosing the family on the training logs", 0.88)
@@ -492,8 +513,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
 
 def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
                   families: dict[str, frozenset], copies: int, prog: Progress,
-                  stages_out: dict | None = None
-                  ) -> tuple[dict[tuple[str, int], fitmod.Track], int]:
+                  stages_out: dict | None = None, seed: dict | None = None) -> tuple[dict[tuple[str, int], fitmod.Track], int]:
     """Both least-squares stages for every family, ``copies`` times from differently jittered
     first-stage starts, in the same batched passes but pruned apart (each (family, copy) its
     own group). Returns {(family, copy): its best stage-2 track} and the LM rounds run;
@@ -504,7 +524,8 @@ def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
     the joint fit has local minima that the nested one avoids, and from its optimum the joint
     fit can only do better on the fitted logs). Copy 0 is jittered by ``config.jitter`` (0:
     the catalogue's starts exactly), copy j >= 1 by ``max(jitter, restart_jitter)`` from its
-    own generator (seeded by ``config.seed`` and j)."""
+    own generator (seeded by ``config.seed`` and j). ``seed``: {(effect, param): value} where
+    the first stage's starts put those scalars (before the jitter)."""
     later = [n for n in config.effects if n in STAGE_TWO]
     stages = [tuple(n for n in config.effects if n not in STAGE_TWO)] if later else []
     stages = [st for st in stages if st] + [tuple(config.effects)]
@@ -521,6 +542,8 @@ def _fit_families(residual, joints, ctx: fitmod.Context, config: IdentifyConfig,
                 st = fitmod.Structure.build(names, joints, ctx)
                 st = _hold(st, hold) or st
                 starts = own_starts(st, config.starts)
+                if seed and not best:
+                    starts = [seeded(st, x, seed) for x in starts]
                 if spread[j] > 0 and not best:
                     starts = [_jitter(st, x, spread[j], rngs[j]) for x in starts]
                 if (fam, j) in best:
@@ -589,14 +612,6 @@ def _train_mae(t: fitmod.Track, windows, weights, ds: Dataset, rep: Replayer) ->
         out.append(float(np.mean(np.abs(t.r[k:k + n]))) / wt)
         k += n
     return np.asarray(out)
-
-
-def _jitter(st: fitmod.Structure, x: np.ndarray, rel: float, rng: np.random.Generator
-            ) -> np.ndarray:
-    """``x`` with each value times 1 + rel N(0, 1), clipped to its search bounds."""
-    lo = np.array([f.lo for f in st.free])
-    hi = np.array([f.hi for f in st.free])
-    return np.clip(np.asarray(x, float) * (1.0 + rel * rng.standard_normal(len(x))), lo, hi)
 
 
 def _hold(st: fitmod.Structure, params: frozenset) -> fitmod.Structure | None:

@@ -1,4 +1,5 @@
-"""Where ``identify``'s least-squares fits start.
+"""Where ``identify``'s least-squares fits start (the catalogue's starts, the extra ones, a
+jitter around them and values measured otherwise, e.g. the armature of the torque-off swings).
 
 ``identify`` fits a fixed servo structure from the catalogue's starts and its own extra starts
 (``IdentifyConfig.starts``, e.g. a large breakaway share). The effect search of ``gap analyze``
@@ -59,3 +60,22 @@ def widened(t: fitmod.Track, st: fitmod.Structure) -> fitmod.Track:
             x[i] = float(np.clip(EFFECTS[f.effect].param(f.param).null, f.lo, f.hi))
     return fitmod.Track(st, st.u(x), label=t.label, cost=t.cost, r=t.r, rounds=t.rounds,
                         history=list(t.history))
+
+
+def jittered(st: fitmod.Structure, x: np.ndarray, rel: float, rng: np.random.Generator
+             ) -> np.ndarray:
+    """``x`` with each value times 1 + rel N(0, 1), clipped to its search bounds."""
+    lo = np.array([f.lo for f in st.free])
+    hi = np.array([f.hi for f in st.free])
+    return np.clip(np.asarray(x, float) * (1.0 + rel * rng.standard_normal(len(x))), lo, hi)
+
+
+def seeded(st: fitmod.Structure, x: np.ndarray, seed: dict) -> np.ndarray:
+    """``x`` with the free scalars ``seed`` names ({(effect, param): value}, every joint) set to
+    its values, clipped to their search bounds (e.g. the armature the torque-off swings say:
+    ``torque_off.armature_seed``)."""
+    x = np.array(x, float)
+    for i, f in enumerate(st.free):
+        if (f.effect, f.param) in seed:
+            x[i] = float(np.clip(seed[(f.effect, f.param)], f.lo, f.hi))
+    return x

@@ -66,9 +66,11 @@ class SwingFit:
     logs: tuple[int, ...]
 
 
-def swings(ds: Dataset, logs: Sequence[int], settle: float = SETTLE) -> list[Swing]:
+def swings(ds: Dataset, logs: Sequence[int], settle: float = SETTLE, min_travel: float = 0.0
+           ) -> list[Swing]:
     """The first torque-off run of each of ``logs`` (from ``settle`` s after the release, 40
-    samples at least) on a one-joint model."""
+    samples at least, travelling ``min_travel`` rad or more peak to peak) on a one-joint
+    model."""
     out = []
     for i in logs:
         tr = ds.trajectories[i]
@@ -97,6 +99,8 @@ def swings(ds: Dataset, logs: Sequence[int], settle: float = SETTLE) -> list[Swi
         mujoco.mj_mulM(m, d, r, e)
         dt = float(np.median(np.diff(tr.time[k0:end])))
         q = tr.qpos[k0:end, 0]
+        if np.ptp(q) < min_travel:
+            continue
         v0 = float(np.polyfit(tr.time[k0:k0 + 5] - tr.time[k0], q[:5], 2)[1])
         out.append(Swing(q.copy(), v0, dt, float(r[dof] - m.dof_armature[dof]), tau[0], tau[1],
                          float(m.dof_armature[dof]), int(i)))
@@ -125,11 +129,12 @@ def simulate(p: np.ndarray, sw: Swing) -> np.ndarray:
     return out
 
 
-def swing_fit(ds: Dataset, logs: Sequence[int], load: bool = False) -> SwingFit | None:
+def swing_fit(ds: Dataset, logs: Sequence[int], load: bool = False, min_travel: float = 0.0
+              ) -> SwingFit | None:
     """Armature, Coulomb and viscous friction (and with ``load`` a friction share per N m of
-    gravity torque) fitted to the torque-off swings of ``logs`` (module doc); None when none
-    of them has a torque-off run long enough."""
-    sws = swings(ds, logs)
+    gravity torque) fitted to the torque-off swings of ``logs`` (module doc) that travel
+    ``min_travel`` rad or more; None when none of them has a torque-off run long enough."""
+    sws = swings(ds, logs, min_travel=min_travel)
     if not sws:
         return None
     cat = float(np.median([s.armature for s in sws]))
@@ -154,3 +159,22 @@ def swing_fit(ds: Dataset, logs: Sequence[int], load: bool = False) -> SwingFit 
     mae = tuple(float(np.mean(np.abs(simulate(x, s)[0] - s.q))) for s in sws)
     return SwingFit(float(x[0]), float(x[1]), float(x[2]), float(x[3]) if load else 0.0, mae,
                     cat, tuple(s.log for s in sws))
+
+
+# ``armature_seed``: a swing that travels less than this [rad] says nothing of the armature (Pham
+# XL330's unloaded arm stays where the torque went off: 2 mrad), and a catalogue armature within
+# this factor of the swings' is kept as the start (STS3032: 0.00106 vs 0.00103).
+SEED_TRAVEL = 0.2
+SEED_FACTOR = 1.5
+
+
+def armature_seed(ds: Dataset, logs: Sequence[int]) -> SwingFit | None:
+    """``swing_fit`` of the torque-off swings of ``logs`` (Coulomb + viscous) when they travel
+    ``SEED_TRAVEL`` or more and put the armature ``SEED_FACTOR`` or more away from the nominal
+    models' (identification then starts the armature's scale there: ``gap.identify``); else
+    None."""
+    f = swing_fit(ds, logs, min_travel=SEED_TRAVEL)
+    if f is None or not f.catalogue_armature > 0:
+        return None
+    ratio = f.armature / f.catalogue_armature
+    return f if max(ratio, 1.0 / max(ratio, 1e-12)) >= SEED_FACTOR else None
