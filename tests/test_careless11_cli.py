@@ -16,17 +16,17 @@
 from __future__ import annotations
 
 import json
+import sys
+from pathlib import Path
 
 import pytest
 
 from lowcostdex.cli import main
 
+sys.path.insert(0, str(Path(__file__).parent))
+from cli_check import run_cli  # noqa: E402
 
-def _run(argv, capsys) -> tuple[int, str]:
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    return code, err.strip()
+_run = run_cli
 
 
 def test_main_with_an_empty_out_says_it_is_empty(tmp_path, monkeypatch, capsys):

@@ -27,14 +27,10 @@ import pytest
 from lowcostdex.cli import main
 
 sys.path.insert(0, str(Path(__file__).parent))
+from cli_check import run_cli  # noqa: E402
 from test_bad_inputs import bench_model, csv_text, servo_log, with_velocity  # noqa: E402
 
-
-def _run(argv, capsys) -> tuple[int, str]:
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    return code, err.strip()
+_run = run_cli
 
 
 # ------------------------------------------------------------------------------------------------
