@@ -50,8 +50,8 @@ from collections.abc import Callable, Sequence
 import mujoco
 import numpy as np
 
+from lowcostdex.gap import chaos, gates, play_side, significance, stepsize, width_scan
 from lowcostdex.gap import fit as fitmod
-from lowcostdex.gap import gates, play_side, significance, stepsize, width_scan
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
 from lowcostdex.gap.diagnostics import (
     effective_n,
@@ -184,6 +184,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     base_pred = base_pred[0]
     floor = noise_floor(ds.trajectories)
     floor_mse = float(np.mean(floor ** 2))
+    split, sel_eps = chaos.scored_select(eng.rep.run, ds, eps, split, base_pred, floor_mse)
     jcols = [list(ds.joints).index(j) for j in joints]
     diagnostics = {j: residual_diagnostics(ds.trajectories, eps, base_pred, c)
                    for j, c in zip(joints, jcols, strict=True)}

@@ -493,6 +493,7 @@ class Split:
     train: tuple[int, ...]
     select: tuple[int, ...]
     test: tuple[int, ...]
+    unscored: tuple[int, ...] = ()  # select episodes left out: chaotic replays (``gap.chaos``)
 
 
 def _stratum(ds: Dataset, w: Window) -> tuple:

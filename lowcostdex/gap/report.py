@@ -110,7 +110,7 @@ def markdown(result: GapResult) -> str:
            f"{r.stop_reason}.", "",
            f"Logs: {len(r.sources)}; joints: {', '.join(r.joints)}; episodes: "
            f"{len(r.split.train)} train, {len(r.split.select)} select, {len(r.split.test)} test "
-           "(the test episodes were used only for the numbers below).", "",
+           "(the test episodes were used only for the numbers below)" + _unscored(r) + ".", "",
            "## Held-out error (test episodes, open-loop replay)", "",
            "| | RMSE [mrad] | MAE [mrad] |", "|---|---|---|",
            f"| nominal model | {_mrad(g.baseline_rmse)} | {_mrad(g.baseline_mae)} |",
@@ -332,3 +332,10 @@ def candidates_figure(result: GapResult):
                       frameon=False)
     fig.tight_layout()
     return fig
+
+
+def _unscored(r: GapResult) -> str:
+    """The report's words for select episodes left out as chaotic (``gap.chaos``)."""
+    n = len(getattr(r.split, "unscored", ()))
+    return (f"; {n} more select episode(s) not scored: their open-loop replay is chaotic (goals "
+            "arriving 5 % of a physics step later move its end by over 20 noise floors)") if n else ""

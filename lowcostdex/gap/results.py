@@ -287,7 +287,7 @@ class GapResult:
             "sources": self.sources,
             "joints": list(self.joints),
             "split": {k: [_ep(self.episodes[i], self.sources) for i in v]
-                      for k, v in asdict(self.split).items()},
+                      for k, v in asdict(self.split).items() if v or k != "unscored"},
             "noise_floor": {"rmse": float(np.sqrt(np.mean(fl ** 2))),
                             "per_joint": dict(zip(self.joints, fl.tolist(), strict=True))},
             "baseline": self.baseline,
