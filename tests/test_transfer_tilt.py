@@ -65,3 +65,16 @@ def test_fit_recovers_a_written_tilt_and_names_none_on_the_nominal():
     nominal = simulate(np.zeros(2)) + rng.normal(0, noise, tilted.shape)
     none = fit_tilt(simulate, nominal)
     assert not none.named, none
+
+
+def test_an_angle_the_trace_does_not_see_is_never_named():
+    """A trace blind to one angle (a finger off the spoke: no contact) gives that angle no
+    interval, so no tilt is named from it (a zero Jacobian must not read as a sharp estimate)."""
+    t = np.linspace(0, 1, 50)
+
+    def blind(angles):
+        return np.sin(t)  # moves with neither angle
+
+    fit = fit_tilt(blind, np.sin(t) + 0.01)
+    assert not fit.named
+    assert np.all(np.isinf(fit.intervals[:, 1]))

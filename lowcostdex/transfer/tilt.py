@@ -53,9 +53,12 @@ class TiltFit:
 
 
 def fit_tilt(simulate: Callable[[np.ndarray], np.ndarray], observed: np.ndarray,
-             iterations: int = 8, step: float = 1e-3, limit: float = 0.2) -> TiltFit:
-    """Gauss-Newton fit of the two small tilt angles (|angle| <= limit) minimizing the
-    simulated trace's squared difference from ``observed``."""
+             iterations: int = 8, step: float = 1e-3, limit: float = 0.2,
+             max_step: float = 0.03) -> TiltFit:
+    """Gauss-Newton fit of the two small tilt angles (|angle| <= limit, each step at most
+    ``max_step`` [rad]: contact makes the trace only piecewise smooth in the tilt) minimizing the
+    simulated trace's squared difference from ``observed``. An angle the trace does not move
+    (no contact, a zero Jacobian column) gets an unbounded interval: it is never named."""
     observed = np.asarray(observed, float).ravel()
 
     def residual(a: np.ndarray) -> np.ndarray:
@@ -71,6 +74,8 @@ def fit_tilt(simulate: Callable[[np.ndarray], np.ndarray], observed: np.ndarray,
             d[k] = step
             jac[:, k] = (residual(a + d) - r) / step
         delta, *_ = np.linalg.lstsq(jac, -r, rcond=None)
+        if np.max(np.abs(delta)) > max_step:
+            delta = delta * (max_step / np.max(np.abs(delta)))
         trial = np.clip(a + delta, -limit, limit)
         r_trial = residual(trial)
         if np.sum(r_trial ** 2) >= np.sum(r ** 2):
@@ -87,7 +92,10 @@ def fit_tilt(simulate: Callable[[np.ndarray], np.ndarray], observed: np.ndarray,
         jac[:, k] = (residual(a + d) - r) / step
     dof = max(r.size - 2, 1)
     sigma2 = float(np.sum(r ** 2)) / dof
-    cov = sigma2 * np.linalg.pinv(jac.T @ jac)
-    half = 1.96 * np.sqrt(np.maximum(np.diag(cov), 0.0))
+    info = jac.T @ jac
+    if np.linalg.cond(info) > 1e12:
+        half = np.full(2, np.inf)
+    else:
+        half = 1.96 * np.sqrt(np.maximum(np.diag(sigma2 * np.linalg.inv(info)), 0.0))
     intervals = np.stack([a - half, a + half], axis=1)
     return TiltFit(a, intervals, rms_before, float(np.sqrt(np.mean(r ** 2))))
