@@ -35,7 +35,13 @@ class PolicySnapshot:
 
     def mean(self, obs: np.ndarray) -> np.ndarray:
         """Action mean (act_dim,) for one observation (obs_dim,)."""
-        h = (np.asarray(obs, dtype=np.float64).reshape(-1) - self.obs_mean) / self.obs_std
+        x = np.asarray(obs, dtype=np.float64)
+        if x.size != self.obs_mean.shape[0] or x.ndim > 1 and x.shape[-1] != x.size:
+            # a bare numpy broadcast error otherwise, naming neither size
+            raise ValueError(f"observation of shape {x.shape}; this policy takes "
+                             f"({self.obs_mean.shape[0]},) (an env of another observation "
+                             "size? build the policy for this env, or load its own checkpoint)")
+        h = (x.reshape(-1) - self.obs_mean) / self.obs_std
         last = len(self.weights) - 1
         for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
             h = w @ h + b
