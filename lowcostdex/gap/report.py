@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lowcostdex.gap import chaos
 from lowcostdex.gap.analyze import GapResult
 from lowcostdex.gap.extension import save_extended
 from lowcostdex.gap.results import timestep_note
@@ -336,6 +337,7 @@ def candidates_figure(result: GapResult):
 
 def _unscored(r: GapResult) -> str:
     """The report's words for select episodes left out as chaotic (``gap.chaos``)."""
-    n = len(getattr(r.split, "unscored", ()))
+    n = len(r.split.unscored)
     return (f"; {n} more select episode(s) not scored: their open-loop replay is chaotic (goals "
-            "arriving 5 % of a physics step later move its end by over 20 noise floors)") if n else ""
+            f"arriving {chaos.SHIFT * 100:g} % of a physics step later move its end by over "
+            f"{chaos.FLOORS:g} noise floors)") if n else ""
