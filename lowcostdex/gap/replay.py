@@ -30,7 +30,8 @@ together at the physics timestep:
 * a servo update period (``Dataset.servo_period``) samples each position servo's law every
   period and holds its force between (``sim.servo.ServoClock``; no saturation matching then:
   the firmware reads one goal per update);
-* measured channels (voltage, temperature, torque enable) are held like commands;
+* measured channels (voltage, temperature, torque enable) are held like commands (``supply``:
+  a log's highest voltage, the nominal of a drive without a servo's own);
 * actuators of any gear (force matching in actuator units, peak forces reported at the joint)
   and servos that integrate a velocity goal (``intvelocity``): their setpoint (activation) at a
   window's start is the integral of the goals that arrived before it from the log's start, where
@@ -441,6 +442,9 @@ class Replayer:
         chans = {ch: np.stack([trs[t].channels[ch][gi] for t, gi in
                                zip(traj_of, rows, strict=True)])
                  for ch in plant.required_channels}
+        if "voltage" in chans:  # a drive's nominal supply: the log's unloaded (highest) reading
+            top = [np.max(trs[t].channels["voltage"], axis=0) for t in traj_of]
+            chans["supply"] = np.stack([np.broadcast_to(v, rows.shape[1:] + v.shape) for v in top])
         run = dict(plant=plant, sims=sims, n_steps=n_steps, act=act, jq=jq, goals=goals,
                    split=split, before=before, after=after,
                    servos=self._position_servos(model_key),

@@ -10,7 +10,8 @@ fields. Both share the same code through a leading "sim" axis: arrays are (nu,) 
 Order inside one control step (``step``):
   1. command effects map the goal (action noise, mounting offset, backlash's play operator
      where the model has no play hinge) -> ``ctrl``;
-  2. exogenous effects rescale the servo gains from measured channels (temperature, voltage);
+  2. exogenous effects rescale the drives from measured channels (temperature, voltage):
+     a dcmotor servo's gains, any other actuator's torque per command and force range;
   3. physics advances ``nstep`` substeps: natively (``mj_step(nstep)``) unless a friction effect
      needs its state-dependent level written every substep.
 A servo update period (``servo_period``, default 0: the law acts continuously) samples the law
@@ -40,6 +41,7 @@ from mujoco import batch as mjbatch
 from lowcostdex.errors import ConfigError, PhysicsError
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
+from lowcostdex.sim.effects import exogenous as exo
 from lowcostdex.sim.effects.prepare import compile_with_effects as compile_with_effects
 from lowcostdex.sim.effects.prepare import prepare_spec as prepare_spec
 
@@ -71,6 +73,7 @@ class _PlantBase:
         self._torque_on = np.ones(self._lead + (self.model.nu,), dtype=bool)
         self._static_forcerange: np.ndarray | None = None
         self._static_forcelimited: np.ndarray | None = None
+        self._drive_forcerange: np.ndarray | None = None  # static, scaled by exogenous effects
         self._runtime_fields: set[str] = set()
         self._const_moved = False  # constants set from moved masses (``_set_const``)
         self._is_dcmotor = self.model.actuator_gaintype == mujoco.mjtGain.mjGAIN_DCMOTOR
@@ -184,7 +187,7 @@ class _PlantBase:
                         "plant.prepare_spec(spec, effects) before compiling")
 
     def _apply_model_effects(self) -> None:
-        touched = {"actuator_gainprm", "dof_frictionloss", "actuator_forcerange",
+        touched = {"actuator_gainprm", "dof_frictionloss", "actuator_forcerange", "actuator_biasprm",
                    "actuator_forcelimited", "actuator_delay"}  # (a replay zeroes the delay)
         for b in self._bound:
             touched.update(b.cls.written_fields(b.targets))
@@ -205,6 +208,10 @@ class _PlantBase:
         self._static_friction = np.array(self.array("dof_frictionloss"), copy=True)
         self._static_forcerange = np.array(self.array("actuator_forcerange"), copy=True)
         self._static_forcelimited = np.array(self.array("actuator_forcelimited"), copy=True)
+        self._static_bias = np.array(self.array("actuator_biasprm"), copy=True)
+        self._drive_forcerange = self._static_forcerange
+        self._drive = exo.drive_targets(self._base_model, [
+            b.targets.actuators for b in self._bound if b.cls.kind == "exogenous"])
         self._apply_torque_mask()
         self._friction = [b for b in self._bound if b.cls.substep(b.values)]
         self._has_friction = bool(self._friction)
@@ -244,7 +251,7 @@ class _PlantBase:
     def _range_in_force(self) -> None:
         """Force ranges from the model effects and torque enable (no held force)."""
         fr, fl = self.array("actuator_forcerange"), self.array("actuator_forcelimited")
-        fr[...] = np.where(self._torque_on[..., None], self._static_forcerange, 0.0)
+        fr[...] = np.where(self._torque_on[..., None], self._drive_forcerange, 0.0)
         fl[...] = np.where(self._torque_on, self._static_forcelimited, 1)
         gain = self.array("actuator_gainprm")
         gain[..., _CONTROLLER_GAINS] = self._static_gain[..., _CONTROLLER_GAINS]
@@ -294,15 +301,12 @@ class _PlantBase:
     def _exogenous(self, channels: Mapping[str, np.ndarray] | None) -> None:
         if not self._has_exo:
             return
-        missing = [c for c in self.required_channels if not channels or c not in channels]
-        if missing:
-            raise ConfigError(f"step() needs measured channels {missing} for the applied effects")
-        gain = np.array(self._static_gain, copy=True)
-        for b in self._bound:
-            if b.cls.kind == "exogenous":
-                chans = {c: np.asarray(channels[c], float)[..., b.targets.actuators]
-                         for c in b.cls.requires}
-                b.cls.exogenous(self, b.targets, b.values, chans, gain)
+        gain, drive = exo.rescale(self, self._bound, channels, self._static_gain, self._drive)
+        if drive is not None:  # other actuators: torque per command and force range
+            self._drive_forcerange = exo.scale_drive(self, gain, drive, self._drive,
+                                                     self._static_bias, self._static_forcerange)
+            if not self.servo_clock.every:  # (a held force keeps its range to the next update)
+                self._range_in_force()
         self._mask_controller(gain)
         self.array("actuator_gainprm")[...] = gain
 
@@ -368,7 +372,7 @@ class _PlantBase:
         """Live model effects (a torque-speed line) rewrite the force range from the state:
         from the range the model effects and torque enable set, every physics step."""
         fr = self.array("actuator_forcerange")
-        fr[...] = np.where(self._torque_on[..., None], self._static_forcerange, 0.0)
+        fr[...] = np.where(self._torque_on[..., None], self._drive_forcerange, 0.0)
         # the flags too: a live effect may limit an actuator that the model leaves unlimited
         self.array("actuator_forcelimited")[...] = np.where(self._torque_on,
                                                             self._static_forcelimited, 1)

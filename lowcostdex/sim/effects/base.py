@@ -158,6 +158,7 @@ class Effect:
     kind: ClassVar[str]  # model | friction | command | observation | calibration | exogenous
     params: ClassVar[tuple[Param, ...]]
     requires: ClassVar[tuple[str, ...]] = ()  # measured channels needed (e.g. "temperature")
+    optional: ClassVar[tuple[str, ...]] = ()  # channels used when given (e.g. "supply")
     # prepare() adds degrees of freedom (only with hidden_dofs; the qpos layout changes), and
     # apply() writes their fields whatever the kind
     structural: ClassVar[bool] = False
@@ -242,8 +243,12 @@ class Effect:
 
     @classmethod
     def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
-                  gain: np.ndarray) -> None:
-        """kind exogenous: rescale the (..., n_targets, mjNGAIN) gain copy in place."""
+                  gain: np.ndarray, drive: np.ndarray | None = None) -> None:
+        """kind exogenous: from the measured channels (..., n_targets), rescale in place the
+        (..., nu, mjNGAIN) gain copy of the targets' dcmotor servos (their own motor model) and
+        multiply the (..., nu) drive scale of the other targets (motor, position, velocity,
+        general: the plant scales their torque per command, gainprm[0:3] and biasprm[0:3], and
+        their force range by it; None: the plant has no such target)."""
         raise NotImplementedError
 
 

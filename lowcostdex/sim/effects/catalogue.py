@@ -11,7 +11,6 @@ a tie is named in); split by kind, that order would live in no one place.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 
 import mujoco
 import numpy as np
@@ -20,7 +19,6 @@ from lowcostdex.errors import ConfigError, check_choice
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects.backlash import Backlash
 from lowcostdex.sim.effects.base import (
-    DEFAULT_REFERENCE_TEMPERATURE,
     Effect,
     Fields,
     Param,
@@ -30,6 +28,8 @@ from lowcostdex.sim.effects.base import (
 from lowcostdex.sim.effects.base import (
     dcmotor_targets as _dcmotor,
 )
+from lowcostdex.sim.effects.exogenous import ThermalDerating, VoltageSag
+from lowcostdex.sim.effects.exogenous import scale_resistance as _scale_resistance
 from lowcostdex.sim.effects.supply import SupplyResistance
 
 # ------------------------------------------------------------------------------------------------
@@ -502,60 +502,6 @@ class Quantization(Effect):
 
 # ------------------------------------------------------------------------------------------------
 # exogenous effects (need measured channels)
-
-
-class ThermalDerating(Effect):
-    name = "thermal_derating"
-    kind = "exogenous"
-    requires = ("temperature",)
-    doc = "winding resistance rises with the measured temperature: R = R0 (1 + a (T - T_ref))"
-    params = (Param("tempcoef", 0.0, 0.0, 0.03, "1/K", (0.0039, 0.0039), start=0.004,
-                    limit=(0.0, 0.1)),)
-
-    @classmethod
-    def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
-                  gain: np.ndarray) -> None:
-        temp = channels["temperature"]  # (..., n_targets) [deg C]
-        tref = f.nominal("actuator_gainprm")[t.actuators, servo.GAIN_TREF]
-        # servos compiled without a thermal state carry no reference: use 25 deg C
-        tref = np.where(tref > 0, tref, DEFAULT_REFERENCE_TEMPERATURE)
-        factor = 1.0 + v["tempcoef"] * (temp - tref)
-        _scale_resistance(gain, t.actuators, np.maximum(factor, 0.2))
-
-
-class VoltageSag(Effect):
-    name = "voltage_sag"
-    kind = "exogenous"
-    requires = ("voltage",)
-    doc = ("the supply follows the measured input voltage instead of the nominal one: "
-           "V = V_nom + weight (V_meas - V_nom)")
-    params = (Param("weight", 0.0, 0.0, 1.5, "1", (1.0, 1.0), start=0.5, limit=(0.0, 3.0)),)
-
-    @classmethod
-    def exogenous(cls, f: Fields, t: Targets, v: Values, channels: Mapping[str, np.ndarray],
-                  gain: np.ndarray) -> None:
-        vm = channels["voltage"]  # (..., n_targets) [V]
-        a = t.actuators
-        vnom = f.nominal("actuator_user")[a, servo.USER_SUPPLY_VOLTAGE]
-        ratio = 1.0 + v["weight"] * (vm - vnom) / vnom
-        ratio = np.maximum(ratio, 0.05)
-        gain[..., a, servo.GAIN_KP] *= ratio
-        gain[..., a, servo.GAIN_KI] *= ratio
-        gain[..., a, servo.GAIN_VMAX] *= ratio
-        backemf = gain[..., a, servo.GAIN_K] ** 2 / gain[..., a, servo.GAIN_R]
-        gain[..., a, servo.GAIN_KD] = backemf + (gain[..., a, servo.GAIN_KD] - backemf) * ratio
-
-
-def _scale_resistance(gain: np.ndarray, a: np.ndarray, factor: np.ndarray) -> None:
-    """R -> R * factor, keeping the firmware's voltage gains (kp, kd in torque space scale 1/R)."""
-    k = gain[..., a, servo.GAIN_K]
-    r = gain[..., a, servo.GAIN_R]
-    backemf = k * k / r
-    extra_kd = gain[..., a, servo.GAIN_KD] - backemf
-    gain[..., a, servo.GAIN_R] = r * factor
-    gain[..., a, servo.GAIN_KP] /= factor
-    gain[..., a, servo.GAIN_KI] /= factor
-    gain[..., a, servo.GAIN_KD] = backemf / factor + extra_kd / factor
 
 
 EFFECTS: dict[str, type[Effect]] = {
