@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from collections.abc import Callable
 
 
@@ -89,13 +90,21 @@ def integer(low: int | None = None, high: int | None = None) -> Callable[[str], 
     return parse
 
 
+def home(text: str) -> str:
+    """``text`` with a leading ``~`` or ``~user`` read as that home folder, as the shell reads it.
+    The shell leaves ``--out=~/runs`` and ``--out "~/runs"`` alone, and pathlib too: the output
+    went to a folder named ``~`` in the working folder (whose ``rm -r ~`` removes the home)."""
+    return os.path.expanduser(text) if text.startswith("~") else text
+
+
 def path(text: str) -> str:
     """A path that is not empty: "" (``--out "$OUT"`` with OUT unset) is the current folder to
-    pathlib, where a run would be written beside the user's own files."""
+    pathlib, where a run would be written beside the user's own files. A leading ``~`` is the
+    home folder (:func:`home`)."""
     if not text.strip():
         raise argparse.ArgumentTypeError(f"{text!r} is an empty path (an unset shell "
                                          "variable?); give a path")
-    return text
+    return home(text)
 
 
 SEED = integer(0)

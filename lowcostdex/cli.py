@@ -31,11 +31,13 @@ COMMAND_MODULES: tuple[str, ...] = (
     "lowcostdex.demonstrations.cli",
 )
 # the exit codes live in the core (lowcostdex.errors) so that any layer can name them
+from lowcostdex.argtypes import home  # noqa: E402
 from lowcostdex.errors import INTERRUPTED, USER_ERROR  # noqa: E402
 
 PATH_OPTIONS = ("out", "json", "demos", "spec", "effects", "model", "port", "log", "holdout")
 """Options that name a file, folder or device: an empty one is refused (``Path("")`` is the
-working directory, so ``train --out ""`` wrote a run among the user's files)."""
+working directory, so ``train --out ""`` wrote a run among the user's files), and a leading
+``~`` is the home folder (``--out=~/runs`` and ``--out "~/runs"`` reach us unexpanded)."""
 
 
 class Parser(argparse.ArgumentParser):
@@ -112,6 +114,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             what = "is empty" if value == "" else "has an empty path"
             return _report(prog, f"--{dest} {what} (an unset shell variable?); give a path",
                            False, USER_ERROR)
+        if isinstance(value, str):
+            setattr(args, dest, home(value))
+        elif isinstance(value, list):
+            setattr(args, dest, [home(v) if isinstance(v, str) else v for v in value])
     return guarded(prog, lambda: args.func(args), debug)
 
 

@@ -141,11 +141,31 @@ def write_marker(path: str | Path, command: str,
     write_text_atomic(out / MARKER, json.dumps(data, indent=2))
 
 
+def umask() -> int:
+    """The process's file-mode creation mask (read by setting it and setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def usual_mode(path: str | Path, fd: int | None = None, *, folder: bool = False) -> None:
+    """Give a file (or, with ``folder``, a folder) made by ``tempfile`` the mode a plain
+    ``open``/``mkdir`` gives: ``mkstemp`` makes 0600 files and ``mkdtemp`` 0700 folders, so
+    an output written through them and moved into place was unreadable to the user's group
+    and other users (a lab's shared run folder, a web server serving a report)."""
+    mode = (0o777 if folder else 0o666) & ~umask()
+    if fd is not None:
+        os.fchmod(fd, mode)
+    else:
+        os.chmod(path, mode)
+
+
 def write_text_atomic(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
+        usual_mode(tmp, fd)
         with os.fdopen(fd, "w") as f:
             f.write(text)
         os.replace(tmp, path)
@@ -195,6 +215,7 @@ def staged_output(path: str | Path, command: str,
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     try:
+        usual_mode(tmp, folder=True)
         yield tmp
         write_marker(tmp, command, settings)
     except BaseException:

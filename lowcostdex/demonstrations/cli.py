@@ -129,7 +129,7 @@ def _record_demos(args: argparse.Namespace) -> int:
                           f"{args.successes}")
     tasks = TASKS[args.hand]
     if args.task not in tasks:
-        raise ConfigError(f"--task {args.task!r} is not a {args.hand} task; valid: "
+        raise ConfigError(f"--task {args.task!r} is not a task of --hand {args.hand}; valid: "
                           f"{', '.join(tasks)}")
     if args.labels != "servo_goal" and args.playbacks:
         raise ConfigError(f"--playbacks {args.playbacks}: playbacks are labelled by the servo "

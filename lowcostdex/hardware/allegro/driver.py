@@ -133,6 +133,10 @@ def check_can_channel(channel: str, interface: str = "socketcan") -> None:
     if not sys.platform.startswith("linux"):
         raise BusError(f"CAN channel {channel!r}: SocketCAN needs Linux; on this system give "
                        "the adapter's python-can interface (e.g. interface='pcan')")
+    if "/" in str(channel) or str(channel).startswith("tty"):  # not an interface name
+        raise BusError(f"CAN channel {channel!r} is a device path, not a CAN network interface "
+                       "(e.g. can0; `ip link` lists them); a serial device such as "
+                       "/dev/ttyUSB0 is a D'Claw's Dynamixel bus, not the Allegro's")
     if not os.path.exists(os.path.join("/sys/class/net", str(channel))):
         raise BusError(f"CAN channel {channel!r}: no such network interface on this machine "
                        "(`ip link` lists them); plug in the CAN adapter and bring it up: "

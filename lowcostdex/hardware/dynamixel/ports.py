@@ -10,6 +10,7 @@ by default on Linux, which makes every read wait; 1 ms is what a control loop ne
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -159,6 +160,11 @@ def _group_of(device: str) -> tuple[str | None, bool | None]:
 
 
 SERIAL_PATTERNS = ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/tty.usbserial*", "/dev/tty.usbmodem*")
+_CAN_NAME = re.compile(r"(v|sl)?can\d+")
+"""SocketCAN interface names (``can0``, ``vcan0``, ``slcan0``): given to a D'Claw command, they
+passed the check and failed after the output folder was written."""
+_TTY_NAME = re.compile(r"tty(USB|ACM|S)\d+")
+"""A serial device named without ``/dev/`` (opened relative to the working folder)."""
 
 
 def check_port(port: str) -> None:
@@ -173,6 +179,13 @@ def check_port(port: str) -> None:
         return
     path = Path(port)
     if not port.startswith("/") and not path.exists():
+        if os.path.exists(os.path.join("/sys/class/net", port)) or _CAN_NAME.fullmatch(port):
+            raise InputError(f"--port {port} is a CAN channel (the Allegro hand's bus), not the "
+                             "serial device of a Dynamixel bus (e.g. /dev/ttyUSB0); the "
+                             "commands that drive the Allegro take it with --hand allegro")
+        if os.path.exists(os.path.join("/dev", port)) or _TTY_NAME.fullmatch(port):
+            raise InputError(f"--port {port}: no such file here; the serial device is "
+                             f"/dev/{port}")
         return
     if not path.exists():
         import glob
