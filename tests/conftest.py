@@ -60,3 +60,72 @@ def pytest_addoption(parser):
                     help="serial port of a real D'Claw for the `hardware` acceptance tests")
     group.addoption("--can-channel", default=None,
                     help="CAN channel of a real Allegro hand for the `hardware` acceptance tests")
+
+
+# ------------------------------------------------------------------------------------------------
+# README's test command runs on two pytest-xdist workers, one test file at a time per worker
+# (`-n 2 --dist loadfile`). xdist hands files out by number of tests, most first, so a heavy file
+# with few tests (test_gap_hidden.py: 7 tests, ~170 CPU-s) started near the end and one worker ran
+# on alone for minutes (CI at 26fee1b: 126 % CPU over 27:34). The files below go first, heaviest
+# first (longest-processing-time-first); every other file keeps xdist's order. Estimated CPU
+# seconds per file (tests-fast12's sampling, session 17; test_gap_independent split in session 20):
+# only the order matters, not the numbers' accuracy.
+HEAVY_FILES = {
+    "test_gap_independent_bench.py": 340,
+    "test_gap_independent_finger.py": 280,
+    "test_main_job.py": 214,
+    "test_gap_hidden.py": 167,
+    "test_gap_independent_wide.py": 120,
+    "test_gap_redteam.py": 94,
+    "test_gap_decisions.py": 93,
+    "test_flip_main_job.py": 70,
+    "test_transfer.py": 67,
+    "test_gap_actuator_kinds.py": 40,
+    "test_demos_recording.py": 38,
+    "test_flip_pinch.py": 32,
+    "test_gap_coulomb_stall.py": 29,
+    "test_gap_independent.py": 25,
+}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadfile`` with the files of ``HEAVY_FILES`` handed out first, heaviest first."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class HeaviestFirst(LoadFileScheduling):
+        def _assign_work_unit(self, node):
+            # move the heaviest listed file still waiting to the front of the queue
+            scope = max(self.workqueue, key=lambda s: HEAVY_FILES.get(s.rsplit("/", 1)[-1], 0))
+            self.workqueue.move_to_end(scope, last=False)
+            super()._assign_work_unit(node)
+
+    return HeaviestFirst(config, log)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """On a run of 20 files or more: the wall seconds of the slowest files (setup + call +
+    teardown summed) and, under xdist, per worker, so the next rebalance has CI's numbers."""
+    per_file: dict[str, float] = {}
+    per_worker: dict[str, float] = {}
+    for reports in terminalreporter.stats.values():
+        for rep in reports:
+            if not hasattr(rep, "duration") or not hasattr(rep, "nodeid"):
+                continue
+            f = rep.nodeid.split("::")[0]
+            per_file[f] = per_file.get(f, 0.0) + rep.duration
+            node = getattr(rep, "node", None)
+            if node is not None:
+                wid = node.gateway.id
+                per_worker[wid] = per_worker.get(wid, 0.0) + rep.duration
+    if len(per_file) < 20:
+        return
+    tr = terminalreporter
+    tr.write_sep("=", "slowest 15 test files (wall s)")
+    for f, s in sorted(per_file.items(), key=lambda kv: -kv[1])[:15]:
+        tr.write_line(f"{s:8.1f}  {f}")
+    if per_worker:
+        tr.write_line("per worker (wall s): " + ", ".join(
+            f"{w} {s:.0f}" for w, s in sorted(per_worker.items())))
