@@ -161,3 +161,81 @@ def test_a_windows_port_name_is_still_left_to_the_bus():
 
     check_port("COM3")  # careless13's transfer test relies on it: no refusal here
     check_port("emulated")
+
+
+# ------------------------------------------------------------------------------------------------
+# JSON logs of other layouts
+
+
+def _finger_log_rows() -> list[dict]:
+    """A 3 s log of the bench joint 'arm' as rows of the project's columns."""
+    import math
+
+    return [{"time": k / 100, "goal:arm": 0.3 * math.sin(k / 30),
+             "qpos:arm": 0.27 * math.sin((k - 3) / 30)} for k in range(300)]
+
+
+def _analyze(tmp_path, capsys, *logs: str) -> tuple[int, str]:
+    from test_bad_inputs import bench_model
+
+    (tmp_path / "bench.xml").write_text(bench_model())
+    return _run(["gap", "analyze", "--model", str(tmp_path / "bench.xml"), "--log",
+                 *(str(tmp_path / name) for name in logs), "--out", str(tmp_path / "report")],
+                capsys)
+
+
+def _columns(rows: list[dict]) -> dict[str, list]:
+    return {k: [r[k] for r in rows] for k in rows[0]}
+
+
+@pytest.mark.parametrize("layout, data", [
+    ("a list of rows", lambda rows: rows),
+    ("an object of columns", _columns),
+    ("pandas' split layout",  # DataFrame.to_json(orient="split")
+     lambda rows: {"columns": list(rows[0]), "index": list(range(len(rows))),
+                   "data": [list(r.values()) for r in rows]}),
+])
+def test_a_json_log_in_the_projects_columns_is_told_how_to_be_read(tmp_path, capsys, layout,
+                                                                     data):
+    import csv
+    import json
+
+    rows = _finger_log_rows()
+    (tmp_path / "log.json").write_text(json.dumps(data(rows)))
+    code, err = _analyze(tmp_path, capsys, "log.json")
+    assert code == 2
+    assert f"holds the project's log columns ({layout}: goal:arm, qpos:arm, time) as JSON" in err
+    assert "the project's logs are CSV or NPZ. Write it as a CSV with the same columns" in err
+    assert not (tmp_path / "report").exists()
+    # beside CSV logs: the same words, not "mixing BAM JSON logs and project logs"
+    with open(tmp_path / "log.csv", "w", newline="") as f:  # what the message says to do
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    code, err = _analyze(tmp_path, capsys, "log.csv", "log.json")
+    assert code == 2 and "holds the project's log columns" in err
+    from lowcostdex.gap.dataset import load_dataset
+
+    (traj,) = load_dataset([tmp_path / "log.csv"], model=tmp_path / "bench.xml").trajectories
+    assert traj.time.tolist() == [r["time"] for r in rows]
+
+
+def test_lerobot_frames_and_a_list_of_bam_logs_are_named(tmp_path, capsys):
+    import json
+
+    from test_bad_inputs import bam_log
+
+    frames = [{"timestamp": k / 30, "frame_index": k, "episode_index": 0,
+               "observation.state": [0.1, 0.2], "action": [0.1, 0.25]} for k in range(90)]
+    (tmp_path / "episode_000000.json").write_text(json.dumps(frames))
+    code, err = _analyze(tmp_path, capsys, "episode_000000.json")
+    assert code == 2
+    assert "looks like LeRobot-style frames ('observation.state' / 'action' vectors" in err
+    assert "'goal:<actuator>' (each action element: the command)" in err
+    (tmp_path / "episode_000000.parquet").write_bytes(b"PAR1" + bytes(64) + b"PAR1")
+    code, err = _analyze(tmp_path, capsys, "episode_000000.parquet")
+    assert code == 2 and "a LeRobot dataset's episode file? write each episode as a CSV" in err
+    (tmp_path / "two.json").write_text(json.dumps([bam_log(), bam_log()]))
+    code, err = _run(["gap", "identify", "--log", str(tmp_path / "two.json")], capsys)
+    assert code == 2
+    assert "must be a JSON object, got list; it is a list of BAM logs: give each its own" in err

@@ -178,6 +178,46 @@ def _vin_from_entries(path: Path, entries: object) -> tuple[float, str]:
                f"input_volts, {v:.2f} V")
 
 
+_PROJECT_CHANNELS = ("goal", "qpos", "qvel", "current")
+_LEROBOT_KEYS = ("observation.state", "action")
+
+
+def _json_keys(raw: object) -> tuple[set[str], str]:
+    """The column names a JSON table holds and its layout: a list of rows (objects), an object
+    of columns, or pandas' ``to_json(orient="split")``; (set(), "") for anything else."""
+    if isinstance(raw, list) and raw and all(isinstance(r, dict) for r in raw[:100]):
+        return set().union(*(map(str, r) for r in raw[:100])), "a list of rows"
+    if isinstance(raw, dict) and isinstance(raw.get("columns"), list) and "data" in raw:
+        return set(map(str, raw["columns"])), "pandas' split layout"
+    if isinstance(raw, dict):
+        return set(map(str, raw)), "an object of columns"
+    return set(), ""
+
+
+def other_json_log(raw: object) -> str:
+    """What to do with a JSON log that is not BAM's raw format, when its keys say what it is
+    (text to append to the refusal; "" otherwise): the project's own columns written as JSON
+    (read from CSV or NPZ), LeRobot-style frames (vectors of all joints per step), or a list of
+    BAM logs in one file."""
+    keys, layout = _json_keys(raw)
+    if isinstance(raw, list) and raw and isinstance(raw[0], dict) and "entries" in raw[0]:
+        return "; it is a list of BAM logs: give each its own .json file"
+    if any(":" in k and k.split(":", 1)[0].strip().lower() in _PROJECT_CHANNELS for k in keys):
+        orient = ", orient='split'" if layout == "pandas' split layout" else ""
+        return (f"; it holds the project's log columns ({layout}: "
+                f"{', '.join(sorted(keys)[:4])}{', ...' if len(keys) > 4 else ''}) as JSON, and "
+                "a JSON log is read as BAM's raw format only: the project's logs are CSV or NPZ. "
+                f"Write it as a CSV with the same columns, e.g. pandas.read_json(PATH{orient})"
+                ".to_csv('log.csv', index=False), and give that")
+    if any(k in keys for k in _LEROBOT_KEYS):
+        return ("; it looks like LeRobot-style frames ('observation.state' / 'action' vectors "
+                "of all joints per step), which the gap analysis does not read: write a CSV "
+                "with one column per joint, 'time' [s] (the frames' timestamp), "
+                "'goal:<actuator>' (each action element: the command) and 'qpos:<joint>' (each "
+                "state element [rad]), named as in your MJCF model (docs/gap_analysis.md)")
+    return ""
+
+
 def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajectory, BenchConfig]:
     """Map a BAM raw log onto the servo bench.
 
@@ -215,12 +255,14 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
     except (OSError, ValueError) as exc:  # JSONDecodeError is a ValueError
         raise LogError(f"{path}: not a readable BAM JSON log ({exc})") from None
     if not isinstance(raw, dict):
-        raise LogError(f"{path}: BAM log must be a JSON object, got {type(raw).__name__}")
+        raise LogError(f"{path}: BAM log must be a JSON object, got {type(raw).__name__}"
+                       + other_json_log(raw))
     missing = [k for k in _BAM_HEADER if k not in raw]
     if len(missing) == len(_BAM_HEADER):  # another JSON file, e.g. a settings or results file
         keys = ", ".join(sorted(map(str, raw))[:8]) or "none"
         raise LogError(f"{path}: not a BAM raw log (its keys: {keys}); a BAM raw log is an "
-                       f"object with {', '.join(_BAM_HEADER)} (Rhoban/bam's acquisition format)")
+                       f"object with {', '.join(_BAM_HEADER)} (Rhoban/bam's acquisition format)"
+                       + other_json_log(raw))
     if "arm_mass" not in raw and "arm-mass" in raw:
         # BAM's Dynamixel recorder (bam/dynamixel/record.py) writes the arm's mass as "arm-mass";
         # BAM's loader (bam/logs.py) reads it as arm_mass, and so does this one

@@ -254,6 +254,9 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     if bench is None:
         bench = all(bam)
         if any(bam) and not all(bam):
+            for p, b in zip(paths, bam, strict=True):  # a JSON that is no BAM log: say what
+                if b:                                  # it holds (the project's columns?)
+                    read_bam(p, timestep=timestep)
             raise LogError("mixing BAM JSON logs and project logs in one analysis is not "
                            "supported")
     models: dict[str, str] = {}

@@ -113,7 +113,11 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     elif suffix == ".csv":
         cols, notes = read_csv(path, MAX_SAMPLES)
     else:
-        raise LogError(f"{path}: unknown log type {suffix!r}; valid: .csv, .npz, .json (BAM)")
+        hint = (" (a LeRobot dataset's episode file? write each episode as a CSV with one "
+                "column per joint: 'time', 'goal:<actuator>', 'qpos:<joint>')"
+                if suffix == ".parquet" else "")
+        raise LogError(f"{path}: unknown log type {suffix!r}; valid: .csv, .npz, .json (BAM)"
+                       + hint)
     for k, v in cols.items():
         if v.ndim != 1:
             raise LogError(f"{path}: column {k!r} must be 1-D, got shape {v.shape}")
