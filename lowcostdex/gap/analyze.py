@@ -50,7 +50,7 @@ from collections.abc import Callable, Sequence
 import mujoco
 import numpy as np
 
-from lowcostdex.gap import chaos, gates, play_side, significance, stepsize, width_scan
+from lowcostdex.gap import chaos, gates, play_side, significance, standin, stepsize, width_scan
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
 from lowcostdex.gap.diagnostics import (
@@ -72,7 +72,6 @@ from lowcostdex.gap.results import (
     GapResult,
     bound_flags,
     param_report,
-    verdict_text,
 )
 from lowcostdex.gap.selection import (
     fit_batches,
@@ -501,7 +500,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             c.equivalent = equivalents.get(e.name, [])
             c.widened = widened_notes.get(e.name) or gates.widened_lines(ctx, e.name, joints)
             causes.append(c)
-    verdict = verdict_text(causes, gain, stop_reason, int(np.sum(e_sse > b_sse)))
+    verdict = standin.judge(causes, final_track, gain, stop_reason, int(np.sum(e_sse > b_sse)))
     timing["total"] = time.perf_counter() - t_start
     traces = _traces(ds, test_eps, base_test, ext_pred)
     prog("done", 1.0)

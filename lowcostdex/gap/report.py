@@ -86,6 +86,7 @@ def summary(result: GapResult) -> str:
                                                                  if c.flags else "")
                      + (f" (equivalent: {', '.join(c.equivalent)})" if c.equivalent else ""))
         lines += [f"    range widened: {w}" for w in c.widened]
+        lines += [f"    stand-in: {w}" for w in c.stand_in]
     return "\n".join(lines)
 
 
@@ -142,6 +143,8 @@ def markdown(result: GapResult) -> str:
             for w in c.widened:
                 out.append(f"\n> range widened: {c.effect}: {w} (a size beyond the usual "
                            "range: check it is physical)")
+            for w in c.stand_in:
+                out.append(f"\n> stand-in: {c.effect}: {w}")
             if c.equivalent:
                 out.append(f"\n> {c.effect} and {', '.join(c.equivalent)} explain the select "
                            "data equally well (not identifiable from these logs); "

@@ -248,6 +248,7 @@ class Cause:
     flags: list[str] = field(default_factory=list)
     equivalent: list[str] = field(default_factory=list)  # explain the select data as well
     widened: list[str] = field(default_factory=list)  # search ranges widened beyond the usual
+    stand_in: list[str] = field(default_factory=list)  # what else it may stand for (gap.standin)
 
 
 @dataclass
@@ -312,7 +313,8 @@ def _ep(w: Window, sources: list[str]) -> dict:
 def _cause_dict(c: Cause) -> dict:
     return {"effect": c.effect, "joints": list(c.joints), "params": c.params,
             "heldout_rmse_after": c.heldout_rmse_after, "heldout_mae_after": c.heldout_mae_after,
-            "flags": c.flags, "equivalent": c.equivalent, "widened": c.widened}
+            "flags": c.flags, "equivalent": c.equivalent, "widened": c.widened,
+            "stand_in": c.stand_in}
 
 
 def _cand_dict(c: CandidateResult) -> dict:
@@ -368,22 +370,46 @@ def bound_flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
             for i, side in fitmod.at_bounds(s, u) if s.free[i].effect == name]
 
 
-def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str, worse: int = 0) -> str:
+def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str, worse: int = 0,
+                 stand_ins: dict[str, str] | None = None) -> str:
     """The one-line verdict. ``worse``: the test episodes on which the extended model's error
     is above the nominal one's. With causes, "no reliable gain" (the extended model not
     recommended) when it is worse on most test episodes or the gain's 95 % interval over them
     reaches below zero (issue 11 item 5: Pham XL330 read "79 % lower" while worse on 3 of 4).
     A lower bound of exactly zero is a tie, not a loss: an effect that acts in some test
     episodes only (a torque limit the arm reaches in one log of three) leaves the others'
-    predictions unchanged, and resampling those alone gives a gain of 0, never below."""
+    predictions unchanged, and resampling those alone gives a gain of 0, never below. A gain
+    that is not reliable while the extended model stays above ``UNEXPLAINED`` noise floors
+    leaves the discrepancy unexplained: the verdict says so and calls the named effects a
+    partial stand-in at best (sim6 deadband_torque: a PWM deadband, outside the catalogue,
+    485 -> 168 mrad by a gain error, interval [-49.6, 603] mrad). ``stand_ins``: effect -> a
+    short warning written beside its name (``gap.standin``: an offset that may be a
+    centre-of-mass shift)."""
     if not causes:
         if gain.baseline_rmse > UNEXPLAINED * gain.noise_floor:
             return (f"discrepancy not explained by the candidate effects (held-out RMSE "
                     f"{gain.baseline_rmse:.4g} rad, {gain.baseline_rmse / gain.noise_floor:.0f}x "
                     f"the noise floor; the selection stopped: {stop_reason})")
         return "no significant discrepancy"
-    names = ", ".join(c.effect for c in causes)
+    names = ", ".join(c.effect + (f" ({stand_ins[c.effect]})" if c.effect in (stand_ins or {})
+                                  else "") for c in causes)
     nums = f"held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad"
+    why = unreliable(gain, worse)
+    if why:
+        left = ""
+        if partial_stand_in(gain, worse):
+            left = (f"; the discrepancy is not explained ({gain.extended_rmse / gain.noise_floor:.0f}"
+                    f"x the noise floor left): {', '.join(c.effect for c in causes)} at best a "
+                    "partial stand-in for something outside the candidate effects")
+        return (f"{names}: no reliable gain ({nums}; {'; '.join(why)}): the extended model is "
+                f"not recommended{left}")
+    return f"{names}: {nums} ({100 * gain.relative:.0f} % lower)"
+
+
+def unreliable(gain: Gain, worse: int = 0) -> list[str]:
+    """Why the held-out gain is not reliable ([] when it is): worse than the nominal model on
+    most of the ``gain.episodes`` test episodes (``worse`` of them), the gain's 95 % interval
+    below zero, or no gain at all (``verdict_text``)."""
     why = []
     if 2 * worse > gain.episodes:
         why.append(f"worse than the nominal model on {worse} of {gain.episodes} test episodes")
@@ -392,10 +418,13 @@ def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str, worse: i
                    f"{1e3 * gain.ci95[1]:.3g}] mrad includes zero")
     if gain.absolute <= 0 and not why:
         why.append("no lower than the nominal model's")
-    if why:
-        return (f"{names}: no reliable gain ({nums}; {'; '.join(why)}): the extended model is "
-                "not recommended")
-    return f"{names}: {nums} ({100 * gain.relative:.0f} % lower)"
+    return why
+
+
+def partial_stand_in(gain: Gain, worse: int = 0) -> bool:
+    """The named effects are at best a partial stand-in: their held-out gain is not reliable
+    and the extended model stays above ``UNEXPLAINED`` noise floors."""
+    return bool(unreliable(gain, worse)) and gain.extended_rmse > UNEXPLAINED * gain.noise_floor
 
 
 def timestep_note(timestep: dict) -> str:

@@ -1,0 +1,109 @@
+"""When a named calibration offset may stand in for something else: the fit's own statistics.
+
+A reading or mounting offset moves the angle at which the model's gravity acts. Under a torque
+replay (the logged torques applied open loop) or a loop closed on the offset encoder, that is how
+the logs see it: the gravity torque of a link, m g l cos(q - offset). A centre of mass moved a
+distance d across a link of length l gives m g sqrt(l^2 + d^2) cos(q - atan(d / l)): the same
+angle shift with a mass factor; a tilted base or a bent link shifts the angle too. When the fit
+also frees the links' mass (``mass_error``), the two trade: what the data says about the offset
+is in large part what it says about the mass. The offset then explains the data without showing
+that the encoder is off: re-zeroing it by the fitted angle would move a correct zero.
+
+The rule (``stand_in_notes``): an offset whose 95 % interval excludes zero is flagged when the
+final fit's information (J^T J of its residuals) on it is shared with the mass parameters:
+``shared`` = 1 - var(offset | masses held) / var(offset | masses free) >= ``SHARED`` (the
+squared multiple correlation of the offset with the masses; 0.5: half of what the data says about
+the offset is also explained by a mass change). Measured on sim6's com_offset_torque (a 5 mm
+centre-of-mass shift; session 20, gap-judge15): the fitted pip/dip offsets -93/-98 mrad share
+0.73/0.87 with mass_error. An offset named without a mass effect (every sim2-sim5 and
+test_gap_independent offset case whose truth is an offset) is not judged: nothing in the fit
+trades with it. The rule does not see an offset that alone stands in for a centre-of-mass shift
+(no mass effect freed beside it).
+
+``judge`` writes these notes on the causes and the verdict; a cause whose held-out gain is not
+reliable while the discrepancy stays above the noise floors is noted as a partial stand-in too
+(``results.verdict_text``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap.gain import Gain
+from lowcostdex.gap.results import Cause, partial_stand_in, verdict_text
+from lowcostdex.gap.spaces import Free
+
+OFFSETS = ("position_offset", "mounting_offset")  # calibration offsets a user would re-zero
+LOADS = (("mass_error", "scale"),)  # parameters that scale the gravity load itself
+SHARED = 0.5
+ALTERNATIVES = "a centre-of-mass shift, link geometry or a tilted base"
+
+
+def shared_information(jac: np.ndarray, i: int, others: Sequence[int]) -> float:
+    """Share of column ``i``'s information that columns ``others`` also carry: 1 - var(i |
+    others held) / var(i | all free) from J^T J (the squared multiple correlation of parameter
+    ``i`` with ``others`` in the Gauss-Newton covariance); 0 without ``others``."""
+    if not len(others):
+        return 0.0
+    a = jac.T @ jac
+    full = np.linalg.pinv(a)[i, i]
+    keep = [k for k in range(a.shape[0]) if k not in set(others)]
+    held = np.linalg.pinv(a[np.ix_(keep, keep)])[keep.index(i), keep.index(i)]
+    return float(1.0 - held / full) if full > 0 else 0.0
+
+
+def stand_in_notes(free: Sequence[Free], joints: Sequence[str], jac: np.ndarray | None,
+                   params: dict[str, dict]) -> dict[str, list[str]]:
+    """Offset effect -> notes (one per effect, naming its joints) for offsets the fit trades
+    against a gravity load (module docstring). ``free``: the final fit's free scalars, in
+    ``jac``'s column order; ``params``: effect -> ``param_report`` dict (values, intervals)."""
+    if jac is None or not len(free):
+        return {}
+    loads = [k for k, f in enumerate(free) if (f.effect, f.param) in LOADS]
+    out: dict[str, list[str]] = {}
+    for name in OFFSETS:
+        hits = []
+        for k, f in enumerate(free):
+            if f.effect != name or not loads:
+                continue
+            d = params.get(name, {}).get(f.param)
+            if d is None:
+                continue
+            lo, hi = d["interval"][f.joint]
+            if lo <= 0.0 <= hi:  # no offset shown: nothing to re-zero
+                continue
+            share = shared_information(jac, k, loads)
+            if share >= SHARED:
+                hits.append((joints[f.joint], d["value"][f.joint], share))
+        if hits:
+            where = ", ".join(f"{j} {1e3 * v:.3g} mrad: {100 * sh:.0f} %" for j, v, sh in hits)
+            out[name] = [f"may stand in for {ALTERNATIVES}: the fit trades the offset against "
+                         f"mass_error (share of its information: {where}); an offset moves the "
+                         "angle at which gravity acts, as those do: it explains the data but "
+                         "does not show that the encoder is off; check the zero against a "
+                         "reference pose before re-zeroing"]
+    return out
+
+
+def judge(causes: Sequence[Cause], track: fitmod.Track | None, gain: Gain, stop_reason: str,
+          worse: int = 0) -> str:
+    """Write each cause's ``stand_in`` notes and return the verdict (``results.verdict_text``):
+    offsets the final fit ``track`` trades against a gravity load (``stand_in_notes``), and every
+    cause when the held-out gain is not reliable and the discrepancy stays above ``UNEXPLAINED``
+    noise floors (``worse``: test episodes on which the extended model is worse)."""
+    notes = (stand_in_notes(track.structure.free, track.structure.joints, track.jac,
+                            {c.effect: c.params for c in causes}) if track is not None else {})
+    short = {}
+    for c in causes:
+        c.stand_in = list(notes.get(c.effect, []))
+        if c.stand_in:
+            short[c.effect] = f"may stand in for {ALTERNATIVES}: check before re-zeroing"
+    if causes and partial_stand_in(gain, worse):  # above UNEXPLAINED floors, gain not reliable
+        for c in causes:
+            c.stand_in.append("at best a partial stand-in: its held-out gain is not reliable "
+                              "and the discrepancy is not explained (see the verdict); "
+                              "something outside the candidate effects may be at work")
+    return verdict_text(causes, gain, stop_reason, worse, short)
