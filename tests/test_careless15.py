@@ -239,3 +239,46 @@ def test_lerobot_frames_and_a_list_of_bam_logs_are_named(tmp_path, capsys):
     code, err = _run(["gap", "identify", "--log", str(tmp_path / "two.json")], capsys)
     assert code == 2
     assert "must be a JSON object, got list; it is a list of BAM logs: give each its own" in err
+
+
+# ------------------------------------------------------------------------------------------------
+# GapConfig.test_logs from Python, counting files
+
+
+def _gap_logs(tmp_path) -> Path:
+    """bench.xml, a.csv (8 s with logging paused 2 s after 4 s: two pieces) and b.csv (8 s)."""
+    from test_bad_inputs import bench_model, csv_text, servo_log
+
+    (tmp_path / "bench.xml").write_text(bench_model())
+    paused = servo_log()
+    paused["time"] = paused["time"] + 2.0 * (paused["time"] >= 4.0)
+    (tmp_path / "a.csv").write_text(csv_text(paused))
+    (tmp_path / "b.csv").write_text(csv_text(servo_log()))
+    return tmp_path
+
+
+def test_test_logs_that_hold_out_part_of_a_paused_log_are_refused(tmp_path):
+    import numpy as np
+
+    from lowcostdex.gap.dataset import episodes, load_dataset, split_episodes
+    from lowcostdex.gap.trajectory import LogError
+
+    d = _gap_logs(tmp_path)
+    ds = load_dataset([d / "a.csv", d / "b.csv"], model=d / "bench.xml")
+    assert [Path(s).name for s in ds.sources] == ["a.csv", "a.csv", "b.csv"]  # a.csv: 2 pieces
+    eps = episodes(ds, None)
+
+    def split(test):
+        return split_episodes(ds, eps, np.random.default_rng(0), test)
+
+    # (1,) meant "the second file", b.csv: it is a.csv's second piece, and a.csv's first piece
+    # would have been fitted while its second was scored as held out
+    with pytest.raises(LogError, match=r"test_logs holds out trajectory 1 of .*a\.csv but not 0: "
+                       r"that log is trajectories 0, 1 of ds\.trajectories \(split at a time gap"):
+        split((1,))
+    with pytest.raises(LogError, match=r"test_logs \(3,\): the data set has 3 trajectories "
+                       r"\(indices 0\.\.2\)"):
+        split((3,))
+    held = split((2,)).test  # b.csv whole, and a.csv whole: the roles --holdout gives
+    assert {eps[i].traj for i in held} == {2}
+    assert {eps[i].traj for i in split((0, 1)).test} == {0, 1}

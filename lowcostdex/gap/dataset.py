@@ -534,6 +534,27 @@ def _strata(ds: Dataset, eps: Sequence[Window], idx: Sequence[int],
     return [lists[k] for k in rng.permutation(len(lists))]
 
 
+def _check_held_trajectories(ds: Dataset, held: set[int]) -> None:
+    """LogError for held-out indices (``GapConfig.test_logs``, of ``ds.trajectories``) that are
+    no trajectory, or hold out part of a log split at a time gap (its other pieces fitted while
+    it is scored as unseen: a Python caller counting files met it silently)."""
+    n = len(ds.trajectories)
+    if bad := sorted(i for i in held if not 0 <= i < n):
+        raise LogError(f"test_logs {tuple(bad)}: the data set has {n} trajectories (indices "
+                       f"0..{n - 1}); test_logs index ds.trajectories")
+    for source in dict.fromkeys(ds.sources if len(ds.sources) == n else ()):
+        mine = [i for i, s in enumerate(ds.sources) if s == source]
+        part = sorted(held.intersection(mine))
+        if part and len(part) < len(mine):
+            raise LogError(
+                f"test_logs holds out trajectory {', '.join(map(str, part))} of {source} but "
+                f"not {', '.join(str(i) for i in mine if i not in held)}: that log is "
+                f"trajectories {', '.join(map(str, mine))} of ds.trajectories (split at a time "
+                "gap, see Dataset.notes, or given twice), and test_logs index ds.trajectories, "
+                "not the files. Hold out all of its trajectories or none (ds.sources names "
+                "each trajectory's file)")
+
+
 def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
                    test_trajectories: Sequence[int] | None = None,
                    fractions: tuple[float, float] = (0.25, 0.25)) -> Split:
@@ -558,6 +579,7 @@ def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
     idx = np.arange(n)
     if test_trajectories is not None:
         held = set(test_trajectories)
+        _check_held_trajectories(ds, held)
         test = [i for i in idx if eps[i].traj in held]
         rest = [i for i in idx if eps[i].traj not in held]
         if not test or len(rest) < 2:

@@ -79,7 +79,9 @@ class GapConfig:
       burn_in: unscored start of segments that begin inside a log [s].
       chunk: episode length for long logs [s] (None: auto).
       max_rounds: Levenberg-Marquardt rounds per fit.
-      test_logs: indices of logs to hold out for the test (None: random episodes).
+      test_logs: indices of ``ds.trajectories`` to hold out for the test (None: random
+        episodes); one trajectory per log, except a log split at a time gap, whose pieces
+        (``ds.sources`` names each one's file) are held out together or not at all.
       bootstrap: bootstrap resamples.
       interval_block: block length of the data-spread interval [s]: a parameter's reported
         95 % interval is the wider of the residual-noise one (Jacobian, autocorrelation
