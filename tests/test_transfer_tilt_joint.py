@@ -61,14 +61,20 @@ def simulate(x, steps_per_goal=250):
     return np.asarray(out)
 
 
-@pytest.mark.parametrize("truth", [(0.04, -0.03, 0.003), (0.0, 0.0, 0.006)])
-def test_joint_fit_recovers_tilt_and_valve_friction(truth):
+# the paired profile test's episodes: one per goal (25 samples of 3 values each)
+SEGMENTS = np.repeat(np.arange(len(GOALS)), 25 * 3)
+
+
+@pytest.mark.parametrize(("truth", "groups"), [
+    ((0.04, -0.03, 0.003), None), ((0.0, 0.0, 0.006), None), ((0.04, -0.03, 0.003), SEGMENTS)],
+    ids=["tilted", "untilted", "tilted_paired_episodes"])
+def test_joint_fit_recovers_tilt_and_valve_friction(truth, groups):
     rng = np.random.default_rng(1)
     observed = simulate(np.array(truth))
     observed = observed + rng.normal(0, 1e-3, observed.shape)
     # the start: the nominal valve has no extra friction
     fit = fit_tilt_jointly(simulate, observed, x0=[0.0, 0.0, 0.0], grid=np.linspace(-0.1, 0.1, 5),
-                           **BOUNDS)
+                           groups=groups, **BOUNDS)
     for k in range(3):
         lo, hi = fit.intervals[k]
         assert lo <= truth[k] <= hi, (k, fit.values, fit.intervals)

@@ -22,7 +22,12 @@ applies (e.g. the valve's frictionloss [N m]). Stages:
    ``n_eff log(SSE / SSE_min) <= 3.84`` (Gaussian residuals; ``n_eff`` = samples over the
    residual's integrated autocorrelation time, so a trace's correlated samples are not counted as
    independent), widened by half a grid spacing; a hull touching the profile's end is unbounded
-   on that side (the cost was not looked at beyond). A tilt is named only when an angle's
+   on that side (the cost was not looked at beyond). With ``groups`` (the episode of every
+   sample: episodes are independent, samples inside one are not, and the model's own error
+   differs from episode to episode), a profile point is inside instead when the episodes do not
+   show it worse than the best point: the mean over episodes of the per-episode SSE increase is
+   at most t(0.975, E - 1) times its standard error (a paired test across the E episodes). A
+   tilt is named only when an angle's
    interval excludes 0. The other parameters' intervals are from the Jacobian of every parameter
    at the fit (marginal), with the same ``n_eff`` (reported, not used to name anything).
 
@@ -46,7 +51,8 @@ class JointTiltFit:
     rms_start: float        # RMS residual at zero tilt, the others at x0
     rms_fit: float          # RMS residual at the fit
     profiles: tuple[tuple[np.ndarray, np.ndarray], ...]  # per tilt angle: (angle grid, SSE)
-    threshold: float        # profile SSE at or under which an angle is inside its interval
+    inside: tuple[np.ndarray, ...]  # per tilt angle: which profile points passed the test
+    threshold: float        # profile SSE at or under which an angle is inside (no groups)
     n_eff: float            # effective number of independent residual samples
     grid_best: np.ndarray   # the best tilt of the global grid
     evaluations: int        # calls of simulate
@@ -129,8 +135,26 @@ def _refine(cost: _Cost, x: np.ndarray, r: np.ndarray, free: np.ndarray, lower: 
     return x, r
 
 
-def _hull(grid: np.ndarray, sse: np.ndarray, threshold: float) -> tuple[float, float]:
-    inside = np.flatnonzero(sse <= threshold)
+def _paired_inside(residuals: list[np.ndarray], best: np.ndarray, groups: np.ndarray
+                   ) -> np.ndarray:
+    """Profile points the episodes do not show worse than ``best`` (paired t across them)."""
+    from scipy.stats import t as student
+
+    labels, index = np.unique(groups, return_inverse=True)
+    e = labels.size
+    if e < 2:
+        raise ValueError("groups: need at least 2 episodes for the paired test")
+    base = np.bincount(index, best ** 2, minlength=e)
+    crit = float(student.ppf(0.975, e - 1))
+    out = []
+    for r in residuals:
+        d = np.bincount(index, r ** 2, minlength=e) - base
+        out.append(d.mean() <= crit * d.std(ddof=1) / np.sqrt(e))
+    return np.asarray(out, bool)
+
+
+def _hull(grid: np.ndarray, sse: np.ndarray, inside_mask: np.ndarray) -> tuple[float, float]:
+    inside = np.flatnonzero(inside_mask)
     if inside.size == 0:  # the profile's minimum itself: the fit's own point is inside
         inside = np.array([int(np.argmin(sse))])
     half = 0.5 * (grid[1] - grid[0]) if grid.size > 1 else 0.0
@@ -144,11 +168,13 @@ def fit_tilt_jointly(simulate: Callable[[np.ndarray], np.ndarray], observed: np.
                      step: Sequence[float], max_step: Sequence[float] | None = None,
                      grid: Sequence[float] = tuple(np.linspace(-0.1, 0.1, 9)), starts: int = 2,
                      iterations: int = 8, profile_half: float = 0.06, profile_points: int = 13,
-                     profile_iterations: int = 2) -> JointTiltFit:
+                     profile_iterations: int = 2, groups: Sequence[int] | None = None
+                     ) -> JointTiltFit:
     """Fit ``x = (ax, ay, others...)`` (module docstring). ``x0``: the start of the others (its
     first two entries, the tilt, are ignored: the grid sets them); ``lower``/``upper``: bounds of
     every parameter; ``step``: finite-difference steps; ``max_step``: largest Gauss-Newton step
-    per parameter (default 10 x ``step``)."""
+    per parameter (default 10 x ``step``); ``groups``: the episode of every sample of the
+    trace (the paired profile test; default: the likelihood ratio over ``n_eff``)."""
     x0 = np.asarray(x0, float).copy()
     lower, upper, step = (np.asarray(v, float) for v in (lower, upper, step))
     n = x0.size
@@ -183,27 +209,37 @@ def fit_tilt_jointly(simulate: Callable[[np.ndarray], np.ndarray], observed: np.
         if np.sum(r ** 2) < np.sum(best_r ** 2):
             best_x, best_r = x, r
     # 3. profiles of the two tilt angles
-    profiles = []
+    profiles, profile_r = [], []
     for k in range(2):
         others = np.setdiff1d(everything, [k])
         g = np.unique(np.clip(best_x[k] + np.linspace(-profile_half, profile_half,
                                                       profile_points), lower[k], upper[k]))
         sse = np.zeros(g.size)
+        kept = []
         for i, value in enumerate(g):
             x = best_x.copy()
             x[k] = value
             r = cost.residual(x)
             x, r = _refine(cost, x, r, others, lower, upper, step, max_step, profile_iterations)
             sse[i] = float(np.sum(r ** 2))
+            kept.append(r)
             if sse[i] < np.sum(best_r ** 2):  # the profile found a better point: keep it
                 best_x, best_r = x, r
         profiles.append((g, sse))
+        profile_r.append(kept)
     sse_min = float(np.sum(best_r ** 2))
     n_eff = effective_samples(best_r)
     threshold = sse_min * float(np.exp(CHI2_95_1DOF / n_eff))
+    if groups is not None:
+        groups = np.asarray(groups).ravel()
+        if groups.size != best_r.size:
+            raise ValueError(f"groups has {groups.size} labels for {best_r.size} samples")
+        inside = tuple(_paired_inside(profile_r[k], best_r, groups) for k in range(2))
+    else:
+        inside = tuple(profiles[k][1] <= threshold for k in range(2))
     intervals = np.zeros((n, 2))
     for k in range(2):
-        intervals[k] = _hull(*profiles[k], threshold)
+        intervals[k] = _hull(profiles[k][0], profiles[k][1], inside[k])
     if n > 2:  # the others: Jacobian intervals at the fit (marginal over every parameter)
         jac = _jacobian(cost, best_x, best_r, everything, step, upper)
         sigma2 = sse_min / max(best_r.size - n, 1)  # per-sample variance
@@ -214,5 +250,5 @@ def fit_tilt_jointly(simulate: Callable[[np.ndarray], np.ndarray], observed: np.
             half = 1.96 * np.sqrt(np.maximum(np.diag(sigma2 * np.linalg.inv(info)), 0.0))
         intervals[2:] = np.stack([best_x[2:] - half[2:], best_x[2:] + half[2:]], axis=1)
     rms = lambda r: float(np.sqrt(np.mean(r ** 2)))  # noqa: E731
-    return JointTiltFit(best_x, intervals, rms(r_start), rms(best_r), tuple(profiles),
+    return JointTiltFit(best_x, intervals, rms(r_start), rms(best_r), tuple(profiles), inside,
                         threshold, n_eff, grid_best, cost.calls)
