@@ -282,3 +282,34 @@ def test_test_logs_that_hold_out_part_of_a_paused_log_are_refused(tmp_path):
     held = split((2,)).test  # b.csv whole, and a.csv whole: the roles --holdout gives
     assert {eps[i].traj for i in held} == {2}
     assert {eps[i].traj for i in split((0, 1)).test} == {0, 1}
+
+
+# ------------------------------------------------------------------------------------------------
+# env_kwargs written as for gym.make
+
+
+def test_a_backend_in_env_kwargs_is_refused_not_trained_on_behind_the_configs_back():
+    """TrainConfig(env_kwargs={"backend": "emulated"}) (gym.make's keyword, where the config has
+    a field of its own) trained on the emulated robot while config.json said backend 'sim'."""
+    from lowcostdex.algos.configs import TrainConfig
+    from lowcostdex.algos.local_models.train_config import TVLGTrainConfig
+    from lowcostdex.errors import ConfigError
+
+    words = ("env_kwargs holds 'backend': 'emulated'; the backend is the config's own field (it "
+             "decides how samples are drawn and counted): give backend='emulated' and leave it "
+             "out of env_kwargs")
+    for cls in (TrainConfig, TVLGTrainConfig):
+        with pytest.raises(ConfigError) as err:
+            cls(env_kwargs={"backend": "emulated"})
+        assert str(err.value) == words
+    assert TrainConfig(backend="emulated", env_kwargs={"motor": "XM430-W350"}).backend == "emulated"
+
+
+@pytest.mark.parametrize("item, words", [("backend=emulated", "give --backend emulated instead"),
+                                         ("port=/dev/ttyUSB0", "give --port /dev/ttyUSB0 instead")])
+def test_train_env_kwarg_backend_or_port_names_the_option(tmp_path, capsys, item, words):
+    code, err = _run(["train", "npg", "--env-kwarg", item, "--out", str(tmp_path / "run"),
+                      "--n-iter", "1"], capsys)
+    assert code == 2
+    assert err == f"lowcostdex train npg: error: --env-kwarg {item}: {words}"
+    assert not (tmp_path / "run").exists()

@@ -395,7 +395,7 @@ class TrainConfig:
             check_bool(name, getattr(self, name))
         _check_env(self.env_id, self.env_kwargs)
         if self.eval_env_kwargs is not None:
-            _check_env(self.env_id, self.eval_env_kwargs)
+            _check_env(self.env_id, self.eval_env_kwargs, backend_field=False)  # said below
             if self.backend != "sim" or "backend" in self.eval_env_kwargs:
                 raise ConfigError(f"eval_env_kwargs: evaluations in their own env need backend "
                                   f"'sim' (not {self.backend!r}) and take no 'backend' key")
@@ -520,7 +520,7 @@ class PPOConfig:
         check_sizes("critic_hidden", self.critic_hidden)
         for name in ("anneal_lr", "clip_vloss", "norm_adv", "reward_norm", "progress"):
             check_bool(name, getattr(self, name))
-        _check_env(self.env_id, self.env_kwargs)
+        _check_env(self.env_id, self.env_kwargs, backend_field=False)  # make_vec: sim only
         _check_part("policy", self.policy, PolicyConfig)
 
     @classmethod
@@ -547,13 +547,26 @@ def _known(cls: type, d: Any, tuples: tuple[str, ...] = ()) -> dict[str, Any]:
     return d
 
 
-def _check_env(env_id: object, env_kwargs: object) -> None:
+def _check_env(env_id: object, env_kwargs: object, backend_field: bool = True) -> None:
     if not isinstance(env_id, str) or not env_id:
         raise ConfigError(f"env_id={env_id!r} must be a gymnasium id such as "
                           "'lowcostdex/DClawTurnValve-v0' (`lowcostdex envs` lists them)")
+    check_env_kwargs(env_kwargs, backend_field)
+
+
+def check_env_kwargs(env_kwargs: object, backend_field: bool = True) -> None:
+    """A training config's ``env_kwargs``: a dict of ``gym.make`` keywords; with
+    ``backend_field`` (the config has its own ``backend``), not ``backend``: written there as
+    for ``gym.make`` (``{"backend": "emulated"}``), it trained on the emulated robot while the
+    run said 'sim'."""
     if not isinstance(env_kwargs, dict) or not all(isinstance(k, str) for k in env_kwargs):
         raise ConfigError(f"env_kwargs={env_kwargs!r:.80} must be a dict of gym.make keyword "
                           "arguments, e.g. {'port': '/dev/ttyUSB0'}")
+    if backend_field and "backend" in env_kwargs:
+        raise ConfigError(f"env_kwargs holds 'backend': {env_kwargs['backend']!r:.40}; the "
+                          "backend is the config's own field (it decides how samples are "
+                          f"drawn and counted): give backend={env_kwargs['backend']!r:.40} and "
+                          "leave it out of env_kwargs")
 
 
 def _check_part(name: str, value: object, cls: type) -> None:

@@ -160,6 +160,8 @@ def _parse_env_kwargs(items: Sequence[str]) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep:
             raise ConfigError(f"--env-kwarg {item!r} must be KEY=VALUE")
+        if key.strip() in ("backend", "port"):  # the options that also set how it samples
+            raise ConfigError(f"--env-kwarg {item}: give --{key.strip()} {value} instead")
         try:
             out[key] = json.loads(value)
         except json.JSONDecodeError:

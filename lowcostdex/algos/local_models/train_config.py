@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from lowcostdex.algos.configs import check_env_kwargs
 from lowcostdex.algos.local_models.costs import RAMP_KINDS
 from lowcostdex.algos.local_models.dynamics import DynamicsConfig
 from lowcostdex.algos.local_models.traj_opt import TrajOptConfig
@@ -182,6 +183,7 @@ class TVLGTrainConfig:
         for name in ("include_last_action", "progress"):  # its numbers are checked below
             check_bool(name, getattr(self, name))
         check_choice("backend", self.backend, BACKENDS)
+        check_env_kwargs(self.env_kwargs)
         check_choice("initial controller", self.init, INITS)
         check_choice("success mode", self.success, SUCCESS_MODES)
         if self.init == "demos" and not self.demos:
