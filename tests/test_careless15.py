@@ -313,3 +313,59 @@ def test_train_env_kwarg_backend_or_port_names_the_option(tmp_path, capsys, item
     assert code == 2
     assert err == f"lowcostdex train npg: error: --env-kwarg {item}: {words}"
     assert not (tmp_path / "run").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# policies from other checkpoints
+
+
+def _a_policy():
+    import torch
+
+    from lowcostdex.algos.configs import PolicyConfig
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+
+    return GaussianMLPPolicy(6, 2, PolicyConfig(hidden_sizes=(8,)), torch.Generator().manual_seed(3))
+
+
+def test_a_ppo_checkpoint_loads_its_actor(tmp_path):
+    """A `train ppo` checkpoint keeps the policy as 'actor' (ppo._Agent.state): load_policy
+    said 'lacks policy'. Measured on a real PPO run (rl13's flip ppo_2): its newest
+    checkpoint's actor acts as its final_policy.pt to 0.0."""
+    import numpy as np
+    import torch
+
+    from lowcostdex.algos.train import load_policy
+
+    policy = _a_policy()
+    (tmp_path / "checkpoints").mkdir()
+    torch.save({"actor": policy.to_checkpoint(), "critic": {}, "optimizer": {},
+                "counters": {"samples": 10, "wall_seconds": 1.0}},
+               tmp_path / "checkpoints" / "ckpt_000004.pt")
+    loaded = load_policy(tmp_path / "checkpoints" / "ckpt_000004.pt")
+    obs = np.random.default_rng(0).normal(size=(4, 6))
+    assert np.array_equal(np.asarray(loaded.act(obs, deterministic=True)),
+                          np.asarray(policy.act(obs, deterministic=True)))
+
+
+def test_a_checkpoint_folder_and_a_bare_state_dict_say_what_to_give(tmp_path):
+    import torch
+
+    from lowcostdex.algos.train import load_policy
+    from lowcostdex.errors import InputError
+
+    ckpts = tmp_path / "run" / "checkpoints"
+    ckpts.mkdir(parents=True)
+    for k in (1, 2):
+        torch.save({"policy": _a_policy().to_checkpoint()}, ckpts / f"ckpt_00000{k}.pt")
+    with pytest.raises(InputError) as err:
+        load_policy(ckpts)
+    assert str(err.value) == (
+        f"{ckpts} is a run's checkpoint folder: give the run folder {str(ckpts.parent)!r} (its "
+        f"policy.pt, the best evaluated policy) or one checkpoint file, e.g. "
+        f"{str(ckpts / 'ckpt_000002.pt')!r} (the newest)")
+    torch.save(_a_policy().state_dict(), tmp_path / "mine.pt")  # what a torch user saves
+    with pytest.raises(InputError, match=r"mine\.pt: lacks policy \(its keys: act_scale, "
+                       r"act_shift, log_std, .*\); a bare state_dict has no sizes or settings "
+                       r"to build the policy from: save \{'policy': policy.to_checkpoint\(\)\}"):
+        load_policy(tmp_path / "mine.pt")

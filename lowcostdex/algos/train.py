@@ -28,7 +28,6 @@ The run's configuration is :class:`~lowcostdex.algos.configs.TrainConfig`; the c
 from __future__ import annotations
 
 import dataclasses
-import errno
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -46,6 +45,7 @@ from lowcostdex.algos.configs import TrainConfig
 from lowcostdex.algos.dapg import dapg_update
 from lowcostdex.algos.npg import npg_update
 from lowcostdex.algos.policy import GaussianMLPPolicy
+from lowcostdex.algos.policy_files import load_policy  # noqa: F401  (long imported from here)
 from lowcostdex.algos.returns import discounted_returns, gae
 from lowcostdex.algos.samplers import (
     BC_EVAL_STREAM,
@@ -63,7 +63,7 @@ from lowcostdex.algos.samplers import (
     make_jobs,
 )
 from lowcostdex.demonstrations.dataset import Demos, check_demos, load_demos
-from lowcostdex.errors import ConfigError, InputError, LowcostdexError, did_you_mean
+from lowcostdex.errors import ConfigError, LowcostdexError, did_you_mean
 
 ROBOT_COUNTERS = (
     "resets",
@@ -565,25 +565,3 @@ def _loop(
     state.best.finish({"policy": state.policy.to_checkpoint()})
     run.write_json(ex.SUMMARY_FILE, ex.run_summary(run.read_metrics(), state.best.record,
                                                    wall_seconds=state.wall_seconds))
-
-
-def load_policy(path: str | Path) -> GaussianMLPPolicy:
-    """Load the policy of a run directory (``policy.pt``: the best evaluated policy of the run,
-    see :class:`~lowcostdex.algos.experiment.BestPolicy`) or of a checkpoint file."""
-    path = Path(path)
-    file = path / "policy.pt" if path.is_dir() else path
-    controller = path / "controller.npz" if path.is_dir() else path
-    if controller.is_file() and (controller.suffix == ".npz" or not file.is_file()):
-        raise InputError(f"{controller} is a TVLG run's controller (time-varying linear, not a "
-                         "neural policy): load it with lowcostdex.algos.local_models.train."
-                         f"load_controller({str(controller.parent)!r})")
-    if not file.is_file():
-        raise FileNotFoundError(errno.ENOENT, "no policy here (a run directory holds policy.pt)"
-                                if path.is_dir() else "no such policy file", str(file))
-    state, why = ex.try_load(file, ("policy",))
-    if state is None:
-        raise InputError(f"{file}: {why}")
-    try:
-        return GaussianMLPPolicy.from_checkpoint(state["policy"])
-    except ConfigError as e:
-        raise InputError(f"{file}: {e}") from None
