@@ -233,6 +233,48 @@ def staged_output(path: str | Path, command: str,
     os.replace(tmp, out)
 
 
+_HELD: dict[str, int] = {}
+"""Folders this process holds the writer's lock of: real path -> the open folder's descriptor."""
+
+
+def claim(path: str | Path, what: str) -> None:
+    """Hold the writer's lock of the existing folder ``path`` (``flock`` on the folder itself:
+    no file is added) until :func:`release` or the process ends. Another process holding it
+    (the same ``train`` started twice, or ``--resume`` while the run still trains: both wrote
+    its config, metrics and checkpoints in turn) is refused; this process may claim it again.
+    Where there is no ``flock`` (Windows) or the file system refuses it, nothing is locked.
+
+    Raises:
+      OutputRefused: another process holds the lock.
+    """
+    try:
+        import fcntl
+    except ImportError:
+        return
+    key = os.path.realpath(path)
+    if key in _HELD:
+        return
+    fd = os.open(key, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise OutputRefused(f"{path} is being written by another process right now ({what}); "
+                            "it is left to it. Wait for it to end, or stop it first (Ctrl-C "
+                            "saves a training run's state; then --resume)") from None
+    except OSError:
+        os.close(fd)
+        return
+    _HELD[key] = fd
+
+
+def release(path: str | Path) -> None:
+    """Let go of the lock :func:`claim` took on ``path`` (no-op when not held)."""
+    fd = _HELD.pop(os.path.realpath(path), None)
+    if fd is not None:
+        os.close(fd)
+
+
 def check_out_file(path: str | Path, *, overwrite: bool = False) -> Path:
     """Check that a single output file may be written at ``path``.
 

@@ -369,3 +369,46 @@ def test_a_checkpoint_folder_and_a_bare_state_dict_say_what_to_give(tmp_path):
                        r"act_shift, log_std, .*\); a bare state_dict has no sizes or settings "
                        r"to build the policy from: save \{'policy': policy.to_checkpoint\(\)\}"):
         load_policy(tmp_path / "mine.pt")
+
+
+# ------------------------------------------------------------------------------------------------
+# the same run written by two processes at once
+
+
+HOLDER = """
+import sys, time
+from lowcostdex.algos.experiment import Run
+Run.open(sys.argv[1], {"algo": "npg", "seed": 0}, tensorboard=False)
+print("open", flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_run_being_trained_by_another_process_is_not_written_into(tmp_path):
+    """`lowcostdex train ... --out runs/npg` started twice (a second terminal), or `--resume`
+    while the run still trains: both processes wrote the run's config.json, metrics.csv and
+    checkpoints in turn (a start with no checkpoint yet is replaced by a new start)."""
+    import json
+    import subprocess
+
+    from lowcostdex.algos.experiment import Run
+    from lowcostdex.outdir import OutputRefused
+
+    run = tmp_path / "runs" / "npg"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(run)], stdout=subprocess.PIPE,
+                              text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    try:
+        assert holder.stdout.readline().strip() == "open"
+        with pytest.raises(OutputRefused) as err:
+            Run.open(run, {"algo": "npg", "seed": 1}, tensorboard=False)
+        assert str(err.value) == (
+            f"{run} is being written by another process right now (a training run); it is left "
+            "to it. Wait for it to end, or stop it first (Ctrl-C saves a training run's state; "
+            "then --resume)")
+        assert json.loads((run / "config.json").read_text()) == {"algo": "npg", "seed": 0}
+    finally:
+        holder.kill()
+        holder.wait()
+    again = Run.open(run, {"algo": "npg", "seed": 1}, tensorboard=False)  # the writer is gone
+    assert Run.open(run, {"algo": "npg", "seed": 1}, tensorboard=False).path == again.path
+    again.close()

@@ -332,6 +332,9 @@ class Run:
         path = Path(path)
         created = not path.exists()
         path.mkdir(parents=True, exist_ok=True)
+        from lowcostdex.outdir import claim
+
+        claim(path, "a training run")  # one writer: not the same run started twice
         write_json(path / CONFIG_FILE, _jsonable(config))
         run = cls(path, _jsonable(config), keep_last=keep_last, tensorboard=tensorboard)
         run._created = created
@@ -499,10 +502,14 @@ class Run:
         return file
 
     def close(self) -> None:
-        """Flush and close the TensorBoard writer (the CSV is always flushed)."""
+        """Flush and close the TensorBoard writer (the CSV is always flushed); let go of the
+        run directory's writer lock."""
+        from lowcostdex.outdir import release
+
         if self._tb is not None:
             self._tb.close()
             self._tb = None
+        release(self.path)
 
     def __enter__(self) -> Run:
         return self
