@@ -237,12 +237,13 @@ _HELD: dict[str, int] = {}
 """Folders this process holds the writer's lock of: real path -> the open folder's descriptor."""
 
 
-def claim(path: str | Path, what: str) -> None:
+def claim(path: str | Path, what: str, then: str = "") -> None:
     """Hold the writer's lock of the existing folder ``path`` (``flock`` on the folder itself:
     no file is added) until :func:`release` or the process ends. Another process holding it
     (the same ``train`` started twice, or ``--resume`` while the run still trains: both wrote
     its config, metrics and checkpoints in turn) is refused; this process may claim it again.
     Where there is no ``flock`` (Windows) or the file system refuses it, nothing is locked.
+    ``what`` names the writer, ``then`` what to do after stopping it (the refusal says both).
 
     Raises:
       OutputRefused: another process holds the lock.
@@ -260,8 +261,8 @@ def claim(path: str | Path, what: str) -> None:
     except BlockingIOError:
         os.close(fd)
         raise OutputRefused(f"{path} is being written by another process right now ({what}); "
-                            "it is left to it. Wait for it to end, or stop it first (Ctrl-C "
-                            "saves a training run's state; then --resume)") from None
+                            f"it is left to it. Wait for it to end, or stop it first{then}"
+                            ) from None
     except OSError:
         os.close(fd)
         return

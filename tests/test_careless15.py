@@ -403,8 +403,8 @@ def test_a_run_being_trained_by_another_process_is_not_written_into(tmp_path):
             Run.open(run, {"algo": "npg", "seed": 1}, tensorboard=False)
         assert str(err.value) == (
             f"{run} is being written by another process right now (a training run); it is left "
-            "to it. Wait for it to end, or stop it first (Ctrl-C saves a training run's state; "
-            "then --resume)")
+            "to it. Wait for it to end, or stop it first (Ctrl-C saves the run's state; then "
+            "--resume)")
         assert json.loads((run / "config.json").read_text()) == {"algo": "npg", "seed": 0}
     finally:
         holder.kill()
@@ -412,3 +412,30 @@ def test_a_run_being_trained_by_another_process_is_not_written_into(tmp_path):
     again = Run.open(run, {"algo": "npg", "seed": 1}, tensorboard=False)  # the writer is gone
     assert Run.open(run, {"algo": "npg", "seed": 1}, tensorboard=False).path == again.path
     again.close()
+
+
+def test_record_log_into_a_folder_another_recording_is_writing_is_refused(tmp_path, capsys):
+    """Two `record-log --out logs` at once: the second moved the first's finished logs into
+    previous/ while the first went on writing log_<k>.csv beside the second's."""
+    import subprocess
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "log_0.csv").write_text("time,goal:ff_top,qpos:ff_top\n")  # the first's, so far
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from lowcostdex.outdir import claim, "
+         "write_marker; write_marker(sys.argv[1], 'record-log'); claim(sys.argv[1], "
+         "'record-log'); print('open', flush=True); time.sleep(120)", str(logs)],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "open"
+        code, err = _run(["record-log", "--port", "emulated", "--logs", "1", "--seconds", "0.1",
+                          "--out", str(logs)], capsys)
+        assert code == 2
+        assert err == (f"lowcostdex record-log: error: {logs} is being written by another "
+                       "process right now (record-log); it is left to it. Wait for it to end, "
+                       "or stop it first (Ctrl-C keeps its finished logs), or give another --out")
+        assert sorted(p.name for p in logs.iterdir()) == [".lowcostdex.json", "log_0.csv"]
+    finally:
+        holder.kill()
+        holder.wait()

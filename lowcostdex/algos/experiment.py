@@ -334,7 +334,8 @@ class Run:
         path.mkdir(parents=True, exist_ok=True)
         from lowcostdex.outdir import claim
 
-        claim(path, "a training run")  # one writer: not the same run started twice
+        claim(path, "a training run",  # one writer: not the same run started twice
+              " (Ctrl-C saves the run's state; then --resume)")
         write_json(path / CONFIG_FILE, _jsonable(config))
         run = cls(path, _jsonable(config), keep_last=keep_last, tensorboard=tensorboard)
         run._created = created

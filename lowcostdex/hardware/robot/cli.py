@@ -173,7 +173,7 @@ def _record_log(args: argparse.Namespace) -> int:
 
     from lowcostdex.errors import ConfigError
     from lowcostdex.hardware.robot.backend import default_effects
-    from lowcostdex.outdir import MARKER, PREVIOUS, archive, check_out, write_marker
+    from lowcostdex.outdir import MARKER, PREVIOUS, archive, check_out, claim, write_marker
     from lowcostdex.sim.effects.randomization import read_effects
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
@@ -213,7 +213,10 @@ def _record_log(args: argparse.Namespace) -> int:
     steps = int(round(args.seconds * args.rate))
     console = Console(stderr=True)
     out = Path(args.out)
-    if check_out(out, "record-log"):  # an earlier recording here: keep it in previous/
+    earlier = check_out(out, "record-log")
+    out.mkdir(parents=True, exist_ok=True)
+    claim(out, "record-log", " (Ctrl-C keeps its finished logs), or give another --out")
+    if earlier:  # an earlier recording here: keep it in previous/
         kept = archive(out, [p.name for p in out.iterdir() if p.name not in (MARKER, PREVIOUS)])
         if kept is not None:
             console.print(f"the earlier logs in {out} are kept in {kept}")
