@@ -67,15 +67,16 @@ def pytest_addoption(parser):
 # (`-n 2 --dist loadfile`). xdist hands files out by number of tests, most first, so a heavy file
 # with few tests (test_gap_hidden.py: 7 tests, ~170 CPU-s) started near the end and one worker ran
 # on alone for minutes (CI at 26fee1b: 126 % CPU over 27:34). The files below go first, heaviest
-# first (longest-processing-time-first); every other file keeps xdist's order. Estimated CPU
-# seconds per file (tests-fast12's sampling, session 17; test_gap_independent split in session 20):
-# only the order matters, not the numbers' accuracy.
+# first (longest-processing-time-first); every other file keeps xdist's order. CPU seconds per
+# file: the test_gap_independent* files measured at 5ed5c2c (session 20, tests-fast15), the
+# others tests-fast12's sampling (session 17) or its --durations wall x 0.37 (CPU/wall of that
+# run): only the order matters, not the numbers' accuracy.
 HEAVY_FILES = {
-    "test_gap_independent_bench.py": 340,
-    "test_gap_independent_finger.py": 280,
+    "test_gap_independent_bench.py": 279,
+    "test_gap_independent_finger.py": 222,
     "test_main_job.py": 214,
     "test_gap_hidden.py": 167,
-    "test_gap_independent_wide.py": 120,
+    "test_gap_independent_wide.py": 102,
     "test_gap_redteam.py": 94,
     "test_gap_decisions.py": 93,
     "test_flip_main_job.py": 70,
@@ -84,7 +85,12 @@ HEAVY_FILES = {
     "test_demos_recording.py": 38,
     "test_flip_pinch.py": 32,
     "test_gap_coulomb_stall.py": 29,
-    "test_gap_independent.py": 25,
+    "test_gap_cli.py": 21,
+    "test_flip_plan.py": 17,
+    "test_flip_teacher.py": 17,
+    "test_gap_timestep.py": 16,
+    "test_dxl_soak.py": 14,
+    "test_gap_independent.py": 12,
 }
 
 
