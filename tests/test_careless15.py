@@ -439,3 +439,24 @@ def test_record_log_into_a_folder_another_recording_is_writing_is_refused(tmp_pa
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_a_resume_with_other_settings_says_where_the_runs_own_are(tmp_path):
+    """`lowcostdex train npg --out RUN --resume` typed without the run's other options (their
+    defaults differ from the run's) was told only which settings differ."""
+    import torch
+
+    from lowcostdex.algos.experiment import CHECKPOINT_DIR, Run
+    from lowcostdex.errors import ConfigError
+
+    run = tmp_path / "run"
+    Run.open(run, {"algo": "npg", "n_traj": 2, "n_iter": 3}, tensorboard=False).close()
+    (run / CHECKPOINT_DIR).mkdir()
+    torch.save({"iteration": 0}, run / CHECKPOINT_DIR / "ckpt_000000.pt")
+    with pytest.raises(ConfigError) as err:
+        Run.open(run, {"algo": "npg", "n_traj": 50, "n_iter": 3}, resume=True,
+                 mutable_keys=("n_iter",), tensorboard=False)
+    assert str(err.value) == (
+        f"cannot resume {run}: configuration differs (n_traj: 2 -> 50); only ['n_iter'] may "
+        f"change. Give the settings the run was started with (they are in {run / 'config.json'}; "
+        "a stopped run printed the command that resumes it)")

@@ -291,7 +291,9 @@ class Run:
         if diffs:
             raise ConfigError(
                 f"cannot resume {path}: configuration differs ({'; '.join(diffs)}); "
-                f"only {sorted(mutable) or 'no keys'} may change"
+                f"only {sorted(mutable) or 'no keys'} may change. Give the settings the run "
+                f"was started with (they are in {config_file}; a stopped run printed the "
+                "command that resumes it)"
             )
         n_iter = config.get("n_iter")
         if isinstance(n_iter, int) and n_iter < last + 1:  # resumed, it would do nothing
