@@ -78,6 +78,7 @@ def test_joint_fit_recovers_tilt_and_valve_friction(truth, groups):
     for k in range(3):
         lo, hi = fit.intervals[k]
         assert lo <= truth[k] <= hi, (k, fit.values, fit.intervals)
+        assert lo <= fit.values[k] <= hi, (k, fit.values, fit.intervals)
     assert abs(fit.values[2] - truth[2]) < 5e-4, fit.values
     assert fit.named == (truth[0] != 0.0), fit.intervals
     assert fit.rms_fit < 1.5e-3 < fit.rms_start
@@ -99,6 +100,7 @@ def test_profile_interval_holds_the_minimum_of_a_jagged_cost():
     for k in range(2):
         lo, hi = fit.intervals[k]
         assert lo <= truth[k] <= hi, (k, fit.values, fit.intervals)
+        assert lo <= fit.values[k] <= hi, (k, fit.values, fit.intervals)
     assert fit.named
 
 

@@ -17,7 +17,8 @@ applies (e.g. the valve's frictionloss [N m]). Stages:
 2. local refinement: bounded Gauss-Newton over every parameter from each start (forward
    differences, steps capped by ``max_step``, a halved step tried before stopping); the best wins;
 3. profile intervals of the two tilt angles: each angle fixed on a 1-D grid around the fit and the
-   other parameters re-fitted (``profile_iterations`` Gauss-Newton steps); the 95 % interval is
+   other parameters re-fitted (``profile_iterations`` Gauss-Newton steps; a profile point better
+   than the fit becomes the fit and the profiles are made again around it); the 95 % interval is
    the hull of the profile points whose cost passes the likelihood-ratio test
    ``n_eff log(SSE / SSE_min) <= 3.84`` (Gaussian residuals; ``n_eff`` = samples over the
    residual's integrated autocorrelation time, so a trace's correlated samples are not counted as
@@ -208,25 +209,31 @@ def fit_tilt_jointly(simulate: Callable[[np.ndarray], np.ndarray], observed: np.
         x, r = _refine(cost, x, r, everything, lower, upper, step, max_step, iterations)
         if np.sum(r ** 2) < np.sum(best_r ** 2):
             best_x, best_r = x, r
-    # 3. profiles of the two tilt angles
-    profiles, profile_r = [], []
-    for k in range(2):
-        others = np.setdiff1d(everything, [k])
-        g = np.unique(np.clip(best_x[k] + np.linspace(-profile_half, profile_half,
-                                                      profile_points), lower[k], upper[k]))
-        sse = np.zeros(g.size)
-        kept = []
-        for i, value in enumerate(g):
-            x = best_x.copy()
-            x[k] = value
-            r = cost.residual(x)
-            x, r = _refine(cost, x, r, others, lower, upper, step, max_step, profile_iterations)
-            sse[i] = float(np.sum(r ** 2))
-            kept.append(r)
-            if sse[i] < np.sum(best_r ** 2):  # the profile found a better point: keep it
-                best_x, best_r = x, r
-        profiles.append((g, sse))
-        profile_r.append(kept)
+    # 3. profiles of the two tilt angles, around the best point; a profile point better than it
+    # becomes the best and the profiles are made again around it (at most 3 rounds)
+    for _ in range(3):
+        start_sse = float(np.sum(best_r ** 2))
+        profiles, profile_r = [], []
+        for k in range(2):
+            others = np.setdiff1d(everything, [k])
+            g = np.unique(np.clip(best_x[k] + np.linspace(-profile_half, profile_half,
+                                                          profile_points), lower[k], upper[k]))
+            sse = np.zeros(g.size)
+            kept = []
+            for i, value in enumerate(g):
+                x = best_x.copy()
+                x[k] = value
+                r = cost.residual(x)
+                x, r = _refine(cost, x, r, others, lower, upper, step, max_step,
+                               profile_iterations)
+                sse[i] = float(np.sum(r ** 2))
+                kept.append(r)
+                if sse[i] < np.sum(best_r ** 2):  # the profile found a better point
+                    best_x, best_r = x, r
+            profiles.append((g, sse))
+            profile_r.append(kept)
+        if float(np.sum(best_r ** 2)) >= start_sse:
+            break
     sse_min = float(np.sum(best_r ** 2))
     n_eff = effective_samples(best_r)
     threshold = sse_min * float(np.exp(CHI2_95_1DOF / n_eff))
@@ -239,7 +246,8 @@ def fit_tilt_jointly(simulate: Callable[[np.ndarray], np.ndarray], observed: np.
         inside = tuple(profiles[k][1] <= threshold for k in range(2))
     intervals = np.zeros((n, 2))
     for k in range(2):
-        intervals[k] = _hull(profiles[k][0], profiles[k][1], inside[k])
+        lo, hi = _hull(profiles[k][0], profiles[k][1], inside[k])
+        intervals[k] = min(lo, best_x[k]), max(hi, best_x[k])  # after 3 rounds: hold the fit
     if n > 2:  # the others: Jacobian intervals at the fit (marginal over every parameter)
         jac = _jacobian(cost, best_x, best_r, everything, step, upper)
         sigma2 = sse_min / max(best_r.size - n, 1)  # per-sample variance
