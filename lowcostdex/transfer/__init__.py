@@ -9,7 +9,10 @@ randomization, the robot itself), evaluate every policy on every robot and write
 - ``loop``: the stages, resumable piece by piece inside one ``--out`` folder;
 - ``conditions``: one finger's identification, and each simulated condition's model;
 - ``config``, ``robots``, ``tables``: sizes and tasks, the robots, the tables and figure;
-- ``cli``: the command.
+- ``cli``: the command;
+- ``tilt``, ``tilt_joint``: a finger base's mounting tilt as a model edit, fitted from a
+  valve-turning log (alone, or jointly with the other parameters the log sees, with profile
+  intervals).
 
 An application on top of the library: no library module imports it (an import-linter contract).
 """
