@@ -68,19 +68,19 @@ def pytest_addoption(parser):
 # with few tests (test_gap_hidden.py: 7 tests, ~170 CPU-s) started near the end and one worker ran
 # on alone for minutes (CI at 26fee1b: 126 % CPU over 27:34). The files below go first, heaviest
 # first (longest-processing-time-first); every other file keeps xdist's order. CPU seconds per
-# file: the test_gap_independent* files measured at 5ed5c2c (session 20, tests-fast15), the
-# others tests-fast12's sampling (session 17) or its --durations wall x 0.37 (CPU/wall of that
-# run): only the order matters, not the numbers' accuracy.
+# file: the test_gap_independent*, main_job, gap_hidden and flip_main_job files measured at
+# 5ed5c2c / 81f4cae (session 20, tests-fast15), the others tests-fast12's sampling (session 17) or
+# its --durations wall x 0.37 (CPU/wall of that run): only the order matters, not the accuracy.
 HEAVY_FILES = {
     "test_gap_independent_bench.py": 279,
+    "test_main_job.py": 227,
     "test_gap_independent_finger.py": 222,
-    "test_main_job.py": 214,
-    "test_gap_hidden.py": 167,
+    "test_gap_hidden.py": 139,
     "test_gap_independent_wide.py": 102,
     "test_gap_redteam.py": 94,
     "test_gap_decisions.py": 93,
-    "test_flip_main_job.py": 70,
     "test_transfer.py": 67,
+    "test_flip_main_job.py": 51,
     "test_gap_actuator_kinds.py": 40,
     "test_demos_recording.py": 38,
     "test_flip_pinch.py": 32,
