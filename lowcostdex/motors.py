@@ -71,6 +71,9 @@ class MotorSpec:
         Velocity 0 = no profile). Feetech STS: the Running Speed register (46) boots at the
         factory maximum and 0 there also means the maximum (STS3215: ``STS_GOAL_SPEED``; 0
         where the servo's logs move faster than any goal they hold).
+      backdriven: (Coulomb [N m], viscous [N m s/rad]) of the gear train back-driven by its load
+        with the torque off (``backdriven_friction``), or None: not known. Identification uses
+        it when no training log has the torque off (``gap.identify_logs.backdriven_plan``).
     """
 
     name: str
@@ -94,6 +97,7 @@ class MotorSpec:
     backlash: float = math.radians(0.25)
     max_duty: float = 1.0
     goal_speed: float = 0.0
+    backdriven: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         for name in ("voltage", "stall_torque", "no_load_speed", "gear_ratio"):
@@ -177,9 +181,12 @@ MOTORS: dict[str, MotorSpec] = {
         MotorSpec("XH430-V350", 1040, 24.0, 3.3, 31 * TWO_PI / 60, 353.5, 0.0030,
                   current_unit=1.34e-3),
         # XL330: 5 V class, plastic gears; BAM found the effective P divisor to be 256.
+        # backdriven: BAM's published XL330 M1 Coulomb + viscous (Rhoban/bam params/xl330/m1.json:
+        # friction_base 0.0182, friction_viscous 0.0059), one law for the torque on and off; the
+        # Rhoban XL330 swings alone say 0.0053 + 0.0095 (gap.torque_off.swing_fit, gap-real12).
         MotorSpec("XL330-M288", 1200, 5.0, 0.52, 103 * TWO_PI / 60, 288.4, 0.0003,
                   current_unit=1.0e-3, default_p=400,
-                  error_gain=(4096 / TWO_PI) / (256.0 * 885),
+                  error_gain=(4096 / TWO_PI) / (256.0 * 885), backdriven=(0.0182, 0.0059),
                   thermal=ThermalSpec(resistance=18.0, capacitance=3.0, limit=70.0)),
         MotorSpec("XL330-M077", 1190, 5.0, 0.215, 383 * TWO_PI / 60, 77.5, 0.0001,
                   current_unit=1.0e-3, default_p=400, default_i=400,

@@ -159,3 +159,81 @@ def test_gearbox_friction_stribeck_curvature(alpha):
                       (0.0, 1.0)):
         got = GearboxFriction.friction(t, v, np.array([qd]), force, ext)[0]
         assert got == pytest.approx(0.3 * (0.1 + 0.4 * share), rel=1e-6)
+
+
+# ------------------------------------------------------------------------------------------------
+# backdriven_friction: the gear train's own friction law while the torque is off (issue 11)
+
+
+def test_backdriven_friction_coulomb_brakes_the_released_arm_as_its_energy_balance_says():
+    # released from rest at a0 with the torque off, a constant Coulomb torque c takes
+    # c (a0 + a1) of the arm's potential energy by the first turn at -a1:
+    # M g L (cos a1 - cos a0) = c (a0 + a1), solved here by bisection
+    a0, c = 1.0, 0.03
+    turn = _first_turn(hold(bench([E("backdriven_friction", coulomb=c)])[0], 0.0, 2.0, q0=a0,
+                            torque=False))
+    lo, hi = 0.0, a0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        left = MGL * (math.cos(mid) - math.cos(a0)) - c * (a0 + mid)
+        lo, hi = (mid, hi) if left > 0 else (lo, mid)
+    assert turn == pytest.approx(lo, abs=0.01)
+    assert lo < a0 - 0.15  # the braking is large enough to tell
+
+
+def test_backdriven_friction_coulomb_and_viscous_stop_a_coasting_rotor_where_the_ode_says():
+    # a gravity-free hinge coasting at v0 with the torque off: I dv/dt = -(c + b v) (plus the
+    # model's own joint damping d0 and dry friction f0, read from it), so
+    # v(t) = (v0 + C/B) exp(-B t / I) - C/B (B = b + d0, C = c + f0), and it stops after
+    # travelling (I / B) (v0 - (C / B) ln(1 + B v0 / C))
+    import mujoco
+
+    from tests.conftest import hinge_servo_model
+
+    model = hinge_servo_model("XL330-M288", thermal=False)
+    d = mujoco.MjData(model)
+    mujoco.mj_forward(model, d)
+    unit, col = np.zeros(model.nv), np.zeros(model.nv)
+    unit[0] = 1.0
+    mujoco.mj_mulM(model, d, col, unit)  # the joint's inertia, armature included [kg m^2]
+    inertia = float(col[0])
+    v0, c, b = 3.0, 0.004, 0.0005
+    big_c, big_b = c + float(model.dof_frictionloss[0]), b + float(model.dof_damping[0])
+    tau = inertia / big_b  # [s]
+    stop = tau * math.log(1.0 + big_b * v0 / big_c)
+    travel = tau * (v0 - big_c / big_b * math.log(1.0 + big_b * v0 / big_c))
+    p = Plant(model, [AppliedEffect("backdriven_friction", ("j",),
+                                    {"coulomb": c, "viscous": b})])
+    p.reset(qpos=np.array([0.0]), qvel=np.array([v0]))
+    p.set_torque_enabled([0], False)
+    dt = model.opt.timestep
+    n = int(round(1.5 * stop / dt))
+    q = np.empty(n)
+    for k in range(n):
+        p.step(np.array([0.0]), 1)
+        q[k] = p.qpos[0]
+    assert q[-1] == pytest.approx(travel, rel=0.03)
+    # halfway to the stop it has covered what the ODE says too
+    k = int(round(0.5 * stop / dt)) - 1
+    t = (k + 1) * dt
+    half = (tau * (v0 + big_c / big_b) * (1.0 - math.exp(-t / tau)) - big_c / big_b * t)
+    assert q[k] == pytest.approx(half, rel=0.03)
+    # the viscous part shapes the stop: Coulomb alone would coast I v0^2 / (2 C) (0.74 rad)
+    assert abs(q[-1] - inertia * v0 ** 2 / (2 * big_c)) > 0.1 * travel
+
+
+def test_backdriven_friction_acts_only_with_the_torque_off_and_sets_the_gear_share_there():
+    a0, mu = 1.0, 0.3
+    law = E("backdriven_friction", coulomb=0.05, viscous=0.02, gear=0.0)
+    # torque on: nothing changes (the servo's own laws hold the arm)
+    base = hold(bench()[0], 0.3, 1.0, q0=0.0)
+    on = hold(bench([law])[0], 0.3, 1.0, q0=0.0)
+    np.testing.assert_allclose(on, base, atol=1e-12)
+    # torque off, no Coulomb / viscous of its own: the share ``gear`` of the gear friction's
+    # back-driven level mu |tau_g| is kept (1: as with the torque on; 0: none)
+    for share, amp in ((0.0, a0), (0.5, _amplitude_after_half_swing(a0, mu * 0.5)),
+                       (1.0, _amplitude_after_half_swing(a0, mu))):
+        p = bench([E("gearbox_friction", mu=mu),
+                   E("backdriven_friction", coulomb=0.0, viscous=0.0, gear=share)])[0]
+        assert _first_turn(hold(p, 0.0, 2.0, q0=a0, torque=False)) == pytest.approx(amp,
+                                                                                    abs=0.01)

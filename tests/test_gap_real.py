@@ -441,3 +441,52 @@ def test_the_armature_seed_reads_bams_armature_off_rhobans_swings_and_nothing_of
     # Pham's 4 g arm stays where the torque went off (friction holds 4 mN m of gravity): its
     # 2 mrad "swings" say nothing of the armature, so no seed
     assert armature_seed(*lift_logs(PHAM)) is None
+
+
+@pytest.mark.skipif(not RHOBAN.is_dir(), reason=f"measured data not found at {ROOT}")
+def test_rhobans_torque_off_swings_want_the_gears_own_law_not_their_load_friction():
+    # The XL330 catalogue's torque-off law (MotorSpec.backdriven: BAM's published XL330 M1
+    # Coulomb 0.0182 N m + viscous 0.0059 N m s/rad, one law with no load share) against BAM's
+    # published M3, whose gearbox keeps its load friction back-driven (0.264 |tau_g| + 0.0023 +
+    # 0.0169 qd; Rhoban/bam params/xl330/m3.json), both at BAM's published armature 0.0019 kg
+    # m^2, on the four real torque-off swings of Rhoban's lift_and_drop logs (a pendulum written
+    # out: gap.torque_off.simulate). Measured 2026-11-28: catalogue 35.1 / 28.2 / 39.7 / 32.5
+    # mrad, M3's law 30.6 / 63.6 / 69.2 / 113.6, no friction 176-432, the swings' own best
+    # Coulomb + viscous 28.9 / 29.0 / 33.1 / 29.8 (bench/RESULTS.md gap-real15)
+    from lowcostdex.gap.torque_off import simulate, swings
+    from lowcostdex.sim import servo
+
+    ds = bm.grid_dataset(load_dataset(sorted(RHOBAN.glob("*.json")), timestep=bm.BAM_DT))
+    lift = [i for i, tr in enumerate(ds.trajectories)
+            if tr.meta.get("trajectory") == "lift_and_drop"]
+    sws = swings(ds, lift)
+    assert len(sws) == 4
+    c, b = servo.motor_spec("XL330-M288").backdriven
+
+    def mae(p):
+        return np.array([np.mean(np.abs(simulate(np.asarray(p, float), s)[0] - s.q))
+                         for s in sws])
+
+    own, load, none = mae([0.0019, c, b, 0.0]), mae([0.0019, 0.0023, 0.0169, 0.264]), mae(
+        [0.0019, 0.0, 0.0, 0.0])
+    assert np.max(own) < 0.045
+    assert np.mean(own) < 0.6 * np.mean(load) and np.sum(own < load) >= 3
+    assert np.all(own < 0.3 * none)
+
+
+@pytest.mark.slow  # one Rhoban identification (about 1 min of CPU)
+@pytest.mark.skipif(not RHOBAN.is_dir(), reason=f"measured data not found at {ROOT}")
+def test_rhoban_lift_and_drop_held_out_with_the_catalogue_torque_off_law_beats_bam_m3():
+    from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure
+
+    # lift_and_drop held out: no training log has the torque off, so the swing's friction is the
+    # servo catalogue's own torque-off law (gap.identify_logs.backdriven_plan). BAM's published
+    # M3 on the same logs: 0.052 rad (08-bam-reference-errors.md); before the law 0.0640 (the
+    # gear friction back-driven whole), measured 2026-11-28 with it 0.041 (RESULTS gap-real15)
+    ds = bm.grid_dataset(load_dataset(sorted(RHOBAN.glob("*.json")), timestep=bm.BAM_DT))
+    kinds = [tr.meta["trajectory"] for tr in ds.trajectories]
+    test = [i for i, k in enumerate(kinds) if k == "lift_and_drop"]
+    train = [i for i in range(len(kinds)) if i not in test]
+    res = identify(ds, train, test, IdentifyConfig(effects=servo_structure(ds), nthread=1))
+    assert res.mean(test) < 0.052, (res.mean(test), res.params())
+    assert res.params()["backdriven_friction"]["gear"] == [0.0]

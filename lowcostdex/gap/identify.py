@@ -32,17 +32,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_bool, check_number, keyword_hints
+from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number, keyword_hints
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.bam_logs import check_one_motor
 from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
 from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.identify_logs import (  # noqa: F401 (re-exported)
+    BACKDRIVEN,
+    BACKDRIVEN_MODES,
     INNER_FIELDS,
     SPEED_MARGIN,
+    backdriven_plan,
     faster_than_training,
     inner_split,
     peak_speed,
+    set_backdriven,
     torque_off_seen,
     type_folds,
 )
@@ -95,11 +99,13 @@ HELD_ALWAYS = frozenset({("gearbox_friction", "alpha")})
 
 
 def servo_structure(ds: Dataset) -> tuple[str, ...]:
-    """``SERVO_STRUCTURE``, plus ``voltage_sag`` when every log measures the supply voltage and
-    ``goal_slew`` when the logs' servos slew their goal (a Feetech STS: ``MotorSpec.goal_speed``)."""
+    """``SERVO_STRUCTURE``, plus ``voltage_sag`` when every log measures the supply voltage,
+    ``goal_slew`` when the logs' servos slew their goal (a Feetech STS: ``MotorSpec.goal_speed``)
+    and the torque-off friction's own law (``backdriven_friction``) when a log has the torque off."""
     slewed = any(len(goal_slew_states(ds.compiled(k))[0]) for k in ds.models)
+    off = torque_off_seen(ds, range(len(ds.trajectories)))
     return (SERVO_STRUCTURE + (("voltage_sag",) if "voltage" in ds.channels() else ())
-            + (("goal_slew",) if slewed else ()))
+            + (("goal_slew",) if slewed else ()) + ((BACKDRIVEN,) if off else ()))
 
 Progress = Callable[[str, float], None]
 
@@ -166,6 +172,8 @@ class IdentifyConfig:
         on Rhoban's BAM split (held out 31.1 -> 32.6 mrad, armature 0.002 from the swings)
         and STS3250's sin_time_square fold (57.0 -> 81.4), won on STS3250's up_and_down
         (2.4 -> 1.6), equal on sin_sin (13.3) (bench/RESULTS.md gap-real13).
+      backdriven: the torque-off friction's own law, "fit" or "null" (absent):
+        ``identify_logs.backdriven_plan`` (bench/RESULTS.md gap-real15).
     """
 
     effects: tuple[str, ...] = SERVO_STRUCTURE
@@ -187,9 +195,11 @@ class IdentifyConfig:
     directional: bool = True
     stage_choice: bool = False
     swing_seed: bool = False
+    backdriven: str = "fit"
 
     def __post_init__(self) -> None:
         _check_types(self)
+        check_choice("backdriven", self.backdriven, BACKDRIVEN_MODES)
         if not self.effects:
             raise ConfigError("identification needs at least one effect to fit")
         for name in self.effects:
@@ -358,11 +368,13 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     residual = make_residual(w_train, weights)
     t0 = time.perf_counter()
     full = fitmod.Structure.build(config.effects, joints, ctx)
-    full = _hold(full, config.hold) or full
-    families = {"free": frozenset(config.hold)}
+    off_null, off_after = backdriven_plan(ds, train, config.effects, config.backdriven)
+    hold = frozenset(config.hold) | off_null
+    full = _hold(full, hold) or full
+    families = {"free": hold}
     notes: list[str] = []
     if _hold(full, HELD_FIRST) is not None:
-        families["held"] = HELD_FIRST | config.hold
+        families["held"] = HELD_FIRST | hold
         if not config.directional:
             del families["free"]  # the share held at 1: HELD_FIRST's comment
         elif not torque_off_seen(ds, train):
@@ -376,7 +388,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                          "out: 262 mrad with it free, 210 held)")
     motor = frozenset((f.effect, f.param) for f in full.free if f.effect in MOTOR_EFFECTS)
     if motor and len(motor) < len(full.free):
-        families["nominal_motor"] = motor | config.hold | (
+        families["nominal_motor"] = motor | hold | (
             HELD_FIRST if "free" not in families else frozenset())
     seed: dict[tuple[str, str], float] = {}
     sf = armature_seed(ds, train) if config.swing_seed and "inertia_error" in config.effects \
@@ -485,7 +497,7 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
                            config.max_rounds, rtol=config.rtol, jacobian_at_end=False)
         best = polished
         rounds += polished.rounds
-    effects = best.effects()
+    effects = set_backdriven(best.effects(), off_after, notes)
     if rest(train):
         rep, (effects,), (level,) = held_at_rest(ds, config.effects, config.nthread, train,
                                                  [effects], stall, FAMILY_MARGIN)
@@ -634,8 +646,9 @@ def _bound_hits(t: fitmod.Track) -> list[tuple[int, str]]:
         null = EFFECTS[f.effect].param(f.param).null
         absent = {g.param: x[k] <= 1e-3 * (g.hi - g.lo) for k, g in enumerate(t.structure.free)
                   if (g.effect, g.joint) == (f.effect, f.joint)}
-        if (f.param == "velocity" and absent.get("static")) or (
-                f.param == "backdrive" and absent.get("mu") and absent.get("static")):
+        if (f.param == "velocity" and absent.get("static")) or EFFECTS[f.effect].param(
+                f.param).ends or (f.param == "backdrive" and absent.get("mu")
+                                  and absent.get("static")):
             continue
         for b, side in ((lo[i], "lower"), (hi[i], "upper")):
             if abs(t.u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from lowcostdex.gap.dataset import Dataset
+from lowcostdex.sim.effects import AppliedEffect
 
 # Header fields that tell the training logs' setups apart, in the order the inner validation
 # tries them (``inner_split``): the firmware gain first (what a user changes, and the P law must
@@ -26,6 +27,69 @@ def torque_off_seen(ds: Dataset, logs: Sequence[int]) -> bool:
     return any("torque_enable" in ds.trajectories[i].channels
                and bool(np.any(ds.trajectories[i].channels["torque_enable"] < 0.5))
                for i in logs)
+
+
+# The torque-off (back-driven) friction's own law (``backdriven_friction``): what it is in each
+# identification (``backdriven_plan``). Measured 2026-11-28 (bench/RESULTS.md gap-real15).
+BACKDRIVEN = "backdriven_friction"
+BACKDRIVEN_PARAMS = frozenset({(BACKDRIVEN, "coulomb"), (BACKDRIVEN, "viscous"),
+                               (BACKDRIVEN, "gear")})
+BACKDRIVEN_MODES = ("fit", "null")
+
+
+def catalogue_backdriven(ds: Dataset, logs: Sequence[int]) -> tuple[float, float] | None:
+    """The servo catalogue's torque-off law (``MotorSpec.backdriven``) of the BAM logs' motor
+    among ``logs``; None when they name none or it has none."""
+    from lowcostdex.gap.bam_logs import BAM_MOTORS, bam_motor
+    from lowcostdex.sim import servo
+
+    for i in logs:
+        meta = ds.trajectories[i].meta
+        name = meta.get("motor") if meta.get("source") == "bam" else None
+        bam = bam_motor(name) if isinstance(name, str) else None
+        if bam is not None:
+            return servo.motor_spec(BAM_MOTORS[bam]).backdriven
+    return None
+
+
+def backdriven_plan(ds: Dataset, train: Sequence[int], effects: Sequence[str], mode: str
+                    ) -> tuple[frozenset, dict[str, float] | None]:
+    """How identification treats the torque-off law: (its parameters held at their null in the
+    fit, the values it is set to after the fit or None).
+
+    Training logs with the torque off, mode "fit": its Coulomb and viscous are fitted on top of
+    the gear friction's own back-driven level (share ``gear`` held at 1: that level is the gear
+    friction's fitted back-driven share, free in identify's "free" family). No training log with
+    the torque off (nothing to fit it on): held at its null in the fit (it changes no torque-on
+    log) and, when the servo catalogue knows the law, set to it after the fit with the gear
+    friction's back-driven level not kept (``gear`` 0): the torque-on fit holds that share at 1
+    and brakes the swing with its whole load friction (Rhoban lift_and_drop fold 64.0 mrad; the
+    XL330 catalogue's law 40.9; the torque-on fit's own Coulomb + viscous as the law 168.8).
+    "null": held at its null everywhere (the law absent, as before it existed)."""
+    if BACKDRIVEN not in effects:
+        return frozenset(), None
+    if mode == "null":
+        return BACKDRIVEN_PARAMS, None
+    if torque_off_seen(ds, train):
+        return frozenset({(BACKDRIVEN, "gear")}), None
+    law = catalogue_backdriven(ds, train)
+    return BACKDRIVEN_PARAMS, (None if law is None else
+                               {"coulomb": law[0], "viscous": law[1], "gear": 0.0})
+
+
+def set_backdriven(effects: list[AppliedEffect], values: dict[str, float] | None,
+                   notes: list[str]) -> list[AppliedEffect]:
+    """``effects`` with the torque-off law set to ``values`` (``backdriven_plan``'s after the
+    fit; None: unchanged), saying so in ``notes``."""
+    if not values:
+        return effects
+    notes.append("no training log has the torque off: the back-driven gears' friction is the "
+                 f"servo catalogue's Coulomb {values['coulomb']:.3g} N m + viscous "
+                 f"{values['viscous']:.3g} N m s/rad (MotorSpec.backdriven), the gear friction's "
+                 "load-dependent level not kept with the torque off")
+    return [AppliedEffect(e.name, e.joints, {**e.values, **{
+        k: np.full(len(e.joints), v) for k, v in values.items()}}) if e.name == BACKDRIVEN else e
+        for e in effects]
 
 
 def peak_speed(ds: Dataset, logs: Sequence[int]) -> float:

@@ -165,6 +165,10 @@ class Effect:
     # model effects whose fields depend on the state: ``live_apply`` every physics step
     live: ClassVar[bool] = False
     fields: ClassVar[tuple[str, ...]] = ()  # model fields written by ``apply``
+    # kind friction: ``friction`` acts only where the servo's torque is off (back-driven), and
+    # the level of the friction effect named ``SCALED`` is kept there by the share ``gear``
+    torque_off: ClassVar[bool] = False
+    SCALED: ClassVar[str] = ""
     doc: ClassVar[str] = ""
 
     # ---- parameters -----------------------------------------------------------------------

@@ -428,6 +428,42 @@ class GearboxFriction(Effect):
         return np.abs(gear) * (v["mu"] + v["static"] * np.exp(-(w ** v["alpha"])))
 
 
+class BackdrivenFriction(Effect):
+    name = "backdriven_friction"
+    kind = "friction"
+    doc = ("the gear train's friction while the load back-drives the servo with its torque off "
+           "(no current): extra = coulomb + viscous |v| on a joint whose servo is off, and the "
+           "gear friction's own load-dependent level (gearbox_friction) kept there by the share "
+           "``gear`` (1: as with the torque on, BAM's gearbox; 0: the back-driven gears have "
+           "only this Coulomb + viscous law); nothing while the torque is on")
+    # Its own law, not gearbox_friction's back-driven share: that share also sets how the gear
+    # friction grows with the motor torque (|tau_motor - backdrive tau_ext|), so a share fitted
+    # to the torque-off swings moves the torque-on fit (Rhoban lift_and_drop fold 64.0 -> 176.1
+    # mrad, bench/RESULTS.md gap-real13). The Rhoban XL330's swings alone: Coulomb 0.0053 N m,
+    # viscous 0.0095 N m s/rad, a load share 0.034 (gap.torque_off.swing_fit).
+    params = (
+        Param("coulomb", 0.0, 0.0, 0.5, "N m", (0.0, 0.02), start=0.005, limit=(0.0, 5.0),
+              doc="sliding friction of the back-driven gears, torque off"),
+        Param("viscous", 0.0, 0.0, 0.5, "N m s/rad", (0.0, 0.02), start=0.005,
+              limit=(0.0, 5.0), doc="viscous friction of the back-driven gears, torque off"),
+        Param("gear", 1.0, 0.0, 1.0, "1", (0.0, 1.0), start=0.5, ends=True,
+              doc="share of gearbox_friction's level kept while the torque is off"),
+    )
+    torque_off = True  # the plant applies ``friction`` only where the servo's torque is off
+    SCALED = "gearbox_friction"  # whose level ``gear`` scales while the torque is off
+
+    @classmethod
+    def substep(cls, v: Values) -> bool:
+        """At its null (no Coulomb, no viscous, the gear friction kept whole) it changes
+        nothing: not stepped."""
+        return not cls.is_null(v)
+
+    @classmethod
+    def friction(cls, t: Targets, v: Values, qvel: np.ndarray, force: np.ndarray,
+                 external: np.ndarray | None = None) -> np.ndarray:
+        return v["coulomb"] + v["viscous"] * np.abs(qvel[..., t.dofs])
+
+
 # ------------------------------------------------------------------------------------------------
 # command and observation effects
 
@@ -508,7 +544,7 @@ EFFECTS: dict[str, type[Effect]] = {
     e.name: e
     for e in (
         Latency, Backlash, CoulombFriction, StribeckFriction, LoadDependentFriction,
-        GearboxFriction,
+        GearboxFriction, BackdrivenFriction,
         ViscousDamping, GainError, TorqueLimit, VelocityLimit, GoalSlew, MotorStrength,
         PositionOffset, MountingOffset, InertiaError, MassError, ThermalDerating, VoltageSag,
         SupplyResistance, ObservationNoise,
