@@ -42,6 +42,7 @@ from lowcostdex.errors import ConfigError, PhysicsError
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
 from lowcostdex.sim.effects import exogenous as exo
+from lowcostdex.sim.effects.friction_level import friction_level
 from lowcostdex.sim.effects.prepare import compile_with_effects as compile_with_effects
 from lowcostdex.sim.effects.prepare import prepare_spec as prepare_spec
 
@@ -70,7 +71,6 @@ class _PlantBase:
         self._state: dict[str, np.ndarray] = {}
         self._static_gain: np.ndarray | None = None
         self._static_friction: np.ndarray | None = None
-        self._off_scaled: set[str] = set()
         self._torque_on = np.ones(self._lead + (self.model.nu,), dtype=bool)
         self._static_forcerange: np.ndarray | None = None
         self._static_forcelimited: np.ndarray | None = None
@@ -216,7 +216,6 @@ class _PlantBase:
         self._apply_torque_mask()
         self._friction = [b for b in self._bound if b.cls.substep(b.values)]
         self._has_friction = bool(self._friction)
-        self._off_scaled = {b.cls.SCALED for b in self._friction if b.cls.torque_off}
         self._live = [b for b in self._bound if b.cls.live]
         self._has_exo = any(b.cls.kind == "exogenous" for b in self._bound)
         self._commands = [b for b in self._bound if b.cls.kind in ("command", "calibration")]
@@ -314,20 +313,8 @@ class _PlantBase:
 
     def _friction_level(self, qvel: np.ndarray, force: np.ndarray,
                         external: np.ndarray | None = None) -> np.ndarray:
-        level = np.array(self._static_friction, copy=True)
-        own: dict[str, np.ndarray] = {}  # levels a torque-off law scales (``Effect.SCALED``)
-        for b in self._friction:
-            d = b.targets.dofs
-            lv = b.cls.friction(b.targets, b.values, qvel, force, external)
-            if b.cls.name in self._off_scaled:
-                own[b.cls.name] = np.zeros(level.shape)
-                own[b.cls.name][..., d] = lv
-            if b.cls.torque_off:  # back-driven: only where the servo's torque is off
-                kept = own.get(b.cls.SCALED, np.zeros(level.shape))[..., d]
-                lv = np.where(self._torque_on[..., b.targets.actuators], 0.0,
-                              lv - (1.0 - b.values["gear"]) * kept)
-            level[..., d] = level[..., d] + lv
-        return level
+        return friction_level(self._static_friction, self._friction, qvel, force, external,
+                              self._torque_on)
 
     def measured_qpos(self, qpos: np.ndarray | None = None) -> np.ndarray:
         """qpos as the encoders report it: observation effects applied (..., nq)."""
