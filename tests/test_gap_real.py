@@ -490,3 +490,33 @@ def test_rhoban_lift_and_drop_held_out_with_the_catalogue_torque_off_law_beats_b
     res = identify(ds, train, test, IdentifyConfig(effects=servo_structure(ds), nthread=1))
     assert res.mean(test) < 0.052, (res.mean(test), res.params())
     assert res.params()["backdriven_friction"]["gear"] == [0.0]
+
+
+@pytest.mark.skipif(not (RHOBAN.is_dir() and STS3250.is_dir()),
+                    reason=f"measured data not found at {ROOT}")
+def test_the_torque_off_law_is_fitted_where_training_swings_and_the_catalogues_elsewhere():
+    from lowcostdex.gap.identify import servo_structure
+    from lowcostdex.gap.identify_logs import BACKDRIVEN, BACKDRIVEN_PARAMS, backdriven_plan
+
+    def load(folder):
+        ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
+        lift = [i for i, tr in enumerate(ds.trajectories)
+                if tr.meta.get("trajectory") == "lift_and_drop"]
+        return ds, lift, [i for i in range(len(ds.trajectories)) if i not in lift]
+
+    ds, lift, rest = load(RHOBAN)
+    effects = servo_structure(ds)
+    assert BACKDRIVEN in effects  # its lift_and_drop logs turn the torque off
+    # torque-off swings in training: Coulomb and viscous free, the gear's own level kept
+    assert backdriven_plan(ds, lift + rest, effects, "fit") == (
+        frozenset({(BACKDRIVEN, "gear")}), None)
+    # none: nothing to fit it on, the XL330 catalogue's law (BAM's published M1) after the fit
+    held, after = backdriven_plan(ds, rest, effects, "fit")
+    assert held == BACKDRIVEN_PARAMS and after == {"coulomb": 0.0182, "viscous": 0.0059,
+                                                   "gear": 0.0}
+    assert backdriven_plan(ds, rest, effects, "null") == (BACKDRIVEN_PARAMS, None)
+    assert backdriven_plan(ds, rest, tuple(e for e in effects if e != BACKDRIVEN), "fit") == (
+        frozenset(), None)
+    # the STS3250 has no catalogue law: held at its null (the gear friction back-driven whole)
+    ds, lift, rest = load(STS3250)
+    assert backdriven_plan(ds, rest, servo_structure(ds), "fit") == (BACKDRIVEN_PARAMS, None)
