@@ -65,7 +65,10 @@ def backdriven_plan(ds: Dataset, train: Sequence[int], effects: Sequence[str], m
     friction's back-driven level not kept (``gear`` 0): the torque-on fit holds that share at 1
     and brakes the swing with its whole load friction (Rhoban lift_and_drop fold 64.0 mrad; the
     XL330 catalogue's law 40.9; the torque-on fit's own Coulomb + viscous as the law 168.8).
-    "null": held at its null everywhere (the law absent, as before it existed)."""
+    "null": held at its null everywhere (the law absent, as before it existed). The rest
+    breakaway that ``gap.rest_friction`` scans on the torque-on logs is not reduced by the law's
+    Coulomb level (it acts with the torque on too; reduced, Pham's lift_and_drop fold lost it:
+    3.4 -> 8.1 mrad)."""
     if BACKDRIVEN not in effects:
         return frozenset(), None
     if mode == "null":

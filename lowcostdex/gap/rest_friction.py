@@ -117,21 +117,10 @@ def gear_breakaway(ds: Dataset, logs: Sequence[int], effects: Sequence[AppliedEf
                    ) -> np.ndarray:
     """[N m] per effect joint, the breakaway at rest the fitted ``gearbox_friction`` gives a
     back-driven joint at the largest gravity torque of ``logs``: static x backdrive x |tau_g|
-    (torque off: the gears carry backdrive x the load; 0 without a gear friction), times the
-    share a torque-off law (``backdriven_friction``) keeps, plus that law's own Coulomb level."""
+    (torque off: the gears carry backdrive x the load; 0 without a gear friction)."""
     joints = ds.effect_joints
     out = np.zeros(len(joints))
     tau = None
-    keep = np.ones(len(joints))
-    for e in effects:
-        if e.name == "backdriven_friction":
-            n = (len(e.joints),)
-            share = np.broadcast_to(np.asarray(e.values.get("gear", 1.0), float), n)
-            own = np.broadcast_to(np.asarray(e.values.get("coulomb", 0.0), float), n)
-            for k, j in enumerate(e.joints):
-                if j in joints:
-                    keep[joints.index(j)] = share[k]
-                    out[joints.index(j)] += own[k]
     for e in effects:
         if e.name != "gearbox_friction":
             continue
@@ -141,8 +130,7 @@ def gear_breakaway(ds: Dataset, logs: Sequence[int], effects: Sequence[AppliedEf
         back = np.broadcast_to(np.asarray(e.values.get("backdrive", 1.0), float), n)
         for k, j in enumerate(e.joints):
             if j in joints:
-                out[joints.index(j)] += (static[k] * back[k] * tau[joints.index(j)]
-                                         * keep[joints.index(j)])
+                out[joints.index(j)] += static[k] * back[k] * tau[joints.index(j)]
     return out
 
 
