@@ -65,10 +65,12 @@ def backdriven_plan(ds: Dataset, train: Sequence[int], effects: Sequence[str], m
     friction's back-driven level not kept (``gear`` 0): the torque-on fit holds that share at 1
     and brakes the swing with its whole load friction (Rhoban lift_and_drop fold 64.0 mrad; the
     XL330 catalogue's law 40.9; the torque-on fit's own Coulomb + viscous as the law 168.8).
-    "null": held at its null everywhere (the law absent, as before it existed). The rest
-    breakaway that ``gap.rest_friction`` scans on the torque-on logs is not reduced by the law's
-    Coulomb level (it acts with the torque on too; reduced, Pham's lift_and_drop fold lost it:
-    3.4 -> 8.1 mrad)."""
+    "null": held at its null everywhere (the law absent, as before it existed). Nor set where
+    the training logs' largest gravity torque is below the law's Coulomb level (the load cannot
+    back-drive the gears: nothing swings, and the law only stops the arm's coasting at the
+    release sooner than the real one: Pham's 4 g arm, 0.004 N m, lift_and_drop fold 3.4 -> 8.3
+    mrad with it; Rhoban's 0.45 N m). The rest breakaway ``gap.rest_friction`` scans on the
+    torque-on logs is not reduced by the law's Coulomb level (it acts with the torque on too)."""
     if BACKDRIVEN not in effects:
         return frozenset(), None
     if mode == "null":
@@ -76,8 +78,13 @@ def backdriven_plan(ds: Dataset, train: Sequence[int], effects: Sequence[str], m
     if torque_off_seen(ds, train):
         return frozenset({(BACKDRIVEN, "gear")}), None
     law = catalogue_backdriven(ds, train)
-    return BACKDRIVEN_PARAMS, (None if law is None else
-                               {"coulomb": law[0], "viscous": law[1], "gear": 0.0})
+    if law is None:
+        return BACKDRIVEN_PARAMS, None
+    from lowcostdex.gap.rest_friction import gravity_torque
+
+    if not np.max(gravity_torque(ds, train)) > law[0]:
+        return BACKDRIVEN_PARAMS, None  # a load too light to back-drive the gears: no swing
+    return BACKDRIVEN_PARAMS, {"coulomb": law[0], "viscous": law[1], "gear": 0.0}
 
 
 def set_backdriven(effects: list[AppliedEffect], values: dict[str, float] | None,
