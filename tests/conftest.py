@@ -99,13 +99,22 @@ def pytest_xdist_make_scheduler(config, log):
     """``--dist loadfile`` with the files of ``HEAVY_FILES`` handed out first, heaviest first."""
     if config.getvalue("dist") != "loadfile":
         return None
-    from xdist.scheduler import LoadFileScheduling
+    try:
+        from xdist.scheduler import LoadFileScheduling
+    except ImportError:  # pragma: no cover - a future xdist without it: its own scheduling
+        return None
+    # the order leans on xdist's internals (3.5-3.8: an OrderedDict ``workqueue`` of files and
+    # ``_assign_work_unit``); an xdist without them keeps its own order instead of failing the run
+    if not hasattr(LoadFileScheduling, "_assign_work_unit"):  # pragma: no cover
+        return None
 
     class HeaviestFirst(LoadFileScheduling):
         def _assign_work_unit(self, node):
-            # move the heaviest listed file still waiting to the front of the queue
-            scope = max(self.workqueue, key=lambda s: HEAVY_FILES.get(s.rsplit("/", 1)[-1], 0))
-            self.workqueue.move_to_end(scope, last=False)
+            queue = getattr(self, "workqueue", None)
+            if queue and hasattr(queue, "move_to_end"):
+                # move the heaviest listed file still waiting to the front of the queue
+                scope = max(queue, key=lambda s: HEAVY_FILES.get(str(s).rsplit("/", 1)[-1], 0))
+                queue.move_to_end(scope, last=False)
             super()._assign_work_unit(node)
 
     return HeaviestFirst(config, log)
