@@ -38,6 +38,12 @@ FAST: frozenset[str] = frozenset()
 # clean_position_100hz clean (held-out 0.83 mrad, floor 0.59, analysed at 0.25 ms; 130 s CPU).
 # com_offset_torque pass (position_offset on pip/dip -93/-98 mrad + mass_error as stand-ins, held-out
 # 40.1 -> 1.86 mrad, gain CI [24.9, 49.8]; 810 s CPU).
+# Since af3c435 (gap.standin, session 20) its verdict says the offsets "may stand in for a
+# centre-of-mass shift, link geometry or a tilted base: check before re-zeroing" (pip/dip share
+# 73/87 % of their information with mass_error; decision step replayed on the saved report).
+# encoder_sine_torque pass on 3bd40a3 (session 20, gap-judge15; 1333 s CPU): position_offset as
+# its stand-in (abd/mcp 2.9/4.0 mrad, pip/dip intervals holding 0), held-out 3.54 -> 2.19 mrad,
+# gain CI [0.78, 2.06] mrad (no mass effect beside it: no stand-in note).
 # voltage_sag_torque exact on b1a5c7c (session 20, gap-exo15: exogenous effects on every actuator
 # kind): voltage_sag weight 1.026-1.037 on the four joints for 1 (the drive scales with V/V0),
 # every 95 % interval holding 1, held-out RMSE 54.8 -> 3.02 mrad (floor 0.44), 721 s CPU.
