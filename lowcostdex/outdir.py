@@ -35,13 +35,25 @@ MARKER = ".lowcostdex.json"
 PREVIOUS = "previous"
 
 
+def user_path(path: str | os.PathLike[str]) -> Path:
+    """``path`` as a :class:`~pathlib.Path`, a leading ``~`` or ``~user`` read as that home folder,
+    as the shell and the CLI read it. Every Python entry point that takes a path from a user
+    (``train(out_dir=...)``, ``write_report``, ``save_demos``, ``load_demos``, ``load_policy``, log
+    readers) goes through it: pathlib leaves ``"~/runs"`` alone, so a run went to a folder named
+    ``~`` in the working folder, and a file under ``"~/..."`` was "not found"."""
+    text = os.fspath(path)
+    if isinstance(text, str) and text.startswith("~"):
+        return Path(os.path.expanduser(text))
+    return Path(text)
+
+
 class OutputRefused(LowcostdexError):
     """An ``--out`` folder holds files the tool did not write, or another run's settings."""
 
 
 def read_marker(path: str | Path) -> dict[str, Any] | None:
     """The marker of an output folder, or None when there is none (or it is unreadable)."""
-    marker = Path(path) / MARKER
+    marker = user_path(path) / MARKER
     try:
         data = json.loads(marker.read_text())
     except (OSError, ValueError):
@@ -68,7 +80,7 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
       OutputRefused: ``path`` is a file, or a non-empty folder not written by ``command``, or a
         previous output whose ``must_match`` settings differ.
     """
-    out = Path(path)
+    out = user_path(path)
     if out.exists() and not out.is_dir():
         raise OutputRefused(f"--out {out} is a file, not a folder; give a folder path")
     check_writable(out)
@@ -134,7 +146,7 @@ def _listing(path: Path, n: int = 3) -> str:
 def write_marker(path: str | Path, command: str,
                  settings: Mapping[str, Any] | None = None) -> None:
     """Write (atomically) the marker that says ``command`` wrote ``path``."""
-    out = Path(path)
+    out = user_path(path)
     out.mkdir(parents=True, exist_ok=True)
     data = {"command": command, "settings": dict(settings or {}),
             "written": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
@@ -162,7 +174,7 @@ def usual_mode(path: str | Path, fd: int | None = None, *, folder: bool = False)
 
 def write_text_atomic(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
-    path = Path(path)
+    path = user_path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         usual_mode(tmp, fd)
@@ -187,7 +199,7 @@ def archive(folder: str | Path, names: Iterable[str]) -> Path | None:
 
     Returns the archive folder, or None when none of them existed.
     """
-    root = Path(folder)
+    root = user_path(folder)
     present = [n for n in dict.fromkeys(names) if n and n != PREVIOUS and (root / n).exists()]
     if not present:
         return None
@@ -210,7 +222,7 @@ def staged_output(path: str | Path, command: str,
     same command at ``path`` is moved into ``path/previous/<time>/`` (its own ``previous/``
     history is carried over), never deleted.
     """
-    out = Path(path)
+    out = user_path(path)
     had_previous = check_out(out, command, settings)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
@@ -252,7 +264,7 @@ def claim(path: str | Path, what: str, then: str = "") -> None:
         import fcntl
     except ImportError:
         return
-    key = os.path.realpath(path)
+    key = os.path.realpath(user_path(path))
     if key in _HELD:
         return
     fd = os.open(key, os.O_RDONLY)
@@ -271,7 +283,7 @@ def claim(path: str | Path, what: str, then: str = "") -> None:
 
 def release(path: str | Path) -> None:
     """Let go of the lock :func:`claim` took on ``path`` (no-op when not held)."""
-    fd = _HELD.pop(os.path.realpath(path), None)
+    fd = _HELD.pop(os.path.realpath(user_path(path)), None)
     if fd is not None:
         os.close(fd)
 
@@ -283,7 +295,7 @@ def check_out_file(path: str | Path, *, overwrite: bool = False) -> Path:
       OutputRefused: ``path`` is a folder, its folder does not exist, or it exists and
         ``overwrite`` is False (the user's file is left untouched).
     """
-    out = Path(path)
+    out = user_path(path)
     if out.is_dir():
         raise OutputRefused(f"--out {out} is a folder; give a file path")
     check_file_folder(out)
@@ -300,7 +312,7 @@ def check_json_out(path: str | Path, command: str, keys: Iterable[str],
     replaced. A user's other file is refused untouched, before the command does its work."""
     import json
 
-    out = Path(path)
+    out = user_path(path)
     if out.is_dir():
         raise OutputRefused(f"{option} {out} is a folder; give a file path, e.g. "
                             f"{option} {out / 'summary.json'}")

@@ -95,6 +95,7 @@ from lowcostdex.algos.run_files import (  # noqa: F401
     write_json,
 )
 from lowcostdex.errors import ConfigError
+from lowcostdex.outdir import user_path
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.csv"
@@ -240,7 +241,7 @@ class Run:
             # current folder, where the run was written beside the user's files
             raise ConfigError(f"run directory {path!r} is no folder path; give one, e.g. "
                               "'runs/npg'")
-        path = Path(path)
+        path = user_path(path)
         config = _jsonable(config)
         if path.exists() and not path.is_dir():
             raise ConfigError(f"run directory {path} is a file; choose a directory")
@@ -331,7 +332,7 @@ class Run:
         if keep_last < 1:
             raise ConfigError(f"keep_last={keep_last} must be >= 1")
         cls.check(path, config, resume=resume, mutable_keys=mutable_keys)
-        path = Path(path)
+        path = user_path(path)
         created = not path.exists()
         path.mkdir(parents=True, exist_ok=True)
         from lowcostdex.outdir import claim

@@ -11,12 +11,13 @@ from pathlib import Path
 from lowcostdex.algos import experiment as ex
 from lowcostdex.algos.policy import GaussianMLPPolicy
 from lowcostdex.errors import ConfigError, InputError
+from lowcostdex.outdir import user_path
 
 
 def load_policy(path: str | Path) -> GaussianMLPPolicy:
     """Load the policy of a run directory (``policy.pt``: the best evaluated policy of the run,
     see :class:`~lowcostdex.algos.experiment.BestPolicy`) or of a checkpoint file."""
-    path = Path(path)
+    path = user_path(path)
     file = path / "policy.pt" if path.is_dir() else path
     controller = path / "controller.npz" if path.is_dir() else path
     if controller.is_file() and (controller.suffix == ".npz" or not file.is_file()):

@@ -32,6 +32,7 @@ from lowcostdex.demonstrations.file import (
     read_numbered_episodes,
 )
 from lowcostdex.errors import ConfigError, InputError
+from lowcostdex.outdir import user_path
 from lowcostdex.sim.envs.hand_env import control_period
 
 Teacher = Callable[[gym.Env, np.ndarray], np.ndarray]
@@ -187,7 +188,7 @@ def save_demos(path: str | Path, episodes: Sequence[Episode], info: DatasetInfo)
     """
     if not episodes:
         raise ConfigError("no demonstration episodes to save")
-    path = Path(path)
+    path = user_path(path)
     partial = path.with_name(path.name + ".partial")
     partial.unlink(missing_ok=True)
     writer = DemoWriter(partial, info)

@@ -66,6 +66,7 @@ import h5py
 import numpy as np
 
 from lowcostdex.errors import ConfigError, InputError, check_choice
+from lowcostdex.outdir import user_path
 
 FORMAT = "lowcostdex-demos"
 FORMAT_VERSION = 2
@@ -206,7 +207,7 @@ class DemoWriter:
     """
 
     def __init__(self, path: str | Path, info: DatasetInfo, label_model: dict | None = None):
-        self.path = Path(path)
+        self.path = user_path(path)
         self.info = info
         self.label_model = label_model
         if self.path.exists():
@@ -296,7 +297,7 @@ def open_dataset(path: str | Path) -> h5py.File:
     if not isinstance(path, (str, os.PathLike)):
         raise InputError(f"a demonstration file is given by its path (.h5), not "
                          f"{type(path).__name__}")
-    path = Path(path)
+    path = user_path(path)
     if not path.exists():
         raise InputError(f"demonstration file {path} does not exist")
     if path.is_dir():
@@ -386,7 +387,7 @@ def read_numbered_episodes(path: str | Path, only_successful: bool = False
     """:func:`read_episodes` with each episode's number k (its group ``episode_<k>``)."""
     out = []
     with open_dataset(path) as f:  # refuses what is not a path first
-        path = Path(path)
+        path = user_path(path)
         file_source = _read(f, "source", path, str)
         dims = {"observations": _read(f, "obs_dim", path, int),
                 "actions": _read(f, "act_dim", path, int)}

@@ -14,6 +14,7 @@ import numpy as np
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap.log_checks import MAX_JSON_BYTES, MAX_SAMPLES, trajectory_from_columns
 from lowcostdex.gap.trajectory import LogError, Trajectory
+from lowcostdex.outdir import user_path
 from lowcostdex.sim import servo
 from lowcostdex.sim.models.bench import BENCH_JOINT, BenchConfig
 
@@ -236,7 +237,7 @@ def read_bam(path: str | Path, timestep: float | None = None) -> tuple[Trajector
       wrong types, missing fields, unknown motor, implausible values (see
       ``trajectory_from_columns``).
     """
-    path = Path(path)
+    path = user_path(path)
     if not path.exists():
         raise LogError(f"{path}: no such file")
     if path.is_dir():

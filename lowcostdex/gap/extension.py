@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.outdir import user_path
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, DomainRandomization, Targets, effect
 from lowcostdex.sim.effects.randomization import EXTENDED_MODEL_FORMAT
 from lowcostdex.sim.plant import Plant, prepare_spec
@@ -106,7 +107,7 @@ def dr_ranges(effects: Sequence[AppliedEffect], intervals: dict[str, dict[str, l
 def save_extended(folder: str | Path, models: dict[str, str], effects: Sequence[AppliedEffect],
                   intervals: dict[str, dict[str, list]] | None = None) -> Path:
     """Write an extended-model folder (see the module docstring)."""
-    folder = Path(folder)
+    folder = user_path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     files = {}
     baked_all: set[str] = set()
@@ -189,7 +190,7 @@ class ExtendedModel:
 
 def load_extended(folder: str | Path) -> ExtendedModel:
     """Load a folder written by ``save_extended`` (or a report folder's ``extended/``)."""
-    folder = Path(folder)
+    folder = user_path(folder)
     path = folder / "effects.json"
     if not path.exists() and (folder / "extended" / "effects.json").exists():
         folder, path = folder / "extended", folder / "extended" / "effects.json"

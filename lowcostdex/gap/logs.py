@@ -70,6 +70,7 @@ from lowcostdex.gap.trajectory import (
     zoh,
     zoh_index,
 )
+from lowcostdex.outdir import user_path
 
 __all__ = [
     "BAM_MOTORS", "CHANNELS", "CLIP_PILE", "FROZEN_CROSS", "GAP_FACTOR", "GAP_MIN", "LogError",
@@ -94,7 +95,7 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
 
 def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     """``read_columns`` and its notes (a CSV's text columns left out)."""
-    path = Path(path)
+    path = user_path(path)
     notes: list[str] = []
     if not path.exists():
         raise LogError(f"{path}: no such file")
@@ -222,7 +223,7 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
     unit of a project-format log's goal, qpos and qvel columns (pi/180: logged in degrees);
     ``time_scale``: seconds per unit of its 'time' and 'goal_time' columns (1e-3: integer
     milliseconds); qvel stays per second."""
-    path = Path(path)
+    path = user_path(path)
     if path.suffix.lower() == ".json":
         return read_bam(path)[0]
     cols, notes = _read_columns(path)
@@ -271,7 +272,7 @@ def write_log(path: str | Path, traj: Trajectory) -> Path:
         raise LogError(f"write_log(path, traj) writes a lowcostdex.gap.Trajectory (name, time "
                        f"[s], goal and qpos [rad] arrays, actuator and joint names), not "
                        f"{type(traj).__name__}")
-    path = Path(path)
+    path = user_path(path)
     cols = traj.to_columns()
     if path.suffix.lower() == ".npz":
         np.savez_compressed(path, **cols)

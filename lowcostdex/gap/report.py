@@ -16,7 +16,7 @@ from lowcostdex.gap import chaos
 from lowcostdex.gap.analyze import GapResult
 from lowcostdex.gap.extension import save_extended
 from lowcostdex.gap.results import timestep_note
-from lowcostdex.outdir import staged_output
+from lowcostdex.outdir import staged_output, user_path
 from lowcostdex.sim.mjwarnings import describe_warnings
 
 PLOTS = ("traces.png", "residuals.png", "candidates.png")
@@ -58,7 +58,7 @@ def write_report(result: GapResult, out: str | Path) -> Path:
         plot_residuals(result, tmp / "residuals.png")
         plot_candidates(result, tmp / "candidates.png")
         (tmp / "report.md").write_text(markdown(result))
-    return Path(out)
+    return user_path(out)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -1,0 +1,80 @@
+"""Careless calls, session 20 (careless16): what careless15 left.
+
+Every truth here is the file system and the shell's own rule for '~' (os.path.expanduser under
+a HOME the test sets), not project code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pointmass import demo_info, expert_action, make_pointmass
+
+# ------------------------------------------------------------------------------------------------
+# '~' in the Python API: only the CLI read it as the home folder (careless15); train(out_dir=
+# "~/runs/x") wrote ./~/runs/x, and load_demos("~/d.h5") said "not found".
+
+
+@pytest.fixture
+def home_and_cwd(tmp_path, monkeypatch):
+    home, cwd = tmp_path / "home", tmp_path / "work dir"
+    home.mkdir()
+    cwd.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(cwd)
+    return home, cwd
+
+
+def test_a_run_folder_under_tilde_is_in_the_home_folder(home_and_cwd):
+    from lowcostdex.algos.experiment import Run
+
+    home, cwd = home_and_cwd
+    run = Run.open("~/runs/npg", {"n_iter": 2}, tensorboard=False)
+    run.close()
+    assert (home / "runs" / "npg" / "config.json").is_file()
+    assert list(cwd.iterdir()) == []  # no folder named '~' beside the user's files
+    Run.check("~/runs/npg", {"n_iter": 2})  # the same folder is seen again (a start, no ckpt)
+
+
+def test_demos_saved_and_loaded_under_tilde(home_and_cwd):
+    from lowcostdex.demonstrations.dataset import load_demos, save_demos, teacher_episodes
+
+    home, cwd = home_and_cwd
+    episodes = teacher_episodes(make_pointmass(), lambda env, obs: expert_action(obs),
+                                seeds=range(2))
+    written = save_demos("~/demos.h5", episodes, demo_info())
+    assert written == home / "demos.h5" and written.is_file()
+    assert list(cwd.iterdir()) == []
+    assert len(load_demos("~/demos.h5", only_successful=False).observations) > 0
+
+
+def test_a_policy_and_a_log_under_tilde(home_and_cwd):
+    import torch
+
+    from lowcostdex.algos.configs import PolicyConfig
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+    from lowcostdex.algos.train import load_policy
+    from lowcostdex.gap import Trajectory, read_log, write_log
+
+    home, cwd = home_and_cwd
+    policy = GaussianMLPPolicy(6, 2, PolicyConfig(hidden_sizes=(8,)),
+                               torch.Generator().manual_seed(3))
+    torch.save({"policy": policy.to_checkpoint()}, home / "policy.pt")
+    obs = np.zeros((1, 6))
+    assert np.array_equal(np.asarray(load_policy("~/policy.pt").act(obs, deterministic=True)),
+                          np.asarray(policy.act(obs, deterministic=True)))
+    t = np.arange(100) * 0.01
+    goal, q = np.sin(t)[:, None], 0.9 * np.sin(t - 0.05)[:, None]
+    write_log("~/log.csv", Trajectory("log", t, goal, q, ("j",), ("j",)))
+    assert (home / "log.csv").is_file() and list(cwd.iterdir()) == []
+    assert np.allclose(read_log("~/log.csv").qpos, q)
+
+
+def test_a_report_folder_under_tilde(home_and_cwd):
+    from lowcostdex.outdir import staged_output  # write_report's only way to its folder
+
+    home, cwd = home_and_cwd
+    with staged_output("~/report", "gap analyze") as tmp:
+        (tmp / "report.md").write_text("x")
+    assert (home / "report" / "report.md").read_text() == "x"
+    assert list(cwd.iterdir()) == []
