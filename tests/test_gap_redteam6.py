@@ -47,6 +47,10 @@ FAST: frozenset[str] = frozenset()
 # voltage_sag_torque exact on b1a5c7c (session 20, gap-exo15: exogenous effects on every actuator
 # kind): voltage_sag weight 1.026-1.037 on the four joints for 1 (the drive scales with V/V0),
 # every 95 % interval holding 1, held-out RMSE 54.8 -> 3.02 mrad (floor 0.44), 721 s CPU.
+# thermal_position exact on b1a5c7c (gap-exo15): thermal_derating alone, tempcoef 0.00486-0.00500
+# for the truth's linear 0.004 (1 - a dT; the catalogue's 1 / (1 + a dT) matches it at a = 0.0042-0.005
+# over 35-75 deg C: 3 of 4 intervals miss 0.004, unscored), held-out 5.97 -> 0.744 mrad (floor 0.55),
+# 732 s CPU.
 MISSES: dict[str, str] = {
     "deadband_torque": "main 34ab122, 488 s CPU: gain_error named as the deadband's stand-in "
     "(scale 0.59-0.82), held-out 485 -> 168 mrad but the gain's 95 % interval [-49.6, 603] mrad "
