@@ -78,3 +78,44 @@ def test_a_report_folder_under_tilde(home_and_cwd):
         (tmp / "report.md").write_text("x")
     assert (home / "report" / "report.md").read_text() == "x"
     assert list(cwd.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------------
+# a policy file lacking a PolicyConfig setting loaded silently with its default
+
+
+def _checkpoint(**config):
+    import torch
+
+    from lowcostdex.algos.configs import PolicyConfig
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+
+    policy = GaussianMLPPolicy(3, 2, PolicyConfig(hidden_sizes=(8,), **config),
+                               torch.Generator().manual_seed(1))
+    return policy, policy.to_checkpoint()
+
+
+@pytest.mark.parametrize("setting,value", [("activation", "relu"), ("min_obs_std", 0.5)])
+def test_a_policy_file_lacking_a_setting_it_acts_by_is_refused(setting, value):
+    """Truth: the same net with relu instead of tanh (or another std floor) acts otherwise, so
+    the default is a different policy; the refusal names the setting."""
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+    from lowcostdex.errors import ConfigError
+
+    _, ckpt = _checkpoint(**{setting: value})
+    del ckpt["config"][setting]
+    with pytest.raises(ConfigError, match=f"lacks {setting}, which shape how the policy acts"):
+        GaussianMLPPolicy.from_checkpoint(ckpt)
+
+
+def test_a_policy_file_lacking_a_training_setting_loads_with_a_warning():
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+
+    policy, ckpt = _checkpoint(min_log_std=-2.0)
+    del ckpt["config"]["min_log_std"]
+    with pytest.warns(UserWarning, match=r"lacks min_log_std: loaded with the default "
+                                         r"\(min_log_std=-3.0\)"):
+        loaded = GaussianMLPPolicy.from_checkpoint(ckpt)
+    obs = np.ones((2, 3))
+    assert np.array_equal(np.asarray(loaded.act(obs, deterministic=True)),
+                          np.asarray(policy.act(obs, deterministic=True)))

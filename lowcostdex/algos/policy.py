@@ -79,6 +79,33 @@ def gaussian_kl(
 # Observation normalisation
 
 
+# settings that shape how a loaded policy acts (the layers, their non-linearity, the floor of the
+# observation std it divides by); the others only set up or clamp training
+ACTING_SETTINGS = ("hidden_sizes", "activation", "min_obs_std")
+
+
+def _saved_config(saved: Any) -> PolicyConfig:
+    """The PolicyConfig of a policy file. A file lacking a setting (written by hand or by a
+    version without it) loaded with the default silently: refused for a setting that changes how
+    the policy acts, a warning naming the default for one that only matters to further training."""
+    config = PolicyConfig.from_dict(saved)
+    missing = [f for f in asdict(config) if f not in saved]
+    acting = [f for f in missing if f in ACTING_SETTINGS]
+    if acting:
+        raise ConfigError(
+            f"policy checkpoint config lacks {', '.join(acting)}, which shape how the policy acts;"
+            f" the default ({', '.join(f'{f}={getattr(config, f)!r}' for f in acting)}) may not"
+            " be what it was trained with. Add the value it was trained with to the file's "
+            "'config' (to_checkpoint() writes every setting)")
+    if missing:
+        import warnings
+
+        warnings.warn(f"policy checkpoint config lacks {', '.join(missing)}: loaded with the "
+                      f"default ({', '.join(f'{f}={getattr(config, f)!r}' for f in missing)}); "
+                      "it matters only to further training of this policy", stacklevel=3)
+    return config
+
+
 class ObsNormalizer(nn.Module):
     """Running mean and standard deviation of observations, or fixed statistics.
 
@@ -290,9 +317,7 @@ class GaussianMLPPolicy(nn.Module):
                               "'float32', 'float64'")
         for key in ("obs_dim", "act_dim"):
             check_number(f"policy checkpoint {key}", ckpt[key], 1, integer=True)
-        policy = cls(
-            ckpt["obs_dim"], ckpt["act_dim"], PolicyConfig.from_dict(ckpt["config"]), None, dtype
-        )
+        policy = cls(ckpt["obs_dim"], ckpt["act_dim"], _saved_config(ckpt["config"]), None, dtype)
         try:
             policy.load_state_dict(ckpt["state_dict"])
         except (RuntimeError, TypeError, AttributeError) as e:  # sizes or keys of another net
