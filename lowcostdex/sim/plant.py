@@ -206,6 +206,7 @@ class _PlantBase:
                  for b in self._bound if b.cls.name == "mass_error"]
         self._set_const(np.broadcast_to(np.any(moved, axis=0), self._lead) if moved else None)
         self._static_gain = np.array(self.array("actuator_gainprm"), copy=True)
+        self._ctrl_gain = self._static_gain[..., _CONTROLLER_GAINS]  # (..., nu, 3), unmasked
         self._static_friction = np.array(self.array("dof_frictionloss"), copy=True)
         self._static_forcerange = np.array(self.array("actuator_forcerange"), copy=True)
         self._static_forcelimited = np.array(self.array("actuator_forcelimited"), copy=True)
@@ -255,7 +256,7 @@ class _PlantBase:
         fr[...] = np.where(self._torque_on[..., None], self._drive_forcerange, 0.0)
         fl[...] = np.where(self._torque_on, self._static_forcelimited, 1)
         gain = self.array("actuator_gainprm")
-        gain[..., _CONTROLLER_GAINS] = self._static_gain[..., _CONTROLLER_GAINS]
+        gain[..., _CONTROLLER_GAINS] = self._ctrl_gain  # as the exogenous effects left them
         self._mask_controller(gain)
 
     def _mask_controller(self, gain: np.ndarray) -> None:
@@ -303,6 +304,9 @@ class _PlantBase:
         if not self._has_exo:
             return
         gain, drive = exo.rescale(self, self._bound, channels, self._static_gain, self._drive)
+        # a servo update (``_range_in_force``) restores these, not the static gains: a sagging
+        # supply or a hot winding lasts the whole control period under a servo period too
+        self._ctrl_gain = gain[..., _CONTROLLER_GAINS]
         if drive is not None:  # other actuators: torque per command and force range
             self._drive_forcerange = exo.scale_drive(self, gain, drive, self._drive,
                                                      self._static_bias, self._static_forcerange)
