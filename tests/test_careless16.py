@@ -119,3 +119,59 @@ def test_a_policy_file_lacking_a_training_setting_loads_with_a_warning():
     obs = np.ones((2, 3))
     assert np.array_equal(np.asarray(loaded.act(obs, deterministic=True)),
                           np.asarray(policy.act(obs, deterministic=True)))
+
+
+# ------------------------------------------------------------------------------------------------
+# `train --resume` typed without the run's flags: told the differing settings, not what to type
+
+
+def test_a_resume_without_the_runs_flags_names_the_flags_to_type(tmp_path, capsys):
+    """Truth: the flags the refusal names, added to the same command, pass the run's own
+    resume check (Run.check against the config.json the first command wrote)."""
+    import dataclasses
+    import shlex
+
+    import torch
+    from cli_check import run_cli
+
+    from lowcostdex.algos.experiment import CHECKPOINT_DIR, Run
+    from lowcostdex.algos.train import MUTABLE_ON_RESUME
+    from lowcostdex.algos.train_cli import config_from_args
+    from lowcostdex.cli import build_parser
+
+    run = tmp_path / "run"
+    first = ["train", "npg", "--out", str(run), "--n-traj", "7", "--hidden", "16", "16",
+             "--eval-paired", "--step-size", "0.02"]
+    Run.open(run, dataclasses.asdict(config_from_args(build_parser().parse_args(first))),
+             tensorboard=False).close()
+    (run / CHECKPOINT_DIR).mkdir()
+    torch.save({"iteration": 0}, run / CHECKPOINT_DIR / "ckpt_000000.pt")
+    again = ["train", "npg", "--out", str(run), "--resume"]
+    code, err = run_cli(again, capsys)
+    assert code != 0
+    said = err.split("The run's own settings as flags: ")[1].strip()
+    assert set(shlex.split(said)) == {"--eval-paired", "--n-traj", "7", "--hidden", "16",
+                                      "--step-size", "0.02"}
+    typed = build_parser().parse_args([*again, *shlex.split(said)])
+    Run.check(run, dataclasses.asdict(config_from_args(typed)), resume=True,
+              mutable_keys=MUTABLE_ON_RESUME)
+
+
+def test_a_resume_with_a_switch_the_run_lacked_says_leave_it_out(tmp_path, capsys):
+    import dataclasses
+
+    import torch
+    from cli_check import run_cli
+
+    from lowcostdex.algos.experiment import CHECKPOINT_DIR, Run
+    from lowcostdex.algos.train_cli import config_from_args
+    from lowcostdex.cli import build_parser
+
+    run = tmp_path / "run"
+    first = ["train", "npg", "--out", str(run)]
+    Run.open(run, dataclasses.asdict(config_from_args(build_parser().parse_args(first))),
+             tensorboard=False).close()
+    (run / CHECKPOINT_DIR).mkdir()
+    torch.save({"iteration": 0}, run / CHECKPOINT_DIR / "ckpt_000000.pt")
+    code, err = run_cli([*first, "--resume", "--eval-paired"], capsys)
+    assert code != 0 and err.endswith("The run's own settings as flags: without --eval-paired")

@@ -111,6 +111,16 @@ _RUN_NAMES = (METRICS_FILE, CURVES_FILE, CHECKPOINT_DIR, "tb", BEST_POLICY_FILE,
 # The run directory
 
 
+class ResumeMismatch(ConfigError):
+    """A resume whose configuration differs from the run's; ``stored`` is the run's own
+    (config.json) and ``keys`` the differing settings as dotted paths (the CLI turns them
+    into the flags to type)."""
+
+    def __init__(self, message: str, stored: Mapping[str, Any], keys: list[str]):
+        super().__init__(message)
+        self.stored, self.keys = stored, keys
+
+
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C stopped a run; the state after its last completed iteration is saved.
 
@@ -290,12 +300,12 @@ class Run:
         fixed_new = {k: v for k, v in config.items() if k not in mutable}
         diffs = _config_differences(fixed_old, fixed_new)
         if diffs:
-            raise ConfigError(
+            raise ResumeMismatch(
                 f"cannot resume {path}: configuration differs ({'; '.join(diffs)}); "
                 f"only {sorted(mutable) or 'no keys'} may change. Give the settings the run "
                 f"was started with (they are in {config_file}; a stopped run printed the "
-                "command that resumes it)"
-            )
+                "command that resumes it)",
+                stored, [d.split(": ", 1)[0] for d in diffs])
         n_iter = config.get("n_iter")
         if isinstance(n_iter, int) and n_iter < last + 1:  # resumed, it would do nothing
             raise ConfigError(

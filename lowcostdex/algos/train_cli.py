@@ -292,11 +292,20 @@ def _run_command(args: argparse.Namespace) -> int:
 def _train_and_report(args: argparse.Namespace, train: Any, config: Any) -> int:
     """Run ``train(config, args.out, resume=args.resume)``; print its outcome and the notes on a
     finished or neighbouring run folder; Ctrl-C names the checkpoint to resume from."""
+    from lowcostdex.algos.experiment import ResumeMismatch
+
     notes = (finished_note(args), beside_note(args))
     try:
         run = train(config, args.out, resume=args.resume)
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)
+    except ResumeMismatch as exc:  # name the flags to type, not only the settings that differ
+        flags, without = resume_flags(args.parser, exc.stored, exc.keys)
+        if not flags and not without:
+            raise
+        said = ([shlex.join(flags)] if flags else []) + [f"without {f}" for f in without]
+        raise ConfigError(f"{exc}. The run's own settings as flags: {'; '.join(said)}"
+                          ) from None
     _print_outcome(run)
     for note in notes:
         if note:
@@ -309,6 +318,42 @@ def _run_ppo(args: argparse.Namespace) -> int:
 
     config = ppo_config_from_args(args)
     return _train_and_report(args, train, config)
+
+
+# run settings whose flag is not the setting's name (the others: --name-with-dashes)
+_FLAG_OF = {"env_id": "--env", "n_workers": "--workers", "policy.hidden_sizes": "--hidden",
+            "nthread": "--threads", "bc.epochs": "--bc-epochs", "bc.log_std": "--bc-log-std",
+            "policy.init_log_std": "--init-log-std", "npg.step_size": "--step-size",
+            "npg.damping": "--damping", "dapg.lam0": "--lam0", "dapg.lam1": "--lam1",
+            "dapg.demo_weight": "--demo-weight"}
+
+
+def resume_flags(parser: argparse.ArgumentParser, stored: Any, keys: list[str]
+                 ) -> tuple[list[str], list[str]]:
+    """The flags that give the run's own value of each differing setting ``keys`` (dotted
+    paths into the run's config.json ``stored``); settings with no flag are left to the
+    message's config.json. Returns the words to type and the options to leave out (a switch or
+    an option the run was started without)."""
+    options = parser._option_string_actions
+    words: list[str] = []
+    without: list[str] = []
+    for key in keys:
+        flag = _FLAG_OF.get(key, "--" + key.replace("_", "-"))
+        value: Any = stored
+        for part in key.split("."):
+            value = value.get(part) if isinstance(value, dict) else None
+        action = options.get(flag)
+        if action is None or (key == "env_kwargs" or flag in ("--env-kwarg", "--out")):
+            continue
+        if isinstance(action, argparse._StoreTrueAction):
+            (words if value else without).append(flag)
+        elif value is None:
+            without.append(flag)
+        elif isinstance(value, (list, tuple)):
+            words += [flag, *map(str, value)]
+        else:
+            words += [flag, str(value)]
+    return words, without
 
 
 def command_line(parser: argparse.ArgumentParser, args: argparse.Namespace,
