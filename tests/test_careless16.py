@@ -175,3 +175,33 @@ def test_a_resume_with_a_switch_the_run_lacked_says_leave_it_out(tmp_path, capsy
     torch.save({"iteration": 0}, run / CHECKPOINT_DIR / "ckpt_000000.pt")
     code, err = run_cli([*first, "--resume", "--eval-paired"], capsys)
     assert code != 0 and err.endswith("The run's own settings as flags: without --eval-paired")
+
+
+# ------------------------------------------------------------------------------------------------
+# two record-demos into one file at once
+
+
+def test_an_append_waits_while_another_process_has_the_demo_file_open(tmp_path):
+    """Truth: HDF5's own lock (a second process holding the file open, as another record-demos's
+    append does); the append failed with 'unable to lock file' and the episode was lost."""
+    import subprocess
+    import sys
+
+    from lowcostdex.demonstrations.dataset import load_demos, teacher_episodes
+    from lowcostdex.demonstrations.file import DemoWriter
+
+    episodes = teacher_episodes(make_pointmass(), lambda env, obs: expert_action(obs),
+                                seeds=range(2))
+    path = tmp_path / "demos.h5"
+    writer = DemoWriter(path, demo_info())
+    writer.append(episodes[0])
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import h5py, sys, time\nf = h5py.File(sys.argv[1], 'a')\n"
+         "print('open', flush=True)\ntime.sleep(1.0)\nf.close()", str(path)],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "open"
+        writer.append(episodes[1])  # while the other process holds it, then after
+    finally:
+        holder.wait(timeout=30)
+    assert load_demos(path, only_successful=False).n_episodes == 2

@@ -196,6 +196,30 @@ class Episode:
         return len(self.actions)
 
 
+# how long an append waits for another process's hold on the file (HDF5 locks a file while it
+# is open: another record-demos appending to it, or a reader); an append holds it for ms
+APPEND_WAIT = 30.0
+
+
+def _open_to_append(path: Path) -> h5py.File:
+    """``h5py.File(path, "a")``, waiting while another process has the file open. Two
+    record-demos into one file at once: an append meeting the other's append failed with HDF5's
+    'unable to lock file' (BlockingIOError) and the episode just recorded was lost; now they
+    take turns (each episode gets its own id: the count is read under the lock)."""
+    import time
+
+    deadline = time.monotonic() + APPEND_WAIT
+    while True:
+        try:
+            return h5py.File(path, "a")
+        except BlockingIOError:
+            if time.monotonic() > deadline:
+                raise InputError(f"{path} has been held open by another process for "
+                                 f"{APPEND_WAIT:g} s (a program reading it, or writing it); "
+                                 "close it, then record again") from None
+            time.sleep(0.05)
+
+
 class DemoWriter:
     """Appends episodes to an HDF5 demo file (created on the first append).
 
@@ -227,7 +251,7 @@ class DemoWriter:
                               f"not match obs_dim {self.info.obs_dim}, act_dim "
                               f"{self.info.act_dim}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        with h5py.File(self.path, "a") as f:
+        with _open_to_append(self.path) as f:
             if "format" not in f.attrs:
                 f.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION,
                                 "total_episodes": 0, "total_steps": 0, **self.info.attrs()})
