@@ -205,3 +205,29 @@ def test_an_append_waits_while_another_process_has_the_demo_file_open(tmp_path):
     finally:
         holder.wait(timeout=30)
     assert load_demos(path, only_successful=False).n_episodes == 2
+
+
+# ------------------------------------------------------------------------------------------------
+# a CSV log with units in its header
+
+
+@pytest.mark.parametrize("header,said", [
+    ("time [s],goal:j,qpos:j", "column 'time [s]' has a unit in its name; name it 'time' and "
+                               "write its values in s"),
+    ("time,goal:j [deg],qpos:j [deg]", "column 'goal:j [deg]' has a unit in its name; name it "
+                                       "'goal:j' and write its values in rad (degrees times "
+                                       "pi/180)"),
+    ("time,goal:j,qpos:j (rad)", "name it 'qpos:j' and write its values in rad:"),
+])
+def test_a_csv_log_with_units_in_its_header_names_the_column_to_write(tmp_path, header, said):
+    """Before: 'time [s]' was a "missing column 'time'"; 'qpos:j [deg]' a joint named
+    'j [deg]'. A user's own column with a unit (not a channel) is not refused by this rule."""
+    from lowcostdex.gap import LogError, read_log
+
+    t = np.arange(100) * 0.01
+    rows = "\n".join(f"{a:.3f},{np.sin(a):.5f},{0.9 * np.sin(a - 0.05):.5f}" for a in t)
+    path = tmp_path / "log.csv"
+    path.write_text(f"{header}\n{rows}\n")
+    with pytest.raises(LogError) as err:
+        read_log(path)
+    assert said in str(err.value)

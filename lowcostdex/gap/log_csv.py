@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lowcostdex.gap.log_checks import PREFIXES_ACTUATOR, PREFIXES_JOINT
+from lowcostdex.gap.log_checks import PLAUSIBLE, PREFIXES_ACTUATOR, PREFIXES_JOINT
 from lowcostdex.gap.trajectory import LogError
 
 MAX_COLUMNS = 1024
@@ -54,6 +54,7 @@ def _read_csv(path: Path, max_rows: int, encoding: str
             if len(header) > MAX_COLUMNS:
                 raise LogError(f"{path}: the header has {len(header)} columns; a log has at "
                                f"most {MAX_COLUMNS}")
+            _check_no_units(path, header)
             trailing = len(header) > 1 and header[-1] == ""  # 'a,b,c,' (a logger's habit)
             if len(set(header)) != len(header):
                 dup = sorted({h for h in header if header.count(h) > 1})
@@ -145,6 +146,28 @@ def _dates(cells: list[str]) -> np.ndarray | None:
                 return None
             out[i] = (t if t.tzinfo else t.replace(tzinfo=timezone.utc)).timestamp()
     return out
+
+
+def _check_no_units(path: Path, header: list[str]) -> None:
+    """A channel's name with a unit in it ('qpos:j [deg]', 'time (s)', a spreadsheet's habit):
+    'time [s]' was a "missing column 'time'", and 'qpos:j [deg]' a joint named 'j [deg]' whose
+    values were read as radians. Refused, naming the column to write and the unit it is in."""
+    for column in header:
+        name = column.rstrip()
+        if not name.endswith(("]", ")")):
+            continue
+        opening = name.rfind("[" if name.endswith("]") else "(")
+        bare, unit = name[:opening].strip(), name[opening + 1:-1].strip()
+        if opening <= 0 or not bare or not is_channel(bare):
+            continue
+        kind = bare.partition(":")[0].strip().lower()
+        si = "s" if kind in ("time", "goal_time") else PLAUSIBLE.get(kind, (0, 0, "SI units"))[2]
+        raise LogError(f"{path}: column {column!r} has a unit in its name; name it {bare!r} "
+                       f"and write its values in {si}" + (
+                           " (degrees times pi/180)" if unit.lower().startswith("deg")
+                           and si.startswith("rad") else "")
+                       + ": a log's columns carry no units, each kind has its own (time s, "
+                       "positions rad, velocities rad/s, current A, voltage V)")
 
 
 def is_channel(column: str) -> bool:
