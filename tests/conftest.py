@@ -144,3 +144,15 @@ def pytest_terminal_summary(terminalreporter):
     if per_worker:
         tr.write_line("per worker (wall s): " + ", ".join(
             f"{w} {s:.0f}" for w, s in sorted(per_worker.items())))
+
+
+@pytest.fixture
+def home_and_cwd(tmp_path, monkeypatch):
+    """(home, cwd): a fresh HOME (what '~' means) and a working folder with a space in its name,
+    the test's cwd; for the careless tests of '~' in paths."""
+    home, cwd = tmp_path / "home", tmp_path / "work dir"
+    home.mkdir()
+    cwd.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(cwd)
+    return home, cwd

@@ -34,16 +34,6 @@ _run = run_cli
 # a '~' the shell did not expand
 
 
-@pytest.fixture
-def home_and_cwd(tmp_path, monkeypatch):
-    home, cwd = tmp_path / "home", tmp_path / "work dir"
-    home.mkdir()
-    cwd.mkdir()
-    monkeypatch.setenv("HOME", str(home))
-    monkeypatch.chdir(cwd)
-    return home, cwd
-
-
 MODEL = ["model", "dclaw", "--station", "none", "--fingers", "ff", "--no-thermal"]
 
 

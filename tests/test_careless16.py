@@ -15,16 +15,6 @@ from pointmass import demo_info, expert_action, make_pointmass
 # "~/runs/x") wrote ./~/runs/x, and load_demos("~/d.h5") said "not found".
 
 
-@pytest.fixture
-def home_and_cwd(tmp_path, monkeypatch):
-    home, cwd = tmp_path / "home", tmp_path / "work dir"
-    home.mkdir()
-    cwd.mkdir()
-    monkeypatch.setenv("HOME", str(home))
-    monkeypatch.chdir(cwd)
-    return home, cwd
-
-
 def test_a_run_folder_under_tilde_is_in_the_home_folder(home_and_cwd):
     from lowcostdex.algos.experiment import Run
 
