@@ -116,6 +116,14 @@ def test_resample_interpolates_like_bam_process():
     np.testing.assert_array_equal(g.channels["torque_enable"][:, 0], [1, 1, 1, 0, 0, 0])
 
 
+def _lift_logs(folder):
+    """(BAM-grid dataset of ``folder``'s logs, indices of its lift_and_drop trajectories: the
+    ones that let the arm go with the torque off)."""
+    ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
+    return ds, [i for i, tr in enumerate(ds.trajectories)
+                if tr.meta.get("trajectory") == "lift_and_drop"]
+
+
 def _split(ds, held_kp):
     kps = [int(tr.meta["kp"]) for tr in ds.trajectories]
     return ([i for i, k in enumerate(kps) if k not in held_kp],
@@ -410,9 +418,7 @@ def test_a_fit_worse_than_the_nominal_model_on_its_held_out_log_says_no_reliable
 def test_rhoban_xl330_torque_off_swings_give_bams_published_armature_not_the_catalogues():
     from lowcostdex.gap.torque_off import swing_fit
 
-    ds = bm.grid_dataset(load_dataset(sorted(RHOBAN.glob("*.json")), timestep=bm.BAM_DT))
-    lift = [i for i, tr in enumerate(ds.trajectories)
-            if tr.meta.get("trajectory") == "lift_and_drop"]
+    ds, lift = _lift_logs(RHOBAN)
     fit = swing_fit(ds, lift)
     assert len(fit.logs) == 4  # kp 100, 200, 400, 800: 0.49 kg at 0.10 m, let go
     # BAM's six published XL330 fits (Rhoban/bam@1b5a1ce bam/params/xl330, m1-m6): armature
@@ -429,18 +435,13 @@ def test_rhoban_xl330_torque_off_swings_give_bams_published_armature_not_the_cat
 def test_the_armature_seed_reads_bams_armature_off_rhobans_swings_and_nothing_off_phams():
     from lowcostdex.gap.torque_off import armature_seed
 
-    def lift_logs(folder):
-        ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
-        return ds, [i for i, tr in enumerate(ds.trajectories)
-                    if tr.meta.get("trajectory") == "lift_and_drop"]
-
     # Rhoban's 0.49 kg arm swings with the torque off: the seed is BAM's six published XL330
     # armatures (0.00181-0.00192 kg m^2, Rhoban/bam@1b5a1ce bam/params/xl330), 6x the catalogue
-    seed = armature_seed(*lift_logs(RHOBAN))
+    seed = armature_seed(*_lift_logs(RHOBAN))
     assert seed is not None and 0.00181 * 0.95 <= seed.armature <= 0.00192 * 1.05
     # Pham's 4 g arm stays where the torque went off (friction holds 4 mN m of gravity): its
     # 2 mrad "swings" say nothing of the armature, so no seed
-    assert armature_seed(*lift_logs(PHAM)) is None
+    assert armature_seed(*_lift_logs(PHAM)) is None
 
 
 @pytest.mark.skipif(not RHOBAN.is_dir(), reason=f"measured data not found at {ROOT}")
@@ -456,9 +457,7 @@ def test_rhobans_torque_off_swings_want_the_gears_own_law_not_their_load_frictio
     from lowcostdex.gap.torque_off import simulate, swings
     from lowcostdex.sim import servo
 
-    ds = bm.grid_dataset(load_dataset(sorted(RHOBAN.glob("*.json")), timestep=bm.BAM_DT))
-    lift = [i for i, tr in enumerate(ds.trajectories)
-            if tr.meta.get("trajectory") == "lift_and_drop"]
+    ds, lift = _lift_logs(RHOBAN)
     sws = swings(ds, lift)
     assert len(sws) == 4
     c, b = servo.motor_spec("XL330-M288").backdriven
@@ -499,9 +498,7 @@ def test_the_torque_off_law_is_fitted_where_training_swings_and_the_catalogues_e
     from lowcostdex.gap.identify_logs import BACKDRIVEN, BACKDRIVEN_PARAMS, backdriven_plan
 
     def load(folder):
-        ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
-        lift = [i for i, tr in enumerate(ds.trajectories)
-                if tr.meta.get("trajectory") == "lift_and_drop"]
+        ds, lift = _lift_logs(folder)
         return ds, lift, [i for i in range(len(ds.trajectories)) if i not in lift]
 
     ds, lift, rest = load(RHOBAN)
