@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -627,11 +627,13 @@ def _train_mae(t: fitmod.Track, windows, weights, ds: Dataset, rep: Replayer) ->
 
 
 def _hold(st: fitmod.Structure, params: frozenset) -> fitmod.Structure | None:
-    """``st`` with ``params`` ((effect, param) pairs) held at their null (None: none in it)."""
+    """``st`` with ``params`` ((effect, param) pairs) held at their null (None: none in it);
+    the scalars ``st`` already holds at a value (``Structure.held``: a ``Context.widened``
+    range of one value) keep it."""
     free = [f for f in st.free if (f.effect, f.param) not in params]
     if len(free) == len(st.free):
         return None
-    return fitmod.Structure(st.effects, st.joints, free, st.fixed)
+    return replace(st, free=free)
 
 
 def _bound_hits(t: fitmod.Track) -> list[tuple[int, str]]:

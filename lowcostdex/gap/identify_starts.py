@@ -27,9 +27,9 @@ ANALYSIS_ONLY = frozenset({("coulomb_friction", "frictionloss")})
 
 def own(st: fitmod.Structure) -> fitmod.Structure:
     """``st`` without the extra starts of ``ANALYSIS_ONLY`` scalars (same free scalars, bounds
-    and catalogue starts)."""
+    and catalogue starts, the held scalars kept)."""
     free = [replace(f, extra=()) if (f.effect, f.param) in ANALYSIS_ONLY else f for f in st.free]
-    return fitmod.Structure(st.effects, st.joints, free, st.fixed)
+    return replace(st, free=free)
 
 
 def starts(st: fitmod.Structure, extra: Sequence[dict], base: np.ndarray | None = None
