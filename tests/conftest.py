@@ -67,30 +67,26 @@ def pytest_addoption(parser):
 # (`-n 2 --dist loadfile`). xdist hands files out by number of tests, most first, so a heavy file
 # with few tests (test_gap_hidden.py: 7 tests, ~170 CPU-s) started near the end and one worker ran
 # on alone for minutes (CI at 26fee1b: 126 % CPU over 27:34). The files below go first, heaviest
-# first (longest-processing-time-first); every other file keeps xdist's order. CPU seconds per
-# file: the test_gap_independent*, main_job, gap_hidden and flip_main_job files measured at
-# 5ed5c2c / 81f4cae (session 20, tests-fast15), the others tests-fast12's sampling (session 17) or
-# its --durations wall x 0.37 (CPU/wall of that run): only the order matters, not the accuracy.
+# first (longest-processing-time-first); every other file keeps xdist's order. Seconds per file:
+# the wall of each of CI's 15 slowest files (session 20, fbbc655: setup + call + teardown summed,
+# conftest's "slowest 15 test files" summary; CPU was ~0.67 x wall there): only the order
+# matters, not the accuracy. Files below the 15th (31 wall-s) are not listed.
 HEAVY_FILES = {
-    "test_gap_independent_bench.py": 279,
-    "test_main_job.py": 227,
-    "test_gap_independent_finger.py": 222,
-    "test_gap_hidden.py": 139,
-    "test_gap_independent_wide.py": 102,
-    "test_gap_redteam.py": 94,
-    "test_gap_decisions.py": 93,
-    "test_transfer.py": 67,
-    "test_flip_main_job.py": 51,
-    "test_gap_actuator_kinds.py": 40,
-    "test_demos_recording.py": 38,
+    "test_gap_independent_bench.py": 446,
+    "test_main_job.py": 326,
+    "test_gap_independent_finger.py": 321,
+    "test_gap_hidden.py": 207,
+    "test_gap_independent_wide.py": 180,
+    "test_gap_decisions.py": 131,
+    "test_gap_redteam.py": 124,
+    "test_transfer.py": 124,
+    "test_flip_main_job.py": 71,
+    "test_demos_recording.py": 48,
+    "test_gap_timestep.py": 47,
+    "test_identify.py": 46,
+    "test_gap_actuator_kinds.py": 44,
+    "test_robot_faults.py": 42,
     "test_flip_pinch.py": 32,
-    "test_gap_coulomb_stall.py": 29,
-    "test_gap_cli.py": 21,
-    "test_flip_plan.py": 17,
-    "test_flip_teacher.py": 17,
-    "test_gap_timestep.py": 16,
-    "test_dxl_soak.py": 14,
-    "test_gap_independent.py": 12,
 }
 
 
