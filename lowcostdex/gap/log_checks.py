@@ -20,6 +20,7 @@ from lowcostdex.gap.log_still import (  # noqa: F401 (the limits are read from h
     check_pinned,
     check_stuck,
 )
+from lowcostdex.gap.log_units import check_degree_grid, check_velocity_unit
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     LogError,
@@ -122,7 +123,8 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
                    {j: d["qvel"] for j, d in joints.items() if "qvel" in d}, name)
     for j, d in joints.items():
         if "qvel" in d:
-            _check_velocity_unit(t, d["qpos"], d["qvel"], j, name)
+            check_velocity_unit(t, d["qpos"], d["qvel"], j, name)
+        check_degree_grid(d["qpos"], j, name)
     _check_duration(t, name)
     goal_time = None
     if "goal_time" in cols:
@@ -395,28 +397,6 @@ def _check_minutes(t: np.ndarray, qpos: dict[str, np.ndarray], qvel: dict[str, n
         raise LogError(f"{name}: column 'time' looks like minutes, not seconds: {evidence}; "
                        f"{len(t)} samples over {float(t[-1] - t[0]) * 60:.4g} s at "
                        f"{1 / (60 * step):.4g} Hz if so: multiply the time stamps by 60")
-
-
-# velocity units whose values fit the plausible range at a slow joint: unit -> values per rad/s
-_VELOCITY_UNITS = {"deg/s": 180 / math.pi, "rpm": 30 / math.pi,
-                   "0.229 rpm counts (Dynamixel X)": 30 / (0.229 * math.pi),
-                   "0.114 rpm counts (Dynamixel MX, Protocol 1)": 30 / (0.114 * math.pi),
-                   "steps/s (4096 a turn)": 4096 / (2 * math.pi)}
-
-
-def _check_velocity_unit(t: np.ndarray, q: np.ndarray, v: np.ndarray, joint: str,
-                         name: str) -> None:
-    """Refuse a logged velocity in another unit, named: the distance it integrates to is the
-    positions' (sum |v| dt / sum |dq| was 0.98-1.22 on every measured BAM log) - unless it is
-    within 25 % of a unit's factor, and the joint moved at least 0.5 rad in all."""
-    dq = float(np.nansum(np.abs(np.diff(q))))
-    if dq < 0.5:
-        return
-    ratio = float(np.nansum(np.abs(v[1:]) * np.diff(t))) / dq
-    units = [f"{u} (x{f:.3g})" for u, f in _VELOCITY_UNITS.items() if 0.75 < ratio / f < 1.25]
-    if units:
-        raise LogError(f"{name}: column 'qvel:{joint}' integrates to {ratio:.3g} x the distance "
-                       f"'qpos:{joint}' moves: {' or '.join(units)}? write rad/s")
 
 
 def _check_duration(t: np.ndarray, name: str) -> None:

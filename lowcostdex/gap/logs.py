@@ -28,6 +28,7 @@ on entry and their limits), ``log_csv`` (reading a CSV log) and ``bam_logs`` (BA
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -60,6 +61,7 @@ from lowcostdex.gap.log_checks import (
     trajectory_from_columns,
 )
 from lowcostdex.gap.log_csv import MAX_COLUMNS, is_channel, read_csv
+from lowcostdex.gap.log_units import TO_RAD
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     GAP_MIN,
@@ -332,7 +334,14 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
             if bad.any():
                 i = int(np.argmax(bad))
                 why = "calibration offset or sign, or another joint's column?"
-                if np.ptp(q) > 2 * (hi - lo):  # a range in degrees read as rad would be this
+                deg = np.radians(q)
+                # a range of radians read as degrees is at most 2 pi deg (0.11 rad) wide: then
+                # the model is off; else a log whose degrees fit the range is in degrees
+                tiny = hi - lo <= math.radians(2 * math.pi) and np.ptp(q) > 2 * (hi - lo)
+                if not tiny and np.all((deg >= lo - RANGE_MARGIN) & (deg <= hi + RANGE_MARGIN)):
+                    why = (f"degrees? read as degrees it spans [{deg.min():.4g}, "
+                           f"{deg.max():.4g}] rad, inside the range: {TO_RAD}")
+                elif np.ptp(q) > 2 * (hi - lo):  # a range in degrees read as rad would be this
                     why = (f"the model's range is {hi - lo:.3g} rad wide while the joint moves "
                            f"{np.ptp(q):.3g} rad: MJCF reads joint 'range' in degrees unless "
                            "<compiler angle=\"radian\"/>")
@@ -355,6 +364,7 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                        "every actuator of the model: give a model of the logged joints only "
                        "(the project's hands: `lowcostdex model dclaw|allegro --station none "
                        "--fingers <the logged fingers>`)")
+    rate = rate_goal_actuators(model)
     for i in range(model.nu):
         if model.actuator_ctrllimited[i] and act_names[i] in traj.actuators:
             lo, hi = (float(x) for x in model.actuator_ctrlrange[i])
@@ -378,6 +388,8 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                            "-kp position term, or <intvelocity>) and re-run (its goals track "
                            f"'qpos:{joint}'; a log of this actuator's own input, a force/torque "
                            "or velocity, is replayed as it is)")
+        if not kind and joint is not None and act_names[i] not in rate:  # goals in degrees
+            _check_goal_in_range(traj, model, i, act_names[i], joint)
         if joint is not None:
             j = joint
             if j not in traj.joints:
@@ -385,6 +397,40 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                                f"{act_names[i]!r} but the log has no 'qpos:{j}' column: every "
                                "replay would start it at the model's initial pose; log its "
                                "position too")
+
+
+def _check_goal_in_range(traj: Trajectory, model: mujoco.MjModel, i: int, actuator: str,
+                         joint: str) -> None:
+    """Goals in degrees beside positions in rad: a position servo's goal (goal / gear) beyond
+    its limited joint's range by more than the range's width, inside it read as degrees, and
+    the joint following it at pi/180 of its swing (the least-squares slope of the reading on
+    the goal within 0.4-1.6 x pi/180, correlation above 0.9). A goal far beyond the range
+    alone is not refused: a servo pushed against a hard stop reads still at the stop."""
+    jid = model.joint(joint).id
+    if not model.jnt_limited[jid] or actuator not in traj.actuators or joint not in traj.joints:
+        return
+    lo, hi = (float(x) for x in model.jnt_range[jid])
+    g = traj.goal[:, traj.actuators.index(actuator)] / float(model.actuator_gear[i, 0] or 1.0)
+    q = traj.qpos[:, traj.joints.index(joint)]
+    width = max(hi - lo, RANGE_MARGIN)
+    far = (g < lo - width) | (g > hi + width)
+    deg = np.radians(g)
+    if not far.any() or np.any((deg < lo - RANGE_MARGIN) | (deg > hi + RANGE_MARGIN)):
+        return
+    sg, sq = float(np.std(g)), float(np.std(q))
+    if sg == 0.0 or sq == 0.0:
+        return
+    corr = float(np.mean((g - g.mean()) * (q - q.mean())) / (sg * sq))
+    slope = corr * sq / sg
+    if corr < 0.9 or not 0.4 < slope * 180 / math.pi < 1.6:
+        return
+    r = int(np.argmax(far))
+    why = (f"degrees? read as degrees the goals span [{deg.min():.4g}, {deg.max():.4g}] rad, "
+           f"inside the range, and 'qpos:{joint}' follows them at {slope:.3g} x (pi/180 = "
+           f"0.0175): {TO_RAD}")
+    raise LogError(f"{traj.name}: column 'goal:{actuator}' reads {g[r]:.6g} rad at row {r} "
+                   f"(0-based), beyond joint {joint!r}'s range [{lo:.4g}, {hi:.4g}] rad by more "
+                   f"than its width ({why})")
 
 
 def _same_joint(model: mujoco.MjModel, a: int, b: int) -> bool:

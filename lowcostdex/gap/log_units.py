@@ -1,0 +1,79 @@
+"""Positions and velocities of a log in another unit than rad and rad/s, told from the data
+itself: a logged velocity that integrates to another multiple of the positions' distance
+(deg/s, rpm, Dynamixel counts - or positions in degrees beside velocities in rad/s), and
+positions on a whole-degree encoder grid (a 4096-tick encoder read in degrees steps by
+360/4096 = 0.0879; in rad it steps by 0.00153). A log in degrees that moves less than
+4 pi (12.6 deg) passes the plausible-range check of ``log_checks``; these checks name it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lowcostdex.gap.trajectory import LogError
+
+# velocity units whose values fit the plausible range at a slow joint: unit -> values per rad/s
+VELOCITY_UNITS = {"deg/s": 180 / math.pi, "rpm": 30 / math.pi,
+                  "0.229 rpm counts (Dynamixel X)": 30 / (0.229 * math.pi),
+                  "0.114 rpm counts (Dynamixel MX, Protocol 1)": 30 / (0.114 * math.pi),
+                  "steps/s (4096 a turn)": 4096 / (2 * math.pi)}
+TO_RAD = "multiply the 'qpos:' and 'goal:' columns by pi/180 (numpy.radians)"
+
+DEGREE_GRIDS: tuple[tuple[float, str], ...] = (
+    # (one encoder step in degrees, the encoder): steps as Dynamixel's e-manual rounds them too
+    (360 / 4096, "360/4096: a 4096-tick encoder (Dynamixel X/MX, Feetech STS)"),
+    (0.088, "0.088 deg: the Dynamixel e-manual's position unit"),
+    (300 / 1024, "300/1024: a 1024-tick servo over 300 deg (Dynamixel AX, XL-320)"),
+    (0.29, "0.29 deg: the Dynamixel AX e-manual's position unit"),
+    (360 / 16384, "360/16384: a 14-bit magnetic encoder (AS5048)"),
+)
+GRID_TOLERANCE = 0.05  # of a step: each difference between readings this close to whole steps
+GRID_VALUES = 8  # distinct readings needed to call a grid
+
+
+def check_velocity_unit(t: np.ndarray, q: np.ndarray, v: np.ndarray, joint: str,
+                        name: str) -> None:
+    """Refuse a logged velocity in another unit, named: the distance it integrates to is the
+    positions' (sum |v| dt / sum |dq| was 0.98-1.22 on every measured BAM log) - unless it is
+    within 25 % of a unit's factor, and the joint moved at least 0.5 (rad, as logged) in all.
+    A ratio of pi/180 is positions in degrees beside velocities in rad/s."""
+    dq = float(np.nansum(np.abs(np.diff(q))))
+    if dq < 0.5:
+        return
+    ratio = float(np.nansum(np.abs(v[1:]) * np.diff(t))) / dq
+    units = [f"{u} (x{f:.3g})" for u, f in VELOCITY_UNITS.items() if 0.75 < ratio / f < 1.25]
+    if units:
+        raise LogError(f"{name}: column 'qvel:{joint}' integrates to {ratio:.3g} x the distance "
+                       f"'qpos:{joint}' moves: {' or '.join(units)}? write rad/s")
+    if 0.75 < ratio * 180 / math.pi < 1.25:
+        raise LogError(f"{name}: column 'qvel:{joint}' integrates to {ratio:.3g} x the distance "
+                       f"'qpos:{joint}' moves (pi/180 = 0.0175): positions in degrees beside "
+                       f"velocities in rad/s? write rad: {TO_RAD}")
+
+
+def degree_grid(q: np.ndarray) -> str:
+    """The encoder whose step in degrees ``q``'s readings (T,) lie on ('' if none): every
+    difference between two distinct readings a whole number of one ``DEGREE_GRIDS`` step
+    (within ``GRID_TOLERANCE`` of a step; an offset added to every reading keeps it), one step
+    among them, over at least ``GRID_VALUES`` distinct readings."""
+    u = np.unique(q[np.isfinite(q)])
+    if len(u) < GRID_VALUES:
+        return ""
+    d = np.diff(u)
+    for step, what in DEGREE_GRIDS:
+        k = d / step
+        if np.all(np.abs(k - np.round(k)) < GRID_TOLERANCE) and np.any(np.round(k) == 1):
+            return what
+    return ""
+
+
+def check_degree_grid(q: np.ndarray, joint: str, name: str) -> None:
+    """Refuse positions read in degrees, told by their encoder grid (``degree_grid``)."""
+    what = degree_grid(q)
+    if what:
+        raise LogError(f"{name}: column 'qpos:{joint}' reads on a grid of {what} - an encoder "
+                       f"read in degrees (in rad its step would be {math.radians(360 / 4096):.3g}"
+                       f" for 4096 ticks); its values {float(np.min(q)):.6g} to "
+                       f"{float(np.max(q)):.6g} are degrees, not rad: {TO_RAD}")

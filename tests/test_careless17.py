@@ -1,0 +1,143 @@
+"""Careless calls and bad inputs, session 21 (careless17): each test's truth is the user's own file
+or folder written here (a log in degrees the way a logger writes one: a 4096-tick encoder read and
+multiplied by 360/4096), or measured logs (skipped when absent)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lowcostdex.gap import LogError, read_log
+
+TICK_DEG = 360 / 4096  # one step of a 4096-tick encoder (Dynamixel X, Feetech STS) in degrees
+
+
+def _servo_log(amplitude_deg: float = 8.0, seconds: float = 10.0, rate: float = 100.0):
+    """A position servo following a slow sine (first order, 30 ms), in degrees: goal, the
+    joint's angle, its velocity [deg/s]. Written out here, no project code."""
+    t = np.arange(int(seconds * rate)) / rate
+    goal = amplitude_deg * np.sin(0.7 * t)
+    q = np.zeros_like(t)
+    for k in range(1, len(t)):
+        q[k] = q[k - 1] + (goal[k - 1] - q[k - 1]) * (1 - math.exp(-(t[k] - t[k - 1]) / 0.03))
+    v = np.gradient(q, t)
+    return t, goal, q, v
+
+
+def _csv(path: Path, columns: dict[str, np.ndarray]) -> Path:
+    rows = "\n".join(",".join(f"{x:.6f}" for x in r) for r in zip(*columns.values(), strict=True))
+    path.write_text(",".join(columns) + "\n" + rows + "\n")
+    return path
+
+
+# ------------------------------------------------------------------------------------------------
+# a log in degrees that moves less than 4 pi "rad" (12.6 deg): the plausible range passes it
+
+
+def test_positions_in_degrees_beside_velocities_in_rad_per_s_are_refused(tmp_path):
+    """Before: accepted (the joint 'moved' 8 rad). The logged velocity integrates to pi/180 of
+    the positions' distance."""
+    t, goal, q, v = _servo_log()
+    path = _csv(tmp_path / "log.csv", {"time": t, "goal:j": goal, "qpos:j": q,
+                                       "qvel:j": np.radians(v)})
+    with pytest.raises(LogError, match=r"positions in degrees beside velocities in rad/s\? "
+                                       r"write rad: multiply the 'qpos:' and 'goal:' columns by "
+                                       r"pi/180"):
+        read_log(path)
+    ok = _csv(tmp_path / "rad.csv", {"time": t, "goal:j": np.radians(goal),
+                                     "qpos:j": np.radians(q), "qvel:j": np.radians(v)})
+    read_log(ok)
+
+
+@pytest.mark.parametrize("step", [TICK_DEG, 0.088, 300 / 1024])
+def test_encoder_readings_in_degrees_are_refused_by_their_grid(tmp_path, step):
+    """Before: accepted. Ticks times 360/4096 (or the e-manual's 0.088 deg, an AX's 300/1024)
+    lie on a grid of that step; the same ticks in rad step by 0.00153 and are accepted. An
+    offset on every reading (a calibration) keeps the grid."""
+    t, goal, q, _ = _servo_log()
+    ticks = np.round(q / step)
+    path = _csv(tmp_path / "log.csv", {"time": t, "goal:j": goal,
+                                       "qpos:j": ticks * step + 3.17})
+    with pytest.raises(LogError, match=r"column 'qpos:j' reads on a grid of .* an encoder read "
+                                       r"in degrees .* multiply the 'qpos:' and 'goal:' columns"):
+        read_log(path)
+    tick_rad = 2 * math.pi / 4096
+    ok = _csv(tmp_path / "rad.csv", {"time": t, "goal:j": np.radians(goal),
+                                     "qpos:j": np.round(np.radians(q) / tick_rad) * tick_rad})
+    read_log(ok)
+
+
+def _hinge(tmp_path: Path, joint_range: str, ctrl: str = "") -> Path:
+    model = tmp_path / "model.xml"
+    model.write_text(f"""<mujoco><compiler angle="radian"/>
+  <worldbody><body pos="0 0 0.2">
+    <joint name="j" type="hinge" axis="0 1 0" range="{joint_range}"/>
+    <geom type="capsule" fromto="0 0 0 0.05 0 0" size="0.01" mass="0.05"/>
+  </body></worldbody>
+  <actuator><position name="j" joint="j" kp="3" {ctrl}/></actuator>
+</mujoco>""")
+    return model
+
+
+def test_a_smooth_log_in_degrees_beyond_the_joint_range_names_degrees(tmp_path):
+    """A filtered log (no encoder grid) in degrees on a joint of range +-0.5 rad: before, the
+    refusal asked about a "calibration offset or sign"; read as degrees it fits the range."""
+    import mujoco
+
+    from lowcostdex.gap.logs import check_against_model
+
+    t, goal, q, _ = _servo_log()
+    log = read_log(_csv(tmp_path / "log.csv", {"time": t, "goal:j": goal, "qpos:j": q}))
+    model = mujoco.MjModel.from_xml_path(str(_hinge(tmp_path, "-0.5 0.5")))
+    with pytest.raises(LogError, match=r"column 'qpos:j' reads .* outside the model's joint "
+                                       r"range .* \(degrees\? read as degrees it spans .* inside "
+                                       r"the range: multiply"):
+        check_against_model(log, model)
+
+
+def test_goals_in_degrees_beside_positions_in_rad_are_refused_with_a_model(tmp_path):
+    """Goals in degrees, positions converted to rad, no ctrlrange on the servo: before,
+    accepted (the replay would command 8 rad on a joint of +-0.5). A goal saturating at the
+    range (a servo pushed against its stop) is accepted."""
+    import mujoco
+
+    from lowcostdex.gap.logs import check_against_model
+
+    t, goal, q, _ = _servo_log()
+    model = mujoco.MjModel.from_xml_path(str(_hinge(tmp_path, "-0.5 0.5")))
+    log = read_log(_csv(tmp_path / "log.csv", {"time": t, "goal:j": goal,
+                                               "qpos:j": np.radians(q)}))
+    with pytest.raises(LogError, match=r"column 'goal:j' reads .* beyond joint 'j''s range "
+                                       r".* \(degrees\? read as degrees the goals span"):
+        check_against_model(log, model)
+    pushed = read_log(_csv(tmp_path / "ok.csv", {"time": t, "goal:j": np.radians(goal) * 1.5,
+                                                 "qpos:j": np.radians(q)}))
+    check_against_model(pushed, model)
+
+
+def test_measured_logs_in_rad_pass_and_in_degrees_are_told_by_their_grid():
+    """The 4096-tick grid on real servo logs (XL330, STS3032, STS3250, MX): none of them in rad
+    is called degrees; each one converted to degrees is."""
+    from lowcostdex.gap.log_units import degree_grid
+
+    root = Path(os.environ.get("LOWCOSTDEX_MEASURED_DATA")
+                or Path(__file__).resolve().parents[2] / "shared" / "data" / "measured")
+    if not root.is_dir():
+        pytest.skip(f"measured logs absent ({root})")
+    seen = 0
+    for path in sorted(root.glob("*/*.json")):
+        if not path.read_bytes()[:4096].lstrip().startswith(b"{"):
+            continue
+        head = json.loads(path.read_text())
+        if not isinstance(head, dict) or "entries" not in head:
+            continue
+        q = np.array([e["position"] for e in head["entries"]], dtype=float)
+        assert degree_grid(q) == "", path
+        assert degree_grid(np.degrees(q)) != "", path
+        seen += 1
+    assert seen >= 50
