@@ -141,3 +141,33 @@ def test_measured_logs_in_rad_pass_and_in_degrees_are_told_by_their_grid():
         assert degree_grid(np.degrees(q)) != "", path
         seen += 1
     assert seen >= 50
+
+
+# ------------------------------------------------------------------------------------------------
+# `lowcostdex main` with no arguments starts the whole ~25-minute job (README's command adds only
+# --out runs/main, the default): it runs, and says first what it will do and where it writes
+
+
+def test_a_bare_main_says_what_it_runs_and_where_it_writes_before_the_first_stage(
+        tmp_path, monkeypatch, capsys):
+    """Before: the first line was the bus stage's rule; nothing said the default size takes
+    ~25 min of CPU nor that it writes runs/main under the working folder. The first stage is
+    stopped here as Ctrl-C would stop it (no stage runs in this test)."""
+    import lowcostdex.main_job.job as job
+    from lowcostdex.cli import main
+
+    def ctrl_c(ctx):
+        """stopped by the test"""
+        raise KeyboardInterrupt
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(job, "STAGES", (("bus", ctrl_c), *job.STAGES[1:]))
+    assert main(["main"]) == 130
+    err = capsys.readouterr().err
+    plan = (f"lowcostdex main: stages bus, demos, gap, train, report; task valve-target, size "
+            f"default (~25 min of CPU on one core), seed 0, on the emulated D'Claw; writing into "
+            f"{tmp_path.resolve() / 'runs' / 'main'}/ (--out)")
+    assert plan in err  # one line (soft-wrapped: a long path is not folded into two)
+    flat = " ".join(err.split())
+    assert flat.index(plan) < flat.index("bus: ") < flat.index("stage bus did not finish")
+    assert "--size smoke checks every stage" in flat

@@ -119,6 +119,7 @@ def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
     order = tuple(name for name, _ in STAGES)
     chosen = order if stages is None else tuple(n for n in order if n in stages)
     open_job(ctx, chosen)
+    console.print(_plan(ctx, chosen), soft_wrap=True, markup=False, highlight=False)
     ctx.out.mkdir(parents=True, exist_ok=True)
     write_marker(ctx.out, COMMAND, _settings(ctx))
     for name, fn in STAGES:
@@ -150,6 +151,22 @@ def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
     return report
 
 
+CPU = {"smoke": "~4 min of CPU", "default": "~25 min of CPU on one core",
+       "long": "longer than default: 60 DAPG and 60 NPG iterations, not timed"}
+"""What a size costs, said before the job starts (README's timings)."""
+
+
+def _plan(ctx: Context, chosen: tuple[str, ...]) -> str:
+    """What the job is about to do and where it writes, said first (a bare ``lowcostdex main``
+    starts the whole default job)."""
+    robot = f"the D'Claw on {ctx.port}" if ctx.port else "the emulated D'Claw"
+    smoke = "; --size smoke checks every stage in ~4 min" if ctx.size != "smoke" else ""
+    return (f"lowcostdex main: stages {', '.join(chosen)}; task {ctx.task}, size {ctx.size} "
+            f"({CPU.get(ctx.size, '')}), seed {ctx.seed}, on {robot}; writing into "
+            f"{ctx.out.resolve()}/ (--out). Ctrl-C stops it and prints the command that "
+            f"continues{smoke}.")
+
+
 def _interrupted(ctx: Context, name: str, chosen: tuple[str, ...]) -> Interrupted:
     """Ctrl-C in stage ``name``: what results.json holds and the command that continues."""
     rest = chosen[chosen.index(name):]
@@ -174,7 +191,7 @@ def _overview() -> str:
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("main", help="run the main job end to end (emulated D'Claw by default)",
                        description=_overview())
-    p.add_argument("--out", default="runs/main", help="output folder")
+    p.add_argument("--out", default="runs/main", help="output folder (default: runs/main)")
     p.add_argument("--size", choices=SIZES, default="default",
                    help="budget: smoke (every stage checked, ~4 min of CPU), default (~25 min "
                         "of CPU on one core; more wall under load), long")
