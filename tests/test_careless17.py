@@ -64,12 +64,30 @@ def test_encoder_readings_in_degrees_are_refused_by_their_grid(tmp_path, step):
     path = _csv(tmp_path / "log.csv", {"time": t, "goal:j": goal,
                                        "qpos:j": ticks * step + 3.17})
     with pytest.raises(LogError, match=r"column 'qpos:j' reads on a grid of .* an encoder read "
-                                       r"in degrees .* multiply the 'qpos:' and 'goal:' columns"):
+                                       r"in degrees\? .* multiply the 'qpos:' and 'goal:' "
+                                       r"columns"):
         read_log(path)
+    read_log(path, angle_scale=math.pi / 180)  # the same file read as degrees
     tick_rad = 2 * math.pi / 4096
     ok = _csv(tmp_path / "rad.csv", {"time": t, "goal:j": np.radians(goal),
                                      "qpos:j": np.round(np.radians(q) / tick_rad) * tick_rad})
     read_log(ok)
+
+
+def test_gap_analyze_names_units_deg_for_encoder_readings_in_degrees(tmp_path, capsys):
+    """The CLI's option for a log in degrees is said beside the refusal; nothing written."""
+    from lowcostdex.cli import main
+
+    t, goal, q, _ = _servo_log()
+    log = _csv(tmp_path / "log.csv", {"time": t, "goal:j": goal,
+                                      "qpos:j": np.round(q / TICK_DEG) * TICK_DEG})
+    model = _hinge(tmp_path, "-1 1")
+    out = tmp_path / "report"
+    assert main(["gap", "analyze", "--model", str(model), "--log", str(log), "--out",
+                 str(out)]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "an encoder read in degrees?" in err and "or pass --units deg" in err
+    assert not out.exists()
 
 
 def _hinge(tmp_path: Path, joint_range: str, ctrl: str = "") -> Path:
@@ -112,8 +130,10 @@ def test_goals_in_degrees_beside_positions_in_rad_are_refused_with_a_model(tmp_p
     model = mujoco.MjModel.from_xml_path(str(_hinge(tmp_path, "-0.5 0.5")))
     log = read_log(_csv(tmp_path / "log.csv", {"time": t, "goal:j": goal,
                                                "qpos:j": np.radians(q)}))
-    with pytest.raises(LogError, match=r"column 'goal:j' reads .* beyond joint 'j''s range "
-                                       r".* \(degrees\? read as degrees the goals span"):
+    with pytest.raises(LogError, match=r"column 'goal:j' reads .* beyond joint 'j''s range .* "
+                                       r"\(goals in degrees beside positions in rad: read as "
+                                       r"degrees the goals span .* multiply the 'goal:' column "
+                                       r"by pi/180"):
         check_against_model(log, model)
     pushed = read_log(_csv(tmp_path / "ok.csv", {"time": t, "goal:j": np.radians(goal) * 1.5,
                                                  "qpos:j": np.radians(q)}))

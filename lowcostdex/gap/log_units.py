@@ -73,7 +73,8 @@ def check_degree_grid(q: np.ndarray, joint: str, name: str) -> None:
     """Refuse positions read in degrees, told by their encoder grid (``degree_grid``)."""
     what = degree_grid(q)
     if what:
-        raise LogError(f"{name}: column 'qpos:{joint}' reads on a grid of {what} - an encoder "
-                       f"read in degrees (in rad its step would be {math.radians(360 / 4096):.3g}"
-                       f" for 4096 ticks); its values {float(np.min(q)):.6g} to "
+        raise LogError(f"{name}: column 'qpos:{joint}' reads on a grid of {what}, its "
+                       f"{len(np.unique(q))} distinct values whole steps apart: an encoder read "
+                       f"in degrees? (in rad a 4096-tick encoder steps by "
+                       f"{math.radians(360 / 4096):.3g}); its values {float(np.min(q)):.6g} to "
                        f"{float(np.max(q)):.6g} are degrees, not rad: {TO_RAD}")

@@ -425,9 +425,10 @@ def _check_goal_in_range(traj: Trajectory, model: mujoco.MjModel, i: int, actuat
     if corr < 0.9 or not 0.4 < slope * 180 / math.pi < 1.6:
         return
     r = int(np.argmax(far))
-    why = (f"degrees? read as degrees the goals span [{deg.min():.4g}, {deg.max():.4g}] rad, "
-           f"inside the range, and 'qpos:{joint}' follows them at {slope:.3g} x (pi/180 = "
-           f"0.0175): {TO_RAD}")
+    why = (f"goals in degrees beside positions in rad: read as degrees the goals span "
+           f"[{deg.min():.4g}, {deg.max():.4g}] rad, inside the range, and 'qpos:{joint}' "
+           f"follows them at {slope:.3g} x (pi/180 = 0.0175); multiply the 'goal:' column by "
+           "pi/180 (numpy.radians)")
     raise LogError(f"{traj.name}: column 'goal:{actuator}' reads {g[r]:.6g} rad at row {r} "
                    f"(0-based), beyond joint {joint!r}'s range [{lo:.4g}, {hi:.4g}] rad by more "
                    f"than its width ({why})")
