@@ -191,3 +191,65 @@ def test_a_bare_main_says_what_it_runs_and_where_it_writes_before_the_first_stag
     flat = " ".join(err.split())
     assert flat.index(plan) < flat.index("bus: ") < flat.index("stage bus did not finish")
     assert "--size smoke checks every stage" in flat
+
+
+# ------------------------------------------------------------------------------------------------
+# a log folder that also holds the user's own files; a model path that is a folder
+
+
+def _rad_log(path: Path, shift: int = 0) -> Path:
+    t, goal, q, _ = _servo_log()
+    tick = 2 * math.pi / 4096
+    return _csv(path, {"time": t, "goal:j": np.roll(np.radians(goal), shift),
+                       "qpos:j": np.roll(np.round(np.radians(q) / tick) * tick, shift)})
+
+
+def test_a_log_folder_with_the_users_other_files_reads_the_logs_only(tmp_path):
+    """Before: the folder's calibration table (joint,offset) was read as a log: "calib.csv:
+    missing column 'time'" and nothing analysed. Now it is left out and said; a README and a
+    sub-folder were already passed over."""
+    from lowcostdex.gap.dataset import expand_log_paths, load_dataset
+
+    logs = tmp_path / "logs"
+    (logs / "old").mkdir(parents=True)
+    _rad_log(logs / "log_0.csv")
+    _rad_log(logs / "log_1.csv", shift=150)
+    (logs / "calib.csv").write_text("joint,offset\nj,0.1\n")
+    (logs / "events.csv").write_text("time,event\n0.5,start\n9.0,stop\n")
+    (logs / "README.md").write_text("logs of 2026-11-28\n")
+    _rad_log(logs / "old" / "log_0.csv", shift=300)
+    notes: list[str] = []
+    found = expand_log_paths(logs, notes)
+    assert [p.name for p in found] == ["log_0.csv", "log_1.csv"]
+    assert any("left out calib.csv, events.csv (no 'goal:' or 'qpos:' column" in n for n in notes)
+    model = _hinge(tmp_path, "-1.5 1.5")
+    assert len(load_dataset([logs], model=model).trajectories) == 2
+    only = tmp_path / "tables"
+    only.mkdir()
+    (only / "calib.csv").write_text("joint,offset\nj,0.1\n")
+    with pytest.raises(LogError, match="a folder without logs: its CSV files calib.csv have no "
+                                       "'goal:' or 'qpos:' column"):
+        expand_log_paths(only)
+
+
+def test_a_model_folder_names_the_mjcf_inside_and_an_mjcf_with_includes_loads(tmp_path):
+    """`--model model/` of a folder holding arm.xml (which includes parts/body.xml): before,
+    "a folder, not an MJCF model file" without the file to give. The include is read relative
+    to the model's own folder (MuJoCo's rule), from any working folder."""
+    from lowcostdex.gap.dataset import load_dataset
+
+    folder = tmp_path / "model"
+    (folder / "parts").mkdir(parents=True)
+    (folder / "arm.xml").write_text("""<mujoco><compiler angle="radian"/>
+  <include file="parts/body.xml"/>
+  <actuator><position name="j" joint="j" kp="3"/></actuator>
+</mujoco>""")
+    (folder / "parts" / "body.xml").write_text("""<mujoco><worldbody><body pos="0 0 0.2">
+    <joint name="j" type="hinge" axis="0 1 0" range="-1.5 1.5"/>
+    <geom type="capsule" fromto="0 0 0 0.05 0 0" size="0.01" mass="0.05"/>
+  </body></worldbody></mujoco>""")
+    log = _rad_log(tmp_path / "log_0.csv")
+    with pytest.raises(LogError, match=r"a folder, not an MJCF model file \(\.xml\); it holds "
+                                       r"arm\.xml: give the top one, e\.g\. --model .*arm\.xml"):
+        load_dataset([log], model=folder)
+    assert len(load_dataset([log], model=folder / "arm.xml").trajectories) == 1

@@ -20,6 +20,7 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError, check_number
 from lowcostdex.gap.bam_logs import check_one_motor
+from lowcostdex.gap.log_csv import holds_log_channels
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
@@ -194,6 +195,16 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path],
                 if json_files and notes is not None:
                     notes.append(f"{one}: left out {', '.join(p.name for p in json_files)} (JSON "
                                  "beside project-format CSV/NPZ logs: not a log of them)")
+                tables = [p for p in found if p.suffix.lower() == ".csv"
+                          and not holds_log_channels(p)]  # the user's other CSV files
+                found = [p for p in found if p not in tables]
+                if tables and not found:
+                    raise LogError(f"{one}: a folder without logs: its CSV files "
+                                   f"{', '.join(p.name for p in tables)} have no 'goal:' or "
+                                   "'qpos:' column")
+                if tables and notes is not None:
+                    notes.append(f"{one}: left out {', '.join(p.name for p in tables)} (no "
+                                 "'goal:' or 'qpos:' column: not a log)")
             out += found
         elif not one.exists() and any(c in str(one) for c in "*?["):
             found = sorted(Path(p) for p in glob.glob(str(one)) if Path(p).is_file())
@@ -278,7 +289,10 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         if not model.exists():
             raise LogError(f"{model}: no such model file")
         if model.is_dir():
-            raise LogError(f"{model}: a folder, not an MJCF model file (.xml)")
+            xmls = sorted(p.name for p in model.iterdir() if p.suffix.lower() == ".xml")
+            inside = (f"; it holds {', '.join(xmls[:5])}: give the top one, e.g. --model "
+                      f"{model / xmls[0]}" if xmls else "")
+            raise LogError(f"{model}: a folder, not an MJCF model file (.xml){inside}")
         try:
             spec = mujoco.MjSpec.from_file(str(model))
             compiled = spec.compile()

@@ -195,3 +195,20 @@ def _is_float(cell: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def holds_log_channels(path: Path) -> bool:
+    """Whether the CSV file's header names a position log's channel (a 'goal:' or 'qpos:'
+    column, any case): a folder of logs may hold the user's other tables (a calibration's
+    'joint,offset', an events list), which are no log. Unreadable headers count as a log
+    (``read_csv`` then says what is wrong)."""
+    try:
+        with open(path, newline="", encoding=_encoding(path)) as f:
+            sep = _delimiter(f)
+            for row in csv.reader(f, delimiter=sep):
+                if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#"):
+                    return any(c.partition(":")[0].strip().lower() in ("goal", "qpos")
+                               and ":" in c for c in row)
+    except (UnicodeDecodeError, csv.Error, OSError):
+        return True
+    return False
