@@ -39,9 +39,11 @@ Hidden effects (``Effect.kind``), written from their physics:
   (winding resistance and magnet); the logs are taken at three times of one long session, the
   motors at 35, 55 and 75 deg C and warming by their own I^2 R (a first-order thermal model),
   reported as ``temperature:<actuator>`` (1 deg C resolution). Scored as ``thermal_derating``.
+* ``deadband``: the drive gives no torque below ``value`` N m of command and ``|c| - value``
+  above it (a PWM deadband). Outside the catalogue until session 21; since then scored as its
+  ``deadband`` with width = ``value`` (on a torque rig the band is in the command's units, N m).
 * Outside any catalogue (the right answer is no confident wrong name; ``OUTSIDE``):
-  ``deadband``: the drive gives no torque below ``value`` N m of command and ``|c| - value``
-  above it (a PWM deadband); ``series_elastic``: the joint is a rotor hinge (carrying the
+  ``series_elastic``: the joint is a rotor hinge (carrying the
   armature and gear damping, driven by the motor) and a link hinge on it with a spring of
   ``value`` N m/rad (a compliant coupling, e.g. a belt or horn), the servo closing its loop on
   its rotor encoder and the log reading the link (a joint encoder); ``encoder_sine``: the
@@ -92,7 +94,7 @@ RANGE = {"abd": (-0.4, 0.4), "mcp": (-0.3, 1.2), "pip": (-0.2, 1.3), "dip": (-0.
 
 # the catalogue name a correct analysis gives, per effect kind (None: outside the catalogue)
 CATALOGUE = {"read_delay": "latency", "voltage_sag": "voltage_sag",
-             "thermal": "thermal_derating", "deadband": None, "series_elastic": None,
+             "thermal": "thermal_derating", "deadband": "deadband", "series_elastic": None,
              "encoder_sine": None, "com_offset": None}
 OUTSIDE = {k for k, v in CATALOGUE.items() if v is None}
 # confusable neighbours (naming one of these for the other is "family")
@@ -100,6 +102,7 @@ FAMILIES = (
     {"latency"},
     {"voltage_sag", "torque_limit", "gain_error", "motor_strength", "thermal_derating"},
     {"thermal_derating", "gain_error", "motor_strength", "voltage_sag"},
+    {"deadband", "coulomb_friction", "backlash", "gain_error"},  # a band: friction-like, a play
 )
 
 
@@ -420,11 +423,14 @@ def write_case(case: Case, folder: str | pathlib.Path) -> dict:
 
 def expected_params(case: Case) -> list[dict]:
     """Documented catalogue parameters whose true value is plain: the read delay as a
-    latency's ``delay`` [s]."""
+    latency's ``delay`` [s]; a torque rig's deadband as its ``width`` [N m of command]."""
     out = []
     for e in case.effects:
         if e.kind == "read_delay":
             out += [dict(effect="latency", param="delay", joint=j, value=e.value, abs=False)
+                    for j in (e.joints or JOINTS)]
+        if e.kind == "deadband" and case.kind == "torque":
+            out += [dict(effect="deadband", param="width", joint=j, value=e.value, abs=False)
                     for j in (e.joints or JOINTS)]
     return out
 
@@ -491,7 +497,8 @@ CASES: tuple[Case, ...] = (
     Case("voltage_sag_torque", "torque", (E("voltage_sag", 0.5),), seed=3,
          styles=("steps",), note="0.5 ohm supply: 12 V sagging ~1 V when the joints push (up to 3 V at full torque)"),
     Case("deadband_torque", "torque", (E("deadband", 0.01),), seed=4,
-         note="PWM deadband of 0.01 N m (1.4 % of the torque range), outside the catalogue"),
+         note="PWM deadband of 0.01 N m (1.4 % of the torque range); the catalogue's "
+              "deadband since session 21"),
     Case("series_elastic_mcp_position", "position", (E("series_elastic", 10.0, ("mcp",)),),
          seed=5, note="a 10 N m/rad spring between the mcp rotor and its link, outside the "
                       "catalogue"),

@@ -281,6 +281,7 @@ class _PlantBase:
             key_state = {k[len(b.cls.name) + 1:]: v for k, v in self._state.items()
                          if k.startswith(b.cls.name + ":")}
             key_state["setpoint"] = self.ctrl[..., a].copy()  # what the servo holds now
+            key_state["fields"] = self  # the model's fields (which actuators a law acts on)
             if b.cls.structural:  # its hidden dofs' state (a play read by the servo)
                 key_state["qpos"], key_state["qvel"] = self.qpos, self.qvel
                 g = self.array("actuator_gainprm")[..., a, 0]
@@ -293,7 +294,7 @@ class _PlantBase:
             if (tq := key_state.pop("torque", None)) is not None:  # outside the force range
                 h = b.targets.has_play
                 self.qfrc_applied[..., b.targets.dofs[h]] = tq[..., h]
-            for k in ("setpoint", "qpos", "qvel", "kv_kp", "damping"):
+            for k in ("setpoint", "qpos", "qvel", "kv_kp", "damping", "fields"):
                 key_state.pop(k, None)
             for k, v in key_state.items():
                 self._state[f"{b.cls.name}:{k}"] = v

@@ -44,6 +44,7 @@ from lowcostdex.sim.effects.catalogue import (
     ActionNoise,
     Backlash,
     CoulombFriction,
+    Deadband,
     GainError,
     GearboxFriction,
     InertiaError,
@@ -72,7 +73,7 @@ from lowcostdex.sim.effects.randomization import (
 
 __all__ = [
     "CAUSES", "DEFAULT_DR_EFFECTS", "DEFAULT_REFERENCE_TEMPERATURE", "EFFECTS", "ActionNoise",
-    "AppliedEffect", "Backlash", "CoulombFriction", "DomainRandomization", "Effect", "Fields",
+    "AppliedEffect", "Backlash", "CoulombFriction", "Deadband", "DomainRandomization", "Effect", "Fields",
     "GainError", "GearboxFriction", "InertiaError", "Latency", "LoadDependentFriction", "MassError",
     "MotorStrength", "MountingOffset", "ObservationNoise", "Param", "PositionOffset", "Quantization",
     "SampleFn", "StribeckFriction", "Targets", "ThermalDerating", "TorqueLimit", "VelocityLimit",

@@ -28,6 +28,7 @@ from lowcostdex.sim.effects.base import (
 from lowcostdex.sim.effects.base import (
     dcmotor_targets as _dcmotor,
 )
+from lowcostdex.sim.effects.deadband import Deadband
 from lowcostdex.sim.effects.exogenous import ThermalDerating, VoltageSag
 from lowcostdex.sim.effects.exogenous import scale_resistance as _scale_resistance
 from lowcostdex.sim.effects.supply import SupplyResistance
@@ -547,7 +548,7 @@ EFFECTS: dict[str, type[Effect]] = {
         GearboxFriction, BackdrivenFriction,
         ViscousDamping, GainError, TorqueLimit, VelocityLimit, GoalSlew, MotorStrength,
         PositionOffset, MountingOffset, InertiaError, MassError, ThermalDerating, VoltageSag,
-        SupplyResistance, ObservationNoise,
+        SupplyResistance, Deadband, ObservationNoise,
         ActionNoise, Quantization,
     )
 }
@@ -558,6 +559,7 @@ CAUSES: tuple[str, ...] = (
     "viscous_damping", "gain_error", "torque_limit", "velocity_limit", "position_offset",
     "inertia_error", "mass_error", "thermal_derating", "voltage_sag",
     "gearbox_friction", "mounting_offset", "motor_strength",
+    "deadband",
 )
 
 

@@ -1,0 +1,153 @@
+"""``deadband``: the servo puts out nothing while its position error is inside a band (a Feetech
+STS/SCS's CW/CCW dead zone, registers 26/27 in steps; a hobby servo's specified deadband; the
+PWM deadband of an H-bridge drive seen through the P gain), on every actuator kind that takes a
+position goal, and on a torque-driven drive's command.
+
+Its own module (the catalogue, ``catalogue``, lists it in ``EFFECTS`` / ``CAUSES``).
+
+The law (one physical thing on every kind): the position loop's proportional term acts on the
+error with the band taken out, e' = sign(e) max(|e| - width, 0), e = goal - q (the error beyond
+the band, not the plain error: the output is continuous at the band's edge, as a PWM deadband
+subtracted from the drive is; sim6's ``deadband_torque`` writes |c| - value). A firmware that
+gates the plain error (nothing inside, the whole error beyond: the hidden robots'
+``FirmwareImperfection``) holds the same band; it differs by at most kp x width of force at the
+band's edge, and we offer one form until data tells them apart. What damps (kv, a firmware D,
+back-EMF) is kept. Statics written out: a joint held under a constant load L rests at an error
+width + L / kp from its goal (a servo without the band: L / kp); unloaded it stays wherever it is
+left inside the band.
+
+Per actuator kind (the targets' actuators; others are left as they were):
+
+* ``position`` and ``general`` with a position bias (fixed gain, affine bias with biasprm[1] =
+  -kp): each physics step the bias constant biasprm[0] takes back kp x clip(e, -width, width)
+  (``live_apply``), so MuJoCo still integrates kv implicitly, clips at the force range and
+  delays the goal (a latency's band is around the goal as sent: a small error at a few ms);
+* ``motor`` (fixed gain, no bias: the goal is the drive's torque command, a host PD's): the
+  command c becomes sign(c) max(|c| - width, 0) before it reaches the drive (``command``; width
+  in the command's units, N m of torque for a gear-1 motor);
+* ``dcmotor`` servos (``lowcostdex.sim.servo``): each physics step the drive torque with the P
+  path on e' (D path, back-EMF, Vmax clip and the integrator's ki x state kept; the goal slewed
+  where the firmware slews it) pinned as the force range (``live_apply``; the ``ServoClock``'s
+  way of holding a force).
+
+Confusable family (documented in docs/gap_analysis.md): ``coulomb_friction`` (a moving joint's
+error keeps the sign of its speed, so the band takes kp x width off the drive as a dry friction
+would; under a static load they part: friction shortens the offset, the band lengthens it),
+``backlash`` (a play read on the link side with the loop on the motor side is a band of half its
+width) and ``gain_error`` (a softer servo near its goal).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from lowcostdex.sim import servo
+from lowcostdex.sim.effects.base import Effect, Fields, Param, Targets, Values, dcmotor_targets
+
+
+def dead_zone(x: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """sign(x) max(|x| - width, 0): ``x`` with the band +-``width`` taken out (same units)."""
+    return np.sign(x) * np.maximum(np.abs(x) - width, 0.0)
+
+
+class Deadband(Effect):
+    name = "deadband"
+    kind = "command"  # a motor's torque command; position-goal servos: ``live_apply``
+    live = True
+    doc = ("position-loop deadband: the servo's P term acts on the error with a band of "
+           "+-width taken out (sign(e) max(|e| - width, 0): nothing while |goal - q| < width, D "
+           "kept; position, general with a position bias, dcmotor servos); a torque-driven "
+           "motor's command c becomes sign(c) max(|c| - width, 0) (width in N m there)")
+    params = (Param("width", 0.0, 0.0, 0.1, "rad", (0.0, 0.005), start=0.005,
+                    limit=(0.0, 0.3), doc="half-width of the band around the goal [rad] (a "
+                    "motor actuator's: of its command, N m); a Feetech dead zone of n steps is "
+                    "n x 2 pi / 4096"),)
+
+    @classmethod
+    def command(cls, t: Targets, v: Values, goal: np.ndarray, state: dict[str, np.ndarray],
+                rng: np.random.Generator) -> np.ndarray:
+        """Motors' commands with the band taken out (``motors``, from the model's fields the
+        plant passes as ``state["fields"]``); position goals pass."""
+        f = state.get("fields")
+        motor = cls.motors(f, t) if f is not None else np.zeros(len(t.actuators), bool)
+        if not np.any(motor):
+            return goal
+        return np.where(motor, dead_zone(goal, np.asarray(v["width"], float)), goal)
+
+    @staticmethod
+    def motors(f: Fields, t: Targets) -> np.ndarray:
+        """(n,) which targets' actuators are torque-driven motors (fixed gain, no bias, no
+        activation): their command is the band's input."""
+        a = t.actuators
+        return ((f.nominal("actuator_gaintype")[a] == int(mujoco.mjtGain.mjGAIN_FIXED))
+                & (f.nominal("actuator_biastype")[a] == int(mujoco.mjtBias.mjBIAS_NONE))
+                & (f.nominal("actuator_dyntype")[a] == int(mujoco.mjtDyn.mjDYN_NONE)))
+
+    @classmethod
+    def live_apply(cls, f: Fields, t: Targets, v: Values, qvel: np.ndarray,
+                   forcerange: np.ndarray) -> None:
+        """Each physics step: position-biased servos' biasprm[0] = nominal - kp x clip(e,
+        -width, width); dcmotor servos' force range pinned at their drive torque with the P path
+        on the error beyond the band (module docstring). A null (0) width leaves both as they
+        were."""
+        a = t.actuators
+        w = np.broadcast_to(np.asarray(v["width"], float), qvel.shape[:-1] + (len(a),))
+        if not np.any(w > 0):
+            return
+        gear = f.nominal("actuator_gear")[a, 0]
+        q = gear * np.asarray(f.qpos)[..., t.qpos]
+        ctrl = np.asarray(f.ctrl)[..., a]
+        cr = f.nominal("actuator_ctrlrange")[a]
+        ctrl = np.where(f.nominal("actuator_ctrllimited")[a] > 0,
+                        np.clip(ctrl, cr[:, 0], cr[:, 1]), ctrl)
+        dc = dcmotor_targets(f, t)
+        nb = f.nominal("actuator_biasprm")[a]
+        pos = (~dc & (f.nominal("actuator_gaintype")[a] == int(mujoco.mjtGain.mjGAIN_FIXED))
+               & (f.nominal("actuator_biastype")[a] == int(mujoco.mjtBias.mjBIAS_AFFINE))
+               & (f.nominal("actuator_dyntype")[a] == int(mujoco.mjtDyn.mjDYN_NONE))
+               & (nb[:, 1] != 0))
+        if np.any(pos):
+            bias = f.array("actuator_biasprm")
+            b1 = bias[..., a, 1]  # -kp (as the effects and the drive scale left it)
+            kp = -b1
+            e = np.where(kp != 0, (f.array("actuator_gainprm")[..., a, 0] * ctrl + b1 * q)
+                         / np.where(kp != 0, kp, 1.0), 0.0)
+            b0 = nb[:, 0] - kp * np.clip(e, -w, w)
+            bias[..., a[pos], 0] = b0[..., pos]
+        if np.any(dc):
+            cls._pin_dcmotor(f, t, w, q, ctrl, qvel, forcerange, dc)
+
+    @staticmethod
+    def _pin_dcmotor(f: Fields, t: Targets, w: np.ndarray, q: np.ndarray, ctrl: np.ndarray,
+                     qvel: np.ndarray, forcerange: np.ndarray, dc: np.ndarray) -> None:
+        """dcmotor servos ``dc``: the force range (..., nu, 2) pinned at the drive torque with
+        the P path on the error beyond the band (the supply's voltage law as
+        ``supply_resistance`` writes it: v = R / K (kp e' + ki s - kd w) + K w, clipped at
+        Vmax; torque K (v - K w) / R), inside the range in force; width 0 left as it was."""
+        a, dofs = t.actuators[dc], t.dofs[dc]
+        g = f.array("actuator_gainprm")[..., a, :]
+        res, k = g[..., servo.GAIN_R], g[..., servo.GAIN_K]
+        gear = f.nominal("actuator_gear")[a, 0]
+        speed = gear * qvel[..., dofs]
+        goal = ctrl[..., dc]
+        dyn = f.nominal("actuator_dynprm")[a]
+        adr = np.maximum(f.nominal("actuator_actadr")[a], 0)
+        if np.any(dyn[:, servo.DYN_SLEWMAX] > 0):  # the firmware's slewed goal
+            goal = np.where(dyn[:, servo.DYN_SLEWMAX] > 0, np.asarray(f.act)[..., adr], goal)
+        drive = g[..., servo.GAIN_KP] * dead_zone(goal - q[..., dc], w[..., dc])
+        layout = servo.dcmotor_act_layout(f.model)[a, servo.ACT_INTEGRATOR]
+        if np.any(layout >= 0):
+            state = np.asarray(f.act)[..., np.maximum(layout, 0)]
+            drive = drive + np.where(layout >= 0, g[..., servo.GAIN_KI] * state, 0.0)
+        vmax = g[..., servo.GAIN_VMAX]
+        volts = np.clip(res / k * (drive - g[..., servo.GAIN_KD] * speed) + k * speed,
+                        -vmax, vmax)
+        tau = k * (volts - k * speed) / res
+        lo, hi = forcerange[..., a, 0], forcerange[..., a, 1]
+        lim = f.array("actuator_forcelimited")[..., a] > 0
+        tau = np.where(lim, np.clip(tau, lo, hi), tau)
+        on = w[..., dc] > 0
+        forcerange[..., a, 0] = np.where(on, tau, lo)
+        forcerange[..., a, 1] = np.where(on, tau, hi)
+        f.array("actuator_forcelimited")[..., a] = np.where(on, 1, lim)
