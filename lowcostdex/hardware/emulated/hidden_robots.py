@@ -12,11 +12,16 @@ on it. It differs from the nominal model in three ways:
 2. **MJCF perturbations no effect names** (``ModelPerturbation``): link masses (+-8 %) and link
    lengths (+-3 %) per finger, one finger base mounted 2-4 deg rotated about a horizontal axis,
    the valve's dry friction, damping and inertia changed.
-3. **A firmware imperfection no effect represents** (``FirmwareImperfection``), per servo: a PWM
-   deadband of the position loop (the driver puts out nothing while the P term's PWM is below
-   10-30 of 885 units: 1.4-4.3 ticks of error at the factory P gain) and a magnetic encoder's
-   once-per-turn nonlinearity (0.25-0.7 deg amplitude). The servo closes its loop on its own
-   encoder, so the nonlinearity also moves where a goal puts the joint.
+3. **Firmware imperfections** (``FirmwareImperfection``), per servo: a PWM deadband of the
+   position loop (the driver puts out nothing while the P term's PWM is below 10-30 of 885
+   units: 1.4-4.3 ticks of error at the factory P gain) and a magnetic encoder's once-per-turn
+   nonlinearity (0.25-0.7 deg amplitude). The servo closes its loop on its own encoder, so the
+   nonlinearity also moves where a goal puts the joint. Since session 21 the deadband is
+   nameable: the catalogue's ``deadband`` (``lowcostdex.sim.effects.deadband``) holds the same
+   band, its P term on the error beyond the band where this firmware passes the whole error
+   once outside it (they differ by at most kp x width of force at the band's edge). The
+   encoder nonlinearity and the geometry of item 2 (link lengths, the tilted finger base) stay
+   outside the catalogue.
 
 Identifying such a robot is therefore not a lookup of the analyzer's own catalogue: parts of it
 can only be approximated by catalogue effects, and the valve is never seen by the finger logs.
@@ -133,7 +138,8 @@ class ModelPerturbation:
 
 @dataclass(frozen=True)
 class FirmwareImperfection:
-    """Servo firmware behaviour of a hidden robot that no catalogue effect represents.
+    """Servo firmware behaviour of a hidden robot beyond its catalogue effects (the deadband is
+    nameable as the catalogue's ``deadband`` since session 21; the encoder error is not).
 
     Per servo (joint name): the encoder reads ``q + amplitude sin(q + phase)`` (a magnetic
     encoder's once-per-turn error; the D'Claw's joints turn 1:1 with their horns), and the

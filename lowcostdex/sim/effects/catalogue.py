@@ -559,7 +559,6 @@ CAUSES: tuple[str, ...] = (
     "viscous_damping", "gain_error", "torque_limit", "velocity_limit", "position_offset",
     "inertia_error", "mass_error", "thermal_derating", "voltage_sag",
     "gearbox_friction", "mounting_offset", "motor_strength",
-    "deadband",
 )
 
 

@@ -3,7 +3,7 @@ STS/SCS's CW/CCW dead zone, registers 26/27 in steps; a hobby servo's specified 
 PWM deadband of an H-bridge drive seen through the P gain), on every actuator kind that takes a
 position goal, and on a torque-driven drive's command.
 
-Its own module (the catalogue, ``catalogue``, lists it in ``EFFECTS`` / ``CAUSES``).
+Its own module (the catalogue, ``catalogue``, lists it in ``EFFECTS``).
 
 The law (one physical thing on every kind): the position loop's proportional term acts on the
 error with the band taken out, e' = sign(e) max(|e| - width, 0), e = goal - q (the error beyond
