@@ -9,9 +9,8 @@ fit. Splits (train / select / test) are made over episodes, never over samples.
 
 from __future__ import annotations
 
-import glob
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError, check_number
 from lowcostdex.gap.bam_logs import check_one_motor
-from lowcostdex.gap.log_csv import holds_log_channels
+from lowcostdex.gap.log_paths import LOG_SUFFIXES, expand_log_paths  # noqa: F401 (re-exported)
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
@@ -155,65 +154,6 @@ class Dataset:
                        self.servo_period)
 
 
-LOG_SUFFIXES = (".csv", ".npz", ".json")
-
-
-def expand_log_paths(paths: str | Path | Sequence[str | Path],
-                     notes: list[str] | None = None) -> list[Path]:
-    """The log files meant by ``paths``: one path or a sequence of them, where each may be a
-    file, a folder (its ``LOG_SUFFIXES`` files, sorted) or a glob pattern that the shell did
-    not expand (``"logs/*.csv"``, sorted matches). Raises LogError when nothing is named, a
-    folder holds no log or a pattern matches nothing. Hidden files (``.lowcostdex.json``, the
-    marker ``record-log`` leaves) are not logs, nor are the JSON files of a folder that holds
-    project-format logs (CSV/NPZ): a BAM log (JSON) cannot be analysed beside them, and such a
-    JSON is the folder's own notes (``gap generate``'s truth.json); each left out is said in
-    ``notes``."""
-    entries: list = []
-    if isinstance(paths, (str, os.PathLike)):
-        entries = [paths]
-    elif isinstance(paths, Iterable) and not isinstance(paths, (Mapping, np.ndarray, bytes)):
-        entries = list(paths)
-    if not all(isinstance(p, (str, os.PathLike)) for p in entries) or (
-            not entries and not isinstance(paths, (list, tuple))):
-        raise LogError(f"logs are given as file paths (a path, a folder, a glob pattern or a "
-                       f"list of them), not {type(paths).__name__}; write arrays to a file "
-                       "first: lowcostdex.gap.write_log(path, Trajectory(...))")
-    if not entries:
-        raise LogError("no log files given")
-    out: list[Path] = []
-    for entry in entries:
-        one = Path(entry)
-        if one.is_dir():
-            found = sorted(p for p in one.iterdir()  # not .lowcostdex.json (a marker)
-                           if p.is_file() and not p.name.startswith(".")
-                           and p.suffix.lower() in LOG_SUFFIXES)
-            if not found:
-                raise LogError(f"{one}: a folder without logs ({', '.join(LOG_SUFFIXES)})")
-            if any(p.suffix.lower() != ".json" for p in found):
-                json_files = [p for p in found if p.suffix.lower() == ".json"]
-                found = [p for p in found if p.suffix.lower() != ".json"]
-                if json_files and notes is not None:
-                    notes.append(f"{one}: left out {', '.join(p.name for p in json_files)} (JSON "
-                                 "beside project-format CSV/NPZ logs: not a log of them)")
-                tables = [p for p in found if p.suffix.lower() == ".csv"
-                          and not holds_log_channels(p)]  # the user's other CSV files
-                found = [p for p in found if p not in tables]
-                if tables and not found:
-                    raise LogError(f"{one}: a folder without logs: its CSV files "
-                                   f"{', '.join(p.name for p in tables)} have no 'goal:' or "
-                                   "'qpos:' column")
-                if tables and notes is not None:
-                    notes.append(f"{one}: left out {', '.join(p.name for p in tables)} (no "
-                                 "'goal:' or 'qpos:' column: not a log)")
-            out += found
-        elif not one.exists() and any(c in str(one) for c in "*?["):
-            found = sorted(Path(p) for p in glob.glob(str(one)) if Path(p).is_file())
-            if not found:
-                raise LogError(f"{one}: no file matches this pattern")
-            out += found
-        else:
-            out.append(one)
-    return out
 
 
 MAX_BENCH_TIMESTEP = 0.05

@@ -197,18 +197,21 @@ def _is_float(cell: str) -> bool:
     return True
 
 
-def holds_log_channels(path: Path) -> bool:
-    """Whether the CSV file's header names a position log's channel (a 'goal:' or 'qpos:'
-    column, any case): a folder of logs may hold the user's other tables (a calibration's
-    'joint,offset', an events list), which are no log. Unreadable headers count as a log
-    (``read_csv`` then says what is wrong)."""
+def may_be_log(path: Path, min_rows: int) -> bool:
+    """Whether a CSV file in a folder of logs may be a log: its header names a 'goal:' or
+    'qpos:' column (any case), or it has at least ``min_rows`` rows (a log with misspelled
+    columns is read, and refused naming them). A folder of logs may hold the user's other
+    short tables (a calibration's 'joint,offset', an events list): those are no log.
+    Unreadable files count as logs (``read_csv`` then says what is wrong)."""
     try:
         with open(path, newline="", encoding=_encoding(path)) as f:
             sep = _delimiter(f)
-            for row in csv.reader(f, delimiter=sep):
-                if row and any(c.strip() for c in row) and not row[0].lstrip().startswith("#"):
-                    return any(c.partition(":")[0].strip().lower() in ("goal", "qpos")
-                               and ":" in c for c in row)
+            rows = (r for r in csv.reader(f, delimiter=sep)
+                    if r and any(c.strip() for c in r) and not r[0].lstrip().startswith("#"))
+            header = next(rows, [])
+            if any(c.partition(":")[0].strip().lower() in ("goal", "qpos") and ":" in c
+                   for c in header):
+                return True
+            return sum(1 for _, _ in zip(range(min_rows), rows, strict=False)) >= min_rows
     except (UnicodeDecodeError, csv.Error, OSError):
         return True
-    return False

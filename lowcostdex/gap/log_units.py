@@ -9,10 +9,14 @@ positions on a whole-degree encoder grid (a 4096-tick encoder read in degrees st
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lowcostdex.gap.trajectory import LogError
+from lowcostdex.gap.trajectory import LogError, Trajectory
+
+if TYPE_CHECKING:
+    import mujoco
 
 # velocity units whose values fit the plausible range at a slow joint: unit -> values per rad/s
 VELOCITY_UNITS = {"deg/s": 180 / math.pi, "rpm": 30 / math.pi,
@@ -78,3 +82,41 @@ def check_degree_grid(q: np.ndarray, joint: str, name: str) -> None:
                        f"in degrees? (in rad a 4096-tick encoder steps by "
                        f"{math.radians(360 / 4096):.3g}); its values {float(np.min(q)):.6g} to "
                        f"{float(np.max(q)):.6g} are degrees, not rad: {TO_RAD}")
+
+
+def check_goal_degrees(traj: Trajectory, model: mujoco.MjModel, i: int, joint: str,
+                       margin: float) -> None:
+    """Goals in degrees beside positions in rad: a position servo's goal (goal / gear) beyond
+    its limited joint's range by more than the range's width, inside it read as degrees, and
+    the joint following it at pi/180 of its swing (the least-squares slope of the reading on
+    the goal within 0.4-1.6 x pi/180, correlation above 0.9). A goal far beyond the range
+    alone is not refused: a servo pushed against a hard stop reads still at the stop.
+    ``i``: the actuator (a position servo on ``joint``); ``margin`` [rad]: the slack of the
+    range (``log_checks.RANGE_MARGIN``)."""
+    actuator = model.actuator(i).name
+    jid = model.joint(joint).id
+    if not model.jnt_limited[jid] or actuator not in traj.actuators or joint not in traj.joints:
+        return
+    lo, hi = (float(x) for x in model.jnt_range[jid])
+    g = traj.goal[:, traj.actuators.index(actuator)] / float(model.actuator_gear[i, 0] or 1.0)
+    q = traj.qpos[:, traj.joints.index(joint)]
+    width = max(hi - lo, margin)
+    far = (g < lo - width) | (g > hi + width)
+    deg = np.radians(g)
+    if not far.any() or np.any((deg < lo - margin) | (deg > hi + margin)):
+        return
+    sg, sq = float(np.std(g)), float(np.std(q))
+    if sg == 0.0 or sq == 0.0:
+        return
+    corr = float(np.mean((g - g.mean()) * (q - q.mean())) / (sg * sq))
+    slope = corr * sq / sg
+    if corr < 0.9 or not 0.4 < slope * 180 / math.pi < 1.6:
+        return
+    r = int(np.argmax(far))
+    why = (f"goals in degrees beside positions in rad: read as degrees the goals span "
+           f"[{deg.min():.4g}, {deg.max():.4g}] rad, inside the range, and 'qpos:{joint}' "
+           f"follows them at {slope:.3g} x (pi/180 = 0.0175); multiply the 'goal:' column by "
+           "pi/180 (numpy.radians)")
+    raise LogError(f"{traj.name}: column 'goal:{actuator}' reads {g[r]:.6g} rad at row {r} "
+                   f"(0-based), beyond joint {joint!r}'s range [{lo:.4g}, {hi:.4g}] rad by more "
+                   f"than its width ({why})")

@@ -61,7 +61,7 @@ from lowcostdex.gap.log_checks import (
     trajectory_from_columns,
 )
 from lowcostdex.gap.log_csv import MAX_COLUMNS, is_channel, read_csv
-from lowcostdex.gap.log_units import TO_RAD
+from lowcostdex.gap.log_units import TO_RAD, check_goal_degrees
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     GAP_MIN,
@@ -389,7 +389,7 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                            f"'qpos:{joint}'; a log of this actuator's own input, a force/torque "
                            "or velocity, is replayed as it is)")
         if not kind and joint is not None and act_names[i] not in rate:  # goals in degrees
-            _check_goal_in_range(traj, model, i, act_names[i], joint)
+            check_goal_degrees(traj, model, i, joint, RANGE_MARGIN)
         if joint is not None:
             j = joint
             if j not in traj.joints:
@@ -397,41 +397,6 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                                f"{act_names[i]!r} but the log has no 'qpos:{j}' column: every "
                                "replay would start it at the model's initial pose; log its "
                                "position too")
-
-
-def _check_goal_in_range(traj: Trajectory, model: mujoco.MjModel, i: int, actuator: str,
-                         joint: str) -> None:
-    """Goals in degrees beside positions in rad: a position servo's goal (goal / gear) beyond
-    its limited joint's range by more than the range's width, inside it read as degrees, and
-    the joint following it at pi/180 of its swing (the least-squares slope of the reading on
-    the goal within 0.4-1.6 x pi/180, correlation above 0.9). A goal far beyond the range
-    alone is not refused: a servo pushed against a hard stop reads still at the stop."""
-    jid = model.joint(joint).id
-    if not model.jnt_limited[jid] or actuator not in traj.actuators or joint not in traj.joints:
-        return
-    lo, hi = (float(x) for x in model.jnt_range[jid])
-    g = traj.goal[:, traj.actuators.index(actuator)] / float(model.actuator_gear[i, 0] or 1.0)
-    q = traj.qpos[:, traj.joints.index(joint)]
-    width = max(hi - lo, RANGE_MARGIN)
-    far = (g < lo - width) | (g > hi + width)
-    deg = np.radians(g)
-    if not far.any() or np.any((deg < lo - RANGE_MARGIN) | (deg > hi + RANGE_MARGIN)):
-        return
-    sg, sq = float(np.std(g)), float(np.std(q))
-    if sg == 0.0 or sq == 0.0:
-        return
-    corr = float(np.mean((g - g.mean()) * (q - q.mean())) / (sg * sq))
-    slope = corr * sq / sg
-    if corr < 0.9 or not 0.4 < slope * 180 / math.pi < 1.6:
-        return
-    r = int(np.argmax(far))
-    why = (f"goals in degrees beside positions in rad: read as degrees the goals span "
-           f"[{deg.min():.4g}, {deg.max():.4g}] rad, inside the range, and 'qpos:{joint}' "
-           f"follows them at {slope:.3g} x (pi/180 = 0.0175); multiply the 'goal:' column by "
-           "pi/180 (numpy.radians)")
-    raise LogError(f"{traj.name}: column 'goal:{actuator}' reads {g[r]:.6g} rad at row {r} "
-                   f"(0-based), beyond joint {joint!r}'s range [{lo:.4g}, {hi:.4g}] rad by more "
-                   f"than its width ({why})")
 
 
 def _same_joint(model: mujoco.MjModel, a: int, b: int) -> bool:

@@ -1,0 +1,75 @@
+"""Which log files a user's paths name: a file, a folder (its logs; the user's other files
+in it passed over and said), a glob pattern the shell left unexpanded, or a list of them."""
+
+from __future__ import annotations
+
+import glob
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from lowcostdex.gap.log_checks import MIN_SAMPLES
+from lowcostdex.gap.log_csv import may_be_log
+from lowcostdex.gap.trajectory import LogError
+
+LOG_SUFFIXES = (".csv", ".npz", ".json")
+
+
+def expand_log_paths(paths: str | Path | Sequence[str | Path],
+                     notes: list[str] | None = None) -> list[Path]:
+    """The log files meant by ``paths``: one path or a sequence of them, where each may be a
+    file, a folder (its ``LOG_SUFFIXES`` files, sorted) or a glob pattern that the shell did
+    not expand (``"logs/*.csv"``, sorted matches). Raises LogError when nothing is named, a
+    folder holds no log or a pattern matches nothing. Hidden files (``.lowcostdex.json``, the
+    marker ``record-log`` leaves) are not logs, nor are the JSON files of a folder that holds
+    project-format logs (CSV/NPZ): a BAM log (JSON) cannot be analysed beside them, and such a
+    JSON is the folder's own notes (``gap generate``'s truth.json); each left out is said in
+    ``notes``."""
+    entries: list = []
+    if isinstance(paths, (str, os.PathLike)):
+        entries = [paths]
+    elif isinstance(paths, Iterable) and not isinstance(paths, (Mapping, np.ndarray, bytes)):
+        entries = list(paths)
+    if not all(isinstance(p, (str, os.PathLike)) for p in entries) or (
+            not entries and not isinstance(paths, (list, tuple))):
+        raise LogError(f"logs are given as file paths (a path, a folder, a glob pattern or a "
+                       f"list of them), not {type(paths).__name__}; write arrays to a file "
+                       "first: lowcostdex.gap.write_log(path, Trajectory(...))")
+    if not entries:
+        raise LogError("no log files given")
+    out: list[Path] = []
+    for entry in entries:
+        one = Path(entry)
+        if one.is_dir():
+            found = sorted(p for p in one.iterdir()  # not .lowcostdex.json (a marker)
+                           if p.is_file() and not p.name.startswith(".")
+                           and p.suffix.lower() in LOG_SUFFIXES)
+            if not found:
+                raise LogError(f"{one}: a folder without logs ({', '.join(LOG_SUFFIXES)})")
+            if any(p.suffix.lower() != ".json" for p in found):
+                json_files = [p for p in found if p.suffix.lower() == ".json"]
+                found = [p for p in found if p.suffix.lower() != ".json"]
+                if json_files and notes is not None:
+                    notes.append(f"{one}: left out {', '.join(p.name for p in json_files)} (JSON "
+                                 "beside project-format CSV/NPZ logs: not a log of them)")
+                tables = [p for p in found if p.suffix.lower() == ".csv"  # the user's own
+                          and not may_be_log(p, MIN_SAMPLES)]  # short tables
+                found = [p for p in found if p not in tables]
+                what = (f"no 'goal:' or 'qpos:' column and under {MIN_SAMPLES} rows")
+                if tables and not found:
+                    raise LogError(f"{one}: a folder without logs: its CSV files "
+                                   f"{', '.join(p.name for p in tables)} have {what}")
+                if tables and notes is not None:
+                    notes.append(f"{one}: left out {', '.join(p.name for p in tables)} ({what}: "
+                                 "not a log)")
+            out += found
+        elif not one.exists() and any(c in str(one) for c in "*?["):
+            found = sorted(Path(p) for p in glob.glob(str(one)) if Path(p).is_file())
+            if not found:
+                raise LogError(f"{one}: no file matches this pattern")
+            out += found
+        else:
+            out.append(one)
+    return out
