@@ -255,3 +255,40 @@ def test_a_model_folder_names_the_mjcf_inside_and_an_mjcf_with_includes_loads(tm
                                        r"arm\.xml: give the top one, e\.g\. --model .*arm\.xml"):
         load_dataset([log], model=folder)
     assert len(load_dataset([log], model=folder / "arm.xml").trajectories) == 1
+
+
+# ------------------------------------------------------------------------------------------------
+# NaN / inf / "no value" markers in a CSV log's columns
+
+
+def _one_cell(tmp_path: Path, cell: str, column: int = 2) -> Path:
+    t, goal, q, _ = _servo_log()
+    rows = [[f"{a:.3f}", f"{b:.6f}", f"{c:.6f}"]
+            for a, b, c in zip(t, np.radians(goal), np.radians(q), strict=True)]
+    rows[500][column] = cell
+    path = tmp_path / "log.csv"
+    path.write_text("time,goal:j,qpos:j\n" + "\n".join(",".join(r) for r in rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("cell", ["", "nan", "NaN", "#N/A", "NA", "N/A", "n/a", "null", "None",
+                                  "<NA>"])
+def test_a_missing_value_marker_is_a_failed_read_like_an_empty_cell(tmp_path, cell):
+    """pandas.read_csv reads these cells as missing (its default na_values): a spreadsheet's
+    #N/A, R's NA, a JSON null, Python's None. Before: an empty cell or 'nan' dropped its row
+    with a note, while '#N/A', 'NA', 'N/A', 'null', 'None', '<NA>' refused the whole log
+    ("'#N/A' is not a number")."""
+    traj = read_log(_one_cell(tmp_path, cell))
+    assert len(traj.time) == 999
+    assert any("1 row(s) with an empty or NaN value dropped (first: row 500" in n
+               for n in traj.meta["notes"])
+
+
+@pytest.mark.parametrize("cell,column", [("inf", 2), ("-inf", 1), ("Infinity", 2)])
+def test_an_infinite_value_is_refused_naming_the_row_and_the_fix(tmp_path, cell, column):
+    """An inf is no missing value (an overflow, a logger's sentinel): refused, as before, and
+    now with what to write instead."""
+    with pytest.raises(LogError, match=r"has 1 NaN/inf values \(first at row 500\): -?inf, an "
+                                       r"overflow or a failed read logged as inf\? leave its cell "
+                                       r"empty"):
+        read_log(_one_cell(tmp_path, cell, column))

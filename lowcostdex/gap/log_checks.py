@@ -114,7 +114,10 @@ def trajectory_from_columns(cols: dict[str, np.ndarray], name: str = "log",
         bad = ~np.isfinite(arr)
         if bad.any():
             raise LogError(f"{name}: column {key!r} has {int(bad.sum())} NaN/inf values "
-                           f"(first at row {int(np.argmax(bad))})")
+                           f"(first at row {int(np.argmax(bad))}): {arr[np.argmax(bad)]:g}, an "
+                           "overflow or a failed read logged as inf? leave its cell empty (a "
+                           "row with an empty position or goal is dropped and said) or remove "
+                           "the row")
     t = np.asarray(cols["time"], dtype=float)
     _check_time(t, name)
     for key, arr in cols.items():

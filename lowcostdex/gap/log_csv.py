@@ -79,12 +79,12 @@ def _read_csv(path: Path, max_rows: int, encoding: str
                 for c, cells in stamps.items():
                     cells.append(row[c])
                 try:
-                    rows.append([float(cell) if cell.strip() else np.nan for cell in row])
+                    rows.append([_number(cell) for cell in row])
                 except ValueError:
                     for c, cell in enumerate(row):
                         if not _is_float(cell):
                             text.setdefault(c, (raw.line_num, cell))
-                    rows.append([float(cell) if cell.strip() and c not in text else np.nan
+                    rows.append([_number(cell) if c not in text else np.nan
                                  for c, cell in enumerate(row)])
     except csv.Error as exc:  # a field over the csv module's 128 kB: not a log's number
         raise LogError(f"{path}: not a CSV log (line {raw.line_num}: {exc})") from None
@@ -189,9 +189,22 @@ def _delimiter(f) -> str:
     return ","
 
 
+MISSING = frozenset(("#N/A", "#N/A N/A", "#NA", "-1.#IND", "-1.#QNAN", "-NaN", "-nan", "1.#IND",
+                     "1.#QNAN", "<NA>", "N/A", "NA", "NULL", "NaN", "None", "n/a", "nan", "null"))
+"""Cells that mean "no value" (pandas.read_csv's default ``na_values``: a spreadsheet's #N/A,
+R's NA, a JSON null, Python's None): read as an empty cell (a failed read: the row's repair in
+``log_checks`` drops it, or fills an optional channel)."""
+
+
+def _number(cell: str) -> float:
+    """A cell's number; NaN for an empty or ``MISSING`` cell; ValueError for other text."""
+    cell = cell.strip()
+    return np.nan if not cell or cell in MISSING else float(cell)
+
+
 def _is_float(cell: str) -> bool:
     try:
-        float(cell) if cell.strip() else None
+        _number(cell)
     except ValueError:
         return False
     return True
