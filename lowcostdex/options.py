@@ -55,8 +55,10 @@ def add_run_options(parser: argparse.ArgumentParser, *, out: str, n_iter: int,
                             help="trajectories per iteration (default %(default)s)")
 
 
-def robot_selection(backend: str, port: str | None) -> tuple[str, dict[str, Any]]:
-    """``(backend, env_kwargs)`` for a training config from ``--backend`` / ``--port``.
+def robot_selection(backend: str, port: str | None, hand: str = "dclaw"
+                    ) -> tuple[str, dict[str, Any]]:
+    """``(backend, env_kwargs)`` for a training config from ``--backend`` / ``--port``
+    (``hand``: "dclaw" or "allegro", the env's hand).
 
     Raises:
       ConfigError: ``hardware`` without a port, or a port given to another backend.
@@ -68,7 +70,7 @@ def robot_selection(backend: str, port: str | None) -> tuple[str, dict[str, Any]
             raise ConfigError(f"--port {port} is for --backend hardware; with --backend sim "
                               "leave it out")
         return backend, {}
-    device = robot_port(backend, port)  # the robot backends' one rule
+    device = robot_port(backend, port, hand)  # the robot backends' one rule
     return backend, ({} if device == "emulated" else {"port": device})
 
 ROBOT_BACKENDS = ("emulated", "hardware")
@@ -104,8 +106,9 @@ def latency_kwargs(latency_ms: float | None) -> dict[str, float]:
     return {} if latency_ms is None else {"latency_ms": float(latency_ms)}
 
 
-def robot_port(backend: str | None, port: str | None) -> str:
-    """``"emulated"`` or the serial port, from ``--backend`` / ``--port``.
+def robot_port(backend: str | None, port: str | None, hand: str = "dclaw") -> str:
+    """``"emulated"`` or the serial port (the Allegro's: its CAN channel), from ``--backend`` /
+    ``--port``; ``hand``: "dclaw" or "allegro" (the port to name when it is missing).
 
     Raises:
       ConfigError: ``hardware`` without a device, or ``emulated`` with one.
@@ -118,6 +121,9 @@ def robot_port(backend: str | None, port: str | None) -> str:
                           f"{', '.join(ROBOT_BACKENDS)}")
     if backend == "hardware":
         if device is None:
+            if hand == "allegro":  # not a serial port: scan lists Dynamixel buses only
+                raise ConfigError("--backend hardware needs --port, the Allegro's CAN channel "
+                                  "(e.g. can0; `ip link` lists them)")
             raise ConfigError("--backend hardware needs --port (e.g. /dev/ttyUSB0; "
                               "`lowcostdex scan` lists candidate ports)")
         return device

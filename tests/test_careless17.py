@@ -292,3 +292,29 @@ def test_an_infinite_value_is_refused_naming_the_row_and_the_fix(tmp_path, cell,
                                        r"overflow or a failed read logged as inf\? leave its cell "
                                        r"empty"):
         read_log(_one_cell(tmp_path, cell, column))
+
+
+# ------------------------------------------------------------------------------------------------
+# the Allegro's hardware backend without --port: its port is a CAN channel, not a serial device
+
+
+@pytest.mark.parametrize("argv", [
+    ["record-log", "--hand", "allegro", "--backend", "hardware", "--out", "logs"],
+    ["record-demos", "--hand", "allegro", "--backend", "hardware", "--episodes", "1", "--out",
+     "demos.h5"],
+    ["train", "npg", "--env", "lowcostdex/AllegroTurnValve-v0", "--backend", "hardware",
+     "--out", "runs/npg"],
+])
+def test_the_allegro_on_hardware_without_a_port_is_told_its_can_channel(argv, tmp_path,
+                                                                         monkeypatch, capsys):
+    """Before: "needs --port (e.g. /dev/ttyUSB0; `lowcostdex scan` lists candidate ports)" -
+    a D'Claw's serial device, which the Allegro's commands then refuse, and a scan of Dynamixel
+    buses. Nothing is written."""
+    from lowcostdex.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "--backend hardware needs --port, the Allegro's CAN channel (e.g. can0; `ip link` " \
+           "lists them)" in err
+    assert list(tmp_path.iterdir()) == []

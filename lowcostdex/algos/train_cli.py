@@ -236,7 +236,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     check_demo_options(args)
     d = TrainConfig()
     env_kwargs = _parse_env_kwargs(args.env_kwarg)
-    backend, robot_kwargs = robot_selection(args.backend, args.port)
+    hand = "allegro" if "allegro" in str(args.env).lower() else "dclaw"
+    backend, robot_kwargs = robot_selection(args.backend, args.port, hand)
     env_kwargs.update(robot_kwargs)
     if args.latency_ms is not None:
         if not args.port:

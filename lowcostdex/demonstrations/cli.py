@@ -100,7 +100,7 @@ def _check_demo_out(out: str, env_id: str) -> None:
 
 
 def _record_demos(args: argparse.Namespace) -> int:
-    args.port = robot_port(args.backend, args.port)
+    args.port = robot_port(args.backend, args.port, args.hand)
     import gymnasium as gym
     import numpy as np
     from rich.console import Console

@@ -166,7 +166,7 @@ def _reset_test(args: argparse.Namespace) -> int:
 
 
 def _record_log(args: argparse.Namespace) -> int:
-    args.port = robot_port(args.backend, args.port)
+    args.port = robot_port(args.backend, args.port, args.hand)
     from pathlib import Path
 
     from rich.console import Console
