@@ -60,6 +60,7 @@ from lowcostdex.gap import play_state
 from lowcostdex.gap.activation import Activations, position_like
 from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.sim.effects import CAUSES, EFFECTS, AppliedEffect, Targets
+from lowcostdex.sim.effects.base import clip as _clip
 from lowcostdex.sim.plant import BatchPlant, prepare_spec
 
 Column = Sequence[AppliedEffect]
@@ -224,32 +225,37 @@ class Replayer:
         if not len(cols) or run["plant"].servo_clock.every:
             return  # a servo with an update period samples one goal at its update
         if "switches" not in run:  # (steps where some simulation's servo sees a goal switch)
-            run["switches"] = np.any(np.isfinite(run["split"][:, :, cols]), axis=(0, 2))
+            split = run["split"][:, :, cols]  # (nsim, K, n servos)
+            fin = np.isfinite(split)
+            run["switches"] = np.any(fin, axis=(0, 2))
+            # per step: the simulations switching and their servos' split, goals before / after
+            run["switching"] = np.any(fin, axis=2).T  # (K, nsim)
+            run["split_servos"] = split
+            run["before_servos"] = run["before"][:, :, cols]
+            run["after_servos"] = run["after"][:, :, cols]
         if not run["switches"][k]:
             return
-        split = run["split"][:, k][:, cols]  # (nsim, n servos)
-        sims = np.flatnonzero(np.any(np.isfinite(split), axis=1))
-        if not len(sims):
-            return
+        sims = np.flatnonzero(run["switching"][k])
         plant = run["plant"]
-        a = split[sims]
-        kp = plant.array("actuator_gainprm")[sims[:, None], acts, 0]
-        kv = -plant.array("actuator_biasprm")[sims[:, None], acts, 2]
-        rng_ = plant.array("actuator_forcerange")[sims[:, None], acts]
-        lim = plant.array("actuator_forcelimited")[sims[:, None], acts] > 0
+        a = run["split_servos"][sims, k]
+        si = sims[:, None]
+        kp = plant.array("actuator_gainprm")[si, acts, 0]
+        kv = -plant.array("actuator_biasprm")[si, acts, 2]
+        rng_ = plant.array("actuator_forcerange")[si, acts]
+        lim = plant.array("actuator_forcelimited")[si, acts] > 0
         lo, hi = np.where(lim, rng_[..., 0], -np.inf), np.where(lim, rng_[..., 1], np.inf)
         # actuator length and velocity (gear times the joint's); force in actuator units
-        q, qd = gear * plant.qpos[sims[:, None], qadr], gear * plant.qvel[sims[:, None], dadr]
-        f_old = np.clip(kp * (run["before"][sims, k][:, cols] - q) - kv * qd, lo, hi)
-        f_new = np.clip(kp * (run["after"][sims, k][:, cols] - q) - kv * qd, lo, hi)
+        q, qd = gear * plant.qpos[si, qadr], gear * plant.qvel[si, dadr]
+        f_old = _clip(kp * (run["before_servos"][sims, k] - q) - kv * qd, lo, hi)
+        f_new = _clip(kp * (run["after_servos"][sims, k] - q) - kv * qd, lo, hi)
         f_mean = a * f_old + (1 - a) * f_new
-        with np.errstate(divide="ignore", invalid="ignore"):
-            c = q + (f_mean + kv * qd) / kp
+        # (where kp <= 0 it stays NaN: such a servo is not ``live`` below)
+        c = q + np.divide(f_mean + kv * qd, kp, out=np.full(kp.shape, np.nan), where=kp > 0)
         # a delayed servo reads this ctrl later, in another state: it keeps the mean goal
-        delayed = plant.array("actuator_delay")[sims[:, None], acts] > 0
+        delayed = plant.array("actuator_delay")[si, acts] > 0
         live = np.isfinite(c) & np.isfinite(a) & (kp > 0) & ~delayed
-        cur = goal[sims[:, None], acts]
-        goal[sims[:, None], acts] = np.where(live, c, cur)
+        cur = goal[si, acts]
+        goal[si, acts] = np.where(live, c, cur)
 
     # ------------------------------------------------------------------------------------------
     def run(self, windows: Sequence[Window], columns: Sequence[Column],

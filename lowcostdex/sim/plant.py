@@ -32,6 +32,7 @@ the envs, the emulator, domain randomization and the gap analysis; the effects t
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import mujoco
@@ -220,9 +221,17 @@ class _PlantBase:
         self._live = [b for b in self._bound if b.cls.live]
         self._has_exo = any(b.cls.kind == "exogenous" for b in self._bound)
         self._commands = [b for b in self._bound if b.cls.kind in ("command", "calibration")]
+        for b in self._commands:  # constants of ``command``'s every step (nominal: set_nominal
+            # re-applies the effects)
+            if b.cls.structural:
+                b.damping = (self.nominal("dof_damping")[b.targets.dofs],
+                             ~self._is_dcmotor[b.targets.actuators])
         self._observed = [b for b in self._bound if b.cls.kind in ("observation", "calibration")]
         self._plays = [(b, b.targets.has_play) for b in self._bound
                        if b.cls.name == "backlash" and np.any(b.targets.has_play)]
+        # ``measured_qpos``'s per-step reads: (read values, joint and play qpos addresses)
+        self._play_reads = [(b.cls, {"read": np.asarray(b.values["read"], float)[..., h]},
+                             b.targets.qpos[h], b.targets.play_qpos[h]) for b, h in self._plays]
 
     @property
     def required_channels(self) -> tuple[str, ...]:
@@ -278,18 +287,19 @@ class _PlantBase:
         ctrl = np.array(goal, dtype=float, copy=True)
         for b in self._commands:
             a = b.targets.actuators
-            key_state = {k[len(b.cls.name) + 1:]: v for k, v in self._state.items()
-                         if k.startswith(b.cls.name + ":")}
-            key_state["setpoint"] = self.ctrl[..., a].copy()  # what the servo holds now
+            prefix = b.cls.name + ":"
+            key_state = {k[len(prefix):]: v for k, v in self._state.items()
+                         if k.startswith(prefix)}
+            key_state["setpoint"] = self.ctrl[..., a]  # what the servo holds now (a copy)
             key_state["fields"] = self  # the model's fields (which actuators a law acts on)
             if b.cls.structural:  # its hidden dofs' state (a play read by the servo)
                 key_state["qpos"], key_state["qvel"] = self.qpos, self.qvel
                 g = self.array("actuator_gainprm")[..., a, 0]
                 key_state["kv_kp"] = np.divide(-self.array("actuator_biasprm")[..., a, 2], g,
                                                out=np.zeros(g.shape), where=g > 0)
-                d = self.nominal("dof_damping")[b.targets.dofs]  # the D of a servo without kv
-                key_state["damping"] = np.where((key_state["kv_kp"] == 0)
-                                                & ~self._is_dcmotor[a], d, 0.0)
+                # the D of a servo without kv (nominal damping, non-dcmotor: set with the effects)
+                d, not_dc = b.damping
+                key_state["damping"] = np.where((key_state["kv_kp"] == 0) & not_dc, d, 0.0)
             sub = b.cls.command(b.targets, b.values, ctrl[..., a], key_state, self.rng)
             if (tq := key_state.pop("torque", None)) is not None:  # outside the force range
                 h = b.targets.has_play
@@ -324,10 +334,8 @@ class _PlantBase:
     def measured_qpos(self, qpos: np.ndarray | None = None) -> np.ndarray:
         """qpos as the encoders report it: observation effects applied (..., nq)."""
         q = np.array(self.qpos if qpos is None else qpos, dtype=float, copy=True)
-        for b, h in self._plays:  # motor + read x play
-            t = b.targets
-            v = {"read": np.asarray(b.values["read"], float)[..., h]}
-            q[..., t.qpos[h]] = b.cls.reading(v, q[..., t.qpos[h]], q[..., t.play_qpos[h]])
+        for cls, v, jq, pq in self._play_reads:  # motor + read x play
+            q[..., jq] = cls.reading(v, q[..., jq], q[..., pq])
         for b in self._observed:
             ad = b.targets.qpos
             q[..., ad] = b.cls.observe(b.targets, b.values, q[..., ad], self.rng)
@@ -623,6 +631,10 @@ class BatchPlant(_PlantBase):
             self.batch.forward(ids=np.asarray(sims, dtype=int))
 
     def _check_finite(self) -> None:
+        # one finite sum means every value is finite (a non-finite value makes it inf or NaN;
+        # an overflowing sum of finite values falls through to the full check)
+        if math.isfinite(self.qpos.sum() + self.qvel.sum()):
+            return
         if np.isfinite(self.qpos).all() and np.isfinite(self.qvel).all():
             return
         bad = ~(np.all(np.isfinite(self.qpos), axis=1) & np.all(np.isfinite(self.qvel), axis=1))

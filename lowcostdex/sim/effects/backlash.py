@@ -16,11 +16,14 @@ none at every width (gap-sim3-11, session 16: 1.22 floors nominal, 4.06 at width
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.sim.effects.base import Effect, Fields, Param, Targets, Values, play_joint_name
+from lowcostdex.sim.effects.base import clip as _clip
 
 
 class Backlash(Effect):
@@ -149,24 +152,32 @@ class Backlash(Effect):
         the force range 12.1 / 6.8; read on the output outside it, 0.75 / 0.74 (the noise). On the third truth simulator's ``srv_backlash_output`` (firmware D in kv,
         joint damping 0.01 on the rotor) reading that damping on the output too replayed worse
         at the true width (5.73 vs 4.52 mrad mean per episode at 0.5 ms): hence kp only."""
-        half = 0.5 * np.asarray(v["width"])
-        prev = state.get("play")
-        prev = state["setpoint"] if prev is None else np.where(np.isnan(prev), state["setpoint"],
-                                                                prev)
         has = t.has_play
+        any_play, all_play, pq, pd = t.play_index
         inside = goal
-        if np.any(has) and "qpos" in state:
+        if any_play and "qpos" in state:
             s = np.asarray(v["sensor"], float)
-            p = np.where(has, state["qpos"][..., np.where(has, t.play_qpos, 0)], 0.0)
+            # (every joint with a hinge: the gathered angles as they are, the same values)
+            p = state["qpos"][..., pq] if all_play else np.where(has, state["qpos"][..., pq], 0.0)
             if "qvel" in state:  # the damping terms read across the play too
-                rate = _finite(np.where(
-                    has, state["qvel"][..., np.where(has, t.play_dofs, 0)], 0.0))
+                rate = state["qvel"][..., pd]
+                rate = _finite(rate if all_play else np.where(has, rate, 0.0))
                 p = p + state["kv_kp"] * rate  # the actuator's kv: kv / kp x rate in the goal
                 if "damping" in state:
                     state["torque"] = -s * state["damping"] * rate
             inside = goal - s * _finite(p)
-        op = np.clip(prev, goal - half, goal + half)
+            if all_play:  # no joint on the play operator: ``out`` is ``inside``, the play the goal
+                state["play"] = np.array(goal, dtype=float, copy=True)
+                return inside
+        half = 0.5 * np.asarray(v["width"])
+        prev = state.get("play")
+        prev = state["setpoint"] if prev is None else np.where(np.isnan(prev), state["setpoint"],
+                                                                prev)
+        op = _clip(prev, goal - half, goal + half)
         # read on the motor side, the massless motor is where the servo puts it: the goal
+        if not any_play:  # every joint on the play operator (``np.where`` would pick these)
+            state["play"] = op
+            return goal + v["read"] * (op - goal)
         out = np.where(has, inside, goal + v["read"] * (op - goal))
         state["play"] = np.where(has, goal, op)
         return out
@@ -175,4 +186,5 @@ class Backlash(Effect):
 def _finite(x: np.ndarray) -> np.ndarray:
     """``np.nan_to_num(x)``, skipped when every value is finite (as every step of a replay but a
     start from a log with missing velocities: the per-step call cost ~7 % of a small replay)."""
-    return x if np.isfinite(x).all() else np.nan_to_num(x)
+    # (a finite sum: every value is finite; an overflowing one falls through to the full check)
+    return x if math.isfinite(x.sum()) or np.isfinite(x).all() else np.nan_to_num(x)

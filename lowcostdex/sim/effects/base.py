@@ -6,6 +6,7 @@ The catalogue of concrete effects is ``lowcostdex.sim.effects.catalogue``; the p
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import ClassVar, Protocol
@@ -95,6 +96,14 @@ class Fields(Protocol):
         """The field's value in the nominal model, shape (n, ...)."""
 
 
+# ``np.clip``'s ufunc, called without its Python wrappers (np.clip on arrays ends in this very
+# ufunc: the same values; a replay clips a few small arrays every physics step)
+try:
+    from numpy._core.umath import clip as clip
+except ImportError:  # pragma: no cover - numpy < 2
+    from numpy.core.umath import clip as clip
+
+
 @dataclass(frozen=True)
 class Targets:
     """Where an effect acts: actuated joints and their indices in a compiled model.
@@ -118,11 +127,24 @@ class Targets:
     play_qpos: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     play_dofs: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
-    @property
+    @functools.cached_property
     def has_play(self) -> np.ndarray:
-        """(n,) whether each joint has a play hinge."""
-        return (self.play >= 0) if len(self.play) == len(self.joints) else np.zeros(
+        """(n,) whether each joint has a play hinge (read-only: computed once, a replay reads
+        it every physics step)."""
+        out = (self.play >= 0) if len(self.play) == len(self.joints) else np.zeros(
             len(self.joints), bool)
+        out.setflags(write=False)
+        return out
+
+    @functools.cached_property
+    def play_index(self) -> tuple[bool, bool, np.ndarray, np.ndarray]:
+        """(any joint has a play hinge, every joint has one, play qpos and play dof addresses
+        with 0 where a joint has none): ``Backlash.command``'s per-step reads, computed once."""
+        has = self.has_play
+        if not np.any(has):
+            return False, False, np.zeros(len(has), int), np.zeros(len(has), int)
+        return (True, bool(np.all(has)), np.where(has, self.play_qpos, 0),
+                np.where(has, self.play_dofs, 0))
 
     @classmethod
     def resolve(cls, model: mujoco.MjModel, joints: tuple[str, ...] | list[str]) -> Targets:
