@@ -46,6 +46,8 @@ from lowcostdex.sim.effects import exogenous as exo
 from lowcostdex.sim.effects.friction_level import friction_level
 from lowcostdex.sim.effects.prepare import compile_with_effects as compile_with_effects
 from lowcostdex.sim.effects.prepare import prepare_spec as prepare_spec
+from lowcostdex.sim.reset_state import actuated_positions
+from lowcostdex.sim.reset_state import fill_ctrl_history as _fill_ctrl_history
 
 _ORDER = {name: i for i, name in enumerate(EFFECTS)}
 _CONTROLLER_GAINS = [servo.GAIN_KP, servo.GAIN_KI, servo.GAIN_KD]
@@ -292,7 +294,9 @@ class _PlantBase:
                          if k.startswith(prefix)}
             key_state["setpoint"] = self.ctrl[..., a]  # what the servo holds now (a copy)
             key_state["fields"] = self  # the model's fields (which actuators a law acts on)
-            if b.cls.structural:  # its hidden dofs' state (a play read by the servo)
+            # its hidden dofs' state (a play read by the servo), where the model has them (the
+            # play hinges of backlash, the one structural effect; without them it reads none)
+            if b.cls.structural and b.targets.play_index[0]:
                 key_state["qpos"], key_state["qvel"] = self.qpos, self.qvel
                 g = self.array("actuator_gainprm")[..., a, 0]
                 key_state["kv_kp"] = np.divide(-self.array("actuator_biasprm")[..., a, 2], g,
@@ -679,29 +683,6 @@ class BatchPlant(_PlantBase):
         self.servo_clock.phase = 0  # servos update at the first step (all simulations: one clock)
         self.batch.forward(ids=rows)
         self.rest_play(rows)
-
-
-def actuated_positions(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
-    """Position of the joint each actuator drives (nu,) [rad]; 0 for other transmissions."""
-    out = np.zeros(model.nu)
-    joint = model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
-    ids = model.actuator_trnid[:, 0]
-    out[joint] = qpos[model.jnt_qposadr[ids[joint]]]
-    return out
-
-
-def _fill_ctrl_history(m: mujoco.MjModel, d: mujoco.MjData,
-                      history: np.ndarray | None = None) -> None:
-    """Fill actuator delay buffers: with d.ctrl, or with ``history`` (k, nu) of past ctrl at
-    one-timestep spacing, oldest first, ending now (padded with its first row when short)."""
-    for i in np.flatnonzero(m.actuator_history[:, 0] > 0):
-        n = int(m.actuator_history[i, 0])
-        if history is None:
-            values = np.full((n, 1), d.ctrl[i])
-        else:
-            h = np.asarray(history, float)[-n:, i]
-            values = np.concatenate([np.full(n - len(h), h[0]), h])[:, None]
-        mujoco.mj_initCtrlHistory(m, d, int(i), None, np.ascontiguousarray(values))
 
 
 def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
