@@ -318,3 +318,39 @@ def test_the_allegro_on_hardware_without_a_port_is_told_its_can_channel(argv, tm
     assert "--backend hardware needs --port, the Allegro's CAN channel (e.g. can0; `ip link` " \
            "lists them)" in err
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------------
+# a demonstration file recorded on the other hand given to a D'Claw training
+
+
+def test_demos_of_the_allegro_given_to_a_dclaw_training_say_what_to_type(tmp_path, capsys):
+    """Before: refused naming both envs only. Now also the two ways on: train the demos' env,
+    or the record-demos command for the run's env. Nothing written."""
+    import dataclasses
+
+    import gymnasium as gym
+
+    from lowcostdex.cli import main
+    from lowcostdex.demonstrations.dataset import save_demos, teacher_episodes
+    from lowcostdex.demonstrations.file import DatasetInfo
+
+    env = gym.make("lowcostdex/AllegroTurnValve-v0", max_episode_steps=5)
+    try:
+        still = np.zeros(env.action_space.shape, np.float32)
+        episodes = [dataclasses.replace(e, success=np.ones_like(e.success))  # as if solved
+                    for e in teacher_episodes(env, lambda e, obs: still, seeds=range(1),
+                                              only_successful=False)]
+        save_demos(tmp_path / "allegro.h5", episodes, DatasetInfo.from_env(env, "scripted_teacher"))
+    finally:
+        env.close()
+    out = tmp_path / "run"
+    assert main(["train", "dapg", "--demos", str(tmp_path / "allegro.h5"), "--out", str(out),
+                 "--n-iter", "1"]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert ("these demonstrations are of another env; this run trains "
+            "'lowcostdex/DClawTurnValve-v0': train their env (--env "
+            "lowcostdex/AllegroTurnValve-v0; TrainConfig.env_id), or record demonstrations of "
+            "lowcostdex/DClawTurnValve-v0 (`lowcostdex record-demos --help` lists each hand's "
+            "tasks)") in err
+    assert not out.exists()

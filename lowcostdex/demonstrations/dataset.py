@@ -155,7 +155,8 @@ def check_demos(demos: Demos, path: str | Path, env: gym.Env, env_id: str) -> No
     act_dim = int(np.prod(env.action_space.shape))
     if info.env_id != env_id:
         raise InputError(f"{path}: env_id is {info.env_id!r}: these demonstrations are of "
-                         f"another env; this run trains {env_id!r}")
+                         f"another env; this run trains {env_id!r}: "
+                         + _other_env_fix(info.env_id, env_id))
     if (info.obs_dim, info.act_dim) != (obs_dim, act_dim) or \
             demos.observations.shape[1] != obs_dim or demos.actions.shape[1] != act_dim:
         raise InputError(f"{path}: obs_dim/act_dim are {demos.observations.shape[1]}/"
@@ -171,6 +172,12 @@ def check_demos(demos: Demos, path: str | Path, env: gym.Env, env_id: str) -> No
         raise InputError(f"{path}: episode_{k}/actions[{t}, {j}] = {value!r} is "
                          f"outside the env's action bounds [{low[j]}, {high[j]}] "
                          f"({int(outside.any(axis=1).sum())} actions outside)")
+
+
+def _other_env_fix(theirs: str, ours: str) -> str:
+    """What to type when demonstrations of env ``theirs`` meet a run of env ``ours``."""
+    return (f"train their env (--env {theirs}; TrainConfig.env_id), or record demonstrations "
+            f"of {ours} (`lowcostdex record-demos --help` lists each hand's tasks)")
 
 
 def save_demos(path: str | Path, episodes: Sequence[Episode], info: DatasetInfo) -> Path:
