@@ -354,3 +354,43 @@ def test_demos_of_the_allegro_given_to_a_dclaw_training_say_what_to_type(tmp_pat
             "lowcostdex/DClawTurnValve-v0 (`lowcostdex record-demos --help` lists each hand's "
             "tasks)") in err
     assert not out.exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# every command's --help: exit 0, and every option taking a number says what it is
+
+
+def _commands():
+    import argparse
+
+    from lowcostdex.cli import build_parser
+
+    def walk(parser, path):
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        yield path, parser
+        for sub in subs:
+            for name, child in sub.choices.items():
+                yield from walk(child, [*path, name])
+
+    return list(walk(build_parser(), []))
+
+
+def test_every_commands_help_exits_0_and_describes_its_number_options(capsys):
+    """Before: `train npg|dapg|ppo --help` listed --gamma, --gae-lambda, --init-log-std, --lam0,
+    --lam1, --lr, --clip-coef, --ent-coef (and tvlg's --prior-strength) with no word of what
+    they are, their range or default."""
+    from lowcostdex.cli import main
+
+    bare = []
+    for path, parser in _commands():
+        try:
+            code = main([*path, "--help"])
+        except SystemExit as done:
+            code = done.code
+        assert code == 0, path
+        assert "usage: lowcostdex" in capsys.readouterr().out
+        for action in parser._actions:
+            numeric = action.type is float or "number" in getattr(action.type, "__name__", "")
+            if action.option_strings and numeric and not action.help:
+                bare.append(f"{' '.join(path)} {action.option_strings[-1]}")
+    assert bare == []

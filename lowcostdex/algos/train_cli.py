@@ -27,6 +27,11 @@ from lowcostdex.algos.samplers import SAMPLERS
 from lowcostdex.errors import ConfigError
 from lowcostdex.options import add_latency_option, env_id, latency_kwargs, robot_selection
 
+GAMMA_HELP = "discount per control step, 0-1 (default %(default)s)"
+LAMBDA_HELP = "GAE's lambda, 0-1 (default %(default)s)"
+LOG_STD_HELP = ("the policy's initial log standard deviation, in the natural log of action "
+                "units (actions span [-1, 1]; default %(default)s)")
+
 
 def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
     """Add ``npg`` and ``dapg`` to the ``lowcostdex train`` group."""
@@ -69,12 +74,13 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
         "--step-size", type=float, default=d.npg.step_size, help="NPG delta (KL ~ delta/2)"
     )
     p.add_argument("--damping", type=float, default=d.npg.damping, help="Fisher damping")
-    p.add_argument("--gamma", type=float, default=d.gamma)
-    p.add_argument("--gae-lambda", type=float, default=d.gae_lambda)
+    p.add_argument("--gamma", type=float, default=d.gamma, help=GAMMA_HELP)
+    p.add_argument("--gae-lambda", type=float, default=d.gae_lambda, help=LAMBDA_HELP)
     p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes),
                    help="widths of the policy's hidden layers (default %(default)s; "
                         "--hidden alone: none, a linear policy)")
-    p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std)
+    p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std,
+                   help=LOG_STD_HELP)
     p.add_argument("--eval-every", type=int, default=d.eval_every)
     p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
@@ -90,8 +96,11 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
                    help="run every evaluation (the clone's too) on the same episodes, so the "
                         "run's policy is chosen on paired comparisons")
     if algo == "dapg":
-        p.add_argument("--lam0", type=float, default=d.dapg.lam0)
-        p.add_argument("--lam1", type=float, default=d.dapg.lam1)
+        p.add_argument("--lam0", type=float, default=d.dapg.lam0,
+                       help="DAPG's demo weight at iteration 0 (lambda0; dimensionless, default %(default)s)")
+        p.add_argument("--lam1", type=float, default=d.dapg.lam1,
+                       help="its decay per iteration (lambda1: w_k = lam0 lam1^k; default "
+                            "%(default)s)")
         p.add_argument("--demo-weight", choices=DEMO_WEIGHTS, default=d.dapg.demo_weight)
     else:
         p.add_argument(
@@ -113,17 +122,21 @@ def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n-iter", type=int, default=d.n_iter)
     p.add_argument("--num-envs", type=int, default=d.num_envs,
                    help="copies stepped together = episodes per iteration")
-    p.add_argument("--lr", type=float, default=d.lr)
-    p.add_argument("--gamma", type=float, default=d.gamma)
-    p.add_argument("--gae-lambda", type=float, default=d.gae_lambda)
+    p.add_argument("--lr", type=float, default=d.lr,
+                   help="Adam's learning rate (default %(default)s)")
+    p.add_argument("--gamma", type=float, default=d.gamma, help=GAMMA_HELP)
+    p.add_argument("--gae-lambda", type=float, default=d.gae_lambda, help=LAMBDA_HELP)
     p.add_argument("--update-epochs", type=int, default=d.update_epochs)
     p.add_argument("--num-minibatches", type=int, default=d.num_minibatches)
-    p.add_argument("--clip-coef", type=float, default=d.clip_coef)
-    p.add_argument("--ent-coef", type=float, default=d.ent_coef)
+    p.add_argument("--clip-coef", type=float, default=d.clip_coef,
+                   help="PPO's clip of the probability ratio, 1 +- this (default %(default)s)")
+    p.add_argument("--ent-coef", type=float, default=d.ent_coef,
+                   help="weight of the entropy bonus in the loss (default %(default)s)")
     p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes),
                    help="widths of the policy's hidden layers (default %(default)s; "
                         "--hidden alone: none, a linear policy)")
-    p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std)
+    p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std,
+                   help=LOG_STD_HELP)
     p.add_argument("--eval-every", type=int, default=d.eval_every)
     p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
     p.add_argument("--threads", type=int, default=d.nthread,

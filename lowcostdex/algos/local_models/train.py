@@ -373,7 +373,9 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
         "--min-step-mult", type=float, default=d.algo.traj_opt.min_step_mult,
         help="floor of the adaptive KL step multiplier",
     )  # fmt: skip
-    p.add_argument("--prior-strength", type=float, default=d.algo.dynamics.prior_strength)
+    p.add_argument("--prior-strength", type=float, default=d.algo.dynamics.prior_strength,
+                   help="pseudo-sample count of the dynamics prior (1.0 ~ one extra rollout; "
+                        "default %(default)s)")
     p.add_argument(
         "--cost", choices=COST_PRESETS, default="task",
         help="task: goal at every step, hand near its start pose; tracking: hand near the "
