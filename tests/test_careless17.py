@@ -90,6 +90,21 @@ def test_gap_analyze_names_units_deg_for_encoder_readings_in_degrees(tmp_path, c
     assert not out.exists()
 
 
+def test_a_log_in_rad_read_with_units_deg_is_refused(tmp_path):
+    """`gap analyze --units deg` on a log already in rad (encoder ticks x 2 pi/4096): before,
+    a 2 rad swing was read as 0.066 rad and analysed. The log in degrees (ticks x 360/4096)
+    read with it is accepted (test_encoder_readings_in_degrees_are_refused_by_their_grid)."""
+    t, goal, q, _ = _servo_log(amplitude_deg=115.0)
+    tick = 2 * math.pi / 4096
+    path = _csv(tmp_path / "log.csv", {"time": t, "goal:j": np.radians(goal),
+                                       "qpos:j": np.round(np.radians(q) / tick) * tick})
+    read_log(path)
+    with pytest.raises(LogError, match=r"column 'qpos:j' as written reads on a grid of 2 pi/4096 "
+                                       r"rad: .* the log is in rad already; leave out --units "
+                                       r"deg"):
+        read_log(path, angle_scale=math.pi / 180)
+
+
 def _hinge(tmp_path: Path, joint_range: str, ctrl: str = "") -> Path:
     model = tmp_path / "model.xml"
     model.write_text(f"""<mujoco><compiler angle="radian"/>
@@ -143,7 +158,7 @@ def test_goals_in_degrees_beside_positions_in_rad_are_refused_with_a_model(tmp_p
 def test_measured_logs_in_rad_pass_and_in_degrees_are_told_by_their_grid():
     """The 4096-tick grid on real servo logs (XL330, STS3032, STS3250, MX): none of them in rad
     is called degrees; each one converted to degrees is."""
-    from lowcostdex.gap.log_units import degree_grid
+    from lowcostdex.gap.log_units import RADIAN_GRIDS, degree_grid
 
     root = Path(os.environ.get("LOWCOSTDEX_MEASURED_DATA")
                 or Path(__file__).resolve().parents[2] / "shared" / "data" / "measured")
@@ -159,6 +174,8 @@ def test_measured_logs_in_rad_pass_and_in_degrees_are_told_by_their_grid():
         q = np.array([e["position"] for e in head["entries"]], dtype=float)
         assert degree_grid(q) == "", path
         assert degree_grid(np.degrees(q)) != "", path
+        assert degree_grid(q, RADIAN_GRIDS) != "", path  # as written: rad
+        assert degree_grid(np.degrees(q), RADIAN_GRIDS) == "", path
         seen += 1
     assert seen >= 50
 

@@ -33,6 +33,11 @@ DEGREE_GRIDS: tuple[tuple[float, str], ...] = (
     (0.29, "0.29 deg: the Dynamixel AX e-manual's position unit"),
     (360 / 16384, "360/16384: a 14-bit magnetic encoder (AS5048)"),
 )
+RADIAN_GRIDS: tuple[tuple[float, str], ...] = (
+    (2 * math.pi / 4096, "2 pi/4096 rad: a 4096-tick encoder (Dynamixel X/MX, Feetech STS)"),
+    (math.radians(300) / 1024, "300 deg/1024 in rad: a 1024-tick servo (Dynamixel AX, XL-320)"),
+    (2 * math.pi / 16384, "2 pi/16384 rad: a 14-bit magnetic encoder (AS5048)"),
+)
 GRID_TOLERANCE = 0.05  # of a step: each difference between readings this close to whole steps
 GRID_VALUES = 8  # distinct readings needed to call a grid
 
@@ -57,16 +62,16 @@ def check_velocity_unit(t: np.ndarray, q: np.ndarray, v: np.ndarray, joint: str,
                        f"velocities in rad/s? write rad: {TO_RAD}")
 
 
-def degree_grid(q: np.ndarray) -> str:
+def degree_grid(q: np.ndarray, grids: tuple[tuple[float, str], ...] = DEGREE_GRIDS) -> str:
     """The encoder whose step in degrees ``q``'s readings (T,) lie on ('' if none): every
-    difference between two distinct readings a whole number of one ``DEGREE_GRIDS`` step
+    difference between two distinct readings a whole number of one ``grids`` step
     (within ``GRID_TOLERANCE`` of a step; an offset added to every reading keeps it), one step
     among them, over at least ``GRID_VALUES`` distinct readings."""
     u = np.unique(q[np.isfinite(q)])
     if len(u) < GRID_VALUES:
         return ""
     d = np.diff(u)
-    for step, what in DEGREE_GRIDS:
+    for step, what in grids:
         k = d / step
         if np.all(np.abs(k - np.round(k)) < GRID_TOLERANCE) and np.any(np.round(k) == 1):
             return what
@@ -120,3 +125,14 @@ def check_goal_degrees(traj: Trajectory, model: mujoco.MjModel, i: int, joint: s
     raise LogError(f"{traj.name}: column 'goal:{actuator}' reads {g[r]:.6g} rad at row {r} "
                    f"(0-based), beyond joint {joint!r}'s range [{lo:.4g}, {hi:.4g}] rad by more "
                    f"than its width ({why})")
+
+
+def check_not_radians(q: np.ndarray, joint: str, name: str) -> None:
+    """Refuse a log read as degrees (``gap analyze --units deg``) whose positions, as written,
+    lie on an encoder's grid in rad (``RADIAN_GRIDS``): it was in rad already, and the
+    conversion would shrink its motion 57 times."""
+    what = degree_grid(q, RADIAN_GRIDS)
+    if what:
+        raise LogError(f"{name}: column 'qpos:{joint}' as written reads on a grid of {what}, "
+                       f"its {len(np.unique(q))} distinct values whole steps apart: the log is "
+                       "in rad already; leave out --units deg (read_log's angle_scale: 1)")

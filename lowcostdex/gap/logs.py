@@ -61,7 +61,7 @@ from lowcostdex.gap.log_checks import (
     trajectory_from_columns,
 )
 from lowcostdex.gap.log_csv import MAX_COLUMNS, is_channel, read_csv
-from lowcostdex.gap.log_units import TO_RAD, check_goal_degrees
+from lowcostdex.gap.log_units import TO_RAD, check_goal_degrees, check_not_radians
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     GAP_MIN,
@@ -230,6 +230,10 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
         return read_bam(path)[0]
     cols, notes = _read_columns(path)
     if angle_scale != 1.0:
+        for key, arr in cols.items():  # a log in rad given as degrees
+            kind, _, joint = str(key).partition(":")
+            if kind.strip().lower() == "qpos" and joint:
+                check_not_radians(np.asarray(arr, float), joint.strip(), path.name)
         cols = {k: (np.asarray(v, float) * angle_scale
                     if str(k).partition(":")[0].strip().lower() in ("goal", "qpos", "qvel")
                     and ":" in str(k) else v) for k, v in cols.items()}
