@@ -26,35 +26,23 @@ from pathlib import Path
 import numpy as np
 
 import lowcostdex.sim  # noqa: F401
-from lowcostdex.transfer.tilt import tilt_body
 from lowcostdex.transfer.tilt_joint import fit_tilt_jointly
-
-FINGERS = ("ff", "mf", "th")
-NAMES = ("tilt_x [rad]", "tilt_y [rad]", "valve frictionloss + [N m]", "valve damping x",
-         "valve inertia x", *(f"{f} link length x" for f in FINGERS))
-X0 = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0)
-LOWER = (-0.12, -0.12, 0.0, 0.3, 0.4, 0.9, 0.9, 0.9)
-UPPER = (0.12, 0.12, 0.05, 3.0, 2.5, 1.1, 1.1, 1.1)
-STEP = (2e-3, 2e-3, 1e-3, 0.05, 0.05, 0.005, 0.005, 0.005)
+from lowcostdex.transfer.valve_fit import (  # the product's fit pieces
+    FINGERS,
+    LOWER,
+    NAMES,
+    STEP,
+    UPPER,
+    X0,
+    edit_from_params,
+    episode_sse,
+    pick_finger,
+)
 
 
 def edit_model(finger: str, x: np.ndarray):
     """The training side's edit of a D'Claw valve spec for parameters ``x`` (NAMES)."""
-    def edit(spec) -> None:
-        tilt_body(spec, f"{finger}_base", x[:2])
-        joint = spec.joint("valve")
-        joint.frictionloss = joint.frictionloss + float(x[2])
-        joint.damping[0] = joint.damping[0] * float(x[3])
-        joint.armature = joint.armature * float(x[4])
-        for g in spec.body("valve_body").geoms:
-            g.mass = g.mass * float(x[4])
-        for f, factor in zip(FINGERS, x[5:8], strict=True):  # joint-to-joint and tip distances
-            for link in (f"{f}_link1", f"{f}_link2"):
-                spec.body(link).pos = np.asarray(spec.body(link).pos) * float(factor)
-            tip = spec.body(f"{f}_link2")
-            for item in (*tip.geoms, *tip.sites):
-                item.pos = np.asarray(item.pos) * float(factor)
-    return edit
+    return edit_from_params(finger, x).apply
 
 
 def lr_hull(grid: np.ndarray, sse: np.ndarray, threshold: float) -> list[float]:
@@ -64,14 +52,16 @@ def lr_hull(grid: np.ndarray, sse: np.ndarray, threshold: float) -> list[float]:
     return list(_hull(grid, sse, sse <= threshold))
 
 
-def identified_randomize(folder: Path, robot: str) -> dict | None:
-    """Condition (c)'s model of the robot: its identified causes held fixed."""
+def identified_randomize(folder: Path, robot: str, condition: str = "identified"
+                         ) -> dict | None:
+    """Condition (c)'s model of the robot: its identified causes held fixed (``condition``
+    "identified_randomized": (d)'s narrow ranges around them)."""
     from lowcostdex.hands import dclaw_spec
     from lowcostdex.transfer.conditions import condition_randomize
 
     fingers = {f: json.loads((folder / "identify" / robot / f / "finger.json").read_text())
                for f in ("ff", "mf", "th")}
-    return condition_randomize("identified", {"fingers": fingers}, dclaw_spec().joint_names)
+    return condition_randomize(condition, {"fingers": fingers}, dclaw_spec().joint_names)
 
 
 def sim_trace(eps, edit, randomize) -> np.ndarray:
@@ -96,28 +86,6 @@ def sim_trace(eps, edit, randomize) -> np.ndarray:
             out.append(env.backend.observed_qpos()[9])
     env.close()
     return np.unwrap(np.asarray(out, float))
-
-
-def episode_sse(trace: np.ndarray, observed: np.ndarray, lengths: list[int]) -> np.ndarray:
-    """Squared valve error summed per episode [rad^2]."""
-    edges = np.cumsum([0, *lengths])
-    d2 = (np.asarray(trace) - observed) ** 2
-    return np.array([d2[a:b].sum() for a, b in zip(edges[:-1], edges[1:], strict=True)])
-
-
-def pick_finger(rows: list[dict]) -> str:
-    """Which finger's tilt the log names: among the fingers whose fit names a tilt, the one with
-    the lowest cost, when the episodes show it better than every other named finger's fit (paired
-    one-sided t test across episodes, 5 %); else the tie is said."""
-    from scipy.stats import ttest_rel
-
-    named = [r for r in rows if r["named"]]
-    if not named:
-        return "none"
-    best = min(named, key=lambda r: sum(r["episode_sse"]))
-    ties = [r["finger"] for r in named if r is not best and ttest_rel(
-        best["episode_sse"], r["episode_sse"], alternative="less").pvalue > 0.05]
-    return best["finger"] if not ties else f"ambiguous: {best['finger']} or {', '.join(ties)}"
 
 
 def main() -> None:
@@ -164,7 +132,7 @@ def main() -> None:
                # the likelihood-ratio intervals (samples counted as n_eff), for comparison
                "lr_intervals": [lr_hull(g, s, fit.threshold) for g, s in fit.profiles]}
         fitted = sim_trace(eps, edit_model(finger, fit.values), randomize)
-        row["episode_sse"] = episode_sse(fitted, observed, lengths).tolist()
+        row["episode_sse"] = episode_sse(fitted, observed, lengths)
         rows.append(row)
         print(f"{args.robot} {finger}: " + ", ".join(
             f"{n} {v:.4f} [{lo:.4f}, {hi:.4f}]" for n, v, (lo, hi)
@@ -189,7 +157,7 @@ def main() -> None:
                        *(truth.link_length[g] for g in FINGERS)])
         at = sim_trace(eps, edit_model(f, xt), randomize)
         row["rms_truth_mrad"] = 1e3 * float(np.sqrt(np.mean((at - observed) ** 2)))
-        row["episode_sse_truth"] = episode_sse(at, observed, lengths).tolist()
+        row["episode_sse_truth"] = episode_sse(at, observed, lengths)
         print(f"{args.robot} {f}: valve RMS at the truth {row['rms_truth_mrad']:.1f} mrad "
               f"(fit {row['rms_fit_mrad']:.1f})")
     if args.out:

@@ -2,8 +2,8 @@
 "identified" (the robot's identified servo effects held fixed, ``FOLDER/identify/ROBOT``) in a sim
 whose D'Claw carries the parameters ``bench/transfer_tilt_joint.py`` fitted (a finger base's
 tilt, the valve's friction / damping / inertia, the link lengths; its ``--out`` JSON, first fit
-or ``--finger``). No robot definition is read. The edit reaches the training envs through the
-task's ``build_spec`` in this process only; evaluate in another process:
+or ``--finger``). No robot definition is read. The edit reaches the training envs as the
+task's ``model_edit`` (in the run's config, as ``lowcostdex transfer`` passes it); evaluate with:
 
     python bench/transfer_tilt_train.py RUN_FOLDER C fits.json OUT identified_fit_C_seed0
     python bench/transfer_diagnose.py --out OUT --policy dapg/identified_fit_C_seed0 --robot C \\
@@ -17,11 +17,11 @@ import json
 from pathlib import Path
 
 import numpy as np
-from transfer_tilt_joint import edit_model, identified_randomize
+from transfer_tilt_joint import identified_randomize
 
-from lowcostdex.sim.envs import dclaw_tasks
 from lowcostdex.transfer.config import SIZES, TASKS
 from lowcostdex.transfer.loop import train_policy
+from lowcostdex.transfer.valve_fit import edit_from_params
 
 
 def main() -> None:
@@ -34,26 +34,21 @@ def main() -> None:
     p.add_argument("--finger", help="which finger's fit (default: the first)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--start-range", type=float, default=0.02)
+    p.add_argument("--narrow", action="store_true",
+                   help="condition (d): narrow randomization around the identified effects "
+                        "(the fitted edit held fixed, as `lowcostdex transfer` does)")
     args = p.parse_args()
     rows = json.loads(args.fits.read_text())["fits"]
     row = next(r for r in rows if args.finger in (None, r["finger"]))
     x = np.asarray(row["values"], float)
     print(f"training in the model edited by the {row['finger']} fit {x.round(4).tolist()}",
           flush=True)
-    edit = edit_model(row["finger"], x)
-    original = dclaw_tasks.DClawTask.build_spec
-
-    def build_spec(self):
-        spec = original(self)
-        if self.station == "valve":
-            edit(spec)
-        return spec
-
-    dclaw_tasks.DClawTask.build_spec = build_spec
-    randomize = identified_randomize(args.folder, args.robot)
+    edit = edit_from_params(row["finger"], x).to_dict()
+    randomize = identified_randomize(args.folder, args.robot,
+                                     "identified_randomized" if args.narrow else "identified")
     print(train_policy(args.out / "runs" / "dapg" / args.tag, "dapg",
                        TASKS["valve"].training(args.start_range), randomize,
-                       args.folder / "demos.h5", SIZES["default"], args.seed))
+                       args.folder / "demos.h5", SIZES["default"], args.seed, model_edit=edit))
 
 
 if __name__ == "__main__":

@@ -451,6 +451,18 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
         lat = {e.name: e for e in dr.sample(np.random.default_rng(0))}["latency"]
         fitted = next(c for c in causes if c["effect"] == "latency")["params"]["delay"]["value"]
         np.testing.assert_allclose(lat.values["delay"][:3], fitted)
+        # ... and the D'Claw edit its valve-log fit made (the robot played the valve episodes)
+        fit = json.loads((out / "identify" / robot.name / "valve_fit.json").read_text())
+        assert fit["episodes"] == size.valve_episodes and fit["identified"]
+        assert fit["used_finger"] in size.valve_fingers
+        assert fit["fits"][0]["rms_fit_mrad"] <= fit["fits"][0]["rms_start_mrad"]
+        assert config["env_kwargs"]["model_edit"] == fit["model_edit"]
+        for r in rows:  # each row says which MJCF its policy trained in
+            if r["policy_robot"] == robot.name:
+                assert r["model_edit"] == (fit["model_edit"] if r["condition"].startswith(
+                    "identified") else None), r["policy"]
+            elif r["policy_robot"] is None:  # nominal, randomized
+                assert r["model_edit"] is None
         on_robot = json.loads((out / "runs" / "npg" / f"on_robot_{robot.name}_seed0" /
                                "config.json").read_text())
         assert on_robot["backend"] == "emulated" and on_robot["sampler"] == "serial"
@@ -466,6 +478,7 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
         assert f"| {cond} |" in table
     assert "final valve error and success at 0.12 rad" in table
     assert "on every robot (bold: its own robot)" in table
+    assert "the valve-log fit per robot" in table
     cost = table.split("what a policy cost")[1].split("###")[0]
     for robot in robots:  # (e)'s robot hours beside (c)'s identification and sim training
         on_robot_line = next(x for x in cost.splitlines()
@@ -474,6 +487,9 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
         ident_line = next(x for x in cost.splitlines()
                           if x.startswith(f"| identified | {robot} |"))
         assert "(identification)" in ident_line
+        # the robot time of (c) counts the valve log beside the identification logs
+        assert float(ident_line.split("|")[6]) == pytest.approx(
+            size.id_logs * size.id_seconds * len(size.fingers) + 4.0 * size.valve_episodes)
         assert all(f["analysis_cpu_seconds"] > 0 for f in ident[robot]["fingers"].values())
     assert (out / "transfer.png").stat().st_size > 0
 
@@ -778,3 +794,18 @@ def test_each_condition_is_paired_with_nominal_on_the_same_episodes():
         "- robot A, identified: nearer the goal than nominal (median final error) in 2 of 2 "
         "seed(s), sign test p = 0.25"]
     assert paired_markdown([r for r in rows if r["condition"] != "nominal"], ["A"]) == ""
+
+
+def test_the_valve_log_fit_is_a_setting_only_when_on():
+    """A folder made before the valve-log fit existed (no such keys in its budget) resumes
+    with it off; with it on its settings are part of the budget (a resume must keep them)."""
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.transfer.loop import size_with
+
+    off = size_with("default", valve_episodes=0).budget()
+    assert not {"valve_episodes", "valve_fingers", "valve_fit"} & set(off)
+    on = size_with("default").budget()
+    assert on["valve_episodes"] == 8 and on["valve_fingers"] == ["ff", "mf", "th"]
+    for bad in (1, -1):
+        with pytest.raises(ConfigError, match="valve_episodes"):
+            size_with("smoke", valve_episodes=bad)

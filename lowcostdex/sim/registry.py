@@ -2,7 +2,8 @@
 
 Every factory accepts ``backend`` ("sim", "emulated", "hardware"), ``motor`` (servo model of the
 hand, e.g. "XM430-W350"), ``randomize`` (effect names to randomize per episode, or a
-``DomainRandomization`` / its ``to_dict()``; sim only) and
+``DomainRandomization`` / its ``to_dict()``; sim only), the D'Claw's ``model_edit`` (a fitted
+geometry / valve edit, ``sim.models.dclaw_edit.DClawEdit`` or its ``to_dict()``) and
 backend keyword arguments (e.g. ``port``). ``ENVS`` lists the ids; tests iterate it.
 """
 
@@ -34,11 +35,12 @@ def _dclaw(task_cls: Callable[..., Task], config: Any, **task_kw: Any) -> Callab
     def make(backend: str = "sim", motor: str | None = None,
              randomize: Sequence[str] | Mapping[str, Any] | None = None,
              render_mode: str | None = None,
+             model_edit: Mapping[str, Any] | None = None,
              **kwargs: Any) -> HandEnv:
         hand = dclaw_spec() if motor is None else dclaw_spec(motor)
         cfg_overrides = {k: kwargs.pop(k) for k in list(kwargs) if hasattr(config, k)}
         cfg = type(config)(**{**config.__dict__, **cfg_overrides})
-        task = task_cls(cfg, hand=hand, **task_kw)
+        task = task_cls(cfg, hand=hand, model_edit=model_edit, **task_kw)
         return make_hand_env(task, backend=backend, randomize=randomize,
                              render_mode=render_mode, **kwargs)
 

@@ -68,6 +68,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "policies for (default: every robot; on_robot takes hours per robot); "
                         "every policy is still evaluated on every robot, and a later run on "
                         "the folder adds the others")
+    p.add_argument("--valve-episodes", type=integer(0, 1000), default=None,
+                   help="the identified conditions' valve-log fit: playback demonstrations "
+                        "the robot plays with the valve on (4 s each) to fit a finger base's "
+                        "tilt, the valve's friction / damping / inertia and the link lengths "
+                        "in its identified model, which those conditions then train in; 0: "
+                        "none, the nominal MJCF (default by size: smoke 2, default and long "
+                        "8; folders made before it existed resume with 0)")
     add_latency_option(p)
     p.add_argument("--yes", action="store_true",
                    help="with --port: do not ask before the robot moves")
@@ -87,7 +94,8 @@ def _transfer(args: argparse.Namespace) -> int:
         check_port(port)  # a missing device is refused before anything runs
     size = size_with(args.size, robots=args.robots, seeds=args.seeds,
                      algos=parse_list(args.algos, ALGOS, "algo"),
-                     conditions=parse_list(args.conditions, CONDITIONS, "condition"))
+                     conditions=parse_list(args.conditions, CONDITIONS, "condition"),
+                     valve_episodes=args.valve_episodes)
     if port is not None and not args.yes:
         try:
             answer = input(f"The robot on {port} will move (identification: valve off; "

@@ -25,6 +25,7 @@ NARROW_PAD = 0.1  # identified_randomized: ranges at least +-10 % of each identi
 LOOSE_TOL = 0.12
 STEPS = 40  # steps per episode of the valve tasks (the sample count of an episode)
 CPU_FILE = "transfer_cpu.json"  # in a run folder: the CPU seconds its training took here
+VALVE_FIT_FILE = "valve_fit.json"  # in identify/ROBOT: the valve-log fit (``transfer.valve_fit``)
 OUTPUTS = ("table.md", "transfer.json", "transfer.png", "identified.json")
 
 
@@ -88,6 +89,12 @@ class Size:
       gap: ``GapConfig`` overrides (the smoke size trims the search; default: none, what
         ``lowcostdex gap analyze`` does).
       bc_epochs: behaviour-cloning epochs before DAPG (None: the trainer's default).
+      valve_episodes: the valve-log fit (``transfer.valve_fit``): playback demonstrations the
+        robot plays with the valve on (4 s each) to fit the identified conditions' geometry and
+        valve (a finger base's tilt, the valve's friction / damping / inertia, the link
+        lengths); 0: none, the identified conditions use the nominal geometry.
+      valve_fingers: the fingers whose base tilt is fitted (one fit each; the lowest cost wins).
+      valve_fit: ``tilt_joint.fit_tilt_jointly`` overrides (``grid``: points per axis).
     """
 
     robots: int
@@ -106,6 +113,9 @@ class Size:
     fingers: tuple[str, ...] = FINGERS
     gap: tuple[tuple[str, Any], ...] = ()
     bc_epochs: int | None = None
+    valve_episodes: int = 0
+    valve_fingers: tuple[str, ...] = FINGERS
+    valve_fit: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
         from lowcostdex.errors import ConfigError, check_choice
@@ -114,8 +124,13 @@ class Size:
             check_choice("algo", a, ALGOS)
         for c in self.conditions:
             check_choice("condition", c, CONDITIONS)
-        for f in self.fingers:
+        for f in (*self.fingers, *self.valve_fingers):
             check_choice("finger", f, FINGERS)
+        if self.valve_episodes and (int(self.valve_episodes) < 2 or not self.valve_fingers):
+            raise ConfigError(f"size: valve_episodes must be 0 (no valve-log fit) or >= 2 (the "
+                              f"fit's intervals are paired across episodes) with at least one "
+                              f"valve finger, got {self.valve_episodes} and "
+                              f"{self.valve_fingers}")
         for name in ("robots", "seeds", "demos", "n_iter", "n_traj", "episodes", "id_logs"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"size: {name} must be >= 1, got {getattr(self, name)}")
@@ -129,6 +144,9 @@ class Size:
         d = asdict(self)
         for k in ("robots", "seeds", "algos", "conditions"):
             d.pop(k)
+        if not self.valve_episodes:  # folders made before the valve-log fit still resume
+            for k in ("valve_episodes", "valve_fingers", "valve_fit"):
+                d.pop(k)
         return json.loads(json.dumps(d))
 
     @property
@@ -143,17 +161,19 @@ SIZES = {
                   id_logs=3, id_seconds=3.0, fingers=("ff",),
                   gap=(("max_effects", 1), ("top_k", 2), ("search", "forward"),
                        ("bootstrap", 100), ("max_rounds", 5), ("rank_seconds", 3.0)),
-                  bc_epochs=10),
+                  bc_epochs=10, valve_episodes=2, valve_fingers=("ff",),
+                  valve_fit=(("grid", 3), ("starts", 1), ("iterations", 1),
+                             ("profile_points", 3), ("profile_iterations", 0))),
     # the budgets of bench/RESULTS.md's table (48k samples per policy, 50 episodes per cell),
     # one seed of DAPG: an evening on 2 cores (2-4 h measured piece by piece at load 3-15; a
     # third of it or more is on_robot training, 21-70 min per robot). The full table, --seeds 3
     # --algos dapg,npg on the same folder, is 6x the training and evaluation: ~10 h or more.
     "default": Size(robots=3, seeds=1, algos=("dapg",), conditions=CONDITIONS, demos=20,
                     playbacks=2, n_iter=30, n_traj=40, eval_every=5, eval_episodes=20,
-                    episodes=50, id_logs=3, id_seconds=10.0),
+                    episodes=50, id_logs=3, id_seconds=10.0, valve_episodes=8),
     "long": Size(robots=3, seeds=3, algos=("dapg", "npg"), conditions=CONDITIONS, demos=40,
                  playbacks=2, n_iter=100, n_traj=40, eval_every=10, eval_episodes=20,
-                 episodes=100, id_logs=6, id_seconds=10.0),
+                 episodes=100, id_logs=6, id_seconds=10.0, valve_episodes=8),
 }
 
 

@@ -12,9 +12,13 @@ imperfection; the training side never reads them). Every condition trains the sa
   identified             the model ``gap analyze`` identified from identification logs recorded
                          on that robot (``trace.dclaw_identification_logs``: every finger, a
                          fixed budget of seconds), loaded into the sim as fixed per-joint
-                         effects (one policy per robot);
+                         effects (one policy per robot); with ``Size.valve_episodes`` also the
+                         D'Claw geometry and valve fitted to a valve log recorded on that robot
+                         (``transfer.valve_fit``: a finger base's tilt, the valve's friction /
+                         damping / inertia, the link lengths), as the tasks' ``model_edit``;
   identified_randomized  the same with narrow randomization around the identified values (per
-                         joint: the fitted 95 % interval, at least +-10 % of the value);
+                         joint: the fitted 95 % interval, at least +-10 % of the value; the
+                         valve-log edit is held at its fit);
   on_robot               trained on the robot itself (serial sampling; wall-clock reported).
 
 The demonstrations are recorded once, by the virtual teacher on a nominal emulated D'Claw (no
@@ -71,6 +75,7 @@ from lowcostdex.transfer.config import (
     SIZES,
     STEPS,
     TASKS,
+    VALVE_FIT_FILE,
     Size,
     Task,
     parse_list,
@@ -131,6 +136,12 @@ def cached(path: Path, make: Callable[[], Any]) -> Any:
     return value
 
 
+def sim_kwargs(randomize: Any, model_edit: dict[str, Any] | None) -> dict[str, Any]:
+    """The env kwargs of a simulated condition's model (its effects, its MJCF edit)."""
+    return {**({} if randomize is None else {"randomize": randomize}),
+            **({} if model_edit is None else {"model_edit": model_edit})}
+
+
 class Progress:
     """Progress lines over the loop's pieces (identifications, trainings, evaluation cells):
     ``[progress] transfer: k/N pieces (x %), elapsed, about T left``. Pieces found done count
@@ -184,6 +195,9 @@ def piece_files(out: Path, size: Size, robots: list[Any],
     if identification and {"identified", "identified_randomized"} & set(size.conditions):
         files += [out / "identify" / r.name / f / "finger.json" for r in robots
                   if made_for is None or r.name in made_for for f in size.fingers]
+        if size.valve_episodes:
+            files += [out / "identify" / r.name / VALVE_FIT_FILE for r in robots
+                      if made_for is None or r.name in made_for]
     for algo in size.algos:
         for seed in range(size.seeds) if seeds is None else seeds:
             for condition, policy_robot in jobs(size.conditions, robots, made_for):
@@ -258,15 +272,38 @@ def identify(robot: Any, out: Path, size: Size, seed: int, progress: Progress,
     return {"robot": robot.name, "fingers": fingers, "truth": robot.to_dict()}
 
 
+def valve_log_fit(robot: Any, out: Path, task: Task, size: Size, ident: dict[str, Any],
+                  joints: tuple[str, ...], progress: Progress, tell: Say) -> dict[str, Any]:
+    """The robot's valve-log fit (``transfer.valve_fit``) in its identified model: the
+    identified conditions' MJCF edit. Once per robot (a resume keeps it)."""
+    from lowcostdex.transfer.valve_fit import EPISODE_SECONDS, describe, fit_valve_log
+
+    path = out / "identify" / robot.name / VALVE_FIT_FILE
+    done = path.exists()
+    if not done:
+        tell(f"valve-log fit of robot {robot.name}: it plays {size.valve_episodes} "
+             f"demonstrations with the valve on ({size.valve_episodes * EPISODE_SECONDS:g} s), "
+             f"then a base tilt of {list(size.valve_fingers)}, the valve and the link lengths "
+             "are fitted in its identified model")
+    fit = cached(path, lambda: fit_valve_log(
+        robot.env_kwargs(), task.env_id, dict(task.kwargs), out / "demos.h5",
+        condition_randomize("identified", ident, joints), size.valve_episodes,
+        size.valve_fingers, dict(size.valve_fit)))
+    tell(f"  {robot.name}: {describe(fit)}")
+    progress.step(f"valve-log fit of robot {robot.name}", done)
+    return fit
+
+
 # ------------------------------------------------------------------------------------------------
 # 3. training and evaluation
 
 
 def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Path | None,
-                 size: Size, seed: int, robot: Any = None, robot_seed: int | None = None
-                 ) -> dict[str, Any]:
+                 size: Size, seed: int, robot: Any = None, robot_seed: int | None = None,
+                 model_edit: dict[str, Any] | None = None) -> dict[str, Any]:
     """Train one policy into ``run_dir`` (resumes a run cut short); ``robot``: train on it
-    (on_robot, serial sampling) instead of in simulation."""
+    (on_robot, serial sampling) instead of in simulation; ``model_edit``: the simulation's
+    D'Claw edit (``sim.models.dclaw_edit.DClawEdit.to_dict()``; None: the nominal MJCF)."""
     from lowcostdex.algos import experiment as ex
     from lowcostdex.algos.configs import TrainConfig
     from lowcostdex.algos.train import train
@@ -274,7 +311,7 @@ def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Pa
     summary = run_dir / ex.SUMMARY_FILE
     if not summary.exists():
         resume = (run_dir / ex.CHECKPOINT_DIR / ex.LATEST_FILE).exists()
-        extra = {} if randomize is None else {"randomize": randomize}
+        extra = sim_kwargs(randomize, model_edit)
         common = dict(algo=algo, env_id=task.env_id, seed=seed, n_iter=size.n_iter,
                       n_traj=size.n_traj, eval_every=size.eval_every,
                       eval_episodes=size.eval_episodes,
@@ -422,7 +459,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
          f"policy, {size.episodes} episodes per cell -> {out}")
 
     demos = None
-    if "dapg" in size.algos:
+    if "dapg" in size.algos or (size.valve_episodes and n_id):  # the valve log plays them
         t0 = time.perf_counter()
         tell(f"demonstrations: {size.demos} by the virtual teacher on a nominal emulated D'Claw")
         demos = cached(out / "demos.json", lambda: record_demos(out, task, size, 0))
@@ -444,6 +481,12 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
         tell(f"identification done ({out / 'identify'}). Put the valve back on and run the "
              "same command again: it continues with training and evaluation.")
         return {"stopped": "after identification", "identified": idents}
+    if size.valve_episodes and n_id:
+        t0 = time.perf_counter()
+        for robot in id_robots:
+            idents[robot.name]["valve_fit"] = valve_log_fit(
+                robot, out, task, size, idents[robot.name], joints, progress, tell)
+        wall["valve_fit"] = time.perf_counter() - t0
 
     rows: list[dict[str, Any]] = []
     t_train = t_eval = 0.0
@@ -455,6 +498,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                 on_robot = condition == "on_robot"
                 randomize = None if on_robot else condition_randomize(
                     condition, idents.get(policy_robot.name) if policy_robot else None, joints)
+                edit = None if on_robot or policy_robot is None else (
+                    idents.get(policy_robot.name) or {}).get("valve_fit", {}).get("model_edit")
                 where = f" for robot {policy_robot.name}" if policy_robot else ""
                 t0 = time.perf_counter()
                 done = (run_dir / "summary.json").exists()
@@ -464,7 +509,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                                        out / demos["file"] if demos else None, size, seed,
                                        robot=policy_robot if on_robot else None,
                                        robot_seed=(robot_seed + names.index(policy_robot.name)
-                                                   if policy_robot else None))
+                                                   if policy_robot else None),
+                                       model_edit=edit)
                 t_train += time.perf_counter() - t0
                 progress.step(f"trained {algo} {condition}{where} seed {seed} "
                               f"({trained['wall_seconds']:.0f} s)", done)
@@ -483,16 +529,16 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                 else:
                     path = run_dir.parent / f"{tag}_seed{seed}.sim.json"
                     done = path.exists()
-                    sim = cached(path, lambda d=run_dir, r=randomize: evaluate(
-                        d, task, {} if r is None else {"randomize": r}, size.episodes))
+                    sim = cached(path, lambda d=run_dir, r=randomize, e=edit: evaluate(
+                        d, task, sim_kwargs(r, e), size.episodes))
                     progress.step(f"{algo} {tag} seed {seed} in its training sim: "
                                   f"{sim['successes']}/{sim['episodes']}", done)
                 starts = None  # its training sim from its training starts (--start-range)
                 if train_task != task and not on_robot:
                     path = run_dir.parent / f"{tag}_seed{seed}.sim_starts.json"
                     done = path.exists()
-                    starts = cached(path, lambda d=run_dir, r=randomize: evaluate(
-                        d, train_task, {} if r is None else {"randomize": r}, size.episodes))
+                    starts = cached(path, lambda d=run_dir, r=randomize, e=edit: evaluate(
+                        d, train_task, sim_kwargs(r, e), size.episodes))
                     progress.step(f"{algo} {tag} seed {seed} in its training sim from its "
                                   f"training starts: {starts['successes']}/"
                                   f"{starts['episodes']}", done)
@@ -515,6 +561,9 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                                  "sim_starts_episodes": None if starts is None
                                  else starts["episodes"],
                                  "policy": f"{algo}/{tag}",
+                                 # which MJCF it trained in: None the nominal, else the
+                                 # valve-log fit's edit (``DClawEdit.to_dict()``)
+                                 "model_edit": edit,
                                  "samples": trained["samples"],
                                  "train_wall_seconds": round(trained["wall_seconds"], 1),
                                  "robot_hours": trained.get("robot_hours"),
@@ -571,6 +620,17 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
         parts += ["## Identification (catalogue effects only; a hidden robot's MJCF "
                   "perturbations and firmware imperfection have no catalogue name)", "",
                   *named_vs_truth(idents), ""]
+    fits = {n: i["valve_fit"] for n, i in idents.items() if "valve_fit" in i}
+    if fits:
+        from lowcostdex.transfer.valve_fit import describe
+
+        parts += ["## The identified conditions' MJCF: the valve-log fit per robot (their "
+                  "rows' `model_edit` in transfer.json; every other condition trains in the "
+                  "nominal MJCF)", "", *[f"- robot {n}: {describe(f)}" for n, f in fits.items()],
+                  ""]
+    elif {"identified", "identified_randomized"} & set(size.conditions):
+        parts += ["The identified conditions trained in the nominal MJCF (no valve-log fit: "
+                  "valve_episodes 0).", ""]
     parts.append("Wall-clock [s]: " + ", ".join(f"{k} {v:.0f}" for k, v in wall.items())
                  + f" (pieces found done are not re-run); CPU of this invocation {cpu:.0f} s")
     text = "\n".join(parts)

@@ -247,10 +247,17 @@ def _mean(values: list[Any], fmt: str) -> str:
 
 
 def identification_cost(ident: dict[str, Any]) -> dict[str, float | None]:
-    """One robot's identification summed over its fingers: robot time [s] (the logs), wall of
-    recording and of the analysis [s], CPU of the analysis [s] (None where not recorded)."""
+    """One robot's identification summed over its fingers and its valve-log fit (when it has
+    one): robot time [s] (the logs), wall of recording and of the analysis / fit [s], CPU of
+    the analysis / fit [s] (None where not recorded)."""
     fingers = list(ident["fingers"].values())
     cpu = [f.get("analysis_cpu_seconds") for f in fingers]
+    valve = ident.get("valve_fit")
+    if valve is not None:  # the valve log and its fit, counted as identification
+        fingers.append({"robot_seconds": valve["robot_seconds"],
+                        "record_wall_seconds": valve["record_wall_seconds"],
+                        "analysis_wall_seconds": valve["fit_wall_seconds"]})
+        cpu.append(valve["fit_cpu_seconds"])
     return {"robot_seconds": float(sum(f["robot_seconds"] for f in fingers)),
             "record_wall_seconds": float(sum(f["record_wall_seconds"] for f in fingers)),
             "analysis_wall_seconds": float(sum(f["analysis_wall_seconds"] for f in fingers)),

@@ -1,6 +1,6 @@
-"""A finger base's mounting tilt: the model edit (a small rotation multiplied into the body's
-``quat`` of an MJCF spec) and its fit from a recorded trace (issue 14: robot C's thumb-base tilt,
-invisible in a finger's servo log, seen by a valve-turning log).
+"""A finger base's mounting tilt fitted from a recorded trace (issue 14: robot C's thumb-base tilt,
+invisible in a finger's servo log, seen by a valve-turning log). The edit itself (a small rotation
+multiplied into the body's ``quat``) is ``sim.models.dclaw_edit.tilt_body``, re-exported here.
 
 ``fit_tilt`` is the least-squares fit of the small angles (rotations about the base frame's x and
 y axes) that make the simulated trace match the recorded one, by Gauss-Newton with forward
@@ -11,32 +11,14 @@ valve goals replayed in the edited model); the fit never reads a robot's definit
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from lowcostdex.sim.models.dclaw_edit import tilt_body, tilt_quat
 
-def tilt_quat(angles: Sequence[float]) -> np.ndarray:
-    """The unit quaternion (w, x, y, z) of the rotation vector (ax, ay, 0) [rad]."""
-    v = np.array([float(angles[0]), float(angles[1]), 0.0])
-    angle = float(np.linalg.norm(v))
-    if angle == 0.0:
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    return np.array([np.cos(angle / 2), *(np.sin(angle / 2) * v / angle)])
-
-
-def tilt_body(spec, body: str, angles: Sequence[float]) -> None:
-    """Multiply the tilt into ``body``'s quat in a ``mujoco.MjSpec`` (before compiling):
-    the rotation acts in the body's own frame, as a base mounted slightly rotated."""
-    import mujoco
-
-    b = spec.body(body)
-    if b is None:
-        raise ValueError(f"no body {body!r} in the model")
-    quat = np.zeros(4)
-    mujoco.mju_mulQuat(quat, np.asarray(b.quat, float), tilt_quat(angles))
-    b.quat = quat
+__all__ = ["TiltFit", "fit_tilt", "tilt_body", "tilt_quat"]
 
 
 @dataclass(frozen=True)

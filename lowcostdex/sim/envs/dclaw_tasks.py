@@ -8,7 +8,9 @@ Task definitions follow ROBEL (01-hardware.md section 1.5): 10 Hz control (40 x 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -27,6 +29,7 @@ from lowcostdex.sim.envs.task import (
 )
 from lowcostdex.sim.models.common import quat_euler
 from lowcostdex.sim.models.dclaw import BLOCK_CENTER, BLOCK_HALF, VALVE, build_dclaw
+from lowcostdex.sim.models.dclaw_edit import DClawEdit, as_edit
 
 RESET_POSE = np.tile([0.0, -math.pi / 3, math.pi / 3], 3)  # [rad] ROBEL turn/screw reset pose
 
@@ -41,13 +44,19 @@ class DClawTask(Task):
     station: str = "none"
 
     def __init__(self, hand: HandSpec | None = None, gains: servo.ServoGains | None = None,
-                 timing: TaskSpec = TaskSpec()):
+                 timing: TaskSpec = TaskSpec(),
+                 model_edit: DClawEdit | Mapping[str, Any] | None = None):
         self.hand = hand or dclaw_spec()
         self.gains = gains
         self.timing = timing
+        # a fitted geometry / valve edit (``sim.models.dclaw_edit``), applied on every build
+        self.model_edit = as_edit(model_edit)
 
     def build_spec(self) -> mujoco.MjSpec:
-        return build_dclaw(self.station, self.hand, self.gains)
+        spec = build_dclaw(self.station, self.hand, self.gains)
+        if self.model_edit is not None:
+            self.model_edit.apply(spec)
+        return spec
 
     def hand_state(self, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return qpos[..., self.hand_qpos], qvel[..., self.hand_dof]

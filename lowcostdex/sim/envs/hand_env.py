@@ -125,7 +125,8 @@ def _keywords(cls: type, task: Task) -> list[str]:
     config = getattr(task, "config", None)
     if dataclasses.is_dataclass(config):
         names += [f.name for f in dataclasses.fields(config)]
-    motor = [] if task.hand.name == "allegro" else ["motor"]  # the Allegro's motors are fixed
+    # the Allegro's motors are fixed; the D'Claw's model takes a fitted edit
+    motor = [] if task.hand.name == "allegro" else ["motor", "model_edit"]
     return names + motor + ["randomize", "render_mode"]
 
 
