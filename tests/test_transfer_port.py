@@ -95,3 +95,8 @@ def test_transfer_on_a_port_identifies_stops_then_trains_on_the_robot_and_evalua
     assert config["backend"] == "hardware" and config["sampler"] == "serial"
     assert config["env_kwargs"]["port"] == str(link)
     assert config["env_kwargs"]["latency_ms"] == 16
+    # the valve-log fit ran on the robot once the valve was back: (c) trains in its edit
+    fit = json.loads((out / "identify" / "robot" / "valve_fit.json").read_text())
+    assert fit["episodes"] == size.valve_episodes and fit["robot_seconds"] == 4.0 * fit["episodes"]
+    ident = next(r for r in rows if r["condition"] == "identified")
+    assert ident["model_edit"] == fit["model_edit"]

@@ -162,8 +162,8 @@ SIZES = {
                   gap=(("max_effects", 1), ("top_k", 2), ("search", "forward"),
                        ("bootstrap", 100), ("max_rounds", 5), ("rank_seconds", 3.0)),
                   bc_epochs=10, valve_episodes=2, valve_fingers=("ff",),
-                  valve_fit=(("grid", 3), ("starts", 1), ("iterations", 1),
-                             ("profile_points", 3), ("profile_iterations", 0))),
+                  valve_fit=(("grid", 3), ("starts", 1), ("iterations", 0),
+                             ("profile_points", 2), ("profile_iterations", 0))),
     # the budgets of bench/RESULTS.md's table (48k samples per policy, 50 episodes per cell),
     # one seed of DAPG: an evening on 2 cores (2-4 h measured piece by piece at load 3-15; a
     # third of it or more is on_robot training, 21-70 min per robot). The full table, --seeds 3
