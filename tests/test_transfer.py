@@ -616,7 +616,8 @@ def test_made_for_limits_the_per_robot_policies_and_every_policy_meets_every_rob
     assert len(jobs(size.conditions, robots)) == 2 + 3 * 3
     names = sorted(str(p.relative_to(tmp_path)) for p in piece_files(tmp_path, size, robots,
                                                                       ("B",)))
-    assert [n for n in names if n.startswith("identify")] == ["identify/B/ff/finger.json"]
+    assert [n for n in names if n.startswith("identify")] == ["identify/B/ff/finger.json",
+                                                               "identify/B/valve_fit.json"]
     runs = sorted({n.split("/")[2].split(".")[0] for n in names if n.startswith("runs")})
     assert runs == ["identified_B_seed0", "identified_randomized_B_seed0", "nominal_seed0",
                     "on_robot_B_seed0", "randomized_seed0"]
