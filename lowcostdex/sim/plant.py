@@ -284,8 +284,9 @@ class _PlantBase:
                                                     gain[..., _CONTROLLER_GAINS])
 
     # -- stepping ---------------------------------------------------------------------------------
-    def command(self, goal: np.ndarray) -> np.ndarray:
-        """Apply command effects to a full goal vector (..., nu) [rad]; returns ctrl."""
+    def command(self, goal: np.ndarray, dt: float = 0.0) -> np.ndarray:
+        """Apply command effects to a full goal vector (..., nu) [rad] held ``dt`` s; returns
+        ctrl. Each effect's state has "setpoint" (the ctrl held now), "dt", "qpos", "qvel"."""
         ctrl = np.array(goal, dtype=float, copy=True)
         for b in self._commands:
             a = b.targets.actuators
@@ -294,10 +295,10 @@ class _PlantBase:
                          if k.startswith(prefix)}
             key_state["setpoint"] = self.ctrl[..., a]  # what the servo holds now (a copy)
             key_state["fields"] = self  # the model's fields (which actuators a law acts on)
+            key_state["dt"], key_state["qpos"], key_state["qvel"] = dt, self.qpos, self.qvel
             # its hidden dofs' state (a play read by the servo), where the model has them (the
             # play hinges of backlash, the one structural effect; without them it reads none)
             if b.cls.structural and b.targets.play_index[0]:
-                key_state["qpos"], key_state["qvel"] = self.qpos, self.qvel
                 g = self.array("actuator_gainprm")[..., a, 0]
                 key_state["kv_kp"] = np.divide(-self.array("actuator_biasprm")[..., a, 2], g,
                                                out=np.zeros(g.shape), where=g > 0)
@@ -308,7 +309,7 @@ class _PlantBase:
             if (tq := key_state.pop("torque", None)) is not None:  # outside the force range
                 h = b.targets.has_play
                 self.qfrc_applied[..., b.targets.dofs[h]] = tq[..., h]
-            for k in ("setpoint", "qpos", "qvel", "kv_kp", "damping", "fields"):
+            for k in ("setpoint", "dt", "qpos", "qvel", "kv_kp", "damping", "fields"):
                 key_state.pop(k, None)
             for k, v in key_state.items():
                 self._state[f"{b.cls.name}:{k}"] = v
@@ -355,7 +356,7 @@ class _PlantBase:
           channels: measured per-actuator channels for exogenous effects, e.g.
             {"temperature": (..., nu) [deg C], "voltage": (..., nu) [V]}.
         """
-        self.ctrl[...] = self.command(goal)
+        self.ctrl[...] = self.command(goal, nstep * float(self.model.opt.timestep))
         self._exogenous(channels)
         clock = self.servo_clock
         if self._has_friction or self._live or clock.every:

@@ -31,6 +31,7 @@ from lowcostdex.sim.effects.base import (
 from lowcostdex.sim.effects.deadband import Deadband
 from lowcostdex.sim.effects.exogenous import ThermalDerating, VoltageSag
 from lowcostdex.sim.effects.exogenous import scale_resistance as _scale_resistance
+from lowcostdex.sim.effects.profile import GoalProfile
 from lowcostdex.sim.effects.supply import SupplyResistance
 
 # ------------------------------------------------------------------------------------------------
@@ -549,7 +550,7 @@ EFFECTS: dict[str, type[Effect]] = {
         ViscousDamping, GainError, TorqueLimit, VelocityLimit, GoalSlew, MotorStrength,
         PositionOffset, MountingOffset, InertiaError, MassError, ThermalDerating, VoltageSag,
         SupplyResistance, Deadband, ObservationNoise,
-        ActionNoise, Quantization,
+        ActionNoise, GoalProfile, Quantization,
     )
 }
 
