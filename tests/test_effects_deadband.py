@@ -12,8 +12,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from lowcostdex.gap.results import GapConfig
 from lowcostdex.sim import servo
-from lowcostdex.sim.effects import EFFECTS, AppliedEffect
+from lowcostdex.sim.effects import CAUSES, EFFECTS, OPT_IN, AppliedEffect
 from lowcostdex.sim.models.bench import BenchConfig, build_bench
 from lowcostdex.sim.plant import BatchPlant, Plant
 
@@ -38,8 +39,12 @@ def band(width: float, joint: str = "j") -> list[AppliedEffect]:
     return [AppliedEffect("deadband", (joint,), {"width": np.array([width])})]
 
 
-def test_deadband_is_in_the_catalogue():
-    assert "deadband" in EFFECTS
+def test_deadband_is_a_cause_an_analysis_fits_when_asked():
+    # opt-in (``OPT_IN``) until its false-discovery checks have run: a user names it with
+    # --candidates; the default candidates leave it out
+    assert "deadband" in EFFECTS and "deadband" in CAUSES and "deadband" in OPT_IN
+    assert GapConfig(candidates=("deadband", "coulomb_friction")).candidates == (
+        "deadband", "coulomb_friction")
 
 
 def hold(plant, goal: float, seconds: float, q0: float = 0.0, load: float = 0.0):

@@ -41,6 +41,7 @@ from lowcostdex.sim.effects.base import (
 from lowcostdex.sim.effects.catalogue import (
     CAUSES,
     EFFECTS,
+    OPT_IN,
     ActionNoise,
     Backlash,
     CoulombFriction,
@@ -77,7 +78,8 @@ __all__ = [
     "AppliedEffect", "Backlash", "CoulombFriction", "Deadband", "DomainRandomization", "Effect", "Fields",
     "GainError", "GearboxFriction", "InertiaError", "Latency", "LoadDependentFriction", "MassError",
     "GoalProfile",
-    "MotorStrength", "MountingOffset", "ObservationNoise", "Param", "PositionOffset", "Quantization",
+    "MotorStrength", "MountingOffset", "OPT_IN", "ObservationNoise", "Param", "PositionOffset",
+    "Quantization",
     "SampleFn", "StribeckFriction", "Targets", "ThermalDerating", "TorqueLimit", "VelocityLimit",
     "ViscousDamping", "Values", "VoltageSag", "effect",
 ]

@@ -69,11 +69,12 @@ class Deadband(Effect):
                 rng: np.random.Generator) -> np.ndarray:
         """Motors' commands with the band taken out (``motors``, from the model's fields the
         plant passes as ``state["fields"]``); position goals pass."""
+        w = np.asarray(v["width"], float)
         f = state.get("fields")
-        motor = cls.motors(f, t) if f is not None else np.zeros(len(t.actuators), bool)
-        if not np.any(motor):
+        if f is None or not np.any(w > 0):
             return goal
-        return np.where(motor, dead_zone(goal, np.asarray(v["width"], float)), goal)
+        motor = cls.motors(f, t)
+        return np.where(motor, dead_zone(goal, w), goal) if np.any(motor) else goal
 
     @staticmethod
     def motors(f: Fields, t: Targets) -> np.ndarray:
