@@ -240,6 +240,42 @@ def test_identified_conditions_load_the_fitted_values_per_joint():
     assert condition_randomize("identified", {"fingers": {}}, joints) is None
 
 
+def test_a_velocity_limit_named_on_one_finger_leaves_the_others_unlimited():
+    """velocity_limit's null is an infinite speed (no limit): named on ff only, (c) and (d)
+    keep mf and th unlimited (before: (c) refused its own ranges and the run stopped; (d)
+    clipped the null to 10 rad/s on every joint). Truth: the nominal env on the same actions."""
+    import json
+
+    import gymnasium as gym
+
+    from lowcostdex.sim.effects import DomainRandomization
+    from lowcostdex.transfer.loop import condition_randomize
+
+    joints = HAND.joint_names
+    ident = {"fingers": {"ff": {"causes": [{
+        "effect": "velocity_limit", "joints": ["ff_top", "ff_middle", "ff_bottom"],
+        "params": {"scale": {"value": 0.5, "interval": [[0.45, 0.55]] * 3},
+                   "speed": {"value": 3.0, "interval": [[2.8, 3.2]] * 3}}}]}}}
+    for condition in ("identified", "identified_randomized"):
+        kwargs = json.loads(json.dumps(condition_randomize(condition, ident, joints)))
+        dr = DomainRandomization.from_dict(kwargs)  # as a run's config reads it back
+        values = dr.sample(np.random.default_rng(0))[0].values
+        speed, scale = values["speed"], values["scale"]
+        assert np.all((speed[:3] >= 2.7) & (speed[:3] <= 3.3)) and np.all(np.isinf(speed[3:]))
+        assert np.all((scale[:3] >= 0.45) & (scale[:3] <= 0.55)) and np.all(scale[3:] == 1.0)
+        trails = []
+        for extra in ({}, {"randomize": kwargs}):
+            env = gym.make("lowcostdex/DClawTurnValve-v0", **extra)
+            env.reset(seed=3)
+            for _ in range(3):
+                env.step(np.full(9, 0.8))
+            trails.append(env.unwrapped.data.qpos[:9].copy())
+            env.close()
+        # the D'Claw's dcmotors take scale (half the no-load speed on ff), not speed
+        assert np.max(np.abs(trails[1][:3] - trails[0][:3])) > 1e-3
+        np.testing.assert_allclose(trails[1][3:], trails[0][3:], atol=1e-6)  # mf, th as nominal
+
+
 def _row(cond, robot, k, n=10, made_for=None, seed=0):
     return {"algo": "dapg", "condition": cond, "robot": robot, "seed": seed, "success": k,
             "episodes": n, "policy_robot": made_for, "final_error": [0.05] * n,

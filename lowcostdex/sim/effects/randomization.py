@@ -137,15 +137,19 @@ class DomainRandomization:
                     raise ConfigError(f"range of {name}.{p}: low and high must be scalars or "
                                       f"one value per joint ({n}), got shapes {lo.shape}, "
                                       f"{hi.shape}")
-                if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+                # a joint held at a non-finite null (the effect off there, e.g. no velocity
+                # limit: speed inf) is the one non-finite range allowed
+                off = (lo == hi) & (lo == cls.param(p).null)
+                if not (np.all(np.isfinite(lo) | off) and np.all(np.isfinite(hi) | off)):
                     raise ConfigError(f"range of {name}.{p}: low {lo.tolist()} and high "
-                                      f"{hi.tolist()} must be finite")
+                                      f"{hi.tolist()} must be finite (or both the "
+                                      f"parameter's null {cls.param(p).null}: off)")
                 if not np.all(lo <= hi):
                     raise ConfigError(f"range of {name}.{p}: low {lo.tolist()} above high "
                                       f"{hi.tolist()}")
                 par = cls.param(p)
                 bottom, top = par.hard
-                if np.any(lo < bottom) or np.any(hi > top):
+                if np.any((lo < bottom) & ~off) or np.any((hi > top) & ~off):
                     raise ConfigError(f"range of {name}.{p} [{par.unit}]: ({lo.tolist()}, "
                                       f"{hi.tolist()}) outside the parameter's limits "
                                       f"[{bottom:g}, {top:g}] {par.unit} (SI units: s, rad, "
@@ -185,8 +189,10 @@ class DomainRandomization:
             # in the effect's parameter order, not the mapping's: a config written with sorted
             # keys (json sort_keys) and read back draws the same values
             for p in [q.name for q in cls.params if q.name in given]:
-                lo, hi = given[p]
-                vals[p] = rng.uniform(lo, hi, size=n)
+                lo, hi = (np.broadcast_to(np.asarray(x, float), (n,)) for x in given[p])
+                fixed = ~np.isfinite(lo)  # held off at a non-finite null (checked above)
+                draw = rng.uniform(np.where(fixed, 0.0, lo), np.where(fixed, 0.0, hi), size=n)
+                vals[p] = np.where(fixed, lo, draw)
             out.append(AppliedEffect(name, self.joints, vals))
         return out
 
