@@ -162,6 +162,8 @@ for 0.2 s at a time) and 8.6 rad/s (STS3250), and BAM's STS3032 fits put the cla
 rad/s, above every goal speed in those logs (14 rad/s): no slew is modelled for them."""
 
 _X430_THERMAL = ThermalSpec(resistance=12.0, capacitance=8.0)
+MX64_BACKDRIVEN = (0.0904, 0.0117)
+MX106_BACKDRIVEN = (0.1035, 0.0352)
 
 MOTORS: dict[str, MotorSpec] = {
     m.name: m
@@ -181,9 +183,12 @@ MOTORS: dict[str, MotorSpec] = {
         MotorSpec("XH430-V350", 1040, 24.0, 3.3, 31 * TWO_PI / 60, 353.5, 0.0030,
                   current_unit=1.34e-3),
         # XL330: 5 V class, plastic gears; BAM found the effective P divisor to be 256.
-        # backdriven: BAM's published XL330 M1 Coulomb + viscous (Rhoban/bam params/xl330/m1.json:
-        # friction_base 0.0182, friction_viscous 0.0059), one law for the torque on and off; the
-        # Rhoban XL330 swings alone say 0.0053 + 0.0095 (gap.torque_off.swing_fit, gap-real12).
+        # backdriven: BAM's published XL330 M1 Coulomb + viscous (Rhoban/bam params/xl330/m1.json
+        # @11bb7ec, branch nolift_xl330, fitted with lift_and_drop left out: friction_base 0.0182,
+        # friction_viscous 0.0059; Rhoban/bam main @1b5a1ce has 0.0128 + 0.0037: Rhoban's lift
+        # fold 46.0 mrad with it, 40.9 with these, BAM M3 52.2, gap-real16), one law for the
+        # torque on and off; the Rhoban XL330 swings alone say 0.0053 + 0.0095 (gap.torque_off.
+        # swing_fit, gap-real12).
         MotorSpec("XL330-M288", 1200, 5.0, 0.52, 103 * TWO_PI / 60, 288.4, 0.0003,
                   current_unit=1.0e-3, default_p=400,
                   error_gain=(4096 / TWO_PI) / (256.0 * 885), backdriven=(0.0182, 0.0059),
@@ -196,10 +201,15 @@ MOTORS: dict[str, MotorSpec] = {
         # ships): e-Manual mx-64-2 / mx-106-2 pages, 12 V rows; current 3.36 mA per count,
         # factory Position P 850, the P2 gain law K_P = P/128 (error_gain from pwm_max, as the
         # X series). Armature: Menagerie dynamixel_2r's fitted 0.005 [uncertain: a prior].
+        # backdriven (both firmwares): BAM's published M1 Coulomb + viscous (Rhoban/bam@1b5a1ce
+        # params/mx64/m1.json 0.0904 + 0.0117, mx106/m1.json 0.1035 + 0.0352), one law for the
+        # torque on and off. Rhoban's passive fall of an MX (data/friction_1.json, model not
+        # recorded, torque off) follows MX-106's at 22 mrad (rest -1.858 rad, measured -1.833)
+        # and not MX-64's (284 mrad): MX-64's is unchecked on a torque-off log (gap-real16).
         MotorSpec("MX-64", 311, 12.0, 6.0, 63 * TWO_PI / 60, 200.0, 0.005,
-                  current_unit=3.36e-3, default_p=850),
+                  current_unit=3.36e-3, default_p=850, backdriven=MX64_BACKDRIVEN),
         MotorSpec("MX-106", 321, 12.0, 8.4, 45 * TWO_PI / 60, 225.0, 0.005,
-                  current_unit=3.36e-3, default_p=850),
+                  current_unit=3.36e-3, default_p=850, backdriven=MX106_BACKDRIVEN),
         # MX-28 with Protocol 2.0 firmware: e-Manual mx-28-2 page (Model Number 30, 2.5 N m and
         # 55 rpm at 12 V, 193:1, Temperature Limit 80, Position P/I/D 850/0/0, Velocity 0.229
         # rpm). It has no current register (Present Load, 0.1 % of the maximum, where the X and
@@ -217,10 +227,10 @@ MOTORS: dict[str, MotorSpec] = {
         # 4.5 mA * (value - 2048); current_unit holds the 4.5 mA (the offset is not modelled).
         MotorSpec("MX-64(1.0)", 310, 12.0, 6.0, 63 * TWO_PI / 60, 200.0, 0.005,
                   current_unit=4.5e-3, velocity_unit=0.114 * TWO_PI / 60.0, default_p=32,
-                  error_gain=0.158, max_duty=0.9625),
+                  error_gain=0.158, max_duty=0.9625, backdriven=MX64_BACKDRIVEN),
         MotorSpec("MX-106(1.0)", 320, 12.0, 8.4, 45 * TWO_PI / 60, 225.0, 0.005,
                   current_unit=4.5e-3, velocity_unit=0.114 * TWO_PI / 60.0, default_p=32,
-                  error_gain=0.158, max_duty=0.9625),
+                  error_gain=0.158, max_duty=0.9625, backdriven=MX106_BACKDRIVEN),
         # Feetech STS series. Feetech's STS memory table (ftservo/ftservo-wiki
         # docs/en/reference/parameter/memory-sts.md @9522ce19): position 4096 steps per turn,
         # Present Speed in 0.0146 rpm = 1 step/s (Phase bit 2), Present Current 6.5 mA, voltage
@@ -232,10 +242,13 @@ MOTORS: dict[str, MotorSpec] = {
         # model applies none (d_error_gain 0). Gear ratios and armatures [uncertain].
         # STS3215 (LeRobot SO-100/SO-101, 7.4 V, 1/345 C001): Model Number 777 (lerobot's
         # table); Feetech's ST-3215-C001 spec at 6 V: stall 19.5 kg cm, 0.238 s/60 deg;
-        # armature BAM's published sts3215 7.4 V M1 fit (0.0284) [a fit, not a datasheet value].
+        # armature BAM's published sts3215 7.4 V M1 fit (0.0284) [a fit, not a datasheet value];
+        # backdriven: the same file's Coulomb 0.0524 + viscous 0.0591 (Rhoban/bam@1b5a1ce
+        # params/feetech_sts3215_7_4V/m1.json), unchecked on a torque-off log (none held here).
         MotorSpec("STS3215", 777, 6.0, 19.5 * KGF_CM, (math.pi / 3) / 0.238, 345.0, 0.0284,
                   current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32, default_d=32,
                   error_gain=0.166, d_error_gain=0.0, max_duty=0.97, goal_speed=STS_GOAL_SPEED,
+                  backdriven=(0.0524, 0.0591),
                   thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
         # STS3250: Model Number 2825 (lerobot's table, read from the motor); 50 kg cm (4.9 N m)
         # stall, 0.133 s/60 deg at 12 V (vendor sheet as quoted by robonine.com). No error_gain
