@@ -261,10 +261,15 @@ MOTORS: dict[str, MotorSpec] = {
         # Stall torque and no-load speed come from BAM's STS3215-model fit to the STS3032 bench
         # logs (kt 0.483 N m/A, R 3.29 Ohm at 6 V -> 0.88 N m, 12.4 rad/s;
         # 08-bam-reference-errors.md section 4), armature likewise (0.00103). error_gain/ceiling
-        # as STS3215 [all uncertain].
+        # as STS3215 [all uncertain]. backdriven: the STS3032 M1 Coulomb + viscous the logs'
+        # authors published (qua-robotics/bam params/feetech_sts3032_6_0V/m1.json @4bd252b,
+        # main: friction_base 0.00540, friction_viscous 0.00159; fitted on their 144 logs, the
+        # 72 shared ones among them), one law for the torque on and off; the 18 shared torque-off
+        # swings alone say 0.00528 + 0.00167 (gap.torque_off.swing_fit). Its lift_and_drop fold
+        # (no torque-off log in training) 204.2 -> 188.8 mrad with it (BAM's M1 34.3; gap-real16).
         MotorSpec("STS3032", 0, 6.0, 0.88, 6.0 / 0.483, 345.0, 0.00103,
                   current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32, default_d=32,
-                  error_gain=0.166, d_error_gain=0.0, max_duty=0.97,
+                  error_gain=0.166, d_error_gain=0.0, max_duty=0.97, backdriven=(0.0054, 0.00159),
                   thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
     )
 }

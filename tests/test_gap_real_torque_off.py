@@ -15,9 +15,72 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lowcostdex.gap import bam_measure as bm
+from lowcostdex.gap import load_dataset
+
 ROOT = Path(os.environ.get("LOWCOSTDEX_MEASURED_DATA") or os.environ.get("LOWCOSTDEX_MEASURED")
             or Path(__file__).resolve().parents[2] / "shared" / "data" / "measured")
 MX = ROOT / "rhoban-bam-mx-atomic"
+STS3032 = ROOT / "qua-robotics-bam-sts3032"
+
+
+def _lift_logs(folder):
+    ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
+    return ds, [i for i, tr in enumerate(ds.trajectories)
+                if tr.meta.get("trajectory") == "lift_and_drop"]
+
+
+def test_the_catalogue_laws_are_the_published_m1_fits_or_none():
+    from lowcostdex.sim import servo
+
+    # qua-robotics/bam params/feetech_sts3032_6_0V/m1.json @4bd252b (the STS3032 logs' authors)
+    assert servo.motor_spec("STS3032").backdriven == (0.0054, 0.00159)
+    # nothing published for the STS3250 (Rhoban/bam, its pull request #1 and forks): none
+    assert servo.motor_spec("STS3250").backdriven is None
+
+
+@pytest.mark.skipif(not STS3032.is_dir(), reason=f"measured data not found at {ROOT}")
+def test_sts3032_torque_off_swings_want_the_published_m1_law():
+    # The STS3032 catalogue law (the logs' authors' published M1: Coulomb 0.0054 N m + viscous
+    # 0.00159 N m s/rad) on the 18 real torque-off swings (9 mass x length set-ups, kp 8 and 32;
+    # a pendulum written out, gap.torque_off.simulate) at the authors' M1 armature 0.00101 kg
+    # m^2. Measured 2026-11-28 (bench/RESULTS.md gap-real16): mean 127.9 mrad; no friction
+    # 599.8; the Coulomb + viscous the STS3032 kp 32 -> 8 identification fits with the torque
+    # off (0.0019 + 0.0003) 388.0; the XL330's law 292.7; the swings' own best Coulomb + viscous
+    # (swing_fit: 0.00528 + 0.00167, armature 0.00106) 126.4.
+    from lowcostdex.gap.torque_off import simulate, swings
+    from lowcostdex.sim import servo
+
+    ds, lift = _lift_logs(STS3032)
+    sws = swings(ds, lift)
+    assert len(sws) == 18
+    c, b = servo.motor_spec("STS3032").backdriven
+
+    def mae(p):
+        return np.array([np.mean(np.abs(simulate(np.asarray(p, float), s)[0] - s.q))
+                         for s in sws])
+
+    law, none, weak = mae([0.00101, c, b]), mae([0.00101, 0.0, 0.0]), mae(
+        [0.00101, 0.0019, 0.0003])
+    assert np.all(law < 0.6 * none) and np.mean(law) < 0.25 * np.mean(none)
+    assert np.all(law < weak) and np.mean(law) < 0.4 * np.mean(weak)
+
+
+@pytest.mark.skipif(not STS3032.is_dir(), reason=f"measured data not found at {ROOT}")
+def test_an_sts3032_fold_without_torque_off_logs_gets_the_catalogue_law():
+    from lowcostdex.gap.identify import servo_structure
+    from lowcostdex.gap.identify_logs import BACKDRIVEN, BACKDRIVEN_PARAMS, backdriven_plan
+
+    ds, lift = _lift_logs(STS3032)
+    rest = [i for i in range(len(ds.trajectories)) if i not in lift]
+    effects = servo_structure(ds)
+    assert BACKDRIVEN in effects
+    # its loads (0.13-0.45 N m of gravity) back-drive the gears past the law's 0.0054 N m
+    assert backdriven_plan(ds, rest, effects, "fit") == (
+        BACKDRIVEN_PARAMS, {"coulomb": 0.0054, "viscous": 0.00159, "gear": 0.0})
+    # torque-off swings in training: fitted, as before
+    assert backdriven_plan(ds, lift + rest, effects, "fit") == (
+        frozenset({(BACKDRIVEN, "gear")}), None)
 
 
 def _fall(pos, t, mass, length, armature, coulomb, viscous):
