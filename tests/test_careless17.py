@@ -411,3 +411,31 @@ def test_every_commands_help_exits_0_and_describes_its_number_options(capsys):
             if action.option_strings and numeric and not action.help:
                 bare.append(f"{' '.join(path)} {action.option_strings[-1]}")
     assert bare == []
+
+
+# ------------------------------------------------------------------------------------------------
+# a config's refusal names the flag the user typed; `model --out x.urdf`
+
+
+@pytest.mark.parametrize("argv,said", [
+    (["train", "npg", "--n-iter", "0"], "--n-iter: n_iter=0 must be an integer in [1, inf)"),
+    (["train", "npg", "--gamma", "2"], "--gamma: gamma=2.0 must be a finite number in [0, 1]"),
+    (["train", "ppo", "--lr", "-1"], "--lr: lr=-1.0 must be a finite number in (0, inf)"),
+])
+def test_a_setting_refused_by_the_config_names_its_flag(argv, said, tmp_path, capsys):
+    """Before: "n_iter=0 must be ..." - the config's field, not the flag the user typed."""
+    from lowcostdex.cli import main
+
+    assert main([*argv, "--out", str(tmp_path / "run")]) == 2
+    assert said in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+def test_model_out_with_another_formats_suffix_is_refused(tmp_path, capsys):
+    """Before: `model dclaw --out hand.urdf` wrote MJCF XML into hand.urdf."""
+    from lowcostdex.cli import main
+
+    assert main(["model", "dclaw", "--out", str(tmp_path / "hand.urdf")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"writes MJCF XML, not URDF; name the file {tmp_path / 'hand.xml'}" in err
+    assert list(tmp_path.iterdir()) == []

@@ -8,10 +8,12 @@ trainer (:mod:`lowcostdex.algos.train`) when a run starts.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import re
 import shlex
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -154,6 +156,11 @@ def ppo_config_from_args(args: argparse.Namespace) -> PPOConfig:
                           f"--backend {args.backend} ...`)")
     check_resume(args.out, args.resume)
     d = PPOConfig()
+    with _settings_as_flags(args):
+        return _ppo_config(args, d)
+
+
+def _ppo_config(args: argparse.Namespace, d: PPOConfig) -> PPOConfig:
     return PPOConfig(
         env_id=args.env, env_kwargs=_parse_env_kwargs(args.env_kwarg), seed=args.seed,
         n_iter=args.n_iter, num_envs=args.num_envs, lr=args.lr, gamma=args.gamma,
@@ -163,6 +170,25 @@ def ppo_config_from_args(args: argparse.Namespace) -> PPOConfig:
                                    init_log_std=args.init_log_std),
         eval_every=args.eval_every, eval_episodes=args.eval_episodes, nthread=args.threads,
         progress=not args.no_progress)
+
+
+@contextlib.contextmanager
+def _settings_as_flags(args: argparse.Namespace) -> Iterator[None]:
+    """A config's refusal of a setting ("n_iter=0 must be ...") led by the flag that gave it
+    ("--n-iter: n_iter=0 must be ..."): the user typed the flag, not the field."""
+    try:
+        yield
+    except ConfigError as exc:
+        field = re.match(r"(\w+)=", str(exc))
+        parser = getattr(args, "parser", None)
+        if field is None or parser is None:
+            raise
+        name = field.group(1)
+        flag = next((f for k, f in _FLAG_OF.items() if k.rsplit(".", 1)[-1] == name),
+                    "--" + name.replace("_", "-"))
+        if flag not in parser._option_string_actions:
+            raise
+        raise ConfigError(f"{flag}: {exc}") from None
 
 
 def _parse_env_kwargs(items: Sequence[str]) -> dict[str, Any]:
@@ -257,6 +283,12 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
             raise ConfigError("--latency-ms is the serial adapter's latency timer: it needs "
                               "--backend hardware --port DEVICE")
         env_kwargs.update(latency_kwargs(args.latency_ms))
+    with _settings_as_flags(args):
+        return _train_config(args, d, backend, env_kwargs)
+
+
+def _train_config(args: argparse.Namespace, d: TrainConfig, backend: str,
+                  env_kwargs: dict[str, Any]) -> TrainConfig:
     return TrainConfig(
         algo=args.algo,
         env_id=args.env,

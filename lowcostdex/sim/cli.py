@@ -43,6 +43,10 @@ def _write_model(args: argparse.Namespace) -> int:
     from lowcostdex.outdir import check_out_file, write_text_atomic
 
     out = check_out_file(args.out, overwrite=args.overwrite)
+    if out.suffix.lower() in (".urdf", ".sdf", ".mjb", ".usd", ".json"):  # another format
+        raise ConfigError(f"--out {out}: `lowcostdex model` writes MJCF XML, not "
+                          f"{out.suffix[1:].upper()}; name the file {out.with_suffix('.xml')} "
+                          "(MuJoCo and `gap analyze --model` read it)")
     if out.exists() and not _is_mjcf(out):  # --overwrite replaces a model, nothing else
         raise ConfigError(f"--out {out} is not an MJCF model (no <mujoco> root); --overwrite "
                           "replaces a model file only, and this file is left untouched. Give "
