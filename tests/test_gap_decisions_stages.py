@@ -74,7 +74,7 @@ class _DS:
 _ALL = ["latency", "backlash", "coulomb_friction", "stribeck_friction", "load_dependent_friction",
         "viscous_damping", "gain_error", "torque_limit", "velocity_limit", "position_offset",
         "inertia_error", "mass_error", "thermal_derating", "voltage_sag",
-        "gearbox_friction", "mounting_offset", "motor_strength"]
+        "gearbox_friction", "mounting_offset", "motor_strength", "sensor_scale"]
 
 
 def _ds(first: tuple[str, str], chans: set[str], second=(_POS, _POS)) -> _DS:

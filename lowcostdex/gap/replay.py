@@ -16,8 +16,8 @@ together at the physics timestep:
   then named with a torque limit beside it);
 * each window starts from the measured state at its first sample (multiple shooting when windows
   are short segments, open loop when a window is a whole episode); the servo's setpoint before the
-  window is the goal in force just before it; a position offset is removed from the measured
-  initial position;
+  window is the goal in force just before it; a position offset and a sensor scale are removed
+  from the measured initial state;
 * backlash is replayed in both of its regimes and the one closer to the data is kept: a play
   hinge between the servo's motor side and its link (a model prepared with hidden dofs; the link
   starts at the measured angle, at a log's start leaning on the stop its static load pushes it
@@ -61,6 +61,7 @@ from lowcostdex.gap.activation import Activations, position_like
 from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.sim.effects import CAUSES, EFFECTS, AppliedEffect, Targets
 from lowcostdex.sim.effects.base import clip as _clip
+from lowcostdex.sim.effects.sensor_scale import reading_map
 from lowcostdex.sim.plant import BatchPlant, prepare_spec
 
 Column = Sequence[AppliedEffect]
@@ -404,8 +405,8 @@ class Replayer:
         for s, ((c, wi), g) in enumerate(zip(sims, grids, strict=True)):
             w = windows[wi]
             tr = ds.trajectories[w.traj]
-            qpos[s, jq] = tr.qpos[w.start] - _offset(columns[c], ds.joints)
-            qvel[s, jd] = tr.qvel[w.start]
+            off, gain = reading_map(columns[c], ds.joints)
+            qpos[s, jq], qvel[s, jd] = (tr.qpos[w.start] - off) / gain, tr.qvel[w.start] / gain
             ctrl[s, act] = g.prev_goal
             rows[s, :g.n_steps], rows[s, g.n_steps:] = g.rows, g.rows[-1]
             if np.any(delays[s] > 0):
@@ -649,17 +650,6 @@ def _union(cols: Sequence[Column]) -> list[tuple[str, tuple[str, ...]]]:
 def _fill(col: Column, union: Sequence[tuple[str, tuple[str, ...]]]) -> list[AppliedEffect]:
     have = {(e.name, tuple(e.joints)): e for e in col}
     return [have.get(u) or AppliedEffect(u[0], u[1]) for u in union]
-
-
-def _offset(col: Column, joints: Sequence[str]) -> np.ndarray:
-    """Sum of reading offsets (position and mounting offsets) per measured joint [rad]."""
-    out = np.zeros(len(joints))
-    for e in col:
-        if e.name in ("position_offset", "mounting_offset"):
-            for j, v in zip(e.joints, e.values["offset"], strict=True):
-                if j in joints:
-                    out[list(joints).index(j)] += v
-    return out
 
 
 def _init_backlash(ctrl: np.ndarray, act: np.ndarray, act_of_joint: dict[str, int],

@@ -72,6 +72,7 @@ from lowcostdex.sim.effects.randomization import (
     DomainRandomization,
     SampleFn,
 )
+from lowcostdex.sim.effects.sensor_scale import SensorScale
 
 __all__ = [
     "CAUSES", "DEFAULT_DR_EFFECTS", "DEFAULT_REFERENCE_TEMPERATURE", "EFFECTS", "ActionNoise",
@@ -80,6 +81,7 @@ __all__ = [
     "GoalProfile",
     "MotorStrength", "MountingOffset", "OPT_IN", "ObservationNoise", "Param", "PositionOffset",
     "Quantization",
-    "SampleFn", "StribeckFriction", "Targets", "ThermalDerating", "TorqueLimit", "VelocityLimit",
+    "SampleFn", "SensorScale", "StribeckFriction", "Targets", "ThermalDerating", "TorqueLimit",
+    "VelocityLimit",
     "ViscousDamping", "Values", "VoltageSag", "effect",
 ]

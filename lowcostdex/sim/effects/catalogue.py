@@ -32,6 +32,7 @@ from lowcostdex.sim.effects.deadband import Deadband
 from lowcostdex.sim.effects.exogenous import ThermalDerating, VoltageSag
 from lowcostdex.sim.effects.exogenous import scale_resistance as _scale_resistance
 from lowcostdex.sim.effects.profile import GoalProfile
+from lowcostdex.sim.effects.sensor_scale import SensorScale
 from lowcostdex.sim.effects.supply import SupplyResistance
 
 # ------------------------------------------------------------------------------------------------
@@ -548,8 +549,8 @@ EFFECTS: dict[str, type[Effect]] = {
         Latency, Backlash, CoulombFriction, StribeckFriction, LoadDependentFriction,
         GearboxFriction, BackdrivenFriction,
         ViscousDamping, GainError, TorqueLimit, VelocityLimit, GoalSlew, MotorStrength,
-        PositionOffset, MountingOffset, InertiaError, MassError, ThermalDerating, VoltageSag,
-        SupplyResistance, Deadband, ObservationNoise,
+        SensorScale, PositionOffset, MountingOffset, InertiaError, MassError, ThermalDerating,
+        VoltageSag, SupplyResistance, Deadband, ObservationNoise,
         ActionNoise, GoalProfile, Quantization,
     )
 }
@@ -560,7 +561,7 @@ CAUSES: tuple[str, ...] = (
     "viscous_damping", "gain_error", "torque_limit", "velocity_limit", "position_offset",
     "inertia_error", "mass_error", "thermal_derating", "voltage_sag",
     "gearbox_friction", "mounting_offset", "motor_strength",
-    "deadband",
+    "deadband", "sensor_scale",
 )
 # Causes an analysis fits only when asked (``GapConfig.candidates``, ``--candidates``): the
 # deadband (session 21) until its false-discovery checks on the independent benches have run.
