@@ -439,3 +439,36 @@ def test_model_out_with_another_formats_suffix_is_refused(tmp_path, capsys):
     err = " ".join(capsys.readouterr().err.split())
     assert f"writes MJCF XML, not URDF; name the file {tmp_path / 'hand.xml'}" in err
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------------
+# a log of another robot than the model
+
+
+def test_a_dclaw_log_against_the_allegro_model_names_the_model_to_write(tmp_path, capsys):
+    """A D'Claw finger's log (ff_top, ff_middle, ff_bottom, as record-log names them) with the
+    Allegro's model: before, "'goal:ff_top': no actuator 'ff_top' in the model; actuators:
+    index_0, ..." Now: none of the log's actuators is in the model, and the command writing the
+    model of the logged fingers - which the same log then passes."""
+    import mujoco
+
+    from lowcostdex.cli import main
+    from lowcostdex.gap.logs import check_against_model
+
+    t, goal, q, _ = _servo_log(amplitude_deg=15.0)
+    cols = {"time": t}
+    for k, joint in enumerate(("ff_top", "ff_middle", "ff_bottom")):
+        cols[f"goal:{joint}"] = np.radians(goal) * (1 - 0.2 * k)
+        cols[f"qpos:{joint}"] = np.radians(q) * (1 - 0.2 * k)
+    log = read_log(_csv(tmp_path / "log_0.csv", cols))
+    assert main(["model", "allegro", "--station", "none", "--out", str(tmp_path / "a.xml")]) == 0
+    allegro = mujoco.MjModel.from_xml_path(str(tmp_path / "a.xml"))
+    with pytest.raises(LogError) as err:
+        check_against_model(log, allegro)
+    said = str(err.value)
+    assert "none of the log's actuators (ff_top, ff_middle, ff_bottom) is in the model" in said
+    command = said.split("`")[1]
+    assert command == ("lowcostdex model dclaw --station none --fingers ff --out dclaw.xml")
+    argv = command.split()[1:-1] + [str(tmp_path / "dclaw.xml")]
+    assert main(argv) == 0
+    check_against_model(log, mujoco.MjModel.from_xml_path(str(tmp_path / "dclaw.xml")))

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -315,8 +316,11 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                        f"joint=\"{j}\" kp=\"...\"/></actuator> (the servo's position gain)")
     for a in traj.actuators:
         if a not in act_names:
+            other = "" if set(traj.actuators) & set(act_names) else (  # another robot's log
+                f"; none of the log's actuators ({', '.join(traj.actuators)}) is in the model: "
+                f"a log of another robot, or another robot's model? {_model_for(traj.actuators)}")
             raise LogError(f"{traj.name}: 'goal:{a}': no actuator {a!r} in the model; "
-                           f"actuators: {', '.join(act_names)}")
+                           f"actuators: {', '.join(act_names)}{other}")
     for j in traj.joints:
         if j not in jnt_names:
             hint = ""
@@ -401,6 +405,24 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                                f"{act_names[i]!r} but the log has no 'qpos:{j}' column: every "
                                "replay would start it at the model's initial pose; log its "
                                "position too")
+
+
+HAND_NAMES = {  # the project's hands' actuator names (sim/models/dclaw.py, allegro.py)
+    "dclaw": ("D'Claw", re.compile(r"(ff|mf|th)_(top|middle|bottom)")),
+    "allegro": ("Allegro", re.compile(r"(index|middle|ring|thumb)_[0-3]")),
+}
+
+
+def _model_for(actuators: tuple[str, ...]) -> str:
+    """What model to give for a log whose actuators are named as one of the project's hands."""
+    for hand, (title, pattern) in HAND_NAMES.items():
+        fingers = [m.group(1) for a in actuators if (m := pattern.fullmatch(a))]
+        if fingers and len(fingers) == len(actuators):
+            return (f"its names are the {title}'s: `lowcostdex model {hand} --station none "
+                    f"--fingers {','.join(dict.fromkeys(fingers))} --out {hand}.xml` writes "
+                    "the model of those fingers")
+    return ("give the MJCF of the robot that wrote the log (an actuator named as each 'goal:' "
+            "column)")
 
 
 def _same_joint(model: mujoco.MjModel, a: int, b: int) -> bool:
