@@ -472,3 +472,13 @@ def test_a_dclaw_log_against_the_allegro_model_names_the_model_to_write(tmp_path
     argv = command.split()[1:-1] + [str(tmp_path / "dclaw.xml")]
     assert main(argv) == 0
     check_against_model(log, mujoco.MjModel.from_xml_path(str(tmp_path / "dclaw.xml")))
+
+
+def test_record_log_joints_named_twice_are_refused(tmp_path, capsys):
+    """Before: `--joints ff_top,ff_top` (a typo for ff_top,ff_middle) recorded ff_top alone."""
+    from lowcostdex.cli import main
+
+    out = tmp_path / "logs"
+    assert main(["record-log", "--joints", "ff_top,ff_top", "--out", str(out)]) == 2
+    assert "--joints ff_top,ff_top names ff_top more than once" in capsys.readouterr().err
+    assert not out.exists()

@@ -200,6 +200,10 @@ def _record_log(args: argparse.Namespace) -> int:
                    if j.strip())
     if not joints:
         raise ConfigError("--joints names no joint")
+    twice = sorted({j for j in joints if joints.count(j) > 1})
+    if twice:  # each joint is excited once: a repeat is a typo for another joint
+        raise ConfigError(f"--joints {args.joints} names {', '.join(twice)} more than once; "
+                          "name each joint to excite once")
     for j in joints:
         hand.joint(j)  # raises with the valid names
     effects = []
