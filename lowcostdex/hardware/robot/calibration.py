@@ -13,6 +13,7 @@ import dataclasses
 
 import numpy as np
 
+from lowcostdex.errors import ConfigError, did_you_mean
 from lowcostdex.hands import HandSpec, JointSpec
 from lowcostdex.hardware.bus import BusError, MotorBus
 
@@ -29,8 +30,20 @@ def calibrate_offsets(bus: MotorBus, hand: HandSpec, reference: dict[str, float]
 
     Raises:
       BusError: a motor never gave a valid reading.
+      ConfigError: ``reference`` names a joint the hand does not have, or holds an angle that is
+        not finite or outside the joint's limits (degrees given for radians?); ``samples`` is
+        not a positive integer; the bus lacks one of the hand's motors. Checked before any read.
     """
-    reference = reference or {}
+    reference = _check_reference(hand, reference or {})
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+        raise ConfigError(f"samples={samples!r} must be an integer >= 1 (reads per joint; "
+                          "e.g. samples=20)")
+    missing = [f"{j.name} (id {j.motor_id})" for j in hand.all_joints
+               if j.motor_id not in bus.ids]
+    if missing:
+        raise ConfigError(f"the bus has no motor for {', '.join(missing)} (its ids: "
+                          f"{list(bus.ids)}); make the bus from the same hand spec, e.g. "
+                          "DynamixelBus.from_hand(hand, port)")
     index = {i: k for k, i in enumerate(bus.ids)}
     reads = []
     for _ in range(samples):
@@ -49,6 +62,35 @@ def calibrate_offsets(bus: MotorBus, hand: HandSpec, reference: dict[str, float]
 
     return dataclasses.replace(hand, joints=tuple(update(j) for j in hand.joints),
                                aux_joints=tuple(update(j) for j in hand.aux_joints))
+
+
+def _check_reference(hand: HandSpec, reference: dict[str, float]) -> dict[str, float]:
+    """``reference`` checked against the hand: a misspelt joint would silently read as 0 rad,
+    an angle in degrees would put every later goal off by the difference."""
+    if not isinstance(reference, dict):
+        raise ConfigError(f"reference must be a dict joint name -> angle [rad], got "
+                          f"{type(reference).__name__}")
+    names = [j.name for j in hand.all_joints]
+    out = {}
+    for name, value in reference.items():
+        if name not in names:
+            raise ConfigError(f"reference: hand {hand.name} has no joint {name!r}"
+                              f"{did_you_mean(name, names)}; its joints: {', '.join(names)}")
+        j = hand.joint(name)
+        try:
+            q = float(value)
+        except (TypeError, ValueError):
+            q = float("nan")
+        if not np.isfinite(q):
+            raise ConfigError(f"reference[{name!r}] must be a finite angle [rad], got {value!r}")
+        if not j.low <= q <= j.high:
+            hint = (f"; in degrees? {q:g} deg = {np.radians(q):.4f} rad"
+                    if j.low <= np.radians(q) <= j.high else "")
+            raise ConfigError(f"reference[{name!r}] = {q:g} rad is outside the joint's limits "
+                              f"[{j.low:g}, {j.high:g}] rad{hint}: the hand cannot be held "
+                              "there; give the pose in radians")
+        out[name] = q
+    return out
 
 
 def format_report(old: HandSpec, new: HandSpec) -> str:

@@ -1,0 +1,55 @@
+"""Careless calls of the Python API and hardware settings (session 21, careless18).
+
+Each case's truth is the user's own input written here (a misspelt joint, degrees for radians, a
+count of zero); the code must refuse it with a message that says what to type.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.hands import dclaw_spec
+from lowcostdex.hardware.dynamixel.driver import DynamixelBus
+from lowcostdex.hardware.emulated.chain import emulated_dclaw
+from lowcostdex.hardware.robot.calibration import calibrate_offsets
+
+
+@pytest.fixture(scope="module")
+def dclaw_bus():
+    hand = dclaw_spec()
+    chain = emulated_dclaw(hand=hand)
+    with DynamixelBus.from_hand(hand, chain.port(), handle_signals=False,
+                                position_limits=None) as bus:
+        yield hand, bus
+
+
+def test_calibration_reference_with_a_misspelt_joint_is_refused(dclaw_bus):
+    # before: "ff_tpo" was ignored and ff_top calibrated as if held at 0 rad
+    hand, bus = dclaw_bus
+    with pytest.raises(ConfigError, match=r"no joint 'ff_tpo'.*did you mean 'ff_top'"):
+        calibrate_offsets(bus, hand, reference={"ff_tpo": 0.3}, samples=1)
+
+
+def test_calibration_reference_in_degrees_is_refused(dclaw_bus):
+    # the user holds ff_middle at 30 deg and types 30: every later goal would be off by 29.5 rad
+    hand, bus = dclaw_bus
+    with pytest.raises(ConfigError, match=r"ff_middle.*outside.*in degrees\? 30 deg = 0\.5236"):
+        calibrate_offsets(bus, hand, reference={"ff_middle": 30.0}, samples=1)
+    assert math.radians(30.0) == pytest.approx(0.5236, abs=1e-4)
+
+
+@pytest.mark.parametrize("samples", [0, -3, 2.5, True])
+def test_calibration_samples_not_a_positive_count_is_refused(dclaw_bus, samples):
+    # before: samples=0 crashed with an IndexError on an empty array
+    hand, bus = dclaw_bus
+    with pytest.raises(ConfigError, match=r"samples=.* must be an integer >= 1"):
+        calibrate_offsets(bus, hand, samples=samples)
+
+
+def test_calibration_valid_reference_still_calibrates(dclaw_bus):
+    hand, bus = dclaw_bus
+    new = calibrate_offsets(bus, hand, reference={"ff_middle": 0.5}, samples=2)
+    assert new.joint_names == hand.joint_names
