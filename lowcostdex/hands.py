@@ -277,6 +277,12 @@ def _known_keys(where: str, raw: object, cls: type) -> None:
     unknown = sorted(set(raw) - set(fields))
     if unknown:
         raise ConfigError(f"{where}: unknown key {unknown[0]!r}; valid keys: {', '.join(fields)}")
+    required = [f.name for f in dataclasses.fields(cls)
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    missing = [k for k in required if k not in raw]
+    if missing:  # else a TypeError/KeyError that names neither the joint nor the file's key
+        raise ConfigError(f"{where}: missing key {missing[0]!r}; required keys: "
+                          f"{', '.join(required)}")
 
 
 def check_model_ranges(hand: HandSpec, model) -> None:

@@ -6,15 +6,17 @@ count of zero); the code must refuse it with a message that says what to type.
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
 
-from lowcostdex.errors import ConfigError
-from lowcostdex.hands import dclaw_spec
+from lowcostdex.errors import ConfigError, InputError
+from lowcostdex.hands import HandSpec, dclaw_spec
 from lowcostdex.hardware.dynamixel.driver import DynamixelBus
 from lowcostdex.hardware.emulated.chain import emulated_dclaw
 from lowcostdex.hardware.robot.calibration import calibrate_offsets
+from lowcostdex.hardware.robot.robot import Robot
 
 
 @pytest.fixture(scope="module")
@@ -53,3 +55,40 @@ def test_calibration_valid_reference_still_calibrates(dclaw_bus):
     hand, bus = dclaw_bus
     new = calibrate_offsets(bus, hand, reference={"ff_middle": 0.5}, samples=2)
     assert new.joint_names == hand.joint_names
+
+
+def _spec_dict():
+    return json.loads(dclaw_spec().to_json())
+
+
+def test_hand_spec_json_without_a_motor_id_names_the_joint_and_key(tmp_path):
+    # before: "not a hand spec JSON (TypeError: JointSpec.__init__() missing 1 required
+    # positional argument: 'motor_id')", naming neither the joint nor what to add
+    d = _spec_dict()
+    del d["joints"][1]["motor_id"]
+    path = tmp_path / "hand.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(InputError, match=r"joint ff_middle: missing key 'motor_id'"):
+        HandSpec.load(path)
+
+
+def test_hand_spec_json_without_the_motor_model_says_so():
+    d = _spec_dict()
+    del d["motor"]
+    with pytest.raises(ConfigError, match=r"missing key 'motor'"):
+        HandSpec.from_json(json.dumps(d))
+
+
+def test_robot_with_a_dict_config_says_what_to_type(dclaw_bus):
+    # before: AttributeError: 'dict' object has no attribute 'control_period'
+    hand, bus = dclaw_bus
+    with pytest.raises(ConfigError, match=r"RobotConfig\(\*\*settings\)"):
+        Robot(hand, bus, {"control_period": 0.1})
+
+
+def test_robot_with_a_spec_path_says_how_to_load_it(dclaw_bus, tmp_path):
+    hand, bus = dclaw_bus
+    path = tmp_path / "hand.json"
+    hand.save(path)
+    with pytest.raises(ConfigError, match=r"HandSpec\.load\(path\)"):
+        Robot(str(path), bus)

@@ -243,6 +243,15 @@ class Robot:
 
     def __init__(self, hand: HandSpec, bus: MotorBus, config: RobotConfig = RobotConfig(),
                  clock: Clock | None = None):
+        if not isinstance(config, RobotConfig):  # else an AttributeError deep in __init__
+            raise ConfigError(f"config must be a RobotConfig, got {type(config).__name__}; "
+                              "e.g. Robot(hand, bus, RobotConfig(control_period=0.1))"
+                              + (" or RobotConfig(**settings)" if isinstance(config, dict)
+                                 else ""))
+        if not isinstance(hand, HandSpec):
+            raise ConfigError(f"hand must be a HandSpec, got {type(hand).__name__}; load a JSON "
+                              "spec with lowcostdex.hands.HandSpec.load(path), or "
+                              "lowcostdex.hands.hand_spec('dclaw')")
         self.hand = hand
         self.bus = bus
         self.config = config
