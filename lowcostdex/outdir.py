@@ -66,7 +66,8 @@ def _is_empty(path: Path) -> bool:
 
 
 def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None = None,
-              *, must_match: Iterable[str] = ()) -> bool:
+              *, must_match: Iterable[str] = (),
+              absent: Mapping[str, Any] | None = None) -> bool:
     """Check that ``path`` may receive ``command``'s output; True when it holds a previous one.
 
     Args:
@@ -75,6 +76,9 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
       settings: this run's settings (JSON-able); only the keys in ``must_match`` are compared.
       must_match: settings that must equal the previous output's (e.g. the seed of a run whose
         stages build on each other).
+      absent: the value a ``must_match`` key stands for when a settings dict leaves it out (a
+        setting written only when set); without it a key the previous output lacks is not
+        compared (folders made before the setting existed).
 
     Raises:
       OutputRefused: ``path`` is a file, or a non-empty folder not written by ``command``, or a
@@ -99,14 +103,30 @@ def check_out(path: str | Path, command: str, settings: Mapping[str, Any] | None
             f"'lowcostdex {command}'; it is left untouched. Give another folder, e.g. "
             f"--out {shlex.quote(str(fresh))}")
     old = marker.get("settings") or {}
+    absent = absent or {}
     for key in must_match:
-        new_value = (settings or {}).get(key)
-        if key in old and old[key] != new_value:
+        if key not in old and key not in absent:
+            continue
+        was, now = old.get(key, absent.get(key)), (settings or {}).get(key, absent.get(key))
+        if was != now:
             raise OutputRefused(
-                f"--out {out} holds a run with {key}={old[key]!r}; this run has "
-                f"{key}={new_value!r} and its stages cannot build on that one. Use the same "
-                f"{key} or another folder, e.g. --out {shlex.quote(str(fresh))}")
+                f"--out {out} holds a run with {_difference(key, was, now)} and its stages "
+                f"cannot build on that one. Use the same {key} or another folder, e.g. --out "
+                f"{shlex.quote(str(fresh))}")
     return True
+
+
+def _difference(key: str, was: object, now: object) -> str:
+    """``key=was; this run has key=now``, or for two dicts only the entries that differ (a
+    whole budget dict hides the one setting a user changed)."""
+    if isinstance(was, dict) and isinstance(now, dict):
+        parts = [f"{k}={was[k]!r} (this run: {now[k]!r})" if k in was and k in now else
+                 f"{k}={was[k]!r} (this run: not set)" if k in was else
+                 f"no {k} (this run: {k}={now[k]!r})"
+                 for k in sorted(set(was) | set(now), key=str) if was.get(k) != now.get(k)
+                 or (k in was) != (k in now)]
+        return f"{key} differing in " + "; ".join(parts)
+    return f"{key}={was!r}; this run has {key}={now!r}"
 
 
 def check_writable(out: Path, option: str = "--out") -> None:

@@ -92,3 +92,34 @@ def test_robot_with_a_spec_path_says_how_to_load_it(dclaw_bus, tmp_path):
     hand.save(path)
     with pytest.raises(ConfigError, match=r"HandSpec\.load\(path\)"):
         Robot(str(path), bus)
+
+
+def test_transfer_resume_with_another_start_range_is_refused(tmp_path):
+    # before: a folder trained from the task's own starts (start_range 0, left out of its
+    # settings) resumed with --start-range 0.5 reused its policies as 'found done' and the marker
+    # then claimed 0.5
+    from lowcostdex.outdir import OutputRefused
+    from lowcostdex.transfer.loop import open_out, size_with
+
+    out = tmp_path / "run"
+    size = size_with("smoke")
+    assert open_out(out, size, "valve", 0, None) is False
+    (out / "runs").mkdir()  # a piece of the first run
+    with pytest.raises(OutputRefused, match=r"start_range=0\.0; this run has start_range=0\.5"):
+        open_out(out, size, "valve", 0, None, start_range=0.5)
+    assert open_out(out, size, "valve", 0, None) is True  # the same flags still resume
+
+
+def test_transfer_resume_with_another_budget_names_the_setting_that_differs(tmp_path):
+    # before: both whole budget dicts were printed; the user had to find valve_episodes in them
+    from lowcostdex.outdir import OutputRefused
+    from lowcostdex.transfer.loop import open_out, size_with
+
+    out = tmp_path / "run"
+    open_out(out, size_with("smoke", valve_episodes=2), "valve", 0, None)
+    (out / "runs").mkdir()
+    with pytest.raises(OutputRefused) as exc:
+        open_out(out, size_with("smoke", valve_episodes=5), "valve", 0, None)
+    msg = str(exc.value)
+    assert "budget differing in valve_episodes=2 (this run: 5)" in msg, msg
+    assert "n_iter" not in msg, msg  # the settings that agree are not listed

@@ -346,7 +346,9 @@ def open_out(out: Path, size: Size, task_name: str, robot_seed: int, port: str |
     from lowcostdex.outdir import check_out, write_marker
 
     s = settings(size, task_name, robot_seed, port, start_range)
-    previous = check_out(out, COMMAND, s, must_match=tuple(s))
+    # start_range 0 is left out of s: a folder without it was trained from the task's starts
+    previous = check_out(out, COMMAND, s, must_match=tuple({**s, "start_range": 0.0}),
+                         absent={"start_range": 0.0})
     write_marker(out, COMMAND, s)
     return previous
 
