@@ -120,6 +120,11 @@ def robot_port(backend: str | None, port: str | None, hand: str = "dclaw") -> st
         raise ConfigError(f"unknown backend {backend!r}; valid choices: "
                           f"{', '.join(ROBOT_BACKENDS)}")
     if backend == "hardware":
+        if device is None and port == "emulated":  # both typed: they contradict each other
+            raise ConfigError("--port emulated is the emulated robot, --backend hardware a real "
+                              "one: drop --backend hardware to run on the emulated robot, or "
+                              "give --port the " + ("CAN channel (e.g. can0)" if hand == "allegro"
+                                                    else "serial device (e.g. /dev/ttyUSB0)"))
         if device is None:
             if hand == "allegro":  # not a serial port: scan lists Dynamixel buses only
                 raise ConfigError("--backend hardware needs --port, the Allegro's CAN channel "

@@ -123,3 +123,22 @@ def test_transfer_resume_with_another_budget_names_the_setting_that_differs(tmp_
     msg = str(exc.value)
     assert "budget differing in valve_episodes=2 (this run: 5)" in msg, msg
     assert "n_iter" not in msg, msg  # the settings that agree are not listed
+
+
+def test_transfer_latency_on_the_emulated_robots_is_refused(tmp_path, capsys):
+    # before: --latency-ms 5 without --port was accepted and ignored (a smoke run started)
+    from lowcostdex.cli import main
+
+    code = main(["transfer", "--out", str(tmp_path / "t"), "--size", "smoke", "--latency-ms", "5"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--latency-ms" in err and "--port DEVICE" in err, err
+    assert not (tmp_path / "t").exists()
+
+
+def test_port_emulated_with_backend_hardware_names_the_contradiction():
+    # before: "--backend hardware needs --port" although the user gave --port emulated
+    from lowcostdex.options import robot_port
+
+    with pytest.raises(ConfigError, match=r"--port emulated is the emulated robot.*drop "
+                                          r"--backend hardware"):
+        robot_port("hardware", "emulated")

@@ -88,6 +88,9 @@ def _transfer(args: argparse.Namespace) -> int:
 
     device = robot_port(args.backend, args.port)
     port = None if device == "emulated" else device
+    if args.latency_ms is not None and port is None:  # else silently unused
+        raise InputError("--latency-ms is the serial adapter's latency timer: it needs "
+                         "--port DEVICE (your D'Claw); the emulated hidden robots have none")
     if port is not None:
         from lowcostdex.hardware.dynamixel.ports import check_port
 
