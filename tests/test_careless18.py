@@ -142,3 +142,17 @@ def test_port_emulated_with_backend_hardware_names_the_contradiction():
     with pytest.raises(ConfigError, match=r"--port emulated is the emulated robot.*drop "
                                           r"--backend hardware"):
         robot_port("hardware", "emulated")
+
+
+@pytest.mark.parametrize("motor,baud", [("XH430-W350", 19200), ("XH430-W350", 38400),
+                                        ("XL330-M288", 921600)])
+def test_a_baud_rate_the_servo_cannot_be_set_to_is_refused_before_connecting(motor, baud):
+    # the ROBOTIS e-Manual's Baud Rate (8) table of the X series: 9600, 57600, 115200, 1M, 2M,
+    # 3M, 4M, 4.5M bps. before: 19200 was accepted and every motor then reported "no reply"
+    from lowcostdex.hardware.dynamixel.config import DynamixelConfig
+
+    with pytest.raises(ConfigError, match=rf"baud rate {baud}: a {motor} cannot be set to it.*"
+                                          r"9600, 57600, 115200, 1000000"):
+        DynamixelConfig(ids=(1,), models=(motor,), baudrate=baud)
+    for ok in (57600, 1_000_000, 4_000_000):  # e-Manual rates still accepted
+        DynamixelConfig(ids=(1,), models=(motor,), baudrate=ok)

@@ -8,11 +8,21 @@ from dataclasses import dataclass, field
 from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number, keyword_hints
 from lowcostdex.hardware.bus import BusError
 from lowcostdex.hardware.bus import WatchdogTripped as WatchdogTripped  # its home is hardware.bus
-from lowcostdex.hardware.dynamixel.control_table import load_control_table
-from lowcostdex.hardware.dynamixel.protocol import status_error_text
+from lowcostdex.hardware.dynamixel.control_table import Reg, load_control_table, value_range
+from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES, status_error_text
 
 SDK_BAUDRATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600,
                  1_000_000, 1_152_000, 2_000_000, 2_500_000, 3_000_000, 3_500_000, 4_000_000)
+
+
+def model_baudrates(model: str) -> tuple[int, ...] | None:
+    """The bit rates [bit/s] a protocol-2.0 ``model``'s Baud Rate register offers (X-series
+    codes ``protocol.BAUD_CODES`` over its Range column), None for protocol-1.0 firmware (its
+    register is a divisor, not these codes)."""
+    if "(1.0)" in model:
+        return None
+    lo, hi = value_range(Reg.BAUD_RATE, {}, model)
+    return tuple(BAUD_CODES[c] for c in range(lo, hi + 1))
 
 
 class LatencyWarning(UserWarning):
@@ -113,6 +123,13 @@ class DynamixelConfig:
         for m in set(self.models):
             load_control_table(m)
         check_choice("baud rate", self.baudrate, SDK_BAUDRATES)
+        for m in sorted(set(self.models)):  # a rate the servos cannot be set to: "no reply" x N
+            rates = model_baudrates(m)
+            if rates is not None and self.baudrate not in rates:
+                raise ConfigError(
+                    f"baud rate {self.baudrate}: a {m} cannot be set to it (its Baud Rate "
+                    f"register offers {', '.join(map(str, rates))} bps); give one of those "
+                    "(the factory rate: 57600; `lowcostdex scan` finds the motors' rate)")
         check_choice("fast_read", self.fast_read, ("auto", "on", "off"))
         check_choice("operating mode", self.operating_mode, (3, 4))
         if self.watchdog_ms % 20 or not 0 <= self.watchdog_ms <= 2540:
