@@ -156,3 +156,32 @@ def test_a_baud_rate_the_servo_cannot_be_set_to_is_refused_before_connecting(mot
         DynamixelConfig(ids=(1,), models=(motor,), baudrate=baud)
     for ok in (57600, 1_000_000, 4_000_000):  # e-Manual rates still accepted
         DynamixelConfig(ids=(1,), models=(motor,), baudrate=ok)
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    ({"n": 2.5}, r"integer number of hidden robots >= 1, got n=2\.5"),
+    ({"n": 1, "seed": None}, r"seed=None: the hidden robots' seed must be an integer >= 0"),
+    ({"n": 1, "seed": "gen"}, r"a Generator cannot name them"),
+])
+def test_hidden_robots_with_a_non_integer_count_or_seed_say_so(kwargs, match):
+    # before: TypeErrors ("'float' object cannot be interpreted as an integer", "unsupported
+    # operand type(s) for +: 'numpy.random._generator.Generator' and 'int'")
+    import numpy as np
+
+    from lowcostdex.hardware.emulated.hidden_robots import hidden_robot, hidden_robots
+
+    if kwargs.get("seed") == "gen":
+        kwargs = {**kwargs, "seed": np.random.default_rng(0)}
+    with pytest.raises(ConfigError, match=match):
+        hidden_robots(**kwargs)
+    with pytest.raises(ConfigError, match=r"seed must be an integer >= 0"):
+        hidden_robot(None)
+
+
+def test_transfer_run_takes_a_size_name_and_checks_it(tmp_path):
+    # before: run(out, "smoke") -> AttributeError: 'str' object has no attribute 'robots'
+    from lowcostdex.transfer.loop import run
+
+    with pytest.raises(ConfigError, match=r"unknown size 'smok'.*did you mean 'smoke'"):
+        run(tmp_path / "t", "smok")
+    assert not (tmp_path / "t").exists()

@@ -376,6 +376,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
       OutputRefused: ``out`` holds files this command did not write, or a run with another
         task, robots or budget.
     """
+    if isinstance(size, str):  # a size's name, as the CLI's --size takes it
+        size = size_with(size)
     from lowcostdex.errors import ConfigError, check_choice
     from lowcostdex.hands import dclaw_spec
     from lowcostdex.outdir import archive

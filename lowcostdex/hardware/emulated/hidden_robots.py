@@ -293,8 +293,9 @@ def _draw_firmware(rng: np.random.Generator, hand: HandSpec) -> FirmwareImperfec
 
 def hidden_robot(seed: int, name: str | None = None, motor: str = "XH430-W350") -> HiddenRobot:
     """Draw one hidden robot from ``seed`` (same seed, same robot)."""
-    if seed < 0:
-        raise ConfigError(f"hidden robot seed must be >= 0, got {seed}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"hidden robot seed must be an integer >= 0 (same seed, same robot), "
+                          f"got {seed!r}")
     hand = dclaw_spec(motor)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0x41D,)))
     effects = _draw_effects(rng, hand)
@@ -305,6 +306,9 @@ def hidden_robot(seed: int, name: str | None = None, motor: str = "XH430-W350") 
 
 def hidden_robots(n: int = 3, seed: int = 0, motor: str = "XH430-W350") -> list[HiddenRobot]:
     """``n`` hidden robots, ``hidden_robot(seed + k)`` named "A", "B", ..."""
-    if n < 1:
-        raise ConfigError(f"need at least one hidden robot, got n={n}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ConfigError(f"need an integer number of hidden robots >= 1, got n={n!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"seed={seed!r}: the hidden robots' seed must be an integer >= 0 "
+                          "(robot k is hidden_robot(seed + k)); a Generator cannot name them")
     return [hidden_robot(seed + k, chr(ord("A") + k), motor) for k in range(n)]
