@@ -334,7 +334,8 @@ def evaluate(run_dir: Path, task: Task, env_kwargs: dict[str, Any], episodes: in
 def settings(size: Size, task_name: str, robot_seed: int, port: str | None,
              start_range: float = 0.0) -> dict[str, Any]:
     """The output folder's settings; a resume must keep all of them (pieces build on them).
-    ``start_range`` is one only when set (folders made before it existed still resume)."""
+    ``start_range`` is one only when set (folders made before it existed still resume; one
+    without it was trained from the task's starts: ``open_out`` reads it as 0)."""
     s = {"task": task_name, "robot_seed": None if port else robot_seed, "port": port,
          "budget": size.budget()}
     return {**s, "start_range": start_range} if start_range else s
@@ -346,7 +347,6 @@ def open_out(out: Path, size: Size, task_name: str, robot_seed: int, port: str |
     from lowcostdex.outdir import check_out, write_marker
 
     s = settings(size, task_name, robot_seed, port, start_range)
-    # start_range 0 is left out of s: a folder without it was trained from the task's starts
     previous = check_out(out, COMMAND, s, must_match=tuple({**s, "start_range": 0.0}),
                          absent={"start_range": 0.0})
     write_marker(out, COMMAND, s)
@@ -376,8 +376,7 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
       OutputRefused: ``out`` holds files this command did not write, or a run with another
         task, robots or budget.
     """
-    if isinstance(size, str):  # a size's name, as the CLI's --size takes it
-        size = size_with(size)
+    size = size_with(size) if isinstance(size, str) else size  # a name, as --size takes it
     from lowcostdex.errors import ConfigError, check_choice
     from lowcostdex.hands import dclaw_spec
     from lowcostdex.outdir import archive
