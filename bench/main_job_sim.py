@@ -135,6 +135,7 @@ def gap_randomization(report: Path, sim: str) -> dict[str, Any]:
                 v = np.asarray(e["params"][p], float)
                 ranges[e["effect"]][p] = (float(v.min()), float(v.max()))
     effects = tuple(ranges) if sim == "gap" else DAPG_RANDOMIZE
+    ranges = {k: v for k, v in ranges.items() if k in effects}  # others are not randomized
     return DomainRandomization(effects, tuple(dclaw_spec().joint_names), ranges).to_dict()
 
 

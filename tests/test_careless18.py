@@ -185,3 +185,21 @@ def test_transfer_run_takes_a_size_name_and_checks_it(tmp_path):
     with pytest.raises(ConfigError, match=r"unknown size 'smok'.*did you mean 'smoke'"):
         run(tmp_path / "t", "smok")
     assert not (tmp_path / "t").exists()
+
+
+def test_randomization_ranges_of_an_effect_left_out_of_effects_are_refused():
+    # before: the latency range was accepted and never drawn (only backlash was randomized)
+    from lowcostdex.sim.effects import DomainRandomization
+
+    with pytest.raises(ConfigError, match=r"ranges for latency, which is not in effects "
+                                          r"\('backlash',\): add it"):
+        DomainRandomization(("backlash",), ("ff_top",), {"latency": {"delay": (0.01, 0.02)}})
+
+
+def test_randomization_range_given_as_one_number_says_how_to_hold_it_fixed():
+    # before: TypeError: cannot unpack non-iterable float object
+    from lowcostdex.sim.effects import DomainRandomization
+
+    with pytest.raises(ConfigError, match=r"latency\.delay: 0\.01 must be a \(low, high\) pair; "
+                                          r"to hold it fixed give \(0\.01, 0\.01\)"):
+        DomainRandomization(("latency",), ("ff_top",), {"latency": {"delay": 0.01}})

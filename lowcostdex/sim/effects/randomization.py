@@ -130,8 +130,16 @@ class DomainRandomization:
         n = len(self.joints)
         for name, params in self.ranges.items():
             cls = effect(name)
-            for p, (lo, hi) in params.items():
+            if name not in self.effects:  # else its ranges are silently never drawn
+                raise ConfigError(f"ranges for {name}, which is not in effects "
+                                  f"{tuple(self.effects)}: add it, e.g. effects="
+                                  f"{(*self.effects, name)}")
+            for p, pair in params.items():
                 cls.param(p)
+                if not isinstance(pair, (tuple, list, np.ndarray)) or len(pair) != 2:
+                    raise ConfigError(f"range of {name}.{p}: {pair!r} must be a (low, high) pair; "
+                                      f"to hold it fixed give ({pair!r}, {pair!r})")
+                lo, hi = pair
                 lo, hi = np.asarray(lo, float), np.asarray(hi, float)
                 if lo.shape not in ((), (n,)) or hi.shape not in ((), (n,)):
                     raise ConfigError(f"range of {name}.{p}: low and high must be scalars or "
