@@ -203,3 +203,27 @@ def test_randomization_range_given_as_one_number_says_how_to_hold_it_fixed():
     with pytest.raises(ConfigError, match=r"latency\.delay: 0\.01 must be a \(low, high\) pair; "
                                           r"to hold it fixed give \(0\.01, 0\.01\)"):
         DomainRandomization(("latency",), ("ff_top",), {"latency": {"delay": 0.01}})
+
+
+def test_robot_send_with_a_joint_named_twice_is_refused_before_anything_is_sent(dclaw_bus):
+    # before: send([0.1, -0.1], joints=["ff_top", "ff_top"]) was accepted: two goals, one motor
+    import numpy as np
+
+    hand, bus = dclaw_bus
+    robot = Robot(hand, bus)
+    robot.connect()
+    with pytest.raises(ConfigError, match=r"joint ff_top named twice"):
+        robot.send(np.array([0.1, -0.1]), joints=["ff_top", "ff_top"])
+    assert np.all(np.isnan(robot.last_sent))  # nothing went out
+
+
+def test_robot_enable_takes_one_joint_name_as_send_does(dclaw_bus):
+    # before: enable("ff_top") iterated the letters: "unknown joint 'f'"
+    hand, bus = dclaw_bus
+    robot = Robot(hand, bus)
+    robot.connect()
+    try:
+        assert robot.enable("ff_top") == []
+        assert robot.torque_enabled[robot.index("ff_top")].all()
+    finally:
+        robot.torque(False)

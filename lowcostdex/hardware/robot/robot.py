@@ -323,6 +323,10 @@ class Robot:
                  else (joints,) if isinstance(joints, str) else tuple(joints))
         for n in names:
             check_choice("joint", n, self.joint_names)
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:  # two goals for one motor: which is sent depends on the order
+            raise ConfigError(f"joint {', '.join(twice)} named twice in joints={list(names)}; "
+                              "name each joint once")
         return np.array([self.joint_names.index(n) for n in names], dtype=int)
 
     def _ids(self, idx: np.ndarray) -> list[int]:
@@ -519,7 +523,7 @@ class Robot:
     def enable(self, joints: Sequence[str]) -> list[str]:
         """Torque on for ``joints`` where the motors accept it; returns the joints left limp
         because their motor refused (it sits outside its position limits)."""
-        names = list(joints)
+        names = [joints] if isinstance(joints, str) else list(joints)  # as index(): one name
         try:
             self.torque(True, names)
             return []
