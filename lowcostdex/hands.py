@@ -253,13 +253,28 @@ class HandSpec:
         )
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(self.to_json())
+        """Write the spec as JSON to ``path`` (a leading ``~`` is the home folder)."""
+        from lowcostdex.outdir import user_path
+
+        out = user_path(path)
+        if out.is_dir():
+            raise InputError(f"{path} is a folder; give a file name, e.g. {out / 'hand.json'}")
+        out.write_text(self.to_json())
 
     @classmethod
     def load(cls, path: str | Path) -> HandSpec:
-        """The spec in a JSON file; InputError naming the file and what is wrong with it."""
+        """The spec in a JSON file (a leading ``~`` is the home folder); InputError naming the
+        file and what is wrong with it."""
+        from lowcostdex.outdir import user_path
+
         try:
-            return cls.from_json(Path(path).read_text())
+            text = user_path(path).read_text()
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read it ({exc.strerror}); give the path of a "
+                             "hand spec JSON (one HandSpec.save or `lowcostdex calibrate` "
+                             "wrote)") from None
+        try:
+            return cls.from_json(text)
         except ConfigError as exc:
             raise InputError(f"{path}: {exc}") from None
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
@@ -375,8 +390,8 @@ def as_hand_spec(value: object, hand: str) -> HandSpec:
     elif isinstance(value, (str, Path)):
         try:
             spec = HandSpec.load(value)
-        except OSError as exc:
-            raise InputError(f"hand={str(value)!r}: cannot read it ({exc.strerror})") from None
+        except InputError as exc:
+            raise InputError(f"hand={exc}") from None
     elif isinstance(value, dict):
         try:
             spec = HandSpec.from_json(json.dumps(value))

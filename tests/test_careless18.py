@@ -227,3 +227,21 @@ def test_robot_enable_takes_one_joint_name_as_send_does(dclaw_bus):
         assert robot.torque_enabled[robot.index("ff_top")].all()
     finally:
         robot.torque(False)
+
+
+def test_hand_spec_save_and_load_read_a_leading_tilde_as_home(tmp_path, monkeypatch):
+    # before: save("~/hand.json") -> FileNotFoundError (a folder named '~' was looked for)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    dclaw_spec().save("~/hand.json")
+    assert (tmp_path / "hand.json").exists()
+    assert HandSpec.load("~/hand.json") == dclaw_spec()
+
+
+def test_hand_spec_load_of_a_missing_file_or_a_folder_is_an_input_error(tmp_path):
+    # before: a bare FileNotFoundError / IsADirectoryError from pathlib
+    with pytest.raises(InputError, match=r"missing\.json: cannot read it"):
+        HandSpec.load(tmp_path / "missing.json")
+    with pytest.raises(InputError, match=r"cannot read it"):
+        HandSpec.load(tmp_path)
+    with pytest.raises(InputError, match=r"is a folder; give a file name"):
+        dclaw_spec().save(tmp_path)
