@@ -245,3 +245,22 @@ def test_hand_spec_load_of_a_missing_file_or_a_folder_is_an_input_error(tmp_path
         HandSpec.load(tmp_path)
     with pytest.raises(InputError, match=r"is a folder; give a file name"):
         dclaw_spec().save(tmp_path)
+
+
+def test_reset_qpos_in_degrees_is_refused():
+    # before: options={"qpos": [30.0] * 10} started every finger joint at 30 rad (ff_top's
+    # range is +-0.48 rad in the model): the observation read 30
+    import gymnasium as gym
+    import numpy as np
+
+    import lowcostdex  # noqa: F401  (registers the ids)
+
+    env = gym.make("lowcostdex/DClawTurnValve-v0")
+    try:
+        with pytest.raises(ValueError, match=r"past their range: ff_top=30 .*degrees\?"):
+            env.reset(seed=0, options={"qpos": [30.0] * 10})
+        ok = np.radians([0, -60, 60, 0, -60, 60, 0, -60, 60, 90])  # the same pose in radians
+        obs, _ = env.reset(seed=0, options={"qpos": ok})
+        assert np.allclose(obs[:9], ok[:9], atol=1e-6)
+    finally:
+        env.close()

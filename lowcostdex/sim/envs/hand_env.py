@@ -70,6 +70,26 @@ def check_action(action: Any, n: int, joints: Sequence[str]) -> np.ndarray:
     return a
 
 
+def _check_qpos_range(model: mujoco.MjModel, qpos: np.ndarray) -> None:
+    """Refuse a start ``qpos`` that puts a limited hinge or slide joint well past its range (the
+    mechanical stop): degrees given for radians (30 on a +-0.48 rad joint) started the
+    simulation there. A state recorded from the simulation (a contact pushes slightly past a
+    stop) stays accepted: 10 % of the range's width + 0.05 of slack."""
+    bad = []
+    for j in range(model.njnt):
+        if not model.jnt_limited[j] or int(model.jnt_type[j]) not in (
+                int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            continue
+        lo, hi = model.jnt_range[j]
+        slack = 0.1 * (hi - lo) + 0.05
+        q = float(qpos[model.jnt_qposadr[j]])
+        if not lo - slack <= q <= hi + slack:
+            bad.append(f"{model.joint(j).name}={q:g} (range {lo:.3g}..{hi:.3g})")
+    if bad:
+        raise ValueError(f"reset option 'qpos' puts joints past their range: {', '.join(bad)}; "
+                         "qpos is in radians (degrees? np.radians(...))")
+
+
 def _check_options(options: Mapping[str, Any], qpos: np.ndarray, qvel: np.ndarray,
                    goal: Goal) -> None:
     """Refuse reset options that would be ignored (unknown keys), fail deep in MuJoCo (shapes) or
@@ -245,6 +265,8 @@ class HandEnv(gym.Env):
         options = options or {}
         qpos, qvel, goal = self.task.initial_state(self.np_random)
         _check_options(options, qpos, qvel, goal)
+        if "qpos" in options:
+            _check_qpos_range(self.model, np.asarray(options["qpos"], dtype=float))
         qpos = np.asarray(options.get("qpos", qpos), dtype=float)
         qvel = np.asarray(options.get("qvel", qvel), dtype=float)
         if self.randomization is not None:
