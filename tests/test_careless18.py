@@ -264,3 +264,15 @@ def test_reset_qpos_in_degrees_is_refused():
         assert np.allclose(obs[:9], ok[:9], atol=1e-6)
     finally:
         env.close()
+
+
+def test_write_report_with_swapped_arguments_says_so_and_writes_nothing(tmp_path):
+    # before: AttributeError: 'NoneType' object has no attribute 'to_dict' (or, swapped, an
+    # error about a GapResult path) from inside the staged output
+    from lowcostdex.gap import write_report
+
+    with pytest.raises(TypeError, match=r"takes the GapResult analyze\(\) returned.*not NoneType"):
+        write_report(None, tmp_path / "report")
+    with pytest.raises(TypeError, match=r"takes the GapResult.*not str"):
+        write_report(str(tmp_path / "report"), tmp_path / "r2")
+    assert list(tmp_path.iterdir()) == []

@@ -48,6 +48,12 @@ def write_report(result: GapResult, out: str | Path) -> Path:
     (:func:`lowcostdex.outdir.staged_output`): a folder holding files this command did not write
     is refused untouched, and a previous report is kept in ``out/previous/<time>/``.
     """
+    if not isinstance(result, GapResult):  # before anything is written
+        raise TypeError("write_report(result, out) takes the GapResult analyze() returned, then "
+                        "the folder" + (": the arguments are swapped"
+                                        if isinstance(out, GapResult) else
+                                        f", not {type(result).__name__}") +
+                        "; e.g. write_report(analyze(ds, GapConfig()), 'report/')")
     with staged_output(out, "gap analyze") as tmp:
         payload = _jsonable(result.to_dict())
         payload["extended_model"] = "extended/effects.json"
