@@ -13,25 +13,19 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import gymnasium as gym
-import h5py
 import numpy as np
 
 import lowcostdex.sim  # noqa: F401
+from lowcostdex.transfer import valve_fit
 from lowcostdex.transfer.tilt import fit_tilt, tilt_body
 
 
 def playback_goals(folder: str, n: int) -> list[tuple[int, np.ndarray]]:
-    with h5py.File(f"{folder}/demos.h5", "r") as f:
-        seen: set[int] = set()
-        eps = []
-        for k in sorted(f, key=lambda k: int(k.split("_")[1])):
-            e = f[k]
-            if e.attrs["source"] == "playback" and int(e.attrs["seed"]) not in seen:
-                seen.add(int(e.attrs["seed"]))
-                eps.append((int(e.attrs["seed"]), e["actions"][()]))
-    return eps[:n]
+    """The first ``n`` playback demonstrations of ``folder``'s demos.h5 (one per seed)."""
+    return valve_fit.playback_goals(Path(folder) / "demos.h5", n)
 
 
 def valve_trace(eps: list[tuple[int, np.ndarray]], **env_kwargs) -> np.ndarray:
