@@ -4,17 +4,15 @@ data folder is absent (LOWCOSTDEX_MEASURED_DATA or LOWCOSTDEX_MEASURED overrides
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from real_logs import ROOT, lift_logs, swing_maes
 
 from lowcostdex.gap import GapConfig, analyze, load_dataset
 from lowcostdex.gap import bam_measure as bm
 
-ROOT = Path(os.environ.get("LOWCOSTDEX_MEASURED_DATA") or os.environ.get("LOWCOSTDEX_MEASURED")
-            or Path(__file__).resolve().parents[2] / "shared" / "data" / "measured")
 STS3250 = ROOT / "rhoban-bam-feetech-sts3250"
 RHOBAN = ROOT / "rhoban-bam-xl330"
 PHAM = ROOT / "pham-tuan-binh-bam-xl330"
@@ -114,14 +112,6 @@ def test_resample_interpolates_like_bam_process():
     np.testing.assert_allclose(g.qvel[:, 0], 2 * np.array(want), atol=1e-12)
     # torque_enable interpolated, then thresholded at 0.5: 1 - 0.0013 / 0.0034 = 0.62 -> on
     np.testing.assert_array_equal(g.channels["torque_enable"][:, 0], [1, 1, 1, 0, 0, 0])
-
-
-def _lift_logs(folder):
-    """(BAM-grid dataset of ``folder``'s logs, indices of its lift_and_drop trajectories: the
-    ones that let the arm go with the torque off)."""
-    ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
-    return ds, [i for i, tr in enumerate(ds.trajectories)
-                if tr.meta.get("trajectory") == "lift_and_drop"]
 
 
 def _split(ds, held_kp):
@@ -418,7 +408,7 @@ def test_a_fit_worse_than_the_nominal_model_on_its_held_out_log_says_no_reliable
 def test_rhoban_xl330_torque_off_swings_give_bams_published_armature_not_the_catalogues():
     from lowcostdex.gap.torque_off import swing_fit
 
-    ds, lift = _lift_logs(RHOBAN)
+    ds, lift = lift_logs(RHOBAN)
     fit = swing_fit(ds, lift)
     assert len(fit.logs) == 4  # kp 100, 200, 400, 800: 0.49 kg at 0.10 m, let go
     # BAM's six published XL330 fits (Rhoban/bam@1b5a1ce bam/params/xl330, m1-m6): armature
@@ -437,11 +427,11 @@ def test_the_armature_seed_reads_bams_armature_off_rhobans_swings_and_nothing_of
 
     # Rhoban's 0.49 kg arm swings with the torque off: the seed is BAM's six published XL330
     # armatures (0.00181-0.00192 kg m^2, Rhoban/bam@1b5a1ce bam/params/xl330), 6x the catalogue
-    seed = armature_seed(*_lift_logs(RHOBAN))
+    seed = armature_seed(*lift_logs(RHOBAN))
     assert seed is not None and 0.00181 * 0.95 <= seed.armature <= 0.00192 * 1.05
     # Pham's 4 g arm stays where the torque went off (friction holds 4 mN m of gravity): its
     # 2 mrad "swings" say nothing of the armature, so no seed
-    assert armature_seed(*_lift_logs(PHAM)) is None
+    assert armature_seed(*lift_logs(PHAM)) is None
 
 
 @pytest.mark.skipif(not RHOBAN.is_dir(), reason=f"measured data not found at {ROOT}")
@@ -454,17 +444,16 @@ def test_rhobans_torque_off_swings_want_the_gears_own_law_not_their_load_frictio
     # out: gap.torque_off.simulate). Measured 2026-11-28: catalogue 35.1 / 28.2 / 39.7 / 32.5
     # mrad, M3's law 30.6 / 63.6 / 69.2 / 113.6, no friction 176-432, the swings' own best
     # Coulomb + viscous 28.9 / 29.0 / 33.1 / 29.8 (bench/RESULTS.md gap-real15)
-    from lowcostdex.gap.torque_off import simulate, swings
+    from lowcostdex.gap.torque_off import swings
     from lowcostdex.sim import servo
 
-    ds, lift = _lift_logs(RHOBAN)
+    ds, lift = lift_logs(RHOBAN)
     sws = swings(ds, lift)
     assert len(sws) == 4
     c, b = servo.motor_spec("XL330-M288").backdriven
 
     def mae(p):
-        return np.array([np.mean(np.abs(simulate(np.asarray(p, float), s)[0] - s.q))
-                         for s in sws])
+        return swing_maes(sws, p)
 
     own, load, none = mae([0.0019, c, b, 0.0]), mae([0.0019, 0.0023, 0.0169, 0.264]), mae(
         [0.0019, 0.0, 0.0, 0.0])
@@ -498,7 +487,7 @@ def test_the_torque_off_law_is_fitted_where_training_swings_and_the_catalogues_e
     from lowcostdex.gap.identify_logs import BACKDRIVEN, BACKDRIVEN_PARAMS, backdriven_plan
 
     def load(folder):
-        ds, lift = _lift_logs(folder)
+        ds, lift = lift_logs(folder)
         return ds, lift, [i for i in range(len(ds.trajectories)) if i not in lift]
 
     ds, lift, rest = load(RHOBAN)

@@ -9,25 +9,12 @@ when the measured data folder is absent (LOWCOSTDEX_MEASURED_DATA overrides
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
+from real_logs import ROOT, lift_logs, swing_maes
 
-from lowcostdex.gap import bam_measure as bm
-from lowcostdex.gap import load_dataset
-
-ROOT = Path(os.environ.get("LOWCOSTDEX_MEASURED_DATA") or os.environ.get("LOWCOSTDEX_MEASURED")
-            or Path(__file__).resolve().parents[2] / "shared" / "data" / "measured")
 MX = ROOT / "rhoban-bam-mx-atomic"
 STS3032 = ROOT / "qua-robotics-bam-sts3032"
-
-
-def _lift_logs(folder):
-    ds = bm.grid_dataset(load_dataset(sorted(folder.glob("*.json")), timestep=bm.BAM_DT))
-    return ds, [i for i, tr in enumerate(ds.trajectories)
-                if tr.meta.get("trajectory") == "lift_and_drop"]
 
 
 def test_the_catalogue_laws_are_the_published_m1_fits_or_none():
@@ -48,17 +35,16 @@ def test_sts3032_torque_off_swings_want_the_published_m1_law():
     # 599.8; the Coulomb + viscous the STS3032 kp 32 -> 8 identification fits with the torque
     # off (0.0019 + 0.0003) 388.0; the XL330's law 292.7; the swings' own best Coulomb + viscous
     # (swing_fit: 0.00528 + 0.00167, armature 0.00106) 126.4.
-    from lowcostdex.gap.torque_off import simulate, swings
+    from lowcostdex.gap.torque_off import swings
     from lowcostdex.sim import servo
 
-    ds, lift = _lift_logs(STS3032)
+    ds, lift = lift_logs(STS3032)
     sws = swings(ds, lift)
     assert len(sws) == 18
     c, b = servo.motor_spec("STS3032").backdriven
 
     def mae(p):
-        return np.array([np.mean(np.abs(simulate(np.asarray(p, float), s)[0] - s.q))
-                         for s in sws])
+        return swing_maes(sws, p)
 
     law, none, weak = mae([0.00101, c, b]), mae([0.00101, 0.0, 0.0]), mae(
         [0.00101, 0.0019, 0.0003])
@@ -71,7 +57,7 @@ def test_an_sts3032_fold_without_torque_off_logs_gets_the_catalogue_law():
     from lowcostdex.gap.identify import servo_structure
     from lowcostdex.gap.identify_logs import BACKDRIVEN, BACKDRIVEN_PARAMS, backdriven_plan
 
-    ds, lift = _lift_logs(STS3032)
+    ds, lift = lift_logs(STS3032)
     rest = [i for i in range(len(ds.trajectories)) if i not in lift]
     effects = servo_structure(ds)
     assert BACKDRIVEN in effects
