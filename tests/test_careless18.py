@@ -276,3 +276,14 @@ def test_write_report_with_swapped_arguments_says_so_and_writes_nothing(tmp_path
     with pytest.raises(TypeError, match=r"takes the GapResult.*not str"):
         write_report(str(tmp_path / "report"), tmp_path / "r2")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_emulated_dclaw_at_a_baud_rate_no_x_series_servo_offers_is_a_config_error():
+    # careless18 found-not-fixed: the emulated chain raised a bare ValueError where the driver
+    # raises ConfigError. The X-series Baud Rate register (address 8) offers 9600, 57600, 115200,
+    # 1M, 2M, 3M, 4M and 4.5M bit/s (ROBOTIS e-Manual, XM430-W350 control table).
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hardware.emulated.chain import emulated_dclaw
+
+    with pytest.raises(ConfigError, match=r"12345.*9600, 57600, 115200, 1000000"):
+        emulated_dclaw(baudrate=12345)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 # the packet sizes and the wire time live in core (the simulation's motion bound uses them too)
+from lowcostdex.errors import ConfigError
 from lowcostdex.motion import sync_read_bytes, sync_write_bytes, wire_time  # noqa: F401
 
 HEADER = b"\xff\xff\xfd\x00"
@@ -324,11 +325,12 @@ BAUD_CODES: dict[int, int] = {0: 9600, 1: 57600, 2: 115200, 3: 1_000_000, 4: 2_0
 
 
 def baud_code(baudrate: int) -> int:
-    """Baud Rate register value of a bit rate; raises ValueError listing the supported rates."""
+    """Baud Rate register value of a bit rate; raises ConfigError (a ValueError) listing the
+    supported rates."""
     for code, rate in BAUD_CODES.items():
         if rate == baudrate:
             return code
-    raise ValueError(f"unsupported baud rate {baudrate}; valid: {sorted(BAUD_CODES.values())}")
+    raise ConfigError(f"unsupported baud rate {baudrate}; valid: {sorted(BAUD_CODES.values())}")
 
 
 @dataclass(frozen=True)
