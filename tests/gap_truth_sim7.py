@@ -37,7 +37,7 @@ target. Excitation: steps with holds, a chirp 0.3-2 Hz and holds approached by r
 sides, over -1.2 .. 1.2 rad.
 
 ``write_case`` writes what a user brings (``model.xml``, ``log<i>.csv``) and ``truth.json``;
-``score`` grades a report.json.
+``tests/redteam_check.grade`` grades a report.json with this module's ``FAMILIES``.
 """
 
 from __future__ import annotations
@@ -288,53 +288,3 @@ CASES: tuple[Case, ...] = (
     Case("drop5_100hz", (E("drop", 0.05),), seed=8, note="5 % of goal packets lost"),
 )
 CASE_BY_NAME = {c.name: c for c in CASES}
-
-
-# ---------------------------------------------------------------------------------------------
-# scoring
-# ---------------------------------------------------------------------------------------------
-
-def _neighbours(name: str) -> set[str]:
-    out = {name}
-    for fam in FAMILIES:
-        if name in fam:
-            out |= fam
-    return out
-
-
-def score(report: dict, truth: dict) -> dict:
-    """Grade one report.json against ``truth``: ``result`` exact (every hidden catalogue cause
-    named, nothing else but the truth's ``allowed`` names), clean (nothing hidden, nothing or
-    only allowed names named), family (a confusable neighbour named), extra, miss, false."""
-    named = sorted({c["effect"] for c in report.get("causes", [])})
-    hidden = set(truth["causes"])
-    allowed = hidden | set(truth.get("allowed", ()))
-    if not hidden:
-        result = "clean" if set(named) <= allowed else "false"
-    elif hidden <= set(named) <= allowed:
-        result = "exact"
-    elif hidden <= set(named):
-        result = "extra"
-    elif not named:
-        result = "miss"
-    else:
-        covered = all(_neighbours(h) & set(named) for h in hidden)
-        near = set().union(*(_neighbours(h) for h in hidden)) | allowed
-        result = "family" if covered and set(named) <= near else "miss"
-    params = []
-    by_effect = {c["effect"]: c for c in report.get("causes", [])}
-    for exp in truth.get("expected_params", []):
-        cause = by_effect.get(exp["effect"])
-        if cause is None or exp["param"] not in cause["params"] or \
-                exp["joint"] not in cause["joints"]:
-            continue
-        p = cause["params"][exp["param"]]
-        k = cause["joints"].index(exp["joint"])
-        lo, hi = p["interval"][k]
-        params.append(dict(effect=exp["effect"], param=exp["param"], joint=exp["joint"],
-                           truth=exp["value"], value=p["value"][k], interval=[lo, hi],
-                           inside=bool(lo <= exp["value"] <= hi)))
-    g = report.get("gain") or {}
-    return {"result": result, "named": named, "hidden": sorted(hidden), "params": params,
-            "heldout": [g.get("baseline_rmse"), g.get("extended_rmse")],
-            "gain_ci95": g.get("ci95")}

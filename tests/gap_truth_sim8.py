@@ -26,8 +26,9 @@ approached from both sides by ramps slower than the profile.
 Cases (``CASES``): the profile velocity alone (1.5 and 2.5 rad/s), velocity and acceleration
 (3 rad/s, 12 rad/s^2), the profile on the loaded arm (steps the user's model runs saturated, the
 truth ramps below the force limit: a torque limit cannot replay it), a clean case, and a torque
-limit with no profile (the confusable saturation: must not be named a profile). ``score`` grades
-a report.json as the other truth sets do (exact / family / miss / clean / false).
+limit with no profile (the confusable saturation: must not be named a profile).
+``tests/redteam_check.grade`` grades a report.json with this module's ``FAMILIES`` (exact /
+family / miss / clean / false).
 """
 
 from __future__ import annotations
@@ -231,45 +232,3 @@ CASES: tuple[Case, ...] = (
               "speeds): must not be named a profile"),
 )
 CASE_BY_NAME = {c.name: c for c in CASES}
-
-
-def _neighbours(name: str) -> set[str]:
-    out = {name}
-    for fam in FAMILIES:
-        if name in fam:
-            out |= fam
-    return out
-
-
-def score(report: dict, truth: dict) -> dict:
-    """Grade one report.json against ``truth``: ``result`` exact / extra / family / miss /
-    clean / false, and each documented parameter's interval against its true value."""
-    named = sorted({c["effect"] for c in report.get("causes", [])})
-    hidden = set(truth["causes"])
-    if not hidden:
-        result = "clean" if not named else "false"
-    elif set(named) == hidden:
-        result = "exact"
-    elif hidden < set(named):
-        result = "extra"
-    elif named and all(_neighbours(h) & set(named) for h in hidden) and set(named) <= set(
-            ).union(*(_neighbours(h) for h in hidden)):
-        result = "family"
-    else:
-        result = "miss"
-    params = []
-    by_effect = {c["effect"]: c for c in report.get("causes", [])}
-    for exp in truth.get("expected_params", []):
-        cause = by_effect.get(exp["effect"])
-        if cause is None or exp["param"] not in cause["params"] or \
-                exp["joint"] not in cause["joints"]:
-            continue
-        p = cause["params"][exp["param"]]
-        k = cause["joints"].index(exp["joint"])
-        lo, hi = p["interval"][k]
-        params.append(dict(effect=exp["effect"], param=exp["param"], joint=exp["joint"],
-                           truth=exp["value"], value=p["value"][k], interval=[lo, hi],
-                           inside=bool(lo <= exp["value"] <= hi)))
-    g = report.get("gain") or {}
-    return {"result": result, "named": named, "hidden": sorted(hidden), "params": params,
-            "heldout": [g.get("baseline_rmse"), g.get("extended_rmse")]}

@@ -3,7 +3,7 @@ a one-joint position-servo bench with a scaled reading, a scaled and shifted one
 periods late at random, goal packets lost; the two rows of 04-sysid.md section 6's hidden-effect
 table no earlier set had; gap-scale16, session 21; bench/RESULTS.md "gap-scale16").
 
-Each case is analysed as the CLI does and scored by ``gap_truth_sim7.score``: the hidden catalogue
+Each case is analysed as the CLI does and scored by ``redteam_check.grade``: the hidden catalogue
 cause named exactly (``sensor_scale``, ``position_offset``), nothing or only the mean latency on
 jitter and dropped goals, nothing on the clean case; every documented parameter inside its 95 %
 interval. Misses are strict xfails whose reason is the measured result; they fail (XPASS) when
@@ -78,3 +78,25 @@ MISSES: dict[str, str] = {}
 @pytest.mark.parametrize("name", redteam_check.case_params(sim, FAST, MISSES))
 def test_names_the_scale_and_nothing_or_the_mean_latency_for_jitter_and_drops(name, tmp_path):
     redteam_check.assert_named_exactly(sim, name, tmp_path)
+
+
+def test_the_grade_on_hand_written_reports():
+    # the scorer itself (tests/redteam_check.grade with sim7's FAMILIES), so a wrong scorer
+    # cannot pass the cases: truth and reports written out here
+    def rep(*names):
+        return {"causes": [{"effect": n, "params": {}, "joints": []} for n in names]}
+
+    scale = {"causes": ["sensor_scale"]}
+    jitter = {"causes": [], "allowed": ["latency"]}
+
+    def result(report, truth):
+        return redteam_check.grade(report, truth, sim.FAMILIES)["result"]
+
+    assert result(rep("sensor_scale"), scale) == "exact"
+    assert result(rep("sensor_scale", "latency"), scale) == "extra"
+    assert result(rep("gain_error"), scale) == "family"
+    assert result(rep("backlash"), scale) == "miss"
+    assert result(rep(), scale) == "miss"
+    assert result(rep(), jitter) == "clean"
+    assert result(rep("latency"), jitter) == "clean"
+    assert result(rep("coulomb_friction"), jitter) == "false"

@@ -3,7 +3,7 @@ motion profile on the goal (Profile Velocity / Profile Acceleration) on a servo 
 ``position`` actuator (issue 11; gap-profile16, session 21; bench/RESULTS.md "gap-profile16").
 
 ``tests/gap_truth_sim8.py`` (mujoco + numpy only) writes the cases; each is analysed as the CLI
-does and scored by ``gap_truth_sim8.score``: the hidden effect named exactly (nothing on the clean
+does and scored by ``redteam_check.grade``: the hidden effect named exactly (nothing on the clean
 case), every documented parameter inside its 95 % interval. Misses are strict xfails whose reason
 is the measured result; they fail (XPASS) when fixed and must then lose their mark.
 """
