@@ -14,7 +14,7 @@ import pytest
 
 from lowcostdex.gap.results import GapConfig
 from lowcostdex.sim import servo
-from lowcostdex.sim.effects import CAUSES, EFFECTS, OPT_IN, AppliedEffect
+from lowcostdex.sim.effects import CAUSES, EFFECTS, OPT_IN, AppliedEffect, Targets, effect
 from lowcostdex.sim.models.bench import BenchConfig, build_bench
 from lowcostdex.sim.plant import BatchPlant, Plant
 
@@ -121,6 +121,30 @@ def test_a_torque_driven_motor_loses_the_band_from_its_command():
         p.reset()
         p.step(np.array([c]), 1)
         assert p.actuator_force[0] == pytest.approx(want, abs=1e-12)
+
+
+def test_a_motor_with_the_band_steps_as_plain_mujoco_on_the_banded_command():
+    # the band acts on a motor's command alone: no per-physics-step hook (``live_on``), so a
+    # control period of 5 physics steps is plain MuJoCo stepped 5 at once on sign(c) max(|c| -
+    # w, 0), bit for bit (a position servo's band is live: its bias follows the error each step)
+    m = mujoco.MjModel.from_xml_string(hinge('<motor name="a" joint="j" ctrlrange="-1 1"/>',
+                                             gravity=True))
+    p = Plant(m, band(0.01))
+    d = mujoco.MjData(m)
+    p.reset(qpos=np.array([0.2]))
+    d.qpos[0] = 0.2
+    mujoco.mj_forward(m, d)
+    for c in 0.05 * np.sin(np.arange(200) * 0.05):
+        p.step(np.array([c]), 5)
+        d.ctrl[0] = math.copysign(max(abs(c) - 0.01, 0.0), c)
+        mujoco.mj_step(m, d, nstep=5)
+        assert p.qpos[0] == d.qpos[0] and p.qvel[0] == d.qvel[0]
+    db = effect("deadband")
+    width = {"width": np.array([0.01])}
+    assert not db.live_on(p, Targets.resolve(m, ("j",)), width)
+    pos = Plant(position(), band(0.01))
+    assert db.live_on(pos, Targets.resolve(pos.model, ("j",)), width)
+    assert not db.live_on(pos, Targets.resolve(pos.model, ("j",)), {"width": np.zeros(1)})
 
 
 def test_a_batch_equals_single_runs_and_a_null_width_is_the_nominal_model():

@@ -220,7 +220,7 @@ class _PlantBase:
         self._apply_torque_mask()
         self._friction = [b for b in self._bound if b.cls.substep(b.values)]
         self._has_friction = bool(self._friction)
-        self._live = [b for b in self._bound if b.cls.live]
+        self._live = [b for b in self._bound if b.cls.live_on(self, b.targets, b.values)]
         self._has_exo = any(b.cls.kind == "exogenous" for b in self._bound)
         self._commands = [b for b in self._bound if b.cls.kind in ("command", "calibration")]
         for b in self._commands:  # constants of ``command``'s every step (nominal: set_nominal

@@ -237,6 +237,12 @@ class Effect:
         dof velocities [rad/s] (..., nv), every physics step."""
 
     @classmethod
+    def live_on(cls, f: Fields, t: Targets, v: Values) -> bool:
+        """Whether ``live_apply`` has work on these targets and values (default ``live``): a
+        live effect makes a plant step one physics step at a time."""
+        return cls.live
+
+    @classmethod
     def substep(cls, v: Values) -> bool:
         """Whether ``friction`` sets a state-dependent level every physics step for these
         values (kind friction: always; a model effect may add one, e.g. a direction-dependent

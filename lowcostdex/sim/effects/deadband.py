@@ -85,6 +85,30 @@ class Deadband(Effect):
                 & (f.nominal("actuator_biastype")[a] == int(mujoco.mjtBias.mjBIAS_NONE))
                 & (f.nominal("actuator_dyntype")[a] == int(mujoco.mjtDyn.mjDYN_NONE)))
 
+    @staticmethod
+    def position_biased(f: Fields, t: Targets) -> np.ndarray:
+        """(n,) which targets' actuators hold a position bias (fixed gain, affine bias with
+        biasprm[1] = -kp != 0, no activation; dcmotor servos excluded): ``live_apply`` moves
+        their biasprm[0]."""
+        a = t.actuators
+        return (~dcmotor_targets(f, t)
+                & (f.nominal("actuator_gaintype")[a] == int(mujoco.mjtGain.mjGAIN_FIXED))
+                & (f.nominal("actuator_biastype")[a] == int(mujoco.mjtBias.mjBIAS_AFFINE))
+                & (f.nominal("actuator_dyntype")[a] == int(mujoco.mjtDyn.mjDYN_NONE))
+                & (f.nominal("actuator_biasprm")[a, 1] != 0))
+
+    @classmethod
+    def live_on(cls, f: Fields, t: Targets, v: Values) -> bool:
+        """A band on a position-biased or dcmotor servo is live; on a torque-driven motor it acts
+        on the command alone (``command``), so a replay of the motor steps its physics in
+        stretches as without the band (session 22: the per-step hook made every sim6 torque-rig
+        replay with a deadband column ~2x dearer for nothing)."""
+        n = len(t.actuators)
+        w = np.asarray(v["width"], float)
+        on = np.any(np.broadcast_to(w, np.broadcast_shapes(w.shape, (n,))).reshape(-1, n) > 0,
+                    axis=0)
+        return bool(np.any(on & (cls.position_biased(f, t) | dcmotor_targets(f, t))))
+
     @classmethod
     def live_apply(cls, f: Fields, t: Targets, v: Values, qvel: np.ndarray,
                    forcerange: np.ndarray) -> None:
@@ -104,10 +128,7 @@ class Deadband(Effect):
                         np.clip(ctrl, cr[:, 0], cr[:, 1]), ctrl)
         dc = dcmotor_targets(f, t)
         nb = f.nominal("actuator_biasprm")[a]
-        pos = (~dc & (f.nominal("actuator_gaintype")[a] == int(mujoco.mjtGain.mjGAIN_FIXED))
-               & (f.nominal("actuator_biastype")[a] == int(mujoco.mjtBias.mjBIAS_AFFINE))
-               & (f.nominal("actuator_dyntype")[a] == int(mujoco.mjtDyn.mjDYN_NONE))
-               & (nb[:, 1] != 0))
+        pos = cls.position_biased(f, t)
         if np.any(pos):
             bias = f.array("actuator_biasprm")
             b1 = bias[..., a, 1]  # -kp (as the effects and the drive scale left it)
