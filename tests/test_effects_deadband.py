@@ -40,8 +40,8 @@ def band(width: float, joint: str = "j") -> list[AppliedEffect]:
 
 
 def test_deadband_is_a_cause_an_analysis_fits_when_asked():
-    # opt-in (``OPT_IN``) until its false-discovery checks have run: a user names it with
-    # --candidates; the default candidates leave it out
+    # opt-in (``OPT_IN``): a user names it with --candidates; a default analysis offers it only
+    # where its data gate shows a band (``gap.offer``, tests/test_gap_offer.py)
     assert "deadband" in EFFECTS and "deadband" in CAUSES and "deadband" in OPT_IN
     assert GapConfig(candidates=("deadband", "coulomb_friction")).candidates == (
         "deadband", "coulomb_friction")

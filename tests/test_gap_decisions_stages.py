@@ -10,7 +10,7 @@ worked out by hand in each test; every test runs in milliseconds so the gap-pure
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -53,9 +53,25 @@ class _Tr:
     time: np.ndarray | None = None
 
 
+@dataclass
+class _Log(_Tr):
+    """Ten rows (0.09 s) of a log at rest: too short for a rest of the deadband gate (which
+    ``offer.available_candidates`` reads the logs for): the opt-in deadband is not offered."""
+    time: np.ndarray = field(default_factory=lambda: np.arange(10) * 0.01)
+    joints: tuple[str, ...] = ("j0", "j1")
+    actuators: tuple[str, ...] = ("a0", "a1")
+    qpos: np.ndarray = field(default_factory=lambda: np.zeros((10, 2)))
+    qvel: np.ndarray = field(default_factory=lambda: np.zeros((10, 2)))
+    goal: np.ndarray = field(default_factory=lambda: np.zeros((10, 2)))
+    channels: dict = field(default_factory=dict)
+
+
 class _DS:
     """What ``available_candidates`` reads of a Dataset: channels logged in every trajectory,
-    the commanded actuators, and the compiled model of the first trajectory."""
+    the commanded actuators, the compiled model of the first trajectory, and (the deadband's
+    gate) the logs of the effect joints."""
+
+    effect_joints = ("j0", "j1")
 
     def __init__(self, models: dict[str, mujoco.MjModel], trajs: list[_Tr], chans: set[str],
                  actuators=("a0", "a1")):
@@ -79,7 +95,7 @@ _ALL = ["latency", "backlash", "coulomb_friction", "stribeck_friction", "load_de
 
 def _ds(first: tuple[str, str], chans: set[str], second=(_POS, _POS)) -> _DS:
     # the second trajectory's model differs on purpose: the rule reads the FIRST one's
-    return _DS({"m0": _model(first), "m1": _model(second)}, [_Tr("m0"), _Tr("m1")], chans)
+    return _DS({"m0": _model(first), "m1": _model(second)}, [_Log("m0"), _Log("m1")], chans)
 
 
 def test_position_servos_without_extra_channels_may_name_every_cause_but_the_exogenous_two():

@@ -62,7 +62,7 @@ from lowcostdex.gap.diagnostics import (
 from lowcostdex.gap.exchange import effect_size, prune_refitted, replace_standins, switch_pays
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
 from lowcostdex.gap.gates import drop_weak, free_asymmetry, hold_sensor, swap_equivalent
-from lowcostdex.gap.logs import rate_goal_actuators
+from lowcostdex.gap.offer import available_candidates
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import (
     UNEXPLAINED,
@@ -80,27 +80,13 @@ from lowcostdex.gap.selection import (
     select_results,
 )
 from lowcostdex.gap.stepsize import refine as _refine_step
-from lowcostdex.sim.effects import CAUSES, OPT_IN, AppliedEffect, Targets, effect
+from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
 from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
 
 __all__ = ["UNEXPLAINED", "CandidateResult", "Cause", "GapConfig", "GapResult", "analyze",
            "available_candidates"]
 
 Progress = Callable[[str, float], None]
-
-
-def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[str]:
-    """Candidates whose required channels are logged (by default the causes but ``OPT_IN``).
-
-    Servos that integrate a velocity goal (``intvelocity``) have no position offsets: their
-    setpoint is anchored to the measured reading (``Replayer``), so a reading offset moves the
-    replay with the data and cannot be seen (on clean data a 1 mrad read error of each log's
-    first sample was named one), and a mounting offset on a velocity goal means nothing."""
-    chans = ds.channels()
-    names = list(requested) if requested is not None else [c for c in CAUSES if c not in OPT_IN]
-    if set(ds.actuators) <= rate_goal_actuators(ds.compiled(ds.trajectories[0].model)):
-        names = [n for n in names if n not in ("position_offset", "mounting_offset")]
-    return [n for n in names if all(c in chans for c in effect(n).requires)]
 
 
 class _Engine:

@@ -563,8 +563,8 @@ CAUSES: tuple[str, ...] = (
     "gearbox_friction", "mounting_offset", "motor_strength",
     "deadband", "sensor_scale",
 )
-# Causes an analysis fits only when asked (``GapConfig.candidates``, ``--candidates``): the
-# deadband (session 21) until its false-discovery checks on the independent benches have run.
+# Causes an analysis fits when asked (``GapConfig.candidates``, ``--candidates``) or where the
+# data show their signature (``gap.offer``'s gates): the deadband where rests stand off by a band.
 OPT_IN: tuple[str, ...] = ("deadband",)
 
 

@@ -73,7 +73,7 @@ class Deadband(Effect):
         f = state.get("fields")
         if f is None or not np.any(w > 0):
             return goal
-        motor = cls.motors(f, t)
+        motor = cls._statics(f, t)[-1]
         return np.where(motor, dead_zone(goal, w), goal) if np.any(motor) else goal
 
     @staticmethod
@@ -107,7 +107,25 @@ class Deadband(Effect):
         w = np.asarray(v["width"], float)
         on = np.any(np.broadcast_to(w, np.broadcast_shapes(w.shape, (n,))).reshape(-1, n) > 0,
                     axis=0)
+        f.__dict__.setdefault("_deadband", {}).pop(id(t), None)  # (the nominal may have moved)
         return bool(np.any(on & (cls.position_biased(f, t) | dcmotor_targets(f, t))))
+
+    @classmethod
+    def _statics(cls, f: Fields, t: Targets) -> tuple:
+        """What ``live_apply`` reads from the nominal model, once per plant and targets (``live_on``,
+        called whenever the plant re-applies its effects, forgets it): gear, ctrl range, whether
+        it is limited, the dcmotor and position-biased masks, the position-biased actuators,
+        their nominal biasprm[0], the motor mask (``motors``)."""
+        cache = f.__dict__.setdefault("_deadband", {})
+        hit = cache.get(id(t))
+        if hit is None or hit[0] is not t:
+            a = t.actuators
+            pos = cls.position_biased(f, t)
+            hit = cache[id(t)] = (t, (
+                f.nominal("actuator_gear")[a, 0], f.nominal("actuator_ctrlrange")[a],
+                f.nominal("actuator_ctrllimited")[a] > 0, dcmotor_targets(f, t), pos, a[pos],
+                f.nominal("actuator_biasprm")[a[pos], 0], cls.motors(f, t)))
+        return hit[1]
 
     @classmethod
     def live_apply(cls, f: Fields, t: Targets, v: Values, qvel: np.ndarray,
@@ -120,23 +138,17 @@ class Deadband(Effect):
         w = np.broadcast_to(np.asarray(v["width"], float), qvel.shape[:-1] + (len(a),))
         if not np.any(w > 0):
             return
-        gear = f.nominal("actuator_gear")[a, 0]
+        gear, cr, limited, dc, pos, ap, nb0, _ = cls._statics(f, t)
         q = gear * np.asarray(f.qpos)[..., t.qpos]
         ctrl = np.asarray(f.ctrl)[..., a]
-        cr = f.nominal("actuator_ctrlrange")[a]
-        ctrl = np.where(f.nominal("actuator_ctrllimited")[a] > 0,
-                        np.clip(ctrl, cr[:, 0], cr[:, 1]), ctrl)
-        dc = dcmotor_targets(f, t)
-        nb = f.nominal("actuator_biasprm")[a]
-        pos = cls.position_biased(f, t)
-        if np.any(pos):
+        ctrl = np.where(limited, np.clip(ctrl, cr[:, 0], cr[:, 1]), ctrl)
+        if len(ap):
             bias = f.array("actuator_biasprm")
-            b1 = bias[..., a, 1]  # -kp (as the effects and the drive scale left it)
+            b1 = bias[..., ap, 1]  # -kp (as the effects and the drive scale left it)
             kp = -b1
-            e = np.where(kp != 0, (f.array("actuator_gainprm")[..., a, 0] * ctrl + b1 * q)
-                         / np.where(kp != 0, kp, 1.0), 0.0)
-            b0 = nb[:, 0] - kp * np.clip(e, -w, w)
-            bias[..., a[pos], 0] = b0[..., pos]
+            e = np.where(kp != 0, (f.array("actuator_gainprm")[..., ap, 0] * ctrl[..., pos]
+                                   + b1 * q[..., pos]) / np.where(kp != 0, kp, 1.0), 0.0)
+            bias[..., ap, 0] = nb0 - kp * np.clip(e, -w[..., pos], w[..., pos])
         if np.any(dc):
             cls._pin_dcmotor(f, t, w, q, ctrl, qvel, forcerange, dc)
 
