@@ -42,9 +42,11 @@ together at the physics timestep:
   predictions: a simulation does not depend on the others in its batch).
 
 Why one module (over 600 lines): the grid of a window's goals, their delayed copies, the
-saturation matching, the hidden state carried into a window and the memory of replayed columns
-all belong to the one ``Replayer`` state that steps the batches; the activations it carries are
-``gap.activation``.
+hidden state carried into a window and the memory of replayed columns all belong to the one
+``Replayer`` state that steps the batches; the activations it carries are ``gap.activation``,
+the saturation matching of a step's goal switch ``gap.saturation``. A simulation whose window
+has ended is not advanced while longer windows of its batch finish (its records there are never
+read).
 """
 
 from __future__ import annotations
@@ -56,11 +58,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.gap import play_state
+from lowcostdex.gap import play_state, saturation
 from lowcostdex.gap.activation import Activations, position_like
 from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.sim.effects import CAUSES, EFFECTS, AppliedEffect, Targets
-from lowcostdex.sim.effects.base import clip as _clip
 from lowcostdex.sim.effects.sensor_scale import reading_map
 from lowcostdex.sim.plant import BatchPlant, prepare_spec
 
@@ -209,54 +210,6 @@ class Replayer:
             cache[key] = (np.array(cols, int), np.array(acts, int),
                           np.array(qadr, int), np.array(dadr, int), np.array(gear, float))
         return cache[key]
-
-    def _match_saturation(self, run: dict, k: int, goal: np.ndarray) -> None:
-        """Where a position servo saturates in the step holding a goal switch, give it the mean
-        *force* of the old and new goals instead of the force of the mean goal, in place.
-
-        A goal written a fraction ``a`` into a step drives the servo with the old goal for
-        ``a`` of it and the new one for the rest. In the linear range the mean goal gives the
-        same impulse; when the new goal saturates the force (a large step), the mean goal
-        saturates it for the whole step, a systematic lead that a torque limit would then
-        "explain". Forces are those of the simulation's state and its (effect-modified) kp,
-        kv and force range at the step's start (servos with an actuator delay keep the mean
-        goal: they act on it later, from another state).
-        """
-        cols, acts, qadr, dadr, gear = run["servos"]
-        if not len(cols) or run["plant"].servo_clock.every:
-            return  # a servo with an update period samples one goal at its update
-        if "switches" not in run:  # (steps where some simulation's servo sees a goal switch)
-            split = run["split"][:, :, cols]  # (nsim, K, n servos)
-            fin = np.isfinite(split)
-            run["switches"] = np.any(fin, axis=(0, 2))
-            # per step: the simulations switching and their servos' split, goals before / after
-            run["switching"] = np.any(fin, axis=2).T  # (K, nsim)
-            run["split_servos"] = split
-            run["before_servos"] = run["before"][:, :, cols]
-            run["after_servos"] = run["after"][:, :, cols]
-        if not run["switches"][k]:
-            return
-        sims = np.flatnonzero(run["switching"][k])
-        plant = run["plant"]
-        a = run["split_servos"][sims, k]
-        si = sims[:, None]
-        kp = plant.array("actuator_gainprm")[si, acts, 0]
-        kv = -plant.array("actuator_biasprm")[si, acts, 2]
-        rng_ = plant.array("actuator_forcerange")[si, acts]
-        lim = plant.array("actuator_forcelimited")[si, acts] > 0
-        lo, hi = np.where(lim, rng_[..., 0], -np.inf), np.where(lim, rng_[..., 1], np.inf)
-        # actuator length and velocity (gear times the joint's); force in actuator units
-        q, qd = gear * plant.qpos[si, qadr], gear * plant.qvel[si, dadr]
-        f_old = _clip(kp * (run["before_servos"][sims, k] - q) - kv * qd, lo, hi)
-        f_new = _clip(kp * (run["after_servos"][sims, k] - q) - kv * qd, lo, hi)
-        f_mean = a * f_old + (1 - a) * f_new
-        # (where kp <= 0 it stays NaN: such a servo is not ``live`` below)
-        c = q + np.divide(f_mean + kv * qd, kp, out=np.full(kp.shape, np.nan), where=kp > 0)
-        # a delayed servo reads this ctrl later, in another state: it keeps the mean goal
-        delayed = plant.array("actuator_delay")[si, acts] > 0
-        live = np.isfinite(c) & np.isfinite(a) & (kp > 0) & ~delayed
-        cur = goal[si, acts]
-        goal[si, acts] = np.where(live, c, cur)
 
     # ------------------------------------------------------------------------------------------
     def run(self, windows: Sequence[Window], columns: Sequence[Column],
@@ -459,7 +412,9 @@ class Replayer:
                    chans=chans, te=te, full_goal=np.array(ctrl),
                    full_chans={ch: np.zeros_like(ctrl) for ch in chans},
                    record=np.empty((nsim, n_steps + 1, len(jq))),
-                   peak=np.zeros((nsim, len(act))), torque=None)
+                   peak=np.zeros((nsim, len(act))), torque=None,
+                   own=np.array([g.n_steps for g in grids]), ids=None,
+                   until=min(g.n_steps for g in grids))
         self._set_torque(run, 0)
         return run
 
@@ -565,7 +520,7 @@ class Replayer:
         act = run["act"]
         goal = run["full_goal"]
         goal[:, act] = run["goals"][:, k]
-        self._match_saturation(run, k, goal)
+        saturation.match(run, k, goal)
         channels = None
         if run["chans"]:
             channels = run["full_chans"]
@@ -573,8 +528,15 @@ class Replayer:
                 channels[ch][:, act] = arr[:, k]
         if run["te"] is not None:
             self._set_torque(run, k)
-        plant.step(goal, 1, channels)
-        self.steps_run += plant.nsim
+        # a simulation past its window's last grid step is not advanced (its records there
+        # are never read; its peak force is, so all advance when peaks are asked for)
+        if k >= run["until"] and not force_peak:
+            alive = run["own"] > k
+            run["ids"] = np.flatnonzero(alive).astype(np.int32)
+            run["until"] = int(run["own"][alive].min())
+        ids = None if force_peak else run["ids"]
+        plant.step(goal, 1, channels, sims=ids)
+        self.steps_run += plant.nsim if ids is None else len(ids)
 
 
 def _step_means(u: np.ndarray, values: np.ndarray, before: np.ndarray, n_steps: int

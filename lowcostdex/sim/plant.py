@@ -235,6 +235,8 @@ class _PlantBase:
         self._play_reads = [(b.cls, {"read": np.asarray(b.values["read"], float)[..., h]},
                              b.targets.qpos[h], b.targets.play_qpos[h]) for b, h in self._plays]
 
+    live = property(lambda self: bool(self._live))  # live effects rewrite fields every step
+
     @property
     def required_channels(self) -> tuple[str, ...]:
         """Measured channels the applied exogenous effects need in ``step(channels=...)``."""
@@ -347,7 +349,8 @@ class _PlantBase:
         return q
 
     def step(self, goal: np.ndarray, nstep: int,
-             channels: Mapping[str, np.ndarray] | None = None) -> None:
+             channels: Mapping[str, np.ndarray] | None = None,
+             sims: np.ndarray | None = None) -> None:
         """Advance one control period: goals (..., nu) [rad] held for ``nstep`` substeps.
 
         Args:
@@ -355,8 +358,12 @@ class _PlantBase:
           nstep: physics substeps.
           channels: measured per-actuator channels for exogenous effects, e.g.
             {"temperature": (..., nu) [deg C], "voltage": (..., nu) [V]}.
+          sims: (batch) sorted int32 ids of the simulations whose physics advances (None:
+            all); the others keep their state (their effects still see the goal, as the
+            simulations of a batch are independent, the advanced ones step as with ``None``).
         """
-        self.ctrl[...] = self.command(goal, nstep * float(self.model.opt.timestep))
+        self.ctrl[...] = (self.command(goal, nstep * float(self.model.opt.timestep))
+                          if self._commands else goal)  # (command copies the goal, then edits)
         self._exogenous(channels)
         clock = self.servo_clock
         if self._has_friction or self._live or clock.every:
@@ -376,11 +383,11 @@ class _PlantBase:
                     clock.keep(self)
                 n = 1 if (self._has_friction or self._live or not clock.every) else min(
                     nstep - k, clock.every - clock.phase)
-                self._advance(n)
+                self._advance(n, sims)
                 k += n
                 clock.tick(n)
         else:
-            self._advance(nstep)
+            self._advance(nstep, sims)
         self._check_finite()
 
     def _live_forcerange(self) -> None:
@@ -505,7 +512,7 @@ class Plant(_PlantBase):
     def time(self) -> float:
         return float(self.data.time)
 
-    def _advance(self, nstep: int) -> None:
+    def _advance(self, nstep: int, sims: np.ndarray | None = None) -> None:
         mujoco.mj_step(self.model, self.data, nstep=nstep)
 
     def _forward(self, sims: np.ndarray | None = None) -> None:
@@ -626,8 +633,8 @@ class BatchPlant(_PlantBase):
     def time(self) -> np.ndarray:
         return self._views["time"]
 
-    def _advance(self, nstep: int) -> None:
-        self.batch.step(nstep=nstep)
+    def _advance(self, nstep: int, sims: np.ndarray | None = None) -> None:
+        self.batch.step(sims, nstep=nstep)
 
     def _forward(self, sims: np.ndarray | None = None) -> None:
         if sims is None:
@@ -638,7 +645,7 @@ class BatchPlant(_PlantBase):
     def _check_finite(self) -> None:
         # one finite sum means every value is finite (a non-finite value makes it inf or NaN;
         # an overflowing sum of finite values falls through to the full check)
-        if math.isfinite(self.qpos.sum() + self.qvel.sum()):
+        if math.isfinite(np.add.reduce(self.qpos, None) + np.add.reduce(self.qvel, None)):
             return
         if np.isfinite(self.qpos).all() and np.isfinite(self.qvel).all():
             return
