@@ -14,6 +14,11 @@ printed after the fits, for comparison only. The profile intervals are the paire
 the episodes (``groups``); the likelihood-ratio ones are printed beside them.
 
     python bench/transfer_tilt_joint.py RUN_FOLDER C --fingers th ff mf --episodes 8
+    python bench/transfer_tilt_joint.py RUN_FOLDER C --fingers th --episodes 5 --varied
+
+``--varied``: the product's valve log (``valve_fit.valve_episodes``: the k-th playback played as
+``valve_fit.DESIGNS[k % 5]``: as recorded, fast, slow, stop-and-go, twice) instead of the
+playbacks as recorded (transfer15/16's 8 near-duplicates).
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from lowcostdex.transfer.valve_fit import (  # the product's fit pieces
     edit_from_params,
     episode_sse,
     pick_finger,
+    valve_episodes,
 )
 
 
@@ -102,9 +108,12 @@ def main() -> None:
     p.add_argument("--grid", type=int, default=9, help="tilt grid points per axis over +-0.1")
     p.add_argument("--profile-points", type=int, default=13)
     p.add_argument("--profile-iterations", type=int, default=2)
+    p.add_argument("--varied", action="store_true",
+                   help="the episodes of valve_fit.DESIGNS (default: playbacks as recorded)")
     p.add_argument("--out", type=Path, help="write the fits as JSON here")
     args = p.parse_args()
-    eps = playback_goals(str(args.folder), args.episodes)
+    eps = (valve_episodes(args.folder / "demos.h5", args.episodes) if args.varied
+           else playback_goals(str(args.folder), args.episodes))
     robot = hidden_robot("ABC".index(args.robot), args.robot)
     kwargs = {k: v for k, v in robot.env_kwargs().items() if k != "backend"}
     observed = valve_trace(eps, **kwargs)  # evaluation side: the robot records

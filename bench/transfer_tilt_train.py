@@ -37,6 +37,10 @@ def main() -> None:
     p.add_argument("--narrow", action="store_true",
                    help="condition (d): narrow randomization around the identified effects "
                         "(the fitted edit held fixed, as `lowcostdex transfer` does)")
+    p.add_argument("--valve", action="store_true",
+                   help="with --narrow: also draw the valve's friction and damping per episode "
+                        "around the fit (valve_fit.randomized_valve: its intervals, at least "
+                        "+-VALVE_PAD), as `lowcostdex transfer`'s identified_randomized does")
     args = p.parse_args()
     rows = json.loads(args.fits.read_text())["fits"]
     row = next(r for r in rows if args.finger in (None, r["finger"]))
@@ -46,6 +50,14 @@ def main() -> None:
     edit = edit_from_params(row["finger"], x).to_dict()
     randomize = identified_randomize(args.folder, args.robot,
                                      "identified_randomized" if args.narrow else "identified")
+    if args.valve:
+        from lowcostdex.sim.envs.dclaw_tasks import TurnValve
+        from lowcostdex.transfer.valve_fit import randomized_valve, valve_ranges
+
+        fit = {"fits": [row], "used_finger": row["finger"], "model_edit": edit}
+        nominal = float(TurnValve().build_spec().joint("valve").damping[0])
+        randomize, edit = randomized_valve(randomize, fit, nominal)
+        print(f"valve drawn per episode: {valve_ranges(fit)}", flush=True)
     print(train_policy(args.out / "runs" / "dapg" / args.tag, "dapg",
                        TASKS["valve"].training(args.start_range), randomize,
                        args.folder / "demos.h5", SIZES["default"], args.seed, model_edit=edit))

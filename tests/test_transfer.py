@@ -449,6 +449,7 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
     from lowcostdex.cli import main
     from lowcostdex.sim.effects import DomainRandomization
     from lowcostdex.transfer.loop import CONDITIONS, SIZES, run
+    from lowcostdex.transfer.valve_fit import valve_ranges
 
     size = SIZES["smoke"]
     out = tmp_path / "t"
@@ -490,13 +491,25 @@ def test_smoke_transfer_command_runs_end_to_end_resumes_and_keeps_user_files(tmp
         # ... and the D'Claw edit its valve-log fit made (the robot played the valve episodes)
         fit = json.loads((out / "identify" / robot.name / "valve_fit.json").read_text())
         assert fit["episodes"] == size.valve_episodes and fit["identified"]
+        assert fit["designs"] == ["playback", "fast"]  # valve_fit.DESIGNS
         assert fit["used_finger"] in size.valve_fingers
         assert fit["fits"][0]["rms_fit_mrad"] <= fit["fits"][0]["rms_start_mrad"]
         assert config["env_kwargs"]["model_edit"] == fit["model_edit"]
+        # (d) holds the valve at the low end of its ranges and draws it up to the high end
+        ranges = valve_ranges(fit)
+        low = {k: lo for k, (lo, _) in ranges.items()}
+        d_config = json.loads((out / "runs" / "dapg" / f"identified_randomized_{robot.name}"
+                               "_seed0" / "config.json").read_text())["env_kwargs"]
+        valve = DomainRandomization.from_dict(d_config["randomize"])
+        assert valve.joints[-1] == "valve"
+        fl = valve.ranges["coulomb_friction"]["frictionloss"]
+        assert (fl[0][-1], fl[1][-1]) == pytest.approx(
+            (0.0, ranges["valve_frictionloss"][1] - low["valve_frictionloss"]))
         for r in rows:  # each row says which MJCF its policy trained in
             if r["policy_robot"] == robot.name:
-                assert r["model_edit"] == (fit["model_edit"] if r["condition"].startswith(
-                    "identified") else None), r["policy"]
+                assert r["model_edit"] == {"identified": fit["model_edit"],
+                                           "identified_randomized": {**fit["model_edit"], **low}
+                                           }.get(r["condition"]), r["policy"]
             elif r["policy_robot"] is None:  # nominal, randomized
                 assert r["model_edit"] is None
         on_robot = json.loads((out / "runs" / "npg" / f"on_robot_{robot.name}_seed0" /
@@ -842,7 +855,7 @@ def test_the_valve_log_fit_is_a_setting_only_when_on():
     off = size_with("default", valve_episodes=0).budget()
     assert not {"valve_episodes", "valve_fingers", "valve_fit"} & set(off)
     on = size_with("default").budget()
-    assert on["valve_episodes"] == 8 and on["valve_fingers"] == ["ff", "mf", "th"]
+    assert on["valve_episodes"] == 5 and on["valve_fingers"] == ["ff", "mf", "th"]
     for bad in (1, -1):
         with pytest.raises(ConfigError, match="valve_episodes"):
             size_with("smoke", valve_episodes=bad)

@@ -69,12 +69,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "every policy is still evaluated on every robot, and a later run on "
                         "the folder adds the others")
     p.add_argument("--valve-episodes", type=integer(0, 1000), default=None,
-                   help="the identified conditions' valve-log fit: playback demonstrations "
-                        "the robot plays with the valve on (4 s each) to fit a finger base's "
-                        "tilt, the valve's friction / damping / inertia and the link lengths "
-                        "in its identified model, which those conditions then train in; 0: "
-                        "none, the nominal MJCF (default by size: smoke 2, default and long "
-                        "8; folders made before it existed resume with 0)")
+                   help="the identified conditions' valve-log fit: valve episodes the robot "
+                        "plays with the valve on (demonstrations' goals as recorded, fast, "
+                        "slow, stop-and-go, twice: 4-8 s each) to fit a finger base's tilt, "
+                        "the valve's friction / damping / inertia and the link lengths in its "
+                        "identified model, which those conditions then train in; 0: none, the "
+                        "nominal MJCF (default by size: smoke 2, default and long 5; folders "
+                        "made before it existed resume with 0)")
     add_latency_option(p)
     p.add_argument("--yes", action="store_true",
                    help="with --port: do not ask before the robot moves")

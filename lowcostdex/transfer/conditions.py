@@ -120,3 +120,22 @@ def condition_randomize(condition: str, ident: dict[str, Any] | None,
             high = np.where(named, np.clip(high, param.low, param.high), v)
             ranges[name][p] = (low.tolist(), np.maximum(high, low).tolist())
     return DomainRandomization(tuple(table), joints, ranges).to_dict()
+
+
+def condition_model(condition: str, ident: dict[str, Any] | None, joints: tuple[str, ...]
+                    ) -> tuple[Any, dict[str, Any] | None]:
+    """The ``randomize`` and ``model_edit`` env kwargs of a simulated training condition: the
+    identified ones train in the robot's valve-log fit (``ident["valve_fit"]``) when it has
+    one; ``identified_randomized`` also draws the valve's friction and damping per episode
+    around the fit (``valve_fit.randomized_valve``), not only the servo effects."""
+    randomize = condition_randomize(condition, ident, joints)
+    fit = (ident or {}).get("valve_fit")
+    if fit is None or condition not in ("identified", "identified_randomized"):
+        return randomize, None
+    if condition == "identified":
+        return randomize, fit["model_edit"]
+    from lowcostdex.sim.envs.dclaw_tasks import TurnValve
+    from lowcostdex.transfer.valve_fit import randomized_valve
+
+    nominal = float(TurnValve().build_spec().joint("valve").damping[0])
+    return randomized_valve(randomize, fit, nominal)

@@ -89,10 +89,12 @@ class Size:
       gap: ``GapConfig`` overrides (the smoke size trims the search; default: none, what
         ``lowcostdex gap analyze`` does).
       bc_epochs: behaviour-cloning epochs before DAPG (None: the trainer's default).
-      valve_episodes: the valve-log fit (``transfer.valve_fit``): playback demonstrations the
-        robot plays with the valve on (4 s each) to fit the identified conditions' geometry and
-        valve (a finger base's tilt, the valve's friction / damping / inertia, the link
-        lengths); 0: none, the identified conditions use the nominal geometry.
+      valve_episodes: the valve-log fit (``transfer.valve_fit``): valve episodes the robot
+        plays with the valve on, the k-th a playback demonstration's goals played as
+        ``valve_fit.DESIGNS[k % 5]`` (as recorded 4 s, fast 4 s, slow 8 s, stop-and-go 6.4 s,
+        twice 8 s), to fit the identified conditions' geometry and valve (a finger base's tilt,
+        the valve's friction / damping / inertia, the link lengths); 0: none, the identified
+        conditions use the nominal geometry.
       valve_fingers: the fingers whose base tilt is fitted (one fit each; the lowest cost wins).
       valve_fit: ``tilt_joint.fit_tilt_jointly`` overrides (``grid``: points per axis).
     """
@@ -170,10 +172,10 @@ SIZES = {
     # --algos dapg,npg on the same folder, is 6x the training and evaluation: ~10 h or more.
     "default": Size(robots=3, seeds=1, algos=("dapg",), conditions=CONDITIONS, demos=20,
                     playbacks=2, n_iter=30, n_traj=40, eval_every=5, eval_episodes=20,
-                    episodes=50, id_logs=3, id_seconds=10.0, valve_episodes=8),
+                    episodes=50, id_logs=3, id_seconds=10.0, valve_episodes=5),
     "long": Size(robots=3, seeds=3, algos=("dapg", "npg"), conditions=CONDITIONS, demos=40,
                  playbacks=2, n_iter=100, n_traj=40, eval_every=10, eval_episodes=20,
-                 episodes=100, id_logs=6, id_seconds=10.0, valve_episodes=8),
+                 episodes=100, id_logs=6, id_seconds=10.0, valve_episodes=5),
 }
 
 

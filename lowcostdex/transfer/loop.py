@@ -18,7 +18,8 @@ imperfection; the training side never reads them). Every condition trains the sa
                          damping / inertia, the link lengths), as the tasks' ``model_edit``;
   identified_randomized  the same with narrow randomization around the identified values (per
                          joint: the fitted 95 % interval, at least +-10 % of the value; the
-                         valve-log edit is held at its fit);
+                         valve's friction and damping drawn per episode around the valve-log
+                         fit: ``valve_fit.valve_ranges``, the rest of the edit held);
   on_robot               trained on the robot itself (serial sampling; wall-clock reported).
 
 The demonstrations are recorded once, by the virtual teacher on a nominal emulated D'Claw (no
@@ -57,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from lowcostdex.transfer.conditions import (
+    condition_model,
     condition_randomize,
     identified_effects,
     identify_finger,
@@ -234,13 +236,13 @@ def valve_log_fit(robot: Any, out: Path, task: Task, size: Size, ident: dict[str
                   joints: tuple[str, ...], progress: Progress, tell: Say) -> dict[str, Any]:
     """The robot's valve-log fit (``transfer.valve_fit``) in its identified model: the
     identified conditions' MJCF edit. Once per robot (a resume keeps it)."""
-    from lowcostdex.transfer.valve_fit import EPISODE_SECONDS, describe, fit_valve_log
+    from lowcostdex.transfer.valve_fit import DESIGNS, describe, fit_valve_log
 
     path = out / "identify" / robot.name / VALVE_FIT_FILE
     done = path.exists()
     if not done:
-        tell(f"valve-log fit of robot {robot.name}: it plays {size.valve_episodes} "
-             f"demonstrations with the valve on ({size.valve_episodes * EPISODE_SECONDS:g} s), "
+        tell(f"valve-log fit of robot {robot.name}: it plays {size.valve_episodes} valve "
+             f"episodes from the demonstrations ({', '.join(DESIGNS[:size.valve_episodes])}), "
              f"then a base tilt of {list(size.valve_fingers)}, the valve and the link lengths "
              "are fitted in its identified model")
     fit = cached(path, lambda: fit_valve_log(
@@ -457,10 +459,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                 tag = run_tag(condition, policy_robot)
                 run_dir = out / "runs" / algo / f"{tag}_seed{seed}"
                 on_robot = condition == "on_robot"
-                randomize = None if on_robot else condition_randomize(
+                randomize, edit = (None, None) if on_robot else condition_model(
                     condition, idents.get(policy_robot.name) if policy_robot else None, joints)
-                edit = None if on_robot or policy_robot is None else (
-                    idents.get(policy_robot.name) or {}).get("valve_fit", {}).get("model_edit")
                 where = f" for robot {policy_robot.name}" if policy_robot else ""
                 t0 = time.perf_counter()
                 done = (run_dir / "summary.json").exists()

@@ -1,10 +1,17 @@
-"""The transfer loop's valve-log fit (issue 14, transfer15/16): what the identified conditions'
+"""The transfer loop's valve-log fit (issue 14, transfer15-17): what the identified conditions'
 D'Claw geometry and valve are.
 
-The robot (valve on) plays the goals of the folder's first ``Size.valve_episodes`` playback
-demonstrations (4 s each) and its valve encoder is logged. Then, in the identified model (the
-nominal D'Claw plus the servo effects ``gap analyze`` named, held fixed: ``condition_randomize
-("identified")``), one finger base's mounting tilt is fitted JOINTLY with the valve hinge's dry
+The robot (valve on) plays ``Size.valve_episodes`` valve episodes made from the folder's
+playback demonstrations and its valve encoder is logged: episode k is the k-th playback's goals
+played as design ``DESIGNS[k % 5]`` (as recorded, at double speed then held, at half speed,
+stopping for 3 steps after every 5, twice in a row). The playbacks are near-duplicates (goals
+within 0.005 of each other): fitted to one motion at one speed, the model turned the valve
+0.04-0.07 rad too far on the policies' last push on robot C (transfer16); fitted to the varied
+episodes it predicts that push within 0.02-0.05 rad short, with a valve that is NOT C's (dry
+friction 4.6 x C's: it stands for what the model lacks), and (c) seed 1 on C went from 0/50 to
+50/50 (transfer17, bench/RESULTS.md). Then, in the identified model (the nominal D'Claw plus
+the servo effects ``gap analyze`` named, held fixed: ``condition_randomize("identified")``),
+one finger base's mounting tilt is fitted JOINTLY with the valve hinge's dry
 friction, damping and inertia and each finger's link lengths (``tilt_joint.fit_tilt_jointly``:
 a tilt grid, bounded Gauss-Newton, profile intervals paired across the episodes), once for each
 finger of ``Size.valve_fingers``. The fit with the lowest cost becomes the ``model_edit``
@@ -32,8 +39,12 @@ X0 = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0)
 LOWER = (-0.12, -0.12, 0.0, 0.3, 0.4, 0.9, 0.9, 0.9)
 UPPER = (0.12, 0.12, 0.05, 3.0, 2.5, 1.1, 1.1, 1.1)
 STEP = (2e-3, 2e-3, 1e-3, 0.05, 0.05, 0.005, 0.005, 0.005)
+VALVE_PAD = 0.3  # (d): valve ranges at least +-30 % of the fitted friction and damping
 GRID = 9  # tilt grid points per axis over +-0.1 rad (``fit_tilt_jointly``'s global start)
-EPISODE_SECONDS = 4.0  # a valve episode's robot time (40 steps of 0.1 s)
+EPISODE_SECONDS = 4.0  # a playback's robot time (40 steps of 0.1 s)
+STEP_SECONDS = 0.1  # the valve task's control period [s]
+# how the k-th valve episode plays its playback's goals (``design``), cycling
+DESIGNS = ("playback", "fast", "slow", "stop_and_go", "twice")
 
 
 def edit_from_params(finger: str, x: Any) -> DClawEdit:
@@ -58,6 +69,38 @@ def playback_goals(demos: Path, n: int) -> list[tuple[int, np.ndarray]]:
                 seen.add(int(e.attrs["seed"]))
                 eps.append((int(e.attrs["seed"]), e["actions"][()]))
     return eps[:n]
+
+
+def design(actions: np.ndarray, name: str) -> np.ndarray:
+    """A playback's goals (steps, 9) played another way (``DESIGNS``): "playback" as recorded;
+    "fast" every other goal, then the last one held to the same length; "slow" at half speed
+    (goals interpolated linearly, twice the steps); "stop_and_go" each 5th goal held 3 more
+    steps; "twice" the whole sequence again from where the first pass left the valve."""
+    from lowcostdex.errors import check_choice
+
+    check_choice("valve episode design", name, DESIGNS)
+    a = np.asarray(actions, float)
+    if name == "fast":
+        half = a[::2]
+        return np.concatenate([half, np.repeat(half[-1:], len(a) - len(half), axis=0)])
+    if name == "slow":
+        t = np.arange(2 * len(a)) / 2  # (the last goal held one step more)
+        return np.stack([np.interp(t, np.arange(len(a)), a[:, j]) for j in range(a.shape[1])],
+                        axis=1)
+    if name == "stop_and_go":
+        return np.repeat(a, np.where(np.arange(len(a)) % 5 == 4, 4, 1), axis=0)
+    if name == "twice":
+        return np.concatenate([a, a])
+    return a
+
+
+def valve_episodes(demos: Path, n: int, varied: bool = True) -> list[tuple[int, np.ndarray]]:
+    """The valve log's ``n`` episodes (reset seed, goals): the first ``n`` playbacks, the k-th
+    played as ``DESIGNS[k % 5]`` (``varied``) or as recorded."""
+    eps = playback_goals(demos, n)
+    if not varied:
+        return eps
+    return [(seed, design(a, DESIGNS[k % len(DESIGNS)])) for k, (seed, a) in enumerate(eps)]
 
 
 def valve_trace(env_id: str, env_kwargs: dict[str, Any], eps: list[tuple[int, np.ndarray]]
@@ -105,14 +148,15 @@ def pick_finger(rows: list[dict[str, Any]]) -> str:
 
 def fit_valve_log(robot_kwargs: dict[str, Any], env_id: str, task_kwargs: dict[str, Any],
                   demos: Path, randomize: Any, episodes: int,
-                  fingers: tuple[str, ...] = FINGERS, fit: dict[str, Any] | None = None
-                  ) -> dict[str, Any]:
+                  fingers: tuple[str, ...] = FINGERS, fit: dict[str, Any] | None = None,
+                  varied: bool = True) -> dict[str, Any]:
     """Record the valve log on the robot (``robot_kwargs``: its ``env_kwargs()``) and fit the
     geometry / valve edit in the identified model ``randomize`` (None: nominal). ``fit``:
-    ``fit_tilt_jointly`` overrides (``grid`` as a number of points per axis). JSON out."""
+    ``fit_tilt_jointly`` overrides (``grid`` as a number of points per axis); ``varied``: the
+    episodes' ``DESIGNS`` (False: every playback as recorded, transfer16's log). JSON out."""
     from lowcostdex.transfer.tilt_joint import fit_tilt_jointly
 
-    eps = playback_goals(demos, episodes)
+    eps = valve_episodes(demos, episodes, varied)
     if len(eps) < 2:
         raise ValueError(f"the valve-log fit needs >= 2 playback demonstrations in {demos}; "
                          f"found {len(eps)}")
@@ -142,13 +186,66 @@ def fit_valve_log(robot_kwargs: dict[str, Any], env_id: str, task_kwargs: dict[s
                      "evaluations": result.evaluations,
                      "cpu_seconds": round(time.process_time() - c0, 1)})
     used = min(rows, key=lambda r: sum(r["episode_sse"]))
-    return {"episodes": len(eps), "robot_seconds": EPISODE_SECONDS * len(eps),
+    return {"episodes": len(eps), "robot_seconds": round(STEP_SECONDS * sum(lengths), 1),
+            "designs": [DESIGNS[k % len(DESIGNS)] if varied else "playback"
+                        for k in range(len(eps))],
             "identified": randomize is not None, "names": list(NAMES), "fits": rows,
             "named_finger": pick_finger(rows), "used_finger": used["finger"],
             "model_edit": edit_from_params(used["finger"], used["values"]).to_dict(),
             "record_wall_seconds": round(record_wall, 1),
             "fit_wall_seconds": round(time.perf_counter() - t1, 1),
             "fit_cpu_seconds": round(sum(r["cpu_seconds"] for r in rows), 1)}
+
+
+def valve_ranges(fit: dict[str, Any]) -> dict[str, tuple[float, float]]:
+    """Condition (d)'s per-episode ranges of the valve's added dry friction [N m] and damping
+    factor: the used fit's 95 % intervals, at least +-``VALVE_PAD`` of each fitted value."""
+    row = next(r for r in fit["fits"] if r["finger"] == fit["used_finger"])
+    out = {}
+    for name, k in (("valve_frictionloss", 2), ("valve_damping", 3)):
+        v, (lo, hi) = row["values"][k], row["intervals"][k]
+        lo = lo if np.isfinite(lo) else v
+        hi = hi if np.isfinite(hi) else v
+        out[name] = (float(max(LOWER[k], min(lo, v * (1 - VALVE_PAD)))),
+                     float(min(UPPER[k], max(hi, v * (1 + VALVE_PAD)))))
+    return out
+
+
+def randomized_valve(randomize: dict[str, Any] | None, fit: dict[str, Any],
+                     nominal_damping: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Condition (d) with the valve randomized per episode around its fit: the ``randomize``
+    (a ``DomainRandomization.to_dict()`` over the hand joints, or None) and the ``model_edit``
+    to train in. The edit holds the valve at the low end of ``valve_ranges``; the
+    randomization adds ``coulomb_friction`` and ``viscous_damping`` on the valve joint, drawn up
+    to the high end (the catalogue adds friction only, so the edit starts at the low end); the
+    hand joints keep their ranges, the valve every other effect's null. ``nominal_damping``:
+    the nominal model's valve damping [N m s/rad] (the edit's damping is a factor on it)."""
+    from lowcostdex.sim.effects import DomainRandomization, effect
+
+    ranges = valve_ranges(fit)
+    (fl_lo, fl_hi), (d_lo, d_hi) = ranges["valve_frictionloss"], ranges["valve_damping"]
+    edit = {**fit["model_edit"], "valve_frictionloss": fl_lo, "valve_damping": d_lo}
+    base = DomainRandomization.from_dict(randomize) if randomize else DomainRandomization((), ())
+    n = len(base.joints)
+    valve = {"coulomb_friction": {"frictionloss": fl_hi - fl_lo},
+             "viscous_damping": {"damping": nominal_damping * (d_hi - d_lo)}}
+    effects = tuple(dict.fromkeys((*base.effects, *valve)))
+    out: dict[str, dict[str, tuple[list[float], list[float]]]] = {}
+    for name in effects:
+        given = base.ranges.get(name, {})
+        out[name] = {}
+        for p in effect(name).params:
+            if name in base.effects:  # the hand joints' ranges as they were
+                lo, hi = given.get(p.name, p.dr)
+            else:  # an effect only the valve carries: off on the hand joints
+                lo = hi = p.null
+            lo, hi = (np.broadcast_to(np.asarray(x, float), (n,)).tolist() for x in (lo, hi))
+            top = valve.get(name, {}).get(p.name)
+            lo.append(p.null)
+            hi.append(p.null if top is None else p.null + top)
+            out[name][p.name] = (lo, hi)
+    dr = DomainRandomization(effects, (*base.joints, "valve"), out)
+    return dr.to_dict(), DClawEdit.from_dict(edit).to_dict()
 
 
 def describe(fit: dict[str, Any]) -> str:
