@@ -266,7 +266,8 @@ MOTORS: dict[str, MotorSpec] = {
         # main: friction_base 0.00540, friction_viscous 0.00159; fitted on their 144 logs, the
         # 72 shared ones among them), one law for the torque on and off; the 18 shared torque-off
         # swings alone say 0.00528 + 0.00167 (gap.torque_off.swing_fit). Its lift_and_drop fold
-        # (no torque-off log in training) 204.2 -> 188.8 mrad with it (BAM's M1 34.3; gap-real16).
+        # (no torque-off log in training) 204.2 -> 188.8 mrad with it (BAM's M1 34.3; gap-real16),
+        # 46.9 with it as the joint's whole back-driven friction (gap-real17).
         MotorSpec("STS3032", 0, 6.0, 0.88, 6.0 / 0.483, 345.0, 0.00103,
                   current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32, default_d=32,
                   error_gain=0.166, d_error_gain=0.0, max_duty=0.97, backdriven=(0.0054, 0.00159),

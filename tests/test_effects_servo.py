@@ -222,6 +222,29 @@ def test_backdriven_friction_coulomb_and_viscous_stop_a_coasting_rotor_where_the
     assert abs(q[-1] - inertia * v0 ** 2 / (2 * big_c)) > 0.1 * travel
 
 
+def test_backdriven_friction_joint_share_drops_the_joints_own_friction_only_with_torque_off():
+    # ``joint`` 0: the law is the back-driven joint's whole friction; the joint's own extra
+    # Coulomb level and damping (coulomb_friction, viscous_damping: fitted with the torque on,
+    # where a firmware D term or the drive can stand in for them) act only while the torque is
+    # on. Truth: the bench without those effects (torque off) and with them (torque on).
+    a0 = 1.0
+    own = [E("coulomb_friction", frictionloss=0.02), E("viscous_damping", damping=0.005)]
+    drop = E("backdriven_friction", coulomb=0.0, viscous=0.0, gear=1.0, joint=0.0)
+    bare = hold(bench()[0], 0.0, 2.0, q0=a0, torque=False)
+    p = bench(own + [drop])[0]
+    off = hold(p, 0.0, 2.0, q0=a0, torque=False)
+    np.testing.assert_allclose(off, bare, atol=1e-9)
+    kept = hold(bench(own)[0], 0.0, 2.0, q0=a0, torque=False)
+    assert _first_turn(kept) < _first_turn(bare) - 0.2  # the friction dropped is large
+    # torque on again: the joint's own friction is back, exactly as without the law
+    p.set_torque_enabled([0], True)
+    np.testing.assert_allclose(hold(p, 0.3, 1.0), hold(bench(own)[0], 0.3, 1.0), atol=1e-12)
+    # half the share: the first turn between the two, by the energy balance of the half level
+    half = hold(bench(own + [E("backdriven_friction", coulomb=0.0, viscous=0.0, gear=1.0,
+                                joint=0.5)])[0], 0.0, 2.0, q0=a0, torque=False)
+    assert _first_turn(kept) < _first_turn(half) < _first_turn(bare)
+
+
 def test_backdriven_friction_acts_only_with_the_torque_off_and_sets_the_gear_share_there():
     a0, mu = 1.0, 0.3
     law = E("backdriven_friction", coulomb=0.05, viscous=0.02, gear=0.0)

@@ -470,7 +470,8 @@ def test_rhoban_lift_and_drop_held_out_with_the_catalogue_torque_off_law_beats_b
     # lift_and_drop held out: no training log has the torque off, so the swing's friction is the
     # servo catalogue's own torque-off law (gap.identify_logs.backdriven_plan). BAM's published
     # M3 on the same logs: 0.052 rad (08-bam-reference-errors.md); before the law 0.0640 (the
-    # gear friction back-driven whole), measured 2026-11-28 with it 0.041 (RESULTS gap-real15)
+    # gear friction back-driven whole), measured 2026-11-28 with it 0.041 (RESULTS gap-real15),
+    # 0.042 with it as the joint's whole back-driven friction (joint 0; RESULTS gap-real17)
     ds = bm.grid_dataset(load_dataset(sorted(RHOBAN.glob("*.json")), timestep=bm.BAM_DT))
     kinds = [tr.meta["trajectory"] for tr in ds.trajectories]
     test = [i for i, k in enumerate(kinds) if k == "lift_and_drop"]
@@ -478,6 +479,7 @@ def test_rhoban_lift_and_drop_held_out_with_the_catalogue_torque_off_law_beats_b
     res = identify(ds, train, test, IdentifyConfig(effects=servo_structure(ds), nthread=1))
     assert res.mean(test) < 0.052, (res.mean(test), res.params())
     assert res.params()["backdriven_friction"]["gear"] == [0.0]
+    assert res.params()["backdriven_friction"]["joint"] == [0.0]
 
 
 @pytest.mark.skipif(not (RHOBAN.is_dir() and STS3250.is_dir()),
@@ -493,13 +495,14 @@ def test_the_torque_off_law_is_fitted_where_training_swings_and_the_catalogues_e
     ds, lift, rest = load(RHOBAN)
     effects = servo_structure(ds)
     assert BACKDRIVEN in effects  # its lift_and_drop logs turn the torque off
-    # torque-off swings in training: Coulomb and viscous free, the gear's own level kept
+    # torque-off swings in training: Coulomb and viscous free, the gear's own level and the
+    # joint's own friction kept
     assert backdriven_plan(ds, lift + rest, effects, "fit") == (
-        frozenset({(BACKDRIVEN, "gear")}), None)
+        frozenset({(BACKDRIVEN, "gear"), (BACKDRIVEN, "joint")}), None)
     # none: nothing to fit it on, the XL330 catalogue's law (BAM's published M1) after the fit
     held, after = backdriven_plan(ds, rest, effects, "fit")
     assert held == BACKDRIVEN_PARAMS and after == {"coulomb": 0.0182, "viscous": 0.0059,
-                                                   "gear": 0.0}
+                                                   "gear": 0.0, "joint": 0.0}
     assert backdriven_plan(ds, rest, effects, "null") == (BACKDRIVEN_PARAMS, None)
     assert backdriven_plan(ds, rest, tuple(e for e in effects if e != BACKDRIVEN), "fit") == (
         frozenset(), None)

@@ -33,7 +33,7 @@ def torque_off_seen(ds: Dataset, logs: Sequence[int]) -> bool:
 # identification (``backdriven_plan``). Measured 2026-11-28 (bench/RESULTS.md gap-real15).
 BACKDRIVEN = "backdriven_friction"
 BACKDRIVEN_PARAMS = frozenset({(BACKDRIVEN, "coulomb"), (BACKDRIVEN, "viscous"),
-                               (BACKDRIVEN, "gear")})
+                               (BACKDRIVEN, "gear"), (BACKDRIVEN, "joint")})
 BACKDRIVEN_MODES = ("fit", "null")
 
 
@@ -61,10 +61,14 @@ def backdriven_plan(ds: Dataset, train: Sequence[int], effects: Sequence[str], m
     the gear friction's own back-driven level (share ``gear`` held at 1: that level is the gear
     friction's fitted back-driven share, free in identify's "free" family). No training log with
     the torque off (nothing to fit it on): held at its null in the fit (it changes no torque-on
-    log) and, when the servo catalogue knows the law, set to it after the fit with the gear
-    friction's back-driven level not kept (``gear`` 0): the torque-on fit holds that share at 1
-    and brakes the swing with its whole load friction (Rhoban lift_and_drop fold 64.0 mrad; the
-    XL330 catalogue's law 40.9; the torque-on fit's own Coulomb + viscous as the law 168.8).
+    log) and, when the servo catalogue knows the law, set to it after the fit as the back-driven
+    joint's whole friction: the gear friction's back-driven level not kept (``gear`` 0: the
+    torque-on fit holds that share at 1 and brakes the swing with its whole load friction;
+    Rhoban lift_and_drop fold 64.0 mrad; the XL330 catalogue's law 40.9; the torque-on fit's own
+    Coulomb + viscous as the law 168.8), nor the joint's own Coulomb and damping fitted with the
+    torque on (``joint`` 0: there a firmware D term or the drive can stand in for them; STS3032's
+    lift_and_drop fold fits 0.010 N m s/rad, its real swings want 0.0017: 188.8 -> 46.9 mrad;
+    Rhoban's fold 40.9 -> 42.3, its joint damping 0.0019; bench/RESULTS.md gap-real17).
     "null": held at its null everywhere (the law absent, as before it existed). Nor set where
     the training logs' largest gravity torque is below the law's Coulomb level (the load cannot
     back-drive the gears: nothing swings, and the law only stops the arm's coasting at the
@@ -76,7 +80,7 @@ def backdriven_plan(ds: Dataset, train: Sequence[int], effects: Sequence[str], m
     if mode == "null":
         return BACKDRIVEN_PARAMS, None
     if torque_off_seen(ds, train):
-        return frozenset({(BACKDRIVEN, "gear")}), None
+        return frozenset({(BACKDRIVEN, "gear"), (BACKDRIVEN, "joint")}), None
     law = catalogue_backdriven(ds, train)
     if law is None:
         return BACKDRIVEN_PARAMS, None
@@ -84,7 +88,7 @@ def backdriven_plan(ds: Dataset, train: Sequence[int], effects: Sequence[str], m
 
     if not np.max(gravity_torque(ds, train)) > law[0]:
         return BACKDRIVEN_PARAMS, None  # a load too light to back-drive the gears: no swing
-    return BACKDRIVEN_PARAMS, {"coulomb": law[0], "viscous": law[1], "gear": 0.0}
+    return BACKDRIVEN_PARAMS, {"coulomb": law[0], "viscous": law[1], "gear": 0.0, "joint": 0.0}
 
 
 def set_backdriven(effects: list[AppliedEffect], values: dict[str, float] | None,
@@ -96,7 +100,8 @@ def set_backdriven(effects: list[AppliedEffect], values: dict[str, float] | None
     notes.append("no training log has the torque off: the back-driven gears' friction is the "
                  f"servo catalogue's Coulomb {values['coulomb']:.3g} N m + viscous "
                  f"{values['viscous']:.3g} N m s/rad (MotorSpec.backdriven), the gear friction's "
-                 "load-dependent level not kept with the torque off")
+                 "load-dependent level and the joint's own torque-on Coulomb and damping not kept "
+                 "with the torque off")
     return [AppliedEffect(e.name, e.joints, {**e.values, **{
         k: np.full(len(e.joints), v) for k, v in values.items()}}) if e.name == BACKDRIVEN else e
         for e in effects]

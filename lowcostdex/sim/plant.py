@@ -43,7 +43,7 @@ from lowcostdex.errors import ConfigError, PhysicsError
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
 from lowcostdex.sim.effects import exogenous as exo
-from lowcostdex.sim.effects.friction_level import friction_level
+from lowcostdex.sim.effects.friction_level import JOINT_FRICTION, friction_level, torque_off_joint
 from lowcostdex.sim.effects.prepare import compile_with_effects as compile_with_effects
 from lowcostdex.sim.effects.prepare import prepare_spec as prepare_spec
 from lowcostdex.sim.reset_state import actuated_positions
@@ -210,7 +210,7 @@ class _PlantBase:
         self._set_const(np.broadcast_to(np.any(moved, axis=0), self._lead) if moved else None)
         self._static_gain = np.array(self.array("actuator_gainprm"), copy=True)
         self._ctrl_gain = self._static_gain[..., _CONTROLLER_GAINS]  # (..., nu, 3), unmasked
-        self._static_friction = np.array(self.array("dof_frictionloss"), copy=True)
+        self._joint_applied = {k: np.array(self.array(k), copy=True) for k in JOINT_FRICTION}
         self._static_forcerange = np.array(self.array("actuator_forcerange"), copy=True)
         self._static_forcelimited = np.array(self.array("actuator_forcelimited"), copy=True)
         self._static_bias = np.array(self.array("actuator_biasprm"), copy=True)
@@ -261,6 +261,7 @@ class _PlantBase:
         if self._static_forcerange is None:
             return
         self._range_in_force()
+        self._static_friction = torque_off_joint(self, self._bound, self._joint_applied, self._torque_on)
         self.servo_clock.release()  # a held force is recomputed at the next step
 
     def _range_in_force(self) -> None:

@@ -451,9 +451,25 @@ class BackdrivenFriction(Effect):
               limit=(0.0, 5.0), doc="viscous friction of the back-driven gears, torque off"),
         Param("gear", 1.0, 0.0, 1.0, "1", (0.0, 1.0), start=0.5, ends=True,
               doc="share of gearbox_friction's level kept while the torque is off"),
+        Param("joint", 1.0, 0.0, 1.0, "1", (1.0, 1.0), start=1.0, ends=True,
+              doc="share of the joint's own extra friction (coulomb_friction's level and "
+                  "viscous_damping's damping beyond the nominal model's) kept while the torque "
+                  "is off"),
     )
+    # ``joint`` 0: the law is the back-driven joint's whole friction. A joint damping fitted on
+    # torque-on logs can be the drive's (a firmware D term, a back-EMF the model misses), which
+    # goes with the current: STS3032's lift_and_drop fold fits 0.010 N m s/rad with the torque on,
+    # its real swings 0.0017 (bench/RESULTS.md gap-real17). Its DR range is its null (no draw).
     torque_off = True  # the plant applies ``friction`` only where the servo's torque is off
     SCALED = "gearbox_friction"  # whose level ``gear`` scales while the torque is off
+    fields = ("dof_damping",)  # ``joint`` < 1 rewrites it where the torque is off (the plant)
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator, shape: tuple[int, ...]) -> dict[str, np.ndarray]:
+        """As every effect, but ``joint`` (its DR range is its null) takes no draw: a seed gives
+        the same randomized robots as before the parameter existed."""
+        vals = {p.name: rng.uniform(p.dr[0], p.dr[1], size=shape) for p in cls.params[:3]}
+        return {**vals, "joint": np.ones(shape)}
 
     @classmethod
     def substep(cls, v: Values) -> bool:

@@ -35,3 +35,31 @@ def friction_level(static: np.ndarray, bound: Sequence, qvel: np.ndarray, force:
                           lv - (1.0 - b.values["gear"]) * kept)
         level[..., d] = level[..., d] + lv
     return level
+
+
+
+# The joint's own friction fields (``coulomb_friction``, ``viscous_damping``) a torque-off law can
+# drop where the torque is off (``torque_off_joint``).
+JOINT_FRICTION = ("dof_frictionloss", "dof_damping")
+
+
+def torque_off_joint(fields, bound: Sequence, applied: dict[str, np.ndarray],
+                     torque_on: np.ndarray) -> np.ndarray:
+    """Keep only the share ``joint`` of the joint's own extra friction where a torque-off law
+    acts and the servo's torque is off: nominal + joint x (applied - nominal) there, ``applied``
+    (the model effects' values, (..., nv) per ``JOINT_FRICTION`` field) elsewhere. Writes the
+    damping into ``fields`` (the plant) and returns the frictionloss (..., nv) the friction
+    level starts from (``applied``'s when every bound law keeps it whole, ``joint`` 1).
+    ``torque_on``: (..., nu) bool."""
+    laws = [b for b in bound if b.cls.torque_off
+            and np.any(np.asarray(b.values.get("joint", 1.0), float) != 1.0)]
+    out = {k: np.array(v, copy=True) for k, v in applied.items()}
+    for b in laws:
+        d, a = b.targets.dofs, b.targets.actuators
+        share = np.asarray(b.values["joint"], float)
+        for k, v in applied.items():
+            base = np.broadcast_to(fields.nominal(k), v.shape)[..., d]
+            out[k][..., d] = np.where(torque_on[..., a], v[..., d], base + share * (v[..., d] - base))
+    if laws:
+        fields.array("dof_damping")[...] = out["dof_damping"]
+    return out["dof_frictionloss"]
