@@ -46,7 +46,7 @@ from lowcostdex.sim.effects import exogenous as exo
 from lowcostdex.sim.effects.friction_level import JOINT_FRICTION, friction_level, torque_off_joint
 from lowcostdex.sim.effects.prepare import compile_with_effects as compile_with_effects
 from lowcostdex.sim.effects.prepare import prepare_spec as prepare_spec
-from lowcostdex.sim.reset_state import actuated_positions
+from lowcostdex.sim.reset_state import actuated_positions, rest_play
 from lowcostdex.sim.reset_state import fill_ctrl_history as _fill_ctrl_history
 
 _ORDER = {name: i for i, name in enumerate(EFFECTS)}
@@ -258,6 +258,7 @@ class _PlantBase:
         return self._torque_on.copy()
 
     def _apply_torque_mask(self) -> None:
+        self._readings = exo.Readings()  # (the drives change: rescaled at the next step)
         if self._static_forcerange is None:
             return
         self._range_in_force()
@@ -320,8 +321,8 @@ class _PlantBase:
         return ctrl
 
     def _exogenous(self, channels: Mapping[str, np.ndarray] | None) -> None:
-        if not self._has_exo:
-            return
+        if not self._has_exo or self._readings.same(channels):
+            return  # (the last step's readings: the drives are as its rescale left them)
         gain, drive = exo.rescale(self, self._bound, channels, self._static_gain, self._drive)
         # a servo update (``_range_in_force``) restores these, not the static gains: a sagging
         # supply or a hot winding lasts the whole control period under a servo period too
@@ -333,6 +334,8 @@ class _PlantBase:
                 self._range_in_force()
         self._mask_controller(gain)
         self.array("actuator_gainprm")[...] = gain
+        # nothing else rewrites the drives between steps without live effects or servo updates
+        self._readings.keep(channels, not self._live and not self.servo_clock.every)
 
     def _friction_level(self, qvel: np.ndarray, force: np.ndarray,
                         external: np.ndarray | None = None) -> np.ndarray:
@@ -407,40 +410,9 @@ class _PlantBase:
         self._state.clear()
 
     def rest_play(self, sims: np.ndarray | None = None) -> None:
-        """Put each backlash play where the static load pushes it, keeping the readings.
-
-        For a state set from measurements (``reset``; a replay's start): the reading (joint +
-        read x play, as ``measured_qpos``: the link, or the motor side) is what was measured;
-        its play is unknown. A link at rest leans on the stop its external load (gravity,
-        ``-qfrc_bias`` on the play hinge) pushes it to (``Backlash.rest``); an unloaded link
-        (load below 1e-9 N m) is put in the middle. The joint angle becomes reading - read x
-        play, velocities are kept.
-
-        Args:
-          sims: simulations to change (BatchPlant; default all); their state must be forward-
-            computed (``qfrc_bias``), as after ``reset``.
-        """
-        plays = [b for b in self._bound if b.cls.name == "backlash" and np.any(b.targets.has_play)]
-        if not plays:
-            return
-        qpos, bias = self.qpos, self.qfrc_bias
-        rows = (slice(None) if sims is None else np.asarray(sims, int)) if self._lead else ...
-        for b in plays:
-            h = b.targets.has_play
-            jq, pq, pd = b.targets.qpos[h], b.targets.play_qpos[h], b.targets.play_dofs[h]
-            v = {k: np.broadcast_to(np.asarray(x, float), self._lead + (len(h),))[..., h]
-                 for k, x in b.values.items()}
-            v = {k: x[rows] for k, x in v.items()} if self._lead else v
-            joint, play = b.cls.rest(v, qpos[rows][..., jq], qpos[rows][..., pq],
-                                     -bias[rows][..., pd])
-            if self._lead:
-                r = np.arange(self._lead[0])[rows]
-                qpos[np.ix_(r, pq)] = play
-                qpos[np.ix_(r, jq)] = joint
-            else:
-                qpos[pq] = play
-                qpos[jq] = joint
-        self._forward(sims)
+        """Put each backlash play where the static load pushes it, keeping the readings
+        (``reset_state.rest_play``; ``sims``: BatchPlant rows, their state forward-computed)."""
+        rest_play(self, sims)
 
     def forward(self, sims: np.ndarray | None = None) -> None:
         """Recompute derived quantities after an edit of the state (``sims``: BatchPlant rows)."""

@@ -141,6 +141,26 @@ def rescale(f: Fields, bound: Sequence, channels: Mapping[str, np.ndarray] | Non
     return gain, drive
 
 
+class Readings:
+    """The measured channels of a plant's last rescale (``rescale``), kept when nothing else
+    rewrites the drives between steps: a step with the same readings finds the gains, bias and
+    force ranges as that rescale left them (a replay holds each log row for several physics
+    steps)."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, np.ndarray] | None = None
+
+    def same(self, channels: Mapping[str, np.ndarray] | None) -> bool:
+        last = self.last
+        return (last is not None and channels is not None and channels.keys() == last.keys()
+                and all(np.array_equal(last[c], channels[c]) for c in last))
+
+    def keep(self, channels: Mapping[str, np.ndarray] | None, held: bool) -> None:
+        """Remember ``channels`` (copies) when ``held`` (nothing rewrites the drives)."""
+        self.last = ({c: np.array(v, copy=True) for c, v in channels.items()}
+                     if held and channels is not None else None)
+
+
 def drive_targets(model: mujoco.MjModel, targets: list[np.ndarray]) -> np.ndarray:
     """(nu,) the actuators of ``targets`` (actuator ids of the exogenous effects) whose drive
     scale the plant applies: every one but the dcmotor servos. Raises ConfigError for a kind
