@@ -84,17 +84,19 @@ def test_analyze_refuses_what_is_not_a_dataset_or_config_and_fills_in_defaults(m
      "'load_dependent_friction', 'viscous_damping', 'gain_error', 'torque_limit', "
      "'velocity_limit', 'position_offset', 'inertia_error', 'mass_error', "
      "'thermal_derating', 'voltage_sag', 'gearbox_friction', 'mounting_offset', "
-     "'motor_strength', 'deadband', 'sensor_scale'; did you mean 'latency'?"),
+     "'motor_strength', 'deadband', 'sensor_scale', 'goal_profile'; did you mean 'latency'?"),
     (dict(candidates="latency"), "candidates='latency' must be a tuple of effect names, e.g. "
      "('latency',), or None; valid names: latency, backlash, coulomb_friction, "
      "stribeck_friction, load_dependent_friction, viscous_damping, gain_error, torque_limit, "
      "velocity_limit, position_offset, inertia_error, mass_error, thermal_derating, "
-     "voltage_sag, gearbox_friction, mounting_offset, motor_strength, deadband, sensor_scale"),
+     "voltage_sag, gearbox_friction, mounting_offset, motor_strength, deadband, sensor_scale, "
+     "goal_profile"),
     (dict(candidates={"latency"}), "candidates={'latency'} must be a tuple of effect names, "
      "e.g. ('latency',), or None; valid names: latency, backlash, coulomb_friction, "
      "stribeck_friction, load_dependent_friction, viscous_damping, gain_error, torque_limit, "
      "velocity_limit, position_offset, inertia_error, mass_error, thermal_derating, "
-     "voltage_sag, gearbox_friction, mounting_offset, motor_strength, deadband, sensor_scale"),
+     "voltage_sag, gearbox_friction, mounting_offset, motor_strength, deadband, sensor_scale, "
+     "goal_profile"),
     (dict(min_gain=1.0), "min_gain must be in (0, 1)"),
     (dict(search="back"), "unknown search 'back'; valid choices: 'forward', 'both'"),
     (dict(burn_in=-1.0), "segment must be > 0 s and burn_in >= 0 s"),

@@ -15,7 +15,7 @@ import pytest
 
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.sim import servo
-from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets, effect
+from lowcostdex.sim.effects import CAUSES, EFFECTS, AppliedEffect, Targets, effect
 from lowcostdex.sim.effects.profile import GoalProfile, profile_step
 from lowcostdex.sim.plant import BatchPlant, Plant
 
@@ -147,10 +147,10 @@ def test_a_restart_mid_move_starts_the_profile_at_the_moving_joint():
 
 
 def test_the_catalogue_offers_it_with_wide_bounds_and_a_flagged_floor():
-    """An effect with null inf (off; the register's 0 is off too), bounds 0.5-50 rad/s searched in
+    """A cause with null inf (off; the register's 0 is off too), bounds 0.5-50 rad/s searched in
     log space; a fit on the 0.5 floor is flagged (it may widen to the hard limit 0.1), one on
     the 50 top is "as little profile as the search expresses" (toward the null), not flagged."""
-    assert EFFECTS["goal_profile"] is GoalProfile
+    assert "goal_profile" in CAUSES and EFFECTS["goal_profile"] is GoalProfile
     vel = effect("goal_profile").param("velocity")
     assert (vel.null, vel.low, vel.high, vel.hard) == (math.inf, 0.5, 50.0, (0.1, 500.0))
     assert effect("goal_profile").param("acceleration").null == math.inf

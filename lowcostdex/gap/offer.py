@@ -1,6 +1,7 @@
 """Which candidates an analysis fits (``available_candidates``): the causes whose channels are
-logged, and an opt-in one (``effects.OPT_IN``) only where the data show its signature (a cheap
-test on the logs and the nominal model, before any replay; ``GATES``).
+logged, and an opt-in one (``effects.OPT_IN``) or a gated one (``goal_profile``: a firmware's
+motion profile, its gate in ``gap.ramps``) only where the data show its signature (a cheap test
+on the logs and the nominal model, before any replay; ``GATES``).
 
 ``deadband`` (``band_shown``): a servo that puts out nothing while its error is inside a band
 leaves its joint at rest off the pose the nominal model holds. At each rest of a joint (it stays
@@ -37,6 +38,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
+from lowcostdex.gap import ramps
 from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.diagnostics import noise_floor
 from lowcostdex.gap.logs import rate_goal_actuators
@@ -50,8 +52,8 @@ BAND_Z = 8.0  # the band's gate: its term over this many standard errors on some
 
 
 def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[str]:
-    """Candidates whose required channels are logged (by default the causes, an ``OPT_IN``
-    one where its gate here shows it: ``offered``).
+    """Candidates whose required channels are logged (by default the causes, one with a gate in
+    ``GATES``, opt-in or not, only where its gate shows it: ``offered``).
 
     Servos that integrate a velocity goal (``intvelocity``) have no position offsets: their
     setpoint is anchored to the measured reading (``Replayer``), so a reading offset moves the
@@ -59,14 +61,14 @@ def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[s
     first sample was named one), and a mounting offset on a velocity goal means nothing."""
     chans = ds.channels()
     names = list(requested) if requested is not None else [
-        c for c in CAUSES if c not in OPT_IN or offered(ds, c)]
+        c for c in CAUSES if (offered(ds, c) if c in GATES else c not in OPT_IN)]
     if set(ds.actuators) <= rate_goal_actuators(ds.compiled(ds.trajectories[0].model)):
         names = [n for n in names if n not in ("position_offset", "mounting_offset")]
     return [n for n in names if all(c in chans for c in effect(n).requires)]
 
 
 def offered(ds: Dataset, name: str) -> bool:
-    """Whether the opt-in cause ``name`` is offered by default on these data (its gate)."""
+    """Whether the gated cause ``name`` is offered by default on these data (its gate)."""
     gate = GATES.get(name)
     return bool(gate is not None and gate(ds))
 
@@ -234,4 +236,6 @@ def band_shown(ds: Dataset) -> bool:
     return any(z > BAND_Z for z, _ in band_scores(ds).values())
 
 
-GATES = {"deadband": band_shown}
+# a cause's gate: offered by default only where it is true (``goal_profile``, a default cause,
+# too: its ramps after goal steps, ``ramps.shows_profile``)
+GATES = {"deadband": band_shown, "goal_profile": ramps.shows_profile}

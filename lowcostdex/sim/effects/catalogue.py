@@ -577,10 +577,11 @@ CAUSES: tuple[str, ...] = (
     "viscous_damping", "gain_error", "torque_limit", "velocity_limit", "position_offset",
     "inertia_error", "mass_error", "thermal_derating", "voltage_sag",
     "gearbox_friction", "mounting_offset", "motor_strength",
-    "deadband", "sensor_scale",
+    "deadband", "sensor_scale", "goal_profile",
 )
 # Causes an analysis fits when asked (``GapConfig.candidates``, ``--candidates``) or where the
 # data show their signature (``gap.offer``'s gates): the deadband where rests stand off by a band.
+# (``goal_profile`` is a default cause with a gate there too: offered where goal steps ramp.)
 OPT_IN: tuple[str, ...] = ("deadband",)
 
 
