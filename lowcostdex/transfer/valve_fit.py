@@ -41,7 +41,6 @@ UPPER = (0.12, 0.12, 0.05, 3.0, 2.5, 1.1, 1.1, 1.1)
 STEP = (2e-3, 2e-3, 1e-3, 0.05, 0.05, 0.005, 0.005, 0.005)
 VALVE_PAD = 0.3  # (d): valve ranges at least +-30 % of the fitted friction and damping
 GRID = 9  # tilt grid points per axis over +-0.1 rad (``fit_tilt_jointly``'s global start)
-EPISODE_SECONDS = 4.0  # a playback's robot time (40 steps of 0.1 s)
 STEP_SECONDS = 0.1  # the valve task's control period [s]
 # how the k-th valve episode plays its playback's goals (``design``), cycling
 DESIGNS = ("playback", "fast", "slow", "stop_and_go", "twice")
