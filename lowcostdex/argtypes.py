@@ -107,5 +107,30 @@ def path(text: str) -> str:
     return home(text)
 
 
+def names(text: str, option: str) -> tuple[str, ...]:
+    """``"dapg,npg"`` -> ``("dapg", "npg")``: the comma-separated names an option takes
+    (``--algos``, ``--stages``, ``--candidates``, ``--fingers``, ``--joints``, ``--made-for``).
+    Spaces around a name and a trailing comma (``latency,``) are dropped. An empty item between
+    two names (``dapg,,npg``: a name deleted or left out) and a name given twice are refused with
+    the option named and what to type; before, ``dapg,,npg`` ran as ``dapg,npg`` without a word
+    and ``dapg,dapg`` was taken as given. The caller checks the names themselves and refuses an
+    empty list in its own words."""
+    from lowcostdex.errors import ConfigError
+
+    items = [s.strip() for s in text.split(",")]
+    while items and not items[-1]:
+        items.pop()  # "latency," or "latency, " is latency
+    kept = tuple(s for s in items if s)
+    fix = f"; type {option} {','.join(dict.fromkeys(kept))}" if kept else ""
+    if "" in items and kept:
+        raise ConfigError(f"{option} {text!r} has an empty name (two commas together: a name "
+                          f"left out?){fix}")
+    twice = sorted({s for s in kept if kept.count(s) > 1})
+    if twice:
+        raise ConfigError(f"{option} {text!r} names {', '.join(twice)} more than once; name "
+                          f"each once{fix}")
+    return kept
+
+
 SEED = integer(0)
 """A seed for ``numpy.random.default_rng`` (which refuses negative ones)."""

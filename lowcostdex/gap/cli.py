@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from lowcostdex.argtypes import SEED, integer, number
+from lowcostdex.argtypes import SEED, integer, names, number
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -182,7 +182,7 @@ def _analyze(args: argparse.Namespace) -> int:
         console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,
                       soft_wrap=True)
     test = _holdout(logs, args.holdout, ds.sources)  # a log split at a gap is held out whole
-    cands = (tuple(c.strip() for c in args.candidates.split(",") if c.strip())
+    cands = (names(args.candidates, "--candidates")
              if args.candidates else None)  # "latency," (a trailing comma) is latency
     cfg = GapConfig(candidates=cands, max_effects=args.max_effects, top_k=args.top_k,
                     min_gain=args.min_gain, seed=args.seed, test_logs=test,

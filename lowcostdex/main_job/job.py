@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from lowcostdex.argtypes import SEED
+from lowcostdex.argtypes import SEED, names
 from lowcostdex.errors import Interrupted
 from lowcostdex.main_job.report import markdown_report, stage_summary, write_html
 from lowcostdex.main_job.setup import DEFAULT_TASK, SIZES, TASKS, Context
@@ -212,7 +212,7 @@ def _main(args: argparse.Namespace) -> int:
 
     stages = None
     if args.stages is not None:  # '--stages ""' is not "every stage"
-        stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
+        stages = names(args.stages, "--stages")
         if not stages:
             raise ConfigError(f"--stages {args.stages!r} names no stage; give a comma-separated "
                               f"subset of {', '.join(n for n, _ in STAGES)}")

@@ -38,6 +38,7 @@ def _list_envs(args: argparse.Namespace) -> int:
 
 
 def _write_model(args: argparse.Namespace) -> int:
+    from lowcostdex.argtypes import names
     from lowcostdex.errors import ConfigError
     from lowcostdex.hands import dclaw_spec
     from lowcostdex.outdir import check_out_file, write_text_atomic
@@ -60,14 +61,14 @@ def _write_model(args: argparse.Namespace) -> int:
     if args.hand == "dclaw":
         from lowcostdex.sim.models.dclaw import build_dclaw
 
-        kwargs = {"fingers": tuple(args.fingers.split(","))} if args.fingers else {}
+        kwargs = {"fingers": names(args.fingers, "--fingers")} if args.fingers else {}
         spec = build_dclaw(args.station or "valve",
                            dclaw_spec(args.motor) if args.motor else dclaw_spec(),
                            thermal=not args.no_thermal, **kwargs)
     elif args.hand == "allegro":
         from lowcostdex.sim.models.allegro import build_allegro
 
-        kwargs = {"fingers": tuple(args.fingers.split(","))} if args.fingers else {}
+        kwargs = {"fingers": names(args.fingers, "--fingers")} if args.fingers else {}
         spec = build_allegro(args.station or "valve", **kwargs)
     else:
         from lowcostdex.sim.models.bench import BenchConfig, build_bench

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 
-from lowcostdex.argtypes import SEED, integer, number
+from lowcostdex.argtypes import SEED, integer, names, number
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -111,8 +111,8 @@ def _transfer(args: argparse.Namespace) -> int:
             print("stopped; nothing was written")
             return 1
     try:
-        made_for = None if args.made_for is None else tuple(
-            s.strip() for s in args.made_for.split(",") if s.strip())  # run() checks them
+        made_for = None if args.made_for is None else names(
+            args.made_for, "--made-for")  # run() checks them
         run(args.out, size, args.task, args.robot_seed, port, latency_ms=args.latency_ms,
             start_range=args.start_range, made_for=made_for, first_seed=args.first_seed)
     except KeyboardInterrupt:  # finished pieces are kept: say so and how to resume

@@ -193,7 +193,9 @@ def parse_list(text: str | None, valid: Sequence[str], what: str) -> tuple[str, 
 
     if text is None:
         return None
-    items = tuple(s.strip() for s in text.split(",") if s.strip())
+    from lowcostdex.argtypes import names
+
+    items = names(text, f"--{what}s")  # "dapg,,npg" and "dapg,dapg" refused
     if not items:  # before: "size: give at least one algo and one condition", no option named
         raise ConfigError(f"--{what}s is empty; name at least one {what} ({', '.join(valid)}), "
                           "or leave it out for the default")
