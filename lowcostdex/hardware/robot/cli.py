@@ -196,10 +196,15 @@ def _record_log(args: argparse.Namespace) -> int:
     if args.joints is not None and not args.joints.strip():  # an unset variable, not a default
         raise ConfigError("--joints is empty; name the joints to excite (e.g. --joints ff_top), "
                           "or leave it out")
-    # each joint is excited once: a repeat is a typo for another joint (names refuses it)
-    joints = names(args.joints or LOG_JOINTS[args.hand], "--joints")
+    joints = tuple(j.strip() for j in (args.joints or LOG_JOINTS[args.hand]).split(",")
+                   if j.strip())
     if not joints:
         raise ConfigError("--joints names no joint")
+    twice = sorted({j for j in joints if joints.count(j) > 1})
+    if twice:  # each joint is excited once: a repeat is a typo for another joint
+        raise ConfigError(f"--joints {args.joints} names {', '.join(twice)} more than once; "
+                          "name each joint to excite once")
+    joints = names(args.joints or LOG_JOINTS[args.hand], "--joints")  # "ff_top,,ff_middle"
     for j in joints:
         hand.joint(j)  # raises with the valid names
     effects = []
