@@ -40,3 +40,24 @@ def test_a_trailing_comma_is_still_read_as_the_names_before_it():
 
     assert names("latency, backlash,", "--candidates") == ("latency", "backlash")
     assert names(",", "--algos") == ()  # the caller says "empty" in its own words
+
+
+# ------------------------------------------------------------------------------------------------
+# a bare `reset-test` says what it runs before the first trial (careless17 found-not-fixed)
+
+
+def test_a_bare_reset_test_says_what_it_runs_before_the_first_trial(monkeypatch, capsys):
+    """Before: the first output was the progress bar of 20 trials; nothing said they run on the
+    emulated hand, nor how to run them on the user's D'Claw. The trials are stopped here as
+    Ctrl-C would stop them."""
+    import lowcostdex.hardware.robot.reset_trials as trials
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(trials, "reset_trials", ctrl_c)
+    assert main(["reset-test"]) == 130
+    err = " ".join(capsys.readouterr().err.split())
+    assert ("lowcostdex reset-test: 20 trials of the lowcostdex reset (tangle the fingers, then "
+            "reset) on the emulated D'Claw (virtual time, the default servo effects), seed 0; "
+            "--trials N, --backend hardware --port DEVICE for your D'Claw") in err

@@ -137,6 +137,14 @@ def _reset_test(args: argparse.Namespace) -> int:
     robot = Robot(hand, make_dynamixel_bus(hand, port, model, baudrate=args.baud,
                                              **latency_kwargs(args.latency_ms)))
     console = Console(stderr=True)
+    where = ("the emulated D'Claw (virtual time, "
+             + ("no servo effects)" if args.no_effects else "the default servo effects)")
+             if args.port == "emulated" else f"the D'Claw on {args.port} (it will move)")
+    # before: a bare reset-test started 20 emulated trials with no word of what or where
+    console.print(f"lowcostdex reset-test: {args.trials} trials of the {args.procedure} reset "
+                  f"(tangle the fingers, then reset) on {where}, seed {args.seed}; --trials N, "
+                  "--backend hardware --port DEVICE for your D'Claw", soft_wrap=True,
+                  markup=False, highlight=False)
     with robot, progress_tasks(transient=False, console=console) as progress:
         task = progress.add_task("reset trials", total=args.trials)
         procedure = (DClawReset if args.procedure == "lowcostdex" else RobelReset)(robot)
