@@ -201,12 +201,13 @@ class _PlantBase:
         for b in self._bound:
             if b.cls.kind == "model" or b.cls.structural or b.cls.fields:
                 b.cls.apply(self, b.targets, b.values)
-        # constants (mj_setConst's) follow a simulation's own masses: set where its mass_error
+        # constants (mj_setConst's) follow a simulation's own masses and locked plays: set where
+        # its mass_error or a null backlash (``Effect.moves_constants``)
         # moved them, the compiled model's elsewhere (they were set in every simulation of a batch
         # holding one mass_error, from its armature too: a replay depended on its batch companions,
         # 2.8e-5 rad on an inertia_error column, and a reused plant kept earlier constants)
-        moved = [np.any(np.asarray(b.values["scale"], float) != 1.0, axis=-1)
-                 for b in self._bound if b.cls.name == "mass_error"]
+        moved = [m for b in self._bound
+                 if (m := b.cls.moves_constants(b.targets, b.values)) is not None]
         self._set_const(np.broadcast_to(np.any(moved, axis=0), self._lead) if moved else None)
         self._static_gain = np.array(self.array("actuator_gainprm"), copy=True)
         self._ctrl_gain = self._static_gain[..., _CONTROLLER_GAINS]  # (..., nu, 3), unmasked

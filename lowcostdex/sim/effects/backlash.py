@@ -47,7 +47,7 @@ class Backlash(Effect):
                         "output-shaft or link encoder), 0 the motor side (the servo's own "
                         "encoder before the play: a rotor-side encoder, a horn, belt or tendon "
                         "beyond the servo); the reading is motor + read x play"))
-    LOCK = 1e8  # [kg m^2] armature of a closed (null) play hinge (``apply``)
+    LOCK = 1e4  # [kg m^2] armature of a closed (null) play hinge (``apply``)
 
     @classmethod
     def sample(cls, rng: np.random.Generator, shape: tuple[int, ...]) -> dict[str, np.ndarray]:
@@ -98,7 +98,14 @@ class Backlash(Effect):
         1e-4 kg m^2 that is past double precision, and a 0.08 rad play on a finger's distal
         joint beside locked plays on its other two replayed its middle joint 2.39 mrad RMS off
         a plain-MuJoCo truth at 0.25 ms (0.49 with no locked hinges, as at 1e3-1e8; 0.51 at
-        1e10)."""
+        1e10). Since gap-sim9 (session 22) 1e4, and the plant recomputes the model's constants
+        (``moves_constants``): compiled with the play hinge free, each servo joint's
+        dof_invweight0 left out the link it carries, so the friction and limit rows were
+        regularised as for the rotor alone; on the ninth truth simulator's 4-joint arm
+        (frictionloss on every joint) null plays on all four replayed them 0.90 / 1.77 / 2.02 /
+        2.53 mrad RMS off the nominal model at 0.25 ms (1e7-1e9 alike; 0.2 mrad at 1e1-1e5
+        without the constants; with them 0.001 at 1e3, 0.001-0.003 at 1e4, 0.03-1.2 at 1e8;
+        1e3 left a one-joint arm's null play 2e-9 rad off, tests/test_effects.py)."""
         has = t.has_play
         if not np.any(has):
             return
@@ -110,6 +117,13 @@ class Backlash(Effect):
         rng_[..., play, 1] = half
         arm = f.array("dof_armature")
         arm[..., dofs] = np.where(half > 0, f.nominal("dof_armature")[dofs], cls.LOCK)
+
+    @classmethod
+    def moves_constants(cls, t: Targets, v: Values) -> np.ndarray | None:
+        """A null play on a joint with a hinge is locked by its armature (``apply``)."""
+        if not np.any(t.has_play):
+            return None
+        return np.any((np.asarray(v["width"], float) <= 0) & t.has_play, axis=-1)
 
     @classmethod
     def reading(cls, v: Values, joint: np.ndarray, play: np.ndarray) -> np.ndarray:

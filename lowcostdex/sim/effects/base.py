@@ -225,6 +225,13 @@ class Effect:
         """Model fields ``apply`` writes on these targets (reset to nominal before applying)."""
         return cls.fields
 
+    @classmethod
+    def moves_constants(cls, t: Targets, v: Values) -> np.ndarray | None:
+        """Per simulation (lead shape), whether ``apply`` moves what ``mj_setConst`` derives
+        from the model (masses, armature: the constraints' regularisation, dof_invweight0), so
+        that the plant recomputes them; None: never."""
+        return None
+
     # ---- hooks (overridden per kind) -----------------------------------------------------
     @classmethod
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:

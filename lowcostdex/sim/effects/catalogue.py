@@ -338,6 +338,10 @@ class MassError(Effect):
         m[..., t.bodies] = m[..., t.bodies] * s
         inertia[..., t.bodies, :] = inertia[..., t.bodies, :] * s[..., None]
 
+    @classmethod
+    def moves_constants(cls, t: Targets, v: Values) -> np.ndarray:
+        return np.any(np.asarray(v["scale"], float) != 1.0, axis=-1)
+
 
 # ------------------------------------------------------------------------------------------------
 # substep friction effects
