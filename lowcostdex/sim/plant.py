@@ -206,9 +206,9 @@ class _PlantBase:
         # moved them, the compiled model's elsewhere (they were set in every simulation of a batch
         # holding one mass_error, from its armature too: a replay depended on its batch companions,
         # 2.8e-5 rad on an inertia_error column, and a reused plant kept earlier constants)
-        moved = [m for b in self._bound
+        moved = [np.broadcast_to(m, self._lead) for b in self._bound
                  if (m := b.cls.moves_constants(b.targets, b.values)) is not None]
-        self._set_const(np.broadcast_to(np.any(moved, axis=0), self._lead) if moved else None)
+        self._set_const(np.any(moved, axis=0) if moved else None)
         self._static_gain = np.array(self.array("actuator_gainprm"), copy=True)
         self._ctrl_gain = self._static_gain[..., _CONTROLLER_GAINS]  # (..., nu, 3), unmasked
         self._joint_applied = {k: np.array(self.array(k), copy=True) for k in JOINT_FRICTION}
