@@ -4,9 +4,11 @@ saying what to type, or say what it is about to do."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from lowcostdex.cli import main
+from lowcostdex.errors import InputError
 
 # ------------------------------------------------------------------------------------------------
 # comma-separated names with an empty item or a repeat (careless18 found-not-fixed)
@@ -61,3 +63,77 @@ def test_a_bare_reset_test_says_what_it_runs_before_the_first_trial(monkeypatch,
     assert ("lowcostdex reset-test: 20 trials of the lowcostdex reset (tangle the fingers, then "
             "reset) on the emulated D'Claw (virtual time, the default servo effects), seed 0; "
             "--trials N, --backend hardware --port DEVICE for your D'Claw") in err
+
+
+# ------------------------------------------------------------------------------------------------
+# a policy file of another task (careless17 found-not-fixed: policy files recorded no env)
+
+VALVE, SCREW = "lowcostdex/DClawTurnValve-v0", "lowcostdex/DClawScrew-v0"
+
+
+OLD_KEYS = ("obs_dim", "act_dim", "config", "dtype", "state_dict")
+"""The entries of a policy checkpoint written before policies recorded their env (session 21)."""
+
+
+def _policy_file(path, obs_dim=4, act_dim=2, trained_on=None, old=False):
+    import torch
+
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+    from lowcostdex.algos.run_files import save_state
+
+    policy = GaussianMLPPolicy(obs_dim, act_dim, generator=torch.Generator().manual_seed(0))
+    policy.trained_on = trained_on
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ckpt = policy.to_checkpoint()
+    save_state(path, {"policy": {k: ckpt[k] for k in OLD_KEYS} if old else ckpt})
+    return path
+
+
+def test_a_policy_saved_with_its_env_is_refused_for_another_env(tmp_path):
+    # before: load_policy read any policy of the right sizes; it acted on the valve silently
+    from lowcostdex.algos.policy_files import load_policy
+
+    file = _policy_file(tmp_path / "screw.pt", trained_on=SCREW)
+    assert load_policy(file).trained_on == SCREW
+    with pytest.raises(InputError, match=rf"a policy trained on {SCREW}, not on {VALVE}.*"
+                                         rf"--env {VALVE}"):
+        load_policy(file, env=VALVE)
+    assert load_policy(file, env=SCREW).trained_on == SCREW
+
+
+def test_a_policy_file_of_an_older_run_takes_its_env_from_the_runs_config(tmp_path):
+    # a run folder as `train` wrote it before policies recorded their env: config.json beside
+    import json
+
+    from lowcostdex.algos.policy_files import load_policy
+
+    run = tmp_path / "run"
+    _policy_file(run / "policy.pt", old=True)
+    _policy_file(run / "checkpoints" / "ckpt_000001.pt", old=True)
+    (run / "config.json").write_text(json.dumps({"algo": "npg", "env_id": SCREW}))
+    for path in (run, run / "policy.pt", run / "checkpoints" / "ckpt_000001.pt"):
+        with pytest.raises(InputError, match=rf"trained on {SCREW}, not on {VALVE}"):
+            load_policy(path, env=VALVE)
+    # a new file whose env is unknown (an env_factory without a gymnasium spec) is not given
+    # the config's env_id, which that run's env did not come from
+    _policy_file(run / "policy.pt", trained_on=None)
+    assert load_policy(run, env=VALVE).trained_on is None
+
+
+def test_a_policy_of_other_sizes_is_refused_for_an_env_before_it_acts(tmp_path):
+    import gymnasium as gym
+
+    import lowcostdex.sim.envs  # noqa: F401  (registers the envs)
+    from lowcostdex.algos.policy_files import load_policy
+
+    env = gym.make(VALVE)
+    try:
+        obs_dim = int(np.prod(env.observation_space.shape))
+        act_dim = int(np.prod(env.action_space.shape))
+        file = _policy_file(tmp_path / "p.pt", obs_dim=obs_dim + 3, act_dim=act_dim)
+        with pytest.raises(InputError, match=rf"sizes {obs_dim + 3}/{act_dim}; {VALVE} has "
+                                             rf"{obs_dim}/{act_dim}"):
+            load_policy(file, env=env)
+        assert load_policy(_policy_file(tmp_path / "q.pt", obs_dim, act_dim, VALVE), env=env)
+    finally:
+        env.close()

@@ -213,6 +213,10 @@ class GaussianMLPPolicy(nn.Module):
         self.register_buffer("act_shift", torch.zeros(self.act_dim, dtype=dtype))
         self.register_buffer("act_scale", torch.ones(self.act_dim, dtype=dtype))
         self._init_weights(generator)
+        self.trained_on: str | None = None
+        """Gymnasium id of the env the policy was trained on (set by the trainers, saved in its
+        checkpoint; None when unknown): a policy of another task with the same sizes would
+        otherwise act on an env without a word (``load_policy(path, env=...)`` checks it)."""
 
     @torch.no_grad()
     def _init_weights(self, generator: torch.Generator | None) -> None:
@@ -298,6 +302,7 @@ class GaussianMLPPolicy(nn.Module):
             "config": asdict(self.config),
             "dtype": str(self.log_std.dtype).removeprefix("torch."),
             "state_dict": self.state_dict(),
+            "env_id": self.trained_on,  # None: unknown (an env_factory's env without a spec)
         }
 
     @classmethod
@@ -307,7 +312,7 @@ class GaussianMLPPolicy(nn.Module):
             raise ConfigError(f"a policy checkpoint is a dict (to_checkpoint()), not a "
                               f"{type(ckpt).__name__}")
         check_keys("policy checkpoint entry", ckpt,
-                   ("obs_dim", "act_dim", "config", "dtype", "state_dict"))
+                   ("obs_dim", "act_dim", "config", "dtype", "state_dict", "env_id"))
         missing = [k for k in ("obs_dim", "act_dim", "config", "state_dict") if k not in ckpt]
         if missing:
             raise ConfigError(f"policy checkpoint lacks {', '.join(missing)}")
@@ -329,6 +334,8 @@ class GaussianMLPPolicy(nn.Module):
         if not all(bool(torch.isfinite(t).all()) for t in policy.state_dict().values()
                    if t.is_floating_point()):
             raise ConfigError("policy checkpoint holds NaN/inf weights or statistics")
+        env_id = ckpt.get("env_id")
+        policy.trained_on = env_id if isinstance(env_id, str) and env_id else None
         return policy
 
     def snapshot(self) -> PolicySnapshot:

@@ -155,6 +155,7 @@ class _Agent:
         self.config = c = config
         gen = seed_generator(c.seed, _INIT)
         self.actor = make_actor(obs_dim, act_dim, c, gen)
+        self.actor.trained_on = c.env_id  # saved with it: load_policy(path, env=...) checks it
         self.critic = Critic(obs_dim, c.critic_hidden, gen)
         self.params = [*self.actor.parameters(), *self.critic.parameters()]
         # fused: one kernel per step for all 14 tensors instead of ~10 small ops per tensor

@@ -241,6 +241,9 @@ def _init_state(config: TrainConfig, probe: Any, demos: Demos | None
     policy = GaussianMLPPolicy(
         obs_dim, act_dim, config.policy, seed_generator(clone_seed, _POLICY_INIT)
     )
+    # saved with it (load_policy(path, env=...) checks it); an env_factory's env without a
+    # gymnasium spec leaves it unknown rather than naming config.env_id, which it did not make
+    policy.trained_on = getattr(getattr(probe, "spec", None), "id", None)
     baseline = MLPBaseline(
         obs_dim, horizon, config.baseline, seed_generator(config.seed, _BASELINE_INIT)
     )
