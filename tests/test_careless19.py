@@ -137,3 +137,16 @@ def test_a_policy_of_other_sizes_is_refused_for_an_env_before_it_acts(tmp_path):
         assert load_policy(_policy_file(tmp_path / "q.pt", obs_dim, act_dim, VALVE), env=env)
     finally:
         env.close()
+
+
+# ------------------------------------------------------------------------------------------------
+# `gap analyze --logs DIR`: the plural record-log writes (--logs N, its folder of logs)
+
+
+@pytest.mark.parametrize("sub", ["analyze", "identify"])
+def test_gap_takes_logs_spelt_as_record_log_spells_them(sub, tmp_path, capsys):
+    # before: "the following arguments are required: --log" for a folder the user did give
+    where = tmp_path / "my logs"  # a folder name with a space, as a user names one
+    assert main(["gap", sub, "--logs", str(where), "--out", str(tmp_path / "out")]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert f"{where}: no such file" in err and "required" not in err

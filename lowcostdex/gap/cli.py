@@ -27,7 +27,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     a = gsub.add_parser("analyze", help="show what the model gets wrong, name the causes, "
                         "extend the model and measure the gain")
     a.add_argument("--model", help="MJCF of the nominal model (project-format logs)")
-    a.add_argument("--log", nargs="+", required=True, metavar="FILE",
+    # "--logs" as record-log spells it (and names the folder): was "required: --log"
+    a.add_argument("--log", "--logs", nargs="+", required=True, metavar="FILE", dest="log",
                    help="logs: CSV/NPZ in the project format, or BAM raw-log JSON; a folder "
                         "means every log in it, a quoted pattern ('logs/*.csv') its matches")
     a.add_argument("--out", required=True, help="output folder: new or empty, or a previous report (kept in previous/)")
@@ -62,7 +63,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     i = gsub.add_parser("identify", help="fit the servo's own parameters (motor constants, "
                         "inertia, friction, mounting offset) on whole BAM bench logs, open loop, "
                         "and score held-out logs with BAM's per-log MAE")
-    i.add_argument("--log", nargs="+", required=True, metavar="FILE",
+    i.add_argument("--log", "--logs", nargs="+", required=True, metavar="FILE", dest="log",
                    help="BAM raw-log JSON files (a folder: every log in it; include the "
                         "--holdout logs here too)")
     i.add_argument("--holdout", nargs="+", metavar="FILE", default=None,
