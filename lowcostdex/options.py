@@ -45,7 +45,7 @@ def env_id(name: str) -> str:
 def add_run_options(parser: argparse.ArgumentParser, *, out: str, n_iter: int,
                     n_traj: int | None = None) -> None:
     """``--seed``, ``--out``, ``--n-iter`` (``--iters`` is kept as an alias) and ``--n-traj``."""
-    parser.add_argument("--seed", type=SEED, default=0)
+    parser.add_argument("--seed", type=SEED, default=0, help="run seed (default %(default)s)")
     parser.add_argument("--out", type=path, default=out,
                         help="output folder (default %(default)s)")
     parser.add_argument("--n-iter", "--iters", dest="n_iter", type=integer(1), default=n_iter,

@@ -150,3 +150,29 @@ def test_gap_takes_logs_spelt_as_record_log_spells_them(sub, tmp_path, capsys):
     assert main(["gap", sub, "--logs", str(where), "--out", str(tmp_path / "out")]) == 2
     err = " ".join(capsys.readouterr().err.split())
     assert f"{where}: no such file" in err and "required" not in err
+
+
+# ------------------------------------------------------------------------------------------------
+# every option of every command says what it is (`lowcostdex <sub> --help`)
+
+
+def test_every_option_of_every_command_has_a_help_line(capsys):
+    """Before: 43 options listed bare in --help (gap analyze --max-effects, train npg --sampler,
+    --workers, --eval-every, tvlg --init, calibrate --baud, setup-motors --hand, ...): a new
+    user could not tell what --max-effects counts or what --eval-every 0 does. (careless17's
+    test covers the number options of type float only.)"""
+    import argparse
+
+    from lowcostdex.cli import build_parser
+
+    def walk(parser, path):
+        yield path, parser
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, child in action.choices.items():
+                    yield from walk(child, [*path, name])
+
+    bare = [f"{' '.join(path)} {action.option_strings[-1]}"
+            for path, parser in walk(build_parser(), [])
+            for action in parser._actions if action.option_strings and not action.help]
+    assert bare == []

@@ -55,7 +55,8 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
     d = TrainConfig()
     p.add_argument("--env", type=env_id, default=d.env_id,
                    help="gymnasium id (default %(default)s; the lowcostdex/ prefix may be left out)")
-    p.add_argument("--backend", choices=BACKENDS, default=d.backend)
+    p.add_argument("--backend", choices=BACKENDS, default=d.backend,
+                   help="where episodes run: MuJoCo, the emulated or the real robot (default %(default)s)")
     p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
     add_latency_option(p)
     p.add_argument(
@@ -63,15 +64,17 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
         help="demonstration dataset (HDF5, lowcostdex.demonstrations.file); its successful episodes are used",
     )
     p.add_argument("--n-demos", type=int, default=None, help="use the first N demo episodes")
-    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--seed", type=int, default=d.seed, help="run seed (default %(default)s)")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument(
         "--resume", action="store_true", help="continue the run in --out from its last checkpoint"
     )
-    p.add_argument("--n-iter", type=int, default=d.n_iter)
+    p.add_argument("--n-iter", type=int, default=d.n_iter, help="training iterations (default %(default)s)")
     p.add_argument("--n-traj", type=int, default=d.n_traj, help="trajectories per iteration")
-    p.add_argument("--sampler", choices=SAMPLERS, default=d.sampler)
-    p.add_argument("--workers", type=int, default=d.n_workers)
+    p.add_argument("--sampler", choices=SAMPLERS, default=d.sampler,
+                   help="how trajectories are collected (--workers processes) (default %(default)s)")
+    p.add_argument("--workers", type=int, default=d.n_workers,
+                   help="sampling workers (process/vector/ray samplers) (default %(default)s)")
     p.add_argument(
         "--step-size", type=float, default=d.npg.step_size, help="NPG delta (KL ~ delta/2)"
     )
@@ -83,13 +86,16 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
                         "--hidden alone: none, a linear policy)")
     p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std,
                    help=LOG_STD_HELP)
-    p.add_argument("--eval-every", type=int, default=d.eval_every)
-    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    p.add_argument("--eval-every", type=int, default=d.eval_every,
+                   help="evaluate every N iterations (0: after the last only) (default %(default)s)")
+    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes,
+                   help="episodes per evaluation (default %(default)s)")
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                    help="extra gym.make argument (VALUE parsed as JSON when possible)")  # fmt: skip
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     # behaviour cloning: always for DAPG, with --bc-init for NPG
-    p.add_argument("--bc-epochs", type=int, default=d.bc.epochs)
+    p.add_argument("--bc-epochs", type=int, default=d.bc.epochs,
+                   help="behaviour-cloning epochs over the demos (default %(default)s)")
     p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=d.bc.log_std,
                    help="initial exploration noise after BC")  # fmt: skip
     p.add_argument("--eval-bc", action="store_true",
@@ -103,7 +109,9 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
         p.add_argument("--lam1", type=float, default=d.dapg.lam1,
                        help="its decay per iteration (lambda1: w_k = lam0 lam1^k; default "
                             "%(default)s)")
-        p.add_argument("--demo-weight", choices=DEMO_WEIGHTS, default=d.dapg.demo_weight)
+        p.add_argument("--demo-weight", choices=DEMO_WEIGHTS, default=d.dapg.demo_weight,
+                       help="demo weight w_k (paper: lam0 lam1^k max advantage, the DAPG "
+                            "paper's; mjrl: lam0 lam1^k, mjrl's code; default %(default)s)")
     else:
         p.add_argument(
             "--bc-init", action="store_true", help="behaviour-clone the demos first (BCRL)"
@@ -117,19 +125,21 @@ def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=BACKENDS, default="sim",
                    help="sim only: PPO steps many simulated copies together (the other trainers "
                         "take emulated and hardware)")
-    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--seed", type=int, default=d.seed, help="run seed (default %(default)s)")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its last checkpoint")
-    p.add_argument("--n-iter", type=int, default=d.n_iter)
+    p.add_argument("--n-iter", type=int, default=d.n_iter, help="training iterations (default %(default)s)")
     p.add_argument("--num-envs", type=int, default=d.num_envs,
                    help="copies stepped together = episodes per iteration")
     p.add_argument("--lr", type=float, default=d.lr,
                    help="Adam's learning rate (default %(default)s)")
     p.add_argument("--gamma", type=float, default=d.gamma, help=GAMMA_HELP)
     p.add_argument("--gae-lambda", type=float, default=d.gae_lambda, help=LAMBDA_HELP)
-    p.add_argument("--update-epochs", type=int, default=d.update_epochs)
-    p.add_argument("--num-minibatches", type=int, default=d.num_minibatches)
+    p.add_argument("--update-epochs", type=int, default=d.update_epochs,
+                   help="passes over each batch (default %(default)s)")
+    p.add_argument("--num-minibatches", type=int, default=d.num_minibatches,
+                   help="minibatches per pass (default %(default)s)")
     p.add_argument("--clip-coef", type=float, default=d.clip_coef,
                    help="PPO's clip of the probability ratio, 1 +- this (default %(default)s)")
     p.add_argument("--ent-coef", type=float, default=d.ent_coef,
@@ -139,13 +149,15 @@ def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
                         "--hidden alone: none, a linear policy)")
     p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std,
                    help=LOG_STD_HELP)
-    p.add_argument("--eval-every", type=int, default=d.eval_every)
-    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    p.add_argument("--eval-every", type=int, default=d.eval_every,
+                   help="evaluate every N iterations (0: after the last only) (default %(default)s)")
+    p.add_argument("--eval-episodes", type=int, default=d.eval_episodes,
+                   help="episodes per evaluation (default %(default)s)")
     p.add_argument("--threads", type=int, default=d.nthread,
                    help="mujoco.batch threads (0: all CPUs)")
     p.add_argument("--env-kwarg", action="append", default=[], metavar="KEY=VALUE",
                    help="extra gym.make argument (VALUE parsed as JSON when possible)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def ppo_config_from_args(args: argparse.Namespace) -> PPOConfig:

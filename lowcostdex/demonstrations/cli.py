@@ -50,7 +50,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("record-demos",
                        help="record kinesthetic demonstrations (a person, or the emulator's "
                             "virtual teacher) into an HDF5 demo file")
-    p.add_argument("--hand", default="dclaw", choices=sorted(TASKS))
+    p.add_argument("--hand", default="dclaw", choices=sorted(TASKS),
+                   help="the hand recorded (default %(default)s)")
     p.add_argument("--task", default="turn-valve",
                    choices=sorted({t for tasks in TASKS.values() for t in tasks}),
                    help="D'Claw: " + ", ".join(TASKS["dclaw"]) + "; Allegro: "

@@ -38,12 +38,14 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="logs held out for the test (default: random episodes)")
     a.add_argument("--candidates", default=None,
                    help="comma-separated effects to consider (default: all with logged channels)")
-    a.add_argument("--max-effects", type=integer(1, 20), default=3)
+    a.add_argument("--max-effects", type=integer(1, 20), default=3,
+                   help="most hidden effects named together (default %(default)s)")
     a.add_argument("--top-k", type=integer(1, 50), default=6, help="candidates fitted per round")
     a.add_argument("--min-gain", type=number(0, 1, open_low=True, open_high=True, unit="fraction"),
                    default=0.05,
                    help="smallest relative select-MSE reduction to accept an effect")
-    a.add_argument("--seed", type=SEED, default=0)
+    a.add_argument("--seed", type=SEED, default=0,
+                   help="seed of the episode split and the fits (default %(default)s)")
     a.add_argument("--threads", type=integer(0, 1024), default=0,
                    help="simulation threads (0: all CPUs)")
     a.add_argument("--servo-period", type=number(0.0, 0.1, unit="s"), default=0.0,
@@ -92,15 +94,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     i.set_defaults(func=_identify)
 
     g = gsub.add_parser("generate", help="write synthetic logs with hidden effects (demo/tests)")
-    g.add_argument("--rig", choices=("bench", "finger"), default="bench")
+    g.add_argument("--rig", choices=("bench", "finger"), default="bench",
+                   help="one servo and its arm, or a D'Claw finger (default %(default)s)")
     g.add_argument("--effect", action="append", default=[],
                    help="effect to hide (repeat for several; 'random' draws one; none: clean)")
-    g.add_argument("--seed", type=SEED, default=0)
-    g.add_argument("--logs", type=integer(1, 1000), default=4)
+    g.add_argument("--seed", type=SEED, default=0, help="seed of the excitation and effects (default %(default)s)")
+    g.add_argument("--logs", type=integer(1, 1000), default=4, help="number of logs (default %(default)s)")
     g.add_argument("--duration", type=number(1.0, 3600.0), default=8.0,
                    help="seconds per log")
     g.add_argument("--rate", type=number(2.0, 10_000.0), default=100.0, help="log rate [Hz]")
-    g.add_argument("--format", choices=("csv", "npz"), default="csv")
+    g.add_argument("--format", choices=("csv", "npz"), default="csv",
+                   help="log file format (default %(default)s)")
     g.add_argument("--out", required=True, help="output folder: new or empty, or a previous "
                    "generate output (kept in previous/)")
     g.set_defaults(func=_generate)

@@ -60,10 +60,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("calibrate",
                        help="record per-joint offsets (hand in its zero pose) into a hand spec")
-    p.add_argument("--hand", default="dclaw", choices=("dclaw", "bench"))
+    p.add_argument("--hand", default="dclaw", choices=("dclaw", "bench"),
+                   help="the D'Claw or the one-servo bench (default %(default)s)")
     p.add_argument("--spec", default=None, help="hand spec JSON to start from (default: built-in)")
     p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
-    p.add_argument("--baud", type=int, default=1_000_000)
+    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s] (default %(default)s)")
     p.add_argument("--out", required=True, help="where to write the calibrated hand spec JSON")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an earlier calibration at --out (a hand spec, nothing else)")
@@ -76,7 +77,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("setup-motors",
                        help="new motors (id 1, 57600 bps): give each its id and baud rate, one "
                             "motor at a time, then scan the hand")
-    p.add_argument("--hand", default="dclaw", choices=("dclaw", "bench"))
+    p.add_argument("--hand", default="dclaw", choices=("dclaw", "bench"),
+                   help="the D'Claw or the one-servo bench (default %(default)s)")
     p.add_argument("--spec", default=None, help="hand spec JSON (default: built-in)")
     p.add_argument("--port", default=None,
                    help="serial device or pty path (default: the one USB serial port found)")

@@ -195,7 +195,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", choices=SIZES, default="default",
                    help="budget: smoke (every stage checked, ~4 min of CPU), default (~25 min "
                         "of CPU on one core; more wall under load), long")
-    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--seed", type=SEED, default=0, help="seed of every stage (default %(default)s)")
     p.add_argument("--task", choices=sorted(TASKS), default=DEFAULT_TASK,
                    help="valve-target: turn the valve from 0 to a random target in 180 +- 29 "
                    "deg; valve: turn it 180 deg; valve-random: random start and target "

@@ -344,16 +344,18 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--env", default="DClawTurnValve-v0", help="env id, with or without the lowcostdex/ prefix"
     )
-    p.add_argument("--backend", choices=BACKENDS, default=d.backend)
+    p.add_argument("--backend", choices=BACKENDS, default=d.backend,
+                   help="where episodes run: MuJoCo, the emulated or the real robot (default %(default)s)")
     p.add_argument("--port", default=None, help="serial port of a real robot (hardware backend)")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument(
         "--resume", action="store_true", help="continue the run in --out from its last checkpoint"
     )
-    p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--n-iter", type=int, default=d.n_iter)
+    p.add_argument("--seed", type=int, default=d.seed, help="run seed (default %(default)s)")
+    p.add_argument("--n-iter", type=int, default=d.n_iter, help="training iterations (default %(default)s)")
     p.add_argument("--n-rollouts", type=int, default=d.n_rollouts, help="episodes per iteration")
-    p.add_argument("--init", choices=INITS, default=d.init)
+    p.add_argument("--init", choices=INITS, default=d.init,
+                   help="initial controller: a PD hold, fitted to --demos, or the teacher (default %(default)s)")
     p.add_argument("--demos", default=None, help="demonstration dataset (HDF5) for --init demos")
     p.add_argument(
         "--init-noise", type=float, default=d.init_noise, help="initial action noise std"
@@ -402,8 +404,9 @@ def add_train_commands(train_subparsers: argparse._SubParsersAction) -> None:
         "--start-hand-qpos", type=float, nargs="+", default=None, metavar="RAD",
         help="hand joint angles of the fixed start (action order) instead of the reset pose",
     )  # fmt: skip
-    p.add_argument("--eval-every", type=int, default=d.eval_every)
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--eval-every", type=int, default=d.eval_every,
+                   help="evaluate every N iterations (0: after the last only) (default %(default)s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_run_command, parser=p)
 
 
