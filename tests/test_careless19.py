@@ -176,3 +176,19 @@ def test_every_option_of_every_command_has_a_help_line(capsys):
             for path, parser in walk(build_parser(), [])
             for action in parser._actions if action.option_strings and not action.help]
     assert bare == []
+
+
+# ------------------------------------------------------------------------------------------------
+# an env keyword misspelt names the one meant
+
+
+def test_a_misspelt_env_keyword_names_the_one_meant():
+    # before: "unknown keyword argument 'goal_rang' ...; valid: init_range, goal_offset,
+    # goal_range, ..." - nine names and no word of which one was meant
+    import gymnasium as gym
+
+    import lowcostdex.sim.envs  # noqa: F401  (registers the envs)
+    from lowcostdex.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"'goal_rang'.*did you mean 'goal_range'"):
+        gym.make(VALVE, goal_rang=0.5)

@@ -18,7 +18,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, did_you_mean
 from lowcostdex.motion import motion_bound
 from lowcostdex.sim.effects import DomainRandomization
 from lowcostdex.sim.envs.backend import Backend, backend_class
@@ -198,9 +198,11 @@ class HandEnv(gym.Env):
             bad = [k for k in backend_kwargs if f"argument '{k}'" in str(e)]
             if not bad:
                 raise
+            valid = list(_keywords(cls, task))
             raise ConfigError(
                 f"unknown keyword argument {bad[0]!r} for backend {backend!r} of "
-                f"{type(task).__name__}; valid: {', '.join(_keywords(cls, task))}") from None
+                f"{type(task).__name__}; valid: {', '.join(valid)}"
+                + did_you_mean(bad[0], valid)) from None
         self.model, self.data = self.backend.model, self.backend.data
         n = len(task.hand.joints)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(n,), dtype=np.float32)
