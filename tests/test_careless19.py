@@ -192,3 +192,40 @@ def test_a_misspelt_env_keyword_names_the_one_meant():
 
     with pytest.raises(ConfigError, match=r"'goal_rang'.*did you mean 'goal_range'"):
         gym.make(VALVE, goal_rang=0.5)
+
+
+# ------------------------------------------------------------------------------------------------
+# record-demos stopped with Ctrl-C, then the same command again
+
+
+def _demo_file(path, seeds):
+    """A D'Claw valve demo file holding one short episode per seed, as an earlier record-demos
+    run left it (its sizes are the env's: 9 joints; the observation size does not matter here)."""
+    from lowcostdex.demonstrations.file import DatasetInfo, DemoWriter, Episode
+
+    joints = tuple(f"{f}_{p}" for f in ("ff", "mf", "th") for p in ("top", "middle", "bottom"))
+    info = DatasetInfo(env_id=VALVE, task="turn-valve", hand="{}", source="virtual_teacher",
+                       control_period=0.1, obs_dim=3, act_dim=9, action_joints=joints)
+    writer = DemoWriter(path, info)
+    for seed in seeds:
+        writer.append(Episode(observations=np.zeros((3, 3)), actions=np.zeros((2, 9)),
+                              rewards=np.zeros(2), qpos=np.zeros((3, 10)),
+                              qvel=np.zeros((3, 10)), time=np.arange(3) * 0.1,
+                              success=np.ones(2, bool), seed=seed))
+    return path
+
+
+def test_record_demos_run_again_on_its_own_file_is_told_the_seed_that_adds_new_episodes(
+        tmp_path, capsys):
+    # before: the second run appended the episodes of seeds 0, 1, ... again; with the virtual
+    # teacher they are the same demonstrations bit for bit (measured: 6 of 6 episodes' actions
+    # equal across two runs), which BC and DAPG then count twice
+    out = _demo_file(tmp_path / "demos.h5", seeds=[0, 1, 2])
+    before = out.read_bytes()
+    assert main(["record-demos", "--backend", "emulated", "--episodes", "5", "--out",
+                 str(out)]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert (f"--out {out} already holds episodes of seeds 0-2 (an earlier run, stopped with "
+            "Ctrl-C?); --seed 0 would record 3 of them again") in err
+    assert "pass --seed 3 to add new ones" in err
+    assert out.read_bytes() == before  # nothing recorded

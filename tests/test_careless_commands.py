@@ -451,7 +451,8 @@ def test_ctrl_c_during_record_demos_keeps_the_finished_episodes_and_says_so(tmp_
     assert len(lines) == 1 and lines[0].startswith(
         "lowcostdex record-demos: interrupted (Ctrl-C); the 1 demonstration(s) this run "
         "finished (") and lines[0].endswith(
-        f"0 playbacks) are in {out}; run the command again to add more (it appends)"), err
+        f"0 playbacks) are in {out}; run the command again with --seed 1 to add more (it "
+        "appends)"), err  # --seed 0 again would record episode 0 again (careless19)
     assert "Traceback" not in err
     with h5py.File(out) as f:
         assert int(f.attrs["total_episodes"]) == 1

@@ -85,9 +85,31 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 # ------------------------------------------------------------------------------------------------
 
 
-def _check_demo_out(out: str, env_id: str) -> None:
+def _file_seeds(path) -> list[int]:
+    """The seeds of the episodes in the demo file ``path`` (its groups' ``seed`` attributes)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return sorted({int(g.attrs["seed"]) for g in f.values()
+                       if isinstance(g, h5py.Group) and "seed" in g.attrs})
+
+
+def _next_seed(args: argparse.Namespace) -> int:
+    """The ``--seed`` whose episodes the file ``args.out`` does not hold yet."""
+    try:
+        used = _file_seeds(args.out)
+    except OSError:
+        used = []
+    return max([args.seed - 1, *used]) + 1
+
+
+def _check_demo_out(out: str, env_id: str, seed: int = 0, episodes: int = 0) -> None:
     """Refuse an ``--out`` that is not a demo file of ``env_id`` (a user's file, a folder,
-    another task's demos) before anything is recorded; a new path is fine."""
+    another task's demos) before anything is recorded; a new path is fine. A demo file that
+    already holds episodes of the seeds this run would record (``seed`` .. ``seed + episodes -
+    1``: the same command run again after Ctrl-C) is refused naming the ``--seed`` that adds
+    new ones: the same seeds are the same starts, and with the virtual teacher the same
+    demonstrations again, which BC and DAPG would count twice."""
     from lowcostdex.demonstrations.file import read_info
     from lowcostdex.errors import InputError
     from lowcostdex.outdir import check_out_file
@@ -98,6 +120,14 @@ def _check_demo_out(out: str, env_id: str) -> None:
         if info.env_id and info.env_id != env_id:
             raise InputError(f"--out {path} holds demonstrations of {info.env_id}, not "
                              f"{env_id}; it is left untouched (give a new file)")
+        used = _file_seeds(path)
+        again = [s for s in used if seed <= s < seed + episodes]
+        if again:
+            raise InputError(
+                f"--out {path} already holds episodes of seeds {used[0]}-{used[-1]} (an earlier "
+                f"run, stopped with Ctrl-C?); --seed {seed} would record {len(again)} of them "
+                "again (the same starts; with the virtual teacher the same demonstrations): "
+                f"pass --seed {used[-1] + 1} to add new ones")
 
 
 def _record_demos(args: argparse.Namespace) -> int:
@@ -155,7 +185,8 @@ def _record_demos(args: argparse.Namespace) -> int:
         check_port(args.port)
     register_envs()
     env_id, solver = tasks[args.task]
-    _check_demo_out(args.out, env_id)  # before the robot moves: the file is appended to
+    # before the robot moves: the file is appended to
+    _check_demo_out(args.out, env_id, args.seed, args.episodes)
     console = Console(stderr=True)
     if args.hand == "allegro":
         if args.latency_ms is not None:
@@ -219,7 +250,8 @@ def _record_demos(args: argparse.Namespace) -> int:
                 console.print(f"lowcostdex record-demos: interrupted (Ctrl-C); the {s.episodes} "
                               f"demonstration(s) this run finished ({s.successes} successful, "
                               f"{s.playbacks} playbacks) are in {args.out}; run the command "
-                              "again to add more (it appends)", markup=False, highlight=False,
+                              f"again with --seed {_next_seed(args)} to add more (it appends)",
+                              markup=False, highlight=False,
                               soft_wrap=True)
                 return INTERRUPTED
     finally:
