@@ -229,3 +229,12 @@ def test_record_demos_run_again_on_its_own_file_is_told_the_seed_that_adds_new_e
             "Ctrl-C?); --seed 0 would record 3 of them again") in err
     assert "pass --seed 3 to add new ones" in err
     assert out.read_bytes() == before  # nothing recorded
+
+
+def test_scan_ids_with_an_empty_item_is_refused():
+    # before: "10,,12" scanned 10 and 12 as if the id between them had been typed
+    from lowcostdex.hardware.cli import parse_ids
+
+    with pytest.raises(InputError, match=r"--ids '10,,12' has an empty item .* type --ids 10,12"):
+        parse_ids("10,,12")
+    assert parse_ids("10-11,12,") == [10, 11, 12]

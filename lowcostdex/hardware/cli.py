@@ -92,8 +92,13 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 def parse_ids(text: str) -> list[int]:
     """"10-12,50" -> [10, 11, 12, 50]; InputError naming the part that is not an id (0-252)."""
     out: list[int] = []
-    for part in text.split(","):
-        part = part.strip()
+    parts = [part.strip() for part in text.split(",")]
+    while len(parts) > 1 and not parts[-1]:
+        parts.pop()  # "10,11," is 10 and 11
+    if "" in parts and any(parts):  # before: "10,,12" scanned 10 and 12 without a word
+        raise InputError(f"--ids {text!r} has an empty item (two commas together: an id left "
+                         f"out?); type --ids {','.join(p for p in parts if p)}")
+    for part in parts:
         try:
             if "-" in part:
                 a, b = (int(x) for x in part.split("-"))
