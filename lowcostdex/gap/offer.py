@@ -43,6 +43,7 @@ from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.diagnostics import noise_floor
 from lowcostdex.gap.logs import rate_goal_actuators
 from lowcostdex.sim.effects import CAUSES, OPT_IN, effect
+from lowcostdex.sim.effects.deadband import torque_motor
 
 SETTLE = 0.3  # [s] a rest: joints still and position goals held this long
 STILL = 6.0  # joints "still": within this many noise floors (RMS) over SETTLE
@@ -134,9 +135,8 @@ def _window_range(x: np.ndarray, back: np.ndarray) -> np.ndarray:
 
 def _is_motor(m: mujoco.MjModel, a: int) -> bool:
     """A torque-driven actuator (fixed gain, no bias, no activation): its goal is a command."""
-    return (int(m.actuator_gaintype[a]) == int(mujoco.mjtGain.mjGAIN_FIXED)
-            and int(m.actuator_biastype[a]) == int(mujoco.mjtBias.mjBIAS_NONE)
-            and int(m.actuator_dyntype[a]) == int(mujoco.mjtDyn.mjDYN_NONE))
+    return bool(torque_motor(m.actuator_gaintype[a], m.actuator_biastype[a],
+                             m.actuator_dyntype[a]))
 
 
 def rest_imbalance(ds: Dataset) -> dict[str, np.ndarray]:

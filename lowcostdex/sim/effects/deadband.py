@@ -51,6 +51,14 @@ def dead_zone(x: np.ndarray, width: np.ndarray) -> np.ndarray:
     return np.sign(x) * np.maximum(np.abs(x) - width, 0.0)
 
 
+
+def torque_motor(gaintype, biastype, dyntype) -> np.ndarray:
+    """Which actuators (by their MuJoCo gain, bias and dynamics types, arrays or scalars) are
+    torque-driven motors: fixed gain, no bias, no activation (their goal is a command)."""
+    return ((np.asarray(gaintype) == int(mujoco.mjtGain.mjGAIN_FIXED))
+            & (np.asarray(biastype) == int(mujoco.mjtBias.mjBIAS_NONE))
+            & (np.asarray(dyntype) == int(mujoco.mjtDyn.mjDYN_NONE)))
+
 class Deadband(Effect):
     name = "deadband"
     kind = "command"  # a motor's torque command; position-goal servos: ``live_apply``
@@ -81,9 +89,8 @@ class Deadband(Effect):
         """(n,) which targets' actuators are torque-driven motors (fixed gain, no bias, no
         activation): their command is the band's input."""
         a = t.actuators
-        return ((f.nominal("actuator_gaintype")[a] == int(mujoco.mjtGain.mjGAIN_FIXED))
-                & (f.nominal("actuator_biastype")[a] == int(mujoco.mjtBias.mjBIAS_NONE))
-                & (f.nominal("actuator_dyntype")[a] == int(mujoco.mjtDyn.mjDYN_NONE)))
+        return torque_motor(f.nominal("actuator_gaintype")[a], f.nominal("actuator_biastype")[a],
+                            f.nominal("actuator_dyntype")[a])
 
     @staticmethod
     def position_biased(f: Fields, t: Targets) -> np.ndarray:
