@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,13 @@ def main() -> None:
                    help="with --narrow: also draw the valve's friction and damping per episode "
                         "around the fit (valve_fit.randomized_valve: its intervals, at least "
                         "+-VALVE_PAD), as `lowcostdex transfer`'s identified_randomized does")
+    p.add_argument("--valve-pad", type=float,
+                   help="with --valve: the valve ranges' pad (default valve_fit.VALVE_PAD)")
+    p.add_argument("--valve-pad-only", action="store_true",
+                   help="with --valve: ranges +-pad of the fitted values, the fit's intervals "
+                        "left out")
+    p.add_argument("--n-iter", type=int, help="iterations (default: the default size's; "
+                                              "the sample budget is n_iter x 40 x 40)")
     args = p.parse_args()
     rows = json.loads(args.fits.read_text())["fits"]
     row = next(r for r in rows if args.finger in (None, r["finger"]))
@@ -52,15 +60,22 @@ def main() -> None:
                                      "identified_randomized" if args.narrow else "identified")
     if args.valve:
         from lowcostdex.sim.envs.dclaw_tasks import TurnValve
+        from lowcostdex.transfer import valve_fit
         from lowcostdex.transfer.valve_fit import randomized_valve, valve_ranges
 
-        fit = {"fits": [row], "used_finger": row["finger"], "model_edit": edit}
+        if args.valve_pad is not None:
+            valve_fit.VALVE_PAD = args.valve_pad
+        drawn = ({**row, "intervals": [[v, v] for v in row["values"]]} if args.valve_pad_only
+                 else row)
+        fit = {"fits": [drawn], "used_finger": row["finger"], "model_edit": edit}
         nominal = float(TurnValve().build_spec().joint("valve").damping[0])
         randomize, edit = randomized_valve(randomize, fit, nominal)
         print(f"valve drawn per episode: {valve_ranges(fit)}", flush=True)
     print(train_policy(args.out / "runs" / "dapg" / args.tag, "dapg",
                        TASKS["valve"].training(args.start_range), randomize,
-                       args.folder / "demos.h5", SIZES["default"], args.seed, model_edit=edit))
+                       args.folder / "demos.h5",
+                       replace(SIZES["default"], n_iter=args.n_iter or SIZES["default"].n_iter),
+                       args.seed, model_edit=edit))
 
 
 if __name__ == "__main__":

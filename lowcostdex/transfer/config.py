@@ -24,6 +24,12 @@ NARROW_PAD = 0.1  # identified_randomized: ranges at least +-10 % of each identi
 # rad from the goal on A (bench/RESULTS.md, transfer6), so 0.1 splits them by 0.01 rad
 LOOSE_TOL = 0.12
 STEPS = 40  # steps per episode of the valve tasks (the sample count of an episode)
+# a simulated policy whose last in-training evaluation (in its own training sim) is below the
+# run's success target trains on from its checkpoint up to EXTEND x the size's iterations (once;
+# sizes with in-training evaluations only, not smoke):
+# around the varied-log fit on robot C, (d) seed 1 ended its 48k samples at 0.2 in its own sim
+# and 0/50 on C; the same run resumed to 96k: 1.0 in its sim from 53k on, 50/50 on C (transfer18)
+EXTEND = 2
 CPU_FILE = "transfer_cpu.json"  # in a run folder: the CPU seconds its training took here
 VALVE_FIT_FILE = "valve_fit.json"  # in identify/ROBOT: the valve-log fit (``transfer.valve_fit``)
 OUTPUTS = ("table.md", "transfer.json", "transfer.png", "identified.json")
@@ -177,6 +183,20 @@ SIZES = {
                  playbacks=2, n_iter=100, n_traj=40, eval_every=10, eval_episodes=20,
                  episodes=100, id_logs=6, id_seconds=10.0, valve_episodes=5),
 }
+
+
+def extended_iterations(summary: dict[str, Any], n_iter: int) -> int | None:
+    """The iterations a finished simulated run trains to under the ``EXTEND`` rule, or None:
+    its last in-training evaluation (``summary["final"]["eval_success_rate"]``) is below
+    ``summary["target"]`` and it has done fewer than ``EXTEND * n_iter`` iterations. A run
+    without in-training evaluations is never extended."""
+    final = summary.get("final") or {}
+    success, done = final.get("eval_success_rate"), final.get("iteration")
+    if success is None or done is None or not math.isfinite(float(success)):
+        return None
+    if float(success) >= float(summary["target"]) or int(done) + 1 >= EXTEND * n_iter:
+        return None
+    return EXTEND * n_iter
 
 
 def size_with(name: str, **overrides: Any) -> Size:

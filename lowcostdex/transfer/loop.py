@@ -4,7 +4,9 @@ Robots are the user's D'Claw on a serial port (``PortRobot``) or emulated hidden
 (``lowcostdex.hardware.emulated.hidden_robots``: emulated D'Claws behind the real dynamixel_sdk
 path, each with its own servo effects, MJCF perturbations no effect names and a firmware
 imperfection; the training side never reads them). Every condition trains the same learner
-(DAPG from the same demonstrations, or NPG) with the same sample budget:
+(DAPG from the same demonstrations, or NPG) with the same sample budget (a simulated policy
+below the success target in its own sim at the end trains on, once, up to ``config.EXTEND`` x the
+budget; the samples each policy used are in its row):
 
   nominal                the nominal simulation;
   randomized             the nominal simulation with the project's domain randomization
@@ -80,6 +82,7 @@ from lowcostdex.transfer.config import (
     VALVE_FIT_FILE,
     Size,
     Task,
+    extended_iterations,
     parse_list,
     size_with,
 )
@@ -269,31 +272,41 @@ def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Pa
     from lowcostdex.algos.train import train
 
     summary = run_dir / ex.SUMMARY_FILE
+    extra = sim_kwargs(randomize, model_edit)
+    common = dict(algo=algo, env_id=task.env_id, seed=seed, n_iter=size.n_iter,
+                  n_traj=size.n_traj, eval_every=size.eval_every,
+                  eval_episodes=size.eval_episodes,
+                  demos=str(demos) if algo == "dapg" else None, progress=False)
+    factory = None
+    if robot is None:
+        config = TrainConfig(**common, env_kwargs=task.make_kwargs(**extra),
+                             sampler="vector", n_workers=size.n_traj)
+    elif isinstance(robot, PortRobot):
+        config = TrainConfig(**common, env_kwargs=task.make_kwargs(**robot.bus_kwargs()),
+                             backend="hardware", sampler="serial")
+    else:  # a hidden robot: its definition stays out of the run's config
+        config = TrainConfig(**common, env_kwargs=task.make_kwargs(), backend="emulated",
+                             sampler="serial")
+        assert robot_seed is not None
+        factory = HiddenRobotEnv(task.env_id, task.kwargs, robot_seed, robot.name)
+    if algo == "dapg" and size.bc_epochs is not None:
+        config = replace(config, bc=replace(config.bc, epochs=size.bc_epochs))
     if not summary.exists():
         resume = (run_dir / ex.CHECKPOINT_DIR / ex.LATEST_FILE).exists()
-        extra = sim_kwargs(randomize, model_edit)
-        common = dict(algo=algo, env_id=task.env_id, seed=seed, n_iter=size.n_iter,
-                      n_traj=size.n_traj, eval_every=size.eval_every,
-                      eval_episodes=size.eval_episodes,
-                      demos=str(demos) if algo == "dapg" else None, progress=False)
-        factory = None
-        if robot is None:
-            config = TrainConfig(**common, env_kwargs=task.make_kwargs(**extra),
-                                 sampler="vector", n_workers=size.n_traj)
-        elif isinstance(robot, PortRobot):
-            config = TrainConfig(**common, env_kwargs=task.make_kwargs(**robot.bus_kwargs()),
-                                 backend="hardware", sampler="serial")
-        else:  # a hidden robot: its definition stays out of the run's config
-            config = TrainConfig(**common, env_kwargs=task.make_kwargs(), backend="emulated",
-                                 sampler="serial")
-            assert robot_seed is not None
-            factory = HiddenRobotEnv(task.env_id, task.kwargs, robot_seed, robot.name)
-        if algo == "dapg" and size.bc_epochs is not None:
-            config = replace(config, bc=replace(config.bc, epochs=size.bc_epochs))
         c0 = time.process_time()  # CPU of this process (resumed: only the part run last)
         train(config, run_dir, resume=resume, env_factory=factory)
         write_json(run_dir / CPU_FILE, {"cpu_seconds": round(time.process_time() - c0, 1),
                                         "resumed": resume})
+    # simulated runs of a size with in-training evaluations (not smoke: its budget is fixed)
+    more = (extended_iterations(read_json(summary), size.n_iter)
+            if robot is None and size.eval_every else None)
+    if more is not None:  # not learnt in its own sim: on from its checkpoint (config.EXTEND)
+        c0 = time.process_time()
+        before = read_json(run_dir / CPU_FILE) if (run_dir / CPU_FILE).exists() else {}
+        train(replace(config, n_iter=more), run_dir, resume=True, env_factory=factory)
+        write_json(run_dir / CPU_FILE, {
+            "cpu_seconds": round(before.get("cpu_seconds", 0.0) + time.process_time() - c0, 1),
+            "resumed": True, "extended_to": more})
     metrics = ex.read_metrics(run_dir / ex.METRICS_FILE)
     s = read_json(summary)
     out = {"samples": int(metrics[ex.SAMPLES][-1]),
