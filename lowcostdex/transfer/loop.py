@@ -47,13 +47,12 @@ files move into ``previous/<time>/``.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -69,7 +68,6 @@ from lowcostdex.transfer.config import (
     ALGOS,
     COMMAND,
     CONDITIONS,
-    CPU_FILE,
     EVAL_SEED,
     FINGERS,
     LOOSE_TOL,
@@ -82,7 +80,6 @@ from lowcostdex.transfer.config import (
     VALVE_FIT_FILE,
     Size,
     Task,
-    extended_iterations,
     parse_list,
     size_with,
 )
@@ -101,6 +98,7 @@ from lowcostdex.transfer.tables import (
     summarize,
     table_markdown,
 )
+from lowcostdex.transfer.training import evaluate, read_json, sim_kwargs, train_policy, write_json
 
 __all__ = [
     "ALGOS", "COMMAND", "CONDITIONS", "EVAL_SEED", "FINGERS", "LOOSE_TOL", "NARROW_PAD", "OUTPUTS",
@@ -122,17 +120,6 @@ def say(msg: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
-def read_json(path: Path) -> Any:
-    return json.loads(path.read_text())
-
-
-def write_json(path: Path, obj: Any) -> None:
-    from lowcostdex.outdir import write_text_atomic
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, json.dumps(obj, indent=1))
-
-
 def cached(path: Path, make: Callable[[], Any]) -> Any:
     """``make()``'s JSON result, computed once and kept in ``path`` (resume)."""
     if path.exists():
@@ -140,12 +127,6 @@ def cached(path: Path, make: Callable[[], Any]) -> Any:
     value = make()
     write_json(path, value)
     return value
-
-
-def sim_kwargs(randomize: Any, model_edit: dict[str, Any] | None) -> dict[str, Any]:
-    """The env kwargs of a simulated condition's model (its effects, its MJCF edit)."""
-    return {**({} if randomize is None else {"randomize": randomize}),
-            **({} if model_edit is None else {"model_edit": model_edit})}
 
 
 class Progress:
@@ -255,92 +236,6 @@ def valve_log_fit(robot: Any, out: Path, task: Task, size: Size, ident: dict[str
     tell(f"  {robot.name}: {describe(fit)}")
     progress.step(f"valve-log fit of robot {robot.name}", done)
     return fit
-
-
-# ------------------------------------------------------------------------------------------------
-# 3. training and evaluation
-
-
-def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Path | None,
-                 size: Size, seed: int, robot: Any = None, robot_seed: int | None = None,
-                 model_edit: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Train one policy into ``run_dir`` (resumes a run cut short); ``robot``: train on it
-    (on_robot, serial sampling) instead of in simulation; ``model_edit``: the simulation's
-    D'Claw edit (``sim.models.dclaw_edit.DClawEdit.to_dict()``; None: the nominal MJCF)."""
-    from lowcostdex.algos import experiment as ex
-    from lowcostdex.algos.configs import TrainConfig
-    from lowcostdex.algos.train import train
-
-    summary = run_dir / ex.SUMMARY_FILE
-    extra = sim_kwargs(randomize, model_edit)
-    common = dict(algo=algo, env_id=task.env_id, seed=seed, n_iter=size.n_iter,
-                  n_traj=size.n_traj, eval_every=size.eval_every,
-                  eval_episodes=size.eval_episodes,
-                  demos=str(demos) if algo == "dapg" else None, progress=False)
-    factory = None
-    if robot is None:
-        config = TrainConfig(**common, env_kwargs=task.make_kwargs(**extra),
-                             sampler="vector", n_workers=size.n_traj)
-    elif isinstance(robot, PortRobot):
-        config = TrainConfig(**common, env_kwargs=task.make_kwargs(**robot.bus_kwargs()),
-                             backend="hardware", sampler="serial")
-    else:  # a hidden robot: its definition stays out of the run's config
-        config = TrainConfig(**common, env_kwargs=task.make_kwargs(), backend="emulated",
-                             sampler="serial")
-        assert robot_seed is not None
-        factory = HiddenRobotEnv(task.env_id, task.kwargs, robot_seed, robot.name)
-    if algo == "dapg" and size.bc_epochs is not None:
-        config = replace(config, bc=replace(config.bc, epochs=size.bc_epochs))
-    if not summary.exists():
-        resume = (run_dir / ex.CHECKPOINT_DIR / ex.LATEST_FILE).exists()
-        c0 = time.process_time()  # CPU of this process (resumed: only the part run last)
-        train(config, run_dir, resume=resume, env_factory=factory)
-        write_json(run_dir / CPU_FILE, {"cpu_seconds": round(time.process_time() - c0, 1),
-                                        "resumed": resume})
-    # simulated runs of a size with in-training evaluations (not smoke: its budget is fixed)
-    more = (extended_iterations(read_json(summary), size.n_iter)
-            if robot is None and size.eval_every else None)
-    if more is not None:  # not learnt in its own sim: on from its checkpoint (config.EXTEND)
-        c0 = time.process_time()
-        before = read_json(run_dir / CPU_FILE) if (run_dir / CPU_FILE).exists() else {}
-        train(replace(config, n_iter=more), run_dir, resume=True, env_factory=factory)
-        write_json(run_dir / CPU_FILE, {
-            "cpu_seconds": round(before.get("cpu_seconds", 0.0) + time.process_time() - c0, 1),
-            "resumed": True, "extended_to": more})
-    metrics = ex.read_metrics(run_dir / ex.METRICS_FILE)
-    s = read_json(summary)
-    out = {"samples": int(metrics[ex.SAMPLES][-1]),
-           "wall_seconds": float(metrics[ex.WALL_SECONDS][-1]),
-           "best_iteration": (s.get("best") or {}).get(ex.ITERATION),
-           "final_training_success": float(metrics[ex.SUCCESS_RATE][-1])}
-    if ex.ROBOT_HOURS in metrics:
-        out["robot_hours"] = float(metrics[ex.ROBOT_HOURS][-1])
-    if (run_dir / CPU_FILE).exists():  # runs made before it was written have none
-        out["cpu_seconds"] = float(read_json(run_dir / CPU_FILE)["cpu_seconds"])
-    return out
-
-
-def evaluate(run_dir: Path, task: Task, env_kwargs: dict[str, Any], episodes: int
-             ) -> dict[str, Any]:
-    """Mean-action episodes of the run's policy; the same episode seeds for every cell."""
-    import gymnasium as gym
-
-    import lowcostdex.sim  # noqa: F401  (registers the ids)
-    from lowcostdex.algos.samplers import RolloutJob, rollout
-    from lowcostdex.algos.train import load_policy
-
-    policy = load_policy(run_dir).snapshot()
-    env = gym.make(task.env_id, **task.make_kwargs(**env_kwargs))
-    t0 = time.perf_counter()
-    try:
-        paths = [rollout(env, policy, RolloutJob(EVAL_SEED, 0, 0, i, deterministic=True))
-                 for i in range(episodes)]
-    finally:
-        env.close()
-    return {"successes": int(sum(bool(p.successes[-1]) for p in paths)), "episodes": episodes,
-            "solved": [bool(p.successes[-1]) for p in paths],
-            "final_error": [round(float(p.final_goal_error), 4) for p in paths],
-            "wall_seconds": round(time.perf_counter() - t0, 1)}
 
 
 # ------------------------------------------------------------------------------------------------
