@@ -275,7 +275,8 @@ def _heldout(ctx: Context, episodes: int, dapg_file: Any) -> dict[str, dict[str,
              "dapg": dapg_file, "npg": ctx.out / "train_npg"}
     policies: dict[str, Any] = {"random": uniform_actions(np.random.default_rng(ctx.seed
                                                                                 + 3_000_000))}
-    policies.update({name: load_policy(path).snapshot() for name, path in files.items()})
+    policies.update({name: load_policy(path, env=ctx.setup.env_id).snapshot()
+                     for name, path in files.items()})
     out: dict[str, dict[str, Any]] = {}
     progress = _progress()
     with progress:
@@ -329,7 +330,7 @@ def _flip_rollout(ctx: Context, dapg_file: Any) -> dict[str, Any]:
     from lowcostdex.algos.train import load_policy
     from lowcostdex.demonstrations.file import read_episodes
 
-    snap = load_policy(dapg_file).snapshot()
+    snap = load_policy(dapg_file, env=ctx.setup.env_id).snapshot()
     env = gym.make(ctx.setup.env_id, **ctx.env_kwargs())
     u = env.unwrapped
     try:

@@ -103,7 +103,7 @@ def evaluate(run_dir: Path, task: Task, env_kwargs: dict[str, Any], episodes: in
     from lowcostdex.algos.samplers import RolloutJob, rollout
     from lowcostdex.algos.train import load_policy
 
-    policy = load_policy(run_dir).snapshot()
+    policy = load_policy(run_dir, env=task.env_id).snapshot()
     env = gym.make(task.env_id, **task.make_kwargs(**env_kwargs))
     t0 = time.perf_counter()
     try:
