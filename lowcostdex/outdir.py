@@ -192,18 +192,29 @@ def usual_mode(path: str | Path, fd: int | None = None, *, folder: bool = False)
         os.chmod(path, mode)
 
 
-def write_text_atomic(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
+def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` so that readers see the old or the new file, never a mix (a
+    temporary file beside it, flushed to disk, then ``os.replace``; a kill leaves the old file).
+    ``path`` may start with ``~``; its folder is created when missing. The file gets the mode
+    ``open`` would give it (0666 less the umask; ``mkstemp`` alone makes 0600)."""
     path = user_path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         usual_mode(tmp, fd)
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
+    """:func:`write_bytes_atomic` for text, written as UTF-8."""
+    write_bytes_atomic(path, text.encode("utf-8"))
 
 
 def _stamp(root: Path) -> Path:

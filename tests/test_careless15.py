@@ -88,9 +88,10 @@ def test_a_written_file_has_the_mode_open_gives(tmp_path, capsys, user_umask):
     assert code == 0, err
     assert _mode(tmp_path / "finger.xml") == expected
 
-    from lowcostdex.algos.run_files import atomic_write_bytes, write_json
+    from lowcostdex.algos.run_files import write_json
+    from lowcostdex.outdir import write_bytes_atomic
 
-    atomic_write_bytes(tmp_path / "policy.pt", b"weights")
+    write_bytes_atomic(tmp_path / "policy.pt", b"weights")
     write_json(tmp_path / "config.json", {"seed": 0})
     assert _mode(tmp_path / "policy.pt") == _mode(tmp_path / "config.json") == expected
 

@@ -85,8 +85,6 @@ from lowcostdex.algos.metrics import (  # noqa: F401
     read_metrics,
 )
 from lowcostdex.algos.run_files import (  # noqa: F401
-    atomic_write_bytes,
-    atomic_write_text,
     json_scalar,
     load_state,
     read_json,
@@ -95,7 +93,7 @@ from lowcostdex.algos.run_files import (  # noqa: F401
     write_json,
 )
 from lowcostdex.errors import ConfigError
-from lowcostdex.outdir import user_path
+from lowcostdex.outdir import user_path, write_bytes_atomic, write_text_atomic  # noqa: F401
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.csv"

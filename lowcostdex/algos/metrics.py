@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.algos.run_files import atomic_write_bytes, atomic_write_text
+from lowcostdex.outdir import write_bytes_atomic, write_text_atomic
 
 ITERATION = "iteration"
 SAMPLES = "samples"
@@ -140,7 +140,7 @@ class MetricsLog:
         if self._columns:
             writer.writerow(self._columns)
         writer.writerows(self._rows)
-        atomic_write_text(self.path, buf.getvalue())
+        write_text_atomic(self.path, buf.getvalue())
 
 
 # ----------------------------------------------------------------------------------------------
@@ -202,5 +202,5 @@ def plot_learning_curves(
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
-    atomic_write_bytes(png_path, buf.getvalue())
+    write_bytes_atomic(png_path, buf.getvalue())
     return Path(png_path)

@@ -1,43 +1,19 @@
-"""The safe files of a run directory: atomic writes (a kill leaves the old or the new file), JSON,
-and checkpoint state that loads with ``torch.load(..., weights_only=True)`` (nothing pickled).
-torch is imported only to save or load state."""
+"""The safe files of a run directory: JSON written atomically (``outdir.write_text_atomic``: a kill
+leaves the old or the new file) and checkpoint state that loads with ``torch.load(...,
+weights_only=True)`` (nothing pickled). torch is imported only to save or load state."""
 
 from __future__ import annotations
 
 import io
 import json
 import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lowcostdex.outdir import usual_mode
-
-
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write ``data`` to ``path`` so that readers see the old or the new file, never a mix."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        usual_mode(tmp, fd)  # 0666 less the umask, as open() makes it (mkstemp: 0600)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
-    """Atomically write UTF-8 text."""
-    atomic_write_bytes(path, text.encode("utf-8"))
+from lowcostdex.outdir import write_bytes_atomic, write_text_atomic
 
 
 def json_scalar(value: Any) -> Any:
@@ -49,10 +25,11 @@ def json_scalar(value: Any) -> Any:
     raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
 
 
-def write_json(path: str | os.PathLike[str], obj: Any) -> None:
+def write_json(path: str | os.PathLike[str], obj: Any, *, sort_keys: bool = True) -> None:
     """Atomically write ``obj`` as indented JSON (non-finite floats are written as NaN/Infinity;
     numpy scalars as the numbers they hold)."""
-    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=json_scalar) + "\n")
+    write_text_atomic(path, json.dumps(obj, indent=2, sort_keys=sort_keys, default=json_scalar)
+                      + "\n")
 
 
 def read_json(path: str | os.PathLike[str]) -> Any:
@@ -105,7 +82,7 @@ def save_state(path: str | os.PathLike[str], state: Mapping[str, Any]) -> None:
 
     buf = io.BytesIO()
     torch.save(to_safe(dict(state), "state"), buf)
-    atomic_write_bytes(path, buf.getvalue())
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def load_state(path: str | os.PathLike[str]) -> dict[str, Any]:

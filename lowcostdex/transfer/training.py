@@ -8,25 +8,21 @@ simulated condition's env kwargs (``sim_kwargs``). The loop is ``lowcostdex.tran
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from lowcostdex.algos import run_files
+from lowcostdex.algos.run_files import read_json
 from lowcostdex.transfer.config import CPU_FILE, EVAL_SEED, Size, Task, extended_iterations
 from lowcostdex.transfer.robots import HiddenRobotEnv, PortRobot
 
 
-def read_json(path: Path) -> Any:
-    return json.loads(path.read_text())
-
-
 def write_json(path: Path, obj: Any) -> None:
-    from lowcostdex.outdir import write_text_atomic
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, json.dumps(obj, indent=1))
+    """A run folder's JSON file, its keys in the order written (:func:`loop.cached` hands a resumed
+    run what a fresh one computed, in the same order)."""
+    run_files.write_json(path, obj, sort_keys=False)
 
 
 def sim_kwargs(randomize: Any, model_edit: dict[str, Any] | None) -> dict[str, Any]:

@@ -309,7 +309,7 @@ def _write_controller(path: Path, controller: LinearGaussianController, start: F
     arrays = {f"controller/{k}": v for k, v in controller.to_arrays().items()}
     arrays.update({f"start/{k}": v for k, v in start.to_arrays().items()})
     np.savez(buf, **arrays)
-    ex.atomic_write_bytes(path, buf.getvalue())
+    ex.write_bytes_atomic(path, buf.getvalue())
 
 
 def load_controller(
