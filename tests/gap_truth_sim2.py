@@ -60,6 +60,7 @@ import pathlib
 
 import mujoco
 import numpy as np
+from redteam_grade import grade
 
 TICK = 2 * math.pi / 4096          # rad per encoder tick (12-bit absolute encoder)
 VEL_UNIT = 0.229 * 2 * math.pi / 60  # rad/s per Dynamixel present-velocity unit
@@ -593,50 +594,8 @@ CASE_BY_NAME = {c.name: c for c in CASES}
 # scoring a report.json against the truth
 # ---------------------------------------------------------------------------------------------
 
-def _neighbours(name: str) -> set[str]:
-    out = {name}
-    for fam in FAMILIES:
-        if name in fam:
-            out |= fam
-    return out
-
-
 def score(report: dict, truth: dict) -> dict:
-    """Score one ``report.json`` (dict) against ``truth`` (``write_case``'s truth dict).
-
-    ``result``: ``clean`` (no cause hidden, none named), ``false`` (no cause hidden, some
-    named: a false discovery), ``exact`` (the named causes are exactly the hidden ones),
-    ``extra`` (every hidden cause named, and more besides), ``family`` (every hidden cause named
-    or stood in for by a confusable neighbour and nothing named outside those families),
-    ``miss`` otherwise. ``params``: per expected parameter of an
-    exactly named cause, {effect, param, joint, truth, value, interval, inside}."""
-    named = sorted({c["effect"] for c in report.get("causes", [])})
-    hidden = set(truth["causes"])
-    if not hidden:
-        result = "clean" if not named else "false"
-    elif set(named) == hidden:
-        result = "exact"
-    elif hidden < set(named):
-        result = "extra"
-    else:
-        covered = all(_neighbours(h) & set(named) for h in hidden)
-        allowed = set().union(*(_neighbours(h) for h in hidden))
-        result = "family" if covered and set(named) <= allowed else "miss"
-    params = []
-    by_effect = {c["effect"]: c for c in report.get("causes", [])}
-    for exp in truth.get("expected_params", []):
-        cause = by_effect.get(exp["effect"])
-        if cause is None or exp["param"] not in cause["params"] or \
-                exp["joint"] not in cause["joints"]:
-            continue
-        p = cause["params"][exp["param"]]
-        k = cause["joints"].index(exp["joint"])
-        value = p["value"][k]
-        lo, hi = p["interval"][k]
-        want = exp["value"]
-        if exp["abs"] and value * want < 0:
-            want = -want
-        params.append(dict(effect=exp["effect"], param=exp["param"], joint=exp["joint"],
-                           truth=want, value=value, interval=[lo, hi],
-                           inside=bool(lo <= want <= hi)))
-    return {"result": result, "named": named, "hidden": sorted(hidden), "params": params}
+    """Score one ``report.json`` (dict) against ``truth`` (``write_case``'s truth dict) with the
+    red-team sets' one grader (``redteam_grade.grade``: exact / extra / family / miss / clean /
+    false; per expected parameter of a named cause, its interval against the truth)."""
+    return grade(report, truth, FAMILIES)

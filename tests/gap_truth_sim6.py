@@ -76,6 +76,7 @@ import pathlib
 
 import mujoco
 import numpy as np
+from redteam_grade import grade
 
 TICK = 2 * math.pi / 4096      # rad per encoder tick
 TRUTH_DT = 0.00025             # s, the truth's physics step
@@ -518,58 +519,12 @@ CASE_BY_NAME = {c.name: c for c in CASES}
 # scoring
 # ---------------------------------------------------------------------------------------------
 
-def _neighbours(name: str) -> set[str]:
-    out = {name}
-    for fam in FAMILIES:
-        if name in fam:
-            out |= fam
-    return out
-
-
 def score(report: dict, truth: dict) -> dict:
-    """Grade one report.json against ``truth``. ``result`` in the red-team harness's words
-    (exact / extra / family / miss / clean / false); ``verdict6`` in this set's words: exact,
-    confusable (a neighbour named), wrong (something else named), missed, false (a clean case
-    named something), clean, and for effects outside the catalogue ``pass`` (nothing named, or
-    the named effects lower the held-out RMSE with the gain's 95 % interval above 0) or
-    ``fail`` (something named that does not hold up on held-out data)."""
-    named = sorted({c["effect"] for c in report.get("causes", [])})
-    hidden = set(truth["causes"])
-    g = report.get("gain") or {}
-    before, after = g.get("baseline_rmse"), g.get("extended_rmse")
-    ci = g.get("ci95") or [None, None]
-    if truth.get("outside"):
-        helps = bool(named) and after is not None and before is not None and after < before \
-            and ci[0] is not None and ci[0] > 0
-        verdict = "pass" if (not named or helps) else "fail"
-        result = "clean" if verdict == "pass" else "false"
-    elif not hidden:
-        result = verdict = "clean" if not named else "false"
-    elif set(named) == hidden:
-        result = verdict = "exact"
-    elif hidden < set(named):
-        result, verdict = "extra", "exact+more"
-    elif not named:
-        result, verdict = "miss", "missed"
-    else:
-        covered = all(_neighbours(h) & set(named) for h in hidden)
-        allowed = set().union(*(_neighbours(h) for h in hidden))
-        if covered and set(named) <= allowed:
-            result, verdict = "family", "confusable"
-        else:
-            result, verdict = "miss", "wrong"
-    params = []
-    by_effect = {c["effect"]: c for c in report.get("causes", [])}
-    for exp in truth.get("expected_params", []):
-        cause = by_effect.get(exp["effect"])
-        if cause is None or exp["param"] not in cause["params"] or \
-                exp["joint"] not in cause["joints"]:
-            continue
-        p = cause["params"][exp["param"]]
-        k = cause["joints"].index(exp["joint"])
-        lo, hi = p["interval"][k]
-        params.append(dict(effect=exp["effect"], param=exp["param"], joint=exp["joint"],
-                           truth=exp["value"], value=p["value"][k], interval=[lo, hi],
-                           inside=bool(lo <= exp["value"] <= hi)))
-    return {"result": result, "verdict6": verdict, "named": named, "hidden": sorted(hidden),
-            "params": params, "heldout": [before, after], "gain_ci95": ci}
+    """Grade one report.json against ``truth`` with the red-team sets' one grader
+    (``redteam_grade.grade``): ``result`` in the harness's words (exact / extra / family / miss /
+    clean / false); ``verdict6`` in this set's words: exact, confusable (a neighbour named), wrong
+    (something else named), missed, false (a clean case named something), clean, and for effects
+    outside the catalogue ``pass`` (nothing named, or the named effects lower the held-out RMSE
+    with the gain's 95 % interval above 0) or ``fail`` (something named that does not hold up on
+    held-out data)."""
+    return grade(report, truth, FAMILIES)

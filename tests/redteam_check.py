@@ -1,8 +1,9 @@
 """One truth-set case run as a user would (``gap analyze`` on the case's files) and scored:
 exactly the hidden effect(s) named, or nothing on a clean case, with every true value inside
 its 95 % interval. Shared by the truth sets' tests (test_gap_redteam4.py to test_gap_redteam8.py);
-the truth simulators themselves stay free of project code. ``grade`` scores a report against
-a truth set's ``FAMILIES`` for the sets that carry no scorer of their own (sim7, sim8)."""
+the truth simulators themselves stay free of project code. ``grade`` (``redteam_grade``'s, the
+one grader) scores a report against a truth set's ``FAMILIES`` for the sets that carry no scorer
+of their own (sim7, sim8, sim9)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pathlib
 from types import ModuleType
 
 import pytest
+from redteam_grade import grade  # noqa: F401  (the one grader; sim7-9's tests call it here)
 
 from lowcostdex.cli import main
 
@@ -51,49 +53,3 @@ def assert_named_exactly(sim: ModuleType, name: str, root: pathlib.Path) -> None
         f"hidden {s['hidden'] or 'nothing'}, named {s['named'] or 'nothing'}")
     outside = [p for p in s["params"] if not p["inside"]]
     assert not outside, f"true values outside their 95 % intervals: {outside}"
-
-
-def _neighbours(name: str, families) -> set[str]:
-    out = {name}
-    for fam in families:
-        if name in fam:
-            out |= fam
-    return out
-
-
-def grade(report: dict, truth: dict, families) -> dict:
-    """Grade one report.json against ``truth``: ``result`` exact (every hidden catalogue cause
-    named, nothing else but the truth's ``allowed`` names), clean (nothing hidden, nothing or
-    only allowed names named), family (a confusable neighbour named), extra, miss, false."""
-    named = sorted({c["effect"] for c in report.get("causes", [])})
-    hidden = set(truth["causes"])
-    allowed = hidden | set(truth.get("allowed", ()))
-    if not hidden:
-        result = "clean" if set(named) <= allowed else "false"
-    elif hidden <= set(named) <= allowed:
-        result = "exact"
-    elif hidden <= set(named):
-        result = "extra"
-    elif not named:
-        result = "miss"
-    else:
-        covered = all(_neighbours(h, families) & set(named) for h in hidden)
-        near = set().union(*(_neighbours(h, families) for h in hidden)) | allowed
-        result = "family" if covered and set(named) <= near else "miss"
-    params = []
-    by_effect = {c["effect"]: c for c in report.get("causes", [])}
-    for exp in truth.get("expected_params", []):
-        cause = by_effect.get(exp["effect"])
-        if cause is None or exp["param"] not in cause["params"] or \
-                exp["joint"] not in cause["joints"]:
-            continue
-        p = cause["params"][exp["param"]]
-        k = cause["joints"].index(exp["joint"])
-        lo, hi = p["interval"][k]
-        params.append(dict(effect=exp["effect"], param=exp["param"], joint=exp["joint"],
-                           truth=exp["value"], value=p["value"][k], interval=[lo, hi],
-                           inside=bool(lo <= exp["value"] <= hi)))
-    g = report.get("gain") or {}
-    return {"result": result, "named": named, "hidden": sorted(hidden), "params": params,
-            "heldout": [g.get("baseline_rmse"), g.get("extended_rmse")],
-            "gain_ci95": g.get("ci95")}

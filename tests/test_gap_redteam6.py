@@ -69,8 +69,9 @@ def test_names_exactly_the_hidden_causes_with_intervals_holding_the_truth(name, 
 
 def test_truth_simulator_imports_nothing_from_the_project():
     names = redteam_check.imported_top_modules(HERE / "gap_truth_sim6.py")
+    # redteam_grade: the sets' one grader (tests/, imports nothing from lowcostdex)
     assert names <= {"__future__", "dataclasses", "json", "math", "pathlib", "tempfile",
-                     "mujoco", "numpy"}, names
+                     "mujoco", "numpy", "redteam_grade"}, names
 
 
 def test_clean_logs_replay_at_the_read_floor_and_every_effect_shows():
