@@ -1,0 +1,225 @@
+"""The gap analysis judged on a tenth independently written truth simulator: a user's 3-joint
+D'Claw-like finger with hidden effects OUTSIDE the catalogue (issue 11; gap-sim11, session 24;
+bench/RESULTS.md "gap-sim11").
+
+``tests/gap_truth_sim10.py`` (mujoco + numpy only) writes the cases; each is analysed as the CLI
+does (the user's MJCF, the log folder, the spelling's options) and graded by its ``score``:
+
+- the clean case passes when nothing is named;
+- the catalogue case (40 ms latency) when exactly ``latency`` is named with every joint's 95 %
+  interval holding 40 ms;
+- a case hiding an effect outside the catalogue passes when the report names no CONFIDENT WRONG
+  cause, which is, exactly: nothing named; or only catalogue effects the case lists as the
+  nearest stand-in for its effect (``gap_truth_sim10.NEAREST``, decided from the physics before
+  any run: e.g. a torque limit for a supply that sags under load, dry friction for a tight
+  spot); or other effects while the report itself says they do not explain the logs (its
+  verdict or a cause's ``stand_in`` note reads "not explained", "partial stand-in", "may stand
+  in" or "left unexplained"). And the report must carry the residual: the held-out RMSE left
+  (``gain.extended_rmse``, or the nominal one's when nothing is named) and the noise floor,
+  whose ratio the grade records (``residual_floors``).
+
+Misses are strict xfails whose reason is the measured result; they fail (XPASS) when fixed and
+must then lose their mark. Every analysis is slow (63-350 s CPU on the earlier sets); the
+default tests check the truth's physics, the logs' spelling and the grade (a few s CPU).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+
+from lowcostdex.cli import main
+
+HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import gap_truth_sim10 as sim  # noqa: E402
+import redteam_check  # noqa: E402
+
+FAST: frozenset[str] = frozenset()
+
+# what the analysis showed instead, per case it misses (``gap analyze --seed 0 --threads 1`` as
+# the test runs it; CPU: the child's user + sys).
+MISSES: dict[str, str] = {}
+
+
+def analyse(name: str, root: pathlib.Path) -> dict:
+    files = sim.write_case(sim.CASE_BY_NAME[name], root / "data")
+    out = root / "report"
+    code = main(["gap", "analyze", "--model", files["model"], "--log", *files["logs"],
+                 "--out", str(out), "--seed", "0", "--threads", "1", *files["args"]])
+    assert code == 0, f"gap analyze exited {code} on {name}"
+    return sim.score(json.loads((out / "report.json").read_text()), files["truth"])
+
+
+@pytest.mark.parametrize("name", redteam_check.case_params(sim, FAST, MISSES))
+def test_no_confident_wrong_cause_and_the_residual_reported(name, tmp_path):
+    s = analyse(name, tmp_path)
+    assert s["residual_floors"] is not None, s
+    if sim.CASE_BY_NAME[name].outside:
+        assert s["grade"].startswith("pass"), (
+            f"{s['grade']}: named {s['named']} (not among the nearest: {s['wrong']}); "
+            f"verdict: {s['verdict']}")
+    else:
+        assert s["result"] in ("exact", "clean"), (
+            f"hidden {s['hidden'] or 'nothing'}, named {s['named'] or 'nothing'}")
+        outside = [p for p in s["params"] if not p["inside"]]
+        assert not outside, f"true values outside their 95 % intervals: {outside}"
+
+
+def test_truth_simulator_imports_nothing_from_the_project():
+    names = redteam_check.imported_top_modules(HERE / "gap_truth_sim10.py")
+    assert names <= {"__future__", "dataclasses", "json", "math", "pathlib", "mujoco",
+                     "numpy"}, names
+
+
+def _report(named: list[str], verdict: str = "", before: float = 0.01, after: float = 0.004,
+            floor: float | None = 0.0006, notes: tuple[str, ...] = ()) -> dict:
+    causes = [{"effect": n, "joints": list(sim.JOINTS), "stand_in": list(notes),
+               "params": {"delay": {"value": [0.04] * 3,
+                                    "interval": [[0.039, 0.041]] * 3}}} for n in named]
+    return {"causes": causes, "verdict": verdict, "gain": {
+        "baseline_rmse": before, "extended_rmse": after, "noise_floor": floor,
+        "ci95": [0.001, 0.009]}}
+
+
+def test_the_grade_on_hand_written_reports():
+    """An outside case (a sagging supply: nearest torque_limit, voltage_sag, motor_strength)
+    passes with nothing named, a nearest effect, or another effect the report flags; fails on an
+    unflagged other effect or without the residual; the catalogue case is exact only with
+    exactly its effect and its intervals are checked."""
+    truth = json.loads(json.dumps({"causes": [], "outside": True,
+                                   "nearest": sim.CASE_BY_NAME["supply_sag_finger"].nearest,
+                                   "expected_params": []}))
+    assert sim.score(_report([]), truth)["grade"] == "pass_nothing"
+    assert sim.score(_report([]), truth)["residual_floors"] == pytest.approx(0.01 / 0.0006)
+    assert sim.score(_report(["torque_limit"]), truth)["grade"] == "pass_nearest"
+    s = sim.score(_report(["position_offset", "torque_limit"]), truth)
+    assert (s["grade"], s["wrong"], s["result"]) == ("fail_wrong", ["position_offset"], "false")
+    flagged = _report(["gain_error"], verdict="gain_error: no reliable gain (...): the extended "
+                      "model is not recommended; the discrepancy is not explained (9x the "
+                      "noise floor left): gain_error at best a partial stand-in")
+    assert sim.score(flagged, truth)["grade"] == "pass_flagged"
+    noted = _report(["position_offset"], notes=("may stand in for a centre-of-mass shift",))
+    assert sim.score(noted, truth)["grade"] == "pass_flagged"
+    assert sim.score(_report(["torque_limit"], floor=None), truth)["grade"] == \
+        "fail_no_residual"
+    lat = sim.CASE_BY_NAME["latency40_finger"]
+    truth = {"causes": sorted(lat.causes), "outside": False, "nearest": [],
+             "expected_params": sim.expected_params(lat)}
+    s = sim.score(_report(["latency"]), truth)
+    assert s["result"] == "exact" and len(s["params"]) == 3 and all(
+        p["inside"] for p in s["params"])
+    assert sim.score(_report(["latency", "gain_error"]), truth)["result"] == "extra"
+    assert sim.score(_report(["gain_error"]), truth)["result"] == "miss"
+    clean = {"causes": [], "outside": False, "nearest": [], "expected_params": []}
+    assert sim.score(_report([]), clean)["result"] == "clean"
+    assert sim.score(_report(["gain_error"]), clean)["result"] == "false"
+
+
+def _run(case: sim.Case, seconds: float, style: str = "steps", goals: dict | None = None,
+         session: tuple[float, float] = (0.0, 1.0)) -> tuple[np.ndarray, dict]:
+    rng = np.random.default_rng(0)
+    t = sim.row_times(seconds, case.rate, rng)
+    goals = goals or {j: sim.targets(j, style, t, rng) for j in sim.JOINTS}
+    if callable(goals):
+        goals = goals(t)
+    return t, sim.simulate(case, t, goals, np.random.default_rng(1), session=session,
+                           true_angles=True)
+
+
+def test_each_hidden_effect_moves_its_reading():
+    """Against the same goals without the effect (same seeds), each hidden effect moves the
+    reading of the joint it sits on by more than the read floor (0.4 mrad noise + ticks: ~0.6
+    mrad RMS) over 4 s of steps: measured latency 46-113, spring 2.3 (base), ripple 4.4
+    (middle), friction drift 5.8-6.8 (mid-session), supply sag 9.5 / 4.7 (middle / distal)
+    over 6 s, 10.9 on the distal over 4 s (the joints whose steps saturate), tight spot 9.6 mrad (middle); the joints without an
+    effect of their own stay within a few floors (coupling through the links)."""
+    for case in sim.CASES[1:]:
+        _, clean = _run(dataclasses.replace(case, effects=()), 4.0, session=(6.0, 18.0))
+        _, hidden = _run(case, 4.0, session=(6.0, 18.0))
+        rms = {j: float(np.sqrt(np.mean((hidden[f"qpos:{j}"] - clean[f"qpos:{j}"]) ** 2)))
+               for j in sim.JOINTS}
+        e = case.effects[0]
+        if e.kind == "supply_sag":   # on the joints whose steps saturate
+            assert max(rms.values()) > 0.005, (case.name, rms)
+            continue
+        on = sim.JOINTS if e.kind in ("latency", "friction_drift") else (e.joint,)
+        assert all(rms[j] > 0.0015 for j in on), (case.name, rms)
+        assert all(rms[j] < 0.0015 for j in sim.JOINTS if j not in on), (case.name, rms)
+
+
+def test_the_truth_physics_written_out():
+    """Statics by hand, the finger straight below its mount (masses 80 / 80 / 30 g at 30, 90
+    and 165 mm below the base axis: m g l = 0.1427 N m) and the base held at 0.3 rad:
+    - series spring (2 N m/rad): the horn (what the log reads) rests at 0.3 - m g l sin(link)
+      / kp and the link sags behind it by d, k d = -m g l sin(0.3 + d) (d = -19.7 mrad);
+    - encoder ripple on the middle joint: at rest the log reads the true angle plus 20 mrad
+      sin(4 q + 0.7);
+    - supply sag (0.5 ohm): no servo delivers more than 3 / (1 + 0.5 x 3 / (12 x 1.3)) =
+      2.737 N m (one servo at its limit alone), and when all three push at their limit each
+      gets 3 / (1 + 3 x 0.5 x 3 / 15.6) = 2.33 N m."""
+    mgl = 9.81 * (0.08 * 0.030 + 0.08 * 0.090 + 0.03 * 0.165)
+    assert mgl == pytest.approx(0.1427, abs=1e-4)
+    held = {"base": 0.3, "middle": 0.0, "distal": 0.0}
+    t, out = _run(sim.CASE_BY_NAME["series_spring_base"], 3.0,
+                  goals=lambda t: {j: np.full_like(t, held[j]) for j in sim.JOINTS})
+    d = 0.0
+    for _ in range(20):
+        d = -mgl * math.sin(0.3 + d) / 2.0
+    assert d == pytest.approx(-0.0197, abs=2e-4)
+    rest = t > 1.5
+    assert np.mean(out["true:base"][rest] - out["qpos:base"][rest]) == pytest.approx(d, abs=1e-3)
+    horn = sim.TICK * round(0.3 / sim.TICK) - mgl * math.sin(0.3 + d) / sim.KP
+    assert np.mean(out["qpos:base"][rest]) == pytest.approx(horn, abs=1e-3)
+
+    case = sim.CASE_BY_NAME["encoder_ripple_middle"]
+    t, out = _run(case, 4.0)
+    a, n, phi = case.effects[0].values
+    q = out["true:middle"]
+    err = out["qpos:middle"] - q - a * np.sin(n * q + phi)
+    assert np.sqrt(np.mean(err ** 2)) < 0.001
+    assert np.sqrt(np.mean((out["qpos:middle"] - q) ** 2)) > 0.008
+
+    case = sim.CASE_BY_NAME["supply_sag_finger"]
+    big = {"base": (-0.4, 0.4), "middle": (-0.4, 1.2), "distal": (-0.4, 1.2)}
+    _, out = _run(case, 3.0, goals=lambda t: {
+        j: np.where((t % 1.0) < 0.5, *big[j]) for j in sim.JOINTS})
+    force = np.abs(np.column_stack([out[f"force:{j}"] for j in sim.JOINTS]))
+    r = case.effects[0].values[0]
+    alone = sim.FORCE / (1 + r * sim.FORCE / (sim.V0 * sim.KT))
+    three = sim.FORCE / (1 + 3 * r * sim.FORCE / (sim.V0 * sim.KT))
+    assert alone == pytest.approx(2.737, abs=1e-3) and three == pytest.approx(2.33, abs=0.01)
+    assert force.max() <= alone + 1e-3
+    together = force.min(axis=1) > 2.0
+    assert together.any()
+    assert np.all(force[together] <= three + 0.01)
+
+
+def test_the_logs_are_spelled_as_the_user_writes_them(tmp_path):
+    """Degrees with integer millis() stamps of a clock that did not start at 0, or the project's
+    radians and seconds; readings on the 4096-tick grid either way."""
+    for name in ("encoder_ripple_middle", "clean_finger"):
+        case = dataclasses.replace(sim.CASE_BY_NAME[name], durations=(1.0,))
+        files = sim.write_case(case, tmp_path / name)
+        path = pathlib.Path(files["logs"][0]) / "log0.csv"
+        head = path.read_text().splitlines()[0].split(",")
+        a = np.genfromtxt(path, delimiter=",", skip_header=1)
+        log = {h: a[:, k] for k, h in enumerate(head)}
+        scale = math.radians(1.0) if case.deg else 1.0
+        for j in sim.JOINTS:
+            ticks = log[f"qpos:{j}"] * scale / sim.TICK
+            np.testing.assert_allclose(ticks, np.round(ticks), atol=2e-3)
+            assert f"goal:{j}_servo" in head
+        if case.ms:
+            assert log["time"][0] > 9e4 and np.all(log["time"] == np.round(log["time"]))
+            assert files["args"] == ["--units", "deg", "--time-unit", "ms"]
+        else:
+            assert log["time"][0] == 0.0 and files["args"] == []
+        truth = json.loads((tmp_path / name / "truth.json").read_text())
+        assert truth["outside"] == (name != "clean_finger")
