@@ -44,7 +44,15 @@ import redteam_check  # noqa: E402
 FAST: frozenset[str] = frozenset()
 
 # what the analysis showed instead, per case it misses (``gap analyze --seed 0 --threads 1`` as
-# the test runs it; CPU: the child's user + sys).
+# the test runs it; CPU: the child's user + sys). Measured on main dd7d93a (session 24,
+# gap-sim11; bench/gap_redteam10.py), every case passes: clean_finger nothing (0.66 mrad, 1.2
+# floors, 23 s CPU); latency40_finger exact (40.2-40.3 ms, intervals hold 40; 104.6 -> 1.64
+# mrad, 77 s); series_spring_base nothing ("not explained", 3.64 mrad = 6.4 floors; stopped at
+# "train + select within 3 floors", 12 s); encoder_ripple_middle nothing (3.86 mrad, 7.1
+# floors, 151 s); friction_drift_finger nothing (12.7 mrad, 22 floors: coulomb_friction kept by
+# the backward search, dropped on its interval, 118 s); supply_sag_finger torque_limit 2.62-2.63
+# N m, its nearest (7.81 -> 1.29 mrad, 2.2 floors, 130 s); tight_spot_middle gain_error flagged
+# "no reliable gain ... at best a partial stand-in" (2.42 -> 3.76 mrad, 87 s).
 MISSES: dict[str, str] = {}
 
 
