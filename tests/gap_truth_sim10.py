@@ -370,7 +370,7 @@ CASE_BY_NAME = {c.name: c for c in CASES}
 
 # what a report says when it does not claim to explain the logs (gap analysis verdicts and
 # cause notes; docs/gap_analysis.md "Say what may be a stand-in")
-FLAGS = ("not explained", "partial stand-in", "may stand in", "left unexplained")
+FLAGS = ("not explained", "partial stand-in", "may stand in")
 
 
 def score(report: dict, truth: dict) -> dict:

@@ -14,7 +14,7 @@ does (the user's MJCF, the log folder, the spelling's options) and graded by its
   any run: e.g. a torque limit for a supply that sags under load, dry friction for a tight
   spot); or other effects while the report itself says they do not explain the logs (its
   verdict or a cause's ``stand_in`` note reads "not explained", "partial stand-in", "may stand
-  in" or "left unexplained"). And the report must carry the residual: the held-out RMSE left
+  in"). And the report must carry the residual: the held-out RMSE left
   (``gain.extended_rmse``, or the nominal one's when nothing is named) and the noise floor,
   whose ratio the grade records (``residual_floors``).
 
