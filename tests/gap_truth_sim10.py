@@ -1,8 +1,8 @@
 """A tenth independent truth simulator for the gap analysis: a user's 3-joint D'Claw-like finger
 with hidden effects OUTSIDE the project's catalogue (issue 11; gap-sim11, session 24).
 
-Written with mujoco, numpy and the stdlib only, importing nothing from lowcostdex (no effect,
-plant, servo or gap code). The question it asks: when an outside judge's simulator hides an
+Written with mujoco, numpy and the stdlib only (and the sets' one grader, tests/redteam_grade.py),
+importing nothing from lowcostdex (no effect, plant, servo or gap code). The question it asks: when an outside judge's simulator hides an
 effect the catalogue has no name for, does the analysis name a confident WRONG cause, or does it
 report the residual it cannot explain?
 
@@ -52,6 +52,7 @@ import pathlib
 
 import mujoco
 import numpy as np
+import redteam_grade  # the red-team sets' one grader (tests/, no project imports)
 
 TICK = 2 * math.pi / 4096       # rad per encoder tick
 TRUTH_DT = 0.00025              # s, the truth's physics step
@@ -385,11 +386,12 @@ def score(report: dict, truth: dict) -> dict:
     named) and the noise floor as finite numbers (``residual_floors`` = their ratio); a report
     without them fails (``fail_no_residual``). A catalogue case (nothing outside) is graded as
     the earlier sets are: ``exact`` (exactly the hidden causes named) or ``clean`` (nothing
-    hidden, nothing named), else ``extra`` / ``miss`` / ``false``. ``result`` is the red-team
+    hidden, nothing named), else ``extra`` / ``miss`` / ``false`` (``redteam_grade.grade``,
+    the sets' one grader, which also checks the parameters). ``result`` is the red-team
     harness's word: ``clean`` for a pass of an outside case."""
     causes = report.get("causes", [])
-    named = sorted({c["effect"] for c in causes})
-    hidden = set(truth["causes"])
+    base = redteam_grade.grade(report, {**truth, "outside": False}, ())
+    named, hidden = base["named"], set(truth["causes"])
     g = report.get("gain") or {}
     before, after, floor = g.get("baseline_rmse"), g.get("extended_rmse"), g.get("noise_floor")
     left = after if named else before
@@ -399,42 +401,20 @@ def score(report: dict, truth: dict) -> dict:
     residual = None
     if all(isinstance(x, (int, float)) and math.isfinite(x) for x in (left, floor)) and floor:
         residual = float(left) / float(floor)
-    if truth.get("outside"):
-        wrong = sorted(set(named) - set(truth["nearest"]) - hidden)
-        if residual is None:
-            grade = "fail_no_residual"
-        elif not named:
-            grade = "pass_nothing"
-        elif not wrong:
-            grade = "pass_nearest"
-        else:
-            grade = "pass_flagged" if flagged else "fail_wrong"
-        result = "clean" if grade.startswith("pass") else "false"
+    wrong = sorted(set(named) - set(truth.get("nearest", ())) - hidden)
+    if not truth.get("outside"):
+        grade = result = base["result"]
+    elif residual is None:
+        grade = "fail_no_residual"
+    elif not named:
+        grade = "pass_nothing"
+    elif not wrong:
+        grade = "pass_nearest"
     else:
-        wrong = sorted(set(named) - hidden)
-        if not hidden:
-            result = "clean" if not named else "false"
-        elif set(named) == hidden:
-            result = "exact"
-        elif hidden < set(named):
-            result = "extra"
-        else:
-            result = "miss"
-        grade = result
-    params = []
-    by_effect = {c["effect"]: c for c in causes}
-    for exp in truth.get("expected_params", []):
-        cause = by_effect.get(exp["effect"])
-        if cause is None or exp["param"] not in cause["params"] or \
-                exp["joint"] not in cause["joints"]:
-            continue
-        p = cause["params"][exp["param"]]
-        k = cause["joints"].index(exp["joint"])
-        lo, hi = p["interval"][k]
-        params.append(dict(effect=exp["effect"], param=exp["param"], joint=exp["joint"],
-                           truth=exp["value"], value=p["value"][k], interval=[lo, hi],
-                           inside=bool(lo <= exp["value"] <= hi)))
+        grade = "pass_flagged" if flagged else "fail_wrong"
+    if truth.get("outside"):
+        result = "clean" if grade.startswith("pass") else "false"
     return {"result": result, "grade": grade, "named": named, "wrong": wrong,
             "hidden": sorted(hidden), "flagged": flagged, "residual_floors": residual,
             "heldout": [before, after], "noise_floor": floor, "gain_ci95": g.get("ci95"),
-            "verdict": verdict, "params": params}
+            "verdict": verdict, "params": base["params"]}

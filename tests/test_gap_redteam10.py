@@ -83,7 +83,8 @@ def test_no_confident_wrong_cause_and_the_residual_reported(name, tmp_path):
 def test_truth_simulator_imports_nothing_from_the_project():
     names = redteam_check.imported_top_modules(HERE / "gap_truth_sim10.py")
     assert names <= {"__future__", "dataclasses", "json", "math", "pathlib", "mujoco",
-                     "numpy"}, names
+                     "numpy", "redteam_grade"}, names
+    assert redteam_check.imported_top_modules(HERE / "redteam_grade.py") <= {"__future__"}
 
 
 def _report(named: list[str], verdict: str = "", before: float = 0.01, after: float = 0.004,
