@@ -1,9 +1,10 @@
 """Reading a CSV log of the project's format (``lowcostdex.gap.logs`` describes the columns)
 into {column: float array}: the layouts spreadsheets and loggers write (a byte-order mark, blank
 lines, '#' comments, tabs, a trailing ',' on every row, ';' separators with decimal commas,
-UTF-16 "Unicode text", an ANSI export's 8-bit text), refused with the fix named when it cannot
-be read (rows of another length, a word in a channel); a column of text that is not a channel
-(a user's 'mode' or 'note') is left out with a note.
+UTF-16 "Unicode text", an ANSI export's 8-bit text, a torque_enable logged as True/False, a last
+row cut short by a logger stopped mid-write: dropped with a note), refused with the fix named when
+it cannot be read (other rows of another length, a word in a channel); a column of text that is
+not a channel (a user's 'mode' or 'note') is left out with a note.
 """
 
 from __future__ import annotations
@@ -60,8 +61,14 @@ def _read_csv(path: Path, max_rows: int, encoding: str
                 dup = sorted({h for h in header if header.count(h) > 1})
                 raise LogError(f"{path}: duplicate columns {dup}")
             stamps = {c: [] for c, h in enumerate(header) if h.lower() in ("time", "goal_time")}
+            parse = [_switch if h.partition(":")[0].strip().lower() == "torque_enable"
+                     else _number for h in header]
             rows = []
+            short: tuple[int, int] | None = None  # a row cut short: only the last may be
             for r, row in enumerate(reader):
+                if short is not None:
+                    raise LogError(f"{path}: row {short[0]} has {short[1]} fields, the "
+                                   f"header has {len(header) - trailing}")
                 if r >= max_rows:
                     raise LogError(f"{path}: more than {max_rows} rows; at most "
                                    f"{max_rows} per log (split the log into shorter ones)")
@@ -70,6 +77,9 @@ def _read_csv(path: Path, max_rows: int, encoding: str
                 elif trailing:
                     raise LogError(f"{path}: row {raw.line_num} has a value under the "
                                    "header's empty last column")
+                if len(row) < len(header) - trailing:  # the last row of a logger stopped
+                    short = (raw.line_num, len(row))     # mid-write is dropped, said below
+                    continue
                 if len(row) != len(header) - trailing:
                     raise LogError(f"{path}: row {raw.line_num} has {len(row)} fields, the "
                                    f"header has {len(header) - trailing}")
@@ -79,12 +89,12 @@ def _read_csv(path: Path, max_rows: int, encoding: str
                 for c, cells in stamps.items():
                     cells.append(row[c])
                 try:
-                    rows.append([_number(cell) for cell in row])
+                    rows.append([p(cell) for p, cell in zip(parse, row, strict=False)])
                 except ValueError:
                     for c, cell in enumerate(row):
-                        if not _is_float(cell):
+                        if not _is_float(cell, parse[c]):
                             text.setdefault(c, (raw.line_num, cell))
-                    rows.append([_number(cell) if c not in text else np.nan
+                    rows.append([parse[c](cell) if c not in text else np.nan
                                  for c, cell in enumerate(row)])
     except csv.Error as exc:  # a field over the csv module's 128 kB: not a log's number
         raise LogError(f"{path}: not a CSV log (line {raw.line_num}: {exc})") from None
@@ -92,6 +102,9 @@ def _read_csv(path: Path, max_rows: int, encoding: str
     data = np.array(rows, dtype=float).reshape(len(rows), len(header))
     notes = [f"{path.name}: columns separated by ';' (a spreadsheet's export)"
              + (", decimal commas read as points" if commas else "")] if sep == ";" else []
+    if short is not None:
+        notes.append(f"{path.name}: its last row (line {short[0]}) has {short[1]} of "
+                     f"{len(header)} fields (a logger stopped mid-write?); dropped")
     for c, (line, cell) in sorted(text.items()):
         seconds = _dates(stamps[c]) if c in stamps else None
         if seconds is not None:  # pandas' to_csv of a DatetimeIndex, a logger's ISO stamps
@@ -202,9 +215,20 @@ def _number(cell: str) -> float:
     return np.nan if not cell or cell in MISSING else float(cell)
 
 
-def _is_float(cell: str) -> bool:
+SWITCH_WORDS = {"true": 1.0, "false": 0.0, "on": 1.0, "off": 0.0}
+"""A torque_enable cell as a logger writes a bool (Python's and pandas' True/False, JSON's
+true/false, a spreadsheet's TRUE/FALSE, on/off)."""
+
+
+def _switch(cell: str) -> float:
+    """A torque_enable cell: a number, or a bool written as a word (``SWITCH_WORDS``)."""
+    word = SWITCH_WORDS.get(cell.strip().lower())
+    return _number(cell) if word is None else word
+
+
+def _is_float(cell: str, parse=_number) -> bool:
     try:
-        _number(cell)
+        parse(cell)
     except ValueError:
         return False
     return True

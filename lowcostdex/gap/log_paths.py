@@ -47,7 +47,8 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path],
                            if p.is_file() and not p.name.startswith(".")
                            and p.suffix.lower() in LOG_SUFFIXES)
             if not found:
-                raise LogError(f"{one}: a folder without logs ({', '.join(LOG_SUFFIXES)})")
+                raise LogError(f"{one}: a folder without logs ({', '.join(LOG_SUFFIXES)})"
+                               + _in_subfolders(one))
             if any(p.suffix.lower() != ".json" for p in found):
                 json_files = [p for p in found if p.suffix.lower() == ".json"]
                 found = [p for p in found if p.suffix.lower() != ".json"]
@@ -73,3 +74,17 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path],
         else:
             out.append(one)
     return out
+
+
+def _in_subfolders(folder: Path) -> str:
+    """What to type when a folder's logs sit one level down (a session per subfolder): the
+    folder's own files are read, not its subfolders'."""
+    subs = sorted(d for d in folder.iterdir() if d.is_dir() and not d.name.startswith("."))
+    holding = [d for d in subs if any(p.is_file() and not p.name.startswith(".")
+                                      and p.suffix.lower() in LOG_SUFFIXES for p in d.iterdir())]
+    if not holding:
+        return ""
+    names = ", ".join(d.name for d in holding[:4]) + (" ..." if len(holding) > 4 else "")
+    return (f"; its subfolders {names} hold some (only a folder's own files are read): give "
+            f"them, e.g. {' '.join(str(d) for d in holding[:2])}, or the pattern "
+            f"'{folder / '*' / '*.csv'}'")
