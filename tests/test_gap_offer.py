@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from lowcostdex.gap import offer
+from lowcostdex.gap import band_motion, offer
 from lowcostdex.gap.analyze import available_candidates
 from lowcostdex.gap.dataset import load_dataset
 
@@ -90,3 +90,74 @@ def test_the_gate_offers_the_deadband_where_the_rests_show_a_band(tmp_path, hidd
     assert offer.offered(ds, "deadband") == shown
     assert ("deadband" in available_candidates(ds, None)) == shown
     assert "deadband" in available_candidates(ds, ("deadband",))  # asked for: always fitted
+
+
+# A torque rig (sim6's kind): a host PD loop at 200 Hz writes torque commands to a `motor`; the
+# arm's goals stay on one side of its hinge (every rest loaded the same way), where a band's
+# rest imbalance is a reading offset's. Written here: the command c, the drive's output with a
+# PWM band w of sign(c) max(|c| - w, 0), a joint frictionloss, a reading offset, a weaker drive.
+HOST_KP, HOST_KD, HOST_RATE, TAU = 2.0, 0.05, 200, 0.5
+TORQUE_NOMINAL = arm(f'<motor name="a" joint="j" ctrlrange="-{TAU} {TAU}" ctrllimited="true"/>')
+
+
+def simulate_torque(seed: int, width: float = 0.0, friction: float = 0.0, offset: float = 0.0,
+                    strength: float = 1.0, seconds: float = 20.0):
+    """(times, commands, readings): step goals held 0.4-1.2 s in 0.2..1.3 rad (the load
+    m g l cos q of one sign), tracked by the host PD on its own readings."""
+    rng = np.random.default_rng(seed)
+    m = mujoco.MjModel.from_xml_string(arm('<motor name="a" joint="j"/>', friction))
+    d = mujoco.MjData(m)
+    goal = rng.uniform(0.2, 1.3)
+    d.qpos[0] = goal
+    mujoco.mj_forward(m, d)
+    per = round(1 / (HOST_RATE * DT))
+    times, cmds, reads = [], [], []
+    last, hold_until, k = None, rng.uniform(0.4, 1.2), 0
+    while k / HOST_RATE < seconds:
+        t = k / HOST_RATE
+        if t >= hold_until:
+            goal, hold_until = rng.uniform(0.2, 1.3), t + rng.uniform(0.4, 1.2)
+        q = d.qpos[0] + offset + rng.normal(0, 4e-4)
+        q = round(q * 4096 / (2 * math.pi)) * 2 * math.pi / 4096
+        dq = 0.0 if last is None else (q - last) * HOST_RATE
+        c = float(np.clip(HOST_KP * (goal - q) - HOST_KD * dq, -TAU, TAU))
+        last = q
+        times.append(t)
+        cmds.append(c)
+        reads.append(q)
+        out = strength * math.copysign(max(abs(c) - width, 0.0), c)
+        for _ in range(per):
+            d.ctrl[0] = out
+            mujoco.mj_step(m, d)
+        k += 1
+    return np.array(times), np.array(cmds), np.array(reads)
+
+
+def torque_dataset(tmp_path, **hidden):
+    paths = []
+    for i in range(3):
+        t, c, q = simulate_torque(20 + i, **hidden)
+        p = tmp_path / f"log{i}.csv"
+        np.savetxt(p, np.column_stack([t, c, q]), delimiter=",", header="time,goal:a,qpos:j",
+                   comments="", fmt="%.9g")
+        paths.append(p)
+    model = tmp_path / "model.xml"
+    model.write_text(TORQUE_NOMINAL)
+    return load_dataset(paths, model=model)
+
+
+@pytest.mark.parametrize("hidden, shown", [
+    ({"width": 0.02}, True),
+    ({}, False),
+    ({"friction": 0.02}, False),  # Coulomb: a force on the speed's side, not the command's
+    ({"offset": 0.05}, False),
+    ({"strength": 0.7}, False),
+])
+def test_a_torque_rigs_moves_show_its_band_where_its_rests_cannot(tmp_path, hidden, shown):
+    ds = torque_dataset(tmp_path, **hidden)
+    z = band_motion.motion_band_scores(ds)["j"]
+    assert (z > offer.MOTION_Z) == shown, z
+    assert offer.offered(ds, "deadband") == shown
+    if shown:  # the band's size: the fitted force on the command's side
+        w = band_motion.motion_band_fits(ds)["j"]["coef"]["band"]
+        assert w == pytest.approx(hidden["width"], rel=0.15), w

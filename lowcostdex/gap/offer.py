@@ -29,6 +29,13 @@ offset, gain, Coulomb and the project generator's friction family at most 3.2, i
 sim6 (torque rig: its loaded rests all lean one way, so a band there is a reading offset to the
 statics), sim3, sim7, sim8, the independent bench and finger and the README run's logs nothing
 (most have under ``MIN_RESTS`` rests per joint): the default analysis as before.
+
+The moves (``gap.band_motion``, torque-commanded joints only): where the rests cannot tell a
+band from an offset, a force lost on the command's side while the joint moves (session 24,
+gap-sig19): sim6 deadband_torque 56-134 standard errors, width 0.0093-0.0100 N m for 0.01;
+every other torque rig of sim4/sim6 and tests/test_gap_offer.py's torque arm (clean, Coulomb,
+offset, gain, read delay, supply sag, encoder error, centre-of-mass, viscous, mass, torque limit)
+at most 5.0 (sim4's Coulomb at 60 % of the command range); offered above ``MOTION_Z``.
 """
 
 from __future__ import annotations
@@ -38,18 +45,22 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from lowcostdex.gap import ramps
+from lowcostdex.gap import band_motion, ramps
+from lowcostdex.gap.band_motion import actuator_of as _actuator_of
+from lowcostdex.gap.band_motion import blocked_dofs as _blocked
+from lowcostdex.gap.band_motion import is_motor as _is_motor
+from lowcostdex.gap.band_motion import set_pose
 from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.diagnostics import noise_floor
 from lowcostdex.gap.logs import rate_goal_actuators
 from lowcostdex.sim.effects import CAUSES, OPT_IN, effect
-from lowcostdex.sim.effects.deadband import torque_motor
 
 SETTLE = 0.3  # [s] a rest: joints still and position goals held this long
 STILL = 6.0  # joints "still": within this many noise floors (RMS) over SETTLE
 MIN_ROWS = 5  # rows a rest needs (a host loop's command averaged over them)
 MIN_RESTS = 8  # rests per joint for the five-term fit to judge
 BAND_Z = 8.0  # the band's gate: its term over this many standard errors on some joint
+MOTION_Z = 20.0  # the moves' band term (torque-commanded joints) over this many SE
 
 
 def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[str]:
@@ -104,13 +115,6 @@ def rests(ds: Dataset) -> dict[str, list[tuple[int, int, int]]]:
     return out
 
 
-def _actuator_of(m: mujoco.MjModel, joint: str) -> int:
-    """The one actuator driving ``joint`` (an effect joint has exactly one)."""
-    jid = m.joint(joint).id
-    return int(np.flatnonzero((m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
-                              & (m.actuator_trnid[:, 0] == jid))[0])
-
-
 def _window_range(x: np.ndarray, back: np.ndarray) -> np.ndarray:
     """max - min of x over rows [back[i], i] for each row i (prefix extremes over sorted
     windows: O(T log T) via a sparse table)."""
@@ -131,12 +135,6 @@ def _window_range(x: np.ndarray, back: np.ndarray) -> np.ndarray:
         a, b = back[r], idx[r] - span[r] + 1
         out[r] = (np.maximum(hi[level][a], hi[level][b]) - np.minimum(lo[level][a], lo[level][b]))
     return out
-
-
-def _is_motor(m: mujoco.MjModel, a: int) -> bool:
-    """A torque-driven actuator (fixed gain, no bias, no activation): its goal is a command."""
-    return bool(torque_motor(m.actuator_gaintype[a], m.actuator_biastype[a],
-                             m.actuator_dyntype[a]))
 
 
 def rest_imbalance(ds: Dataset) -> dict[str, np.ndarray]:
@@ -186,25 +184,8 @@ def rest_imbalance(ds: Dataset) -> dict[str, np.ndarray]:
 def _imbalance(m: mujoco.MjModel, d: mujoco.MjData, adr: list[int], act: list[int],
                q: np.ndarray, goal: np.ndarray) -> np.ndarray:
     """(nv,) the generalized force the nominal model leaves at pose q, at rest, goals held."""
-    mujoco.mj_resetData(m, d)
-    d.qpos[adr] = q
-    d.ctrl[act] = goal
-    for a in act:  # a filtered position goal has settled at the goal
-        if m.actuator_actadr[a] >= 0 and m.actuator_dyntype[a] != mujoco.mjtDyn.mjDYN_INTEGRATOR:
-            d.act[m.actuator_actadr[a]] = goal[act.index(a)]
-    mujoco.mj_forward(m, d)
+    set_pose(m, d, adr, act, q, goal)
     return d.qfrc_actuator + d.qfrc_passive - d.qfrc_bias
-
-
-def _blocked(m: mujoco.MjModel, d: mujoco.MjData) -> np.ndarray:
-    """(nv,) dofs held by a contact or a joint limit at the last ``mj_forward``'s pose."""
-    out = np.zeros(m.nv, bool)
-    if d.ncon:
-        out[:] = True  # (a contact's Jacobian spans the chain: leave the rest out)
-    for i in range(d.nefc):
-        if d.efc_type[i] == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT:
-            out[m.jnt_dofadr[d.efc_id[i]]] = True
-    return out
 
 
 def band_scores(ds: Dataset) -> dict[str, tuple[float, float]]:
@@ -232,8 +213,12 @@ def band_scores(ds: Dataset) -> dict[str, tuple[float, float]]:
 def band_shown(ds: Dataset) -> bool:
     """``deadband``'s gate: on some joint the rests stand off by a band on the load's side (on
     the approach's side where unloaded) by over ``BAND_Z`` standard errors, beside what an
-    offset, a gain, a scale and a Coulomb friction (the approach's side always) explain."""
-    return any(z > BAND_Z for z, _ in band_scores(ds).values())
+    offset, a gain, a scale and a Coulomb friction (the approach's side always) explain; or, on
+    a torque-commanded joint, its moves lose a force on the command's side by over ``MOTION_Z``
+    standard errors (``band_motion.motion_band_scores``: where the rests all lean one way)."""
+    if any(z > BAND_Z for z, _ in band_scores(ds).values()):
+        return True
+    return any(z > MOTION_Z for z in band_motion.motion_band_scores(ds).values())
 
 
 # a cause's gate: offered by default only where it is true (``goal_profile``, a default cause,
