@@ -21,6 +21,10 @@ Hidden effects (``Effect.kind``), each written here from its physics:
   servo (its armature, damping, friction, encoder and PD loop) turns a horn; the link hangs on
   the horn through a torsion spring of ``k`` N m/rad and ``c`` N m s/rad. The log reads the
   horn (the servo's encoder), the link swings behind it (its gravity sag is unseen).
+- ``gear_spring`` (outside): the same compliance inside the servo, before its encoder: the
+  motor (the armature, damping and friction) drives the output shaft through a gear train of
+  ``k`` N m/rad and ``c`` N m s/rad; the encoder and the log read the output (the link), the
+  firmware's PD (kp, kv, force range) acts on the motor from that reading and its rate.
 - ``encoder_ripple`` (outside): the servo's encoder reads r = q + a sin(n q + phi) (a magnet's
   harmonic error, ``n`` cycles per turn); the firmware's PD closes on r (and on its rate) and
   the log records r.
@@ -72,7 +76,7 @@ FINGER: dict[str, tuple] = {
 ARMATURE, DAMPING, FRICTION = 0.008, 0.1, 0.03     # kg m^2, N m s/rad, N m
 KP, KV, FORCE = 6.0, 0.15, 3.0                      # N m/rad, N m s/rad, N m
 
-KINDS = ("series_spring", "encoder_ripple", "friction_drift", "supply_sag", "tight_spot",
+KINDS = ("series_spring", "gear_spring", "encoder_ripple", "friction_drift", "supply_sag", "tight_spot",
          "latency")
 CATALOGUE = {"latency": "latency"}          # the kinds the project's catalogue has by name
 PARAM = {"latency": "delay"}
@@ -91,6 +95,7 @@ PARAM = {"latency": "delay"}
 # - a tight spot is dry friction (coulomb_friction, stribeck_friction, gearbox_friction).
 NEAREST: dict[str, tuple[str, ...]] = {
     "series_spring": ("backlash", "inertia_error"),
+    "gear_spring": ("backlash", "inertia_error"),
     "encoder_ripple": ("sensor_scale", "position_offset", "gain_error"),
     "friction_drift": ("coulomb_friction", "stribeck_friction", "gearbox_friction"),
     "supply_sag": ("torque_limit", "voltage_sag", "motor_strength"),
@@ -101,7 +106,8 @@ NEAREST: dict[str, tuple[str, ...]] = {
 @dataclasses.dataclass(frozen=True)
 class Effect:
     """Hidden effect ``kind`` on ``joint`` (friction_drift, supply_sag, latency: every joint)
-    with its sizes ``values``: series_spring (k [N m/rad], c [N m s/rad]); encoder_ripple (a
+    with its sizes ``values``: series_spring, gear_spring (k [N m/rad], c [N m s/rad]);
+    encoder_ripple (a
     [rad], n [cycles/turn], phi [rad]); friction_drift (factor at the session's end);
     supply_sag (R [ohm]); tight_spot (A [N m], q0 [rad], w [rad]); latency (delay [s])."""
 
@@ -167,7 +173,14 @@ def model_xml(case: Case | None = None, timestep: float = MODEL_DT) -> str:
         servo = (f'armature="{ARMATURE}" damping="{DAMPING}" frictionloss="{FRICTION}"')
         spring = case.get("series_spring", j) if case else None
         ripple = case.get("encoder_ripple", j) if case else None
-        if spring:
+        gear = case.get("gear_spring", j) if case else None
+        if gear:
+            k, c = gear
+            body = (f'<body name="{j}_rotor" pos="{pos}"><joint name="{j}_motor" axis="{axis}" '
+                    f'{servo}/><geom type="sphere" size="0.005" mass="0.001"/>'
+                    f'<body name="{j}_link"><joint name="{j}" axis="{axis}" stiffness="{k}" '
+                    f'damping="{c}"/>{inertial}{body}</body></body>')
+        elif spring:
             k, c = spring
             body = (f'<body name="{j}_horn" pos="{pos}"><joint name="{j}" axis="{axis}" {servo}/>'
                     f'<geom type="sphere" size="0.005" mass="0.001"/>'
@@ -176,8 +189,9 @@ def model_xml(case: Case | None = None, timestep: float = MODEL_DT) -> str:
         else:
             body = (f'<body name="{j}_link" pos="{pos}"><joint name="{j}" axis="{axis}" {servo}/>'
                     f'{inertial}{body}</body>')
-        if ripple:
-            acts.append(f'<motor name="{j}_servo" joint="{j}" ctrllimited="false"/>')
+        if ripple or gear:
+            acts.append(f'<motor name="{j}_servo" joint="{j}{"_motor" if gear else ""}" '
+                        f'ctrllimited="false"/>')
         else:
             acts.append(f'<position name="{j}_servo" joint="{j}" kp="{KP}" kv="{KV}" '
                         f'forcelimited="true" forcerange="{-FORCE} {FORCE}" '
@@ -231,6 +245,9 @@ def simulate(case: Case, t: np.ndarray, goals: dict[str, np.ndarray], rng: np.ra
     spring = {j: int(m.jnt_qposadr[m.joint(f"{j}_spring").id]) for j in JOINTS
               if case.get("series_spring", j)}
     act = {j: m.actuator(f"{j}_servo").id for j in JOINTS}
+    gear = {j: (int(m.jnt_qposadr[m.joint(f"{j}_motor").id]),
+                int(m.jnt_dofadr[m.joint(f"{j}_motor").id])) for j in JOINTS
+            if case.get("gear_spring", j)}
     ripple = {j: case.get("encoder_ripple", j) for j in JOINTS if case.get("encoder_ripple", j)}
     spot = {j: case.get("tight_spot", j) for j in JOINTS if case.get("tight_spot", j)}
     drift = case.get("friction_drift")
@@ -238,18 +255,19 @@ def simulate(case: Case, t: np.ndarray, goals: dict[str, np.ndarray], rng: np.ra
     latency = (case.get("latency") or (0.0,))[0]
 
     def reading(j: str) -> float:   # the servo's encoder (the horn when a spring is hidden)
-        q = float(d.qpos[qadr[j]])
+        q = float(d.qpos[qadr[j]] + (d.qpos[gear[j][0]] if j in gear else 0.0))
         return ripple_reading(q, *ripple[j]) if j in ripple else q
 
     def link(j: str) -> float:
-        return float(d.qpos[qadr[j]] + (d.qpos[spring[j]] if j in spring else 0.0))
+        return float(d.qpos[qadr[j]] + (d.qpos[spring[j]] if j in spring else 0.0)
+                     + (d.qpos[gear[j][0]] if j in gear else 0.0))
 
     def ticks(x: float) -> float:
         return float(np.round(x / TICK) * TICK)
 
     first = {j: ticks(goals[j][0]) for j in JOINTS}
     for j in JOINTS:
-        d.qpos[qadr[j]] = first[j]
+        d.qpos[gear[j][0] if j in gear else qadr[j]] = first[j]
     mujoco.mj_forward(m, d)
     n = len(t)
     out = {f"goal:{j}_servo": np.empty(n) for j in JOINTS}
@@ -292,6 +310,10 @@ def simulate(case: Case, t: np.ndarray, goals: dict[str, np.ndarray], rng: np.ra
                 a, k, phi = ripple[j]
                 q, v = float(d.qpos[qadr[j]]), float(d.qvel[dadr[j]])
                 rate = v * (1.0 + a * k * math.cos(k * q + phi))
+                d.ctrl[act[j]] = float(np.clip(KP * (cmd[j] - reading(j)) - KV * rate,
+                                               -FORCE, FORCE))
+            elif j in gear:   # the firmware's PD on the output shaft, acting on the motor
+                rate = float(d.qvel[dadr[j]] + d.qvel[gear[j][1]])
                 d.ctrl[act[j]] = float(np.clip(KP * (cmd[j] - reading(j)) - KV * rate,
                                                -FORCE, FORCE))
             else:
@@ -366,6 +388,26 @@ CASES: tuple[Case, ...] = (
               "(outside)"),
     Case("tight_spot_middle", (E("tight_spot", (0.25, 0.4, 0.06), "middle"),), seed=107,
          note="middle joint: +0.25 N m friction bump at 0.4 rad, width 0.06 rad (outside)"),
+    Case("gear_spring_middle", (E("gear_spring", (8.0, 0.01), "middle"),), seed=108,
+         note="middle servo's gear train 8 N m/rad between motor and output, encoder and loop "
+              "on the output (outside)"),
+    # a catalogue effect beside an outside one: the latency must be named, nothing wrong beside
+    Case("latency_tight_spot", (E("latency", (0.025,)),
+                                E("tight_spot", (0.25, 0.4, 0.06), "middle")), seed=109,
+         note="25 ms on every servo + the middle's tight spot"),
+    Case("latency_friction_drift", (E("latency", (0.025,)), E("friction_drift", (4.0,))),
+         deg=True, ms=True, seed=110, note="25 ms on every servo + friction rising 4x"),
+    # the same effects in six logs of 5 s (more held out: a gain can be reliable there, which
+    # is where a stand-in would be named with confidence)
+    Case("series_spring_base_6logs", (E("series_spring", (2.0, 0.005), "base"),),
+         durations=(5.0,) * 6, seed=113, note="as series_spring_base, six logs"),
+    Case("encoder_ripple_middle_6logs", (E("encoder_ripple", (0.02, 4.0, 0.7), "middle"),),
+         durations=(5.0,) * 6, deg=True, ms=True, seed=114,
+         note="as encoder_ripple_middle, six logs"),
+    Case("friction_drift_finger_6logs", (E("friction_drift", (4.0,)),), durations=(5.0,) * 6,
+         seed=115, note="as friction_drift_finger, six logs"),
+    Case("tight_spot_middle_6logs", (E("tight_spot", (0.25, 0.4, 0.06), "middle"),),
+         durations=(5.0,) * 6, seed=117, note="as tight_spot_middle, six logs"),
 )
 CASE_BY_NAME = {c.name: c for c in CASES}
 
@@ -384,7 +426,8 @@ def score(report: dict, truth: dict) -> dict:
     ``pass_flagged``). Anything else named is ``fail_wrong``. Either way the residual must be
     reported: the held-out RMSE left (``gain.extended_rmse``, the nominal one's when nothing is
     named) and the noise floor as finite numbers (``residual_floors`` = their ratio); a report
-    without them fails (``fail_no_residual``). A catalogue case (nothing outside) is graded as
+    without them fails (``fail_no_residual``); a catalogue effect hidden beside the outside one
+    must be named too (else ``fail_missed``). A catalogue case (nothing outside) is graded as
     the earlier sets are: ``exact`` (exactly the hidden causes named) or ``clean`` (nothing
     hidden, nothing named), else ``extra`` / ``miss`` / ``false`` (``redteam_grade.grade``,
     the sets' one grader, which also checks the parameters). ``result`` is the red-team
@@ -406,6 +449,8 @@ def score(report: dict, truth: dict) -> dict:
         grade = result = base["result"]
     elif residual is None:
         grade = "fail_no_residual"
+    elif not hidden <= set(named):
+        grade = "fail_missed"
     elif not named:
         grade = "pass_nothing"
     elif not wrong:

@@ -14,7 +14,8 @@ does (the user's MJCF, the log folder, the spelling's options) and graded by its
   any run: e.g. a torque limit for a supply that sags under load, dry friction for a tight
   spot); or other effects while the report itself says they do not explain the logs (its
   verdict or a cause's ``stand_in`` note reads "not explained", "partial stand-in", "may stand
-  in"). And the report must carry the residual: the held-out RMSE left
+  in"); a catalogue effect hidden beside it (25 ms latency) must be named too, its
+  intervals holding the truth. And the report must carry the residual: the held-out RMSE left
   (``gain.extended_rmse``, or the nominal one's when nothing is named) and the noise floor,
   whose ratio the grade records (``residual_floors``).
 
@@ -52,7 +53,10 @@ FAST: frozenset[str] = frozenset()
 # floors, 151 s); friction_drift_finger nothing (12.7 mrad, 22 floors: coulomb_friction kept by
 # the backward search, dropped on its interval, 118 s); supply_sag_finger torque_limit 2.62-2.63
 # N m, its nearest (7.81 -> 1.29 mrad, 2.2 floors, 130 s); tight_spot_middle gain_error flagged
-# "no reliable gain ... at best a partial stand-in" (2.42 -> 3.76 mrad, 87 s).
+# "no reliable gain ... at best a partial stand-in" (2.42 -> 3.76 mrad, 87 s). Then (same
+# code): gear_spring_middle nothing (3.09 mrad, 5.2 floors, 111 s); the six-log cases nothing
+# ("not explained"): tight spot 4.34 mrad 7.6 floors 157 s, ripple 1.56 / 2.8 / 165 s, series
+# spring 1.40 / 2.6 / 216 s, friction drift 7.96 / 13.6 / 109 s.
 MISSES: dict[str, str] = {}
 
 
@@ -76,8 +80,8 @@ def test_no_confident_wrong_cause_and_the_residual_reported(name, tmp_path):
     else:
         assert s["result"] in ("exact", "clean"), (
             f"hidden {s['hidden'] or 'nothing'}, named {s['named'] or 'nothing'}")
-        outside = [p for p in s["params"] if not p["inside"]]
-        assert not outside, f"true values outside their 95 % intervals: {outside}"
+    outside = [p for p in s["params"] if not p["inside"]]
+    assert not outside, f"true values outside their 95 % intervals: {outside}"
 
 
 def test_truth_simulator_imports_nothing_from_the_project():
@@ -118,6 +122,9 @@ def test_the_grade_on_hand_written_reports():
     assert sim.score(noted, truth)["grade"] == "pass_flagged"
     assert sim.score(_report(["torque_limit"], floor=None), truth)["grade"] == \
         "fail_no_residual"
+    mixed = {**truth, "causes": ["latency"]}
+    assert sim.score(_report(["torque_limit"]), mixed)["grade"] == "fail_missed"
+    assert sim.score(_report(["latency", "torque_limit"]), mixed)["grade"] == "pass_nearest"
     lat = sim.CASE_BY_NAME["latency40_finger"]
     truth = {"causes": sorted(lat.causes), "outside": False, "nearest": [],
              "expected_params": sim.expected_params(lat)}
@@ -150,6 +157,8 @@ def test_each_hidden_effect_moves_its_reading():
     over 6 s, 10.9 on the distal over 4 s (the joints whose steps saturate), tight spot 9.6 mrad (middle); the joints without an
     effect of their own stay within a few floors (coupling through the links)."""
     for case in sim.CASES[1:]:
+        if len(case.effects) > 1:
+            continue
         _, clean = _run(dataclasses.replace(case, effects=()), 4.0, session=(6.0, 18.0))
         _, hidden = _run(case, 4.0, session=(6.0, 18.0))
         rms = {j: float(np.sqrt(np.mean((hidden[f"qpos:{j}"] - clean[f"qpos:{j}"]) ** 2)))
