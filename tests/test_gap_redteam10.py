@@ -152,10 +152,11 @@ def _run(case: sim.Case, seconds: float, style: str = "steps", goals: dict | Non
 def test_each_hidden_effect_moves_its_reading():
     """Against the same goals without the effect (same seeds), each hidden effect moves the
     reading of the joint it sits on by more than the read floor (0.4 mrad noise + ticks: ~0.6
-    mrad RMS) over 4 s of steps: measured latency 46-113, spring 2.3 (base), ripple 4.4
-    (middle), friction drift 5.8-6.8 (mid-session), supply sag 9.5 / 4.7 (middle / distal)
-    over 6 s, 10.9 on the distal over 4 s (the joints whose steps saturate), tight spot 9.6 mrad (middle); the joints without an
-    effect of their own stay within a few floors (coupling through the links)."""
+    mrad RMS) over 4 s of steps: measured latency 46-113, spring 4.9 (base), gear spring 5.6
+    (middle), ripple 4.4 (middle), friction drift 5.8-6.8 (mid-session), supply sag 9.5 / 4.7
+    (middle / distal) over 6 s, 10.9 on the distal over 4 s (the joints whose steps
+    saturate), tight spot 9.6 mrad (middle); the joints without an effect of their own stay
+    within a few floors (coupling through the links). Cases with two effects are left out."""
     for case in sim.CASES[1:]:
         if len(case.effects) > 1:
             continue
