@@ -145,3 +145,25 @@ def test_too_few_moves_or_one_direction_cannot_tell():
     # only steps under MIN_MOVE: nothing timed
     assert not ramps.shows_profile(_dataset(_trapezoid(2.0, 2.0, 10.0),
                                             goals=(0.0, 0.05, -0.02, 0.06, 0.0)))
+
+
+@pytest.mark.parametrize("velocity, lower_only", [(5.0, True), (3.0, False)])
+def test_a_profile_velocity_no_move_reaches_is_reported_as_a_lower_bound(velocity, lower_only):
+    """goal_profile's velocity where every move is a triangle (sim8's 3 rad/s with 12 rad/s^2:
+    its interval spanned the whole search range): the largest goal step here is 0.9 - (-0.6) =
+    1.5 rad, whose rest-to-rest triangle at 12 rad/s^2 peaks at sqrt(12 x 1.5) = 4.243 rad/s.
+    A fitted 5 rad/s caps no move: the data say only 'at least' the peak at the acceleration's
+    lower 95 % end, sqrt(11 x 1.5) = 4.062 (interval [4.06, the search's limit], flagged); a
+    fitted 3 rad/s caps the large moves: left as fitted."""
+    ds = _dataset(_trapezoid(velocity, velocity, 12.0))
+    params = {"velocity": {"value": [velocity], "interval": [[0.5, 50.0]], "unit": "rad/s"},
+              "acceleration": {"value": [12.0], "interval": [[11.0, 13.0]], "unit": "rad/s^2"}}
+    flags = ramps.uncapped_velocity(ds, ("j",), params)
+    vel = params["velocity"]
+    assert vel["lower_bound_only"] == [lower_only]
+    assert bool(flags) == lower_only
+    if lower_only:
+        assert vel["interval"][0][0] == pytest.approx(math.sqrt(11.0 * 1.5), rel=0.01)
+        assert vel["interval"][0][1] >= 500.0 and "not identifiable above" in flags[0]
+    else:
+        assert vel["interval"] == [[0.5, 50.0]]

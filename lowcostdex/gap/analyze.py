@@ -63,6 +63,7 @@ from lowcostdex.gap.exchange import effect_size, prune_refitted, replace_standin
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
 from lowcostdex.gap.gates import drop_weak, free_asymmetry, hold_sensor, swap_equivalent
 from lowcostdex.gap.offer import available_candidates
+from lowcostdex.gap.ramps import uncapped_velocity
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import (
     UNEXPLAINED,
@@ -483,6 +484,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
             c.heldout_mae_after = float(sae.sum() / n.sum())
             c.flags = bound_flags(final_track.structure, final_track.u, e.name)
+            if e.name == "goal_profile":  # a velocity no move reaches: a lower bound only
+                c.flags += uncapped_velocity(ds, e.joints, c.params)
             c.equivalent = equivalents.get(e.name, [])
             c.widened = widened_notes.get(e.name) or gates.widened_lines(ctx, e.name, joints)
             causes.append(c)

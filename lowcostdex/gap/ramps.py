@@ -40,6 +40,8 @@ from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.logs import rate_goal_actuators
 from lowcostdex.gap.trajectory import Trajectory
 from lowcostdex.sim import servo
+from lowcostdex.sim.effects import effect
+from lowcostdex.sim.effects.profile import profile_step
 
 JUMP = 0.05        # rad (joint units): a goal change in one row this large is a step
 MIN_MOVE = 0.1     # rad: a move this large is timed (a smaller one is the servo's own lag)
@@ -51,6 +53,7 @@ BETA_MAX = 0.55    # speed ~ size^beta: a profile <= 0.5, a linear servo ~1
 GAMMA_MAX = 0.25   # |log(speed moving positive / negative)|: a load's direction shows more
 ACCEL_SHARE = 0.3  # the moves' acceleration at most this share of the nominal servo's force / inertia
 SPEED_SHARE = 0.5  # their speed at most this share of a nominal dcmotor's no-load speed
+UNCAPPED = 1e9     # rad/s: a profile velocity no move reaches (an infinite one is no profile)
 TRIANGLE = 0.8536  # mid-move speed of a rest-to-rest triangle / sqrt(acceleration x size)
 
 
@@ -162,3 +165,58 @@ def shows_profile(ds: Dataset) -> bool:
         if shown <= ACCEL_SHARE * accel and np.median(moves[:, 1]) <= SPEED_SHARE * speed:
             return True
     return False
+
+
+def fastest_profile(tr: Trajectory, col: int, gear: float, acceleration: float) -> float:
+    """The fastest a profile without a velocity cap, at ``acceleration`` [rad/s^2], moves its
+    setpoint over trajectory ``tr``'s goals of column ``col`` (joint units; each row's goal held
+    to the next row, stepped at 1 ms or finer) [rad/s]: a profile velocity above it caps no move
+    of these logs."""
+    g = tr.goal[:, col] / gear
+    p, w, top = np.array(g[0]), np.array(0.0), 0.0
+    for k in range(len(g) - 1):
+        span = float(tr.time[k + 1] - tr.time[k])
+        n = max(1, int(np.ceil(span / 1e-3)))
+        for _ in range(n):
+            p, w = profile_step(p, w, np.array(g[k]), np.array(UNCAPPED), np.array(acceleration),
+                                span / n)
+            top = max(top, abs(float(w)))
+    return top
+
+
+def _fastest(ds: Dataset, col: int, gear: float, acceleration: float) -> float:
+    """``fastest_profile`` over the logs."""
+    return max(fastest_profile(tr, col, gear, acceleration) for tr in ds.trajectories)
+
+
+def uncapped_velocity(ds: Dataset, joints: tuple[str, ...], params: dict) -> list[str]:
+    """``goal_profile``'s velocity where no move of the logs reaches it (sim8's 3 rad/s with 12
+    rad/s^2: every move a triangle): any velocity above the fastest the profile moves at the
+    fitted acceleration (``fastest_profile``) replays the logs alike, so the data bound it from
+    below only, by that speed at the acceleration's lower 95 % end (a triangle's peak grows as
+    its root). There the velocity's interval becomes [that speed, the search's limit],
+    ``lower_bound_only`` is set per joint, and a line says so (returned, for the cause's
+    flags). ``params``: the cause's report (``results.param_report``), changed in place;
+    ``joints``: its joints."""
+    vel, acc = params.get("velocity"), params.get("acceleration")
+    if vel is None:
+        return []
+    cols = {ds.trajectories[0].joints[j]: (c, g) for c, j, g in position_goal_columns(ds)}
+    hi = effect("goal_profile").param("velocity").limit[1]
+    out = []
+    vel["lower_bound_only"] = [False] * len(joints)
+    for k, name in enumerate(joints):
+        v = vel["value"][k]
+        a, a_lo = (acc["value"][k], acc["interval"][k][0]) if acc is not None else (0.0, 0.0)
+        if name not in cols or v is None or not 0 < v < np.inf or a is None or not 0 < a < np.inf:
+            continue  # (without an acceleration limit every goal step moves at the velocity)
+        c, g = cols[name]
+        if _fastest(ds, c, g, a) >= v:
+            continue
+        lo = _fastest(ds, c, g, a_lo if a_lo is not None and 0 < a_lo < a else a)
+        vel["interval"][k] = [lo, hi]
+        vel["lower_bound_only"][k] = True
+        out.append(f"velocity[{name}]: no move reaches it (the profile moves at most "
+                   f"{lo:.3g} rad/s at the acceleration's lower end): at least {lo:.3g} rad/s, "
+                   f"not identifiable above (the interval's upper end is the search's limit)")
+    return out
