@@ -397,6 +397,11 @@ CASES: tuple[Case, ...] = (
          note="25 ms on every servo + the middle's tight spot"),
     Case("latency_friction_drift", (E("latency", (0.025,)), E("friction_drift", (4.0,))),
          deg=True, ms=True, seed=110, note="25 ms on every servo + friction rising 4x"),
+    Case("latency_gear_spring", (E("latency", (0.025,)),
+                                 E("gear_spring", (8.0, 0.01), "middle")), seed=111,
+         note="25 ms on every servo + the middle servo's 8 N m/rad gear train"),
+    Case("latency_supply_sag", (E("latency", (0.025,)), E("supply_sag", (0.5,))), seed=112,
+         note="25 ms on every servo + the shared supply behind 0.5 ohm"),
     # the same effects in six logs of 5 s (more held out: a gain can be reliable there, which
     # is where a stand-in would be named with confidence)
     Case("series_spring_base_6logs", (E("series_spring", (2.0, 0.005), "base"),),
