@@ -411,6 +411,9 @@ CASES: tuple[Case, ...] = (
          note="as encoder_ripple_middle, six logs"),
     Case("friction_drift_finger_6logs", (E("friction_drift", (4.0,)),), durations=(5.0,) * 6,
          seed=115, note="as friction_drift_finger, six logs"),
+    Case("latency_tight_spot_6logs", (E("latency", (0.025,)),
+                                      E("tight_spot", (0.25, 0.4, 0.06), "middle")),
+         durations=(5.0,) * 6, seed=119, note="as latency_tight_spot, six logs"),
     Case("tight_spot_middle_6logs", (E("tight_spot", (0.25, 0.4, 0.06), "middle"),),
          durations=(5.0,) * 6, seed=117, note="as tight_spot_middle, six logs"),
 )

@@ -58,7 +58,11 @@ FAST: frozenset[str] = frozenset()
 # ("not explained"): tight spot 4.34 mrad 7.6 floors 157 s, ripple 1.56 / 2.8 / 165 s, series
 # spring 1.40 / 2.6 / 216 s, friction drift 7.96 / 13.6 / 109 s. latency_friction_drift: latency
 # 28.3 / 26.9 / 27.4 ms (intervals hold 25) alone, 75.8 -> 11.6 mrad (19.5 floors left; the
-# verdict says "85 % lower" and nothing of what is left), 208 s.
+# verdict says "85 % lower" and nothing of what is left), 208 s. On main 8120f65:
+# latency_gear_spring: latency 26.0 / 26.4 / 26.0 ms (intervals hold 25) + inertia_error 0.954
+# on the middle [0.917, 0.992] (its nearest), 46.7 -> 4.17 mrad (7.2 floors), 208 s;
+# latency_supply_sag: latency 25.5-25.8 ms (hold 25) + torque_limit 2.48 / 2.67 / 2.76 N m
+# (its nearest; the truth's limit 2.33-2.74 with the load), 45.5 -> 0.98 mrad (1.7), 96 s.
 MISSES: dict[str, str] = {
     "latency_tight_spot": "main bbea588, 172 s CPU: a CONFIDENT WRONG name: 'latency, "
     "inertia_error: held-out RMSE 0.03798 -> 0.001591 rad (96 % lower)', no flag. latency "
