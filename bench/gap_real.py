@@ -122,14 +122,15 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
             max_rounds: int, seeds: int = 0, jitter: float = 1e-3, select: str = "inner",
             restarts: int = 3, loso_fields: Sequence[str] = (), json_path: str | None = None,
             done: Sequence[dict] = (), loso_only: bool = False, prior: float = 0.0,
-            directional: bool = True, stage_choice: bool = False, swing_seed: bool = False
-            ) -> dict:
+            directional: bool = True, stage_choice: bool = False, swing_seed: bool = False,
+            setup_offsets: bool = True) -> dict:
     spec = SETS[name]
     t0 = time.perf_counter()
     files, ds = load_set(name, root)
     structure = tuple(effects) if effects else servo_structure(ds)
     sel = dict(select=select, restarts=restarts, max_rounds=max_rounds, prior=prior,
-               directional=directional, stage_choice=stage_choice, swing_seed=swing_seed)
+               directional=directional, stage_choice=stage_choice, swing_seed=swing_seed,
+               setup_offsets=setup_offsets)
     out: dict = {"set": name, "logs": len(files), "structure": list(structure), "jittered": [],
                  "reference_all": {k: float(np.mean(list(v.values())))
                                    for k, v in reference_mae(ds).items()}}
@@ -164,7 +165,8 @@ def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: in
         "test_kp": sorted(spec["held_kp"]),
         "fit_s": res.fit_seconds, "rounds": res.rounds, "identify_cpu_s": cpu,
         "selection": res.selection,
-        "params": res.params(), "at_bound": res.at_bound, "family": res.family,
+        "params": res.params(), "setup_offsets": res.setup_offsets, "at_bound": res.at_bound,
+        "family": res.family,
         "family_train_mae": res.family_train_mae,
         "ours": {
             "identified": _summary(ds, res.identified_mae, test),
@@ -256,7 +258,7 @@ def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = Non
                    "stage": (r.selection or {}).get("stage"),
                    "at_bound": r.at_bound, "cpu_s": time.process_time() - c0,
                    "fit_s": r.fit_seconds, "bam": (bam or {}).get((f, v), {}),
-                   "notes": r.notes, "verdict": r.verdict}
+                   "notes": r.notes, "verdict": r.verdict, "setup_offsets": r.setup_offsets}
             print(f"  loso {f}={v}: held out {1e3 * row['held_out']:.1f} mrad (train "
                   f"{1e3 * row['train']:.1f}; nominal {1e3 * row['nominal']:.1f}, q = goal "
                   f"{1e3 * row['q = goal']:.1f}); {row['chosen']}, inner split "
@@ -510,6 +512,9 @@ def main(argv=None) -> int:
     ap.add_argument("--swing-seed", action="store_true",
                     help="start the armature where the training logs' torque-off swings put it "
                     "(IdentifyConfig.swing_seed; measured worse on 2 of 4 splits)")
+    ap.add_argument("--no-setup-offsets", action="store_true",
+                    help="one mounting offset for every bench set-up (IdentifyConfig."
+                    "setup_offsets=False; before 2026-11-28 23:30)")
     ap.add_argument("--progress", action="store_true",
                     help="print the CPU time of each identification stage (BAM's split)")
     ap.add_argument("--json", default=None)
@@ -535,7 +540,7 @@ def main(argv=None) -> int:
             r = run_set(name, root, args.effects, args.analyze, args.max_rounds, args.seeds,
                         args.jitter, args.select, args.restarts, fields, args.json, results,
                         args.loso_only, args.prior, not args.symmetric, args.stage_choice,
-                        args.swing_seed)
+                        args.swing_seed, not args.no_setup_offsets)
             _print(r)
         results.append(r)
         if args.json:

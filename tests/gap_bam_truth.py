@@ -17,7 +17,8 @@ Facts used (Rhoban/bam @ its mirrored HEAD, numbers and equations, not code):
   ``friction_viscous * |dq|``; it opposes the stopping torque ``I / dt * dq + tau`` and never
   exceeds it (stiction).
 - pendulum (bam/testbench.py): I = m l^2 + arm_mass l^2 / 3 + armature, gravity
-  -(m + arm_mass / 2) g l sin(q + q_offset), q = 0 hanging down.
+  -(m + arm_mass / 2) g l sin(q + q_offset), q = 0 hanging down; a bench may add its own
+  q_offset (an arm re-mounted between set-ups hangs at another encoder angle).
 - published parameters: bam/params/mx64/m4.json, bam/params/feetech_sts3215_7_4V/m1.json (the
   only STS3215 fit BAM publishes).
 - trajectories (bam/trajectory.py, 6 s): lift_and_drop (cubic 0 -> -pi/2 in 2 s, then torque
@@ -130,6 +131,7 @@ class Bench:
     mass: float  # [kg] at the tip
     length: float  # [m]
     arm_mass: float  # [kg] uniform rod
+    q_offset: float = 0.0  # [rad] this mounting's gravity zero vs the motor's (added to its)
 
 
 class Pendulum:
@@ -151,8 +153,8 @@ class Pendulum:
         self.duty = min(max(m.error_gain * self.kp * (self.goal_fw - self.q), -m.max_pwm),
                         m.max_pwm)
         motor = (m.kt * m.vin * self.duty / m.R - m.kt ** 2 * self.dq / m.R) if enabled else 0.0
-        ext = -(self.b.mass + self.b.arm_mass / 2) * G * self.b.length * math.sin(self.q
-                                                                              + m.q_offset)
+        ext = -(self.b.mass + self.b.arm_mass / 2) * G * self.b.length * math.sin(
+            self.q + m.q_offset + self.b.q_offset)
         stribeck = math.exp(-abs(self.dq / m.dtheta_stribeck) ** m.alpha)
         budget = m.friction_base + m.friction_stribeck * stribeck + m.friction_viscous * abs(
             self.dq)

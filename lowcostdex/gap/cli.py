@@ -313,6 +313,8 @@ def _identify(args: argparse.Namespace) -> int:
         print(f"  note: {note}")
     for e, ps in res.params().items():
         print(f"  {e}: " + ", ".join(f"{p} {v[0]:.4g}" for p, v in ps.items()))
+    for setup, delta in res.setup_offsets.items():
+        print(f"  mounting_offset of {setup}: {delta:+.4g} rad from the common one")
     if res.at_bound:
         print("  at a search bound: " + ", ".join(res.at_bound))
     print("per-log MAE [mrad] (BAM's measure: 5 ms grid, open loop from the first state):")
@@ -327,7 +329,8 @@ def _identify(args: argparse.Namespace) -> int:
         print(f"verdict: {res.verdict['text']}")
     if args.json or args.out:
         text = json.dumps({
-            "params": res.params(), "family": res.family, "selection": res.selection,
+            "params": res.params(), "setup_offsets": res.setup_offsets,
+            "family": res.family, "selection": res.selection,
             "why": _why(res), "notes": res.notes,
             "at_bound": res.at_bound, "fit_seconds": res.fit_seconds, "wall_seconds": wall,
             "held_out": {names[i]: res.identified_mae[i] for i in test},

@@ -34,9 +34,11 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError, check_bool, check_choice, check_number, keyword_hints
 from lowcostdex.gap import fit as fitmod
+from lowcostdex.gap import setup_offsets
 from lowcostdex.gap.bam_logs import check_one_motor
 from lowcostdex.gap.bam_measure import per_log_mae, whole_logs
 from lowcostdex.gap.dataset import Dataset
+from lowcostdex.gap.identify_bounds import _at_bound, bound_notes  # noqa: F401
 from lowcostdex.gap.identify_logs import (  # noqa: F401 (re-exported)
     BACKDRIVEN,
     BACKDRIVEN_MODES,
@@ -174,6 +176,8 @@ class IdentifyConfig:
         (2.4 -> 1.6), equal on sin_sin (13.3) (bench/RESULTS.md gap-real13).
       backdriven: the torque-off friction's own law, "fit" or "null" (absent):
         ``identify_logs.backdriven_plan`` (bench/RESULTS.md gap-real15).
+      setup_offsets: a mounting offset per bench set-up from its own torque-off logs
+        (``gap.setup_offsets``; bench/RESULTS.md lead24).
     """
 
     effects: tuple[str, ...] = SERVO_STRUCTURE
@@ -196,6 +200,7 @@ class IdentifyConfig:
     stage_choice: bool = False
     swing_seed: bool = False
     backdriven: str = "fit"
+    setup_offsets: bool = True
 
     def __post_init__(self) -> None:
         _check_types(self)
@@ -234,10 +239,8 @@ def _check_types(c: IdentifyConfig) -> None:
     for name in ("delta", "rtol", "jitter", "restart_jitter", "prior"):
         check_number(name, getattr(c, name))
     check_number("rtol", c.rtol, 0)
-    check_bool("cold", c.cold)
-    check_bool("directional", c.directional)
-    check_bool("stage_choice", c.stage_choice)
-    check_bool("swing_seed", c.swing_seed)
+    for name in ("cold", "directional", "stage_choice", "swing_seed", "setup_offsets"):
+        check_bool(name, getattr(c, name))
     if isinstance(c.effects, str) or not isinstance(c.effects, (tuple, list)):
         raise ConfigError(f"effects={c.effects!r} must be a tuple of effect names, e.g. "
                           "servo_structure(ds)")
@@ -282,6 +285,8 @@ class Identified:
         has the torque off, so the back-driven share of the gear friction was held at 1).
       verdict: the identified model against the nominal one on the held-out logs
         (``identify_verdict.verdict``: "no reliable gain" or the gain).
+      setup_offsets: {bench set-up: its mounting offset's change from the common one [rad]}
+        (``gap.setup_offsets``), used for every log of that set-up.
     """
 
     effects: list[AppliedEffect]
@@ -299,6 +304,7 @@ class Identified:
     selection: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     verdict: dict = field(default_factory=dict)
+    setup_offsets: dict[str, float] = field(default_factory=dict)
 
     def mean(self, logs: Sequence[int], identified: bool = True) -> float:
         """Mean per-log MAE over ``logs`` (BAM's set-level number) [rad]."""
@@ -504,20 +510,25 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         notes.append(f"no training log has the torque off: a breakaway at rest of {level:.3g} N m"
                      " beyond the gear friction's own (the largest costing the training logs"
                      " <= 2 %; gap.rest_friction)")
+    offsets = setup_offsets.fit(ds, train, rep, effects) if config.setup_offsets else {}
+    if offsets:
+        notes.append(f"{len(offsets)} set-up(s) hang off the common mounting offset in their "
+                     "own torque-off logs: each gets its own (gap.setup_offsets)")
     fit_s = time.perf_counter() - t0
     prog("scoring", 0.95)
     logs = train + test
-    mae = per_log_mae(rep, whole_logs(ds, logs), [[], effects])
+    mae = setup_offsets.scored(ds, logs, rep, [[], effects], offsets)
     out = Identified(effects, train, test,
                      nominal_mae=dict(zip(logs, mae[0].tolist(), strict=True)),
                      identified_mae=dict(zip(logs, mae[1].tolist(), strict=True)),
                      fit_seconds=fit_s, rounds=rounds, cost=best.cost,
                      at_bound=_at_bound(best), family=chosen, family_train_mae=fam_mae,
-                     selection=selection, notes=notes + bound_notes(best))
+                     selection=selection, notes=notes + bound_notes(best),
+                     setup_offsets=offsets)
     out.verdict = verdict(out.nominal_mae, out.identified_mae, test)
     if test:  # the ablation is reported on the held-out logs only: replay only those
-        abl = per_log_mae(rep, whole_logs(ds, test),
-                          [[e for e in effects if e.name != n] for n in config.effects])
+        abl = setup_offsets.scored(ds, test, rep, [[e for e in effects if e.name != n]
+                                                    for n in config.effects], offsets)
         out.ablation = {n: float(np.mean(abl[i])) for i, n in enumerate(config.effects)}
     prog("done", 1.0)
     return out
@@ -634,51 +645,6 @@ def _hold(st: fitmod.Structure, params: frozenset) -> fitmod.Structure | None:
     if len(free) == len(st.free):
         return None
     return replace(st, free=free)
-
-
-def _bound_hits(t: fitmod.Track) -> list[tuple[int, str]]:
-    """(free index, "lower" / "upper") of the fitted values on a search bound that is not the
-    parameter's null (a friction at 0 is absent, not at a bound), nor the Stribeck velocity of
-    a breakaway share, or the back-driven share of a gear friction, whose levels are within 0.1 %
-    of their ranges from their nulls of 0 (they shape next to nothing)."""
-    lo, hi = t.structure.u_bounds()
-    x = t.structure.x(t.u)
-    out = []
-    for i, f in enumerate(t.structure.free):
-        null = EFFECTS[f.effect].param(f.param).null
-        absent = {g.param: x[k] <= 1e-3 * (g.hi - g.lo) for k, g in enumerate(t.structure.free)
-                  if (g.effect, g.joint) == (f.effect, f.joint)}
-        if (f.param == "velocity" and absent.get("static")) or EFFECTS[f.effect].param(
-                f.param).ends or (f.param == "backdrive" and absent.get("mu")
-                                  and absent.get("static")):
-            continue
-        for b, side in ((lo[i], "lower"), (hi[i], "upper")):
-            if abs(t.u[i] - b) <= 1e-6 * max(1.0, abs(b)) and not math.isclose(f.from_u(b), null):
-                out.append((i, side))
-    return out
-
-
-def _at_bound(t: fitmod.Track) -> list[str]:
-    return [f"{t.structure.free[i].effect}.{t.structure.free[i].param}"
-            for i, _ in _bound_hits(t)]
-
-
-def bound_notes(t: fitmod.Track) -> list[str]:
-    """One line per fitted value on a search bound (``_bound_hits``): value, bound, range, and
-    that it is no measurement (Pham XL330's mounting offset at +0.3 rad, Rhoban's voltage weight
-    at 1.5, 2026-11-26). Not widened: a bench 17 degrees off its hanging zero or a supply term
-    beyond 1.5x the measured sag is a sign of an effect the structure lacks."""
-    out = []
-    for i, side in _bound_hits(t):
-        f = t.structure.free[i]
-        unit = EFFECTS[f.effect].param(f.param).unit
-        unit = "" if unit == "1" else f" {unit}"
-        joint = t.structure.joints[f.joint]
-        out.append(f"{f.effect}.{f.param} on {joint} fitted {f.from_u(t.u[i]):.4g}{unit}, at its "
-                   f"{side} search bound (range {f.lo:.4g} to {f.hi:.4g}{unit}): the logs pull it "
-                   "further, so the value is not a measurement of it; it may stand in for an "
-                   "effect the structure lacks (see the held-out ablation)")
-    return out
 
 
 def _peak_force(rep: Replayer, windows, targets: Targets, model) -> np.ndarray:
