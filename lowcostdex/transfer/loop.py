@@ -90,6 +90,7 @@ from lowcostdex.transfer.tables import (
     cost_markdown,
     cross_markdown,
     errors_markdown,
+    extended_lines,
     loose_successes,
     named_vs_truth,
     own_rows,
@@ -98,7 +99,14 @@ from lowcostdex.transfer.tables import (
     summarize,
     table_markdown,
 )
-from lowcostdex.transfer.training import evaluate, read_json, sim_kwargs, train_policy, write_json
+from lowcostdex.transfer.training import (
+    evaluate,
+    extension,
+    read_json,
+    sim_kwargs,
+    train_policy,
+    write_json,
+)
 
 __all__ = [
     "ALGOS", "COMMAND", "CONDITIONS", "EVAL_SEED", "FINGERS", "LOOSE_TOL", "NARROW_PAD", "OUTPUTS",
@@ -241,6 +249,34 @@ def valve_log_fit(robot: Any, out: Path, task: Task, size: Size, ident: dict[str
 # ------------------------------------------------------------------------------------------------
 
 
+def redo_extended(out: Path, size: Size, robots: list[Any], made_for: tuple[str, ...] | None,
+                  seeds: list[int]) -> list[str]:
+    """Finished simulated runs that the EXTEND rule will train on (a folder made before the
+    rule, resumed): their evaluation cells evaluated the shorter policy, so they move into
+    ``previous/<time>/`` and are redone after the run trains on. Returns one note per run."""
+    from lowcostdex.outdir import archive
+
+    notes = []
+    for algo in size.algos:
+        for seed in seeds:
+            for condition, policy_robot in jobs(size.conditions, robots, made_for):
+                run_dir = out / "runs" / algo / f"{run_tag(condition, policy_robot)}_seed{seed}"
+                more = extension(run_dir, size, simulated=condition != "on_robot")
+                if more is None:
+                    continue
+                final = read_json(run_dir / "summary.json")["final"]
+                cells = [p.relative_to(out) for p in run_dir.parent.glob(run_dir.name + ".*.json")]
+                moved = archive(out, [str(c) for c in cells])
+                notes.append(
+                    f"{algo} {run_tag(condition, policy_robot)} seed {seed}: finished at "
+                    f"{final['eval_success_rate']:.2f} in its own sim (iteration "
+                    f"{final['iteration']}), below its target: it trains on to {more} "
+                    f"iterations (the EXTEND rule)"
+                    + (f"; its {len(cells)} evaluation cells moved to {moved} and are redone"
+                       if moved else ""))
+    return notes
+
+
 def settings(size: Size, task_name: str, robot_seed: int, port: str | None,
              start_range: float = 0.0) -> dict[str, Any]:
     """The output folder's settings; a resume must keep all of them (pieces build on them).
@@ -323,6 +359,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     id_robots = [r for r in robots if made_for is None or r.name in made_for]
     n_id = len(id_robots) * len(size.fingers) if {"identified", "identified_randomized"} & set(
         size.conditions) else 0
+    for note in redo_extended(out, size, robots, made_for, seeds):
+        tell(note)
     pieces = piece_files(out, size, robots, made_for, starts_wider, seeds=seeds)
     progress = Progress(len(pieces), tell, found=sum(p.exists() for p in pieces))
     tell(f"transfer: {task.label()}, robots {', '.join(names)}, seeds {seeds}, algos "
@@ -437,6 +475,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                                  "train_wall_seconds": round(trained["wall_seconds"], 1),
                                  "robot_hours": trained.get("robot_hours"),
                                  "train_cpu_seconds": trained.get("cpu_seconds"),
+                                 # trained on under the EXTEND rule (None: not)
+                                 "extended": trained.get("extended"),
                                  "eval_wall_seconds": cell["wall_seconds"]})
                 t_eval += time.perf_counter() - t0
     wall["training"], wall["evaluation"] = t_train, t_eval
@@ -484,7 +524,8 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
                       "(bold: its own robot)", "", cross, ""]
         parts += [f"### {algo.upper()}: what a policy cost (samples, robot time, wall and CPU "
                   "at this run's load)", "",
-                  cost_markdown([r for r in rows if r["algo"] == algo], idents), ""]
+                  cost_markdown([r for r in rows if r["algo"] == algo], idents), "",
+                  *extended_lines([r for r in rows if r["algo"] == algo])]
     if idents:
         parts += ["## Identification (catalogue effects only; a hidden robot's MJCF "
                   "perturbations and firmware imperfection have no catalogue name)", "",

@@ -315,6 +315,32 @@ def cost_markdown(rows: list[dict[str, Any]], idents: dict[str, dict[str, Any]])
     return "\n".join(lines)
 
 
+def extended_lines(rows: list[dict[str, Any]]) -> list[str]:
+    """The policies of ``rows`` (one algo) that trained on under the EXTEND rule (below the
+    success target in their own sim at the end of the size's budget; ``config.EXTEND``): one
+    line each, from what to what and at what CPU; none: no lines."""
+    done = {(r["policy"], r["seed"]): r for r in rows if r.get("extended")}
+    if not done:
+        return []
+
+    def part(x: Any, fmt: str) -> str:
+        return "-" if x is None else format(x, fmt)
+
+    lines = [f"Trained on under the EXTEND rule (below the success target in their own sim at "
+             f"the end of the budget; samples above include it): {len(done)} "
+             f"polic{'y' if len(done) == 1 else 'ies'}", ""]
+    for (policy, seed), r in sorted(done.items()):
+        e = r["extended"]
+        it = e.get("iteration")
+        lines.append(
+            f"- {policy} seed {seed}: own sim {part(e.get('eval_success_rate'), '.2f')} after "
+            f"{part(None if it is None else it + 1, 'd')} iterations -> "
+            f"{part(e.get('final_eval_success_rate'), '.2f')} after {e['to_iterations']} "
+            f"({r['samples']} samples); extension CPU "
+            f"{part(e.get('extension_cpu_seconds'), '.0f')} s")
+    return [*lines, ""]
+
+
 def cross_markdown(rows: list[dict[str, Any]], robots: list[str]) -> str:
     """Per-robot policies (rows: made for robot X) on every robot (columns), pooled over seeds,
     beside the nominal policy on the same robot: does robot A's model help on robot B?"""

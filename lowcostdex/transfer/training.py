@@ -67,16 +67,19 @@ def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Pa
         train(config, run_dir, resume=resume, env_factory=factory)
         write_json(run_dir / CPU_FILE, {"cpu_seconds": round(time.process_time() - c0, 1),
                                         "resumed": resume})
-    # simulated runs of a size with in-training evaluations (not smoke: its budget is fixed)
-    more = (extended_iterations(read_json(summary), size.n_iter)
-            if robot is None and size.eval_every else None)
+    more = extension(run_dir, size, simulated=robot is None)
     if more is not None:  # not learnt in its own sim: on from its checkpoint (config.EXTEND)
+        final = read_json(summary)["final"]
         c0 = time.process_time()
         before = read_json(run_dir / CPU_FILE) if (run_dir / CPU_FILE).exists() else {}
         train(replace(config, n_iter=more), run_dir, resume=True, env_factory=factory)
         write_json(run_dir / CPU_FILE, {
             "cpu_seconds": round(before.get("cpu_seconds", 0.0) + time.process_time() - c0, 1),
-            "resumed": True, "extended_to": more})
+            "resumed": True, "extended_to": more,
+            "extended_from": {"iteration": int(final["iteration"]),
+                              "eval_success_rate": float(final["eval_success_rate"]),
+                              "cpu_seconds": before.get("cpu_seconds")},
+            "extension_cpu_seconds": round(time.process_time() - c0, 1)})
     metrics = ex.read_metrics(run_dir / ex.METRICS_FILE)
     s = read_json(summary)
     out = {"samples": int(metrics[ex.SAMPLES][-1]),
@@ -86,8 +89,29 @@ def train_policy(run_dir: Path, algo: str, task: Task, randomize: Any, demos: Pa
     if ex.ROBOT_HOURS in metrics:
         out["robot_hours"] = float(metrics[ex.ROBOT_HOURS][-1])
     if (run_dir / CPU_FILE).exists():  # runs made before it was written have none
-        out["cpu_seconds"] = float(read_json(run_dir / CPU_FILE)["cpu_seconds"])
+        cpu = read_json(run_dir / CPU_FILE)
+        out["cpu_seconds"] = float(cpu["cpu_seconds"])
+        if "extended_to" in cpu:  # trained on under the EXTEND rule
+            out["extended"] = {"to_iterations": int(cpu["extended_to"]),
+                               **cpu.get("extended_from", {}),
+                               "final_eval_success_rate": (s.get("final") or {}).get(
+                                   "eval_success_rate"),
+                               "extension_cpu_seconds": cpu.get("extension_cpu_seconds")}
     return out
+
+
+def extension(run_dir: Path, size: Size, simulated: bool = True) -> int | None:
+    """The iterations a finished run in ``run_dir`` still trains to under the EXTEND rule
+    (``config.extended_iterations``), or None: only simulated runs (on_robot keeps its robot
+    time) of a size with in-training evaluations (not smoke: its budget is fixed), once. A
+    folder made before the rule holds finished runs below their target: they extend when it
+    is resumed, and their evaluation cells (of the shorter policy) must then be redone."""
+    from lowcostdex.algos import experiment as ex
+
+    summary = run_dir / ex.SUMMARY_FILE
+    if not (simulated and size.eval_every and summary.exists()):
+        return None
+    return extended_iterations(read_json(summary), size.n_iter)
 
 
 def evaluate(run_dir: Path, task: Task, env_kwargs: dict[str, Any], episodes: int
