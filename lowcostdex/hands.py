@@ -13,7 +13,9 @@ tick 1024 (top) and 2048 (middle, bottom).
 Specs are checked where they are built or loaded (ConfigError naming the joint, field and value;
 ``HandSpec.load`` adds the file): finite limits and calibration, ``max_velocity`` within what
 the motor can turn, one motor id per joint, and on Dynamixel hands every joint's limits inside
-the motor's one turn of position mode; on the Allegro (CAN) its 16 joints in action order on
+the motor's one turn of position mode, on a hand named "dclaw" its finger joints' limits inside
+ROBEL's D'Claw joint ranges (``DCLAW_RANGES``, the mechanical stops the D'Claw model has: a
+Robot built from a spec never meets a model); on the Allegro (CAN) its 16 joints in action order on
 joint slots 0..15, limits inside the published URDF ranges (the mechanical stops: the Allegro
 model takes its ranges from the spec, so the model cannot tell) and inside the position the
 hand reports (int16 counts of 333.3/65536 deg). ``check_model_ranges`` checks the limits against
@@ -154,6 +156,21 @@ class HandSpec:
                                   f"choices: {', '.join(MOTORS)} (or 'allegro')"
                                   + did_you_mean(self.motor, MOTORS))
             self._check_motor_range(MOTORS[self.motor])
+        if self.name == "dclaw":
+            self._check_dclaw()
+
+    def _check_dclaw(self) -> None:
+        """The D'Claw's finger joints (``<finger>_<part>``) inside ``DCLAW_RANGES``."""
+        for j in self.joints:
+            part = j.name.partition("_")[2]
+            if part not in DCLAW_RANGES:
+                continue
+            lo, hi = DCLAW_RANGES[part]
+            if j.low < lo or j.high > hi:
+                raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad leave the "
+                                  f"D'Claw's joint range [{lo}, {hi}] rad (ROBEL's D'Claw model: "
+                                  f"the mechanical stops); type limits inside it, e.g. "
+                                  f"low={max(j.low, lo)}, high={min(j.high, hi)}")
 
     def _check_allegro(self) -> None:
         """The Allegro v4's 16 joints in action order on CAN joint slots 0..15, no auxiliary
@@ -315,6 +332,8 @@ def check_model_ranges(hand: HandSpec, model) -> None:
 
 DCLAW_FINGERS = ("ff", "mf", "th")
 DCLAW_PARTS = ("top", "middle", "bottom")
+# ROBEL's D'Claw joint ranges [rad] (its MJCF: the mechanical stops; wider than the action limits)
+DCLAW_RANGES = {"top": (-0.5, 1.35), "middle": (-2.0, 2.0), "bottom": (-2.0, 2.0)}
 # ROBEL's action/safety limits (01-hardware.md section 1.1) and calibration offsets.
 _DCLAW_LIMITS = {"top": 0.48, "middle": math.pi / 3, "bottom": math.pi / 2}
 _DCLAW_OFFSETS = {"top": -math.pi / 2, "middle": -math.pi, "bottom": -math.pi}

@@ -46,7 +46,7 @@ import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError, check_choice
-from lowcostdex.hands import DCLAW_FINGERS, DCLAW_PARTS, HandSpec, dclaw_spec
+from lowcostdex.hands import DCLAW_FINGERS, DCLAW_PARTS, DCLAW_RANGES, HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.models.common import (
     GROUP_COLLISION,
@@ -68,8 +68,7 @@ _MOTOR_MASS = 0.093 + 0.012  # servo plus its printed plates [kg]
 # ROBEL's fingertip friction. MuJoCo takes the larger friction of two touching geoms, so contacts
 # with the valve (friction 1.0, rubber-coated spokes) and the block use the object's value.
 _TIP_FRICTION = (0.2, 0.005, 0.0001)
-# MJCF joint ranges [rad] (wider than the env's action limits)
-_JOINT_RANGE = {"top": (-0.5, 1.35), "middle": (-2.0, 2.0), "bottom": (-2.0, 2.0)}
+_JOINT_RANGE = DCLAW_RANGES  # MJCF joint ranges [rad] (wider than the env's action limits)
 
 STATIONS = ("valve", "foam_valve", "screw", "block", "none")
 
