@@ -490,6 +490,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             c.widened = widened_notes.get(e.name) or gates.widened_lines(ctx, e.name, joints)
             causes.append(c)
     verdict = standin.judge(causes, final_track, gain, stop_reason, int(np.sum(e_sse > b_sse)))
+    standin.rival_notes(causes, rounds)
     timing["total"] = time.perf_counter() - t_start
     traces = _traces(ds, test_eps, base_test, ext_pred)
     prog("done", 1.0)

@@ -20,6 +20,9 @@ test_gap_independent offset case whose truth is an offset) is not judged: nothin
 trades with it. The rule does not see an offset that alone stands in for a centre-of-mass shift
 (no mass effect freed beside it).
 
+A name is also only a stand-in when another mechanism explained the data nearly as well where
+it was chosen (``rival_notes``: a note, the name and the verdict unchanged).
+
 ``judge`` writes these notes on the causes and the verdict; a cause whose held-out gain is not
 reliable while the discrepancy stays above the noise floors is noted as a partial stand-in too
 (``results.verdict_text``).
@@ -33,12 +36,13 @@ import numpy as np
 
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.gain import Gain
-from lowcostdex.gap.results import Cause, partial_stand_in, verdict_text
+from lowcostdex.gap.results import CandidateResult, Cause, partial_stand_in, verdict_text
 from lowcostdex.gap.spaces import Free
 
 OFFSETS = ("position_offset", "mounting_offset")  # calibration offsets a user would re-zero
 LOADS = (("mass_error", "scale"),)  # parameters that scale the gravity load itself
 SHARED = 0.5
+RIVAL = 0.9  # a rival explaining this share of a chosen cause's select gain makes it a tie
 ALTERNATIVES = "a centre-of-mass shift, link geometry or a tilted base"
 
 
@@ -86,6 +90,32 @@ def stand_in_notes(free: Sequence[Free], joints: Sequence[str], jac: np.ndarray 
                          "does not show that the encoder is off; check the zero against a "
                          "reference pose before re-zeroing"]
     return out
+
+
+def rival_notes(causes: Sequence[Cause], rounds: Sequence[Sequence[CandidateResult]],
+                ratio: float = RIVAL) -> None:
+    """Add a note to each named cause that, in the selection round that accepted it, had a
+    rival of another mechanism explaining at least ``ratio`` of what it explained on the select
+    split (select gains g_rival >= ratio x g_chosen > 0), the rival itself not named: the data
+    do not tell the two mechanisms apart, so the name may be a stand-in (sim10's
+    latency_tight_spot: a friction bump on one joint beside a true latency was named
+    inertia_error, select gain 15.4 %, with viscous_damping at 14.5 %)."""
+    named = {c.effect: c for c in causes}
+    for table in rounds:
+        for a in table:
+            c = named.get(a.effect)
+            if c is None or not a.accepted or not a.select_gain or a.select_gain <= 0:
+                continue
+            rivals = sorted((r for r in table if r.effect != a.effect
+                             and r.effect not in named and r.select_gain is not None
+                             and r.select_gain >= ratio * a.select_gain),
+                            key=lambda r: -r.select_gain)
+            if rivals:
+                what = ", ".join(f"{r.effect} {100 * r.select_gain:.3g} %" for r in rivals)
+                c.stand_in.append(
+                    f"may stand in for another mechanism: when it was chosen ({100 * a.select_gain:.3g} "
+                    f"% lower select error) {what} explained the select data nearly as well "
+                    f"(>= {100 * ratio:.0f} % of its gain); these data do not tell them apart")
 
 
 def judge(causes: Sequence[Cause], track: fitmod.Track | None, gain: Gain, stop_reason: str,
