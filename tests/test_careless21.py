@@ -1,14 +1,18 @@
 """Careless calls, session 24 (issues 13, 11): each test failed on the code before its fix.
 Expected bounds are ROBEL's D'Claw joint ranges, written out here (its MJCF: top -0.5..1.35,
-middle and bottom -2.0..2.0 rad)."""
+middle and bottom -2.0..2.0 rad), and a log's motion written out by hand."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
+import numpy as np
 import pytest
 
 from lowcostdex.errors import ConfigError
+from lowcostdex.gap.logs import read_log
+from lowcostdex.gap.trajectory import LogError
 from lowcostdex.hands import HandSpec, dclaw_spec
 
 HAND = dclaw_spec()
@@ -36,3 +40,25 @@ def test_a_dclaw_spec_with_limits_past_the_fingers_stops_is_refused_where_it_is_
 def test_a_dclaw_spec_inside_the_stops_still_passes():
     with_joint(HAND, "ff_middle", low=-2.0, high=2.0)
     with_joint(HAND, "mf_top", low=-0.5, high=1.35)
+
+
+def _sine_log(path, amplitude, hz=1.0, rate=100.0, seconds=4.0):
+    """One joint, no velocities: a goal sine and the reading 30 ms behind it."""
+    rows = ["time,goal:j,qpos:j"]
+    for i in range(int(rate * seconds)):
+        t = i / rate
+        rows.append(f"{t:.4f},{amplitude * math.sin(2 * math.pi * hz * t):.6f},"
+                    f"{amplitude * math.sin(2 * math.pi * hz * (t - 0.03)):.6f}")
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_a_smooth_degrees_log_without_velocities_is_refused_by_its_speed(tmp_path):
+    # 12 deg at 1 Hz: values inside 4 pi (12.6) and no encoder grid, so before only the 100
+    # rad/s limit stood; its peak speed 2 pi * 12 = 75.4 "rad/s" (deg/s) is past any servo's
+    # 50 rad/s (the motor table's fastest, XL330-M077, 40.1 rad/s unloaded): a silent x57
+    with pytest.raises(LogError, match=r"'qpos:j' moves at up to 7[45]\.\d+ rad/s .*below 50 "
+                                       r"rad/s.*degrees.*numpy.radians"):
+        read_log(_sine_log(tmp_path / "deg.csv", 12.0))
+    log = read_log(_sine_log(tmp_path / "rad.csv", math.radians(12.0)))  # the same in rad
+    assert np.ptp(log.qpos) == pytest.approx(2 * math.radians(12.0), rel=1e-3)

@@ -20,13 +20,14 @@ from lowcostdex.gap.log_still import (  # noqa: F401 (the limits are read from h
     check_pinned,
     check_stuck,
 )
-from lowcostdex.gap.log_units import check_degree_grid, check_velocity_unit
+from lowcostdex.gap.log_units import TO_RAD, check_degree_grid, check_velocity_unit
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     LogError,
     Trajectory,
     find_gaps,
 )
+from lowcostdex.hands import MAX_JOINT_SPEED
 
 PREFIXES_ACTUATOR = ("goal", "current", "voltage", "temperature", "torque_enable")
 PREFIXES_JOINT = ("qpos", "qvel")
@@ -480,8 +481,12 @@ def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = froz
       winding temperature are quantised, 0.1 V and 1 deg C, and sit still for minutes);
     * too little motion: no measured joint moves MIN_MOTION peak to peak;
     * positions that change faster than a servo moves (the 99th percentile of |dq/dt| beyond the
-      plausible qvel): time not in seconds (minutes pass the step check as a 6 kHz log) or
-      positions not in rad.
+      plausible qvel; without logged velocities, which would tell the unit, beyond
+      ``hands.MAX_JOINT_SPEED``, 50 rad/s: the motor table's fastest servo, XL330-M077, turns
+      40.1 rad/s unloaded, and 104 measured BAM logs' 99th percentiles are 0.29-14.1 rad/s):
+      time not in seconds (minutes pass the step check as a 6 kHz log) or positions not in rad
+      (a smooth degrees log on a continuous joint moving less than 4 pi, 12.6 deg, has no other
+      sign of it: one moving slower than 50 deg/s still passes).
     Measured logs (BAM's five rigs) repeat a reading for at most 0.32 s and by 0.05 rad of goal.
     """
     name = traj.name
@@ -507,12 +512,15 @@ def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = froz
         _check_dead_channels(traj, k, on)
     speed = np.abs(np.diff(traj.qpos, axis=0)) / np.diff(traj.time)[:, None]
     fast = np.percentile(speed, 99, axis=0)
-    vmax = PLAUSIBLE["qvel"][1]
+    vmax = PLAUSIBLE["qvel"][1] if traj.qvel is not None else MAX_JOINT_SPEED
     if float(fast.max()) > vmax:
         j = int(np.argmax(fast))
+        why = "" if traj.qvel is not None else (
+            f" (degrees read as rad move 57 x as fast; if 'qpos' is in degrees, {TO_RAD})")
         raise LogError(f"{name}: column 'qpos:{traj.joints[j]}' moves at up to "
                        f"{fast[j]:.4g} rad/s (99th percentile of its steps); servos move below "
-                       f"{vmax:g} rad/s: is 'time' in seconds (not minutes) and 'qpos' in rad?")
+                       f"{vmax:g} rad/s: is 'time' in seconds (not minutes) and 'qpos' in rad?"
+                       + why)
     motion = np.ptp(traj.qpos, axis=0)
     if float(motion.max()) < MIN_MOTION:
         moved = ", ".join(f"{j} {m:.3g}" for j, m in zip(traj.joints, motion, strict=True))
