@@ -269,7 +269,8 @@ def test_a_rival_of_another_mechanism_makes_the_name_a_stand_in():
     inertia_error was accepted at 15.41 % lower select error with viscous_damping at 14.46 %
     (94 % of it): the data do not tell an inertia from a damping (nor from the tight spot
     behind both), so the named inertia_error carries a 'may stand in' note, which the grade
-    reads as a flag; the latency (98.68 %, the best rival 84.15 %: 85 %) and a named rival
+    reads as a flag; the latency (98.68 %, the best rival 84.15 %: 85 %), an exact cause
+    whose rivals explain most but leave far more (sim4's viscous damping) and a named rival
     carry none. Fails on the code before gap-sim11's change (no standin.rival_notes)."""
     from lowcostdex.gap import standin
     from lowcostdex.gap.results import CandidateResult, Cause
@@ -294,6 +295,14 @@ def test_a_rival_of_another_mechanism_makes_the_name_a_stand_in():
     truth = json.loads(json.dumps({"causes": ["latency"], "outside": True, "expected_params": [],
                                    "nearest": sim.CASE_BY_NAME["latency_tight_spot"].nearest}))
     assert sim.score(report, truth)["grade"] == "pass_flagged"
+    # sim4 viscous_motor_posonly (exact, main c49b98b): viscous_damping 99.997 % with
+    # load_dependent_friction 93.5 % and gearbox_friction 93.35 %: the rivals leave 2000x its
+    # error, no tie (the first rule, gains alone, noted it)
+    exact = [Cause("viscous_damping", ("hinge",), {})]
+    standin.rival_notes(exact, [[cand("viscous_damping", 0.99997, True),
+                                 cand("load_dependent_friction", 0.935),
+                                 cand("gearbox_friction", 0.9335)]])
+    assert exact[0].stand_in == []
     named = [Cause("latency", sim.JOINTS, {}), Cause("inertia_error", sim.JOINTS, {}),
              Cause("viscous_damping", sim.JOINTS, {})]
     standin.rival_notes(named, rounds)

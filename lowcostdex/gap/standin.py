@@ -42,7 +42,8 @@ from lowcostdex.gap.spaces import Free
 OFFSETS = ("position_offset", "mounting_offset")  # calibration offsets a user would re-zero
 LOADS = (("mass_error", "scale"),)  # parameters that scale the gravity load itself
 SHARED = 0.5
-RIVAL = 0.9  # a rival explaining this share of a chosen cause's select gain makes it a tie
+RIVAL = 0.9  # a rival explaining this share of a chosen cause's select gain makes it a tie ...
+RIVAL_LEFT = 1.1  # ... when it also leaves at most this factor of the chosen one's select error
 ALTERNATIVES = "a centre-of-mass shift, link geometry or a tilted base"
 
 
@@ -93,13 +94,16 @@ def stand_in_notes(free: Sequence[Free], joints: Sequence[str], jac: np.ndarray 
 
 
 def rival_notes(causes: Sequence[Cause], rounds: Sequence[Sequence[CandidateResult]],
-                ratio: float = RIVAL) -> None:
+                ratio: float = RIVAL, left: float = RIVAL_LEFT) -> None:
     """Add a note to each named cause that, in the selection round that accepted it, had a
     rival of another mechanism explaining at least ``ratio`` of what it explained on the select
-    split (select gains g_rival >= ratio x g_chosen > 0), the rival itself not named: the data
-    do not tell the two mechanisms apart, so the name may be a stand-in (sim10's
+    split AND leaving at most ``left`` times its select error (select gains g_rival >= ratio x
+    g_chosen > 0 and 1 - g_rival <= left x (1 - g_chosen)), the rival itself not named: the
+    data do not tell the two mechanisms apart, so the name may be a stand-in (sim10's
     latency_tight_spot: a friction bump on one joint beside a true latency was named
-    inertia_error, select gain 15.4 %, with viscous_damping at 14.5 %)."""
+    inertia_error, select gain 15.4 %, with viscous_damping at 14.5 %). A cause that explains
+    nearly everything is not tied by a rival that explains most (sim4 viscous_motor_posonly:
+    viscous_damping 99.997 %, load_dependent_friction 93.5 %, 2000x the error left)."""
     named = {c.effect: c for c in causes}
     for table in rounds:
         for a in table:
@@ -108,14 +112,16 @@ def rival_notes(causes: Sequence[Cause], rounds: Sequence[Sequence[CandidateResu
                 continue
             rivals = sorted((r for r in table if r.effect != a.effect
                              and r.effect not in named and r.select_gain is not None
-                             and r.select_gain >= ratio * a.select_gain),
+                             and r.select_gain >= ratio * a.select_gain
+                             and 1.0 - r.select_gain <= left * (1.0 - a.select_gain)),
                             key=lambda r: -r.select_gain)
             if rivals:
                 what = ", ".join(f"{r.effect} {100 * r.select_gain:.3g} %" for r in rivals)
                 c.stand_in.append(
                     f"may stand in for another mechanism: when it was chosen ({100 * a.select_gain:.3g} "
                     f"% lower select error) {what} explained the select data nearly as well "
-                    f"(>= {100 * ratio:.0f} % of its gain); these data do not tell them apart")
+                    f"(>= {100 * ratio:.0f} % of its gain, within {100 * (left - 1):.0f} % of its "
+                    "select error); these data do not tell them apart")
 
 
 def judge(causes: Sequence[Cause], track: fitmod.Track | None, gain: Gain, stop_reason: str,
