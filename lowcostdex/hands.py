@@ -50,6 +50,13 @@ def _finite(what: str, value: float) -> None:
         raise ConfigError(f"{what} must be a finite number, got {value!r}")
 
 
+def _as_python(spec: object, **kinds: type) -> None:
+    """Store ``spec``'s checked numeric fields as Python numbers: a numpy number (an offset
+    from ``np.mean`` of readings) passes every check but not ``json`` (``HandSpec.save``)."""
+    for field, kind in kinds.items():
+        object.__setattr__(spec, field, kind(getattr(spec, field)))
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Motor-to-joint map ``q_joint = sign * scale * q_motor + offset`` (radians)."""
@@ -65,6 +72,7 @@ class Calibration:
         _finite("calibration scale", self.scale)
         if not self.scale > 0:
             raise ConfigError(f"calibration scale must be > 0, got {self.scale}")
+        _as_python(self, offset=float, sign=int, scale=float)
 
     def to_joint(self, q_motor: float) -> float:
         """Motor angle [rad] -> joint angle [rad]."""
@@ -116,6 +124,7 @@ class JointSpec:
         if not isinstance(self.calibration, Calibration):
             raise ConfigError(f"joint {self.name}: calibration must be a Calibration, got "
                               f"{self.calibration!r}")
+        _as_python(self, motor_id=int, low=float, high=float, max_velocity=float)
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import pytest
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap.logs import read_log
 from lowcostdex.gap.trajectory import LogError
-from lowcostdex.hands import HandSpec, dclaw_spec
+from lowcostdex.hands import Calibration, HandSpec, dclaw_spec
 
 HAND = dclaw_spec()
 
@@ -62,3 +62,18 @@ def test_a_smooth_degrees_log_without_velocities_is_refused_by_its_speed(tmp_pat
         read_log(_sine_log(tmp_path / "deg.csv", 12.0))
     log = read_log(_sine_log(tmp_path / "rad.csv", math.radians(12.0)))  # the same in rad
     assert np.ptp(log.qpos) == pytest.approx(2 * math.radians(12.0), rel=1e-3)
+
+
+def test_a_hand_spec_built_from_numpy_numbers_saves_and_loads(tmp_path):
+    # an offset from np.mean of readings, ids and limits from arrays: every check passed them,
+    # then save() failed in json ("Object of type float32 is not JSON serializable")
+    hand = with_joint(HAND, "ff_top", motor_id=np.int64(10), low=np.float32(-0.25),
+                      high=np.float64(0.25), max_velocity=np.float32(2.0),
+                      calibration=Calibration(offset=np.mean(np.array([-1.5, -1.6])),
+                                              sign=np.int64(1), scale=np.float32(1.0)))
+    hand.save(tmp_path / "hand.json")
+    back = HandSpec.load(tmp_path / "hand.json")
+    j = back.joint("ff_top")
+    assert (j.motor_id, j.low, j.high, j.max_velocity) == (10, float(np.float32(-0.25)), 0.25, 2.0)
+    assert (j.calibration.offset, j.calibration.sign, j.calibration.scale) == (-1.55, 1, 1.0)
+    assert back == hand
