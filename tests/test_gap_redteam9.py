@@ -54,7 +54,18 @@ MISSES: dict[str, str] = {
     "MSE 28 %) the same by name on main 722e12d, 346 s CPU: torque_limit 1.195 [1.189, 1.208], "
     "offset 0.02973 [0.02831, 0.03091], held-out 74.9 -> 3.30 mrad; backlash still refitted "
     "with sensor held at 0 (widths ~1 mrad, select MSE 10 % lower), never at the output shaft's "
-    "sensor 1 where it pays; viscous_damping took the third slot and was dropped at the end",
+    "sensor 1 where it pays; viscous_damping took the third slot and was dropped at the end. "
+    "Why (gap-arm19, session 24, main dd7d93a, 328 s CPU, same result): (1) the backlash fit "
+    "starts every joint alike (widths 0.01 / 0.004 at sensor 0, 0.03 at sensor 1): on the "
+    "training segments at 0.5 ms with the true limit and offset held, from those starts LM ends "
+    "at widths <= 1.8 mrad (cost -5 %) or gives up (0.03 rad on four joints: cost x19); from "
+    "widths 0.004 at sensor 1 it reaches the elbow's play (10.0 mrad, sensor 1.01; cost -48.5 %, "
+    "the true play -47.9 %). With that start added (spaces._EXTRA_STARTS, not landed) round 3 "
+    "fits the elbow 8.0 mrad at sensor 1.00 (and the shoulder 4.5 mrad at 0.94), 351 s CPU, "
+    "but (2) the analysis stays at the model's 2 ms step (no finer step paid before the play), "
+    "where that fit's select MSE is 8.4 % WORSE (the wrist 2.20 -> 3.09 mrad); replayed with "
+    "the true limit and offset the same fit gains 25.8 % at 1 ms and 32.4 % at 0.5 ms, the "
+    "true play 13.5 / 32.7 / 40.8 % at 2 / 1 / 0.5 ms",
 }
 
 
