@@ -14,6 +14,7 @@ from lowcostdex.errors import ConfigError
 from lowcostdex.gap.logs import read_log
 from lowcostdex.gap.trajectory import LogError
 from lowcostdex.hands import Calibration, HandSpec, dclaw_spec
+from lowcostdex.sim.effects import AppliedEffect
 
 HAND = dclaw_spec()
 
@@ -77,3 +78,12 @@ def test_a_hand_spec_built_from_numpy_numbers_saves_and_loads(tmp_path):
     assert (j.motor_id, j.low, j.high, j.max_velocity) == (10, float(np.float32(-0.25)), 0.25, 2.0)
     assert (j.calibration.offset, j.calibration.sign, j.calibration.scale) == (-1.55, 1, 1.0)
     assert back == hand
+
+
+def test_an_effect_on_one_joint_typed_as_a_string_is_that_joint():
+    # before: AppliedEffect("latency", "elbow") acted on five joints 'e', 'l', 'b', 'o', 'w'
+    one = AppliedEffect("latency", "elbow", {"delay": 0.02})
+    assert one.joints == ("elbow",) and one.values["delay"].shape == (1,)
+    assert one == AppliedEffect("latency", ["elbow"], {"delay": [0.02]})
+    with pytest.raises(ConfigError, match=r"joints must be joint names, got 3 .*joints=\('elbow',\)"):
+        AppliedEffect("latency", ("elbow", 3))

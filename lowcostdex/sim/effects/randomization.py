@@ -28,6 +28,13 @@ class AppliedEffect:
 
     def __post_init__(self) -> None:
         cls = effect(self.name)
+        # one joint typed as a string ("elbow") is that joint, not five one-letter joints
+        joints = (self.joints,) if isinstance(self.joints, str) else tuple(self.joints)
+        for j in joints:
+            if not isinstance(j, str) or not j:
+                raise ConfigError(f"effect {self.name}: joints must be joint names, got {j!r} "
+                                  f"in {self.joints!r} (type e.g. joints=('elbow',))")
+        object.__setattr__(self, "joints", tuple(str(j) for j in joints))
         n = len(self.joints)
         if n == 0:
             raise ConfigError(f"effect {self.name}: no joints given")
