@@ -87,3 +87,27 @@ def test_an_effect_on_one_joint_typed_as_a_string_is_that_joint():
     assert one == AppliedEffect("latency", ["elbow"], {"delay": [0.02]})
     with pytest.raises(ConfigError, match=r"joints must be joint names, got 3 .*joints=\('elbow',\)"):
         AppliedEffect("latency", ("elbow", 3))
+
+
+@pytest.mark.parametrize("env,setting", [("lowcostdex/DClawTurnValve-v0", "success_tol"),
+                                         ("lowcostdex/AllegroTurnValve-v0", "success_tol")])
+def test_a_success_tolerance_of_zero_is_refused(env, setting):
+    # success is |error| < tolerance: at 0 no episode ever succeeds, and training reported 0 %
+    import gymnasium as gym
+
+    import lowcostdex  # noqa: F401 (registers the ids)
+
+    with pytest.raises(ConfigError, match=rf"{setting}=0 must be a finite number in \(0, 3.14159\]"):
+        gym.make(env, **{setting: 0})
+    with pytest.raises(ConfigError, match=rf"{setting}=0.0 must be .*\(0, "):
+        gym.make(env, **{setting: 0.0})
+
+
+def test_the_screw_and_flip_tasks_refuse_a_zero_success_tolerance_too():
+    from lowcostdex.sim.envs.dclaw_tasks import FlipConfig, ScrewConfig
+
+    with pytest.raises(ConfigError, match=r"ScrewConfig.success_tol=0 must be .*\(0, "):
+        ScrewConfig(success_tol=0)
+    with pytest.raises(ConfigError, match=r"FlipConfig.success_angle=0 must be .*\(0, "):
+        FlipConfig(success_angle=0)
+    ScrewConfig(success_tol=0.05)

@@ -19,6 +19,7 @@ from lowcostdex.errors import ConfigError, check_choice, keyword_hints
 from lowcostdex.hands import HandSpec, dclaw_spec
 from lowcostdex.sim import servo
 from lowcostdex.sim.envs.task import (
+    TOLERANCE,
     VALVE_BOUNDS,
     Goal,
     Task,
@@ -182,7 +183,7 @@ class ScrewConfig:
 
     def __post_init__(self) -> None:
         check_settings(self, {"speed": (-2 * math.pi, 2 * math.pi, "rad/s"),
-                              "success_tol": (0.0, math.pi, "rad")})
+                              "success_tol": TOLERANCE})
         check_flag(self, "random")
 
 
@@ -263,7 +264,7 @@ class FlipConfig:
 
     def __post_init__(self) -> None:
         check_choice("block representation", self.representation, ("keypoints", "quaternion"))
-        check_settings(self, {"success_angle": (0.0, math.pi, "rad"),
+        check_settings(self, {"success_angle": TOLERANCE,
                               "drop_height": (-1.0, 1.0, "m"),
                               "position_radius": (0.0, 0.1, "m"),
                               "yaw_range": (0.0, math.pi, "rad"),

@@ -20,19 +20,20 @@ from lowcostdex.hands import HandSpec
 Goal = dict[str, np.ndarray]
 
 
-def check_settings(config: object, bounds: dict[str, tuple[float, float, str]]) -> None:
+def check_settings(config: object, bounds: dict[str, tuple]) -> None:
     """Validate a task config's numbers at construction: each named field must be a finite
-    number in its closed interval ``(low, high, unit)``. An angle beyond its bound names the
+    number in its closed interval ``(low, high, unit)`` (``(low, high, unit, "open")``: open at
+    ``low``, as ``TOLERANCE``). An angle beyond its bound names the
     unit, so 180 for a 180 deg offset is refused as degrees rather than run as 180 rad.
 
     Raises:
       ConfigError naming the config, the field, the value and the interval.
     """
     kind = type(config).__name__
-    for name, (low, high, unit) in bounds.items():
+    for name, (low, high, unit, *open_low) in bounds.items():
         value = getattr(config, name)
         try:
-            check_number(f"{kind}.{name}", value, low, high)
+            check_number(f"{kind}.{name}", value, low, high, low_open=bool(open_low))
         except ConfigError as e:
             big = isinstance(value, (int, float)) and abs(value) > high
             hint = {"rad": " (an angle in rad, not degrees)",
@@ -40,9 +41,11 @@ def check_settings(config: object, bounds: dict[str, tuple[float, float, str]]) 
             raise ConfigError(f"{e} [{unit}]{hint}") from None
 
 
+# a success tolerance [rad] in (0, pi]: success is |error| < it, which 0 never is
+TOLERANCE = (0.0, math.pi, "rad", "open")
 VALVE_BOUNDS = {"init_range": (0.0, math.pi, "rad"),
                 "goal_offset": (-4 * math.pi, 4 * math.pi, "rad"),
-                "goal_range": (0.0, math.pi, "rad"), "success_tol": (0.0, math.pi, "rad"),
+                "goal_range": (0.0, math.pi, "rad"), "success_tol": TOLERANCE,
                 "pose_noise": (0.0, 1.0, "rad")}
 """Bounds of the valve tasks' settings (D'Claw and Allegro; ``check_settings``): ranges up to
 half a turn either way, offsets up to two turns, a start-pose noise std up to 1 rad."""
