@@ -111,3 +111,18 @@ def test_the_screw_and_flip_tasks_refuse_a_zero_success_tolerance_too():
     with pytest.raises(ConfigError, match=r"FlipConfig.success_angle=0 must be .*\(0, "):
         FlipConfig(success_angle=0)
     ScrewConfig(success_tol=0.05)
+
+
+def test_gap_servo_periods_typed_carelessly_are_named_or_taken():
+    from lowcostdex.gap import GapConfig
+
+    # before: "servo_periods must be in (0, 0.1] s, got 0.001" for the string '0.001' (0.001
+    # is in it), a float32 period refused with the same words, one number a bare TypeError
+    assert GapConfig(servo_periods=(np.float32(0.002),)).servo_periods == (np.float32(0.002),)
+    with pytest.raises(ConfigError, match=r"servo_periods='0.001' must be a tuple .*e.g. \(0.001,\)"):
+        GapConfig(servo_periods="0.001")
+    with pytest.raises(ConfigError, match=r"servo_periods=0.002 must be a tuple"):
+        GapConfig(servo_periods=0.002)
+    with pytest.raises(ConfigError, match=r"servo_periods entry=0.5 must be a finite number in "
+                                          r"\(0, 0.1\]"):
+        GapConfig(servo_periods=(0.001, 0.5))

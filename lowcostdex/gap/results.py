@@ -175,10 +175,6 @@ class GapConfig:
             raise ConfigError(f"refine_gain must be in (0, 1), got {self.refine_gain}")
         if not self.min_step > 0:
             raise ConfigError(f"min_step must be > 0 s, got {self.min_step}")
-        if not all(isinstance(p, (int, float)) and 0 < p <= MAX_SERVO_PERIOD
-                   for p in self.servo_periods):
-            raise ConfigError(f"servo_periods must be in (0, {MAX_SERVO_PERIOD}] s, got "
-                              f"{self.servo_periods}")
         if not 0 <= self.interval_step < 1:
             raise ConfigError("interval_step must be in [0, 1) (a fraction of the physics "
                               f"step; 0: off), got {self.interval_step}")
@@ -212,6 +208,11 @@ def _check_numbers(c: GapConfig) -> None:
                           "step in [0, 1), e.g. (0.01, 0.02)")
     for f in c.probes:
         check_number("probes entry", f, 0, 1, high_open=True)
+    if isinstance(c.servo_periods, str) or not isinstance(c.servo_periods, (tuple, list)):
+        raise ConfigError(f"servo_periods={c.servo_periods!r} must be a tuple of servo update "
+                          f"periods in (0, {MAX_SERVO_PERIOD}] s, e.g. (0.001,), or ()")
+    for p in c.servo_periods:
+        check_number("servo_periods entry", p, 0, MAX_SERVO_PERIOD, low_open=True)
     if c.test_logs is not None:
         if isinstance(c.test_logs, str) or not isinstance(c.test_logs, (tuple, list)):
             raise ConfigError(f"test_logs={c.test_logs!r} must be a tuple of log indices "
