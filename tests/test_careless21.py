@@ -126,3 +126,18 @@ def test_gap_servo_periods_typed_carelessly_are_named_or_taken():
     with pytest.raises(ConfigError, match=r"servo_periods entry=0.5 must be a finite number in "
                                           r"\(0, 0.1\]"):
         GapConfig(servo_periods=(0.001, 0.5))
+
+
+def test_numpy_integers_are_counts_and_model_numbers_too():
+    from lowcostdex.hardware.dynamixel.control_table import load_control_table
+    from lowcostdex.teachers.flip_pinch import PinchFlipConfig
+    from lowcostdex.teachers.flip_plan import FlipPlanConfig
+
+    # before: np.int64 counts refused as "must be an integer >= 1" (they are integers) while
+    # True was taken as 1; a model number from a numpy array was looked up as a model name
+    assert PinchFlipConfig(wait=np.int64(3), carry_steps=np.int64(2),
+                           square_steps=np.int64(0)).wait == 3
+    assert FlipPlanConfig(horizon=np.int64(40)).horizon == 40
+    with pytest.raises(ConfigError, match=r"PinchFlipConfig.wait=True must be an integer"):
+        PinchFlipConfig(wait=True)
+    assert load_control_table(np.int64(1020)) is load_control_table(1020)  # XM430-W350

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, keyword_hints
+from lowcostdex.errors import ConfigError, check_number, keyword_hints
 from lowcostdex.sim.envs.dclaw_tasks import RESET_POSE
 from lowcostdex.sim.envs.task import Goal
 from lowcostdex.teachers.binding import check_call
@@ -99,16 +99,12 @@ class PinchFlipConfig:
         for name in ("open_gap", "press", "carry_step", "arrive"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"PinchFlipConfig.{name} must be > 0")
-        if not (isinstance(self.wait, int) and self.wait >= 1):
-            raise ConfigError(f"PinchFlipConfig.wait={self.wait!r} must be an integer >= 1")
-        if not (isinstance(self.carry_steps, int) and self.carry_steps >= 1):
-            raise ConfigError(f"PinchFlipConfig.carry_steps={self.carry_steps!r} must be an "
-                              "integer >= 1")
+        check_number("PinchFlipConfig.wait", self.wait, 1, integer=True)
+        check_number("PinchFlipConfig.carry_steps", self.carry_steps, 1, integer=True)
         if not self.yaw_max >= 0:
             raise ConfigError("PinchFlipConfig.yaw_max must be >= 0")
-        if not (isinstance(self.square_steps, int) and self.square_steps >= 0):
-            raise ConfigError(f"PinchFlipConfig.square_steps={self.square_steps!r} must be an "
-                              "integer >= 0 (0: no squaring)")
+        check_number("PinchFlipConfig.square_steps (0: no squaring)", self.square_steps, 0,
+                     integer=True)
         if not 0 <= self.square_tol <= np.pi:
             raise ConfigError(f"PinchFlipConfig.square_tol={self.square_tol!r} must be in "
                               "[0, pi] rad")

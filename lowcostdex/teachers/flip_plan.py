@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, keyword_hints
+from lowcostdex.errors import ConfigError, check_number, keyword_hints
 from lowcostdex.sim.envs.hand_env import HandEnv, goal_to_action
 from lowcostdex.sim.envs.task import Goal
 from lowcostdex.teachers.binding import bound_task, check_call
@@ -70,9 +70,7 @@ class FlipPlanConfig:
         if not self.variants or not all(isinstance(v, FlipTeacherConfig) for v in self.variants):
             raise ConfigError("FlipPlanConfig.variants must be a non-empty tuple of "
                               "FlipTeacherConfig")
-        if self.horizon is not None and not (isinstance(self.horizon, int) and self.horizon > 0):
-            raise ConfigError(f"FlipPlanConfig.horizon={self.horizon!r} must be a positive "
-                              "integer or None")
+        check_number("FlipPlanConfig.horizon", self.horizon, 1, integer=True, none_ok=True)
 
 
 class PlannedFlipTeacher:

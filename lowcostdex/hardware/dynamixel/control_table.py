@@ -20,6 +20,7 @@ import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib.resources import files
+from numbers import Integral
 
 from lowcostdex.errors import ConfigError, check_choice
 
@@ -209,7 +210,8 @@ def load_control_table(model: str | int) -> ControlTable:
     Raises ConfigError listing the known models when the SDK has no table for it.
     """
     numbers = model_numbers()
-    if isinstance(model, int):
+    if isinstance(model, Integral) and not isinstance(model, bool):  # numpy ints too (a scan)
+        model = int(model)
         check_choice("Dynamixel model number", model, numbers)
         return _load(numbers[model], model)
     by_name = {name: num for num, name in numbers.items()}
