@@ -141,3 +141,25 @@ def test_numpy_integers_are_counts_and_model_numbers_too():
     with pytest.raises(ConfigError, match=r"PinchFlipConfig.wait=True must be an integer"):
         PinchFlipConfig(wait=True)
     assert load_control_table(np.int64(1020)) is load_control_table(1020)  # XM430-W350
+
+
+def test_gap_generate_refuses_careless_arguments_before_any_simulation():
+    from lowcostdex.gap.generate import generate
+
+    rng = np.random.default_rng(0)
+    # before: "unknown hidden effect 'l'" for "latency", n_logs 0 or -1 gave no logs without a
+    # word, 2.0 / duration 0 / an int seed ended in TypeError, ValueError, AttributeError, and
+    # level 5 hid an effect five times its plausible range
+    cases = [({"hidden": "nonsense"}, r"unknown hidden effect 'nonsense'"),
+             ({"n_logs": 0}, r"n_logs=0 must be an integer in \[1, inf\)"),
+             ({"n_logs": -1}, r"n_logs=-1 must be an integer"),
+             ({"n_logs": 2.0}, r"n_logs=2.0 must be an integer"),
+             ({"duration": 0}, r"duration=0 must be a finite number in \[1, 3600\]"),
+             ({"rng": 0}, r"rng=0 must be a numpy Generator, e.g. numpy.random.default_rng\(0\)"),
+             ({"level": 5}, r"level=5 must be a finite number in \[0, 1\]")]
+    for change, words in cases:
+        kw = {"rig": "bench", "hidden": None, "rng": rng, "n_logs": 1, "duration": 1.0, **change}
+        with pytest.raises(ConfigError, match=words):
+            generate(kw.pop("rig"), kw.pop("hidden"), kw.pop("rng"), **kw)
+    syn = generate("bench", "latency", rng, n_logs=1, duration=1.0)  # one name: that effect
+    assert [e.name for e in syn.hidden] == ["latency"] and len(syn.trajectories) == 1

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, check_number
 from lowcostdex.gap.logs import Trajectory
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, effect
@@ -297,15 +297,23 @@ def generate(rig: str, hidden: Sequence[str] | None, rng: np.random.Generator, *
     Args:
       rig: "bench" (one servo with a 0.3 kg load) or "finger" (one D'Claw finger).
       hidden: canonical effect names to hide (None or empty: effect-free data); an effect drawn
-        at random when the list holds "random".
+        at random when the list holds "random"; one name as a string is that effect.
       rng: generator for everything (the effect, its magnitude, excitation, noise).
-      n_logs: number of logs (trajectories).
-      duration: seconds per log.
+      n_logs: number of logs (trajectories), >= 1.
+      duration: seconds per log, in [1, 3600].
       settings: driver timing and sensor resolution.
       motor: servo model.
-      level: magnitude as a fraction of the plausible range (None: random).
+      level: magnitude as a fraction of the plausible range, in [0, 1] (None: random).
     """
     check_choice("rig", rig, ("bench", "finger"))
+    if not isinstance(rng, np.random.Generator):
+        raise ConfigError(f"rng={rng!r} must be a numpy Generator, e.g. "
+                          "numpy.random.default_rng(0)")
+    check_number("n_logs", n_logs, 1, integer=True)
+    check_number("duration", duration, 1.0, 3600.0)  # [s]: gap generate --duration's bounds
+    check_number("level", level, 0.0, 1.0, none_ok=True)
+    if isinstance(hidden, str):  # one effect typed as a string, not its letters
+        hidden = [hidden]
     if rig == "bench":
         spec = build_bench(bench_config(motor))
         joints = (BENCH_JOINT,)
