@@ -58,7 +58,11 @@ MISSES: dict[str, str] = {
     "interval above 0 or nothing named. Since session 21 (gap-dead16) the catalogue has "
     "deadband and the case is scored as it: deadband named alone, width 0.01 N m inside its "
     "intervals; deadband is opt-in (effects.OPT_IN), and offered by default the analysis was "
-    "stopped at 2583 s CPU in its backward search (70a79fd snapshot, no report)",
+    "stopped at 2583 s CPU in its backward search (70a79fd snapshot, no report). Since "
+    "gap-sig19 (session 24) the moves' gate offers it by default: main f1661d0 + this test, "
+    "2359 s CPU: deadband named ALONE, widths 0.01004 / 0.00996 / 0.00998 / 0.01000 N m for "
+    "0.01, held-out 486 -> 1.24 mrad (floor 0.44), but pip's interval [0.009931, 0.009994] "
+    "misses 0.01 by 6e-6 (abd, mcp, dip hold it)",
 }
 
 
