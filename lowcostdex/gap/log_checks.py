@@ -27,7 +27,6 @@ from lowcostdex.gap.trajectory import (
     Trajectory,
     find_gaps,
 )
-from lowcostdex.hands import MAX_JOINT_SPEED
 
 PREFIXES_ACTUATOR = ("goal", "current", "voltage", "temperature", "torque_enable")
 PREFIXES_JOINT = ("qpos", "qvel")
@@ -481,12 +480,13 @@ def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = froz
       winding temperature are quantised, 0.1 V and 1 deg C, and sit still for minutes);
     * too little motion: no measured joint moves MIN_MOTION peak to peak;
     * positions that change faster than a servo moves (the 99th percentile of |dq/dt| beyond the
-      plausible qvel; without logged velocities, which would tell the unit, beyond
-      ``hands.MAX_JOINT_SPEED``, 50 rad/s: the motor table's fastest servo, XL330-M077, turns
-      40.1 rad/s unloaded, and 104 measured BAM logs' 99th percentiles are 0.29-14.1 rad/s):
-      time not in seconds (minutes pass the step check as a 6 kHz log) or positions not in rad
-      (a smooth degrees log on a continuous joint moving less than 4 pi, 12.6 deg, has no other
-      sign of it: one moving slower than 50 deg/s still passes).
+      plausible qvel, 100 rad/s): time not in seconds (minutes pass the step check as a 6 kHz
+      log) or positions not in rad; without logged velocities the error names degrees too. A
+      smooth degrees log on a continuous joint moving less than 4 pi (12.6 deg) and slower than
+      100 deg/s has no sign of its unit here. (The limit was 50 rad/s without velocities for
+      half an hour, e1629d1: it refused tests/test_gap_offer.py's torque arm, a plain MuJoCo
+      motor stepping 5 rad at 53 rad/s in 1 % of its rows, and an outside user's stiff arm
+      would be refused alike; back at 100, 2026-11-29.)
     Measured logs (BAM's five rigs) repeat a reading for at most 0.32 s and by 0.05 rad of goal.
     """
     name = traj.name
@@ -512,7 +512,7 @@ def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = froz
         _check_dead_channels(traj, k, on)
     speed = np.abs(np.diff(traj.qpos, axis=0)) / np.diff(traj.time)[:, None]
     fast = np.percentile(speed, 99, axis=0)
-    vmax = PLAUSIBLE["qvel"][1] if traj.qvel is not None else MAX_JOINT_SPEED
+    vmax = PLAUSIBLE["qvel"][1]
     if float(fast.max()) > vmax:
         j = int(np.argmax(fast))
         why = "" if traj.qvel is not None else (
