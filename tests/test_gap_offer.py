@@ -63,16 +63,18 @@ def simulate(seed: int, width: float = 0.0, friction: float = 0.0, offset: float
     return np.array(times), np.array(goals), np.array(reads)
 
 
-def dataset(tmp_path, **hidden):
+def dataset(tmp_path, sim=None, nominal=None, seed=10, **hidden):
+    """Three logs of ``sim`` (default ``simulate``) with ``hidden`` effects, read against the
+    ``nominal`` MJCF (default ``NOMINAL``)."""
     paths = []
     for i in range(3):
-        t, g, q = simulate(10 + i, **hidden)
+        t, g, q = (sim or simulate)(seed + i, **hidden)
         p = tmp_path / f"log{i}.csv"
         np.savetxt(p, np.column_stack([t, g, q]), delimiter=",", header="time,goal:a,qpos:j",
                    comments="", fmt="%.9g")
         paths.append(p)
     model = tmp_path / "model.xml"
-    model.write_text(NOMINAL)
+    model.write_text(nominal or NOMINAL)
     return load_dataset(paths, model=model)
 
 
@@ -134,16 +136,7 @@ def simulate_torque(seed: int, width: float = 0.0, friction: float = 0.0, offset
 
 
 def torque_dataset(tmp_path, **hidden):
-    paths = []
-    for i in range(3):
-        t, c, q = simulate_torque(20 + i, **hidden)
-        p = tmp_path / f"log{i}.csv"
-        np.savetxt(p, np.column_stack([t, c, q]), delimiter=",", header="time,goal:a,qpos:j",
-                   comments="", fmt="%.9g")
-        paths.append(p)
-    model = tmp_path / "model.xml"
-    model.write_text(TORQUE_NOMINAL)
-    return load_dataset(paths, model=model)
+    return dataset(tmp_path, simulate_torque, TORQUE_NOMINAL, 20, **hidden)
 
 
 @pytest.mark.parametrize("hidden, shown", [
