@@ -54,11 +54,6 @@ def _sine_log(path, amplitude, hz=1.0, rate=100.0, seconds=4.0):
     return path
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "lead, 2026-11-29: the 50 rad/s limit for logs without velocities (e1629d1) refused "
-    "tests/test_gap_offer.py's torque arm (a plain MuJoCo motor stepping 5 rad, 53 rad/s in 1 % "
-    "of its rows: CI at 3cf2072, 4 failures); back at 100 rad/s, this 75 'rad/s' degrees log "
-    "passes again: it needs a test that tells sustained from brief speed"))
 def test_a_smooth_degrees_log_without_velocities_is_refused_by_its_speed(tmp_path):
     # 12 deg at 1 Hz: values inside 4 pi (12.6) and no encoder grid, so before only the 100
     # rad/s limit stood; its peak speed 2 pi * 12 = 75.4 "rad/s" (deg/s) is past any servo's

@@ -20,7 +20,12 @@ from lowcostdex.gap.log_still import (  # noqa: F401 (the limits are read from h
     check_pinned,
     check_stuck,
 )
-from lowcostdex.gap.log_units import TO_RAD, check_degree_grid, check_velocity_unit
+from lowcostdex.gap.log_units import (
+    TO_RAD,
+    check_degree_grid,
+    check_sustained_speed,
+    check_velocity_unit,
+)
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     LogError,
@@ -481,9 +486,11 @@ def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = froz
     * too little motion: no measured joint moves MIN_MOTION peak to peak;
     * positions that change faster than a servo moves (the 99th percentile of |dq/dt| beyond the
       plausible qvel, 100 rad/s): time not in seconds (minutes pass the step check as a 6 kHz
-      log) or positions not in rad; without logged velocities the error names degrees too. A
-      smooth degrees log on a continuous joint moving less than 4 pi (12.6 deg) and slower than
-      100 deg/s has no sign of its unit here. (The limit was 50 rad/s without velocities for
+      log) or positions not in rad; without logged velocities the error names degrees too; and
+      positions covering a whole turn in one stretch of steps above 50 rad/s
+      (``log_units.check_sustained_speed``: a smooth degrees log under 100 deg/s at its 99th
+      percentile). A smooth degrees log slower than 50 deg/s on a continuous joint moving less
+      than 4 pi (12.6 deg) has no sign of its unit here. (The limit was 50 rad/s without velocities for
       half an hour, e1629d1: it refused tests/test_gap_offer.py's torque arm, a plain MuJoCo
       motor stepping 5 rad at 53 rad/s in 1 % of its rows, and an outside user's stiff arm
       would be refused alike; back at 100, 2026-11-29.)
@@ -521,6 +528,7 @@ def check_signals(traj: Trajectory, rate_goals: frozenset[str] | set[str] = froz
                        f"{fast[j]:.4g} rad/s (99th percentile of its steps); servos move below "
                        f"{vmax:g} rad/s: is 'time' in seconds (not minutes) and 'qpos' in rad?"
                        + why)
+    check_sustained_speed(traj)
     motion = np.ptp(traj.qpos, axis=0)
     if float(motion.max()) < MIN_MOTION:
         moved = ", ".join(f"{j} {m:.3g}" for j, m in zip(traj.joints, motion, strict=True))

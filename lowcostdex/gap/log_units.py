@@ -136,3 +136,45 @@ def check_not_radians(q: np.ndarray, joint: str, name: str) -> None:
         raise LogError(f"{name}: column 'qpos:{joint}' as written reads on a grid of {what}, "
                        f"its {len(np.unique(q))} distinct values whole steps apart: the log is "
                        "in rad already; leave out --units deg (read_log's angle_scale: 1)")
+
+
+SUSTAINED_SPEED = 50.0  # [rad/s] past any servo's (the motor table's fastest: XL330-M077, 40.1)
+SUSTAINED_TRAVEL = 2 * math.pi  # [rad] a whole turn at that speed, in one stretch, no servo does
+
+
+def longest_fast_travel(t: np.ndarray, q: np.ndarray, speed: float = SUSTAINED_SPEED
+                        ) -> tuple[float, float, int]:
+    """(travel [rad], duration [s], first row) of the stretch of consecutive steps of ``q``
+    (T,) over ``t`` (T,) [s] each faster than ``speed`` [rad/s] that covers the most distance;
+    (0, 0, 0) when no step is that fast."""
+    dq = np.abs(np.diff(q))
+    dt = np.diff(t)
+    fast = dq > speed * dt
+    if not fast.any():
+        return 0.0, 0.0, 0
+    edges = np.diff(np.concatenate([[0], fast.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    cum_q, cum_t = np.concatenate([[0.0], np.cumsum(dq)]), np.concatenate([[0.0], np.cumsum(dt)])
+    travel = cum_q[ends] - cum_q[starts]
+    k = int(np.argmax(travel))
+    return float(travel[k]), float(cum_t[ends[k]] - cum_t[starts[k]]), int(starts[k])
+
+
+def check_sustained_speed(traj: Trajectory) -> None:
+    """Refuse positions that cover SUSTAINED_TRAVEL (a whole turn) in one stretch of steps all
+    faster than SUSTAINED_SPEED: no servo turns that fast for that long, and a smooth log in
+    degrees does (a 12 deg, 1 Hz sine read as rad: 18 'rad' at over 50 'rad/s' in each swing,
+    while its 99th-percentile speed, 75, stays under the 100 rad/s limit of
+    ``log_checks.check_signals``). A stiff arm's step is brief: a plain MuJoCo position servo
+    stepping 5.2 rad (tests/test_gap_offer.py) covers at most 4.3 rad above 50 rad/s; the 104
+    readable real BAM logs move below 16.2 rad/s throughout."""
+    for j, joint in enumerate(traj.joints):
+        travel, seconds, row = longest_fast_travel(traj.time, traj.qpos[:, j])
+        if travel >= SUSTAINED_TRAVEL:
+            peak = float(np.max(np.abs(np.diff(traj.qpos[:, j])) / np.diff(traj.time)))
+            raise LogError(
+                f"{traj.name}: column 'qpos:{joint}' moves at up to {peak:.4g} rad/s and "
+                f"{travel:.4g} rad in {seconds:.3g} s from row {row} (0-based), every step faster "
+                f"than {SUSTAINED_SPEED:g} rad/s: servos move below {SUSTAINED_SPEED:g} rad/s "
+                "(the fastest, XL330-M077, 40.1 unloaded), never a whole turn beyond it; is "
+                f"'qpos' in degrees (then {TO_RAD}) and 'time' in seconds?")

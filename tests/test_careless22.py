@@ -1,0 +1,47 @@
+"""Careless calls, session 25 (issues 13, 11): each test failed on the code before its fix.
+A log's motion is written out here by hand (a sine in degrees and the same in rad), and an
+output folder's expected contents are the files the test itself lists."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lowcostdex.gap.logs import read_log
+from lowcostdex.gap.trajectory import LogError
+
+
+def _sine_log(path, amplitude, hz=1.0, rate=100.0, seconds=4.0):
+    """One joint, no velocities: a goal sine and the reading 30 ms behind it."""
+    rows = ["time,goal:j,qpos:j"]
+    for i in range(int(rate * seconds)):
+        t = i / rate
+        rows.append(f"{t:.4f},{amplitude * math.sin(2 * math.pi * hz * t):.6f},"
+                    f"{amplitude * math.sin(2 * math.pi * hz * (t - 0.03)):.6f}")
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("degrees,hz", [(10.0, 1.0), (9.0, 1.2), (12.0, 0.75)])
+def test_smooth_degrees_logs_under_100_deg_s_are_refused_by_their_sustained_speed(
+        tmp_path, degrees, hz):
+    # peak 2 pi hz A: 63, 68, 57 'rad/s', 99th percentiles under the 100 rad/s limit, values
+    # inside 4 pi and no encoder grid: before, each was read as a joint swinging 20-60 rad
+    # at up to 75 rad/s, beyond any servo's 40 rad/s (the motor table's fastest, XL330-M077)
+    with pytest.raises(LogError, match=r"'qpos:j' moves at up to \d+\.\d+ rad/s and \d+\.?\d* "
+                                       r"rad in .* every step faster than 50 rad/s.*degrees.*"
+                                       r"numpy.radians"):
+        read_log(_sine_log(tmp_path / "deg.csv", degrees, hz))
+    log = read_log(_sine_log(tmp_path / "rad.csv", math.radians(degrees), hz))  # rad: read
+    assert np.ptp(log.qpos) == pytest.approx(2 * math.radians(degrees), rel=1e-3)
+    # a stiff position servo's steps stay accepted: 5.2 rad at 65 rad/s (80 ms, all of it
+    # above 50 rad/s but short of a turn), held 1 s between steps
+    rows, q = ["time,goal:j,qpos:j"], 0.0
+    for i in range(400):
+        goal = (2.6, -2.6)[i // 100 % 2]
+        q += float(np.clip(goal - q, -0.65, 0.65))
+        rows.append(f"{i / 100:.4f},{goal:.6f},{q:.6f}")
+    (tmp_path / "arm.csv").write_text("\n".join(rows) + "\n")
+    assert np.ptp(read_log(tmp_path / "arm.csv").qpos) == pytest.approx(5.2)
