@@ -255,6 +255,9 @@ def staged_output(path: str | Path, command: str,
     """
     out = user_path(path)
     had_previous = check_out(out, command, settings)
+    # the folder itself, not a link to it nor "." (os.replace cannot replace either: '--out .'
+    # in an empty folder and '--out link' ended in a traceback, the output left in a .partial)
+    out = Path(os.path.realpath(out))
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     try:
@@ -271,9 +274,20 @@ def staged_output(path: str | Path, command: str,
         target = _stamp(tmp)
         target.parent.mkdir(parents=True, exist_ok=True)
         os.replace(out, target)
-    elif out.exists():  # an empty folder
-        out.rmdir()
+    elif out.exists():  # an empty folder (maybe a shell's working folder): filled in place
+        _move_entries(tmp, out)
+        return
     os.replace(tmp, out)
+
+
+def _move_entries(src: Path, dest: Path) -> None:
+    """Move every entry of ``src`` into the empty folder ``dest``, the marker last (a run
+    stopped midway leaves files without it: refused, never taken for a finished output), then
+    remove the empty ``src``."""
+    names = sorted((p.name for p in src.iterdir()), key=lambda n: n == MARKER)
+    for name in names:
+        os.replace(src / name, dest / name)
+    src.rmdir()
 
 
 _HELD: dict[str, int] = {}

@@ -11,6 +11,7 @@ import pytest
 
 from lowcostdex.gap.logs import read_log
 from lowcostdex.gap.trajectory import LogError
+from lowcostdex.outdir import MARKER, staged_output
 
 
 def _sine_log(path, amplitude, hz=1.0, rate=100.0, seconds=4.0):
@@ -45,3 +46,38 @@ def test_smooth_degrees_logs_under_100_deg_s_are_refused_by_their_sustained_spee
         rows.append(f"{i / 100:.4f},{goal:.6f},{q:.6f}")
     (tmp_path / "arm.csv").write_text("\n".join(rows) + "\n")
     assert np.ptp(read_log(tmp_path / "arm.csv").qpos) == pytest.approx(5.2)
+
+
+def _write_one(tmp):
+    (tmp / "result.txt").write_text("new\n")
+
+
+def test_an_output_into_the_empty_working_folder_lands_there(tmp_path, monkeypatch):
+    # `lowcostdex gap generate --out .` in a new empty folder: before, os.rmdir('.') raised
+    # "Invalid argument" after the work, the output left in a hidden ..partial-* folder
+    here = tmp_path / "run"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    with staged_output(".", "gap generate") as tmp:
+        _write_one(tmp)
+    assert sorted(p.name for p in here.iterdir()) == [MARKER, "result.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no .partial left beside
+
+
+def test_an_output_through_a_link_to_a_folder_lands_in_the_folder(tmp_path):
+    # --out runs where runs -> /data/runs: before, an empty target ended in "Not a
+    # directory" with a .partial folder left; a previous output moved the link itself into
+    # previous/ and the new output became a real folder beside the user's data
+    real = tmp_path / "real"
+    real.mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(real, target_is_directory=True)
+    with staged_output(link, "gap generate") as tmp:
+        _write_one(tmp)
+    assert sorted(p.name for p in real.iterdir()) == [MARKER, "result.txt"]
+    with staged_output(link, "gap generate") as tmp:  # again: the first kept in previous/
+        (tmp / "result.txt").write_text("newer\n")
+    assert link.is_symlink() and (real / "result.txt").read_text() == "newer\n"
+    (old,) = (real / "previous").iterdir()
+    assert (old / "result.txt").read_text() == "new\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]
