@@ -81,3 +81,34 @@ def test_an_output_through_a_link_to_a_folder_lands_in_the_folder(tmp_path):
     (old,) = (real / "previous").iterdir()
     assert (old / "result.txt").read_text() == "new\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "real"]
+
+
+def test_domain_randomization_joints_typed_as_a_string_show_them_as_a_tuple():
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.sim.effects import DomainRandomization
+
+    # before: "joints='ff_top' must be a tuple of names, e.g. ('latency',)": an effect's name
+    with pytest.raises(ConfigError, match=r"joints='ff_top' must be a tuple of names, e\.g\. "
+                                          r"\('ff_top',\)"):
+        DomainRandomization(("latency",), "ff_top", {"latency": {"delay": (0.01, 0.02)}})
+    with pytest.raises(ConfigError, match=r"effects='latency' must be .*e\.g\. \('latency',\)"):
+        DomainRandomization("latency", ("ff_top",))
+
+
+@pytest.mark.parametrize("delay,words", [
+    (float("nan"), r"parameter 'delay' must be finite, got \[nan\]"),
+    (-0.01, r"parameter 'delay' = \[-0\.01\] \[s\] is outside its limits \[0, 0\.25\] s"),
+    (20.0, r"parameter 'delay' = \[20\.0\] \[s\] is outside its limits \[0, 0\.25\] s"),  # ms
+])
+def test_an_emulated_robots_effect_object_with_a_value_no_servo_has_is_refused(delay, words):
+    # the same values as a dict were refused (AppliedEffect.from_dict); as an object, before:
+    # NaN made the emulator's simulation unstable and "reset failed ... off by 60 deg" after
+    # four attempts, -0.01 s ran silently, 20 (ms meant) asked for "history buffers"
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hardware.robot.backend import as_effects
+    from lowcostdex.sim.effects import AppliedEffect
+
+    with pytest.raises(ConfigError, match=rf"effect latency: {words}"):
+        as_effects([AppliedEffect("latency", "ff_top", {"delay": delay})])
+    (ok,) = as_effects([AppliedEffect("latency", "ff_top", {"delay": 0.02})])
+    assert ok.values["delay"].tolist() == [0.02]

@@ -91,19 +91,37 @@ class AppliedEffect:
                 raise ConfigError(f"effect {d['effect']}: parameter {k!r} must be finite, got "
                                   f"{v!r}")
         out = cls(d["effect"], tuple(joints), values)
-        for k in values:  # a value in ms or degrees would ask for a buffer or a force no servo has
-            bottom, top = out.cls.param(k).hard
-            if np.any(out.values[k] < bottom) or np.any(out.values[k] > top):
-                unit = out.cls.param(k).unit
-                raise ConfigError(f"effect {out.name}: parameter {k!r} = {params[k]!r} [{unit}] "
-                                  f"is outside its limits [{bottom:g}, {top:g}] {unit} (SI "
-                                  "units: s, rad, N m, ...)")
+        out.check_values(params)
         return out
+
+    def check_values(self, given: Mapping | None = None) -> None:
+        """ConfigError for a parameter value a user gave that no servo has: not finite (but
+        at a non-finite null: the effect off) or outside its hard limits (``Param.hard``): a
+        value in ms or degrees would ask for a buffer or a force no servo has. ``given``: the
+        values as the user wrote them (the message quotes them); default ``values``."""
+        given = self.values if given is None else given
+        for k in given:
+            par, v = self.cls.param(k), self.values[k]
+            off = v == par.null
+            if not np.all(np.isfinite(v) | off):
+                raise ConfigError(f"effect {self.name}: parameter {k!r} must be finite, got "
+                                  f"{v.tolist()!r}")
+            bottom, top = par.hard
+            if np.any(((v < bottom) | (v > top)) & ~off):
+                shown = given[k].tolist() if isinstance(given[k], np.ndarray) else given[k]
+                raise ConfigError(f"effect {self.name}: parameter {k!r} = {shown!r} "
+                                  f"[{par.unit}] is outside its limits [{bottom:g}, {top:g}] "
+                                  f"{par.unit} (SI units: s, rad, N m, ...)")
 
     @classmethod
     def coerce(cls, e: AppliedEffect | Mapping) -> AppliedEffect:
-        """``e`` itself, or the effect its ``to_dict()`` mapping describes (JSON configs)."""
-        return e if isinstance(e, AppliedEffect) else cls.from_dict(e)
+        """``e`` itself, or the effect its ``to_dict()`` mapping describes (JSON configs); a
+        user's values checked either way (``check_values``: before, an AppliedEffect with a
+        NaN delay made the emulator's simulation unstable and failed its reset four times)."""
+        if isinstance(e, AppliedEffect):
+            e.check_values()
+            return e
+        return cls.from_dict(e)
 
 
 SampleFn = Callable[[np.random.Generator], list[AppliedEffect]]
@@ -130,8 +148,10 @@ class DomainRandomization:
         for field_name in ("effects", "joints"):
             value = getattr(self, field_name)
             if isinstance(value, str) or not isinstance(value, (tuple, list)):
+                example = (value,) if isinstance(value, str) else (
+                    ("latency",) if field_name == "effects" else ("ff_top",))
                 raise ConfigError(f"DomainRandomization.{field_name}={value!r} must be a tuple "
-                                  f"of names, e.g. ('latency',) (a string is not a tuple)")
+                                  f"of names, e.g. {example!r} (a string is not a tuple)")
         for name in self.effects:
             effect(name)
         n = len(self.joints)
