@@ -29,6 +29,11 @@ class InputError(ConfigError):
     the value, in one line. The CLI prints it without a traceback and exits with code 2."""
 
 
+class PathTypeError(InputError, TypeError):
+    """A path given as another type (None, a number): an InputError naming the type, and a
+    TypeError as ``os.fspath``'s own refusal is."""
+
+
 class KeywordError(ConfigError, TypeError):
     """A settings class called with a keyword it does not have (a typo): a ConfigError naming the
     closest settings, and a TypeError as Python's own refusal of the keyword is."""

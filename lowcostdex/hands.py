@@ -67,7 +67,7 @@ class Calibration:
 
     def __post_init__(self) -> None:
         if self.sign not in (-1, 1):
-            raise ConfigError(f"calibration sign must be +1 or -1, got {self.sign}")
+            raise ConfigError(f"calibration sign must be +1 or -1, got {self.sign!r}")
         _finite("calibration offset", self.offset)
         _finite("calibration scale", self.scale)
         if not self.scale > 0:
@@ -271,6 +271,10 @@ class HandSpec:
                         Calibration)
             return JointSpec(**{**d, "calibration": Calibration(**d.get("calibration", {}))})
 
+        for key in ("joints", "aux_joints"):  # else "'NoneType' object is not iterable", or a
+            if not isinstance(raw.get(key, []), list):  # dict's keys taken for its joints
+                raise ConfigError(f"the spec's {key!r} must be a JSON list of joint objects "
+                                  f"([] for none), got {type(raw[key]).__name__}")
         return cls(
             name=raw["name"],
             motor=raw["motor"],
@@ -304,7 +308,12 @@ class HandSpec:
         except ConfigError as exc:
             raise InputError(f"{path}: {exc}") from None
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
-            raise InputError(f"{path}: not a hand spec JSON ({type(exc).__name__}: {exc})"
+            yaml = str(path).lower().endswith((".yaml", ".yml")) or text.lstrip().startswith(
+                ("name:", "motor:", "joints:", "---"))
+            hint = (" - it reads as YAML; a hand spec is JSON (HandSpec.save writes one): "
+                    "HandSpec.from_json(json.dumps(yaml.safe_load(text))).save('hand.json')"
+                    if yaml else "")
+            raise InputError(f"{path}: not a hand spec JSON ({type(exc).__name__}: {exc}){hint}"
                              ) from None
 
 

@@ -29,7 +29,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from lowcostdex.errors import LowcostdexError
+from lowcostdex.errors import LowcostdexError, PathTypeError
 
 MARKER = ".lowcostdex.json"
 PREVIOUS = "previous"
@@ -41,8 +41,12 @@ def user_path(path: str | os.PathLike[str]) -> Path:
     (``train(out_dir=...)``, ``write_report``, ``save_demos``, ``load_demos``, ``load_policy``, log
     readers) goes through it: pathlib leaves ``"~/runs"`` alone, so a run went to a folder named
     ``~`` in the working folder, and a file under ``"~/..."`` was "not found"."""
-    text = os.fspath(path)
-    if isinstance(text, str) and text.startswith("~"):
+    text = os.fspath(path) if isinstance(path, (str, os.PathLike)) else None
+    if not isinstance(text, str):  # before: os.fspath's "expected str, bytes or os.PathLike"
+        raise PathTypeError(f"a file or folder path (a str or pathlib.Path) is needed here, not "
+                            f"{type(path).__name__}"
+                            + (": no path was given" if path is None else f" {path!r:.40}"))
+    if text.startswith("~"):
         return Path(os.path.expanduser(text))
     return Path(text)
 

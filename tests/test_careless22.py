@@ -112,3 +112,59 @@ def test_an_emulated_robots_effect_object_with_a_value_no_servo_has_is_refused(d
         as_effects([AppliedEffect("latency", "ff_top", {"delay": delay})])
     (ok,) = as_effects([AppliedEffect("latency", "ff_top", {"delay": 0.02})])
     assert ok.values["delay"].tolist() == [0.02]
+
+
+def test_a_path_given_as_none_or_a_number_is_an_input_error_naming_it(tmp_path):
+    from lowcostdex.algos.policy_files import load_policy
+    from lowcostdex.errors import InputError
+    from lowcostdex.hands import HandSpec
+
+    # before: os.fspath's bare TypeError "expected str, bytes or os.PathLike object", which
+    # the CLI shows as a crash; a TypeError still (PathTypeError is both)
+    for call in (lambda: HandSpec.load(None), lambda: load_policy(None)):
+        with pytest.raises(InputError, match=r"a file or folder path .* not NoneType: no path "
+                                             r"was given"):
+            call()
+    with pytest.raises(TypeError, match=r"not int 3"):
+        HandSpec.load(3)
+
+
+def _spec_file(path, change):
+    import json
+
+    from lowcostdex.hands import dclaw_spec
+
+    raw = json.loads(dclaw_spec().to_json())
+    change(raw)
+    path.write_text(json.dumps(raw))
+    return path
+
+
+def test_a_hand_spec_file_with_careless_values_is_named(tmp_path, monkeypatch):
+    import json
+
+    from lowcostdex.errors import InputError
+    from lowcostdex.hands import HandSpec, dclaw_spec
+
+    def sign(raw):
+        raw["joints"][0]["calibration"]["sign"] = "-1"
+
+    # before: "calibration sign must be +1 or -1, got -1" for the string "-1"
+    with pytest.raises(InputError, match=r"sign must be \+1 or -1, got '-1'"):
+        HandSpec.load(_spec_file(tmp_path / "a.json", sign))
+    # before: "'NoneType' object is not iterable"; a dict's keys read as joints ("no joints")
+    with pytest.raises(InputError, match=r"'aux_joints' must be a JSON list of joint objects "
+                                         r"\(\[\] for none\), got NoneType"):
+        HandSpec.load(_spec_file(tmp_path / "b.json", lambda r: r.update(aux_joints=None)))
+    with pytest.raises(InputError, match=r"'joints' must be a JSON list .* got dict"):
+        HandSpec.load(_spec_file(tmp_path / "c.json", lambda r: r.update(joints={})))
+    # a spec written as YAML: before only "JSONDecodeError: Expecting value"
+    yaml = pytest.importorskip("yaml")
+    monkeypatch.chdir(tmp_path)
+    text = yaml.safe_dump(json.loads(dclaw_spec().to_json()))
+    (tmp_path / "hand.yaml").write_text(text)
+    with pytest.raises(InputError, match=r"it reads as YAML; a hand spec is JSON") as err:
+        HandSpec.load(tmp_path / "hand.yaml")
+    fix = str(err.value).rsplit(": ", 1)[1]  # what the message says to run works
+    exec(fix, {"HandSpec": HandSpec, "json": json, "yaml": yaml, "text": text})
+    assert HandSpec.load("hand.json") == dclaw_spec()
