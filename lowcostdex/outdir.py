@@ -255,7 +255,8 @@ def staged_output(path: str | Path, command: str,
     The check (:func:`check_out`) runs before anything is written. On an exception nothing at
     ``path`` changes and the temporary folder is removed. On success a previous output of the
     same command at ``path`` is moved into ``path/previous/<time>/`` (its own ``previous/``
-    history is carried over), never deleted.
+    history is carried over), never deleted. A link to a folder writes into the folder; the
+    working folder (``--out .``) keeps its place: its entries are moved, not the folder.
     """
     out = user_path(path)
     had_previous = check_out(out, command, settings)
@@ -271,6 +272,12 @@ def staged_output(path: str | Path, command: str,
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    if out.exists() and had_previous and out == Path.cwd():
+        # '--out .' again: moved whole, the user's shell would sit in previous/<time>/ and its
+        # `ls` show the old output; the entries are swapped in place instead
+        archive(out, [p.name for p in out.iterdir()])
+        _move_entries(tmp, out)
+        return
     if out.exists() and had_previous:
         keep = tmp / PREVIOUS
         if (out / PREVIOUS).is_dir():

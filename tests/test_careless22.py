@@ -168,3 +168,22 @@ def test_a_hand_spec_file_with_careless_values_is_named(tmp_path, monkeypatch):
     fix = str(err.value).rsplit(": ", 1)[1]  # what the message says to run works
     exec(fix, {"HandSpec": HandSpec, "json": json, "yaml": yaml, "text": text})
     assert HandSpec.load("hand.json") == dclaw_spec()
+
+
+def test_an_output_into_the_working_folder_again_keeps_the_folder_in_its_place(tmp_path,
+                                                                               monkeypatch):
+    # `lowcostdex gap analyze ... --out .` run twice: before, the working folder itself was
+    # moved into previous/<time>/, so the shell sat there and `ls` showed the old report
+    here = tmp_path / "run"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    with staged_output(".", "gap analyze") as tmp:
+        (tmp / "report.md").write_text("first\n")
+    inode = here.stat().st_ino
+    with staged_output(".", "gap analyze") as tmp:
+        (tmp / "report.md").write_text("second\n")
+    assert here.stat().st_ino == inode and (here / "report.md").read_text() == "second\n"
+    (old,) = (here / "previous").iterdir()
+    assert sorted(p.name for p in old.iterdir()) == [MARKER, "report.md"]
+    assert (old / "report.md").read_text() == "first\n"
+    assert sorted(p.name for p in here.iterdir()) == [MARKER, "previous", "report.md"]
