@@ -187,3 +187,35 @@ def test_an_output_into_the_working_folder_again_keeps_the_folder_in_its_place(t
     assert sorted(p.name for p in old.iterdir()) == [MARKER, "report.md"]
     assert (old / "report.md").read_text() == "first\n"
     assert sorted(p.name for p in here.iterdir()) == [MARKER, "previous", "report.md"]
+
+
+def test_a_trajectory_built_by_hand_with_careless_shapes_is_named_before_writing(tmp_path):
+    # the route load_dataset's refusal of arrays names: write_log(path, Trajectory(...));
+    # before: IndexError "too many indices" for 1-D arrays, a name string read as its letters
+    # ("elbow": five actuators, then IndexError), numpy's "all input arrays must have the same
+    # shape" for a short column
+    from lowcostdex.gap import write_log
+    from lowcostdex.gap.trajectory import Trajectory
+
+    t = np.arange(300) * 0.01
+    q = 0.3 * np.sin(2 * t)
+
+    def traj(**change):
+        kw = dict(name="arm", time=t, goal=q[:, None], qpos=q[:, None], actuators=("elbow",),
+                  joints=("elbow",))
+        return Trajectory(**{**kw, **change})
+
+    cases = [({"goal": q}, r"goal has shape \(300,\); it must be \(300, 1\).*for one actuator "
+                           r"give goal\[:, None\]"),
+             ({"actuators": "elbow"}, r"actuators='elbow' must be a tuple of names, e\.g\. "
+                                      r"\('elbow',\)"),
+             ({"qpos": q[:-1, None]}, r"qpos has shape \(299, 1\); it must be \(300, 1\)"),
+             ({"joints": ("elbow", "wrist")}, r"qpos has shape \(300, 1\); it must be "
+                                              r"\(300, 2\).*joints=\('elbow', 'wrist'\)"),
+             ({"channels": {"current": np.ones(300)}}, r"channels\['current'\] has shape")]
+    for change, words in cases:
+        with pytest.raises(LogError, match=words):
+            write_log(tmp_path / "arm.csv", traj(**change))
+        assert not (tmp_path / "arm.csv").exists()  # nothing half-written
+    back = read_log(write_log(tmp_path / "arm.csv", traj()))
+    assert back.actuators == ("elbow",) and back.qpos.shape == (300, 1)

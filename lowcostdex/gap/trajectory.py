@@ -71,8 +71,41 @@ class Trajectory:
                        channels={k: v[sl] for k, v in self.channels.items()},
                        goal_time=None if self.goal_time is None else self.goal_time[sl])
 
+    def check_shapes(self) -> None:
+        """LogError naming the array or name list that does not fit the others (a trajectory
+        built by hand for ``write_log``): names as a tuple of strings (a string is not one),
+        ``time`` (T,), ``goal`` and every channel (T, len(actuators)), ``qpos`` and ``qvel``
+        (T, len(joints)), ``goal_time`` (T,)."""
+        for what in ("actuators", "joints"):
+            names = getattr(self, what)
+            if isinstance(names, str) or not all(isinstance(n, str) for n in names):
+                example = (names,) if isinstance(names, str) else ("j",)
+                raise LogError(f"Trajectory {self.name!r}: {what}={names!r} must be a tuple of "
+                               f"names, e.g. {example!r}")
+        n = np.shape(self.time)[0] if np.ndim(self.time) == 1 else None
+        if n is None:
+            raise LogError(f"Trajectory {self.name!r}: time has shape {np.shape(self.time)}; it "
+                           "must be (T,), one time [s] per sample")
+        arrays = [("goal", self.goal, "actuators"), ("qpos", self.qpos, "joints"),
+                  ("qvel", self.qvel, "joints"),
+                  *((f"channels[{k!r}]", v, "actuators") for k, v in self.channels.items())]
+        for what, arr, per in arrays:
+            names = getattr(self, per)
+            need = (n, len(names))
+            if arr is None or np.shape(arr) == need:
+                continue
+            hint = (f"; for one {per[:-1]} give {what}[:, None]"
+                    if np.shape(arr) == (n,) and len(names) == 1 else "")
+            raise LogError(f"Trajectory {self.name!r}: {what} has shape {np.shape(arr)}; it must "
+                           f"be {need}: one row per time sample ({n}), one column per name in "
+                           f"{per}={tuple(names)!r}{hint}")
+        if self.goal_time is not None and np.shape(self.goal_time) != (n,):
+            raise LogError(f"Trajectory {self.name!r}: goal_time has shape "
+                           f"{np.shape(self.goal_time)}; it must be ({n},) like time")
+
     def to_columns(self) -> dict[str, np.ndarray]:
-        """The log-format columns {name: (T,)}."""
+        """The log-format columns {name: (T,)}; LogError from ``check_shapes`` first."""
+        self.check_shapes()
         cols = {"time": self.time}
         if self.goal_time is not None:
             cols["goal_time"] = self.goal_time
