@@ -132,5 +132,22 @@ def names(text: str, option: str) -> tuple[str, ...]:
     return kept
 
 
+def bit_rate(text: str) -> int:
+    """``--baud``: bit/s as an integer, or written as people write rates: ``1M``, ``1e6``,
+    ``57.6k``, ``1_000_000`` (before: "invalid int value: '1M'", no word of what to type).
+    Which rates a bus takes is checked where the bus is opened."""
+    words = text.strip().replace("_", "").replace(",", "")
+    scale = {"k": 1e3, "K": 1e3, "m": 1e6, "M": 1e6}.get(words[-1:], 1.0)
+    try:
+        x = float(words[:-1] if scale != 1.0 else words) * scale
+    except ValueError:
+        x = math.nan
+    if not math.isfinite(x) or x != round(x):
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a bit rate: give bit/s, e.g. 1000000 (1M, the Dynamixel default) "
+            "or 57600 (57.6k, a new motor's factory rate)")
+    return int(round(x))
+
+
 SEED = integer(0)
 """A seed for ``numpy.random.default_rng`` (which refuses negative ones)."""

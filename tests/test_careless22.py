@@ -219,3 +219,24 @@ def test_a_trajectory_built_by_hand_with_careless_shapes_is_named_before_writing
         assert not (tmp_path / "arm.csv").exists()  # nothing half-written
     back = read_log(write_log(tmp_path / "arm.csv", traj()))
     assert back.actuators == ("elbow",) and back.qpos.shape == (300, 1)
+
+
+@pytest.mark.parametrize("typed,rate", [("1M", 1_000_000), ("1e6", 1_000_000),
+                                        ("57.6k", 57_600), ("1_000_000", 1_000_000),
+                                        ("57600", 57_600)])
+def test_a_bit_rate_is_read_as_people_write_it(typed, rate, capsys):
+    from lowcostdex.argtypes import bit_rate
+    from lowcostdex.cli import main
+
+    # before: "argument --baud: invalid int value: '1M'" on scan, emulate, calibrate, ...
+    assert bit_rate(typed) == rate
+    assert main(["scan", "--port", "emulated", "--baud", typed, "--ids", "10"]) == 0
+    assert "XH430-W350" in capsys.readouterr().out  # the emulated motor 10 answered
+
+
+def test_a_bit_rate_that_is_no_number_says_what_to_type(capsys):
+    from lowcostdex.cli import USER_ERROR, main
+
+    assert main(["scan", "--port", "emulated", "--baud", "fast"]) == USER_ERROR
+    assert ("'fast' is not a bit rate: give bit/s, e.g. 1000000 (1M, the Dynamixel default) or "
+            "57600 (57.6k, a new motor's factory rate)") in capsys.readouterr().err

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from lowcostdex.argtypes import SEED, integer, number
+from lowcostdex.argtypes import SEED, bit_rate, integer, number
 from lowcostdex.options import (
     add_latency_option,
     add_robot_port_options,
@@ -65,7 +65,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="HDF5 demo file (appended to if it exists)")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the first episode")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
-    p.add_argument("--baud", type=int, default=None,
+    p.add_argument("--baud", type=bit_rate, default=None,
                    help="bit rate [bit/s] of a real D'Claw (default 1000000)")
     add_latency_option(p)
     p.add_argument("--countdown", type=number(0, 600), default=3.0,

@@ -17,7 +17,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from lowcostdex.argtypes import SEED, integer, number
+from lowcostdex.argtypes import SEED, bit_rate, integer, number
 from lowcostdex.errors import ConfigError, InputError
 from lowcostdex.hands import load_spec
 from lowcostdex.options import add_latency_option, latency_kwargs
@@ -28,7 +28,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--port", default=None,
                    help="serial device, pty path, or 'emulated'; without it, list the candidate "
                         "ports (USB id, serial number, /dev/serial/by-id names) and their problems")
-    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--baud", type=bit_rate, default=1_000_000, help="bit rate [bit/s]")
     p.add_argument("--ids", default=None,
                    help="comma-separated ids or ranges (e.g. 10-12,50); default broadcast ping")
     p.add_argument("--hand", default="dclaw", choices=("dclaw", "bench"),
@@ -40,7 +40,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--motor", default=None, help="servo model (default: the hand's)")
     p.add_argument("--station", default="valve",
                    help="D'Claw station (valve, foam_valve, screw, block, none = 9 motors)")
-    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--baud", type=bit_rate, default=1_000_000, help="bit rate [bit/s]")
     p.add_argument("--clock", default="realtime", choices=("realtime", "virtual"),
                    help="physics on wall time, or on bus time (advances with the bytes only)")
     p.add_argument("--wire-time", action="store_true",
@@ -64,7 +64,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="the D'Claw or the one-servo bench (default %(default)s)")
     p.add_argument("--spec", default=None, help="hand spec JSON to start from (default: built-in)")
     p.add_argument("--port", required=True, help="serial device, pty path, or 'emulated'")
-    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s] (default %(default)s)")
+    p.add_argument("--baud", type=bit_rate, default=1_000_000, help="bit rate [bit/s] (default %(default)s)")
     p.add_argument("--out", required=True, help="where to write the calibrated hand spec JSON")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an earlier calibration at --out (a hand spec, nothing else)")
@@ -82,7 +82,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--spec", default=None, help="hand spec JSON (default: built-in)")
     p.add_argument("--port", default=None,
                    help="serial device or pty path (default: the one USB serial port found)")
-    p.add_argument("--baud", type=int, default=1_000_000, help="rate to set [bit/s]")
+    p.add_argument("--baud", type=bit_rate, default=1_000_000, help="rate to set [bit/s]")
     p.add_argument("--ids", default=None, help="set up only these of the hand's ids (e.g. 21)")
     p.add_argument("--reassign", action="store_true",
                    help="accept a motor that has another of the hand's ids")

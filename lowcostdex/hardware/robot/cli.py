@@ -15,7 +15,7 @@ import json
 import shlex
 import sys
 
-from lowcostdex.argtypes import SEED, names, number
+from lowcostdex.argtypes import SEED, bit_rate, names, number
 from lowcostdex.options import (
     add_latency_option,
     add_robot_port_options,
@@ -34,7 +34,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trials", type=int, default=20, help="tangle + reset trials")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the tangles and valve angles")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
-    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--baud", type=bit_rate, default=1_000_000, help="bit rate [bit/s]")
     add_latency_option(p)
     p.add_argument("--no-effects", action="store_true",
                    help="emulated robot without the default servo effects")
@@ -61,7 +61,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="folder for log_<k>.csv")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the excitation")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
-    p.add_argument("--baud", type=int, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--baud", type=bit_rate, default=1_000_000, help="bit rate [bit/s]")
     add_latency_option(p)
     p.add_argument("--effects", default=None,
                    help="emulated robot only: JSON list of AppliedEffect dicts it carries "
