@@ -116,8 +116,12 @@ def test_the_verdict_of_an_offset_named_alone_is_worded_as_before():
               Cause("position_offset", ("pip",), _params(x)["position_offset"])]
     g = _gain(0.04, 0.002, 0.0005, (0.03, 0.045))
     before = verdict_text(causes, g, "x")
-    assert standin.judge(causes, track, g, "x") == before == (
-        "latency, position_offset: held-out RMSE 0.04 -> 0.002 rad (95 % lower)")
+    assert before == "latency, position_offset: held-out RMSE 0.04 -> 0.002 rad (95 % lower)"
+    # ... and the judge adds only what is left (2 mrad over a 0.5 mrad floor: 4 floors)
+    assert standin.judge(causes, track, g, "x") == before + (
+        "; left: 2 mrad held-out RMSE (5 % of the nominal model's), 4x the noise floor 0.5 mrad: "
+        "above the 3 floors a replay of an exact model leaves, so something beyond the named "
+        "causes is at work")
     assert all(c.stand_in == [] for c in causes)
 
 
@@ -132,7 +136,9 @@ def test_the_verdict_warns_beside_an_offset_traded_against_the_mass():
     text = standin.judge(causes, track, _gain(0.04, 0.002, 0.0005, (0.03, 0.045)), "x")
     assert text == ("position_offset (may stand in for a centre-of-mass shift, link geometry or a "
                     "tilted base: check before re-zeroing), mass_error: held-out RMSE 0.04 -> "
-                    "0.002 rad (95 % lower)")
+                    "0.002 rad (95 % lower)" + "; left: 2 mrad held-out RMSE (5 % of the nominal model's), 4x the noise floor 0.5 mrad: "
+                    "above the 3 floors a replay of an exact model leaves, so something beyond the named "
+                    "causes is at work")
     assert len(causes[0].stand_in) == 1 and causes[1].stand_in == []
 
 
@@ -157,4 +163,7 @@ def test_an_unreliable_gain_that_leaves_the_discrepancy_is_at_best_a_partial_sta
     # a reliable gain is worded as before
     causes = [Cause("gain_error", ("mcp",), {})]
     assert standin.judge(causes, None, _gain(0.4854, 0.1682, 0.000443, (0.1, 0.6)), "x") == (
-        "gain_error: held-out RMSE 0.4854 -> 0.1682 rad (65 % lower)")
+        "gain_error: held-out RMSE 0.4854 -> 0.1682 rad (65 % lower); left: 168 mrad held-out "
+        "RMSE (35 % of the nominal model's), 380x the noise floor 0.443 mrad: above the 3 "
+        "floors a replay of an exact model leaves, so something beyond the named causes is at "
+        "work")

@@ -56,8 +56,10 @@ from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_ep
 from lowcostdex.gap.diagnostics import (
     effective_n,
     noise_floor,
+    per_log,
     residual_diagnostics,
     score_fraction,
+    session_drift,
 )
 from lowcostdex.gap.exchange import effect_size, prune_refitted, replace_standins, switch_pays
 from lowcostdex.gap.gain import episode_errors, gain_with_ci
@@ -489,7 +491,10 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             c.equivalent = equivalents.get(e.name, [])
             c.widened = widened_notes.get(e.name) or gates.widened_lines(ctx, e.name, joints)
             causes.append(c)
-    verdict = standin.judge(causes, final_track, gain, stop_reason, int(np.sum(e_sse > b_sse)))
+    final = eng.predict(eps, [effects])[0] if effects else base_pred  # every log, for a drift
+    drift = session_drift(per_log(ds, eps, final), floor_rms, cfg.explain_above)
+    verdict = standin.judge(causes, final_track, gain, stop_reason, int(np.sum(e_sse > b_sse)),
+                            cfg.explain_above, drift["note"])
     standin.rival_notes(causes, rounds)
     timing["total"] = time.perf_counter() - t_start
     traces = _traces(ds, test_eps, base_test, ext_pred)
@@ -497,7 +502,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     return GapResult(cfg, ds.sources or [tr.name for tr in ds.trajectories], ds.joints, split, eps,
                      floor, baseline, extended, causes, rounds, diagnostics, gain, effects,
                      verdict, timing, traces, dict(ds.models), stop_reason,
-                     timestep=timestep)
+                     timestep=timestep, drift=drift,
+                     residual=standin.residual_left(gain, cfg.explain_above))
 
 
 def _final_fit(current: fitmod.Structure, cur_x: np.ndarray, fn, cfg: GapConfig,

@@ -224,3 +224,86 @@ def score_fraction(r: np.ndarray, cols: np.ndarray) -> float:
     q = q[:, keep]
     proj = q.T @ r
     return float(min(proj @ proj / (r @ r), 1.0))
+
+
+# a drift over the session: the later logs fit consistently worse than the earlier ones
+DRIFT_TAU = 0.8  # Kendall's tau of the logs' RMSE against their order (3 logs: strictly rising)
+DRIFT_RATIO = 1.5  # the later half's RMSE over the earlier half's
+
+
+def per_log(ds, eps: Sequence, pred: Sequence[np.ndarray]) -> list[dict]:
+    """Open-loop RMSE [rad] of each log (``ds.sources``: the pieces of a log split at a time gap
+    together) over every episode, with its first and last time stamp [s], in the order given."""
+    out: dict[str, dict] = {}
+    for w, p in zip(eps, pred, strict=True):
+        tr = ds.trajectories[w.traj]
+        name = ds.sources[w.traj] if len(ds.sources) == len(ds.trajectories) else tr.name
+        r = tr.qpos[w.start:w.stop] - p
+        d = out.setdefault(name, {"log": name, "start": math.inf, "stop": -math.inf,
+                                  "sse": 0.0, "n": 0})
+        d["start"] = min(d["start"], float(tr.time[w.start]))
+        d["stop"] = max(d["stop"], float(tr.time[w.stop - 1]))
+        d["sse"] += float((r * r).sum())
+        d["n"] += r.size
+    return [{"log": d["log"], "start": d["start"], "stop": d["stop"],
+             "rmse": math.sqrt(d["sse"] / max(d["n"], 1))} for d in out.values()]
+
+
+def kendall_tau(x: Sequence[float]) -> float:
+    """Kendall's tau of ``x`` against its index (1: strictly rising; ties count 0)."""
+    n = len(x)
+    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    if not pairs:
+        return 0.0
+    return float(sum(np.sign(x[j] - x[i]) for i, j in pairs) / len(pairs))
+
+
+def session_drift(logs: Sequence[dict], floor: float, above: float = 3.0,
+                  tau: float = DRIFT_TAU, ratio: float = DRIFT_RATIO) -> dict:
+    """Does the model fit the later logs of the session consistently worse (a plant that changed
+    while it was logged: friction rising as grease stiffens or a gearbox wears, a motor warming
+    up, a part loosening)? A model fitted over all logs averages such a change, and no constant
+    effect explains it.
+
+    Args:
+      logs: ``per_log`` rows {"log", "start", "stop", "rmse"}, in the order given (file order).
+      floor: the noise floor [rad] (RMS).
+      above: the later half must be above this many floors (what a replay of an exact model
+        leaves: ``GapConfig.explain_above``).
+      tau, ratio: the rank trend (Kendall's tau of the logs' RMSE against their order) and the
+        later half's RMSE over the earlier half's that make a drift note.
+    Returns:
+      {"order": "time stamps" or "file order", "logs": [{"log", "rmse", "floors"}], "tau",
+      "ratio", "note"} ("note" is "" without a drift; fewer than 3 logs: no test). The logs
+      are ordered by their time stamps when they share a clock (sorted by their first stamp,
+      none overlaps the next), else kept in file order (a clock restarting at every log).
+    """
+    rows = list(logs)
+    order = "file order"
+    by_time = sorted(rows, key=lambda d: d["start"])
+    if len(rows) > 1 and all(b["start"] > a["stop"]
+                                 for a, b in zip(by_time[:-1], by_time[1:], strict=True)):
+        rows, order = by_time, "time stamps"
+    fl = floor if floor > 0 else math.nan
+    out = {"order": order, "logs": [{"log": d["log"], "rmse": d["rmse"],
+                                     "floors": d["rmse"] / fl} for d in rows],
+           "tau": None, "ratio": None, "note": ""}
+    if len(rows) < 3:
+        return out
+    e = [d["rmse"] for d in rows]
+    k = len(e) // 2
+    early, late = math.sqrt(np.mean(np.square(e[:k]))), math.sqrt(np.mean(np.square(e[-k:])))
+    out["tau"] = kendall_tau(e)
+    out["ratio"] = late / early if early > 0 else math.inf
+    if out["tau"] >= tau and out["ratio"] >= ratio and late > above * floor:
+        each = ", ".join(f"{_stem(d['log'])} {d['rmse'] / fl:.3g}" for d in rows)
+        out["note"] = (f"drift over the session: the later logs fit consistently worse ({order}"
+                       f"; RMSE in noise floors: {each}; the later half {out['ratio']:.2g}x "
+                       "the earlier half): the plant may have changed while it was logged "
+                       "(friction rising, a motor warming up, wear); a model fitted over all "
+                       "logs averages it: compare fits of the early and the late logs")
+    return out
+
+
+def _stem(name: str) -> str:
+    return str(name).replace("\\", "/").rsplit("/", 1)[-1]

@@ -85,6 +85,7 @@ def summary(result: GapResult) -> str:
              f"gain: {_mrad(g.absolute)} mrad, {_gain_interval(g)}"
              + (f", {100 * g.reducible_explained:.0f} % of the reducible error explained"
                 if g.reducible_explained is not None else "")]
+    lines += [f"  {x}" for x in _left_lines(result)]
     for c in result.causes:
         vals = ", ".join(f"{p}={_fmt(d['value'])} {d['unit']}" for p, d in c.params.items())
         lines.append(f"  cause: {c.effect} on {', '.join(c.joints)}: {vals}; held-out RMSE after "
@@ -94,6 +95,24 @@ def summary(result: GapResult) -> str:
         lines += [f"    range widened: {w}" for w in c.widened]
         lines += [f"    stand-in: {w}" for w in c.stand_in]
     return "\n".join(lines)
+
+
+def _left_lines(result: GapResult) -> list[str]:
+    """What the model leaves on held-out (``standin.residual_left``) and, when the later logs
+    fit consistently worse, the drift note (``diagnostics.session_drift``)."""
+    r, d = result.residual, result.drift
+    out = []
+    if r:
+        out.append(f"left on held-out: {_mrad(r['rmse'])} mrad RMSE, {r['floors']:.3g}x the noise "
+                   f"floor ({'within' if r['at_floor'] else 'above'} the "
+                   f"{r['explained_within_floors']:g} floors a replay of an exact model leaves)")
+    if d and d.get("logs"):
+        each = ", ".join(f"{x['log'].replace(chr(92), '/').rsplit('/', 1)[-1]} "
+                         f"{_mrad(x['rmse'])}" for x in d["logs"])
+        out.append(f"open-loop RMSE per log in {d['order']} [mrad]: {each}")
+    if d and d.get("note"):
+        out.append(d["note"])
+    return out
 
 
 def _gain_interval(g) -> str:
@@ -130,6 +149,7 @@ def markdown(result: GapResult) -> str:
     if g.reducible_explained is not None:
         out.append(f"Fraction of the reducible error explained: "
                    f"{100 * g.reducible_explained:.1f} %.")
+    out += ["", *(x[0].upper() + x[1:] + "." for x in _left_lines(r))]
     out += ["", "![measured vs nominal vs extended](traces.png)", "", "## Causes", ""]
     if not r.causes:
         out.append("No effect lowered the select-split error enough: the nominal model explains "

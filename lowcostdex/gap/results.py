@@ -280,6 +280,10 @@ class GapResult:
     # physics step: the model's and the one analysed at, the nominal replay's train + select
     # RMSE [rad] at each step tried (``GapConfig.refine_step``)
     timestep: dict = field(default_factory=dict)
+    # what the extended model leaves on held-out (``standin.residual_left``) and the logs' fit
+    # over the session (``diagnostics.session_drift``)
+    residual: dict = field(default_factory=dict)
+    drift: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         fl = self.floor
@@ -305,6 +309,8 @@ class GapResult:
             "timing_s": self.timing,
             "mujoco_warnings": self.mujoco_warnings,
             "timestep": self.timestep,
+            "residual": self.residual,
+            "drift": self.drift,
         }
 
 

@@ -25,7 +25,12 @@ it was chosen (``rival_notes``: a note, the name and the verdict unchanged).
 
 ``judge`` writes these notes on the causes and the verdict; a cause whose held-out gain is not
 reliable while the discrepancy stays above the noise floors is noted as a partial stand-in too
-(``results.verdict_text``).
+(``results.verdict_text``). A reliable gain's verdict also says what the named causes leave
+(``residual_left``): the held-out RMSE left, its share of the nominal model's and its noise
+floors, within or above what a replay of an exact model leaves (``EXPLAINED`` floors): "named
+X; 0.8 mrad left, at the floor" and "named X; 12 mrad left, something else is at work" are
+different findings (sim10's latency beside a friction rising over the session read "85 % lower"
+with 19.5 floors left).
 """
 
 from __future__ import annotations
@@ -36,7 +41,13 @@ import numpy as np
 
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.gain import Gain
-from lowcostdex.gap.results import CandidateResult, Cause, partial_stand_in, verdict_text
+from lowcostdex.gap.results import (
+    CandidateResult,
+    Cause,
+    partial_stand_in,
+    unreliable,
+    verdict_text,
+)
 from lowcostdex.gap.spaces import Free
 
 OFFSETS = ("position_offset", "mounting_offset")  # calibration offsets a user would re-zero
@@ -45,6 +56,7 @@ SHARED = 0.5
 RIVAL = 0.9  # a rival explaining this share of a chosen cause's select gain makes it a tie ...
 RIVAL_LEFT = 1.1  # ... when it also leaves at most this factor of the chosen one's select error
 ALTERNATIVES = "a centre-of-mass shift, link geometry or a tilted base"
+EXPLAINED = 3.0  # noise floors a replay of an exact model leaves (GapConfig.explain_above)
 
 
 def shared_information(jac: np.ndarray, i: int, others: Sequence[int]) -> float:
@@ -124,12 +136,39 @@ def rival_notes(causes: Sequence[Cause], rounds: Sequence[Sequence[CandidateResu
                     "select error); these data do not tell them apart")
 
 
+def residual_left(gain: Gain, explained: float = EXPLAINED) -> dict:
+    """What the extended model leaves on the held-out episodes (the nominal model's error when
+    nothing is named): ``rmse`` [rad], its ``share`` of the nominal model's RMSE, the
+    ``noise_floor`` [rad] and ``floors`` (rmse / floor), and ``at_floor``: within ``explained``
+    floors (what a replay of an exact model leaves: the clean and exact truth-simulator cases
+    end at 1.2-2.9 floors, sim10 clean_finger 1.2 and latency40_finger 2.9)."""
+    left, base, fl = gain.extended_rmse, gain.baseline_rmse, gain.noise_floor
+    floors = left / fl if fl > 0 else float("inf")
+    return {"rmse": left, "share": left / base if base > 0 else None, "noise_floor": fl,
+            "floors": floors, "explained_within_floors": explained,
+            "at_floor": bool(floors <= explained)}
+
+
+def residual_text(r: dict) -> str:
+    """The verdict's words for ``residual_left``."""
+    share = f" ({100 * r['share']:.2g} % of the nominal model's)" if r["share"] is not None else ""
+    head = (f"left: {1e3 * r['rmse']:.3g} mrad held-out RMSE{share}, {r['floors']:.3g}x the "
+            f"noise floor {1e3 * r['noise_floor']:.3g} mrad")
+    if r["at_floor"]:
+        return (f"{head}: within the {r['explained_within_floors']:g} floors a replay of an "
+                "exact model leaves")
+    return (f"{head}: above the {r['explained_within_floors']:g} floors a replay of an exact "
+            "model leaves, so something beyond the named causes is at work")
+
+
 def judge(causes: Sequence[Cause], track: fitmod.Track | None, gain: Gain, stop_reason: str,
-          worse: int = 0) -> str:
+          worse: int = 0, explained: float = EXPLAINED, drift_note: str = "") -> str:
     """Write each cause's ``stand_in`` notes and return the verdict (``results.verdict_text``):
     offsets the final fit ``track`` trades against a gravity load (``stand_in_notes``), and every
     cause when the held-out gain is not reliable and the discrepancy stays above ``UNEXPLAINED``
-    noise floors (``worse``: test episodes on which the extended model is worse)."""
+    noise floors (``worse``: test episodes on which the extended model is worse). A reliable
+    gain's verdict ends with what is left (``residual_text``, ``explained`` floors); a
+    ``drift_note`` (``diagnostics.session_drift``) is added to any verdict."""
     notes = (stand_in_notes(track.structure.free, track.structure.joints, track.jac,
                             {c.effect: c.params for c in causes}) if track is not None else {})
     short = {}
@@ -142,4 +181,7 @@ def judge(causes: Sequence[Cause], track: fitmod.Track | None, gain: Gain, stop_
             c.stand_in.append("at best a partial stand-in: its held-out gain is not reliable "
                               "and the discrepancy is not explained (see the verdict); "
                               "something outside the candidate effects may be at work")
-    return verdict_text(causes, gain, stop_reason, worse, short)
+    text = verdict_text(causes, gain, stop_reason, worse, short)
+    if causes and not unreliable(gain, worse):
+        text += "; " + residual_text(residual_left(gain, explained))
+    return text + (f"; {drift_note}" if drift_note else "")
