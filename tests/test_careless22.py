@@ -240,3 +240,28 @@ def test_a_bit_rate_that_is_no_number_says_what_to_type(capsys):
     assert main(["scan", "--port", "emulated", "--baud", "fast"]) == USER_ERROR
     assert ("'fast' is not a bit rate: give bit/s, e.g. 1000000 (1M, the Dynamixel default) or "
             "57600 (57.6k, a new motor's factory rate)") in capsys.readouterr().err
+
+
+def test_flags_and_scales_typed_as_words_are_refused_not_read_as_true(tmp_path):
+    from lowcostdex.algos.train import TrainConfig, train
+    from lowcostdex.demonstrations.dataset import load_demos
+    from lowcostdex.errors import ConfigError
+
+    # before: resume="no" is truthy, and train went on as a resume; only_successful="false"
+    # kept only the successful episodes; angle_scale="deg" reached the grid check and was told
+    # "the log is in rad already"
+    config = TrainConfig(algo="npg", env_id="lowcostdex/DClawTurnValve-v0", n_iter=1, n_traj=1)
+    with pytest.raises(ConfigError, match=r"resume='no' must be True or False"):
+        train(config, tmp_path / "run", resume="no")
+    assert not (tmp_path / "run").exists()  # refused before anything was written
+    with pytest.raises(ConfigError, match=r"only_successful='false' must be True or False"):
+        load_demos(tmp_path / "demos.h5", only_successful="false")
+    log = _sine_log(tmp_path / "deg.csv", 10.0, hz=0.2)
+    for scale in ("deg", 0, float("nan")):
+        with pytest.raises(LogError, match=rf"angle_scale={scale!r} must be a positive number "
+                                           r"\(math.pi / 180 for degrees"):
+            read_log(log, angle_scale=scale)
+    with pytest.raises(LogError, match=r"time_scale='ms' must be a positive number \(1e-3"):
+        read_log(log, time_scale="ms")
+    assert np.ptp(read_log(log, angle_scale=math.pi / 180).qpos) == pytest.approx(
+        math.radians(20.0), rel=1e-3)

@@ -63,7 +63,7 @@ from lowcostdex.algos.samplers import (
     make_jobs,
 )
 from lowcostdex.demonstrations.dataset import Demos, check_demos, load_demos
-from lowcostdex.errors import ConfigError, LowcostdexError, did_you_mean
+from lowcostdex.errors import ConfigError, LowcostdexError, check_bool, did_you_mean
 
 ROBOT_COUNTERS = (
     "resets",
@@ -392,6 +392,7 @@ def train(
         raise ConfigError(f"train() takes a TrainConfig, not {type(config).__name__}: "
                           "TrainConfig(algo='npg', ...), or TrainConfig.from_dict(d) for a dict "
                           "(a JSON config)")
+    check_bool("resume", resume)  # "no" is truthy: resume="no" resumed a run
     ex.Run.check(out_dir, dataclasses.asdict(config), resume=resume,
                  mutable_keys=MUTABLE_ON_RESUME)
     if env_factory is None:

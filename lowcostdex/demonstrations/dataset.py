@@ -31,7 +31,7 @@ from lowcostdex.demonstrations.file import (
     read_info,
     read_numbered_episodes,
 )
-from lowcostdex.errors import ConfigError, InputError
+from lowcostdex.errors import ConfigError, InputError, check_bool
 from lowcostdex.outdir import user_path
 from lowcostdex.sim.envs.hand_env import control_period
 
@@ -116,6 +116,7 @@ def load_demos(path: str | Path, only_successful: bool = True) -> Demos:
         names the file, the field and the value).
       ConfigError: no episode left.
     """
+    check_bool("only_successful", only_successful)  # "no"/"false" are truthy: kept as True
     used = read_numbered_episodes(path, only_successful=only_successful)
     if not used:
         kind = "successful demonstration" if only_successful else "episode"

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import math
+import numbers
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -226,6 +227,12 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
     unit of a project-format log's goal, qpos and qvel columns (pi/180: logged in degrees);
     ``time_scale``: seconds per unit of its 'time' and 'goal_time' columns (1e-3: integer
     milliseconds); qvel stays per second."""
+    for name, value, e_g in (("angle_scale", angle_scale, "math.pi / 180 for degrees"),
+                             ("time_scale", time_scale, "1e-3 for milliseconds")):
+        ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        if not ok or not math.isfinite(value) or value <= 0:  # "deg" was read as a number
+            raise LogError(f"read_log {name}={value!r} must be a positive number ({e_g}; "
+                           "load_dataset takes angle_unit='deg' and time_unit='ms')")
     path = user_path(path)
     if path.suffix.lower() == ".json":
         return read_bam(path)[0]
