@@ -11,12 +11,19 @@ gravity torque read from each log's compiled nominal model, one hinge):
                               [- load |tau_g(q)| tanh(qd / 0.01)]
 
 semi-implicit Euler at 1 ms from each swing's first state (50 ms after the release: the drive's
-current decays), least squares on the measured positions, each swing weighted equally.
+current decays), least squares on the measured positions, each swing weighted equally. With
+``centre`` each swing also gets the angle it hangs at in the reading (the servo reads q + centre,
+as ``mounting_offset`` has it): an arm re-mounted between recordings hangs at its own.
 
 Measured 2026-11-28 on Rhoban XL330's four lift_and_drop logs (0.49 kg at 0.10 m): armature
 0.0018-0.0020 kg m^2 per swing (BAM's six published XL330 fits: 0.00181-0.00192; the project's
 catalogue XL330-M288: 0.0003), Coulomb ~0.01 N m, viscous ~0.0075 N m s/rad, and the load share
 of the friction small (0.01-0.07 per N m of gravity torque): bench/RESULTS.md (gap-real12).
+Measured 2026-11-29 on STS3032's 18 lift_and_drop swings (qua-robotics, 9 set-ups, fitted a set-up
+at a time): they hang at 0.095-0.108 rad (0.05 m arm), 0.16-0.174 (0.07 m) and 0.111-0.119 (0.1 m),
+for every mass and gain; per swing 80-168 mrad off without the centre, 9-23 with it; armature
+0.00096-0.00106 kg m^2 (BAM's fitted M1 0.00103), Coulomb 0.003-0.005 N m, viscous ~0.002 N m s/rad
+(bench/RESULTS.md gap-real20).
 """
 
 from __future__ import annotations
@@ -55,7 +62,8 @@ class Swing:
 class SwingFit:
     """``swing_fit``'s result: armature [kg m^2], Coulomb [N m], viscous [N m s/rad], load
     share [1] (0 unless fitted), each swing's position MAE [rad], the catalogue armature (the
-    nominal models'), the logs used."""
+    nominal models'), the logs used, and (fitted with ``centre``, else empty) the angle each
+    swing hangs at in the reading [rad]."""
 
     armature: float
     coulomb: float
@@ -64,6 +72,7 @@ class SwingFit:
     mae: tuple[float, ...]
     catalogue_armature: float
     logs: tuple[int, ...]
+    centres: tuple[float, ...] = ()
 
 
 def swings(ds: Dataset, logs: Sequence[int], settle: float = SETTLE, min_travel: float = 0.0
@@ -107,20 +116,22 @@ def swings(ds: Dataset, logs: Sequence[int], settle: float = SETTLE, min_travel:
     return out
 
 
-def simulate(p: np.ndarray, sw: Swing) -> np.ndarray:
-    """Positions of swing ``sw`` under parameters p[k] = (armature, coulomb, viscous[, load]),
-    one row per k (all k integrated together)."""
+def simulate(p: np.ndarray, sw: Swing, centre: np.ndarray | float = 0.0) -> np.ndarray:
+    """Positions of swing ``sw`` as read [rad] under parameters p[k] = (armature, coulomb,
+    viscous[, load]), one row per k (all k integrated together), the arm hanging at
+    ``centre[k]`` in the reading (the servo reads q + centre)."""
     p = np.atleast_2d(p)
     a, c, b = p[:, 0], p[:, 1], p[:, 2]
     mu = p[:, 3] if p.shape[1] > 3 else np.zeros(len(p))
+    centre = np.broadcast_to(np.asarray(centre, float), (len(p),))
     sub = max(1, int(round(sw.dt / STEP)))
     h = sw.dt / sub
-    q = np.full(len(p), sw.q[0])
+    q = sw.q[0] - centre
     v = np.full(len(p), sw.v0)
     inv = 1.0 / (sw.inertia + a)
     out = np.empty((len(p), len(sw.q)))
     for k in range(len(sw.q)):
-        out[:, k] = q
+        out[:, k] = q + centre
         for _ in range(sub):
             tg = sw.gs * np.sin(q) + sw.gc * np.cos(q)
             s = np.tanh(v / VSMOOTH)
@@ -129,24 +140,32 @@ def simulate(p: np.ndarray, sw: Swing) -> np.ndarray:
     return out
 
 
-def swing_fit(ds: Dataset, logs: Sequence[int], load: bool = False, min_travel: float = 0.0
-              ) -> SwingFit | None:
+CENTRE = 0.5  # [rad] a swing's centre is fitted within +-this
+
+
+def swing_fit(ds: Dataset, logs: Sequence[int], load: bool = False, min_travel: float = 0.0,
+              centre: bool = False) -> SwingFit | None:
     """Armature, Coulomb and viscous friction (and with ``load`` a friction share per N m of
-    gravity torque) fitted to the torque-off swings of ``logs`` (module doc) that travel
-    ``min_travel`` rad or more; None when none of them has a torque-off run long enough."""
+    gravity torque, with ``centre`` the angle each swing hangs at in the reading) fitted to the
+    torque-off swings of ``logs`` (module doc) that travel ``min_travel`` rad or more; None when
+    none of them has a torque-off run long enough."""
     sws = swings(ds, logs, min_travel=min_travel)
     if not sws:
         return None
     cat = float(np.median([s.armature for s in sws]))
-    p0 = np.array([cat, 0.005, 0.005] + ([0.05] if load else []))
-    lo = np.zeros(len(p0))
-    hi = np.array([0.05, 0.5, 0.5] + ([0.5] if load else []))
-    step = np.array([1e-5, 1e-4, 1e-4, 1e-3])[:len(p0)]
+    n = 4 if load else 3  # the shared parameters; then one centre per swing
+    nc = len(sws) if centre else 0
+    p0 = np.array([cat, 0.005, 0.005, 0.05][:n] + [float(np.median(s.q)) for s in sws][:nc])
+    lo = np.r_[np.zeros(n), np.full(nc, -CENTRE)]
+    hi = np.r_[np.array([0.05, 0.5, 0.5, 0.5])[:n], np.full(nc, CENTRE)]
+    p0 = np.clip(p0, lo, hi)
+    step = np.r_[np.array([1e-5, 1e-4, 1e-4, 1e-3])[:n], np.full(nc, 1e-4)]
+    scale = np.r_[np.array([1e-3, 1e-2, 1e-2, 0.1])[:n], np.full(nc, 0.01)]
     wts = [1.0 / np.sqrt(len(s.q)) for s in sws]
 
     def batch(ps: np.ndarray) -> np.ndarray:
-        return np.concatenate([(simulate(ps, s) - s.q) * w for s, w in zip(sws, wts,
-                                                                            strict=True)], 1)
+        return np.concatenate([(simulate(ps[:, :n], s, ps[:, n + k] if centre else 0.0) - s.q) * w
+                               for k, (s, w) in enumerate(zip(sws, wts, strict=True))], 1)
 
     def jac(p: np.ndarray) -> np.ndarray:  # forward differences, all columns in one pass
         ps = np.vstack([p, p + np.diag(step)])
@@ -154,11 +173,13 @@ def swing_fit(ds: Dataset, logs: Sequence[int], load: bool = False, min_travel: 
         return ((r[1:] - r[0]) / step[:, None]).T
 
     sol = least_squares(lambda p: batch(p[None])[0], p0, jac=jac, bounds=(lo, hi),
-                        x_scale=np.array([1e-3, 1e-2, 1e-2, 0.1])[:len(p0)], max_nfev=100)
+                        x_scale=scale, max_nfev=100)
     x = sol.x
-    mae = tuple(float(np.mean(np.abs(simulate(x, s)[0] - s.q))) for s in sws)
+    cs = tuple(float(v) for v in x[n:]) if centre else ()
+    mae = tuple(float(np.mean(np.abs(simulate(x[:n], s, cs[k] if centre else 0.0)[0] - s.q)))
+                for k, s in enumerate(sws))
     return SwingFit(float(x[0]), float(x[1]), float(x[2]), float(x[3]) if load else 0.0, mae,
-                    cat, tuple(s.log for s in sws))
+                    cat, tuple(s.log for s in sws), cs)
 
 
 # ``armature_seed``: a swing that travels less than this [rad] says nothing of the armature (Pham
