@@ -265,3 +265,22 @@ def test_flags_and_scales_typed_as_words_are_refused_not_read_as_true(tmp_path):
         read_log(log, time_scale="ms")
     assert np.ptp(read_log(log, angle_scale=math.pi / 180).qpos) == pytest.approx(
         math.radians(20.0), rel=1e-3)
+
+
+def test_a_log_path_that_is_not_there_says_what_was_meant(tmp_path):
+    from lowcostdex.gap.dataset import load_dataset
+
+    # before: "no such file" alone for each, "is a folder, not a log file" for a folder
+    for name in ("log_a.csv", "log_b.csv"):
+        _sine_log(tmp_path / name, 0.2)
+    cases = [(tmp_path / "log_a", r"no such file; did you mean '.*log_a\.csv'\?"),  # no suffix
+             (tmp_path / "LOG_A.CSV", r"did you mean '.*log_a\.csv'\?"),  # another case
+             (tmp_path / "log_c.csv", r"did you mean '.*log_[ab]\.csv' or '.*log_[ab]\.csv'\?"),
+             (tmp_path / "*.csv", r"a pattern: read_log reads one file; load_dataset"),
+             (tmp_path / "day2" / "log_a.csv", r"its folder .*day2 does not exist either"),
+             (tmp_path, r"is a folder, not a log file \(read_log reads one file; load_dataset")]
+    for path, words in cases:
+        with pytest.raises(LogError, match=words):
+            read_log(path)
+    with pytest.raises(LogError, match=r"log_a: no such file; did you mean '.*log_a\.csv'"):
+        load_dataset([tmp_path / "log_a", tmp_path / "log_b.csv"], model="unused.xml")

@@ -19,7 +19,11 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError, check_number
 from lowcostdex.gap.bam_logs import check_one_motor
-from lowcostdex.gap.log_paths import LOG_SUFFIXES, expand_log_paths  # noqa: F401 (re-exported)
+from lowcostdex.gap.log_paths import (  # noqa: F401 (LOG_SUFFIXES re-exported)
+    LOG_SUFFIXES,
+    expand_log_paths,
+    no_such_log,
+)
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
@@ -192,7 +196,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     paths = expand_log_paths(paths)
     for p in paths:
         if not p.exists():
-            raise LogError(f"{p}: no such file")
+            raise no_such_log(p)
     if timestep is not None:  # a physics step: 1 (meant as ms) would run a 1 s Euler step
         check_number("timestep [s]", timestep, 0, MAX_BENCH_TIMESTEP, low_open=True)
     bam = [is_bam(p) for p in paths]

@@ -88,3 +88,35 @@ def _in_subfolders(folder: Path) -> str:
     return (f"; its subfolders {names} hold some (only a folder's own files are read): give "
             f"them, e.g. {' '.join(str(d) for d in holding[:2])}, or the pattern "
             f"'{folder / '*' / '*.csv'}'")
+
+
+def no_such_log(path: Path) -> LogError:
+    """The error for a log ``path`` that does not exist, with what the user may have meant: a
+    pattern given to a reader of one file, the file under another case or with its suffix
+    (``log0`` for ``log0.csv``), a near name in its folder, or a folder that is missing too."""
+    path = Path(path)
+    if any(c in path.name for c in "*?["):
+        return LogError(f"{path}: no such file (a pattern: read_log reads one file; "
+                        "load_dataset and `gap analyze --log` read the files a pattern matches)")
+    folder = path.parent
+    if not folder.is_dir():
+        return LogError(f"{path}: no such file (its folder {folder} does not exist either)")
+    names = sorted(p.name for p in folder.iterdir() if p.is_file()
+                   and not p.name.startswith(".") and p.suffix.lower() in LOG_SUFFIXES)
+    want = path.name.lower()
+    close = [n for n in names if n.lower() == want or Path(n).stem.lower() == want]
+    if not close:
+        import difflib
+
+        close = difflib.get_close_matches(path.name, names, n=2, cutoff=0.75)
+    if not close:
+        return LogError(f"{path}: no such file")
+    return LogError(f"{path}: no such file; did you mean "
+                    f"{' or '.join(repr(str(folder / n)) for n in close)}?")
+
+
+def folder_not_log(path: Path) -> LogError:
+    """The error for a folder given to a reader of one log file."""
+    return LogError(f"{path}: is a folder, not a log file (read_log reads one file; "
+                    f"load_dataset({str(path)!r}, model=...) and `gap analyze --log` read a "
+                    "folder's logs)")

@@ -63,6 +63,7 @@ from lowcostdex.gap.log_checks import (
     trajectory_from_columns,
 )
 from lowcostdex.gap.log_csv import MAX_COLUMNS, is_channel, read_csv
+from lowcostdex.gap.log_paths import folder_not_log, no_such_log
 from lowcostdex.gap.log_units import TO_RAD, check_goal_degrees, check_not_radians
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
@@ -102,10 +103,10 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     path = user_path(path)
     notes: list[str] = []
     if not path.exists():
-        raise LogError(f"{path}: no such file")
+        raise no_such_log(path)
     suffix = path.suffix.lower()
     if path.is_dir():
-        raise LogError(f"{path}: is a folder, not a log file")
+        raise folder_not_log(path)
     if suffix == ".npz":
         text = _check_npz_shapes(path)
         notes = [f"{path.name}: array {k!r} holds text, not a log channel; left out"
