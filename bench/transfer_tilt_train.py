@@ -47,6 +47,11 @@ def main() -> None:
     p.add_argument("--valve-pad-only", action="store_true",
                    help="with --valve: ranges +-pad of the fitted values, the fit's intervals "
                         "left out")
+    p.add_argument("--friction-from-zero", action="store_true",
+                   help="with --valve: the valve's added friction drawn from 0 (valve_fit.LOWER) "
+                        "to the range's high end: the parameter the log cannot pin down "
+                        "(friction and damping trade along b v + F, transfer17; the intervals "
+                        "missed A's and C's friction, transfer17/19)")
     p.add_argument("--n-iter", type=int, help="iterations (default: the default size's; "
                                               "the sample budget is n_iter x 40 x 40)")
     args = p.parse_args()
@@ -67,6 +72,10 @@ def main() -> None:
             valve_fit.VALVE_PAD = args.valve_pad
         drawn = ({**row, "intervals": [[v, v] for v in row["values"]]} if args.valve_pad_only
                  else row)
+        if args.friction_from_zero:
+            intervals = [list(iv) for iv in drawn["intervals"]]
+            intervals[2][0] = valve_fit.LOWER[2]
+            drawn = {**drawn, "intervals": intervals}
         fit = {"fits": [drawn], "used_finger": row["finger"], "model_edit": edit}
         nominal = float(TurnValve().build_spec().joint("valve").damping[0])
         randomize, edit = randomized_valve(randomize, fit, nominal)
