@@ -284,3 +284,23 @@ def test_a_log_path_that_is_not_there_says_what_was_meant(tmp_path):
             read_log(path)
     with pytest.raises(LogError, match=r"log_a: no such file; did you mean '.*log_a\.csv'"):
         load_dataset([tmp_path / "log_a", tmp_path / "log_b.csv"], model="unused.xml")
+
+
+ARM = ('<mujoco><option timestep="0.002"/><worldbody><body><joint name="j" axis="0 1 0"/>'
+       '<geom type="capsule" fromto="0 0 0 0.1 0 0" size="0.01" mass="0.1"/></body></worldbody>'
+       '<actuator><position name="j" joint="j" kp="2"/></actuator></mujoco>')
+
+
+def test_gap_analyze_given_log_twice_reads_both(tmp_path, capsys):
+    from lowcostdex.cli import USER_ERROR, main
+
+    # `--log a.csv --log b.csv`: before, argparse kept the last --log alone and the analysis
+    # ran on b.csv without a word (here: refused as too little data from 1 log, not 2)
+    (tmp_path / "arm.xml").write_text(ARM)
+    a = _sine_log(tmp_path / "a.csv", 0.3, seconds=1.0)
+    b = _sine_log(tmp_path / "b.csv", 0.2, seconds=1.0)
+    args = ["gap", "analyze", "--model", str(tmp_path / "arm.xml"), "--log", str(a), "--log",
+            str(b), "--out", str(tmp_path / "report")]
+    assert main(args) == USER_ERROR
+    assert "2 episode(s) from 2 log(s)" in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "report").exists()

@@ -27,14 +27,15 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     a = gsub.add_parser("analyze", help="show what the model gets wrong, name the causes, "
                         "extend the model and measure the gain")
     a.add_argument("--model", help="MJCF of the nominal model (project-format logs)")
-    # "--logs" as record-log spells it (and names the folder): was "required: --log"
-    a.add_argument("--log", "--logs", nargs="+", required=True, metavar="FILE", dest="log",
+    # "--logs" as record-log spells it (and names the folder): was "required: --log"; given
+    # twice (--log a.csv --log b.csv) both count (action extend: was the last one alone)
+    a.add_argument("--log", "--logs", nargs="+", action="extend", required=True, metavar="FILE", dest="log",
                    help="logs: CSV/NPZ in the project format, or BAM raw-log JSON; a folder "
                         "means every log in it, a quoted pattern ('logs/*.csv') its matches")
     a.add_argument("--out", required=True, help="output folder: new or empty, or a previous report (kept in previous/)")
     a.add_argument("--bench", action="store_true",
                    help="logs are BAM JSON mapped onto the servo bench (default: auto-detect)")
-    a.add_argument("--holdout", nargs="+", metavar="FILE", default=None,
+    a.add_argument("--holdout", nargs="+", action="extend", metavar="FILE", default=None,
                    help="logs held out for the test (default: random episodes)")
     a.add_argument("--candidates", default=None,
                    help="comma-separated effects to consider (default: all with logged channels)")
@@ -65,10 +66,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     i = gsub.add_parser("identify", help="fit the servo's own parameters (motor constants, "
                         "inertia, friction, mounting offset) on whole BAM bench logs, open loop, "
                         "and score held-out logs with BAM's per-log MAE")
-    i.add_argument("--log", "--logs", nargs="+", required=True, metavar="FILE", dest="log",
+    i.add_argument("--log", "--logs", nargs="+", action="extend", required=True, metavar="FILE", dest="log",
                    help="BAM raw-log JSON files (a folder: every log in it; include the "
                         "--holdout logs here too)")
-    i.add_argument("--holdout", nargs="+", metavar="FILE", default=None,
+    i.add_argument("--holdout", nargs="+", action="extend", metavar="FILE", default=None,
                    help="logs scored, not fitted (default: none; every log fitted)")
     i.add_argument("--restarts", type=integer(1, 20), default=3,
                    help="jittered fits per family (identify.IdentifyConfig.restarts)")
