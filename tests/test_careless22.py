@@ -304,3 +304,24 @@ def test_gap_analyze_given_log_twice_reads_both(tmp_path, capsys):
     assert main(args) == USER_ERROR
     assert "2 episode(s) from 2 log(s)" in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "report").exists()
+
+
+def test_csv_logs_saved_under_another_suffix_are_named_with_the_rename(tmp_path):
+    from lowcostdex.gap.log_paths import expand_log_paths
+
+    # before: "unknown log type '.txt'" and "a folder without logs" with no word that the
+    # files are the logs, a suffix apart
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    _sine_log(logs / "run1.txt", 0.2)
+    _sine_log(logs / "run2.log", 0.2)
+    (logs / "notes.txt").write_text("two runs, arm at rest before each\n")
+    with pytest.raises(LogError, match=r"unknown log type '\.txt'.*its first line is a CSV log "
+                                       r"header: rename it run1\.csv"):
+        read_log(logs / "run1.txt")
+    with pytest.raises(LogError, match=r"a folder without logs .*run1\.txt, run2\.log read as "
+                                       r"CSV logs under another name: rename them \.csv"):
+        expand_log_paths(logs)
+    with pytest.raises(LogError) as err:
+        read_log(logs / "notes.txt")
+    assert "rename" not in str(err.value)  # the user's notes are no log

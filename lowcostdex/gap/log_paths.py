@@ -47,8 +47,12 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path],
                            if p.is_file() and not p.name.startswith(".")
                            and p.suffix.lower() in LOG_SUFFIXES)
             if not found:
+                other = sorted(p.name for p in one.iterdir() if p.is_file()
+                               and not p.name.startswith(".") and reads_as_csv_log(p))
+                renamed = (f"; {', '.join(other[:3])}{' ...' if len(other) > 3 else ''} read "
+                           "as CSV logs under another name: rename them .csv" if other else "")
                 raise LogError(f"{one}: a folder without logs ({', '.join(LOG_SUFFIXES)})"
-                               + _in_subfolders(one))
+                               + renamed + _in_subfolders(one))
             if any(p.suffix.lower() != ".json" for p in found):
                 json_files = [p for p in found if p.suffix.lower() == ".json"]
                 found = [p for p in found if p.suffix.lower() != ".json"]
@@ -120,3 +124,24 @@ def folder_not_log(path: Path) -> LogError:
     return LogError(f"{path}: is a folder, not a log file (read_log reads one file; "
                     f"load_dataset({str(path)!r}, model=...) and `gap analyze --log` read a "
                     "folder's logs)")
+
+
+def reads_as_csv_log(path: Path) -> bool:
+    """Whether a file of another suffix (.txt, .log, .dat) starts with a project-format CSV
+    header: a 'time' column and a 'goal:' or 'qpos:' one, separated by ',', ';' or a tab."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096).decode("utf-8", "ignore").lstrip("\ufeff")
+    except OSError:
+        return False
+    first = next((line for line in head.splitlines() if line.strip()
+                  and not line.lstrip().startswith("#")), "").lower()
+    cells = [c.strip().strip('"') for c in first.replace(";", ",").replace("\t", ",").split(",")]
+    return "time" in cells and any(c.startswith(("qpos:", "goal:")) for c in cells)
+
+
+def csv_under_another_name(path: Path) -> str:
+    """The hint for a log file of an unknown suffix that reads as a CSV log ('' if not)."""
+    if reads_as_csv_log(path):
+        return f" (its first line is a CSV log header: rename it {path.with_suffix('.csv').name})"
+    return ""

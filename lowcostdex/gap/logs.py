@@ -63,7 +63,7 @@ from lowcostdex.gap.log_checks import (
     trajectory_from_columns,
 )
 from lowcostdex.gap.log_csv import MAX_COLUMNS, is_channel, read_csv
-from lowcostdex.gap.log_paths import folder_not_log, no_such_log
+from lowcostdex.gap.log_paths import csv_under_another_name, folder_not_log, no_such_log
 from lowcostdex.gap.log_units import TO_RAD, check_goal_degrees, check_not_radians
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
@@ -121,7 +121,7 @@ def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     else:
         hint = (" (a LeRobot dataset's episode file? write each episode as a CSV with one "
                 "column per joint: 'time', 'goal:<actuator>', 'qpos:<joint>')"
-                if suffix == ".parquet" else "")
+                if suffix == ".parquet" else csv_under_another_name(path))
         raise LogError(f"{path}: unknown log type {suffix!r}; valid: .csv, .npz, .json (BAM)"
                        + hint)
     for k, v in cols.items():
