@@ -149,5 +149,16 @@ def bit_rate(text: str) -> int:
     return int(round(x))
 
 
+class JoinRepeats(argparse.Action):
+    """A comma-separated names option (default None) given twice keeps both:
+    ``--joints ff_top --joints ff_middle`` is ``"ff_top,ff_middle"`` (argparse kept the last
+    alone, and the first was dropped without a word)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        before = getattr(namespace, self.dest, None)
+        setattr(namespace, self.dest, values if before is None else f"{before},{values}")
+
+
 SEED = integer(0)
 """A seed for ``numpy.random.default_rng`` (which refuses negative ones)."""

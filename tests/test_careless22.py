@@ -325,3 +325,27 @@ def test_csv_logs_saved_under_another_suffix_are_named_with_the_rename(tmp_path)
     with pytest.raises(LogError) as err:
         read_log(logs / "notes.txt")
     assert "rename" not in str(err.value)  # the user's notes are no log
+
+
+def test_a_names_option_given_twice_keeps_both(tmp_path):
+    import argparse
+
+    import mujoco
+
+    from lowcostdex.cli import main
+
+    # before: `lowcostdex model dclaw --fingers ff --fingers mf` wrote a model of mf alone
+    # (argparse kept the last); record-log --joints, gap analyze --candidates and main
+    # --stages take the same action
+    assert main(["model", "dclaw", "--station", "none", "--fingers", "ff", "--fingers", "mf",
+                 "--out", str(tmp_path / "two.xml")]) == 0
+    model = mujoco.MjModel.from_xml_path(str(tmp_path / "two.xml"))
+    joints = sorted(model.joint(i).name for i in range(model.njnt))
+    assert joints == ["ff_bottom", "ff_middle", "ff_top", "mf_bottom", "mf_middle", "mf_top"]
+    from lowcostdex.argtypes import JoinRepeats
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--joints", default=None, action=JoinRepeats)
+    assert parser.parse_args([]).joints is None
+    assert parser.parse_args(["--joints", "ff_top"]).joints == "ff_top"
+    assert parser.parse_args(["--joints", "a,b", "--joints=c"]).joints == "a,b,c"

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from lowcostdex.argtypes import SEED, integer, names, number
+from lowcostdex.argtypes import SEED, JoinRepeats, integer, names, number
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -37,7 +37,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="logs are BAM JSON mapped onto the servo bench (default: auto-detect)")
     a.add_argument("--holdout", nargs="+", action="extend", metavar="FILE", default=None,
                    help="logs held out for the test (default: random episodes)")
-    a.add_argument("--candidates", default=None,
+    a.add_argument("--candidates", default=None, action=JoinRepeats,
                    help="comma-separated effects to consider (default: all with logged channels)")
     a.add_argument("--max-effects", type=integer(1, 20), default=3,
                    help="most hidden effects named together (default %(default)s)")

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from lowcostdex.argtypes import SEED, names
+from lowcostdex.argtypes import SEED, JoinRepeats, names
 from lowcostdex.errors import Interrupted
 from lowcostdex.main_job.report import markdown_report, stage_summary, write_html
 from lowcostdex.main_job.setup import DEFAULT_TASK, SIZES, TASKS, Context
@@ -202,7 +202,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    "angles; flip: flip the block 180 deg")
     add_robot_port_options(p, port_help="serial port of a real D'Claw, e.g. /dev/ttyUSB0 "
                                         "(default: the emulated D'Claw)")
-    p.add_argument("--stages", default=None,
+    p.add_argument("--stages", default=None, action=JoinRepeats,
                    help=f"comma-separated subset of: {', '.join(n for n, _ in STAGES)}")
     p.set_defaults(func=_main)
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from lowcostdex.argtypes import JoinRepeats
+
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("envs", help="list the registered gymnasium environments")
@@ -14,7 +16,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("hand", choices=("dclaw", "allegro", "bench"))
     p.add_argument("--station", default=None,
                    help="dclaw: valve, foam_valve, screw, block, none; allegro: valve, none")
-    p.add_argument("--fingers", default=None,
+    p.add_argument("--fingers", default=None, action=JoinRepeats,
                    help="comma-separated subset of the fingers: dclaw ff,mf,th; allegro "
                         "index,middle,ring,thumb (a model of the fingers a log moved, for "
                         "`lowcostdex gap analyze`)")

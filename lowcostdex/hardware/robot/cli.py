@@ -15,7 +15,7 @@ import json
 import shlex
 import sys
 
-from lowcostdex.argtypes import SEED, bit_rate, names, number
+from lowcostdex.argtypes import SEED, JoinRepeats, bit_rate, names, number
 from lowcostdex.options import (
     add_latency_option,
     add_robot_port_options,
@@ -51,7 +51,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "--port a CAN channel such as can0)")
     add_robot_port_options(p, port_help="D'Claw: serial device or pty path; Allegro: CAN "
                                         "channel (e.g. can0); hardware backend")
-    p.add_argument("--joints", default=None,
+    p.add_argument("--joints", default=None, action=JoinRepeats,
                    help="comma-separated joints to excite (the others hold still); default "
                         + "; ".join(f"{h}: {j}" for h, j in LOG_JOINTS.items()))
     p.add_argument("--logs", type=int, default=6, help="number of logs (trajectories)")
