@@ -349,3 +349,20 @@ def test_a_names_option_given_twice_keeps_both(tmp_path):
     assert parser.parse_args([]).joints is None
     assert parser.parse_args(["--joints", "ff_top"]).joints == "ff_top"
     assert parser.parse_args(["--joints", "a,b", "--joints=c"]).joints == "a,b,c"
+
+
+def test_env_kwargs_with_spaces_and_effects_as_a_comma_list_are_read(tmp_path):
+    import json
+
+    from lowcostdex.algos.train_cli import _parse_env_kwargs
+    from lowcostdex.cli import main
+
+    # before: "success_tol = 0.1" made the key 'success_tol ' ("unknown keyword argument
+    # 'success_tol '"), and `gap generate --effect latency,backlash` was "unknown hidden effect
+    # 'latency,backlash'" while --candidates takes the same comma list
+    assert _parse_env_kwargs(["success_tol = 0.1", " goal_range= [0.5, 1.0]"]) == {
+        "success_tol": 0.1, "goal_range": [0.5, 1.0]}
+    assert main(["gap", "generate", "--effect", "latency,backlash", "--logs", "1", "--duration",
+                 "1", "--out", str(tmp_path / "gen")]) == 0
+    truth = json.loads((tmp_path / "gen" / "truth.json").read_text())
+    assert [e["effect"] for e in truth["hidden"]] == ["latency", "backlash"]

@@ -209,7 +209,8 @@ def _parse_env_kwargs(items: Sequence[str]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for item in items:
         key, sep, value = item.partition("=")
-        if not sep:
+        key, value = key.strip(), value.strip()  # "success_tol = 0.1": the key 'success_tol '
+        if not sep or not key:
             raise ConfigError(f"--env-kwarg {item!r} must be KEY=VALUE")
         if key.strip() in ("backend", "port"):  # the options that also set how it samples
             raise ConfigError(f"--env-kwarg {item}: give --{key.strip()} {value} instead")

@@ -425,7 +425,9 @@ def _generate(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     check_out(out, "gap generate")
-    effects = [e for e in args.effect if e != "none"]
+    # "--effect latency,backlash" as --candidates takes names (was "unknown hidden effect
+    # 'latency,backlash'")
+    effects = [e for given in args.effect for e in names(given, "--effect") if e != "none"]
     syn = generate(args.rig, effects, np.random.default_rng(args.seed), n_logs=args.logs,
                    duration=args.duration, settings=LogSettings(rate=args.rate))
     with staged_output(out, "gap generate", {"rig": args.rig, "seed": args.seed}) as tmp:
