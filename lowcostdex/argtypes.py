@@ -113,11 +113,17 @@ def names(text: str, option: str) -> tuple[str, ...]:
     Spaces around a name and a trailing comma (``latency,``) are dropped. An empty item between
     two names (``dapg,,npg``: a name deleted or left out) and a name given twice are refused with
     the option named and what to type; before, ``dapg,,npg`` ran as ``dapg,npg`` without a word
-    and ``dapg,dapg`` was taken as given. The caller checks the names themselves and refuses an
+    and ``dapg,dapg`` was taken as given. Names separated by spaces (``"dapg npg"``) are refused
+    with the comma list to type. The caller checks the names themselves and refuses an
     empty list in its own words."""
     from lowcostdex.errors import ConfigError
 
     items = [s.strip() for s in text.split(",")]
+    spaced = [s for s in items if len(s.split()) > 1]
+    if spaced:  # "ff_top ff_middle" was looked up as one name ("did you mean 'ff_middle'?")
+        fixed = ",".join(w for s in items for w in s.split())
+        raise ConfigError(f"{option} {text!r}: names are separated by commas, not spaces; type "
+                          f"{option} {fixed}")
     while items and not items[-1]:
         items.pop()  # "latency," or "latency, " is latency
     kept = tuple(s for s in items if s)

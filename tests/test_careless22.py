@@ -366,3 +366,18 @@ def test_env_kwargs_with_spaces_and_effects_as_a_comma_list_are_read(tmp_path):
                  "1", "--out", str(tmp_path / "gen")]) == 0
     truth = json.loads((tmp_path / "gen" / "truth.json").read_text())
     assert [e["effect"] for e in truth["hidden"]] == ["latency", "backlash"]
+
+
+def test_names_separated_by_spaces_are_named_with_the_comma_list(tmp_path, capsys):
+    from lowcostdex.cli import USER_ERROR, main
+
+    # before: "unknown joint 'ff_top ff_middle'; ... did you mean 'ff_middle' or 'th_middle'?"
+    # and "unknown D'Claw finger 'ff mf'"
+    assert main(["record-log", "--port", "emulated", "--joints", "ff_top ff_middle", "--out",
+                 str(tmp_path / "logs")]) == USER_ERROR
+    assert ("--joints 'ff_top ff_middle': names are separated by commas, not spaces; type "
+            "--joints ff_top,ff_middle") in " ".join(capsys.readouterr().err.split())
+    assert main(["model", "dclaw", "--fingers", "ff mf, th", "--out",
+                 str(tmp_path / "m.xml")]) == USER_ERROR
+    assert "type --fingers ff,mf,th" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())  # refused before anything was written
