@@ -176,10 +176,12 @@ class HandSpec:
                 continue
             lo, hi = DCLAW_RANGES[part]
             if j.low < lo or j.high > hi:
+                degrees = _in_degrees(j.low, j.high, lo, hi)
                 raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad leave the "
                                   f"D'Claw's joint range [{lo}, {hi}] rad (ROBEL's D'Claw model: "
-                                  f"the mechanical stops); type limits inside it, e.g. "
-                                  f"low={max(j.low, lo)}, high={min(j.high, hi)}")
+                                  f"the mechanical stops){degrees}; type limits inside it, e.g. "
+                                  + (degrees.split("they are ")[1].rstrip(")") if degrees else
+                                     f"low={max(j.low, lo)}, high={min(j.high, hi)}"))
 
     def _check_allegro(self) -> None:
         """The Allegro v4's 16 joints in action order on CAN joint slots 0..15, no auxiliary
@@ -203,7 +205,7 @@ class HandSpec:
             if j.low < lo or j.high > hi:
                 raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad leave the "
                                   f"Allegro's joint range [{lo}, {hi}] rad (published URDF: the "
-                                  "mechanical stops)")
+                                  f"mechanical stops){_in_degrees(j.low, j.high, lo, hi)}")
             c = j.calibration
             a, b = sorted((c.to_motor(j.low), c.to_motor(j.high)))
             if a < -ALLEGRO_POSITION_RANGE or b > ALLEGRO_POSITION_RANGE:
@@ -222,7 +224,8 @@ class HandSpec:
             if b - a > _ONE_TURN + 1e-9:
                 raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad span "
                                   f"{b - a:.3f} rad of motor {j.motor_id}, more than its one "
-                                  f"turn ({_ONE_TURN:.4f} rad) in position mode")
+                                  f"turn ({_ONE_TURN:.4f} rad) in position mode"
+                                  + _in_degrees(j.low, j.high, -_ONE_TURN / 2, _ONE_TURN / 2))
             if b - a < _ONE_TURN - 1e-9 and (a < -tick or b > _ONE_TURN + tick):
                 raise ConfigError(f"joint {j.name}: limits [{j.low}, {j.high}] rad are motor "
                                   f"{j.motor_id} angles [{a:.4f}, {b:.4f}] rad, outside its "
@@ -315,6 +318,15 @@ class HandSpec:
                     if yaml else "")
             raise InputError(f"{path}: not a hand spec JSON ({type(exc).__name__}: {exc}){hint}"
                              ) from None
+
+
+def _in_degrees(low: float, high: float, lo: float, hi: float) -> str:
+    """The hint for limits typed in degrees: beyond 2 pi, and inside [lo, hi] read as degrees
+    ('' otherwise)."""
+    rl, rh = math.radians(low), math.radians(high)
+    if max(abs(low), abs(high)) > _ONE_TURN and lo <= rl and rh <= hi:
+        return f" (degrees? in rad they are low={rl:.4g}, high={rh:.4g})"
+    return ""
 
 
 def _known_keys(where: str, raw: object, cls: type) -> None:

@@ -381,3 +381,24 @@ def test_names_separated_by_spaces_are_named_with_the_comma_list(tmp_path, capsy
                  str(tmp_path / "m.xml")]) == USER_ERROR
     assert "type --fingers ff,mf,th" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())  # refused before anything was written
+
+
+@pytest.mark.parametrize("hand,joint,low,high,rad", [
+    ("dclaw", "ff_middle", -30.0, 30.0, r"low=-0\.5236, high=0\.5236"),
+    ("allegro", "index_1", -10.0, 90.0, r"low=-0\.1745, high=1\.571"),
+    ("bench", "bench", -90.0, 90.0, r"low=-1\.571, high=1\.571"),
+])
+def test_hand_limits_typed_in_degrees_are_named_with_the_radians(hand, joint, low, high, rad):
+    import dataclasses
+
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.hands import hand_spec
+
+    # before: "span 60.000 rad ... more than its one turn" / "leave the Allegro's joint range"
+    # with no word of degrees
+    spec = hand_spec(hand)
+    with pytest.raises(ConfigError, match=rf"joint {joint}: limits .*\(degrees\? in rad they "
+                                          rf"are {rad}\)"):
+        dataclasses.replace(spec, joints=tuple(
+            dataclasses.replace(j, low=low, high=high) if j.name == joint else j
+            for j in spec.joints))
