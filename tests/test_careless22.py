@@ -402,3 +402,23 @@ def test_hand_limits_typed_in_degrees_are_named_with_the_radians(hand, joint, lo
         dataclasses.replace(spec, joints=tuple(
             dataclasses.replace(j, low=low, high=high) if j.name == joint else j
             for j in spec.joints))
+
+
+def test_an_emulated_allegro_refusing_a_keyword_leaves_no_can_bus_open(caplog):
+    import gc
+    import logging
+
+    import gymnasium as gym
+
+    import lowcostdex  # noqa: F401 (registers the ids)
+    from lowcostdex.errors import ConfigError
+
+    # before: tracker= (a hardware keyword) was refused after the emulator's and the host's
+    # virtual CAN buses were opened, and python-can said "VirtualBus was not properly shut
+    # down" for both when they were collected
+    caplog.set_level(logging.WARNING)
+    with pytest.raises(ConfigError, match=r"unknown keyword argument 'tracker' for backend "
+                                          r"'emulated'"):
+        gym.make("lowcostdex/AllegroTurnValve-v0", backend="emulated", tracker=lambda: 0.0)
+    gc.collect()
+    assert "not properly shut down" not in caplog.text

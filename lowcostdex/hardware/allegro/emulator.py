@@ -324,8 +324,15 @@ def emulated_allegro(model: mujoco.MjModel | None = None, *, channel: str | None
     Allegro of ``lowcostdex.sim.models.allegro`` without a station (its position actuators are
     switched off: the emulated firmware applies the host's torques).
     """
+    import inspect
+
     from lowcostdex.hardware.allegro.driver import AllegroBus
 
+    taken = set(inspect.signature(AllegroBus).parameters) - {"can_bus", "threaded", "clock",
+                                                               "own_bus"}
+    unknown = sorted(set(bus_kwargs) - taken)
+    if unknown:  # before any CAN bus opens: refused afterwards, two virtual buses were left open
+        raise TypeError(f"emulated_allegro() got an unexpected keyword argument '{unknown[0]}'")
     if model is None:
         from lowcostdex.sim.models.allegro import build_allegro
 
