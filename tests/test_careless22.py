@@ -422,3 +422,18 @@ def test_an_emulated_allegro_refusing_a_keyword_leaves_no_can_bus_open(caplog):
         gym.make("lowcostdex/AllegroTurnValve-v0", backend="emulated", tracker=lambda: 0.0)
     gc.collect()
     assert "not properly shut down" not in caplog.text
+
+
+def test_calibrate_on_the_emulator_with_another_hands_spec_names_the_hand(tmp_path, capsys):
+    from lowcostdex.cli import USER_ERROR, main
+    from lowcostdex.hands import bench_spec
+
+    # before: "motor check failed on emulated:dclaw ... 1 XL330-M288 no reply" (the emulator
+    # served the D'Claw for a bench spec), not a word of the hands not matching
+    bench_spec().save(tmp_path / "bench.json")
+    args = ["calibrate", "--port", "emulated", "--spec", str(tmp_path / "bench.json"), "--out",
+            str(tmp_path / "cal.json"), "--yes"]
+    assert main(args) == USER_ERROR
+    assert ("is the bench hand spec, not dclaw's: --port emulated serves --hand dclaw; give "
+            "--hand bench") in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "cal.json").exists()

@@ -246,6 +246,13 @@ def _dynamixel_hand(args: argparse.Namespace, command: str):
         raise InputError(f"--spec {args.spec} is the {hand.name} hand spec, whose motors "
                          f"('{hand.motor}') are not Dynamixel servos: {command} works on "
                          "Dynamixel hands (the D'Claw); give a D'Claw spec") from None
+    if getattr(args, "port", None) == "emulated" and hand.name != args.hand:
+        # the emulator serves --hand: a bench spec on the emulated D'Claw was "motor check
+        # failed ... id 1 no reply", with no word of the hands not matching
+        raise InputError(f"--spec {args.spec} is the {hand.name} hand spec, not {args.hand}'s: "
+                         f"--port emulated serves --hand {args.hand}"
+                         + (f"; give --hand {hand.name}" if hand.name in ("dclaw", "bench")
+                            else ""))
     return hand
 
 
