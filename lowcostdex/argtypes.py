@@ -46,6 +46,33 @@ UNIT_SLIPS = {  # unit -> (one of the unit users mistake it for, in this unit; t
 meant 1 ms, ``--latency-ms 0.016`` 16 ms, ``--start-range 30`` 30 deg, ``--min-gain 5`` 5 %)."""
 
 
+_SUFFIXES = {  # a unit typed after the number -> (the option unit it converts to, factor)
+    "s": ("s", 1.0), "sec": ("s", 1.0), "ms": ("s", 1e-3), "us": ("s", 1e-6),
+    "min": ("s", 60.0), "deg": ("rad", math.pi / 180), "rad": ("rad", 1.0), "%": ("fraction", 1e-2),
+}
+_IN_UNIT = {"s": "in seconds", "ms": "in milliseconds", "rad": "in radians",
+            "fraction": "as a fraction"}
+
+
+def _typed_unit(text: str, unit: str | None) -> str:
+    """The hint for a number typed with its unit (``10s``, ``30 deg``, ``5%``): the number
+    alone, converted to the option's ``unit`` when that is known ('' when ``text`` is not a
+    number and a unit)."""
+    import re
+
+    m = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zA-Z%]+)\s*", text)
+    if not m:
+        return ""
+    value, suffix = float(m.group(1)), m.group(2).lower()
+    kind, factor = _SUFFIXES.get(suffix, (None, 1.0))
+    if unit is not None and kind == "s" and unit in ("s", "ms"):
+        return (f"; give the number alone, {_IN_UNIT[unit]}: "
+                f"{value * factor * (1e3 if unit == 'ms' else 1.0):g}")
+    if unit is not None and kind == unit:
+        return f"; give the number alone, {_IN_UNIT[unit]}: {value * factor:.4g}"
+    return f"; give the number alone, without {m.group(2)!r}"
+
+
 def number(low: float | None = None, high: float | None = None, *, open_low: bool = False,
            open_high: bool = False, unit: str | None = None) -> Callable[[str], float]:
     """A finite float in the interval (bounds closed unless ``open_low``/``open_high``).
@@ -61,7 +88,7 @@ def number(low: float | None = None, high: float | None = None, *, open_low: boo
         except ValueError:
             x = math.nan
         if not math.isfinite(x) or not _inside(x, low, high, open_low, open_high):
-            hint = ""
+            hint = _typed_unit(text, unit)
             if unit is not None and math.isfinite(x):
                 scale, words = UNIT_SLIPS[unit]
                 if _inside(x * scale, low, high, open_low, open_high):
@@ -81,7 +108,8 @@ def integer(low: int | None = None, high: int | None = None) -> Callable[[str], 
         try:
             x = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer{where}") from None
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer{where}"
+                                             + _typed_unit(text, None)) from None
         if not _inside(x, low, high, False, False):
             raise argparse.ArgumentTypeError(f"{text!r} is not an integer{where}")
         return x

@@ -437,3 +437,23 @@ def test_calibrate_on_the_emulator_with_another_hands_spec_names_the_hand(tmp_pa
     assert ("is the bench hand spec, not dclaw's: --port emulated serves --hand dclaw; give "
             "--hand bench") in " ".join(capsys.readouterr().err.split())
     assert not (tmp_path / "cal.json").exists()
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["gap", "generate", "--duration", "10s"], "'10s' is not a finite number in [1, 3600]; give "
+                                                "the number alone, without 's'"),
+    (["gap", "analyze", "--model", "m.xml", "--log", "a.csv", "--servo-period", "2ms"],
+     "'2ms' is not a finite number in [0, 0.1]; give the number alone, in seconds: 0.002"),
+    (["gap", "analyze", "--model", "m.xml", "--log", "a.csv", "--min-gain", "5%"],
+     "give the number alone, as a fraction: 0.05"),
+    (["gap", "generate", "--logs", "3x"], "'3x' is not an integer in [1, 1000]; give the number "
+                                          "alone, without 'x'"),
+])
+def test_a_number_typed_with_its_unit_is_named_with_the_number_to_type(argv, words, tmp_path,
+                                                                       capsys):
+    from lowcostdex.cli import USER_ERROR, main
+
+    # before: "'10s' is not a finite number in [1, 3600]" alone
+    assert main([*argv, "--out", str(tmp_path / "out")]) == USER_ERROR
+    assert words in " ".join(capsys.readouterr().err.split())
+    assert not (tmp_path / "out").exists()
