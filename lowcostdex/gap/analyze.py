@@ -25,7 +25,9 @@
    when the nominal model, or later the model with its accepted causes, is within
    ``explain_above`` noise floors; after the first accepted cause the physics step is refined when
    that model, refitted, gets much closer at a finer step, and the first cause is then chosen
-   again at that step: ``stepsize``). A change of model must pay
+   again at that step: ``stepsize``; a round that does not accept the play its backlash fit
+   finds, one its joint's motion crosses within a step, is tried once more at a finer step:
+   ``stepsize.play_factor``). A change of model must pay
    over consecutive blocks of select data too (``significance``: paired block bootstrap > 0).
 4. An effect the others, refitted, do as well without is dropped (``exchange.prune_refitted``).
    The chosen structure is refitted on train + select; an effect whose every 95 % interval
@@ -43,6 +45,7 @@ fits and how the select split judges a candidate live in ``gap.selection``, the 
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -53,6 +56,8 @@ import numpy as np
 from lowcostdex.gap import chaos, gates, play_side, significance, standin, stepsize, width_scan
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
+from lowcostdex.gap.dataset import subset as _subset
+from lowcostdex.gap.dataset import traces as _traces
 from lowcostdex.gap.diagnostics import (
     effective_n,
     noise_floor,
@@ -195,6 +200,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     equivalents: dict[str, list[str]] = {}
     widened_notes: dict[str, list[str]] = {}  # accepted effect -> widened-range report lines
     step, reselect, warm = 0, cfg.refine_step, {}  # the first cause chosen again at a finer step
+    play_fit, play_try = None, None  # a round's backlash fit; a round tried again for its play
     while step < cfg.max_effects:
         remaining = [c for c in cands if c not in current.effects]
         if not remaining:
@@ -202,13 +208,16 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             break
         t0 = time.perf_counter()
         prog(f"round {step + 1}: ranking {len(remaining)} candidates", 0.1 + 0.25 * step)
-        table, train_rms = _rank(eng, _subset(ds, train_segs, cfg.rank_seconds), current,
-                                 cur_x, remaining, ctx)
-        table.sort(key=lambda c: -c.score)
+        if play_try:  # the round again at a finer step for its play: ranked as it was
+            table, train_rms = [copy.copy(c) for c in play_try[8]], play_try[9]
+        else:
+            table, train_rms = _rank(eng, _subset(ds, train_segs, cfg.rank_seconds), current,
+                                     cur_x, remaining, ctx)
+            table.sort(key=lambda c: -c.score)
         rounds.append(table)
         cur_mse = sel_cur[0].sum() / sel_cur[2].sum()
         near = (cfg.floor_margin ** 2) * floor_mse
-        if (cur_mse <= near and train_rms ** 2 <= near) or (step == 0 and quiet):
+        if not play_try and ((cur_mse <= near and train_rms ** 2 <= near) or (step == 0 and quiet)):
             stop_reason = (f"the nominal model's train + select RMSE is within {cfg.explain_above:g}"
                            " noise floors: nothing to explain" if step == 0 and quiet else
                            "train and select errors at the noise floor")
@@ -219,15 +228,16 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         fixed = current.to_effects(cur_x) if current.effects else []
         r_cur = eng.residuals(train_segs, [list(fixed)])[0]
         train_sse = float(r_cur @ r_cur)
-        if step and (sel_cur[0].sum() + train_sse) <= (cfg.explain_above ** 2 * floor_mse
-                                                       * (sel_cur[2].sum() + len(r_cur))):
+        if step and not play_try and (sel_cur[0].sum() + train_sse) <= (
+                cfg.explain_above ** 2 * floor_mse * (sel_cur[2].sum() + len(r_cur))):
             stop_reason = (f"the model with {', '.join(current.effects)} is within "
                            f"{cfg.explain_above:g} noise floors on train + select: nothing more "
                            "to explain")
             quiet = True  # ... and no backward search either (its switch would be as small)
             break
-        stop = ""
-        for pool in fit_batches(table, cfg):
+        stop, play_fit = "", None
+        for pool in (fit_batches(table, cfg) if not play_try else  # a structural play: it and
+                     [[c for c in table if c.effect in warm]]):  # the round's winner, finer step
             if not pool:
                 break
             tracks = []
@@ -266,6 +276,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     n = t.structure.effects[-1]
                     if t.cost < best_track[n].cost:
                         best_track[n] = t
+            play_fit = best_track.get("backlash", play_fit)
             widened = free_asymmetry(best_track, fit_fn, ctx, cfg)  # held terms data need
             names = list(best_track)
             results = select_results(eng.predict, ds, sel_eps, best_track, names, sel_cur,
@@ -342,6 +353,30 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 continue
             stop = ""
             break
+        if play_try is None and play_fit is not None and play_fit.cost < (  # fits training
+                (1 - cfg.min_gain) * train_sse / 2 if stop else best_track[n_best].cost) and (
+                f := stepsize.play_factor(ds, play_fit.effects()[-1], cfg.min_step)):
+            won = None if stop else (n_best, tied, widened, best_track, by_name, sse)
+            play_try = (ds, ctx, eng, fit_fn, current, cur_x, sel_cur, stop, rounds.pop(),
+                        train_rms, won)  # the round as it was, tried again at a finer step
+            (ds, ctx), warm = stepsize.at_factor(ds, ctx, f), {"backlash": play_fit.effects()}
+            warm.update({} if stop else {n_best: best_track[n_best].effects()})
+            eng = _Engine(ds, cfg, cands)
+            fit_fn = eng.residual_fn(train_segs)
+            current, cur_x, _ = stepsize.refit(current, cur_x, fit_fn, ctx, cfg)  # at that step
+            sel_cur = mse_by_episode(ds, sel_eps, eng.predict(sel_eps, [current.to_effects(cur_x)])[0])
+            continue
+        if stop and play_try:  # nothing at the finer step either: the round as it was
+            fine, timestep["play"], warm = ds.timestep, stop, {}
+            (ds, ctx, eng, fit_fn, current, cur_x, sel_cur, stop, rounds[-1], _, won), play_try = (
+                play_try, ())
+            if won:
+                (n_best, tied, widened, best_track, by_name, sse), stop = won, ""
+            else:
+                stop = f"{stop} (tried again at a {fine:g} s step for its play: {timestep['play']})"
+        elif play_try:  # accepted at the finer step: the analysis goes on there
+            play_try, timestep["used"], timestep["play"] = (), ds.timestep, "accepted"
+            base_pred = eng.rep.run(eps, [[]])[0][0]
         if stop:
             stop_reason = stop
             timing[f"round{step + 1}"] = time.perf_counter() - t0
@@ -669,27 +704,3 @@ def _joint_then_prune(eng: _Engine, ds: Dataset, sel_eps: Sequence[Window], name
     best = min(tracks, key=lambda t: t.cost)
     return _backward(eng, ds, sel_eps, best.structure, best.x, cfg, floor_rms, ctx, fit_fn, [],
                      train_segs, min_size=1, rng=rng)
-
-
-def _subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]:
-    """Evenly spread segments totalling about ``seconds`` (all when there are fewer)."""
-    dur = [ds.trajectories[w.traj].time[w.stop - 1] - ds.trajectories[w.traj].time[w.start]
-           for w in segs]
-    total = float(sum(dur))
-    if total <= seconds:
-        return list(segs)
-    k = max(1, int(round(len(segs) * seconds / total)))
-    idx = np.unique(np.linspace(0, len(segs) - 1, k).round().astype(int))
-    return [segs[i] for i in idx]
-
-
-def _traces(ds: Dataset, eps: Sequence[Window], base: Sequence[np.ndarray],
-            ext: Sequence[np.ndarray], n: int = 2) -> list[dict]:
-    out = []
-    for w, b, e in list(zip(eps, base, ext, strict=True))[:n]:
-        tr = ds.trajectories[w.traj]
-        sl = slice(w.start, w.stop)
-        out.append({"name": tr.name, "time": tr.time[sl] - tr.time[w.start],
-                    "goal": tr.goal[sl], "measured": tr.qpos[sl], "baseline": b,
-                    "extended": e, "joints": ds.joints, "actuators": ds.actuators})
-    return out

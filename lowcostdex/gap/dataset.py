@@ -556,3 +556,29 @@ def split_episodes(ds: Dataset, eps: Sequence[Window], rng: np.random.Generator,
                   {"train": 1 - sel - tst, "select": sel, "test": tst})
     return Split(tuple(sorted(roles["train"])), tuple(sorted(roles["select"])),
                  tuple(sorted(roles["test"])))
+
+
+def subset(ds: Dataset, segs: Sequence[Window], seconds: float) -> list[Window]:
+    """Evenly spread segments totalling about ``seconds`` (all when there are fewer)."""
+    dur = [ds.trajectories[w.traj].time[w.stop - 1] - ds.trajectories[w.traj].time[w.start]
+           for w in segs]
+    total = float(sum(dur))
+    if total <= seconds:
+        return list(segs)
+    k = max(1, int(round(len(segs) * seconds / total)))
+    idx = np.unique(np.linspace(0, len(segs) - 1, k).round().astype(int))
+    return [segs[i] for i in idx]
+
+
+def traces(ds: Dataset, eps: Sequence[Window], base: Sequence[np.ndarray],
+            ext: Sequence[np.ndarray], n: int = 2) -> list[dict]:
+    """The first ``n`` episodes' logged and replayed traces (``base``, ``ext``: predictions
+    over each window) for the report's plot."""
+    out = []
+    for w, b, e in list(zip(eps, base, ext, strict=True))[:n]:
+        tr = ds.trajectories[w.traj]
+        sl = slice(w.start, w.stop)
+        out.append({"name": tr.name, "time": tr.time[sl] - tr.time[w.start],
+                    "goal": tr.goal[sl], "measured": tr.qpos[sl], "baseline": b,
+                    "extended": e, "joints": ds.joints, "actuators": ds.actuators})
+    return out

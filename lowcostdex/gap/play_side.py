@@ -23,10 +23,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.sim.effects import AppliedEffect
 
 READ, SENSOR = ("backlash", "read"), ("backlash", "sensor")
+WIDTH = ("backlash", "width")
+ONE_JOINT = (0.01, 1.0)  # a one-joint start: width [rad] (the catalogue's start), sensor (across)
 
 
 def motor_ranges(n: int) -> dict[tuple[str, str, int], tuple[float, float]]:
@@ -52,7 +56,27 @@ def tracks(name: str, joints: Sequence[str], ctx: fitmod.Context,
     starts, or from ``warm`` (its fit at a coarser step) when given."""
     return [fitmod.Track(st, st.u(x0), label=f"{name}#{k}" + (" motor side" if i else ""))
             for i, st in enumerate(structures(name, joints, ctx, fixed))
-            for k, x0 in enumerate([st.values_from(warm)] if warm is not None else st.starts())]
+            for k, x0 in enumerate([st.values_from(warm)] if warm is not None else
+                                   st.starts() + (one_joint_starts(st) if i == 0 else []))]
+
+
+def one_joint_starts(st: fitmod.Structure) -> list[np.ndarray]:
+    """Starts of a backlash structure ``st`` with a play on one joint each (``ONE_JOINT``: its
+    width and sensor there; every other joint's width at none): one per joint whose width is
+    free (none for other structures)."""
+    x0 = np.array([f.start for f in st.free])
+    out = []
+    for j in range(len(st.joints)):
+        x = np.array([0.0 if (f.effect, f.param) == WIDTH else v
+                      for f, v in zip(st.free, x0, strict=True)])
+        moved = False
+        for i, f in enumerate(st.free):
+            if f.joint == j and (f.effect, f.param) in (WIDTH, SENSOR):
+                x[i] = float(np.clip(ONE_JOINT[(f.effect, f.param) == SENSOR], f.lo, f.hi))
+                moved = moved or (f.effect, f.param) == WIDTH
+        if moved:
+            out.append(x)
+    return out
 
 
 def keep(best: dict[str, fitmod.Track], widened: dict[str, tuple[dict, list]]) -> None:

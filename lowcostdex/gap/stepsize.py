@@ -18,6 +18,16 @@ replay at step h tells a lag below h (the latency's floor). Measured on the seco
 simulator's gain_viscous_turntable (goals act at the truth's next 0.25 ms step): the fitted gain
 moves 0.0043 (0.6 %) per 0.125 ms of goal timing, 3.4 %/ms, while its data interval (+-0.0009)
 held the timing to +-0.03 ms and missed the truth 0.7 by 0.0002 (0.6989 [0.6981, 0.6998]).
+A play is structural when the joint's fast motion crosses it within one physics step
+(``play_factor``): the replay then resolves neither its crossing nor its impacts, and the play
+barely pays at the model's step while it pays well at a finer one. Measured (gap-arm19, session
+24, sim9's arm: the elbow's 10 mrad play, its 99th percentile speed 11.2 rad/s, 22 mrad per 2 ms
+step; the true torque limit and offset held): the true play lowers the select MSE 13.5 / 32.7 /
+40.8 % at 2 / 1 / 0.5 ms, and a fit of it at 2 ms (elbow 8.0 mrad, shoulder 4.5) was 7.9 % worse
+at 2 ms, 32.4 % better at 0.5 ms. When a round's backlash fit has such a play and the round
+accepts nothing, the analysis tries the round again at the step where the joint's fast motion
+takes a step or more to cross the play (``gap.analyze``; the model it has refitted there: ``refit``).
+
 Errors in rad^2 (mean squares), steps in s.
 """
 
@@ -35,10 +45,14 @@ from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.gap.diagnostics import noise_floor
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.results import GapConfig
+from lowcostdex.sim.effects import AppliedEffect
 from lowcostdex.sim.servo import ServoClock
 
-__all__ = ["finer_enough", "goal_timing", "on_servo_period", "refine", "refine_fitted",
-           "timing_move"]
+__all__ = ["at_factor", "finer_enough", "goal_timing", "on_servo_period", "play_factor", "refine",
+           "refine_fitted", "refit", "timing_move"]
+
+FAST = 99.0      # percentile of a joint's logged |velocity| that is its fast motion
+RESOLVED = 4.0   # a play narrower than this many noise floors is not one the readings resolve
 
 
 def finer_enough(mse: float, finer: float, floor_mse: float, cfg: GapConfig) -> bool:
@@ -98,13 +112,7 @@ def refine_fitted(ds: Dataset, residual_fn, s: fitmod.Structure, x: np.ndarray,
     function on data set ``ds`` (the training segments). None when the step stays; else (data
     set, context with its step, structure, values, [(step, RMS)] tried)."""
     def fitted(d: Dataset, c: fitmod.Context, x0: np.ndarray):
-        st = fitmod.Structure.build(s.effects, s.joints, c)
-        fn = residual_fn(d)
-        t = fitmod.Track(st, st.u(st.values_from(s.to_effects(x0))), label="finer step")
-        fitmod.lockstep_lm([t], fn, cfg.max_rounds // 2, jacobian_at_end=False)
-        if fitmod.polish(t, fn, d.timestep):
-            fitmod.lockstep_lm([t], fn, cfg.max_rounds // 4, jacobian_at_end=False)
-        return st, t.x, 2 * t.cost / max(len(t.r), 1)
+        return refit(s, x0, residual_fn(d), c, cfg)
 
     dt0 = ds.timestep
     best = None
@@ -141,6 +149,49 @@ def refine_fitted(ds: Dataset, residual_fn, s: fitmod.Structure, x: np.ndarray,
             cur_ds, cur_x, mse = d2, x2, m2
             best = (d2, c2, st, x2)
     return None if best is None else (*best, tried)
+
+
+def refit(s: fitmod.Structure, x: np.ndarray, fn: fitmod.ResidualFn, ctx: fitmod.Context,
+          cfg: GapConfig) -> tuple[fitmod.Structure, np.ndarray, float]:
+    """The model ``s`` at ``x`` refitted on the residual function ``fn`` of a data set on the
+    step ``ctx.dt`` (from its values, delays scanned over +-1 step: ``fit.polish``): (structure
+    rebuilt for ``ctx``, values, MSE of ``fn``'s residual; NaN for a model without effects,
+    returned as it is)."""
+    if not s.effects:
+        return s, x, math.nan
+    st = fitmod.Structure.build(s.effects, s.joints, ctx)
+    t = fitmod.Track(st, st.u(st.values_from(s.to_effects(x))), label="finer step")
+    fitmod.lockstep_lm([t], fn, cfg.max_rounds // 2, jacobian_at_end=False)
+    if fitmod.polish(t, fn, ctx.dt):
+        fitmod.lockstep_lm([t], fn, cfg.max_rounds // 4, jacobian_at_end=False)
+    return st, t.x, 2 * t.cost / max(len(t.r), 1)
+
+
+def play_factor(ds: Dataset, play: AppliedEffect | None, min_step: float) -> float | None:
+    """The factor (a power of 1/2) on ``ds``'s step at which every structural play of ``play``
+    (a fitted backlash) takes a step or more of its joint's fast motion to cross: width >=
+    the ``FAST`` percentile of the logged |velocity| x step, halving down to ``min_step``. A
+    play narrower than ``RESOLVED`` noise floors is not counted. None when no play is
+    structural at ``ds``'s step (or the step is at ``min_step``)."""
+    if play is None:
+        return None
+    cols = [list(ds.joints).index(j) for j in play.joints]
+    v = np.concatenate([np.abs(tr.qvel[:, cols]) for tr in ds.trajectories])
+    fast = np.percentile(v, FAST, axis=0)
+    floor = noise_floor(ds.trajectories)[cols]
+    f = 1.0
+    for w, speed, fl in zip(np.asarray(play.values["width"], float), fast, floor, strict=True):
+        while (w >= RESOLVED * fl and w < speed * ds.timestep * f
+               and ds.timestep * f / 2 >= min_step * (1 - 1e-9)):
+            f /= 2
+    return None if f == 1.0 else f
+
+
+def at_factor(ds: Dataset, ctx: fitmod.Context, factor: float
+              ) -> tuple[Dataset, fitmod.Context]:
+    """``ds`` and ``ctx`` on ``factor`` times ``ds``'s physics step."""
+    ds = ds.with_timestep(factor)
+    return ds, replace(ctx, dt=ds.timestep)
 
 
 def _holds(ds: Dataset) -> bool:
