@@ -50,12 +50,12 @@ import math
 import time
 from collections.abc import Callable, Sequence
 
-import mujoco
 import numpy as np
 
 from lowcostdex.gap import chaos, gates, play_side, significance, standin, stepsize, width_scan
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Dataset, Window, episodes, segments, split_episodes
+from lowcostdex.gap.dataset import actuator_columns as _act_cols
 from lowcostdex.gap.dataset import subset as _subset
 from lowcostdex.gap.dataset import traces as _traces
 from lowcostdex.gap.diagnostics import (
@@ -582,12 +582,6 @@ def _intervals(ds: Dataset, t: fitmod.Track, segs: Sequence[Window], cfg: GapCon
     timing["interval_step"] = timing.get("interval_step", 0.0) + time.perf_counter() - t0
     return (*stepsize.goal_timing(t, late, *significance.step_interval(
         u, data, shift, cfg.interval_step)), noise, data, shift)
-
-def _act_cols(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:
-    """Column of each effect joint's actuator in the log's actuator list."""
-    names = [model.actuator(int(a)).name for a in targets.actuators]
-    return [list(ds.actuators).index(n) for n in names]
-
 
 def _rank(eng: _Engine, segs: Sequence[Window], current: fitmod.Structure, cur_x: np.ndarray,
           remaining: Sequence[str], ctx: fitmod.Context

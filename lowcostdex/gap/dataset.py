@@ -37,6 +37,7 @@ from lowcostdex.gap.logs import (
     rest_at_start,
     split_at_gaps,
 )
+from lowcostdex.sim.effects import Targets
 from lowcostdex.sim.models.bench import build_bench
 from lowcostdex.sim.servo import MAX_SERVO_PERIOD
 
@@ -582,3 +583,9 @@ def traces(ds: Dataset, eps: Sequence[Window], base: Sequence[np.ndarray],
                     "goal": tr.goal[sl], "measured": tr.qpos[sl], "baseline": b,
                     "extended": e, "joints": ds.joints, "actuators": ds.actuators})
     return out
+
+
+def actuator_columns(ds: Dataset, targets: Targets, model: mujoco.MjModel) -> list[int]:
+    """Column of each effect joint's actuator in the log's actuator list."""
+    names = [model.actuator(int(a)).name for a in targets.actuators]
+    return [list(ds.actuators).index(n) for n in names]
