@@ -37,36 +37,13 @@ FAST: frozenset[str] = frozenset()
 # the test runs it; /usr/bin/time -v user + sys). Measured on main 89e052c (session 22, gap-sim9).
 # clean_arm4_deg_ms: clean on main 2aa3dc2 (nothing named: the nominal model's train + select
 # RMSE within 3 noise floors; held-out 1.25 mrad, floor 0.57; analysed at 0.5 ms), 63 s CPU.
-MISSES: dict[str, str] = {
-    "limit_play_offset_arm4": "main 89e052c, 286 s CPU: shoulder torque_limit 1.195 [1.191, "
-    "1.209] for 1.2 N m and wrist position_offset 0.02976 [0.02866, 0.03058] for 0.030 rad "
-    "(right joints, nothing shown elsewhere; clean gripper clean), held-out 74.9 -> 3.27 mrad "
-    "(floor 0.59); the elbow's 10 mrad output-side play NOT shown: backlash refitted after the "
-    "offset at widths 0.6/1.2/1.3/0.2 mrad (sensor 0) lowered the select MSE 10 % but the "
-    "pooled 4-joint training MSE only 4.5 % (< 5 %: 'not robust'); elbow held-out 3.12 mrad. "
-    "The catalogue's play cannot be its explanation here: replayed in 1 s windows at 0.5 ms "
-    "with the true torque limit and offset, adding the elbow's true play (10 mrad, sensor 1: "
-    "the loop on the output) takes the elbow 2.36 -> 1.79 mrad but the wrist 1.73 -> 2.52 and "
-    "the clean gripper 1.02 -> 2.24 (pooled MSE up 30 %; at 0.25 ms, with a stiffer stop or "
-    "without the kv term alike, at 20 mrad or sensor 0.5 alike), where in the truth the play "
-    "moves the wrist 0.47 and the gripper 0.03 mrad RMS. Since the null-play lock fix "
-    "(112df51: locked = nominal within 0.003 mrad; the true play now lowers that replay's pooled "
-    "MSE 28 %) the same by name on main 722e12d, 346 s CPU: torque_limit 1.195 [1.189, 1.208], "
-    "offset 0.02973 [0.02831, 0.03091], held-out 74.9 -> 3.30 mrad; backlash still refitted "
-    "with sensor held at 0 (widths ~1 mrad, select MSE 10 % lower), never at the output shaft's "
-    "sensor 1 where it pays; viscous_damping took the third slot and was dropped at the end. "
-    "Why (gap-arm19, session 24, main dd7d93a, 328 s CPU, same result): (1) the backlash fit "
-    "starts every joint alike (widths 0.01 / 0.004 at sensor 0, 0.03 at sensor 1): on the "
-    "training segments at 0.5 ms with the true limit and offset held, from those starts LM ends "
-    "at widths <= 1.8 mrad (cost -5 %) or gives up (0.03 rad on four joints: cost x19); from "
-    "widths 0.004 at sensor 1 it reaches the elbow's play (10.0 mrad, sensor 1.01; cost -48.5 %, "
-    "the true play -47.9 %). With that start added (spaces._EXTRA_STARTS, not landed) round 3 "
-    "fits the elbow 8.0 mrad at sensor 1.00 (and the shoulder 4.5 mrad at 0.94), 351 s CPU, "
-    "but (2) the analysis stays at the model's 2 ms step (no finer step paid before the play), "
-    "where that fit's select MSE is 8.4 % WORSE (the wrist 2.20 -> 3.09 mrad); replayed with "
-    "the true limit and offset the same fit gains 25.8 % at 1 ms and 32.4 % at 0.5 ms, the "
-    "true play 13.5 / 32.7 / 40.8 % at 2 / 1 / 0.5 ms",
-}
+# limit_play_offset_arm4: a strict xfail until session 25; exact on gap-arm20's 55ccbc0 (2221 s CPU,
+# was 275 s on 8a454c1: LOSS, 8.1x): the one-joint backlash start finds the elbow's play at 2 ms
+# (10.0 mrad, sensor 1.0), the round is tried again at 0.5 ms (a structural play) where it is
+# accepted: shoulder torque_limit 1.197 [1.175, 1.222], elbow backlash 8.94 mrad [0.12, 18.1]
+# (sensor 1.02), wrist offset 0.02990 [0.02913, 0.03067], nothing on the gripper; held-out
+# 74.6 -> 2.32 mrad (floor 0.59; was 3.30 without the play).
+MISSES: dict[str, str] = {}
 
 
 def shown_per_joint(report: dict) -> dict[str, set[str]]:
