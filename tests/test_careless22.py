@@ -159,7 +159,7 @@ def test_a_hand_spec_file_with_careless_values_is_named(tmp_path, monkeypatch):
     with pytest.raises(InputError, match=r"'joints' must be a JSON list .* got dict"):
         HandSpec.load(_spec_file(tmp_path / "c.json", lambda r: r.update(joints={})))
     # a spec written as YAML: before only "JSONDecodeError: Expecting value"
-    yaml = pytest.importorskip("yaml")
+    yaml = pytest.importorskip("yaml", reason="PyYAML is not installed (not a dependency; the YAML-file case needs it to write one)")
     monkeypatch.chdir(tmp_path)
     text = yaml.safe_dump(json.loads(dclaw_spec().to_json()))
     (tmp_path / "hand.yaml").write_text(text)

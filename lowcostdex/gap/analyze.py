@@ -240,9 +240,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                      [[c for c in table if c.effect in warm]]):  # the round's winner, finer step
             if not pool:
                 break
-            tracks = []
-            for c in pool:  # (a round chosen again starts from its coarse-step fits)
-                tracks += play_side.tracks(c.effect, joints, ctx, fixed, warm.get(c.effect))
+            tracks = [t for c in pool for t in play_side.tracks(  # (a round chosen again starts
+                c.effect, joints, ctx, fixed, warm.get(c.effect), cfg.play_step)]  # from its fits)
 
             def on_round(r, live, step=step):
                 prog(f"round {step + 1}: fitting {live} tracks (LM round {r + 1})",
@@ -353,7 +352,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 continue
             stop = ""
             break
-        if play_try is None and play_fit is not None and play_fit.cost < (  # fits training
+        if cfg.play_step and play_try is None and play_fit is not None and play_fit.cost < (
                 (1 - cfg.min_gain) * train_sse / 2 if stop else best_track[n_best].cost) and (
                 f := stepsize.play_factor(ds, play_fit.effects()[-1], cfg.min_step)):
             won = None if stop else (n_best, tied, widened, best_track, by_name, sse)

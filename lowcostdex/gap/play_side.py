@@ -50,14 +50,15 @@ def structures(name: str, joints: Sequence[str], ctx: fitmod.Context,
 
 
 def tracks(name: str, joints: Sequence[str], ctx: fitmod.Context,
-           fixed: Sequence[AppliedEffect] = (), warm: Sequence[AppliedEffect] | None = None
-           ) -> list[fitmod.Track]:
+           fixed: Sequence[AppliedEffect] = (), warm: Sequence[AppliedEffect] | None = None,
+           one_joint: bool = False) -> list[fitmod.Track]:
     """A forward round's tracks for candidate ``name``: each of its ``structures`` from its
-    starts, or from ``warm`` (its fit at a coarser step) when given."""
+    starts (and ``one_joint_starts`` when ``one_joint``, ``GapConfig.play_step``), or from
+    ``warm`` (its fit at a coarser step) when given."""
     return [fitmod.Track(st, st.u(x0), label=f"{name}#{k}" + (" motor side" if i else ""))
             for i, st in enumerate(structures(name, joints, ctx, fixed))
             for k, x0 in enumerate([st.values_from(warm)] if warm is not None else
-                                   st.starts() + (one_joint_starts(st) if i == 0 else []))]
+                                   st.starts() + (one_joint_starts(st) if i == 0 and one_joint else []))]
 
 
 def one_joint_starts(st: fitmod.Structure) -> list[np.ndarray]:
