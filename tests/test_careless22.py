@@ -8,21 +8,11 @@ import math
 
 import numpy as np
 import pytest
+from test_careless21 import _sine_log  # one writer of the sine log (tests/ is on sys.path)
 
 from lowcostdex.gap.logs import read_log
 from lowcostdex.gap.trajectory import LogError
 from lowcostdex.outdir import MARKER, staged_output
-
-
-def _sine_log(path, amplitude, hz=1.0, rate=100.0, seconds=4.0):
-    """One joint, no velocities: a goal sine and the reading 30 ms behind it."""
-    rows = ["time,goal:j,qpos:j"]
-    for i in range(int(rate * seconds)):
-        t = i / rate
-        rows.append(f"{t:.4f},{amplitude * math.sin(2 * math.pi * hz * t):.6f},"
-                    f"{amplitude * math.sin(2 * math.pi * hz * (t - 0.03)):.6f}")
-    path.write_text("\n".join(rows) + "\n")
-    return path
 
 
 @pytest.mark.parametrize("degrees,hz", [(10.0, 1.0), (9.0, 1.2), (12.0, 0.75)])
