@@ -26,8 +26,8 @@
    ``explain_above`` noise floors; after the first accepted cause the physics step is refined when
    that model, refitted, gets much closer at a finer step, and the first cause is then chosen
    again at that step: ``stepsize``; a round that does not accept the play its backlash fit
-   finds, one its joint's motion crosses within a step, is tried once more at a finer step:
-   ``stepsize.play_factor``). A change of model must pay
+   finds, one its joint's motion crosses within a step, is tried once more at a finer step
+   with ``GapConfig.play_step``, off by default: ``stepsize.play_factor``). A change of model must pay
    over consecutive blocks of select data too (``significance``: paired block bootstrap > 0).
 4. An effect the others, refitted, do as well without is dropped (``exchange.prune_refitted``).
    The chosen structure is refitted on train + select; an effect whose every 95 % interval
