@@ -1,6 +1,7 @@
 """Gap analysis of a user's own MJCF: a two-joint finger on plain ``position`` actuators.
 
     python demos/gap_own_mjcf.py                    # writes runs/gap_own_mjcf/, ~2-5 min on 2 cores
+                                                    # (again: the earlier run moves into previous/)
     python demos/gap_own_mjcf.py --out my_report --seed 3
 
 The model is the kind a user writes for a LEAP-style hand: ``position`` actuators (kp 3 N m/rad,
@@ -30,6 +31,7 @@ from lowcostdex.argtypes import SEED
 from lowcostdex.argtypes import path as path_option
 from lowcostdex.cli import main as cli_main
 from lowcostdex.cli import run_script
+from lowcostdex.outdir import MARKER, PREVIOUS, archive, read_marker, write_marker
 
 MODEL = """<mujoco model="user_finger">
   <compiler angle="radian"/>
@@ -90,19 +92,39 @@ def record(t: np.ndarray, g: np.ndarray, rng: np.random.Generator) -> np.ndarray
     return np.round(q / TICK) * TICK
 
 
+COMMAND = "demos/gap_own_mjcf.py"  # the output folder's marker (lowcostdex.outdir)
+FILES = {"model.xml", "logs", "report"}  # what a run writes
+
+
+def _own(out: pathlib.Path) -> bool:
+    """Whether ``out`` holds this demo's earlier output: its marker, or (written before the
+    marker was) exactly its files with the report's own marker; a run again into it stopped
+    at "not empty"."""
+    names = {p.name for p in out.iterdir()} - {PREVIOUS}
+    if (read_marker(out) or {}).get("command") == COMMAND:
+        return names <= FILES | {MARKER}
+    return names == FILES and (read_marker(out / "report") or {}).get("command") == "gap analyze"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=path_option, default="runs/gap_own_mjcf",
-                        help="folder to write (new or empty)")
+                        help="folder to write (new, empty, or an earlier run of this demo: "
+                             "moved into previous/)")
     parser.add_argument("--seed", type=SEED, default=0)
     args = parser.parse_args()
     out = pathlib.Path(args.out)
     if out.exists() and not out.is_dir():
         parser.error(f"--out {out} is a file; give a new folder")
     if out.exists() and any(out.iterdir()):
-        parser.error(f"--out {out} is not empty; give a new folder")
+        if not _own(out):
+            parser.error(f"--out {out} is not empty (files this demo did not write); give a "
+                         "new folder")
+        kept = archive(out, [p.name for p in out.iterdir()])  # run again: the last run kept
+        print(f"{out} holds an earlier run of this demo: moved into {kept}")
     rng = np.random.default_rng(args.seed)
     (out / "logs").mkdir(parents=True)
+    write_marker(out, COMMAND, {"seed": args.seed})
     model = out / "model.xml"
     model.write_text(MODEL.format(dt=0.002, friction=GUESS_FRICTION))
     logs = []

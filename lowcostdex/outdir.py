@@ -264,14 +264,18 @@ def staged_output(path: str | Path, command: str,
     # in an empty folder and '--out link' ended in a traceback, the output left in a .partial)
     out = Path(os.path.realpath(out))
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    check_unfinished(out, command)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
     try:
         usual_mode(tmp, folder=True)
+        claim(tmp, command)  # a live run's folder: not taken for a killed one's
         yield tmp
         write_marker(tmp, command, settings)
     except BaseException:
+        release(tmp)
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    release(tmp)
     if out.exists() and had_previous and out == Path.cwd():
         # '--out .' again: moved whole, the user's shell would sit in previous/<time>/ and its
         # `ls` show the old output; the entries are swapped in place instead
@@ -289,6 +293,58 @@ def staged_output(path: str | Path, command: str,
         _move_entries(tmp, out)
         return
     os.replace(tmp, out)
+
+
+PARTIAL = ".partial-"
+"""Infix of the folder a staged output is written into beside ``--out`` (``.NAME.partial-XXXX``)."""
+
+
+def _held(path: Path) -> bool:
+    """Whether a process holds ``path``'s writer's lock (:func:`claim`) right now."""
+    try:
+        import fcntl
+    except ImportError:
+        return False
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)
+    return False
+
+
+def check_unfinished(out: Path, command: str) -> None:
+    """Refuse ``out`` while an unfinished staged output of an earlier run into it lies beside it
+    (``.NAME.partial-XXXX``, no run writing it: the run was killed, or the machine went down,
+    before it finished; Ctrl-C removes it). Before, the next run went ahead and left it there,
+    hidden; stopped during its last moves it held the output that had been at ``out`` (in its
+    ``previous/``), then lost from sight. The refusal says what it holds and what to type."""
+    for left in sorted(out.parent.glob(f".{out.name}{PARTIAL}*")):
+        if not left.is_dir() or _held(left):
+            continue
+        here, there = shlex.quote(str(left)), shlex.quote(str(out))
+        history = (left / PREVIOUS).is_dir()
+        if read_marker(left) is None:
+            what = f"an unfinished output nothing reads; remove it with: rm -r {here}"
+        elif not out.exists():
+            what = (f"a finished output stopped in its last move (the output that was at --out "
+                    f"is in its {PREVIOUS}/); put it in place with: mv {here} {there}")
+        elif history:
+            what = (f"a finished output stopped in its last moves, holding --out's {PREVIOUS}/ "
+                    f"history; put that back with: mv {here}/{PREVIOUS} {there}/, then rm -r "
+                    f"{here}")
+        else:
+            what = (f"a finished output never moved into place (--out is unchanged); remove it "
+                    f"with: rm -r {here}")
+        raise OutputRefused(
+            f"--out {out}: {left.name} beside it was left by an earlier run into this folder "
+            f"that was stopped before it finished (killed, or the machine went down; Ctrl-C "
+            f"cleans up): {what}; then run 'lowcostdex {command}' again")
 
 
 def _move_entries(src: Path, dest: Path) -> None:

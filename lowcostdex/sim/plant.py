@@ -160,6 +160,10 @@ class _PlantBase:
                         for p in e.values}
             else:
                 vals = {p: np.asarray(v, float) for p, v in e.values.items()}
+            for p, v in vals.items():  # NaN/inf diverged later, unnamed ('off': a non-finite null)
+                if not np.all(np.isfinite(v) | (v == e.cls.param(p).null)):
+                    raise ConfigError(f"effect {e.name}: parameter {p!r} must be finite, got "
+                                      f"{v.tolist()!r}")
             bound.append(_Bound(e.cls, targets, vals))
         bound.sort(key=lambda b: _ORDER[b.cls.name])
         self._check_structure(bound)

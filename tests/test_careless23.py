@@ -1,0 +1,118 @@
+"""Careless calls, session 26 (issues 13, 11): each test failed on the code before its fix. The
+physics a test needs is written out here in plain MuJoCo, a killed run is a real process killed
+with SIGKILL, and an output folder's expected contents are the files the test itself lists."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import pathlib
+import signal
+import subprocess
+import sys
+
+import mujoco
+import numpy as np
+import pytest
+
+from lowcostdex.errors import ConfigError
+from lowcostdex.outdir import MARKER, PREVIOUS, OutputRefused, staged_output
+from lowcostdex.sim.effects import AppliedEffect
+from lowcostdex.sim.plant import Plant
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+_ARM = """<mujoco><worldbody><body><joint name="j" type="hinge" damping="0.1"/>
+<geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0" mass="0.1"/></body></worldbody>
+<actuator><position name="a" joint="j" kp="2"/></actuator></mujoco>"""
+
+
+@pytest.mark.parametrize("name,values", [("gain_error", {"scale": math.nan}),
+                                         ("coulomb_friction", {"frictionloss": math.inf}),
+                                         ("latency", {"delay": -math.inf})])
+def test_a_plant_refuses_effect_values_that_are_not_finite(name, values):
+    # before: a NaN gain ran into "simulation diverged at t=0.0020s" (no word of the effect),
+    # an infinite friction ran silently
+    model = mujoco.MjModel.from_xml_string(_ARM)
+    with pytest.raises(ConfigError, match=rf"effect {name}: parameter '{next(iter(values))}' "
+                                          r"must be finite, got \[-?(nan|inf)\]"):
+        Plant(model, [AppliedEffect(name, ("j",), values)])
+    plant = Plant(model)
+    with pytest.raises(ConfigError, match="must be finite"):
+        plant.set_effects([AppliedEffect(name, ("j",), values)])
+    # an infinite null (the effect off: a velocity limit's speed) stays accepted
+    Plant(model, [AppliedEffect("velocity_limit", ("j",), {})]).step(np.array([0.5]), 10)
+
+
+_KILLED = """
+import sys, time
+from lowcostdex.outdir import staged_output
+with staged_output(sys.argv[1], "gap analyze") as tmp:
+    (tmp / "report.json").write_text("{}")
+    print("writing", flush=True)
+    time.sleep(60)
+"""
+
+
+def test_a_killed_runs_unfinished_output_is_named_with_what_to_type(tmp_path):
+    # before: the next run went ahead and the killed run's hidden .out.partial-* folder stayed
+    # beside --out for good, unnamed
+    out = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-c", _KILLED, str(out)], stdout=subprocess.PIPE,
+                           text=True)
+    try:
+        assert run.stdout.readline() == "writing\n"
+        # while that run writes, another run into the same folder is not refused
+        with staged_output(out, "gap analyze") as tmp:
+            (tmp / "report.json").write_text("{}")
+    finally:
+        run.send_signal(signal.SIGKILL)
+        run.wait()
+        run.stdout.close()
+    (left,) = tmp_path.glob(".out.partial-*")
+    with pytest.raises(OutputRefused, match=rf"{left.name} beside it was left by an earlier run "
+                                            r"into this folder that was stopped before it "
+                                            rf"finished .*rm -r {left}"):
+        with staged_output(out, "gap analyze"):
+            pass
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "report.json"]  # untouched
+
+
+def test_a_finished_output_stopped_in_its_last_move_is_put_back_by_the_command_named(tmp_path):
+    # killed between moving the old output into the new one's previous/ and moving the new one
+    # into place: --out is gone and both outputs sit in the hidden folder (the same moves as
+    # outdir.staged_output's, made here by hand); before, the next run wrote a fresh --out
+    out = tmp_path / "out"
+    with staged_output(out, "gap analyze") as tmp:
+        (tmp / "report.json").write_text("{}")
+    left = tmp_path / ".out.partial-abc"
+    (left / PREVIOUS).mkdir(parents=True)
+    (left / MARKER).write_text((out / MARKER).read_text())
+    out.rename(left / PREVIOUS / "20261129-050000")
+    with pytest.raises(OutputRefused, match=rf"a finished output .* mv {left} {out}"):
+        with staged_output(out, "gap analyze"):
+            pass
+
+
+def _demo():
+    spec = importlib.util.spec_from_file_location("gap_own_mjcf", ROOT / "demos" / "gap_own_mjcf.py")
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    return demo
+
+
+def test_the_own_mjcf_demo_runs_again_into_its_own_folder(tmp_path, monkeypatch):
+    # before: the demo's second run into runs/gap_own_mjcf (its default) stopped at "--out ...
+    # is not empty; give a new folder"; now the earlier run moves into previous/<time>/
+    demo = _demo()
+    calls = []
+    monkeypatch.setattr(demo, "cli_main", lambda argv: calls.append(argv) or 3)  # no analysis
+    out = tmp_path / "run"
+    monkeypatch.setattr(sys, "argv", ["gap_own_mjcf.py", "--out", str(out)])
+    for _ in range(2):
+        with pytest.raises(SystemExit) as e:
+            demo.main()
+        assert e.value.code == 3
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "logs", "model.xml", PREVIOUS]
+    (earlier,) = (out / PREVIOUS).iterdir()
+    assert sorted(p.name for p in earlier.iterdir()) == [MARKER, "logs", "model.xml"]
+    assert len(list((out / "logs").glob("*.csv"))) == 6 and len(calls) == 2
