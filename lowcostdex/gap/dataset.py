@@ -27,6 +27,7 @@ from lowcostdex.gap.log_paths import (  # noqa: F401 (LOG_SUFFIXES re-exported)
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
+    _not_a_position_servo,
     actuator_gears,
     check_against_model,
     estimate_velocity,
@@ -165,6 +166,14 @@ MAX_BENCH_TIMESTEP = 0.05
 """[s] Largest physics step ``load_dataset(timestep=...)`` takes (BAM's grid is 5 ms)."""
 
 
+def _goals_not_positions(model: mujoco.MjModel) -> frozenset[str]:
+    """Actuators whose log goal is not a position (an integrating servo's or a ``velocity``
+    actuator's rate, a ``motor``'s torque): the goal-against-reading log checks skip them (a
+    velocity-mode joint a latency holds reads one tick while its command jumps, gap-sim13)."""
+    other = {model.actuator(i).name for i in range(model.nu) if _not_a_position_servo(model, i)}
+    return rate_goal_actuators(model) | frozenset(other)
+
+
 def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | None = None,
                  bench: bool | None = None, timestep: float | None = None,
                  servo_period: float = 0.0, angle_unit: str = "rad",
@@ -247,7 +256,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             raise LogError(f"{model}: cannot load the model: {exc}{hint}") from None
         _absolute_asset_dirs(spec, model)
         models["model"] = spec.to_xml()
-        rate, gears = rate_goal_actuators(compiled), actuator_gears(compiled)
+        rate, gears = _goals_not_positions(compiled), actuator_gears(compiled)
         scale = ANGLE_UNITS[angle_unit]
         if scale != 1.0:
             slides = [compiled.joint(j).name for j in range(compiled.njnt)
