@@ -182,3 +182,27 @@ def test_velocity_mode_logs_are_read(tmp_path):
     files = sim.write_case(case, tmp_path)
     ds = load_dataset(files["logs"], model=files["model"], angle_unit="deg", time_unit="ms")
     assert len(ds.trajectories) >= 1
+
+
+def test_a_delayed_velocity_goal_starts_from_the_command_that_held_the_joint(tmp_path):
+    """Replayed with its true 50 ms latency, a velocity-mode log's first goal arrives 50 ms in;
+    until then the servo runs on the command the host wrote before the log: the one that held
+    the first reading (gravity over kv, plus the first speed). On a78784e the replay took the
+    measured POSITION as that command (rad as rad/s): the pan of a log starting at rest ran
+    33 mrad RMS off over its first 0.2 s, the log starting in motion 137 mrad over its whole
+    3 s; measured now 0.5 and 15 mrad (the nominal model without the latency: 58, 132)."""
+    from lowcostdex.gap.dataset import episodes
+    from lowcostdex.gap.replay import Replayer
+    from lowcostdex.sim.effects import AppliedEffect
+
+    case = dataclasses.replace(sim.CASE_BY_NAME["latency50"], durations=(3.0, 3.0))
+    files = sim.write_case(case, tmp_path)
+    ds = load_dataset(files["logs"], model=files["model"], angle_unit="deg", time_unit="ms")
+    eps = [w for w in episodes(ds) if w.start == 0][:2]
+    assert [w.traj for w in eps] == [0, 1]
+    lat = [AppliedEffect("latency", sim.JOINTS, {"delay": np.array([0.05, 0.05])})]
+    (pred,), _ = Replayer(ds, ["latency"]).run(eps, [lat])
+    err = [ds.trajectories[w.traj].qpos[w.start:w.stop] - p
+           for w, p in zip(eps, pred, strict=True)]
+    assert np.sqrt(np.mean(err[0][:20] ** 2)) < 0.002     # at rest: the floor
+    assert np.sqrt(np.mean(err[1] ** 2)) < 0.025          # in motion: the speed carried

@@ -171,8 +171,11 @@ class Replayer:
         servo's goal holds it against the static load (gear q + load / (kp gear), the nominal
         model's gravity torque, as ``Activations.setpoints`` for integrating servos; a servo
         that settled at the first goal then stays put until that goal arrives, and so does
-        one that held another goal), other servos the measured position, an integrating
-        servo's velocity goal 0; without joint-named actuators the first goal."""
+        one that held another goal), a velocity actuator or a motor the command whose force
+        holds that load at the first measured speed (a motor's: load / (gain gear); gap-sim13:
+        a velocity-mode head replayed each log's first 50 ms at its position in rad/s, 33 mrad
+        off; 0.8 now), other servos the measured position, an
+        integrating servo's velocity goal 0; without joint-named actuators the first goal."""
         tr = self.ds.trajectories[traj]
         if not set(tr.actuators) <= set(tr.joints):
             return tr.goal[0]
@@ -185,6 +188,21 @@ class Replayer:
                 joint = m.joint(int(m.actuator_trnid[a, 0])).name
                 if joint in tr.joints:
                     prev[col] += self._acts.static_load(traj, joint) / (kp * gear)
+            elif (m.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+                  and m.actuator_dyntype[a] == mujoco.mjtDyn.mjDYN_NONE
+                  and m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
+                  and m.actuator_biasprm[a, 1] == 0 and m.actuator_gainprm[a, 0] != 0):
+                # a velocity actuator's rate or a motor's force (no position term): the
+                # command whose force holds the static load at the first measured speed
+                # (gear kv (ctrl - gear qdot) = load; was the position itself)
+                joint = m.joint(int(m.actuator_trnid[a, 0])).name
+                gear = float(m.actuator_gear[a, 0])
+                if joint in tr.joints:
+                    qd = float(tr.qvel[0, tr.joints.index(joint)])
+                    prev[col] = (self._acts.static_load(traj, joint) / gear - float(
+                        m.actuator_biasprm[a, 2]) * gear * qd) / float(m.actuator_gainprm[a, 0])
+                else:
+                    prev[col] = 0.0
         for col, _, _ in self._acts.integrators((tr.model, False)):
             prev[col] = 0.0  # an integrating servo at rest: velocity goal 0
         return prev
