@@ -116,3 +116,39 @@ def test_the_own_mjcf_demo_runs_again_into_its_own_folder(tmp_path, monkeypatch)
     (earlier,) = (out / PREVIOUS).iterdir()
     assert sorted(p.name for p in earlier.iterdir()) == [MARKER, "logs", "model.xml"]
     assert len(list((out / "logs").glob("*.csv"))) == 6 and len(calls) == 2
+
+
+_TURNTABLE = """<mujoco><compiler angle="radian"/><option timestep="0.001"/>
+<worldbody><body><joint name="j" type="hinge" axis="0 0 1" damping="0.2"/>
+<geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0" mass="0.1"/></body></worldbody>
+<actuator><position name="j" joint="j" kp="3" forcerange="-0.5 0.5"/></actuator></mujoco>"""
+
+
+def test_a_slow_log_in_degrees_on_a_continuous_joint_is_refused_by_its_models_top_speed(
+        tmp_path):
+    # a turntable (no range) on a position servo, 0.5 N m against 0.2 N m s/rad of damping:
+    # under 0.5 N m / 0.2 + gravity's 0.05 / 0.2 = 2.75 rad/s whatever the goal. Its log, a 0.15
+    # rad 0.5 Hz sine (0.47 rad/s at its peak), written in degrees: 8.6 deg, 27 deg/s, no grid,
+    # no velocities: before, read and accepted as a joint swinging 8.6 rad at 27 rad/s
+    from lowcostdex.gap.logs import check_against_model, read_log
+    from lowcostdex.gap.trajectory import LogError
+
+    model = mujoco.MjModel.from_xml_string(_TURNTABLE)
+    data = mujoco.MjData(model)
+    t = np.arange(0.0, 4.0, 0.01)
+    goal = 0.15 * np.sin(np.pi * t)
+    q = np.empty_like(t)
+    for k, g in enumerate(goal):  # plain MuJoCo, 10 steps per 10 ms log row
+        data.ctrl[0] = g
+        mujoco.mj_step(model, data, nstep=10)
+        q[k] = data.qpos[0]
+    for unit, scale in (("deg", 180 / math.pi), ("rad", 1.0)):
+        rows = ["time,goal:j,qpos:j"] + [f"{a:.2f},{b * scale:.7f},{c * scale:.7f}"
+                                         for a, b, c in zip(t, goal, q, strict=True)]
+        (tmp_path / f"{unit}.csv").write_text("\n".join(rows) + "\n")
+    log = read_log(tmp_path / "deg.csv")  # no sign of its unit in the log alone
+    with pytest.raises(LogError, match=r"'qpos:j' moves at \d+\.?\d* rad/s or faster .* x the "
+                                       r"fastest its model can drive it.* stop it at 2.7\d rad/s"
+                                       r".*in degrees\? .*numpy.radians"):
+        check_against_model(log, model)
+    check_against_model(read_log(tmp_path / "rad.csv"), model)  # the same log in rad: read

@@ -178,3 +178,97 @@ def check_sustained_speed(traj: Trajectory) -> None:
                 f"than {SUSTAINED_SPEED:g} rad/s: servos move below {SUSTAINED_SPEED:g} rad/s "
                 "(the fastest, XL330-M077, 40.1 unloaded), never a whole turn beyond it; is "
                 f"'qpos' in degrees (then {TO_RAD}) and 'time' in seconds?")
+
+
+MODEL_SPEED_MARGIN = 3.0  # x the model's top speed; measured logs reach at most 0.87 of it
+MODEL_SPEED_WINDOW = 0.1  # [s] shortest stretch held above it (or 3 of the joint's I / b)
+
+
+def model_top_speed(model: mujoco.MjModel, joint: str) -> tuple[float, float, float, float]:
+    """(top speed [rad/s], drive [N m], damping [N m s/rad], time constant [s]) of the hinge
+    ``joint`` in ``model``: the speed at which its damping eats the most its own actuators
+    and gravity can push, (F + G) / b. F: each joint-transmission actuator's force range top
+    (a dcmotor servo: its stall torque K Vmax / R, its back-EMF K^2 / R added to b), times its
+    gear; G: gravity on the joint's subtree at its farthest (sum of m g |r|, r from the axis's
+    anchor at qpos0); b: the joint's damping. The actuators' own damping (kv) is left out, so
+    the bound is high. inf where nothing bounds it: a joint without its own actuator (contacts
+    or tendons drive it), one in a tendon or a joint equality, an actuator without a force
+    limit, or no damping."""
+    import mujoco
+
+    from lowcostdex.sim import servo  # only here: log checks without a model do not need it
+
+    j = model.joint(joint).id
+    if int(model.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):  # degrees: hinges only
+        return math.inf, 0.0, 0.0, 0.0
+    joint_trn = int(mujoco.mjtTrn.mjTRN_JOINT)
+    if (np.any(model.actuator_trntype != joint_trn) or np.any(model.wrap_objid[
+            model.wrap_type == int(mujoco.mjtWrap.mjWRAP_JOINT)] == j)
+            or np.any((model.eq_type == int(mujoco.mjtEq.mjEQ_JOINT))
+                      & ((model.eq_obj1id == j) | (model.eq_obj2id == j)))):
+        return math.inf, 0.0, 0.0, 0.0
+    own = np.flatnonzero(model.actuator_trnid[:, 0] == j)
+    force, damping = 0.0, float(model.dof_damping[model.jnt_dofadr[j]])
+    for i in own:
+        gear = abs(float(model.actuator_gear[i, 0]))
+        top = (float(np.abs(model.actuator_forcerange[i]).max())
+               if model.actuator_forcelimited[i] else math.inf)
+        g = model.actuator_gainprm[i]
+        r, k, vmax = (float(g[x]) for x in (servo.GAIN_R, servo.GAIN_K, servo.GAIN_VMAX))
+        if (int(model.actuator_gaintype[i]) == int(mujoco.mjtGain.mjGAIN_DCMOTOR)
+                and vmax > 0 and r > 0):
+            top = min(top, k * vmax / r)
+            damping += gear ** 2 * k * k / r
+        force += gear * top
+    if not len(own) or not math.isfinite(force) or damping <= 0:
+        return math.inf, 0.0, 0.0, 0.0
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    sub = [b for b in range(model.nbody) if _descends(model, b, int(model.jnt_bodyid[j]))]
+    arm = [float(np.linalg.norm(data.xipos[b] - data.xanchor[j])) for b in sub]
+    gravity = float(np.linalg.norm(model.opt.gravity)) * float(
+        np.dot(model.body_mass[sub], arm))
+    inertia = float(model.dof_M0[model.jnt_dofadr[j]])
+    return (force + gravity) / damping, force + gravity, damping, inertia / damping
+
+
+def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:
+    while body > 0:
+        if body == root:
+            return True
+        body = int(model.body_parentid[body])
+    return False
+
+
+def check_model_speed(traj: Trajectory, model: mujoco.MjModel) -> None:
+    """Refuse a joint that stays faster than MODEL_SPEED_MARGIN x its model's top speed
+    (``model_top_speed``) for MODEL_SPEED_WINDOW (or 3 time constants I / b): a log in
+    degrees read as rad moves 57 times as fast, which no range check sees on a continuous
+    joint that turns less than 4 pi degrees. On the 104 readable real BAM logs (their bench
+    models) and 425 joints of the truth simulators' logs (sim2-sim10, their users' models)
+    the fastest such stretch was 0.86 and 0.87 of the top speed."""
+    for c, joint in enumerate(traj.joints):
+        if joint not in {model.joint(i).name for i in range(model.njnt)}:
+            continue
+        top, drive, damping, tau = model_top_speed(model, joint)
+        if not math.isfinite(top):
+            continue
+        dt = np.diff(traj.time)
+        speed = np.abs(np.diff(traj.qpos[:, c])) / dt
+        window = max(MODEL_SPEED_WINDOW, 3 * tau)
+        n = max(2, math.ceil(window / float(np.median(dt))))
+        if len(speed) < n:
+            continue
+        held = np.lib.stride_tricks.sliding_window_view(speed, n).min(axis=1)
+        row = int(np.argmax(held))
+        if held[row] <= MODEL_SPEED_MARGIN * top:
+            continue
+        raise LogError(
+            f"{traj.name}: column 'qpos:{joint}' moves at {held[row]:.4g} rad/s or faster for "
+            f"{n} rows from row {row} (0-based), {held[row] / top:.3g} x the fastest its model "
+            f"can drive it: {drive:.3g} N m (its actuator's top and gravity's) against its "
+            f"damping {damping:.3g} N m s/rad stop it at {top:.3g} rad/s. Read as degrees it "
+            f"moves at {math.radians(held[row]):.3g} rad/s: is 'qpos' in degrees? (then "
+            f"{TO_RAD}); else the model's damping or force range is off by more than "
+            f"{MODEL_SPEED_MARGIN:g}x: correct them in the MJCF")

@@ -37,6 +37,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from lowcostdex.gap import log_units as units
 from lowcostdex.gap.bam_logs import BAM_MOTORS, is_bam, read_bam
 from lowcostdex.gap.log_checks import (
     CHANNELS,
@@ -64,7 +65,6 @@ from lowcostdex.gap.log_checks import (
 )
 from lowcostdex.gap.log_csv import MAX_COLUMNS, is_channel, read_csv
 from lowcostdex.gap.log_paths import csv_under_another_name, folder_not_log, no_such_log
-from lowcostdex.gap.log_units import TO_RAD, check_goal_degrees, check_not_radians
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     GAP_MIN,
@@ -242,7 +242,7 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
         for key, arr in cols.items():  # a log in rad given as degrees
             kind, _, joint = str(key).partition(":")
             if kind.strip().lower() == "qpos" and joint:
-                check_not_radians(np.asarray(arr, float), joint.strip(), path.name)
+                units.check_not_radians(np.asarray(arr, float), joint.strip(), path.name)
         cols = {k: (np.asarray(v, float) * angle_scale
                     if str(k).partition(":")[0].strip().lower() in ("goal", "qpos", "qvel")
                     and ":" in str(k) else v) for k, v in cols.items()}
@@ -356,7 +356,7 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                 tiny = hi - lo <= math.radians(2 * math.pi) and np.ptp(q) > 2 * (hi - lo)
                 if not tiny and np.all((deg >= lo - RANGE_MARGIN) & (deg <= hi + RANGE_MARGIN)):
                     why = (f"degrees? read as degrees it spans [{deg.min():.4g}, "
-                           f"{deg.max():.4g}] rad, inside the range: {TO_RAD}")
+                           f"{deg.max():.4g}] rad, inside the range: {units.TO_RAD}")
                 elif np.ptp(q) > 2 * (hi - lo):  # a range in degrees read as rad would be this
                     why = (f"the model's range is {hi - lo:.3g} rad wide while the joint moves "
                            f"{np.ptp(q):.3g} rad: MJCF reads joint 'range' in degrees unless "
@@ -405,14 +405,14 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                            f"'qpos:{joint}'; a log of this actuator's own input, a force/torque "
                            "or velocity, is replayed as it is)")
         if not kind and joint is not None and act_names[i] not in rate:  # goals in degrees
-            check_goal_degrees(traj, model, i, joint, RANGE_MARGIN)
+            units.check_goal_degrees(traj, model, i, joint, RANGE_MARGIN)
         if joint is not None:
-            j = joint
-            if j not in traj.joints:
-                raise LogError(f"{traj.name}: joint {j!r} is driven by actuator "
-                               f"{act_names[i]!r} but the log has no 'qpos:{j}' column: every "
+            if joint not in traj.joints:
+                raise LogError(f"{traj.name}: joint {joint!r} is driven by actuator "
+                               f"{act_names[i]!r} but the log has no 'qpos:{joint}' column: every "
                                "replay would start it at the model's initial pose; log its "
                                "position too")
+    units.check_model_speed(traj, model)  # degrees on a continuous joint
 
 
 HAND_NAMES = {  # the project's hands' actuator names (sim/models/dclaw.py, allegro.py)
