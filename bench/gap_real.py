@@ -29,6 +29,9 @@ to the repository; exits cleanly when it is absent. For each set:
     python bench/gap_real.py --seeds 3             # also 3 runs from jittered starts (spread)
     python bench/gap_real.py --select train --restarts 1   # the family chosen on the training
                                                    # logs, one start (before 2026-11-26 07:00)
+    python bench/gap_real.py --release             # the servo lets go a measured delay after
+                                                   # each torque-off command (off: RESULTS
+                                                   # gap-real21)
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from lowcostdex.gap import bam_measure as bm
+from lowcostdex.gap import torque_off
 from lowcostdex.gap.bam_logs import BAM_MOTORS
 from lowcostdex.gap.dataset import load_dataset
 from lowcostdex.gap.identify import IdentifyConfig, breakdown, identify, servo_structure
@@ -113,9 +117,26 @@ def data_root(arg: str | None) -> Path:
     return Path(__file__).resolve().parents[2] / "shared" / "data" / "measured"
 
 
-def load_set(name: str, root: Path):
+def load_set(name: str, root: Path, raw: bool = False):
+    """The set's files and its logs on BAM's grid (BAM's torque-off rule; with ``raw`` also
+    the logs as recorded, for ``released``)."""
     files = sorted((root / SETS[name]["folder"]).glob("*.json"))
-    return files, bm.grid_dataset(load_dataset(files, timestep=bm.BAM_DT))
+    logs = load_dataset(files, timestep=bm.BAM_DT)
+    grid = bm.grid_dataset(logs)
+    return (files, grid, logs) if raw else (files, grid)
+
+
+RELEASE = False  # --release: the servo lets go after a delay (measured: not a default)
+
+
+def released(raw, grid, train: Sequence[int]) -> tuple:
+    """The grid a split replays: the servo lets go ``torque_off.release_plan``'s delay after
+    each torque-off command (fitted on the training logs' swings, else the catalogue's)."""
+    if not RELEASE:
+        return grid, {"release_s": 0.0, "release_from": "off (BAM's rule)"}
+    d, src = torque_off.release_plan(raw, grid, train)
+    return (bm.grid_dataset(raw, release=d) if d > 0 else grid), {"release_s": d,
+                                                                   "release_from": src}
 
 
 def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too: bool,
@@ -126,7 +147,7 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
             setup_offsets: bool = True) -> dict:
     spec = SETS[name]
     t0 = time.perf_counter()
-    files, ds = load_set(name, root)
+    files, ds, raw = load_set(name, root, raw=True)
     structure = tuple(effects) if effects else servo_structure(ds)
     sel = dict(select=select, restarts=restarts, max_rounds=max_rounds, prior=prior,
                directional=directional, stage_choice=stage_choice, swing_seed=swing_seed,
@@ -135,13 +156,13 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
                  "reference_all": {k: float(np.mean(list(v.values())))
                                    for k, v in reference_mae(ds).items()}}
     if spec["held_kp"] is not None and not loso_only:
-        out.update(_bam_split(name, ds, structure, sel, analyze_too, seeds, jitter))
+        out.update(_bam_split(name, ds, structure, sel, analyze_too, seeds, jitter, raw))
     out["wall_s"] = time.perf_counter() - t0
     fields = list(loso_fields)
     if spec["held_kp"] is None and "trajectory" not in fields:
         fields.append("trajectory")  # one setup: its only held-out view
     out["loso"] = []
-    for row in loso(ds, fields, structure, sel, BAM_LOSO.get(name, {})):
+    for row in loso(ds, fields, structure, sel, BAM_LOSO.get(name, {}), raw):
         out["loso"].append(row)
         if json_path:  # written fold by fold: a stopped run keeps what it measured
             Path(json_path).write_text(json.dumps([*done, out], indent=1, default=float))
@@ -149,12 +170,16 @@ def run_set(name: str, root: Path, effects: tuple[str, ...] | None, analyze_too:
 
 
 def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: int,
-               jitter: float) -> dict:
-    """The identification on BAM's split (train / held-out gains) beside BAM's numbers."""
+               jitter: float, raw=None) -> dict:
+    """The identification on BAM's split (train / held-out gains) beside BAM's numbers
+    (``raw``: the logs as recorded, for the release delay: ``released``)."""
     spec = SETS[name]
     kps = [int(tr.meta["kp"]) for tr in ds.trajectories]
     test = [i for i, k in enumerate(kps) if k in spec["held_kp"]]
     train = [i for i, k in enumerate(kps) if k not in spec["held_kp"]]
+    rel = {}
+    if raw is not None:
+        ds, rel = released(raw, ds, train)
     c0 = time.process_time()
     res = identify(ds, train, test, IdentifyConfig(effects=structure, **sel),
                    progress=_timer(c0) if PROGRESS else None)
@@ -174,7 +199,7 @@ def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: in
             "identified (train logs)": {"mean": res.mean(train)},
             **{f"reference {k}": _summary(ds, v, test) for k, v in refs.items()},
         },
-        "ablation": res.ablation, "verdict": res.verdict,
+        "ablation": res.ablation, "verdict": res.verdict, **rel,
         "bam": {k: {"mean": v[0], "trajectory": v[1], "kp": v[2]} for k, v in
                 spec["bam"].items()},
         "jittered": [],
@@ -232,7 +257,7 @@ def reference_mae(ds) -> dict[str, dict[int, float]]:
     return out
 
 
-def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = None
+def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = None, raw=None
          ) -> Iterator[dict]:
     """Leave one setup out: for each header field in ``fields`` that takes two or more values,
     each value in turn held out (its logs scored, the rest identified with the same default
@@ -248,7 +273,8 @@ def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = Non
             test = [i for i in range(n) if vals[i] == v]
             train = [i for i in range(n) if vals[i] != v]
             c0 = time.process_time()
-            r = identify(ds, train, test, IdentifyConfig(effects=structure, **sel))
+            dsf, rel = released(raw, ds, train) if raw is not None else (ds, {})
+            r = identify(dsf, train, test, IdentifyConfig(effects=structure, **sel))
             row = {"field": f, "value": v, "n_train": len(train), "n_test": len(test),
                    "held_out": r.mean(test), "train": r.mean(train),
                    "nominal": float(np.mean([r.nominal_mae[i] for i in test])),
@@ -258,11 +284,14 @@ def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = Non
                    "stage": (r.selection or {}).get("stage"),
                    "at_bound": r.at_bound, "cpu_s": time.process_time() - c0,
                    "fit_s": r.fit_seconds, "bam": (bam or {}).get((f, v), {}),
-                   "notes": r.notes, "verdict": r.verdict, "setup_offsets": r.setup_offsets}
+                   "notes": r.notes, "verdict": r.verdict, "setup_offsets": r.setup_offsets,
+                   **rel}
             print(f"  loso {f}={v}: held out {1e3 * row['held_out']:.1f} mrad (train "
                   f"{1e3 * row['train']:.1f}; nominal {1e3 * row['nominal']:.1f}, q = goal "
                   f"{1e3 * row['q = goal']:.1f}); {row['chosen']}, inner split "
-                  f"{row['split']}, stage {_stage(row['stage'])}, {row['cpu_s']:.0f} s CPU"
+                  f"{row['split']}, stage {_stage(row['stage'])}, {row['cpu_s']:.0f} s CPU; "
+                  f"release {1e3 * rel.get('release_s', 0.0):.1f} ms "
+                  f"({rel.get('release_from', '-')})"
                   "\n    verdict: "
                   f"{r.verdict['text']}", flush=True)
             yield row
@@ -515,6 +544,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-setup-offsets", action="store_true",
                     help="one mounting offset for every bench set-up (IdentifyConfig."
                     "setup_offsets=False; before 2026-11-28 23:30)")
+    ap.add_argument("--release", action="store_true",
+                    help="let the replay's servo go torque_off.release_plan's delay after each "
+                    "torque-off command (fitted on the training swings, else MotorSpec."
+                    "release); default: where BAM's grid drops the torque (measured worse on "
+                    "STS3032's split, better on its lift_and_drop fold: RESULTS gap-real21)")
     ap.add_argument("--progress", action="store_true",
                     help="print the CPU time of each identification stage (BAM's split)")
     ap.add_argument("--json", default=None)
@@ -524,8 +558,9 @@ def main(argv=None) -> int:
         print(f"measured data not found at {root}; set LOWCOSTDEX_MEASURED_DATA or --data "
               "(skipping)")
         return 0
-    global PROGRESS
+    global PROGRESS, RELEASE
     PROGRESS = args.progress
+    RELEASE = args.release
     fields = LOSO_FIELDS if "auto" in args.loso else tuple(args.loso)
     results: list[dict] = []
     for name in args.sets:

@@ -74,6 +74,10 @@ class MotorSpec:
       backdriven: (Coulomb [N m], viscous [N m s/rad]) of the gear train back-driven by its load
         with the torque off (``backdriven_friction``), or None: not known. Identification uses
         it when no training log has the torque off (``gap.identify_logs.backdriven_plan``).
+      release: [s] how long the servo still holds its load after a torque-off command (0: not
+        measured). The replay of logs lets go that long after the first sample logged with
+        the torque off when no training log has a torque-off swing to measure it on
+        (``gap.torque_off.release_delay``, ``gap.bam_measure.resample``).
     """
 
     name: str
@@ -98,6 +102,7 @@ class MotorSpec:
     max_duty: float = 1.0
     goal_speed: float = 0.0
     backdriven: tuple[float, float] | None = None
+    release: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("voltage", "stall_torque", "no_load_speed", "gear_ratio"):
@@ -188,10 +193,12 @@ MOTORS: dict[str, MotorSpec] = {
         # friction_viscous 0.0059; Rhoban/bam main @1b5a1ce has 0.0128 + 0.0037: Rhoban's lift
         # fold 46.0 mrad with it, 40.9 with these, BAM M3 52.2, gap-real16), one law for the
         # torque on and off; the Rhoban XL330 swings alone say 0.0053 + 0.0095 (gap.torque_off.
-        # swing_fit, gap-real12).
+        # swing_fit, gap-real12). release: the median over Rhoban's four lift_and_drop logs
+        # (1.2-12.6 ms; gap.torque_off.release_delay, gap-real21).
         MotorSpec("XL330-M288", 1200, 5.0, 0.52, 103 * TWO_PI / 60, 288.4, 0.0003,
                   current_unit=1.0e-3, default_p=400,
                   error_gain=(4096 / TWO_PI) / (256.0 * 885), backdriven=(0.0182, 0.0059),
+                  release=0.0045,
                   thermal=ThermalSpec(resistance=18.0, capacitance=3.0, limit=70.0)),
         MotorSpec("XL330-M077", 1190, 5.0, 0.215, 383 * TWO_PI / 60, 77.5, 0.0001,
                   current_unit=1.0e-3, default_p=400, default_i=400,
@@ -267,10 +274,13 @@ MOTORS: dict[str, MotorSpec] = {
         # 72 shared ones among them), one law for the torque on and off; the 18 shared torque-off
         # swings alone say 0.00528 + 0.00167 (gap.torque_off.swing_fit). Its lift_and_drop fold
         # (no torque-off log in training) 204.2 -> 188.8 mrad with it (BAM's M1 34.3; gap-real16),
-        # 46.9 with it as the joint's whole back-driven friction (gap-real17).
+        # 46.9 with it as the joint's whole back-driven friction (gap-real17). release: the
+        # median over the 18 shared lift_and_drop logs (3.0-10.8 ms; gap.torque_off.
+        # release_delay, gap-real21), the same logs the lift_and_drop fold holds out.
         MotorSpec("STS3032", 0, 6.0, 0.88, 6.0 / 0.483, 345.0, 0.00103,
                   current_unit=6.5e-3, velocity_unit=TWO_PI / 4096, default_p=32, default_d=32,
                   error_gain=0.166, d_error_gain=0.0, max_duty=0.97, backdriven=(0.0054, 0.00159),
+                  release=0.0053,
                   thermal=ThermalSpec(limit=70.0), backlash=math.radians(0.5)),
     )
 }

@@ -54,9 +54,12 @@ def grid_start(t_raw: np.ndarray) -> float:
     return 0.0 if t_raw[0] <= lead else float(t_raw[0])
 
 
-def resample(tr: Trajectory, dt: float = BAM_DT) -> Trajectory:
+def resample(tr: Trajectory, dt: float = BAM_DT, release: float = 0.0) -> Trajectory:
     """A trajectory on BAM's grid (module doc, step 1); goals and channels resampled alike.
-    The grid starts at 0 (or at the first sample, ``grid_start``).
+    The grid starts at 0 (or at the first sample, ``grid_start``). With ``release`` [s] > 0 the
+    servo lets go that long after the torque-off command (``torque_off.release_delay``): each
+    run of torque-off samples starts on the grid point nearest its first sample's time +
+    ``release`` (BAM's rule, 0: where the interpolated flag drops below 0.5).
 
     Raises:
       LogError when the log has fewer than two samples or ends before ``dt``.
@@ -69,15 +72,30 @@ def resample(tr: Trajectory, dt: float = BAM_DT) -> Trajectory:
     channels = {k: _interp(t_raw, np.asarray(v, float), t) for k, v in tr.channels.items()}
     if "torque_enable" in channels:
         channels["torque_enable"] = (channels["torque_enable"] > 0.5).astype(float)
+        if release > 0.0:
+            _hold(channels["torque_enable"], np.asarray(tr.channels["torque_enable"]) > 0.5,
+                  t_raw, t, release)
     out = Trajectory(name=tr.name, time=t, goal=_interp(t_raw, tr.goal, t),
                      qpos=_interp(t_raw, tr.qpos, t), actuators=tr.actuators, joints=tr.joints,
                      qvel=qvel, channels=channels, model=tr.model, meta=dict(tr.meta))
     return out
 
 
-def grid_dataset(ds: Dataset, dt: float = BAM_DT) -> Dataset:
-    """The data set with every trajectory resampled onto BAM's grid (same nominal models)."""
-    return Dataset(dict(ds.models), [resample(tr, dt) for tr in ds.trajectories],
+def _hold(grid_on: np.ndarray, raw_on: np.ndarray, t_raw: np.ndarray, t: np.ndarray,
+          release: float) -> None:
+    """Keep the torque on (in place, (len(t), n)) from the last sample before each raw
+    torque-off run until the grid point nearest the run's first sample's time + ``release``
+    (a log that starts with the torque off has nothing to release there)."""
+    half = 0.5 * float(t[1] - t[0]) if len(t) > 1 else 0.0
+    for j in range(raw_on.shape[1]):
+        for k in np.flatnonzero(~raw_on[1:, j] & raw_on[:-1, j]) + 1:
+            grid_on[(t >= t_raw[k - 1]) & (t < t_raw[k] + release - half), j] = 1.0
+
+
+def grid_dataset(ds: Dataset, dt: float = BAM_DT, release: float = 0.0) -> Dataset:
+    """The data set with every trajectory resampled onto BAM's grid (same nominal models);
+    ``release`` as in ``resample``."""
+    return Dataset(dict(ds.models), [resample(tr, dt, release) for tr in ds.trajectories],
                    list(ds.sources), list(ds.notes),  # the notes: repairs, gaps cut, defaults
                    ds.servo_period)
 

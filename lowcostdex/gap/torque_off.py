@@ -24,6 +24,13 @@ at a time): they hang at 0.095-0.108 rad (0.05 m arm), 0.16-0.174 (0.07 m) and 0
 for every mass and gain; per swing 80-168 mrad off without the centre, 9-23 with it; armature
 0.00096-0.00106 kg m^2 (BAM's fitted M1 0.00103), Coulomb 0.003-0.005 N m, viscous ~0.002 N m s/rad
 (bench/RESULTS.md gap-real20).
+
+``release_delay`` measures how long the servo still holds its load after the torque-off command
+(raw timestamps): each swing fitted alone from ``SETTLE`` on, then let go from rest at the last
+torque-on reading ``delay`` after the command. Measured 2026-11-29 (bench/RESULTS.md gap-real21):
+STS3032 5.3 ms median over 18 logs (3.0-10.8), Rhoban XL330 4.5 (1.2-12.6; ``MotorSpec.release``);
+``release_plan`` picks the delay a replay uses (``bam_measure.resample(release=)``: off by
+default, measured worse on STS3032's split).
 """
 
 from __future__ import annotations
@@ -93,26 +100,13 @@ def swings(ds: Dataset, logs: Sequence[int], settle: float = SETTLE, min_travel:
         k0 = int(np.searchsorted(tr.time, tr.time[off[0]] + settle))
         if end - k0 < 40:
             continue
-        m = ds.compiled(tr.model)
-        d = mujoco.MjData(m)
-        dof = int(m.jnt_dofadr[m.joint(tr.joints[0]).id])
-        tau = []
-        for q in (0.5 * np.pi, 0.0):
-            d.qpos[:] = 0.0
-            d.qpos[m.jnt_qposadr[m.joint(tr.joints[0]).id]] = q
-            d.qvel[:] = 0.0
-            mujoco.mj_forward(m, d)
-            tau.append(-float(d.qfrc_bias[dof]))
-        e, r = np.zeros(m.nv), np.zeros(m.nv)
-        e[dof] = 1.0
-        mujoco.mj_mulM(m, d, r, e)
+        link, gs, gc, arm = _pendulum(ds, tr)
         dt = float(np.median(np.diff(tr.time[k0:end])))
         q = tr.qpos[k0:end, 0]
         if np.ptp(q) < min_travel:
             continue
         v0 = float(np.polyfit(tr.time[k0:k0 + 5] - tr.time[k0], q[:5], 2)[1])
-        out.append(Swing(q.copy(), v0, dt, float(r[dof] - m.dof_armature[dof]), tau[0], tau[1],
-                         float(m.dof_armature[dof]), int(i)))
+        out.append(Swing(q.copy(), v0, dt, link - arm, gs, gc, arm, int(i)))
     return out
 
 
@@ -199,3 +193,134 @@ def armature_seed(ds: Dataset, logs: Sequence[int]) -> SwingFit | None:
         return None
     ratio = f.armature / f.catalogue_armature
     return f if max(ratio, 1.0 / max(ratio, 1e-12)) >= SEED_FACTOR else None
+
+
+# ``release_delay``: the first RELEASE_WINDOW [s] after a torque-off command, a delay sought in
+# [-RELEASE_MIN, RELEASE_MAX] [s] at RELEASE_STEP.
+RELEASE_WINDOW = 0.3
+RELEASE_MIN, RELEASE_MAX, RELEASE_STEP = 0.01, 0.03, 1e-4
+RELEASE_H = 2e-4  # [s] integration step of the fall
+
+
+@dataclass(frozen=True)
+class Release:
+    """``release_delay``'s result: the delay [s] (median over the logs), each log's delay [s]
+    and position RMS [rad] at it and with none, and the logs used."""
+
+    delay: float
+    delays: tuple[float, ...]
+    rms: tuple[float, ...]
+    rms_none: tuple[float, ...]
+    logs: tuple[int, ...]
+
+
+def fall(q0: float, inertia: float, gs: float, gc: float, coulomb: float, viscous: float,
+         duration: float, h: float = RELEASE_H) -> tuple[np.ndarray, np.ndarray]:
+    """A pendulum let go from rest at q0 [rad]: times [s] and positions [rad] every ``h`` up to
+    ``duration``, semi-implicit Euler on
+    inertia qdd = gs sin q + gc cos q - coulomb tanh(qd / VSMOOTH) - viscous qd."""
+    n = int(np.ceil(duration / h)) + 1
+    q, v = float(q0), 0.0
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = q
+        tg = gs * np.sin(q) + gc * np.cos(q)
+        v += h * (tg - coulomb * np.tanh(v / VSMOOTH) - viscous * v) / inertia
+        q += h * v
+    return np.arange(n) * h, out
+
+
+def release_delay(raw: Dataset, grid: Dataset, logs: Sequence[int],
+                  window: float = RELEASE_WINDOW) -> Release | None:
+    """How long the servo holds the arm after each torque-off command of ``logs``, the
+    swing's own physics written out: each log's swing from ``SETTLE`` s after the release is
+    fitted alone on ``grid`` (the logs on a fixed step: ``swing_fit`` with ``centre``: its
+    armature, Coulomb, viscous and hanging angle), then that pendulum is let go from rest at
+    the last torque-on reading of ``raw`` (the same logs, raw timestamps) ``delay`` after the
+    first sample logged with the torque off (``fall``; a held arm shifts the fall in time:
+    read at t - delay). Each log's delay minimises the position RMS over its raw samples of
+    the first ``window`` s. None when no log has a torque-off swing to fit (``swings``:
+    40 samples, ``SEED_TRAVEL`` rad of travel).
+
+    Measured 2026-11-29 (bench/RESULTS.md gap-real21): STS3032's 18 lift_and_drop logs 5.3 ms
+    median (3.0-10.8; per log 6-18 mrad RMS over 0.3 s, with none 30-85), Rhoban XL330's four
+    4.5 ms (1.2-12.6); a delay and a drive decaying exponentially fit alike, a constant brake
+    or friction do not."""
+    delays, rms, none, used = [], [], [], []
+    span = np.arange(-RELEASE_MIN, RELEASE_MAX + 0.5 * RELEASE_STEP, RELEASE_STEP)
+    for i in logs:
+        f = swing_fit(grid, [i], min_travel=SEED_TRAVEL, centre=True)
+        if f is None:
+            continue
+        tr = raw.trajectories[i]
+        on = np.asarray(tr.channels["torque_enable"]).ravel() > 0.5
+        starts = np.flatnonzero(~on[1:] & on[:-1]) + 1
+        if not len(starts):
+            continue
+        k = int(starts[0])
+        t_off = float(tr.time[k])
+        run = k + (int(np.argmax(on[k:])) if np.any(on[k:]) else len(on) - k)
+        w = np.arange(len(on)) < run
+        w &= (tr.time >= t_off) & (tr.time <= t_off + window)
+        t, q = tr.time[w] - t_off, tr.qpos[w, 0]
+        c, q0 = f.centres[0], float(tr.qpos[k - 1, 0])
+        link, gs, gc, nominal = _pendulum(raw, tr)
+        ts, qs = fall(q0 - c, link - nominal + f.armature, gs, gc, f.coulomb, f.viscous,
+                      window + RELEASE_MIN)
+        err = np.array([np.sqrt(np.mean((np.interp(t - d, ts, qs + c, left=q0) - q) ** 2))
+                        for d in span])
+        j = int(np.argmin(err))
+        delays.append(float(span[j]))
+        rms.append(float(err[j]))
+        none.append(float(err[int(np.argmin(np.abs(span)))]))
+        used.append(int(i))
+    if not used:
+        return None
+    return Release(float(np.median(delays)), tuple(delays), tuple(rms), tuple(none), tuple(used))
+
+
+def _pendulum(ds: Dataset, tr) -> tuple[float, float, float, float]:
+    """The one-joint model's inertia about the joint with its armature [kg m^2], gravity
+    torque tau_g(q) = gs sin q + gc cos q [N m] (``swings``' reading of the nominal model) and
+    its armature [kg m^2]."""
+    m = ds.compiled(tr.model)
+    d = mujoco.MjData(m)
+    jid = m.joint(tr.joints[0]).id
+    dof, adr = int(m.jnt_dofadr[jid]), int(m.jnt_qposadr[jid])
+    tau = []
+    for q in (0.5 * np.pi, 0.0):
+        d.qpos[:] = 0.0
+        d.qpos[adr] = q
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(m, d)
+        tau.append(-float(d.qfrc_bias[dof]))
+    e, r = np.zeros(m.nv), np.zeros(m.nv)
+    e[dof] = 1.0
+    mujoco.mj_mulM(m, d, r, e)
+    return float(r[dof]), tau[0], tau[1], float(m.dof_armature[dof])
+
+
+def catalogue_release(ds: Dataset, logs: Sequence[int]) -> float:
+    """The servo catalogue's release delay (``MotorSpec.release``) [s] of the BAM logs' motor
+    among ``logs``; 0 when they name none."""
+    from lowcostdex.gap.bam_logs import BAM_MOTORS, bam_motor
+    from lowcostdex.motors import motor_spec
+
+    for i in logs:
+        meta = ds.trajectories[i].meta
+        name = meta.get("motor") if meta.get("source") == "bam" else None
+        bam = bam_motor(name) if isinstance(name, str) else None
+        if bam is not None:
+            return float(motor_spec(BAM_MOTORS[bam]).release)
+    return 0.0
+
+
+def release_plan(raw: Dataset, grid: Dataset, train: Sequence[int]) -> tuple[float, str]:
+    """The release delay [s] a replay of these logs uses and where it comes from: measured on
+    the training logs' torque-off swings (``release_delay``, held at 0 or more: a negative
+    median is BAM's grid rule already, which lets go before the first torque-off sample),
+    else the servo catalogue's (``catalogue_release``)."""
+    r = release_delay(raw, grid, train)
+    if r is not None:
+        return max(r.delay, 0.0), f"fitted on {len(r.logs)} training swing(s)"
+    return catalogue_release(raw, train), "catalogue"
