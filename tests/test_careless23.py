@@ -152,3 +152,32 @@ def test_a_slow_log_in_degrees_on_a_continuous_joint_is_refused_by_its_models_to
                                        r".*in degrees\? .*numpy.radians"):
         check_against_model(log, model)
     check_against_model(read_log(tmp_path / "rad.csv"), model)  # the same log in rad: read
+
+
+def test_make_vec_names_the_lowcostdex_id_of_a_bare_env_name():
+    # before: gymnasium's "NameNotFound: Environment `DClawTurnValve` doesn't exist." (the ids
+    # live under lowcostdex/, as `lowcostdex envs` lists them)
+    from lowcostdex.sim.vector import make_vec
+
+    with pytest.raises(ConfigError, match=r"unknown env 'DClawTurnValve-v0'; make_vec batches: "
+                                          r".*did you mean 'lowcostdex/DClawTurnValve-v0'"):
+        make_vec("DClawTurnValve-v0", num_envs=2)
+
+
+def test_load_dataset_names_what_to_pass_for_a_compiled_model_or_its_xml_text(tmp_path):
+    # before: load_dataset(logs, model=MjModel) ended in Path's bare TypeError, and the XML
+    # text itself in "<mujoco ...(the whole text)...: no such model file"
+    from lowcostdex.gap import load_dataset
+    from lowcostdex.gap.trajectory import LogError
+
+    (tmp_path / "m.xml").write_text(_TURNTABLE)
+    t = np.arange(0.0, 2.0, 0.01)
+    (tmp_path / "a.csv").write_text("time,goal:j,qpos:j\n" + "".join(
+        f"{a:.2f},{0.2 * math.sin(a):.6f},{0.2 * math.sin(a - 0.1):.6f}\n" for a in t))
+    log = [tmp_path / "a.csv"]
+    for model, said in ((mujoco.MjModel.from_xml_string(_TURNTABLE), "not MjModel; save it"),
+                        (mujoco.MjSpec.from_string(_TURNTABLE), "not MjSpec; save it"),
+                        (_TURNTABLE, "not its XML text; write the text to a file")):
+        with pytest.raises(LogError, match=rf"model: give the MJCF file's path.*{said}"):
+            load_dataset(log, model=model)
+    assert load_dataset(log, model=tmp_path / "m.xml").trajectories[0].joints == ("j",)

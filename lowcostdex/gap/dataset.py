@@ -22,6 +22,7 @@ from lowcostdex.gap.bam_logs import check_one_motor
 from lowcostdex.gap.log_paths import (  # noqa: F401 (LOG_SUFFIXES re-exported)
     LOG_SUFFIXES,
     expand_log_paths,
+    model_path,
     no_such_log,
 )
 from lowcostdex.gap.logs import (
@@ -239,9 +240,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
     else:
         if model is None:
             raise LogError("project-format logs need --model MODEL.xml")
-        model = Path(model)
-        if not model.exists():
-            raise LogError(f"{model}: no such model file")
+        model = model_path(model)
         if model.is_dir():
             xmls = sorted(p.name for p in model.iterdir() if p.suffix.lower() == ".xml")
             inside = (f"; it holds {', '.join(xmls[:5])}: give the top one, e.g. --model "

@@ -145,3 +145,21 @@ def csv_under_another_name(path: Path) -> str:
     if reads_as_csv_log(path):
         return f" (its first line is a CSV log header: rename it {path.with_suffix('.csv').name})"
     return ""
+
+
+def model_path(model: object) -> Path:
+    """``load_dataset``'s ``model``: the MJCF file's path (a leading ``~`` read as home), which
+    must exist. A compiled ``MjModel`` or ``MjSpec`` (before: a bare TypeError from ``Path``)
+    or the XML text itself (before: "no such model file" quoting the whole text) is refused
+    naming what to pass."""
+    if isinstance(model, str) and model.lstrip().startswith("<"):
+        raise LogError("model: give the MJCF file's path, not its XML text; write the text to a "
+                       "file first, e.g. pathlib.Path('robot.xml').write_text(xml)")
+    if not isinstance(model, (str, os.PathLike)):
+        raise LogError(f"model: give the MJCF file's path (a str or pathlib.Path), not "
+                       f"{type(model).__name__}; save it to a file first, e.g. "
+                       "pathlib.Path('robot.xml').write_text(spec.to_xml()) for a mujoco.MjSpec")
+    path = Path(os.path.expanduser(os.fspath(model)))
+    if not path.exists():
+        raise LogError(f"{path}: no such model file")
+    return path

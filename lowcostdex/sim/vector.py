@@ -20,7 +20,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 import lowcostdex  # noqa: F401  (registers ids)
-from lowcostdex.errors import ClosedError, ConfigError, check_at_most, check_number
+from lowcostdex.errors import ClosedError, ConfigError, check_at_most, check_number, did_you_mean
 from lowcostdex.sim.effects import DomainRandomization
 from lowcostdex.sim.envs.hand_env import HandEnv, action_to_goal
 from lowcostdex.sim.envs.task import Goal, Task
@@ -224,6 +224,10 @@ def make_vec(env_id: str, num_envs: int, nthread: int = 0, **kwargs: Any) -> Han
     """
     if kwargs.get("backend", "sim") != "sim":
         raise ConfigError("make_vec batches the sim backend only")
+    if not isinstance(env_id, str) or env_id not in gym.registry:  # before: gymnasium's bare
+        ours = sorted(k for k in gym.registry if k.startswith("lowcostdex/"))  # NameNotFound
+        hint = did_you_mean(env_id, ours) or did_you_mean(f"lowcostdex/{env_id}", ours)
+        raise ConfigError(f"unknown env {env_id!r}; make_vec batches: {', '.join(ours)}{hint}")
     single = gym.make(env_id, **kwargs).unwrapped
     if not isinstance(single, HandEnv):
         raise ConfigError(f"{env_id} is not a lowcostdex HandEnv")
