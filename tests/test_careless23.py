@@ -181,3 +181,24 @@ def test_load_dataset_names_what_to_pass_for_a_compiled_model_or_its_xml_text(tm
         with pytest.raises(LogError, match=rf"model: give the MJCF file's path.*{said}"):
             load_dataset(log, model=model)
     assert load_dataset(log, model=tmp_path / "m.xml").trajectories[0].joints == ("j",)
+
+
+def test_an_emulated_robots_faults_given_as_a_dict_are_read_as_its_settings():
+    # before: gym.make(..., backend="emulated", faults={"drop": 0.1}) ended in "AttributeError:
+    # 'dict' object has no attribute 'any'" (robot_config and reset_config took dicts), and
+    # FaultConfig(drop="0.1") in a TypeError comparing a str
+    import gymnasium as gym
+
+    import lowcostdex  # noqa: F401  (registers the ids)
+    from lowcostdex.hardware.emulated.chain import FaultConfig
+
+    env = gym.make("lowcostdex/DClawTurnValve-v0", backend="emulated", faults={"drop": 0.1})
+    try:
+        assert env.unwrapped.backend.chain.faults == FaultConfig(drop=0.1)
+    finally:
+        env.close()
+    with pytest.raises(ConfigError, match=r"FaultConfig setting 'dorp'.*drop"):
+        gym.make("lowcostdex/DClawTurnValve-v0", backend="emulated", faults={"dorp": 0.1})
+    with pytest.raises(ConfigError, match=r"fault probability drop='0.1' must be a finite number "
+                                          r"in \[0, 1\]"):
+        FaultConfig(drop="0.1")

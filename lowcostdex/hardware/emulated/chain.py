@@ -76,7 +76,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice, keyword_hints
+from lowcostdex.errors import ConfigError, check_choice, check_number, keyword_hints
 from lowcostdex.hands import HandSpec, bench_spec, dclaw_spec
 from lowcostdex.hardware.dynamixel.control_table import Reg
 from lowcostdex.hardware.dynamixel.protocol import (
@@ -128,10 +128,10 @@ class FaultConfig:
     late_delay: tuple[float, float] = (0.004, 0.012)
 
     def __post_init__(self) -> None:
-        for name in ("drop", "corrupt", "late"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ConfigError(f"fault probability {name}={getattr(self, name)} not in [0, 1]")
+        for name in ("drop", "corrupt", "late"):  # a probability; '0.1' raised a TypeError
+            check_number(f"fault probability {name}", getattr(self, name), 0.0, 1.0)
         lo, hi = self.late_delay
+        [check_number(f"late_delay {k} [s]", v, 0.0) for k, v in (("low", lo), ("high", hi))]
         if not 0.0 <= lo <= hi:
             raise ConfigError(f"late_delay {self.late_delay} must satisfy 0 <= low <= high")
 

@@ -330,7 +330,8 @@ class EmulatedBackend(RobotBackend):
         flip_config = as_settings(FlipResetConfig, flip_config, "flip_config")
         start_qpos = check_start_qpos(start_qpos, model)
         self.chain = emulated_dclaw(task.station, hand=hand, effects=list(effects), rng=rng,
-                                    qpos=start_qpos, faults=faults or FaultConfig(),
+                                    qpos=start_qpos, faults=as_settings(  # a dict: JSON
+                                        FaultConfig, faults or FaultConfig(), "faults"),
                                     **chain_kwargs)
         self.effects = list(effects)
         port = self.chain.port()
