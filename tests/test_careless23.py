@@ -202,3 +202,18 @@ def test_an_emulated_robots_faults_given_as_a_dict_are_read_as_its_settings():
     with pytest.raises(ConfigError, match=r"fault probability drop='0.1' must be a finite number "
                                           r"in \[0, 1\]"):
         FaultConfig(drop="0.1")
+
+
+def test_resume_into_a_folder_without_a_checkpoint_says_a_new_run_starts(tmp_path, capsys):
+    # before: train(config, "runs/npx", resume=True) (a misspelt run folder) started a new run
+    # from iteration 0 without a word; the trainers call load_latest with log=print
+    from lowcostdex.algos.experiment import Run
+
+    run = Run.open(tmp_path / "npx", config={"algo": "npg", "seed": 0}, resume=True)
+    try:
+        assert run.load_latest() is None
+    finally:
+        run.close()
+    assert capsys.readouterr().out.startswith(f"nothing to resume in {tmp_path / 'npx'} (no "
+                                              "checkpoint saved there): a new run starts at "
+                                              "iteration 0")

@@ -469,7 +469,7 @@ class Run:
 
         Returns:
           The checkpoint, or None when the run has none (metrics are then cleared, so the run
-          restarts from iteration 0 with a consistent CSV).
+          restarts from iteration 0 with a consistent CSV; ``log`` says so).
 
         Raises:
           ConfigError: checkpoint files exist but none of them loads (nothing is changed).
@@ -478,6 +478,9 @@ class Run:
                         if _checkpoint_iteration(f) is not None), reverse=True)
         if not files:
             self.metrics.truncate(None)
+            if log is not None:  # before: silent, so a misspelt --out with --resume started over
+                log(f"nothing to resume in {self.path} (no checkpoint saved there): a new run "
+                    "starts at iteration 0; stop it (Ctrl-C) if you meant another folder")
             return None
         skipped = []
         for iteration, file in files:
