@@ -154,6 +154,13 @@ def test_a_slow_log_in_degrees_on_a_continuous_joint_is_refused_by_its_models_to
     check_against_model(read_log(tmp_path / "rad.csv"), model)  # the same log in rad: read
 
 
+def _slow_sine(path):
+    """A 2 s log of the turntable at 100 Hz: a 0.2 rad sine and its reading 0.1 s behind."""
+    t = np.arange(0.0, 2.0, 0.01)
+    path.write_text("time,goal:j,qpos:j\n" + "".join(
+        f"{a:.2f},{0.2 * math.sin(a):.6f},{0.2 * math.sin(a - 0.1):.6f}\n" for a in t))
+
+
 def test_make_vec_names_the_lowcostdex_id_of_a_bare_env_name():
     # before: gymnasium's "NameNotFound: Environment `DClawTurnValve` doesn't exist." (the ids
     # live under lowcostdex/, as `lowcostdex envs` lists them)
@@ -171,9 +178,7 @@ def test_load_dataset_names_what_to_pass_for_a_compiled_model_or_its_xml_text(tm
     from lowcostdex.gap.trajectory import LogError
 
     (tmp_path / "m.xml").write_text(_TURNTABLE)
-    t = np.arange(0.0, 2.0, 0.01)
-    (tmp_path / "a.csv").write_text("time,goal:j,qpos:j\n" + "".join(
-        f"{a:.2f},{0.2 * math.sin(a):.6f},{0.2 * math.sin(a - 0.1):.6f}\n" for a in t))
+    _slow_sine(tmp_path / "a.csv")
     log = [tmp_path / "a.csv"]
     for model, said in ((mujoco.MjModel.from_xml_string(_TURNTABLE), "not MjModel; save it"),
                         (mujoco.MjSpec.from_string(_TURNTABLE), "not MjSpec; save it"),
@@ -217,3 +222,17 @@ def test_resume_into_a_folder_without_a_checkpoint_says_a_new_run_starts(tmp_pat
     assert capsys.readouterr().out.startswith(f"nothing to resume in {tmp_path / 'npx'} (no "
                                               "checkpoint saved there): a new run starts at "
                                               "iteration 0")
+
+
+def test_time_unit_ms_on_a_log_in_seconds_says_to_leave_it_out(tmp_path, capsys):
+    # before: "column 'time' must be in seconds, but its median step is 1e-05 s (a 1e+05 Hz
+    # log)" with no word of the --time-unit ms that made it so
+    from lowcostdex.cli import main
+
+    (tmp_path / "m.xml").write_text(_TURNTABLE)
+    _slow_sine(tmp_path / "a.csv")
+    code = main(["gap", "analyze", "--model", str(tmp_path / "m.xml"), "--log",
+                 str(tmp_path / "a.csv"), "--out", str(tmp_path / "r"), "--time-unit", "ms"])
+    assert code == 2 and not (tmp_path / "r").exists()
+    assert capsys.readouterr().err.endswith(
+        "read as ms (--time-unit ms): if 'time' is in seconds already, leave out --time-unit\n")

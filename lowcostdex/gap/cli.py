@@ -183,6 +183,9 @@ def _analyze(args: argparse.Namespace) -> int:
         unit = re.search(r": (ms|us|ns)\? \(", str(exc))
         if args.time_unit == "s" and unit and "column 'time'" in str(exc):
             raise LogError(f"{exc}; or pass --time-unit {unit.group(1)}") from None
+        if args.time_unit != "s" and "column 'time' must be in seconds" in str(exc):
+            raise LogError(f"{exc}, read as {args.time_unit} (--time-unit {args.time_unit}): if "
+                           "'time' is in seconds already, leave out --time-unit") from None
         raise
     for note in same + ds.notes:
         console.print(f"lowcostdex gap analyze: note: {note}", markup=False, highlight=False,
