@@ -94,13 +94,48 @@ def test_a_sensor_the_data_need_or_cannot_tell_stays_free(sensor, bias, noise):
     t = _fit(res, ctx)
     notes: dict = {}
     calls = []
-    late = lambda: _residual(W, sensor, bias, noise)  # noqa: E731
+    late = lambda f=1.0: _residual(W, sensor, bias, noise)  # noqa: E731 (at a finer step too)
     assert hold_sensor(t, lambda b: calls.append(1) or res(b), ctx, GapConfig(), notes,
-                       late=late) is t
+                       late=late, finer=True) is t
     assert ctx.widened == {} and notes == {}
     assert bool(calls) == (t.x[1] < 0.5)  # a sensor above 0.5 is not even refitted held
     want = sensor if not bias else 2 * bias / W
     assert t.x[1] == pytest.approx(want, abs=0.05)
+
+
+def test_a_sensor_standing_in_for_the_step_is_held_at_the_motor_side():
+    """The misfit survives the late goals but not a 4x finer step (``late(0.25)``; as sim2
+    backlash_offset_pendulum_stall since the sensor damps across the play, 4fc78c0: freeing it
+    lowered the cost 8.4 % as replayed, 6.1 % with goals half a 2 ms step late, -1.4 % at
+    0.5 ms): held at 0 with ``finer``, kept free without it (the late test alone)."""
+    res = _residual(W, 0.0, 3e-4, 3e-4)
+    steps = []
+
+    def late(f=1.0):
+        steps.append(f)
+        return _residual(W, 0.0, 3e-4 if f == 1 else 0.0, 3e-4)
+
+    ctx = _ctx()
+    assert hold_sensor(_fit(res, ctx), res, ctx, GapConfig(), {}, late=late) is not None
+    assert steps == [1.0] and ctx.widened == {}  # without ``finer``: free, as before
+    ctx, notes = _ctx(), {}
+    held = hold_sensor(_fit(res, ctx), res, ctx, GapConfig(), notes, late=late, finer=True)
+    assert steps == [1.0, 1.0, 0.25]  # ctx.dt 2 ms: 0.25 x (cfg.min_step 0.25 ms is finer)
+    assert [f.param for f in held.structure.free] == ["width"]
+    assert float(held.effects()[0].values["width"][0]) == pytest.approx(W, abs=2e-4)
+    assert ctx.widened == {("backlash", "sensor", 0): (0.0, 0.0)}
+    assert "at a 0.25x step" in notes["backlash"][0]
+
+
+def test_no_finer_try_at_the_finest_step():
+    """At ``cfg.min_step`` already there is no finer step to try: the late test decides."""
+    res, steps = _residual(W, 0.0, 3e-4, 3e-4), []
+    ctx = fitmod.Context(dt=2.5e-4, peak_force=np.array([1.0]), stall=np.array([np.inf]),
+                         damping=np.array([0.1]))
+    t = _fit(res, ctx)
+    late = lambda f=1.0: steps.append(f) or res  # noqa: E731
+    assert hold_sensor(t, res, ctx, GapConfig(), {}, late=late, finer=True) is t
+    assert steps == [1.0] and ctx.widened == {}
 
 
 def test_without_a_late_replay_nothing_is_held():

@@ -96,21 +96,20 @@ FAST = ("latency_queue_pendulum", "clean_pendulum")
 # since gap.exchange (gap-mass9, session 15, 634 s CPU): mass_error 1.488 [1.281, 1.727] / 1.5005
 # [1.448, 1.555], latency 33.4 [27.2, 37.7] / 30.3 [26.3, 32.2] ms, held-out 173.4 -> 7.75 mrad.
 
+# backlash_offset_pendulum_stall was 'interval' from 4fc78c0 (session 15) to session 25 (found by
+# the lead's bisect, 8a454c1): width 0.03872 [0.03510, 0.04485] for 0.03491, the sensor free at
+# 0.105. Since 4fc78c0 the sensor also puts the joint's damping on the play's rate, and freeing it
+# lowered the training cost 8.4 % as replayed and still 6.1 % with goals half a 2 ms step late
+# (15.4 % and -0.04 % with that damping term off): the late test no longer held it. At a 4x finer
+# step (0.5 ms: the play contact as stiff as the truth's) the held sensor fits better (-1.4 %).
+# Since gap-hold21 (session 26, gates.hold_sensor's second try at a 0.25x step, goals half of it
+# late: 0.1 %): held, exact, width 0.0346 [0.03227, 0.03559], offset -0.05235 [-0.05271,
+# -0.05198] for -0.05236, 114 s CPU (nice'd, load 5).
+
 # what the analysis named instead, per case it misses (bench/gap_redteam.py, 2026-11-26)
 MISSES: dict[str, str] = {
     # queue_mass_arm2_posonly passed on main 3783eb4 (lead, session 16, 795 s CPU; gap-mass11's
     # prune_refitted): mass 1.491 / 1.500, latency 33.4 / 30.3 ms, inside; held-out 173.4 -> 7.63 mrad
-    "backlash_offset_pendulum_stall": "interval (lead, session 25, main 8a454c1, 79 s CPU): named "
-                                      "exactly (backlash + position_offset, held-out 56.0 -> "
-                                      "1.67 mrad) but width 0.03872 [0.03510, 0.04485] for "
-                                      "0.03491, with the play's sensor free at 0.105 (the truth "
-                                      "reads and damps the motor side). Bisected over main "
-                                      "e945dfa..8a454c1: first bad 4fc78c0 (session 15, the "
-                                      "joint's nominal damping read across the play with "
-                                      "`sensor`); before it gates.hold_sensor held the sensor at 0 "
-                                      "and the width was 0.03460 [0.03355, 0.03559]. Since it, "
-                                      "freeing the sensor lowers the training cost with goals "
-                                      "half a step late too, so the hold no longer applies",
 }
 
 

@@ -482,7 +482,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         final_fn = eng.residual_fn(all_segs)
         while True:
             final_track = _final_fit(current, cur_x, final_fn, cfg, ctx, widened_notes, ds.timestep,
-                                     lambda: eng.residual_fn(all_segs, ds.timestep / 2))
+                                     lambda f=1.0, c=current.names: (eng if f == 1 else _Engine(
+                                         ds.with_timestep(f), cfg, c)).residual_fn(all_segs, f * ds.timestep / 2))
             mid, half, noise, data, shift = _intervals(ds, final_track, all_segs, cfg, prog,
                                                        timing)
             margin = significance.null_margins(final_track.structure, mid, half, ctx)
@@ -543,10 +544,10 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
 def _final_fit(current: fitmod.Structure, cur_x: np.ndarray, fn, cfg: GapConfig,
                ctx: fitmod.Context, widened_notes: dict, dt: float, late=None) -> fitmod.Track:
     """``current`` refitted on ``fn`` (train + select), tighter than the screening fits (a lag's
-    play sensor held at 0; a jagged width in its valley, ``width_scan``; a bound widened)."""
+    play sensor held at 0, ``late``; a jagged width in its valley, ``width_scan``; a bound widened)."""
     t, n = fitmod.Track(current, current.u(cur_x), label="final"), 2 * cfg.max_rounds
     fitmod.lockstep_lm([t], fn, n, rtol=1e-5)
-    t = width_scan.restart(hold_sensor(t, fn, ctx, cfg, widened_notes, late), fn, n)
+    t = width_scan.restart(hold_sensor(t, fn, ctx, cfg, widened_notes, late, finer=True), fn, n)
     if fitmod.polish(t, fn, dt):
         fitmod.lockstep_lm([t], fn, 1)  # residual and Jacobian at the polished point (intervals)
     if fitmod.at_bounds(t.structure, t.u):

@@ -21,6 +21,12 @@ A parameter free everywhere is fitted where the data cannot tell it (session 8: 
   motor side, fits best, 0.23 mrad RMS; without it width 0.0270 / sensor 0.035 beat it, 0.32 vs
   0.37 mrad. On its training segments freeing the sensor lowered the cost 6.1 %, 0.13 % with
   goals 0.125 ms later, and the width interval [0.02649, 0.02771] excluded the true 0.02618).
+  Since the sensor also reads the joint's damping across the play (4fc78c0) it can stand in for
+  the step as well: the play's contact is 2 physics steps soft. When the late goals keep the gain
+  the pair is refitted at a 4x finer step (``FINE_STEP``) with goals half of it late (redteam sim2
+  backlash_offset_pendulum_stall, the truth's contact 1 ms stiff: freeing the sensor lowered the
+  cost 8.4 % as replayed, 6.1 % late, 0.1 % at 0.5 ms; held, width 0.0346 for the true 0.03491,
+  free 0.0387 [0.0351, 0.0449]; 15.4 % / -0.04 % with that damping term off).
 
 An effect whose interval reaches "no effect" while its cost profiled there rises past the data's
 threshold is kept (``profile_shown``): a play's width is not linear (a gravity-loaded link leans
@@ -65,6 +71,7 @@ ASYMMETRY = ("coulomb_friction", "asymmetry")
 SENSOR = ("backlash", "sensor")
 STRIBECK, COULOMB = "stribeck_friction", "coulomb_friction"
 EXCHANGEABLE = {"inertia_error": "gain_error", "mass_error": "gain_error"}  # 1 / scale each
+FINE_STEP = 0.25  # x the physics step of ``hold_sensor``'s second try: its play contact 4x stiffer
 
 
 def free_asymmetry(best: dict[str, fitmod.Track], residual: fitmod.ResidualFn,
@@ -100,15 +107,18 @@ def free_asymmetry(best: dict[str, fitmod.Track], residual: fitmod.ResidualFn,
 
 def hold_sensor(t: fitmod.Track, residual: fitmod.ResidualFn, ctx: fitmod.Context,
                 cfg: GapConfig, notes: dict[str, list[str]],
-                late: Callable[[], fitmod.ResidualFn] | None = None, rtol: float = 1e-5
-                ) -> fitmod.Track:
+                late: Callable[..., fitmod.ResidualFn] | None = None, rtol: float = 1e-5,
+                finer: bool = False) -> fitmod.Track:
     """``t`` (a fitted track), or ``t`` refitted with every backlash sensor it fitted below 0.5
     held at 0 (the motor side) when the sensors stand in for a lag: freeing them lowers the
     training cost by ``cfg.min_gain`` on ``residual`` but not on ``late()`` (the same data with
     every goal acting half a physics step later: a servo applies a goal at its next control tick,
     a lag no replay resolves and below the latency's one-step floor). A sensor the data cannot
     tell (less than ``min_gain``) stays free: the width's interval then spans where the loop may
-    read. A hold is kept for later refits (``ctx.widened``) and noted in ``notes``."""
+    read. With ``finer``, when the late goals keep the gain, the pair is refitted once more on
+    ``late(f)``: the physics step ``ctx.dt`` x f (``FINE_STEP``, not below ``cfg.min_step``),
+    goals half that step later; held when the gain is gone there: it stood in for the step
+    (``FINE_STEP``). A hold is kept for later refits (``ctx.widened``) and noted in ``notes``."""
     s = t.structure
     low = {f.joint: float(x) for f, x in zip(s.free, t.x, strict=True)
            if (f.effect, f.param) == SENSOR and x < 0.5}
@@ -123,14 +133,20 @@ def hold_sensor(t: fitmod.Track, residual: fitmod.ResidualFn, ctx: fitmod.Contex
     pair = [fitmod.Track(s, t.u.copy(), label="late"), fitmod.Track(ns, nt.u.copy())]
     fitmod.lockstep_lm(pair, late(), cfg.max_rounds, rtol=rtol, jacobian_at_end=False)
     gains = [1 - t.cost / nt.cost, 1 - pair[0].cost / max(pair[1].cost, 1e-300)]
+    why = f"{100 * gains[1]:.1f} % with goals half a physics step later"
+    fine = max(FINE_STEP, cfg.min_step / ctx.dt)
+    if gains[1] >= cfg.min_gain and finer and fine < 1:  # ... and at a finer step, as late
+        pair = [fitmod.Track(s, t.u.copy(), label="fine"), fitmod.Track(ns, nt.u.copy())]
+        fitmod.lockstep_lm(pair, late(fine), cfg.max_rounds, rtol=rtol, jacobian_at_end=False)
+        gains[1] = 1 - pair[0].cost / max(pair[1].cost, 1e-300)
+        why += f", {100 * gains[1]:.1f} % at a {fine:g}x step with goals half of it later"
     if gains[1] >= cfg.min_gain:
         return t
     ctx.widened.update(ranges)
     notes.setdefault(SENSOR[0], []).extend(
         f"sensor[{s.joints[j]}] held at 0 (motor side): freed ({v:.3g}) it lowers the training "
-        f"error {100 * gains[0]:.1f} % as replayed but {100 * gains[1]:.1f} % with goals half a "
-        f"physics step later (< {100 * cfg.min_gain:.0f} %): it stood in for a lag"
-        for j, v in low.items())
+        f"error {100 * gains[0]:.1f} % as replayed but {why} (< {100 * cfg.min_gain:.0f} %): it "
+        "stood in for a lag or the step" for j, v in low.items())
     return nt
 
 
