@@ -236,3 +236,16 @@ def test_time_unit_ms_on_a_log_in_seconds_says_to_leave_it_out(tmp_path, capsys)
     assert code == 2 and not (tmp_path / "r").exists()
     assert capsys.readouterr().err.endswith(
         "read as ms (--time-unit ms): if 'time' is in seconds already, leave out --time-unit\n")
+
+
+def test_load_extended_reads_the_folder_of_its_effects_json(tmp_path):
+    # README's --effects takes report/extended/effects.json; before, load_extended of that very
+    # file said "effects.json: no effects.json (not an extended model folder)"
+    from lowcostdex.gap import load_extended, save_extended
+
+    save_extended(tmp_path / "extended", {"model": _TURNTABLE},
+                  [AppliedEffect("latency", ("j",), {"delay": 0.01})])
+    ext = load_extended(tmp_path / "extended" / "effects.json")
+    assert [e.name for e in ext.effects] == ["latency"]
+    with pytest.raises(ConfigError, match=r"nope: no such folder \(not an extended model folder"):
+        load_extended(tmp_path / "nope")

@@ -189,13 +189,20 @@ class ExtendedModel:
 
 
 def load_extended(folder: str | Path) -> ExtendedModel:
-    """Load a folder written by ``save_extended`` (or a report folder's ``extended/``)."""
-    folder = user_path(folder)
+    """Load a folder written by ``save_extended`` (or a report folder's ``extended/``; a file
+    in either, e.g. its ``effects.json`` or ``report.json``, reads its folder: before, "no
+    effects.json" was said of the effects.json itself)."""
+    given = folder = user_path(folder)
+    if folder.is_file():
+        folder = folder.parent
     path = folder / "effects.json"
     if not path.exists() and (folder / "extended" / "effects.json").exists():
         folder, path = folder / "extended", folder / "extended" / "effects.json"
     if not path.exists():
-        raise ConfigError(f"{folder}: no effects.json (not an extended model folder)")
+        why = ("no such folder" if not given.exists() else
+               f"no effects.json {'beside it' if given != folder else 'in it'}")
+        raise ConfigError(f"{given}: {why} (not an extended model folder: a gap report's "
+                          "extended/, or the report's folder)")
     raw = json.loads(path.read_text())
     if raw.get("format") != FORMAT:
         raise ConfigError(f"{path}: not a {FORMAT} file")
