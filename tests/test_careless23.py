@@ -249,3 +249,20 @@ def test_load_extended_reads_the_folder_of_its_effects_json(tmp_path):
     assert [e.name for e in ext.effects] == ["latency"]
     with pytest.raises(ConfigError, match=r"nope: no such folder \(not an extended model folder"):
         load_extended(tmp_path / "nope")
+
+
+def test_effects_options_read_a_gap_reports_folder_or_its_report_json(tmp_path):
+    # `lowcostdex emulate dclaw --effects report` (or report/report.json): before, "[Errno 21]
+    # Is a directory" and "must hold a JSON list of effects ..., got dict"
+    from lowcostdex.errors import InputError
+    from lowcostdex.gap import save_extended
+    from lowcostdex.sim.effects.randomization import read_effects
+
+    report = tmp_path / "report"
+    save_extended(report / "extended", {"model": _TURNTABLE},
+                  [AppliedEffect("latency", ("j",), {"delay": 0.01})])
+    (report / "report.json").write_text("{}")
+    for given in (report, report / "report.json", report / "extended"):
+        assert [e.name for e in read_effects(str(given))] == ["latency"]
+    with pytest.raises(InputError, match="a folder without effects.json"):
+        read_effects(str(tmp_path))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -245,12 +246,24 @@ EXTENDED_MODEL_FORMAT = "lowcostdex.extended_model"
 
 def read_effects(path: str) -> list[AppliedEffect]:
     """The effects in a JSON file (a list of ``AppliedEffect.to_dict()`` objects, or the
-    ``effects`` of a gap report's ``extended/effects.json``), as the ``--effects FILE`` options
-    take them; raises InputError naming the file and the entry."""
+    ``effects`` of a gap report's ``extended/effects.json``; the report's folder, its
+    ``report.json`` or its ``extended/`` folder read that file), as the ``--effects FILE``
+    options take them; raises InputError naming the file and the entry."""
     import json
 
     from lowcostdex.errors import InputError
 
+    folder = Path(path)
+    if folder.is_file() and folder.name == "report.json":  # a gap report: its extended/'s
+        folder = folder.parent
+    for inner in ("effects.json", "extended/effects.json"):  # a report or extended/ folder
+        if folder.is_dir() and (folder / inner).is_file():
+            path = str(folder / inner)  # before: "[Errno 21] Is a directory" / "got dict"
+            break
+    else:
+        if folder.is_dir():
+            raise InputError(f"--effects {path}: a folder without effects.json; give the JSON "
+                             "file, or a gap report's folder (its extended/effects.json)")
     try:
         with open(path, encoding="utf-8") as f:
             data = json.load(f)
