@@ -266,3 +266,13 @@ def test_effects_options_read_a_gap_reports_folder_or_its_report_json(tmp_path):
         assert [e.name for e in read_effects(str(given))] == ["latency"]
     with pytest.raises(InputError, match="a folder without effects.json"):
         read_effects(str(tmp_path))
+
+
+def test_emulate_bench_refuses_a_station_it_has_not(tmp_path):
+    # before: `lowcostdex emulate bench --station valve` served the one-servo bench and dropped
+    # the station unsaid (a subprocess with a timeout: the old code serves until stopped)
+    run = subprocess.run([sys.executable, "-m", "lowcostdex.cli", "emulate", "bench",
+                          "--station", "valve", "--quiet"], capture_output=True, text=True,
+                         timeout=60, cwd=tmp_path)
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert "--station valve: the bench is one servo and its arm, with no station" in run.stderr

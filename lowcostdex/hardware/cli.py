@@ -38,8 +38,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("emulate", help="serve an emulated Dynamixel hand on a pty")
     p.add_argument("hand", choices=("dclaw", "bench"))
     p.add_argument("--motor", default=None, help="servo model (default: the hand's)")
-    p.add_argument("--station", default="valve",
-                   help="D'Claw station (valve, foam_valve, screw, block, none = 9 motors)")
+    p.add_argument("--station", default=None,
+                   help="D'Claw station (valve, foam_valve, screw, block, none = 9 motors; "
+                        "default valve)")
     p.add_argument("--baud", type=bit_rate, default=1_000_000, help="bit rate [bit/s]")
     p.add_argument("--clock", default="realtime", choices=("realtime", "virtual"),
                    help="physics on wall time, or on bus time (advances with the bytes only)")
@@ -205,7 +206,10 @@ def _emulate(args: argparse.Namespace) -> int:
                   options=FirmwareOptions(fast_read=not args.no_fast_read), baudrate=args.baud,
                   wire_time=args.wire_time, effects=effects, rng=np.random.default_rng(args.seed))
     if args.hand == "dclaw":
-        kwargs["station"] = args.station
+        kwargs["station"] = args.station or "valve"
+    elif args.station is not None:  # before: served the bench, the station dropped unsaid
+        raise InputError(f"--station {args.station}: the bench is one servo and its arm, with "
+                         "no station; leave out --station, or emulate dclaw")
     if args.motor:
         kwargs["motor"] = args.motor
     chain = _emulated_chain(args.hand, clock=args.clock, **kwargs)
