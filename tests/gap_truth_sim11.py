@@ -33,7 +33,8 @@ Hidden effects (``Effect.kind``), each written here from its physics:
 - ``backlash``: a play of full width ``value`` rad between the servo's gear (the rotor: armature,
   damping, friction, the firmware's torque) and the output; the encoder sits on the output (as a
   Dynamixel's does) so the log reads the output and the firmware's velocity loop reads its rate
-  across the play.
+  across the play. Where the host holds the joint that loop hunts (a limit cycle: the rotor
+  crosses the play, kicks the output, crosses back; 9 mrad RMS at a hold), as such servos do.
 - ``gain``: the servo's velocity loop gain (Velocity P Gain) is ``value`` times the model's kv.
 - ``offset``: the host reads q + ``value`` (a horn mounted one spline off); the servo and
   gravity see the true angle.
