@@ -276,3 +276,14 @@ def test_emulate_bench_refuses_a_station_it_has_not(tmp_path):
                          timeout=60, cwd=tmp_path)
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert "--station valve: the bench is one servo and its arm, with no station" in run.stderr
+
+
+def test_record_log_on_the_allegro_refuses_a_dynamixel_bit_rate(tmp_path, capsys):
+    # before: `record-log --hand allegro --baud 57600` recorded on CAN, the bit rate dropped
+    from lowcostdex.cli import main
+
+    code = main(["record-log", "--hand", "allegro", "--port", "emulated", "--baud", "57600",
+                 "--logs", "1", "--seconds", "1", "--out", str(tmp_path / "logs")])
+    assert code == 2 and not (tmp_path / "logs").exists()
+    assert "--baud 57600 is the D'Claw's Dynamixel bit rate; the Allegro's CAN bit rate is set " \
+           "on its interface" in capsys.readouterr().err

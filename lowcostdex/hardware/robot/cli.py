@@ -61,7 +61,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="folder for log_<k>.csv")
     p.add_argument("--seed", type=SEED, default=0, help="seed of the excitation")
     p.add_argument("--spec", default=None, help="hand spec JSON (calibration); default built-in")
-    p.add_argument("--baud", type=bit_rate, default=1_000_000, help="bit rate [bit/s]")
+    p.add_argument("--baud", type=bit_rate, default=None,
+                   help="the D'Claw's Dynamixel bit rate [bit/s] (default 1000000)")
     add_latency_option(p)
     p.add_argument("--effects", default=None,
                    help="emulated robot only: JSON list of AppliedEffect dicts it carries "
@@ -194,6 +195,10 @@ def _record_log(args: argparse.Namespace) -> int:
         if args.latency_ms is not None:
             raise ConfigError("--latency-ms is a serial adapter's latency timer (D'Claw); the "
                               "Allegro hand is on CAN")
+        if args.baud is not None:  # before: dropped unsaid
+            raise ConfigError(f"--baud {args.baud} is the D'Claw's Dynamixel bit rate; the "
+                              "Allegro's CAN bit rate is set on its interface (ip link set can0 "
+                              "type can bitrate 1000000): leave out --baud")
         if not emulated:  # before anything is written
             from lowcostdex.hardware.allegro.driver import check_can_channel
 
@@ -276,7 +281,7 @@ def _record_logs(args: argparse.Namespace, hand, joints: tuple[str, ...], effect
             paths = dclaw_identification_logs(
                 hand, joints, args.out, args.logs, args.seconds,
                 np.random.default_rng(args.seed), port=None if emulated else args.port,
-                baudrate=args.baud, latency_ms=args.latency_ms, **common)
+                baudrate=args.baud or 1_000_000, latency_ms=args.latency_ms, **common)
     return paths
 
 
