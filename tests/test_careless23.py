@@ -287,3 +287,13 @@ def test_record_log_on_the_allegro_refuses_a_dynamixel_bit_rate(tmp_path, capsys
     assert code == 2 and not (tmp_path / "logs").exists()
     assert "--baud 57600 is the D'Claw's Dynamixel bit rate; the Allegro's CAN bit rate is set " \
            "on its interface" in capsys.readouterr().err
+
+
+def test_reset_test_on_a_real_port_refuses_no_effects(capsys):
+    # before: `reset-test --port /dev/ttyUSB0 --no-effects` ran on the robot, the option (the
+    # emulated robot's servo effects) dropped unsaid; here refused before the port is opened
+    from lowcostdex.cli import main
+
+    assert main(["reset-test", "--port", "/dev/ttyUSB9", "--no-effects"]) == 2
+    assert "--no-effects is for --port emulated (its default servo effects); the robot on " \
+           "/dev/ttyUSB9 has its own" in capsys.readouterr().err

@@ -123,6 +123,9 @@ def _reset_test(args: argparse.Namespace) -> int:
     if args.latency_ms is not None and args.port == "emulated":
         raise ConfigError("--latency-ms is the serial adapter's latency timer: it needs "
                           "--backend hardware --port DEVICE")
+    if args.no_effects and args.port != "emulated":  # before: dropped unsaid
+        raise ConfigError(f"--no-effects is for --port emulated (its default servo effects); "
+                          f"the robot on {args.port} has its own: leave out --no-effects")
     _check_dynamixel_port(args.port)
     hand = _hand(args.spec)
     model = build_dclaw("valve", hand).compile()
