@@ -91,3 +91,41 @@ def test_each_joint_gets_a_start_with_a_play_there_alone(arm):
         want[j] = 0.01
         np.testing.assert_allclose(vals["width"], want)
         assert vals["sensor"][j] == 1.0
+
+
+def test_a_one_joint_rig_gets_no_one_joint_start():
+    """On a one-joint rig the catalogue's starts already put their play on its only joint: no
+    one-joint start is added (a one-joint bench's backlash round costs what it did)."""
+    ctx = fitmod.Context(dt=0.002, peak_force=np.ones(1), stall=np.full(1, np.inf),
+                         damping=np.zeros(1))
+    assert len(play_side.tracks("backlash", ["j"], ctx, one_joint=True)) == len(
+        play_side.tracks("backlash", ["j"], ctx))
+
+
+def test_a_sensor_the_data_cannot_tell_goes_back_to_its_start():
+    """A fitted play whose training residual does not depend on a joint's sensor (written out
+    here: the residual reads the widths only) does not keep the 1.0 a start put there: it goes
+    back to the catalogue's start (the motor side); a sensor the residual does depend on stays."""
+    n = 3
+    ctx = fitmod.Context(dt=0.002, peak_force=np.ones(n), stall=np.full(n, np.inf),
+                         damping=np.zeros(n))
+    st = play_side.structures("backlash", ["a", "b", "c"], ctx)[0]
+    sensors = [i for i, f in enumerate(st.free) if f.param == "sensor"]
+    widths = [i for i, f in enumerate(st.free) if f.param == "width"]
+
+    def fn(points, told=()):  # the widths' misfit from 0.02 rad, plus the told sensors' from 1
+        out = []
+        for _, x in points:
+            out.append(np.concatenate([x[widths] - 0.02, [x[sensors[j]] - 1.0 for j in told]]))
+        return out
+
+    for told in ((), (1,)):
+        x = np.array([0.02 if f.param == "width" else (1.0 if f.joint == 1 else f.start)
+                      for f in st.free])
+        t = fitmod.Track(st, st.u(x))
+        t.r = fn([(st, x)], told)[0]
+        t.cost = 0.5 * float(t.r @ t.r)
+        moved = play_side.settle_sensor(t, lambda p, told=told: fn(p, told))
+        s1 = t.x[sensors[1]]
+        assert (moved, s1) == ((True, st.free[sensors[1]].start) if not told else (False, 1.0))
+        np.testing.assert_allclose(t.x[widths], 0.02)

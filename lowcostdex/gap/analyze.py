@@ -27,7 +27,7 @@
    that model, refitted, gets much closer at a finer step, and the first cause is then chosen
    again at that step: ``stepsize``; a round that does not accept the play its backlash fit
    finds, one its joint's motion crosses within a step, is tried once more at a finer step
-   with ``GapConfig.play_step``, off by default: ``stepsize.play_factor``). A change of model must pay
+   (``GapConfig.play_step``: ``stepsize.play_factor``; then no backward search). A change of model must pay
    over consecutive blocks of select data too (``significance``: paired block bootstrap > 0).
 4. An effect the others, refitted, do as well without is dropped (``exchange.prune_refitted``).
    The chosen structure is refitted on train + select; an effect whose every 95 % interval
@@ -260,6 +260,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                        if fitmod.scan_limits(t, fit_fn) | fitmod.polish(t, fit_fn, ds.timestep)]
             if rescued:
                 fitmod.lockstep_lm(rescued, fit_fn, cfg.max_rounds // 2, jacobian_at_end=False)
+            play_side.settle_sensor(best_track.get("backlash"), fit_fn)  # not where a start put it
             if current.effects:
                 # joint refits (earlier effects free again) of the most promising candidates
                 joint_tracks = []
@@ -377,8 +378,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             play_try, timestep["used"], timestep["play"] = (), ds.timestep, "accepted"
             base_pred = eng.rep.run(eps, [[]])[0][0]
         if stop:
-            stop_reason = stop
-            timing[f"round{step + 1}"] = time.perf_counter() - t0
+            stop_reason, timing[f"round{step + 1}"] = stop, time.perf_counter() - t0
             break
         equivalents[n_best] = [n for n in tied if n != n_best]
         if n_best in widened:
@@ -422,7 +422,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     # Effects only helping together (a friction model needs the right inertia) are invisible to
     # forward steps; the pruned joint model replaces the forward one if it gains ``min_gain``.
     fwd_rmse = math.sqrt(sel_cur[0].sum() / sel_cur[2].sum())
-    if cfg.search == "both" and rounds and not quiet and fwd_rmse > cfg.backward_above * floor_rms:
+    searches = cfg.search == "both" and timestep.get("play") != "accepted"  # (cost at its step)
+    if searches and rounds and not quiet and fwd_rmse > cfg.backward_above * floor_rms:
         t0 = time.perf_counter()
         prog("backward search from the top candidates", 0.8)
         big = tuple(dict.fromkeys(current.effects + tuple(
@@ -445,7 +446,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         timing["backward_search"] = time.perf_counter() - t0
 
     # ---- exchange: an accepted stand-in replaced by what the model without it needs ------
-    if (cfg.search == "both" and cfg.exchange_k and rounds and not quiet and len(current.effects) > 1
+    if (searches and cfg.exchange_k and rounds and not quiet and len(current.effects) > 1
             and math.sqrt(sel_cur[0].sum() / sel_cur[2].sum()) > cfg.backward_above * floor_rms):
         t0, rsegs = time.perf_counter(), _subset(ds, train_segs, cfg.rank_seconds)
         prog("exchange: each accepted cause against what the model without it needs", 0.82)

@@ -21,6 +21,7 @@ joint at the read floor; fin_pair's 0.05 rad prox play (its 80 ms latency on abd
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -31,6 +32,7 @@ from lowcostdex.sim.effects import AppliedEffect
 READ, SENSOR = ("backlash", "read"), ("backlash", "sensor")
 WIDTH = ("backlash", "width")
 ONE_JOINT = (0.01, 1.0)  # a one-joint start: width [rad] (the catalogue's start), sensor (across)
+UNTOLD = 1e-6  # a sensor moving the training cost by less (relative) is not told by the data
 
 
 def motor_ranges(n: int) -> dict[tuple[str, str, int], tuple[float, float]]:
@@ -64,10 +66,12 @@ def tracks(name: str, joints: Sequence[str], ctx: fitmod.Context,
 def one_joint_starts(st: fitmod.Structure) -> list[np.ndarray]:
     """Starts of a backlash structure ``st`` with a play on one joint each (``ONE_JOINT``: its
     width and sensor there; every other joint's width at none): one per joint whose width is
-    free (none for other structures)."""
+    free, none for other structures or a one-joint rig (the catalogue's starts put their play
+    on its only joint already). A sensor the data cannot tell stays where a start put it:
+    ``settle_sensor``."""
     x0 = np.array([f.start for f in st.free])
     out = []
-    for j in range(len(st.joints)):
+    for j in range(len(st.joints) if len(st.joints) > 1 else 0):
         x = np.array([0.0 if (f.effect, f.param) == WIDTH else v
                       for f, v in zip(st.free, x0, strict=True)])
         moved = False
@@ -78,6 +82,41 @@ def one_joint_starts(st: fitmod.Structure) -> list[np.ndarray]:
         if moved:
             out.append(x)
     return out
+
+
+def settle_sensor(t: fitmod.Track | None, fn: fitmod.ResidualFn) -> bool:
+    """Set every backlash sensor of the fitted track ``t`` that sits at 0.5 or more (across the
+    play) but moves ``t``'s cost on ``fn`` by less than ``UNTOLD`` (relative) back to its
+    catalogue start (the motor side), in place; True when one moved (None: no track, False).
+    One batched replay.
+
+    A start is not evidence: where the replay cannot tell the sensor, a fit leaves it where its
+    start put it. Measured (session 26, the main job's emulated D'Claw, dcmotor servos, truth
+    sensor 0): the one-joint start (sensor 1.0) that won left ff_middle's sensor at 1.0, its
+    widths the same to 1e-9 rad as the catalogue start's (sensor 0) fit."""
+    if t is None:
+        return False
+    s = t.structure
+    idx = [i for i, (f, v) in enumerate(zip(s.free, t.x, strict=True))
+           if (f.effect, f.param) == SENSOR and v >= 0.5]
+    if not idx or t.r is None or not math.isfinite(t.cost):
+        return False
+    trials = []
+    for i in idx:
+        x = t.x.copy()
+        x[i] = s.free[i].start
+        trials.append((s, x))
+    rs = fn(trials)
+    untold = [i for i, r in zip(idx, rs, strict=True)
+              if np.all(np.isfinite(r)) and 0.5 * float(r @ r) <= t.cost * (1 + UNTOLD)]
+    if not untold:
+        return False
+    x = t.x.copy()
+    for i in untold:
+        x[i] = s.free[i].start
+    r = rs[idx.index(untold[0])] if len(untold) == 1 else fn([(s, x)])[0]
+    t.u, t.r, t.cost, t.jac = s.u(x), r, 0.5 * float(r @ r), None
+    return True
 
 
 def keep(best: dict[str, fitmod.Track], widened: dict[str, tuple[dict, list]]) -> None:
