@@ -37,21 +37,14 @@ FAST: frozenset[str] = frozenset()
 # the test runs it; /usr/bin/time -v user + sys). Measured on main 89e052c (session 22, gap-sim9).
 # clean_arm4_deg_ms: clean on main 2aa3dc2 (nothing named: the nominal model's train + select
 # RMSE within 3 noise floors; held-out 1.25 mrad, floor 0.57; analysed at 0.5 ms), 63 s CPU.
-# limit_play_offset_arm4: exact on gap-arm20's 55ccbc0 (play_step, now off by default) (2221 s CPU,
-# was 275 s on 8a454c1: LOSS, 8.1x): the one-joint backlash start finds the elbow's play at 2 ms
-# (10.0 mrad, sensor 1.0), the round is tried again at 0.5 ms (a structural play) where it is
-# accepted: shoulder torque_limit 1.197 [1.175, 1.222], elbow backlash 8.94 mrad [0.12, 18.1]
-# (sensor 1.02), wrist offset 0.02990 [0.02913, 0.03067], nothing on the gripper; held-out
-# 74.6 -> 2.32 mrad (floor 0.59; was 3.30 without the play).
-MISSES: dict[str, str] = {
-    "limit_play_offset_arm4": "exact only with GapConfig(play_step=True), which is off by default "
-    "(lead, session 25: with it on, CI's test_main_job fitted the emulated D'Claw's play read on "
-    "the output, sensor 1.0 for the truth's 0, on one joint, and this case took 8.1x the CPU). "
-    "Off (main 8a454c1, 275 s CPU): shoulder torque_limit and wrist offset right, the elbow's "
-    "10 mrad output-side play not named (backlash refitted at ~1 mrad widths, sensor 0; "
-    "'not robust'), held-out 74.9 -> 3.30 mrad; why: gap-arm19 (one start moves every joint "
-    "alike; at 2 ms the play barely pays) and the comment above",
-}
+# limit_play_offset_arm4: exact with GapConfig.play_step, on by default since gap-arm21 (session 26;
+# 691 s CPU, 2.7x the 254 s of the same code with it off, which misses the elbow's play; gap-arm20's
+# first version took 2221 s): round 3's one-joint backlash start finds the elbow's play, the round
+# is tried again at 0.5 ms (a structural play) where it is accepted (elbow 10.4 mrad, sensor 1.02,
+# select MSE 28.7 % lower), and no backward search or exchange runs at that step: shoulder torque_limit 1.197 [1.175, 1.222],
+# elbow backlash 8.94 mrad [0.12, 18.1] (sensor 1.02), wrist offset 0.02990 [0.02913, 0.03067],
+# nothing on the gripper; held-out 74.6 -> 2.32 mrad (floor 0.59; was 3.30 without the play).
+MISSES: dict[str, str] = {}
 
 
 def shown_per_joint(report: dict) -> dict[str, set[str]]:

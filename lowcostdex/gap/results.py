@@ -108,12 +108,12 @@ class GapConfig:
       refine_gain: the share of the MSE above the floor a halving must remove (a hidden effect
         the step interacts with also moves the nominal replay: the independent bench's 0.14 N m
         Coulomb friction, simulated at 2 ms, came 8.7 % closer at 1 ms).
-      play_step: off by default. On: a backlash fit also starts with a play on one joint at a
-        time, and a round that does not accept a play its joint crosses within one physics step
-        is tried once more at a finer step (``stepsize.play_factor``). Measured (session 25):
-        sim9's elbow play named (limit_play_offset exact) but 8.1x the CPU (2221 vs 275 s), and
-        the main job's emulated D'Claw got a play read on the output (sensor 1.0, truth 0) on
-        one joint: off until both are answered.
+      play_step: on by default (session 26; off in session 25). A backlash fit also starts
+        with a play on one joint at a time (a sensor the data cannot tell goes back to its
+        start: ``play_side.settle_sensor``), and a round that does not accept a play its joint
+        crosses within one physics step is tried once more at a finer step
+        (``stepsize.play_factor``); once a play is accepted there, the backward search and the
+        exchange are not run (their replays at that step were 77 % of sim9's 2221 s CPU).
       servo_periods: servo update periods [s] tried with the first accepted cause refitted
         (``stepsize.refine_fitted``; a Dynamixel's or Feetech's position loop runs at ~1 kHz);
         one is kept when it pays as a finer step must. Empty: the law stays continuous.
@@ -147,7 +147,7 @@ class GapConfig:
     refine_step: bool = True
     min_step: float = 2.5e-4
     refine_gain: float = 0.2
-    play_step: bool = False
+    play_step: bool = True
     servo_periods: tuple[float, ...] = (0.001,)
     seed: int = 0
     nthread: int = 0

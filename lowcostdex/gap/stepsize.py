@@ -24,9 +24,9 @@ barely pays at the model's step while it pays well at a finer one. Measured (gap
 24, sim9's arm: the elbow's 10 mrad play, its 99th percentile speed 11.2 rad/s, 22 mrad per 2 ms
 step; the true torque limit and offset held): the true play lowers the select MSE 13.5 / 32.7 /
 40.8 % at 2 / 1 / 0.5 ms, and a fit of it at 2 ms (elbow 8.0 mrad, shoulder 4.5) was 7.9 % worse
-at 2 ms, 32.4 % better at 0.5 ms. With ``GapConfig.play_step`` (off by default: 8x the CPU on
-sim9, and the main job's play fitted on the wrong side), when a round's backlash fit has such a
-play and the round accepts nothing, the analysis tries the round again at the step where the joint's fast motion
+at 2 ms, 32.4 % better at 0.5 ms. With ``GapConfig.play_step`` (on by default since session 26),
+when a round's backlash fit has such a play and the round does not accept it, the analysis tries
+the round again at the step where the joint's fast motion
 takes a step or more to cross the play (``gap.analyze``; the model it has refitted there: ``refit``).
 
 Errors in rad^2 (mean squares), steps in s.
