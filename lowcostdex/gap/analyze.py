@@ -260,7 +260,6 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                        if fitmod.scan_limits(t, fit_fn) | fitmod.polish(t, fit_fn, ds.timestep)]
             if rescued:
                 fitmod.lockstep_lm(rescued, fit_fn, cfg.max_rounds // 2, jacobian_at_end=False)
-            play_side.settle_sensor(best_track.get("backlash"), fit_fn)  # not where a start put it
             if current.effects:
                 # joint refits (earlier effects free again) of the most promising candidates
                 joint_tracks = []
@@ -276,7 +275,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     n = t.structure.effects[-1]
                     if t.cost < best_track[n].cost:
                         best_track[n] = t
-            play_fit = best_track.get("backlash", play_fit)
+            play_side.settle_sensor(play_fit := best_track.get("backlash", play_fit), fit_fn)
             widened = free_asymmetry(best_track, fit_fn, ctx, cfg)  # held terms data need
             names = list(best_track)
             results = select_results(eng.predict, ds, sel_eps, best_track, names, sel_cur,
