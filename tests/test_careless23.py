@@ -297,3 +297,36 @@ def test_reset_test_on_a_real_port_refuses_no_effects(capsys):
     assert main(["reset-test", "--port", "/dev/ttyUSB9", "--no-effects"]) == 2
     assert "--no-effects is for --port emulated (its default servo effects); the robot on " \
            "/dev/ttyUSB9 has its own" in capsys.readouterr().err
+
+
+_TORQUE_ARM = """<mujoco><option timestep="0.002"/><worldbody><body>
+<joint name="j" type="hinge" axis="0 0 1" damping="0.05"/>
+<geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0" mass="0.1"/></body></worldbody>
+<actuator><motor name="m" joint="j" ctrlrange="-0.05 0.05" ctrllimited="true"/>
+</actuator></mujoco>"""
+
+
+def test_degrees_scale_a_motors_angles_but_not_its_torque_goal(tmp_path):
+    # before (gap-sim13's find): `--units deg` multiplied EVERY goal column by pi/180, also a
+    # <motor>'s torque [N m]: a torque-controlled rig logged in degrees was replayed with
+    # torques 57x too small, silently. The log here is plain MuJoCo driven by the torques the
+    # test writes; its angles are written in degrees.
+    from lowcostdex.gap.dataset import load_dataset
+    model = mujoco.MjModel.from_xml_string(_TORQUE_ARM)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    torques = np.repeat(rng.uniform(-0.04, 0.04, 40), 25)  # 0.5 s holds at 50 Hz samples
+    rows = ["time,goal:m,qpos:j"]
+    for tau in torques:
+        rows.append(f"{data.time:.4f},{tau:.6f},{math.degrees(data.qpos[0]):.6f}")
+        data.ctrl[0] = tau
+        for _ in range(10):  # 20 ms per sample
+            mujoco.mj_step(model, data)
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "torque.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "arm.xml").write_text(_TORQUE_ARM)
+    ds = load_dataset(tmp_path / "logs", model=tmp_path / "arm.xml", angle_unit="deg")
+    traj = ds.trajectories[0]
+    logged = np.array([[float(r.split(",")[1]), float(r.split(",")[2])] for r in rows[1:]])
+    np.testing.assert_allclose(traj.goal[:, 0], logged[:, 0], atol=1e-9)  # N m, as logged
+    np.testing.assert_allclose(traj.qpos[:, 0], np.radians(logged[:, 1]), atol=1e-9)

@@ -263,8 +263,9 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             if slides:
                 raise LogError(f"--units deg: the model has slide joints ({', '.join(slides)}) "
                                "whose positions are lengths: log angles in rad instead")
-        trajs = [read_log(p, rate, gears, angle_scale=scale,
-                          time_scale=TIME_UNITS[time_unit]) for p in paths]
+        forces = frozenset(compiled.actuator(i).name for i in range(compiled.nu)  # N m goals
+                           if _not_a_position_servo(compiled, i).startswith(("a motor", "a muscle")))
+        trajs = [read_log(p, rate, gears, scale, TIME_UNITS[time_unit], forces) for p in paths]
         trajs = [_in_order(tr, trajs[0]) for tr in trajs]
     total = sum(tr.duration for tr in trajs)
     if total > MAX_TOTAL_DURATION:

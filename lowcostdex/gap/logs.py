@@ -221,13 +221,13 @@ def split_at_gaps(traj: Trajectory) -> tuple[list[Trajectory], list[str]]:
 
 def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset(),
              gears: dict[str, float] | None = None, angle_scale: float = 1.0,
-             time_scale: float = 1.0) -> Trajectory:
+             time_scale: float = 1.0, force_goals: frozenset[str] = frozenset()) -> Trajectory:
     """Read one log (CSV, NPZ or BAM JSON; BAM logs carry their bench setup in ``meta``).
     ``rate_goals``: actuators whose goal is a velocity [rad/s] (integrating servos);
     ``gears``: actuator -> gear (its goal is gear x the joint angle); ``angle_scale``: rad per
     unit of a project-format log's goal, qpos and qvel columns (pi/180: logged in degrees);
     ``time_scale``: seconds per unit of its 'time' and 'goal_time' columns (1e-3: integer
-    milliseconds); qvel stays per second."""
+    milliseconds); qvel stays per second; ``force_goals``: actuators whose goal is a force [N m]."""
     for name, value, e_g in (("angle_scale", angle_scale, "math.pi / 180 for degrees"),
                              ("time_scale", time_scale, "1e-3 for milliseconds")):
         ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
@@ -240,12 +240,12 @@ def read_log(path: str | Path, rate_goals: frozenset[str] | set[str] = frozenset
     cols, notes = _read_columns(path)
     if angle_scale != 1.0:
         for key, arr in cols.items():  # a log in rad given as degrees
-            kind, _, joint = str(key).partition(":")
-            if kind.strip().lower() == "qpos" and joint:
-                units.check_not_radians(np.asarray(arr, float), joint.strip(), path.name)
-        cols = {k: (np.asarray(v, float) * angle_scale
-                    if str(k).partition(":")[0].strip().lower() in ("goal", "qpos", "qvel")
-                    and ":" in str(k) else v) for k, v in cols.items()}
+            kind, _, joint = (t.strip() for t in str(key).partition(":"))
+            if kind.lower() == "qpos" and joint:
+                units.check_not_radians(np.asarray(arr, float), joint, path.name)
+            if joint and kind.lower() in ("goal", "qpos", "qvel") and not (  # a motor's goal:
+                    kind.lower() == "goal" and joint in force_goals):  # a torque, no angle
+                cols[key] = np.asarray(arr, float) * angle_scale
     if time_scale != 1.0:
         cols = {k: (np.asarray(v, float) * time_scale
                     if str(k).strip().lower() in ("time", "goal_time") else v)
