@@ -20,10 +20,12 @@ from lowcostdex.cli import main
 
 def case_params(sim: ModuleType, fast: set[str] | frozenset[str], misses: dict[str, str]) -> list:
     """One pytest param per case of ``sim.CASES``: ``slow`` unless in ``fast``, a strict xfail
-    (its reason) for each case in ``misses``."""
+    (its reason) for each case in ``misses``. A slow case may take longer than the suite's
+    600 s timeout (sim9 limit_play_offset: 691 s CPU, ~26 min wall on the shared VM), so it gets
+    an hour."""
     out = []
     for case in sim.CASES:
-        marks = [] if case.name in fast else [pytest.mark.slow]
+        marks = [] if case.name in fast else [pytest.mark.slow, pytest.mark.timeout(3600)]
         if case.name in misses:
             marks.append(pytest.mark.xfail(strict=True, reason=misses[case.name]))
         out.append(pytest.param(case.name, marks=marks, id=case.name))
