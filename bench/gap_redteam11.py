@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
-import resource
 import subprocess
 import sys
 
@@ -31,19 +30,14 @@ import redteam_harness as harness  # noqa: E402
 sim = harness.truth_module("gap_truth_sim11")
 
 
-def child_cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
-
-
 def run(name: str, root: pathlib.Path, threads: int = 1) -> dict:
     """Write case ``name`` under ``root/<name>/data``, analyse it and grade its report."""
     files = sim.write_case(sim.CASE_BY_NAME[name], root / name / "data")
     out = root / name / "report"
     cmd = harness.analyze_command(files, out, threads)
-    cpu0 = child_cpu()
+    cpu0 = harness.child_cpu()
     proc = subprocess.run(cmd, capture_output=True, text=True)
-    row = {"case": name, "command": " ".join(cmd), "cpu_s": round(child_cpu() - cpu0, 1),
+    row = {"case": name, "command": " ".join(cmd), "cpu_s": round(harness.child_cpu() - cpu0, 1),
            "exit": proc.returncode}
     if proc.returncode:
         return row | {"result": "crash", "stderr": (proc.stderr or proc.stdout)[-2000:]}

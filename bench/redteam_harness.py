@@ -21,6 +21,7 @@ import argparse
 import json
 import os
 import pathlib
+import resource
 import shutil
 import subprocess
 import sys
@@ -38,6 +39,12 @@ def truth_module(name: str) -> ModuleType:
     if str(TESTS) not in sys.path:
         sys.path.insert(0, str(TESTS))
     return __import__(name)
+
+
+def child_cpu() -> float:
+    """CPU seconds [s] (user + sys) the finished child processes used so far."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def analyze_command(files: dict, out: pathlib.Path, threads: int) -> list[str]:
