@@ -202,7 +202,7 @@ def load_extended(folder: str | Path) -> ExtendedModel:
         why = ("no such folder" if not given.exists() else
                f"no effects.json {'beside it' if given != folder else 'in it'}")
         raise ConfigError(f"{given}: {why} (not an extended model folder: a gap report's "
-                          "extended/, or the report's folder)")
+                          "extended/ holding effects.json, or the report's folder)")
     raw = json.loads(path.read_text())
     if raw.get("format") != FORMAT:
         raise ConfigError(f"{path}: not a {FORMAT} file")
