@@ -18,7 +18,6 @@ and the CPU seconds of each analysis (the child's user + sys).
 
 from __future__ import annotations
 
-import argparse
 import json
 import pathlib
 import subprocess
@@ -63,25 +62,9 @@ def line(r: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cases", nargs="+", help="case names (default: all)")
-    ap.add_argument("--keep", default="/tmp/rt10", help="folder for data and reports")
-    ap.add_argument("--json", help="write the rows to this file as they come")
-    ap.add_argument("--threads", type=int, default=1, help="gap analyze --threads")
-    args = ap.parse_args(argv)
-    names = args.cases or [c.name for c in sim.CASES]
-    unknown = [n for n in names if n not in sim.CASE_BY_NAME]
-    if unknown:
-        ap.error(f"unknown case(s) {unknown}; valid: {sorted(sim.CASE_BY_NAME)}")
-    root = pathlib.Path(args.keep)
-    rows = []
-    print("| case | named | grade | held-out RMSE | CPU s |\n|---|---|---|---|---|", flush=True)
-    for name in names:
-        rows.append(run(name, root, args.threads))
-        print(line(rows[-1]), flush=True)
-        if args.json:
-            pathlib.Path(args.json).write_text(json.dumps({"rows": rows}, indent=1))
-    return 0
+    return harness.sweep(sim, __doc__, "/tmp/rt10",
+                         "| case | named | grade | held-out RMSE | CPU s |\n|---|---|---|---|---|",
+                         run, line, argv)
 
 
 if __name__ == "__main__":

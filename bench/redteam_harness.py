@@ -133,6 +133,31 @@ def summary(label: str, rows: list[dict]) -> str:
             f"analysis wall time {wall:.0f} s ({wall / max(len(rows), 1):.0f} s/case)")
 
 
+def sweep(sim: ModuleType, doc: str, keep: str, header: str, run, line,
+          argv: list[str] | None = None) -> int:
+    """The plain command line of a per-case sweep (gap_redteam10/11): --cases, --keep, --json,
+    --threads; ``run(name, root, threads)`` makes a row, ``line(row)`` prints it under
+    ``header`` (a markdown table head), rows written to --json as they come."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--cases", nargs="+", help="case names (default: all)")
+    ap.add_argument("--keep", default=keep, help="folder for data and reports")
+    ap.add_argument("--json", help="write the rows to this file as they come")
+    ap.add_argument("--threads", type=int, default=1, help="gap analyze --threads")
+    args = ap.parse_args(argv)
+    names = args.cases or [c.name for c in sim.CASES]
+    unknown = [n for n in names if n not in sim.CASE_BY_NAME]
+    if unknown:
+        ap.error(f"unknown case(s) {unknown}; valid: {sorted(sim.CASE_BY_NAME)}")
+    rows: list[dict] = []
+    print(header, flush=True)
+    for name in names:
+        rows.append(run(name, pathlib.Path(args.keep), args.threads))
+        print(line(rows[-1]), flush=True)
+        if args.json:
+            pathlib.Path(args.json).write_text(json.dumps({"rows": rows}, indent=1))
+    return 0
+
+
 def main(sim: ModuleType, label: str, quick: tuple[str, ...], doc: str,
          argv: list[str] | None = None) -> int:
     """The command line of a red-team benchmark on truth simulator ``sim``."""
