@@ -31,7 +31,8 @@ from lowcostdex.demonstrations.dataset import save_demos, teacher_episodes
 
 ENV = "lowcostdex_test/PointMass-v0"
 TINY = ["--n-iter", "2", "--n-traj", "2", "--eval-every", "1", "--eval-episodes", "1",
-        "--hidden", "8", "--bc-epochs", "2", "--no-progress"]
+        "--hidden", "8", "--no-progress"]
+BC = ["--bc-epochs", "2"]  # a clone's setting: dapg, or npg with --bc-init (refused otherwise)
 
 
 @pytest.fixture(autouse=True)
@@ -47,7 +48,8 @@ def _demos(path: Path, n: int = 2) -> Path:
 
 
 def _train(capsys, algo: str, out: Path, *extra: str) -> tuple[int, str, str]:
-    code = main(["train", algo, "--env", ENV, "--out", str(out), *TINY, *extra])
+    bc = BC if algo == "dapg" or "--bc-init" in extra else []
+    code = main(["train", algo, "--env", ENV, "--out", str(out), *TINY, *bc, *extra])
     captured = capsys.readouterr()
     return code, captured.out, captured.err
 
@@ -420,7 +422,7 @@ NUMBER_CASES = [  # (trainer, option, value, what the line says)
     ("npg", "--eval-episodes", "0", "eval_episodes=0 must be an integer in [1, inf)"),
     ("npg", "--eval-every", "-1", "eval_every=-1 must be an integer in [0, inf)"),
     ("npg", "--seed", "-1", "seed=-1 must be an integer in [0, inf)"),
-    ("npg", "--bc-epochs", "-1", "BC epochs=-1 must be an integer in [0, inf)"),
+    ("dapg", "--bc-epochs", "-1", "BC epochs=-1 must be an integer in [0, inf)"),
     ("npg", "--hidden", "0", "hidden_sizes=(0,) must be positive integers"),
     ("dapg", "--lam0", "inf", "lam0=inf must be a finite number in [0, inf)"),
     ("dapg", "--lam1", "nan", "lam1=nan must be a finite number in [0, 1]"),

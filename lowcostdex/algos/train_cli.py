@@ -94,10 +94,12 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
                    help="extra gym.make argument (VALUE parsed as JSON when possible)")  # fmt: skip
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     # behaviour cloning: always for DAPG, with --bc-init for NPG
-    p.add_argument("--bc-epochs", type=int, default=d.bc.epochs,
-                   help="behaviour-cloning epochs over the demos (default %(default)s)")
-    p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=d.bc.log_std,
-                   help="initial exploration noise after BC")  # fmt: skip
+    p.add_argument("--bc-epochs", type=int, default=None,
+                   help=f"behaviour-cloning epochs over the demos (default {d.bc.epochs}; "
+                        "dapg, or npg with --bc-init)")
+    p.add_argument("--bc-log-std", choices=BC_LOG_STD, default=None,
+                   help=f"initial exploration noise after BC (default {d.bc.log_std}; dapg, "
+                        "or npg with --bc-init)")
     p.add_argument("--eval-bc", action="store_true",
                    help="evaluate the behaviour clone (--eval-episodes) before RL")
     p.add_argument("--eval-paired", action="store_true",
@@ -273,13 +275,21 @@ def beside_note(args: argparse.Namespace) -> str | None:
 
 def check_demo_options(args: argparse.Namespace) -> None:
     """Demo options that would be ignored: ``--n-demos`` without ``--demos``, ``--demos`` for
-    NPG without ``--bc-init``."""
+    NPG without ``--bc-init``, and ``--bc-epochs``/``--bc-log-std`` for NPG without
+    ``--bc-init`` (no clone is made)."""
     if args.n_demos is not None and not args.demos:
         raise ConfigError(f"--n-demos {args.n_demos} counts episodes of a demo file: give it with "
                           "--demos PATH, or leave out --n-demos")
     if args.demos and args.algo == "npg" and not args.bc_init:
         raise ConfigError(f"--demos {args.demos}: npg uses demonstrations only with --bc-init "
                           "(behaviour-clone them first); add --bc-init, or train dapg")
+    if args.algo == "npg" and not args.bc_init:
+        given = [f for f, v in (("--bc-epochs", args.bc_epochs),
+                                ("--bc-log-std", args.bc_log_std)) if v is not None]
+        if given:
+            raise ConfigError(f"{' and '.join(given)}: settings of the behaviour clone, which "
+                              "npg makes only with --demos PATH --bc-init; add those, train "
+                              f"dapg, or leave out {' and '.join(given)}")
 
 
 def config_from_args(args: argparse.Namespace) -> TrainConfig:
@@ -328,7 +338,9 @@ def _train_config(args: argparse.Namespace, d: TrainConfig, backend: str,
         dapg=DAPGConfig(lam0=args.lam0, lam1=args.lam1, demo_weight=args.demo_weight)
         if args.algo == "dapg"
         else d.dapg,
-        bc=dataclasses.replace(d.bc, epochs=args.bc_epochs, log_std=args.bc_log_std),
+        bc=dataclasses.replace(
+            d.bc, epochs=d.bc.epochs if args.bc_epochs is None else args.bc_epochs,
+            log_std=args.bc_log_std or d.bc.log_std),
         progress=not args.no_progress,
     )
 
