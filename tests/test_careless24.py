@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 
 from lowcostdex.cli import USER_ERROR, main
+from lowcostdex.errors import ConfigError
 
 
 @pytest.mark.parametrize("extra,named", [(["--bc-epochs", "50"], "--bc-epochs"),
@@ -19,4 +20,28 @@ def test_npg_refuses_clone_settings_without_a_clone(tmp_path, capsys, extra, nam
     assert f"{named}: settings of the behaviour clone, which npg makes only with --demos PATH " \
            "--bc-init" in err
     assert "Traceback" not in err and not out.exists()
+
+
+_ARM = """<mujoco><worldbody><body><joint name="j" type="hinge" damping="0.1"/>
+<geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0" mass="0.1"/></body></worldbody>
+<actuator><position name="a" joint="j" kp="2"/></actuator></mujoco>"""
+
+
+def test_a_randomization_on_a_joint_the_env_has_not_is_named_even_with_no_effects(tmp_path):
+    # before: an extended model with no effect fitted gave a DomainRandomization on joint 'x'
+    # that the valve env took without a word (with an effect it was refused), and one string
+    # was read letter by letter
+    import gymnasium as gym
+
+    import lowcostdex  # noqa: F401  (registers the envs)
+    from lowcostdex.gap.extension import load_extended, save_extended
+
+    ext = load_extended(save_extended(tmp_path / "ext", {"arm": _ARM}, []))
+    assert ext.domain_randomization("ff_top").joints == ("ff_top",)
+    dr = ext.domain_randomization(joints=["x"])
+    with pytest.raises(ConfigError, match=r"unknown joint in randomization.joints 'x'; valid "
+                                          r"choices: 'ff_top', .*'valve'"):
+        gym.make("lowcostdex/DClawTurnValve-v0", randomize=dr)
+    gym.make("lowcostdex/DClawTurnValve-v0", randomize=ext.domain_randomization(["ff_top"])
+             ).close()
 

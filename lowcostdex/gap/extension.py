@@ -183,7 +183,11 @@ class ExtendedModel:
         return Plant(spec.compile(), self.effects, rng=rng)
 
     def domain_randomization(self, joints: Sequence[str] | None = None) -> DomainRandomization:
-        """Randomize the fitted effects within their fitted ranges (e.g. for ``HandEnv``)."""
+        """Randomize the fitted effects within their fitted ranges (e.g. for ``HandEnv``, which
+        checks ``joints`` against its model); one string is one joint (it was read letter by
+        letter)."""
+        if isinstance(joints, str):
+            joints = (joints,)
         return DomainRandomization(tuple(self.ranges), tuple(joints or self.dr_joints),
                                    self.ranges)
 

@@ -18,7 +18,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError, did_you_mean
+from lowcostdex.errors import ConfigError, check_choice, did_you_mean
 from lowcostdex.motion import motion_bound
 from lowcostdex.sim.effects import DomainRandomization
 from lowcostdex.sim.envs.backend import Backend, backend_class
@@ -185,6 +185,11 @@ class HandEnv(gym.Env):
             probe = randomization.sample(np.random.default_rng(0))
             prepare_spec(spec, probe)
         self.model = spec.compile()
+        if randomization is not None:  # with no effects, a misspelt joint was taken unsaid
+            names = [n for n in (self.model.joint(i).name for i in range(self.model.njnt))
+                     if not n.endswith("__play")]
+            for joint in randomization.joints:
+                check_choice("joint in randomization.joints", joint, names)
         task.bind(self.model)
         self.backend_name = backend
         self._rng_for_backend = np.random.default_rng(0)
