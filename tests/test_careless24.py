@@ -45,3 +45,24 @@ def test_a_randomization_on_a_joint_the_env_has_not_is_named_even_with_no_effect
     gym.make("lowcostdex/DClawTurnValve-v0", randomize=ext.domain_randomization(["ff_top"])
              ).close()
 
+
+@pytest.mark.parametrize("actuator,kind", [
+    ('<position joint="j" kp="2"/>', "position"),
+    ('<intvelocity joint="j" kp="2" actrange="-1 1"/>', "position"),
+    ('<velocity joint="j" kv="1"/>', "velocity"),
+    ('<motor joint="j" gear="3"/>', "force"),
+    ('<general joint="j" gainprm="1"/>', "force"),
+    ('<muscle joint="j" lengthrange="0.1 1"/>', "muscle"),
+])
+def test_what_an_actuators_input_is_has_one_predicate(actuator, kind):
+    # before: load_dataset found the force actuators whose goals --units deg leaves alone by the
+    # leading words of a message ('a motor', 'a muscle'); the input kind is now asked of one
+    # predicate, and the message is said from it
+    import mujoco
+
+    from lowcostdex.gap.log_units import actuator_input, not_a_position_servo
+
+    model = mujoco.MjModel.from_xml_string(_ARM.replace(
+        '<position name="a" joint="j" kp="2"/>', actuator))
+    assert actuator_input(model, 0) == kind
+    assert bool(not_a_position_servo(model, 0)) == (kind != "position")

@@ -25,10 +25,10 @@ from lowcostdex.gap.log_paths import (  # noqa: F401 (LOG_SUFFIXES re-exported)
     model_path,
     no_such_log,
 )
+from lowcostdex.gap.log_units import actuators_taking
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
-    _not_a_position_servo,
     actuator_gears,
     check_against_model,
     estimate_velocity,
@@ -171,8 +171,7 @@ def _goals_not_positions(model: mujoco.MjModel) -> frozenset[str]:
     """Actuators whose log goal is not a position (an integrating servo's or a ``velocity``
     actuator's rate, a ``motor``'s torque): the goal-against-reading log checks skip them (a
     velocity-mode joint a latency holds reads one tick while its command jumps, gap-sim13)."""
-    other = {model.actuator(i).name for i in range(model.nu) if _not_a_position_servo(model, i)}
-    return rate_goal_actuators(model) | frozenset(other)
+    return rate_goal_actuators(model) | actuators_taking(model, ("velocity", "muscle", "force"))
 
 
 def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | None = None,
@@ -263,8 +262,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             if slides:
                 raise LogError(f"--units deg: the model has slide joints ({', '.join(slides)}) "
                                "whose positions are lengths: log angles in rad instead")
-        forces = frozenset(compiled.actuator(i).name for i in range(compiled.nu)  # N m goals
-                           if _not_a_position_servo(compiled, i).startswith(("a motor", "a muscle")))
+        forces = actuators_taking(compiled, ("force", "muscle"))  # N m goals: not in degrees
         trajs = [read_log(p, rate, gears, scale, TIME_UNITS[time_unit], forces) for p in paths]
         trajs = [_in_order(tr, trajs[0]) for tr in trajs]
     total = sum(tr.duration for tr in trajs)

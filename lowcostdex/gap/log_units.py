@@ -4,6 +4,8 @@ itself: a logged velocity that integrates to another multiple of the positions' 
 positions on a whole-degree encoder grid (a 4096-tick encoder read in degrees steps by
 360/4096 = 0.0879; in rad it steps by 0.00153). A log in degrees that moves less than
 4 pi (12.6 deg) passes the plausible-range check of ``log_checks``; these checks name it.
+What an actuator's input is (a position, a velocity, a force: only positions are angles) is
+said here too (``actuator_input``).
 """
 
 from __future__ import annotations
@@ -136,6 +138,51 @@ def check_not_radians(q: np.ndarray, joint: str, name: str) -> None:
         raise LogError(f"{name}: column 'qpos:{joint}' as written reads on a grid of {what}, "
                        f"its {len(np.unique(q))} distinct values whole steps apart: the log is "
                        "in rad already; leave out --units deg (read_log's angle_scale: 1)")
+
+
+ACTUATOR_INPUTS = ("position", "velocity", "muscle", "force")
+"""What an actuator's input is (``actuator_input``)."""
+
+
+def actuator_input(model: mujoco.MjModel, i: int) -> str:
+    """What actuator ``i``'s input (ctrl, a log's ``goal:`` column) is, one of
+    ``ACTUATOR_INPUTS``: 'position' for a setpoint (a ``dcmotor`` servo, or an affine bias with a
+    position term, as ``position``, ``intvelocity`` and ``general`` servos write it),
+    'velocity' (an affine bias with a velocity term only), 'muscle', or 'force' (a force or
+    torque, times its gear: ``motor`` and the rest)."""
+    import mujoco
+
+    if model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_DCMOTOR:
+        return "position"
+    if model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE:
+        if model.actuator_biasprm[i, 1] < 0:
+            return "position"
+        if model.actuator_biasprm[i, 2] < 0:
+            return "velocity"
+    if model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_MUSCLE:
+        return "muscle"
+    return "force"
+
+
+def not_a_position_servo(model: mujoco.MjModel, i: int) -> str:
+    """What actuator ``i`` is, said for a message, when its input is not a position setpoint
+    ('' when it is one; ``actuator_input`` is the predicate)."""
+    kind = actuator_input(model, i)
+    if kind == "position":
+        return ""
+    if kind == "velocity":
+        return "a velocity servo (its input is a velocity)"
+    if kind == "muscle":
+        return "a muscle"
+    gear = float(model.actuator_gear[i, 0])
+    return ("a motor: its input is a force or torque" + (f" (x gear {gear:g})" if gear != 1
+                                                          else "") + ", not a position")
+
+
+def actuators_taking(model: mujoco.MjModel, kinds: tuple[str, ...]) -> frozenset[str]:
+    """The names of ``model``'s actuators whose input (``actuator_input``) is one of ``kinds``."""
+    return frozenset(model.actuator(i).name for i in range(model.nu)
+                     if actuator_input(model, i) in kinds)
 
 
 SUSTAINED_SPEED = 50.0  # [rad/s] past any servo's (the motor table's fastest: XL330-M077, 40.1)

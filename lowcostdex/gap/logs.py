@@ -392,7 +392,7 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                                f"row {r} (0-based), outside the model's ctrlrange [{lo:.4g}, "
                                f"{hi:.4g}] by more than its width (degrees? write rad; MuJoCo "
                                "would clamp it)")
-        kind = _not_a_position_servo(model, i)
+        kind = units.not_a_position_servo(model, i)
         joint = (model.joint(int(model.actuator_trnid[i, 0])).name
                  if model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT else None)
         if kind == "a muscle" or (kind and joint in traj.joints and _position_like(
@@ -453,24 +453,6 @@ def _position_like(goal: np.ndarray, q: np.ndarray) -> bool:
         return False
     corr = float(np.mean((g - g.mean()) * (x - x.mean())) / (sg * sx))
     return corr > 0.8 and 0.5 < sg / sx < 2.0 and abs(g.mean() - x.mean()) < sx
-
-
-def _not_a_position_servo(model: mujoco.MjModel, i: int) -> str:
-    """What actuator ``i`` is when its input is not a position setpoint ('' when it is one: a
-    ``dcmotor`` servo, or an affine bias with a position term, as ``position``,
-    ``intvelocity`` and ``general`` servos write it)."""
-    if model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_DCMOTOR:
-        return ""
-    if model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE:
-        if model.actuator_biasprm[i, 1] < 0:
-            return ""
-        if model.actuator_biasprm[i, 2] < 0:
-            return "a velocity servo (its input is a velocity)"
-    if model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_MUSCLE:
-        return "a muscle"
-    gear = float(model.actuator_gear[i, 0])
-    return ("a motor: its input is a force or torque" + (f" (x gear {gear:g})" if gear != 1
-                                                          else "") + ", not a position")
 
 
 def estimate_velocity(time: np.ndarray, qpos: np.ndarray, window: float = 0.02,
