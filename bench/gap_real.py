@@ -29,6 +29,8 @@ to the repository; exits cleanly when it is absent. For each set:
     python bench/gap_real.py --seeds 3             # also 3 runs from jittered starts (spread)
     python bench/gap_real.py --select train --restarts 1   # the family chosen on the training
                                                    # logs, one start (before 2026-11-26 07:00)
+    python bench/gap_real.py --sets sts3032 --train-size 5 --train-seed 0   # 5 of the
+                                                   # split's training logs (a user with few logs)
     python bench/gap_real.py --release             # the servo lets go a measured delay after
                                                    # each torque-off command (off: RESULTS
                                                    # gap-real21)
@@ -177,6 +179,7 @@ def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: in
     kps = [int(tr.meta["kp"]) for tr in ds.trajectories]
     test = [i for i, k in enumerate(kps) if k in spec["held_kp"]]
     train = [i for i, k in enumerate(kps) if k not in spec["held_kp"]]
+    train, drawn = draw_train(ds, train, TRAIN_SIZE, TRAIN_SEED)
     rel = {}
     if raw is not None:
         ds, rel = released(raw, ds, train)
@@ -199,7 +202,7 @@ def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: in
             "identified (train logs)": {"mean": res.mean(train)},
             **{f"reference {k}": _summary(ds, v, test) for k, v in refs.items()},
         },
-        "ablation": res.ablation, "verdict": res.verdict, **rel,
+        "ablation": res.ablation, "verdict": res.verdict, **rel, **drawn,
         "bam": {k: {"mean": v[0], "trajectory": v[1], "kp": v[2]} for k, v in
                 spec["bam"].items()},
         "jittered": [],
@@ -227,6 +230,26 @@ def _bam_split(name: str, ds, structure, sel: dict, analyze_too: bool, seeds: in
             {"effect": c.effect, "params": {p: d["value"] for p, d in c.params.items()}}
             for c in a.causes]}
     return out
+
+
+TRAIN_SIZE: int | None = None  # --train-size: fewer training logs (held-out logs unchanged)
+TRAIN_SEED = 0
+
+
+def draw_train(ds, train: Sequence[int], size: int | None, seed: int) -> tuple[list[int], dict]:
+    """``size`` of the ``train`` logs drawn without replacement with ``seed`` (a user with
+    fewer logs; None: all of them), and what was drawn (each log's set-up) for the report."""
+    if size is None:
+        return list(train), {}
+    if not 1 <= size <= len(train):
+        raise SystemExit(f"--train-size {size}: between 1 and the split's {len(train)} "
+                         "training logs")
+    rng = np.random.default_rng(seed)
+    pick = sorted(int(i) for i in rng.choice(np.asarray(train), size=size, replace=False))
+    keys = ("kp", "mass", "length", "trajectory")
+    return pick, {"train_drawn": {"size": size, "seed": seed, "of": len(train),
+                                  "logs": [{k: ds.trajectories[i].meta.get(k) for k in keys}
+                                           for i in pick]}}
 
 
 PROGRESS = False  # --progress: print each identification stage's CPU time
@@ -396,6 +419,10 @@ def _print(r: dict) -> None:
     print("held-out MAE [mrad], BAM's measure (mean over logs of per-log MAE, 5 ms grid):")
     print(table(r))
     print(f"train logs: {1e3 * r['ours']['identified (train logs)']['mean']:.1f} mrad")
+    if "train_drawn" in r:
+        d = r["train_drawn"]
+        print(f"trained on {d['size']} of the {d['of']} training logs (seed {d['seed']}): " +
+              "; ".join(" ".join(f"{k} {v}" for k, v in x.items()) for x in d["logs"]))
     print("identified:", ", ".join(
         f"{e} " + " ".join(f"{p}={v[0]:.4g}" for p, v in ps.items())
         for e, ps in r["params"].items()))
@@ -549,6 +576,10 @@ def main(argv=None) -> int:
                     "torque-off command (fitted on the training swings, else MotorSpec."
                     "release); default: where BAM's grid drops the torque (measured worse on "
                     "STS3032's split, better on its lift_and_drop fold: RESULTS gap-real21)")
+    ap.add_argument("--train-size", type=int, default=None,
+                    help="fit on only N of the split's training logs, drawn with --train-seed "
+                    "(held-out logs unchanged: how the identification does with fewer logs)")
+    ap.add_argument("--train-seed", type=int, default=0, help="seed of --train-size's draw")
     ap.add_argument("--progress", action="store_true",
                     help="print the CPU time of each identification stage (BAM's split)")
     ap.add_argument("--json", default=None)
@@ -558,8 +589,9 @@ def main(argv=None) -> int:
         print(f"measured data not found at {root}; set LOWCOSTDEX_MEASURED_DATA or --data "
               "(skipping)")
         return 0
-    global PROGRESS, RELEASE
+    global PROGRESS, RELEASE, TRAIN_SIZE, TRAIN_SEED
     PROGRESS = args.progress
+    TRAIN_SIZE, TRAIN_SEED = args.train_size, args.train_seed
     RELEASE = args.release
     fields = LOSO_FIELDS if "auto" in args.loso else tuple(args.loso)
     results: list[dict] = []
