@@ -87,6 +87,7 @@ from lowcostdex.gap.selection import (
     probe_gains,
     select_results,
 )
+from lowcostdex.gap.selection import nothing_to_explain as _nothing_left
 from lowcostdex.gap.stepsize import refine as _refine_step
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
 from lowcostdex.sim.mjwarnings import collect_mujoco_warnings
@@ -192,8 +193,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     current, cur_x = fitmod.Structure((), joints), np.zeros(0)
     sel_cur = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
     floor_rms = math.sqrt(floor_mse)
-    nom = mse_by_episode(ds, train_eps + sel_eps, [base_pred[i] for i in split.train + split.select])
-    quiet = math.sqrt(nom[0].sum() / nom[2].sum()) <= cfg.explain_above * floor_rms  # no cause
+    quiet = quiet0 = _nothing_left(ds, train_eps + sel_eps, [base_pred[i] for i in split.train
+                                   + split.select], floor, cfg.explain_above, m0)  # no cause
     rounds: list[list[CandidateResult]] = []
     fit_fn = eng.residual_fn(train_segs)
     stop_reason = "max_effects reached"
@@ -405,8 +406,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     c.params.items()})] for c in rounds.pop() if c.fitted and c.params}
             equivalents, widened_notes = {}, {}
             sel_cur = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
-            nom = mse_by_episode(ds, train_eps + sel_eps, [base_pred[i] for i in split.train + split.select])
-            quiet = math.sqrt(nom[0].sum() / nom[2].sum()) <= cfg.explain_above * floor_rms
+            quiet = quiet0
 
     # ---- backward pass: drop accepted effects the final model no longer needs ---------------
     if len(current.effects) > 1:

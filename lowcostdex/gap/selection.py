@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
+import mujoco
 import numpy as np
 
 from lowcostdex.gap import fit as fitmod
@@ -19,7 +20,8 @@ from lowcostdex.gap.dataset import Dataset, Window
 from lowcostdex.gap.results import CandidateResult, GapConfig
 from lowcostdex.sim.effects import AppliedEffect
 
-__all__ = ["fit_batches", "mse_by_episode", "probe_gains", "select_gain_ci", "select_results"]
+__all__ = ["fit_batches", "mse_by_episode", "nothing_to_explain", "probe_gains", "select_gain_ci",
+           "select_results"]
 
 Predict = Callable[[Sequence[Window], Sequence[Sequence[AppliedEffect]]],
                    list[list[np.ndarray]]]
@@ -58,6 +60,21 @@ def mse_by_episode(ds: Dataset, eps: Sequence[Window], pred: Sequence[np.ndarray
         sae.append(float(np.abs(r).sum()))
         n.append(r.size)
     return np.array(sse), np.array(sae), np.array(n, float)
+
+
+def nothing_to_explain(ds: Dataset, eps: Sequence[Window], pred: Sequence[np.ndarray],
+                       floor: np.ndarray, above: float, model: mujoco.MjModel) -> bool:
+    """Whether the replays ``pred`` of ``eps`` are within ``above`` noise floors (``floor``: per
+    joint, in its unit): pooled over the joints, and where the joints' units are mixed in
+    ``model`` (a slide in m beside a hinge in rad) each joint within its own floors too. A pooled RMSE adds
+    metres to radians: a gripper's slide 1.52 mm off (160 floors of its own) read as within 3
+    floors of its finger's 0.6 mrad (gap-sim15, tests/gap_truth_sim12.py grip_offset)."""
+    r = np.concatenate([ds.trajectories[w.traj].qpos[w.start:w.stop] - p
+                        for w, p in zip(eps, pred, strict=True)])
+    per = np.sqrt(np.mean(r * r, axis=0))
+    pooled = float(np.sqrt(np.mean(per ** 2))) <= above * float(np.sqrt(np.mean(floor ** 2)))
+    mixed = len({int(model.jnt_type[model.joint(j).id]) for j in ds.joints}) > 1
+    return pooled and (not mixed or bool(np.all(per <= above * floor)))
 
 
 def select_gain_ci(sse_cur: np.ndarray, sse_new: np.ndarray, rng: np.random.Generator,

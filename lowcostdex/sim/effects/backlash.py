@@ -79,10 +79,12 @@ class Backlash(Effect):
             if spec.joint(cls.play_joint(jn)) is not None:
                 continue
             j = spec.joint(jn)
-            if j is None or j.type != mujoco.mjtJoint.mjJNT_HINGE:
-                raise ConfigError(f"backlash: {jn!r} must be a hinge joint of the model")
-            # the compiled range is set per simulation by apply(); compile needs lo < hi
-            j.parent.add_joint(name=cls.play_joint(jn), type=mujoco.mjtJoint.mjJNT_HINGE,
+            if j is None or j.type not in (mujoco.mjtJoint.mjJNT_HINGE,
+                                           mujoco.mjtJoint.mjJNT_SLIDE):
+                raise ConfigError(f"backlash: {jn!r} must be a hinge or slide joint of the model")
+            # the compiled range is set per simulation by apply(); compile needs lo < hi. A
+            # slide's play is a slide (a rack's, in m): two slides of one body along one axis add
+            j.parent.add_joint(name=cls.play_joint(jn), type=j.type,
                                pos=j.pos, axis=j.axis, limited=mujoco.mjtLimited.mjLIMITED_TRUE,
                                range=[-1e-9, 1e-9], solref_limit=[tc, 1.0])
 
