@@ -50,6 +50,15 @@ class _DS:
 
 class _Model:
     dof_damping = np.array([0.1])
+    jnt_type = np.array([3])   # one hinge (mjJNT_HINGE)
+
+    def joint(self, name):
+        return _Joint()
+
+
+@dataclass
+class _Joint:
+    id: int = 0
 
 
 class _Targets:
