@@ -94,7 +94,9 @@ MISSES: dict[str, str] = {
                             "(367 s CPU) backlash ranks first, read on the motor side, "
                             "select MSE 27 % lower (paired low 6.7 %), but width 0.0366 on "
                             "dist (0.0079 prox) and its effect 0.42 mrad RMS, below the "
-                            "0.68 floor: not accepted",
+                            "0.68 floor: not accepted. The same on acf2f02 (gap-sweep22, "
+                            "session 27, play_step on: 'within 3 noise floors' at 0.5 ms, "
+                            "held-out 0.83 mrad, 21 s CPU)",
     "fin_stribeck_prox": "interval (re-run by gap-fric4, session 11, main 69aace3, 1069 s "
                          "CPU): named exactly stribeck_friction[prox] (abd and dist listed "
                          "idle), analysed at 0.5 ms; its velocity no longer at the 0.01 "
