@@ -66,3 +66,69 @@ def test_what_an_actuators_input_is_has_one_predicate(actuator, kind):
         '<position name="a" joint="j" kp="2"/>', actuator))
     assert actuator_input(model, 0) == kind
     assert bool(not_a_position_servo(model, 0)) == (kind != "position")
+
+
+_TURNTABLE = """<mujoco><compiler angle="radian"/><option timestep="0.001"/>
+<worldbody><body><joint name="j" type="hinge" axis="0 0 1" damping="0.2"/>
+<geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0" mass="0.1"/></body></worldbody>
+<actuator><position name="j" joint="j" kp="3"{force}/></actuator></mujoco>"""
+
+
+def test_a_log_whose_unit_no_check_can_tell_on_an_unbounded_joint_is_said_to_be_read_as_rad(
+        tmp_path):
+    # a turntable (no range) on a position servo WITHOUT a force range: a linear system, so the
+    # same motion at 57 x the scale replays as well and no rule can tell degrees from rad. Its
+    # log, a 0.15 rad 0.5 Hz sine run in plain MuJoCo, written in degrees (8.6 deg): before,
+    # read as an 8.6 rad swing without a word; now read the same, with a note that the unit was
+    # taken on trust and what lets the analysis check (with a force range it is refused:
+    # tests/test_careless23.py)
+    import math
+
+    import mujoco
+    import numpy as np
+
+    from lowcostdex.gap.dataset import load_dataset
+
+    model = mujoco.MjModel.from_xml_string(_TURNTABLE.format(force=""))
+    data = mujoco.MjData(model)
+    t = np.arange(0.0, 4.0, 0.01)
+    goal = 0.15 * np.sin(np.pi * t)
+    q = np.empty_like(t)
+    for k, g in enumerate(goal):  # 10 steps per 10 ms log row
+        data.ctrl[0] = g
+        mujoco.mj_step(model, data, nstep=10)
+        q[k] = data.qpos[0]
+    rows = ["time,goal:j,qpos:j"] + [f"{a:.2f},{math.degrees(b):.7f},{math.degrees(c):.7f}"
+                                     for a, b, c in zip(t, goal, q, strict=True)]
+    (tmp_path / "deg.csv").write_text("\n".join(rows) + "\n")
+    for force, said in (("", ["actuator 'j' has no forcerange"]),
+                        (' forcerange="-0.5 0.5"', None)):
+        (tmp_path / "m.xml").write_text(_TURNTABLE.format(force=force).replace(
+            'damping="0.2"', 'damping="0"'))  # no damping: no top speed either
+        ds = load_dataset([tmp_path / "deg.csv"], model=tmp_path / "m.xml")
+        why = "; ".join((said or []) + ["joint 'j' has no damping"])
+        assert ds.notes == [f"joint 'j' turns 16.9 rad without a range and its model gives it "
+                            f"no top speed ({why}), so a log in degrees could not be told from "
+                            "one in rad: its 'qpos' was read as rad (give --units deg if it is "
+                            "in degrees); the servo's stall torque as forcerange and the joint's "
+                            "damping in the MJCF let the analysis check"]
+    (tmp_path / "m.xml").write_text(_TURNTABLE.format(force=""))
+    ds = load_dataset([tmp_path / "deg.csv"], model=tmp_path / "m.xml", angle_unit="deg")
+    assert ds.notes == [] and np.ptp(ds.trajectories[0].qpos) < 0.31  # its unit given: read
+
+
+def test_load_datasets_settings_of_the_wrong_type_are_named(tmp_path):
+    # before: servo_period=None or '0.002' ended in numpy's "ufunc 'isfinite' not supported for
+    # the input types", and bench='no' (a truthy string) read a CSV log as a BAM log
+    from lowcostdex.gap.dataset import load_dataset
+
+    (tmp_path / "m.xml").write_text(_ARM)
+    (tmp_path / "log.csv").write_text("time,goal:a,qpos:j\n" + "".join(
+        f"{k / 100:.2f},{0.3 * (k // 50 % 2):.3f},{0.3 * (k // 50 % 2):.3f}\n"
+        for k in range(200)))
+    for value in (None, "0.002"):
+        with pytest.raises(ConfigError, match=rf"servo period \[s\]={value!r} must be a finite "
+                                              r"number in \[0, 0.1\]"):
+            load_dataset(tmp_path / "log.csv", model=tmp_path / "m.xml", servo_period=value)
+    with pytest.raises(ConfigError, match=r"bench='no' must be True or False"):
+        load_dataset(tmp_path / "log.csv", model=tmp_path / "m.xml", bench="no")

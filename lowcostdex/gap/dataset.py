@@ -17,7 +17,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_number
+from lowcostdex.errors import ConfigError, check_bool, check_number
 from lowcostdex.gap.bam_logs import check_one_motor
 from lowcostdex.gap.log_paths import (  # noqa: F401 (LOG_SUFFIXES re-exported)
     LOG_SUFFIXES,
@@ -25,7 +25,7 @@ from lowcostdex.gap.log_paths import (  # noqa: F401 (LOG_SUFFIXES re-exported)
     model_path,
     no_such_log,
 )
-from lowcostdex.gap.log_units import actuators_taking
+from lowcostdex.gap.log_units import actuators_taking, speed_unchecked
 from lowcostdex.gap.logs import (
     LogError,
     Trajectory,
@@ -86,9 +86,7 @@ class Dataset:
     servo_period: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.servo_period) and 0.0 <= self.servo_period <= MAX_SERVO_PERIOD):
-            raise ConfigError(f"servo period must be in [0, {MAX_SERVO_PERIOD}] s, got "
-                              f"{self.servo_period}")
+        check_number("servo period [s]", self.servo_period, 0.0, MAX_SERVO_PERIOD)  # None, '2'
         if not self.trajectories:
             raise LogError("no trajectories given")
         for tr in self.trajectories:
@@ -209,6 +207,8 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
             raise no_such_log(p)
     if timestep is not None:  # a physics step: 1 (meant as ms) would run a 1 s Euler step
         check_number("timestep [s]", timestep, 0, MAX_BENCH_TIMESTEP, low_open=True)
+    if bench is not None:  # bench='no' read BAM logs
+        check_bool("bench", bench)
     bam = [is_bam(p) for p in paths]
     if angle_unit != "rad" and any(bam):
         raise LogError("BAM raw logs are in rad by their format; --units deg is for "
@@ -277,7 +277,8 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         sources += [str(p)] * len(cut)
         notes += said
     ds = Dataset(models, pieces, sources, notes, servo_period)
-    ds.notes += _unshared_joints(ds)
+    ds.notes += _unshared_joints(ds) + (speed_unchecked(ds.compiled(ds.trajectories[0].model),
+                                                         trajs) if angle_unit == "rad" else [])
     return ds
 
 

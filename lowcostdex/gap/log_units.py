@@ -248,11 +248,7 @@ def model_top_speed(model: mujoco.MjModel, joint: str) -> tuple[float, float, fl
     j = model.joint(joint).id
     if int(model.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE):  # degrees: hinges only
         return math.inf, 0.0, 0.0, 0.0
-    joint_trn = int(mujoco.mjtTrn.mjTRN_JOINT)
-    if (np.any(model.actuator_trntype != joint_trn) or np.any(model.wrap_objid[
-            model.wrap_type == int(mujoco.mjtWrap.mjWRAP_JOINT)] == j)
-            or np.any((model.eq_type == int(mujoco.mjtEq.mjEQ_JOINT))
-                      & ((model.eq_obj1id == j) | (model.eq_obj2id == j)))):
+    if _coupled(model, j):
         return math.inf, 0.0, 0.0, 0.0
     own = np.flatnonzero(model.actuator_trnid[:, 0] == j)
     force, damping = 0.0, float(model.dof_damping[model.jnt_dofadr[j]])
@@ -278,6 +274,53 @@ def model_top_speed(model: mujoco.MjModel, joint: str) -> tuple[float, float, fl
         np.dot(model.body_mass[sub], arm))
     inertia = float(model.dof_M0[model.jnt_dofadr[j]])
     return (force + gravity) / damping, force + gravity, damping, inertia / damping
+
+
+def speed_unchecked(model: mujoco.MjModel, trajs: list[Trajectory]) -> list[str]:
+    """Notes on the measured continuous hinges (no range) that turn more than a whole turn
+    (2 pi, read as rad) in ``trajs``, driven by an actuator of their own, whose model gives no
+    top speed (``model_top_speed``: an actuator without a force range, or a joint without
+    damping): on them ``check_model_speed`` cannot tell a log in degrees from one in rad (a
+    position servo without a force limit is linear: the same log at 57 x the scale replays as
+    well), and a degrees log of a 6.3 deg swing reads as a whole turn. The unit was taken on
+    trust; said, with what lets the analysis check."""
+    import mujoco
+
+    notes = []
+    for name in dict.fromkeys(j for tr in trajs for j in tr.joints):
+        j = model.joint(name).id
+        span = max(float(np.ptp(tr.qpos[:, tr.joints.index(name)])) for tr in trajs
+                   if name in tr.joints)
+        own = np.flatnonzero((model.actuator_trnid[:, 0] == j)
+                             & (model.actuator_trntype == int(mujoco.mjtTrn.mjTRN_JOINT)))
+        if (span <= 2 * math.pi or int(model.jnt_type[j]) != int(mujoco.mjtJoint.mjJNT_HINGE)
+                or model.jnt_limited[j] or not len(own) or _coupled(model, j)
+                or math.isfinite(model_top_speed(model, name)[0])):
+            continue
+        why = [f"actuator {model.actuator(int(i)).name!r} has no forcerange" for i in own
+               if not model.actuator_forcelimited[i]
+               and int(model.actuator_gaintype[i]) != int(mujoco.mjtGain.mjGAIN_DCMOTOR)]
+        if float(model.dof_damping[model.jnt_dofadr[j]]) <= 0:
+            why.append(f"joint {name!r} has no damping")
+        if why:  # (a dcmotor without its stall numbers: nothing simple to add)
+            notes.append(f"joint {name!r} turns {span:.3g} rad without a range and its model "
+                         f"gives it no top speed ({'; '.join(why)}), so a log in degrees could "
+                         "not be told from one in rad: its 'qpos' was read as rad (give --units "
+                         "deg if it is in degrees); the servo's stall torque as forcerange and "
+                         "the joint's damping in the MJCF let the analysis check")
+    return notes
+
+
+def _coupled(model: mujoco.MjModel, j: int) -> bool:
+    """Whether something other than its own joint actuators drives joint ``j``: an actuator of
+    the model on another transmission, a tendon through it, a joint equality on it."""
+    import mujoco
+
+    joint_trn = int(mujoco.mjtTrn.mjTRN_JOINT)
+    return bool(np.any(model.actuator_trntype != joint_trn) or np.any(model.wrap_objid[
+        model.wrap_type == int(mujoco.mjtWrap.mjWRAP_JOINT)] == j)
+        or np.any((model.eq_type == int(mujoco.mjtEq.mjEQ_JOINT))
+                  & ((model.eq_obj1id == j) | (model.eq_obj2id == j))))
 
 
 def _descends(model: mujoco.MjModel, body: int, root: int) -> bool:
