@@ -132,3 +132,25 @@ def test_load_datasets_settings_of_the_wrong_type_are_named(tmp_path):
             load_dataset(tmp_path / "log.csv", model=tmp_path / "m.xml", servo_period=value)
     with pytest.raises(ConfigError, match=r"bench='no' must be True or False"):
         load_dataset(tmp_path / "log.csv", model=tmp_path / "m.xml", bench="no")
+
+
+@pytest.mark.parametrize("units,added", [("s,rad,rad", ""),
+                                         ("ms,deg,deg", "; to read its numbers in the units it "
+                                                        "names, add --units deg --time-unit ms")])
+def test_a_units_row_under_the_header_is_named_with_what_to_do(tmp_path, units, added):
+    # before: "row 2, column 'time': 's' is not a number", the row not named a units row, and
+    # the options for a log in degrees or milliseconds not named
+    from lowcostdex.gap.log_csv import read_csv
+    from lowcostdex.gap.trajectory import LogError
+
+    rows = "".join(f"{k / 100:.2f},0.1,0.1\n" for k in range(30))
+    (tmp_path / "log.csv").write_text(f"time,goal:j,qpos:j\n{units}\n{rows}")
+    shown = ", ".join(units.split(","))
+    with pytest.raises(LogError) as caught:
+        read_csv(tmp_path / "log.csv", 100)
+    assert str(caught.value) == (
+        f"{tmp_path / 'log.csv'}: row 2 holds words under every channel ({shown}), not "
+        "numbers: a units row? Delete it: a log's columns carry no units, each kind has its own "
+        "(time s, positions rad, velocities rad/s, current A, voltage V)" + added)
+    (tmp_path / "log.csv").write_text(f"time,goal:j,qpos:j\n{rows}")  # without it: read
+    assert len(read_csv(tmp_path / "log.csv", 100)[0]["time"]) == 30

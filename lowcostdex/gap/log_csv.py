@@ -86,6 +86,8 @@ def _read_csv(path: Path, max_rows: int, encoding: str
                 if sep == ";":  # a spreadsheet's export where ',' is the decimal mark
                     commas = commas or any("," in cell for cell in row)
                     row = [cell.replace(",", ".") for cell in row]
+                if r == 0:
+                    _check_units_row(path, header, row, raw.line_num)
                 for c, cells in stamps.items():
                     cells.append(row[c])
                 try:
@@ -181,6 +183,25 @@ def _check_no_units(path: Path, header: list[str]) -> None:
                            and si.startswith("rad") else "")
                        + ": a log's columns carry no units, each kind has its own (time s, "
                        "positions rad, velocities rad/s, current A, voltage V)")
+
+
+def _check_units_row(path: Path, header: list[str], row: list[str], line: int) -> None:
+    """A first row of words under every channel (a spreadsheet's units row 's, rad, rad'): it
+    was "row 2, column 'time': 's' is not a number". Refused, naming it a units row, the units a
+    log is read in, and the options for a log in degrees or milliseconds."""
+    cells = {h: cell.strip() for h, cell in zip(header, row, strict=False) if is_channel(h)}
+    if not cells or not all(cell and not _is_float(cell) for cell in cells.values()):
+        return
+    words = {cell.lower().strip("[]() ") for cell in cells.values()}
+    time = next((c.lower().strip("[]() ") for h, c in cells.items() if h.lower() == "time"), "")
+    add = (["--units deg"] if words & {"deg", "degree", "degrees", "°"} else []) + (
+        [f"--time-unit {time}"] if time in ("ms", "us", "ns") else [])
+    raise LogError(f"{path}: row {line} holds words under every channel "
+                   f"({', '.join(cells.values())}), not numbers: a units row? Delete it: a "
+                   "log's columns carry no units, each kind has its own (time s, positions "
+                   "rad, velocities rad/s, current A, voltage V)"
+                   + (f"; to read its numbers in the units it names, add {' '.join(add)}"
+                      if add else ""))
 
 
 def is_channel(column: str) -> bool:
