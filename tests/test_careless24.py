@@ -154,3 +154,23 @@ def test_a_units_row_under_the_header_is_named_with_what_to_do(tmp_path, units, 
         "(time s, positions rad, velocities rad/s, current A, voltage V)" + added)
     (tmp_path / "log.csv").write_text(f"time,goal:j,qpos:j\n{rows}")  # without it: read
     assert len(read_csv(tmp_path / "log.csv", 100)[0]["time"]) == 30
+
+
+def test_record_log_of_part_of_a_finger_or_of_no_row_is_refused_before_recording(
+        tmp_path, capsys):
+    # before: --joints ff_top recorded logs whose offered model (the whole finger) gap analyze
+    # then refused ("no goal for actuators ['ff_middle', 'ff_bottom']"); --seconds 0.01 ended
+    # in a traceback ("need at least one array to concatenate") after writing the folder
+    out = tmp_path / "logs"
+    assert main(["record-log", "--port", "emulated", "--joints", "ff_top", "--out",
+                 str(out)]) == USER_ERROR
+    assert ("--joints ff_top leaves out ff_middle, ff_bottom of the same finger: the gap "
+            "analysis replays whole fingers (`lowcostdex model --fingers`) and needs each of "
+            "their joints commanded and read; give --joints ff_top,ff_middle,ff_bottom"
+            ) in " ".join(capsys.readouterr().err.split())
+    assert main(["record-log", "--port", "emulated", "--seconds", "0.01", "--out",
+                 str(out)]) == USER_ERROR
+    assert ("--seconds 0.01 at --rate 50 Hz is 0 row(s) a log; `gap analyze` reads logs of at "
+            "least 20 rows over 0.5 s: give --seconds 1 or more (default 15)"
+            ) in " ".join(capsys.readouterr().err.split())
+    assert not out.exists()

@@ -177,6 +177,26 @@ def _reset_test(args: argparse.Namespace) -> int:
     return 0 if stats.successes == stats.trials else 1
 
 
+def _short_log_note(seconds: float, rate: float) -> str | None:
+    """The note for logs too short for ``gap analyze`` (None when long enough); ConfigError
+    when a log would hold no row (before: a traceback from the excitation). The bound is twice
+    the analysis' shortest log (``MIN_DURATION``: a robot's rows drift, 0.52 s at 50 Hz spanned
+    0.497 s on the emulated D'Claw) and ``MIN_SAMPLES`` + 1 rows."""
+    import math
+
+    from lowcostdex.errors import ConfigError
+    from lowcostdex.gap.log_checks import MIN_DURATION, MIN_SAMPLES
+
+    least = max(2 * MIN_DURATION, (MIN_SAMPLES + 1) / rate)
+    rows = round(seconds * rate)
+    said = (f"--seconds {seconds:g} at --rate {rate:g} Hz is {rows} row(s) a log; `gap "
+            f"analyze` reads logs of at least {MIN_SAMPLES} rows over {MIN_DURATION:g} s: "
+            f"give --seconds {math.ceil(least * 100) / 100:g} or more (default 15)")
+    if rows < 1:
+        raise ConfigError(said)
+    return f"lowcostdex record-log: note: {said} to analyse them" if seconds < least else None
+
+
 def _record_log(args: argparse.Namespace) -> int:
     args.port = robot_port(args.backend, args.port, args.hand)
     from pathlib import Path
@@ -190,6 +210,7 @@ def _record_log(args: argparse.Namespace) -> int:
 
     if args.logs < 1 or args.seconds <= 0 or args.rate <= 0:
         raise ConfigError("--logs, --seconds and --rate must be positive")
+    short = _short_log_note(args.seconds, args.rate)
     if args.logs > MAX_RUNS:
         raise ConfigError(f"--logs {args.logs} is above {MAX_RUNS}: each log is a file of "
                           "--seconds of robot time (split a campaign into runs)")
@@ -223,6 +244,14 @@ def _record_log(args: argparse.Namespace) -> int:
     joints = names(args.joints or LOG_JOINTS[args.hand], "--joints")  # "ff_top,,ff_middle"
     for j in joints:
         hand.joint(j)  # raises with the valid names
+    fingers = {j.split("_")[0] for j in joints}
+    whole = [n for n in hand.joint_names if n.split("_")[0] in fingers]
+    if len(whole) > len(joints):  # before: recorded, then refused by gap analyze's model
+        raise ConfigError(f"--joints {','.join(joints)} leaves out "
+                          f"{', '.join(n for n in whole if n not in joints)} of the same finger: "
+                          "the gap analysis replays whole fingers (`lowcostdex model --fingers`) "
+                          "and needs each of their joints commanded and read; give --joints "
+                          f"{','.join(whole)}")
     effects = []
     if emulated:
         if args.effects:
@@ -257,6 +286,8 @@ def _record_log(args: argparse.Namespace) -> int:
                   f"`lowcostdex gap analyze --model MODEL.xml --log {shlex.quote(args.out)} --out DIR` "
                   f"(MODEL.xml: `{model_command(args.hand, joints)}`: a model of the fingers "
                   "the logs moved)", soft_wrap=True)  # no line breaks inside the commands
+    if short:
+        console.print(short, markup=False, highlight=False, soft_wrap=True)
     return 0
 
 
