@@ -174,3 +174,25 @@ def test_record_log_of_part_of_a_finger_or_of_no_row_is_refused_before_recording
             "least 20 rows over 0.5 s: give --seconds 1 or more (default 15)"
             ) in " ".join(capsys.readouterr().err.split())
     assert not out.exists()
+
+
+def test_a_gap_report_of_settings_given_as_numpy_numbers_is_written():
+    # before: GapConfig took seed=np.int64(3) (e.g. rng.integers(9)) and top_k=np.int64(2), and
+    # report.json's json.dumps refused them after the whole analysis ("Object of type int64 is
+    # not JSON serializable")
+    import json
+
+    import numpy as np
+
+    from lowcostdex.gap.dataset import Split, Window
+    from lowcostdex.gap.gain import Gain
+    from lowcostdex.gap.results import GapConfig, GapResult
+
+    eps = [Window(0, 0, 10, 0)]
+    res = GapResult(GapConfig(seed=np.int64(3), top_k=np.int64(2), probes=(np.float32(0.01),)),
+                    ["a.csv"], ("j0",), Split((0,), (), ()), eps, np.array([0.001]), {}, {}, [],
+                    [], {}, Gain(0.01, 0.002, 0.01, 0.002, 0.008, 0.8, (0.0, 0.0), (0.0, 0.0),
+                                 0.001, None, 2), [], "v", {}, [], {})
+    config = json.loads(json.dumps(res.to_dict()))["config"]
+    assert (config["seed"], config["top_k"]) == (3, 2)
+    assert config["probes"] == [pytest.approx(0.01)]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -313,8 +314,7 @@ class GapResult:
             "gain": self.gain.to_dict(),
             "candidates": [[_cand_dict(c) for c in rnd] for rnd in self.rounds],
             "diagnostics": self.diagnostics,
-            "config": {k: (list(v) if isinstance(v, tuple) else v)
-                       for k, v in asdict(self.config).items()},
+            "config": {k: _json_value(v) for k, v in asdict(self.config).items()},
             "timing_s": self.timing,
             "mujoco_warnings": self.mujoco_warnings,
             "timestep": self.timestep,
@@ -326,6 +326,14 @@ class GapResult:
 def _ep(w: Window, sources: list[str]) -> dict:
     return {"log": sources[w.traj] if w.traj < len(sources) else w.traj, "start": w.start,
             "stop": w.stop}
+
+
+def _json_value(v: Any) -> Any:
+    """A setting as JSON takes it: tuples as lists, numpy numbers as Python's (GapConfig takes a
+    numpy seed, e.g. ``rng.integers(9)``; json.dumps refused it, after the whole analysis)."""
+    if isinstance(v, (tuple, list)):
+        return [_json_value(x) for x in v]
+    return v.item() if isinstance(v, np.generic) else v
 
 
 def _cause_dict(c: Cause) -> dict:
