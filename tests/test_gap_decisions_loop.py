@@ -51,6 +51,7 @@ class _DS:
 class _Model:
     dof_damping = np.array([0.1])
     jnt_type = np.array([3])   # one hinge (mjJNT_HINGE)
+    actuator_trntype, actuator_trnid = np.array([0]), np.array([[0, -1]])  # on the joint
 
     def joint(self, name):
         return _Joint()

@@ -238,3 +238,23 @@ def test_a_slides_millimetres_are_not_lost_among_the_fingers_radians(tmp_path):
     assert nothing_to_explain(ds, eps, exact, floor, 3.0, model)
     jaw_off = [q - np.array([0.0015, 0.0]) for q in exact]
     assert not nothing_to_explain(ds, eps, jaw_off, floor, 3.0, model)
+
+
+def test_a_rails_dry_friction_in_newtons_is_inside_the_search_range():
+    """The jaw's servo pushes up to 40 N; a dry rail's 5-20 N of friction (the truth's
+    grip_friction draws 7.69 N) must be reachable by the fit of coulomb_friction on the slide.
+    On 5598aed the catalogue's hard cap of 5 (N m, a hinge's) bounded it at 5 N; the finger's
+    hinge keeps its cap."""
+    from lowcostdex.gap import fit as fitmod
+    from lowcostdex.sim.effects import Targets
+
+    model = mujoco.MjModel.from_xml_string(sim.model_xml())
+    targets = Targets.resolve(model, sim.JOINTS)
+    ctx = fitmod.Context(dt=0.002, peak_force=np.array([40.0, 40.0]),
+                         damping=model.dof_damping.copy(),
+                         **fitmod.servo_facts(model, targets.actuators))
+    grip = fitmod.space("coulomb_friction", "frictionloss", 0, ctx)
+    assert grip.lo <= 0.0 and grip.hi >= 20.0, (grip.lo, grip.hi)
+    assert fitmod.hard_limits("coulomb_friction", "frictionloss", 0, ctx)[1] >= 20.0
+    finger = fitmod.space("coulomb_friction", "frictionloss", 1, ctx)
+    assert finger.hi <= 5.0

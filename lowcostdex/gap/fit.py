@@ -28,6 +28,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
 
 from lowcostdex.gap.spaces import Context, Free, hard_limits, space  # noqa: F401 (fit.space ...)
@@ -584,4 +585,8 @@ def step_shift(t: Track, residual: ResidualFn, max_rounds: int, rtol: float = 1e
 
 
 def servo_facts(model, actuators: np.ndarray) -> dict[str, np.ndarray]:  # Context's keywords
-    return {"stall": stall_torque(model, actuators), "dcmotor": dcmotor_mask(model, actuators)}
+    jnt = model.actuator_trnid[actuators, 0]
+    slide = (model.actuator_trntype[actuators] == int(mujoco.mjtTrn.mjTRN_JOINT)) & (
+        model.jnt_type[np.maximum(jnt, 0)] == int(mujoco.mjtJoint.mjJNT_SLIDE))
+    return {"stall": stall_torque(model, actuators), "dcmotor": dcmotor_mask(model, actuators),
+            "slide": slide}

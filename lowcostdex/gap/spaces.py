@@ -41,6 +41,8 @@ class Context:
       widened: search ranges widened beyond the catalogue's, (effect, param, joint index) ->
         (low, high) in parameter units (``widen``).
       dcmotor: (nj,) which servos are dcmotors (None: those with a finite stall torque).
+      slide: (nj,) which joints are slides (forces in N: the catalogue's N m hard limits on a
+        dry friction do not bound them; None: none).
     """
 
     dt: float
@@ -49,10 +51,18 @@ class Context:
     damping: np.ndarray
     widened: dict[tuple[str, str, int], tuple[float, float]] = field(default_factory=dict)
     dcmotor: np.ndarray | None = None
+    slide: np.ndarray | None = None
 
     @property
     def is_dcmotor(self) -> np.ndarray:  # (nj,) bool: where a ``Param.on`` "dcmotor" acts
         return np.isfinite(self.stall) if self.dcmotor is None else np.asarray(self.dcmotor, bool)
+
+    def force_cap(self, j: int, hard: float) -> float:
+        """A catalogue hard limit ``hard`` [N m] on a force of joint ``j``; on a slide [N] the
+        model's own peak force instead, when larger (a rail's 5-20 N beside a 5 N m cap)."""
+        if self.slide is None or not self.slide[j]:
+            return hard
+        return max(hard, float(self.peak_force[j]))
 
     def with_ranges(self, ranges: dict[tuple[str, str, int], tuple[float, float]]) -> Context:
         """A copy with these widened ranges added."""
@@ -102,7 +112,7 @@ def hard_limits(name: str, param: str, j: int, ctx: Context) -> tuple[float, flo
     elif (name, param) == ("viscous_damping", "damping"):
         lo = max(lo, -float(ctx.damping[j]))
     elif name in ("coulomb_friction", "stribeck_friction") and param != "velocity":
-        hi = min(hi, float(ctx.stall[j]))
+        hi = min(ctx.force_cap(j, hi), float(ctx.stall[j]))
     elif (name, param) == ("torque_limit", "torque"):
         hi = min(hi, float(max(ctx.peak_force[j], 2 * p.low)))
     return lo, hi
@@ -125,7 +135,8 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
     elif (name, param) == ("viscous_damping", "damping"):
         lo = max(lo, -float(ctx.damping[j]))
     elif (name, param) == ("coulomb_friction", "frictionloss"):
-        hi = min(max(hi, float(ctx.peak_force[j])), float(ctx.stall[j]), p.hard[1])  # to its force
+        hi = min(max(hi, float(ctx.peak_force[j])), float(ctx.stall[j]),
+                 ctx.force_cap(j, p.hard[1]))  # to its force
         extra = (0.5 * hi,)  # a near-stall level: its probe and start are far from the small start
     elif (name, param) == ("backlash", "read"):
         lo = hi = p.null  # the link, or held at the motor side: a side chosen (gap.play_side)
