@@ -196,3 +196,27 @@ def test_a_gap_report_of_settings_given_as_numpy_numbers_is_written():
     config = json.loads(json.dumps(res.to_dict()))["config"]
     assert (config["seed"], config["top_k"]) == (3, 2)
     assert config["probes"] == [pytest.approx(0.01)]
+
+
+
+def test_a_log_of_more_fingers_than_the_model_gets_the_model_of_its_fingers():
+    # before: a log of the D'Claw's ff and mf against a model of ff said only "no actuator
+    # 'mf_top' in the model; actuators: ff_top, ff_middle, ff_bottom" (the command that writes
+    # the model of both fingers was offered only when no name matched)
+    import numpy as np
+
+    from lowcostdex.gap.logs import LogError, Trajectory, check_against_model
+    from lowcostdex.sim.models.dclaw import build_dclaw
+
+    model = build_dclaw("none", fingers=("ff",)).compile()
+    names = ("ff_top", "ff_middle", "ff_bottom", "mf_top", "mf_middle", "mf_bottom")
+    t = np.arange(100) / 100
+    q = np.zeros((100, 6))
+    log = Trajectory("log.csv", t, q, q.copy(), names, names)
+    with pytest.raises(LogError) as caught:
+        check_against_model(log, model)
+    assert str(caught.value) == (
+        "log.csv: 'goal:mf_top': no actuator 'mf_top' in the model; actuators: ff_top, "
+        "ff_middle, ff_bottom; the log moves more of the hand than the model holds: its names "
+        "are the D'Claw's: `lowcostdex model dclaw --station none --fingers ff,mf --out "
+        "dclaw.xml` writes the model of those fingers")

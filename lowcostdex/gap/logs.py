@@ -324,7 +324,8 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                        f"joint=\"{j}\" kp=\"...\"/></actuator> (the servo's position gain)")
     for a in traj.actuators:
         if a not in act_names:
-            other = "" if set(traj.actuators) & set(act_names) else (  # another robot's log
+            other = _more_of_the_hand(traj.actuators) if set(traj.actuators) & set(
+                act_names) else (  # another robot's log
                 f"; none of the log's actuators ({', '.join(traj.actuators)}) is in the model: "
                 f"a log of another robot, or another robot's model? {_model_for(traj.actuators)}")
             raise LogError(f"{traj.name}: 'goal:{a}': no actuator {a!r} in the model; "
@@ -431,6 +432,14 @@ def _model_for(actuators: tuple[str, ...]) -> str:
                     "the model of those fingers")
     return ("give the MJCF of the robot that wrote the log (an actuator named as each 'goal:' "
             "column)")
+
+
+def _more_of_the_hand(names: tuple[str, ...]) -> str:
+    """The hint for a log naming more of one of the project's hands than the model holds (a
+    log of two fingers, a model of one): the model command of the log's fingers."""
+    what = _model_for(names)
+    return f"; the log moves more of the hand than the model holds: {what}" if what.startswith(
+        "its names") else ""
 
 
 def _same_joint(model: mujoco.MjModel, a: int, b: int) -> bool:
