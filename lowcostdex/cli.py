@@ -79,8 +79,11 @@ def command_prog(parser: argparse.ArgumentParser, args: argparse.Namespace) -> s
     return command_parser(parser, args).prog
 
 
-def unrecognized(parser: argparse.ArgumentParser, extra: Sequence[str]) -> str:
-    """The error for arguments ``parser`` does not take, with the closest options it does."""
+def unrecognized(parser: argparse.ArgumentParser, extra: Sequence[str],
+                 argv: Sequence[str] = ()) -> str:
+    """The error for arguments ``parser`` does not take, with the closest options it does, and
+    the list to type when a space after a comma in ``argv`` split one (``--stages bus, demos``:
+    "unrecognized arguments: demos" alone before)."""
     import difflib
 
     known = sorted({o for a in parser._actions for o in a.option_strings if o.startswith("--")})
@@ -90,6 +93,18 @@ def unrecognized(parser: argparse.ArgumentParser, extra: Sequence[str]) -> str:
             close = difflib.get_close_matches(arg.split("=", 1)[0], known, n=3, cutoff=0.6)
             if close:
                 hints.append(f"{arg.split('=', 1)[0]}: did you mean {' or '.join(close)}?")
+    for i, tok in enumerate(argv):
+        words = [tok] if tok.startswith("--") and "=" in tok else argv[i + 1:i + 2]
+        if not tok.startswith("--") or not words or not words[0].endswith(","):
+            continue
+        j = i + len(words) - (tok in words)
+        while words[-1].endswith(",") and j + 1 < len(argv) and not argv[j + 1].startswith("-"):
+            j += 1
+            words.append(argv[j])
+        if any(w in extra for w in words[1:]):
+            flag = "" if tok in words else f"{tok} "
+            hints.append(f"{flag}{' '.join(words)}: a space after a comma ends the list there; "
+                         f"type {flag}{''.join(words)}")
     more = f"; {'; '.join(hints)}" if hints else ""
     return f"unrecognized arguments: {' '.join(extra)}{more}"
 
@@ -100,7 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args, extra = parser.parse_known_args(argv)
         if extra:  # named by the subcommand that was given them, not by `lowcostdex`
             sub = command_parser(parser, args)
-            sub.error(unrecognized(sub, extra))
+            sub.error(unrecognized(sub, extra, sys.argv[1:] if argv is None else list(argv)))
     except SystemExit as exc:  # --help (0) or a bad argument (2, its line already printed)
         return exc.code if isinstance(exc.code, int) else USER_ERROR
     if getattr(args, "func", None) is None:

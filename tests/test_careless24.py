@@ -220,3 +220,17 @@ def test_a_log_of_more_fingers_than_the_model_gets_the_model_of_its_fingers():
         "ff_middle, ff_bottom; the log moves more of the hand than the model holds: its names "
         "are the D'Claw's: `lowcostdex model dclaw --station none --fingers ff,mf --out "
         "dclaw.xml` writes the model of those fingers")
+
+
+def test_a_list_split_by_a_space_after_a_comma_is_named_with_the_list_to_type(tmp_path, capsys):
+    # before: "unrecognized arguments: ff_middle, ff_bottom" and no word of the list the shell
+    # split at the spaces
+    out = tmp_path / "logs"
+    assert main(["record-log", "--port", "emulated", "--joints", "ff_top,", "ff_middle,",
+                 "ff_bottom", "--out", str(out)]) == USER_ERROR
+    assert ("unrecognized arguments: ff_middle, ff_bottom; --joints ff_top, ff_middle, "
+            "ff_bottom: a space after a comma ends the list there; type --joints "
+            "ff_top,ff_middle,ff_bottom") in capsys.readouterr().err
+    assert main(["main", "--out", str(out), "--stages=bus,", "demos"]) == USER_ERROR
+    assert "type --stages=bus,demos" in capsys.readouterr().err
+    assert not out.exists()
