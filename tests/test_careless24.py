@@ -234,3 +234,21 @@ def test_a_list_split_by_a_space_after_a_comma_is_named_with_the_list_to_type(tm
     assert main(["main", "--out", str(out), "--stages=bus,", "demos"]) == USER_ERROR
     assert "type --stages=bus,demos" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_logs_of_a_hand_given_without_a_model_get_the_model_command(tmp_path):
+    # before: "project-format logs need --model MODEL.xml", though a record-log folder's
+    # columns name the D'Claw's finger the model command writes
+    from lowcostdex.gap.dataset import load_dataset
+    from lowcostdex.gap.trajectory import LogError
+
+    names = ("ff_top", "ff_middle", "ff_bottom")
+    (tmp_path / "log_0.csv").write_text(
+        "time," + ",".join(f"goal:{n},qpos:{n}" for n in names) + "\n"
+        + "".join(f"{k / 50:.2f}" + ",0.1,0.1" * 3 + "\n" for k in range(60)))
+    with pytest.raises(LogError) as caught:
+        load_dataset(tmp_path)
+    assert str(caught.value) == (
+        "project-format logs need --model MODEL.xml (the MJCF of the robot that wrote them); "
+        "its names are the D'Claw's: `lowcostdex model dclaw --station none --fingers ff --out "
+        "dclaw.xml` writes the model of those fingers")

@@ -33,6 +33,7 @@ from lowcostdex.gap.logs import (
     check_against_model,
     estimate_velocity,
     is_bam,
+    model_needed,
     rate_goal_actuators,
     read_bam,
     read_log,
@@ -238,7 +239,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         check_one_motor(trajs)  # one servo model per analysis, as BAM fits one actuator
     else:
         if model is None:
-            raise LogError("project-format logs need --model MODEL.xml")
+            raise model_needed(paths[0])
         model = model_path(model)
         if model.is_dir():
             xmls = sorted(p.name for p in model.iterdir() if p.suffix.lower() == ".xml")

@@ -1,10 +1,12 @@
 """Which log files a user's paths name: a file, a folder (its logs; the user's other files
-in it passed over and said), a glob pattern the shell left unexpanded, or a list of them."""
+in it passed over and said), a glob pattern the shell left unexpanded, or a list of them; and
+which model file goes with logs named as one of the project's hands (``model_for``)."""
 
 from __future__ import annotations
 
 import glob
 import os
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
@@ -163,3 +165,29 @@ def model_path(model: object) -> Path:
     if not path.exists():
         raise LogError(f"{path}: no such model file")
     return path
+
+
+HAND_NAMES = {  # the project's hands' actuator names (sim/models/dclaw.py, allegro.py)
+    "dclaw": ("D'Claw", re.compile(r"(ff|mf|th)_(top|middle|bottom)")),
+    "allegro": ("Allegro", re.compile(r"(index|middle|ring|thumb)_[0-3]")),
+}
+
+
+def model_for(actuators: tuple[str, ...]) -> str:
+    """What model to give for a log whose actuators are named as one of the project's hands."""
+    for hand, (title, pattern) in HAND_NAMES.items():
+        fingers = [m.group(1) for a in actuators if (m := pattern.fullmatch(a))]
+        if fingers and len(fingers) == len(actuators):
+            return (f"its names are the {title}'s: `lowcostdex model {hand} --station none "
+                    f"--fingers {','.join(dict.fromkeys(fingers))} --out {hand}.xml` writes "
+                    "the model of those fingers")
+    return ("give the MJCF of the robot that wrote the log (an actuator named as each 'goal:' "
+            "column)")
+
+
+def more_of_the_hand(names: tuple[str, ...]) -> str:
+    """The hint for a log naming more of one of the project's hands than the model holds (a
+    log of two fingers, a model of one): the model command of the log's fingers."""
+    what = model_for(names)
+    return f"; the log moves more of the hand than the model holds: {what}" if what.startswith(
+        "its names") else ""

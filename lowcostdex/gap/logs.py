@@ -30,7 +30,6 @@ from __future__ import annotations
 import csv
 import math
 import numbers
-import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -64,7 +63,13 @@ from lowcostdex.gap.log_checks import (
     trajectory_from_columns,
 )
 from lowcostdex.gap.log_csv import MAX_COLUMNS, is_channel, read_csv
-from lowcostdex.gap.log_paths import csv_under_another_name, folder_not_log, no_such_log
+from lowcostdex.gap.log_paths import (
+    csv_under_another_name,
+    folder_not_log,
+    model_for,
+    more_of_the_hand,
+    no_such_log,
+)
 from lowcostdex.gap.trajectory import (
     GAP_FACTOR,
     GAP_MIN,
@@ -324,10 +329,10 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
                        f"joint=\"{j}\" kp=\"...\"/></actuator> (the servo's position gain)")
     for a in traj.actuators:
         if a not in act_names:
-            other = _more_of_the_hand(traj.actuators) if set(traj.actuators) & set(
+            other = more_of_the_hand(traj.actuators) if set(traj.actuators) & set(
                 act_names) else (  # another robot's log
                 f"; none of the log's actuators ({', '.join(traj.actuators)}) is in the model: "
-                f"a log of another robot, or another robot's model? {_model_for(traj.actuators)}")
+                f"a log of another robot, or another robot's model? {model_for(traj.actuators)}")
             raise LogError(f"{traj.name}: 'goal:{a}': no actuator {a!r} in the model; "
                            f"actuators: {', '.join(act_names)}{other}")
     for j in traj.joints:
@@ -416,30 +421,18 @@ def check_against_model(traj: Trajectory, model: mujoco.MjModel) -> None:
     units.check_model_speed(traj, model)  # degrees on a continuous joint
 
 
-HAND_NAMES = {  # the project's hands' actuator names (sim/models/dclaw.py, allegro.py)
-    "dclaw": ("D'Claw", re.compile(r"(ff|mf|th)_(top|middle|bottom)")),
-    "allegro": ("Allegro", re.compile(r"(index|middle|ring|thumb)_[0-3]")),
-}
-
-
-def _model_for(actuators: tuple[str, ...]) -> str:
-    """What model to give for a log whose actuators are named as one of the project's hands."""
-    for hand, (title, pattern) in HAND_NAMES.items():
-        fingers = [m.group(1) for a in actuators if (m := pattern.fullmatch(a))]
-        if fingers and len(fingers) == len(actuators):
-            return (f"its names are the {title}'s: `lowcostdex model {hand} --station none "
-                    f"--fingers {','.join(dict.fromkeys(fingers))} --out {hand}.xml` writes "
-                    "the model of those fingers")
-    return ("give the MJCF of the robot that wrote the log (an actuator named as each 'goal:' "
-            "column)")
-
-
-def _more_of_the_hand(names: tuple[str, ...]) -> str:
-    """The hint for a log naming more of one of the project's hands than the model holds (a
-    log of two fingers, a model of one): the model command of the log's fingers."""
-    what = _model_for(names)
-    return f"; the log moves more of the hand than the model holds: {what}" if what.startswith(
-        "its names") else ""
+def model_needed(path: Path) -> LogError:
+    """The error for project-format logs given without a model: with the ``lowcostdex model``
+    command when the log's actuators are named as one of the project's hands (a record-log
+    folder), read from the first log ``path``; before, only "need --model MODEL.xml"."""
+    try:
+        names = tuple(k.partition(":")[2].strip() for k in _read_columns(path)[0]
+                      if k.lower().startswith("goal:"))
+    except LogError:  # unreadable: the model is what is asked for here
+        names = ()
+    what = model_for(names) if names else ""
+    return LogError("project-format logs need --model MODEL.xml (the MJCF of the robot that "
+                    "wrote them)" + (f"; {what}" if what.startswith("its names") else ""))
 
 
 def _same_joint(model: mujoco.MjModel, a: int, b: int) -> bool:
