@@ -118,6 +118,22 @@ def integer(low: int | None = None, high: int | None = None) -> Callable[[str], 
     return parse
 
 
+def width(text: str) -> int:
+    """One hidden layer's width for ``--hidden`` (``nargs="*"``): widths typed with commas
+    ('32,32') are named with the words to type (was "invalid int value: '32,32'"); the range
+    is the policy config's check."""
+    if "," in text:
+        words = " ".join(p.strip() for p in text.split(",") if p.strip())
+        typed = (f"type --hidden {words}" if not text.rstrip().endswith(",") else
+                 "e.g. --hidden 64 64 for two layers of 64")
+        raise argparse.ArgumentTypeError(f"{text!r}: the widths are separated by spaces, not "
+                                         f"commas: {typed}")
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+
+
 def home(text: str) -> str:
     """``text`` with a leading ``~`` or ``~user`` read as that home folder, as the shell reads it.
     The shell leaves ``--out=~/runs`` and ``--out "~/runs"`` alone, and pathlib too: the output

@@ -252,3 +252,14 @@ def test_logs_of_a_hand_given_without_a_model_get_the_model_command(tmp_path):
         "project-format logs need --model MODEL.xml (the MJCF of the robot that wrote them); "
         "its names are the D'Claw's: `lowcostdex model dclaw --station none --fingers ff --out "
         "dclaw.xml` writes the model of those fingers")
+
+
+def test_hidden_widths_typed_with_commas_are_named_with_the_words_to_type(tmp_path, capsys):
+    # before: "argument --hidden: invalid int value: '32,32'"
+    out = tmp_path / "run"
+    for algo, given, typed in (("npg", "32,32", "type --hidden 32 32"),
+                               ("ppo", "64,", "e.g. --hidden 64 64 for two layers of 64")):
+        assert main(["train", algo, "--out", str(out), "--hidden", given]) == USER_ERROR
+        assert (f"argument --hidden: '{given}': the widths are separated by spaces, not commas: "
+                f"{typed}") in capsys.readouterr().err
+    assert not out.exists()

@@ -26,6 +26,7 @@ from lowcostdex.algos.configs import (
     TrainConfig,
 )
 from lowcostdex.algos.samplers import SAMPLERS
+from lowcostdex.argtypes import width
 from lowcostdex.errors import ConfigError
 from lowcostdex.options import add_latency_option, env_id, latency_kwargs, robot_selection
 
@@ -81,7 +82,7 @@ def _add_arguments(p: argparse.ArgumentParser, algo: str) -> None:
     p.add_argument("--damping", type=float, default=d.npg.damping, help="Fisher damping")
     p.add_argument("--gamma", type=float, default=d.gamma, help=GAMMA_HELP)
     p.add_argument("--gae-lambda", type=float, default=d.gae_lambda, help=LAMBDA_HELP)
-    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes),
+    p.add_argument("--hidden", type=width, nargs="*", default=list(d.policy.hidden_sizes),
                    help="widths of the policy's hidden layers (default %(default)s; "
                         "--hidden alone: none, a linear policy)")
     p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std,
@@ -146,7 +147,7 @@ def _add_ppo_arguments(p: argparse.ArgumentParser) -> None:
                    help="PPO's clip of the probability ratio, 1 +- this (default %(default)s)")
     p.add_argument("--ent-coef", type=float, default=d.ent_coef,
                    help="weight of the entropy bonus in the loss (default %(default)s)")
-    p.add_argument("--hidden", type=int, nargs="*", default=list(d.policy.hidden_sizes),
+    p.add_argument("--hidden", type=width, nargs="*", default=list(d.policy.hidden_sizes),
                    help="widths of the policy's hidden layers (default %(default)s; "
                         "--hidden alone: none, a linear policy)")
     p.add_argument("--init-log-std", type=float, default=d.policy.init_log_std,
