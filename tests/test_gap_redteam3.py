@@ -73,7 +73,10 @@ MISSES: dict[str, str] = {
                                                 "(1.254 vs 1.496 mrad at 2 ms, 0.685 vs "
                                                 "1.211 at 0.5 ms); not re-run through the "
                                                 "analysis (explain_above stops it before a "
-                                                "second cause)",
+                                                "second cause). The same on acf2f02 (gap-sweep22, "
+                                                "session 27, play_step on, 98 s CPU): "
+                                                "latency abd 80.28 ms [78.53, 81.03], "
+                                                "held-out 49.1 -> 1.06 mrad",
     "fin_backlash080_dist": "miss by design, not below the read floor (gap-play, main 3483c63, "
                             "68 s): 'no significant discrepancy', the nominal train + select "
                             "RMSE 0.83 mrad at 0.5 ms is within explain_above (3 floors of "
