@@ -81,12 +81,7 @@ from lowcostdex.gap.results import (
     bound_flags,
     param_report,
 )
-from lowcostdex.gap.selection import (
-    fit_batches,
-    mse_by_episode,
-    probe_gains,
-    select_results,
-)
+from lowcostdex.gap.selection import fit_batches, mse_by_episode, probe_gains, select_results
 from lowcostdex.gap.selection import nothing_to_explain as _nothing_left
 from lowcostdex.gap.stepsize import refine as _refine_step
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, Targets, effect
@@ -277,6 +272,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     if t.cost < best_track[n].cost:
                         best_track[n] = t
             play_side.settle_sensor(play_fit := best_track.get("backlash", play_fit), fit_fn)
+            gates.settle_untold(best_track, fit_fn, cfg.min_gain)  # a bound no data ask for
             widened = free_asymmetry(best_track, fit_fn, ctx, cfg)  # held terms data need
             names = list(best_track)
             results = select_results(eng.predict, ds, sel_eps, best_track, names, sel_cur,
