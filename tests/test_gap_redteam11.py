@@ -56,11 +56,16 @@ MISSES: dict[str, str] = {
     "backlash_pan": "gain_error 0.94 / 1.007 named, flagged 'no reliable gain ... at best a "
     "partial stand-in' (9.45 -> 9.77 mrad, 18 floors; 32 s CPU on ab2d25b); backlash not among "
     "the six fitted. The truth's loop read across the play HUNTS at every hold (a limit cycle, "
-    "14.6 mrad row to row), which no replay from measured states follows. (On 89b2d65, gear "
-    "contact at solref 1 ms: nothing named, 11.84 mrad; backlash fitted 30 / 31 mrad, sensor "
-    "1.0, select 12.7 vs the nominal 10.8.) Also: Backlash.command subtracts s x the play ANGLE "
-    "from a velocity actuator's rate goal; a patch reading only the play rate was not landed: "
-    "the true width replayed no better (15.8 vs 16.7 mrad per 1 s window)",
+    "14.6 mrad row to row). Measured by gap-sim14 (session 27): our plant's play hunts as the "
+    "truth's does (closed around the host's 100 Hz loop in plain MuJoCo with Backlash.command's "
+    "law: 15.7 / 13.9 / 14.6 mrad row to row at 2 / 0.5 / 0.25 ms; with the play ANGLE term of "
+    "a velocity actuator dropped 16.1 / 13.8 / 13.3: that term is not the miss), and open loop "
+    "from the logged commands the true play (sensor 1, hinge) gives the logs' spread (row to row "
+    "23.3 mrad per 1 s segment, logs 22.9, nominal 18.2) but not its phase: pan RMSE 21.5 vs "
+    "the nominal 20.1 mrad (whole episodes 24.4 vs 18.9). The replay then keeps the massless "
+    "play operator (19.7: closer to the data), where the sensor does nothing (0 and 1 replay "
+    "alike). An open-loop RMSE ranks a limit cycle below none: naming it needs a phase-free "
+    "score (e.g. the holds' row-to-row spread)",
     "latency_backlash": "torque_limit 0.54 / 0.78 N m named (42.0 -> 41.2 mrad, 82 floors; 71 s "
     "CPU): latency fitted 27.9 / 30.8 ms (truth 30) but its select gain 0.12 is not "
     "significant beside the pan's hunting play (see backlash_pan)",
