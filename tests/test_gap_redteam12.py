@@ -267,3 +267,19 @@ def test_a_rails_dry_friction_in_newtons_is_inside_the_search_range():
     assert fitmod.hard_limits("coulomb_friction", "frictionloss", 0, ctx)[1] >= 20.0
     finger = fitmod.space("coulomb_friction", "frictionloss", 1, ctx)
     assert finger.hi <= 5.0
+
+
+def test_a_slides_parameters_are_reported_in_linear_units():
+    """A slide's offset is in m, its friction in N, its damping in N s/m: the report said the
+    jaw's 2.777 mm mounting offset was "0.002777 rad" and its 7.8 N friction "N m" (5598aed,
+    96768eb). Hinge-only causes keep the catalogue's units."""
+    from lowcostdex.gap.results import unit_on
+
+    both, grip = np.array([True, False]), np.array([True])
+    assert unit_on("rad", sim.JOINTS, both) == "rad (m on grip)"
+    assert unit_on("N m", sim.JOINTS, both) == "N m (N on grip)"
+    assert unit_on("N m s/rad", ("grip",), grip) == "N s/m"
+    assert unit_on("rad/s", ("grip",), grip) == "m/s"
+    assert unit_on("1", sim.JOINTS, both) == "1"
+    assert unit_on("rad", sim.JOINTS, np.array([False, False])) == "rad"
+    assert unit_on("rad", sim.JOINTS, None) == "rad"

@@ -512,7 +512,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
         for k, e in enumerate(effects):
             c = Cause(e.name, e.joints, param_report(
                 final_track.structure, final_track.u, half, e.name,
-                {"interval_noise": noise, "interval_data": data}, shift, centre=mid))
+                {"interval_noise": noise, "interval_data": data}, shift, mid, ctx.slide))
             sse, sae, n = mse_by_episode(ds, test_eps, test_pred[k])
             c.heldout_rmse_after = float(math.sqrt(sse.sum() / n.sum()))
             c.heldout_mae_after = float(sae.sum() / n.sum())

@@ -347,14 +347,26 @@ def _cand_dict(c: CandidateResult) -> dict:
     return {k: v for k, v in asdict(c).items()}
 
 
+def unit_on(unit: str, joints: Sequence[str], slide: np.ndarray | None) -> str:
+    """A parameter's catalogue ``unit`` (a hinge's: rad, N m, N m s/rad, rad/s) said for these
+    ``joints``: on slides (``slide`` True) linear (m, N, N s/m, m/s); on a mix, both
+    ("rad (m on grip)"): a gripper's 2.78 mm offset read "0.00278 rad" (gap-sim15)."""
+    lin = unit.replace("N m", "N").replace("rad", "m")
+    if slide is None or not np.any(slide) or lin == unit:
+        return unit
+    if np.all(slide):
+        return lin
+    return f"{unit} ({lin} on {', '.join(j for j, m in zip(joints, slide, strict=True) if m)})"
+
+
 def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str,
                  other: dict[str, np.ndarray] | None = None, shift: np.ndarray | None = None,
-                 centre: np.ndarray | None = None) -> dict:
+                 centre: np.ndarray | None = None, slide: np.ndarray | None = None) -> dict:
     """Value and 95 % interval per parameter from half-widths in optimizer coordinates (about
     ``centre``, None: the value); ``other``: more intervals to report under their keys, about
     the value (e.g. ``interval_noise``: residual noise only); ``shift``: the fit's move at a
     finer physics step in optimizer coordinates, reported as ``step_shift`` (the value there
-    minus the value)."""
+    minus the value). ``slide``: which joints are slides, whose units are linear (``unit_on``)."""
     mid = u if centre is None else centre
     out: dict[str, dict] = {}
     nj = len(s.joints)
@@ -364,7 +376,8 @@ def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str
         null = effect(name).param(f.param).null
         # a joint where the parameter is held (not free) reports its null, exactly
         d = out.setdefault(f.param, {"value": [null] * nj, "interval": [[null, null]] * nj,
-                                     "unit": effect(name).param(f.param).unit})
+                                     "unit": unit_on(effect(name).param(f.param).unit,
+                                                     s.joints, slide)})
         v, iv = f.from_u(u[i]), param_interval(f, mid[i], half[i])
         if f.at_floor(v):  # replayed as the null (a joint without latency): its interval holds it
             v = null
