@@ -105,6 +105,11 @@ BAM_LOSO = {
         for t, m3, m1 in zip(TRAJ, (0.017, 0.014, 0.041, 0.015), (0.027, 0.015, 0.038, 0.024),
                              strict=True)},
 }
+# and each gain's 4 logs: section 2's "per kp" column (published M3 / M6, same caveat)
+BAM_LOSO["rhoban-xl330"].update({
+    ("kp", k): {"BAM published M3": m3, "BAM published M6": m6}
+    for k, m3, m6 in zip((100, 200, 400, 800), (0.028, 0.061, 0.074, 0.114),
+                         (0.027, 0.062, 0.084, 0.124), strict=True)})
 # Header fields whose values a leave-one-setup-out run holds out in turn (--loso auto: those
 # taking two or more values in the set).
 LOSO_FIELDS = ("kp", "mass", "length", "trajectory")
@@ -308,6 +313,7 @@ def loso(ds, fields: Sequence[str], structure, sel: dict, bam: dict | None = Non
                    "at_bound": r.at_bound, "cpu_s": time.process_time() - c0,
                    "fit_s": r.fit_seconds, "bam": (bam or {}).get((f, v), {}),
                    "notes": r.notes, "verdict": r.verdict, "setup_offsets": r.setup_offsets,
+                   "params": r.params(), "selection": r.selection,
                    **rel}
             print(f"  loso {f}={v}: held out {1e3 * row['held_out']:.1f} mrad (train "
                   f"{1e3 * row['train']:.1f}; nominal {1e3 * row['nominal']:.1f}, q = goal "
