@@ -45,7 +45,8 @@ FAST = frozenset({"clean_pantilt"})
 # clean_pantilt_long (8 s). Since gap-sim14 (session 27, gates.settle_untold: a scalar on a
 # bound that the data do not need is held at its null) also mass_tilt (2.0015 [1.994, 2.010]
 # for 2, 233 -> 1.21 mrad, 35 s; it was a mounting_offset stand-in, mass_error rejected at a
-# bound by its pan scale).
+# bound by its pan scale) and offset_tilt (0.1523 [0.1236, 0.1739] for 0.15, 16.19 -> 1.00
+# mrad, 33 s; it was extra: a velocity_limit beside it, 108 s).
 MISSES: dict[str, str] = {
     "latency50": "extra, on ab2d25b: latency 45.6 / 43.8 ms (the tilt's interval [36.1, 47.1] "
     "misses 50) + inertia_error 1.53 / 1.90 + backlash 12.5 / 7.9 mrad (kept by the backward "
@@ -69,15 +70,11 @@ MISSES: dict[str, str] = {
     "latency_backlash": "torque_limit 0.54 / 0.78 N m named (42.0 -> 41.2 mrad, 82 floors; 71 s "
     "CPU): latency fitted 27.9 / 30.8 ms (truth 30) but its select gain 0.12 is not "
     "significant beside the pan's hunting play (see backlash_pan)",
-    "offset_tilt": "extra: position_offset on the tilt 0.1515 [0.1137, 0.1872] (truth 0.15) AND "
-    "velocity_limit 4.5 / 4.4 rad/s (intervals [1.3, 10], [2.0, 10]: the host asks <= 4; 16.6 "
-    "-> 1.02 mrad, 108 s CPU); the pan's offset (no gravity on a velocity-commanded pan: "
-    "invisible) is shown at 0.8, interval (-inf, inf)",
     "armature_pan": "extra: inertia_error on the pan 2.955 [2.659, 3.009] (truth 3) AND "
     "velocity_limit 6.1 / 4.9 rad/s (9.94 -> 1.32 mrad, 103 s CPU)",
     "friction_pan_mass_tilt": "coulomb_friction on the pan 0.2501 [0.2464, 0.2540] (truth 0.25) "
     "+ mounting_offset -0.307 on the tilt for the 2x camera (457 -> 25.9 mrad, 51 floors; 86 s "
-    "CPU): mass_error was never fitted (screened 0.64 in round 1, below the six fitted; gain_error, "
+    "CPU; the same on 54cec05, 92 s): mass_error was never fitted (screened 0.64 in round 1, below the six fitted; gain_error, "
     "coulomb_friction, viscous_damping accepted, max_effects reached); the backward search "
     "from all seven kept the offset, and gain_error and viscous_damping were dropped on their "
     "intervals",
