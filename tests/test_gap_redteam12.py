@@ -37,13 +37,18 @@ FAST: frozenset[str] = frozenset()
 # commit named; CPU: the analysis's user + sys). Named exactly: grip_offset (mounting_offset
 # 2.777 mm [2.506, 2.972] for 2.92, 220 s, 5598aed), latency (40.55 ms [39.84, 41.6] and 40.25
 # [39.67, 40.51] for 40.1, 138 s, 96768eb); clean: clean_free (43 s), clean_contact (49 s) on
-# 5598aed. Not run yet (no mark): grip_backlash, grip_gain, finger_offset, finger_friction,
+# 5598aed. Not run yet (no mark): grip_backlash, finger_offset, finger_friction,
 # finger_backlash, grip_friction_finger_offset.
 MISSES: dict[str, str] = {
     "grip_friction": "named exactly on 96768eb, but the interval misses: coulomb_friction on the "
     "jaw 7.814 N [7.813, 7.816] for 7.69 (1.6 % high; the interval is +-0.02 %: the 0.5 s blocks "
     "agree, so no resampling sees a bias common to all of them); 1.301 -> 0.451 (x1e-3, m and rad "
     "pooled), 276 s CPU; the report gives its unit as 'N m'",
+    "grip_gain": "miss on 96768eb: backlash on the jaw 2.89 mm [1.29, 4.19] named, flagged 'no "
+    "reliable gain ... at best a partial stand-in' (1.187 -> 1.106 x1e-3, CI holds 0; 354 s CPU). "
+    "gain_error ranked first (score 0.71) but its fit stayed at 1.0003 (truth kp x0.546; select "
+    "gain 0.02 %), though the catalogue offers starts at 0.5 and 2.0; torque_limit on the jaw "
+    "ran to its 10 (N m) cap beside a 40 N forcerange",
 }
 
 G = 9.81
