@@ -36,8 +36,9 @@ FAST: frozenset[str] = frozenset()
 # what the analysis named instead, per case it misses (bench/gap_redteam12.py --threads 1 on the
 # commit named; CPU: the analysis's user + sys). Named exactly: grip_offset (mounting_offset
 # 2.777 mm [2.506, 2.972] for 2.92, 220 s, 5598aed), latency (40.55 ms [39.84, 41.6] and 40.25
-# [39.67, 40.51] for 40.1, 138 s, 96768eb); clean: clean_free (43 s), clean_contact (49 s) on
-# 5598aed. Not run yet (no mark): grip_backlash, finger_offset, finger_friction,
+# [39.67, 40.51] for 40.1, 138 s, 96768eb), finger_offset (-0.06687 rad [-0.06706, -0.06677]
+# for -0.0669, 257 s, 96768eb); clean: clean_free (43 s), clean_contact (49 s) on
+# 5598aed. Not run yet (no mark): grip_backlash, finger_friction,
 # finger_backlash, grip_friction_finger_offset.
 MISSES: dict[str, str] = {
     "grip_friction": "named exactly on 96768eb, but the interval misses: coulomb_friction on the "
