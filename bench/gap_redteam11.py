@@ -18,9 +18,7 @@ not. Prints one row per case with the CPU seconds of the analysis (the child's u
 
 from __future__ import annotations
 
-import json
 import pathlib
-import subprocess
 import sys
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
@@ -31,22 +29,7 @@ sim = harness.truth_module("gap_truth_sim11")
 
 def run(name: str, root: pathlib.Path, threads: int = 1) -> dict:
     """Write case ``name`` under ``root/<name>/data``, analyse it and grade its report."""
-    files = sim.write_case(sim.CASE_BY_NAME[name], root / name / "data")
-    out = root / name / "report"
-    cmd = harness.analyze_command(files, out, threads)
-    cpu0 = harness.child_cpu()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    row = {"case": name, "command": " ".join(cmd), "cpu_s": round(harness.child_cpu() - cpu0, 1),
-           "exit": proc.returncode}
-    if proc.returncode:
-        return row | {"result": "crash", "stderr": (proc.stderr or proc.stdout)[-2000:]}
-    report = json.loads((out / "report.json").read_text())
-    row |= sim.score(report, files["truth"])
-    row["causes"] = [{"effect": c["effect"], "joints": c["joints"],
-                      "params": {k: v["value"] for k, v in c["params"].items()}}
-                     for c in report.get("causes", [])]
-    row["verdict"] = report.get("verdict")
-    return row
+    return harness.run_named(sim, name, root, threads)
 
 
 def line(r: dict) -> str:

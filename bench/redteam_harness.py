@@ -133,6 +133,28 @@ def summary(label: str, rows: list[dict]) -> str:
             f"analysis wall time {wall:.0f} s ({wall / max(len(rows), 1):.0f} s/case)")
 
 
+def run_named(sim: ModuleType, name: str, root: pathlib.Path, threads: int = 1) -> dict:
+    """Case ``name`` of a truth set whose cases carry only effects (sim11, sim12): written under
+    ``root/<name>/data``, analysed through the CLI, graded by ``sim.score``; the row keeps the
+    analysis' CPU seconds (the child's user + sys), the named causes and the verdict."""
+    files = sim.write_case(sim.CASE_BY_NAME[name], root / name / "data")
+    out = root / name / "report"
+    cmd = analyze_command(files, out, threads)
+    cpu0 = child_cpu()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    row = {"case": name, "command": " ".join(cmd), "cpu_s": round(child_cpu() - cpu0, 1),
+           "exit": proc.returncode}
+    if proc.returncode:
+        return row | {"result": "crash", "stderr": (proc.stderr or proc.stdout)[-2000:]}
+    report = json.loads((out / "report.json").read_text())
+    row |= sim.score(report, files["truth"])
+    row["causes"] = [{"effect": c["effect"], "joints": c["joints"],
+                      "params": {k: v["value"] for k, v in c["params"].items()}}
+                     for c in report.get("causes", [])]
+    row["verdict"] = report.get("verdict")
+    return row
+
+
 def sweep(sim: ModuleType, doc: str, keep: str, header: str, run, line,
           argv: list[str] | None = None) -> int:
     """The plain command line of a per-case sweep (gap_redteam10/11): --cases, --keep, --json,
