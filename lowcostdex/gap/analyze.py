@@ -188,8 +188,10 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     current, cur_x = fitmod.Structure((), joints), np.zeros(0)
     sel_cur = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
     floor_rms = math.sqrt(floor_mse)
-    quiet = _nothing_left(ds, train_eps + sel_eps, [base_pred[i] for i in split.train
-                          + split.select], floor, cfg.explain_above, m0)  # no cause
+    def judged_quiet(ds, base_pred) -> bool:  # the nominal within explain_above floors
+        return _nothing_left(ds, train_eps + sel_eps, [base_pred[i] for i in split.train
+                             + split.select], floor, cfg.explain_above, m0)
+    quiet = judged_quiet(ds, base_pred)  # no cause
     rounds: list[list[CandidateResult]] = []
     fit_fn = eng.residual_fn(train_segs)
     stop_reason = "max_effects reached"
@@ -402,8 +404,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                     c.params.items()})] for c in rounds.pop() if c.fitted and c.params}
             equivalents, widened_notes = {}, {}
             sel_cur = mse_by_episode(ds, sel_eps, [base_pred[i] for i in split.select])
-            quiet = _nothing_left(ds, train_eps + sel_eps, [base_pred[i] for i in split.train
-                                  + split.select], floor, cfg.explain_above, m0)
+            quiet = judged_quiet(ds, base_pred)
 
     # ---- backward pass: drop accepted effects the final model no longer needs ---------------
     if len(current.effects) > 1:
