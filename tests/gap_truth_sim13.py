@@ -48,6 +48,19 @@ Hidden effects (``Effect.kind``), each written here from its physics:
   ``springlength`` 0..1 m) carries the tension; the finger lags and sags under the springs'
   load, more the harder it is flexed.
 
+The LINKAGE rig (``linkage_xml``, ``simulate_linkage``; ``Case.rig`` "linkage finger", cases
+``link_*``): the same finger without springs, a servo on the mcp and one on the pip (the user's
+``<position kp="2" / "1" forcerange="-0.5 0.5" / "-0.3 0.3">`` on joints with ``armature``
+5e-4 / 3e-4 kg m^2, ``damping`` 0.02 / 0.01 N m s/rad, ``frictionloss`` 0.005 / 0.003 / 0.001 N
+m), the dip on the pip through the same joint equality (an Inspire-like linkage finger). The
+truth drives ``motor`` actuators with each servo's law on its own reading; the log has
+``goal:mcp``, ``goal:pip`` and the three joints. Effects there: ``latency`` on both servos,
+``backlash``, ``gain`` on the pip servo (a play between its rotor and the pip link), ``mount``
+(the pip servo reads and holds q + ``value``: ``mounting_offset``; only the dip's encoder
+through the linkage and gravity see it), ``friction`` on the pip, ``mass`` of the distal
+phalanx (a joint without an actuator), a pair, and ``curve`` (OUTSIDE the catalogue: the
+four-bar's dip = 0.8 pip + ``value`` pip^2 where the user's MJCF has the straight line).
+
 ``write_case`` writes what a user brings (``model.xml``, ``logs/log<i>.csv``) and ``truth.json``
 (``causes`` as catalogue names, ``expected_params``; ``outside`` for the stretch); ``score``
 grades a report with ``redteam_grade.grade`` and ``FAMILIES``.
@@ -88,13 +101,25 @@ GOALS = (0.3, 1.5)                 # rad of servo angle: the host's range (joint
 SOLREF, STIFF_IMP = "0.001 1", "0.999 0.9999 0.001"   # the cable's and the play's limits
 LINK_SOLREF, LINK_SOLIMP = "0.005 1", "0.9999 0.9999 0.001"   # the dip-pip linkage (both)
 
-KINDS = ("latency", "backlash", "gain", "offset", "friction", "mass", "stretch")
+# the LINKAGE rig: the same finger, a servo on the mcp and one on the pip (position actuators
+# on their joints), no springs; the dip follows the pip through the same joint equality
+SERVOS = ("mcp", "pip")
+LKP = {"mcp": 2.0, "pip": 1.0}             # N m/rad
+LTMAX = {"mcp": 0.5, "pip": 0.3}           # N m
+LARM = {"mcp": 5e-4, "pip": 3e-4}          # kg m^2, the servos' rotors
+LDAMP = {"mcp": 0.02, "pip": 0.01}         # N m s/rad
+LFRIC = {"mcp": 0.005, "pip": 0.003, "dip": 0.001}   # N m
+LGOALS = {"mcp": (0.0, 1.2), "pip": (0.0, 1.3)}       # rad
+
+KINDS = ("latency", "backlash", "gain", "offset", "mount", "friction", "mass", "stretch",
+         "curve")
 CATALOGUE = {"latency": "latency", "backlash": "backlash", "gain": "gain_error",
-             "offset": "position_offset", "friction": "coulomb_friction", "mass": "mass_error"}
+             "offset": "position_offset", "mount": "mounting_offset",
+             "friction": "coulomb_friction", "mass": "mass_error"}
 PARAM = {"latency": "delay", "backlash": "width", "gain": "scale", "offset": "offset",
-         "friction": "frictionloss", "mass": "scale"}
+         "mount": "offset", "friction": "frictionloss", "mass": "scale"}
 WHERE = {"latency": ACT, "backlash": ACT, "gain": ACT, "offset": "mcp", "friction": "pip",
-         "mass": "dip", "stretch": ACT}
+         "mass": "dip", "stretch": ACT, "mount": "pip", "curve": "dip"}   # unless ``on`` says
 FAMILIES = (
     {"gain_error", "latency", "inertia_error", "mass_error", "viscous_damping"},
     {"velocity_limit", "torque_limit", "gain_error"},
@@ -106,11 +131,13 @@ FAMILIES = (
 
 @dataclasses.dataclass(frozen=True)
 class Effect:
-    """Hidden effect ``kind`` of size ``value`` (s, rad at the horn, 1, rad, N m, 1, N/m) at
-    ``WHERE[kind]``."""
+    """Hidden effect ``kind`` of size ``value`` (s, rad, 1, rad, rad, N m, 1, N/m, 1/rad) on the
+    joints ``on`` (default ``WHERE[kind]``; on the tendon rig the servo's effects act on the
+    actuator ``flex``)."""
 
     kind: str
     value: float
+    on: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -118,7 +145,7 @@ class Effect:
 
     @property
     def joints(self) -> tuple[str, ...]:
-        return (WHERE[self.kind],)
+        return self.on or (WHERE[self.kind],)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,8 +161,9 @@ class Case:
     rate: float = RATE
     qvel: bool = False
 
-    def get(self, kind: str) -> float | None:
-        return next((e.value for e in self.effects if e.kind == kind), None)
+    def get(self, kind: str, joint: str | None = None) -> float | None:
+        return next((e.value for e in self.effects
+                     if e.kind == kind and (joint is None or joint in e.joints)), None)
 
     @property
     def causes(self) -> set[str]:
@@ -226,13 +254,14 @@ def host_times(duration: float, rng: np.random.Generator) -> np.ndarray:
     return t[t <= duration]
 
 
-def targets(t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """The host's servo goals [rad] at times ``t``: levels in ``GOALS`` held 0.4-1.0 s, reached
+def targets(t: np.ndarray, rng: np.random.Generator,
+            span: tuple[float, float] = GOALS) -> np.ndarray:
+    """The host's servo goals [rad] at times ``t``: levels in ``span`` held 0.4-1.0 s, reached
     by a 0.15-0.6 s ramp (a grasp closing and opening; the host ramps its goals so that the
     springs return the finger as fast as the horn lets the cable out)."""
     edges = np.concatenate([[t[0]], np.cumsum(rng.uniform(0.4, 1.0, int(t[-1] / 0.4) + 3))])
     n = len(edges)
-    levels = rng.uniform(*GOALS, n)
+    levels = rng.uniform(*span, n)
     ramps = rng.uniform(0.15, 0.6, n)
     k = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, n - 1)
     prev = levels[np.maximum(k - 1, 0)]
@@ -301,17 +330,139 @@ def simulate(case: Case, t: np.ndarray, goal: np.ndarray, rng: np.random.Generat
     return res
 
 
+def _linkage_joint(j: str, case: Case, truth: bool, rotor: bool) -> str:
+    """Joint ``j`` of the linkage rig: on the servo's side (``rotor``) its armature and damping,
+    on the link its friction; both when there is no play."""
+    hi = {"mcp": 1.5, "pip": 1.7, "dip": 1.4}[j.removesuffix("_rotor")]
+    attrs = f'name="{j}" type="hinge" axis="0 -1 0" range="-0.2 {hi}" limited="true"'
+    base = j.removesuffix("_rotor")
+    if base in SERVOS and rotor:
+        attrs += f' armature="{LARM[base]}" damping="{LDAMP[base]}"'
+    if j == base:
+        fric = LFRIC[j] + ((case.get("friction", j) or 0.0) if truth else 0.0)
+        attrs += f' frictionloss="{fric:.6g}"'
+    return f"<joint {attrs}/>"
+
+
+def linkage_xml(case: Case | None = None, timestep: float = MODEL_DT, truth: bool = False) -> str:
+    """The linkage rig's MJCF: the user's (``truth`` False: ``position`` actuators on mcp and pip,
+    the dip on the pip through ``dip = 0.8 pip``) or the truth's (``motor`` actuators whose torque
+    ``simulate_linkage`` computes, a rotor joint and a tendon's play where the case hides a
+    backlash, the hidden friction and mass, a four-bar's curve ``dip = 0.8 pip + c pip^2``)."""
+    case = case or Case("nominal", rig="linkage finger")
+    play = {j: (case.get("backlash", j) if truth else None) for j in SERVOS}
+    curve = (case.get("curve") or 0.0) if truth else 0.0
+
+    def link(j: str, inner: str, pos: str) -> str:
+        mass = MASS[j] * ((case.get("mass", j) or 1.0) if truth else 1.0)
+        ln = LENGTH[j]
+        inertia = mass * ln ** 2 / 12
+        geoms = (f'<geom type="capsule" fromto="0 0 0 {ln} 0 0" size="0.008" mass="0" '
+                 f'contype="0" conaffinity="0"/><inertial pos="{ln / 2} 0 0" mass="{mass:.6g}" '
+                 f'diaginertia="{0.2 * inertia:.4g} {inertia:.4g} {inertia:.4g}"/>')
+        if j not in SERVOS or play[j] is None:
+            joint = _linkage_joint(j, case, truth, rotor=True)
+            return f'<body name="{j}_link" pos="{pos}">{joint}{geoms}{inner}</body>'
+        rotor = _linkage_joint(j + "_rotor", case, truth, rotor=True)
+        joint = _linkage_joint(j, case, truth, rotor=False)
+        return (f'<body name="{j}_rotor" pos="{pos}">{rotor}<inertial pos="0 0 0" mass="1e-4" '
+                f'diaginertia="1e-8 1e-8 1e-8"/></body>'
+                f'<body name="{j}_link" pos="{pos}">{joint}{geoms}{inner}</body>')
+
+    finger = link("mcp", link("pip", link("dip", "", f"{LENGTH['pip']} 0 0"),
+                              f"{LENGTH['mcp']} 0 0"), "0 0 0.1")
+    couple = (f'<equality><joint joint1="dip" joint2="pip" polycoef="0 {COUPLE} {curve:.6g} 0 0" '
+              f'solref="{LINK_SOLREF}" solimp="{LINK_SOLIMP}"/></equality>')
+    tendons = "".join(
+        f'<fixed name="{j}_play" limited="true" range="{-play[j] / 2:.6g} {play[j] / 2:.6g}" '
+        f'solreflimit="{SOLREF}" solimplimit="{STIFF_IMP}"><joint joint="{j}" coef="1"/>'
+        f'<joint joint="{j}_rotor" coef="-1"/></fixed>' for j in SERVOS if play[j] is not None)
+    if truth:
+        acts = "".join(f'<motor name="{j}" joint="{j if play[j] is None else j + "_rotor"}" '
+                       f'ctrlrange="{-LTMAX[j]} {LTMAX[j]}"/>' for j in SERVOS)
+    else:
+        acts = "".join(f'<position name="{j}" joint="{j}" kp="{LKP[j]}" ctrlrange="-0.2 1.5" '
+                       f'forcerange="{-LTMAX[j]} {LTMAX[j]}"/>' for j in SERVOS)
+    return f"""<mujoco model="linkage_finger">
+  <compiler angle="radian"/>
+  <option timestep="{timestep}" gravity="0 0 -9.81"/>
+  <worldbody>
+    {finger}
+  </worldbody>
+  {couple}
+  <tendon>{tendons}</tendon>
+  <actuator>{acts}</actuator>
+</mujoco>
+"""
+
+
+def simulate_linkage(case: Case, t: np.ndarray, goals: dict[str, np.ndarray],
+                     rng: np.random.Generator, true_state: bool = False) -> dict[str, np.ndarray]:
+    """The linkage rig's truth under the host loop's cycles ``t`` [s] writing ``goals`` (one per
+    servo). Each servo: tau = clip(gain kp (u - s), -tau_max, tau_max), s its own reading of its
+    rotor (+ a ``mount`` offset; the log reads the same sensor); the dip's encoder reads the dip.
+    Returns {"qpos:<j>", "goal:<servo>"} per cycle, with ``true_state`` also "true:<j>" and
+    "rotor:<servo>"."""
+    m = mujoco.MjModel.from_xml_string(linkage_xml(case, TRUTH_DT, truth=True))
+    d = mujoco.MjData(m)
+    adr = {j: m.jnt_qposadr[m.joint(j).id] for j in JOINTS}
+    rot = {j: m.jnt_qposadr[m.joint(j + "_rotor").id] if case.get("backlash", j) else adr[j]
+           for j in SERVOS}
+    act = {j: m.actuator(j).id for j in SERVOS}
+    gain = {j: case.get("gain", j) or 1.0 for j in SERVOS}
+    off = {j: case.get("mount", j) or 0.0 for j in SERVOS}
+    lat = case.get("latency") or 0.0
+    for j in SERVOS:
+        d.qpos[adr[j]] = d.qpos[rot[j]] = goals[j][0] - off[j]
+    pip = d.qpos[adr["pip"]]
+    d.qpos[adr["dip"]] = COUPLE * pip + (case.get("curve") or 0.0) * pip ** 2
+    arrive = t + lat
+    n_steps = int(math.ceil((t[-1] - t[0]) / TRUTH_DT)) + 1
+    read_step = np.round((t - t[0]) / TRUTH_DT).astype(int)
+    arrived = np.searchsorted(arrive, t[0] + np.arange(n_steps) * TRUTH_DT, side="right") - 1
+    res = {f"true:{j}": np.zeros(len(t)) for j in JOINTS}
+    res |= {f"rotor:{j}": np.zeros(len(t)) for j in SERVOS}
+    k = 0
+    for i in range(n_steps):
+        while k < len(t) and read_step[k] == i:
+            for j in JOINTS:
+                res[f"true:{j}"][k] = d.qpos[adr[j]]
+            for j in SERVOS:
+                res[f"rotor:{j}"][k] = d.qpos[rot[j]]
+            k += 1
+        g = max(arrived[i], 0)
+        for j in SERVOS:
+            tau = gain[j] * LKP[j] * (goals[j][g] - d.qpos[rot[j]] - off[j])
+            d.ctrl[act[j]] = float(np.clip(tau, -LTMAX[j], LTMAX[j]))
+        mujoco.mj_step(m, d)
+    for j in JOINTS:
+        noisy = res[f"true:{j}"] + off.get(j, 0.0) + (case.get("offset", j) or 0.0) \
+            + rng.normal(0.0, NOISE, len(t))
+        res[f"qpos:{j}"] = np.round(noisy / LSB) * LSB
+    for j in SERVOS:
+        res[f"goal:{j}"] = goals[j]
+    if not true_state:
+        res = {key: v for key, v in res.items() if key.startswith(("qpos:", "goal:"))}
+    return res
+
+
 def write_case(case: Case, folder: str | pathlib.Path) -> dict:
     """Write ``model.xml``, ``logs/log<i>.csv`` (seconds from 0, radians) and ``truth.json`` into
     ``folder``. Returns {"model", "logs", "truth"}."""
     folder = pathlib.Path(folder)
     (folder / "logs").mkdir(parents=True, exist_ok=True)
-    (folder / "model.xml").write_text(model_xml())
+    linkage = case.rig == "linkage finger"
+    (folder / "model.xml").write_text(linkage_xml() if linkage else model_xml())
     rng = np.random.default_rng(case.seed)
-    names = ["time", f"goal:{ACT}"] + [f"qpos:{j}" for j in JOINTS]
+    acts = SERVOS if linkage else (ACT,)
+    names = ["time"] + [f"goal:{a}" for a in acts] + [f"qpos:{j}" for j in JOINTS]
     for i, dur in enumerate(case.durations):
         t = host_times(dur, rng)
-        cols = simulate(case, t, targets(t, rng), rng)
+        if linkage:
+            goals = {j: targets(t, rng, LGOALS[j]) for j in SERVOS}
+            cols = simulate_linkage(case, t, goals, rng)
+        else:
+            cols = simulate(case, t, targets(t, rng), rng)
         keep = t >= 0.0
         data = np.column_stack([t[keep]] + [cols[n][keep] for n in names[1:]])
         np.savetxt(folder / "logs" / f"log{i}.csv", data, delimiter=",", header=",".join(names),
@@ -328,8 +479,8 @@ def write_case(case: Case, folder: str | pathlib.Path) -> dict:
 def expected_params(case: Case) -> list[dict]:
     """Each catalogue effect's parameter where it acts (the servo's effects on the actuator
     ``flex``, in rad at the horn, s, or a factor)."""
-    return [dict(effect=CATALOGUE[e.kind], param=PARAM[e.kind], joint=WHERE[e.kind],
-                 value=e.value) for e in case.effects if e.kind in CATALOGUE]
+    return [dict(effect=CATALOGUE[e.kind], param=PARAM[e.kind], joint=j, value=e.value)
+            for e in case.effects if e.kind in CATALOGUE for j in e.joints]
 
 
 def score(report: dict, truth: dict) -> dict:
@@ -341,7 +492,10 @@ def magnitudes(seed: int = 13) -> dict[str, float]:
     """The hidden effects' sizes, drawn once from a seeded generator over real-world ranges:
     20-50 ms of latency, a horn play of 40-100 mrad (0.4-1 mm of cable), a kp x0.5-0.7 or
     x1.5-2, an mcp encoder 60-120 mrad off either way, 0.01-0.03 N m more on the pip pin (5-15
-    times the model's), a distal phalanx 1.8-2.5 times as heavy, a cable of 10-30 kN/m (0.7-2 mm at 20 N)."""
+    times the model's), a distal phalanx 1.8-2.5 times as heavy, a cable of 10-30 kN/m (0.7-2
+    mm at 20 N); on the linkage rig a pip servo mounted 60-120 mrad off either way and a four-bar's
+    curve of 0.1-0.3 /rad (0.1-0.3 rad at a pip of 1 rad). The servo's effects take the same
+    sizes on both rigs."""
     r = np.random.default_rng(seed)
     return {
         "latency": round(r.uniform(0.020, 0.050), 4),
@@ -351,6 +505,8 @@ def magnitudes(seed: int = 13) -> dict[str, float]:
         "friction": round(r.uniform(0.01, 0.03), 4),
         "mass": round(r.uniform(1.8, 2.5), 3),
         "stretch": round(r.uniform(10000.0, 30000.0), -2),
+        "mount": round(float(r.choice([-1.0, 1.0]) * r.uniform(0.06, 0.12)), 4),
+        "curve": round(r.uniform(0.1, 0.3), 3),
     }
 
 
@@ -374,5 +530,26 @@ CASES: tuple[Case, ...] = (
          seed=1309, note="the pair: a late goal and a tight pip pin"),
     Case("stretch", (E("stretch", MAG["stretch"]),), seed=1310,
          note="OUTSIDE the catalogue: an elastic cable"),
-)
+) + tuple(Case(name, effects, seed=seed, note=note, rig="linkage finger") for name, effects,
+          seed, note in (
+    ("link_clean", (), 1321, "the linkage rig: no hidden effect"),
+    ("link_latency", (E("latency", MAG["latency"], SERVOS),), 1322,
+     "the goals reach both servos late"),
+    ("link_backlash", (E("backlash", MAG["backlash"], ("pip",)),), 1323,
+     "a play between the pip servo and its link (the dip's linkage on the link)"),
+    ("link_gain", (E("gain", MAG["gain"], ("pip",)),), 1324, "the pip servo's kp off"),
+    ("link_mount", (E("mount", MAG["mount"], ("pip",)),), 1325,
+     "the pip servo mounted off its zero: it reads and holds q + offset; only the dip's "
+     "encoder (through the linkage) and gravity see it"),
+    ("link_friction", (E("friction", MAG["friction"], ("pip",)),), 1326,
+     "dry friction added on the pip pin"),
+    ("link_mass", (E("mass", MAG["mass"], ("dip",)),), 1327,
+     "the distal phalanx heavier; its joint has no actuator of its own"),
+    ("link_latency_friction", (E("latency", MAG["latency"], SERVOS),
+                               E("friction", MAG["friction"], ("pip",))), 1328,
+     "the pair: late goals and a tight pip pin"),
+    ("link_curve", (E("curve", MAG["curve"]),), 1329,
+     "OUTSIDE the catalogue: the linkage's four-bar curve, dip = 0.8 pip + c pip^2, where the "
+     "user's MJCF has the straight line"),
+))
 CASE_BY_NAME = {c.name: c for c in CASES}
