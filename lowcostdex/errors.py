@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 USER_ERROR = 2
 """Exit code of a user's mistake (argparse's code for bad arguments)."""
@@ -211,3 +211,111 @@ def check_fields(config: object) -> None:
             what = "an integer" if integer else "a finite number"
             raise ConfigError(f"{name}={value!r} must be {what}"
                               + (" or None" if default is None else ""))
+
+
+def check_count(name: str, value: object) -> None:
+    """Raise ConfigError unless ``value`` is an integer >= 1 (int or a numpy integer; a step
+    count of 2.5, "3", True, 0 or -3 is refused; an int >= 1 returns at once: hot loops)."""
+    if type(value) is int and value >= 1:
+        return
+    check_number(name, value, 1, integer=True)
+
+
+MAX_CONTROL = 1e10
+"""Largest control MuJoCo takes: above it (or NaN/inf) it zeroes EVERY control of the step and
+goes on (mjMAXVAL), a printed warning the only trace."""
+
+
+def check_finite_array(name: str, value: object, shapes: Iterable[tuple[int, ...]],
+                       what: str | Callable[[], str]) -> None:
+    """Raise ConfigError unless ``value`` has one of ``shapes`` and holds finite numbers of size
+    at most ``MAX_CONTROL``. A float array passes in ~1 us (hot loops); anything else is looked
+    at slowly.
+
+    Args:
+      name: the argument, e.g. "goal".
+      value: an array-like the caller is about to use (never broadcast: a (1,) goal for two
+        actuators would drive both to one angle without a word).
+      shapes: the valid shapes, e.g. ((nu,), (nsim, nu)).
+      what: what the numbers are, with their unit (or a function saying it, called only to
+        refuse), e.g. "goal positions of the 2 actuators [rad]".
+    """
+    if not isinstance(shapes, tuple):
+        shapes = tuple(shapes)
+    if (getattr(value, "shape", None) in shapes and getattr(value, "dtype", None) is not None
+            and value.dtype.kind == "f"):  # type: ignore[attr-defined]
+        import numpy as np
+
+        square = float(np.vdot(value, value))
+        if square < MAX_CONTROL ** 2:  # NaN compares False; every |x| < 1e10
+            return
+    _refuse_array(name, value, shapes, what)
+
+
+def _refuse_array(name: str, value: object, shapes: tuple[tuple[int, ...], ...],
+                  what: str | Callable[[], str]) -> None:
+    import numpy as np
+
+    def said() -> str:
+        return what if isinstance(what, str) else what()
+
+    try:
+        shape: object = np.shape(value)
+    except ValueError:  # a ragged list
+        shape = "ragged"
+    if shape not in shapes:
+        valid = " or ".join(str(s) for s in dict.fromkeys(shapes))
+        raise ConfigError(f"{name} of shape {shape} must have shape {valid}: {said()}")
+    a = np.asarray(value) if not isinstance(value, np.ndarray) else value
+    if a.dtype.kind not in "iuf":  # strings, None, objects, True/False
+        raise ConfigError(f"{name} holds {_first_odd(a)!r}, not numbers: {said()}")
+    bad = ~(np.abs(a) <= MAX_CONTROL)
+    if bad.any():
+        x = a[bad].flat[0].item()
+        why = "finite numbers" if not np.isfinite(x) else f"at most {MAX_CONTROL:g} in size"
+        raise ConfigError(f"{name} holds {x:g}: must be {why}, {said()}")
+
+
+def _first_odd(a) -> object:
+    for x in a.ravel():
+        if not isinstance(x, numbers.Real) or isinstance(x, bool):
+            return x.item() if hasattr(x, "item") else x
+    return a.ravel()[0]
+
+
+def check_rows(name: str, value: object, width: int | None, what: str,
+               rows: int | None = None) -> int:
+    """Raise ConfigError unless ``value`` is (n, width) finite numbers with n >= 1 (n == rows
+    when given; ``width`` None: a 1-D (n,) array); returns n. For a batch of samples, whose
+    length varies: a (20, 3) batch for a policy of 4 observations, or actions of one column
+    for two, would fail deep in torch or be broadcast.
+
+    Args:
+      name: the argument, e.g. "demo_obs".
+      value: an array-like or a CPU tensor.
+      width: its columns, or None for one value per row.
+      what: what the rows are, with the unit or the size they must have.
+      rows: the number of rows it must have (the batch's, for a second array of one batch).
+    """
+    import numpy as np
+
+    if hasattr(value, "detach"):  # a torch tensor
+        value = value.detach().cpu().numpy()  # type: ignore[attr-defined]
+    try:
+        a = np.asarray(value)
+    except ValueError:  # a ragged list
+        raise ConfigError(f"{name} is a ragged list, not a table of numbers: {what}") from None
+    want = ("(n,)" if width is None else f"(n, {width})") if rows is None else str(
+        (rows,) if width is None else (rows, width))
+    ok = a.ndim == (1 if width is None else 2) and (width is None or a.shape[1] == width)
+    if not ok or (rows is not None and a.shape[0] != rows) or a.shape[0] == 0:
+        cond = " with n >= 1" if rows is None else ""
+        raise ConfigError(f"{name} of shape {a.shape} must have shape {want}{cond}: {what}")
+    if a.dtype.kind not in "iuf":
+        raise ConfigError(f"{name} holds {_first_odd(a)!r}, not numbers: {what}")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise ConfigError(f"{name} holds {a[bad].flat[0].item():g} (row {row}): must be finite "
+                          f"numbers, {what}")
+    return int(a.shape[0])

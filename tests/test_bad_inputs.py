@@ -470,8 +470,10 @@ def test_runaway_inputs_are_bounded(tmp_path, monkeypatch):
         dataset.load_dataset([tmp_path / "log.csv"], model=tmp_path / "bench.xml")
     monkeypatch.setattr(logs, "MAX_SAMPLES", 10**6)
     monkeypatch.setattr(dataset, "MAX_TOTAL_DURATION", 10.0)
+    (tmp_path / "log2.csv").write_text(csv_text(servo_log()))  # (one log given twice: refused)
     with pytest.raises(logs.LogError, match="2 logs of 15.98 s in all; one analysis takes at most"):
-        dataset.load_dataset([tmp_path / "log.csv"] * 2, model=tmp_path / "bench.xml")
+        dataset.load_dataset([tmp_path / "log.csv", tmp_path / "log2.csv"],
+                             model=tmp_path / "bench.xml")
 
 
 # ------------------------------------------------------------------------------------------------

@@ -202,7 +202,7 @@ def load_dataset(paths: str | Path | Sequence[str | Path], model: str | Path | N
         raise ConfigError(f"angle unit {angle_unit!r}; valid: {', '.join(ANGLE_UNITS)}")
     if time_unit not in TIME_UNITS:
         raise ConfigError(f"time unit {time_unit!r}; valid: {', '.join(TIME_UNITS)}")
-    paths = expand_log_paths(paths)
+    paths = expand_log_paths(paths, once=True)
     for p in paths:
         if not p.exists():
             raise no_such_log(p)

@@ -20,7 +20,7 @@ LOG_SUFFIXES = (".csv", ".npz", ".json")
 
 
 def expand_log_paths(paths: str | Path | Sequence[str | Path],
-                     notes: list[str] | None = None) -> list[Path]:
+                     notes: list[str] | None = None, once: bool = False) -> list[Path]:
     """The log files meant by ``paths``: one path or a sequence of them, where each may be a
     file, a folder (its ``LOG_SUFFIXES`` files, sorted) or a glob pattern that the shell did
     not expand (``"logs/*.csv"``, sorted matches). Raises LogError when nothing is named, a
@@ -28,7 +28,7 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path],
     marker ``record-log`` leaves) are not logs, nor are the JSON files of a folder that holds
     project-format logs (CSV/NPZ): a BAM log (JSON) cannot be analysed beside them, and such a
     JSON is the folder's own notes (``gap generate``'s truth.json); each left out is said in
-    ``notes``."""
+    ``notes``. ``once``: a file named twice is refused (``named_once``)."""
     entries: list = []
     if isinstance(paths, (str, os.PathLike)):
         entries = [paths]
@@ -79,7 +79,23 @@ def expand_log_paths(paths: str | Path | Sequence[str | Path],
             out += found
         else:
             out.append(one)
-    return out
+    return named_once(out) if once else out
+
+
+def named_once(paths: list[Path]) -> list[Path]:
+    """``paths`` unchanged when no file is in it twice; else LogError naming the file (the same
+    log twice in one analysis is fitted twice and weighs double; a folder and a file in it, or
+    two spellings of one path, count as twice). The CLI uses each file once with a note
+    (``gap.cli.distinct_logs``); from Python the caller says which it meant."""
+    seen: dict[Path, Path] = {}
+    for p in paths:
+        key = p.resolve()
+        if key in seen:
+            how = "" if str(seen[key]) == str(p) else f" (as {seen[key]} and as {p})"
+            raise LogError(f"{p}: the same log given twice{how}; each log is fitted once: give "
+                           "it once (a list of distinct files, or the folder alone)")
+        seen[key] = p
+    return paths
 
 
 def _in_subfolders(folder: Path) -> str:

@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
-from lowcostdex.errors import ConfigError, PhysicsError
+from lowcostdex.errors import ConfigError, PhysicsError, check_count, check_finite_array
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
 from lowcostdex.sim.effects import exogenous as exo
@@ -364,13 +364,20 @@ class _PlantBase:
 
         Args:
           goal: goal position of every actuator [rad], shape (nu,) or (nsim, nu).
-          nstep: physics substeps.
+          nstep: physics substeps (an integer >= 1).
           channels: measured per-actuator channels for exogenous effects, e.g.
             {"temperature": (..., nu) [deg C], "voltage": (..., nu) [V]}.
           sims: (batch) sorted int32 ids of the simulations whose physics advances (None:
             all); the others keep their state (their effects still see the goal, as the
             simulations of a batch are independent, the advanced ones step as with ``None``).
+        Raises:
+          ConfigError: a goal of another shape (never broadcast) or not finite, or a bad nstep.
         """
+        check_count("nstep (physics substeps)", nstep)
+        nu = self.model.nu
+        check_finite_array("goal", goal, ((nu,), self._lead + (nu,)), lambda: (
+            f"goals of the {nu} actuators{' (per simulation)' if self._lead else ''}: positions "
+            "[rad] (a velocity actuator's rad/s, a motor's torque N m)"))
         self.ctrl[...] = (self.command(goal, nstep * float(self.model.opt.timestep))
                           if self._commands else goal)  # (command copies the goal, then edits)
         self._exogenous(channels)
@@ -514,6 +521,7 @@ class Plant(_PlantBase):
         and the play rests where the static load pushes it (``rest_play``).
         """
         m, d = self.model, self.data
+        _check_state(m, (), qpos=qpos, qvel=qvel, ctrl=ctrl, act=act)
         mujoco.mj_resetData(m, d)
         if qpos is not None:
             d.qpos[:] = qpos
@@ -643,6 +651,7 @@ class BatchPlant(_PlantBase):
         where the static load pushes them (``rest_play``).
         """
         rows = np.arange(self.nsim) if sims is None else np.asarray(sims, dtype=int)
+        _check_state(self.model, (len(rows),), qpos=qpos, qvel=qvel, ctrl=ctrl, act=act)
         self.batch.reset(ids=rows)
         m, d = self.model, self._scratch
         for k, i in enumerate(rows):
@@ -675,3 +684,12 @@ def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
     import copy
 
     return copy.copy(model)
+
+
+def _check_state(m: mujoco.MjModel, lead: tuple[int, ...], **given: np.ndarray | None) -> None:
+    """A reset's state arrays: (*lead, n) finite numbers each (a short one was broadcast)."""
+    for name, v in given.items():
+        if v is not None:
+            n = {"qpos": m.nq, "qvel": m.nv, "ctrl": m.nu, "act": m.na}[name]
+            check_finite_array(name, v, (lead + (n,),), f"the model's {name} values (rad, m; "
+                               "rad/s, m/s for qvel)")
