@@ -113,3 +113,166 @@ def test_the_same_log_twice_from_python_is_refused_naming_it(tmp_path):
         (tmp_path / "sub").mkdir()
         load_dataset([tmp_path, tmp_path / "sub" / ".." / "a.csv"], model=model)
 
+
+def _policy():
+    import torch
+
+    from lowcostdex.algos.configs import PolicyConfig
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+
+    return GaussianMLPPolicy(4, 2, PolicyConfig(hidden_sizes=(8,)), torch.Generator().manual_seed(0))
+
+
+def _batch(n: int = 20):
+    rng = np.random.default_rng(0)
+    return rng.normal(size=(n, 4)), rng.uniform(-1, 1, size=(n, 2)), rng.normal(size=n)
+
+
+_OBS = r"one observation per row, 4 numbers \(the policy's obs_dim\)"
+
+
+@pytest.mark.parametrize("edit,said", [
+    (lambda o, a, v: (np.where(np.arange(4) == 1, np.nan, o), a, v), r"obs holds nan \(row 0\): "
+     r"must be finite numbers, " + _OBS),
+    (lambda o, a, v: (o[:, :3], a, v), r"obs of shape \(20, 3\) must have shape \(n, 4\) with "
+     r"n >= 1: " + _OBS),
+    (lambda o, a, v: (o, a[:, :1], v), r"actions of shape \(20, 1\) must have shape \(20, 2\): "
+     r"one action per observation, 2 numbers in \[-1, 1\]"),
+    (lambda o, a, v: (o[:0], a[:0], v[:0]), r"obs of shape \(0, 4\) must have shape \(n, 4\) "
+     r"with n >= 1"),
+    (lambda o, a, v: (o, a, v[:5]), r"advantages of shape \(5,\) must have shape \(20,\)"),
+    (lambda o, a, v: (o, a, v * np.nan), r"advantages holds nan \(row 0\)"),
+])
+def test_an_update_refuses_a_batch_it_would_broadcast_or_turn_to_nan(edit, said):
+    # before: a NaN observation or advantage made the clone's / the step's statistics NaN
+    # without a word, actions of one column for two were broadcast, an empty batch gave NaN
+    # statistics, a wrong width failed deep in torch (RuntimeError: size of tensor a ...)
+    import torch
+
+    from lowcostdex.algos.bc import behavior_clone
+    from lowcostdex.algos.configs import BCConfig, DAPGConfig, NPGConfig
+    from lowcostdex.algos.dapg import dapg_update
+    from lowcostdex.algos.npg import npg_update
+
+    obs, actions, adv = edit(*_batch())
+    good_obs, good_actions, _ = _batch()
+    calls = [lambda p: npg_update(p, obs, actions, adv, NPGConfig()),
+             lambda p: dapg_update(p, obs, actions, adv, good_obs, good_actions, 0, DAPGConfig(),
+                                   NPGConfig())]
+    if "advantages" not in said:
+        calls.append(lambda p: behavior_clone(p, obs, actions, BCConfig(epochs=1),
+                                              torch.Generator().manual_seed(1)))
+    for call in calls:
+        policy = _policy()
+        before = torch.nn.utils.parameters_to_vector(policy.parameters()).clone()
+        with pytest.raises(ConfigError, match=said):
+            call(policy)
+        assert torch.equal(torch.nn.utils.parameters_to_vector(policy.parameters()), before)
+
+
+def test_dapg_with_no_demo_pairs_or_bc_with_no_generator_is_refused():
+    # before: dapg_update with a zero-length demo set stepped as plain NPG without a word;
+    # behavior_clone(generator=0) failed in torch.randperm, None shuffled by torch's global RNG
+    import torch
+
+    from lowcostdex.algos.bc import behavior_clone
+    from lowcostdex.algos.configs import BCConfig, DAPGConfig, NPGConfig
+    from lowcostdex.algos.dapg import dapg_update
+
+    obs, actions, adv = _batch()
+    with pytest.raises(ConfigError, match=r"demo_obs of shape \(0, 4\) must have shape \(n, 4\) "
+                                          r"with n >= 1"):
+        dapg_update(_policy(), obs, actions, adv, obs[:0], actions[:0], 0, DAPGConfig(),
+                    NPGConfig())
+    with pytest.raises(ConfigError, match=r"demo_obs of shape \(20, 3\)"):
+        dapg_update(_policy(), obs, actions, adv, obs[:, :3], actions, 0, DAPGConfig(),
+                    NPGConfig())
+    for generator in (0, None):
+        with pytest.raises(ConfigError, match=rf"generator={generator!r} must be a seeded "
+                                              r"torch.Generator"):
+            behavior_clone(_policy(), obs, actions, BCConfig(epochs=1), generator)
+    stats = behavior_clone(_policy(), torch.as_tensor(obs), actions, BCConfig(epochs=1),
+                           torch.Generator().manual_seed(1))  # tensors are taken as before
+    assert np.isfinite(stats["bc_loss_after"])
+
+
+@pytest.fixture
+def demo_file(tmp_path):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from pointmass import demo_info, expert_action, make_pointmass
+
+    from lowcostdex.demonstrations.dataset import save_demos, teacher_episodes
+
+    episodes = teacher_episodes(make_pointmass(), lambda env, obs: expert_action(obs), seeds=[1, 2])
+    return save_demos(tmp_path / "d.h5", episodes, demo_info()), episodes, demo_info()
+
+
+@pytest.mark.parametrize("edit,said", [
+    (lambda f: f.attrs.__delitem__("env_id"), r"d.h5: env_id is missing"),
+    (lambda f: f.attrs.__delitem__("total_episodes"), r"d.h5: total_episodes is missing"),
+    (lambda f: f.attrs.__setitem__("action_joints", "x"), r"d.h5: action_joints is not a JSON "
+                                                         r"list of joint names: 'x'"),
+])
+def test_a_demo_file_missing_a_key_is_named_by_read_info(demo_file, edit, said):
+    # before: a bare KeyError from h5py ("Unable to synchronously open attribute") or a
+    # JSONDecodeError, also from check_demos when a run trains on the file
+    import h5py
+
+    from lowcostdex.demonstrations.file import read_info
+    from lowcostdex.errors import InputError
+
+    path = demo_file[0]
+    with h5py.File(path, "a") as f:
+        edit(f)
+    with pytest.raises(InputError, match=said):
+        read_info(path)
+
+
+def test_a_label_model_of_an_episode_the_file_has_not_is_named(demo_file):
+    # before: KeyError "object 'episode_9' doesn't exist"
+    from lowcostdex.demonstrations.file import read_label_model
+    from lowcostdex.errors import InputError
+
+    assert read_label_model(demo_file[0], 1) is None
+    with pytest.raises(InputError, match=r"d.h5: no episode 9; it holds episodes 0 to 1"):
+        read_label_model(demo_file[0], 9)
+
+
+def test_careless_demo_set_calls_are_refused(demo_file, tmp_path):
+    # before: Demos.first(0) gave every episode and first(-1) all but the last; a demo set of
+    # episodes of 0 steps loaded as no pairs; save_demos into a folder left NAME.partial beside
+    # it and raised IsADirectoryError; an episode with a NaN observation was written (and the
+    # whole file then refused by load_demos); save_demos(path, [1, 2], None): AttributeError
+    from lowcostdex.demonstrations.dataset import load_demos, save_demos
+    from lowcostdex.demonstrations.file import Episode
+
+    path, episodes, info = demo_file
+    demos = load_demos(path)
+    assert demos.first(1).n_episodes == 1 and demos.first(None).n_episodes == 2
+    for n in (0, -1, 1.5):
+        with pytest.raises(ConfigError, match=rf"n \(demo episodes\)={n!r} must be an integer "
+                                              r"in \[1, inf\) or None"):
+            demos.first(n)
+    e = episodes[0]
+    empty = Episode(e.observations[:1], e.actions[:0], e.rewards[:0], e.qpos[:1], e.qvel[:1],
+                    e.time[:1], e.success[:0])
+    save_demos(tmp_path / "z.h5", [empty], info)
+    with pytest.raises(ConfigError, match=r"z.h5: its 1 episode\(s\) have 0 steps: no "
+                                          r"observation-action pair"):
+        load_demos(tmp_path / "z.h5", only_successful=False)
+    folder = tmp_path / "demos"
+    folder.mkdir()
+    with pytest.raises(ConfigError, match=r"demos is a folder; give the demo file"):
+        save_demos(folder, episodes, info)
+    nan = Episode(e.observations * np.nan, e.actions, e.rewards, e.qpos, e.qvel, e.time,
+                  e.success)
+    with pytest.raises(ConfigError, match=r"episode observations\[0, 0\] = nan is not finite: "
+                                          r"the episode is not written"):
+        save_demos(tmp_path / "n.h5", [nan], info)
+    with pytest.raises(ConfigError, match=r"takes a list of Episode and a DatasetInfo, not int"):
+        save_demos(tmp_path / "x.h5", [1, 2], info)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.h5", "demos", "z.h5"]
+    assert not any(folder.iterdir())

@@ -30,7 +30,9 @@ import numpy as np
 import torch
 
 from lowcostdex.algos.configs import BCConfig
+from lowcostdex.algos.npg import check_samples
 from lowcostdex.algos.policy import GaussianMLPPolicy
+from lowcostdex.errors import ConfigError
 
 
 def demo_statistics(obs: np.ndarray, actions: np.ndarray) -> dict[str, np.ndarray]:
@@ -96,11 +98,11 @@ def behavior_clone(
       ``{"bc_loss_before", "bc_loss_after", "bc_steps"}`` (MSE of the mean, summed over action
       dimensions, averaged over samples, whatever the training loss).
     """
+    check_samples(policy, obs, actions)  # (an empty, mismatched or NaN set: ConfigError)
+    if not isinstance(generator, torch.Generator):
+        raise ConfigError(f"generator={generator!r} must be a seeded torch.Generator "
+                          "(torch.Generator().manual_seed(0)): it orders the minibatches")
     obs_np, act_np = np.asarray(obs, dtype=np.float64), np.asarray(actions, dtype=np.float64)
-    if obs_np.shape[0] != act_np.shape[0] or obs_np.shape[0] == 0:
-        raise ValueError(
-            f"need matching non-empty demos, got obs {obs_np.shape} and actions {act_np.shape}"
-        )
     set_from_demos(policy, obs_np, act_np, config)
     dtype = policy.log_std.dtype
     obs_t, act_t = torch.as_tensor(obs_np, dtype=dtype), torch.as_tensor(act_np, dtype=dtype)

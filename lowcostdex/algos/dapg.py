@@ -37,6 +37,7 @@ import torch
 from lowcostdex.algos.configs import DEMO_WEIGHTS, DAPGConfig, NPGConfig
 from lowcostdex.algos.npg import (
     as_tensor,
+    check_samples,
     natural_gradient_step,
     prepare_advantages,
     surrogate_gradient,
@@ -94,6 +95,8 @@ def dapg_update(
       NPG step statistics plus ``demo_weight`` and ``demo_log_lik`` (mean log-likelihood of
       the demo actions after the step).
     """
+    check_samples(policy, obs, actions, advantages)
+    check_samples(policy, demo_obs, demo_actions, prefix="demo_")  # (none: use npg_update)
     dtype = policy.log_std.dtype
     obs_t, act_t = as_tensor(obs, dtype), as_tensor(actions, dtype)
     d_obs, d_act = as_tensor(demo_obs, dtype), as_tensor(demo_actions, dtype)

@@ -34,6 +34,7 @@ from torch.nn.utils import parameters_to_vector, vector_to_parameters
 
 from lowcostdex.algos.configs import NPGConfig
 from lowcostdex.algos.policy import GaussianMLPPolicy, gaussian_kl
+from lowcostdex.errors import check_rows
 
 MatVec = Callable[[torch.Tensor], torch.Tensor]
 """A symmetric positive-definite operator: (n,) vector -> (n,) vector."""
@@ -245,6 +246,21 @@ def as_tensor(x: Any, dtype: torch.dtype) -> torch.Tensor:
     return torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x, dtype=dtype)
 
 
+def check_samples(policy: GaussianMLPPolicy, obs: Any, actions: Any, advantages: Any = None,
+                  prefix: str = "") -> None:
+    """A batch for an update: ``obs`` (N, obs_dim), ``actions`` (N, act_dim) and ``advantages``
+    (N,) of finite numbers, N >= 1; else ConfigError naming the array and the sizes the policy
+    takes (a NaN made the step NaN, a one-column action batch was broadcast, an empty one gave
+    NaN statistics, a wrong width failed deep in torch). ``prefix``: "demo_" for demo pairs."""
+    n = check_rows(f"{prefix}obs", obs, policy.obs_dim,
+                   f"one observation per row, {policy.obs_dim} numbers (the policy's obs_dim)")
+    check_rows(f"{prefix}actions", actions, policy.act_dim, f"one action per observation, "
+               f"{policy.act_dim} numbers in [-1, 1] (the policy's act_dim)", rows=n)
+    if advantages is not None:
+        check_rows(f"{prefix}advantages", advantages, None, "one advantage per observation",
+                   rows=n)
+
+
 def prepare_advantages(advantages: Any, config: NPGConfig, dtype: torch.dtype) -> torch.Tensor:
     """(N,) advantages as a tensor, whitened over the batch when the config says so."""
     adv = as_tensor(advantages, dtype).reshape(-1)
@@ -275,6 +291,7 @@ def npg_update(
       The statistics of :func:`natural_gradient_step` plus ``surr_before``, ``surr_after`` and
       ``surr_improvement`` (mean importance-weighted advantage before and after the step).
     """
+    check_samples(policy, obs, actions, advantages)
     dtype = policy.log_std.dtype
     obs_t, act_t = as_tensor(obs, dtype), as_tensor(actions, dtype)
     adv = prepare_advantages(advantages, config, dtype)

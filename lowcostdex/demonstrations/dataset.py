@@ -31,7 +31,7 @@ from lowcostdex.demonstrations.file import (
     read_info,
     read_numbered_episodes,
 )
-from lowcostdex.errors import ConfigError, InputError, check_bool
+from lowcostdex.errors import ConfigError, InputError, check_bool, check_number
 from lowcostdex.outdir import user_path
 from lowcostdex.sim.envs.hand_env import control_period
 
@@ -77,7 +77,8 @@ class Demos:
         ]
 
     def first(self, n: int | None) -> Demos:
-        """The first ``n`` episodes (all if None)."""
+        """The first ``n`` episodes (all if None; n >= 1: 0 gave them all, -1 all but one)."""
+        check_number("n (demo episodes)", n, 1, integer=True, none_ok=True)
         if n is None or n >= self.n_episodes:
             return self
         end = int(self.episode_ends[n - 1])
@@ -121,6 +122,9 @@ def load_demos(path: str | Path, only_successful: bool = True) -> Demos:
     if not used:
         kind = "successful demonstration" if only_successful else "episode"
         raise ConfigError(f"{path} holds no {kind}")
+    if not any(ep.length for _, ep in used):  # (before: Demos of no pairs, BC failing later)
+        raise ConfigError(f"{path}: its {len(used)} episode(s) have 0 steps: no observation-"
+                          "action pair to learn from")
     for k, ep in used:
         for field in ("observations", "actions"):
             values = getattr(ep, field)
@@ -196,12 +200,22 @@ def save_demos(path: str | Path, episodes: Sequence[Episode], info: DatasetInfo)
     """
     if not episodes:
         raise ConfigError("no demonstration episodes to save")
+    if not isinstance(info, DatasetInfo) or not all(isinstance(e, Episode) for e in episodes):
+        raise ConfigError("save_demos(path, episodes, info) takes a list of Episode and a "
+                          f"DatasetInfo, not {type(episodes[0]).__name__} and "
+                          f"{type(info).__name__}")
     path = user_path(path)
+    if path.is_dir():  # (before: written beside it as NAME.partial, then IsADirectoryError)
+        raise ConfigError(f"{path} is a folder; give the demo file, e.g. {path / 'demos.h5'}")
     partial = path.with_name(path.name + ".partial")
     partial.unlink(missing_ok=True)
-    writer = DemoWriter(partial, info)
-    for ep in episodes:
-        writer.append(ep)
+    try:
+        writer = DemoWriter(partial, info)
+        for ep in episodes:
+            writer.append(ep)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
     os.replace(partial, path)
     return path
 

@@ -250,6 +250,14 @@ class DemoWriter:
             raise ConfigError(f"episode shapes {ep.observations.shape}, {ep.actions.shape} do "
                               f"not match obs_dim {self.info.obs_dim}, act_dim "
                               f"{self.info.act_dim}")
+        for key in ("observations", "actions"):  # load_demos refuses the whole file after
+            bad = np.argwhere(~np.isfinite(np.asarray(getattr(ep, key), np.float64)))
+            if bad.size:
+                t, j = (int(i) for i in bad[0])
+                value = float(np.asarray(getattr(ep, key), np.float64)[t, j])
+                raise ConfigError(f"episode {key}[{t}, {j}] = {value!r} is not finite: the "
+                                  "episode is not written (a demo file holding it cannot be "
+                                  "trained on)")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with _open_to_append(self.path) as f:
             if "format" not in f.attrs:
@@ -377,19 +385,39 @@ def _read(group: h5py.Group, key: str, path: Path, kind: type | None = None) -> 
 
 
 def read_info(path: str | Path) -> tuple[DatasetInfo, int, int]:
-    """(metadata, total episodes, total steps) of a demo file."""
+    """(metadata, total episodes, total steps) of a demo file (InputError naming a missing or
+    unreadable attribute: was a bare KeyError from h5py)."""
     with open_dataset(path) as f:
-        return (DatasetInfo.from_attrs(f.attrs), int(f.attrs["total_episodes"]),
-                int(f.attrs["total_steps"]))
+        path = user_path(path)
+        kinds = {"env_id": str, "task": str, "hand": str, "source": str, "control_period": float,
+                 "obs_dim": int, "act_dim": int, "action_joints": str, "total_episodes": int,
+                 "total_steps": int}
+        a = {key: _read(f, key, path, kind) for key, kind in kinds.items()}
+        try:
+            joints = json.loads(a["action_joints"])
+        except ValueError:
+            joints = None
+        if not isinstance(joints, list):
+            raise InputError(f"{path}: action_joints is not a JSON list of joint names: "
+                             f"{a['action_joints'][:60]!r}")
+        a["action_joints"] = json.dumps(joints)
+        return DatasetInfo.from_attrs(a), a["total_episodes"], a["total_steps"]
 
 
 def read_label_model(path: str | Path, episode: int | None = None) -> dict | None:
     """How an episode's ``servo_goal`` labels were computed (``label_model``): of episode
     ``episode``, or of the file's first such episode; None if it has none."""
     with open_dataset(path) as f:
-        ids = range(int(f.attrs["total_episodes"])) if episode is None else [episode]
-        for k in ids:
-            text = f[f"episode_{k}"].attrs.get("label_model")
+        path = user_path(path)
+        total = _read(f, "total_episodes", path, int)
+        if episode is not None and not (isinstance(episode, int) and 0 <= episode < total):
+            raise InputError(f"{path}: no episode {episode!r}; it holds episodes 0 to "
+                             f"{total - 1} (total_episodes {total})")
+        for k in range(total) if episode is None else [episode]:
+            group = f.get(f"episode_{k}")
+            if group is None:
+                raise InputError(f"{path}: episode_{k} is missing (total_episodes is {total})")
+            text = group.attrs.get("label_model")
             if text is not None:
                 return json.loads(text)
     return None
