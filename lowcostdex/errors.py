@@ -10,6 +10,8 @@ import math
 import numbers
 from collections.abc import Callable, Iterable
 
+import numpy as np
+
 USER_ERROR = 2
 """Exit code of a user's mistake (argparse's code for bad arguments)."""
 INTERRUPTED = 130
@@ -224,13 +226,14 @@ def check_count(name: str, value: object) -> None:
 MAX_CONTROL = 1e10
 """Largest control MuJoCo takes: above it (or NaN/inf) it zeroes EVERY control of the step and
 goes on (mjMAXVAL), a printed warning the only trace."""
+_MAX_SQUARE = MAX_CONTROL ** 2
 
 
 def check_finite_array(name: str, value: object, shapes: Iterable[tuple[int, ...]],
                        what: str | Callable[[], str]) -> None:
     """Raise ConfigError unless ``value`` has one of ``shapes`` and holds finite numbers of size
     at most ``MAX_CONTROL``. A float array passes in ~1 us (hot loops); anything else is looked
-    at slowly.
+    at slowly (``shapes`` a tuple for the fast path).
 
     Args:
       name: the argument, e.g. "goal".
@@ -240,22 +243,15 @@ def check_finite_array(name: str, value: object, shapes: Iterable[tuple[int, ...
       what: what the numbers are, with their unit (or a function saying it, called only to
         refuse), e.g. "goal positions of the 2 actuators [rad]".
     """
-    if not isinstance(shapes, tuple):
-        shapes = tuple(shapes)
-    if (getattr(value, "shape", None) in shapes and getattr(value, "dtype", None) is not None
-            and value.dtype.kind == "f"):  # type: ignore[attr-defined]
-        import numpy as np
-
-        square = float(np.vdot(value, value))
-        if square < MAX_CONTROL ** 2:  # NaN compares False; every |x| < 1e10
-            return
+    if (type(value) is np.ndarray and value.shape in shapes and value.dtype.kind == "f"
+            and np.vdot(value, value) < _MAX_SQUARE):  # NaN compares False; every |x| < 1e10
+        return
+    shapes = tuple(shapes)
     _refuse_array(name, value, shapes, what)
 
 
 def _refuse_array(name: str, value: object, shapes: tuple[tuple[int, ...], ...],
                   what: str | Callable[[], str]) -> None:
-    import numpy as np
-
     def said() -> str:
         return what if isinstance(what, str) else what()
 
@@ -297,8 +293,6 @@ def check_rows(name: str, value: object, width: int | None, what: str,
       what: what the rows are, with the unit or the size they must have.
       rows: the number of rows it must have (the batch's, for a second array of one batch).
     """
-    import numpy as np
-
     if hasattr(value, "detach"):  # a torch tensor
         value = value.detach().cpu().numpy()  # type: ignore[attr-defined]
     try:

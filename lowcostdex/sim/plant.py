@@ -75,6 +75,7 @@ class _PlantBase:
         self._static_gain: np.ndarray | None = None
         self._static_friction: np.ndarray | None = None
         self._torque_on = np.ones(self._lead + (self.model.nu,), dtype=bool)
+        self._goal_shapes = ((self.model.nu,), self._lead + (self.model.nu,))  # (step checks)
         self._static_forcerange: np.ndarray | None = None
         self._static_forcelimited: np.ndarray | None = None
         self._drive_forcerange: np.ndarray | None = None  # static, scaled by exogenous effects
@@ -374,10 +375,9 @@ class _PlantBase:
           ConfigError: a goal of another shape (never broadcast) or not finite, or a bad nstep.
         """
         check_count("nstep (physics substeps)", nstep)
-        nu = self.model.nu
-        check_finite_array("goal", goal, ((nu,), self._lead + (nu,)), lambda: (
-            f"goals of the {nu} actuators{' (per simulation)' if self._lead else ''}: positions "
-            "[rad] (a velocity actuator's rad/s, a motor's torque N m)"))
+        check_finite_array("goal", goal, self._goal_shapes, lambda: (
+            f"goals of the {self.model.nu} actuators{' (per simulation)' if self._lead else ''}"
+            ": positions [rad] (a velocity actuator's rad/s, a motor's torque N m)"))
         self.ctrl[...] = (self.command(goal, nstep * float(self.model.opt.timestep))
                           if self._commands else goal)  # (command copies the goal, then edits)
         self._exogenous(channels)
