@@ -276,3 +276,35 @@ def test_careless_demo_set_calls_are_refused(demo_file, tmp_path):
         save_demos(tmp_path / "x.h5", [1, 2], info)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.h5", "demos", "z.h5"]
     assert not any(folder.iterdir())
+
+
+@pytest.mark.parametrize("baud,said", [
+    ("0", "--baud 0: the bit rate must be positive"),
+    ("-0", "--baud 0: the bit rate must be positive"),
+    ("-1", "--baud -1: the bit rate must be positive"),
+    ("250000", "--baud 250000: the emulated motors run at one of 9600, 57600"),
+])
+def test_record_log_checks_its_bit_rate_as_scan_does(baud, said, tmp_path, capsys):
+    # before: `record-log --baud 0` on the emulated robot recorded at 1 Mbit/s (0 read as 'not
+    # given'), -1 and 250000 were taken too; scan refused them
+    from lowcostdex.cli import USER_ERROR, main
+
+    out = tmp_path / "logs"
+    assert main(["record-log", "--port", "emulated", "--baud", baud, "--out", str(out)]) \
+        == USER_ERROR
+    assert said in capsys.readouterr().err
+    assert not out.exists()
+    assert main(["scan", "--port", "emulated", "--baud", baud]) == USER_ERROR
+    assert said in capsys.readouterr().err
+
+
+def test_a_joint_mask_given_to_the_robot_as_goals_is_refused():
+    # before: robot.send(np.ones(9, bool)) sent 1 rad to every joint (0 rad for False): the gate
+    # took True/False as numbers
+    from lowcostdex.hardware.robot.safety import UnsafeCommand, check_finite
+
+    names = ("ff_top", "ff_middle")
+    with pytest.raises(UnsafeCommand, match=r"goal array\(\[ True, False\]\) is not 2 numbers "
+                                            r"\[rad\] for joints ff_top, ff_middle; nothing sent"):
+        check_finite(np.array([True, False]), names)
+    np.testing.assert_array_equal(check_finite(np.array([1, 0]), names), [1.0, 0.0])

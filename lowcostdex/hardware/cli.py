@@ -20,6 +20,7 @@ from pathlib import Path
 from lowcostdex.argtypes import SEED, bit_rate, integer, number
 from lowcostdex.errors import ConfigError, InputError
 from lowcostdex.hands import load_spec
+from lowcostdex.hardware.dynamixel.ports import check_baud
 from lowcostdex.options import add_latency_option, latency_kwargs
 
 
@@ -116,19 +117,6 @@ def parse_ids(text: str) -> list[int]:
             raise InputError(f"--ids {text!r}: Dynamixel ids are 0-252, got {bad[0]}")
         out += ids
     return out
-
-
-def check_baud(baud: int, emulated: bool = False) -> None:
-    """A positive bit rate; for the emulated motors one of the Dynamixel X rates they run at."""
-    if baud <= 0:
-        raise InputError(f"--baud {baud}: the bit rate must be positive (Dynamixel default "
-                         "1000000, factory 57600)")
-    if emulated:
-        from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES
-
-        if baud not in BAUD_CODES.values():
-            raise InputError(f"--baud {baud}: the emulated motors run at one of "
-                             f"{', '.join(str(b) for b in sorted(BAUD_CODES.values()))} bit/s")
 
 
 def _emulated_chain(hand: str, clock: str = "virtual", **kwargs):

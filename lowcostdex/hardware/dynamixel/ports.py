@@ -220,3 +220,16 @@ def pick_port(port: str | None) -> str:
         return chosen.device
     what = "no usable USB serial port" if not usable else "several USB serial ports"
     raise InputError(f"{what}; pass --port. Ports found:\n{format_ports(ports)}")
+
+
+def check_baud(baud: int, emulated: bool = False) -> None:
+    """A positive bit rate; for the emulated motors one of the Dynamixel X rates they run at."""
+    if baud <= 0:
+        raise InputError(f"--baud {baud}: the bit rate must be positive (Dynamixel default "
+                         "1000000, factory 57600)")
+    if emulated:
+        from lowcostdex.hardware.dynamixel.protocol import BAUD_CODES
+
+        if baud not in BAUD_CODES.values():
+            raise InputError(f"--baud {baud}: the emulated motors run at one of "
+                             f"{', '.join(str(b) for b in sorted(BAUD_CODES.values()))} bit/s")

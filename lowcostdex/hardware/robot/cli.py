@@ -229,6 +229,10 @@ def _record_log(args: argparse.Namespace) -> int:
             check_can_channel(args.port)
     else:
         _check_dynamixel_port(args.port)
+        if args.baud is not None:  # before: --baud 0 recorded at 1 Mbit/s (0 read as unset)
+            from lowcostdex.hardware.dynamixel.ports import check_baud
+
+            check_baud(args.baud, emulated=emulated)
     hand = _hand(args.spec, args.hand)
     if args.joints is not None and not args.joints.strip():  # an unset variable, not a default
         raise ConfigError("--joints is empty; name the joints to excite (e.g. --joints ff_top), "
@@ -315,7 +319,8 @@ def _record_logs(args: argparse.Namespace, hand, joints: tuple[str, ...], effect
             paths = dclaw_identification_logs(
                 hand, joints, args.out, args.logs, args.seconds,
                 np.random.default_rng(args.seed), port=None if emulated else args.port,
-                baudrate=args.baud or 1_000_000, latency_ms=args.latency_ms, **common)
+                baudrate=1_000_000 if args.baud is None else args.baud,
+                latency_ms=args.latency_ms, **common)
     return paths
 
 

@@ -37,6 +37,8 @@ class ClipReport:
 def check_finite(goal: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
     """The goal as a float array (n,); raises UnsafeCommand naming the non-finite joints."""
     try:
+        if np.asarray(goal).dtype.kind == "b":  # a joint mask, not goals (sent as 0/1 rad)
+            raise TypeError
         g = np.asarray(goal, dtype=float)
     except (TypeError, ValueError):
         raise UnsafeCommand(f"goal {goal!r:.60} is not {len(names)} numbers [rad] for joints "
