@@ -313,3 +313,19 @@ def check_rows(name: str, value: object, width: int | None, what: str,
         raise ConfigError(f"{name} holds {a[bad].flat[0].item():g} (row {row}): must be finite "
                           f"numbers, {what}")
     return int(a.shape[0])
+
+
+def check_rng(name: str, value: object) -> object:
+    """``value`` when it is None or a ``np.random.Generator``, else ConfigError saying what to
+    pass (a seed 0 was kept and failed at the first draw, deep inside: 'int' object has no
+    attribute 'normal')."""
+    if value is not None and not isinstance(value, np.random.Generator):
+        raise ConfigError(f"{name}={value!r} must be a seeded numpy Generator, e.g. "
+                          "np.random.default_rng(0)")
+    return value
+
+
+def flag(name: str, value: object) -> bool:
+    """``value`` as a bool after ``check_bool`` (a string 'no' is truthy)."""
+    check_bool(name, value)
+    return bool(value)

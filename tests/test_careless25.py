@@ -308,3 +308,42 @@ def test_a_joint_mask_given_to_the_robot_as_goals_is_refused():
                                             r"\[rad\] for joints ff_top, ff_middle; nothing sent"):
         check_finite(np.array([True, False]), names)
     np.testing.assert_array_equal(check_finite(np.array([1, 0]), names), [1.0, 0.0])
+
+
+@pytest.mark.parametrize("kwargs,said", [
+    (dict(rng=0), r"rng=0 must be a seeded numpy Generator, e.g. np.random.default_rng\(0\)"),
+    (dict(wire_time="no"), r"wire_time='no' must be True or False"),
+    (dict(record_replies="no"), r"record_replies='no' must be True or False"),
+    (dict(supply_resistance=-1.0), r"supply_resistance \[Ohm\]=-1.0 must be a finite number in "
+                                   r"\[0, inf\)"),
+    (dict(supply_resistance=float("nan")), r"supply_resistance \[Ohm\]=nan"),
+    (dict(effects="latency"), r"effects are a list of AppliedEffect, e.g. \[AppliedEffect\("
+                              r"'latency', .*got 'latency'"),
+])
+def test_an_emulated_robot_built_with_careless_settings_says_which(kwargs, said):
+    # before: rng=0 was kept and failed at the first noisy draw ('int' object has no attribute
+    # ...), 'no' switched the wire timing and the reply recording ON, a negative or NaN supply
+    # resistance ran (a supply voltage rising with the current), effects="latency" ended in
+    # "'str' object has no attribute 'cls'"
+    from lowcostdex.hardware.emulated.chain import emulated_bench
+
+    with pytest.raises(ConfigError, match=said):
+        emulated_bench(**kwargs)
+
+
+def test_a_plant_given_one_effect_or_a_name_or_a_seed():
+    # before: Plant(model, "latency") said "per-simulation effects need one list per simulation"
+    # (a single plant), one AppliedEffect was refused the same way, rng=0 failed at a draw
+    from lowcostdex.sim.effects import AppliedEffect
+    from lowcostdex.sim.plant import Plant
+
+    model = mujoco.MjModel.from_xml_string(_TWO)
+    with pytest.raises(ConfigError, match=r"effects are a list of AppliedEffect; got 'latency'"):
+        Plant(model, "latency")
+    with pytest.raises(ConfigError, match=r"rng=3 must be a seeded numpy Generator"):
+        Plant(model, rng=3)
+    one = AppliedEffect("gain_error", ("a",), {"scale": 0.5})
+    single, listed = Plant(model, one), Plant(model, [one])
+    for p in (single, listed):
+        p.step(np.array([0.2, 0.2]), 5)
+    np.testing.assert_array_equal(single.qpos, listed.qpos)

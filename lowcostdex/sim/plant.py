@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
-from lowcostdex.errors import ConfigError, PhysicsError, check_count, check_finite_array
+from lowcostdex.errors import ConfigError, PhysicsError, check_count, check_finite_array, check_rng
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
 from lowcostdex.sim.effects import exogenous as exo
@@ -172,11 +172,12 @@ class _PlantBase:
         self._apply_model_effects()
 
     def _split_per_sim(self, effects) -> list[list[AppliedEffect]]:
-        effects = list(effects)
+        effects = [effects] if isinstance(effects, (str, AppliedEffect)) else list(effects)
         if effects and not isinstance(effects[0], AppliedEffect):
             per_sim = [list(x) for x in effects]
             if not self._lead or len(per_sim) != self._lead[0]:
-                raise ConfigError("per-simulation effects need one list per simulation")
+                per = " (or one such list per simulation)" if self._lead else ""
+                raise ConfigError(f"effects are a list of AppliedEffect{per}; got {effects[0]!r}")
             sig = [(e.name, e.joints) for e in per_sim[0]]
             for s in per_sim[1:]:
                 if [(e.name, e.joints) for e in s] != sig:
@@ -446,7 +447,7 @@ class Plant(_PlantBase):
         self._base_model = model
         self.model = _copy_model(model)
         self.data = mujoco.MjData(self.model)
-        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.rng = check_rng("rng", rng) or np.random.default_rng(0)
         self._init_effects()
         self.set_effects(effects)
         self.set_servo_period(servo_period)
@@ -562,7 +563,7 @@ class BatchPlant(_PlantBase):
         self.batch = mjbatch.Batch(self.model, nsim=nsim, nthread=nthread)
         self._scratch = mujoco.MjData(self.model)
         self.nsim = nsim
-        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.rng = check_rng("rng", rng) or np.random.default_rng(0)
         self._views = {n: self.batch.bind(n) for n in ("qpos", "qvel", "ctrl", "act", "time",
                                                        "actuator_force", "qfrc_bias", "history",
                                                        "qfrc_applied")}

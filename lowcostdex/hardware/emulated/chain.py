@@ -76,7 +76,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_choice, check_number, keyword_hints
+from lowcostdex.errors import ConfigError, check_choice, check_number, flag, keyword_hints
 from lowcostdex.hands import HandSpec, bench_spec, dclaw_spec
 from lowcostdex.hardware.dynamixel.control_table import Reg
 from lowcostdex.hardware.dynamixel.protocol import (
@@ -196,13 +196,13 @@ class EmulatedChain:
         self.options = options or FirmwareOptions()
         self.baudrate = baudrate
         self.clock = VirtualClock() if clock == "virtual" else WallClock()
-        self.wire_time = wire_time or clock == "virtual"
+        self.wire_time = flag("wire_time", wire_time) or clock == "virtual"
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.goal_log = GoalLog()
         self.goal_audit = GoalAudit()
         self.events: RingLog = RingLog(events_kept)  # of Event
         self.event_callbacks: list[Callable[[Event], None]] = []
-        self.record_replies = record_replies
+        self.record_replies = flag("record_replies", record_replies)
         self.reply_log: RingLog = RingLog(replies_kept)  # (inst. number, id, inst., bytes)
         self.instruction_count = 0
         self.step_hooks: list[StepHook] = []

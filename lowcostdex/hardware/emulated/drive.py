@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_number
 from lowcostdex.sim import servo
 from lowcostdex.sim.plant import Plant
 from lowcostdex.sim.servo import servo_supply_voltage
@@ -81,6 +81,7 @@ class PlantDrive:
         self.plant = plant
         self.acts = np.asarray(actuators, dtype=int)
         self.motors = list(motors)
+        check_number("supply_resistance [Ohm]", supply_resistance, 0)  # (-1 and NaN were run)
         self.supply_resistance = supply_resistance
         self.imperfection = imperfection
         jnt = m.actuator_trnid[self.acts, 0]

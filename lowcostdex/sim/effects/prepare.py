@@ -12,6 +12,7 @@ from collections.abc import Sequence
 
 import mujoco
 
+from lowcostdex.errors import ConfigError
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect
 
 
@@ -24,7 +25,10 @@ def prepare_spec(spec: mujoco.MjSpec, effects: Sequence[AppliedEffect],
     their state with a task's model (the emulated robot, env backends) leave them out (backlash
     is then the massless-motor play operator); the gap analysis's replays use them.
     """
-    for e in effects:
+    for e in [effects] if isinstance(effects, (str, AppliedEffect)) else effects:
+        if not isinstance(e, AppliedEffect):  # (a str: "'str' object has no attribute 'cls'")
+            raise ConfigError(f"effects are a list of AppliedEffect, e.g. [AppliedEffect("
+                              f"'latency', ('ff_top',), {{'delay': 0.02}})]; got {e!r}")
         if hidden_dofs or not e.cls.structural:
             e.cls.prepare(spec, e.joints)
     return spec
