@@ -283,7 +283,8 @@ def _identify(args: argparse.Namespace) -> int:
     from lowcostdex.errors import ConfigError
     from lowcostdex.gap import bam_measure as bm
     from lowcostdex.gap.dataset import expand_log_paths, load_dataset
-    from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure
+    from lowcostdex.gap.identify import IdentifyConfig, identify, servo_structure, torque_off_seen
+    from lowcostdex.gap.torque_off import no_swing_warning
     from lowcostdex.outdir import check_out, staged_output, write_text_atomic
 
     if args.json:
@@ -302,6 +303,9 @@ def _identify(args: argparse.Namespace) -> int:
     train = [i for i in range(len(ds.trajectories)) if i not in test]
     if not train:
         raise ConfigError("every log is held out: nothing to fit")
+    warn = no_swing_warning(torque_off_seen(ds, train))
+    if warn:  # before minutes of fitting
+        print(f"lowcostdex gap identify: {warn}")
     cfg = IdentifyConfig(effects=servo_structure(ds), restarts=args.restarts,
                          nthread=args.threads, prior=args.prior, select=args.select)
     from rich.console import Console

@@ -60,7 +60,7 @@ from lowcostdex.gap.identify_starts import starts as own_starts
 from lowcostdex.gap.identify_verdict import verdict
 from lowcostdex.gap.replay import Replayer
 from lowcostdex.gap.rest_friction import held_at_rest
-from lowcostdex.gap.torque_off import armature_seed
+from lowcostdex.gap.torque_off import armature_seed, no_swing_warning
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Targets
 from lowcostdex.sim.servo import goal_slew_states
 
@@ -518,12 +518,13 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
     prog("scoring", 0.95)
     logs = train + test
     mae = setup_offsets.scored(ds, logs, rep, [[], effects], offsets)
+    warn = no_swing_warning(torque_off_seen(ds, train))
     out = Identified(effects, train, test,
                      nominal_mae=dict(zip(logs, mae[0].tolist(), strict=True)),
                      identified_mae=dict(zip(logs, mae[1].tolist(), strict=True)),
                      fit_seconds=fit_s, rounds=rounds, cost=best.cost,
                      at_bound=_at_bound(best), family=chosen, family_train_mae=fam_mae,
-                     selection=selection, notes=notes + bound_notes(best),
+                     selection=selection, notes=[warn] * bool(warn) + notes + bound_notes(best),
                      setup_offsets=offsets)
     out.verdict = verdict(out.nominal_mae, out.identified_mae, test)
     if test:  # the ablation is reported on the held-out logs only: replay only those

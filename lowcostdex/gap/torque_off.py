@@ -195,6 +195,26 @@ def armature_seed(ds: Dataset, logs: Sequence[int]) -> SwingFit | None:
     return f if max(ratio, 1.0 / max(ratio, 1e-12)) >= SEED_FACTOR else None
 
 
+# Without a torque-off log (no swing) the armature is told only through the position loop's
+# response, where it trades against the drive's constants: STS3032, 5 drawn kp 32 logs without
+# one (seed 2) fit its scale to the 0.1 floor and the drive's fall with the duty to its 1.5 cap
+# (held out 122.3 mrad, worse than the catalogue on 25 of 36 logs; bench/RESULTS.md gap-real22).
+# Holding them at the catalogue's instead measured no better (inertia 125.7, inertia and voltage
+# sag 126.7: gap-real23): the user is warned (``no_swing_warning``), nothing is held.
+
+
+def no_swing_warning(swung: bool) -> str | None:
+    """The plain warning for training logs without a torque-off swing (None with one)."""
+    if swung:
+        return None
+    return ("WARNING: no training log has the torque off (a log that lets the arm fall and swing "
+            "with the torque off, as BAM's lift_and_drop): the servo's back-driven friction and "
+            "its reflected rotor inertia (armature) cannot be told from torque-on logs; the "
+            "back-driven friction is the servo catalogue's (where it has one) and the armature's "
+            "fit may stand in for other effects (at a search bound it is no measurement). Record "
+            "one such log for a measured value")
+
+
 # ``release_delay``: the first RELEASE_WINDOW [s] after a torque-off command, a delay sought in
 # [-RELEASE_MIN, RELEASE_MAX] [s] at RELEASE_STEP.
 RELEASE_WINDOW = 0.3
