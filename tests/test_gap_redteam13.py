@@ -40,7 +40,8 @@ REFUSED = ("refused on 811d2cc (exit 2, 1 s CPU): 'no measured joint is driven b
            "actuator; the gap analysis needs position-servo joints', after a note per joint "
            "('driven by tendon flex: ... no candidate effect is placed on it'); effects act only "
            "on joints with one joint actuator (docs/gap_analysis.md), so a finger driven by a "
-           "tendon is not analysed at all")
+           "tendon is not analysed at all (the refusal now says so joint by joint: "
+           "test_a_tendon_driven_finger_is_refused_naming_its_tendon)")
 MISSES: dict[str, str] = {c.name: REFUSED for c in sim.CASES if c.rig == "tendon finger"}
 
 G = 9.81
@@ -288,3 +289,24 @@ def test_the_linkage_logs_as_the_user_writes_them(tmp_path):
         "time,goal:mcp,goal:pip,qpos:mcp,qpos:pip,qpos:dip"
     m = mujoco.MjModel.from_xml_string(pathlib.Path(files["model"]).read_text())
     assert [m.actuator(i).name for i in range(m.nu)] == ["mcp", "pip"] and m.neq == 1
+
+
+def test_a_tendon_driven_finger_is_refused_naming_its_tendon(tmp_path):
+    """Every measured joint of the tendon finger is driven through the tendon ``flex`` (the dip
+    by nothing: it follows the pip through the equality), so no candidate effect has a joint to
+    act on: the refusal says so joint by joint and that a tendon-driven model is not analysed
+    (on 811d2cc it read only 'no measured joint is driven by exactly one actuator; the gap
+    analysis needs position-servo joints', beside a position-servo model). The linkage rig's
+    mcp and pip carry the effects; its dip none."""
+    from lowcostdex.gap.dataset import load_dataset
+    from lowcostdex.gap.trajectory import LogError
+
+    files = sim.write_case(C("refused", (), (1.0,), 3), tmp_path / "t")
+    ds = load_dataset(files["logs"], model=files["model"])
+    with pytest.raises(LogError) as err:
+        ds.effect_joints  # noqa: B018
+    msg = str(err.value)
+    assert "'mcp' through tendon flex" in msg and "'pip' through tendon flex" in msg, msg
+    assert "'dip' by no actuator" in msg and "tendons" in msg and "not analysed" in msg, msg
+    files = sim.write_case(C("link", (), (1.0,), 3, rig="linkage finger"), tmp_path / "l")
+    assert load_dataset(files["logs"], model=files["model"]).effect_joints == ("mcp", "pip")

@@ -126,8 +126,11 @@ class Dataset:
             if n == 1:
                 out.append(j)
         if not out:
-            raise LogError("no measured joint is driven by exactly one actuator; the gap analysis "
-                           "needs position-servo joints")
+            how = "; ".join(f"{j!r} {_drive_text(m, m.joint(j).id)}" for j in self.joints)
+            raise LogError(f"no measured joint is driven by exactly one joint actuator ({how}): "
+                           "the gap analysis places its candidate effects on joints with a servo "
+                           "of their own; a model driven through tendons (an underactuated "
+                           "finger) is not analysed")
         return tuple(out)
 
     @property
@@ -362,19 +365,33 @@ def _absolute_asset_dirs(spec: mujoco.MjSpec, model: Path) -> None:
             hf.file = str(base / hf.file)
 
 
+def _drive(m: mujoco.MjModel, jid: int) -> tuple[int, list[str]]:
+    """How joint ``jid`` is driven: the number of actuators on the joint itself and the names of
+    the actuated tendons that wrap it."""
+    on_joint = m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
+    tendons = [int(t) for t in m.actuator_trnid[m.actuator_trntype == mujoco.mjtTrn.mjTRN_TENDON, 0]]
+    n = int(np.sum(on_joint & (m.actuator_trnid[:, 0] == jid)))
+    via = [m.tendon(t).name for t in tendons
+           if any(m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and m.wrap_objid[w] == jid
+                  for w in range(m.tendon_adr[t], m.tendon_adr[t] + m.tendon_num[t]))]
+    return n, via
+
+
+def _drive_text(m: mujoco.MjModel, jid: int) -> str:
+    """``_drive`` in words: 'through tendon flex', 'by 2 actuators', 'by no actuator'."""
+    n, via = _drive(m, jid)
+    parts = ([f"by {n} actuators" if n > 1 else "by its actuator"] if n else []) + (
+        [f"through tendon {', '.join(via)}"] if via else [])
+    return " and ".join(parts) or "by no actuator"
+
+
 def _unshared_joints(ds: Dataset) -> list[str]:
     """Notes on measured joints that actuators drive other than one joint actuator each (two
     actuators, a tendon): they replay as modelled, but no candidate effect is placed on them."""
     m = ds.compiled(ds.trajectories[0].model)
-    on_joint = m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
-    tendons = [int(t) for t in m.actuator_trnid[m.actuator_trntype == mujoco.mjtTrn.mjTRN_TENDON, 0]]
     notes = []
     for j in ds.joints:
-        jid = m.joint(j).id
-        n = int(np.sum(on_joint & (m.actuator_trnid[:, 0] == jid)))
-        via = [m.tendon(t).name for t in tendons
-               if any(m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and m.wrap_objid[w] == jid
-                      for w in range(m.tendon_adr[t], m.tendon_adr[t] + m.tendon_num[t]))]
+        n, via = _drive(m, m.joint(j).id)
         if n > 1 or via:
             how = (f"{n} actuators" if n > 1 else "") + (" and " if n > 1 and via else "") + (
                 f"tendon {', '.join(via)}" if via else "")
