@@ -118,19 +118,14 @@ class Dataset:
     def effect_joints(self) -> tuple[str, ...]:
         """Measured joints driven by exactly one actuator: where candidate effects can act."""
         m = self.compiled(self.trajectories[0].model)
-        out = []
-        for j in self.joints:
-            jid = m.joint(j).id
-            n = np.sum((m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
-                       & (m.actuator_trnid[:, 0] == jid))
-            if n == 1:
-                out.append(j)
+        drive = {j: _drive(m, m.joint(j).id) for j in self.joints}
+        out = [j for j in self.joints if drive[j][0] == 1]
         if not out:
-            how = "; ".join(f"{j!r} {_drive_text(m, m.joint(j).id)}" for j in self.joints)
-            raise LogError(f"no measured joint is driven by exactly one joint actuator ({how}): "
-                           "the gap analysis places its candidate effects on joints with a servo "
-                           "of their own; a model driven through tendons (an underactuated "
-                           "finger) is not analysed")
+            how = "; ".join(f"{j!r} " + (f"through tendon {', '.join(via)}" if via else
+                                        f"by {n or 'no'} joint actuator{'s' * (n != 1)}")
+                            for j, (n, via) in drive.items())
+            raise LogError(f"no measured joint is driven by exactly one joint actuator ({how}): effects"
+                           " act on joints with a servo of their own; a tendon-driven model is not analysed")
         return tuple(out)
 
     @property
@@ -366,23 +361,13 @@ def _absolute_asset_dirs(spec: mujoco.MjSpec, model: Path) -> None:
 
 
 def _drive(m: mujoco.MjModel, jid: int) -> tuple[int, list[str]]:
-    """How joint ``jid`` is driven: the number of actuators on the joint itself and the names of
-    the actuated tendons that wrap it."""
-    on_joint = m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
-    tendons = [int(t) for t in m.actuator_trnid[m.actuator_trntype == mujoco.mjtTrn.mjTRN_TENDON, 0]]
-    n = int(np.sum(on_joint & (m.actuator_trnid[:, 0] == jid)))
-    via = [m.tendon(t).name for t in tendons
+    """How joint ``jid`` is driven: (actuators on the joint itself, actuated tendons over it)."""
+    kind, on = m.actuator_trntype, m.actuator_trnid[:, 0]
+    n = int(np.sum((kind == mujoco.mjtTrn.mjTRN_JOINT) & (on == jid)))
+    via = [m.tendon(int(t)).name for t in on[kind == mujoco.mjtTrn.mjTRN_TENDON]
            if any(m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and m.wrap_objid[w] == jid
                   for w in range(m.tendon_adr[t], m.tendon_adr[t] + m.tendon_num[t]))]
     return n, via
-
-
-def _drive_text(m: mujoco.MjModel, jid: int) -> str:
-    """``_drive`` in words: 'through tendon flex', 'by 2 actuators', 'by no actuator'."""
-    n, via = _drive(m, jid)
-    parts = ([f"by {n} actuators" if n > 1 else "by its actuator"] if n else []) + (
-        [f"through tendon {', '.join(via)}"] if via else [])
-    return " and ".join(parts) or "by no actuator"
 
 
 def _unshared_joints(ds: Dataset) -> list[str]:
@@ -393,11 +378,9 @@ def _unshared_joints(ds: Dataset) -> list[str]:
     for j in ds.joints:
         n, via = _drive(m, m.joint(j).id)
         if n > 1 or via:
-            how = (f"{n} actuators" if n > 1 else "") + (" and " if n > 1 and via else "") + (
-                f"tendon {', '.join(via)}" if via else "")
-            notes.append(f"joint {j!r} is driven by {how}: it replays as modelled, but no "
-                         "candidate effect is placed on it (effects act on joints with one "
-                         "joint actuator)")
+            how = " and ".join([f"{n} actuators"] * (n > 1) + [f"tendon {', '.join(via)}"] * bool(via))
+            notes.append(f"joint {j!r} is driven by {how}: it replays as modelled, but no candidate "
+                         "effect is placed on it (effects act on joints with one joint actuator)")
     return notes
 
 
