@@ -282,6 +282,27 @@ def test_a_rails_dry_friction_in_newtons_is_inside_the_search_range():
     assert finger.hi <= 5.0
 
 
+def test_a_rails_force_limit_in_newtons_is_inside_the_search_range():
+    """The jaw's servo pushes up to 40 N (its forcerange): a torque_limit on the slide is a
+    force in N and must be searchable up to that force, as dry friction's (above). On main
+    811d2cc its range and hard limit stopped at the catalogue's 10 (N m, a hinge's): grip_gain's
+    fit ran to that cap beside a 40 N forcerange. The finger's hinge keeps its peak (1 N m)."""
+    from lowcostdex.gap import fit as fitmod
+    from lowcostdex.sim.effects import Targets
+
+    model = mujoco.MjModel.from_xml_string(sim.model_xml())
+    targets = Targets.resolve(model, sim.JOINTS)
+    ctx = fitmod.Context(dt=0.002, peak_force=np.array([40.0, 1.0]),
+                         damping=model.dof_damping.copy(),
+                         **fitmod.servo_facts(model, targets.actuators))
+    grip = fitmod.space("torque_limit", "torque", 0, ctx)
+    assert grip.hi == pytest.approx(40.0) and grip.start == pytest.approx(20.0), grip
+    assert fitmod.hard_limits("torque_limit", "torque", 0, ctx)[1] == pytest.approx(40.0)
+    finger = fitmod.space("torque_limit", "torque", 1, ctx)
+    assert finger.hi == pytest.approx(1.0)
+    assert fitmod.hard_limits("torque_limit", "torque", 1, ctx)[1] == pytest.approx(1.0)
+
+
 def test_a_slides_parameters_are_reported_in_linear_units():
     """A slide's offset is in m, its friction in N, its damping in N s/m: the report said the
     jaw's 2.777 mm mounting offset was "0.002777 rad" and its 7.8 N friction "N m" (5598aed,

@@ -42,7 +42,7 @@ class Context:
         (low, high) in parameter units (``widen``).
       dcmotor: (nj,) which servos are dcmotors (None: those with a finite stall torque).
       slide: (nj,) which joints are slides (forces in N: the catalogue's N m hard limits on a
-        dry friction do not bound them; None: none).
+        dry friction or a torque limit do not bound them; None: none).
     """
 
     dt: float
@@ -114,7 +114,7 @@ def hard_limits(name: str, param: str, j: int, ctx: Context) -> tuple[float, flo
     elif name in ("coulomb_friction", "stribeck_friction") and param != "velocity":
         hi = min(ctx.force_cap(j, hi), float(ctx.stall[j]))
     elif (name, param) == ("torque_limit", "torque"):
-        hi = min(hi, float(max(ctx.peak_force[j], 2 * p.low)))
+        hi = min(ctx.force_cap(j, hi), float(max(ctx.peak_force[j], 2 * p.low)))
     return lo, hi
 
 
@@ -146,7 +146,7 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
         hi = 0.9  # plastic gear trains reach ~0.46 (BAM's XL330 fit); friction < torque
     elif (name, param) == ("torque_limit", "torque"):
         peak = float(max(ctx.peak_force[j], 2 * lo))
-        hi = min(hi, peak)
+        hi = min(ctx.force_cap(j, hi), peak)  # on a slide [N]: up to its peak force
         start = 0.5 * peak
         extra = tuple(f * peak for f in extra)
         log = True
