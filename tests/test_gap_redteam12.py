@@ -317,3 +317,35 @@ def test_a_slides_parameters_are_reported_in_linear_units():
     assert unit_on("1", sim.JOINTS, both) == "1"
     assert unit_on("rad", sim.JOINTS, np.array([False, False])) == "rad"
     assert unit_on("rad", sim.JOINTS, None) == "rad"
+
+
+def test_the_verdict_says_each_joint_in_its_own_unit_where_a_slide_meets_a_hinge():
+    """The verdict's held-out RMSE pools the joints' errors: on the gripper metres with
+    radians. gap-sim15's grip_gain read "held-out RMSE 0.001187 -> 0.001106 rad" and "left:
+    1.11 mrad" (811d2cc) for a jaw and a finger in different units. Where units mix the pooled
+    figures now say they pool m and rad, and each joint follows in its own unit (mm / mrad,
+    with its noise floor); a hinge-only rig's verdict is as it was."""
+    from lowcostdex.gap.gain import Gain
+    from lowcostdex.gap.results import Cause
+    from lowcostdex.gap.standin import judge, per_joint_text
+
+    before = {"per_joint_rmse": {"grip": 1.4e-3, "finger": 1.69e-3}}
+    after = {"per_joint_rmse": {"grip": 1.8e-4, "finger": 1.55e-3}}
+    floor = np.array([1.03e-5, 5.5e-4])
+    text = per_joint_text(sim.JOINTS, np.array([True, False]), before, after, sim.JOINTS, floor)
+    assert text == ("per joint, in each joint's unit (the pooled figures add m to rad): grip "
+                    "1.4 -> 0.18 mm (noise floor 0.01 mm), finger 1.69 -> 1.55 mrad (noise floor "
+                    "0.55 mrad)")
+    assert per_joint_text(sim.JOINTS, np.array([False, False]), before, after, sim.JOINTS,
+                          floor) == ""
+    assert per_joint_text(sim.JOINTS, None, before, after, sim.JOINTS, floor) == ""
+    gain = Gain(1.55e-3, 1.1e-3, 1e-3, 8e-4, 4.5e-4, 0.29, (2e-4, 6e-4), (0.13, 0.39), 3.9e-4,
+                None, 2)
+    causes = [Cause("gain_error", sim.JOINTS, {})]
+    mixed = judge(causes, None, gain, "x", per_joint=text)
+    assert mixed.startswith("gain_error: held-out RMSE 0.00155 -> 0.0011 rad and m pooled "
+                            "(29 % lower); left: 1.1 mrad and mm pooled held-out RMSE")
+    assert mixed.endswith("; " + text)
+    hinge = judge(causes, None, gain, "x")
+    assert hinge.startswith("gain_error: held-out RMSE 0.00155 -> 0.0011 rad (29 % lower); "
+                            "left: 1.1 mrad held-out RMSE") and "pooled" not in hinge

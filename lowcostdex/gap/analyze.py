@@ -527,7 +527,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
     final = eng.predict(eps, [effects])[0] if effects else base_pred  # every log, for a drift
     drift = session_drift(per_log(ds, eps, final), floor_rms, cfg.explain_above)
     verdict = standin.judge(causes, final_track, gain, stop_reason, int(np.sum(e_sse > b_sse)),
-                            cfg.explain_above, drift["note"])
+                            cfg.explain_above, drift["note"], standin.per_joint_text(
+                                joints, ctx.slide, baseline, extended, ds.joints, floor))
     standin.rival_notes(causes, rounds)
     timing["total"] = time.perf_counter() - t_start
     traces = _traces(ds, test_eps, base_test, ext_pred)

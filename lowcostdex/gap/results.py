@@ -410,7 +410,7 @@ def bound_flags(s: fitmod.Structure, u: np.ndarray, name: str) -> list[str]:
 
 
 def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str, worse: int = 0,
-                 stand_ins: dict[str, str] | None = None) -> str:
+                 stand_ins: dict[str, str] | None = None, unit: str = "rad") -> str:
     """The one-line verdict. ``worse``: the test episodes on which the extended model's error
     is above the nominal one's. With causes, "no reliable gain" (the extended model not
     recommended) when it is worse on most test episodes or the gain's 95 % interval over them
@@ -423,16 +423,17 @@ def verdict_text(causes: Sequence[Cause], gain: Gain, stop_reason: str, worse: i
     partial stand-in at best (sim6 deadband_torque: a PWM deadband, outside the catalogue,
     485 -> 168 mrad by a gain error, interval [-49.6, 603] mrad). ``stand_ins``: effect -> a
     short warning written beside its name (``gap.standin``: an offset that may be a
-    centre-of-mass shift)."""
+    centre-of-mass shift). ``unit``: of the pooled RMSE ("rad and m pooled" on a slide beside a
+    hinge)."""
     if not causes:
         if gain.baseline_rmse > UNEXPLAINED * gain.noise_floor:
             return (f"discrepancy not explained by the candidate effects (held-out RMSE "
-                    f"{gain.baseline_rmse:.4g} rad, {gain.baseline_rmse / gain.noise_floor:.0f}x "
+                    f"{gain.baseline_rmse:.4g} {unit}, {gain.baseline_rmse / gain.noise_floor:.0f}x "
                     f"the noise floor; the selection stopped: {stop_reason})")
         return "no significant discrepancy"
     names = ", ".join(c.effect + (f" ({stand_ins[c.effect]})" if c.effect in (stand_ins or {})
                                   else "") for c in causes)
-    nums = f"held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} rad"
+    nums = f"held-out RMSE {gain.baseline_rmse:.4g} -> {gain.extended_rmse:.4g} {unit}"
     why = unreliable(gain, worse)
     if why:
         left = ""

@@ -149,11 +149,11 @@ def residual_left(gain: Gain, explained: float = EXPLAINED) -> dict:
             "at_floor": bool(floors <= explained)}
 
 
-def residual_text(r: dict) -> str:
-    """The verdict's words for ``residual_left``."""
+def residual_text(r: dict, unit: str = "mrad") -> str:
+    """The verdict's words for ``residual_left`` (``unit``: of its x1e-3 figures)."""
     share = f" ({100 * r['share']:.2g} % of the nominal model's)" if r["share"] is not None else ""
-    head = (f"left: {1e3 * r['rmse']:.3g} mrad held-out RMSE{share}, {r['floors']:.3g}x the "
-            f"noise floor {1e3 * r['noise_floor']:.3g} mrad")
+    head = (f"left: {1e3 * r['rmse']:.3g} {unit} held-out RMSE{share}, {r['floors']:.3g}x the "
+            f"noise floor {1e3 * r['noise_floor']:.3g} {unit}")
     if r["at_floor"]:
         return (f"{head}: within the {r['explained_within_floors']:g} floors a replay of an "
                 "exact model leaves")
@@ -161,14 +161,35 @@ def residual_text(r: dict) -> str:
             "model leaves, so something beyond the named causes is at work")
 
 
+def per_joint_text(joints: Sequence[str], slide: np.ndarray | None, before: dict, after: dict,
+                   logged: Sequence[str], floor: np.ndarray) -> str:
+    """Held-out RMSE per joint in its own unit, where the joints' units mix (a slide in m beside
+    a hinge in rad; '' otherwise): the pooled RMSE adds metres to radians (gap-sim15's gripper
+    read "1.19 -> 1.11 mrad" for a jaw 1.40 -> 0.18 mm beside its finger's 1.69 -> 1.55 mrad).
+    ``before`` / ``after``: ``gain.episode_errors`` of the nominal and extended models;
+    ``floor``: the noise floor of each ``logged`` joint."""
+    if slide is None or not np.any(slide) or np.all(slide):
+        return ""
+    parts = []
+    for j, lin in zip(joints, slide, strict=True):
+        unit = "mm" if lin else "mrad"
+        a, b = before["per_joint_rmse"][j], after["per_joint_rmse"][j]
+        parts.append(f"{j} {1e3 * a:.3g} -> {1e3 * b:.3g} {unit} (noise floor "
+                     f"{1e3 * float(floor[list(logged).index(j)]):.2g} {unit})")
+    return "per joint, in each joint's unit (the pooled figures add m to rad): " + ", ".join(parts)
+
+
 def judge(causes: Sequence[Cause], track: fitmod.Track | None, gain: Gain, stop_reason: str,
-          worse: int = 0, explained: float = EXPLAINED, drift_note: str = "") -> str:
+          worse: int = 0, explained: float = EXPLAINED, drift_note: str = "",
+          per_joint: str = "") -> str:
     """Write each cause's ``stand_in`` notes and return the verdict (``results.verdict_text``):
     offsets the final fit ``track`` trades against a gravity load (``stand_in_notes``), and every
     cause when the held-out gain is not reliable and the discrepancy stays above ``UNEXPLAINED``
     noise floors (``worse``: test episodes on which the extended model is worse). A reliable
     gain's verdict ends with what is left (``residual_text``, ``explained`` floors); a
-    ``drift_note`` (``diagnostics.session_drift``) is added to any verdict."""
+    ``drift_note`` (``diagnostics.session_drift``) is added to any verdict; so is ``per_joint``
+    (``per_joint_text``: where a slide's m mix with a hinge's rad, the pooled figures
+    are said to pool both and each joint's follow in its own unit)."""
     notes = (stand_in_notes(track.structure.free, track.structure.joints, track.jac,
                             {c.effect: c.params for c in causes}) if track is not None else {})
     short = {}
@@ -181,7 +202,8 @@ def judge(causes: Sequence[Cause], track: fitmod.Track | None, gain: Gain, stop_
             c.stand_in.append("at best a partial stand-in: its held-out gain is not reliable "
                               "and the discrepancy is not explained (see the verdict); "
                               "something outside the candidate effects may be at work")
-    text = verdict_text(causes, gain, stop_reason, worse, short)
+    pooled = ("rad and m pooled", "mrad and mm pooled") if per_joint else ("rad", "mrad")
+    text = verdict_text(causes, gain, stop_reason, worse, short, pooled[0])
     if causes and not unreliable(gain, worse):
-        text += "; " + residual_text(residual_left(gain, explained))
-    return text + (f"; {drift_note}" if drift_note else "")
+        text += "; " + residual_text(residual_left(gain, explained), pooled[1])
+    return text + "".join(f"; {x}" for x in (per_joint, drift_note) if x)
