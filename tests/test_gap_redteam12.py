@@ -319,6 +319,65 @@ def test_a_slides_parameters_are_reported_in_linear_units():
     assert unit_on("rad", sim.JOINTS, None) == "rad"
 
 
+def _grip_data(name: str, tmp_path, factor: float = 1.0):
+    """Case ``name``'s logs as the analysis reads them (the model's step x ``factor``), its
+    episodes and the analysis's split (``GapConfig``'s seed, as ``analyze`` draws it)."""
+    from lowcostdex.gap.dataset import episodes, load_dataset, split_episodes
+    from lowcostdex.gap.results import GapConfig
+
+    files = sim.write_case(sim.CASE_BY_NAME[name], tmp_path)
+    ds = load_dataset(files["logs"], model=files["model"])
+    ds = ds.with_timestep(factor) if factor != 1.0 else ds
+    cfg = GapConfig(nthread=1)
+    eps = episodes(ds, cfg.chunk)
+    return ds, eps, split_episodes(ds, eps, np.random.default_rng(cfg.seed), cfg.test_logs), cfg
+
+
+def test_a_jaw_offset_seen_only_on_the_block_is_significant_on_the_select_split(tmp_path):
+    """The jaw's 2.92 mm sensor offset shows only while the jaw presses the block: 2 of the
+    select split's 12 blocks of 0.5 s (at the 1 ms step the analysis chose). Round 1 fitted
+    offsets of 2.014 mm on the jaw and 2.4e-5 rad on the finger (select gain 55 %); on main
+    811d2cc the paired block bound of that gain was -0.17 % (a resample missing both pressing
+    blocks, 13 % of them, kept the other blocks' cross terms of a prediction change of <= 0.1
+    noise floors, +-3 % of their error) and mounting_offset was not named. A block whose
+    predictions the two models keep within 0.75 floors (``significance.RESOLVE``, the default
+    ``min_effect``) is now unchanged: bound > 0.
+    The same rule gives a jaw offset of the wrong sign a negative bound and the finger's
+    2.4e-5 rad alone (no block moves by a floor) no evidence (0). ~2 s CPU."""
+    from lowcostdex.gap import significance as sg
+    from lowcostdex.gap.diagnostics import noise_floor
+    from lowcostdex.gap.replay import Replayer
+    from lowcostdex.sim.effects import AppliedEffect
+
+    ds, eps, split, cfg = _grip_data("grip_offset", tmp_path, 0.5)
+    sel = [eps[i] for i in split.select]
+    floor = noise_floor(ds.trajectories)
+    rep = Replayer(ds, ["mounting_offset"], nthread=1)
+
+    def predict(windows, cols):
+        return rep.run(windows, cols)[0]
+
+    def offset(grip):
+        return [AppliedEffect("mounting_offset", ds.effect_joints,
+                              {"offset": np.array([grip, 2.376e-05])})]
+
+    fitted = offset(0.002014)
+    a, b = predict(sel, [[], fitted])
+    change = sg.block_change(ds, sel, a, b, cfg.interval_block, floor)
+    assert np.sum(change > 100) == 2 and np.sum(change > sg.RESOLVE) == 2, change
+    assert sg.RESOLVE == cfg.min_effect   # the analysis's default size of no change
+
+    def low(new, floors):
+        return sg.paired_low(predict, ds, sel, [], new, cfg.interval_block,
+                             np.random.default_rng([cfg.seed, 1]), cfg.bootstrap,
+                             *((floor, sg.RESOLVE) if floors else ()))
+
+    assert low(fitted, False) < 0.0      # as on 811d2cc: the 55 % gain not bounded above 0
+    assert low(fitted, True) > 0.2
+    assert low(offset(-0.002014), True) < -1.0
+    assert low(offset(0.0), True) == 0.0
+
+
 def test_the_verdict_says_each_joint_in_its_own_unit_where_a_slide_meets_a_hinge():
     """The verdict's held-out RMSE pools the joints' errors: on the gripper metres with
     radians. gap-sim15's grip_gain read "held-out RMSE 0.001187 -> 0.001106 rad" and "left:

@@ -331,7 +331,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 by_name[n_best].select_gain_low = low = significance.paired_low(
                     eng.predict, ds, sel_eps, current.to_effects(cur_x) if current.effects
                     else [], best_track[n_best].effects(), cfg.interval_block, blk_rng,
-                    cfg.bootstrap)
+                    cfg.bootstrap, floor)
                 significant = low > 0
             if not significant:
                 stop = "no candidate lowers the select error significantly"
