@@ -255,7 +255,8 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
             # limits from the flat side of their cost, delays to the best physics-step phase (the
             # cost is piecewise smooth in a delay: LM stops at a kink, seen 22.7 ms for 18.8 ms)
             rescued = [t for t in best_track.values()
-                       if fitmod.scan_limits(t, fit_fn) | fitmod.polish(t, fit_fn, ds.timestep)]
+                       if fitmod.scan_limits(t, fit_fn) | fitmod.scan_scales(t, fit_fn)
+                       | fitmod.polish(t, fit_fn, ds.timestep)]
             if rescued:
                 fitmod.lockstep_lm(rescued, fit_fn, cfg.max_rounds // 2, jacobian_at_end=False)
             if current.effects:

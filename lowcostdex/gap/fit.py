@@ -423,6 +423,46 @@ def scan_limits(t: Track, residual: ResidualFn, n: int = 25) -> bool:
     return _scan(t, residual, grids)
 
 
+_SCALES = {("gain_error", "scale")}
+
+
+def scan_scales(t: Track, residual: ResidualFn, n: int = 17, fine: int = 9) -> bool:
+    """Rescue a fitted scale factor that Levenberg-Marquardt left where it started.
+
+    On a rig where one joint's replay error is jagged in every parameter (a finger riding on a
+    gripper's jaw, its fingertip sticking and slipping on the table: the pooled cost moves by
+    +-10 % between neighbouring gains), the joint fit's steps are rejected one after another
+    and a kp off by x0.546 on the jaw stayed at 1.000 (gap-sim15's grip_gain; from a start at
+    0.5 the fit stayed at 0.506, the jaw's own error being a smooth valley at 0.546). Each scale
+    scalar, one at a time (the others at their current values), is scanned over its range
+    (``n`` log-spaced values, one batched evaluation) and then over one grid step either side
+    of the best (``fine`` values); a value is kept only where it lowers the cost. The track
+    then restarts there (``restart``). Returns whether it moved."""
+    idx = [i for i, f in enumerate(t.structure.free) if (f.effect, f.param) in _SCALES]
+    if not idx or t.r is None:
+        return False
+    x, cost = t.x.copy(), t.cost
+    for i in idx:
+        f = t.structure.free[i]
+        ratio = (f.hi / f.lo) ** (1.0 / (n - 1))
+        for finer in (False, True):
+            grid = (np.clip(x[i] * np.geomspace(1 / ratio, ratio, fine), f.lo, f.hi) if finer
+                    else np.geomspace(f.lo, f.hi, n))
+            points = []
+            for v in grid:
+                p = x.copy()
+                p[i] = float(v)
+                points.append((t.structure, p))
+            costs = [0.5 * float(r @ r) for r in residual(points)]
+            k = int(np.argmin(costs))
+            if costs[k] < cost:
+                x, cost = points[k][1], costs[k]
+    if np.array_equal(x, t.x):
+        return False
+    restart(t, x)
+    return True
+
+
 def restart(t: Track, x: np.ndarray) -> None:
     """Move a track to ``x`` and make it live: the next LM round re-evaluates its residual and
     Jacobian there (and accepts it as its start)."""
