@@ -35,18 +35,14 @@ FAST: frozenset[str] = frozenset()
 
 # what the analysis named instead, per case it misses (bench/gap_redteam12.py --threads 1 on the
 # commit named; CPU: the analysis's user + sys). Named exactly: grip_offset (mounting_offset
-# 2.777 mm [2.506, 2.972] for 2.92, 220 s, 5598aed), latency (40.55 ms [39.84, 41.6] and 40.25
+# 2.869 mm [2.686, 3.066] for 2.92, named forward in round 1, 386 s, gap-sim16 session 28 on
+# its paired_low block rule; a strict xfail from 5a6e8c9: viscous_damping named since
+# 96768eb, the offset's 55 % select gain bounded at -0.17 %), latency (40.55 ms [39.84, 41.6] and 40.25
 # [39.67, 40.51] for 40.1, 138 s, 96768eb), finger_offset (-0.06687 rad [-0.06706, -0.06677]
 # for -0.0669, 257 s, 96768eb); clean: clean_free (43 s), clean_contact (49 s) on
 # 5598aed. Not run yet (no mark): grip_backlash, finger_friction,
 # finger_backlash, grip_friction_finger_offset.
 MISSES: dict[str, str] = {
-    "grip_offset": "family/wrong since 96768eb (lead, re-run as a test on 96768eb and on main "
-    "e4236a9; exact on 5598aed, 237 s CPU): viscous_damping named (select gain 6.2 %, its 5 % "
-    "bootstrap bound 2.7 %; 1.397 -> 1.327 x1e-3 held out, 98 s CPU). mounting_offset's select "
-    "gain is 55 % but its bound -0.17 % in BOTH runs: on 5598aed it was named only by the backward "
-    "search (nothing passed forward); 96768eb's wider jaw friction moved viscous's fit (gain 5.5 -> "
-    "6.2 %) over the line. A large gain the select split's few episodes cannot bound: fragile",
     "grip_friction": "named exactly on 96768eb, but the interval misses: coulomb_friction on the "
     "jaw 7.814 N [7.813, 7.816] for 7.69 (1.6 % high; the interval is +-0.02 %: the 0.5 s blocks "
     "agree, so no resampling sees a bias common to all of them); 1.301 -> 0.451 (x1e-3, m and rad "
