@@ -347,3 +347,35 @@ def test_a_plant_given_one_effect_or_a_name_or_a_seed():
     for p in (single, listed):
         p.step(np.array([0.2, 0.2]), 5)
     np.testing.assert_array_equal(single.qpos, listed.qpos)
+
+
+@pytest.mark.parametrize("t_src,values,t_dst,said", [
+    ([0.2, 0.1, 0.0], [1.0, 2.0, 3.0], [0.15], r"t_src must be finite, strictly increasing"),
+    ([0.0, np.nan, 0.2], [1.0, 2.0, 3.0], [0.15], r"t_src must be finite, strictly increasing"),
+    ([0.0, 0.1, 0.2], [1.0, 2.0], [0.15], r"t_src of shape \(3,\) and values of shape \(2,\)"),
+    ([0.0, 0.1, 0.2], [1.0, 2.0, 3.0], [np.nan], r"t_dst holds nan: times \[s\] are finite"),
+])
+def test_zoh_refuses_times_it_would_hold_wrongly(t_src, values, t_dst, said):
+    # before: unsorted source times or a NaN destination time gave a wrong hold without a word
+    # (zoh([0.2, 0.1, 0], [1, 2, 3], [0.15]) held 3; a NaN destination held the last value),
+    # and values shorter than the times were indexed past their end
+    from lowcostdex.gap import LogError, zoh
+
+    with pytest.raises(LogError, match=said):
+        zoh(np.array(t_src), np.array(values), np.array(t_dst))
+    np.testing.assert_array_equal(zoh(np.array([0.0, 0.1]), np.array([1.0, 2.0]),
+                                      np.array([-1.0, 0.1, 5.0])), [1.0, 2.0, 2.0])
+
+
+def test_save_extended_refuses_a_model_that_does_not_compile_or_a_file(tmp_path):
+    # before: an unparsable model was written and load_extended refused the folder later; a
+    # folder path that is a file gave FileExistsError
+    from lowcostdex.gap import load_extended, save_extended
+
+    with pytest.raises(ConfigError, match=r"model 'arm' does not compile: "):
+        save_extended(tmp_path / "ext", {"arm": "<mujoco"}, [])
+    assert not (tmp_path / "ext").exists()
+    (tmp_path / "file").write_text("mine")
+    with pytest.raises(ConfigError, match=r"file is a file; save_extended writes a folder"):
+        save_extended(tmp_path / "file", {"arm": _TWO}, [])
+    assert load_extended(save_extended(tmp_path / "ok", {"arm": _TWO}, [])).effects == []

@@ -106,8 +106,17 @@ def dr_ranges(effects: Sequence[AppliedEffect], intervals: dict[str, dict[str, l
 
 def save_extended(folder: str | Path, models: dict[str, str], effects: Sequence[AppliedEffect],
                   intervals: dict[str, dict[str, list]] | None = None) -> Path:
-    """Write an extended-model folder (see the module docstring)."""
+    """Write an extended-model folder (see the module docstring). ConfigError before writing
+    when ``folder`` is a file or a model does not compile (before: a folder load_extended then
+    refused, or FileExistsError)."""
     folder = user_path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"{folder} is a file; save_extended writes a folder")
+    for key, xml in models.items():
+        try:
+            mujoco.MjSpec.from_string(xml).compile()
+        except Exception as exc:  # mujoco raises ValueError with the parser's message
+            raise ConfigError(f"model {key!r} does not compile: {exc}") from None
     folder.mkdir(parents=True, exist_ok=True)
     files = {}
     baked_all: set[str] = set()

@@ -149,8 +149,21 @@ def zoh(t_src: np.ndarray, values: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
       t_dst: (m,) destination times [s].
     Returns:
       (m, ...) the value in force at each destination time.
+    Raises:
+      LogError: source times not finite and increasing, destination times not finite, or
+        values of another length than the source times (before: a silently wrong hold; a NaN
+        destination time held the last value).
     """
-    return np.asarray(values)[zoh_index(t_src, t_dst)]
+    src, dst, values = np.asarray(t_src, float), np.asarray(t_dst, float), np.asarray(values)
+    if src.ndim != 1 or len(values) != len(src) or not len(src):
+        raise LogError(f"zoh: t_src of shape {src.shape} and values of shape {values.shape}: "
+                       "one source time [s] per value row, at least one")
+    if not (np.all(np.isfinite(src)) and np.all(np.diff(src) > 0)):
+        raise LogError("zoh: t_src must be finite, strictly increasing times [s]")
+    if not np.all(np.isfinite(dst)):
+        raise LogError(f"zoh: t_dst holds {dst[~np.isfinite(dst)].ravel()[0]}: times [s] are "
+                       "finite")
+    return values[zoh_index(src, dst)]
 
 
 def find_gaps(t: np.ndarray) -> np.ndarray:
