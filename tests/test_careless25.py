@@ -379,3 +379,29 @@ def test_save_extended_refuses_a_model_that_does_not_compile_or_a_file(tmp_path)
     with pytest.raises(ConfigError, match=r"file is a file; save_extended writes a folder"):
         save_extended(tmp_path / "file", {"arm": _TWO}, [])
     assert load_extended(save_extended(tmp_path / "ok", {"arm": _TWO}, [])).effects == []
+
+
+@pytest.mark.parametrize("kwargs,said", [
+    (dict(seeds=[1, 1]), r"seed 1 given twice: the same episode would be recorded twice"),
+    (dict(seeds="12"), r"seeds='12' must be a list of reset seeds, e.g. range\(25\)"),
+    (dict(seeds=5), r"seeds=5 must be a list of reset seeds"),
+    (dict(seeds=[1.5]), r"seed=1.5 must be an integer in \[0, inf\)"),
+    (dict(seeds=[1], max_tries=0), r"max_tries=0 must be an integer in \[1, inf\)"),
+    (dict(seeds=[1], action_noise=-0.1), r"action_noise=-0.1 must be a finite number in \[0, 2\]"),
+    (dict(seeds=[1], action_noise=float("nan")), r"action_noise=nan"),
+])
+def test_teacher_episodes_refuses_careless_seeds_and_settings(kwargs, said):
+    # before: seeds [1, 1] recorded one episode twice (a deterministic teacher: identical
+    # pairs weighing double), the string "12" recorded seeds 1 and 2, an int raised TypeError,
+    # max_tries=0 said "the teacher failed 0 times from seed 1", a negative or NaN noise ran
+    # noiseless without a word
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from pointmass import expert_action, make_pointmass
+
+    from lowcostdex.demonstrations.dataset import teacher_episodes
+
+    with pytest.raises(ConfigError, match=said):
+        teacher_episodes(make_pointmass(), lambda env, obs: expert_action(obs), **kwargs)

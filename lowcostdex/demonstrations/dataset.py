@@ -341,8 +341,21 @@ def teacher_episodes(
       write them with :func:`save_demos`.
 
     Raises:
-      ConfigError: a seed produced no successful episode in ``max_tries`` attempts.
+      ConfigError: a seed produced no successful episode in ``max_tries`` attempts; seeds not a
+        list of distinct integers >= 0 (a seed given twice recorded the same episode twice, the
+        string "12" seeds 1 and 2), max_tries < 1, action_noise outside [0, 2].
     """
+    if isinstance(seeds, (str, bytes)) or not isinstance(seeds, Sequence | np.ndarray):
+        raise ConfigError(f"seeds={seeds!r} must be a list of reset seeds, e.g. range(25)")
+    seen: set[int] = set()
+    for seed in seeds:
+        check_number("seed", seed, 0, integer=True)
+        if int(seed) in seen:
+            raise ConfigError(f"seed {int(seed)} given twice: the same episode would be recorded "
+                              "twice (give distinct seeds)")
+        seen.add(int(seed))
+    check_number("max_tries", max_tries, 1, integer=True)
+    check_number("action_noise", action_noise, 0, 2)  # half-width in a [-1, 1] action range
     episodes = []
     for seed in seeds:
         for k in range(max_tries):
