@@ -405,3 +405,13 @@ def test_teacher_episodes_refuses_careless_seeds_and_settings(kwargs, said):
 
     with pytest.raises(ConfigError, match=said):
         teacher_episodes(make_pointmass(), lambda env, obs: expert_action(obs), **kwargs)
+
+
+def test_a_hidden_robots_chain_given_a_seed_for_rng_says_so():
+    # before: HiddenRobot.chain(rng=0) dropped the 0 ('rng or default_rng(self.seed)') and ran
+    # on the robot's own seed without a word (rng=5 failed at a draw deep inside)
+    from lowcostdex.hardware.emulated.hidden_robots import hidden_robots
+
+    robot = hidden_robots(1)[0]
+    with pytest.raises(ConfigError, match=r"rng=0 must be a seeded numpy Generator"):
+        robot.chain("none", rng=0)

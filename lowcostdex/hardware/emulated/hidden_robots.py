@@ -228,7 +228,7 @@ class HiddenRobot:
         ``kwargs`` as ``emulated_dclaw``."""
         from lowcostdex.hardware.emulated.chain import emulated_dclaw
 
-        return emulated_dclaw(station, self.motor, rng=rng or np.random.default_rng(self.seed),
+        return emulated_dclaw(station, self.motor, rng=np.random.default_rng(self.seed) if rng is None else rng,
                               **self.emulator_kwargs(), **kwargs)
 
     def effect_truth(self) -> dict[str, dict[str, list[float]]]:
