@@ -39,9 +39,9 @@ FAST: frozenset[str] = frozenset()
 # its paired_low block rule; a strict xfail from 5a6e8c9: viscous_damping named since
 # 96768eb, the offset's 55 % select gain bounded at -0.17 %), latency (40.55 ms [39.84, 41.6] and 40.25
 # [39.67, 40.51] for 40.1, 138 s, 96768eb), finger_offset (-0.06687 rad [-0.06706, -0.06677]
-# for -0.0669, 257 s, 96768eb); clean: clean_free (43 s), clean_contact (49 s) on
-# 5598aed. Not run yet (no mark): finger_friction, finger_backlash,
-# grip_friction_finger_offset.
+# for -0.0669, 257 s, 96768eb), finger_friction (0.07582 N m [0.07402, 0.07702] for 0.0748,
+# 131 s, ac95024); clean: clean_free (43 s), clean_contact (49 s) on 5598aed. Not run yet (no
+# mark): finger_backlash, grip_friction_finger_offset.
 MISSES: dict[str, str] = {
     "grip_friction": "named exactly on 96768eb, but the interval misses: coulomb_friction on the "
     "jaw 7.814 N [7.813, 7.816] for 7.69 (1.6 % high; the interval is +-0.02 %: the 0.5 s blocks "
