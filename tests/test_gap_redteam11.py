@@ -53,7 +53,9 @@ MISSES: dict[str, str] = {
     "search); 27.6 -> 1.71 mrad (3.4 floors), 204 s CPU. The true 50 ms replays the 1 s windows "
     "at 2.7 / 1.8 mrad, ~1 in all but the two that start in motion (a log begun mid-move, the "
     "piece after the logger pause: 4.8 / 6.7 mrad, the commands in flight there are not logged) "
-    "and the fit trades delay for inertia there. (On 89b2d65: inertia_error 7.9 / 7.8 alone)",
+    "and the fit trades delay for inertia there. (On 89b2d65: inertia_error 7.9 / 7.8 alone.) "
+    "Re-measured on 811d2cc (gap-sweep23, session 28): identical (45.6 / 43.8 ms, inertia 1.53 / "
+    "1.90, backlash 12.5 / 7.9 mrad, 27.63 -> 1.71 mrad), 388 s CPU",
     "backlash_pan": "gain_error 0.94 / 1.007 named, flagged 'no reliable gain ... at best a "
     "partial stand-in' (9.45 -> 9.77 mrad, 18 floors; 32 s CPU on ab2d25b); backlash not among "
     "the six fitted. The truth's loop read across the play HUNTS at every hold (a limit cycle, "
@@ -66,7 +68,10 @@ MISSES: dict[str, str] = {
     "the nominal 20.1 mrad (whole episodes 24.4 vs 18.9). The replay then keeps the massless "
     "play operator (19.7: closer to the data), where the sensor does nothing (0 and 1 replay "
     "alike). An open-loop RMSE ranks a limit cycle below none: naming it needs a phase-free "
-    "score (e.g. the holds' row-to-row spread)",
+    "score (e.g. the holds' row-to-row spread). Re-measured on 811d2cc (gap-sweep23): identical "
+    "(gain_error 0.944 / 1.007, 9.45 -> 9.77 mrad), 54 s CPU; bench/gap_phase_free.py: the "
+    "hunting amplitude ranks the hinge play first (1.27 vs nominal 3.89 mrad) but a 20 mrad "
+    "play alone beats the truth on latency_backlash",
     "latency_backlash": "torque_limit 0.54 / 0.78 N m named (42.0 -> 41.2 mrad, 82 floors; 71 s "
     "CPU): latency fitted 27.9 / 30.8 ms (truth 30) but its select gain 0.12 is not "
     "significant beside the pan's hunting play (see backlash_pan)",
