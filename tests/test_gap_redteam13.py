@@ -42,7 +42,8 @@ FAST: frozenset[str] = frozenset()
 # 0.02242 N m [0.02195, 0.02263] for 0.0223, 241 s), link_mount (pip -0.1191 [-0.1192, -0.1190] for
 # -0.1191, 238 s); link_curve (outside) passes: mounting_offset named as a partial stand-in,
 # 67.8 -> 47.4 mrad, CI [12.9, 27.5], 'something beyond the named causes is at work' (76 s).
-# Not run yet (no mark): link_backlash, link_mass, link_latency_friction.
+# Not run yet (no mark): link_backlash (stopped unfinished at 640 s CPU on f8ccac6), link_mass,
+# link_latency_friction.
 REFUSED = ("refused on 811d2cc (exit 2, 1 s CPU): 'no measured joint is driven by exactly one "
            "actuator; the gap analysis needs position-servo joints', after a note per joint "
            "('driven by tendon flex: ... no candidate effect is placed on it'); effects act only "
