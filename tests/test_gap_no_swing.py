@@ -1,8 +1,8 @@
 """Training logs without a torque-off swing (``gap.torque_off.no_swing_warning``):
 the user is told plainly, in the identification's notes and by ``gap identify`` before fitting,
-that the back-driven friction and the armature cannot be told from torque-on logs. Real case: STS3032, 5 drawn kp 32
-logs without a torque-off one (seed 2) fitted the inertia scale to its 0.1 floor
-(bench/RESULTS.md gap-real22, gap-real23)."""
+that the back-driven friction and the armature cannot be told from torque-on logs. Real case:
+STS3032, 5 drawn kp 32 logs without a torque-off one (seed 2) fitted the inertia scale to its 0.1
+floor (bench/RESULTS.md gap-real22, gap-real23)."""
 
 from __future__ import annotations
 

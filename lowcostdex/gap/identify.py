@@ -461,10 +461,13 @@ def identify(ds: Dataset, train: Sequence[int], test: Sequence[int] = (),
         keys = list(cands)
         prog("choosing the family and the fit (gap.identify_select)", 0.8)
         fm = {k: float(np.mean(_train_mae(cands[k], w_fit, wts, ds, rep))) for k in keys}
-        chosen, per_fam = choose({k: cands[k].cost for k in keys}, fm,
-                                 {k: len(cands[k].structure.free) for k in keys})
-        fam_mae = {f: fm[k] for f, k in per_fam.items()}
         vm = per_log_mae(rep, whole_logs(ds, val_logs), [cands[k].effects() for k in keys])
+        chosen, per_fam = choose({k: cands[k].cost for k in keys}, fm,
+                                 {k: len(cands[k].structure.free) for k in keys},
+                                 at_bound={k: _at_bound(cands[k]) for k in keys}
+                                 if torque_off_seen(ds, fit_logs) else None, held=families,
+                                 val_mae={k: float(np.mean(vm[i])) for i, k in enumerate(keys)})
+        fam_mae = {f: fm[k] for f, k in per_fam.items()}
         selection = {"field": field_, "fit_logs": list(fit_logs), "val_logs": list(val_logs),
                      "cost": {f"{f}.{j}": float(cands[(f, j)].cost) for f, j in keys},
                      "fit_mae": {f"{f}.{j}": v for (f, j), v in fm.items()},
