@@ -27,31 +27,11 @@ import redteam_harness as harness  # noqa: E402
 sim = harness.truth_module("gap_truth_sim13")
 
 
-def run(name: str, root: pathlib.Path, threads: int = 1) -> dict:
-    """Write case ``name`` under ``root/<name>/data``, analyse it and grade its report."""
-    return harness.run_named(sim, name, root, threads)
-
-
-def line(r: dict) -> str:
-    """One table row (radians; the servo's effects at the horn)."""
-    if r["result"] == "crash":
-        return f"| {r['case']} | crash | - | - | {r['cpu_s']:.0f} |"
-    named = ", ".join(f"{c['effect']}[{','.join(c['joints'])}]" for c in r["causes"]) or "-"
-    ps = "; ".join(f"{p['effect']}.{p['param']}[{p['joint']}] {p['truth']:.4g} / {p['value']:.4g}"
-                   f" [{p['interval'][0]:.4g}, {p['interval'][1]:.4g}]"
-                   f"{'' if p['inside'] else ' OUT'}" for p in r["params"]) or "-"
-    before, after = r["heldout"]
-    held = "-" if before is None else (f"{1e3 * before:.2f} -> {1e3 * after:.2f}"
-                                       if r["named"] and after is not None
-                                       else f"{1e3 * before:.2f}")
-    return f"| {r['case']} | {named} | {r['result']} | {ps} | {held} | {r['cpu_s']:.0f} |"
-
-
 def main(argv: list[str] | None = None) -> int:
-    return harness.sweep(sim, __doc__, "/tmp/rt13",
-                         ("| case | named | result | params (truth / fit [95 %]) | "
-                          "held-out RMSE (mrad) | CPU s |\n|---|---|---|---|---|---|"),
-                         run, line, argv)
+    return harness.sweep_named(sim, __doc__, "/tmp/rt13",
+                               ("| case | named | result | params (truth / fit [95 %]) | "
+                                "held-out RMSE (mrad) | CPU s |\n|---|---|---|---|---|---|"),
+                               argv)
 
 
 if __name__ == "__main__":

@@ -155,6 +155,32 @@ def run_named(sim: ModuleType, name: str, root: pathlib.Path, threads: int = 1) 
     return row
 
 
+def case_line(r: dict, digits: int = 2, unit: str = "") -> str:
+    """One markdown row of a per-case sweep (``sweep``): the causes named (effect[joints]), the
+    grade, each graded parameter as truth / fit [95 % interval] (OUT when the truth is outside),
+    the held-out RMSE x1e3 (before -> after when something was named; ``digits`` decimals, then
+    ``unit``) and the analysis's CPU seconds."""
+    if r["result"] == "crash":
+        return f"| {r['case']} | crash | - | - | {r['cpu_s']:.0f} |"
+    named = ", ".join(f"{c['effect']}[{','.join(c['joints'])}]" for c in r["causes"]) or "-"
+    ps = "; ".join(f"{p['effect']}.{p['param']}[{p['joint']}] {p['truth']:.4g} / {p['value']:.4g}"
+                   f" [{p['interval'][0]:.4g}, {p['interval'][1]:.4g}]"
+                   f"{'' if p['inside'] else ' OUT'}" for p in r["params"]) or "-"
+    before, after = r["heldout"]
+    held = "-" if before is None else (f"{1e3 * before:.{digits}f} -> {1e3 * after:.{digits}f}"
+                                       if r["named"] and after is not None
+                                       else f"{1e3 * before:.{digits}f}")
+    return f"| {r['case']} | {named} | {r['result']} | {ps} | {held}{unit} | {r['cpu_s']:.0f} |"
+
+
+def sweep_named(sim: ModuleType, doc: str, keep: str, header: str, argv: list[str] | None = None,
+                digits: int = 2, unit: str = "") -> int:
+    """``sweep`` with each case run by ``run_named`` and printed by ``case_line``."""
+    return sweep(sim, doc, keep, header,
+                 lambda name, root, threads: run_named(sim, name, root, threads),
+                 lambda r: case_line(r, digits, unit), argv)
+
+
 def sweep(sim: ModuleType, doc: str, keep: str, header: str, run, line,
           argv: list[str] | None = None) -> int:
     """The plain command line of a per-case sweep (gap_redteam10/11): --cases, --keep, --json,
