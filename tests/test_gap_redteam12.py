@@ -343,8 +343,8 @@ def test_a_jaw_offset_seen_only_on_the_block_is_significant_on_the_select_split(
     811d2cc the paired block bound of that gain was -0.17 % (a resample missing both pressing
     blocks, 13 % of them, kept the other blocks' cross terms of a prediction change of <= 0.1
     noise floors, +-3 % of their error) and mounting_offset was not named. A block whose
-    predictions the two models keep within 0.75 floors (``significance.RESOLVE``, the default
-    ``min_effect``) is now unchanged: bound > 0.
+    predictions the two models keep within 0.375 floors (``significance.RESOLVE``, half the
+    default ``min_effect``) is now unchanged: bound > 0.
     The same rule gives a jaw offset of the wrong sign a negative bound and the finger's
     2.4e-5 rad alone (no block moves by a floor) no evidence (0). ~2 s CPU."""
     from lowcostdex.gap import significance as sg
@@ -368,7 +368,7 @@ def test_a_jaw_offset_seen_only_on_the_block_is_significant_on_the_select_split(
     a, b = predict(sel, [[], fitted])
     change = sg.block_change(ds, sel, a, b, cfg.interval_block, floor)
     assert np.sum(change > 100) == 2 and np.sum(change > sg.RESOLVE) == 2, change
-    assert sg.RESOLVE == cfg.min_effect   # the analysis's default size of no change
+    assert sg.RESOLVE == cfg.min_effect / 2   # half the analysis's default size of no change
 
     def low(new, floors):
         return sg.paired_low(predict, ds, sel, [], new, cfg.interval_block,

@@ -42,9 +42,10 @@ from lowcostdex.sim.effects import AppliedEffect, effect
 # below any gain the analysis acts on (``GapConfig.min_gain`` 5 %, ``tie`` 0.2 %)
 TIE = 1e-4
 # a block whose predictions two models keep within this many noise floors holds no evidence
-# between them (``paired_low``): ``GapConfig.min_effect``'s default, the size below which the
-# analysis calls a change of model no change
-RESOLVE = 0.75
+# between them (``paired_low``): half ``GapConfig.min_effect``'s default (0.75, the size below
+# which the analysis calls a change of model no change), so an effect of min_effect's size is
+# still judged by its significance and its size gate, each on its own
+RESOLVE = 0.375
 
 __all__ = ["andrews_bandwidth", "block_change", "block_sse", "data_halfwidths", "residual_blocks",
            "hac_halfwidths", "null_margins", "null_profile_rise", "paired_gain_bound",
@@ -340,9 +341,10 @@ def paired_low(predict, ds: Dataset, eps: Sequence[Window], cur: Sequence[Applie
     either way: its error difference is the measured residual's cross term with a change the
     readings cannot resolve, of either sign, and the block counts as unchanged (a tie where a
     resample holds only such blocks). The analysis calls a change of model below
-    ``GapConfig.min_effect`` floors (default 0.75) no change; ``RESOLVE`` draws the same line
+    ``GapConfig.min_effect`` floors (default 0.75) no change; ``RESOLVE`` is half that default
     per block (a constant: a larger ``min_effect`` asks more of an effect's size, not of the
-    evidence in each block). Measured (gap-sim16,
+    evidence in each block; at 0.75 a 0.707-floor offset that ``min_effect=0.7`` accepts was
+    refused as all ties, tests/test_gap_decisions_loop.py). Measured (gap-sim16,
     tests/gap_truth_sim12.py grip_offset): a 2.9 mm jaw offset acts only while the jaw presses
     the block, 2 of the select split's 12 blocks (the predictions 135-195 floors apart, the
     rest <= 0.1); a resample missing both (13 %) kept the other blocks' +-3 % cross terms and
