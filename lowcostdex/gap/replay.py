@@ -58,6 +58,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from lowcostdex.errors import ConfigError, check_finite_array
 from lowcostdex.gap import play_state, saturation
 from lowcostdex.gap.activation import Activations, position_like
 from lowcostdex.gap.dataset import Dataset, Window
@@ -95,6 +96,7 @@ class Replayer:
     """
 
     def __init__(self, ds: Dataset, effect_names: Sequence[str] = (), nthread: int = 0):
+        _check_goals(ds)  # once here: the inner loop steps its plants unchecked
         self.ds = ds
         self.nthread = nthread
         # models without the structural effects (``models``, the nominal dynamics) and, when
@@ -555,8 +557,19 @@ class Replayer:
                           if len(alive) - np.count_nonzero(alive) >= 2 else None)
             run["until"] = int(run["own"][alive].min())
         ids = None if force_peak else run["ids"]
-        plant.step(goal, 1, channels, sims=ids)
+        plant.step_unchecked(goal, 1, channels, sims=ids)  # goals checked in __init__
         self.steps_run += plant.nsim if ids is None else len(ids)
+
+
+def _check_goals(ds: object) -> None:
+    """ConfigError unless ``ds`` is a Dataset whose goals are finite numbers below
+    ``MAX_CONTROL`` (a NaN one would zero every control of its step in MuJoCo)."""
+    if not isinstance(ds, Dataset):
+        raise ConfigError(f"Replayer(ds) replays a lowcostdex.gap.Dataset (from load_dataset), "
+                          f"not {type(ds).__name__}")
+    for tr in ds.trajectories:
+        check_finite_array(f"trajectory {tr.name!r}: goal", tr.goal, (np.shape(tr.goal),),
+                           f"goals of the actuators {', '.join(tr.actuators)}")
 
 
 def _step_means(u: np.ndarray, values: np.ndarray, before: np.ndarray, n_steps: int

@@ -103,9 +103,28 @@ class Trajectory:
             raise LogError(f"Trajectory {self.name!r}: goal_time has shape "
                            f"{np.shape(self.goal_time)}; it must be ({n},) like time")
 
+    def check_times(self) -> None:
+        """LogError unless ``time`` is finite and strictly increasing [s] (a reader sorts rows a
+        little out of order with a note and refuses the rest: the writer says so first)."""
+        t = np.asarray(self.time, dtype=float)
+        dt = np.diff(t)
+        if np.all(np.isfinite(t)) and np.all(dt > 0):
+            return
+        if not np.all(np.isfinite(t)):
+            i = int(np.argmax(~np.isfinite(t)))
+            raise LogError(f"Trajectory {self.name!r}: time[{i}] is {t[i]}: sample times [s] "
+                           "must be finite numbers")
+        i = int(np.argmax(dt <= 0))
+        raise LogError(f"Trajectory {self.name!r}: time must be strictly increasing [s], but "
+                       f"time[{i + 1}]={t[i + 1]:.9g} {'repeats' if dt[i] == 0 else 'is before'} "
+                       f"time[{i}]={t[i]:.9g} (sort the rows by time: order = "
+                       "np.argsort(traj.time, kind='stable'))")
+
     def to_columns(self) -> dict[str, np.ndarray]:
-        """The log-format columns {name: (T,)}; LogError from ``check_shapes`` first."""
+        """The log-format columns {name: (T,)}; LogError from ``check_shapes`` and
+        ``check_times`` first."""
         self.check_shapes()
+        self.check_times()
         cols = {"time": self.time}
         if self.goal_time is not None:
             cols["goal_time"] = self.goal_time

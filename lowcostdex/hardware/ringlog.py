@@ -8,6 +8,8 @@ from collections import deque
 from itertools import islice
 from typing import Any
 
+from lowcostdex.errors import check_number
+
 
 class RingLog(deque):
     """A log that keeps its newest ``maxlen`` entries (a ring buffer: appending to a full log
@@ -15,9 +17,8 @@ class RingLog(deque):
     counts every entry appended, ``dropped`` those pushed out by newer ones (``clear`` drops
     nothing: it empties the log and keeps both counts)."""
 
-    def __init__(self, maxlen: int):
-        if maxlen < 1:
-            raise ValueError(f"RingLog needs maxlen >= 1, got {maxlen}")
+    def __init__(self, maxlen: int, name: str = "RingLog maxlen"):
+        check_number(name, maxlen, 1, integer=True)  # (name: the option that sets it)
         super().__init__(maxlen=int(maxlen))
         self.total = 0
         self.dropped = 0

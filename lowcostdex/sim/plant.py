@@ -32,6 +32,7 @@ the envs, the emulator, domain randomization and the gap analysis; the effects t
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping, Sequence
 
@@ -379,6 +380,14 @@ class _PlantBase:
         check_finite_array("goal", goal, self._goal_shapes, lambda: (
             f"goals of the {self.model.nu} actuators{' (per simulation)' if self._lead else ''}"
             ": positions [rad] (a velocity actuator's rad/s, a motor's torque N m)"))
+        self.step_unchecked(goal, nstep, channels, sims)
+
+    def step_unchecked(self, goal: np.ndarray, nstep: int,
+                       channels: Mapping[str, np.ndarray] | None = None,
+                       sims: np.ndarray | None = None) -> None:
+        """``step`` without its argument checks (2-4 us a call), for loops whose goals are
+        checked where they come from: a replay of a loaded log, an env's clipped actions.
+        Never a user's goal: a short one is broadcast, a NaN zeroes every control unsaid."""
         self.ctrl[...] = (self.command(goal, nstep * float(self.model.opt.timestep))
                           if self._commands else goal)  # (command copies the goal, then edits)
         self._exogenous(channels)
@@ -445,7 +454,7 @@ class Plant(_PlantBase):
     def __init__(self, model: mujoco.MjModel, effects: Sequence[AppliedEffect] = (),
                  rng: np.random.Generator | None = None, servo_period: float = 0.0):
         self._base_model = model
-        self.model = _copy_model(model)
+        self.model = copy.copy(model)
         self.data = mujoco.MjData(self.model)
         self.rng = check_rng("rng", rng) or np.random.default_rng(0)
         self._init_effects()
@@ -559,7 +568,7 @@ class BatchPlant(_PlantBase):
         if nsim < 1:
             raise ConfigError("nsim must be >= 1")
         self._base_model = model
-        self.model = _copy_model(model)
+        self.model = copy.copy(model)
         self.batch = mjbatch.Batch(self.model, nsim=nsim, nthread=nthread)
         self._scratch = mujoco.MjData(self.model)
         self.nsim = nsim
@@ -679,12 +688,6 @@ class BatchPlant(_PlantBase):
         self.servo_clock.phase = 0  # servos update at the first step (all simulations: one clock)
         self.batch.forward(ids=rows)
         self.rest_play(rows)
-
-
-def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
-    import copy
-
-    return copy.copy(model)
 
 
 def _check_state(m: mujoco.MjModel, lead: tuple[int, ...], **given: np.ndarray | None) -> None:

@@ -172,7 +172,7 @@ class HandVectorEnv(gym.vector.VectorEnv):
         ctrl = np.empty((self.num_envs, self.plant.model.nu))
         ctrl[:, t.hand_act] = action_to_goal(a, t.hand_low, t.hand_high, present, self._max_step)
         ctrl[:, self._aux] = t.aux_ctrl(self.plant.qpos)
-        self.plant.step(ctrl, t.timing.frame_skip)
+        self.plant.step_unchecked(ctrl, t.timing.frame_skip)  # from checked, clipped actions
         self._steps += 1
         self._last_action = a.copy()
         if self._moving_goal:  # Task.advance_goal returns the goal unchanged

@@ -114,7 +114,8 @@ class EmulatedAllegro:
         self.temperature = np.full(proto.N_JOINTS, thermal.ambient)
         self.sensor_fault: dict[int, int] = {}  # joint -> byte a broken sensor sends instead
         self.step_hooks: list = []
-        self.torque_log = RingLog(torques_kept)  # (time [s], applied torques [N m])
+        # (time [s], applied torques [N m])
+        self.torque_log = RingLog(torques_kept, "EmulatedAllegro torques_kept")
         self.frames_in = 0
         self._since_temperature = 0.0
         self._owed = 0.0  # emulated time the physics has yet to step [s]

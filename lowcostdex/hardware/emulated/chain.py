@@ -200,10 +200,11 @@ class EmulatedChain:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.goal_log = GoalLog()
         self.goal_audit = GoalAudit()
-        self.events: RingLog = RingLog(events_kept)  # of Event
+        self.events: RingLog = RingLog(events_kept, "EmulatedChain events_kept")  # of Event
         self.event_callbacks: list[Callable[[Event], None]] = []
         self.record_replies = flag("record_replies", record_replies)
-        self.reply_log: RingLog = RingLog(replies_kept)  # (inst. number, id, inst., bytes)
+        # (instruction number, id, instruction, bytes)
+        self.reply_log: RingLog = RingLog(replies_kept, "EmulatedChain replies_kept")
         self.instruction_count = 0
         self.step_hooks: list[StepHook] = []
         self.dead: set[int] = set()

@@ -23,7 +23,7 @@ import numpy as np
 from lowcostdex.errors import keyword_hints
 from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.sim.envs.hand_env import HandEnv, make_hand_env
-from lowcostdex.sim.envs.task import VALVE_BOUNDS, Goal, Task, TaskSpec, check_settings
+from lowcostdex.sim.envs.task import VALVE_BOUNDS, VALVE_GOAL, Goal, Task, TaskSpec, check_settings
 from lowcostdex.sim.models.allegro import AllegroPD, AllegroValve, build_allegro
 from lowcostdex.sim.models.common import quat_euler
 
@@ -62,6 +62,7 @@ class AllegroTurnValve(Task):
     """Turn the valve above the palm-up Allegro by ``goal_offset`` (default 360 deg)."""
 
     object_joint = "valve"
+    goal_bounds = VALVE_GOAL
 
     def __init__(self, config: AllegroTurnConfig = AllegroTurnConfig(),
                  hand: HandSpec | None = None, pd: AllegroPD | None = None,

@@ -84,7 +84,7 @@ class SimBackend(Backend):
 
     def apply(self, goal: np.ndarray, nstep: int) -> None:
         self._check_open("step")
-        self.plant.step(goal, nstep)
+        self.plant.step_unchecked(goal, nstep)  # the env's goal: from its checked action
 
     def close(self) -> None:
         self.closed = True

@@ -21,6 +21,7 @@ from lowcostdex.sim import servo
 from lowcostdex.sim.envs.task import (
     TOLERANCE,
     VALVE_BOUNDS,
+    VALVE_GOAL,
     Goal,
     Task,
     TaskSpec,
@@ -105,6 +106,7 @@ class ValveTask(DClawTask):
     config: TurnConfig | ScrewConfig
     passive_actuators = ("valve",)
     object_joint = "valve"
+    goal_bounds = VALVE_GOAL
 
     @property
     def obs_dim(self) -> int:

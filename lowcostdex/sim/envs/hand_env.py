@@ -91,9 +91,9 @@ def _check_qpos_range(model: mujoco.MjModel, qpos: np.ndarray) -> None:
 
 
 def _check_options(options: Mapping[str, Any], qpos: np.ndarray, qvel: np.ndarray,
-                   goal: Goal) -> None:
-    """Refuse reset options that would be ignored (unknown keys), fail deep in MuJoCo (shapes) or
-    put NaN into the simulation."""
+                   goal: Goal, bounds: Mapping[str, tuple[float, float, str]]) -> None:
+    """Refuse reset options that would be ignored (unknown keys), fail deep in MuJoCo (shapes),
+    put NaN into the simulation or give a goal beyond the task's ``bounds`` (degrees)."""
     if not isinstance(options, Mapping):
         raise ValueError(f"reset options must be a dict with keys 'qpos', 'qvel', 'goal', got "
                          f"{options!r:.80}")
@@ -131,6 +131,13 @@ def _check_options(options: Mapping[str, Any], qpos: np.ndarray, qvel: np.ndarra
             if value.shape != np.shape(goal[k]) or not np.all(np.isfinite(value)):
                 raise ValueError(f"reset option goal[{k!r}]={v!r:.80} must be finite with shape "
                                  f"{np.shape(goal[k])}")
+            low, high, unit = bounds.get(k, (-np.inf, np.inf, ""))
+            if not np.all((low <= value) & (value <= high)):
+                x, d = float(np.max(np.abs(value))), unit.replace("rad", "deg")
+                deg = f"; in {unit}, not {d} ({x:g} {d} is {np.radians(x):.4g} {unit})" if (
+                    "rad" in unit) else ""
+                raise ValueError(f"reset option goal[{k!r}]={v!r:.80} is outside [{low:.4g}, "
+                                 f"{high:.4g}] {unit}, the farthest this task's settings reach{deg}")
 
 
 def _keywords(cls: type, task: Task) -> list[str]:
@@ -271,7 +278,7 @@ class HandEnv(gym.Env):
         super().reset(seed=seed)
         options = options or {}
         qpos, qvel, goal = self.task.initial_state(self.np_random)
-        _check_options(options, qpos, qvel, goal)
+        _check_options(options, qpos, qvel, goal, self.task.goal_bounds)
         if "qpos" in options:
             _check_qpos_range(self.model, np.asarray(options["qpos"], dtype=float))
         qpos = np.asarray(options.get("qpos", qpos), dtype=float)

@@ -49,6 +49,11 @@ VALVE_BOUNDS = {"init_range": (0.0, math.pi, "rad"),
                 "pose_noise": (0.0, 1.0, "rad")}
 """Bounds of the valve tasks' settings (D'Claw and Allegro; ``check_settings``): ranges up to
 half a turn either way, offsets up to two turns, a start-pose noise std up to 1 rad."""
+VALVE_GOAL = {"angle": (-6 * math.pi, 6 * math.pi, "rad"), "start": (-6 * math.pi, 6 * math.pi, "rad"),
+              "speed": (-2 * math.pi, 2 * math.pi, "rad/s")}
+"""Bounds of a valve task's goal given to ``env.reset(options={"goal": ...})`` (``Task.goal_bounds``):
+the farthest goal the settings reach, init_range + |goal_offset| + goal_range = pi + 4 pi + pi, and
+``ScrewConfig``'s speed bound (a goal in degrees, 400 for 400 deg, was taken as 400 rad)."""
 
 
 def check_flag(config: object, name: str) -> None:
@@ -73,6 +78,10 @@ class TaskSpec:
     frame_skip: int = 40
     episode_steps: int = 40
 
+    def __post_init__(self) -> None:  # (Plant.step_unchecked takes frame_skip as its count)
+        check_number("TaskSpec.frame_skip (physics substeps)", self.frame_skip, 1, integer=True)
+        check_number("TaskSpec.episode_steps", self.episode_steps, 1, integer=True)
+
 
 class Task(ABC):
     """A task on a hand: model, initial state distribution, observation, reward terms, success."""
@@ -81,6 +90,8 @@ class Task(ABC):
     timing: TaskSpec
     #: actuators released (torque off) during episodes, e.g. the D'Claw's valve motor.
     passive_actuators: tuple[str, ...] = ()
+    #: bounds (low, high, unit) of goal keys a reset option may give (``VALVE_GOAL``)
+    goal_bounds: dict[str, tuple[float, float, str]] = {}
     object_joint: str | None = None
     """A one-DOF object joint (e.g. "valve"): ``bind`` sets ``obj_qpos`` and ``obj_dof``."""
 
