@@ -172,3 +172,122 @@ def test_env_steps_skip_the_goal_check_the_public_step_keeps(monkeypatch):
         env.unwrapped.backend.plant.step(np.zeros(1), 1)  # the public call: still checked
     env.close()
     vec.close()
+
+
+# -- fresh hunt: learned local models (TVLG fit, KL-iLQG) --------------------------------------
+
+def _rollouts(n: int = 5, t: int = 10):
+    rng = np.random.default_rng(0)
+    return rng.normal(size=(n, t, 4)), rng.normal(size=(n, t, 2))
+
+
+_SHAPES = r"must be \(N, T, dX\) and \(N, T, dU\) with the same N >= 1 rollouts and T >= 2 steps"
+
+
+@pytest.mark.parametrize("edit,said", [
+    (lambda X, U: (X, U[:, :9]), r"X \(5, 10, 4\) and U \(5, 9, 2\) " + _SHAPES),
+    (lambda X, U: (X, U[:4]), r"X \(5, 10, 4\) and U \(4, 10, 2\) " + _SHAPES),
+    (lambda X, U: (X[:0], U[:0]), r"X \(0, 10, 4\) and U \(0, 10, 2\) " + _SHAPES),
+    (lambda X, U: (X[:, :1], U[:, :1]), r"X \(5, 1, 4\) and U \(5, 1, 2\) " + _SHAPES),
+    (lambda X, U: (X[0], U[0]), r"X of shape \(10, 4\) must be \(N, T, dX\): N rollouts of T "
+                                r"steps of dX states \(one rollout: X\[None\]\)"),
+    (lambda X, U: (X, np.where(np.arange(10)[None, :, None] == 3, np.inf, U)),
+     r"rollout data contains NaN or inf: U\[0, 3, 0\] = inf; cannot fit dynamics"),
+])
+def test_fit_dynamics_names_rollouts_it_cannot_fit(edit, said):
+    # before: numpy's concatenate error (other T or N), "not enough values to unpack" (one
+    # rollout given as (T, dX)), "negative dimensions" (T=0), and 0 rollouts fitted NaN
+    # dynamics without a word (a RuntimeWarning of numpy's only)
+    from lowcostdex.algos.local_models.dynamics import DynamicsConfig, fit_dynamics
+
+    with pytest.raises(ConfigError, match=said):
+        fit_dynamics(*edit(*_rollouts()), DynamicsConfig(use_prior=False))
+
+
+def test_fit_dynamics_takes_lists_and_names_a_singular_fit_or_a_missing_config():
+    # before: lists raised AttributeError ('list' object has no attribute 'shape'), a fit whose
+    # data span fewer dimensions than [x, u] with regularization 0 numpy's LinAlgError
+    # "Singular matrix", cfg=None AttributeError
+    from lowcostdex.algos.local_models.dynamics import DynamicsConfig, fit_dynamics
+
+    X, U = _rollouts()
+    cfg = DynamicsConfig(use_prior=False)
+    assert np.array_equal(fit_dynamics(X.tolist(), U.tolist(), cfg).F, fit_dynamics(X, U, cfg).F)
+    with pytest.raises(ConfigError, match=r"the 1 rollouts' \[x, u\] at step 0 span fewer than "
+                                          r"their 6 dimensions .*regularization=1e-6"):
+        fit_dynamics(X[:1], U[:1], DynamicsConfig(use_prior=False, regularization=0.0))
+    with pytest.raises(ConfigError, match=r"cfg=None must be a DynamicsConfig"):
+        fit_dynamics(X, U, None)
+
+
+_PD = dict(x0=np.zeros(4), u0=np.zeros(2), T=5, pos_index=[0, 1], vel_index=[2, 3],
+           pos_gain=1.0, vel_gain=0.1, noise_var=0.1)
+
+
+@pytest.mark.parametrize("change,said", [
+    ({"T": 0}, r"pd_controller T \(horizon, steps\)=0 must be an integer in \[1, inf\)"),
+    ({"T": 2.5}, r"pd_controller T \(horizon, steps\)=2.5 must be an integer"),
+    ({"pos_gain": np.nan}, r"pd_controller pos_gain=nan must be a finite number"),
+    ({"noise_var": np.nan}, r"noise_var \(action units squared\)=nan must be a finite number in "
+                            r"\(0, inf\)"),
+    ({"pos_index": [0, 7]}, r"pd_controller state index=7 must be an integer in \[-4, 3\]"),
+    ({"x0": np.array([np.nan, 0, 0, 0])}, r"pd_controller x0=.* must be a 1-D array of finite"),
+    ({"u0": 0.0, "pos_index": [0], "vel_index": [2]}, r"pd_controller u0=array\(0\.\) must be "
+                                                      r"a 1-D array"),
+])
+def test_pd_controller_names_a_careless_setting(change, said):
+    # before: T=0 gave an empty controller, a NaN gain, noise or start state a NaN controller
+    # without a word; T=2.5 a TypeError, index 7 an IndexError, a scalar u0 "tuple index out
+    # of range"
+    from lowcostdex.algos.local_models.controller import pd_controller
+
+    with pytest.raises(ConfigError, match=said):
+        pd_controller(**{**_PD, **change})
+
+
+def test_a_controller_or_its_noise_from_careless_arrays_is_named():
+    # before: a NaN gain made a controller acting NaN; a (T, dX) K "not enough values to
+    # unpack"; exploration_noise(T=-1) numpy's "negative dimensions", smooth_sigma=nan taken
+    from lowcostdex.algos.local_models.controller import (
+        LinearGaussianController,
+        exploration_noise,
+    )
+
+    cov = np.broadcast_to(np.eye(2), (3, 2, 2))
+    with pytest.raises(ConfigError, match=r"controller K holds NaN or inf \(first at index "
+                                          r"\(0, 0, 0\)\)"):
+        LinearGaussianController.from_cov(np.full((3, 2, 4), np.nan), np.zeros((3, 2)), cov)
+    with pytest.raises(ConfigError, match=r"K of shape \(2, 4\) must be \(T, dU, dX\)"):
+        LinearGaussianController.from_cov(np.zeros((2, 4)), np.zeros((3, 2)), cov)
+    rng = np.random.default_rng(0)
+    with pytest.raises(ConfigError, match=r"exploration_noise T \(steps\)=-1 must be an integer"):
+        exploration_noise(rng, -1, 2)
+    with pytest.raises(ConfigError, match=r"smooth_sigma \(steps\)=nan must be a finite number"):
+        exploration_noise(rng, 5, 2, np.nan)
+
+
+def test_a_kl_update_of_other_sizes_or_a_nan_budget_is_named():
+    # before: a controller of another horizon than the model failed in numpy's matmul deep in
+    # the backward pass; a NaN epsilon or eta ran the whole dual search on NaN
+    from lowcostdex.algos.local_models.controller import LinearGaussianController
+    from lowcostdex.algos.local_models.costs import QuadraticCost
+    from lowcostdex.algos.local_models.dynamics import LinearGaussianDynamics
+    from lowcostdex.algos.local_models.traj_opt import TrajOptConfig, kl_constrained_update
+
+    T = 6  # a point mass: x' = x + 0.1 u (dX = dU = 1)
+    dyn = LinearGaussianDynamics(np.tile([[1.0, 0.1]], (T - 1, 1, 1)), np.zeros((T - 1, 1)),
+                                 np.full((T - 1, 1, 1), 1e-4), np.ones(1), np.full((1, 1), 1e-6))
+    cost = QuadraticCost(np.tile(np.diag([1.0, 0.01]), (T, 1, 1)), np.zeros((T, 2)), np.zeros(T))
+
+    def ctl(t):
+        return LinearGaussianController.from_cov(np.zeros((t, 1, 1)), np.zeros((t, 1)),
+                                                 np.ones((t, 1, 1)))
+
+    assert kl_constrained_update(dyn, cost, ctl(T), 0.5, 1.0, TrajOptConfig()).kl > 0
+    with pytest.raises(ConfigError, match=r"dynamics F has shape \(5, 1, 2\); the controller "
+                                          r"\(T=8, dU=1, dX=1\) needs \(7, 1, 2\)"):
+        kl_constrained_update(dyn, cost, ctl(8), 0.5, 1.0, TrajOptConfig())
+    for eps, eta, said in ((np.nan, 1.0, r"epsilon \(KL budget, nats\)=nan"),
+                           (0.5, np.nan, r"eta \(dual variable\)=nan")):
+        with pytest.raises(ConfigError, match=said + r" must be a finite number in \(0, inf\)"):
+            kl_constrained_update(dyn, cost, ctl(T), eps, eta, TrajOptConfig())

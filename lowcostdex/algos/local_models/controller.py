@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_number
 
 Array = NDArray[np.float64]
 
@@ -46,9 +46,16 @@ class LinearGaussianController:
         K = np.asarray(K, dtype=np.float64)
         k = np.asarray(k, dtype=np.float64)
         cov = np.asarray(cov, dtype=np.float64)
+        if K.ndim != 3:
+            raise ConfigError(f"K of shape {K.shape} must be (T, dU, dX): one gain per step")
         T, dU, _ = K.shape
         if k.shape != (T, dU) or cov.shape != (T, dU, dU):
-            raise ConfigError(f"K {K.shape}, k {k.shape}, cov {cov.shape} are inconsistent")
+            raise ConfigError(f"K {K.shape}, k {k.shape}, cov {cov.shape} are inconsistent: "
+                              "need (T, dU, dX), (T, dU), (T, dU, dU)")
+        for name, a in (("K", K), ("k", k), ("cov", cov)):
+            if not np.all(np.isfinite(a)):  # (a NaN gain acted NaN on the robot)
+                raise ConfigError(f"controller {name} holds NaN or inf (first at index "
+                                  f"{tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])})")
         cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))
         try:
             chol = np.linalg.cholesky(cov)
@@ -115,11 +122,19 @@ def pd_controller(
     """
     x0 = np.asarray(x0, dtype=np.float64)
     u0 = np.asarray(u0, dtype=np.float64)
+    for name, a in (("x0", x0), ("u0", u0)):
+        if a.ndim != 1 or not len(a) or not np.all(np.isfinite(a)):
+            raise ConfigError(f"pd_controller {name}={a!r:.80} must be a 1-D array of finite "
+                              "numbers (the start state / the action holding it)")
     dU = u0.shape[0]
+    check_number("pd_controller T (horizon, steps)", T, 1, integer=True)
+    check_number("pd_controller pos_gain", pos_gain)
+    check_number("pd_controller vel_gain", vel_gain)
     if len(pos_index) != dU or (vel_index is not None and len(vel_index) != dU):
         raise ConfigError(f"pos_index/vel_index need one entry per action ({dU})")
-    if noise_var <= 0:
-        raise ConfigError(f"noise_var={noise_var} must be > 0")
+    for i in [*pos_index, *(vel_index or ())]:
+        check_number("pd_controller state index", i, -x0.shape[0], x0.shape[0] - 1, integer=True)
+    check_number("pd_controller noise_var (action units squared)", noise_var, 0, low_open=True)
     gain = np.zeros((dU, x0.shape[0]))
     gain[np.arange(dU), list(pos_index)] = -pos_gain
     if vel_index is not None:
@@ -139,8 +154,9 @@ def exploration_noise(
     rescaled so each action keeps unit empirical variance. Smoothing makes exploration less jerky
     on hardware but breaks the white-noise assumption of the dynamics fit; keep it small (<= 1).
     """
-    if smooth_sigma < 0:
-        raise ConfigError(f"smooth_sigma={smooth_sigma} must be >= 0")
+    check_number("exploration_noise T (steps)", T, 1, integer=True)
+    check_number("exploration_noise dU (actions)", dU, 1, integer=True)
+    check_number("exploration_noise smooth_sigma (steps)", smooth_sigma, 0)
     noise = rng.standard_normal((T, dU))
     if smooth_sigma > 0:
         from scipy.ndimage import gaussian_filter1d  # imported here: 0.3 s of CLI start-up

@@ -91,6 +91,34 @@ class LinearGaussianDynamics:
         return cls(arrays["F"], arrays["f"], arrays["cov"], arrays["x0_mean"], arrays["x0_cov"])
 
 
+def check_rollouts(X: object, U: object, min_steps: int = 1) -> tuple[Array, Array]:
+    """X (N, T, dX) states and U (N, T, dU) actions of N >= 1 rollouts of T >= ``min_steps``
+    steps as float arrays; ConfigError naming the array and the shape it needs, or its first
+    NaN/inf (before: numpy's concatenate error, or NaN dynamics from 0 rollouts)."""
+    arrays = []
+    for name, v, d in (("X", X, "dX states"), ("U", U, "dU actions")):
+        try:
+            a = np.asarray(v, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{name} is not an (N, T, {d[:2]}) array of numbers: "
+                              f"{type(v).__name__}") from None
+        if a.ndim != 3:
+            raise ConfigError(f"{name} of shape {a.shape} must be (N, T, {d[:2]}): N rollouts of "
+                              f"T steps of {d} (one rollout: {name}[None])")
+        arrays.append(a)
+    X, U = arrays
+    if X.shape[:2] != U.shape[:2] or X.shape[0] < 1 or X.shape[1] < min_steps:
+        raise ConfigError(f"X {X.shape} and U {U.shape} must be (N, T, dX) and (N, T, dU) with "
+                          f"the same N >= 1 rollouts and T >= {min_steps} steps")
+    for name, a in (("X", X), ("U", U)):
+        bad = ~np.isfinite(a)
+        if bad.any():
+            n, t, i = (int(j) for j in np.argwhere(bad)[0])
+            raise ConfigError(f"rollout data contains NaN or inf: {name}[{n}, {t}, {i}] = "
+                              f"{a[n, t, i]}; cannot fit dynamics")
+    return X, U
+
+
 def transition_points(X: Array, U: Array) -> Array:
     """Stack rollouts into transitions y = [x_t, u_t, x_t+1]: (N, T-1, 2 dX + dU)."""
     return np.concatenate([X[:, :-1], U[:, :-1], X[:, 1:]], axis=2)
@@ -139,10 +167,12 @@ def fit_dynamics(
     conditioning (least squares) otherwise.
 
     Raises:
-      ConfigError: on NaN/inf data.
+      ConfigError: on arrays of other shapes, fewer than 2 steps, NaN/inf data, or data that
+        does not vary at some step with ``regularization`` 0 (a singular fit).
     """
-    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(U))):
-        raise ConfigError("rollout data contains NaN or inf; cannot fit dynamics")
+    if not isinstance(cfg, DynamicsConfig):
+        raise ConfigError(f"fit_dynamics(X, U, cfg): cfg={cfg!r:.60} must be a DynamicsConfig")
+    X, U = check_rollouts(X, U, min_steps=2)
     N, T, dX = X.shape
     dXU = dX + U.shape[2]
     Y = transition_points(X, U)
@@ -153,7 +183,13 @@ def fit_dynamics(
     for t in range(T - 1):
         prior = niw_prior(gmm, Y[:, t], cfg.prior_strength) if use_prior else None
         mu, sigma = map_gaussian(Y[:, t], prior)
-        F[t], f[t], cov[t] = condition_gaussian(mu, sigma, dXU, cfg.regularization)
+        try:
+            F[t], f[t], cov[t] = condition_gaussian(mu, sigma, dXU, cfg.regularization)
+        except np.linalg.LinAlgError:
+            raise ConfigError(f"fit_dynamics: the {N} rollouts' [x, u] at step {t} span fewer "
+                              f"than their {dXU} dimensions (a singular covariance with "
+                              "regularization 0): give DynamicsConfig(regularization=1e-6), more "
+                              "rollouts or more exploration noise") from None
     x0_mean, x0_cov = fit_initial_state(X[:, 0], cfg.initial_state_var)
     return LinearGaussianDynamics(F, f, cov, x0_mean, x0_cov)
 

@@ -26,7 +26,13 @@ from lowcostdex.algos.local_models.lqr import (
     kl_per_step,
     lqr_backward,
 )
-from lowcostdex.errors import ConfigError, LowcostdexError, check_fields, keyword_hints
+from lowcostdex.errors import (
+    ConfigError,
+    LowcostdexError,
+    check_fields,
+    check_number,
+    keyword_hints,
+)
 
 # Bounds of the per-iteration change of step_mult (the improvement model's validity range).
 STEP_CHANGE_MIN = 0.1
@@ -148,8 +154,9 @@ def kl_constrained_update(
     the bracket, but at most a factor 10 from the end just moved. If the search does not converge,
     the feasible controller with the largest KL found is returned (``converged=False``).
     """
-    if epsilon <= 0:
-        raise ConfigError(f"epsilon={epsilon} must be > 0")
+    check_number("epsilon (KL budget, nats)", epsilon, 0, low_open=True)
+    check_number("eta (dual variable)", eta, 0, low_open=True)
+    _check_sizes(dyn, cost, prev)
     lo, hi = cfg.min_eta, cfg.max_eta
     eta = float(np.clip(eta, lo, hi))
     best: TrajOptResult | None = None
@@ -181,6 +188,19 @@ def kl_constrained_update(
     return TrajOptResult(
         chosen.controller, chosen.eta, chosen.kl, epsilon, False, result.dual_iterations, pd_fixes
     )
+
+
+def _check_sizes(dyn: LinearGaussianDynamics, cost: QuadraticCost,
+                 prev: LinearGaussianController) -> None:
+    """ConfigError unless the model, the cost and the controller share T, dX and dU (before:
+    a numpy matmul error deep in the backward pass)."""
+    T, dU, dX = prev.K.shape
+    want = {"dynamics F": (dyn.F.shape, (T - 1, dX, dX + dU)),
+            "cost C": (np.shape(cost.C), (T, dX + dU, dX + dU))}
+    for name, (got, need) in want.items():
+        if got != need:
+            raise ConfigError(f"{name} has shape {got}; the controller (T={T}, dU={dU}, "
+                              f"dX={dX}) needs {need}")
 
 
 def step_mult_update(

@@ -27,6 +27,7 @@ from lowcostdex.algos.local_models.dynamics import (
     DynamicsConfig,
     GMMPrior,
     LinearGaussianDynamics,
+    check_rollouts,
     fit_dynamics,
     update_gmm_prior,
 )
@@ -130,8 +131,13 @@ def tvlg_iteration(
       ``epsilon``, ``eta``, ``step_mult``, ``dual_iterations``, ``converged``, ``pd_fixes``.
     """
     T = state.controller.T
+    X, U = check_rollouts(X, U, min_steps=2)
     if X.shape[1] != T or U.shape[1] != T:
         raise ConfigError(f"rollouts have {X.shape[1]} steps, the controller has {T}")
+    c = state.controller
+    if (X.shape[2], U.shape[2]) != (c.dX, c.dU):
+        raise ConfigError(f"rollouts of {X.shape[2]} states and {U.shape[2]} actions; the "
+                          f"controller has {c.dX} and {c.dU}")
     quad, sample_costs = average_expansion(cost, X, U)
     prior = state.prior
     if cfg.dynamics.use_prior:
