@@ -291,3 +291,112 @@ def test_a_kl_update_of_other_sizes_or_a_nan_budget_is_named():
                            (0.5, np.nan, r"eta \(dual variable\)=nan")):
         with pytest.raises(ConfigError, match=said + r" must be a finite number in \(0, inf\)"):
             kl_constrained_update(dyn, cost, ctl(T), eps, eta, TrajOptConfig())
+
+
+# -- fresh hunt: the main job from Python --------------------------------------------------------
+
+@pytest.mark.parametrize("kwargs,said", [
+    ({"size": "huge"}, r"unknown main job size 'huge'"),
+    ({"task": "valve_target"}, r"unknown main job task 'valve_target'.*did you mean "
+                               r"'valve-target'"),
+    ({"seed": -1}, r"Context.seed=-1 must be an integer in \[0, inf\)"),
+    ({"seed": "1"}, r"Context.seed='1' must be an integer"),
+    ({"port": 0}, r"Context.port=0 must be a serial port path"),
+    ({"out": None}, r"a file or folder path .* not NoneType"),
+])
+def test_a_main_job_context_with_a_careless_setting_is_refused_where_made(kwargs, said,
+                                                                          tmp_path):
+    # before: all taken; size 'huge' and task 'valve_target' failed with a KeyError inside the
+    # first stage that read them, a seed '1' in numpy's default_rng, port 0 was a robot port
+    from lowcostdex.main_job.setup import Context
+
+    with pytest.raises(ConfigError, match=said):
+        Context(**{"out": tmp_path, **kwargs})
+
+
+def test_the_main_job_from_python_refuses_stages_it_would_not_run(tmp_path):
+    # before: run(ctx, ("nope",)) ran no stage and wrote an empty report.md; a str was matched
+    # by substring ('train' ran train, 'bus,demo' ran bus only); out='folder' (a str) failed
+    # in the first stage writing results.json
+    from lowcostdex.main_job.job import run
+    from lowcostdex.main_job.setup import Context
+
+    ctx = Context(out=str(tmp_path / "run"))
+    assert ctx.out == tmp_path / "run"
+    for stages, said in ((("nope",), r"unknown stage 'nope'"), ("gap", r"stages='gap' must be "
+                         r"None \(every stage\) or a non-empty tuple of stage names, e.g. "
+                         r"\('gap',\); valid: bus, demos, gap, train, report"), ((), "stages=()")):
+        with pytest.raises(ConfigError, match=said):
+            run(ctx, stages)
+    assert not (tmp_path / "run").exists()
+
+
+# -- fresh hunt: the Allegro on its CAN bus ------------------------------------------------------
+
+def test_an_emulated_allegro_answers_on_the_device_id_its_bus_is_given():
+    # before: emulated_allegro(device_id=1) made a bus addressing hand 1 and an emulated hand 0:
+    # connect() said "no HAND_INFO reply from the Allegro within 1.0 s"
+    from lowcostdex.hardware.allegro.emulator import emulated_allegro
+
+    bus, emu, _ = emulated_allegro(device_id=1)
+    with bus:
+        state = bus.read_state()
+    emu.bus.shutdown()
+    assert emu.device_id == 1 and state.valid.all() and np.all(np.isfinite(state.position))
+
+
+@pytest.mark.parametrize("kwargs,said", [
+    ({"device_id": 2.5}, r"Allegro device_id \(the hand's 2-bit CAN id\)=2.5 must be an integer "
+                         r"in \[0, 3\]"),
+    ({"device_id": 4}, r"Allegro device_id \(the hand's 2-bit CAN id\)=4"),
+    ({"period_ms": 2.5}, r"period_ms \(pose streaming period, ms\)=2.5 must be an integer in "
+                         r"\[1, 100\]"),
+    ({"temperature_period_ms": -5}, r"temperature_period_ms \(0: no temperatures, the thermal "
+                                    r"guard blind\)=-5 must be an integer in \[0, 60000\]"),
+    ({"stale_after": float("nan")}, r"stale_after \[s\]=nan must be a finite number in "
+                                    r"\(0, inf\)"),
+    ({"stale_after": -1.0}, r"stale_after \[s\]=-1.0"),
+    ({"timeout": 0.0}, r"timeout \[s\]=0.0 must be a finite number in \(0, inf\)"),
+])
+def test_an_allegro_bus_with_a_careless_setting_is_refused_before_any_bus_opens(kwargs, said):
+    # before: device_id 2.5 failed at connect in a bit operation ("unsupported operand type(s)
+    # for |"), 4 at the first frame; period_ms 2.5 in struct.pack; temperature_period_ms -5 ran
+    # without temperatures (the thermal guard blind) and stale_after nan / -1 read every joint
+    # invalid, both without a word; timeout 0 gave up on the hand's first reply
+    import can
+
+    from lowcostdex.hardware.allegro.driver import AllegroBus
+
+    host = can.Bus(interface="virtual", channel="careless26")
+    try:
+        with pytest.raises(ConfigError, match=said):
+            AllegroBus(host, own_bus=True, **kwargs)
+    finally:
+        host.shutdown()
+
+
+# -- fresh hunt: the transfer loop's sizes from Python ----------------------------------------
+
+@pytest.mark.parametrize("change,said", [
+    ({"algos": "dapg"}, r"size: algos='dapg' must be a tuple of names, e.g. \('dapg',\)"),
+    ({"fingers": "ff"}, r"size: fingers='ff' must be a tuple of names, e.g. \('ff',\)"),
+    ({"n_traj": 2.5}, r"size: n_traj=2.5 must be an integer in \[1, inf\)"),
+    ({"seeds": "2"}, r"size: seeds='2' must be an integer in \[1, inf\)"),
+    ({"playbacks": -1}, r"size: playbacks=-1 must be an integer in \[0, inf\)"),
+    ({"eval_every": -5}, r"size: eval_every=-5 must be an integer in \[0, inf\)"),
+    ({"eval_every": 2, "eval_episodes": 0}, r"size: eval_every=2 evaluates with eval_episodes=0"),
+    ({"episodes": float("nan")}, r"size: episodes=nan must be an integer"),
+    ({"bc_epochs": -3}, r"size: bc_epochs=-3 must be an integer in \[1, inf\) or None"),
+    ({"id_seconds": "3"}, r"size: id_seconds \[s\]='3' must be a finite number in \(0, inf\)"),
+])
+def test_a_transfer_size_with_a_careless_setting_is_named(change, said):
+    # before: 'dapg' was read letter by letter ("unknown algo 'd'"); n_traj 2.5, seeds '2', a
+    # negative playbacks / eval_every, eval_episodes 0 with evaluations and bc_epochs -3 were
+    # taken (failing or running as none in the loop, hours in); NaN and '3' raised int()'s or
+    # '>''s own errors
+    import dataclasses
+
+    from lowcostdex.transfer.config import SIZES, Size
+
+    with pytest.raises(ConfigError, match=said):
+        Size(**{**dataclasses.asdict(SIZES["smoke"]), **change})

@@ -117,6 +117,7 @@ def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
 
     console = Console(stderr=True)
     order = tuple(name for name, _ in STAGES)
+    _check_stages(stages, order)
     chosen = order if stages is None else tuple(n for n in order if n in stages)
     open_job(ctx, chosen)
     console.print(_plan(ctx, chosen), soft_wrap=True, markup=False, highlight=False)
@@ -149,6 +150,20 @@ def run(ctx: Context, stages: tuple[str, ...] | None = None) -> Path:
     report.write_text(text)
     write_html(text, ctx.out / "report.html")
     return report
+
+
+def _check_stages(stages: object, order: tuple[str, ...]) -> None:
+    """``run``'s stages: None or a non-empty sequence of stage names (before: an unknown name
+    ran no stage and wrote an empty report; a str was matched by substring)."""
+    from lowcostdex.errors import ConfigError, check_choice
+
+    if stages is None:
+        return
+    if isinstance(stages, str) or not isinstance(stages, (tuple, list)) or not stages:
+        raise ConfigError(f"stages={stages!r:.60} must be None (every stage) or a non-empty "
+                          f"tuple of stage names, e.g. ('gap',); valid: {', '.join(order)}")
+    for s in stages:
+        check_choice("stage", s, order)
 
 
 CPU = {"smoke": "~4 min of CPU", "default": "~25 min of CPU on one core",

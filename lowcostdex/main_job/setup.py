@@ -253,6 +253,18 @@ class Context:
     task: str = DEFAULT_TASK
     results: dict[str, dict[str, Any]] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:  # the CLI checks its options; Python callers get the same
+        from lowcostdex.errors import check_choice, check_number
+        from lowcostdex.outdir import user_path
+
+        self.out = user_path(self.out)  # (a str: "runs/main" / "results.json" failed in a stage)
+        check_choice("main job size", self.size, SIZES)
+        check_choice("main job task", self.task, TASKS)
+        check_number("Context.seed", self.seed, 0, integer=True)
+        if self.port is not None and not isinstance(self.port, str):
+            raise ConfigError(f"Context.port={self.port!r} must be a serial port path (a str, "
+                              "e.g. '/dev/ttyUSB0') or None for the emulated D'Claw")
+
     @property
     def budget(self) -> Budget:
         return BUDGETS[self.size]

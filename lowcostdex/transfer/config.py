@@ -126,8 +126,24 @@ class Size:
     valve_fit: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
-        from lowcostdex.errors import ConfigError, check_choice
+        from lowcostdex.errors import ConfigError, check_choice, check_number
 
+        for name in ("algos", "conditions", "fingers", "valve_fingers"):  # 'dapg' is no list
+            v = getattr(self, name)
+            if not isinstance(v, (tuple, list)):
+                raise ConfigError(f"size: {name}={v!r:.60} must be a tuple of names, e.g. "
+                                  f"{(v,) if isinstance(v, str) else ('...',)!r}")
+        # (before: n_traj 2.5 and seeds '2' were taken and failed in the training loop, a
+        # negative playbacks / eval_every ran as none, bc_epochs -3 as no clone, NaN a raw error)
+        for name in ("robots", "seeds", "demos", "n_iter", "n_traj", "episodes", "id_logs"):
+            check_number(f"size: {name}", getattr(self, name), 1, integer=True)
+        for name in ("playbacks", "eval_every", "eval_episodes", "valve_episodes"):
+            check_number(f"size: {name}", getattr(self, name), 0, integer=True)
+        check_number("size: bc_epochs", self.bc_epochs, 1, integer=True, none_ok=True)
+        check_number("size: id_seconds [s]", self.id_seconds, 0, low_open=True)
+        if self.eval_every and not self.eval_episodes:
+            raise ConfigError(f"size: eval_every={self.eval_every} evaluates with "
+                              "eval_episodes=0 episodes; give eval_episodes >= 1 or eval_every=0")
         for a in self.algos:
             check_choice("algo", a, ALGOS)
         for c in self.conditions:
@@ -139,13 +155,8 @@ class Size:
                               f"fit's intervals are paired across episodes) with at least one "
                               f"valve finger, got {self.valve_episodes} and "
                               f"{self.valve_fingers}")
-        for name in ("robots", "seeds", "demos", "n_iter", "n_traj", "episodes", "id_logs"):
-            if int(getattr(self, name)) < 1:
-                raise ConfigError(f"size: {name} must be >= 1, got {getattr(self, name)}")
         if not self.algos or not self.conditions:
             raise ConfigError("size: give at least one algo and one condition")
-        if not (self.id_seconds > 0 and math.isfinite(self.id_seconds)):
-            raise ConfigError(f"size: id_seconds must be > 0 [s], got {self.id_seconds}")
 
     def budget(self) -> dict[str, Any]:
         """The settings that finished pieces were made with (a resume must keep them)."""

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_bool
+from lowcostdex.errors import ConfigError, check_bool, check_number
 from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.hardware.allegro import protocol as proto
 from lowcostdex.hardware.bus import BusError, CommandError, MotorBus, MotorState
@@ -155,6 +155,19 @@ def open_can_bus(interface: str, channel: str) -> can.BusABC:
                        f"interface up? sudo ip link set {channel} up type can bitrate 1000000"
                        ) from exc
 
+def _check_settings(device_id: object, period_ms: object, temperature_period_ms: object,
+                    stale_after: object, timeout: object) -> None:
+    """``AllegroBus``'s numbers, before any bus opens (before: device_id 2.5 and period_ms 2.5
+    failed at connect in a bit operation / struct.pack, a negative temperature period turned the
+    thermal guard blind, a NaN or negative stale_after read every joint invalid)."""
+    check_number("Allegro device_id (the hand's 2-bit CAN id)", device_id, 0, 3, integer=True)
+    check_number("period_ms (pose streaming period, ms)", period_ms, 1, 100, integer=True)
+    check_number("temperature_period_ms (0: no temperatures, the thermal guard blind)",
+                 temperature_period_ms, 0, 60_000, integer=True)
+    check_number("stale_after [s]", stale_after, 0, low_open=True)
+    check_number("timeout [s]", timeout, 0, low_open=True)
+
+
 class AllegroBus(MotorBus):
     """The Allegro v4 on a CAN bus.
 
@@ -189,8 +202,8 @@ class AllegroBus(MotorBus):
         self.ids = tuple(j.motor_id for j in self.hand.joints)
         if sorted(self.ids) != list(range(proto.N_JOINTS)):
             raise ConfigError("Allegro motor ids must be the joint indices 0..15")
-        if not 1 <= period_ms <= 100:
-            raise ConfigError(f"period_ms={period_ms} outside 1..100")
+        _check_settings(device_id, period_ms, temperature_period_ms, stale_after, timeout)
+        check_bool("threaded", threaded)
         self._bus = can_bus
         self._given = can_bus is not None  # not reopened by connect() after a shutdown
         self._closed = False

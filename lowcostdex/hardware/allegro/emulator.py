@@ -33,7 +33,7 @@ import can
 import mujoco
 import numpy as np
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_number
 from lowcostdex.hands import HandSpec, allegro_spec
 from lowcostdex.hardware.allegro import protocol as proto
 from lowcostdex.hardware.ringlog import RingLog
@@ -91,6 +91,7 @@ class EmulatedAllegro:
                  device_id: int = 0, effects: Sequence[AppliedEffect] = (),
                  thermal: AllegroThermal = AllegroThermal(),
                  rng: np.random.Generator | None = None, torques_kept: int = TORQUES_KEPT):
+        check_number("Allegro device_id (the hand's 2-bit CAN id)", device_id, 0, 3, integer=True)
         self.hand = hand or allegro_spec()
         self.plant = Plant(model, effects=effects, rng=rng)
         m = self.plant.model
@@ -340,9 +341,15 @@ def emulated_allegro(model: mujoco.MjModel | None = None, *, channel: str | None
         model = build_allegro("none").compile()
     channel = channel or f"lowcostdex-allegro-{id(model):x}-{time.monotonic_ns()}"
     emulator = EmulatedAllegro(model, channel=channel, hand=bus_kwargs.get("hand"),
+                               device_id=bus_kwargs.get("device_id", 0),  # (was always 0)
                                effects=effects, thermal=thermal, rng=rng)
     clock = LockstepClock(emulator)
-    bus = AllegroBus(can.Bus(interface="virtual", channel=channel), threaded=False, clock=clock,
-                     own_bus=True, **bus_kwargs)
+    host = can.Bus(interface="virtual", channel=channel)
+    try:
+        bus = AllegroBus(host, threaded=False, clock=clock, own_bus=True, **bus_kwargs)
+    except Exception:  # a refused setting: no virtual bus left open
+        host.shutdown()
+        emulator.bus.shutdown()
+        raise
     clock.attach(bus)
     return bus, emulator, clock
