@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import shlex
 import sys
 import traceback
 from collections.abc import Callable, Sequence
@@ -110,6 +111,9 @@ def unrecognized(parser: argparse.ArgumentParser, extra: Sequence[str],
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    words = _argv_words(argv)
+    if words is not None:
+        return _report("lowcostdex", words, False, USER_ERROR)
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)
@@ -134,6 +138,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif isinstance(value, list):
             setattr(args, dest, [home(v) if isinstance(v, str) else v for v in value])
     return guarded(prog, lambda: args.func(args), debug)
+
+
+def _argv_words(argv: object) -> str | None:
+    """What is wrong with ``main(argv)``'s words from Python, or None: a str was read letter by
+    letter ("invalid choice: 's'" for "scan --help"), a number failed in argparse."""
+    if argv is None:
+        return None
+    if isinstance(argv, str):
+        try:
+            split = shlex.split(argv)
+        except ValueError:  # an unclosed quote
+            split = argv.split()
+        return (f"main(argv) takes the words of a command as a list, e.g. main({split!r:.80}) "
+                f"(shlex.split of the line), not one str")
+    if not isinstance(argv, Sequence):
+        return f"main(argv) takes a list of words, not {type(argv).__name__}"
+    for i, w in enumerate(argv):
+        if not isinstance(w, str):
+            return (f"main(argv): argv[{i}]={w!r:.40} is not a str; give every word as typed "
+                    f"in a shell, e.g. {str(w)!r}")
+    return None
 
 
 def guarded(prog: str, call: Callable[[], object], debug: bool = False,

@@ -400,3 +400,23 @@ def test_a_transfer_size_with_a_careless_setting_is_named(change, said):
 
     with pytest.raises(ConfigError, match=said):
         Size(**{**dataclasses.asdict(SIZES["smoke"]), **change})
+
+
+# -- fresh hunt: entry points called from Python -----------------------------------------------
+
+@pytest.mark.parametrize("argv,said", [
+    ("scan --help", r"main\(argv\) takes the words of a command as a list, e.g. "
+                    r"main\(\['scan', '--help'\]\) \(shlex.split of the line\), not one str"),
+    (["main", "--seed", 3], r"main\(argv\): argv\[2\]=3 is not a str; give every word as typed "
+                            r"in a shell, e.g. '3'"),
+    (5, r"main\(argv\) takes a list of words, not int"),
+])
+def test_the_command_line_from_python_names_argv_that_is_no_list_of_words(argv, said, capsys):
+    # before: a str was read letter by letter ("invalid choice: 's'"), a number in the list
+    # raised argparse's TypeError "'int' object is not subscriptable", an int "not iterable"
+    import re
+
+    from lowcostdex.cli import main
+
+    assert main(argv) == 2
+    assert re.search(r"lowcostdex: error: " + said, capsys.readouterr().err)
