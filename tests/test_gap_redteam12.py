@@ -36,7 +36,8 @@ FAST: frozenset[str] = frozenset()
 # what the analysis named instead, per case it misses (bench/gap_redteam12.py --threads 1 on the
 # commit named; CPU: the analysis's user + sys). Named exactly: grip_offset (mounting_offset
 # 2.869 mm [2.686, 3.066] for 2.92, named forward in round 1, 386 s, gap-sim16 session 28 on
-# its paired_low block rule; a strict xfail from 5a6e8c9: viscous_damping named since
+# its paired_low block rule at RESOLVE 0.75; the same numbers at 0.375 on 502c02d, 384 s,
+# gap-sweep24; a strict xfail from 5a6e8c9: viscous_damping named since
 # 96768eb, the offset's 55 % select gain bounded at -0.17 %), latency (40.55 ms [39.84, 41.6] and 40.25
 # [39.67, 40.51] for 40.1, 138 s, 96768eb), finger_offset (-0.06687 rad [-0.06706, -0.06677]
 # for -0.0669, 257 s, 96768eb), finger_friction (0.07582 N m [0.07402, 0.07702] for 0.0748,
