@@ -5,7 +5,9 @@ of ``--calls`` calls, for
   - raw ``mujoco.mj_step(model, data, nstep)`` with ``data.ctrl`` written (the floor);
   - ``Plant.step(goal, nstep)`` (the public call: goal shape / finiteness and nstep checked);
   - ``Plant.step_unchecked(goal, nstep)`` when the code has it (the replay's and envs' path);
-  - the same three for a ``BatchPlant`` of ``--nsim`` simulations (raw: ``Batch.step``).
+  - the same three for a ``BatchPlant`` of ``--nsim`` simulations (raw: ``Batch.step``);
+  - the emulated D'Claw's ``PlantDrive.step`` (its physics step behind the wire; compare two
+    commits: the unchecked step is its only change).
 Process time (CPU seconds), not wall time: the machine is shared.
 
   OMP_NUM_THREADS=1 nice -n 5 python bench/plant_step_check.py [--nstep 1 20] [--repeats 7]
@@ -64,6 +66,11 @@ def _calls(model, nstep: int, nsim: int, rng: np.random.Generator) -> list:
     if hasattr(batch, "step_unchecked"):
         rows.append((f"BatchPlant.step_unchecked x{nsim}",
                      lambda: batch.step_unchecked(goals, nstep)))
+    if nstep == 1:  # the emulated robot's physics step (one substep per call)
+        from lowcostdex.hardware.emulated.chain import emulated_dclaw
+
+        drive = emulated_dclaw().drive
+        rows.append(("emulated D'Claw PlantDrive.step", drive.step))
     return rows
 
 
@@ -91,7 +98,7 @@ def main() -> None:
         for name, fn in rows:
             calls = max(args.calls // (nstep * (args.nsim if "x" in name else 1)) * 4, 50)
             us = best_us(fn, calls, args.repeats)
-            key = "batch" if "Batch" in name else "one"
+            key = "batch" if "Batch" in name else "drive" if "Drive" in name else "one"
             floor.setdefault(key, us)
             print(f"{name:30s} {nstep:5d} {us:9.2f} {us - floor[key]:+10.2f}")
 

@@ -420,3 +420,17 @@ def test_the_command_line_from_python_names_argv_that_is_no_list_of_words(argv, 
 
     assert main(argv) == 2
     assert re.search(r"lowcostdex: error: " + said, capsys.readouterr().err)
+
+
+def test_the_emulated_robot_refuses_a_goal_its_unchecked_step_would_zero():
+    # the drive's physics step is now unchecked; before, a NaN goal given to set_goal reached
+    # Plant.step and was refused at the next physics step, far from the call that set it
+    from lowcostdex.hardware.emulated.chain import emulated_bench
+
+    drive = emulated_bench().drive
+    for bad in (float("nan"), float("inf"), 1e12):
+        with pytest.raises(ConfigError, match=rf"servo 0's goal {bad!r} \[rad\] must be a finite"):
+            drive.set_goal(0, bad)
+    drive.set_goal(0, 0.5)
+    drive.step()
+    assert drive.goal[drive.acts[0]] == 0.5

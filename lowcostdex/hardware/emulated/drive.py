@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from lowcostdex.errors import ConfigError, check_number
+from lowcostdex.errors import MAX_CONTROL, ConfigError, check_number
 from lowcostdex.sim import servo
 from lowcostdex.sim.plant import Plant
 from lowcostdex.sim.servo import servo_supply_voltage
@@ -125,6 +125,8 @@ class PlantDrive:
         """Servo ``index``'s setpoint becomes ``q`` [rad] ``after`` (0..1) of the way into the
         coming physics step: the step is driven by the time-weighted mean of the setpoints in
         force during it."""
+        if not abs(q) <= MAX_CONTROL:  # (the step below is unchecked: NaN zeroes every control)
+            raise ConfigError(f"servo {index}'s goal {q!r} [rad] must be a finite number")
         a = self.acts[index]
         self._step_goal[a] += (1.0 - after) * (q - self.goal[a])
         self.goal[a] = q
@@ -191,8 +193,9 @@ class PlantDrive:
         dt = opt.timestep
         if h is not None and h != dt:
             opt.timestep = h
-        try:
-            self.plant.step(goal, 1, channels)
+        try:  # goals from set_goal (checked), an imperfection's through the checked step
+            (self.plant.step if self.imperfection is not None else self.plant.step_unchecked)(
+                goal, 1, channels)
         finally:
             opt.timestep = dt
         self._step_goal[:] = self.goal
