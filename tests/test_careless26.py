@@ -434,3 +434,26 @@ def test_the_emulated_robot_refuses_a_goal_its_unchecked_step_would_zero():
     drive.set_goal(0, 0.5)
     drive.step()
     assert drive.goal[drive.acts[0]] == 0.5
+
+
+def test_the_transfer_loop_refuses_a_size_or_override_it_would_fail_on_hours_later(tmp_path):
+    # before: run(out, None) raised AttributeError ('NoneType' object has no attribute
+    # 'robots'); a misspelt gap override ran the demos and the identification logs, then
+    # failed in the gap stage; a misspelt valve_fit key failed after the valve episodes
+    # (made_for=() stops the code before at its own check, before any work)
+    import dataclasses
+
+    from lowcostdex.errors import KeywordError
+    from lowcostdex.transfer.config import SIZES, Size, size_with
+    from lowcostdex.transfer.loop import run
+
+    with pytest.raises(ConfigError, match=r"size=None must be a transfer Size or one of smoke, "
+                                          r"default, long"):
+        run(tmp_path / "t", None, made_for=())
+    with pytest.raises(KeywordError, match=r"GapConfig has no setting 'max_efects'.*did you "
+                                           r"mean max_effects"):
+        run(tmp_path / "t", size_with("smoke", gap=(("max_efects", 1),)), made_for=())
+    with pytest.raises(ConfigError, match=r"unknown size valve_fit setting 'gird'; valid: grid, "
+                                          r".*did you mean 'grid'"):
+        Size(**{**dataclasses.asdict(SIZES["smoke"]), "valve_fit": (("gird", 3),)})
+    assert not (tmp_path / "t").exists()

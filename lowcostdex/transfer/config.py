@@ -33,6 +33,9 @@ EXTEND = 2
 CPU_FILE = "transfer_cpu.json"  # in a run folder: the CPU seconds its training took here
 VALVE_FIT_FILE = "valve_fit.json"  # in identify/ROBOT: the valve-log fit (``transfer.valve_fit``)
 OUTPUTS = ("table.md", "transfer.json", "transfer.png", "identified.json")
+VALVE_FIT_OPTIONS = ("grid", "starts", "iterations", "profile_half", "profile_points",
+                     "profile_iterations", "max_step")
+"""``Size.valve_fit`` keys: ``tilt_joint.fit_tilt_jointly`` settings (``grid``: points per axis)."""
 
 
 @dataclass(frozen=True)
@@ -126,7 +129,7 @@ class Size:
     valve_fit: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
-        from lowcostdex.errors import ConfigError, check_choice, check_number
+        from lowcostdex.errors import ConfigError, check_choice, check_keys, check_number
 
         for name in ("algos", "conditions", "fingers", "valve_fingers"):  # 'dapg' is no list
             v = getattr(self, name)
@@ -141,6 +144,8 @@ class Size:
             check_number(f"size: {name}", getattr(self, name), 0, integer=True)
         check_number("size: bc_epochs", self.bc_epochs, 1, integer=True, none_ok=True)
         check_number("size: id_seconds [s]", self.id_seconds, 0, low_open=True)
+        # (a misspelt key failed in fit_tilt_jointly, after the valve episodes were recorded)
+        check_keys("size valve_fit setting", [k for k, _ in self.valve_fit], VALVE_FIT_OPTIONS)
         if self.eval_every and not self.eval_episodes:
             raise ConfigError(f"size: eval_every={self.eval_every} evaluates with "
                               "eval_episodes=0 episodes; give eval_episodes >= 1 or eval_every=0")

@@ -324,15 +324,21 @@ def run(out: str | Path, size: Size, task_name: str = "valve", robot_seed: int =
     """
     size = size_with(size) if isinstance(size, str) else size  # a name, as --size takes it
     from lowcostdex.errors import ConfigError, check_choice
+    from lowcostdex.gap import GapConfig
     from lowcostdex.hands import dclaw_spec
-    from lowcostdex.outdir import archive
+    from lowcostdex.outdir import archive, user_path
+
+    if not isinstance(size, Size):  # (before: AttributeError deep in the loop)
+        raise ConfigError(f"size={size!r:.60} must be a transfer Size or one of "
+                          f"{', '.join(SIZES)} (e.g. size_with('smoke', seeds=2))")
+    GapConfig(seed=0, **dict(size.gap))  # a misspelt override, before hours of robot time
 
     check_choice("task", task_name, tuple(TASKS))
     if not (0.0 <= start_range <= math.pi and math.isfinite(start_range)):
         raise ConfigError(f"start_range must be in [0, pi] rad, got {start_range}")
     if start_range and task_name == "valve-random":
         raise ConfigError("start_range: valve-random already starts anywhere within +-60 deg")
-    out = Path(out)
+    out = user_path(out)  # ("~/runs/t" went to ./~/runs/t; None a TypeError)
     task = TASKS[task_name]
     train_task = task.training(start_range)
     robots = make_robots(size.robots, robot_seed, port, latency_ms)
