@@ -457,3 +457,20 @@ def test_the_transfer_loop_refuses_a_size_or_override_it_would_fail_on_hours_lat
                                           r".*did you mean 'grid'"):
         Size(**{**dataclasses.asdict(SIZES["smoke"]), "valve_fit": (("gird", 3),)})
     assert not (tmp_path / "t").exists()
+
+
+def test_a_policy_snapshot_refuses_noise_it_would_broadcast():
+    # before: act(obs, 0.5) or a (1,) noise shifted every action by one draw without a word
+    import re
+
+    from lowcostdex.algos.policy import GaussianMLPPolicy
+
+    snap = GaussianMLPPolicy(3, 2).snapshot()
+    obs, noise = np.zeros(3), np.array([0.3, -0.2])
+    assert np.array_equal(snap.act(obs, noise), snap.mean(obs) + snap.std * noise)
+    for bad in (0.5, np.array([0.5]), np.zeros(3)):
+        with pytest.raises(ValueError, match=re.escape(f"noise of shape {np.shape(bad)}") +
+                           r"; this policy "
+                                             r"draws \(2,\) \(one standard-normal number per "
+                                             r"action\), or None for the mean action"):
+            snap.act(obs, bad)

@@ -57,4 +57,10 @@ class PolicySnapshot:
           noise: (act_dim,) standard-normal draw, or None for the deterministic action.
         """
         mean = self.mean(obs)
-        return mean if noise is None else mean + self.std * noise
+        if noise is None:
+            return mean
+        if np.shape(noise) != self.std.shape:  # a scalar or (1,) noise was broadcast
+            raise ValueError(f"noise of shape {np.shape(noise)}; this policy draws "
+                             f"{self.std.shape} (one standard-normal number per action), or "
+                             "None for the mean action")
+        return mean + self.std * noise
