@@ -315,6 +315,22 @@ def check_rows(name: str, value: object, width: int | None, what: str,
     return int(a.shape[0])
 
 
+def check_indices(name: str, value: object, n: int, what: str) -> np.ndarray:
+    """``value`` as an int array of indices in [0, n), else ConfigError naming the first bad
+    one and ``what`` they index (a boolean mask was read as indices 0/1, -1 as the last one,
+    7 of 2 a bare IndexError, 'a' int()'s ValueError)."""
+    a = np.asarray(value)
+    if a.size and a.dtype.kind not in "iu":
+        raise ConfigError(f"{name}={value!r:.60} must be integer indices of the {n} {what} "
+                          f"(0 .. {n - 1})")
+    a = a.astype(int).reshape(-1) if a.ndim != 1 else a.astype(int)
+    bad = a[(a < 0) | (a >= n)]
+    if bad.size:
+        raise ConfigError(f"{name}: index {int(bad[0])} is not one of the {n} {what} "
+                          f"(0 .. {n - 1})")
+    return a
+
+
 def check_rng(name: str, value: object) -> object:
     """``value`` when it is None or a ``np.random.Generator``, else ConfigError saying what to
     pass (a seed 0 was kept and failed at the first draw, deep inside: 'int' object has no

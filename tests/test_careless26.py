@@ -474,3 +474,35 @@ def test_a_policy_snapshot_refuses_noise_it_would_broadcast():
                                              r"draws \(2,\) \(one standard-normal number per "
                                              r"action\), or None for the mean action"):
             snap.act(obs, bad)
+
+
+@pytest.mark.parametrize("actuators,enabled,said", [
+    ([0], "no", r"enabled='no' must be True or False"),
+    ([5], False, r"actuators: index 5 is not one of the 2 actuators \(0 \.\. 1\)"),
+    ([-1], False, r"actuators: index -1 is not one of the 2 actuators"),
+    (np.array([True, False]), False, r"actuators=array\(\[ True, False\]\) must be integer "
+                                     r"indices of the 2 actuators"),
+    (["a"], False, r"actuators=\['a'\] must be integer indices"),
+])
+def test_a_plant_torque_switch_with_careless_arguments_is_refused(actuators, enabled, said):
+    # before: 'no' switched the torque ON (a non-empty str is truthy), a boolean mask was read
+    # as the indices 1 and 0, -1 switched the last actuator, 5 a bare IndexError, 'a' int()'s
+    # ValueError
+    from lowcostdex.sim.plant import Plant
+
+    plant = Plant(mujoco.MjModel.from_xml_string(_TWO))
+    with pytest.raises(ConfigError, match=said):
+        plant.set_torque_enabled(actuators, enabled)
+    assert plant.torque_enabled().all()
+    plant.set_torque_enabled(np.int64(1), np.bool_(False))  # numpy scalars: taken
+    assert plant.torque_enabled().tolist() == [True, False]
+
+
+def test_a_batch_plant_of_a_fractional_number_of_simulations_is_refused():
+    # before: BatchPlant(model, 2.5) failed in mujoco.batch's constructor ("incompatible
+    # constructor arguments") listing its C++ signatures
+    with pytest.raises(ConfigError, match=r"nsim \(simulations\)=2.5 must be an integer in "
+                                          r"\[1, inf\)"):
+        from lowcostdex.sim.plant import BatchPlant
+
+        BatchPlant(mujoco.MjModel.from_xml_string(_TWO), 2.5, nthread=1)

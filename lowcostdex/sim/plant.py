@@ -40,6 +40,7 @@ import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
+from lowcostdex import errors
 from lowcostdex.errors import ConfigError, PhysicsError, check_count, check_finite_array, check_rng
 from lowcostdex.sim import servo
 from lowcostdex.sim.effects import EFFECTS, AppliedEffect, Effect, Targets
@@ -254,7 +255,8 @@ class _PlantBase:
     def set_torque_enabled(self, actuators: Sequence[int] | np.ndarray, enabled: bool,
                            sims: np.ndarray | None = None) -> None:
         """Servo torque on/off (off = free-wheeling bridge: zero actuator force)."""
-        idx = np.asarray(actuators, dtype=int)
+        idx, enabled = errors.check_indices("actuators", actuators, self.model.nu, "actuators"), (
+            errors.flag("enabled", enabled))  # ('no' turned torque ON; a mask was indices 0/1)
         if self._lead:
             rows = np.arange(self._lead[0]) if sims is None else np.asarray(sims)
             self._torque_on[np.ix_(rows, idx)] = enabled
@@ -565,8 +567,7 @@ class BatchPlant(_PlantBase):
                  effects: Sequence[AppliedEffect] | Sequence[Sequence[AppliedEffect]] = (),
                  nthread: int = 0, rng: np.random.Generator | None = None,
                  servo_period: float = 0.0):
-        if nsim < 1:
-            raise ConfigError("nsim must be >= 1")
+        errors.check_number("nsim (simulations)", nsim, 1, integer=True)  # 2.5: mujoco's TypeError
         self._base_model = model
         self.model = copy.copy(model)
         self.batch = mjbatch.Batch(self.model, nsim=nsim, nthread=nthread)
