@@ -434,14 +434,17 @@ def test_a_failed_read_is_dropped_and_the_log_cut_only_where_the_goal_is_unknown
 
 
 def test_joints_no_effect_can_act_on_are_named(tmp_path):
-    """A tendon-driven joint and a joint under two actuators replay as modelled; the analysis
-    says no candidate effect is placed on them. A free joint (a floating object) and joints
-    without limits need no word."""
-    for kind, note in (("tendon", "joint 'elbow' is driven by tendon elbow_t"),
-                       ("two actuators", "joint 'elbow' is driven by 2 actuators")):
+    """A joint under two actuators replays as modelled; the analysis says no candidate effect is
+    placed on it. A joint driven through one tendon's actuator carries effects (gap-tendon,
+    session 29: its servo's on the actuator; before, none) and the note says how. A free joint
+    (a floating object) and joints without limits need no word."""
+    for kind, note, joints in (
+            ("tendon", "joint 'elbow' is driven through tendon elbow_t: the servo's effects act "
+             "on that actuator's own coordinate", ("shoulder", "elbow")),
+            ("two actuators", "joint 'elbow' is driven by 2 actuators", ("shoulder",))):
         ds = _load(tmp_path, arm_log(kind, 3.0), model=arm_xml(kind))
         assert len(ds.notes) == 1 and ds.notes[0].startswith(note), ds.notes
-        assert ds.effect_joints == ("shoulder",)
+        assert ds.effect_joints == joints
     assert _load(tmp_path, arm_log("free joint", 3.0), model=arm_xml("free joint")).notes == []
 
 
@@ -459,7 +462,7 @@ def test_a_model_s_own_logs_analyse_to_no_discrepancy(kind, tmp_path):
                 "latency,coulomb_friction"), tmp_path)
     assert run.returncode == 0, run.stderr
     assert "Traceback" not in run.stderr
-    assert "lowcostdex gap analyze: note: joint 'elbow' is driven by" in run.stderr
+    assert "lowcostdex gap analyze: note: joint 'elbow' is driven " in run.stderr
     report = json.loads((tmp_path / "report" / "report.json").read_text())
     assert report["causes"] == []
     assert report["joints"] == ["shoulder", "elbow"]

@@ -44,13 +44,31 @@ FAST: frozenset[str] = frozenset()
 # 67.8 -> 47.4 mrad, CI [12.9, 27.5], 'something beyond the named causes is at work' (76 s).
 # Not run yet (no mark): link_backlash (stopped unfinished at 640 s CPU on f8ccac6), link_mass,
 # link_latency_friction.
-REFUSED = ("refused on 811d2cc (exit 2, 1 s CPU): 'no measured joint is driven by exactly one "
-           "actuator; the gap analysis needs position-servo joints', after a note per joint "
-           "('driven by tendon flex: ... no candidate effect is placed on it'); effects act only "
-           "on joints with one joint actuator (docs/gap_analysis.md), so a finger driven by a "
-           "tendon is not analysed at all (the refusal now says so joint by joint: "
-           "test_a_tendon_driven_finger_is_refused_naming_its_tendon)")
-MISSES: dict[str, str] = {c.name: REFUSED for c in sim.CASES if c.rig == "tendon finger"}
+# The tendon rig on gap-tendon (session 29: the servo's effects on the actuator ``flex``, the
+# joints' on mcp and pip; before it, every tendon case was refused, exit 2): clean_a clean
+# (nothing to explain, 1.34 mrad, 5 s), gain exact (flex 1.636 [1.613, 1.662] for 1.631, 13.43 ->
+# 2.00 mrad, 27 s). The common extra below: a dry friction of ~0.0005 N m on the mcp (a quarter of
+# the model's 0.002) that the clean truth itself carries against the user's MJCF (not traced).
+EXTRA_MCP = ("named with a small coulomb_friction on the mcp (~0.0005 N m, a quarter of the "
+             "model's own) that the clean truth carries against the user's MJCF (clean_b)")
+MISSES: dict[str, str] = {
+    "clean_b": "false on gap-tendon: coulomb_friction mcp 0.00059 N m [0.00042, 0.00072] (1.37 -> "
+               "1.06 mrad, CI [0.05, 0.53]; 33 s); the clean truth replays 1.8 mrad (3 floors) "
+               "off the user's MJCF at 1 ms",
+    "latency": "extra on gap-tendon: latency flex 46.9 ms [43.3, 48.3] for 45.9 (30.06 -> 1.08 "
+               "mrad, 36 s), " + EXTRA_MCP,
+    "offset": "extra on gap-tendon: position_offset mcp -0.1169 [-0.1172, -0.1166] for -0.1168 "
+              "(67.25 -> 0.94 mrad, 138 s), " + EXTRA_MCP,
+    "friction": "miss on gap-tendon: viscous_damping named (3.63 -> 2.89 mrad, no reliable gain; "
+                "90 s); coulomb_friction fitted pip 0.0058 N m for +0.0223 (select gain 34 %): "
+                "a pip's dry friction on the underactuated direction is not the model's "
+                "frictionloss at its step (not traced)",
+    "mass": "family on gap-tendon: position_offset + gain_error[flex] named (24.65 -> 7.98 mrad, "
+            "150 s) for the distal phalanx's mass x2.35: the dip (no actuator, coupled to the pip) "
+            "is no effect joint, so mass_error can act only on the mcp and pip links",
+    "backlash": "not offered on a tendon model: a horn's play needs a joint between the servo "
+                "and the tendon (gap.offer.TENDON_WHY); not run",
+}  # not run yet (no mark): stretch (outside the catalogue)
 
 G = 9.81
 E, C = sim.Effect, sim.Case
@@ -297,24 +315,3 @@ def test_the_linkage_logs_as_the_user_writes_them(tmp_path):
         "time,goal:mcp,goal:pip,qpos:mcp,qpos:pip,qpos:dip"
     m = mujoco.MjModel.from_xml_string(pathlib.Path(files["model"]).read_text())
     assert [m.actuator(i).name for i in range(m.nu)] == ["mcp", "pip"] and m.neq == 1
-
-
-def test_a_tendon_driven_finger_is_refused_naming_its_tendon(tmp_path):
-    """Every measured joint of the tendon finger is driven through the tendon ``flex`` (the dip
-    by nothing: it follows the pip through the equality), so no candidate effect has a joint to
-    act on: the refusal says so joint by joint and that a tendon-driven model is not analysed
-    (on 811d2cc it read only 'no measured joint is driven by exactly one actuator; the gap
-    analysis needs position-servo joints', beside a position-servo model). The linkage rig's
-    mcp and pip carry the effects; its dip none."""
-    from lowcostdex.gap.dataset import load_dataset
-    from lowcostdex.gap.trajectory import LogError
-
-    files = sim.write_case(C("refused", (), (1.0,), 3), tmp_path / "t")
-    ds = load_dataset(files["logs"], model=files["model"])
-    with pytest.raises(LogError) as err:
-        ds.effect_joints  # noqa: B018
-    msg = str(err.value)
-    assert "'mcp' through tendon flex" in msg and "'pip' through tendon flex" in msg, msg
-    assert "'dip' by no joint actuator" in msg and "tendon-driven model is not analysed" in msg, msg
-    files = sim.write_case(C("link", (), (1.0,), 3, rig="linkage finger"), tmp_path / "l")
-    assert load_dataset(files["logs"], model=files["model"]).effect_joints == ("mcp", "pip")

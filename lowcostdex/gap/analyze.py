@@ -80,6 +80,7 @@ from lowcostdex.gap.results import (
     GapResult,
     bound_flags,
     param_report,
+    servo_keyed,
 )
 from lowcostdex.gap.selection import fit_batches, mse_by_episode, probe_gains, select_results
 from lowcostdex.gap.selection import nothing_to_explain as _nothing_left
@@ -91,7 +92,6 @@ __all__ = ["UNEXPLAINED", "CandidateResult", "Cause", "GapConfig", "GapResult", 
            "available_candidates"]
 
 Progress = Callable[[str, float], None]
-
 
 class _Engine:
     """Replays and residuals shared by the stages of one analysis."""
@@ -524,7 +524,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 c.flags += uncapped_velocity(ds, e.joints, c.params)
             c.equivalent = equivalents.get(e.name, [])
             c.widened = widened_notes.get(e.name) or gates.widened_lines(ctx, e.name, joints)
-            causes.append(c)
+            causes.append(servo_keyed(c, m0, targets))
     final = eng.predict(eps, [effects])[0] if effects else base_pred  # every log, for a drift
     drift = session_drift(per_log(ds, eps, final), floor_rms, cfg.explain_above)
     verdict = standin.judge(causes, final_track, gain, stop_reason, int(np.sum(e_sse > b_sse)),

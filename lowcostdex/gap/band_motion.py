@@ -35,6 +35,7 @@ import numpy as np
 
 from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.diagnostics import noise_floor
+from lowcostdex.sim.effects.base import driving_actuator
 from lowcostdex.sim.effects.deadband import torque_motor
 
 WINDOW = 0.03  # [s] half-width of the local quadratic (at least ``MIN_HALF`` rows)
@@ -183,10 +184,9 @@ def _name(m: mujoco.MjModel, a: int) -> str:
 
 
 def actuator_of(m: mujoco.MjModel, joint: str) -> int:
-    """The one actuator driving ``joint`` (an effect joint has exactly one)."""
-    jid = m.joint(joint).id
-    return int(np.flatnonzero((m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
-                              & (m.actuator_trnid[:, 0] == jid))[0])
+    """The one actuator driving ``joint`` (an effect joint has exactly one: on it, or a
+    tendon's over it)."""
+    return driving_actuator(m, joint)
 
 
 def is_motor(m: mujoco.MjModel, a: int) -> bool:

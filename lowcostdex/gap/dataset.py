@@ -116,16 +116,16 @@ class Dataset:
 
     @property
     def effect_joints(self) -> tuple[str, ...]:
-        """Measured joints driven by exactly one actuator: where candidate effects can act."""
+        """Measured joints driven by exactly one actuator, on the joint or (none there) on one
+        tendon over it (a servo shared by the joints its cable crosses): where effects act."""
         m = self.compiled(self.trajectories[0].model)
         drive = {j: _drive(m, m.joint(j).id) for j in self.joints}
-        out = [j for j in self.joints if drive[j][0] == 1]
+        out = [j for j in self.joints if drive[j][0] == 1 or (drive[j][0], len(drive[j][1])) == (0, 1)]
         if not out:
-            how = "; ".join(f"{j!r} " + (f"through tendon {', '.join(via)}" if via else
+            how = "; ".join(f"{j!r} " + (f"through tendons {', '.join(via)}" if via else
                                         f"by {n or 'no'} joint actuator{'s' * (n != 1)}")
                             for j, (n, via) in drive.items())
-            raise LogError(f"no measured joint is driven by exactly one joint actuator ({how}): effects"
-                           " act on joints with a servo of their own; a tendon-driven model is not analysed")
+            raise LogError(f"no measured joint is driven by exactly one actuator ({how}): effects act on joints with one servo of their own or on one tendon")
         return tuple(out)
 
     @property
@@ -156,8 +156,6 @@ class Dataset:
             models[key] = spec.to_xml()
         return Dataset(models, self.trajectories, list(self.sources), list(self.notes),
                        self.servo_period)
-
-
 
 
 MAX_BENCH_TIMESTEP = 0.05
@@ -371,16 +369,18 @@ def _drive(m: mujoco.MjModel, jid: int) -> tuple[int, list[str]]:
 
 
 def _unshared_joints(ds: Dataset) -> list[str]:
-    """Notes on measured joints that actuators drive other than one joint actuator each (two
-    actuators, a tendon): they replay as modelled, but no candidate effect is placed on them."""
+    """Notes on measured joints that no candidate effect is placed on (two actuators, several
+    tendons) and on joints driven through one tendon's servo (its effects are the actuator's)."""
     m = ds.compiled(ds.trajectories[0].model)
     notes = []
     for j in ds.joints:
         n, via = _drive(m, m.joint(j).id)
-        if n > 1 or via:
-            how = " and ".join([f"{n} actuators"] * (n > 1) + [f"tendon {', '.join(via)}"] * bool(via))
+        if n == 0 and len(via) == 1:
+            notes.append(f"joint {j!r} is driven through tendon {via[0]}: the servo's effects act on that actuator's own coordinate, the joint's on the joint")
+        elif n > 1 or via:
+            how = " and ".join([f"{n} actuators"] * (n > 1) + [f"tendons {', '.join(via)}"] * bool(via))
             notes.append(f"joint {j!r} is driven by {how}: it replays as modelled, but no candidate "
-                         "effect is placed on it (effects act on joints with one joint actuator)")
+                         "effect is placed on it (effects act on joints with one actuator)")
     return notes
 
 

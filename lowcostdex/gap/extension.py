@@ -70,8 +70,8 @@ def bake_mjcf(xml: str, effects: Sequence[AppliedEffect]) -> tuple[str, list[str
         except ValueError:
             continue
         if e.name == "latency":
-            t = Targets.resolve(model, e.joints)
-            for a, d in zip(t.actuators, e.values["delay"], strict=True):
+            t, (delay,) = Targets.resolve(model, e.joints).servos((), e.values["delay"])
+            for a, d in zip(t.actuators, delay, strict=True):  # (a tendon's servo: once)
                 spec.actuator(model.actuator(int(a)).name).delay = float(d)
         xml = spec.to_xml()
         baked.append(e.name)

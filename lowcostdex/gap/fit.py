@@ -628,5 +628,6 @@ def servo_facts(model, actuators: np.ndarray) -> dict[str, np.ndarray]:  # Conte
     jnt = model.actuator_trnid[actuators, 0]
     slide = (model.actuator_trntype[actuators] == int(mujoco.mjtTrn.mjTRN_JOINT)) & (
         model.jnt_type[np.maximum(jnt, 0)] == int(mujoco.mjtJoint.mjJNT_SLIDE))
+    shared = np.array([a in actuators[:i] for i, a in enumerate(actuators)], bool)
     return {"stall": stall_torque(model, actuators), "dcmotor": dcmotor_mask(model, actuators),
-            "slide": slide}
+            "slide": slide, "shared": shared if shared.any() else None}

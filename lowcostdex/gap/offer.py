@@ -45,6 +45,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
+from lowcostdex.errors import ConfigError
 from lowcostdex.gap import band_motion, ramps
 from lowcostdex.gap.band_motion import actuator_of as _actuator_of
 from lowcostdex.gap.band_motion import blocked_dofs as _blocked
@@ -72,11 +73,36 @@ def available_candidates(ds: Dataset, requested: Sequence[str] | None) -> list[s
     replay with the data and cannot be seen (on clean data a 1 mrad read error of each log's
     first sample was named one), and a mounting offset on a velocity goal means nothing."""
     chans = ds.channels()
+    tendon = tendon_driven(ds)
     names = list(requested) if requested is not None else [
-        c for c in CAUSES if (offered(ds, c) if c in GATES else c not in OPT_IN)]
+        c for c in CAUSES if (tendon is None or c in ON_TENDON)
+        and (offered(ds, c) if c in GATES else c not in OPT_IN)]
+    if tendon is not None and (out := [n for n in names if n not in ON_TENDON]):
+        raise ConfigError(f"{', '.join(out)}: not analysed on a model whose joints are driven "
+                          f"through a tendon ({', '.join(tendon)}); the effects analysed there: "
+                          f"{', '.join(ON_TENDON)} ({TENDON_WHY})")
     if set(ds.actuators) <= rate_goal_actuators(ds.compiled(ds.trajectories[0].model)):
         names = [n for n in names if n not in ("position_offset", "mounting_offset")]
     return [n for n in names if all(c in chans for c in effect(n).requires)]
+
+
+# The causes analysed where an effect joint is driven through a tendon's servo: the servo's
+# own (its actuator's delay, kp and force range: ``spaces.SERVO_SIDE``) and the joints' (their
+# friction, damping, links' mass, readings). Not yet, and why (TENDON_WHY):
+ON_TENDON = ("latency", "coulomb_friction", "stribeck_friction", "viscous_damping", "gain_error",
+             "torque_limit", "position_offset", "mass_error", "sensor_scale")
+TENDON_WHY = ("a play at the horn needs a joint between the servo and the tendon; the gear "
+              "friction, a speed limit, a mounting offset, a deadband and a goal profile act on "
+              "the actuator's coordinate, which no log reads; the rotor's inertia is the "
+              "tendon's armature, not a joint's")
+
+
+def tendon_driven(ds: Dataset) -> list[str] | None:
+    """The effect joints driven through a tendon's servo, None when there is none."""
+    m = ds.compiled(ds.trajectories[0].model)
+    out = [j for j in ds.effect_joints if m.actuator_trntype[_actuator_of(m, j)]
+           != mujoco.mjtTrn.mjTRN_JOINT]
+    return out or None
 
 
 def offered(ds: Dataset, name: str) -> bool:

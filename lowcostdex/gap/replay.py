@@ -450,9 +450,11 @@ class Replayer:
                 tk = (key, tuple(e.joints))
                 if tk not in cache:
                     cache[tk] = [self._act_of_joint[key].get(j) for j in e.joints]
+                seen = set()  # a tendon's servo: its first joint's delay (``Targets.owners``)
                 for col, d in zip(cache[tk], e.values["delay"], strict=True):
-                    if col is not None:
+                    if col is not None and col not in seen:
                         out[s, col] = max(float(d), 0.0)
+                        seen.add(col)
         return out
 
     def _shifted(self, w: Window, delay: np.ndarray

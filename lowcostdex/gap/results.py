@@ -8,15 +8,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from lowcostdex.errors import ConfigError, check_choice, check_number, keyword_hints
 from lowcostdex.gap import fit as fitmod
 from lowcostdex.gap.dataset import Split, Window
 from lowcostdex.gap.gain import Gain
+from lowcostdex.gap.spaces import SERVO_SIDE
 from lowcostdex.sim.effects import CAUSES, AppliedEffect, effect
 from lowcostdex.sim.servo import MAX_SERVO_PERIOD
 
@@ -390,6 +392,22 @@ def param_report(s: fitmod.Structure, u: np.ndarray, half: np.ndarray, name: str
             d.setdefault("step_shift", [0.0] * nj)[f.joint] = (f.from_u(u[i] + shift[i])
                                                               - f.from_u(u[i]))
     return out
+
+
+def servo_keyed(c: Cause, model: mujoco.MjModel, targets) -> Cause:
+    """A servo-side cause (``spaces.SERVO_SIDE``) of a servo that drives its joints through a
+    tendon keyed by that ACTUATOR, in its own unit (its first joint carries the fitted values,
+    the others share them: ``Context.shared``); every other cause as it was."""
+    own = targets.owners
+    if c.effect not in SERVO_SIDE or own is None:
+        return c
+    acts = targets.actuators[own]
+    names = tuple(model.actuator(int(a)).name if model.actuator_trntype[a]
+                  != mujoco.mjtTrn.mjTRN_JOINT else c.joints[i] for i, a in zip(own, acts,
+                                                                                strict=True))
+    params = {p: {k: ([v[i] for i in own] if isinstance(v, list) else v) for k, v in d.items()}
+              for p, d in c.params.items()}
+    return replace(c, joints=names, params=params)
 
 
 def param_interval(f: fitmod.Free, u: float, half: float) -> list[float]:

@@ -28,6 +28,10 @@ _EXTRA_STARTS: dict[tuple[str, str], tuple[float, ...]] = {
     ("gain_error", "scale"): (0.5, 2.0),  # a 2.5x gain from 1.0 crept to 1.33 (LM, 2 ms step)
 }
 
+# Effects of the servo itself (written on its actuator): a servo that drives several joints
+# through a tendon has one value, on its first joint (``Context.shared``).
+SERVO_SIDE = ("latency", "gain_error", "torque_limit")
+
 
 @dataclass(frozen=True)
 class Context:
@@ -43,6 +47,9 @@ class Context:
       dcmotor: (nj,) which servos are dcmotors (None: those with a finite stall torque).
       slide: (nj,) which joints are slides (forces in N: the catalogue's N m hard limits on a
         dry friction or a torque limit do not bound them; None: none).
+      shared: (nj,) which joints share an earlier joint's servo (a tendon's actuator over
+        both): the servo's parameters (``SERVO_SIDE``) are free on its first joint only and
+        held at their null here (None: every joint has its own).
     """
 
     dt: float
@@ -52,6 +59,7 @@ class Context:
     widened: dict[tuple[str, str, int], tuple[float, float]] = field(default_factory=dict)
     dcmotor: np.ndarray | None = None
     slide: np.ndarray | None = None
+    shared: np.ndarray | None = None
 
     @property
     def is_dcmotor(self) -> np.ndarray:  # (nj,) bool: where a ``Param.on`` "dcmotor" acts
@@ -156,6 +164,8 @@ def space(name: str, param: str, j: int, ctx: Context) -> Free:
         fd = 1e-3
     if (name, param, j) in ctx.widened:
         lo, hi = ctx.widened[(name, param, j)]
+    if name in SERVO_SIDE and ctx.shared is not None and ctx.shared[j]:
+        lo = hi = p.null  # a servo shared with an earlier joint: fitted there, once
     start = float(np.clip(start, lo, hi))
     extra = tuple(float(np.clip(e, lo, hi)) for e in extra)
     floor_null = (name, param) == ("latency", "delay") and lo > p.null

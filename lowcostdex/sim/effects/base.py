@@ -146,20 +146,38 @@ class Targets:
         return (True, bool(np.all(has)), np.where(has, self.play_qpos, 0),
                 np.where(has, self.play_dofs, 0))
 
+    @functools.cached_property
+    def owners(self) -> np.ndarray | None:
+        """Indices of the targets whose actuator no earlier target shares (a tendon's servo
+        driving several joints is written once, from its first joint's values); None when
+        every target has an actuator of its own (joint actuators: the effects as before)."""
+        _, first = np.unique(self.actuators, return_index=True)
+        return None if len(first) == len(self.actuators) else np.sort(first)
+
+    def servos(self, lead: tuple[int, ...], *values: np.ndarray
+               ) -> tuple[Targets, list[np.ndarray]]:
+        """These targets and per-target ``values`` (..., n) restricted to one target per
+        actuator (``owners``; unchanged when none is shared): servo-side effects write each
+        actuator once."""
+        own = self.owners
+        if own is None:
+            return self, list(values)
+        vals = [np.broadcast_to(np.asarray(v, float), lead + (len(self.actuators),))[..., own]
+                for v in values]
+        sub = Targets(tuple(self.joints[i] for i in own), self.actuators[own], self.dofs[own],
+                      self.qpos[own], self.bodies[own])
+        return sub, vals
+
     @classmethod
     def resolve(cls, model: mujoco.MjModel, joints: tuple[str, ...] | list[str]) -> Targets:
-        """Resolve joint names; each must be a hinge/slide driven by exactly one actuator."""
+        """Resolve joint names; each must be a hinge/slide driven by exactly one actuator: one
+        on the joint, or (none there) one on a fixed tendon over it (``driving_actuator``)."""
         names = [model.joint(i).name for i in range(model.njnt)]
         acts, dofs, qpos, bodies, play = [], [], [], [], []
         for jn in joints:
             check_choice("joint", jn, names)
             jid = model.joint(jn).id
-            driving = np.flatnonzero((model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
-                                     & (model.actuator_trnid[:, 0] == jid))
-            if len(driving) != 1:
-                raise ConfigError(f"joint {jn!r} must be driven by exactly one actuator, "
-                                  f"found {len(driving)}")
-            acts.append(int(driving[0]))
+            acts.append(driving_actuator(model, jn))
             dofs.append(int(model.jnt_dofadr[jid]))
             qpos.append(int(model.jnt_qposadr[jid]))
             bodies.append(int(model.jnt_bodyid[jid]))
@@ -171,6 +189,37 @@ class Targets:
         pd = np.where(has, model.jnt_dofadr[np.maximum(play_a, 0)], -1) if len(play_a) else play_a
         return cls(tuple(joints), np.array(acts, int), np.array(dofs, int), np.array(qpos, int),
                    np.array(bodies, int), play_a, np.asarray(pq, int), np.asarray(pd, int))
+
+
+def tendon_actuators(model: mujoco.MjModel, jid: int) -> list[int]:
+    """Actuators on a tendon that wraps joint ``jid`` (a fixed tendon's joint term)."""
+    out = []
+    for a in np.flatnonzero(model.actuator_trntype == mujoco.mjtTrn.mjTRN_TENDON):
+        t = int(model.actuator_trnid[a, 0])
+        wraps = range(model.tendon_adr[t], model.tendon_adr[t] + model.tendon_num[t])
+        if any(model.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and model.wrap_objid[w] == jid
+               for w in wraps):
+            out.append(int(a))
+    return out
+
+
+def driving_actuator(model: mujoco.MjModel, joint: str) -> int:
+    """The one actuator driving ``joint``: an actuator on the joint itself, or where there is
+    none, the one actuator on a tendon over it (a tendon-driven finger's servo, shared by the
+    joints its cable crosses: it acts on the actuator's own coordinate, gear x tendon length)."""
+    jid = model.joint(joint).id
+    driving = np.flatnonzero((model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT)
+                             & (model.actuator_trnid[:, 0] == jid))
+    if len(driving) == 0:
+        driving = tendon_actuators(model, jid)
+        if len(driving) == 1:
+            return int(driving[0])
+        raise ConfigError(f"joint {joint!r} must be driven by exactly one actuator (on it, or "
+                          f"on a tendon over it), found {len(driving)} on tendons")
+    if len(driving) != 1:
+        raise ConfigError(f"joint {joint!r} must be driven by exactly one actuator, "
+                          f"found {len(driving)}")
+    return int(driving[0])
 
 
 class Effect:

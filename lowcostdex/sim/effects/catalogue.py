@@ -51,14 +51,16 @@ class Latency(Effect):
     def prepare(cls, spec: mujoco.MjSpec, joints: tuple[str, ...]) -> None:
         dt = spec.option.timestep
         need = int(math.ceil(cls.params[0].hard[1] / dt)) + 2
-        for act in spec.actuators:
-            if act.target in joints:
+        for act in spec.actuators:  # (a tendon's servo may drive the joints: room for it)
+            if act.target in joints or act.trntype == mujoco.mjtTrn.mjTRN_TENDON:
                 act.nsample = max(act.nsample, need)
                 act.interp = 1  # linear: fractional delays between timesteps
 
     @classmethod
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:
-        f.array("actuator_delay")[..., t.actuators] = v["delay"]
+        arr = f.array("actuator_delay")
+        t, (delay,) = t.servos(arr.shape[:-1], v["delay"])  # a shared servo once
+        arr[..., t.actuators] = delay
 
 
 # The stiffest friction constraint the step allows (time constant clamped up to 2 physics steps by
@@ -158,6 +160,7 @@ class GainError(Effect):
         bias, nom_bias = f.array("actuator_biasprm"), f.nominal("actuator_biasprm")
         s = np.asarray(v["scale"], dtype=float)
         s = np.broadcast_to(s, g.shape[:-2] + (len(t.actuators),))
+        t, (s,) = t.servos(g.shape[:-2], s)  # a tendon's servo shared by joints: once
         dc = _dcmotor(f, t)
         gaintype = f.nominal("actuator_gaintype")[t.actuators]
         other = ~dc & (gaintype != int(mujoco.mjtGain.mjGAIN_FIXED))
@@ -199,9 +202,13 @@ class TorqueLimit(Effect):
     def apply(cls, f: Fields, t: Targets, v: Values) -> None:
         # the force range becomes +-torque, never wider than the nominal range; the null (inf)
         # keeps the nominal range and limit flag (a force-limited actuator stays as it was)
+        t, (torque,) = t.servos(f.array("actuator_forcerange").shape[:-2], v["torque"])
         a = t.actuators
-        # joint torque -> actuator force (a gear's force range is in actuator units)
-        tau = np.asarray(v["torque"], dtype=float) / np.abs(f.nominal("actuator_gear")[a, 0])
+        # joint torque -> actuator force (a gear's force range is in actuator units); on a
+        # tendon's servo the torque is already the actuator's own (N m at its horn)
+        gear = np.where(f.nominal("actuator_trntype")[a] == int(mujoco.mjtTrn.mjTRN_JOINT),
+                        np.abs(f.nominal("actuator_gear")[a, 0]), 1.0)
+        tau = np.asarray(torque, dtype=float) / gear
         nom_rng = f.nominal("actuator_forcerange")[a]
         nom_lim = f.nominal("actuator_forcelimited")[a] > 0
         lo_nom = np.where(nom_lim, nom_rng[:, 0], -np.inf)
