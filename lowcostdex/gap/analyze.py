@@ -524,7 +524,7 @@ def _analyze(ds: Dataset, cfg: GapConfig, prog: Progress) -> GapResult:
                 c.flags += uncapped_velocity(ds, e.joints, c.params)
             c.equivalent = equivalents.get(e.name, [])
             c.widened = widened_notes.get(e.name) or gates.widened_lines(ctx, e.name, joints)
-            causes.append(servo_keyed(c, m0, targets))
+            causes.append(c if ctx.shared is None else servo_keyed(c, m0, targets))
     final = eng.predict(eps, [effects])[0] if effects else base_pred  # every log, for a drift
     drift = session_drift(per_log(ds, eps, final), floor_rms, cfg.explain_above)
     verdict = standin.judge(causes, final_track, gain, stop_reason, int(np.sum(e_sse > b_sse)),
