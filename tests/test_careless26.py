@@ -506,3 +506,28 @@ def test_a_batch_plant_of_a_fractional_number_of_simulations_is_refused():
         from lowcostdex.sim.plant import BatchPlant
 
         BatchPlant(mujoco.MjModel.from_xml_string(_TWO), 2.5, nthread=1)
+
+
+@pytest.mark.parametrize("make,said", [
+    (lambda c: c.StateCost(np.zeros(2), np.ones(2), l2=np.nan), r"StateCost.l2=nan must be a "
+                                                                 r"finite number in \[0, inf\)"),
+    (lambda c: c.StateCost(np.zeros(2), np.ones(2), alpha=np.nan), r"StateCost.alpha=nan"),
+    (lambda c: c.StateCost(np.zeros(2), np.ones(2), final_multiplier=np.inf),
+     r"StateCost.final_multiplier=inf must be a finite number"),
+    (lambda c: c.StateCost(np.zeros(2), np.ones(2), final_steps=1.5),
+     r"StateCost.final_steps=1.5 must be an integer"),
+    (lambda c: c.ActionCost(np.ones(2), final_multiplier=np.nan),
+     r"ActionCost.final_multiplier=nan must be a finite number"),
+    (lambda c: c.StateCost(np.zeros(2), np.ones(2)).evaluate(np.zeros((5, 3)), np.zeros((5, 1))),
+     r"states of 3 coordinates; this cost weighs 2 \(weights, target\)"),
+    (lambda c: c.ActionCost(np.ones(2)).evaluate(np.zeros((5, 3)), np.zeros((5, 1))),
+     r"actions of 1 coordinates; this cost weighs 2 \(weights, target\)"),
+])
+def test_a_local_model_cost_with_a_nan_weight_or_another_size_is_named(make, said):
+    # before: a NaN l2, alpha or multiplier passed every comparison and made every cost NaN;
+    # final_steps 1.5 failed in numpy's slice; a state or action of another size raised numpy's
+    # broadcast / einsum error
+    from lowcostdex.algos.local_models import costs
+
+    with pytest.raises(ConfigError, match=said):
+        make(costs)

@@ -20,7 +20,7 @@ from typing import Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from lowcostdex.errors import ConfigError, check_choice
+from lowcostdex.errors import ConfigError, check_choice, check_number
 
 Array = NDArray[np.float64]
 RampKind = Literal["constant", "linear", "quadratic", "final_only"]
@@ -155,16 +155,20 @@ class StateCost:
             raise ConfigError(
                 f"target {self.target.shape} and weights {self.weights.shape} differ in shape"
             )
-        if np.any(self.weights < 0) or self.l2 < 0 or self.l1 < 0:
-            raise ConfigError("weights, l2 and l1 must be >= 0")
-        if self.alpha <= 0:
-            raise ConfigError(f"alpha={self.alpha} must be > 0")
+        if np.any(self.weights < 0):
+            raise ConfigError("StateCost weights must be >= 0")
+        check_number("StateCost.l2", self.l2, 0)  # (a NaN passed every comparison: a NaN cost)
+        check_number("StateCost.l1", self.l1, 0)
+        check_number("StateCost.alpha", self.alpha, 0, low_open=True)
+        check_number("StateCost.final_multiplier", self.final_multiplier)
         check_choice("ramp", self.ramp, RAMP_KINDS)
-        if self.final_steps < 1:
-            raise ConfigError(f"final_steps={self.final_steps} must be >= 1")
+        check_number("StateCost.final_steps", self.final_steps, 1, integer=True)
 
     def evaluate(self, X: Array, U: Array) -> CostDerivatives:
         T, dX = X.shape
+        if dX != self.weights.shape[0]:  # (before: numpy's broadcast error)
+            raise ConfigError(f"states of {dX} coordinates; this cost weighs "
+                              f"{self.weights.shape[0]} (weights, target)")
         if self.target.ndim == 2 and self.target.shape[0] != T:
             raise ConfigError(f"target has {self.target.shape[0]} steps, the trajectory {T}")
         out = _zeros(T, dX, U.shape[1])
@@ -222,9 +226,13 @@ class ActionCost:
         if not np.all(np.isfinite(self.target)):
             raise ConfigError("action target must be finite")
         check_choice("ramp", self.ramp, RAMP_KINDS)
+        check_number("ActionCost.final_multiplier", self.final_multiplier)
 
     def evaluate(self, X: Array, U: Array) -> CostDerivatives:
         T, dU = U.shape
+        if dU != self.weights.shape[0]:  # (before: numpy's einsum error)
+            raise ConfigError(f"actions of {dU} coordinates; this cost weighs "
+                              f"{self.weights.shape[0]} (weights, target)")
         if self.target.ndim == 2 and self.target.shape[0] != T:
             raise ConfigError(f"action target has {self.target.shape[0]} steps, the trajectory {T}")
         out = _zeros(T, X.shape[1], dU)
