@@ -531,3 +531,26 @@ def test_a_local_model_cost_with_a_nan_weight_or_another_size_is_named(make, sai
 
     with pytest.raises(ConfigError, match=said):
         make(costs)
+
+
+@pytest.mark.parametrize("change,said", [
+    ({"data": "nan"}, r"fit_gmm data holds nan \(row 2\): must be finite numbers"),
+    ({"data": "1d"}, r"fit_gmm data of shape \(50,\) must be \(N, D\)"),
+    ({"n_clusters": 2.5}, r"n_clusters=2.5 must be an integer in \[1, inf\)"),
+    ({"rng": 0}, r"rng=0 must be a seeded numpy Generator"),
+    ({"rng": None}, r"fit_gmm needs rng, a seeded numpy Generator"),
+])
+def test_the_dynamics_prior_mixture_names_careless_data_and_settings(change, said):
+    # before: NaN points fitted a NaN mixture without a word (the dynamics prior of every later
+    # fit), (N,) data "not enough values to unpack", K 2.5 a TypeError, rng 0 / None
+    # "object has no attribute 'permutation'"
+    from lowcostdex.algos.local_models.gmm import fit_gmm
+
+    data = np.random.default_rng(0).normal(size=(50, 3))
+    edited = {"nan": np.where(np.arange(150).reshape(50, 3) == 7, np.nan, data),
+              "1d": data[:, 0]}
+    kw = {"data": data, "n_clusters": 2, "rng": np.random.default_rng(1), **change}
+    if isinstance(kw["data"], str):
+        kw["data"] = edited[kw["data"]]
+    with pytest.raises(ConfigError, match=said):
+        fit_gmm(kw.pop("data"), kw.pop("n_clusters"), **kw)

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import logsumexp
 
-from lowcostdex.errors import ConfigError
+from lowcostdex.errors import ConfigError, check_number, check_rng, check_rows
 
 Array = NDArray[np.float64]
 
@@ -116,6 +116,16 @@ def fit_gmm(
       tol: relative log-likelihood tolerance.
       reg: added to every covariance diagonal.
     """
+    # (before: NaN points fitted a NaN mixture without a word, (N,) data "not enough values to
+    # unpack", K 2.5 a TypeError, rng=0 "'int' object has no attribute 'permutation'")
+    if np.ndim(data) != 2:
+        raise ConfigError(f"fit_gmm data of shape {np.shape(data)} must be (N, D): N points of "
+                          "D numbers (one point: data[None])")
+    check_rows("fit_gmm data", data, np.shape(data)[1], "points (N, D), one per row")
+    data = np.asarray(data, dtype=np.float64)
+    if check_rng("rng", rng) is None:
+        raise ConfigError("fit_gmm needs rng, a seeded numpy Generator: np.random.default_rng(0)")
+    check_number("n_clusters", n_clusters, 1, integer=True)
     N, D = data.shape
     if n_clusters < 1 or n_clusters > N:
         raise ConfigError(f"n_clusters={n_clusters} must be in [1, {N}] for {N} points")
