@@ -554,3 +554,18 @@ def test_the_dynamics_prior_mixture_names_careless_data_and_settings(change, sai
         kw["data"] = edited[kw["data"]]
     with pytest.raises(ConfigError, match=said):
         fit_gmm(kw.pop("data"), kw.pop("n_clusters"), **kw)
+
+
+def test_a_vector_env_refuses_reset_options_it_would_ignore():
+    # before: vec.reset(options={"goal": ...}) (or qpos) was ignored without a word: the copies
+    # started from the task's own distribution
+    from lowcostdex.sim.vector import make_vec
+
+    vec = make_vec("lowcostdex/DClawTurnValve-v0", num_envs=2, nthread=1)
+    try:
+        with pytest.raises(ConfigError, match=r"reset\(options=\{'goal'\}\): the vector env takes "
+                                              r"no reset options .* on one env"):
+            vec.reset(seed=0, options={"goal": {"angle": 1.0}})
+        vec.reset(seed=0, options={})  # none given: as before
+    finally:
+        vec.close()

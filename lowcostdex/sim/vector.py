@@ -131,8 +131,14 @@ class HandVectorEnv(gym.vector.VectorEnv):
         return info
 
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
-        """Reset every copy; copy ``i`` is seeded with ``seed + i`` (or ``seed[i]``)."""
+        """Reset every copy; copy ``i`` is seeded with ``seed + i`` (or ``seed[i]``). No
+        ``options``: the copies start from the task's own distribution."""
         self._check_open("reset")
+        if options:  # (before: ignored without a word: a goal or start given here did nothing)
+            raise ConfigError(f"reset(options={{{', '.join(map(repr, options))}}}): the vector "
+                              "env takes no reset options (its copies start from the task's own "
+                              "distribution); a fixed qpos / qvel / goal works on one env "
+                              "(gym.make(...).reset(options=...))")
         if seed is not None:
             many = isinstance(seed, (list, tuple, np.ndarray))
             if many and len(seed) != self.num_envs:
