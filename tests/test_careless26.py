@@ -88,6 +88,8 @@ def test_a_replayer_refuses_what_is_no_dataset_or_a_goal_it_cannot_replay():
      r"reach; in rad, not deg \(400 deg is 6.981 rad\)"),
     ("lowcostdex/DClawTurnValve-v0", {"angle": -90},
      r"goal\['angle'\]=-90 is outside \[-18.85, 18.85\] rad"),
+    ("lowcostdex/AllegroTurnValve-v0", {"angle": 360.0},
+     r"goal\['angle'\]=360.0 is outside \[-18.85, 18.85\] rad.*\(360 deg is 6.283 rad\)"),
     ("lowcostdex/DClawScrew-v0", {"angle": 0.0, "start": 0.0, "speed": 30.0},
      r"goal\['speed'\]=30.0 is outside \[-6.283, 6.283\] rad/s, the farthest this task's "
      r"settings reach; in rad/s, not deg/s \(30 deg/s is 0.5236 rad/s\)"),
