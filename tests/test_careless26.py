@@ -8,16 +8,9 @@ import math
 import mujoco
 import numpy as np
 import pytest
+from test_careless25 import _TWO  # two hinges on plain position servos (kp 2)
 
 from lowcostdex.errors import ConfigError
-
-_TWO = """<mujoco><option timestep="0.002"/><worldbody>
-<body><joint name="a" type="hinge" damping="0.1"/>
-<geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0" mass="0.1"/></body>
-<body pos="0 1 0"><joint name="b" type="hinge" damping="0.1"/>
-<geom type="capsule" size="0.02" fromto="0 0 0 0.1 0 0" mass="0.1"/></body></worldbody>
-<actuator><position name="a" joint="a" kp="2"/><position name="b" joint="b" kp="2"/></actuator>
-</mujoco>"""
 
 
 def _trajectory(t: np.ndarray, name: str = "arm"):
