@@ -41,6 +41,7 @@ from lowcostdex.gap.logs import (
     split_at_gaps,
 )
 from lowcostdex.sim.effects import Targets
+from lowcostdex.sim.effects.base import tendon_actuators
 from lowcostdex.sim.models.bench import build_bench
 from lowcostdex.sim.servo import MAX_SERVO_PERIOD
 
@@ -360,12 +361,8 @@ def _absolute_asset_dirs(spec: mujoco.MjSpec, model: Path) -> None:
 
 def _drive(m: mujoco.MjModel, jid: int) -> tuple[int, list[str]]:
     """How joint ``jid`` is driven: (actuators on the joint itself, actuated tendons over it)."""
-    kind, on = m.actuator_trntype, m.actuator_trnid[:, 0]
-    n = int(np.sum((kind == mujoco.mjtTrn.mjTRN_JOINT) & (on == jid)))
-    via = [m.tendon(int(t)).name for t in on[kind == mujoco.mjtTrn.mjTRN_TENDON]
-           if any(m.wrap_type[w] == mujoco.mjtWrap.mjWRAP_JOINT and m.wrap_objid[w] == jid
-                  for w in range(m.tendon_adr[t], m.tendon_adr[t] + m.tendon_num[t]))]
-    return n, via
+    n = int(np.sum((m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT) & (m.actuator_trnid[:, 0] == jid)))
+    return n, [m.tendon(int(m.actuator_trnid[a, 0])).name for a in tendon_actuators(m, jid)]
 
 
 def _unshared_joints(ds: Dataset) -> list[str]:
