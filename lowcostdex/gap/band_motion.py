@@ -74,7 +74,7 @@ def _rows(ds: Dataset, ti: int, floor: np.ndarray) -> dict[str, tuple[np.ndarray
     m = ds.compiled(tr.model)
     d = mujoco.MjData(m)
     joints = [j for j in ds.effect_joints if j in tr.joints
-              and is_motor(m, actuator_of(m, j)) and _name(m, actuator_of(m, j)) in tr.actuators]
+              and is_motor(m, driving_actuator(m, j)) and _name(m, driving_actuator(m, j)) in tr.actuators]
     t = tr.time
     if not joints or len(t) < 3:
         return {}
@@ -91,7 +91,7 @@ def _rows(ds: Dataset, ti: int, floor: np.ndarray) -> dict[str, tuple[np.ndarray
     dof = [int(m.jnt_dofadr[m.joint(n).id]) for n in tr.joints]
     act = [m.actuator(n).id for n in tr.actuators]
     vj = [int(m.jnt_dofadr[m.joint(j).id]) for j in joints]
-    aj = [actuator_of(m, j) for j in joints]
+    aj = [driving_actuator(m, j) for j in joints]
     gear = np.array([float(m.actuator_gear[a, 0]) for a in aj])
     # per row (all rows: forces held over each period): actuator, gravity, passive, drive
     T = len(t)
@@ -181,12 +181,6 @@ def _slope(m: mujoco.MjModel, d: mujoco.MjData, adr: list[int], qpos: np.ndarray
 def _name(m: mujoco.MjModel, a: int) -> str:
     """Actuator ``a``'s name."""
     return mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
-
-
-def actuator_of(m: mujoco.MjModel, joint: str) -> int:
-    """The one actuator driving ``joint`` (an effect joint has exactly one: on it, or a
-    tendon's over it)."""
-    return driving_actuator(m, joint)
 
 
 def is_motor(m: mujoco.MjModel, a: int) -> bool:

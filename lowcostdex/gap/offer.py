@@ -47,7 +47,6 @@ import numpy as np
 
 from lowcostdex.errors import ConfigError
 from lowcostdex.gap import band_motion, ramps
-from lowcostdex.gap.band_motion import actuator_of as _actuator_of
 from lowcostdex.gap.band_motion import blocked_dofs as _blocked
 from lowcostdex.gap.band_motion import is_motor as _is_motor
 from lowcostdex.gap.band_motion import set_pose
@@ -55,6 +54,7 @@ from lowcostdex.gap.dataset import Dataset
 from lowcostdex.gap.diagnostics import noise_floor
 from lowcostdex.gap.logs import rate_goal_actuators
 from lowcostdex.sim.effects import CAUSES, OPT_IN, effect
+from lowcostdex.sim.effects.base import driving_actuator
 
 SETTLE = 0.3  # [s] a rest: joints still and position goals held this long
 STILL = 6.0  # joints "still": within this many noise floors (RMS) over SETTLE
@@ -100,7 +100,7 @@ TENDON_WHY = ("a play at the horn needs a joint between the servo and the tendon
 def tendon_driven(ds: Dataset) -> list[str] | None:
     """The effect joints driven through a tendon's servo, None when there is none."""
     m = ds.compiled(ds.trajectories[0].model)
-    out = [j for j in ds.effect_joints if m.actuator_trntype[_actuator_of(m, j)]
+    out = [j for j in ds.effect_joints if m.actuator_trntype[driving_actuator(m, j)]
            != mujoco.mjtTrn.mjTRN_JOINT]
     return out or None
 
@@ -126,7 +126,7 @@ def rests(ds: Dataset) -> dict[str, list[tuple[int, int, int]]]:
         for j in out:
             c = tr.joints.index(j)
             ok = base & (_window_range(tr.qpos[:, c], back) <= STILL * max(floor[c], 1e-9))
-            a = _actuator_of(m, j)
+            a = driving_actuator(m, j)
             name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)
             if name in tr.actuators:
                 i = tr.actuators.index(name)
